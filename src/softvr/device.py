@@ -1,0 +1,108 @@
+"""Choice of Warp device, and one helper that spreads a CPU launch over all cores.
+
+Warp runs a CPU launch on one thread but releases the GIL while it runs, so launching
+one chunk of the thread range per core from a thread pool uses every core (DESIGN.md:
+1.9-2.0x on 2 cores). Kernels that go through :func:`launch` take the first thread
+index of their chunk as their last argument and add it to ``wp.tid()``.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
+
+import warp as wp
+
+from softvr.errors import InputError
+
+__all__ = ["cpu_workers", "launch", "resolve_device"]
+
+
+@lru_cache(maxsize=1)
+def _init() -> None:
+    wp.config.quiet = True
+    wp.init()
+
+
+def resolve_device(device: str | None = None) -> str:
+    """Return the Warp device name to run on.
+
+    Parameters
+    ----------
+    device : {"cpu", "cuda", "cuda:N", None}
+        ``None`` picks ``"cuda"`` when a CUDA device is present, else ``"cpu"``.
+    """
+    _init()
+    if device is None:
+        return "cuda:0" if wp.is_cuda_available() else "cpu"
+    name = str(device)
+    if name == "cuda":
+        name = "cuda:0"
+    if name.startswith("cuda") and not wp.is_cuda_available():
+        raise InputError("device", "'cpu' (no CUDA device is present here)", repr(device))
+    if name != "cpu" and not name.startswith("cuda"):
+        raise InputError("device", "'cpu', 'cuda' or 'cuda:N'", repr(device))
+    try:
+        return str(wp.get_device(name))
+    except Exception as exc:  # Warp raises a bare error for unknown ordinals
+        raise InputError("device", "an existing Warp device", f"{device!r} ({exc})") from None
+
+
+def cpu_workers() -> int:
+    """Number of threads used for CPU launches (``SOFTVR_NUM_THREADS`` or all cores)."""
+    env = os.environ.get("SOFTVR_NUM_THREADS")
+    if env:
+        return max(1, int(env))
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+
+
+@lru_cache(maxsize=None)
+def _load(module, device: str) -> None:
+    """Compile/load a kernel's module once, before chunks race to do it from several threads."""
+    wp.load_module(module, device=device)
+
+
+@lru_cache(maxsize=8)
+def _pool(workers: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="softvr-launch")
+
+
+def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> None:
+    """Launch a 1-D ``kernel`` over ``dim`` threads, split across CPU cores.
+
+    The kernel's last parameter must be an ``int`` thread offset: chunk ``c`` is launched
+    with ``dim_c`` threads and offset ``start_c``, and the kernel uses
+    ``wp.tid() + offset``. On CUDA this is one launch with offset 0.
+
+    Parameters
+    ----------
+    kernel : warp.Kernel
+    dim : int
+        Total number of threads.
+    inputs : list
+        Kernel arguments, without the trailing offset.
+    device : str
+        Warp device name.
+    min_chunk : int
+        Below ``2 * min_chunk`` threads the launch is not split.
+    """
+    if dim <= 0:
+        return
+    _load(kernel.module, device)
+    workers = cpu_workers() if device == "cpu" else 1
+    if workers == 1 or dim < 2 * min_chunk:
+        wp.launch(kernel, dim=dim, inputs=[*inputs, 0], device=device)
+        return
+    # More chunks than workers balance uneven per-thread work (rows of different length).
+    chunks = min(workers * 4, max(1, dim // min_chunk))
+    bounds = [dim * c // chunks for c in range(chunks + 1)]
+    futures = [
+        _pool(workers).submit(
+            wp.launch, kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]], device=device
+        )
+        for c in range(chunks)
+        if bounds[c + 1] > bounds[c]
+    ]
+    for f in futures:
+        f.result()

@@ -1,0 +1,217 @@
+"""Embedding tetrahedral meshes: a regular 5-tets-per-cube grid, user meshes, validation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from softvr.errors import InputError
+from softvr.volume._volume import Volume
+
+__all__ = ["check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_signed_volumes"]
+
+# Corner c = (a, b, c) of a unit cube has index a + 2 b + 4 c. A cube splits into the centre
+# tet of its 4 "odd" corners and the 4 corner tets of its "even" corners; mirrored cubes
+# (odd i + j + k) swap the roles, so that the diagonals on shared faces match.
+_EVEN_SPLIT = np.array([[0, 1, 2, 4], [3, 1, 2, 7], [5, 1, 4, 7], [6, 2, 4, 7], [1, 2, 4, 7]])
+_ODD_SPLIT = np.array([[1, 0, 3, 5], [2, 0, 3, 6], [4, 0, 5, 6], [7, 3, 5, 6], [0, 3, 5, 6]])
+
+
+def tet_signed_volumes(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes of tetrahedra, ``det[x1-x0, x2-x0, x3-x0] / 6``.
+
+    Parameters
+    ----------
+    nodes : ndarray, shape [node_count, 3]
+        Node positions [length units].
+    tets : ndarray, shape [tet_count, 4]
+        Node indices per tetrahedron.
+
+    Returns
+    -------
+    ndarray, shape [tet_count]
+        Signed volumes [length units^3]; positive for positively oriented tets.
+    """
+    p = np.asarray(nodes, dtype=np.float64)[np.asarray(tets)]
+    return np.linalg.det(p[:, 1:] - p[:, :1]) / 6.0
+
+
+def _cells3(cells, name: str = "cells") -> np.ndarray:
+    c = np.broadcast_to(np.asarray(cells), (3,)).copy() if np.ndim(cells) == 0 else np.asarray(cells)
+    if c.shape != (3,) or not np.issubdtype(c.dtype, np.integer) or np.any(c < 1):
+        raise InputError(name, "a positive int or three positive ints", repr(cells))
+    return c.astype(np.int64)
+
+
+def grid_tet_mesh(
+    volume: Volume, cells=8, *, mask: np.ndarray | None = None, threshold: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """A regular tetrahedral mesh embedding a volume: cubes split into 5 tets each.
+
+    The grid spans the volume's footprint, the box from half a voxel before voxel
+    (0, 0, 0) to half a voxel past the last voxel, with ``cells`` cubes per axis, so that
+    every voxel centre lies strictly inside the mesh. Neighbouring cubes are split with alternating
+    orientation so that their shared faces carry the same diagonal (a conforming mesh).
+    With ``mask`` or ``threshold`` only cubes holding a selected voxel are kept, and
+    unused nodes are dropped.
+
+    Parameters
+    ----------
+    volume : Volume
+        The volume to embed.
+    cells : int or (int, int, int)
+        Cubes along x, y, z.
+    mask : ndarray of bool, shape [nx, ny, nz], optional
+        Keep cubes that contain at least one True voxel.
+    threshold : float, optional
+        Keep cubes that contain at least one voxel >= threshold (an iso-surface hull).
+
+    Returns
+    -------
+    nodes : ndarray, shape [node_count, 3], float64
+        Rest positions [volume spacing units, world frame].
+    tets : ndarray, shape [tet_count, 4], int32
+        Positively oriented tetrahedra; ``tet_count = 5 * kept cubes``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from softvr.volume import Volume, grid_tet_mesh
+    >>> nodes, tets = grid_tet_mesh(Volume(np.zeros((9, 9, 9), np.uint8)), cells=2)
+    >>> nodes.shape, tets.shape
+    ((27, 3), (40, 4))
+    """
+    c = _cells3(cells)
+    gx, gy, gz = (np.linspace(-0.5, n - 0.5, int(m) + 1) for n, m in zip(volume.shape, c))
+    ijk = np.stack(np.meshgrid(gx, gy, gz, indexing="ij"), axis=-1).reshape(-1, 3)
+    nodes = volume.index_to_world(ijk)
+
+    ci, cj, ck = np.meshgrid(*(np.arange(m) for m in c), indexing="ij")
+    ci, cj, ck = ci.ravel(), cj.ravel(), ck.ravel()
+    if mask is not None or threshold is not None:
+        sel = _selection(volume, mask, threshold)
+        keep = _cubes_with_selection(sel, c, ci, cj, ck)
+        ci, cj, ck = ci[keep], cj[keep], ck[keep]
+        if ci.size == 0:
+            raise InputError("mask" if mask is not None else "threshold", "at least one selected voxel", "none")
+    ny, nz = c[1] + 1, c[2] + 1
+    corner = np.stack(
+        [((ci + a) * ny + (cj + b)) * nz + (ck + d) for d in (0, 1) for b in (0, 1) for a in (0, 1)], axis=1
+    )
+    odd = ((ci + cj + ck) % 2 == 1)[:, None, None]
+    tets = np.where(odd, corner[:, _ODD_SPLIT], corner[:, _EVEN_SPLIT]).reshape(-1, 4)
+    neg = tet_signed_volumes(nodes, tets) < 0  # a left-handed direction matrix flips all
+    tets[neg] = tets[neg][:, [0, 2, 1, 3]]
+    used, tets = np.unique(tets, return_inverse=True)
+    return nodes[used], tets.reshape(-1, 4).astype(np.int32)
+
+
+def _selection(volume: Volume, mask, threshold) -> np.ndarray:
+    if mask is not None:
+        sel = np.asarray(mask, dtype=bool)
+        if sel.shape != volume.shape:
+            raise InputError("mask", f"a boolean array of the volume's shape {volume.shape}", f"shape {sel.shape}")
+        return sel
+    return volume.data >= threshold
+
+
+def _cubes_with_selection(sel: np.ndarray, c: np.ndarray, ci, cj, ck) -> np.ndarray:
+    """Whether each cube (ci, cj, ck) holds a selected voxel centre (cube bounds inclusive)."""
+    keep = np.zeros(ci.size, dtype=bool)
+    bounds = [np.linspace(-0.5, n - 0.5, int(m) + 1) for n, m in zip(sel.shape, c)]
+    lo = [np.maximum(np.ceil(b[:-1] - 1e-9).astype(int), 0) for b in bounds]
+    hi = [np.floor(b[1:] + 1e-9).astype(int) for b in bounds]
+    for n, (a, b, d) in enumerate(zip(ci, cj, ck)):
+        keep[n] = sel[lo[0][a] : hi[0][a] + 1, lo[1][b] : hi[1][b] + 1, lo[2][d] : hi[2][d] + 1].any()
+    return keep
+
+
+def check_tets(
+    nodes: np.ndarray, tets: np.ndarray, *, source: str | None = None, nodes_name: str = "nodes"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Validate a tetrahedral mesh and return it as (float64 nodes, int32 tets).
+
+    Rejects, with an :class:`~softvr.errors.InputError` naming the first bad element:
+    wrong shapes, non-finite positions, indices out of range, and tetrahedra that are
+    inverted (negative volume) or degenerate (volume below ``1e-12`` of the mesh's
+    bounding-box volume scale).
+
+    Parameters
+    ----------
+    nodes : array_like, shape [node_count, 3]
+        Node positions [length units].
+    tets : array_like, shape [tet_count, 4]
+        Node indices per tetrahedron, positively oriented.
+    source : str, optional
+        File or argument name to put in error messages.
+    """
+    x = np.asarray(nodes)
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] < 4:
+        raise InputError(nodes_name, "an array [node_count >= 4, 3]", f"shape {x.shape}", source)
+    x = x.astype(np.float64)
+    bad = ~np.isfinite(x).all(axis=1)
+    if bad.any():
+        n = int(np.argmax(bad))
+        raise InputError(f"{nodes_name}[{n}]", "finite coordinates", f"{x[n].tolist()} ({int(bad.sum())} such nodes)", source)
+    t = np.asarray(tets)
+    if t.ndim != 2 or t.shape[1] != 4 or t.shape[0] == 0:
+        raise InputError("tets", "an array [tet_count >= 1, 4] of node indices", f"shape {t.shape}", source)
+    if not np.issubdtype(t.dtype, np.integer):
+        raise InputError("tets", "integer node indices", f"dtype {t.dtype}", source)
+    out = (t < 0) | (t >= x.shape[0])
+    if out.any():
+        e = int(np.argmax(out.any(axis=1)))
+        raise InputError(f"tets[{e}]", f"node indices in [0, {x.shape[0] - 1}]", str(t[e].tolist()), source)
+    vol = tet_signed_volumes(x, t)
+    scale = float(np.prod(np.maximum(np.ptp(x, axis=0), 1e-300)))
+    degenerate = np.abs(vol) <= 1e-12 * scale
+    inverted = (vol < 0) & ~degenerate
+    for kind, sel in (("inverted (negative volume)", inverted), ("degenerate (zero volume)", degenerate)):
+        if sel.any():
+            e = int(np.argmax(sel))
+            raise InputError(
+                f"tets[{e}] = {t[e].tolist()}",
+                "a positively oriented tetrahedron",
+                f"an {kind} one, volume {vol[e]:.3g} ({int(sel.sum())} of {len(t)} tets are)",
+                source,
+            )
+    return x, t.astype(np.int32)
+
+
+def load_tet_mesh(path, *, fix_orientation: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Read a tetrahedral mesh with meshio (VTK/VTU, Gmsh, Medit, Abaqus, XDMF, ...).
+
+    Parameters
+    ----------
+    path : str or Path
+        Mesh file holding ``tetra`` cells.
+    fix_orientation : bool
+        Swap two nodes of negatively oriented tets instead of rejecting them.
+
+    Returns
+    -------
+    nodes : ndarray, shape [node_count, 3], float64
+    tets : ndarray, shape [tet_count, 4], int32
+    """
+    import meshio
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError("path", "an existing mesh file", "no such file", str(p))
+    try:
+        mesh = meshio.read(p)
+    except Exception as exc:
+        raise InputError("file", "a mesh file meshio can read", f"{type(exc).__name__}: {exc}", str(p)) from None
+    blocks = [c.data for c in mesh.cells if c.type == "tetra"]
+    if not blocks:
+        kinds = sorted({c.type for c in mesh.cells}) or ["none"]
+        raise InputError("cells", "tetra cells", f"cell types {kinds}", str(p))
+    nodes = np.asarray(mesh.points, dtype=np.float64)
+    if nodes.shape[1] == 2:
+        raise InputError("points", "3-D points", "2-D points", str(p))
+    tets = np.concatenate(blocks).astype(np.int64)
+    if fix_orientation:
+        neg = tet_signed_volumes(nodes, tets) < 0
+        tets[neg] = tets[neg][:, [0, 2, 1, 3]]
+    return check_tets(nodes, tets, source=str(p))

@@ -1,0 +1,82 @@
+"""Embedding meshes: the 5-tet grid is conforming, positively oriented and tiles the footprint."""
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from softvr.errors import InputError
+from softvr.volume import Volume, check_tets, grid_tet_mesh, load_tet_mesh
+from softvr.volume.tetmesh import tet_signed_volumes
+
+
+def _faces(tets):
+    return Counter(tuple(sorted(f)) for t in tets for f in (t[[1, 2, 3]], t[[0, 2, 3]], t[[0, 1, 3]], t[[0, 1, 2]]))
+
+
+@pytest.mark.parametrize("cells", [1, 2, (3, 2, 4)])
+def test_grid_mesh_tiles_the_footprint_and_conforms(cells):
+    vol = Volume(np.zeros((7, 6, 9), np.uint8), spacing=(0.5, 1.0, 2.0), origin=(1, 2, 3))
+    nodes, tets = grid_tet_mesh(vol, cells)
+    c = np.broadcast_to(cells, 3)
+    assert len(tets) == 5 * np.prod(c)
+    vols = tet_signed_volumes(nodes, tets)
+    assert (vols > 0).all()
+    # The tets tile the footprint box exactly: their volumes add up to its volume.
+    assert vols.sum() == pytest.approx(np.prod(np.array(vol.shape) * vol.spacing), rel=1e-12)
+    assert np.allclose(nodes.min(0), vol.origin - vol.spacing / 2)
+    # Conforming: interior faces are shared by exactly two tets; the boundary has 2 triangles per square.
+    counts = Counter(_faces(tets).values())
+    assert set(counts) <= {1, 2}
+    assert counts[1] == 4 * (c[0] * c[1] + c[1] * c[2] + c[0] * c[2])
+
+
+def test_grid_mesh_with_mask_keeps_cubes_touching_it():
+    vol = Volume(np.zeros((16, 16, 16), np.float32))
+    vol.data[2:5, 2:5, 2:5] = 1.0
+    # Cubes of 4 voxels span -0.5..3.5 (voxels 0-3) and 3.5..7.5 (voxels 4-7): voxels 2-4
+    # touch cubes 0 and 1 along each axis, so 8 cubes are kept.
+    for kw in ({"threshold": 0.5}, {"mask": vol.data > 0}):
+        nodes, tets = grid_tet_mesh(vol, 4, **kw)
+        assert len(tets) == 5 * 8 and (tet_signed_volumes(nodes, tets) > 0).all()
+        assert np.allclose(nodes.min(0), -0.5) and np.allclose(nodes.max(0), 7.5)
+
+
+def test_left_handed_direction_still_gives_positive_tets():
+    vol = Volume(np.zeros((4, 4, 4), np.uint8), direction=np.diag([1.0, -1.0, 1.0]))
+    nodes, tets = grid_tet_mesh(vol, 2)
+    assert (tet_signed_volumes(nodes, tets) > 0).all()
+
+
+def test_bad_meshes_are_rejected_by_name():
+    nodes = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], float)
+    with pytest.raises(InputError, match=r"tets\[1\].*inverted"):
+        check_tets(nodes, [[0, 1, 2, 3], [0, 2, 1, 3]])
+    with pytest.raises(InputError, match=r"tets\[0\].*degenerate"):
+        check_tets(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]], float), [[0, 1, 2, 3]])
+    with pytest.raises(InputError, match=r"tets\[0\].*node indices in \[0, 4\]"):
+        check_tets(nodes, [[0, 1, 2, 9]])
+    bad = nodes.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(InputError, match=r"nodes\[3\].*finite"):
+        check_tets(bad, [[0, 1, 2, 3]])
+    with pytest.raises(InputError, match="cells"):
+        grid_tet_mesh(Volume(np.zeros((3, 3, 3))), 0)
+
+
+def test_user_mesh_round_trips_through_meshio(tmp_path):
+    import meshio
+
+    vol = Volume(np.zeros((5, 5, 5), np.uint8))
+    nodes, tets = grid_tet_mesh(vol, 2)
+    path = tmp_path / "m.vtu"
+    meshio.write(path, meshio.Mesh(nodes, [("tetra", tets[:, [0, 2, 1, 3]])]))
+    with pytest.raises(InputError, match="inverted"):
+        load_tet_mesh(path)
+    n2, t2 = load_tet_mesh(path, fix_orientation=True)
+    assert np.allclose(n2, nodes) and (tet_signed_volumes(n2, t2) > 0).all()
+    meshio.write(tmp_path / "tri.vtu", meshio.Mesh(nodes, [("triangle", tets[:, :3])]))
+    with pytest.raises(InputError, match="tetra"):
+        load_tet_mesh(tmp_path / "tri.vtu")
+    with pytest.raises(InputError, match="no such file"):
+        load_tet_mesh(tmp_path / "missing.vtu")
