@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Set up softvr on a fresh Debian (12+) machine and run a job:
+#   bash scripts/setup.sh demo   install everything, run `softvr demo` on the bundled head CT
+#   bash scripts/setup.sh test   install everything, run the whole test suite
+# Installs Debian packages (offline datasets, EGL/Mesa for offscreen rendering, Xvfb) and a
+# virtual environment in .venv with softvr and its Python dependencies.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+job="${1:-test}"; shift || true
+
+APT_PACKAGES=(python3 python3-venv python3-pip invesalius-examples mricron-data
+              libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libglx-mesa0 libxt6 xvfb xauth)
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  echo "setup: installing Debian packages: ${missing[*]}"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+PY="${PYTHON:-python3}"
+"$PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' || { echo "setup: softvr needs Python >= 3.11 ($PY is older)"; exit 1; }
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.softvr-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  echo "setup: installing softvr and its Python dependencies into .venv"
+  .venv/bin/pip install -q --upgrade pip
+  .venv/bin/pip install -q -e ".[dev]"
+  touch "$stamp"
+fi
+
+case "$job" in
+  demo) exec .venv/bin/python -m softvr demo "$@" ;;
+  test) exec .venv/bin/python -m pytest -q "$@" ;;
+  *) echo "usage: bash scripts/setup.sh demo|test [args]"; exit 2 ;;
+esac

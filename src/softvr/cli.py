@@ -1,0 +1,76 @@
+"""The ``softvr`` command: one entry point, one subcommand per job.
+
+``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
+``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
+``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
+``softvr info PATH``        what a volume file holds
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from softvr.errors import SoftvrError
+
+__all__ = ["main"]
+
+
+def _demo(argv: list[str]) -> int:
+    from softvr.examples import example_volume_deform
+
+    return example_volume_deform.main(argv)
+
+
+def _view(argv: list[str]) -> int:
+    if not argv or argv[0] != "volume":
+        raise SystemExit("usage: softvr view volume [PATH] [--cells N] (only 'volume' can be viewed so far)")
+    from softvr.render import viewer
+
+    return viewer.main(argv[1:])
+
+
+def _bench(argv: list[str]) -> int:
+    if not argv or argv[0] != "volume":
+        raise SystemExit("usage: softvr bench volume [--quick] [--json PATH] [--plot PATH] (areas: volume)")
+    from softvr.bench import volume
+
+    return volume.main(argv[1:])
+
+
+def _info(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="softvr info", description="Print what a volume file holds.")
+    parser.add_argument("path")
+    args = parser.parse_args(argv)
+    from softvr.volume import load
+
+    vol = load(args.path)
+    print(f"{args.path}: {vol!r}")
+    print(f"  value range {vol.data.min()} .. {vol.data.max()}, extent {vol.extent.round(3).tolist()}")
+    return 0
+
+
+_COMMANDS = {"demo": _demo, "view": _view, "bench": _bench, "info": _info}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the ``softvr`` command line; returns the process exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(
+        prog="softvr",
+        description="softvr: deformable anatomy for VR training (volume deformation, contact, CAVE).",
+        epilog="Run 'softvr COMMAND --help' for a command's options.",
+    )
+    parser.add_argument("command", choices=sorted(_COMMANDS), help="what to do")
+    if not argv or argv[0] in ("-h", "--help"):
+        parser.print_help()
+        return 0 if argv else 2
+    args = parser.parse_args(argv[:1])
+    try:
+        return _COMMANDS[args.command](argv[1:])
+    except SoftvrError as exc:
+        print(f"softvr {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"softvr {args.command}: interrupted", file=sys.stderr)
+        return 130

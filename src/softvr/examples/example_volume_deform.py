@@ -1,0 +1,179 @@
+"""Volume deformation demo: the real head CT pressed and twisted through its tet mesh.
+
+The InVesalius head CT (Debian ``invesalius-examples``) is embedded in a regular mesh of
+~10 K tetrahedra; a scripted deformation first presses a dent into the face, then twists
+the head about its long axis. Every frame the CT is rasterized through the deformed mesh
+(thesis ch. 3) and volume-rendered offscreen with VTK; the frames go to an MP4 and a PNG
+contact sheet. Run ``softvr demo`` (or ``python -m softvr.examples.example_volume_deform``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softvr.volume import Rasterizer, Volume, grid_tet_mesh, load
+
+__all__ = ["Example", "press_and_twist", "main"]
+
+
+def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarray:
+    """Scripted deformation of mesh nodes at animation time ``s`` in [0, 1].
+
+    For s in [0, 0.5] a dent grows on the +y face (Gaussian, 25 % of the y extent deep,
+    decaying inward); for s in [0.5, 1] the dented head twists about the z axis, up to 35
+    degrees at the top, linearly in z. Both stay far from inverting any tet.
+
+    Parameters
+    ----------
+    nodes : ndarray, shape [node_count, 3] [volume units]
+        Rest node positions.
+    bounds : ndarray, shape [2, 3] [volume units]
+        Lower and upper corner of the rest mesh.
+    s : float
+        Animation time, 0 = rest, 1 = fully pressed and twisted.
+
+    Returns
+    -------
+    ndarray, shape [node_count, 3]
+        Deformed node positions.
+    """
+    lo, hi = bounds
+    size = hi - lo
+    centre = (lo + hi) / 2
+    press = min(s / 0.5, 1.0)
+    twist = max((s - 0.5) / 0.5, 0.0)
+    x = nodes.copy()
+    # Press: ease-in-out depth, Gaussian footprint in x-z, exponential decay away from +y.
+    depth = 0.25 * size[1] * (0.5 - 0.5 * np.cos(np.pi * press))
+    r2 = ((x[:, 0] - centre[0]) / (0.3 * size[0])) ** 2 + ((x[:, 2] - centre[2]) / (0.35 * size[2])) ** 2
+    x[:, 1] -= depth * np.exp(-r2) * np.exp(-(hi[1] - x[:, 1]) / (0.3 * size[1]))
+    # Twist about the z axis through the centre, growing linearly with height.
+    angle = np.radians(35.0) * (0.5 - 0.5 * np.cos(np.pi * twist)) * (x[:, 2] - lo[2]) / size[2]
+    c, sn = np.cos(angle), np.sin(angle)
+    dx, dy = x[:, 0] - centre[0], x[:, 1] - centre[1]
+    x[:, 0] = centre[0] + c * dx - sn * dy
+    x[:, 1] = centre[1] + sn * dx + c * dy
+    return x
+
+
+class Example:
+    """Press-and-twist of a CT volume, deformed by tetrahedral rasterization each frame.
+
+    Parameters
+    ----------
+    volume : Volume, optional
+        Defaults to the real head CT (:func:`softvr.datasets.head_ct`).
+    cells : int or (int, int, int)
+        Mesh cubes per axis (5 tets each); default (16, 16, 8) = 10 240 tets.
+    frames : int
+        Frames in the animation.
+    device : str, optional
+        Warp device for the rasterizer (``None`` = CUDA when present).
+    width, height : int
+        Rendered image size [pixels].
+    culling : bool or str
+        Rasterization strategy, see :class:`~softvr.volume.Rasterizer`.
+    """
+
+    def __init__(self, volume: Volume | None = None, cells=(16, 16, 8), frames: int = 36, device=None,
+                 width: int = 480, height: int = 360, culling=True):
+        if volume is None:
+            from softvr.datasets import head_ct
+
+            volume = head_ct()
+        self.volume = volume
+        self.nodes, self.tets = grid_tet_mesh(volume, cells)
+        self.bounds = np.stack([self.nodes.min(axis=0), self.nodes.max(axis=0)])
+        self.rasterizer = Rasterizer(volume, self.nodes, self.tets, culling=culling, device=device)
+        self.frames = max(int(frames), 2)
+        self.frame = 0
+        self.width, self.height = width, height
+        self.deformed: Volume | None = None
+        self.frame_stats: list[dict] = []
+        self._renderer = None
+
+    def step(self) -> Volume:
+        """Deform the volume for the current frame and advance the frame counter."""
+        s = self.frame / (self.frames - 1)
+        moved = press_and_twist(self.nodes, self.bounds, s)
+        self.deformed = self.rasterizer.deform(moved)
+        self.frame_stats.append({"frame": self.frame, "s": s, **self.rasterizer.stats.as_dict()})
+        self.frame += 1
+        return self.deformed
+
+    def render(self) -> np.ndarray:
+        """Volume-render the last deformed volume; returns RGB uint8 [height, width, 3]."""
+        if self._renderer is None:
+            from softvr.render import Camera, VolumeRenderer
+
+            preset = "labels" if self.volume.is_label else ("mri" if self.volume.dtype == np.uint8 else "ct")
+            self._renderer = VolumeRenderer(self.width, self.height, preset=preset,
+                                            camera=Camera("front", azimuth=35, elevation=15, zoom=1.1))
+        return self._renderer.render(self.deformed)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``softvr demo [volume]``: run the example and write MP4, PNG contact sheet and JSON."""
+    p = argparse.ArgumentParser(prog="softvr demo", description=__doc__.splitlines()[0])
+    p.add_argument("what", nargs="?", default="volume", choices=["volume"], help="which demo (default: volume)")
+    p.add_argument("--input", help="volume file to deform instead of the bundled head CT")
+    p.add_argument("--out", default="softvr-demo", help="output folder (default: ./softvr-demo)")
+    p.add_argument("--frames", type=int, default=36)
+    p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
+    p.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"))
+    p.add_argument("--culling", default="spans", choices=["bbox", "cells", "spans"])
+    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    args = p.parse_args(argv)
+
+    from tqdm import tqdm
+
+    from softvr.render import contact_sheet, save_png, write_mp4
+
+    volume = load(args.input) if args.input else None
+    ex = Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"softvr demo: {ex.volume!r}\n  mesh {len(ex.nodes)} nodes, {len(ex.tets)} tets; "
+          f"rasterizer '{ex.rasterizer.method}' on {ex.rasterizer.device}")
+    images = []
+    t0 = time.perf_counter()
+    try:
+        with tqdm(total=ex.frames, desc="deform + render", unit="frame") as bar:
+            while ex.frame < ex.frames:
+                ex.step()
+                st = ex.rasterizer.stats
+                images.append(ex.render())
+                tqdm.write(f"frame {ex.frame - 1:3d}: deform {st.time_total_s * 1e3:7.1f} ms  "
+                           f"({st.voxels_written / 1e6:.2f} M voxels written, {st.voxels_per_second / 1e6:.0f} M voxels/s)")
+                bar.update()
+    finally:
+        ex.close()
+    mp4 = write_mp4(images, out / "volume_demo.mp4", fps=12)
+    pick = np.linspace(0, len(images) - 1, min(8, len(images))).round().astype(int)
+    sheet = save_png(contact_sheet([images[i] for i in pick], columns=4, labels=[f"frame {i}" for i in pick]),
+                     out / "volume_demo_sheet.png")
+    times = np.array([f["time_total_s"] for f in ex.frame_stats]) * 1e3
+    summary = {"volume": repr(ex.volume), "tets": len(ex.tets), "device": ex.rasterizer.device,
+               "deform_ms_median": float(np.median(times)), "deform_ms_max": float(times.max()),
+               "wall_s": time.perf_counter() - t0, "frames": ex.frame_stats}
+    tmp = out / ".volume_demo_stats.json.tmp"
+    tmp.write_text(json.dumps(summary, indent=1))
+    os.replace(tmp, out / "volume_demo_stats.json")
+    print(f"deformation: median {summary['deform_ms_median']:.1f} ms, max {summary['deform_ms_max']:.1f} ms per frame")
+    print(f"wrote {mp4}\nwrote {sheet}\nwrote {out / 'volume_demo_stats.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
