@@ -21,6 +21,9 @@ __all__ = ["cpu_workers", "launch", "resolve_device"]
 
 @lru_cache(maxsize=1)
 def _init() -> None:
+    # Warp logs every module load at INFO; softvr's progress output is its own.
+    if wp.config.log_level == wp.LOG_INFO:
+        wp.config.log_level = wp.LOG_WARNING
     wp.config.quiet = True
     wp.init()
 

@@ -25,7 +25,7 @@ __all__ = ["Example", "press_and_twist", "main"]
 def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarray:
     """Scripted deformation of mesh nodes at animation time ``s`` in [0, 1].
 
-    For s in [0, 0.5] a dent grows on the +y face (Gaussian, 25 % of the y extent deep,
+    For s in [0, 0.5] a dent grows on the +y face (Gaussian, 18 % of the y extent deep,
     decaying inward); for s in [0.5, 1] the dented head twists about the z axis, up to 35
     degrees at the top, linearly in z. Both stay far from inverting any tet.
 
@@ -50,7 +50,7 @@ def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarr
     twist = max((s - 0.5) / 0.5, 0.0)
     x = nodes.copy()
     # Press: ease-in-out depth, Gaussian footprint in x-z, exponential decay away from +y.
-    depth = 0.25 * size[1] * (0.5 - 0.5 * np.cos(np.pi * press))
+    depth = 0.18 * size[1] * (0.5 - 0.5 * np.cos(np.pi * press))
     r2 = ((x[:, 0] - centre[0]) / (0.3 * size[0])) ** 2 + ((x[:, 2] - centre[2]) / (0.35 * size[2])) ** 2
     x[:, 1] -= depth * np.exp(-r2) * np.exp(-(hi[1] - x[:, 1]) / (0.3 * size[1]))
     # Twist about the z axis through the centre, growing linearly with height.

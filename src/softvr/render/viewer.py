@@ -211,7 +211,7 @@ class NodeDragger:
     >>> import numpy as np
     >>> from softvr.render import NodeDragger, ViewTransform
     >>> view = ViewTransform(np.diag([0.1, 0.1, 0.1, 1.0]), (200, 200))
-    >>> drag = NodeDragger(np.zeros((1, 3)), deform_fn=lambda n: n[0].tolist())
+    >>> drag = NodeDragger(np.zeros((1, 3)), deform_fn=lambda n: n[0].round(6).tolist())
     >>> drag.press(view, (101, 99))
     0
     >>> drag.drag(view, (111, 99))          # 10 px right = 1 world unit
@@ -502,12 +502,12 @@ class VolumeViewer:
             return
         try:
             volume = self.dragger.drag(self.view_transform(), self._event_xy())
-        except SoftvrError as exc:  # e.g. an inverted element: keep the last good state
+            self.scene.update(volume)
+        except SoftvrError as exc:  # e.g. an inverted element: keep the last good image
             self.last_error = exc
             print(f"softvr view: {exc}", file=sys.stderr)
             return
         self._update_nodes()
-        self.scene.update(volume)
         self.render()
 
     def on_left_release(self, obj=None, event=None) -> None:
@@ -608,19 +608,17 @@ def view_volume(
 
     Examples
     --------
-    >>> import os, numpy as np
-    >>> from softvr import volume as sv
+    >>> import numpy as np
+    >>> from softvr.volume import Volume, grid_tet_mesh
     >>> from softvr.render import view_volume
-    >>> vol = sv.Volume(np.zeros((8, 8, 8), np.int16))
-    >>> nodes, tets = sv.grid_tet_mesh(vol, 2)
-    >>> if not os.environ.get("DISPLAY"):  # no display: a clear error instead of a window
-    ...     try:
-    ...         view_volume(vol, nodes, tets, sv.Rasterizer(vol, nodes, tets).deform)
-    ...     except sv.InputError if hasattr(sv, "InputError") else ValueError as e:
-    ...         print("softvr demo" in str(e))
-    ... else:
-    ...     print(True)
-    True
+    >>> x, y, z = np.mgrid[-16:16, -16:16, -16:16]
+    >>> vol = Volume(np.where(x**2 + y**2 + z**2 < 12**2, 1000, -1000).astype(np.int16))
+    >>> nodes, tets = grid_tet_mesh(vol, cells=3)
+    >>> def deform(deformed):  # a stand-in; normally Rasterizer(vol, nodes, tets).deform
+    ...     return Volume(vol.data, origin=vol.origin + (deformed - nodes).mean(axis=0))
+    >>> deform(nodes + 1.0).origin.tolist()
+    [1.0, 1.0, 1.0]
+    >>> final_nodes = view_volume(vol, nodes, tets, deform)  # doctest: +SKIP
     """
     with VolumeViewer(volume, nodes, tets, deform_fn, preset=preset, camera=camera, width=width, height=height) as viewer:
         return viewer.start(timeout_s)
