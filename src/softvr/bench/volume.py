@@ -46,7 +46,6 @@ import statistics
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -172,32 +171,40 @@ def _mri():
 
 
 # ----------------------------------------------------------------------------- timing
-def _median_time(fn, repeat: int) -> tuple[float, list[float], object]:
-    result = fn()  # warm-up (untimed)
-    times = []
-    for _ in range(max(1, repeat)):
+def _timed_runs(fn, repeat: int, max_case_s: float, warmup: bool = True) -> tuple[list[float], object]:
+    """Wall times of up to ``repeat`` calls of ``fn`` after one untimed warm-up call.
+
+    Timed calls stop early once they add up to ``max_case_s`` (at least one is made), so
+    that multi-second cases do not dominate the run. Returns (times, last result).
+    """
+    result = fn() if warmup else None
+    times: list[float] = []
+    while len(times) < max(1, repeat):
+        result = None  # let the previous output go before the next call allocates its own
         t = time.perf_counter()
         result = fn()
         times.append(time.perf_counter() - t)
-    return statistics.median(times), times, result
+        if sum(times) >= max_case_s:
+            break
+    return times, result
 
 
-@dataclass
-class _Case:
-    section: str  # "fig35" | "fig36" | "peers"
-    name: str  # human label of the configuration
-    route: str  # "softvr" | "vtk+scipy" | "vtk+scipy 1 thread" | "sitk"
-    mode: str | None  # softvr culling mode
-    data: dict = field(default_factory=dict)
-
-
-def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, device, repeat, out_grid=None):
+def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, device, repeat, max_case_s,
+                 out_grid=None):
     from softvr.volume import Rasterizer
 
     t = time.perf_counter()
     r = Rasterizer(volume, nodes, tets, culling=culling, device=device)
     construct_s = time.perf_counter() - t
-    med, times, out = _median_time(lambda: r.deform(deformed, out_grid), repeat)
+    stats = []
+
+    def frame():
+        out = r.deform(deformed, out_grid)
+        stats.append(r.stats)
+        return out
+
+    times, out = _timed_runs(frame, repeat, max_case_s)
+    med = statistics.median(times)
     s = r.stats
     rec = {
         "section": section,
@@ -213,22 +220,30 @@ def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, de
         "time_s": med,
         "times_s": times,
         "rate_voxels_per_s": s.output_voxels / med,
+        "written_voxels_per_s": s.voxels_written / med,
         "efficiency": s.efficiency,
         "voxels_tested": int(s.voxels_tested),
         "voxels_written": int(s.voxels_written),
         "construct_s": construct_s,
+        # Per-phase medians over the timed frames (RasterStats of each).
+        "phases_s": {k: statistics.median(getattr(x, k) for x in stats[-len(times):])
+                     for k in ("time_setup_s", "time_cull_s", "time_raster_s", "time_total_s")},
         "stats": s.as_dict(),
     }
     return rec, r, out
 
 
-def _peer_estimate(rates: dict, route: str, voxels: int) -> float | None:
-    rate = rates.get(route)
-    return None if not rate else voxels / rate
+def _inner_mask(volume, probe, margin: float = 1.0) -> np.ndarray:
+    """[x, y, z] mask of output voxels whose rest position lies >= ``margin`` voxels inside the input."""
+    inner = np.ones(probe.valid.shape, dtype=bool)
+    for a in range(3):
+        u = (probe.rest[..., a] - volume.origin[a]) / volume.spacing[a]
+        inner &= (u >= margin) & (u <= volume.shape[a] - 1 - margin)
+    return (inner & probe.valid).T
 
 
-def _compare(ref_out, ref_counts, peer_out, peer_valid_xyz) -> dict:
-    """Max |softvr - peer| over voxels both write, and coverage disagreements."""
+def _compare(ref_out, ref_counts, peer_out, peer_valid_xyz, inner_xyz) -> dict:
+    """|softvr - peer| over voxels both write (all, and >= 1 voxel inside the input), coverage."""
     mine = ref_counts > 0
     both = mine & peer_valid_xyz
     rec = {
@@ -236,21 +251,19 @@ def _compare(ref_out, ref_counts, peer_out, peer_valid_xyz) -> dict:
         "only_softvr_voxels": int((mine & ~peer_valid_xyz).sum()),
         "only_peer_voxels": int((~mine & peer_valid_xyz).sum()),
     }
-    if both.any():
-        d = np.abs(ref_out.data[both].astype(np.float64) - peer_out.data[both].astype(np.float64))
-        rec |= {
-            "max_abs_diff": float(d.max()),
-            "mean_abs_diff": float(d.mean()),
-            "voxels_diff_gt_1": int((d > 1.0 + 1e-6).sum()),
-        }
-    else:
-        rec |= {"max_abs_diff": None, "mean_abs_diff": None, "voxels_diff_gt_1": 0}
+    for key, m in (("", both), ("_interior", both & inner_xyz)):
+        if m.any():
+            d = np.abs(ref_out.data[m].astype(np.float64) - peer_out.data[m].astype(np.float64))
+            rec |= {f"max_abs_diff{key}": float(d.max()), f"mean_abs_diff{key}": float(d.mean()),
+                    f"voxels_diff_gt_1{key}": int((d > 1.0 + 1e-6).sum())}
+        else:
+            rec |= {f"max_abs_diff{key}": None, f"mean_abs_diff{key}": None, f"voxels_diff_gt_1{key}": 0}
     return rec
 
 
-def _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, ref_out, ref_counts, repeat, *,
-                single_thread_reference=False):
-    """VTK + SciPy and SimpleITK on one case; one probe (with its own warm-up) shared by both."""
+def _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, ref_out, ref_counts, repeat, max_case_s, *,
+                warmup=True, single_thread_reference=False):
+    """VTK + SciPy and SimpleITK on one case; the VTK probe is shared by both."""
     from softvr.bench import _volume_peers as P
 
     records = []
@@ -261,43 +274,56 @@ def _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, ref_out,
         "section": section, "case": name, "mode": None, "device": "cpu",
         "input_shape": list(volume.shape), "input_voxels": int(np.prod(volume.shape)),
         "output_shape": list(out_grid.shape), "output_voxels": n_out, "tets": int(len(tets)),
-        "efficiency": None, "threads": P.default_threads(),
+        "efficiency": None, "warmup": warmup,
     }
     thread_list = [P.default_threads()] + ([1] if single_thread_reference and P.default_threads() > 1 else [])
-    probe = None
+    probe = valid_xyz = inner_xyz = None
     for threads in thread_list:
-        runs = []
-        for _ in range(1 + max(1, repeat)):  # the first run is the warm-up
+        runs: list[dict] = []
+        last: dict = {}
+
+        def vtk_route():
+            last.clear()
             pr = P.probe_rest_positions(nodes, tets, deformed, grid, threads=threads)
             out, tim = P.warp_vtk_scipy(volume, nodes, tets, deformed, grid, background=bg, threads=threads, probe=pr)
             runs.append(tim)
-        runs = runs[1:]
-        times = [t["total_s"] for t in runs]
-        med = statistics.median(times)
+            last["probe"] = pr
+            return out
+
+        times, out = _timed_runs(vtk_route, repeat, max_case_s, warmup)
+        runs = runs[-len(times):]
         tim = {k: statistics.median(t[k] for t in runs) for k in ("probe_s", "fetch_s", "total_s")}
         tim |= {"threads": threads, "valid_voxels": runs[-1]["valid_voxels"]}
+        med = statistics.median(times)
         route = "vtk+scipy" if threads == thread_list[0] else "vtk+scipy 1 thread"
         rec = base | {"route": route, "threads": threads, "time_s": med, "times_s": times,
                       "rate_voxels_per_s": n_out / med, "timings": tim}
         if probe is None:
-            probe = pr
+            probe = last["probe"]
             valid_xyz = probe.valid.T
-            rec |= _compare(ref_out, ref_counts, out, valid_xyz)
+            inner_xyz = _inner_mask(volume, probe)
+            rec |= _compare(ref_out, ref_counts, out, valid_xyz, inner_xyz)
+        last.clear()
         records.append(rec)
-        del out, pr
-    # SimpleITK: the probe is shared with VTK; "field given" = the Resample alone.
-    tim_all = []
-    for _ in range(1 + max(1, repeat)):  # the first run is the warm-up
+        del out
+    # SimpleITK on the shared probe; "field given" = the Resample alone is the route's time.
+    sruns: list[dict] = []
+
+    def sitk_route():
         out, tim = P.warp_sitk(volume, nodes, tets, deformed, grid, background=bg, probe=probe)
-        tim_all.append(tim)
-    tim_all = tim_all[1:]
-    resample = statistics.median(t["resample_s"] for t in tim_all)
-    total = statistics.median(t["total_s"] for t in tim_all)
-    tim = {k: statistics.median(t[k] for t in tim_all) for k in tim_all[0] if k != "threads"}
-    rec = base | {"route": "sitk", "time_s": resample, "times_s": [t["resample_s"] for t in tim_all],
-                  "rate_voxels_per_s": n_out / resample, "total_with_probe_s": total,
-                  "rate_total_voxels_per_s": n_out / total, "timings": tim}
-    rec |= _compare(ref_out, ref_counts, out, valid_xyz)
+        sruns.append(tim)
+        return out
+
+    _, out = _timed_runs(sitk_route, repeat, max_case_s, warmup)
+    sruns = sruns[1:] if warmup else sruns
+    resample = statistics.median(t["resample_s"] for t in sruns)
+    total = statistics.median(t["total_s"] for t in sruns)
+    tim = {k: statistics.median(t[k] for t in sruns) for k in sruns[0] if k != "threads"}
+    tim["threads"] = sruns[0]["threads"]
+    rec = base | {"route": "sitk", "threads": tim["threads"], "time_s": resample,
+                  "times_s": [t["resample_s"] for t in sruns], "rate_voxels_per_s": n_out / resample,
+                  "total_with_probe_s": total, "rate_total_voxels_per_s": n_out / total, "timings": tim}
+    rec |= _compare(ref_out, ref_counts, out, valid_xyz, inner_xyz)
     records.append(rec)
     return records
 
@@ -362,6 +388,13 @@ def _machine_info(device: str) -> dict:
     }
 
 
+def _loadavg() -> list[float] | None:
+    try:
+        return [float(v) for v in Path("/proc/loadavg").read_text().split()[:3]]
+    except OSError:
+        return None
+
+
 def _warm_kernels(device: str, dtypes) -> None:
     """Compile (or load from Warp's kernel cache) every kernel for every dtype and mode."""
     from softvr.volume import Rasterizer, Volume, grid_tet_mesh
@@ -383,6 +416,7 @@ def run_volume_bench(
     fig36_size: int | None = None,
     fig35_mri: bool | None = None,
     peer_time_limit_s: float = PEER_TIME_LIMIT_S,
+    max_case_s: float | None = None,
     progress: bool = True,
 ) -> dict:
     """Run the volume-deformation benchmark and return its results (see :func:`main`).
@@ -403,7 +437,9 @@ def run_volume_bench(
     fig35_mri : bool, optional
         Add the real 35 M-voxel ch2better MRI to Fig 3.5.
     peer_time_limit_s : float
-        Skip a peer on a volume where its estimated time exceeds this.
+        Skip the peers on a volume where their estimated time (all runs) exceeds this.
+    max_case_s : float, optional
+        Stop a case's timed runs once they add up to this (default 4 s; quick 1 s).
     progress : bool
         tqdm progress bar on stderr.
 
@@ -429,7 +465,9 @@ def run_volume_bench(
     sections = tuple(sections)
     dev = resolve_device(device)
     rep = cfg["repeat"]
+    max_case_s = float(max_case_s if max_case_s is not None else (1.0 if quick else 4.0))
     t_start = time.perf_counter()
+    load_start = _loadavg()
 
     from softvr.bench._volume_peers import default_threads
 
@@ -463,7 +501,8 @@ def run_volume_bench(
     def softvr_modes(section, name, volume, nodes, tets, deformed, out_grid=None, keep=False):
         recs, outs = [], {}
         for mode, culling in MODES:
-            rec, r, out = _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, dev, rep, out_grid)
+            rec, r, out = _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, dev, rep,
+                                       max_case_s, out_grid)
             recs.append(rec)
             if keep and mode == "spans":
                 outs["out"] = out
@@ -476,27 +515,37 @@ def run_volume_bench(
         cases.extend(recs)
         return recs, outs
 
+    def peer_cost(t: float | None, warm: bool) -> float:
+        if t is None:
+            return 0.0
+        timed = min(rep, max(1, int(np.ceil(max_case_s / max(t, 1e-9)))))
+        return t * (timed + (1 if warm else 0))
+
     def run_peers(section, name, volume, nodes, tets, deformed, out_grid, outs, best, single=False):
         n_out = int(np.prod(out_grid.shape))
         need = n_out * PEER_BYTES_PER_VOXEL
-        est = [_peer_estimate(peer_rates, r, n_out) for r in ("vtk+scipy", "sitk_total")]
+        t_vtk = n_out / peer_rates["vtk+scipy"] if "vtk+scipy" in peer_rates else None
+        t_sitk = n_out / peer_rates["sitk_no_probe"] if "sitk_no_probe" in peer_rates else None
+        # Peers compile nothing: their warm-up run is only worth it where it is cheap.
+        warm = t_vtk is None or t_vtk < 2.0
+        est = peer_cost(t_vtk, warm) + peer_cost(t_sitk, warm)
         reason = None
         if need > 0.6 * ram:
             reason = f"needs ~{need / 1e9:.0f} GB (> 60% of {ram / 1e9:.0f} GB RAM)"
-        elif any(e is not None and e * (1 + rep) > peer_time_limit_s for e in est):
-            reason = f"estimated {max(e for e in est if e is not None) * (1 + rep):.0f} s with warm-up (> {peer_time_limit_s:.0f} s)"
+        elif est > peer_time_limit_s:
+            reason = f"estimated {est:.0f} s (> {peer_time_limit_s:.0f} s)"
         if reason:
             for route in ("vtk+scipy", "sitk"):
                 cases.append(_skip_record(section, name, route, volume, tets, n_out, reason))
         else:
             recs = _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, outs["out"], outs["counts"],
-                               rep, single_thread_reference=single)
+                               rep, max_case_s, warmup=warm, single_thread_reference=single)
             for x in recs:
                 x["ratio_vs_softvr_best"] = x["time_s"] / best
                 if x["route"] == "vtk+scipy":
                     peer_rates["vtk+scipy"] = x["rate_voxels_per_s"]
                 if x["route"] == "sitk":
-                    peer_rates["sitk_total"] = x["rate_total_voxels_per_s"]
+                    peer_rates["sitk_no_probe"] = n_out / (x["total_with_probe_s"] - x["timings"]["probe_s"])
             cases.extend(recs)
         step(f"{name} peers")
 
@@ -561,9 +610,12 @@ def run_volume_bench(
             "rate": "output-grid voxels / median wall time of one Rasterizer.deform call (peers: of the whole route)",
             "peer_threads": default_threads(),
             "peer_time_limit_s": peer_time_limit_s,
+            "max_case_s": max_case_s,
         },
         "cases": cases,
         "wall_s": time.perf_counter() - t_start,
+        "loadavg_start": load_start,
+        "loadavg_end": _loadavg(),
     }
     result["targets"] = _targets(result)
     return result
@@ -624,11 +676,12 @@ def format_table(result: dict) -> str:
             eff = "" if c.get("efficiency") is None else f"{c['efficiency']:.2f}"
             notes = []
             if c.get("max_abs_diff") is not None:
-                notes.append(f"max|d| {c['max_abs_diff']:.3g} on {c['compared_voxels'] / 1e6:.2f}M")
+                notes.append(f"max|d| {c['max_abs_diff_interior']:.3g} inside / {c['max_abs_diff']:.3g} all "
+                             f"on {c['compared_voxels'] / 1e6:.2f}M")
                 if c.get("voxels_diff_gt_1"):
-                    notes.append(f"{c['voxels_diff_gt_1']} >1")
+                    notes.append(f"{c['voxels_diff_gt_1']} >1 ({c['voxels_diff_gt_1_interior']} inside)")
                 if c.get("only_softvr_voxels") or c.get("only_peer_voxels"):
-                    notes.append(f"cover +{c['only_softvr_voxels']}/-{c['only_peer_voxels']}")
+                    notes.append(f"only softvr {c['only_softvr_voxels']} / only peer {c['only_peer_voxels']}")
             tim = c.get("timings") or {}
             if c["route"].startswith("vtk"):
                 notes.append(f"probe {tim.get('probe_s', 0) * 1e3:.0f} + fetch {tim.get('fetch_s', 0) * 1e3:.0f} ms")
@@ -791,6 +844,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fig35-sizes", default=None, help="comma list of cube edges (default 128,256,384,512)")
     p.add_argument("--fig36-size", type=int, default=None, help="cube edge of the Fig 3.6 volume (default 384)")
     p.add_argument("--no-mri", action="store_true", help="leave the 35 M-voxel MRI out of Fig 3.5")
+    p.add_argument("--max-case-s", type=float, default=None, metavar="S",
+                   help="stop a case's timed runs once they add up to S seconds (default 4; quick 1)")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     if a.repeat is not None and a.repeat < 1:
@@ -807,10 +862,12 @@ def main(argv: list[str] | None = None) -> int:
         fig35_sizes=[int(s) for s in a.fig35_sizes.split(",")] if a.fig35_sizes else None,
         fig36_size=a.fig36_size,
         fig35_mri=False if a.no_mri else None,
+        max_case_s=a.max_case_s,
         progress=not a.no_progress,
     )
     print(format_table(result))
-    print(f"\nwall time {result['wall_s']:.0f} s")
+    print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
+          f"at end {result['loadavg_end']} ({result['machine']['cores']} cores)")
     if a.json:
         write_json(result, a.json)
         print(f"wrote {a.json}")

@@ -23,6 +23,15 @@ interactive viewer can still open an X window in the same process:
    if its library can be loaded and a 2x2 test render raises no VTK error.
 
 The choice is made once per process and cached; :func:`offscreen_backend` reports it.
+
+Two limits of mixing kinds in one process (VTK 9.7, Mesa 22), both handled here:
+
+* an on-screen GLX context cannot be created while an EGL context is current (X error
+  BadAccess in ``glXMakeCurrent``), so off-screen renderers release their context after
+  every frame (``ReleaseCurrent``); EGL and X windows then coexist;
+* OSMesa and an on-screen window cannot be used in the same process at all (a segfault
+  in the next on-screen render), so creating the second kind raises
+  :class:`RenderBackendError` instead.
 """
 
 from __future__ import annotations
@@ -58,6 +67,16 @@ class RenderBackendError(SoftvrError, RuntimeError):
     """No OpenGL window class works in this process (missing system libraries)."""
 
 
+#: Window kinds created so far in this process ("egl", "osmesa", "onscreen").
+_CREATED: set[str] = set()
+
+_NO_MIX = (
+    "VTK cannot use OSMesa and an on-screen window in the same process (their OpenGL "
+    "functions clash and it crashes); run the viewer in its own process, or use EGL off-screen "
+    "(install libegl1 libegl-mesa0 libgl1-mesa-dri)"
+)
+
+
 def _library_loads(names: tuple[str, ...]) -> bool:
     for name in names:
         try:
@@ -82,6 +101,9 @@ def _probe(backend: str) -> str | None:
     cls = _window_class(backend)
     if cls is None:
         return f"this VTK build has no {cls_name}"
+    if backend == "osmesa" and "onscreen" in _CREATED:
+        return _NO_MIX
+    _CREATED.add(backend)
     from vtkmodules.vtkRenderingCore import vtkRenderer  # noqa: PLC0415
 
     errors: list[str] = []
@@ -144,8 +166,15 @@ def offscreen_backend(preferred: str | None = None) -> str:
 
 
 def new_offscreen_window(width: int, height: int, backend: str | None = None):
-    """A new off-screen ``vtkOpenGLRenderWindow`` of ``width`` x ``height`` pixels."""
+    """A new off-screen ``vtkOpenGLRenderWindow`` of ``width`` x ``height`` pixels.
+
+    After rendering, call ``ReleaseCurrent()`` on it: an on-screen GLX context cannot be
+    created (BadAccess) while an EGL context is current in the thread.
+    """
     name = offscreen_backend(backend)
+    if name == "osmesa" and "onscreen" in _CREATED:
+        raise RenderBackendError(_NO_MIX)
+    _CREATED.add(name)
     window = _window_class(name)()
     window.SetOffScreenRendering(1)
     window.SetSize(int(width), int(height))
@@ -179,6 +208,9 @@ def has_display() -> bool:
 
 def new_onscreen_window(width: int, height: int):
     """A new on-screen render window (X/GLX on Linux); call only when :func:`has_display`."""
+    if "osmesa" in _CREATED:
+        raise RenderBackendError(_NO_MIX)
+    _CREATED.add("onscreen")
     if sys.platform.startswith("linux"):
         import vtkmodules.vtkRenderingOpenGL2 as gl  # noqa: PLC0415
 

@@ -85,6 +85,7 @@ class VolumeScene:
         self.prop.SetMapper(self.mapper)
         self.prop.SetProperty(self.property)
         self.prop.SetUserMatrix(self.matrix)
+        resolve_preset(preset)  # reject unknown names now, not at the first render
         self._preset_arg = preset
         self._applied_key: tuple | None = None
         self._keep: np.ndarray | None = None  # the array VTK reads from, kept alive
@@ -124,6 +125,7 @@ class VolumeScene:
 
     def set_preset(self, preset: "str | Preset") -> None:
         """Use ``preset`` from the next :meth:`update` on."""
+        resolve_preset(preset)
         self._preset_arg = preset
         self._applied_key = None
 

@@ -548,10 +548,19 @@ class VolumeViewer:
 
     def close(self) -> None:
         """Close the window and release OpenGL resources."""
-        if not self._closed:
-            self._closed = True
-            self.window.Finalize()
-            self.interactor.TerminateApp()
+        if self._closed:
+            return
+        self._closed = True
+        # The observers are bound methods of self held by VTK (C++), a reference cycle
+        # Python cannot collect; break it so the window and its X connection are freed
+        # now rather than at interpreter exit (when the X server may be gone).
+        self.style.RemoveAllObservers()
+        self.interactor.RemoveAllObservers()
+        self.interactor.TerminateApp()
+        self.window.Finalize()
+        self.interactor.SetRenderWindow(None)
+        self.interactor.SetInteractorStyle(None)
+        self._grabber.SetInput(None)
 
     def __enter__(self) -> "VolumeViewer":
         return self

@@ -105,6 +105,7 @@ class VolumeRenderer:
         if not getattr(self, "_gl_renderer", None):
             self._window.Render()  # creates the context
             caps = self._window.ReportCapabilities() or ""
+            self._window.ReleaseCurrent()
             lines = [ln for ln in caps.splitlines() if "renderer string" in ln]
             self._gl_renderer = lines[0].split(":", 1)[1].strip() if lines else "unknown"
         return self._gl_renderer
@@ -180,7 +181,11 @@ class VolumeRenderer:
             self._camera_pending = False
         self._renderer.ResetCameraClippingRange()
         self._window.Render()
-        return self.grab()
+        image = self.grab()
+        # Leave no off-screen context current: creating an on-screen GLX context (the
+        # viewer) while an EGL context is current fails with BadAccess on Mesa.
+        self._window.ReleaseCurrent()
+        return image
 
     def grab(self) -> np.ndarray:
         """The last rendered image, shape [height, width, 3] uint8, row 0 at the top."""

@@ -7,7 +7,7 @@ passes that face iff ``F = Sx*i + Sy*j + Sz*k - e >= 0``; ``h`` is ``F`` at the 
 vertex plus ``e``, used by culling. Rows run along the last (contiguous) array axis.
 
 The value written is ``c0(A u1 + t)`` with the per-tet affine map of output to input
-voxel indices stored in ``affine[tet] = (A row-major, t)`` (thesis eqs. 3.1-3.2:
+voxel indices stored in ``affine[tet] = (A row-major, t, 1 / A[:, 2], rest tet inside input)`` (thesis eqs. 3.1-3.2:
 ``A = E0 E1^-1``, the barycentric map of the deformed tet composed with the inverse of the
 rest one).
 """
@@ -18,8 +18,8 @@ from typing import Any
 
 import warp as wp
 
-# No adjoints are needed; fast-math lets the compiler fuse the trilinear lerps.
-wp.set_module_options({"enable_backward": False, "fast_math": True})
+# No adjoints are needed. No fast-math: the CPU row loop and the Warp reference must round alike.
+wp.set_module_options({"enable_backward": False})
 
 #: Rasterization modes, the value of the ``mode`` kernel argument.
 MODE_BBOX = wp.constant(0)
@@ -123,9 +123,100 @@ def axis_range(b: wp.float32, inv_a: wp.float32, n: int, klo: int, khi: int):
     return lo, hi
 
 
+
+
+# The CPU fast path: one output row written by a plain C++ loop that clang vectorizes
+# (AVX2 / AVX-512 gathers) over a float32 copy of the input. It evaluates exactly the
+# expressions of ``sample`` + ``write_row`` below, which stay the reference (and the CUDA
+# path); tests check the two agree. Output types: 1 uint8, 2 int16, 3 uint16, 4 float32.
+_ROW_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+#pragma clang fp contract(off)
+    const float* __restrict__ v = (const float*)volf.data;
+    const int nx1 = dims[0] - 1, ny1 = dims[1] - 1, nz1 = dims[2] - 1;
+    const int mx = nx1 > 1 ? nx1 - 1 : 0, my = ny1 > 1 ? ny1 - 1 : 0, mz = nz1 > 1 ? nz1 - 1 : 0;
+    const int sx = strides[0], sy = strides[1], sz = strides[2];
+    const float fx1 = (float)nx1, fy1 = (float)ny1, fz1 = (float)nz1;
+    const float lo = params[2], hi = params[3];
+    const bool nearest = params[0] != 0.0f, rounding = params[1] != 0.0f;
+    auto clampf_ = [](float x, float h) { return x < 0.0f ? 0.0f : (x > h ? h : x); };
+    auto run = [&](auto* __restrict__ o, auto zero) {
+        using T = decltype(zero);
+        if (nearest) {
+            for (int k = klo; k <= khi; ++k) {
+                const float fk = (float)k;
+                const int ix = (int)(clampf_(bx + ax * fk, fx1) + 0.5f);
+                const int iy = (int)(clampf_(by + ay * fk, fy1) + 0.5f);
+                const int iz = (int)(clampf_(bz + az * fk, fz1) + 0.5f);
+                o[k] = (T)v[ix * sx + iy * sy + iz * sz];
+            }
+            return;
+        }
+        #pragma clang loop vectorize(enable) interleave(enable)
+        for (int k = klo; k <= khi; ++k) {
+            const float fk = (float)k;
+            const float ux = clampf_(bx + ax * fk, fx1);
+            const float uy = clampf_(by + ay * fk, fy1);
+            const float uz = clampf_(bz + az * fk, fz1);
+            int ix = (int)ux; ix = ix < mx ? ix : mx;
+            int iy = (int)uy; iy = iy < my ? iy : my;
+            int iz = (int)uz; iz = iz < mz ? iz : mz;
+            const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
+            const int p = ix * sx + iy * sy + iz * sz;
+            const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
+            const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
+            const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
+            const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
+            const float c0 = (1.0f - wy) * c00 + wy * c01;
+            const float c1 = (1.0f - wy) * c10 + wy * c11;
+            float r = (1.0f - wx) * c0 + wx * c1;
+            if (rounding) {
+                r = __builtin_floorf(r + 0.5f);
+                r = r < lo ? lo : (r > hi ? hi : r);
+            }
+            o[k] = (T)r;
+        }
+    };
+    switch (out_code) {
+        case 1: run((unsigned char*)out_ptr + row_offset, (unsigned char)0); break;
+        case 2: run((short*)out_ptr + row_offset, (short)0); break;
+        case 3: run((unsigned short*)out_ptr + row_offset, (unsigned short)0); break;
+        case 4: run((float*)out_ptr + row_offset, 0.0f); break;
+        default: break;
+    }
+}
+#endif
+"""
+
+
+@wp.func_native(_ROW_SNIPPET)
+def write_row_native(
+    volf: wp.array(dtype=wp.float32),
+    dims: wp.vec3i,
+    strides: wp.vec3i,
+    out_ptr: wp.uint64,
+    out_code: int,
+    row_offset: wp.int64,
+    klo: int,
+    khi: int,
+    bx: wp.float32,
+    by: wp.float32,
+    bz: wp.float32,
+    ax: wp.float32,
+    ay: wp.float32,
+    az: wp.float32,
+    params: wp.vec4f,
+):
+    """CPU row writer (vectorized C++): output voxels row_offset + [klo, khi] of a C-order array."""
+    ...
+
 @wp.func
 def write_row(
     vol: wp.array(dtype=Any),
+    volf: wp.array(dtype=wp.float32),
+    out_ptr: wp.uint64,
+    out_code: int,
     dims: wp.vec3i,
     strides: wp.vec3i,
     out: wp.array3d(dtype=Any),
@@ -141,7 +232,8 @@ def write_row(
     """Write voxels (i, j, klo..khi), all inside tet t: ``out = c0(A u1 + t)`` (eqs. 3.1-3.2).
 
     Voxels whose rest position falls outside the input's footprint keep the background.
-    ``params = (nearest, round to integer, min, max of the output type)``.
+    ``params = (nearest, round to integer, min, max of the output type)``. With
+    ``out_code != 0`` (CPU) the row goes to :func:`write_row_native`, else this Warp loop.
     """
     if counts.shape[0] > 0:
         for k in range(klo, khi + 1):
@@ -155,9 +247,16 @@ def write_row(
     ax = wp.float32(affine[t, 2])
     ay = wp.float32(affine[t, 5])
     az = wp.float32(affine[t, 8])
-    lo, hi = axis_range(bx, wp.float32(affine[t, 12]), dims[0], klo, khi)
-    lo, hi = axis_range(by, wp.float32(affine[t, 13]), dims[1], lo, hi)
-    lo, hi = axis_range(bz, wp.float32(affine[t, 14]), dims[2], lo, hi)
+    lo = klo
+    hi = khi
+    if affine[t, 15] == wp.float64(0.0):  # the rest tet pokes out of the input's footprint
+        lo, hi = axis_range(bx, wp.float32(affine[t, 12]), dims[0], lo, hi)
+        lo, hi = axis_range(by, wp.float32(affine[t, 13]), dims[1], lo, hi)
+        lo, hi = axis_range(bz, wp.float32(affine[t, 14]), dims[2], lo, hi)
+    if out_code != 0:
+        row = (wp.int64(i) * wp.int64(out.shape[1]) + wp.int64(j)) * wp.int64(out.shape[2])
+        write_row_native(volf, dims, strides, out_ptr, out_code, row, lo, hi, bx, by, bz, ax, ay, az, params)
+        return
     nearest = int(params[0])
     rounding = params[1] != wp.float32(0.0)
     for k in range(lo, hi + 1):
@@ -177,9 +276,30 @@ def inside(face: wp.array2d(dtype=wp.int64), t: int, i: int, j: int, k: int) -> 
     return True
 
 
+@wp.func
+def inside_run(face: wp.array2d(dtype=wp.int64), t: int, i: int, j: int, k0: int, k1: int):
+    """First and last k in [k0, k1] whose voxel passes the inside test (last < first if none)."""
+    first = int(0)
+    last = int(-1)
+    found = bool(False)
+    for k in range(k0, k1 + 1):
+        if inside(face, t, i, j, k):
+            if not found:
+                first = k
+                found = True
+            last = k
+    if not found:
+        first = k0
+        last = k0 - 1
+    return first, last
+
+
 @wp.kernel
 def raster_slabs(
     vol: wp.array(dtype=Any),
+    volf: wp.array(dtype=wp.float32),
+    out_ptr: wp.uint64,
+    out_code: int,
     dims: wp.vec3i,
     strides: wp.vec3i,
     out: wp.array3d(dtype=Any),
@@ -239,7 +359,7 @@ def raster_slabs(
                 n = int(khi - klo) + 1
                 n_tested += n
                 n_written += n
-                write_row(vol, dims, strides, out, counts, affine, t, i, j, int(klo), int(khi), params)
+                write_row(vol, volf, out_ptr, out_code, dims, strides, out, counts, affine, t, i, j, int(klo), int(khi), params)
             # Step every face's floor(g / |Sz|) to the next row without dividing (a DDA).
             for f in range(4):
                 q[f] = q[f] + dq[f]
@@ -249,11 +369,13 @@ def raster_slabs(
                         r[f] = r[f] - den[f]
                         q[f] = q[f] + wp.int64(1)
         else:
+            # Thesis Algorithm 1: test every voxel of the box row. A tet is convex, so the
+            # voxels that pass form one run, written in one go.
             n_tested += box[t, 5] - box[t, 4] + 1
-            for k in range(box[t, 4], box[t, 5] + 1):
-                if inside(face, t, i, j, k):
-                    n_written += 1
-                    write_row(vol, dims, strides, out, counts, affine, t, i, j, k, k, params)
+            first, last = inside_run(face, t, i, j, box[t, 4], box[t, 5])
+            if last >= first:
+                n_written += last - first + 1
+                write_row(vol, volf, out_ptr, out_code, dims, strides, out, counts, affine, t, i, j, first, last, params)
     tested[s] = n_tested
     written[s] = n_written
 
@@ -331,6 +453,9 @@ def cell_masks(
 @wp.kernel
 def raster_cells(
     vol: wp.array(dtype=Any),
+    volf: wp.array(dtype=wp.float32),
+    out_ptr: wp.uint64,
+    out_code: int,
     dims: wp.vec3i,
     strides: wp.vec3i,
     out: wp.array3d(dtype=Any),
@@ -365,10 +490,10 @@ def raster_cells(
     if i <= box[t, 1]:
         n_tested = (j1 - j0 + 1) * (k1 - k0 + 1)
         for j in range(j0, j1 + 1):
-            for k in range(k0, k1 + 1):
-                if inside(face, t, i, j, k):
-                    n_written += 1
-                    write_row(vol, dims, strides, out, counts, affine, t, i, j, k, k, params)
+            first, last = inside_run(face, t, i, j, k0, k1)
+            if last >= first:
+                n_written += last - first + 1
+                write_row(vol, volf, out_ptr, out_code, dims, strides, out, counts, affine, t, i, j, first, last, params)
     tested[s] = n_tested
     written[s] = n_written
 
@@ -379,3 +504,135 @@ for _dtype in (wp.uint8, wp.int16, wp.uint16, wp.float32):
     _arrays = {"vol": wp.array(dtype=_dtype), "out": wp.array3d(dtype=_dtype)}
     wp.overload(raster_slabs, _arrays)
     wp.overload(raster_cells, _arrays)
+
+
+@wp.func
+def snap(u: wp.vec3d, sub: wp.float64) -> wp.vec3l:
+    """Node position in 1/sub voxel units, rounded half up (exact integers from here on)."""
+    h = wp.float64(0.5)
+    return wp.vec3l(
+        wp.int64(wp.floor(u[0] * sub + h)), wp.int64(wp.floor(u[1] * sub + h)), wp.int64(wp.floor(u[2] * sub + h))
+    )
+
+
+@wp.func
+def cross_l(a: wp.vec3l, b: wp.vec3l) -> wp.vec3l:
+    return wp.vec3l(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@wp.func
+def dot_l(a: wp.vec3l, b: wp.vec3l) -> wp.int64:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@wp.func
+def write_face(face: wp.array2d(dtype=wp.int64), row: int, pa: wp.vec3l, pb: wp.vec3l, pc: wp.vec3l,
+               pv: wp.vec3l, sub: wp.int64) -> bool:
+    """Exact plane of face (a, b, c) oriented towards vertex v; False if v lies on it.
+
+    Stores (sub n, d + tau, h - tau): a voxel (i, j, k) passes iff sub n.(i, j, k) - (d + tau)
+    >= 0, where tau = 0 when n is positive in (z, y, x) lexicographic order (ties go to that
+    side) and 1 otherwise; h = n.(v - a) > 0 is the plane value at the opposite vertex.
+    """
+    n = cross_l(pb - pa, pc - pa)
+    d = dot_l(n, pa)
+    h = dot_l(n, pv) - d
+    if h < wp.int64(0):
+        n = -n
+        d = -d
+        h = -h
+    zero = wp.int64(0)
+    lexpos = n[2] > zero or (n[2] == zero and (n[1] > zero or (n[1] == zero and n[0] > zero)))
+    tau = wp.int64(1)
+    if lexpos:
+        tau = zero
+    face[row, 0] = n[0] * sub
+    face[row, 1] = n[1] * sub
+    face[row, 2] = n[2] * sub
+    face[row, 3] = d + tau
+    face[row, 4] = h - tau
+    return h != zero
+
+
+@wp.kernel
+def tet_setup(
+    rest: wp.array(dtype=wp.vec3d),
+    moved: wp.array(dtype=wp.vec3d),
+    tets: wp.array2d(dtype=wp.int32),
+    sub: int,
+    out_shape: wp.vec3i,
+    in_shape: wp.vec3i,
+    face: wp.array2d(dtype=wp.int64),
+    affine: wp.array2d(dtype=wp.float64),
+    box: wp.array2d(dtype=wp.int32),
+    offset: int,
+):
+    """Per tet: exact face planes, clipped voxel box and the output->input affine map.
+
+    ``rest``: rest nodes in input voxel indices [node_count]; ``moved``: deformed nodes in
+    output voxel indices. ``affine[t] = (A row-major, t, 1 / A[:, 2] or 0, rest tet inside
+    the input's footprint)`` with ``u0 = A u1 + t`` (thesis eqs. 3.1-3.2: A = E0 E1^-1).
+    """
+    t = wp.tid() + offset
+    i0 = tets[t, 0]
+    i1 = tets[t, 1]
+    i2 = tets[t, 2]
+    i3 = tets[t, 3]
+    s = wp.float64(sub)
+    p0 = snap(moved[i0], s)
+    p1 = snap(moved[i1], s)
+    p2 = snap(moved[i2], s)
+    p3 = snap(moved[i3], s)
+    sl = wp.int64(sub)
+    ok = write_face(face, 4 * t + 0, p1, p2, p3, p0, sl)
+    ok = write_face(face, 4 * t + 1, p0, p2, p3, p1, sl) and ok
+    ok = write_face(face, 4 * t + 2, p0, p1, p3, p2, sl) and ok
+    ok = write_face(face, 4 * t + 3, p0, p1, p2, p3, sl) and ok
+    for a in range(3):
+        lo = wp.min(wp.min(p0[a], p1[a]), wp.min(p2[a], p3[a]))
+        hi = wp.max(wp.max(p0[a], p1[a]), wp.max(p2[a], p3[a]))
+        blo = wp.max(-floor_div(-lo, sl), wp.int64(0))  # ceil(lo / sub), clipped to the grid
+        bhi = wp.min(floor_div(hi, sl), wp.int64(out_shape[a] - 1))
+        if not ok:
+            bhi = blo - wp.int64(1)  # a tet flattened by snapping covers no voxel
+        box[t, 2 * a] = int(blo)
+        box[t, 2 * a + 1] = int(bhi)
+
+    r0 = rest[i0]
+    e0 = wp.matrix_from_cols(rest[i1] - r0, rest[i2] - r0, rest[i3] - r0)
+    m0 = moved[i0]
+    e1 = wp.matrix_from_cols(moved[i1] - m0, moved[i2] - m0, moved[i3] - m0)
+    am = e0 * wp.inverse(e1)
+    tv = r0 - am * m0
+    for r in range(3):
+        for c in range(3):
+            affine[t, 3 * r + c] = am[r, c]
+        affine[t, 9 + r] = tv[r]
+        slope = wp.float32(am[r, 2])
+        inv = wp.float64(0.0)
+        if slope != wp.float32(0.0):
+            inv = wp.float64(wp.float32(1.0) / slope)
+        affine[t, 12 + r] = inv
+    lim = wp.vec3d(wp.float64(in_shape[0]), wp.float64(in_shape[1]), wp.float64(in_shape[2])) - wp.vec3d(
+        wp.float64(0.5), wp.float64(0.5), wp.float64(0.5)
+    )
+    inside = wp.float64(1.0)
+    for v in range(4):
+        rv = rest[tets[t, v]]
+        for a in range(3):
+            if rv[a] < wp.float64(-0.5) or rv[a] > lim[a]:
+                inside = wp.float64(0.0)
+    affine[t, 15] = inside
+
+
+@wp.kernel
+def fill_chunks(out: wp.array(dtype=Any), value: wp.array(dtype=Any), chunk: int, offset: int):
+    """Fill ``out`` (flat) with ``value[0]``, ``chunk`` elements per thread (first-touch in parallel)."""
+    c = wp.tid() + offset
+    v = value[0]
+    for e in range(c * chunk, wp.min((c + 1) * chunk, out.shape[0])):
+        out[e] = v
+
+
+for _dtype in (wp.uint8, wp.int16, wp.uint16, wp.float32):
+    wp.overload(fill_chunks, {"out": wp.array(dtype=_dtype), "value": wp.array(dtype=_dtype)})

@@ -39,8 +39,8 @@ _METHODS = {False: "bbox", True: "spans", "bbox": "bbox", "none": "bbox", "cells
 # Snapped coordinates stay below 2**17 so that plane values (|n| < 2**37) fit in int64.
 _COORD_LIMIT = 2**17
 _MAX_SUBVOXEL = 256
-# Tet-local vertex triples of the face opposite each vertex.
-_FACES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])
+# Output type codes of the vectorized CPU row writer (see _raster_kernels._ROW_SNIPPET).
+_OUT_CODES = {np.dtype(np.uint8): 1, np.dtype(np.int16): 2, np.dtype(np.uint16): 3, np.dtype(np.float32): 4}
 
 
 @dataclass
@@ -144,6 +144,9 @@ class Rasterizer:
         Warp device; ``None`` = CUDA when present.
     cell_size : int
         Coarse cell edge in voxels for ``"cells"`` culling (thesis: 8).
+    vectorized_rows : bool
+        CPU only: write each row with the vectorized C++ loop (default) instead of the
+        Warp reference loop; both give bit-identical voxels.
 
     Examples
     --------
@@ -168,6 +171,7 @@ class Rasterizer:
         background: float | None = None,
         device: str | None = None,
         cell_size: int = 8,
+        vectorized_rows: bool = True,
     ):
         if not isinstance(volume, Volume):
             raise InputError("volume", "a softvr.volume.Volume", type(volume).__name__)
@@ -202,9 +206,18 @@ class Rasterizer:
         self._rest_index = volume.world_to_index(self.nodes)
         data = np.ascontiguousarray(volume.data)
         self._vol = wp.array(data.reshape(-1), device=self.device)
+        # The vectorized CPU rows gather from a float32 copy (AVX gathers are 32-bit).
+        self._out_code = _OUT_CODES[data.dtype] if self.device == "cpu" and vectorized_rows else 0
+        if self._out_code == 0:
+            self._volf = wp.empty(0, dtype=wp.float32, device=self.device)
+        elif data.dtype == np.float32:
+            self._volf = self._vol
+        else:
+            self._volf = wp.array(data.reshape(-1).astype(np.float32), device=self.device)
         self._dims = wp.vec3i(*data.shape)
         self._strides = wp.vec3i(*[0 if n == 1 else s // data.itemsize for n, s in zip(data.shape, data.strides)])
-        self._tets_wp_cache: dict = {}
+        self._rest_w = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
+        self._tets_w = wp.array(self.tets, dtype=wp.int32, device=self.device)
         self.stats: RasterStats | None = None
 
     # ------------------------------------------------------------------ public
@@ -252,8 +265,8 @@ class Rasterizer:
         if not isinstance(grid, Volume):
             raise InputError("out_grid", "None or a softvr.volume.Volume", type(grid).__name__)
         shape = _grid_shape(grid)
-        setup = self._setup(grid.world_to_index(x1), shape)
-        face, affine, box = setup
+        face_w, affine_w, box_w = self._setup(grid.world_to_index(x1), shape)
+        box = box_w.numpy()
 
         dev = self.device
         if count_writes:
@@ -262,9 +275,6 @@ class Rasterizer:
         else:
             counts = wp.empty((0, 0, 0), dtype=wp.int32, device=dev)
             out = _filled(shape, self.background, self.volume.dtype, dev)
-        face_w = wp.array(face, dtype=wp.int64, device=dev)
-        affine_w = wp.array(affine, dtype=wp.float64, device=dev)
-        box_w = wp.array(box, dtype=wp.int32, device=dev)
         m = len(box)
         t_setup = time.perf_counter()
 
@@ -280,7 +290,8 @@ class Rasterizer:
                 K.raster_cells,
                 threads,
                 [
-                    self._vol, self._dims, self._strides, out, counts, face_w, affine_w, box_w,
+                    self._vol, self._volf, wp.uint64(out.ptr), self._out_code,
+                    self._dims, self._strides, out, counts, face_w, affine_w, box_w,
                     wp.array(cell_dims, dtype=wp.int32, device=dev),
                     wp.array(cell_offsets, dtype=wp.int32, device=dev),
                     wp.array(kept if len(kept) else np.zeros(1, np.int32), dtype=wp.int32, device=dev),
@@ -301,7 +312,8 @@ class Rasterizer:
                 K.raster_slabs,
                 threads,
                 [
-                    self._vol, self._dims, self._strides, out, counts, face_w, affine_w, box_w,
+                    self._vol, self._volf, wp.uint64(out.ptr), self._out_code,
+                    self._dims, self._strides, out, counts, face_w, affine_w, box_w,
                     wp.array(offsets, dtype=wp.int32, device=dev),
                     m, int(mode), self._params, tested, written,
                 ],
@@ -335,57 +347,26 @@ class Rasterizer:
             is_label=self.volume.is_label and not count_writes,
         )
 
-    def _setup(self, u1: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-tet exact face planes, output->input affine maps and clipped voxel boxes."""
-        extent = max(float(np.abs(u1).max()), float(max(shape)), 1.0)
-        if extent >= _COORD_LIMIT:
-            raise InputError(
-                "deformed_nodes",
-                f"positions within {_COORD_LIMIT} voxels of the output grid",
-                f"a node {extent:.3g} voxels away",
-            )
-        sub = int(min(_MAX_SUBVOXEL, 2 ** np.floor(np.log2(_COORD_LIMIT / extent))))
-        p = np.rint(u1 * sub).astype(np.int64)[self.tets]  # [m, 4, 3] snapped
-        m = len(self.tets)
+    def _setup(self, u1: np.ndarray, shape):
+        """Per-tet exact face planes, output->input affine maps and clipped voxel boxes.
 
-        face = np.empty((m, 4, 5), dtype=np.int64)
-        degenerate = np.zeros(m, dtype=bool)
-        for f, (a, b, c) in enumerate(_FACES):
-            pa = p[:, a]
-            n = np.cross(p[:, b] - pa, p[:, c] - pa)
-            d = np.einsum("ij,ij->i", n, pa)
-            h = np.einsum("ij,ij->i", n, p[:, f]) - d
-            sign = np.where(h < 0, -1, 1)
-            n, d, h = n * sign[:, None], d * sign, h * sign
-            degenerate |= h == 0
-            # Tie rule: a voxel centre on the plane belongs to the side the normal points to
-            # when the normal is positive in (z, y, x) lexicographic order.
-            lexpos = (n[:, 2] > 0) | ((n[:, 2] == 0) & ((n[:, 1] > 0) | ((n[:, 1] == 0) & (n[:, 0] > 0))))
-            tau = np.where(lexpos, 0, 1)
-            face[:, f, :3] = n * sub
-            face[:, f, 3] = d + tau
-            face[:, f, 4] = h - tau
-
-        lo = -((-p.min(axis=1)) // sub)  # ceil
-        hi = p.max(axis=1) // sub
-        lo = np.maximum(lo, 0)
-        hi = np.minimum(hi, np.asarray(shape) - 1)
-        box = np.empty((m, 6), dtype=np.int32)
-        box[:, 0::2] = lo
-        box[:, 1::2] = hi
-        box[degenerate, 1] = box[degenerate, 0] - 1  # a snapped-flat tet covers no voxel
-
-        u0 = self._rest_index[self.tets]
-        e0 = (u0[:, 1:] - u0[:, :1]).transpose(0, 2, 1)
-        x1 = u1[self.tets]
-        e1 = (x1[:, 1:] - x1[:, :1]).transpose(0, 2, 1)
-        a_mat = e0 @ np.linalg.inv(e1)
-        t_vec = u0[:, 0] - np.einsum("mij,mj->mi", a_mat, x1[:, 0])
-        slope = a_mat[:, :, 2].astype(np.float32)  # du0/dk along a row
-        with np.errstate(divide="ignore"):
-            inv_slope = np.where(slope != 0, 1.0 / slope, 0.0)
-        affine = np.concatenate([a_mat.reshape(m, 9), t_vec, inv_slope], axis=1)
-        return face.reshape(4 * m, 5), np.ascontiguousarray(affine), box
+        Returns Warp arrays ``face`` [4 tet_count, 5] int64, ``affine`` [tet_count, 16]
+        float64 and ``box`` [tet_count, 6] int32 (see :func:`_raster_kernels.tet_setup`).
+        """
+        sub = subvoxel_factor(u1, shape)
+        dev, m = self.device, len(self.tets)
+        face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
+        affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
+        box = wp.empty((m, 6), dtype=wp.int32, device=dev)
+        moved = wp.array(u1, dtype=wp.vec3d, device=dev)
+        launch(
+            K.tet_setup,
+            m,
+            [self._rest_w, moved, self._tets_w, sub, wp.vec3i(*shape), self._dims, face, affine, box],
+            dev,
+            min_chunk=512,
+        )
+        return face, affine, box
 
     def _cull(self, face_w, box: np.ndarray, box_w):
         """Thesis 3.2: grid-point masks, cell AND-masks, and the list of kept cells."""
@@ -414,13 +395,34 @@ class Rasterizer:
         return cell_dims, cell_offsets, kept
 
 
+def subvoxel_factor(u1: np.ndarray, shape) -> int:
+    """Snapping resolution S (a power of two <= 256): nodes snap to 1/S voxel.
+
+    Chosen so that snapped coordinates stay below 2**17, which keeps every plane value of
+    the exact inside test (|n| < 2**37, |n . p| < 2**56) within int64.
+
+    Parameters
+    ----------
+    u1 : ndarray, shape [node_count, 3]
+        Deformed nodes in output voxel indices.
+    shape : tuple of 3 int
+        Output grid shape.
+    """
+    extent = max(float(np.abs(u1).max()), float(max(shape)), 1.0)
+    if extent >= _COORD_LIMIT:
+        raise InputError(
+            "deformed_nodes", f"positions within {_COORD_LIMIT} voxels of the output grid", f"a node {extent:.3g} voxels away"
+        )
+    return int(min(_MAX_SUBVOXEL, 2 ** np.floor(np.log2(_COORD_LIMIT / extent))))
+
+
 def _filled(shape, value: float, dtype: np.dtype, device: str) -> wp.array:
-    """A Warp array of ``shape`` filled with ``value``; on the CPU it shares numpy's memory."""
-    if device == "cpu":
-        return wp.array(np.full(shape, value, dtype=dtype), device=device, copy=False)
-    out = wp.empty(shape, dtype=wp.dtype_from_numpy(dtype), device=device)
-    out.fill_(value)
-    return out
+    """A Warp array of ``shape`` filled with ``value``, the fill spread over all CPU cores."""
+    out = wp.empty(int(np.prod(shape)), dtype=wp.dtype_from_numpy(dtype), device=device)
+    chunk = 1 << 16
+    src = wp.array(np.full(1, value, dtype=dtype), device=device)
+    launch(K.fill_chunks, -(-out.shape[0] // chunk), [out, src, chunk], device, min_chunk=1)
+    return out.reshape(tuple(shape))
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
