@@ -9,7 +9,8 @@ cd "$(dirname "$0")/.."
 job="${1:-test}"; shift || true
 
 APT_PACKAGES=(python3 python3-venv python3-pip invesalius-examples mricron-data
-              libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libglx-mesa0 libxt6 xvfb xauth)
+              libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6 libgl1 libglx-mesa0 libx11-6 libxrender1
+              libxcursor1 libxt6 xvfb xauth)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

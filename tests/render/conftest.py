@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shutil
+import signal
 import subprocess
 import time
 
@@ -48,6 +50,19 @@ def ct_phantom(n: int = 40) -> Volume:
     return Volume(data, spacing=(1.0, 1.0, 1.2), origin=(-c, -c, -1.2 * c))
 
 
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM when the test process dies, even abruptly (Linux).
+
+    An X client that loses its server, or an X protocol error, makes Xlib call exit()
+    without running fixture teardown; this keeps Xvfb from outliving the tests then.
+    """
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 @pytest.fixture(scope="session")
 def xvfb_display():
     """Start a private Xvfb server; yield its DISPLAY string (e.g. ':3')."""
@@ -60,6 +75,7 @@ def xvfb_display():
         pass_fds=(write_fd,),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
+        preexec_fn=_die_with_parent,
     )
     os.close(write_fd)
     number = b""

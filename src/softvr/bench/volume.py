@@ -13,7 +13,8 @@ Sections of one run:
     Time vs volume size: the real head CT resampled to 128^3 ... 512^3 plus the real
     35 M-voxel ch2better MRI, 1080 tets (6^3 cubes), each culling mode.
 ``fig36``
-    Time vs tet count (40 ... 10 240) on one large volume, each culling mode.
+    Time vs tet count (40 ... 10 240) on the head CT resampled to 384^3 (233 M voxels after
+    rotation, the thesis' size), plus 40 / 1080 / 10 240 tets at 512^3 (564 M), each mode.
 ``peers``
     Real head CT, 10 240 tets (16 x 16 x 8 cubes): softvr (each mode) against VTK probe +
     SciPy ``map_coordinates`` and SimpleITK ``Resample`` (:mod:`softvr.bench._volume_peers`),
@@ -71,6 +72,7 @@ FULL = {
     "fig35_mri": True,
     "fig36_size": 384,
     "tet_cells": TET_CELLS,
+    "fig36_extra": (512, ((2, 2, 2), (6, 6, 6), (16, 16, 8))),
     "peer_volume": "head_ct",
     "repeat": 3,
 }
@@ -79,6 +81,7 @@ QUICK = {
     "fig35_mri": False,
     "fig36_size": 48,
     "tet_cells": ((2, 2, 2), (3, 3, 3), (4, 4, 4), (6, 6, 6)),
+    "fig36_extra": (56, ((2, 2, 2), (4, 4, 4))),
     "peer_volume": "phantom",
     "repeat": 1,
 }
@@ -483,7 +486,7 @@ def run_volume_bench(
         for nm in names:
             plan += [("fig35", f"{nm} softvr {m}") for m, _ in MODES] + [("fig35", f"{nm} peers")]
     if "fig36" in sections:
-        for c in cfg["tet_cells"]:
+        for c in list(cfg["tet_cells"]) + list(cfg["fig36_extra"][1] if cfg["fig36_extra"] else ()):
             plan += [("fig36", f"{5 * int(np.prod(c))} tets softvr {m}") for m, _ in MODES]
     bar = tqdm(total=len(plan) + 1, desc="bench volume", unit="case", disable=not progress, file=sys.stderr)
 
@@ -499,14 +502,14 @@ def run_volume_bench(
     peer_rates: dict[str, float] = {}
 
     def softvr_modes(section, name, volume, nodes, tets, deformed, out_grid=None, keep=False):
+        """All culling modes on one case; with ``keep``, the spans output and Rasterizer."""
         recs, outs = [], {}
         for mode, culling in MODES:
             rec, r, out = _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, dev, rep,
                                        max_case_s, out_grid)
             recs.append(rec)
             if keep and mode == "spans":
-                outs["out"] = out
-                outs["counts"] = r.write_counts(deformed, out_grid).data
+                outs |= {"out": out, "counts": lambda r=r: r.write_counts(deformed, out_grid).data}
             del out, r
             step(f"{name} {mode}")
         best = min(x["time_s"] for x in recs)
@@ -538,7 +541,7 @@ def run_volume_bench(
             for route in ("vtk+scipy", "sitk"):
                 cases.append(_skip_record(section, name, route, volume, tets, n_out, reason))
         else:
-            recs = _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, outs["out"], outs["counts"],
+            recs = _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, outs["out"], outs["counts"](),
                                rep, max_case_s, warmup=warm, single_thread_reference=single)
             for x in recs:
                 x["ratio_vs_softvr_best"] = x["time_s"] / best
@@ -581,17 +584,20 @@ def run_volume_bench(
             del outs, vol
         del head
 
-    # -- Fig 3.6: time vs tet count on one large volume
+    # -- Fig 3.6: time vs tet count on one large volume (+ a few counts on a larger one)
     if "fig36" in sections:
-        n = cfg["fig36_size"]
+        runs = [(cfg["fig36_size"], cfg["tet_cells"])]
+        if cfg["fig36_extra"]:
+            runs.append(cfg["fig36_extra"])
         head = _head_ct() if not quick else phantom(40)
-        vol = resample_linear(head, (n, n, n))
+        for n, cell_list in runs:
+            vol = resample_linear(head, (n, n, n))
+            for c in cell_list:
+                nodes, tets = grid_tet_mesh(vol, c)
+                name = f"{'head CT' if not quick else 'phantom'} {n}^3, {len(tets)} tets"
+                softvr_modes("fig36", name, vol, nodes, tets, rotated_nodes(vol, nodes))
+            del vol
         del head
-        for c in cfg["tet_cells"]:
-            nodes, tets = grid_tet_mesh(vol, c)
-            name = f"{'head CT' if not quick else 'phantom'} {n}^3, {len(tets)} tets"
-            softvr_modes("fig36", name, vol, nodes, tets, rotated_nodes(vol, nodes))
-        del vol
     bar.close()
 
     result = {
@@ -604,6 +610,7 @@ def run_volume_bench(
             "fig35_sizes": list(cfg["fig35_sizes"]),
             "fig35_mri": cfg["fig35_mri"],
             "fig36_size": cfg["fig36_size"],
+            "fig36_extra": [cfg["fig36_extra"][0], [list(c) for c in cfg["fig36_extra"][1]]] if cfg["fig36_extra"] else None,
             "tet_cells": [list(c) for c in cfg["tet_cells"]],
             "deformation": "rigid rotation 45 deg about x then 45 deg about y, about the volume centre "
                            "(thesis Fig 3.3); 'in place': sine displacement of 3 voxels, output grid = input grid",
@@ -699,6 +706,8 @@ def _targets_text(result: dict) -> str:
     t = result.get("targets", {})
     m = result["machine"]
     lines = [f"Targets ({m['cpu_model']}, {m['cores']} cores, device {m['device']}):"]
+    if not t:
+        lines.append("  (no case of the size the targets name was run: run the peers section, or fig35 / fig36 at 384+)")
     for key in ("cpu_in_place", "cpu_rotated"):
         r = t.get(key)
         if not r:
@@ -785,20 +794,24 @@ def write_plot(result: dict, path) -> None:
     ax.set(xscale="log", yscale="log", xlabel="output voxels after rotation [M]", ylabel="time per frame [ms]",
            title="Fig 3.5: time vs volume size (1080 tets)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    _legend_or_empty(ax)
 
     ax = axes[1]
     f36 = [c for c in cases if c["section"] == "fig36"]
-    for mode, (col, mk, lab) in styles.items():
-        pts = sorted((c["tets"], c["time_s"] * 1e3) for c in f36 if c.get("mode") == mode)
-        if pts:
-            ax.plot(*zip(*pts), color=col, marker=mk, label=lab)
-    vox = f36[0]["output_voxels"] / 1e6 if f36 else 0
+    sizes = sorted({c["output_voxels"] for c in f36})
+    edge = {c["output_voxels"]: c["input_shape"][0] for c in f36}
+    for si, size in enumerate(sizes):
+        for mode, (col, mk, lab) in styles.items():
+            pts = sorted((c["tets"], c["time_s"] * 1e3) for c in f36 if c.get("mode") == mode and c["output_voxels"] == size)
+            if pts:
+                ax.plot(*zip(*pts), color=col, marker=mk, ls=("-", "--", ":")[si % 3],
+                        label=f"{lab}, {edge[size]}^3" if len(sizes) > 1 else lab)
+    vox = ", ".join(f"{edge[v]}^3: {v / 1e6:.1f} M" for v in sizes)
     ax.set(xscale="log", xlabel="tetrahedra", ylabel="time per frame [ms]",
-           title=f"Fig 3.6: time vs tets ({vox:.0f} M voxels after rotation)")
+           title=f"Fig 3.6: time vs tets ({vox} voxels after rotation)")
     ax.set_ylim(bottom=0)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7)
+    _legend_or_empty(ax)
 
     ax = axes[2]
     pe = [c for c in cases if c["section"] == "peers"]
@@ -813,13 +826,18 @@ def write_plot(result: dict, path) -> None:
             cols.append(peer_styles.get(c["route"], ("tab:purple",))[0])
         vals.append(c["rate_voxels_per_s"] / 1e6)
     y = np.arange(len(vals))
-    ax.barh(y, vals, color=cols)
-    ax.set_yticks(y, labels, fontsize=7)
-    ax.invert_yaxis()
-    ax.axvline(TARGET_CPU_RATE / 1e6, color="k", ls=":", lw=1)
-    ax.text(TARGET_CPU_RATE / 1e6, len(vals) - 0.5, " target", fontsize=7, va="bottom")
-    ax.set(xscale="log", xlabel="M output voxels / s", title=(pe[0]["case"].split(",")[0] if pe else "peers"))
-    ax.grid(True, axis="x", which="both", alpha=0.3)
+    if vals:
+        ax.barh(y, vals, color=cols)
+        ax.set_yticks(y, labels, fontsize=7)
+        ax.invert_yaxis()
+        ax.axvline(TARGET_CPU_RATE / 1e6, color="k", ls=":", lw=1)
+        ax.text(TARGET_CPU_RATE / 1e6, len(vals) - 0.5, " target", fontsize=7, va="bottom")
+        ax.set(xscale="log", xlabel="M output voxels / s", title=pe[0]["case"].split(",")[0])
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+    else:
+        ax.set_axis_off()
+        ax.set_title("peers")
+        _legend_or_empty(ax)
     fig.suptitle(f"softvr volume deformation, rotated 45/45 deg - {m['cpu_model']}, {m['cores']} cores, "
                  f"{m['device_name']}, Warp {m['versions']['warp']}, {m['date'][:10]}", fontsize=9)
 
@@ -827,6 +845,13 @@ def write_plot(result: dict, path) -> None:
         fig.savefig(tmp, format="png", dpi=110)
 
     _atomic_write(Path(path), save)
+
+
+def _legend_or_empty(ax) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "not run", transform=ax.transAxes, ha="center", va="center", color="0.5")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -854,17 +879,23 @@ def main(argv: list[str] | None = None) -> int:
     bad = set(sections) - {"peers", "fig35", "fig36"}
     if bad:
         p.error(f"unknown sections {sorted(bad)}")
-    result = run_volume_bench(
-        device=a.device,
-        quick=a.quick,
-        repeat=a.repeat,
-        sections=sections,
-        fig35_sizes=[int(s) for s in a.fig35_sizes.split(",")] if a.fig35_sizes else None,
-        fig36_size=a.fig36_size,
-        fig35_mri=False if a.no_mri else None,
-        max_case_s=a.max_case_s,
-        progress=not a.no_progress,
-    )
+    from softvr.errors import SoftvrError
+
+    try:
+        result = run_volume_bench(
+            device=a.device,
+            quick=a.quick,
+            repeat=a.repeat,
+            sections=sections,
+            fig35_sizes=[int(s) for s in a.fig35_sizes.split(",")] if a.fig35_sizes else None,
+            fig36_size=a.fig36_size,
+            fig35_mri=False if a.no_mri else None,
+            max_case_s=a.max_case_s,
+            progress=not a.no_progress,
+        )
+    except SoftvrError as exc:
+        print(f"softvr bench volume: {exc}", file=sys.stderr)
+        return 2
     print(format_table(result))
     print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
           f"at end {result['loadavg_end']} ({result['machine']['cores']} cores)")

@@ -64,7 +64,7 @@ _BACKENDS = {
 
 
 class RenderBackendError(SoftvrError, RuntimeError):
-    """No OpenGL window class works in this process (missing system libraries)."""
+    """No usable OpenGL window: missing system libraries, or OSMesa mixed with an on-screen window."""
 
 
 #: Window kinds created so far in this process ("egl", "osmesa", "onscreen").

@@ -382,7 +382,8 @@ class VolumeViewer:
         self.window.AddRenderer(self.overlay)
 
         self.scene = VolumeScene(preset, "cpu", sample_distance=0.5)
-        self.scene.mapper.AutoAdjustSampleDistancesOn()  # coarser rays while dragging
+        self.scene.mapper.AutoAdjustSampleDistancesOn()  # coarser rays while dragging...
+        self.scene.mapper.SetMaximumImageSampleDistance(2.0)  # ...but at most every other pixel
         self.scene.update(volume)
         self.renderer.AddVolume(self.scene.prop)
 
