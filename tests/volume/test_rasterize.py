@@ -255,3 +255,19 @@ def test_vectorized_cpu_rows_match_the_warp_reference_bit_for_bit(dtype, interpo
         ref = Rasterizer(vol, nodes, tets, culling=method, interpolation=interpolation, device="cpu",
                          vectorized_rows=False)
         np.testing.assert_array_equal(fast.deform(moved).data, ref.deform(moved).data)
+
+
+def test_deform_into_an_existing_volume_reuses_its_buffer(device):
+    vol = _volume(np.int16, shape=(24, 20, 18))
+    nodes, tets = grid_tet_mesh(vol, 3)
+    r = Rasterizer(vol, nodes, tets, device=device)
+    first = r.deform(_rotate(nodes, (10, 20)))
+    second_nodes = _rotate(nodes, (15, 25))
+    fresh = r.deform(second_nodes, out_grid=first)
+    reused = r.deform(second_nodes, out=first)
+    assert reused is first
+    np.testing.assert_array_equal(reused.data, fresh.data)
+    with pytest.raises(InputError, match="dtype int16"):
+        r.deform(nodes, out=Volume(np.zeros(first.shape, np.float32)))
+    with pytest.raises(InputError, match="out_grid"):
+        r.deform(nodes, out_grid=first, out=first)

@@ -18,16 +18,18 @@ Examples
 
 from softvr.volume._io import load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
-from softvr.volume.rasterize import RasterStats, Rasterizer, deform
+from softvr.volume.rasterize import OutputGrid, RasterStats, Rasterizer, deform, fit_output_grid
 from softvr.volume.tetmesh import check_tets, grid_tet_mesh, load_tet_mesh
 
 __all__ = [
+    "OutputGrid",
     "SUPPORTED_DTYPES",
     "RasterStats",
     "Rasterizer",
     "Volume",
     "check_tets",
     "deform",
+    "fit_output_grid",
     "grid_tet_mesh",
     "load",
     "load_tet_mesh",

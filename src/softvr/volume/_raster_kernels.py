@@ -623,16 +623,3 @@ def tet_setup(
             if rv[a] < wp.float64(-0.5) or rv[a] > lim[a]:
                 inside = wp.float64(0.0)
     affine[t, 15] = inside
-
-
-@wp.kernel
-def fill_chunks(out: wp.array(dtype=Any), value: wp.array(dtype=Any), chunk: int, offset: int):
-    """Fill ``out`` (flat) with ``value[0]``, ``chunk`` elements per thread (first-touch in parallel)."""
-    c = wp.tid() + offset
-    v = value[0]
-    for e in range(c * chunk, wp.min((c + 1) * chunk, out.shape[0])):
-        out[e] = v
-
-
-for _dtype in (wp.uint8, wp.int16, wp.uint16, wp.float32):
-    wp.overload(fill_chunks, {"out": wp.array(dtype=_dtype), "value": wp.array(dtype=_dtype)})

@@ -33,7 +33,7 @@ from softvr.volume import _raster_kernels as K
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
 from softvr.volume.tetmesh import check_tets
 
-__all__ = ["RasterStats", "Rasterizer", "deform", "fit_output_grid"]
+__all__ = ["OutputGrid", "RasterStats", "Rasterizer", "deform", "fit_output_grid"]
 
 _METHODS = {False: "bbox", True: "spans", "bbox": "bbox", "none": "bbox", "cells": "cells", "spans": "spans"}
 # Snapped coordinates stay below 2**17 so that plane values (|n| < 2**37) fit in int64.
@@ -91,30 +91,51 @@ class RasterStats:
         return asdict(self) | {"voxels_per_second": self.voxels_per_second}
 
 
-def fit_output_grid(volume: Volume, deformed_nodes: np.ndarray) -> Volume:
-    """An empty output grid (1-voxel placeholder data) fitted to deformed node bounds.
+@dataclass(frozen=True)
+class OutputGrid:
+    """A regular output grid without data: voxel (i, j, k) at origin + direction @ (spacing * ijk).
+
+    Attributes
+    ----------
+    shape : tuple of 3 int
+    spacing : ndarray, shape [3] [volume units]
+    origin : ndarray, shape [3] [volume units]
+    direction : ndarray, shape [3, 3]
+    """
+
+    shape: tuple
+    spacing: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+
+    @classmethod
+    def of(cls, volume: Volume) -> "OutputGrid":
+        return cls(volume.shape, volume.spacing, volume.origin, volume.direction)
+
+    def world_to_index(self, xyz: np.ndarray) -> np.ndarray:
+        """Continuous voxel indices [..., 3] of world positions [..., 3]."""
+        return ((np.asarray(xyz, dtype=np.float64) - self.origin) @ self.direction) / self.spacing
+
+
+def fit_output_grid(volume: Volume, deformed_nodes: np.ndarray) -> OutputGrid:
+    """The output grid fitted to deformed node bounds.
 
     Keeps the input's spacing and direction. The deformed nodes' bounding box (in the
     input's frame) is tiled with whole voxels whose footprints lie inside it, the first
     voxel centre half a voxel from the lower corner: a mesh covering the input's
     footprint (:func:`grid_tet_mesh`) moved by whole voxels yields the input's grid.
 
-    Returns
-    -------
-    Volume
-        Placeholder with ``data`` of shape [1, 1, 1]; use :func:`grid_shape` for the shape.
+    Parameters
+    ----------
+    volume : Volume
+        The input volume (spacing and direction are kept).
+    deformed_nodes : ndarray, shape [node_count, 3] [volume units]
     """
     local = np.asarray(deformed_nodes, dtype=np.float64) @ volume.direction  # world -> grid frame
     lo, hi = local.min(axis=0), local.max(axis=0)
     shape = np.maximum(np.floor((hi - lo) / volume.spacing + 1e-6).astype(np.int64), 1)
     origin = volume.direction @ (lo + 0.5 * volume.spacing)
-    grid = Volume(np.zeros((1, 1, 1), volume.dtype), volume.spacing.copy(), origin, volume.direction.copy())
-    grid._fitted_shape = tuple(int(n) for n in shape)  # noqa: SLF001 - carried to _grid_shape
-    return grid
-
-
-def _grid_shape(grid: Volume) -> tuple[int, int, int]:
-    return getattr(grid, "_fitted_shape", grid.shape)
+    return OutputGrid(tuple(int(n) for n in shape), volume.spacing.copy(), origin, volume.direction.copy())
 
 
 class Rasterizer:
@@ -221,23 +242,36 @@ class Rasterizer:
         self.stats: RasterStats | None = None
 
     # ------------------------------------------------------------------ public
-    def deform(self, deformed_nodes, out_grid: Volume | None = None) -> Volume:
+    def deform(self, deformed_nodes, out_grid: Volume | None = None, *, out: Volume | None = None) -> Volume:
         """Rasterize the volume deformed by ``deformed_nodes``.
 
         Parameters
         ----------
         deformed_nodes : array_like, shape [node_count, 3]
             Deformed node positions [volume spacing units, world frame].
-        out_grid : Volume, optional
-            Output grid (shape, spacing, origin, direction are used; its data is not).
-            ``None`` fits the grid to the deformed bounds with the input's spacing.
+        out_grid : Volume or OutputGrid, optional
+            Output grid (shape, spacing, origin, direction are used; a Volume's data is
+            not). ``None`` fits the grid to the deformed bounds (:func:`fit_output_grid`).
+        out : Volume, optional
+            Write into this volume's data (its grid is the output grid) instead of a new
+            array: frame after frame on one grid this saves allocating and first-touching
+            the output. Must have the input's dtype and C-contiguous data.
 
         Returns
         -------
         Volume
-            The deformed volume, same dtype as the input; ``stats`` holds its statistics.
+            The deformed volume (``out`` itself when given), same dtype as the input;
+            ``stats`` holds its statistics.
         """
-        return self._run(deformed_nodes, out_grid, count_writes=False)
+        if out is not None:
+            if out_grid is not None:
+                raise InputError("out_grid", "None when out is given (out is the grid)", "both")
+            if not isinstance(out, Volume) or out.dtype != self.volume.dtype or not out.data.flags.c_contiguous:
+                found = type(out).__name__ if not isinstance(out, Volume) else f"dtype {out.dtype}, C-contiguous {out.data.flags.c_contiguous}"
+                raise InputError("out", f"a Volume with dtype {self.volume.dtype} and C-contiguous data", found)
+            if not out.data.flags.writeable:
+                raise InputError("out", "a Volume with writeable data", "read-only data")
+        return self._run(deformed_nodes, out_grid, count_writes=False, into=out)
 
     def write_counts(self, deformed_nodes, out_grid: Volume | None = None) -> Volume:
         """How many tets claim each output voxel (0 outside the mesh, 1 inside).
@@ -253,7 +287,7 @@ class Rasterizer:
         return self._run(deformed_nodes, out_grid, count_writes=True)
 
     # ---------------------------------------------------------------- internals
-    def _run(self, deformed_nodes, out_grid, count_writes: bool) -> Volume:
+    def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None) -> Volume:
         t_start = time.perf_counter()
         x1 = np.asarray(deformed_nodes)
         if x1.shape != self.nodes.shape:
@@ -261,10 +295,17 @@ class Rasterizer:
                 "deformed_nodes", f"an array of the rest nodes' shape {self.nodes.shape}", f"shape {x1.shape}"
             )
         x1, _ = check_tets(x1, self.tets, nodes_name="deformed_nodes")
-        grid = fit_output_grid(self.volume, x1) if out_grid is None else out_grid
-        if not isinstance(grid, Volume):
-            raise InputError("out_grid", "None or a softvr.volume.Volume", type(grid).__name__)
-        shape = _grid_shape(grid)
+        if into is not None:
+            grid = OutputGrid.of(into)
+        elif out_grid is None:
+            grid = fit_output_grid(self.volume, x1)
+        elif isinstance(out_grid, Volume):
+            grid = OutputGrid.of(out_grid)
+        elif isinstance(out_grid, OutputGrid):
+            grid = out_grid
+        else:
+            raise InputError("out_grid", "None, a softvr.volume.Volume or an OutputGrid", type(out_grid).__name__)
+        shape = grid.shape
         face_w, affine_w, box_w = self._setup(grid.world_to_index(x1), shape)
         box = box_w.numpy()
 
@@ -274,7 +315,7 @@ class Rasterizer:
             out = wp.empty((1, 1, 1), dtype=self._vol.dtype, device=dev)
         else:
             counts = wp.empty((0, 0, 0), dtype=wp.int32, device=dev)
-            out = _filled(shape, self.background, self.volume.dtype, dev)
+            out = _background(shape, self.background, self.volume.dtype, dev, None if into is None else into.data)
         m = len(box)
         t_setup = time.perf_counter()
 
@@ -322,7 +363,14 @@ class Rasterizer:
             )
         n_tested = int(tested.numpy().sum(dtype=np.int64))
         n_written = int(written.numpy().sum(dtype=np.int64))
-        data = counts.numpy() if count_writes else out.numpy()
+        if count_writes:
+            data = counts.numpy()
+        elif into is not None:
+            data = into.data
+            if dev != "cpu":
+                data[...] = out.numpy()
+        else:
+            data = out.numpy()
         t_end = time.perf_counter()
         self.stats = RasterStats(
             method=self.method,
@@ -339,6 +387,8 @@ class Rasterizer:
             time_raster_s=t_end - t_cull,
             time_total_s=t_end - t_start,
         )
+        if into is not None:
+            return into
         return Volume(
             data,
             grid.spacing.copy(),
@@ -416,13 +466,19 @@ def subvoxel_factor(u1: np.ndarray, shape) -> int:
     return int(min(_MAX_SUBVOXEL, 2 ** np.floor(np.log2(_COORD_LIMIT / extent))))
 
 
-def _filled(shape, value: float, dtype: np.dtype, device: str) -> wp.array:
-    """A Warp array of ``shape`` filled with ``value``, the fill spread over all CPU cores."""
-    out = wp.empty(int(np.prod(shape)), dtype=wp.dtype_from_numpy(dtype), device=device)
-    chunk = 1 << 16
-    src = wp.array(np.full(1, value, dtype=dtype), device=device)
-    launch(K.fill_chunks, -(-out.shape[0] // chunk), [out, src, chunk], device, min_chunk=1)
-    return out.reshape(tuple(shape))
+def _background(shape, value: float, dtype: np.dtype, device: str, host: np.ndarray | None) -> wp.array:
+    """The output array, every voxel set to the background ``value``.
+
+    On the CPU it is ``host`` (or a new numpy array), filled by numpy at memory speed and
+    shared with Warp without a copy.
+    """
+    if device == "cpu":
+        arr = np.empty(shape, dtype=dtype) if host is None else host
+        arr.fill(value)
+        return wp.array(arr, device=device, copy=False)
+    out = wp.empty(tuple(shape), dtype=wp.dtype_from_numpy(dtype), device=device)
+    out.fill_(value)
+    return out
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
