@@ -211,6 +211,200 @@ def write_row_native(
     """CPU row writer (vectorized C++): output voxels row_offset + [klo, khi] of a C-order array."""
     ...
 
+
+
+# The CPU fast path for exact spans: one whole tet in C++. Rows of a small tet are
+# short (a few voxels), so voxels of many rows are queued and sampled in one vectorized loop.
+# Every expression (DDA, spans, footprint clipping, positions, trilinear, rounding) is the
+# one the Warp reference evaluates, in the same order without FMA contraction.
+_TET_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+#pragma clang fp contract(off)
+    typedef long long i64;
+    const i64* F = (const i64*)face.data + (i64)(4 * t) * 5;
+    const double* A = (const double*)affine.data + (i64)t * 16;
+    const int* B = (const int*)box.data + (i64)t * 6;
+    const float* __restrict__ v = (const float*)volf.data;
+    const int nx1 = dims[0] - 1, ny1 = dims[1] - 1, nz1 = dims[2] - 1;
+    const int mx = nx1 > 1 ? nx1 - 1 : 0, my = ny1 > 1 ? ny1 - 1 : 0, mz = nz1 > 1 ? nz1 - 1 : 0;
+    const int sx = strides[0], sy = strides[1], sz = strides[2];
+    const float fx1 = (float)nx1, fy1 = (float)ny1, fz1 = (float)nz1;
+    const float lo_v = params[2], hi_v = params[3];
+    const bool nearest = params[0] != 0.0f, rounding = params[1] != 0.0f;
+    const bool clip = A[15] == 0.0;
+    const float ax = (float)A[2], ay = (float)A[5], az = (float)A[8];
+    double px = 0.0, py = 0.0, pz = 0.0;
+    auto floor_div = [](i64 a, i64 b) { i64 q = a / b; if (q * b > a) q -= 1; return q; };
+    auto clampf_ = [](float x, float h) { return x < 0.0f ? 0.0f : (x > h ? h : x); };
+    auto to_index = [](float x) { return (int)(x < -1.0e9f ? -1.0e9f : (x > 1.0e9f ? 1.0e9f : x)); };
+    auto axis_range = [&](float b, float inv_a, int n, int& lo, int& hi) {
+        const float lo_u = -0.5f, hi_u = (float)n - 0.5f;
+        if (inv_a > 0.0f) {
+            int c = to_index(__builtin_ceilf((lo_u - b) * inv_a)); lo = lo > c ? lo : c;
+            int f = to_index(__builtin_floorf((hi_u - b) * inv_a)); hi = hi < f ? hi : f;
+        } else if (inv_a < 0.0f) {
+            int c = to_index(__builtin_ceilf((hi_u - b) * inv_a)); lo = lo > c ? lo : c;
+            int f = to_index(__builtin_floorf((lo_u - b) * inv_a)); hi = hi < f ? hi : f;
+        } else if (b < lo_u || b > hi_u) {
+            hi = lo - 1;
+        }
+    };
+    // Per face f: g(i, j) = Sx i + Sy j - e; q = floor(g / |Sz|) with remainder r (q = g when
+    // Sz = 0), stepped along j (dq, dr) and i (dqi, dri) without dividing: a 2-D DDA.
+    i64 qi[4], ri[4], dqi[4], dri[4], dq[4], dr[4], den[4], szs[4];
+    for (int f = 0; f < 4; ++f) {
+        const i64* Ff = F + 5 * f;
+        const i64 g = Ff[0] * (i64)B[0] + Ff[1] * (i64)B[2] - Ff[3];
+        const i64 d = Ff[2] < 0 ? -Ff[2] : Ff[2];
+        if (d > 0) {
+            qi[f] = floor_div(g, d); ri[f] = g - qi[f] * d;
+            dq[f] = floor_div(Ff[1], d); dr[f] = Ff[1] - dq[f] * d;
+            dqi[f] = floor_div(Ff[0], d); dri[f] = Ff[0] - dqi[f] * d;
+        } else {
+            qi[f] = g; ri[f] = 0; dq[f] = Ff[1]; dr[f] = 0; dqi[f] = Ff[0]; dri[f] = 0;
+        }
+        den[f] = d; szs[f] = Ff[2];
+    }
+    const int QUEUE = 512;
+    int kq[QUEUE];
+    i64 oq[QUEUE];
+    float bxq[QUEUE], byq[QUEUE], bzq[QUEUE], vq[QUEUE];
+    int queued = 0, written = 0;
+    auto flush = [&](auto* __restrict__ o, auto zero) {
+        using T = decltype(zero);
+        const int* __restrict__ K = kq;
+        const float* __restrict__ BX = bxq;
+        const float* __restrict__ BY = byq;
+        const float* __restrict__ BZ = bzq;
+        float* __restrict__ V = vq;
+        const int cnt = queued;
+        if (nearest) {
+            for (int n = 0; n < cnt; ++n) {
+                const float fk = (float)K[n];
+                const int ix = (int)(clampf_(BX[n] + ax * fk, fx1) + 0.5f);
+                const int iy = (int)(clampf_(BY[n] + ay * fk, fy1) + 0.5f);
+                const int iz = (int)(clampf_(BZ[n] + az * fk, fz1) + 0.5f);
+                V[n] = v[ix * sx + iy * sy + iz * sz];
+            }
+        } else {
+            #pragma clang loop vectorize(enable) interleave(enable)
+            for (int n = 0; n < cnt; ++n) {
+                const float fk = (float)K[n];
+                const float ux = clampf_(BX[n] + ax * fk, fx1);
+                const float uy = clampf_(BY[n] + ay * fk, fy1);
+                const float uz = clampf_(BZ[n] + az * fk, fz1);
+                int ix = (int)ux; ix = ix < mx ? ix : mx;
+                int iy = (int)uy; iy = iy < my ? iy : my;
+                int iz = (int)uz; iz = iz < mz ? iz : mz;
+                const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
+                const int p = ix * sx + iy * sy + iz * sz;
+                const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
+                const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
+                const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
+                const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
+                const float c0 = (1.0f - wy) * c00 + wy * c01;
+                const float c1 = (1.0f - wy) * c10 + wy * c11;
+                float val = (1.0f - wx) * c0 + wx * c1;
+                if (rounding) {
+                    val = __builtin_floorf(val + 0.5f);
+                    val = val < lo_v ? lo_v : (val > hi_v ? hi_v : val);
+                }
+                V[n] = val;
+            }
+        }
+        for (int n = 0; n < cnt; ++n) o[oq[n]] = (T)V[n];
+        queued = 0;
+    };
+    auto flush_any = [&]() {
+        switch (out_code) {
+            case 1: flush((unsigned char*)out_ptr, (unsigned char)0); break;
+            case 2: flush((short*)out_ptr, (short)0); break;
+            case 3: flush((unsigned short*)out_ptr, (unsigned short)0); break;
+            case 4: flush((float*)out_ptr, 0.0f); break;
+            default: queued = 0; break;
+        }
+    };
+    for (int i = B[0]; i <= B[1]; ++i) {
+        const double fi = (double)i;
+        px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
+        i64 q[4], r[4];
+        for (int f = 0; f < 4; ++f) { q[f] = qi[f]; r[f] = ri[f]; }
+        for (int j = B[2]; j <= B[3]; ++j) {
+            i64 klo = B[4], khi = B[5];
+            for (int f = 0; f < 4; ++f) {
+                if (szs[f] > 0) { const i64 c = -q[f]; klo = klo > c ? klo : c; }
+                else if (szs[f] < 0) { khi = khi < q[f] ? khi : q[f]; }
+                else if (q[f] < 0) { khi = klo - 1; }
+            }
+            if (khi >= klo) {
+                written += (int)(khi - klo) + 1;
+                int lo = (int)klo, hi = (int)khi;
+                if (clip) {
+                    const double fj = (double)j;
+                    axis_range((float)(px + A[1] * fj + A[9]), (float)A[12], dims[0], lo, hi);
+                    axis_range((float)(py + A[4] * fj + A[10]), (float)A[13], dims[1], lo, hi);
+                    axis_range((float)(pz + A[7] * fj + A[11]), (float)A[14], dims[2], lo, hi);
+                }
+                const double fj = (double)j;
+                const float bx = (float)(px + A[1] * fj + A[9]);
+                const float by = (float)(py + A[4] * fj + A[10]);
+                const float bz = (float)(pz + A[7] * fj + A[11]);
+                const i64 row = ((i64)i * out_ny + j) * out_nz;
+                while (lo <= hi) {
+                    const int take = (hi - lo + 1) < (QUEUE - queued) ? (hi - lo + 1) : (QUEUE - queued);
+                    for (int e = 0; e < take; ++e) {
+                        kq[queued + e] = lo + e; oq[queued + e] = row + lo + e;
+                        bxq[queued + e] = bx; byq[queued + e] = by; bzq[queued + e] = bz;
+                    }
+                    queued += take;
+                    lo += take;
+                    if (queued == QUEUE) flush_any();
+                }
+            }
+            for (int f = 0; f < 4; ++f) {
+                q[f] += dq[f];
+                if (den[f] > 0) {
+                    r[f] += dr[f];
+                    if (r[f] >= den[f]) { r[f] -= den[f]; q[f] += 1; }
+                }
+            }
+        }
+        for (int f = 0; f < 4; ++f) {
+            qi[f] += dqi[f];
+            if (den[f] > 0) {
+                ri[f] += dri[f];
+                if (ri[f] >= den[f]) { ri[f] -= den[f]; qi[f] += 1; }
+            }
+        }
+    }
+    if (queued > 0) flush_any();
+    return written;
+}
+#else
+    return 0;
+#endif
+"""
+
+
+@wp.func_native(_TET_SNIPPET)
+def write_tet_native(
+    volf: wp.array(dtype=wp.float32),
+    dims: wp.vec3i,
+    strides: wp.vec3i,
+    out_ptr: wp.uint64,
+    out_code: int,
+    out_ny: wp.int64,
+    out_nz: wp.int64,
+    face: wp.array2d(dtype=wp.int64),
+    affine: wp.array2d(dtype=wp.float64),
+    box: wp.array2d(dtype=wp.int32),
+    t: int,
+    params: wp.vec4f,
+) -> int:
+    """CPU exact-span rasterization of tet t (all its slabs); returns the voxels inside."""
+    ...
+
 @wp.func
 def write_row(
     vol: wp.array(dtype=Any),
@@ -274,6 +468,29 @@ def inside(face: wp.array2d(dtype=wp.int64), t: int, i: int, j: int, k: int) -> 
         if face_value(face, 4 * t + f, i, j, k) < wp.int64(0):
             return False
     return True
+
+
+@wp.kernel
+def raster_tets_cpu(
+    volf: wp.array(dtype=wp.float32),
+    dims: wp.vec3i,
+    strides: wp.vec3i,
+    out_ptr: wp.uint64,
+    out_code: int,
+    out_shape: wp.vec3i,
+    face: wp.array2d(dtype=wp.int64),
+    affine: wp.array2d(dtype=wp.float64),
+    box: wp.array2d(dtype=wp.int32),
+    params: wp.vec4f,
+    written: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    """CPU exact spans, one thread per tet (:func:`write_tet_native`); same voxels as raster_slabs."""
+    t = wp.tid() + offset
+    written[t] = write_tet_native(
+        volf, dims, strides, out_ptr, out_code, wp.int64(out_shape[1]), wp.int64(out_shape[2]),
+        face, affine, box, t, params,
+    )
 
 
 @wp.func

@@ -341,6 +341,20 @@ class Rasterizer:
                 dev,
                 min_chunk=64,
             )
+        elif self.method == "spans" and self._out_code and not count_writes:
+            t_cull = time.perf_counter()
+            written = wp.zeros(max(m, 1), dtype=wp.int32, device=dev)
+            tested = written
+            launch(
+                K.raster_tets_cpu,
+                m,
+                [
+                    self._volf, self._dims, self._strides, wp.uint64(out.ptr), self._out_code,
+                    wp.vec3i(*shape), face_w, affine_w, box_w, self._params, written,
+                ],
+                dev,
+                min_chunk=64,
+            )
         else:
             t_cull = time.perf_counter()
             slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
