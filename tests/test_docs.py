@@ -12,6 +12,10 @@ MODULES = [
     "softvr.volume.rasterize",
     "softvr.volume.tetmesh",
     "softvr.volume._volume",
+    "softvr.render",
+    "softvr.render.volume_render",
+    "softvr.render.camera",
+    "softvr.render.contact_sheet",
 ]
 
 
@@ -21,10 +25,15 @@ def test_docstring_examples_run(name):
     assert result.failed == 0
 
 
-def test_readme_python_block_runs(capsys):
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
-    assert blocks, "the README shows how to use softvr from Python"
+DOCS = ["README.md", "docs/volume.md"]
+
+
+@pytest.mark.parametrize("doc", DOCS)
+def test_python_blocks_in_docs_run(doc, tmp_path, monkeypatch, capsys):
+    text = (Path(__file__).parents[1] / doc).read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert blocks, f"{doc} shows how to use softvr from Python"
+    monkeypatch.chdir(tmp_path)  # blocks may write files
     for block in blocks:
-        exec(compile(block, "README.md", "exec"), {})
-    assert "(" in capsys.readouterr().out
+        exec(compile(block, doc, "exec"), {})
+    assert capsys.readouterr().out

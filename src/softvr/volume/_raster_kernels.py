@@ -213,7 +213,7 @@ def write_row_native(
 
 
 
-# The CPU fast path for exact spans: one whole tet in C++. Rows of a small tet are
+# The CPU fast path for exact spans: a run of x-slabs of one tet in C++. Rows of a small tet are
 # short (a few voxels), so voxels of many rows are queued and sampled in one vectorized loop.
 # Every expression (DDA, spans, footprint clipping, positions, trilinear, rounding) is the
 # one the Warp reference evaluates, in the same order without FMA contraction.
@@ -255,7 +255,7 @@ _TET_SNIPPET = r"""
     i64 qi[4], ri[4], dqi[4], dri[4], dq[4], dr[4], den[4], szs[4];
     for (int f = 0; f < 4; ++f) {
         const i64* Ff = F + 5 * f;
-        const i64 g = Ff[0] * (i64)B[0] + Ff[1] * (i64)B[2] - Ff[3];
+        const i64 g = Ff[0] * (i64)i_first + Ff[1] * (i64)B[2] - Ff[3];
         const i64 d = Ff[2] < 0 ? -Ff[2] : Ff[2];
         if (d > 0) {
             qi[f] = floor_div(g, d); ri[f] = g - qi[f] * d;
@@ -325,7 +325,7 @@ _TET_SNIPPET = r"""
             default: queued = 0; break;
         }
     };
-    for (int i = B[0]; i <= B[1]; ++i) {
+    for (int i = i_first; i <= i_last; ++i) {
         const double fi = (double)i;
         px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
         i64 q[4], r[4];
@@ -400,9 +400,11 @@ def write_tet_native(
     affine: wp.array2d(dtype=wp.float64),
     box: wp.array2d(dtype=wp.int32),
     t: int,
+    i_first: int,
+    i_last: int,
     params: wp.vec4f,
 ) -> int:
-    """CPU exact-span rasterization of tet t (all its slabs); returns the voxels inside."""
+    """CPU exact-span rasterization of slabs x = i_first..i_last of tet t; returns the voxels inside."""
     ...
 
 @wp.func
@@ -481,15 +483,22 @@ def raster_tets_cpu(
     face: wp.array2d(dtype=wp.int64),
     affine: wp.array2d(dtype=wp.float64),
     box: wp.array2d(dtype=wp.int32),
+    item_offsets: wp.array(dtype=wp.int32),
+    tet_count: int,
+    slabs_per_item: int,
     params: wp.vec4f,
     written: wp.array(dtype=wp.int32),
     offset: int,
 ):
-    """CPU exact spans, one thread per tet (:func:`write_tet_native`); same voxels as raster_slabs."""
-    t = wp.tid() + offset
-    written[t] = write_tet_native(
+    """CPU exact spans (:func:`write_tet_native`), one thread per run of ``slabs_per_item``
+    x-slabs of a tet: small tets are one item, big ones several (load balance)."""
+    s = wp.tid() + offset
+    t = owner_search(item_offsets, tet_count, s)
+    i_first = box[t, 0] + (s - item_offsets[t]) * slabs_per_item
+    i_last = wp.min(i_first + slabs_per_item - 1, box[t, 1])
+    written[s] = write_tet_native(
         volf, dims, strides, out_ptr, out_code, wp.int64(out_shape[1]), wp.int64(out_shape[2]),
-        face, affine, box, t, params,
+        face, affine, box, t, i_first, i_last, params,
     )
 
 

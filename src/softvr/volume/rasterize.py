@@ -39,6 +39,8 @@ _METHODS = {False: "bbox", True: "spans", "bbox": "bbox", "none": "bbox", "cells
 # Snapped coordinates stay below 2**17 so that plane values (|n| < 2**37) fit in int64.
 _COORD_LIMIT = 2**17
 _MAX_SUBVOXEL = 256
+# CPU exact spans: x-slabs per work item, small enough to balance a few huge tets over the cores.
+_SLABS_PER_ITEM = 16
 # Output type codes of the vectorized CPU row writer (see _raster_kernels._ROW_SNIPPET).
 _OUT_CODES = {np.dtype(np.uint8): 1, np.dtype(np.int16): 2, np.dtype(np.uint16): 3, np.dtype(np.float32): 4}
 
@@ -343,17 +345,21 @@ class Rasterizer:
             )
         elif self.method == "spans" and self._out_code and not count_writes:
             t_cull = time.perf_counter()
-            written = wp.zeros(max(m, 1), dtype=wp.int32, device=dev)
+            slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
+            offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
+            items = int(offsets[-1])
+            written = wp.zeros(max(items, 1), dtype=wp.int32, device=dev)
             tested = written
             launch(
                 K.raster_tets_cpu,
-                m,
+                items,
                 [
                     self._volf, self._dims, self._strides, wp.uint64(out.ptr), self._out_code,
-                    wp.vec3i(*shape), face_w, affine_w, box_w, self._params, written,
+                    wp.vec3i(*shape), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                    m, _SLABS_PER_ITEM, self._params, written,
                 ],
                 dev,
-                min_chunk=64,
+                min_chunk=16,
             )
         else:
             t_cull = time.perf_counter()
