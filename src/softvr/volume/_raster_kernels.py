@@ -125,57 +125,83 @@ def axis_range(b: wp.float32, inv_a: wp.float32, n: int, klo: int, khi: int):
 
 
 
-# The CPU fast path: one output row written by a plain C++ loop that clang vectorizes
-# (AVX2 / AVX-512 gathers) over a float32 copy of the input. It evaluates exactly the
-# expressions of ``sample`` + ``write_row`` below, which stay the reference (and the CUDA
-# path); tests check the two agree. Output types: 1 uint8, 2 int16, 3 uint16, 4 float32.
-_ROW_SNIPPET = r"""
-#if !defined(__CUDA_ARCH__)
-{
-#pragma clang fp contract(off)
+# C++ shared by the two CPU snippets below: constants of the input, and the sampling of
+# ``sample`` + ``write_row`` (clamp to the voxel range, trilinear or nearest, round) written
+# as plain expressions in the reference's order.
+_CPP_INPUT = r"""
     const float* __restrict__ v = (const float*)volf.data;
     const int nx1 = dims[0] - 1, ny1 = dims[1] - 1, nz1 = dims[2] - 1;
     const int mx = nx1 > 1 ? nx1 - 1 : 0, my = ny1 > 1 ? ny1 - 1 : 0, mz = nz1 > 1 ? nz1 - 1 : 0;
     const int sx = strides[0], sy = strides[1], sz = strides[2];
     const float fx1 = (float)nx1, fy1 = (float)ny1, fz1 = (float)nz1;
-    const float lo = params[2], hi = params[3];
+    const float lo_v = params[2], hi_v = params[3];
     const bool nearest = params[0] != 0.0f, rounding = params[1] != 0.0f;
     auto clampf_ = [](float x, float h) { return x < 0.0f ? 0.0f : (x > h ? h : x); };
+"""
+
+
+def _cpp_nearest(ux: str, uy: str, uz: str) -> str:
+    """C++ statements declaring ``val``, the nearest input value at continuous index (ux, uy, uz)."""
+    return f"""
+                const int ix = (int)(clampf_({ux}, fx1) + 0.5f);
+                const int iy = (int)(clampf_({uy}, fy1) + 0.5f);
+                const int iz = (int)(clampf_({uz}, fz1) + 0.5f);
+                const float val = v[ix * sx + iy * sy + iz * sz];"""
+
+
+def _cpp_trilinear(ux: str, uy: str, uz: str) -> str:
+    """C++ statements declaring ``val``, the trilinear input value at (ux, uy, uz), rounded if asked."""
+    return f"""
+                const float ux = clampf_({ux}, fx1);
+                const float uy = clampf_({uy}, fy1);
+                const float uz = clampf_({uz}, fz1);
+                int ix = (int)ux; ix = ix < mx ? ix : mx;
+                int iy = (int)uy; iy = iy < my ? iy : my;
+                int iz = (int)uz; iz = iz < mz ? iz : mz;
+                const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
+                const int p = ix * sx + iy * sy + iz * sz;
+                const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
+                const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
+                const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
+                const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
+                const float c0 = (1.0f - wy) * c00 + wy * c01;
+                const float c1 = (1.0f - wy) * c10 + wy * c11;
+                float val = (1.0f - wx) * c0 + wx * c1;
+                if (rounding) {{
+                    val = __builtin_floorf(val + 0.5f);
+                    val = val < lo_v ? lo_v : (val > hi_v ? hi_v : val);
+                }}"""
+
+
+# The CPU fast path: one output row written by a plain C++ loop that clang vectorizes
+# (AVX2 / AVX-512 gathers) over a float32 copy of the input. It evaluates exactly the
+# expressions of ``sample`` + ``write_row`` below, which stay the reference (and the CUDA
+# path); tests check the two agree. Output types: 1 uint8, 2 int16, 3 uint16, 4 float32.
+_ROW_SNIPPET = (
+    r"""
+#if !defined(__CUDA_ARCH__)
+{
+#pragma clang fp contract(off)
+"""
+    + _CPP_INPUT
+    + r"""
     auto run = [&](auto* __restrict__ o, auto zero) {
         using T = decltype(zero);
         if (nearest) {
             for (int k = klo; k <= khi; ++k) {
-                const float fk = (float)k;
-                const int ix = (int)(clampf_(bx + ax * fk, fx1) + 0.5f);
-                const int iy = (int)(clampf_(by + ay * fk, fy1) + 0.5f);
-                const int iz = (int)(clampf_(bz + az * fk, fz1) + 0.5f);
-                o[k] = (T)v[ix * sx + iy * sy + iz * sz];
+                const float fk = (float)k;"""
+    + _cpp_nearest("bx + ax * fk", "by + ay * fk", "bz + az * fk")
+    + r"""
+                o[k] = (T)val;
             }
             return;
         }
         #pragma clang loop vectorize(enable) interleave(enable)
         for (int k = klo; k <= khi; ++k) {
-            const float fk = (float)k;
-            const float ux = clampf_(bx + ax * fk, fx1);
-            const float uy = clampf_(by + ay * fk, fy1);
-            const float uz = clampf_(bz + az * fk, fz1);
-            int ix = (int)ux; ix = ix < mx ? ix : mx;
-            int iy = (int)uy; iy = iy < my ? iy : my;
-            int iz = (int)uz; iz = iz < mz ? iz : mz;
-            const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
-            const int p = ix * sx + iy * sy + iz * sz;
-            const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
-            const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
-            const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
-            const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
-            const float c0 = (1.0f - wy) * c00 + wy * c01;
-            const float c1 = (1.0f - wy) * c10 + wy * c11;
-            float r = (1.0f - wx) * c0 + wx * c1;
-            if (rounding) {
-                r = __builtin_floorf(r + 0.5f);
-                r = r < lo ? lo : (r > hi ? hi : r);
-            }
-            o[k] = (T)r;
+            const float fk = (float)k;"""
+    + _cpp_trilinear("bx + ax * fk", "by + ay * fk", "bz + az * fk")
+    + r"""
+            o[k] = (T)val;
         }
     };
     switch (out_code) {
@@ -188,6 +214,7 @@ _ROW_SNIPPET = r"""
 }
 #endif
 """
+)
 
 
 @wp.func_native(_ROW_SNIPPET)
@@ -217,7 +244,8 @@ def write_row_native(
 # short (a few voxels), so voxels of many rows are queued and sampled in one vectorized loop.
 # Every expression (DDA, spans, footprint clipping, positions, trilinear, rounding) is the
 # one the Warp reference evaluates, in the same order without FMA contraction.
-_TET_SNIPPET = r"""
+_TET_SNIPPET = (
+    r"""
 #if !defined(__CUDA_ARCH__)
 {
 #pragma clang fp contract(off)
@@ -225,18 +253,13 @@ _TET_SNIPPET = r"""
     const i64* F = (const i64*)face.data + (i64)(4 * t) * 5;
     const double* A = (const double*)affine.data + (i64)t * 16;
     const int* B = (const int*)box.data + (i64)t * 6;
-    const float* __restrict__ v = (const float*)volf.data;
-    const int nx1 = dims[0] - 1, ny1 = dims[1] - 1, nz1 = dims[2] - 1;
-    const int mx = nx1 > 1 ? nx1 - 1 : 0, my = ny1 > 1 ? ny1 - 1 : 0, mz = nz1 > 1 ? nz1 - 1 : 0;
-    const int sx = strides[0], sy = strides[1], sz = strides[2];
-    const float fx1 = (float)nx1, fy1 = (float)ny1, fz1 = (float)nz1;
-    const float lo_v = params[2], hi_v = params[3];
-    const bool nearest = params[0] != 0.0f, rounding = params[1] != 0.0f;
+"""
+    + _CPP_INPUT
+    + r"""
     const bool clip = A[15] == 0.0;
     const float ax = (float)A[2], ay = (float)A[5], az = (float)A[8];
     double px = 0.0, py = 0.0, pz = 0.0;
     auto floor_div = [](i64 a, i64 b) { i64 q = a / b; if (q * b > a) q -= 1; return q; };
-    auto clampf_ = [](float x, float h) { return x < 0.0f ? 0.0f : (x > h ? h : x); };
     auto to_index = [](float x) { return (int)(x < -1.0e9f ? -1.0e9f : (x > 1.0e9f ? 1.0e9f : x)); };
     auto axis_range = [&](float b, float inv_a, int n, int& lo, int& hi) {
         const float lo_u = -0.5f, hi_u = (float)n - 0.5f;
@@ -281,35 +304,17 @@ _TET_SNIPPET = r"""
         const int cnt = queued;
         if (nearest) {
             for (int n = 0; n < cnt; ++n) {
-                const float fk = (float)K[n];
-                const int ix = (int)(clampf_(BX[n] + ax * fk, fx1) + 0.5f);
-                const int iy = (int)(clampf_(BY[n] + ay * fk, fy1) + 0.5f);
-                const int iz = (int)(clampf_(BZ[n] + az * fk, fz1) + 0.5f);
-                V[n] = v[ix * sx + iy * sy + iz * sz];
+                const float fk = (float)K[n];"""
+    + _cpp_nearest("BX[n] + ax * fk", "BY[n] + ay * fk", "BZ[n] + az * fk")
+    + r"""
+                V[n] = val;
             }
         } else {
             #pragma clang loop vectorize(enable) interleave(enable)
             for (int n = 0; n < cnt; ++n) {
-                const float fk = (float)K[n];
-                const float ux = clampf_(BX[n] + ax * fk, fx1);
-                const float uy = clampf_(BY[n] + ay * fk, fy1);
-                const float uz = clampf_(BZ[n] + az * fk, fz1);
-                int ix = (int)ux; ix = ix < mx ? ix : mx;
-                int iy = (int)uy; iy = iy < my ? iy : my;
-                int iz = (int)uz; iz = iz < mz ? iz : mz;
-                const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
-                const int p = ix * sx + iy * sy + iz * sz;
-                const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
-                const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
-                const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
-                const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
-                const float c0 = (1.0f - wy) * c00 + wy * c01;
-                const float c1 = (1.0f - wy) * c10 + wy * c11;
-                float val = (1.0f - wx) * c0 + wx * c1;
-                if (rounding) {
-                    val = __builtin_floorf(val + 0.5f);
-                    val = val < lo_v ? lo_v : (val > hi_v ? hi_v : val);
-                }
+                const float fk = (float)K[n];"""
+    + _cpp_trilinear("BX[n] + ax * fk", "BY[n] + ay * fk", "BZ[n] + az * fk")
+    + r"""
                 V[n] = val;
             }
         }
@@ -385,6 +390,7 @@ _TET_SNIPPET = r"""
     return 0;
 #endif
 """
+)
 
 
 @wp.func_native(_TET_SNIPPET)
