@@ -16,7 +16,7 @@ import warp as wp
 
 from softvr.errors import InputError
 
-__all__ = ["cpu_workers", "launch", "resolve_device"]
+__all__ = ["cpu_workers", "launch", "load_kernels", "resolve_device"]
 
 
 @lru_cache(maxsize=1)
@@ -60,9 +60,17 @@ def cpu_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
 
 
+def load_kernels(kernel, device: str) -> None:
+    """Compile (or load from Warp's disk cache) the module holding ``kernel`` for ``device``.
+
+    Done once per module and device, before launch chunks could race to do it from several
+    threads; callers may also do it up front so that no frame pays for compilation.
+    """
+    _load(kernel.module, device)
+
+
 @lru_cache(maxsize=None)
 def _load(module, device: str) -> None:
-    """Compile/load a kernel's module once, before chunks race to do it from several threads."""
     wp.load_module(module, device=device)
 
 
@@ -92,7 +100,7 @@ def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024
     """
     if dim <= 0:
         return
-    _load(kernel.module, device)
+    load_kernels(kernel, device)
     workers = cpu_workers() if device == "cpu" else 1
     if workers == 1 or dim < 2 * min_chunk:
         wp.launch(kernel, dim=dim, inputs=[*inputs, 0], device=device)

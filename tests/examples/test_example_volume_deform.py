@@ -16,10 +16,16 @@ def test_press_and_twist_never_inverts_a_tet():
     nodes, tets = grid_tet_mesh(vol, (16, 16, 8))
     bounds = np.stack([nodes.min(0), nodes.max(0)])
     rest = tet_signed_volumes(nodes, tets)
-    for s in np.linspace(0, 1, 11):
-        moved = press_and_twist(nodes, bounds, s)
-        ratio = tet_signed_volumes(moved, tets) / rest
-        assert ratio.min() > 0.3, s
+    nose = np.array([120.6, 232.6, 34.5])  # the head CT's most anterior tissue voxel
+    for point in (None, nose):
+        for s in np.linspace(0, 1, 11):
+            moved = press_and_twist(nodes, bounds, s, point)
+            ratio = tet_signed_volumes(moved, tets) / rest
+            assert ratio.min() > 0.3, (point, s)
+    # The finger pushes the pressed point in -y by 12 % of the extent at full press.
+    node = np.argmin(np.linalg.norm(nodes - nose, axis=1))
+    dent = press_and_twist(nodes, bounds, 0.5, nodes[node])[node] - nodes[node]
+    assert np.allclose(dent, [0.0, -0.12 * (bounds[1, 1] - bounds[0, 1]), 0.0])
     assert np.allclose(press_and_twist(nodes, bounds, 0.0), nodes)
     # The twist is a rotation about z: the top ring turns by 35 degrees, the bottom not at all.
     full = press_and_twist(nodes, bounds, 1.0)

@@ -22,12 +22,13 @@ from softvr.volume import Rasterizer, Volume, grid_tet_mesh, load
 __all__ = ["Example", "press_and_twist", "main"]
 
 
-def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarray:
+def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float, press_point=None) -> np.ndarray:
     """Scripted deformation of mesh nodes at animation time ``s`` in [0, 1].
 
-    For s in [0, 0.5] a dent grows on the +y face (Gaussian, 18 % of the y extent deep,
-    decaying inward); for s in [0.5, 1] the dented head twists about the z axis, up to 35
-    degrees at the top, linearly in z. Both stay far from inverting any tet.
+    For s in [0, 0.5] a finger presses a dent in -y at ``press_point`` (Gaussian footprint
+    in x-z, 12 % of the y extent deep, decaying behind the pressed surface); for s in
+    [0.5, 1] the dented head twists about the z axis, up to 35 degrees at the top, linearly
+    in z. Both stay far from inverting any tet.
 
     Parameters
     ----------
@@ -37,6 +38,8 @@ def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarr
         Lower and upper corner of the rest mesh.
     s : float
         Animation time, 0 = rest, 1 = fully pressed and twisted.
+    press_point : array_like, shape [3] [volume units], optional
+        Surface point the finger presses; default the centre of the +y face of ``bounds``.
 
     Returns
     -------
@@ -50,9 +53,11 @@ def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarr
     twist = max((s - 0.5) / 0.5, 0.0)
     x = nodes.copy()
     # Press: ease-in-out depth, Gaussian footprint in x-z, exponential decay away from +y.
-    depth = 0.18 * size[1] * (0.5 - 0.5 * np.cos(np.pi * press))
-    r2 = ((x[:, 0] - centre[0]) / (0.3 * size[0])) ** 2 + ((x[:, 2] - centre[2]) / (0.35 * size[2])) ** 2
-    x[:, 1] -= depth * np.exp(-r2) * np.exp(-(hi[1] - x[:, 1]) / (0.3 * size[1]))
+    p = np.array([centre[0], hi[1], centre[2]]) if press_point is None else np.asarray(press_point, float)
+    depth = 0.12 * size[1] * (0.5 - 0.5 * np.cos(np.pi * press))
+    r2 = ((x[:, 0] - p[0]) / (0.16 * size[0])) ** 2 + ((x[:, 2] - p[2]) / (0.2 * size[2])) ** 2
+    behind = np.maximum(p[1] - x[:, 1], 0.0)
+    x[:, 1] -= depth * np.exp(-r2) * np.exp(-behind / (0.3 * size[1]))
     # Twist about the z axis through the centre, growing linearly with height.
     angle = np.radians(35.0) * (0.5 - 0.5 * np.cos(np.pi * twist)) * (x[:, 2] - lo[2]) / size[2]
     c, sn = np.cos(angle), np.sin(angle)
@@ -60,6 +65,16 @@ def press_and_twist(nodes: np.ndarray, bounds: np.ndarray, s: float) -> np.ndarr
     x[:, 0] = centre[0] + c * dx - sn * dy
     x[:, 1] = centre[1] + sn * dx + c * dy
     return x
+
+
+def _front_surface_point(volume: Volume) -> np.ndarray:
+    """World position of the most anterior (+y) voxel above a quarter of the value range:
+    the tip of the nose for the head CT."""
+    lo, hi = float(volume.data.min()), float(volume.data.max())
+    idx = np.argwhere(volume.data > lo + 0.25 * (hi - lo))
+    if len(idx) == 0:
+        idx = np.argwhere(np.ones(volume.shape, bool))
+    return volume.index_to_world(idx[idx[:, 1].argmax()])
 
 
 class Example:
@@ -90,6 +105,7 @@ class Example:
         self.volume = volume
         self.nodes, self.tets = grid_tet_mesh(volume, cells)
         self.bounds = np.stack([self.nodes.min(axis=0), self.nodes.max(axis=0)])
+        self.press_point = _front_surface_point(volume)
         self.rasterizer = Rasterizer(volume, self.nodes, self.tets, culling=culling, device=device)
         self.frames = max(int(frames), 2)
         self.frame = 0
@@ -101,7 +117,7 @@ class Example:
     def step(self) -> Volume:
         """Deform the volume for the current frame and advance the frame counter."""
         s = self.frame / (self.frames - 1)
-        moved = press_and_twist(self.nodes, self.bounds, s)
+        moved = press_and_twist(self.nodes, self.bounds, s, self.press_point)
         self.deformed = self.rasterizer.deform(moved)
         self.frame_stats.append({"frame": self.frame, "s": s, **self.rasterizer.stats.as_dict()})
         self.frame += 1
@@ -114,7 +130,7 @@ class Example:
 
             preset = "labels" if self.volume.is_label else ("mri" if self.volume.dtype == np.uint8 else "ct")
             self._renderer = VolumeRenderer(self.width, self.height, preset=preset,
-                                            camera=Camera("front", azimuth=35, elevation=15, zoom=1.1))
+                                            camera=Camera("front", azimuth=70, elevation=10, zoom=1.1))
         return self._renderer.render(self.deformed)
 
     def close(self) -> None:
@@ -141,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     from softvr.render import contact_sheet, save_png, write_mp4
 
     volume = load(args.input) if args.input else None
+    print("softvr demo: preparing (the first run compiles the kernels, ~10-30 s)", flush=True)
     ex = Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

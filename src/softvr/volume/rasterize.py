@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import warp as wp
 
-from softvr.device import launch, resolve_device
+from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
 from softvr.volume import _raster_kernels as K
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
@@ -242,6 +242,8 @@ class Rasterizer:
         self._rest_w = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
         self._tets_w = wp.array(self.tets, dtype=wp.int32, device=self.device)
         self.stats: RasterStats | None = None
+        # Compile (first use only, then cached on disk) now rather than inside the first frame.
+        load_kernels(K.raster_slabs, self.device)
 
     # ------------------------------------------------------------------ public
     def deform(self, deformed_nodes, out_grid: Volume | None = None, *, out: Volume | None = None) -> Volume:
