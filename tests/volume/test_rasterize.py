@@ -231,6 +231,10 @@ def test_bad_input_names_the_problem():
         deform(Volume(np.zeros((4, 4, 4), np.int64)), nodes, tets, nodes, device="cpu")
     with pytest.raises(InputError, match="non-empty"):
         Volume(np.zeros((0, 4, 4), np.int16))
+    nan_volume = Volume(np.zeros((8, 8, 8), np.float32))
+    nan_volume.data[3, 4, 5] = np.nan
+    with pytest.raises(InputError, match="finite voxel values"):
+        deform(nan_volume, nodes, tets, nodes, device="cpu")
     with pytest.raises(InputError, match="culling"):
         deform(vol, nodes, tets, nodes, culling="octree", device="cpu")
     with pytest.raises(InputError, match="interpolation"):

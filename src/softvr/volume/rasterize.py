@@ -200,7 +200,7 @@ class Rasterizer:
             raise InputError("volume", "a softvr.volume.Volume", type(volume).__name__)
         if volume.dtype not in SUPPORTED_DTYPES:
             raise InputError("volume.data", f"dtype in {[str(d) for d in SUPPORTED_DTYPES]}", str(volume.dtype))
-        if not np.isfinite(volume.data).all() if volume.dtype.kind == "f" else False:
+        if volume.dtype.kind == "f" and not np.isfinite(volume.data).all():
             raise InputError("volume.data", "finite voxel values", "NaN or infinite values")
         key = culling if isinstance(culling, bool) else str(culling)
         if key not in _METHODS:
@@ -228,7 +228,8 @@ class Rasterizer:
         )
         self._rest_index = volume.world_to_index(self.nodes)
         data = np.ascontiguousarray(volume.data)
-        self._vol = wp.array(data.reshape(-1), device=self.device)
+        # Kernels only read the input: on the CPU Warp shares numpy's memory.
+        self._vol = wp.array(data.reshape(-1), device=self.device, copy=self.device != "cpu")
         # The vectorized CPU rows gather from a float32 copy (AVX gathers are 32-bit).
         self._out_code = _OUT_CODES[data.dtype] if self.device == "cpu" and vectorized_rows else 0
         if self._out_code == 0:
