@@ -16,6 +16,7 @@ MODULES = [
     "softvr.render.volume_render",
     "softvr.render.camera",
     "softvr.render.contact_sheet",
+    "softvr.sim",
 ]
 
 

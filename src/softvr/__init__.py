@@ -7,7 +7,8 @@ positions are in the units of the volume's spacing.
 """
 
 from softvr.errors import InputError, SimulationError, SoftvrError
+from softvr.sim import Scene
 
 __version__ = "0.1.0"
 
-__all__ = ["InputError", "SimulationError", "SoftvrError", "__version__"]
+__all__ = ["InputError", "Scene", "SimulationError", "SoftvrError", "__version__"]

@@ -5,6 +5,7 @@ backward Euler with linearized forces, ``A v = b`` (thesis eq. 5.2), solved by
 preconditioned conjugate gradients. All quantities are SI: m, kg, s, Pa.
 """
 
+from softvr.dynamics.body import ContactObject
 from softvr.dynamics.fem import FemBody, Material
 
-__all__ = ["FemBody", "Material"]
+__all__ = ["ContactObject", "FemBody", "Material"]

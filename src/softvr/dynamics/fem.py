@@ -21,7 +21,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from softvr.errors import InputError, SimulationError
+from softvr.dynamics.body import ContactObject
+from softvr.errors import InputError
 from softvr.volume.tetmesh import check_tets
 
 __all__ = ["FemBody", "Material"]
@@ -112,7 +113,7 @@ def polar_rotations(deformation_gradient: np.ndarray) -> np.ndarray:
     return r
 
 
-class FemBody:
+class FemBody(ContactObject):
     """A soft body: linear co-rotational FEM on a tetrahedral mesh.
 
     Parameters
@@ -143,6 +144,9 @@ class FemBody:
         Lumped node masses (a quarter of each incident tet's mass).
     step_count : int
     last_cg_iterations : int
+        CG iterations of the last solve.
+    cg_tolerance : float
+        CG relative residual (default 1e-8).
     """
 
     def __init__(self, nodes, tets, material: Material, *, per_tet_young=None, per_tet_density=None,
@@ -175,6 +179,8 @@ class FemBody:
         self.v = np.zeros_like(rest)
         self.step_count = 0
         self.last_cg_iterations = 0
+        self.cg_tolerance = 1e-8
+        self.cg_max_iterations = 1000
         # Scatter pattern of the 12x12 element blocks into the 3n x 3n matrix.
         dof = (3 * tets[:, :, None] + np.arange(3)).reshape(m, 12)
         self._rows = np.repeat(dof, 12, axis=1).ravel()
@@ -219,59 +225,74 @@ class FemBody:
         """1/2 sum m v^2 [J]."""
         return 0.5 * float(np.sum(self.mass[:, None] * self.v**2))
 
-    def step(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None, *, tol: float = 1e-8,
-             max_iterations: int = 1000) -> None:
-        """Advance one backward-Euler step (thesis eq. 5.2).
+    def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:
+        """Node velocities [node_count, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2).
 
-        Parameters
-        ----------
-        dt : float [s]
-        gravity : (3,) [m/s^2]
-        external : ndarray, shape [node_count, 3] [N], optional
-            Extra node forces.
-        tol : float
-            CG relative residual.
+        ``A = M + dt (alpha M + beta K) + dt^2 K`` and ``b = M v0 + dt f(q0)`` with
+        ``K = sum R K_e R^T`` at the current state; fixed nodes keep zero velocity.
+        ``external`` [node_count, 3] [N] adds node forces.
         """
-        if not dt > 0:
-            raise InputError("dt", "a time step > 0 [s]", repr(dt))
+        dt = self._check_dt(dt)
         mat = self.material
         k = self.stiffness_matrix()
         m_diag = np.repeat(self.mass, 3)
         f = self.elastic_forces() + self.mass[:, None] * np.asarray(gravity, float)
         if external is not None:
             f = f + np.asarray(external, float).reshape(f.shape)
-        a = sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k
+        a = (sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k).tocsr()
+        self._free = ~np.repeat(self.fixed, 3)
+        self._a_free = a[self._free][:, self._free].tocsr()
+        self._precond = sp.diags(1.0 / self._a_free.diagonal())
         b = m_diag * self.v.ravel() + dt * f.ravel()
-        free = ~np.repeat(self.fixed, 3)
-        v1 = np.zeros_like(b)
-        if free.any():
-            a_ff = a[free][:, free]
-            precond = sp.diags(1.0 / a_ff.diagonal())
+        return self._cg(b, self.v.ravel())
+
+    def solve_columns(self, columns: np.ndarray) -> np.ndarray:
+        """``A^-1 C`` [3 node_count, k] by a sparse LU factorization of this step's ``A``
+        (made on first use in the step; rows of fixed nodes give 0)."""
+        if getattr(self, "_lu_step", None) != self.step_count:
+            self._lu = spla.splu(self._a_free.tocsc())
+            self._lu_step = self.step_count
+        cols = np.asarray(columns, float)
+        out = np.zeros_like(cols)
+        if cols.shape[1] and self._free.any():
+            out[self._free] = self._lu.solve(np.ascontiguousarray(cols[self._free]))
+        return out
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``A^-1 rhs`` [node_count, 3] for this step's ``A`` (fixed nodes give 0)."""
+        if not hasattr(self, "_a_free"):
+            raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
+        return self._cg(np.asarray(rhs, float).ravel(), None)
+
+    def _cg(self, b: np.ndarray, x0) -> np.ndarray:
+        out = np.zeros_like(b)
+        if self._free.any():
             iterations = [0]
 
             def count(_):
                 iterations[0] += 1
 
-            sol, info = spla.cg(a_ff, b[free], x0=self.v.ravel()[free], rtol=tol, maxiter=max_iterations,
-                                M=precond, callback=count)
+            sol, _ = spla.cg(self._a_free, b[self._free], x0=None if x0 is None else x0[self._free],
+                             rtol=self.cg_tolerance, maxiter=self.cg_max_iterations, M=self._precond, callback=count)
             self.last_cg_iterations = iterations[0]
-            v1[free] = sol
-        v1 = v1.reshape(-1, 3)
-        q1 = self.q + dt * v1
-        self.step_count += 1
-        self._check_finite(v1, q1)
-        self.v, self.q = v1, q1
+            out[self._free] = sol
+        return out.reshape(-1, 3)
 
-    def _check_finite(self, v1: np.ndarray, q1: np.ndarray) -> None:
+    def integrate(self, v: np.ndarray, dt: float) -> None:
+        """``q += dt v`` (G = I for node positions), after checking the step stayed finite and bounded."""
+        dt = self._check_dt(dt)
+        v1 = np.asarray(v, float).reshape(self.v.shape)
+        q1 = self.q + dt * v1
         bad = ~np.isfinite(v1).all(axis=1) | ~np.isfinite(q1).all(axis=1)
-        speed = np.linalg.norm(v1, axis=1)
+        speed = np.linalg.norm(np.where(np.isfinite(v1), v1, 0.0), axis=1)
         scale = max(float(np.ptp(self.rest, axis=0).max()), 1e-9)
-        # A node moving by more than the body's size in one step has blown up.
-        exploding = speed * 1.0 > 1e3 * scale
+        # A node covering a thousand body lengths per second has blown up.
+        exploding = speed > 1e3 * scale
         if bad.any() or exploding.any():
             n = int(np.argmax(bad | exploding))
-            what = "NaN/inf" if bad[n] else f"speed {speed[n]:.3g} m/s"
-            raise SimulationError(f"{self.name}: diverged at step {self.step_count} (node {n}: {what})")
+            raise self._diverged(f"node {n}: " + ("NaN/inf" if bad[n] else f"speed {speed[n]:.3g} m/s"))
+        self.v, self.q = v1, q1
+        self.step_count += 1
 
 
 def _per_tet(values, default: float, m: int, name: str, unit: str) -> np.ndarray:

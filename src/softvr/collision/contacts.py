@@ -1,0 +1,70 @@
+"""Contacts between contact objects, as produced by collision detection."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["ContactSide", "Contacts"]
+
+
+@dataclass
+class ContactSide:
+    """One side of a set of contacts: which velocity blocks of which body the points move with.
+
+    Point velocity of contact c is ``sum_k jac[c, k] @ v_blocks[blocks[c, k]]`` (thesis 5.1.2,
+    ``p_dot = J v``).
+
+    Attributes
+    ----------
+    body : int
+        Index of the body in the simulation's body list.
+    blocks : ndarray of int, shape [contact_count, k]
+        Velocity blocks of the body each point depends on (nodes; 0 for a rigid body).
+    jac : ndarray, shape [contact_count, k, 3, block_size]
+        Jacobian blocks mapping block velocities to world point velocity [m/s per unit].
+    """
+
+    body: int
+    blocks: np.ndarray
+    jac: np.ndarray
+
+
+@dataclass
+class Contacts:
+    """Contacts of one body pair kind (side ``a`` against ``b``; ``b`` None = static geometry).
+
+    Attributes
+    ----------
+    a, b : ContactSide, ContactSide or None
+    normal : ndarray, shape [contact_count, 3]
+        Unit normal pointing from b towards a.
+    gap : ndarray, shape [contact_count] [m]
+        Signed distance along the normal (negative: penetration depth).
+    point_a, point_b : ndarray, shape [contact_count, 3] [m]
+        Contact points P on a and P' on b.
+    area : ndarray, shape [contact_count] [m^2]
+        Local area each contact stands for (0 when unknown).
+    ids : ndarray of int64, shape [contact_count]
+        Stable identifiers (same feature pair -> same id across steps) for warm starts.
+    friction : ndarray, shape [contact_count]
+        Coulomb coefficient mu.
+    """
+
+    a: ContactSide
+    b: ContactSide | None
+    normal: np.ndarray
+    gap: np.ndarray
+    point_a: np.ndarray
+    point_b: np.ndarray
+    ids: np.ndarray
+    friction: np.ndarray
+    area: np.ndarray = field(default=None)
+
+    def __post_init__(self) -> None:
+        if self.area is None:
+            self.area = np.zeros(len(self.gap))
+
+    def __len__(self) -> int:
+        return len(self.gap)

@@ -1,0 +1,98 @@
+"""Points against static half-spaces (ground, walls, inclines)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softvr.collision.contacts import Contacts, ContactSide
+from softvr.errors import InputError
+
+__all__ = ["Plane", "points_vs_plane"]
+
+
+@dataclass(frozen=True)
+class Plane:
+    """The static half-space ``n . (x - point) >= 0`` (solid below).
+
+    Attributes
+    ----------
+    point : tuple of 3 float [m]
+        A point on the plane.
+    normal : tuple of 3 float
+        Outward normal (normalized on use).
+    friction : float
+        Coulomb coefficient mu of contacts with it.
+    id : int
+        Part of the contact ids.
+    """
+
+    point: tuple = (0.0, 0.0, 0.0)
+    normal: tuple = (0.0, 0.0, 1.0)
+    friction: float = 0.5
+    id: int = 0
+
+    def unit_normal(self) -> np.ndarray:
+        n = np.asarray(self.normal, float)
+        length = np.linalg.norm(n)
+        if not np.isfinite(length) or length == 0:
+            raise InputError("Plane.normal", "a non-zero finite vector", repr(self.normal))
+        return n / length
+
+
+def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.0, velocities=None,
+                    dt: float = 0.0) -> Contacts:
+    """Contacts of a body's point entities with a plane: points closer than ``margin``, or that
+    would come that close within ``dt`` at ``velocities`` (no tunnelling at any speed).
+
+    Parameters
+    ----------
+    body_index : int
+        Index of the points' body in the simulation's body list.
+    points : RigidPoints or EmbeddedPoints
+        Point entities (collision-mesh vertices) of that body.
+    plane : Plane
+    margin : float [m]
+        Points with a gap below it become contacts (speculative contacts: the constraint
+        forbids crossing, not approaching).
+    velocities : ndarray, shape [point_count, 3] [m/s], optional
+        Predicted point velocities (e.g. the unconstrained ones of this step).
+    dt : float [s]
+        Step over which ``velocities`` apply.
+    """
+    n = plane.unit_normal()
+    p = points.positions()
+    gap = (p - np.asarray(plane.point, float)) @ n
+    reach = gap.copy()
+    if velocities is not None:
+        reach += dt * np.minimum(np.asarray(velocities, float) @ n, 0.0)
+    hit = np.flatnonzero(np.minimum(gap, reach) < margin)
+    blocks, jac = _point_jacobian_blocks(points, hit)
+    k = len(hit)
+    return Contacts(
+        a=ContactSide(body_index, blocks, jac),
+        b=None,
+        normal=np.broadcast_to(n, (k, 3)).copy(),
+        gap=gap[hit],
+        point_a=p[hit],
+        point_b=p[hit] - gap[hit, None] * n,
+        ids=(np.int64(plane.id) << 32) | hit.astype(np.int64),
+        friction=np.full(k, float(plane.friction)),
+    )
+
+
+def _point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity blocks and 3 x block_size Jacobian blocks of the selected points."""
+    if hasattr(points, "weights"):  # EmbeddedPoints: p = sum w_i q_i
+        blocks = points.nodes[which]
+        jac = points.weights[which][:, :, None, None] * np.eye(3)
+        return blocks, jac
+    # RigidPoints: p_dot = v + w x (R r) = [I, -[R r]x] (v, w)
+    r = points.offsets()[which]
+    jac = np.zeros((len(which), 1, 3, 6))
+    jac[:, 0, :, :3] = np.eye(3)
+    jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
+    jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
+    jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
+    return np.zeros((len(which), 1), int), jac

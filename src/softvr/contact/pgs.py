@@ -1,0 +1,185 @@
+"""Frictional contact as an LCP, solved by projected Gauss-Seidel (thesis eqs. 5.5-5.6, [OTSG09]).
+
+For each contact island the MLCP (eq. 5.5)
+
+    A v = b + J^T lambda,    0 <= lambda_n  _|_  J_n v >= c
+
+is reduced to the LCP of eq. 5.6 on the impulses, ``0 <= lambda _|_ B lambda - d >= 0`` with
+``B = J D_A^-1 J^T`` and ``d = c - J v_free``, where ``v_free = A^-1 b`` is every object's
+unconstrained velocity and ``D_A`` the block diagonal of A with **one block per contact
+object**: objects are independent until couplings join them (eq. 5.3), so ``D_A^-1`` is
+exactly each object's own ``A^-1`` (a sparse LU for FEM bodies, ``M^-1`` for rigid ones) and
+the outer Jacobi loop over velocities of eq. 5.6 converges in one pass. It becomes a real loop
+once couplings put off-diagonal blocks into A (coupling islands, issue 5).
+
+The LCP is solved by projected Gauss-Seidel over 3x3 contact blocks (normal and two tangents).
+Friction is a 4-sided Coulomb pyramid, |lambda_t1|, |lambda_t2| <= mu lambda_n, with t1 along
+the unconstrained tangential velocity. Impulses lambda are in N s.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softvr.collision.contacts import Contacts
+from softvr.contact.islands import contact_islands
+
+__all__ = ["ContactSolution", "solve_contacts"]
+
+
+@dataclass
+class ContactSolution:
+    """What the contact solve did.
+
+    Attributes
+    ----------
+    velocities : list of ndarray
+        Constrained velocity of every body (the shape of its ``v``).
+    impulses : list of ndarray, each [contact_count, 3] [N s]
+        Per contact set, per contact: (normal, tangent 1, tangent 2) impulse.
+    frames : list of ndarray, each [contact_count, 3, 3]
+        Rows: normal, tangent 1, tangent 2 (world).
+    iterations : int
+        PGS sweeps (summed over islands).
+    residual : float [m/s]
+        Largest violation of a normal velocity constraint by the final velocities.
+    islands : list of list of int
+    """
+
+    velocities: list
+    impulses: list
+    frames: list
+    iterations: int
+    residual: float
+    islands: list
+
+
+def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 100, tolerance: float = 1e-9,
+                   warm_start: dict | None = None) -> ContactSolution:
+    """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
+
+    Each body must have run ``unconstrained_velocity`` for this step, and its result is
+    passed as the body's ``v_free`` attribute.
+
+    Parameters
+    ----------
+    bodies : list of ContactObject
+    contact_sets : list of Contacts
+    dt : float [s]
+        The normal constraint is ``n . (p_dot_a - p_dot_b) >= -gap / dt``: penetration is
+        removed within the step, and a positive gap may close but not be crossed.
+    iterations : int
+        Most PGS sweeps per island.
+    tolerance : float [N s]
+        A sweep whose largest impulse change is below it ends the loop.
+    warm_start : dict, optional
+        ``{contact id: impulse (3,)}`` of the previous step; filled in with this step's.
+    """
+    contact_sets = [c for c in contact_sets if len(c)]
+    velocities = [np.array(b.v_free, float, copy=True) for b in bodies]
+    impulses = [np.zeros((len(c), 3)) for c in contact_sets]
+    frames = [np.zeros((len(c), 3, 3)) for c in contact_sets]
+    islands = contact_islands(len(bodies), [(c.a.body, None if c.b is None else c.b.body) for c in contact_sets])
+    sweeps = 0
+    for island in islands:
+        sets = [k for k, c in enumerate(contact_sets) if c.a.body in island]
+        if sets:
+            sweeps += _solve_island(bodies, island, contact_sets, sets, velocities, impulses, frames, dt,
+                                    iterations, tolerance, warm_start)
+    residual = 0.0
+    for k, c in enumerate(contact_sets):
+        rel = _relative_velocity(c, [v.reshape(-1, bodies[j].block_size) for j, v in enumerate(velocities)])
+        violation = -np.einsum("ci,ci->c", rel, c.normal) - c.gap / dt
+        residual = max(residual, float(np.max(violation, initial=0.0)))
+        if warm_start is not None:
+            warm_start.update(zip(c.ids.tolist(), impulses[k]))
+    return ContactSolution(velocities, impulses, frames, sweeps, residual, islands)
+
+
+def _side_velocity(side, v_blocks: np.ndarray) -> np.ndarray:
+    """World point velocities [c, 3] of one contact side."""
+    return np.einsum("ckij,ckj->ci", side.jac, v_blocks[side.blocks])
+
+
+def _relative_velocity(c: Contacts, v_blocks: list) -> np.ndarray:
+    rel = _side_velocity(c.a, v_blocks[c.a.body])
+    if c.b is not None:
+        rel = rel - _side_velocity(c.b, v_blocks[c.b.body])
+    return rel
+
+
+def _frames(contacts: Contacts, rel_velocity: np.ndarray) -> np.ndarray:
+    """Contact frames [c, 3, 3]: rows n, t1 (along the tangential velocity), t2 = n x t1."""
+    n = contacts.normal
+    vt = rel_velocity - np.einsum("ci,ci->c", rel_velocity, n)[:, None] * n
+    speed = np.linalg.norm(vt, axis=1)
+    helper = np.where(np.abs(n[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    t1 = np.where(speed[:, None] > 1e-9, vt / np.maximum(speed, 1e-300)[:, None], np.cross(n, helper))
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    return np.stack([n, t1, np.cross(n, t1)], axis=1)
+
+
+def _solve_island(bodies, island, contact_sets, sets, velocities, impulses, frames, dt, iterations, tol, warm):
+    v_free = [np.asarray(b.v_free, float).reshape(-1, b.block_size) for b in bodies]
+    offsets = np.cumsum([0] + [len(contact_sets[k]) for k in sets])
+    rows = 3 * int(offsets[-1])
+    # G_j: the island's contact rows (frame-projected point velocities) on body j's velocities.
+    g = {j: np.zeros((rows, bodies[j].velocity_size)) for j in island}
+    target = np.zeros(rows)
+    mu = np.zeros(int(offsets[-1]))
+    lam = np.zeros(rows)
+    for s, k in enumerate(sets):
+        c = contact_sets[k]
+        f = _frames(c, _relative_velocity(c, v_free))
+        frames[k] = f
+        r0 = 3 * offsets[s]
+        contact_rows = r0 + 3 * np.arange(len(c))[:, None] + np.arange(3)  # [c, 3]
+        for side, sign in ((c.a, 1.0), (c.b, -1.0)):
+            if side is None:
+                continue
+            bs = bodies[side.body].block_size
+            w = sign * np.einsum("crx,ckxb->ckrb", f, side.jac)  # [c, k, 3 rows, bs]
+            cols = bs * side.blocks[:, :, None] + np.arange(bs)  # [c, k, bs]
+            rr = np.broadcast_to(contact_rows[:, None, :, None], w.shape)
+            cc = np.broadcast_to(cols[:, :, None, :], w.shape)
+            np.add.at(g[side.body], (rr.ravel(), cc.ravel()), w.ravel())
+        target[contact_rows[:, 0]] = -c.gap / dt
+        mu[offsets[s] : offsets[s + 1]] = c.friction
+        if warm:
+            for n, cid in enumerate(c.ids.tolist()):
+                if cid in warm:
+                    lam[contact_rows[n]] = _project(np.asarray(warm[cid], float), c.friction[n])
+
+    # Delassus operator B = sum_j G_j A_j^-1 G_j^T and the free constraint velocities J v_free.
+    x = {j: bodies[j].solve_columns(g[j].T) for j in island}  # A_j^-1 G_j^T [velocity_size, rows]
+    delassus = sum(g[j] @ x[j] for j in island)
+    rel = sum(g[j] @ v_free[j].ravel() for j in island) + delassus @ lam
+    blocks_inv = [np.linalg.pinv(delassus[3 * n : 3 * n + 3, 3 * n : 3 * n + 3]) for n in range(rows // 3)]
+    sweeps = 0
+    for _ in range(iterations):
+        sweeps += 1
+        biggest = 0.0
+        for n in range(rows // 3):
+            r = slice(3 * n, 3 * n + 3)
+            new = _project(lam[r] + blocks_inv[n] @ (target[r] - rel[r]), mu[n])
+            delta = new - lam[r]
+            if delta.any():
+                rel += delassus[:, r] @ delta
+                lam[r] = new
+                biggest = max(biggest, float(np.abs(delta).max()))
+        if biggest < tol:
+            break
+    for j in island:
+        velocities[j] = (v_free[j].ravel() + x[j] @ lam).reshape(velocities[j].shape)
+    for s, k in enumerate(sets):
+        impulses[k] = lam[3 * offsets[s] : 3 * offsets[s + 1]].reshape(-1, 3)
+    return sweeps
+
+
+def _project(lam: np.ndarray, mu: float) -> np.ndarray:
+    """Signorini + 4-sided Coulomb pyramid: lambda_n >= 0, |lambda_t| <= mu lambda_n per tangent."""
+    n = max(lam[0], 0.0)
+    bound = mu * n
+    return np.array([n, min(max(lam[1], -bound), bound), min(max(lam[2], -bound), bound)])

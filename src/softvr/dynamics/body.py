@@ -1,0 +1,111 @@
+"""The interface every contact object shares (thesis 5.1.1).
+
+A contact object has a state vector ``q`` and a velocity vector ``v`` with ``q_dot = G v``
+(thesis eq. 5.1). Each step the simulation asks every object for its unconstrained velocity,
+the solution of the linearized backward-Euler system ``A v = b`` (eq. 5.2); contact and
+coupling solvers then need ``A^-1`` applied to generalized impulses (:meth:`solve`), and
+finally the object integrates its state with the constrained velocity (:meth:`integrate`).
+Objects are independent (A is block diagonal, eq. 5.3), so each solves its own block.
+
+Shapes are the subclass's natural ones (node arrays ``[node_count, 3]`` for deformables,
+``[6]`` for a rigid body); :attr:`velocity_size` is the flattened length used by Jacobians.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+from softvr.errors import InputError, SimulationError
+
+__all__ = ["ContactObject"]
+
+
+class ContactObject(ABC):
+    """Base of rigid, FEM, cloth, fixed and kinematic bodies.
+
+    Attributes
+    ----------
+    name : str
+        Named in error and divergence reports.
+    v : ndarray [m/s, rad/s]
+        Velocity vector (subclass shape).
+    step_count : int
+        Completed steps.
+    """
+
+    name: str
+    v: np.ndarray
+    step_count: int
+
+    @property
+    def velocity_size(self) -> int:
+        """Length of the flattened velocity vector."""
+        return int(np.asarray(self.v).size)
+
+    @abstractmethod
+    def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:
+        """Velocity after one backward-Euler step without constraints: ``A v = b`` (eq. 5.2).
+
+        Also prepares :meth:`solve` for this step (the matrix ``A`` of the current state).
+
+        Parameters
+        ----------
+        dt : float [s]
+        gravity : (3,) [m/s^2]
+        external : ndarray, optional
+            Generalized external force [N, N m], the shape of ``v``.
+
+        Returns
+        -------
+        ndarray, the shape of ``v``
+        """
+
+    @abstractmethod
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``A^-1 rhs`` with the step's ``A`` (prepared by :meth:`unconstrained_velocity`).
+
+        Constraint solvers use it to turn generalized impulses ``J^T lambda`` into velocity
+        changes. ``rhs`` and the result have the shape of ``v``.
+        """
+
+    #: Velocities per block: contact Jacobians address blocks (a node's 3; a rigid body's 6).
+    block_size: int = 3
+
+    def solve_columns(self, columns: np.ndarray) -> np.ndarray:
+        """``A^-1 C`` for a matrix ``C`` [velocity_size, k] (contact compliance, eq. 5.6).
+
+        The default solves column by column with :meth:`solve`; objects with a factorization
+        override it.
+        """
+        shape = np.shape(self.v)
+        cols = np.asarray(columns, float)
+        return np.stack([np.asarray(self.solve(c.reshape(shape)), float).ravel() for c in cols.T], axis=1) \
+            if cols.shape[1] else np.zeros_like(cols)
+
+    @abstractmethod
+    def integrate(self, v: np.ndarray, dt: float) -> None:
+        """Set the velocity to ``v`` and advance the state: ``q += dt G v``; count the step.
+
+        Raises :class:`~softvr.errors.SimulationError` naming the body and the step if the new
+        state is not finite or blows up.
+        """
+
+    def step(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> None:
+        """One unconstrained backward-Euler step: :meth:`unconstrained_velocity` then :meth:`integrate`."""
+        self.integrate(self.unconstrained_velocity(dt, gravity, external), dt)
+
+    @abstractmethod
+    def kinetic_energy(self) -> float:
+        """Kinetic energy [J]."""
+
+    # -------------------------------------------------------------- shared helpers
+    @staticmethod
+    def _check_dt(dt: float) -> float:
+        if not (isinstance(dt, (int, float, np.floating)) and np.isfinite(dt) and dt > 0):
+            raise InputError("dt", "a finite time step > 0 [s]", repr(dt))
+        return float(dt)
+
+    def _diverged(self, what: str) -> SimulationError:
+        return SimulationError(f"{self.name}: diverged at step {self.step_count + 1} ({what})")
