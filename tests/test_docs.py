@@ -17,6 +17,7 @@ MODULES = [
     "softvr.render.camera",
     "softvr.render.contact_sheet",
     "softvr.sim",
+    "softvr.dynamics.cloth",
 ]
 
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softvr.collision import Plane, points_vs_plane
+from softvr.collision import Plane, Sphere, points_vs_plane, points_vs_sphere, sphere_vs_plane, sphere_vs_sphere
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
@@ -51,6 +51,10 @@ class Scene:
     gravity : tuple of 3 float [m/s^2]
     bodies : list of ContactObject
     planes : list of Plane
+    spheres : list of Sphere
+        Static spheres.
+    friction : float
+        Coulomb coefficient between two bodies.
     last_solution : ContactSolution or None
     time : float [s]
     """
@@ -58,15 +62,24 @@ class Scene:
     gravity: tuple = (0.0, 0.0, -9.81)
     bodies: list = field(default_factory=list)
     planes: list = field(default_factory=list)
+    spheres: list = field(default_factory=list)
+    friction: float = 0.5
     pgs_iterations: int = 100
     contact_margin: float = 0.005
     last_solution: ContactSolution | None = None
     time: float = 0.0
     _colliders: list = field(default_factory=list)
+    _sphere_bodies: list = field(default_factory=list)
     _warm: dict = field(default_factory=dict)
 
-    def add_body(self, body: ContactObject, *, collision_points=None, margin: float | None = None) -> int:
-        """Add a contact object; ``collision_points`` (point entities) collide with the planes."""
+    def add_body(self, body: ContactObject, *, collision_points=None, collision_sphere: float | None = None,
+                 margin: float | None = None) -> int:
+        """Add a contact object and return its index.
+
+        ``collision_points`` (point entities) collide with planes and static spheres;
+        ``collision_sphere`` [m] makes a rigid body a sphere of that radius about its centre,
+        colliding with planes and the other sphere bodies.
+        """
         if not isinstance(body, ContactObject):
             raise InputError("body", "a softvr.dynamics.ContactObject", type(body).__name__)
         self.bodies.append(body)
@@ -74,19 +87,41 @@ class Scene:
         if collision_points is not None:
             self._colliders.append(_Collider(index, collision_points,
                                              self.contact_margin if margin is None else float(margin)))
+        if collision_sphere is not None:
+            if not hasattr(body, "position") or body.block_size != 6:
+                raise InputError("collision_sphere", "a rigid body (RigidBody, FixedBody, KinematicBody)",
+                                 type(body).__name__)
+            self._sphere_bodies.append((index, float(collision_sphere)))
         return index
+
+    def add_sphere(self, sphere: Sphere) -> None:
+        """Add a static sphere."""
+        self.spheres.append(sphere)
 
     def add_plane(self, plane: Plane) -> None:
         plane.unit_normal()  # validates
         self.planes.append(plane)
 
+    def _detect(self, dt: float) -> list:
+        """Collision detection of this step (with the unconstrained velocities for speculation)."""
+        m = self.contact_margin
+        out = []
+        for c in self._colliders:
+            v = c.points.velocities(self.bodies[c.body].v_free)
+            out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt) for p in self.planes]
+            out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt) for s in self.spheres]
+        for n, (i, r) in enumerate(self._sphere_bodies):
+            out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, dt=dt) for p in self.planes]
+            for j, rj in self._sphere_bodies[n + 1 :]:
+                out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
+                                            margin=m, dt=dt))
+        return out
+
     def step(self, dt: float) -> ContactSolution:
         """Advance every body by ``dt`` [s] with contact; returns the contact solution."""
         for body in self.bodies:
             body.v_free = body.unconstrained_velocity(dt, self.gravity)
-        contacts = [points_vs_plane(c.body, c.points, plane, margin=c.margin,
-                                    velocities=c.points.velocities(self.bodies[c.body].v_free), dt=dt)
-                    for c in self._colliders for plane in self.planes]
+        contacts = self._detect(dt)
         warm, self._warm = self._warm, {}
         solution = solve_contacts(self.bodies, contacts, dt, iterations=self.pgs_iterations, warm_start=warm)
         self._warm = {k: v for k, v in warm.items() if k in {int(i) for c in contacts for i in c.ids}}

@@ -209,6 +209,10 @@ def test_bad_input_and_divergence_are_reported():
         ClothBody(vertices, np.vstack([triangles[:3], [[2, 2, 5]], triangles[4:]]), **args)
     with pytest.raises(InputError, match=r"triangles\[5\]"):
         ClothBody(vertices, np.vstack([triangles[:5], [[0, 1, 9]], triangles[6:]]), **args)
+    with pytest.raises(InputError, match=r"triangles\[6\].*repeat of triangles\[2\]"):
+        ClothBody(vertices, np.vstack([triangles[:6], triangles[2, ::-1][None], triangles[7:]]), **args)
+    with pytest.raises(InputError, match=r"vertices\[9\].*unused"):
+        ClothBody(np.vstack([vertices, [[1.0, 1.0, 1.0]]]), triangles, **args)
     bad = vertices.copy()
     bad[7, 2] = np.nan
     with pytest.raises(InputError, match=r"vertices\[7\]"):

@@ -93,6 +93,8 @@ def test_infinite_mass_solve_gives_zeros(make):
     body.unconstrained_velocity(0.01)
     np.testing.assert_array_equal(body.solve(np.arange(6.0)), np.zeros(6))
     np.testing.assert_array_equal(body.solve(np.ones((4, 6))), np.zeros((4, 6)))
+    np.testing.assert_array_equal(body.solve_columns(np.ones((6, 2))), np.zeros((6, 2)))
+    assert body.block_size == 6 and body.velocity_size == 6
     with pytest.raises(InputError, match="rhs"):
         body.solve(np.ones(3))
     assert body.mass == np.inf and body.kinetic_energy() == 0.0

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ContactSide", "Contacts"]
+__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks"]
 
 
 @dataclass
@@ -68,3 +68,20 @@ class Contacts:
 
     def __len__(self) -> int:
         return len(self.gap)
+
+
+def point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity blocks [c, k] and 3 x block_size Jacobian blocks [c, k, 3, bs] of the selected
+    point entities (``EmbeddedPoints``: w_i I per stencil node; ``RigidPoints``: [I, -[R r]x])."""
+    if hasattr(points, "weights"):  # EmbeddedPoints: p = sum w_i q_i
+        blocks = points.nodes[which]
+        jac = points.weights[which][:, :, None, None] * np.eye(3)
+        return blocks, jac
+    # RigidPoints: p_dot = v + w x (R r) = [I, -[R r]x] (v, w)
+    r = points.offsets()[which]
+    jac = np.zeros((len(which), 1, 3, 6))
+    jac[:, 0, :, :3] = np.eye(3)
+    jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
+    jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
+    jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
+    return np.zeros((len(which), 1), int), jac

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, ContactSide
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
 from softvr.errors import InputError
 
 __all__ = ["Plane", "points_vs_plane"]
@@ -68,7 +68,7 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
     if velocities is not None:
         reach += dt * np.minimum(np.asarray(velocities, float) @ n, 0.0)
     hit = np.flatnonzero(np.minimum(gap, reach) < margin)
-    blocks, jac = _point_jacobian_blocks(points, hit)
+    blocks, jac = point_jacobian_blocks(points, hit)
     k = len(hit)
     return Contacts(
         a=ContactSide(body_index, blocks, jac),
@@ -80,19 +80,3 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
         ids=(np.int64(plane.id) << 32) | hit.astype(np.int64),
         friction=np.full(k, float(plane.friction)),
     )
-
-
-def _point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Velocity blocks and 3 x block_size Jacobian blocks of the selected points."""
-    if hasattr(points, "weights"):  # EmbeddedPoints: p = sum w_i q_i
-        blocks = points.nodes[which]
-        jac = points.weights[which][:, :, None, None] * np.eye(3)
-        return blocks, jac
-    # RigidPoints: p_dot = v + w x (R r) = [I, -[R r]x] (v, w)
-    r = points.offsets()[which]
-    jac = np.zeros((len(which), 1, 3, 6))
-    jac[:, 0, :, :3] = np.eye(3)
-    jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
-    jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
-    jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
-    return np.zeros((len(which), 1), int), jac

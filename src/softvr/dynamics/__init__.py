@@ -1,11 +1,32 @@
 """Dynamics of contact objects (thesis 5.1, 5.3.1).
 
-So far: :class:`FemBody`, a linear co-rotational FEM soft body on tetrahedra, advanced by
-backward Euler with linearized forces, ``A v = b`` (thesis eq. 5.2), solved by
-preconditioned conjugate gradients. All quantities are SI: m, kg, s, Pa.
+Contact objects share :class:`ContactObject`: :class:`RigidBody` (centre of mass + unit
+quaternion, q_dot = G v), :class:`FemBody` (linear co-rotational FEM on tetrahedra),
+:class:`ClothBody` (mass-spring), and the infinite-mass :class:`FixedBody` and scripted
+:class:`KinematicBody`. Each advances by backward Euler with linearized forces, ``A v = b``
+(thesis eq. 5.2). Point entities (:class:`RigidPoints`, :class:`EmbeddedPoints`) bind surface
+vertices: p = f(q), p_dot = J v, F_q = J^T F_p. All quantities are SI: m, kg, s, Pa.
 """
 
 from softvr.dynamics.body import ContactObject
+from softvr.dynamics.cloth import ClothBody, check_triangles, grid_triangle_mesh
 from softvr.dynamics.fem import FemBody, Material
+from softvr.dynamics.kinematic import FixedBody, KinematicBody
+from softvr.dynamics.points import EmbeddedPoints, RigidPoints, embed_in_tets
+from softvr.dynamics.rigid import RigidBody, RigidFrame
 
-__all__ = ["ContactObject", "FemBody", "Material"]
+__all__ = [
+    "ClothBody",
+    "ContactObject",
+    "EmbeddedPoints",
+    "FemBody",
+    "FixedBody",
+    "KinematicBody",
+    "Material",
+    "RigidBody",
+    "RigidFrame",
+    "RigidPoints",
+    "check_triangles",
+    "embed_in_tets",
+    "grid_triangle_mesh",
+]

@@ -67,7 +67,10 @@ class ContactObject(ABC):
         """``A^-1 rhs`` with the step's ``A`` (prepared by :meth:`unconstrained_velocity`).
 
         Constraint solvers use it to turn generalized impulses ``J^T lambda`` into velocity
-        changes. ``rhs`` and the result have the shape of ``v``.
+        changes, so it must be symmetric positive definite: an object whose ``A`` is not
+        symmetric (a spinning rigid body's implicit gyroscopic term) answers with its
+        symmetric part's leading term (``M^-1``), which differs by O(dt). ``rhs`` and the
+        result have the shape of ``v``.
         """
 
     #: Velocities per block: contact Jacobians address blocks (a node's 3; a rigid body's 6).

@@ -61,7 +61,7 @@ import scipy.sparse.linalg as spla
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 
-__all__ = ["ClothBody", "grid_triangle_mesh"]
+__all__ = ["ClothBody", "check_triangles", "grid_triangle_mesh"]
 
 _KINDS = ("stretch", "shear", "bend")
 

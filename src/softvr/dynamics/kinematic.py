@@ -45,6 +45,13 @@ class _InfiniteMass(RigidFrame):
             raise InputError("rhs", "shape [6] or [k, 6]", f"shape {rhs.shape}")
         return np.zeros_like(rhs)
 
+    def solve_columns(self, columns) -> np.ndarray:
+        """``A^-1 C = 0`` for ``C`` [6, k]."""
+        cols = np.asarray(columns, float)
+        if cols.ndim != 2 or cols.shape[0] != 6:
+            raise InputError("columns", "shape [6, k]", f"shape {cols.shape}")
+        return np.zeros_like(cols)
+
     def kinetic_energy(self) -> float:
         """0 [J]: the motion is prescribed, not dynamic (the mass is infinite)."""
         return 0.0

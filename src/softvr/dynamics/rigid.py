@@ -20,8 +20,14 @@ The gyroscopic torque ``-omega x (I_w omega)`` is treated either *implicitly* (d
 ``A_rot = I_w + dt ([omega]x I_w - [I_w omega]x)``, one Newton step of backward Euler on Euler's
 equations) or *explicitly* (``A_rot = I_w``, i.e. ``A = M``). Both are first order in ``dt``; the
 implicit one is stable at large spin rates (its momentum error is a dissipation), the explicit
-one makes ``|L|`` grow by exactly ``dt^2 |omega x L|^2`` (squared) per step. The ``dt^2 G dF/dq``
+one makes ``|L|^2`` grow by exactly ``dt^2 |omega x L|^2`` per step and can blow up. The ``dt^2 G dF/dq``
 term of eq. 5.2 is dropped (only the gyroscopic torque depends on ``q``, through ``I_w``).
+
+Constraint impulses act through ``M^-1`` (:meth:`RigidBody.solve`), the body's instantaneous
+impulse response, in both treatments: it differs from the implicit ``A^-1`` by
+``O(dt |omega|)`` (the same first order as the step) and keeps the contact Delassus operator
+``J M^-1 J^T`` symmetric positive semi-definite, as projected Gauss-Seidel needs. The true
+step matrix is :meth:`RigidBody.system_matrix` (for solvers that assemble ``A``, e.g. couplings).
 
 The orientation is advanced with the exact exponential map of ``omega dt``::
 
@@ -192,6 +198,8 @@ class RigidFrame(ContactObject):
 
     position: np.ndarray
     orientation: np.ndarray
+    #: Contact Jacobians address the whole body as one block of 6 velocities.
+    block_size: int = 6
 
     @property
     def rotation(self) -> np.ndarray:
@@ -286,9 +294,10 @@ class RigidBody(RigidFrame):
     angular_velocity : array_like, shape [3] [rad/s]
         Angular velocity in the WORLD frame.
     gyroscopic : {"implicit", "explicit"}
-        Treatment of the gyroscopic torque ``-omega x (I_w omega)`` (module docstring). With
-        "implicit" the step's ``A`` is ``M`` plus a non-symmetric ``dt`` term whenever the body
-        spins off a principal axis; with "explicit" ``A = M`` (symmetric).
+        Treatment of the gyroscopic torque ``-omega x (I_w omega)`` in the unconstrained velocity
+        (module docstring). With "implicit" the step's ``A`` (:meth:`system_matrix`) is ``M``
+        plus a non-symmetric ``dt`` term whenever the body spins off a principal axis; with
+        "explicit" ``A = M``. :meth:`solve` applies ``M^-1`` either way.
     name : str
         Named in error and divergence reports.
 
@@ -429,16 +438,18 @@ class RigidBody(RigidFrame):
             a_inv = np.linalg.inv(a_rot)
         except np.linalg.LinAlgError:
             raise self._diverged("singular rotational system matrix") from None
-        self._a_rot, self._a_rot_inv = a_rot, a_inv
+        self._a_rot, self._iw_inv = a_rot, np.linalg.inv(iw)
         v1 = np.empty(6)
         v1[:3] = self.v[:3] + dt * (g + ext[:3] / self.mass)
         v1[3:] = w0 + a_inv @ (dt * (ext[3:] - np.cross(w0, l0)))
         return v1
 
     def solve(self, rhs) -> np.ndarray:
-        """``A^-1 rhs`` for the step's ``A`` (= ``M^-1 rhs`` with explicit gyroscopic treatment).
+        """``M^-1 rhs`` with the step's ``M = blockdiag(m I3, I_w)`` (``I_w`` at the step's start).
 
-        ``rhs`` : generalized impulse or force, shape [6] or [k, 6] (k of them at once).
+        The velocity change of a generalized impulse [N s, N m s] (or force): exactly the step's
+        ``A^-1`` with explicit gyroscopic treatment, its symmetric first-order approximation
+        with implicit (module docstring). ``rhs`` : shape [6] or [k, 6] (k at once).
         """
         self._require_step()
         rhs = np.asarray(rhs, float)
@@ -446,8 +457,15 @@ class RigidBody(RigidFrame):
             raise InputError("rhs", "shape [6] or [k, 6]", f"shape {rhs.shape}")
         out = np.empty_like(rhs)
         out[..., :3] = rhs[..., :3] / self.mass
-        out[..., 3:] = rhs[..., 3:] @ self._a_rot_inv.T
+        out[..., 3:] = rhs[..., 3:] @ self._iw_inv.T
         return out
+
+    def solve_columns(self, columns) -> np.ndarray:
+        """``M^-1 C`` for ``C`` [6, k] (contact compliance, eq. 5.6); see :meth:`solve`."""
+        cols = np.asarray(columns, float)
+        if cols.ndim != 2 or cols.shape[0] != 6:
+            raise InputError("columns", "shape [6, k]", f"shape {cols.shape}")
+        return self.solve(cols.T).T
 
     def _require_step(self) -> None:
         if self._a_rot is None:

@@ -1,0 +1,113 @@
+"""Spheres: static spheres against points, rigid sphere bodies against planes and each other."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.collision.plane import Plane
+from softvr.errors import InputError
+
+__all__ = ["Sphere", "points_vs_sphere", "sphere_vs_plane", "sphere_vs_sphere"]
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A static solid sphere.
+
+    Attributes
+    ----------
+    center : tuple of 3 float [m]
+    radius : float [m]
+    friction : float
+    id : int
+        Part of the contact ids.
+    """
+
+    center: tuple = (0.0, 0.0, 0.0)
+    radius: float = 1.0
+    friction: float = 0.5
+    id: int = 0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.radius) and self.radius > 0):
+            raise InputError("Sphere.radius", "a finite radius > 0 [m]", repr(self.radius))
+
+
+def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float = 0.0, velocities=None,
+                     dt: float = 0.0) -> Contacts:
+    """Contacts of point entities with a static sphere (gap along the outward radial normal)."""
+    c = np.asarray(sphere.center, float)
+    p = points.positions()
+    d = p - c
+    dist = np.linalg.norm(d, axis=1)
+    n = d / np.maximum(dist, 1e-12)[:, None]
+    gap = dist - sphere.radius
+    reach = gap.copy()
+    if velocities is not None:
+        reach += dt * np.minimum(np.einsum("pi,pi->p", np.asarray(velocities, float), n), 0.0)
+    hit = np.flatnonzero(np.minimum(gap, reach) < margin)
+    blocks, jac = point_jacobian_blocks(points, hit)
+    return Contacts(
+        a=ContactSide(body_index, blocks, jac),
+        b=None,
+        normal=n[hit],
+        gap=gap[hit],
+        point_a=p[hit],
+        point_b=c + sphere.radius * n[hit],
+        ids=(np.int64(sphere.id) << 32) | hit.astype(np.int64),
+        friction=np.full(len(hit), float(sphere.friction)),
+    )
+
+
+def _rigid_side(body_index: int, offset: np.ndarray) -> ContactSide:
+    """One contact on a rigid body at world offset r from its centre: J = [I, -[r]x]."""
+    jac = np.zeros((1, 1, 3, 6))
+    jac[0, 0, :, :3] = np.eye(3)
+    rx, ry, rz = offset
+    jac[0, 0, :, 3:] = [[0.0, rz, -ry], [-rz, 0.0, rx], [ry, -rx, 0.0]]
+    return ContactSide(body_index, np.zeros((1, 1), int), jac)
+
+
+def _empty(body_index: int, other: int | None, block_size: int) -> Contacts:
+    side = ContactSide(body_index, np.zeros((0, 1), int), np.zeros((0, 1, 3, block_size)))
+    other_side = None if other is None else ContactSide(other, np.zeros((0, 1), int), np.zeros((0, 1, 3, block_size)))
+    z3 = np.zeros((0, 3))
+    return Contacts(side, other_side, z3, np.zeros(0), z3, z3, np.zeros(0, np.int64), np.zeros(0))
+
+
+def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margin: float = 0.0,
+                    dt: float = 0.0) -> Contacts:
+    """Contact of a rigid sphere body (centre = its position) with a plane."""
+    n = plane.unit_normal()
+    gap = float((body.position - np.asarray(plane.point, float)) @ n) - radius
+    approach = dt * min(float(np.asarray(body.v_free)[:3] @ n), 0.0) if hasattr(body, "v_free") else 0.0
+    if min(gap, gap + approach) >= margin:
+        return _empty(body_index, None, 6)
+    pa = body.position - radius * n
+    return Contacts(_rigid_side(body_index, -radius * n), None, n[None], np.array([gap]), pa[None],
+                    (pa - gap * n)[None], np.array([(np.int64(plane.id) << 32) | (1 << 31)]),
+                    np.array([float(plane.friction)]))
+
+
+def sphere_vs_sphere(a_index: int, a, radius_a: float, b_index: int, b, radius_b: float, *, friction: float = 0.5,
+                     margin: float = 0.0, dt: float = 0.0) -> Contacts:
+    """Contact between two rigid sphere bodies; the normal points from b to a."""
+    d = a.position - b.position
+    dist = float(np.linalg.norm(d))
+    n = d / dist if dist > 1e-12 else np.array([0.0, 0.0, 1.0])
+    gap = dist - radius_a - radius_b
+    approach = 0.0
+    if hasattr(a, "v_free") and hasattr(b, "v_free"):
+        approach = dt * min(float((np.asarray(a.v_free)[:3] - np.asarray(b.v_free)[:3]) @ n), 0.0)
+    if min(gap, gap + approach) >= margin:
+        return _empty(a_index, b_index, 6)
+    pa, pb = a.position - radius_a * n, b.position + radius_b * n
+    # Both sides act at the midpoint, so the equal and opposite impulses exert no net torque
+    # even while the (speculative) contact still has a gap: angular momentum is conserved.
+    mid = 0.5 * (pa + pb)
+    cid = (np.int64(min(a_index, b_index)) << 40) | (np.int64(max(a_index, b_index)) << 20)
+    return Contacts(_rigid_side(a_index, mid - a.position), _rigid_side(b_index, mid - b.position), n[None],
+                    np.array([gap]), pa[None], pb[None], np.array([cid]), np.array([float(friction)]))

@@ -1,0 +1,50 @@
+"""Rigid bodies in contact: momentum in a free collision, a box resting on the ground.
+
+Truths: with no external forces the contact impulses are equal and opposite, so total linear
+and angular momentum are conserved through a collision (to the PGS tolerance); a body at rest
+on the ground is carried by impulses summing to m g dt.
+"""
+
+import numpy as np
+import pytest
+
+from softvr import Scene
+from softvr.collision import Plane
+from softvr.dynamics import RigidBody, RigidPoints
+
+
+def _angular_momentum_about_origin(bodies):
+    return sum(np.cross(b.position, b.mass * b.v[:3]) + b.angular_momentum() for b in bodies)
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.05])
+def test_momentum_is_conserved_in_a_free_collision(offset):
+    a = RigidBody.sphere(0.1, 1000.0, position=(-0.5, 0.0, 0.0), velocity=(2.0, 0.0, 0.0), name="a")
+    b = RigidBody.sphere(0.15, 700.0, position=(0.5, offset, 0.0), velocity=(-1.0, 0.0, 0.0), name="b")
+    scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.3)
+    scene.add_body(a, collision_sphere=0.1)
+    scene.add_body(b, collision_sphere=0.15)
+    p0 = a.linear_momentum() + b.linear_momentum()
+    l0 = _angular_momentum_about_origin([a, b])
+    collided = False
+    for _ in range(60):
+        solution = scene.step(0.005)
+        collided |= any(len(i) and i[:, 0].max() > 0 for i in solution.impulses)
+    assert collided and a.v[0] < 2.0
+    np.testing.assert_allclose(a.linear_momentum() + b.linear_momentum(), p0, atol=1e-9)
+    np.testing.assert_allclose(_angular_momentum_about_origin([a, b]), l0, atol=1e-9)
+    # Never interpenetrating more than the solver tolerance allows.
+    assert np.linalg.norm(a.position - b.position) > 0.25 - 1e-6
+
+
+def test_box_rests_on_the_ground_carried_by_its_weight():
+    box = RigidBody.box((0.2, 0.2, 0.1), 500.0, position=(0.0, 0.0, 0.08))
+    corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (-0.05, 0.05)])
+    scene = Scene()
+    scene.add_body(box, collision_points=RigidPoints(box, corners))
+    scene.add_plane(Plane(friction=0.6))
+    for _ in range(200):
+        solution = scene.step(0.005)
+    assert box.position[2] == pytest.approx(0.05, abs=1e-4)
+    assert np.abs(box.v).max() < 1e-6
+    assert solution.impulses[0][:, 0].sum() == pytest.approx(box.mass * 9.81 * 0.005, rel=1e-6)
