@@ -3,6 +3,7 @@
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
+``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton
 ``softvr info PATH``        what a volume file holds
 """
 
@@ -30,12 +31,15 @@ def _view(argv: list[str]) -> int:
     return viewer.main(argv[1:])
 
 
-def _bench(argv: list[str]) -> int:
-    if not argv or argv[0] != "volume":
-        raise SystemExit("usage: softvr bench volume [--quick] [--json PATH] [--plot PATH] (areas: volume)")
-    from softvr.bench import volume
+_BENCH_AREAS = ("volume", "contact")
 
-    return volume.main(argv[1:])
+
+def _bench(argv: list[str]) -> int:
+    if not argv or argv[0] not in _BENCH_AREAS:
+        raise SystemExit(f"usage: softvr bench AREA [--quick] [--json PATH] [--plot PATH] (areas: {', '.join(_BENCH_AREAS)})")
+    import importlib
+
+    return importlib.import_module(f"softvr.bench.{argv[0]}").main(argv[1:])
 
 
 def _info(argv: list[str]) -> int:

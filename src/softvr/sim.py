@@ -10,7 +10,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softvr.collision import Plane, Sphere, points_vs_plane, points_vs_sphere, sphere_vs_plane, sphere_vs_sphere
+from softvr.collision import (
+    Plane,
+    Sphere,
+    box_vs_box,
+    box_vs_plane,
+    points_vs_plane,
+    points_vs_sphere,
+    sphere_vs_plane,
+    sphere_vs_sphere,
+)
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
@@ -64,21 +73,23 @@ class Scene:
     planes: list = field(default_factory=list)
     spheres: list = field(default_factory=list)
     friction: float = 0.5
-    pgs_iterations: int = 100
+    pgs_iterations: int = 500
     contact_margin: float = 0.005
     last_solution: ContactSolution | None = None
     time: float = 0.0
     _colliders: list = field(default_factory=list)
     _sphere_bodies: list = field(default_factory=list)
+    _box_bodies: list = field(default_factory=list)
     _warm: dict = field(default_factory=dict)
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_sphere: float | None = None,
-                 margin: float | None = None) -> int:
+                 collision_box=None, margin: float | None = None) -> int:
         """Add a contact object and return its index.
 
         ``collision_points`` (point entities) collide with planes and static spheres;
         ``collision_sphere`` [m] makes a rigid body a sphere of that radius about its centre,
-        colliding with planes and the other sphere bodies.
+        colliding with planes and the other sphere bodies; ``collision_box`` (3 half extents
+        [m]) makes it a box, colliding with planes and the other box bodies.
         """
         if not isinstance(body, ContactObject):
             raise InputError("body", "a softvr.dynamics.ContactObject", type(body).__name__)
@@ -87,11 +98,13 @@ class Scene:
         if collision_points is not None:
             self._colliders.append(_Collider(index, collision_points,
                                              self.contact_margin if margin is None else float(margin)))
-        if collision_sphere is not None:
+        for name, shape, store in (("collision_sphere", collision_sphere, self._sphere_bodies),
+                                   ("collision_box", collision_box, self._box_bodies)):
+            if shape is None:
+                continue
             if not hasattr(body, "position") or body.block_size != 6:
-                raise InputError("collision_sphere", "a rigid body (RigidBody, FixedBody, KinematicBody)",
-                                 type(body).__name__)
-            self._sphere_bodies.append((index, float(collision_sphere)))
+                raise InputError(name, "a rigid body (RigidBody, FixedBody, KinematicBody)", type(body).__name__)
+            store.append((index, float(shape) if name == "collision_sphere" else np.asarray(shape, float)))
         return index
 
     def add_sphere(self, sphere: Sphere) -> None:
@@ -115,6 +128,11 @@ class Scene:
             for j, rj in self._sphere_bodies[n + 1 :]:
                 out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
                                             margin=m, dt=dt))
+        for n, (i, h) in enumerate(self._box_bodies):
+            out += [box_vs_plane(i, self.bodies[i], h, p, margin=m, dt=dt) for p in self.planes]
+            for j, hj in self._box_bodies[n + 1 :]:
+                out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
+                                      margin=m, dt=dt))
         return out
 
     def step(self, dt: float) -> ContactSolution:

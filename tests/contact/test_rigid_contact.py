@@ -48,3 +48,24 @@ def test_box_rests_on_the_ground_carried_by_its_weight():
     assert box.position[2] == pytest.approx(0.05, abs=1e-4)
     assert np.abs(box.v).max() < 1e-6
     assert solution.impulses[0][:, 0].sum() == pytest.approx(box.mass * 9.81 * 0.005, rel=1e-6)
+
+
+@pytest.mark.slow
+def test_stack_of_five_boxes_rests_ten_seconds_with_drift_below_a_millimetre():
+    half = np.array([0.1, 0.1, 0.05])
+    scene = Scene(friction=0.6)
+    scene.add_plane(Plane(friction=0.6))
+    boxes = []
+    for level in range(5):
+        box = RigidBody.box(2 * half, 500.0, position=(0.0, 0.0, half[2] * (2 * level + 1) + 1e-4), name=f"box {level}")
+        scene.add_body(box, collision_box=half)
+        boxes.append(box)
+    for _ in range(50):  # settle onto each other (they start 0.1 mm apart)
+        scene.step(0.01)
+    start = np.array([b.position for b in boxes])
+    for _ in range(1000):
+        scene.step(0.01)
+    drift = np.linalg.norm(np.array([b.position for b in boxes]) - start, axis=1)
+    assert drift.max() < 1e-3
+    heights = np.array([b.position[2] for b in boxes])
+    np.testing.assert_allclose(heights, half[2] * (2 * np.arange(5) + 1), atol=1e-3)

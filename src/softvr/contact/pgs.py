@@ -56,7 +56,7 @@ class ContactSolution:
     islands: list
 
 
-def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 100, tolerance: float = 1e-9,
+def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-7,
                    warm_start: dict | None = None) -> ContactSolution:
     """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
 
@@ -72,10 +72,13 @@ def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 100, to
         removed within the step, and a positive gap may close but not be crossed.
     iterations : int
         Most PGS sweeps per island.
-    tolerance : float [N s]
-        A sweep whose largest impulse change is below it ends the loop.
+    tolerance : float
+        A sweep whose largest impulse change is below ``tolerance`` times the largest impulse
+        ends the loop.
     warm_start : dict, optional
-        ``{contact id: impulse (3,)}`` of the previous step; filled in with this step's.
+        ``{contact id: world impulse vector (3,)}`` of the previous step, filled in with this
+        step's. Kept in world coordinates because the friction frame follows the tangential
+        velocity and turns from step to step.
     """
     contact_sets = [c for c in contact_sets if len(c)]
     velocities = [np.array(b.v_free, float, copy=True) for b in bodies]
@@ -94,7 +97,7 @@ def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 100, to
         violation = -np.einsum("ci,ci->c", rel, c.normal) - c.gap / dt
         residual = max(residual, float(np.max(violation, initial=0.0)))
         if warm_start is not None:
-            warm_start.update(zip(c.ids.tolist(), impulses[k]))
+            warm_start.update(zip(c.ids.tolist(), np.einsum("cr,crx->cx", impulses[k], frames[k])))
     return ContactSolution(velocities, impulses, frames, sweeps, residual, islands)
 
 
@@ -150,7 +153,7 @@ def _solve_island(bodies, island, contact_sets, sets, velocities, impulses, fram
         if warm:
             for n, cid in enumerate(c.ids.tolist()):
                 if cid in warm:
-                    lam[contact_rows[n]] = _project(np.asarray(warm[cid], float), c.friction[n])
+                    lam[contact_rows[n]] = _project(f[n] @ np.asarray(warm[cid], float), c.friction[n])
 
     # Delassus operator B = sum_j G_j A_j^-1 G_j^T and the free constraint velocities J v_free.
     x = {j: bodies[j].solve_columns(g[j].T) for j in island}  # A_j^-1 G_j^T [velocity_size, rows]
@@ -158,18 +161,21 @@ def _solve_island(bodies, island, contact_sets, sets, velocities, impulses, fram
     rel = sum(g[j] @ v_free[j].ravel() for j in island) + delassus @ lam
     blocks_inv = [np.linalg.pinv(delassus[3 * n : 3 * n + 3, 3 * n : 3 * n + 3]) for n in range(rows // 3)]
     sweeps = 0
+    slices = [slice(3 * n, 3 * n + 3) for n in range(rows // 3)]
+    columns = [np.ascontiguousarray(delassus[:, r]) for r in slices]
     for _ in range(iterations):
         sweeps += 1
         biggest = 0.0
-        for n in range(rows // 3):
-            r = slice(3 * n, 3 * n + 3)
-            new = _project(lam[r] + blocks_inv[n] @ (target[r] - rel[r]), mu[n])
-            delta = new - lam[r]
-            if delta.any():
-                rel += delassus[:, r] @ delta
+        for n, r in enumerate(slices):
+            old = lam[r]
+            new = _project(old + blocks_inv[n] @ (target[r] - rel[r]), mu[n])
+            delta = new - old
+            change = float(np.abs(delta).max())
+            if change > 0.0:
+                rel += columns[n] @ delta
                 lam[r] = new
-                biggest = max(biggest, float(np.abs(delta).max()))
-        if biggest < tol:
+                biggest = max(biggest, change)
+        if biggest <= tol * max(float(np.abs(lam).max()), 1e-30):
             break
     for j in island:
         velocities[j] = (v_free[j].ravel() + x[j] @ lam).reshape(velocities[j].shape)

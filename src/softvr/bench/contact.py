@@ -1,0 +1,448 @@
+"""``softvr bench contact``: a soft cube dropped on a plane, softvr against MuJoCo, PyBullet, Newton.
+
+The scene (``/work/shared/peers.md``): a 0.8 m cube of 8 x 8 x 8 cells (729 nodes; 2 560 tets at
+5 per cell), density 1000 kg/m^3, E = 2.5e5 Pa, nu = 0.25 (Lamé mu = lambda = 1e5 Pa), its
+bottom face 0.5 m above a plane z = 0 with Coulomb friction 0.5, dt = 1/60 s, 1 s simulated.
+``--quick`` uses a 0.2 m cube of 3 x 3 x 3 cells dropped from 5 cm for 0.25 s (15 steps).
+
+softvr runs in this process: :class:`softvr.dynamics.FemBody` (linear co-rotational FEM, backward
+Euler + CG, Rayleigh beta = 1e-3 s like MuJoCo's ``damping``) in a :class:`softvr.Scene` with
+every node a collision point (:class:`~softvr.dynamics.EmbeddedPoints`) against a
+:class:`~softvr.collision.Plane`; contacts are solved as an LCP by PGS (thesis eqs. 5.5-5.6).
+Each installed peer runs in its own process (:mod:`softvr.bench._contact_peers`); a peer that is
+not installed gets a row saying so.
+
+Reported per engine: steps/s (steps / summed wall time of the stepping calls, median over
+``--repeat`` simulations after an untimed warm-up), x real time (= steps/s x dt), the ratio to the
+fastest peer, the maximum penetration over the run (the deepest node below z = 0, node centres:
+MuJoCo's vertices carry a 5 mm radius and PyBullet a 6 mm margin, so their nodes rest a few mm
+*above* the plane when the contact surface touches it), the height of the lowest node and of the
+node centroid at the end, the contact count of the last step (softvr: contacts handed to the
+solver, speculative ones within the 5 mm margin included; JSON: also those carrying an impulse)
+and softvr's PGS sweeps.
+
+Examples
+--------
+``softvr bench contact --quick`` (seconds), or the full run
+``softvr bench contact --json bench-results/contact.json --plot docs/img/bench_contact.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from softvr.bench import _contact_peers as P
+from softvr.bench.volume import _atomic_write, _loadavg, _machine_info, write_json
+
+__all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
+           "run_softvr", "softvr_scene", "write_plot"]
+
+#: The issue's targets on this cube.
+TARGET_SPEEDUP = 1.5  # x the fastest peer's steps/s
+TARGET_PENETRATION_M = 1e-3
+#: Stiffness-proportional Rayleigh damping of softvr's cube [s] (MuJoCo's ``damping`` is the same).
+SOFTVR_BETA = 1e-3
+ENGINES = ("softvr",) + tuple(P.PEERS)
+
+
+@dataclass(frozen=True)
+class CubeScene:
+    """A soft cube of ``cells^3`` grid cells, its bottom face ``drop`` above the plane z = 0.
+
+    Attributes
+    ----------
+    size : float [m]
+        Cube edge; the cube spans x, y in [-size/2, size/2].
+    cells : int
+        Grid cells per edge (5 tets per cell in softvr, PyBullet and Newton; 6 in MuJoCo).
+    drop : float [m]
+        Initial height of the bottom face.
+    duration : float [s]
+        Simulated time.
+    dt : float [s]
+    density : float [kg/m^3]
+    young : float [Pa]
+    poisson : float
+    friction : float
+        Coulomb coefficient of the cube-plane contacts.
+    gravity : float [m/s^2]
+        Along -z.
+    """
+
+    size: float = 0.8
+    cells: int = 8
+    drop: float = 0.5
+    duration: float = 1.0
+    dt: float = 1.0 / 60.0
+    density: float = 1000.0
+    young: float = 2.5e5
+    poisson: float = 0.25
+    friction: float = 0.5
+    gravity: float = 9.81
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.dt))
+
+    @property
+    def mass(self) -> float:
+        return self.density * self.size**3
+
+    @property
+    def lame(self) -> tuple[float, float]:
+        """(lambda, mu) [Pa]."""
+        e, nu = self.young, self.poisson
+        return e * nu / ((1 + nu) * (1 - 2 * nu)), e / (2 * (1 + nu))
+
+    def describe(self) -> str:
+        lam, mu = self.lame
+        return (f"{self.size:g} m cube, {self.cells}^3 cells, bottom {self.drop:g} m above the plane, "
+                f"dt 1/{1 / self.dt:.0f} s, {self.duration:g} s ({self.steps} steps), friction {self.friction:g}, "
+                f"density {self.density:g}, E {self.young:.3g} Pa, nu {self.poisson:g} (mu = {mu:.3g}, lambda = {lam:.3g})")
+
+
+FULL_SCENE = CubeScene()
+QUICK_SCENE = CubeScene(size=0.2, cells=3, drop=0.05, duration=0.25)
+
+
+def cube_mesh(scene: CubeScene, drop: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes [m] and 5-per-cell tets of the cube (:func:`softvr.volume.grid_tet_mesh`)."""
+    from softvr.volume import Volume, grid_tet_mesh
+
+    c = scene.cells
+    spacing = np.full(3, scene.size / c)
+    corner = np.array([-scene.size / 2, -scene.size / 2, scene.drop if drop is None else drop])
+    return grid_tet_mesh(Volume(np.zeros((c, c, c), np.uint8), spacing=spacing, origin=spacing / 2 + corner), c)
+
+
+def softvr_scene(scene: CubeScene):
+    """(Scene, FemBody) of the cube above its plane, every node a collision point."""
+    from softvr import Scene
+    from softvr.collision import Plane
+    from softvr.dynamics import EmbeddedPoints, FemBody, Material
+
+    nodes, tets = cube_mesh(scene)
+    body = FemBody(nodes, tets, Material(scene.young, scene.poisson, scene.density, alpha=0.0, beta=SOFTVR_BETA),
+                   name="cube")
+    sim = Scene(gravity=(0.0, 0.0, -scene.gravity))
+    sim.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(nodes))[:, None], np.ones((len(nodes), 1))))
+    sim.add_plane(Plane(friction=scene.friction))
+    return sim, body
+
+
+def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
+    t = time.perf_counter()
+    sim, body = softvr_scene(scene)
+    setup = time.perf_counter() - t
+    trace = {k: [] for k in ("step_s", "min_z", "mean_z", "contacts", "active_contacts", "pgs_iterations",
+                             "residual", "cg_iterations")}
+    for _ in range(steps):
+        t = time.perf_counter()
+        sol = sim.step(scene.dt)
+        trace["step_s"].append(time.perf_counter() - t)
+        z = body.q[:, 2]
+        trace["min_z"].append(float(z.min()))
+        trace["mean_z"].append(float(z.mean()))
+        trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
+        trace["active_contacts"].append(int(sum(int((i[:, 0] > 0).sum()) for i in sol.impulses)))
+        trace["pgs_iterations"].append(int(sol.iterations))
+        trace["residual"].append(float(sol.residual))
+        trace["cg_iterations"].append(int(body.last_cg_iterations))
+    info = {"setup_s": setup, "nodes": int(len(body.q)), "tets": int(len(body.tets)),
+            "mass_kg": float(body.mass.sum())}
+    return trace, info
+
+
+def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
+    """softvr on ``scene``: warm-up, then ``repeat`` simulations (record as :func:`_contact_peers.run_peer`)."""
+    import softvr
+
+    t = time.perf_counter()
+    _softvr_once(replace(scene, drop=0.0), P.WARMUP_STEPS)  # imports, first sparse LU and PGS call
+    warmup_s = time.perf_counter() - t
+    rates, first = [], None
+    for _ in range(max(1, repeat)):
+        trace, info = _softvr_once(scene, scene.steps)
+        rates.append(scene.steps / sum(trace["step_s"]))
+        first = first or (trace, info)
+    trace, info = first
+    return {**info, "steps": scene.steps, "warmup_s": warmup_s, "steps_per_s": statistics.median(rates),
+            "steps_per_s_runs": rates, "version": softvr.__version__, "trace": trace}
+
+
+# ----------------------------------------------------------------------------- the run
+def _summarize(rec: dict, scene: CubeScene) -> dict:
+    tr = rec["trace"]
+    rec["real_time_factor"] = rec["steps_per_s"] * scene.dt
+    rec["max_penetration_m"] = max(0.0, -min(tr["min_z"]))
+    rec["bottom_end_m"] = tr["min_z"][-1]
+    rec["centre_end_m"] = tr["mean_z"][-1]
+    rec["centre_speed_end_m_s"] = (tr["mean_z"][-1] - tr["mean_z"][-2]) / scene.dt if len(tr["mean_z"]) > 1 else None
+    rec["contacts_end"] = tr["contacts"][-1]
+    if "pgs_iterations" in tr:
+        rec["active_contacts_end"] = tr["active_contacts"][-1]
+        rec["pgs_iterations_end"] = tr["pgs_iterations"][-1]
+        rec["pgs_iterations_max"] = max(tr["pgs_iterations"])
+        in_contact = [it for it, c in zip(tr["pgs_iterations"], tr["contacts"]) if c]
+        rec["pgs_iterations_mean_in_contact"] = statistics.fmean(in_contact) if in_contact else 0.0
+    return rec
+
+
+def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines=ENGINES, progress: bool = True,
+                      scene: CubeScene | None = None, peer_timeout_s: float = 600.0) -> dict:
+    """Run softvr and every installed peer on the cube; returns the JSON-ready result.
+
+    Keys: ``schema``, ``machine``, ``config`` (the scene and settings), ``engines`` (one record
+    per engine, in ``engines`` order: ``status`` "ok" / "skipped" / "failed", ``reason``, the
+    measures of the module docstring and the per-step ``trace``), ``targets``, ``wall_s``.
+    """
+    import warp as wp
+    from tqdm import tqdm
+
+    wp.config.quiet = True  # no Warp banner in the middle of the output (machine info initializes Warp)
+    scene = scene or (QUICK_SCENE if quick else FULL_SCENE)
+    rep = repeat or (1 if quick else 3)
+    t_start = time.perf_counter()
+    load_start = _loadavg()
+    records = []
+    bar = tqdm(total=len(engines), desc="bench contact", unit="engine", disable=not progress, leave=False)
+    for name in engines:
+        bar.set_postfix_str(name)
+        if name == "softvr":
+            rec = {"engine": name, "status": "ok", "reason": None, "material": "linear co-rotational",
+                   "note": f"co-rotational FEM, backward Euler + CG, PGS contacts, margin 5 mm, beta {SOFTVR_BETA:g} s",
+                   **run_softvr(scene, rep)}
+        else:
+            _, _, material, note = P.PEERS[name]
+            rec = {"engine": name, "material": material, "note": note}
+            if not P.installed(name):
+                rec |= {"status": "skipped", "reason": P.NOT_INSTALLED}
+            else:
+                out = P.run_peer_process(name, asdict(scene), rep, timeout_s=peer_timeout_s)
+                if "failed" in out:
+                    rec |= {"status": "failed", "reason": out["failed"]}
+                else:
+                    rec |= {"status": "ok", "reason": None, **out}
+        if rec["status"] == "ok":
+            _summarize(rec, scene)
+        records.append(rec)
+        bar.update()
+    bar.close()
+    peers_ok = [r for r in records if r["status"] == "ok" and r["engine"] != "softvr"]
+    fastest = max(peers_ok, key=lambda r: r["steps_per_s"], default=None)
+    for r in records:
+        if r["status"] == "ok":
+            r["vs_fastest_peer"] = r["steps_per_s"] / fastest["steps_per_s"] if fastest else None
+    machine = _machine_info("cpu")
+    machine["versions"] |= {name: P.peer_version(name) for name in P.PEERS}
+    result = {
+        "schema": "softvr-bench-contact/1",
+        "machine": machine,
+        "config": {"quick": quick, "repeat": rep, "scene": asdict(scene), "steps": scene.steps,
+                   "mass_kg": scene.mass, "lame_lambda_mu": list(scene.lame), "softvr_beta_s": SOFTVR_BETA,
+                   "engines": list(engines), "fastest_peer": fastest["engine"] if fastest else None,
+                   "steps_per_s": "steps / summed wall time of the stepping calls; median over repeats",
+                   "penetration": "max over steps of the deepest node centre below z = 0"},
+        "engines": records,
+        "wall_s": None,
+        "loadavg_start": load_start,
+        "loadavg_end": _loadavg(),
+    }
+    result["targets"] = _targets(result)
+    result["wall_s"] = time.perf_counter() - t_start
+    return result
+
+
+def _targets(result: dict) -> dict:
+    sv = next((r for r in result["engines"] if r["engine"] == "softvr" and r["status"] == "ok"), None)
+    out = {"speedup_target": TARGET_SPEEDUP, "penetration_target_m": TARGET_PENETRATION_M,
+           "fastest_peer": result["config"]["fastest_peer"], "candy_scale_real_time": "not measured yet"}
+    if sv is None:
+        return out
+    out["softvr_penetration_m"] = sv["max_penetration_m"]
+    out["penetration_met"] = sv["max_penetration_m"] < TARGET_PENETRATION_M
+    out["softvr_vs_fastest_peer"] = sv.get("vs_fastest_peer")
+    out["speedup_met"] = None if sv.get("vs_fastest_peer") is None else sv["vs_fastest_peer"] >= TARGET_SPEEDUP
+    return out
+
+
+# ----------------------------------------------------------------------------- output
+def format_table(result: dict) -> str:
+    sc = CubeScene(**result["config"]["scene"])
+    lines = [f"Soft cube on a plane: {sc.describe()}",
+             f"steps/s = steps / wall time of the stepping calls (median of {result['config']['repeat']}); "
+             "pen = deepest node below the plane over the run; bottom / centre = lowest node / node centroid at the end"]
+    head = (f"{'engine':<9} {'tets':>5} {'steps/s':>8} {'x real':>7} {'vs fastest peer':>15} {'max pen mm':>10} "
+            f"{'bottom mm':>9} {'centre mm':>9} {'contacts':>8} {'PGS it':>12}  notes")
+    lines += [head, "-" * len(head)]
+    for r in result["engines"]:
+        if r["status"] != "ok":
+            lines.append(f"{r['engine']:<9} {r['reason']}")
+            continue
+        ratio = "-" if r.get("vs_fastest_peer") is None else f"{r['vs_fastest_peer']:.3f}"
+        contacts = "-" if r["contacts_end"] is None else str(r["contacts_end"])
+        pgs = f"{r['pgs_iterations_end']} (max {r['pgs_iterations_max']})" if "pgs_iterations_end" in r else "-"
+        lines.append(f"{r['engine']:<9} {r['tets']:>5} {r['steps_per_s']:>8.1f} {r['real_time_factor']:>7.2f} "
+                     f"{ratio:>15} {_mm(r['max_penetration_m'], 2):>10} {_mm(r['bottom_end_m'], 2):>9} "
+                     f"{_mm(r['centre_end_m'], 1):>9} {contacts:>8} {pgs:>12}  {r['material']}: {r['note']}")
+    lines.append("")
+    lines.append(_targets_text(result))
+    return "\n".join(lines)
+
+
+def _mm(metres: float, digits: int) -> str:
+    """Millimetres, without a "-0.00" for a node a few nm below the plane."""
+    return f"{round(metres * 1e3, digits) + 0.0:.{digits}f}"
+
+
+def _targets_text(result: dict) -> str:
+    t = result["targets"]
+    if "softvr_penetration_m" not in t:
+        return "targets: softvr did not run"
+    pen = (f"penetration {t['softvr_penetration_m'] * 1e3:.3f} mm vs < {TARGET_PENETRATION_M * 1e3:g} mm -> "
+           f"{'MET' if t['penetration_met'] else 'NOT met'}")
+    if t["softvr_vs_fastest_peer"] is None:
+        speed = f"speed vs the fastest peer: no peer ran (target >= {TARGET_SPEEDUP:g}x)"
+    else:
+        speed = (f"speed {t['softvr_vs_fastest_peer']:.3f}x the fastest peer ({t['fastest_peer']}) vs >= "
+                 f"{TARGET_SPEEDUP:g}x -> {'MET' if t['speedup_met'] else 'NOT met'}")
+    return f"targets: {speed}; {pen}; candy scale real time: not measured yet"
+
+
+ENGINE_STYLE = {"softvr": "tab:blue", "mujoco": "tab:orange", "pybullet": "tab:green", "newton": "tab:red"}
+
+
+def write_plot(result: dict, path) -> None:
+    """PNG: penetration and heights over time per engine, and a steps/s bar chart."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sc = CubeScene(**result["config"]["scene"])
+    ok = [r for r in result["engines"] if r["status"] == "ok"]
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4.8))
+    for r in ok:
+        t = (np.arange(len(r["trace"]["min_z"])) + 1) * sc.dt
+        col = ENGINE_STYLE.get(r["engine"], "tab:purple")
+        zmin = np.asarray(r["trace"]["min_z"])
+        axes[0].plot(t, np.maximum(0.0, -zmin) * 1e3, color=col, label=r["engine"])
+        axes[1].plot(t, zmin * 1e3, color=col, label=f"{r['engine']} bottom")
+        axes[1].plot(t, np.asarray(r["trace"]["mean_z"]) * 1e3, color=col, ls="--", label=f"{r['engine']} centre")
+    axes[0].axhline(TARGET_PENETRATION_M * 1e3, color="k", ls=":", lw=1)
+    axes[0].text(0, TARGET_PENETRATION_M * 1e3, " 1 mm target", fontsize=7, va="bottom")
+    axes[0].set(xlabel="time [s]", ylabel="penetration [mm]", title="deepest node below the plane")
+    axes[1].axhline(0.0, color="k", lw=0.8)
+    axes[1].set(xlabel="time [s]", ylabel="height [mm]", title="lowest node (solid) and node centroid (dashed)")
+    for ax in axes[:2]:
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=7)
+    ax = axes[2]
+    names = [r["engine"] for r in ok]
+    rates = [r["steps_per_s"] for r in ok]
+    if rates:
+        y = np.arange(len(rates))
+        ax.barh(y, rates, color=[ENGINE_STYLE.get(n, "tab:purple") for n in names])
+        ax.set_yticks(y, [f"{n}\n{r['material']}" for n, r in zip(names, ok)], fontsize=8)
+        ax.invert_yaxis()
+        for yi, v in zip(y, rates):
+            ax.text(v, yi, f" {v:.1f}", va="center", fontsize=8)
+        ax.axvline(1.0 / sc.dt, color="k", ls=":", lw=1)
+        ax.text(1.0 / sc.dt, len(rates) - 0.5, " real time", fontsize=7, va="bottom")
+        fastest = result["config"]["fastest_peer"]
+        if fastest:
+            goal = TARGET_SPEEDUP * next(r["steps_per_s"] for r in ok if r["engine"] == fastest)
+            ax.axvline(goal, color="tab:blue", ls="--", lw=1)
+            ax.text(goal, -0.5, f" target {TARGET_SPEEDUP:g}x {fastest}", fontsize=7, va="top", color="tab:blue")
+        ax.set(xscale="log", xlabel="steps / s (log)", title="speed")
+        ax.grid(True, axis="x", which="both", alpha=0.3)
+    skipped = [f"{r['engine']}: {r['reason']}" for r in result["engines"] if r["status"] != "ok"]
+    if skipped:
+        ax.text(0.02, 0.02, "\n".join(skipped), transform=ax.transAxes, fontsize=6, color="0.4", va="bottom")
+    m = result["machine"]
+    fig.suptitle(f"soft cube on a plane: {sc.size:g} m, {sc.cells}^3 cells, dt 1/{1 / sc.dt:.0f} s, {sc.duration:g} s "
+                 f"- {m['cpu_model']}, {m['cores']} cores, {m['date'][:10]}", fontsize=9)
+    fig.tight_layout()
+
+    def save(tmp):
+        fig.savefig(tmp, format="png", dpi=110)
+
+    try:
+        _atomic_write(Path(path), save)
+    finally:
+        plt.close(fig)
+
+
+def profile_softvr_step(scene: CubeScene, top: int = 25) -> str:
+    """cProfile of one softvr step with the cube resting on the plane (after ``scene.duration``)."""
+    import cProfile
+    import io
+    import pstats
+
+    sim, body = softvr_scene(scene)
+    for _ in range(scene.steps):
+        sim.step(scene.dt)
+    prof = cProfile.Profile()
+    prof.enable()
+    sol = sim.step(scene.dt)
+    prof.disable()
+    s = io.StringIO()
+    s.write(f"one softvr step at t = {sim.time:.3f} s: {sum(len(i) for i in sol.impulses)} contacts, "
+            f"{sol.iterations} PGS sweeps, {body.last_cg_iterations} CG iterations\n")
+    pstats.Stats(prof, stream=s).sort_stats("cumulative").print_stats(top)
+    return s.getvalue()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``softvr bench contact [--quick] [--repeat N] [--engines LIST] [--json PATH] [--plot PATH] [--profile]``."""
+    p = argparse.ArgumentParser(
+        prog="softvr bench contact",
+        description="Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when installed).",
+    )
+    p.add_argument("--quick", action="store_true", help="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)")
+    p.add_argument("--repeat", type=int, default=None, metavar="N", help="timed simulations per engine (default 3, quick 1)")
+    p.add_argument("--engines", default=",".join(ENGINES), help=f"comma list of {', '.join(ENGINES)}")
+    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
+    p.add_argument("--plot", metavar="PATH", help="write a PNG: penetration, heights, steps/s")
+    p.add_argument("--profile", action="store_true", help="also print a cProfile of one softvr step in contact")
+    p.add_argument("--no-progress", action="store_true")
+    a = p.parse_args(argv)
+    if a.repeat is not None and a.repeat < 1:
+        p.error("--repeat must be >= 1")
+    engines = tuple(e.strip() for e in a.engines.split(",") if e.strip())
+    bad = set(engines) - set(ENGINES)
+    if bad or not engines:
+        p.error(f"unknown engines {sorted(bad)}; choose from {', '.join(ENGINES)}")
+    from softvr.errors import SoftvrError
+
+    try:
+        result = run_contact_bench(quick=a.quick, repeat=a.repeat, engines=engines, progress=not a.no_progress)
+    except SoftvrError as exc:
+        print(f"softvr bench contact: {exc}", file=sys.stderr)
+        return 2
+    print(format_table(result))
+    m = result["machine"]
+    print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
+          f"at end {result['loadavg_end']} ({m['cores']} cores)")
+    if a.profile:
+        print()
+        print(profile_softvr_step(QUICK_SCENE if a.quick else FULL_SCENE))
+    if a.json:
+        write_json(result, a.json)
+        print(f"wrote {a.json}")
+    if a.plot:
+        write_plot(result, a.plot)
+        print(f"wrote {a.plot}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
