@@ -13,8 +13,10 @@ import numpy as np
 from softvr.collision import (
     Plane,
     Sphere,
+    TriangleMesh,
     box_vs_box,
     box_vs_plane,
+    points_vs_mesh,
     points_vs_plane,
     points_vs_sphere,
     sphere_vs_plane,
@@ -62,6 +64,10 @@ class Scene:
     planes : list of Plane
     spheres : list of Sphere
         Static spheres.
+    meshes : list of TriangleMesh
+        Static triangle meshes (thin sheets, walls).
+    ccd : bool
+        Continuous collision detection of points against meshes (sweeps over the step).
     friction : float
         Coulomb coefficient between two bodies.
     last_solution : ContactSolution or None
@@ -72,6 +78,8 @@ class Scene:
     bodies: list = field(default_factory=list)
     planes: list = field(default_factory=list)
     spheres: list = field(default_factory=list)
+    meshes: list = field(default_factory=list)
+    ccd: bool = True
     friction: float = 0.5
     pgs_iterations: int = 500
     contact_margin: float = 0.005
@@ -111,6 +119,12 @@ class Scene:
         """Add a static sphere."""
         self.spheres.append(sphere)
 
+    def add_mesh(self, mesh: TriangleMesh) -> None:
+        """Add a static triangle mesh."""
+        if not isinstance(mesh, TriangleMesh):
+            raise InputError("mesh", "a softvr.collision.TriangleMesh", type(mesh).__name__)
+        self.meshes.append(mesh)
+
     def add_plane(self, plane: Plane) -> None:
         plane.unit_normal()  # validates
         self.planes.append(plane)
@@ -123,6 +137,8 @@ class Scene:
             v = c.points.velocities(self.bodies[c.body].v_free)
             out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt) for p in self.planes]
             out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt) for s in self.spheres]
+            out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd)
+                    for mesh in self.meshes]
         for n, (i, r) in enumerate(self._sphere_bodies):
             out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, dt=dt) for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:

@@ -203,10 +203,11 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
     per engine, in ``engines`` order: ``status`` "ok" / "skipped" / "failed", ``reason``, the
     measures of the module docstring and the per-step ``trace``), ``targets``, ``wall_s``.
     """
-    import warp as wp
     from tqdm import tqdm
 
-    wp.config.quiet = True  # no Warp banner in the middle of the output (machine info initializes Warp)
+    from softvr.device import resolve_device
+
+    resolve_device("cpu")  # initializes Warp quietly (the machine info asks it for the device name)
     scene = scene or (QUICK_SCENE if quick else FULL_SCENE)
     rep = repeat or (1 if quick else 3)
     t_start = time.perf_counter()

@@ -2,12 +2,14 @@
 
 So far: points (of any contact object, through point entities) against static half-spaces
 and spheres, rigid spheres against planes and each other, and rigid boxes against planes
-and each other (corner-face). Mesh-mesh detection with
-Warp BVHs and CCD comes next.
+and each other (corner-face). Points against static
+triangle meshes use Warp's BVH, discretely and by CCD (first time of impact). Deforming
+mesh-mesh detection (vertex-triangle, edge-edge) comes next.
 """
 
 from softvr.collision.box import box_corners, box_vs_box, box_vs_plane
 from softvr.collision.contacts import Contacts, ContactSide
+from softvr.collision.mesh import TriangleMesh, points_vs_mesh
 from softvr.collision.plane import Plane, points_vs_plane
 from softvr.collision.sphere import Sphere, points_vs_sphere, sphere_vs_plane, sphere_vs_sphere
 
@@ -19,6 +21,8 @@ __all__ = [
     "Contacts",
     "Plane",
     "Sphere",
+    "TriangleMesh",
+    "points_vs_mesh",
     "points_vs_plane",
     "points_vs_sphere",
     "sphere_vs_plane",

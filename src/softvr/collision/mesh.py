@@ -1,0 +1,141 @@
+"""Points against static triangle meshes, discrete and continuous (first time of impact).
+
+Built on Warp's ``wp.Mesh`` (a BVH over the triangles): ``mesh_query_point_no_sign`` finds
+points within the contact margin of the surface, ``mesh_query_ray`` sweeps each point along its
+unconstrained motion over the step (CCD), so a small fast object cannot pass through a thin
+sheet between two steps.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.device import resolve_device
+from softvr.errors import InputError
+
+__all__ = ["TriangleMesh", "points_vs_mesh"]
+
+
+@wp.kernel
+def _query_points(
+    mesh: wp.uint64,
+    points: wp.array(dtype=wp.vec3),
+    motion: wp.array(dtype=wp.vec3),
+    reach: float,
+    thickness: float,
+    ccd: int,
+    hit: wp.array(dtype=wp.int32),
+    normal: wp.array(dtype=wp.vec3),
+    gap: wp.array(dtype=float),
+    surface: wp.array(dtype=wp.vec3),
+):
+    """Per point: the closest surface point within ``reach`` or, sweeping ``motion`` (the
+    displacement over the step), the first crossing. Normals face the point's side."""
+    i = wp.tid()
+    p = points[i]
+    hit[i] = 0
+    d = motion[i]
+    travel = wp.length(d)
+    if ccd != 0 and travel > 0.0:
+        direction = d / travel
+        ray = wp.mesh_query_ray(mesh, p, direction, travel + reach)
+        if ray.result:
+            n = ray.normal
+            if wp.dot(n, direction) > 0.0:
+                n = -n
+            hit[i] = 1
+            normal[i] = n
+            gap[i] = ray.t * wp.abs(wp.dot(n, direction)) - thickness
+            surface[i] = p + ray.t * direction
+            return
+    q = wp.mesh_query_point_no_sign(mesh, p, reach + thickness)
+    if q.result:
+        c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+        offset = p - c
+        dist = wp.length(offset)
+        n = wp.mesh_eval_face_normal(mesh, q.face)
+        if dist > 1.0e-9:
+            n = offset / dist
+        hit[i] = 1
+        normal[i] = n
+        gap[i] = dist - thickness
+        surface[i] = c
+
+
+class TriangleMesh:
+    """A static triangle mesh collider (a thin sheet, a wall, an organ surface).
+
+    Parameters
+    ----------
+    vertices : array_like, shape [vertex_count, 3] [m]
+    triangles : array_like, shape [triangle_count, 3]
+    thickness : float [m]
+        Half thickness of the sheet: contacts keep points this far from the surface.
+    friction : float
+    id : int
+        Part of the contact ids.
+    device : str, optional
+        Warp device of the BVH.
+    """
+
+    def __init__(self, vertices, triangles, *, thickness: float = 0.001, friction: float = 0.5, id: int = 0,
+                 device: str | None = None):
+        v = np.asarray(vertices, float)
+        t = np.asarray(triangles)
+        if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
+            raise InputError("vertices", "finite positions [vertex_count, 3] [m]", f"shape {v.shape}")
+        if t.ndim != 2 or t.shape[1] != 3 or len(t) == 0 or t.min() < 0 or t.max() >= len(v):
+            raise InputError("triangles", f"[triangle_count, 3] indices in [0, {len(v) - 1}]", f"shape {t.shape}")
+        if not thickness >= 0:
+            raise InputError("thickness", "a half thickness >= 0 [m]", repr(thickness))
+        self.device = resolve_device(device)
+        self.vertices, self.triangles = v, t.astype(np.int32)
+        self.thickness, self.friction, self.id = float(thickness), float(friction), int(id)
+        self._points = wp.array(v, dtype=wp.vec3, device=self.device)
+        self._mesh = wp.Mesh(points=self._points, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
+                                                                        device=self.device))
+
+
+def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float = 0.0, velocities=None,
+                   dt: float = 0.0, ccd: bool = True) -> Contacts:
+    """Contacts of point entities with a static triangle mesh.
+
+    Parameters
+    ----------
+    body_index : int
+    points : RigidPoints or EmbeddedPoints
+    mesh : TriangleMesh
+    margin : float [m]
+        Proximity within which points become contacts.
+    velocities : ndarray, shape [point_count, 3] [m/s], optional
+        Unconstrained point velocities of the step (for CCD).
+    dt : float [s]
+    ccd : bool
+        Sweep each point over ``velocities * dt`` and take the first crossing.
+    """
+    p = points.positions()
+    n_pts = len(p)
+    dev = mesh.device
+    motion = np.zeros_like(p) if velocities is None else np.asarray(velocities, float) * dt
+    hit = wp.zeros(n_pts, dtype=wp.int32, device=dev)
+    normal = wp.zeros(n_pts, dtype=wp.vec3, device=dev)
+    gap = wp.zeros(n_pts, dtype=float, device=dev)
+    surface = wp.zeros(n_pts, dtype=wp.vec3, device=dev)
+    wp.launch(_query_points, dim=n_pts, device=dev,
+              inputs=[mesh._mesh.id, wp.array(p, dtype=wp.vec3, device=dev), wp.array(motion, dtype=wp.vec3, device=dev),
+                      float(margin), mesh.thickness, int(ccd), hit, normal, gap, surface])
+    which = np.flatnonzero(hit.numpy())
+    blocks, jac = point_jacobian_blocks(points, which)
+    k = len(which)
+    return Contacts(
+        a=ContactSide(body_index, blocks, jac),
+        b=None,
+        normal=normal.numpy()[which].astype(float),
+        gap=gap.numpy()[which].astype(float),
+        point_a=p[which],
+        point_b=surface.numpy()[which].astype(float),
+        ids=(np.int64(mesh.id) << 32) | (np.int64(1) << 30) | which.astype(np.int64),
+        friction=np.full(k, mesh.friction),
+    )
