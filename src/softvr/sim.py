@@ -88,6 +88,7 @@ class Scene:
     _colliders: list = field(default_factory=list)
     _sphere_bodies: list = field(default_factory=list)
     _box_bodies: list = field(default_factory=list)
+    _filtered: set = field(default_factory=set)
     _warm: dict = field(default_factory=dict)
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_sphere: float | None = None,
@@ -114,6 +115,16 @@ class Scene:
                 raise InputError(name, "a rigid body (RigidBody, FixedBody, KinematicBody)", type(body).__name__)
             store.append((index, float(shape) if name == "collision_sphere" else np.asarray(shape, float)))
         return index
+
+    def disable_collision(self, a: int, b: int) -> None:
+        """Never make contacts between bodies ``a`` and ``b`` (e.g. a soft part coupled to a bone)."""
+        for i in (a, b):
+            if not 0 <= i < len(self.bodies):
+                raise InputError("body index", f"an index in [0, {len(self.bodies) - 1}]", repr(i))
+        self._filtered.add((min(a, b), max(a, b)))
+
+    def _pair_enabled(self, a: int, b: int) -> bool:
+        return (min(a, b), max(a, b)) not in self._filtered
 
     def add_sphere(self, sphere: Sphere) -> None:
         """Add a static sphere."""
@@ -142,13 +153,15 @@ class Scene:
         for n, (i, r) in enumerate(self._sphere_bodies):
             out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, dt=dt) for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:
-                out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
-                                            margin=m, dt=dt))
+                if self._pair_enabled(i, j):
+                        out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj,
+                                                friction=self.friction, margin=m, dt=dt))
         for n, (i, h) in enumerate(self._box_bodies):
             out += [box_vs_plane(i, self.bodies[i], h, p, margin=m, dt=dt) for p in self.planes]
             for j, hj in self._box_bodies[n + 1 :]:
-                out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
-                                      margin=m, dt=dt))
+                if self._pair_enabled(i, j):
+                    out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
+                                          margin=m, dt=dt))
         return out
 
     def step(self, dt: float) -> ContactSolution:

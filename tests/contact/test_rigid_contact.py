@@ -69,3 +69,16 @@ def test_stack_of_five_boxes_rests_ten_seconds_with_drift_below_a_millimetre():
     assert drift.max() < 1e-3
     heights = np.array([b.position[2] for b in boxes])
     np.testing.assert_allclose(heights, half[2] * (2 * np.arange(5) + 1), atol=1e-3)
+
+
+def test_collision_filter_lets_a_pair_pass_through_each_other():
+    a = RigidBody.sphere(0.1, 1000.0, position=(-0.3, 0.0, 0.0), velocity=(2.0, 0.0, 0.0))
+    b = RigidBody.sphere(0.1, 1000.0, position=(0.3, 0.0, 0.0), velocity=(-2.0, 0.0, 0.0))
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    ia = scene.add_body(a, collision_sphere=0.1)
+    ib = scene.add_body(b, collision_sphere=0.1)
+    scene.disable_collision(ia, ib)
+    for _ in range(40):
+        scene.step(0.005)
+    assert a.position[0] > 0.0 > b.position[0]  # passed through each other untouched
+    np.testing.assert_allclose([a.v[0], b.v[0]], [2.0, -2.0])
