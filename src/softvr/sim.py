@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softvr.collision import (
+    CollisionSurface,
     Plane,
     Sphere,
     TriangleMesh,
@@ -21,6 +22,7 @@ from softvr.collision import (
     points_vs_sphere,
     sphere_vs_plane,
     sphere_vs_sphere,
+    surface_vs_surface,
 )
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.dynamics.body import ContactObject
@@ -89,13 +91,16 @@ class Scene:
     _sphere_bodies: list = field(default_factory=list)
     _box_bodies: list = field(default_factory=list)
     _filtered: set = field(default_factory=set)
+    _surfaces: list = field(default_factory=list)
     _warm: dict = field(default_factory=dict)
 
-    def add_body(self, body: ContactObject, *, collision_points=None, collision_sphere: float | None = None,
-                 collision_box=None, margin: float | None = None) -> int:
+    def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
+                 collision_sphere: float | None = None, collision_box=None, margin: float | None = None) -> int:
         """Add a contact object and return its index.
 
-        ``collision_points`` (point entities) collide with planes and static spheres;
+        ``collision_points`` (point entities) collide with planes, static spheres and static
+        meshes; with ``collision_triangles`` [triangle_count, 3] over those points they also
+        form the body's collision surface, which meets the other bodies' surfaces;
         ``collision_sphere`` [m] makes a rigid body a sphere of that radius about its centre,
         colliding with planes and the other sphere bodies; ``collision_box`` (3 half extents
         [m]) makes it a box, colliding with planes and the other box bodies.
@@ -107,6 +112,10 @@ class Scene:
         if collision_points is not None:
             self._colliders.append(_Collider(index, collision_points,
                                              self.contact_margin if margin is None else float(margin)))
+        if collision_triangles is not None:
+            if collision_points is None:
+                raise InputError("collision_triangles", "collision_points to build them on", "no points")
+            self._surfaces.append(CollisionSurface(index, collision_points, collision_triangles))
         for name, shape, store in (("collision_sphere", collision_sphere, self._sphere_bodies),
                                    ("collision_box", collision_box, self._box_bodies)):
             if shape is None:
@@ -150,6 +159,17 @@ class Scene:
             out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt) for s in self.spheres]
             out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd)
                     for mesh in self.meshes]
+        for surface in self._surfaces:
+            surface.refit()
+        for n, sa in enumerate(self._surfaces):
+            for sb in self._surfaces[n + 1 :]:
+                if not self._pair_enabled(sa.body_index, sb.body_index):
+                    continue
+                va = sa.points.velocities(self.bodies[sa.body_index].v_free)
+                vb = sb.points.velocities(self.bodies[sb.body_index].v_free)
+                for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
+                    out.append(surface_vs_surface(x, y, margin=m, friction=self.friction, dt=dt, ccd=self.ccd,
+                                                  velocities_a=vx, velocities_b=vy))
         for n, (i, r) in enumerate(self._sphere_bodies):
             out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, dt=dt) for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:

@@ -80,3 +80,19 @@ def test_user_mesh_round_trips_through_meshio(tmp_path):
         load_tet_mesh(tmp_path / "tri.vtu")
     with pytest.raises(InputError, match="no such file"):
         load_tet_mesh(tmp_path / "missing.vtu")
+
+
+def test_boundary_faces_close_the_box_and_point_outward():
+    from softvr.volume import boundary_faces
+
+    vol = Volume(np.zeros((6, 5, 4), np.uint8), spacing=(1.0, 2.0, 0.5))
+    nodes, tets = grid_tet_mesh(vol, (3, 2, 2))
+    faces = boundary_faces(tets)
+    assert len(faces) == 4 * (3 * 2 + 2 * 2 + 3 * 2)  # 2 triangles per boundary square
+    p = nodes[faces]
+    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    outward = (p.mean(axis=1) - nodes.mean(axis=0)) * normals
+    assert (outward.sum(axis=1) > 0).all()
+    # Divergence theorem: the closed outward surface encloses the box's volume.
+    enclosed = np.einsum("fi,fi->f", p[:, 0], normals).sum() / 6.0
+    assert enclosed == pytest.approx(np.prod(np.array(vol.shape) * vol.spacing))

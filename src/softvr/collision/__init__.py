@@ -4,7 +4,8 @@ So far: points (of any contact object, through point entities) against static ha
 and spheres, rigid spheres against planes and each other, and rigid boxes against planes
 and each other (corner-face). Points against static
 triangle meshes use Warp's BVH, discretely and by CCD (first time of impact). Deforming
-mesh-mesh detection (vertex-triangle, edge-edge) comes next.
+surfaces of two bodies meet vertex-triangle (BVH refit each step, discrete and swept);
+edge-edge contacts come next.
 """
 
 from softvr.collision.box import box_corners, box_vs_box, box_vs_plane
@@ -12,8 +13,10 @@ from softvr.collision.contacts import Contacts, ContactSide
 from softvr.collision.mesh import TriangleMesh, points_vs_mesh
 from softvr.collision.plane import Plane, points_vs_plane
 from softvr.collision.sphere import Sphere, points_vs_sphere, sphere_vs_plane, sphere_vs_sphere
+from softvr.collision.surfaces import CollisionSurface, surface_vs_surface
 
 __all__ = [
+    "CollisionSurface",
     "ContactSide",
     "box_corners",
     "box_vs_box",
@@ -27,4 +30,5 @@ __all__ = [
     "points_vs_sphere",
     "sphere_vs_plane",
     "sphere_vs_sphere",
+    "surface_vs_surface",
 ]

@@ -26,13 +26,16 @@ def _query_points(
     reach: float,
     thickness: float,
     ccd: int,
+    closed: int,
     hit: wp.array(dtype=wp.int32),
     normal: wp.array(dtype=wp.vec3),
     gap: wp.array(dtype=float),
     surface: wp.array(dtype=wp.vec3),
 ):
     """Per point: the closest surface point within ``reach`` or, sweeping ``motion`` (the
-    displacement over the step), the first crossing. Normals face the point's side."""
+    displacement over the step), the first crossing. Normals face the point's side; for a
+    ``closed`` (watertight, outward) surface a point inside gets the outward normal and a
+    negative gap (its penetration depth)."""
     i = wp.tid()
     p = points[i]
     hit[i] = 0
@@ -50,6 +53,20 @@ def _query_points(
             gap[i] = ray.t * wp.abs(wp.dot(n, direction)) - thickness
             surface[i] = p + ray.t * direction
             return
+    if closed != 0:
+        q = wp.mesh_query_point(mesh, p, reach + thickness)
+        if q.result:
+            c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+            offset = p - c
+            dist = wp.length(offset)
+            n = wp.mesh_eval_face_normal(mesh, q.face)
+            if dist > 1.0e-9:
+                n = offset / dist * q.sign
+            hit[i] = 1
+            normal[i] = n
+            gap[i] = dist * q.sign - thickness
+            surface[i] = c
+        return
     q = wp.mesh_query_point_no_sign(mesh, p, reach + thickness)
     if q.result:
         c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
@@ -125,7 +142,7 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
     surface = wp.zeros(n_pts, dtype=wp.vec3, device=dev)
     wp.launch(_query_points, dim=n_pts, device=dev,
               inputs=[mesh._mesh.id, wp.array(p, dtype=wp.vec3, device=dev), wp.array(motion, dtype=wp.vec3, device=dev),
-                      float(margin), mesh.thickness, int(ccd), hit, normal, gap, surface])
+                      float(margin), mesh.thickness, int(ccd), 0, hit, normal, gap, surface])
     which = np.flatnonzero(hit.numpy())
     blocks, jac = point_jacobian_blocks(points, which)
     k = len(which)

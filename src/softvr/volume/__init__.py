@@ -19,7 +19,7 @@ Examples
 from softvr.volume._io import load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
 from softvr.volume.rasterize import OutputGrid, RasterStats, Rasterizer, deform, fit_output_grid
-from softvr.volume.tetmesh import check_tets, grid_tet_mesh, load_tet_mesh
+from softvr.volume.tetmesh import boundary_faces, check_tets, grid_tet_mesh, load_tet_mesh
 
 __all__ = [
     "OutputGrid",
@@ -27,6 +27,7 @@ __all__ = [
     "RasterStats",
     "Rasterizer",
     "Volume",
+    "boundary_faces",
     "check_tets",
     "deform",
     "fit_output_grid",

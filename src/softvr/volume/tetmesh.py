@@ -9,7 +9,7 @@ import numpy as np
 from softvr.errors import InputError
 from softvr.volume._volume import Volume
 
-__all__ = ["check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_signed_volumes"]
+__all__ = ["boundary_faces", "check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_signed_volumes"]
 
 # Corner c = (a, b, c) of a unit cube has index a + 2 b + 4 c. A cube splits into the centre
 # tet of its 4 "odd" corners and the 4 corner tets of its "even" corners; mirrored cubes
@@ -215,3 +215,24 @@ def load_tet_mesh(path, *, fix_orientation: bool = False) -> tuple[np.ndarray, n
         neg = tet_signed_volumes(nodes, tets) < 0
         tets[neg] = tets[neg][:, [0, 2, 1, 3]]
     return check_tets(nodes, tets, source=str(p))
+
+
+def boundary_faces(tets) -> np.ndarray:
+    """Faces of a tet mesh that belong to one tet only, oriented outward.
+
+    Parameters
+    ----------
+    tets : array_like, shape [tet_count, 4]
+        Positively oriented tetrahedra.
+
+    Returns
+    -------
+    ndarray of int32, shape [face_count, 3]
+        Triangles whose right-handed normal points out of the mesh.
+    """
+    t = np.asarray(tets)
+    # Face opposite vertex k, ordered so that its normal points away from vertex k.
+    faces = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
+    key = np.sort(faces, axis=1)
+    _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+    return faces[np.sort(first[counts == 1])].astype(np.int32)
