@@ -18,6 +18,7 @@ MODULES = [
     "softvr.render.contact_sheet",
     "softvr.sim",
     "softvr.dynamics.cloth",
+    "softvr.render.surfaces",
 ]
 
 

@@ -1,6 +1,7 @@
 """The ``softvr`` command: one entry point, one subcommand per job.
 
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
+``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges) to MP4
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton
@@ -21,6 +22,12 @@ def _demo(argv: list[str]) -> int:
     from softvr.examples import example_volume_deform
 
     return example_volume_deform.main(argv)
+
+
+def _run(argv: list[str]) -> int:
+    from softvr.examples import run
+
+    return run.main(argv)
 
 
 def _view(argv: list[str]) -> int:
@@ -54,7 +61,7 @@ def _info(argv: list[str]) -> int:
     return 0
 
 
-_COMMANDS = {"demo": _demo, "view": _view, "bench": _bench, "info": _info}
+_COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -74,22 +74,24 @@ def peer_version(name: str) -> str | None:
 
 # ----------------------------------------------------------------------------- one simulation
 class _Trace:
-    """Per-step wall time of the stepping call and the node heights after it."""
+    """Per-step wall and process CPU time of the stepping call, and the node heights after it."""
 
     def __init__(self):
         self.step_s: list[float] = []
+        self.cpu_s: list[float] = []
         self.min_z: list[float] = []
         self.mean_z: list[float] = []
         self.contacts: list[int | None] = []
 
-    def add(self, seconds: float, z: np.ndarray, contacts) -> None:
+    def add(self, seconds: float, cpu_seconds: float, z: np.ndarray, contacts) -> None:
         self.step_s.append(seconds)
+        self.cpu_s.append(cpu_seconds)
         self.min_z.append(float(np.min(z)))
         self.mean_z.append(float(np.mean(z)))
         self.contacts.append(None if contacts is None else int(contacts))
 
     def as_dict(self) -> dict:
-        return {"step_s": self.step_s, "min_z": self.min_z, "mean_z": self.mean_z, "contacts": self.contacts}
+        return {"step_s": self.step_s, "cpu_s": self.cpu_s, "min_z": self.min_z, "mean_z": self.mean_z, "contacts": self.contacts}
 
 
 def _mujoco(scene: dict, steps: int) -> tuple[_Trace, dict]:
@@ -117,13 +119,13 @@ def _mujoco(scene: dict, steps: int) -> tuple[_Trace, dict]:
     setup = time.perf_counter() - t
     trace = _Trace()
     for _ in range(steps):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         mujoco.mj_step(m, d)
-        dt = time.perf_counter() - t
+        dt, dc = time.perf_counter() - t, time.process_time() - c
         ncon = d.ncon  # the contacts this step used
         # flexvert_xpos is computed before integration inside mj_step (one step behind): update it.
         mujoco.mj_fwdPosition(m, d)
-        trace.add(dt, d.flexvert_xpos[:, 2], ncon)
+        trace.add(dt, dc, d.flexvert_xpos[:, 2], ncon)
     info = {"setup_s": setup, "nodes": int(m.nflexvert), "tets": int(m.nflexelem),
             "mass_kg": float(mass), "version": mujoco.__version__}
     return trace, info
@@ -171,11 +173,11 @@ def _pybullet(scene: dict, steps: int) -> tuple[_Trace, dict]:
             setup = time.perf_counter() - t
             trace = _Trace()
             for _ in range(steps):
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 p.stepSimulation(physicsClientId=client)
-                dt = time.perf_counter() - t
+                dt, dc = time.perf_counter() - t, time.process_time() - c
                 _, q = p.getMeshData(sb, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=client)
-                trace.add(dt, np.asarray(q)[:, 2], len(p.getContactPoints(sb, physicsClientId=client)))
+                trace.add(dt, dc, np.asarray(q)[:, 2], len(p.getContactPoints(sb, physicsClientId=client)))
         finally:
             p.disconnect(physicsClientId=client)
     info = {"setup_s": setup, "nodes": int(len(nodes)), "tets": int(len(tets)), "mass_kg": float(mass),
@@ -224,14 +226,14 @@ def _newton(scene: dict, steps: int) -> tuple[_Trace, dict]:
         trace = _Trace()
         dt = scene["dt"]
         for _ in range(steps):
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             s0.clear_forces()
             pipe.collide(s0, contacts)
             solver.step(s0, s1, ctrl, contacts, dt)
             s0, s1 = s1, s0
             wp.synchronize()
-            elapsed = time.perf_counter() - t
-            trace.add(elapsed, s0.particle_q.numpy()[:, 2], int(contacts.soft_contact_count.numpy()[0]))
+            elapsed, cpu = time.perf_counter() - t, time.process_time() - c
+            trace.add(elapsed, cpu, s0.particle_q.numpy()[:, 2], int(contacts.soft_contact_count.numpy()[0]))
     info = {"setup_s": setup, "nodes": int(model.particle_count), "tets": int(model.tet_count),
             "mass_kg": float(m.sum()), "version": newton.__version__, "warp": wp.config.version}
     return trace, info

@@ -12,7 +12,8 @@ exactly each object's own ``A^-1`` (a sparse LU for FEM bodies, ``M^-1`` for rig
 the outer Jacobi loop over velocities of eq. 5.6 converges in one pass. It becomes a real loop
 once couplings put off-diagonal blocks into A (coupling islands, issue 5).
 
-The LCP is solved by projected Gauss-Seidel over 3x3 contact blocks (normal and two tangents).
+The LCP is solved by projected Gauss-Seidel over contacts, each a 3x3 block taken as its
+normal row, then its two tangent rows clamped to the friction pyramid.
 Friction is a 4-sided Coulomb pyramid, |lambda_t1|, |lambda_t2| <= mu lambda_n, with t1 along
 the unconstrained tangential velocity. Impulses lambda are in N s.
 """
@@ -159,22 +160,32 @@ def _solve_island(bodies, island, contact_sets, sets, velocities, impulses, fram
     x = {j: bodies[j].solve_columns(g[j].T) for j in island}  # A_j^-1 G_j^T [velocity_size, rows]
     delassus = sum(g[j] @ x[j] for j in island)
     rel = sum(g[j] @ v_free[j].ravel() for j in island) + delassus @ lam
-    blocks_inv = [np.linalg.pinv(delassus[3 * n : 3 * n + 3, 3 * n : 3 * n + 3]) for n in range(rows // 3)]
+    # Per contact: the normal row alone (a joint 3x3 solve can ask for a negative normal
+    # impulse on oblique approach, which the projection then zeroes), then the two friction
+    # rows as a 2x2 block, clamped to the pyramid of the updated normal impulse.
+    count = rows // 3
+    normal_inv = np.array([1.0 / max(delassus[3 * n, 3 * n], 1e-300) for n in range(count)])
+    tangent_inv = [np.linalg.pinv(delassus[3 * n + 1 : 3 * n + 3, 3 * n + 1 : 3 * n + 3]) for n in range(count)]
+    columns = [np.ascontiguousarray(delassus[:, 3 * n : 3 * n + 3]) for n in range(count)]
     sweeps = 0
-    slices = [slice(3 * n, 3 * n + 3) for n in range(rows // 3)]
-    columns = [np.ascontiguousarray(delassus[:, r]) for r in slices]
     for _ in range(iterations):
         sweeps += 1
         biggest = 0.0
-        for n, r in enumerate(slices):
-            old = lam[r]
-            new = _project(old + blocks_inv[n] @ (target[r] - rel[r]), mu[n])
-            delta = new - old
-            change = float(np.abs(delta).max())
-            if change > 0.0:
-                rel += columns[n] @ delta
-                lam[r] = new
-                biggest = max(biggest, change)
+        for n in range(count):
+            r0 = 3 * n
+            ln = max(lam[r0] + normal_inv[n] * (target[r0] - rel[r0]), 0.0)
+            dn = ln - lam[r0]
+            if dn != 0.0:
+                rel += columns[n][:, 0] * dn
+                lam[r0] = ln
+            bound = mu[n] * ln
+            lt = lam[r0 + 1 : r0 + 3] + tangent_inv[n] @ (target[r0 + 1 : r0 + 3] - rel[r0 + 1 : r0 + 3])
+            lt = np.clip(lt, -bound, bound)
+            dt_ = lt - lam[r0 + 1 : r0 + 3]
+            if dt_.any():
+                rel += columns[n][:, 1:] @ dt_
+                lam[r0 + 1 : r0 + 3] = lt
+            biggest = max(biggest, abs(dn), float(np.abs(dt_).max()))
         if biggest <= tol * max(float(np.abs(lam).max()), 1e-30):
             break
     for j in island:

@@ -58,6 +58,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from softvr.dynamics._sparse_system import SparseSystemSolves
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 
@@ -213,7 +214,7 @@ def _build_springs(x: np.ndarray, t: np.ndarray, stiffness: dict[str, float]):
     return pairs[keep], kinds[keep], k[keep]
 
 
-class ClothBody(ContactObject):
+class ClothBody(SparseSystemSolves, ContactObject):
     """Mass-spring cloth on a triangle mesh, advanced by linearized backward Euler (thesis eq. 5.2).
 
     Spring families, forces, the compression clamp of the stiffness and the step are described in

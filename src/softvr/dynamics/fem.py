@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from softvr.dynamics._sparse_system import SparseSystemSolves
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 from softvr.volume.tetmesh import check_tets
@@ -113,7 +114,7 @@ def polar_rotations(deformation_gradient: np.ndarray) -> np.ndarray:
     return r
 
 
-class FemBody(ContactObject):
+class FemBody(SparseSystemSolves, ContactObject):
     """A soft body: linear co-rotational FEM on a tetrahedral mesh.
 
     Parameters
@@ -245,18 +246,6 @@ class FemBody(ContactObject):
         self._precond = sp.diags(1.0 / self._a_free.diagonal())
         b = m_diag * self.v.ravel() + dt * f.ravel()
         return self._cg(b, self.v.ravel())
-
-    def solve_columns(self, columns: np.ndarray) -> np.ndarray:
-        """``A^-1 C`` [3 node_count, k] by a sparse LU factorization of this step's ``A``
-        (made on first use in the step; rows of fixed nodes give 0)."""
-        if getattr(self, "_lu_step", None) != self.step_count:
-            self._lu = spla.splu(self._a_free.tocsc())
-            self._lu_step = self.step_count
-        cols = np.asarray(columns, float)
-        out = np.zeros_like(cols)
-        if cols.shape[1] and self._free.any():
-            out[self._free] = self._lu.solve(np.ascontiguousarray(cols[self._free]))
-        return out
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A^-1 rhs`` [node_count, 3] for this step's ``A`` (fixed nodes give 0)."""

@@ -1,0 +1,476 @@
+"""Off-screen rendering of moving triangle surfaces (soft bodies, cloth, rigid boxes) with VTK.
+
+:class:`SurfaceRenderer` keeps one VTK pipeline per surface: the vertex positions live in a
+numpy array that VTK reads in place, so :meth:`SurfaceRenderer.update` costs a copy of the
+new positions and a normal recomputation (``vtkPolyDataNormals``), not a rebuilt pipeline.
+Static scenery is a ground quad (:meth:`~SurfaceRenderer.add_plane`, checkered so sliding
+and rolling are visible) and spheres (:meth:`~SurfaceRenderer.add_sphere`). A light kit
+(key, fill, back and head lights) and Phong shading make the shapes read as solids.
+
+:func:`tet_boundary_faces` gives the outward-oriented surface of a tetrahedral mesh, the
+triangles a FEM body is drawn with.
+
+Like :class:`~softvr.render.VolumeRenderer`, it renders without a display (EGL, else
+OSMesa; see :func:`~softvr.render.offscreen_backend`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softvr.errors import InputError
+from softvr.render._backend import new_offscreen_window, offscreen_backend
+from softvr.render.camera import Camera
+
+__all__ = ["SurfaceRenderer", "tet_boundary_faces"]
+
+# Faces of a positively oriented tet (x0, x1, x2, x3), each opposite one node and ordered
+# counter-clockwise seen from outside (normal (b - a) x (c - a) points away from the tet).
+_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+
+
+def tet_boundary_faces(tets) -> np.ndarray:
+    """The boundary triangles of a tetrahedral mesh, oriented outward.
+
+    A face is on the boundary when exactly one tet has it. The tets must be positively
+    oriented (as :func:`softvr.volume.grid_tet_mesh` and :class:`softvr.dynamics.FemBody`
+    require); each boundary face then keeps its tet's outward winding, so its normal
+    ``(x1 - x0) x (x2 - x0)`` points out of the mesh.
+
+    Parameters
+    ----------
+    tets : array_like of int, shape [tet_count, 4]
+
+    Returns
+    -------
+    ndarray of int32, shape [face_count, 3]
+        Node indices (into the mesh's node array) per boundary triangle.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from softvr.volume import Volume, grid_tet_mesh
+    >>> nodes, tets = grid_tet_mesh(Volume(np.zeros((2, 2, 2), np.uint8)), cells=1)
+    >>> tet_boundary_faces(tets).shape  # 6 cube faces, 2 triangles each
+    (12, 3)
+    """
+    t = np.asarray(tets)
+    if t.ndim != 2 or t.shape[1] != 4 or not np.issubdtype(t.dtype, np.integer):
+        raise InputError("tets", "an integer array [tet_count, 4]", f"shape {t.shape}, dtype {t.dtype}")
+    faces = t[:, _TET_FACES].reshape(-1, 3)
+    keys = np.sort(faces, axis=1)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inverse.ravel()] == 1].astype(np.int32)
+
+
+def _rgb(color, what: str) -> tuple[float, float, float]:
+    c = np.asarray(color, float).reshape(-1)
+    if c.shape != (3,) or not np.isfinite(c).all() or (c < 0).any() or (c > 1).any():
+        raise InputError(what, "an RGB triple in [0, 1]", repr(color))
+    return tuple(float(x) for x in c)
+
+
+def _vec3(value, what: str, unit: str) -> np.ndarray:
+    v = np.asarray(value, float).reshape(-1)
+    if v.shape != (3,) or not np.isfinite(v).all():
+        raise InputError(what, f"3 finite numbers [{unit}]", repr(value))
+    return v
+
+
+def _positive(value, what: str, unit: str) -> float:
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value) and value > 0
+    if not ok:
+        raise InputError(what, f"a finite number > 0 [{unit}]", repr(value))
+    return float(value)
+
+
+class _Item:
+    """One surface: its kind, actor and (for meshes) the vertex array VTK reads from and the
+    indices of the vertices that triangles use (None: all)."""
+
+    def __init__(self, kind: str, actor, points=None, polydata=None, array=None, used=None):
+        self.kind, self.actor, self.points, self.polydata, self.array = kind, actor, points, polydata, array
+        self.used = used
+
+    def bounds(self) -> np.ndarray:
+        """(xmin, xmax, ymin, ymax, zmin, zmax) [m]."""
+        if self.array is not None:
+            x = self.array if self.used is None else self.array[self.used]
+            return np.stack([x.min(axis=0), x.max(axis=0)], axis=1).ravel()
+        return np.asarray(self.actor.GetBounds(), float)
+
+
+class SurfaceRenderer:
+    """Render triangle surfaces that move every frame to RGB images, off-screen.
+
+    Parameters
+    ----------
+    width, height : int [pixels]
+        Image size.
+    camera : Camera or str, optional
+        A :class:`~softvr.render.Camera` or a view name; default ``Camera("iso")``. Views are
+        on the world axes with z up (``"front"`` looks from +y), which suits z-up physics scenes.
+    bounds : array_like of 6 float, optional [m]
+        World box (xmin, xmax, ymin, ymax, zmin, zmax) the camera is fitted to. Default: the
+        meshes and spheres at the first :meth:`render` (planes only when there is nothing
+        else). The camera then stays fixed until :meth:`set_camera` or :meth:`reset_camera`.
+    background, background_top : tuple of 3 float
+        Background RGB in [0, 1] at the bottom and top of the image (a vertical gradient;
+        equal colours give a flat background).
+    antialias : bool
+        FXAA edge smoothing (a post-process, so edge pixels blend with the background).
+    backend : {"egl", "osmesa"}, optional
+        Force an off-screen OpenGL window kind.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from softvr.render import SurfaceRenderer
+    >>> square = np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], float)
+    >>> with SurfaceRenderer(80, 60, camera="front") as r:
+    ...     h = r.add_mesh(square, [[0, 2, 1], [0, 3, 2]], color=(0.9, 0.5, 0.2))
+    ...     first = r.render()
+    ...     r.update(h, square + (0.2, 0.0, 0.0))
+    ...     second = r.render()
+    >>> first.shape, first.dtype, bool((first != second).any())
+    ((60, 80, 3), dtype('uint8'), True)
+    """
+
+    def __init__(self, width: int = 640, height: int = 480, camera: "Camera | str | None" = "iso", *,
+                 bounds=None, background=(0.10, 0.11, 0.13), background_top=(0.32, 0.36, 0.43),
+                 antialias: bool = True, backend: str | None = None):
+        for name, v in (("width", width), ("height", height)):
+            if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
+                raise InputError(name, "an integer number of pixels in [1, 16384]", repr(v))
+        from vtkmodules.vtkRenderingCore import vtkLightKit, vtkRenderer, vtkWindowToImageFilter  # noqa: PLC0415
+
+        self.width, self.height = int(width), int(height)
+        self._camera = Camera.coerce(camera)
+        self._bounds = None if bounds is None else self._check_bounds(bounds)
+        bottom, top = _rgb(background, "background"), _rgb(background_top, "background_top")
+        self._window = new_offscreen_window(self.width, self.height, backend)
+        self.backend = offscreen_backend(backend)
+        self._renderer = vtkRenderer()
+        self._renderer.SetBackground(*bottom)
+        self._renderer.SetBackground2(*top)
+        self._renderer.SetGradientBackground(bottom != top)
+        self._renderer.SetTwoSidedLighting(True)  # cloth is seen from both sides
+        self._renderer.SetUseFXAA(bool(antialias))
+        vtkLightKit().AddLightsToRenderer(self._renderer)
+        self._window.AddRenderer(self._renderer)
+        self._grab = vtkWindowToImageFilter()
+        self._grab.SetInput(self._window)
+        self._grab.SetInputBufferTypeToRGB()
+        self._grab.ReadFrontBufferOff()
+        self._grab.ShouldRerenderOff()
+        self._items: list[_Item] = []
+        self._camera_pending = True
+        self._closed = False
+
+    # ----------------------------------------------------------------- scene
+    def add_mesh(self, vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0, *,
+                 feature_angle: float | None = 60.0) -> int:
+        """Add a triangle surface; returns its handle for :meth:`update`.
+
+        Parameters
+        ----------
+        vertices : array_like, shape [vertex_count, 3] [m]
+        triangles : array_like of int, shape [triangle_count, 3]
+            Vertex indices, counter-clockwise seen from the outside (the lit side; both
+            sides are lit, but normals follow this winding).
+        color : tuple of 3 float
+            RGB in [0, 1].
+        opacity : float
+            In (0, 1]; below 1 the surface is drawn translucent (depth peeling).
+        feature_angle : float or None [degrees]
+            Edges sharper than this are shaded as creases (a box's edges); ``None`` smooths
+            over every edge.
+
+        Returns
+        -------
+        int
+            Handle of the surface.
+        """
+        from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray  # noqa: PLC0415
+        from vtkmodules.vtkCommonCore import vtkPoints  # noqa: PLC0415
+        from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData  # noqa: PLC0415
+        from vtkmodules.vtkFiltersCore import vtkPolyDataNormals  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper  # noqa: PLC0415
+
+        self._check_open()
+        x = self._check_vertices(vertices, None, "vertices")
+        t = np.asarray(triangles)
+        if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0 or not np.issubdtype(t.dtype, np.integer):
+            raise InputError("triangles", "an integer array [triangle_count >= 1, 3]", f"shape {t.shape}, dtype {t.dtype}")
+        if t.min() < 0 or t.max() >= len(x):
+            raise InputError("triangles", f"vertex indices in [0, {len(x) - 1}]", f"range {t.min()}..{t.max()}")
+        opacity = float(opacity)
+        if not 0 < opacity <= 1:
+            raise InputError("opacity", "a number in (0, 1]", repr(opacity))
+        array = np.ascontiguousarray(x, dtype=np.float64)  # VTK reads this buffer in place
+        points = vtkPoints()
+        points.SetData(numpy_to_vtk(array, deep=False))
+        cells = vtkCellArray()
+        offsets = np.arange(0, 3 * len(t) + 1, 3, dtype=np.int64)
+        cells.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True),
+                      numpy_to_vtkIdTypeArray(np.ascontiguousarray(t.ravel(), dtype=np.int64), deep=True))
+        poly = vtkPolyData()
+        poly.SetPoints(points)
+        poly.SetPolys(cells)
+        normals = vtkPolyDataNormals()
+        normals.SetInputData(poly)
+        normals.ComputePointNormalsOn()
+        normals.ComputeCellNormalsOff()
+        normals.ConsistencyOff()  # keep the caller's winding: FEM surfaces are outward already
+        normals.AutoOrientNormalsOff()
+        if feature_angle is None:
+            normals.SplittingOff()
+        else:
+            normals.SplittingOn()
+            normals.SetFeatureAngle(float(feature_angle))
+        mapper = vtkPolyDataMapper()
+        mapper.SetInputConnection(normals.GetOutputPort())
+        mapper.ScalarVisibilityOff()
+        actor = vtkActor()
+        actor.SetMapper(mapper)
+        self._style(actor, _rgb(color, "color"), opacity)
+        used = np.unique(t)
+        return self._add(_Item("mesh", actor, points, poly, array, None if len(used) == len(x) else used))
+
+    def add_plane(self, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), size: float = 4.0,
+                  color=(0.55, 0.57, 0.6), *, tiles: int = 8) -> int:
+        """Add a square ground quad of side ``size`` [m] centred at ``point``, facing ``normal``.
+
+        With ``tiles > 1`` it is a ``tiles`` x ``tiles`` checkerboard of ``color`` and a
+        darker shade of it, so that motion over it is visible. Returns its handle.
+        """
+        from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray  # noqa: PLC0415
+        from vtkmodules.vtkCommonCore import vtkPoints  # noqa: PLC0415
+        from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper  # noqa: PLC0415
+
+        self._check_open()
+        p = _vec3(point, "point", "m")
+        n = _vec3(normal, "normal", "unit-free")
+        if np.linalg.norm(n) == 0:
+            raise InputError("normal", "a non-zero vector", repr(normal))
+        n = n / np.linalg.norm(n)
+        size = _positive(size, "size", "m")
+        if not isinstance(tiles, (int, np.integer)) or tiles < 1:
+            raise InputError("tiles", "an integer >= 1", repr(tiles))
+        rgb = np.asarray(_rgb(color, "color"))
+        helper = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        u = np.cross(n, helper)
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        s = np.linspace(-size / 2, size / 2, tiles + 1)
+        a, b = np.meshgrid(s, s, indexing="ij")
+        xyz = p + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+        i, j = np.meshgrid(np.arange(tiles), np.arange(tiles), indexing="ij")
+        i, j = i.ravel(), j.ravel()
+        k = tiles + 1
+        quads = np.stack([i * k + j, (i + 1) * k + j, (i + 1) * k + j + 1, i * k + j + 1], axis=1)
+        shade = np.where(((i + j) % 2 == 0)[:, None], rgb, 0.8 * rgb)
+        points = vtkPoints()
+        points.SetData(numpy_to_vtk(np.ascontiguousarray(xyz), deep=True))
+        cells = vtkCellArray()
+        cells.SetData(numpy_to_vtkIdTypeArray(np.arange(0, 4 * len(quads) + 1, 4, dtype=np.int64), deep=True),
+                      numpy_to_vtkIdTypeArray(quads.ravel().astype(np.int64), deep=True))
+        poly = vtkPolyData()
+        poly.SetPoints(points)
+        poly.SetPolys(cells)
+        normals = numpy_to_vtk(np.ascontiguousarray(np.broadcast_to(n, xyz.shape)), deep=True)
+        normals.SetName("Normals")
+        poly.GetPointData().SetNormals(normals)
+        colors = numpy_to_vtk(np.ascontiguousarray((shade * 255).round().astype(np.uint8)), deep=True)
+        colors.SetName("Colors")
+        poly.GetCellData().SetScalars(colors)
+        mapper = vtkPolyDataMapper()
+        mapper.SetInputData(poly)
+        mapper.SetScalarModeToUseCellData()
+        mapper.SetColorModeToDirectScalars()
+        mapper.ScalarVisibilityOn()
+        actor = vtkActor()
+        actor.SetMapper(mapper)
+        self._style(actor, tuple(rgb), 1.0, specular=0.05)
+        return self._add(_Item("plane", actor))
+
+    def add_sphere(self, center, radius: float, color=(0.75, 0.75, 0.78), opacity: float = 1.0) -> int:
+        """Add a (static) sphere of ``radius`` [m] at ``center`` [m]; returns its handle."""
+        from vtkmodules.vtkFiltersSources import vtkSphereSource  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper  # noqa: PLC0415
+
+        self._check_open()
+        c = _vec3(center, "center", "m")
+        radius = _positive(radius, "radius", "m")
+        opacity = float(opacity)
+        if not 0 < opacity <= 1:
+            raise InputError("opacity", "a number in (0, 1]", repr(opacity))
+        source = vtkSphereSource()
+        source.SetCenter(*c)
+        source.SetRadius(radius)
+        source.SetThetaResolution(64)
+        source.SetPhiResolution(48)
+        mapper = vtkPolyDataMapper()
+        mapper.SetInputConnection(source.GetOutputPort())
+        actor = vtkActor()
+        actor.SetMapper(mapper)
+        self._style(actor, _rgb(color, "color"), opacity)
+        return self._add(_Item("sphere", actor))
+
+    def update(self, handle: int, vertices) -> None:
+        """New vertex positions [vertex_count, 3] [m] of mesh ``handle`` (same topology)."""
+        self._check_open()
+        item = self._item(handle)
+        if item.kind != "mesh":
+            raise InputError("handle", "the handle of a mesh (add_mesh)", f"a {item.kind}")
+        item.array[:] = self._check_vertices(vertices, len(item.array), "vertices")
+        item.points.GetData().Modified()
+        item.points.Modified()
+        item.polydata.Modified()
+
+    def set_color(self, handle: int, color, opacity: float | None = None) -> None:
+        """Change the colour (and opacity) of a mesh or sphere (a plane keeps its checkerboard)."""
+        item = self._item(handle)
+        prop = item.actor.GetProperty()
+        prop.SetColor(*_rgb(color, "color"))
+        if opacity is not None:
+            if not 0 < float(opacity) <= 1:
+                raise InputError("opacity", "a number in (0, 1]", repr(opacity))
+            prop.SetOpacity(float(opacity))
+            self._update_translucency()
+
+    def set_visible(self, handle: int, visible: bool) -> None:
+        """Show or hide a surface."""
+        self._item(handle).actor.SetVisibility(bool(visible))
+
+    # ---------------------------------------------------------------- camera
+    @property
+    def camera(self) -> Camera:
+        """The :class:`~softvr.render.Camera` in use."""
+        return self._camera
+
+    @property
+    def vtk_camera(self):
+        """The underlying ``vtkCamera`` (changes stick across frames)."""
+        return self._renderer.GetActiveCamera()
+
+    @property
+    def vtk_renderer(self):
+        """The underlying ``vtkRenderer``."""
+        return self._renderer
+
+    def set_camera(self, camera: "Camera | str | None" = None, *, bounds=None, **changes) -> None:
+        """Use ``camera`` (default: the current one) with ``changes``, fitted to ``bounds``
+        (default: as in the constructor), from the next render on."""
+        cam = Camera.coerce(camera) if camera is not None else self._camera
+        self._camera = cam.with_(**changes) if changes else cam
+        if bounds is not None:
+            self._bounds = self._check_bounds(bounds)
+        self._camera_pending = True
+
+    def reset_camera(self) -> None:
+        """Refit the camera at the next render (to the surfaces as they are then)."""
+        self._camera_pending = True
+
+    def scene_bounds(self) -> np.ndarray:
+        """(xmin, xmax, ymin, ymax, zmin, zmax) [m] the camera is fitted to."""
+        if self._bounds is not None:
+            return self._bounds.copy()
+        shown = [it for it in self._items if it.actor.GetVisibility()]
+        pick = [it for it in shown if it.kind != "plane"] or shown
+        if not pick:
+            return np.array([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0])
+        b = np.array([it.bounds() for it in pick]).reshape(-1, 3, 2)
+        return np.stack([b[:, :, 0].min(axis=0), b[:, :, 1].max(axis=0)], axis=1).ravel()
+
+    # ---------------------------------------------------------------- render
+    def render(self) -> np.ndarray:
+        """Draw the scene; returns RGB uint8 [height, width, 3], row 0 at the top."""
+        self._check_open()
+        if self._camera_pending:
+            self._camera.apply(self.vtk_camera, self.scene_bounds(), self.width / self.height)
+            self._camera_pending = False
+        self._renderer.ResetCameraClippingRange()
+        self._window.Render()
+        image = self._read_pixels()
+        # An on-screen GLX context cannot be made while an EGL one is current (see _backend).
+        self._window.ReleaseCurrent()
+        return image
+
+    def _read_pixels(self) -> np.ndarray:
+        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
+
+        self._grab.Modified()
+        self._grab.Update()
+        out = self._grab.GetOutput()
+        w, h, _ = out.GetDimensions()
+        pixels = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, -1)
+        return np.ascontiguousarray(pixels[::-1, :, :3])
+
+    def close(self) -> None:
+        """Release the OpenGL context. The renderer cannot be used afterwards."""
+        if not self._closed:
+            self._closed = True
+            self._window.Finalize()
+
+    def __enter__(self) -> "SurfaceRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass
+
+    # --------------------------------------------------------------- helpers
+    def _add(self, item: _Item) -> int:
+        self._renderer.AddActor(item.actor)
+        self._items.append(item)
+        self._update_translucency()
+        return len(self._items) - 1
+
+    def _item(self, handle) -> _Item:
+        if not isinstance(handle, (int, np.integer)) or not 0 <= handle < len(self._items):
+            raise InputError("handle", f"a handle returned by this renderer (0..{len(self._items) - 1})", repr(handle))
+        return self._items[int(handle)]
+
+    def _update_translucency(self) -> None:
+        translucent = any(it.actor.GetProperty().GetOpacity() < 1 for it in self._items)
+        self._renderer.SetUseDepthPeeling(translucent)
+
+    @staticmethod
+    def _style(actor, color, opacity: float, specular: float = 0.35) -> None:
+        prop = actor.GetProperty()
+        prop.SetColor(*color)
+        prop.SetOpacity(opacity)
+        prop.SetInterpolationToPhong()
+        prop.SetAmbient(0.12)
+        prop.SetDiffuse(0.85)
+        prop.SetSpecular(specular)
+        prop.SetSpecularPower(30.0)
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise InputError("SurfaceRenderer", "an open renderer", "a closed one")
+
+    @staticmethod
+    def _check_vertices(vertices, count: int | None, what: str) -> np.ndarray:
+        x = np.asarray(vertices, dtype=np.float64)
+        expected = f"an array [{count if count is not None else 'vertex_count >= 3'}, 3] [m]"
+        if x.ndim != 2 or x.shape[1] != 3 or (count is not None and len(x) != count) or len(x) < 3:
+            raise InputError(what, expected, f"shape {x.shape}")
+        if not np.isfinite(x).all():
+            n = int(np.argmax(~np.isfinite(x).all(axis=1)))
+            raise InputError(f"{what}[{n}]", "finite coordinates", repr(x[n].tolist()))
+        return x
+
+    @staticmethod
+    def _check_bounds(bounds) -> np.ndarray:
+        b = np.asarray(bounds, float).reshape(-1)
+        if b.shape != (6,) or not np.isfinite(b).all() or (b[1::2] < b[::2]).any():
+            raise InputError("bounds", "(xmin, xmax, ymin, ymax, zmin, zmax) with min <= max [m]", repr(bounds))
+        return b
