@@ -13,13 +13,16 @@ Each installed peer runs in its own process (:mod:`softvr.bench._contact_peers`)
 not installed gets a row saying so.
 
 Reported per engine: steps/s (steps / summed wall time of the stepping calls, median over
-``--repeat`` simulations after an untimed warm-up), x real time (= steps/s x dt), the ratio to the
-fastest peer, the maximum penetration over the run (the deepest node below z = 0, node centres:
-MuJoCo's vertices carry a 5 mm radius and PyBullet a 6 mm margin, so their nodes rest a few mm
-*above* the plane when the contact surface touches it), the height of the lowest node and of the
-node centroid at the end, the contact count of the last step (softvr: contacts handed to the
-solver, speculative ones within the 5 mm margin included; JSON: also those carrying an impulse)
-and softvr's PGS sweeps.
+``--repeat`` rounds; every round runs each engine once, after an untimed warm-up, so that load
+from other jobs on a shared machine spreads over all engines), x real time (= steps/s x dt), the
+ratio to the fastest peer, the maximum penetration over the run (the deepest node centre below
+the plane; MuJoCo's vertices carry a 5 mm radius, so its nodes rest ~4 mm *above* the plane when the
+vertex spheres touch it), the height of the lowest node and of the node centroid at the end, the
+contact count of the last step (softvr: contacts handed to the solver, speculative ones within
+the 5 mm margin included; JSON: also those carrying an impulse), softvr's PGS sweeps, and the
+cores used (process CPU time / wall time of the stepping calls: the peers run on one thread,
+softvr's sparse LU solve and dense products use BLAS threads).
+``--profile`` adds a cProfile of one softvr step with the cube resting on the plane.
 
 Examples
 --------
@@ -179,6 +182,23 @@ def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
 
 
 # ----------------------------------------------------------------------------- the run
+def _git_commit() -> str | None:
+    """The checkout's commit (``+dirty`` with local changes), or None outside a git checkout."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[3]
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, timeout=10)
+        if head.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10)
+        return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
 def _cores_used(trace: dict) -> float:
     """Process CPU time / wall time of the stepping calls (1.0 = one busy core)."""
     return sum(trace["cpu_s"]) / max(sum(trace["step_s"]), 1e-12)
@@ -266,6 +286,7 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
             r["vs_fastest_peer"] = r["steps_per_s"] / fastest["steps_per_s"] if fastest else None
     machine = _machine_info("cpu")
     machine["versions"] |= {name: P.peer_version(name) for name in P.PEERS}
+    machine["softvr_commit"] = _git_commit()
     result = {
         "schema": "softvr-bench-contact/1",
         "machine": machine,
@@ -436,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
         description="Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when installed).",
     )
     p.add_argument("--quick", action="store_true", help="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)")
-    p.add_argument("--repeat", type=int, default=None, metavar="N", help="timed simulations per engine (default 3, quick 1)")
+    p.add_argument("--repeat", type=int, default=None, metavar="N", help="rounds; each runs every engine once, round robin (default 3, quick 1)")
     p.add_argument("--engines", default=",".join(ENGINES), help=f"comma list of {', '.join(ENGINES)}")
     p.add_argument("--json", metavar="PATH", help="write all results as JSON")
     p.add_argument("--plot", metavar="PATH", help="write a PNG: penetration, heights, steps/s")
