@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, ContactSide
+from softvr.collision.contacts import Contacts, rigid_side
 from softvr.collision.plane import Plane
 
 __all__ = ["box_corners", "box_vs_box", "box_vs_plane"]
@@ -15,17 +15,6 @@ _SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
 def box_corners(body, half_extents) -> np.ndarray:
     """World positions [8, 3] [m] of a rigid box's corners (box centred on the body's centre)."""
     return body.position + (_SIGNS * np.asarray(half_extents, float)) @ body.rotation.T
-
-
-def _rigid_sides(index: int, body, points: np.ndarray) -> ContactSide:
-    """Contact sides for points [c, 3] moving with a rigid body: J = [I, -[r]x], r = p - c."""
-    r = points - body.position
-    jac = np.zeros((len(points), 1, 3, 6))
-    jac[:, 0, :, :3] = np.eye(3)
-    jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
-    jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
-    jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
-    return ContactSide(index, np.zeros((len(points), 1), int), jac)
 
 
 def _approach(body, n: np.ndarray, points: np.ndarray, dt: float) -> np.ndarray:
@@ -44,7 +33,7 @@ def box_vs_plane(index: int, body, half_extents, plane: Plane, *, margin: float 
     gap = (p - np.asarray(plane.point, float)) @ n
     hit = np.flatnonzero(np.minimum(gap, gap + _approach(body, n, p, dt)) < margin)
     k = len(hit)
-    return Contacts(_rigid_sides(index, body, p[hit]), None, np.broadcast_to(n, (k, 3)).copy(), gap[hit], p[hit],
+    return Contacts(rigid_side(index, p[hit] - body.position), None, np.broadcast_to(n, (k, 3)).copy(), gap[hit], p[hit],
                     p[hit] - gap[hit, None] * n, (np.int64(plane.id) << 32) | (np.int64(index) << 8) | hit,
                     np.full(k, float(plane.friction)))
 
@@ -102,5 +91,5 @@ def box_vs_box(ia: int, a, ha, ib: int, b, hb, *, friction: float = 0.5, margin:
         points, gap, corners = _face_contacts(b, hb, a, ha, -n, margin, dt)
     base = (np.int64(min(ia, ib)) << 40) | (np.int64(max(ia, ib)) << 20) | (np.int64(0 if face_of_b else 8))
     k = len(gap)
-    return Contacts(_rigid_sides(ia, a, points), _rigid_sides(ib, b, points), np.broadcast_to(n, (k, 3)).copy(),
+    return Contacts(rigid_side(ia, points - a.position), rigid_side(ib, points - b.position), np.broadcast_to(n, (k, 3)).copy(),
                     gap, points, points, base | corners.astype(np.int64), np.full(k, float(friction)))

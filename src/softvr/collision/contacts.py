@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks"]
+__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks", "rigid_side"]
 
 
 @dataclass
@@ -78,10 +78,21 @@ def point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.nda
         jac = points.weights[which][:, :, None, None] * np.eye(3)
         return blocks, jac
     # RigidPoints: p_dot = v + w x (R r) = [I, -[R r]x] (v, w)
-    r = points.offsets()[which]
-    jac = np.zeros((len(which), 1, 3, 6))
+    return np.zeros((len(which), 1), int), _rigid_jacobian(points.offsets()[which])
+
+
+def _rigid_jacobian(offsets: np.ndarray) -> np.ndarray:
+    """[c, 1, 3, 6] blocks J = [I, -[r]x] of body-fixed points at world offsets r [c, 3]."""
+    r = np.asarray(offsets, float).reshape(-1, 3)
+    jac = np.zeros((len(r), 1, 3, 6))
     jac[:, 0, :, :3] = np.eye(3)
     jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
     jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
     jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
-    return np.zeros((len(which), 1), int), jac
+    return jac
+
+
+def rigid_side(body_index: int, offsets) -> ContactSide:
+    """Contact side of points fixed in a rigid body at world offsets [c, 3] from its centre."""
+    jac = _rigid_jacobian(offsets)
+    return ContactSide(body_index, np.zeros((len(jac), 1), int), jac)

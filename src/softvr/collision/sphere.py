@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, rigid_side
 from softvr.collision.plane import Plane
 from softvr.errors import InputError
 
@@ -62,15 +62,6 @@ def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float =
     )
 
 
-def _rigid_side(body_index: int, offset: np.ndarray) -> ContactSide:
-    """One contact on a rigid body at world offset r from its centre: J = [I, -[r]x]."""
-    jac = np.zeros((1, 1, 3, 6))
-    jac[0, 0, :, :3] = np.eye(3)
-    rx, ry, rz = offset
-    jac[0, 0, :, 3:] = [[0.0, rz, -ry], [-rz, 0.0, rx], [ry, -rx, 0.0]]
-    return ContactSide(body_index, np.zeros((1, 1), int), jac)
-
-
 def _empty(body_index: int, other: int | None, block_size: int) -> Contacts:
     side = ContactSide(body_index, np.zeros((0, 1), int), np.zeros((0, 1, 3, block_size)))
     other_side = None if other is None else ContactSide(other, np.zeros((0, 1), int), np.zeros((0, 1, 3, block_size)))
@@ -87,7 +78,7 @@ def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margi
     if min(gap, gap + approach) >= margin:
         return _empty(body_index, None, 6)
     pa = body.position - radius * n
-    return Contacts(_rigid_side(body_index, -radius * n), None, n[None], np.array([gap]), pa[None],
+    return Contacts(rigid_side(body_index, -radius * n), None, n[None], np.array([gap]), pa[None],
                     (pa - gap * n)[None], np.array([(np.int64(plane.id) << 32) | (1 << 31)]),
                     np.array([float(plane.friction)]))
 
@@ -109,5 +100,5 @@ def sphere_vs_sphere(a_index: int, a, radius_a: float, b_index: int, b, radius_b
     # even while the (speculative) contact still has a gap: angular momentum is conserved.
     mid = 0.5 * (pa + pb)
     cid = (np.int64(min(a_index, b_index)) << 40) | (np.int64(max(a_index, b_index)) << 20)
-    return Contacts(_rigid_side(a_index, mid - a.position), _rigid_side(b_index, mid - b.position), n[None],
+    return Contacts(rigid_side(a_index, mid - a.position), rigid_side(b_index, mid - b.position), n[None],
                     np.array([gap]), pa[None], pb[None], np.array([cid]), np.array([float(friction)]))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, rigid_side
 from softvr.collision.mesh import _query_points
 from softvr.device import resolve_device
 from softvr.errors import InputError
@@ -69,14 +69,7 @@ def _triangle_side(surface: CollisionSurface, faces: np.ndarray, bary: np.ndarra
         return ContactSide(surface.body_index, blocks, jac)
     # rigid: the velocity of the body-fixed point at the contact position
     corners = pts.positions()[surface.triangles[faces]]  # [c, 3, 3]
-    at = np.einsum("cv,cvx->cx", bary, corners)
-    r = at - pts.body.position
-    jac = np.zeros((len(faces), 1, 3, 6))
-    jac[:, 0, :, :3] = np.eye(3)
-    jac[:, 0, 0, 4], jac[:, 0, 0, 5] = r[:, 2], -r[:, 1]
-    jac[:, 0, 1, 3], jac[:, 0, 1, 5] = -r[:, 2], r[:, 0]
-    jac[:, 0, 2, 3], jac[:, 0, 2, 4] = r[:, 1], -r[:, 0]
-    return ContactSide(surface.body_index, np.zeros((len(faces), 1), int), jac)
+    return rigid_side(surface.body_index, np.einsum("cv,cvx->cx", bary, corners) - pts.body.position)
 
 
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,

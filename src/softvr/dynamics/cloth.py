@@ -56,9 +56,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from softvr.dynamics._sparse_system import SparseSystemSolves
+from softvr.dynamics._sparse_system import SparseNodeSystem
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 
@@ -214,7 +213,7 @@ def _build_springs(x: np.ndarray, t: np.ndarray, stiffness: dict[str, float]):
     return pairs[keep], kinds[keep], k[keep]
 
 
-class ClothBody(SparseSystemSolves, ContactObject):
+class ClothBody(SparseNodeSystem, ContactObject):
     """Mass-spring cloth on a triangle mesh, advanced by linearized backward Euler (thesis eq. 5.2).
 
     Spring families, forces, the compression clamp of the stiffness and the step are described in
@@ -274,6 +273,8 @@ class ClothBody(SparseSystemSolves, ContactObject):
     cg_max_iterations : int
         Default 1000.
     """
+
+    _node_word = "vertex"
 
     def __init__(self, vertices, triangles, *, density: float, stretch: float, shear: float = 0.0,
                  bend: float = 0.0, damping: float = 0.0, alpha: float = 0.0, fixed=None, name: str = "cloth"):
@@ -463,35 +464,3 @@ class ClothBody(SparseSystemSolves, ContactObject):
         if rhs.size != self.v.size:
             raise InputError("rhs", f"an array of shape {self.v.shape}", f"shape {rhs.shape}")
         return self._cg(rhs.ravel(), None)
-
-    def _cg(self, b: np.ndarray, x0) -> np.ndarray:
-        out = np.zeros_like(b)
-        if self._free.any():
-            iterations = [0]
-
-            def count(_):
-                iterations[0] += 1
-
-            sol, info = spla.cg(self._a_free, b[self._free], x0=None if x0 is None else x0[self._free],
-                                rtol=self.cg_tolerance, maxiter=self.cg_max_iterations, M=self._precond,
-                                callback=count)
-            self.last_cg_iterations = iterations[0]
-            self.last_cg_converged = info == 0
-            out[self._free] = sol
-        return out.reshape(-1, 3)
-
-    def integrate(self, v: np.ndarray, dt: float) -> None:
-        """``q += dt v`` (G = I), after checking the step stayed finite and bounded; counts the step."""
-        dt = self._check_dt(dt)
-        v1 = np.asarray(v, float).reshape(self.v.shape)
-        q1 = self.q + dt * v1
-        bad = ~np.isfinite(v1).all(axis=1) | ~np.isfinite(q1).all(axis=1)
-        speed = np.linalg.norm(np.where(np.isfinite(v1), v1, 0.0), axis=1)
-        scale = max(float(np.ptp(self.rest, axis=0).max()), 1e-9)
-        # A vertex covering a thousand cloth sizes per second has blown up.
-        exploding = speed > 1e3 * scale
-        if bad.any() or exploding.any():
-            n = int(np.argmax(bad | exploding))
-            raise self._diverged(f"vertex {n}: " + ("NaN/inf" if bad[n] else f"speed {speed[n]:.3g} m/s"))
-        self.v, self.q = v1, q1
-        self.step_count += 1

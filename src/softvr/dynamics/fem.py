@@ -19,9 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
-from softvr.dynamics._sparse_system import SparseSystemSolves
+from softvr.dynamics._sparse_system import SparseNodeSystem
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 from softvr.volume.tetmesh import check_tets
@@ -114,7 +113,7 @@ def polar_rotations(deformation_gradient: np.ndarray) -> np.ndarray:
     return r
 
 
-class FemBody(SparseSystemSolves, ContactObject):
+class FemBody(SparseNodeSystem, ContactObject):
     """A soft body: linear co-rotational FEM on a tetrahedral mesh.
 
     Parameters
@@ -253,35 +252,6 @@ class FemBody(SparseSystemSolves, ContactObject):
             raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
         return self._cg(np.asarray(rhs, float).ravel(), None)
 
-    def _cg(self, b: np.ndarray, x0) -> np.ndarray:
-        out = np.zeros_like(b)
-        if self._free.any():
-            iterations = [0]
-
-            def count(_):
-                iterations[0] += 1
-
-            sol, _ = spla.cg(self._a_free, b[self._free], x0=None if x0 is None else x0[self._free],
-                             rtol=self.cg_tolerance, maxiter=self.cg_max_iterations, M=self._precond, callback=count)
-            self.last_cg_iterations = iterations[0]
-            out[self._free] = sol
-        return out.reshape(-1, 3)
-
-    def integrate(self, v: np.ndarray, dt: float) -> None:
-        """``q += dt v`` (G = I for node positions), after checking the step stayed finite and bounded."""
-        dt = self._check_dt(dt)
-        v1 = np.asarray(v, float).reshape(self.v.shape)
-        q1 = self.q + dt * v1
-        bad = ~np.isfinite(v1).all(axis=1) | ~np.isfinite(q1).all(axis=1)
-        speed = np.linalg.norm(np.where(np.isfinite(v1), v1, 0.0), axis=1)
-        scale = max(float(np.ptp(self.rest, axis=0).max()), 1e-9)
-        # A node covering a thousand body lengths per second has blown up.
-        exploding = speed > 1e3 * scale
-        if bad.any() or exploding.any():
-            n = int(np.argmax(bad | exploding))
-            raise self._diverged(f"node {n}: " + ("NaN/inf" if bad[n] else f"speed {speed[n]:.3g} m/s"))
-        self.v, self.q = v1, q1
-        self.step_count += 1
 
 
 def _per_tet(values, default: float, m: int, name: str, unit: str) -> np.ndarray:
