@@ -149,12 +149,12 @@ class Scene:
         plane.unit_normal()  # validates
         self.planes.append(plane)
 
-    def _detect(self, dt: float) -> list:
+    def _detect(self, v_free: list, dt: float) -> list:
         """Collision detection of this step (with the unconstrained velocities for speculation)."""
         m = self.contact_margin
         out = []
         for c in self._colliders:
-            v = c.points.velocities(self.bodies[c.body].v_free)
+            v = c.points.velocities(v_free[c.body])
             out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt) for p in self.planes]
             out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt) for s in self.spheres]
             out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd)
@@ -165,32 +165,31 @@ class Scene:
             for sb in self._surfaces[n + 1 :]:
                 if not self._pair_enabled(sa.body_index, sb.body_index):
                     continue
-                va = sa.points.velocities(self.bodies[sa.body_index].v_free)
-                vb = sb.points.velocities(self.bodies[sb.body_index].v_free)
+                va = sa.points.velocities(v_free[sa.body_index])
+                vb = sb.points.velocities(v_free[sb.body_index])
                 for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
                     out.append(surface_vs_surface(x, y, margin=m, friction=self.friction, dt=dt, ccd=self.ccd,
                                                   velocities_a=vx, velocities_b=vy))
         for n, (i, r) in enumerate(self._sphere_bodies):
-            out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, dt=dt) for p in self.planes]
+            out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, velocity=v_free[i], dt=dt) for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
-                        out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj,
-                                                friction=self.friction, margin=m, dt=dt))
+                        out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
+                                                margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt))
         for n, (i, h) in enumerate(self._box_bodies):
-            out += [box_vs_plane(i, self.bodies[i], h, p, margin=m, dt=dt) for p in self.planes]
+            out += [box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt) for p in self.planes]
             for j, hj in self._box_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
                     out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
-                                          margin=m, dt=dt))
+                                          margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt))
         return out
 
     def step(self, dt: float) -> ContactSolution:
         """Advance every body by ``dt`` [s] with contact; returns the contact solution."""
-        for body in self.bodies:
-            body.v_free = body.unconstrained_velocity(dt, self.gravity)
-        contacts = self._detect(dt)
+        v_free = [body.unconstrained_velocity(dt, self.gravity) for body in self.bodies]
+        contacts = self._detect(v_free, dt)
         warm, self._warm = self._warm, {}
-        solution = solve_contacts(self.bodies, contacts, dt, iterations=self.pgs_iterations, warm_start=warm)
+        solution = solve_contacts(self.bodies, v_free, contacts, dt, iterations=self.pgs_iterations, warm_start=warm)
         self._warm = {k: v for k, v in warm.items() if k in {int(i) for c in contacts for i in c.ids}}
         for body, v in zip(self.bodies, solution.velocities):
             body.integrate(v, dt)

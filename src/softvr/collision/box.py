@@ -17,28 +17,30 @@ def box_corners(body, half_extents) -> np.ndarray:
     return body.position + (_SIGNS * np.asarray(half_extents, float)) @ body.rotation.T
 
 
-def _approach(body, n: np.ndarray, points: np.ndarray, dt: float) -> np.ndarray:
-    """dt times the approach speed (<= 0) of body points along n at the unconstrained velocity."""
-    if not hasattr(body, "v_free") or dt == 0.0:
+def _approach(body, velocity, n: np.ndarray, points: np.ndarray, dt: float) -> np.ndarray:
+    """dt times the approach speed (<= 0) along n of body points moving with ``velocity`` [6]."""
+    if velocity is None or dt == 0.0:
         return np.zeros(len(points))
-    v = np.asarray(body.v_free, float)
+    v = np.asarray(velocity, float)
     vel = v[:3] + np.cross(v[3:], points - body.position)
     return dt * np.minimum(np.einsum("ci,ci->c", vel, np.broadcast_to(n, vel.shape)), 0.0)
 
 
-def box_vs_plane(index: int, body, half_extents, plane: Plane, *, margin: float = 0.0, dt: float = 0.0) -> Contacts:
-    """Corner contacts of a rigid box with a static plane."""
+def box_vs_plane(index: int, body, half_extents, plane: Plane, *, margin: float = 0.0, velocity=None,
+                 dt: float = 0.0) -> Contacts:
+    """Corner contacts of a rigid box with a static plane (``velocity`` [6]: the body's
+    unconstrained velocity of the step, for speculative contacts)."""
     n = plane.unit_normal()
     p = box_corners(body, half_extents)
     gap = (p - np.asarray(plane.point, float)) @ n
-    hit = np.flatnonzero(np.minimum(gap, gap + _approach(body, n, p, dt)) < margin)
+    hit = np.flatnonzero(np.minimum(gap, gap + _approach(body, velocity, n, p, dt)) < margin)
     k = len(hit)
     return Contacts(rigid_side(index, p[hit] - body.position), None, np.broadcast_to(n, (k, 3)).copy(), gap[hit], p[hit],
                     p[hit] - gap[hit, None] * n, (np.int64(plane.id) << 32) | (np.int64(index) << 8) | hit,
                     np.full(k, float(plane.friction)))
 
 
-def _face_contacts(a, ha, b, hb, n, margin, dt):
+def _face_contacts(a, ha, va, b, hb, vb, n, margin, dt):
     """Corners of box a against the face of box b with outward normal n (b -> a).
 
     gap = n . (p - c_b) - r_b, r_b the half width of b along n; a corner counts when it lies
@@ -51,7 +53,7 @@ def _face_contacts(a, ha, b, hb, n, margin, dt):
     across = d - np.outer(d @ n, n)
     local = across @ b.rotation
     over = np.all(np.abs(local) <= np.asarray(hb, float) + margin + 1e-12, axis=1)
-    rel = _approach(a, n, p, dt) - _approach(b, n, p, dt)
+    rel = _approach(a, va, n, p, dt) - _approach(b, vb, n, p, dt)
     hit = np.flatnonzero(over & (np.minimum(gap, gap + rel) < margin))
     return p[hit], gap[hit], hit
 
@@ -76,7 +78,7 @@ def _separating_face_axis(a, ha, b, hb):
 
 
 def box_vs_box(ia: int, a, ha, ib: int, b, hb, *, friction: float = 0.5, margin: float = 0.0,
-               dt: float = 0.0) -> Contacts:
+               velocity_a=None, velocity_b=None, dt: float = 0.0) -> Contacts:
     """Vertex-face contacts between two rigid boxes.
 
     The contact normal is the face axis of least overlap (separating-axis test on the face
@@ -86,9 +88,9 @@ def box_vs_box(ia: int, a, ha, ib: int, b, hb, *, friction: float = 0.5, margin:
     """
     n, face_of_b = _separating_face_axis(a, ha, b, hb)
     if face_of_b:
-        points, gap, corners = _face_contacts(a, ha, b, hb, n, margin, dt)
+        points, gap, corners = _face_contacts(a, ha, velocity_a, b, hb, velocity_b, n, margin, dt)
     else:
-        points, gap, corners = _face_contacts(b, hb, a, ha, -n, margin, dt)
+        points, gap, corners = _face_contacts(b, hb, velocity_b, a, ha, velocity_a, -n, margin, dt)
     base = (np.int64(min(ia, ib)) << 40) | (np.int64(max(ia, ib)) << 20) | (np.int64(0 if face_of_b else 8))
     k = len(gap)
     return Contacts(rigid_side(ia, points - a.position), rigid_side(ib, points - b.position), np.broadcast_to(n, (k, 3)).copy(),

@@ -74,7 +74,7 @@ def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margi
     """Contact of a rigid sphere body (centre = its position) with a plane."""
     n = plane.unit_normal()
     gap = float((body.position - np.asarray(plane.point, float)) @ n) - radius
-    approach = dt * min(float(np.asarray(body.v_free)[:3] @ n), 0.0) if hasattr(body, "v_free") else 0.0
+    approach = 0.0 if velocity is None else dt * min(float(np.asarray(velocity, float)[:3] @ n), 0.0)
     if min(gap, gap + approach) >= margin:
         return _empty(body_index, None, 6)
     pa = body.position - radius * n
@@ -84,15 +84,15 @@ def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margi
 
 
 def sphere_vs_sphere(a_index: int, a, radius_a: float, b_index: int, b, radius_b: float, *, friction: float = 0.5,
-                     margin: float = 0.0, dt: float = 0.0) -> Contacts:
+                     margin: float = 0.0, velocity_a=None, velocity_b=None, dt: float = 0.0) -> Contacts:
     """Contact between two rigid sphere bodies; the normal points from b to a."""
     d = a.position - b.position
     dist = float(np.linalg.norm(d))
     n = d / dist if dist > 1e-12 else np.array([0.0, 0.0, 1.0])
     gap = dist - radius_a - radius_b
     approach = 0.0
-    if hasattr(a, "v_free") and hasattr(b, "v_free"):
-        approach = dt * min(float((np.asarray(a.v_free)[:3] - np.asarray(b.v_free)[:3]) @ n), 0.0)
+    if velocity_a is not None and velocity_b is not None:
+        approach = dt * min(float((np.asarray(velocity_a, float)[:3] - np.asarray(velocity_b, float)[:3]) @ n), 0.0)
     if min(gap, gap + approach) >= margin:
         return _empty(a_index, b_index, 6)
     pa, pb = a.position - radius_a * n, b.position + radius_b * n

@@ -57,16 +57,17 @@ class ContactSolution:
     islands: list
 
 
-def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-7,
+def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-7,
                    warm_start: dict | None = None) -> ContactSolution:
     """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
-
-    Each body must have run ``unconstrained_velocity`` for this step, and its result is
-    passed as the body's ``v_free`` attribute.
 
     Parameters
     ----------
     bodies : list of ContactObject
+        Each has run ``unconstrained_velocity`` for this step (its ``solve_columns`` uses
+        that step's ``A``).
+    v_free : list of ndarray
+        The unconstrained velocity of each body (the shape of its ``v``).
     contact_sets : list of Contacts
     dt : float [s]
         The normal constraint is ``n . (p_dot_a - p_dot_b) >= -gap / dt``: penetration is
@@ -82,7 +83,7 @@ def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 500, to
         velocity and turns from step to step.
     """
     contact_sets = [c for c in contact_sets if len(c)]
-    velocities = [np.array(b.v_free, float, copy=True) for b in bodies]
+    velocities = [np.array(v, float, copy=True) for v in v_free]
     impulses = [np.zeros((len(c), 3)) for c in contact_sets]
     frames = [np.zeros((len(c), 3, 3)) for c in contact_sets]
     islands = contact_islands(len(bodies), [(c.a.body, None if c.b is None else c.b.body) for c in contact_sets])
@@ -90,7 +91,7 @@ def solve_contacts(bodies, contact_sets, dt: float, *, iterations: int = 500, to
     for island in islands:
         sets = [k for k, c in enumerate(contact_sets) if c.a.body in island]
         if sets:
-            sweeps += _solve_island(bodies, island, contact_sets, sets, velocities, impulses, frames, dt,
+            sweeps += _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt,
                                     iterations, tolerance, warm_start)
     residual = 0.0
     for k, c in enumerate(contact_sets):
@@ -125,8 +126,9 @@ def _frames(contacts: Contacts, rel_velocity: np.ndarray) -> np.ndarray:
     return np.stack([n, t1, np.cross(n, t1)], axis=1)
 
 
-def _solve_island(bodies, island, contact_sets, sets, velocities, impulses, frames, dt, iterations, tol, warm):
-    v_free = [np.asarray(b.v_free, float).reshape(-1, b.block_size) for b in bodies]
+def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt, iterations, tol,
+                  warm):
+    v_free = [np.asarray(v, float).reshape(-1, b.block_size) for b, v in zip(bodies, v_free)]
     offsets = np.cumsum([0] + [len(contact_sets[k]) for k in sets])
     rows = 3 * int(offsets[-1])
     # G_j: the island's contact rows (frame-projected point velocities) on body j's velocities.
