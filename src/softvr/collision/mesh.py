@@ -15,7 +15,7 @@ from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_bloc
 from softvr.device import resolve_device
 from softvr.errors import InputError
 
-__all__ = ["TriangleMesh", "points_vs_mesh"]
+__all__ = ["TriangleMesh", "points_vs_mesh", "query_points"]
 
 
 @wp.kernel
@@ -81,6 +81,33 @@ def _query_points(
         surface[i] = c
 
 
+def query_points(mesh_id, device: str, points: np.ndarray, motion: np.ndarray, reach: float, thickness: float,
+                 ccd: bool, *, closed: bool):
+    """Run the proximity / sweep query of every point against a Warp mesh.
+
+    Returns
+    -------
+    which : ndarray of int
+        Points with a contact.
+    normal : ndarray, shape [len(which), 3]
+    gap : ndarray, shape [len(which)] [m]
+    surface : ndarray, shape [len(which), 3] [m]
+        The contact point on the mesh.
+    """
+    n = len(points)
+    hit = wp.zeros(n, dtype=wp.int32, device=device)
+    normal = wp.zeros(n, dtype=wp.vec3, device=device)
+    gap = wp.zeros(n, dtype=float, device=device)
+    surface = wp.zeros(n, dtype=wp.vec3, device=device)
+    wp.launch(_query_points, dim=n, device=device,
+              inputs=[mesh_id, wp.array(points, dtype=wp.vec3, device=device),
+                      wp.array(motion, dtype=wp.vec3, device=device), float(reach), float(thickness), int(ccd),
+                      int(closed), hit, normal, gap, surface])
+    which = np.flatnonzero(hit.numpy())
+    return (which, normal.numpy()[which].astype(float), gap.numpy()[which].astype(float),
+            surface.numpy()[which].astype(float))
+
+
 class TriangleMesh:
     """A static triangle mesh collider (a thin sheet, a wall, an organ surface).
 
@@ -133,26 +160,18 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         Sweep each point over ``velocities * dt`` and take the first crossing.
     """
     p = points.positions()
-    n_pts = len(p)
-    dev = mesh.device
     motion = np.zeros_like(p) if velocities is None else np.asarray(velocities, float) * dt
-    hit = wp.zeros(n_pts, dtype=wp.int32, device=dev)
-    normal = wp.zeros(n_pts, dtype=wp.vec3, device=dev)
-    gap = wp.zeros(n_pts, dtype=float, device=dev)
-    surface = wp.zeros(n_pts, dtype=wp.vec3, device=dev)
-    wp.launch(_query_points, dim=n_pts, device=dev,
-              inputs=[mesh._mesh.id, wp.array(p, dtype=wp.vec3, device=dev), wp.array(motion, dtype=wp.vec3, device=dev),
-                      float(margin), mesh.thickness, int(ccd), 0, hit, normal, gap, surface])
-    which = np.flatnonzero(hit.numpy())
+    which, normal, gap, surface = query_points(mesh._mesh.id, mesh.device, p, motion, margin, mesh.thickness, ccd,
+                                               closed=False)
     blocks, jac = point_jacobian_blocks(points, which)
     k = len(which)
     return Contacts(
         a=ContactSide(body_index, blocks, jac),
         b=None,
-        normal=normal.numpy()[which].astype(float),
-        gap=gap.numpy()[which].astype(float),
+        normal=normal,
+        gap=gap,
         point_a=p[which],
-        point_b=surface.numpy()[which].astype(float),
+        point_b=surface,
         ids=(np.int64(mesh.id) << 32) | (np.int64(1) << 30) | which.astype(np.int64),
         friction=np.full(k, mesh.friction),
     )

@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, rigid_side
-from softvr.collision.mesh import _query_points
+from softvr.collision.mesh import query_points
 from softvr.device import resolve_device
 from softvr.errors import InputError
 
@@ -87,23 +87,13 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
         if velocities_b is not None:
             rel = rel - np.asarray(velocities_b, float).mean(axis=0)
         motion = rel * dt
-    dev = b.device
-    n = len(p)
-    hit = wp.zeros(n, dtype=wp.int32, device=dev)
-    normal = wp.zeros(n, dtype=wp.vec3, device=dev)
-    gap = wp.zeros(n, dtype=float, device=dev)
-    surface = wp.zeros(n, dtype=wp.vec3, device=dev)
-    wp.launch(_query_points, dim=n, device=dev,
-              inputs=[b._mesh.id, wp.array(p, dtype=wp.vec3, device=dev), wp.array(motion, dtype=wp.vec3, device=dev),
-                      float(margin), 0.0, int(ccd), 1, hit, normal, gap, surface])
-    which = np.flatnonzero(hit.numpy())
-    at = surface.numpy()[which].astype(float)
+    which, normal, gap, at = query_points(b._mesh.id, b.device, p, motion, margin, 0.0, ccd, closed=True)
     faces, bary = _locate(b, at)
     side_a = ContactSide(a.body_index, *point_jacobian_blocks(a.points, which))
     ids = (np.int64(min(a.body_index, b.body_index)) << 40) | (np.int64(max(a.body_index, b.body_index)) << 20)
     ids = ids | (np.int64(a.body_index < b.body_index) << 19) | which.astype(np.int64)
-    return Contacts(side_a, _triangle_side(b, faces, bary), normal.numpy()[which].astype(float),
-                    gap.numpy()[which].astype(float), p[which], at, ids, np.full(len(which), float(friction)))
+    return Contacts(side_a, _triangle_side(b, faces, bary), normal, gap, p[which], at, ids,
+                    np.full(len(which), float(friction)))
 
 
 def _locate(surface: CollisionSurface, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

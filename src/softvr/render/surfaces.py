@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from softvr.render._offscreen import OffscreenView
 from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, offscreen_backend
 from softvr.render.camera import Camera
@@ -100,7 +101,7 @@ class _Item:
         return np.asarray(self.actor.GetBounds(), float)
 
 
-class SurfaceRenderer:
+class SurfaceRenderer(OffscreenView):
     """Render triangle surfaces that move every frame to RGB images, off-screen.
 
     Parameters
@@ -142,7 +143,7 @@ class SurfaceRenderer:
         for name, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise InputError(name, "an integer number of pixels in [1, 16384]", repr(v))
-        from vtkmodules.vtkRenderingCore import vtkLightKit, vtkRenderer, vtkWindowToImageFilter  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkLightKit, vtkRenderer  # noqa: PLC0415
 
         self.width, self.height = int(width), int(height)
         self._camera = Camera.coerce(camera)
@@ -158,14 +159,9 @@ class SurfaceRenderer:
         self._renderer.SetUseFXAA(bool(antialias))
         vtkLightKit().AddLightsToRenderer(self._renderer)
         self._window.AddRenderer(self._renderer)
-        self._grab = vtkWindowToImageFilter()
-        self._grab.SetInput(self._window)
-        self._grab.SetInputBufferTypeToRGB()
-        self._grab.ReadFrontBufferOff()
-        self._grab.ShouldRerenderOff()
+        self._init_grabber()
         self._items: list[_Item] = []
         self._camera_pending = True
-        self._closed = False
 
     # ----------------------------------------------------------------- scene
     def add_mesh(self, vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0, *,
@@ -393,38 +389,10 @@ class SurfaceRenderer:
             self._camera_pending = False
         self._renderer.ResetCameraClippingRange()
         self._window.Render()
-        image = self._read_pixels()
+        image = self.grab()
         # An on-screen GLX context cannot be made while an EGL one is current (see _backend).
         self._window.ReleaseCurrent()
         return image
-
-    def _read_pixels(self) -> np.ndarray:
-        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
-
-        self._grab.Modified()
-        self._grab.Update()
-        out = self._grab.GetOutput()
-        w, h, _ = out.GetDimensions()
-        pixels = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, -1)
-        return np.ascontiguousarray(pixels[::-1, :, :3])
-
-    def close(self) -> None:
-        """Release the OpenGL context. The renderer cannot be used afterwards."""
-        if not self._closed:
-            self._closed = True
-            self._window.Finalize()
-
-    def __enter__(self) -> "SurfaceRenderer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:  # pragma: no cover - best effort
-        try:
-            self.close()
-        except Exception:
-            pass
 
     # --------------------------------------------------------------- helpers
     def _add(self, item: _Item) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from softvr.render._offscreen import OffscreenView
 from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, offscreen_backend
 from softvr.render._scene import VolumeScene
@@ -15,7 +16,7 @@ __all__ = ["VolumeRenderer", "render_volume"]
 _SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swr ", "software")
 
 
-class VolumeRenderer:
+class VolumeRenderer(OffscreenView):
     """Render volumes to RGB images off-screen, reusing one VTK pipeline across frames.
 
     Works without a display (EGL, else OSMesa; see :func:`offscreen_backend`). Each
@@ -76,7 +77,7 @@ class VolumeRenderer:
         for name, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise InputError(name, "an integer number of pixels in [1, 16384]", repr(v))
-        from vtkmodules.vtkRenderingCore import vtkRenderer, vtkWindowToImageFilter  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkRenderer  # noqa: PLC0415
 
         self.width, self.height = int(width), int(height)
         self._camera = Camera.coerce(camera)
@@ -90,13 +91,8 @@ class VolumeRenderer:
         self.mapper = mapper
         self._scene = VolumeScene(preset, mapper, sample_distance)
         self._renderer.AddVolume(self._scene.prop)
-        self._grab = vtkWindowToImageFilter()
-        self._grab.SetInput(self._window)
-        self._grab.SetInputBufferTypeToRGB()
-        self._grab.ReadFrontBufferOff()
-        self._grab.ShouldRerenderOff()
+        self._init_grabber()
         self._camera_pending = True
-        self._closed = False
 
     # ------------------------------------------------------------- properties
     @property
@@ -187,34 +183,6 @@ class VolumeRenderer:
         self._window.ReleaseCurrent()
         return image
 
-    def grab(self) -> np.ndarray:
-        """The last rendered image, shape [height, width, 3] uint8, row 0 at the top."""
-        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
-
-        self._grab.Modified()
-        self._grab.Update()
-        out = self._grab.GetOutput()
-        w, h, _ = out.GetDimensions()
-        pixels = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, -1)
-        return np.ascontiguousarray(pixels[::-1, :, :3])
-
-    def close(self) -> None:
-        """Release the OpenGL context. The renderer cannot be used afterwards."""
-        if not self._closed:
-            self._closed = True
-            self._window.Finalize()
-
-    def __enter__(self) -> "VolumeRenderer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def __del__(self) -> None:  # pragma: no cover - best effort
-        try:
-            self.close()
-        except Exception:
-            pass
 
 
 def render_volume(

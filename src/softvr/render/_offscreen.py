@@ -1,0 +1,57 @@
+"""What the off-screen renderers share: a window, its pixel grabber, and their lifetime."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["OffscreenView"]
+
+
+class OffscreenView:
+    """Base of :class:`VolumeRenderer` and :class:`SurfaceRenderer`.
+
+    Subclasses set ``self._window`` (an off-screen ``vtkRenderWindow``) and call
+    :meth:`_init_grabber` once it exists.
+    """
+
+    _window = None
+    _closed = True
+
+    def _init_grabber(self) -> None:
+        from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter  # noqa: PLC0415
+
+        self._grab = vtkWindowToImageFilter()
+        self._grab.SetInput(self._window)
+        self._grab.SetInputBufferTypeToRGB()
+        self._grab.ReadFrontBufferOff()
+        self._grab.ShouldRerenderOff()
+        self._closed = False
+
+    def grab(self) -> np.ndarray:
+        """The last rendered image, shape [height, width, 3] uint8, row 0 at the top."""
+        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
+
+        self._grab.Modified()
+        self._grab.Update()
+        out = self._grab.GetOutput()
+        w, h, _ = out.GetDimensions()
+        pixels = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, -1)
+        return np.ascontiguousarray(pixels[::-1, :, :3])
+
+    def close(self) -> None:
+        """Release the OpenGL context. The renderer cannot be used afterwards."""
+        if not self._closed:
+            self._closed = True
+            self._window.Finalize()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        try:
+            self.close()
+        except Exception:
+            pass
