@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+
+from softvr.errors import InputError
 
 __all__ = ["SparseNodeSystem"]
 
@@ -18,6 +21,24 @@ class SparseNodeSystem:
     """
 
     _node_word = "node"
+
+    def _solve_step(self, a, m_diag: np.ndarray, forces: np.ndarray, dt: float) -> np.ndarray:
+        """Keep this step's ``A`` (free rows / columns) and return ``A^-1 (M v0 + dt f)`` [n, 3]
+        (thesis eq. 5.2; ``b`` in this form because the damping force cancels ``dt D v0``)."""
+        self._free = ~np.repeat(self.fixed, 3)
+        self._a_free = a.tocsr()[self._free][:, self._free].tocsr()
+        self._precond = sp.diags(1.0 / self._a_free.diagonal())
+        b = m_diag * self.v.ravel() + dt * np.asarray(forces, float).ravel()
+        return self._cg(b, self.v.ravel())
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``A^-1 rhs`` [n, 3] for this step's ``A`` (fixed nodes give 0)."""
+        if not hasattr(self, "_a_free"):
+            raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
+        rhs = np.asarray(rhs, float)
+        if rhs.size != self.v.size:
+            raise InputError("rhs", f"an array of shape {self.v.shape}", f"shape {rhs.shape}")
+        return self._cg(rhs.ravel(), None)
 
     def _cg(self, b: np.ndarray, x0) -> np.ndarray:
         """Jacobi-preconditioned CG on the free velocities; fixed ones stay 0. Returns [n, 3]."""

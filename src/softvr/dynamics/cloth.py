@@ -450,17 +450,4 @@ class ClothBody(SparseNodeSystem, ContactObject):
             blocks = blocks + dt * self.damping * unit[:, :, None] * unit[:, None, :]
         m_diag = np.repeat(self.mass, 3)
         a = self._assemble(blocks) + sp.diags(m_diag * (1.0 + dt * self.alpha))
-        self._free = ~np.repeat(self.fixed, 3)
-        self._a_free = a[self._free][:, self._free].tocsr()
-        self._precond = sp.diags(1.0 / self._a_free.diagonal())
-        b = m_diag * self.v.ravel() + dt * f.ravel()
-        return self._cg(b, self.v.ravel())
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """``A^-1 rhs`` [vertex_count, 3] for this step's ``A`` (fixed vertices give 0)."""
-        if not hasattr(self, "_a_free"):
-            raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
-        rhs = np.asarray(rhs, float)
-        if rhs.size != self.v.size:
-            raise InputError("rhs", f"an array of shape {self.v.shape}", f"shape {rhs.shape}")
-        return self._cg(rhs.ravel(), None)
+        return self._solve_step(a, m_diag, f, dt)

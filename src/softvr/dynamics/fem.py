@@ -239,18 +239,8 @@ class FemBody(SparseNodeSystem, ContactObject):
         f = self.elastic_forces() + self.mass[:, None] * np.asarray(gravity, float)
         if external is not None:
             f = f + np.asarray(external, float).reshape(f.shape)
-        a = (sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k).tocsr()
-        self._free = ~np.repeat(self.fixed, 3)
-        self._a_free = a[self._free][:, self._free].tocsr()
-        self._precond = sp.diags(1.0 / self._a_free.diagonal())
-        b = m_diag * self.v.ravel() + dt * f.ravel()
-        return self._cg(b, self.v.ravel())
-
-    def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """``A^-1 rhs`` [node_count, 3] for this step's ``A`` (fixed nodes give 0)."""
-        if not hasattr(self, "_a_free"):
-            raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
-        return self._cg(np.asarray(rhs, float).ravel(), None)
+        a = sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k
+        return self._solve_step(a, m_diag, f, dt)
 
 
 

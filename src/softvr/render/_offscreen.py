@@ -10,8 +10,8 @@ __all__ = ["OffscreenView"]
 class OffscreenView:
     """Base of :class:`VolumeRenderer` and :class:`SurfaceRenderer`.
 
-    Subclasses set ``self._window`` (an off-screen ``vtkRenderWindow``) and call
-    :meth:`_init_grabber` once it exists.
+    Subclasses set ``self._window`` (an off-screen ``vtkRenderWindow``), ``self._renderer`` and
+    ``self._camera``, and call :meth:`_init_grabber` once the window exists.
     """
 
     _window = None
@@ -26,6 +26,21 @@ class OffscreenView:
         self._grab.ReadFrontBufferOff()
         self._grab.ShouldRerenderOff()
         self._closed = False
+
+    @property
+    def camera(self):
+        """The :class:`~softvr.render.Camera` in use (applied at the next render if just set)."""
+        return self._camera
+
+    @property
+    def vtk_camera(self):
+        """The underlying ``vtkCamera``, for fine control (changes stick across frames)."""
+        return self._renderer.GetActiveCamera()
+
+    @property
+    def vtk_renderer(self):
+        """The underlying ``vtkRenderer`` (to add actors such as meshes)."""
+        return self._renderer
 
     def grab(self) -> np.ndarray:
         """The last rendered image, shape [height, width, 3] uint8, row 0 at the top."""

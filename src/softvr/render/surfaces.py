@@ -341,21 +341,6 @@ class SurfaceRenderer(OffscreenView):
         self._item(handle).actor.SetVisibility(bool(visible))
 
     # ---------------------------------------------------------------- camera
-    @property
-    def camera(self) -> Camera:
-        """The :class:`~softvr.render.Camera` in use."""
-        return self._camera
-
-    @property
-    def vtk_camera(self):
-        """The underlying ``vtkCamera`` (changes stick across frames)."""
-        return self._renderer.GetActiveCamera()
-
-    @property
-    def vtk_renderer(self):
-        """The underlying ``vtkRenderer``."""
-        return self._renderer
-
     def set_camera(self, camera: "Camera | str | None" = None, *, bounds=None, **changes) -> None:
         """Use ``camera`` (default: the current one) with ``changes``, fitted to ``bounds``
         (default: as in the constructor), from the next render on."""

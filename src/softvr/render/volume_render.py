@@ -112,21 +112,6 @@ class VolumeRenderer(OffscreenView):
         name = self.gl_renderer.lower()
         return any(s in name for s in _SOFTWARE_GL)
 
-    @property
-    def camera(self) -> Camera:
-        """The :class:`Camera` in use (applied at the next render if just set)."""
-        return self._camera
-
-    @property
-    def vtk_camera(self):
-        """The underlying ``vtkCamera``, for fine control (changes stick across frames)."""
-        return self._renderer.GetActiveCamera()
-
-    @property
-    def vtk_renderer(self):
-        """The underlying ``vtkRenderer`` (to add actors such as meshes)."""
-        return self._renderer
-
     # ---------------------------------------------------------------- control
     def set_camera(self, camera: "Camera | str | None" = None, **changes) -> None:
         """Use ``camera`` (default: the current one) with ``changes`` from the next render.
