@@ -190,7 +190,8 @@ class Scene:
         contacts = self._detect(v_free, dt)
         warm, self._warm = self._warm, {}
         solution = solve_contacts(self.bodies, v_free, contacts, dt, iterations=self.pgs_iterations, warm_start=warm)
-        self._warm = {k: v for k, v in warm.items() if k in {int(i) for c in contacts for i in c.ids}}
+        current = {int(i) for c in contacts for i in c.ids}
+        self._warm = {k: v for k, v in warm.items() if k in current}
         for body, v in zip(self.bodies, solution.velocities):
             body.integrate(v, dt)
         self.time += dt

@@ -115,3 +115,57 @@ def test_bad_input_and_divergence_are_reported():
     body.v[3] = np.nan
     with pytest.raises(SimulationError, match="liver.*step 2"):
         body.step(0.01)
+
+
+def test_element_rotations_are_the_polar_factors_and_k_is_the_force_jacobian():
+    """R_e from the compiled svd3 equals SciPy's polar decomposition of F = Ds Dm^-1 (to
+    round-off of float64 Jacobi sweeps), and K = sum R K_e R^T is the force Jacobian."""
+    from scipy.linalg import polar
+
+    nodes, tets = box_mesh((0.1, 0.1, 0.1), (2, 2, 2))
+    body = FemBody(nodes, tets, Material(1e5, 0.3, 1000.0))
+    rng = np.random.default_rng(4)
+    rot = Rotation.from_euler("xyz", [40, -25, 70], degrees=True).as_matrix()
+    q = nodes @ rot.T + 0.004 * rng.standard_normal(nodes.shape)
+    r = body.rotations(q)
+    x = q[tets]
+    dm = (nodes[tets][:, 1:] - nodes[tets][:, :1]).transpose(0, 2, 1)
+    f = (x[:, 1:] - x[:, :1]).transpose(0, 2, 1) @ np.linalg.inv(dm)
+    expected = np.stack([polar(fe)[0] for fe in f])
+    np.testing.assert_allclose(r, expected, atol=1e-9)
+    # At a rigidly rotated (stress-free) state the co-rotational tangent has no rotation-change
+    # term, so K = -df/dq exactly; central differences are exact for the quadratic part and
+    # leave O(eps^2) of the rest.
+    rigid = nodes @ rot.T
+    k = body.stiffness_matrix(rigid).toarray()
+    np.testing.assert_allclose(k, k.T, atol=1e-9 * np.abs(k).max())
+    direction = rng.standard_normal(q.size)
+    eps = 1e-6
+    df = (body.elastic_forces(rigid + eps * direction.reshape(q.shape))
+          - body.elastic_forces(rigid - eps * direction.reshape(q.shape))).ravel() / (2 * eps)
+    np.testing.assert_allclose(-df, k @ direction, atol=1e-6 * np.abs(k @ direction).max())
+
+
+def test_compliance_is_the_block_of_the_inverse_step_matrix():
+    """``compliance(blocks)`` (trailing corner of a reordered LU) equals rows / columns of the
+    dense inverse of A = M + dt (alpha M + beta K) + dt^2 K; fixed nodes give zero rows."""
+    nodes, tets = box_mesh((0.1, 0.1, 0.1), (2, 2, 2))
+    fixed = nodes[:, 2] < 1e-9
+    body = FemBody(nodes, tets, Material(1e5, 0.3, 1000.0, alpha=1.0, beta=1e-3), fixed=fixed)
+    body.q = body.q + 0.003 * np.random.default_rng(1).standard_normal(body.q.shape) * ~fixed[:, None]
+    dt = 0.01
+    body.unconstrained_velocity(dt)
+    k = body.stiffness_matrix().toarray()
+    m = np.repeat(body.mass, 3)
+    a = np.diag(m * (1 + dt * 1.0)) + (dt * 1e-3 + dt * dt) * k
+    free = ~np.repeat(fixed, 3)
+    inverse = np.zeros_like(a)
+    inverse[np.ix_(free, free)] = np.linalg.inv(a[np.ix_(free, free)])
+    blocks = np.array([0, 5, np.argmax(fixed), len(nodes) - 1, 13])
+    dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
+    w = body.compliance(blocks)
+    np.testing.assert_allclose(w, inverse[np.ix_(dofs, dofs)], atol=1e-10 * np.abs(inverse).max())
+    assert not w[6:9].any() and not w[:, 6:9].any()
+    # The same factorization serves solve(): A^-1 rhs exact to round-off.
+    rhs = np.random.default_rng(2).standard_normal(body.v.shape)
+    np.testing.assert_allclose(body.solve(rhs).ravel(), inverse @ rhs.ravel(), atol=1e-10 * np.abs(inverse @ rhs.ravel()).max())

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softvr.collision.contacts import Contacts
+from softvr.contact._pgs_kernels import pgs_sweeps
 from softvr.contact.islands import contact_islands
 
 __all__ = ["ContactSolution", "solve_contacts"]
@@ -131,8 +132,15 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
     v_free = [np.asarray(v, float).reshape(-1, b.block_size) for b, v in zip(bodies, v_free)]
     offsets = np.cumsum([0] + [len(contact_sets[k]) for k in sets])
     rows = 3 * int(offsets[-1])
-    # G_j: the island's contact rows (frame-projected point velocities) on body j's velocities.
-    g = {j: np.zeros((rows, bodies[j].velocity_size)) for j in island}
+    # Only the velocity blocks the contacts touch enter the Delassus operator.
+    touched = {j: [] for j in island}
+    for k in sets:
+        for side in (contact_sets[k].a, contact_sets[k].b):
+            if side is not None:
+                touched[side.body].append(side.blocks.ravel())
+    touched = {j: np.unique(np.concatenate(b)) for j, b in touched.items() if b}
+    # G_j: the island's contact rows (frame-projected point velocities) on body j's touched blocks.
+    g = {j: np.zeros((rows, len(b) * bodies[j].block_size)) for j, b in touched.items()}
     target = np.zeros(rows)
     mu = np.zeros(int(offsets[-1]))
     lam = np.zeros(rows)
@@ -147,7 +155,8 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
                 continue
             bs = bodies[side.body].block_size
             w = sign * np.einsum("crx,ckxb->ckrb", f, side.jac)  # [c, k, 3 rows, bs]
-            cols = bs * side.blocks[:, :, None] + np.arange(bs)  # [c, k, bs]
+            local = np.searchsorted(touched[side.body], side.blocks)
+            cols = bs * local[:, :, None] + np.arange(bs)  # [c, k, bs]
             rr = np.broadcast_to(contact_rows[:, None, :, None], w.shape)
             cc = np.broadcast_to(cols[:, :, None, :], w.shape)
             np.add.at(g[side.body], (rr.ravel(), cc.ravel()), w.ravel())
@@ -158,40 +167,20 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
                 if cid in warm:
                     lam[contact_rows[n]] = _project(f[n] @ np.asarray(warm[cid], float), c.friction[n])
 
-    # Delassus operator B = sum_j G_j A_j^-1 G_j^T and the free constraint velocities J v_free.
-    x = {j: bodies[j].solve_columns(g[j].T) for j in island}  # A_j^-1 G_j^T [velocity_size, rows]
-    delassus = sum(g[j] @ x[j] for j in island)
-    rel = sum(g[j] @ v_free[j].ravel() for j in island) + delassus @ lam
-    # Per contact: the normal row alone (a joint 3x3 solve can ask for a negative normal
-    # impulse on oblique approach, which the projection then zeroes), then the two friction
-    # rows as a 2x2 block, clamped to the pyramid of the updated normal impulse.
-    count = rows // 3
-    normal_inv = np.array([1.0 / max(delassus[3 * n, 3 * n], 1e-300) for n in range(count)])
-    tangent_inv = [np.linalg.pinv(delassus[3 * n + 1 : 3 * n + 3, 3 * n + 1 : 3 * n + 3]) for n in range(count)]
-    columns = [np.ascontiguousarray(delassus[:, 3 * n : 3 * n + 3]) for n in range(count)]
-    sweeps = 0
-    for _ in range(iterations):
-        sweeps += 1
-        biggest = 0.0
-        for n in range(count):
-            r0 = 3 * n
-            ln = max(lam[r0] + normal_inv[n] * (target[r0] - rel[r0]), 0.0)
-            dn = ln - lam[r0]
-            if dn != 0.0:
-                rel += columns[n][:, 0] * dn
-                lam[r0] = ln
-            bound = mu[n] * ln
-            lt = lam[r0 + 1 : r0 + 3] + tangent_inv[n] @ (target[r0 + 1 : r0 + 3] - rel[r0 + 1 : r0 + 3])
-            lt = np.clip(lt, -bound, bound)
-            dt_ = lt - lam[r0 + 1 : r0 + 3]
-            if dt_.any():
-                rel += columns[n][:, 1:] @ dt_
-                lam[r0 + 1 : r0 + 3] = lt
-            biggest = max(biggest, abs(dn), float(np.abs(dt_).max()))
-        if biggest <= tol * max(float(np.abs(lam).max()), 1e-30):
-            break
-    for j in island:
-        velocities[j] = (v_free[j].ravel() + x[j] @ lam).reshape(velocities[j].shape)
+    # Delassus operator B = sum_j G_j (A_j^-1)_touched G_j^T and the constraint velocities.
+    delassus = np.zeros((rows, rows))
+    rel = np.zeros(rows)
+    for j, blocks in touched.items():
+        delassus += g[j] @ bodies[j].compliance(blocks) @ g[j].T
+        rel += g[j] @ v_free[j][blocks].ravel()
+    rel += delassus @ lam
+    sweeps = pgs_sweeps(delassus, target, mu, lam, rel, iterations, tol)
+    for j, blocks in touched.items():
+        bs = bodies[j].block_size
+        impulse = np.zeros_like(v_free[j])
+        impulse[blocks] = (g[j].T @ lam).reshape(-1, bs)
+        velocities[j] = (v_free[j] + np.asarray(bodies[j].solve(impulse.reshape(velocities[j].shape)),
+                                                  float).reshape(v_free[j].shape)).reshape(velocities[j].shape)
     for s, k in enumerate(sets):
         impulses[k] = lam[3 * offsets[s] : 3 * offsets[s + 1]].reshape(-1, 3)
     return sweeps

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.linalg import solve_triangular
 
 from softvr.errors import InputError
 
@@ -32,12 +33,15 @@ class SparseNodeSystem:
         return self._cg(b, self.v.ravel())
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        """``A^-1 rhs`` [n, 3] for this step's ``A`` (fixed nodes give 0)."""
+        """``A^-1 rhs`` [n, 3] for this step's ``A`` (fixed nodes give 0): by the step's
+        factorization once :meth:`compliance` made one, else by CG."""
         if not hasattr(self, "_a_free"):
             raise InputError("solve", "a call after unconstrained_velocity() of this step", "no step prepared")
         rhs = np.asarray(rhs, float)
         if rhs.size != self.v.size:
             raise InputError("rhs", f"an array of shape {self.v.shape}", f"shape {rhs.shape}")
+        if self._factor_is_current():
+            return self._lu_solve(rhs.reshape(-1, 1)).reshape(self.v.shape)
         return self._cg(rhs.ravel(), None)
 
     def _cg(self, b: np.ndarray, x0) -> np.ndarray:
@@ -76,16 +80,67 @@ class SparseNodeSystem:
 
     def solve_columns(self, columns: np.ndarray) -> np.ndarray:
         """``A^-1 C`` [velocity_size, k] by one sparse LU of the step's ``A`` (rows of fixed
-        velocities are 0): the contact solver asks for three columns per contact, and one
-        factorization serves them all where a CG per column would cost seconds."""
-        if getattr(self, "_lu_matrix", None) is not self._a_free:
-            # A is symmetric positive definite: a symmetric fill-reducing ordering without
-            # pivoting keeps the factors ~2.5x sparser than SuperLU's default (measured).
-            self._lu = spla.splu(self._a_free.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                 options={"SymmetricMode": True})
-            self._lu_matrix = self._a_free
+        velocities are 0)."""
         cols = np.asarray(columns, float)
+        if not self._factor_is_current():
+            self._factor(np.zeros(0, int))
+        return self._lu_solve(cols)
+
+    def compliance(self, blocks: np.ndarray) -> np.ndarray:
+        """Rows and columns of ``A^-1`` at the velocities of nodes ``blocks`` [k]:
+        shape [3k, 3k] [m/s per N s] (the per-object block of the Delassus operator, eq. 5.6).
+
+        The step's ``A`` is factored with those velocities eliminated last; then
+        ``(A^-1)_CC = U_CC^-1 L_CC^-1`` is the inverse of the trailing corner of the factors, and
+        no solve with the ``3k`` unit columns is needed (they cost ~10x the factorization).
+        Rows and columns of fixed nodes are 0.
+        """
+        blocks = np.asarray(blocks, int).ravel()
+        dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
+        free_index = np.cumsum(self._free) - 1  # velocity -> row of the free system
+        keep = self._free[dofs]
+        last = free_index[dofs[keep]]
+        self._factor(last)
+        k, n = len(last), self._a_free.shape[0]
+        out = np.zeros((len(dofs), len(dofs)))
+        if k:
+            lower = self._lu.L[n - k :, n - k :].toarray()
+            upper = self._lu.U[n - k :, n - k :].toarray()
+            inv = solve_triangular(upper, solve_triangular(lower, np.eye(k), lower=True, unit_diagonal=True))
+            out[np.ix_(keep, keep)] = inv
+        return out
+
+    def _factor_is_current(self) -> bool:
+        return getattr(self, "_lu_matrix", None) is self._a_free
+
+    def _factor(self, last: np.ndarray) -> None:
+        """Sparse LU of the step's free ``A`` with the free velocities ``last`` eliminated last.
+
+        ``A`` is symmetric positive definite, so pivots stay on the diagonal (no pivoting) and
+        one symmetric fill-reducing order (SuperLU's minimum degree on A + A^T, found once: the
+        pattern does not change) serves every step, with ``last`` moved to its end.
+        """
+        n = self._a_free.shape[0]
+        if getattr(self, "_fill_order", None) is None or len(self._fill_order) != n:
+            lu = spla.splu(self._a_free.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options={"SymmetricMode": True})
+            self._fill_order = np.argsort(lu.perm_c)  # velocities in elimination order
+        moved = np.zeros(n, bool)
+        moved[last] = True
+        order = np.concatenate([self._fill_order[~moved[self._fill_order]], last])
+        self._lu = spla.splu(self._a_free[order][:, order].tocsc(), permc_spec="NATURAL", diag_pivot_thresh=0.0,
+                             options={"SymmetricMode": True})
+        if not (np.array_equal(self._lu.perm_c, np.arange(n)) and np.array_equal(self._lu.perm_r, np.arange(n))):
+            raise self._diverged("step matrix A needed pivoting: it is not positive definite")
+        self._lu_order = order
+        self._lu_matrix = self._a_free
+
+    def _lu_solve(self, cols: np.ndarray) -> np.ndarray:
+        """``A^-1 C`` [velocity_size, k] with the current factorization (fixed rows 0)."""
         out = np.zeros_like(cols)
         if cols.shape[1] and self._free.any():
-            out[self._free] = self._lu.solve(np.ascontiguousarray(cols[self._free]))
+            free_cols = cols[self._free]
+            x = np.empty_like(free_cols)
+            x[self._lu_order] = self._lu.solve(np.ascontiguousarray(free_cols[self._lu_order]))
+            out[self._free] = x
         return out

@@ -87,6 +87,19 @@ class ContactObject(ABC):
         return np.stack([np.asarray(self.solve(c.reshape(shape)), float).ravel() for c in cols.T], axis=1) \
             if cols.shape[1] else np.zeros_like(cols)
 
+    def compliance(self, blocks: np.ndarray) -> np.ndarray:
+        """Rows and columns of ``A^-1`` at the velocity ``blocks`` [k]: shape
+        [k block_size, k block_size], this object's block of the Delassus operator (eq. 5.6).
+
+        The default solves for the unit columns with :meth:`solve_columns`; FEM and cloth
+        bodies read it off a factorization that eliminates those velocities last.
+        """
+        bs = self.block_size
+        dofs = (bs * np.asarray(blocks, int).ravel()[:, None] + np.arange(bs)).ravel()
+        unit = np.zeros((self.velocity_size, len(dofs)))
+        unit[dofs, np.arange(len(dofs))] = 1.0
+        return self.solve_columns(unit)[dofs]
+
     @abstractmethod
     def integrate(self, v: np.ndarray, dt: float) -> None:
         """Set the velocity to ``v`` and advance the state: ``q += dt G v``; count the step.

@@ -10,7 +10,8 @@ advanced by backward Euler with the forces linearized at the start of the step
     q1 = q0 + dt v1
 
 with ``K = sum R_e K_e R_e^T`` and Rayleigh damping ``D = alpha M + beta K``; ``A`` is solved by
-conjugate gradients with a Jacobi preconditioner.
+conjugate gradients with a Jacobi preconditioner. The per-tet work (polar decomposition, element
+forces and rotated stiffness) runs compiled, one Warp thread per tet (:mod:`._fem_kernels`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from softvr.dynamics._fem_kernels import CorotatedElements
 from softvr.dynamics._sparse_system import SparseNodeSystem
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
@@ -102,17 +104,6 @@ def _strain_matrices(rest: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np
     return b, volume, dm_inv
 
 
-def polar_rotations(deformation_gradient: np.ndarray) -> np.ndarray:
-    """Rotation factors R of F = R S (polar decomposition), reflections removed, shape [m, 3, 3]."""
-    u, _, vt = np.linalg.svd(deformation_gradient)
-    r = u @ vt
-    flip = np.linalg.det(r) < 0
-    if flip.any():
-        u[flip, :, 2] *= -1  # the smallest singular direction takes the reflection
-        r[flip] = u[flip] @ vt[flip]
-    return r
-
-
 class FemBody(SparseNodeSystem, ContactObject):
     """A soft body: linear co-rotational FEM on a tetrahedral mesh.
 
@@ -181,45 +172,42 @@ class FemBody(SparseNodeSystem, ContactObject):
         self.last_cg_iterations = 0
         self.cg_tolerance = 1e-8
         self.cg_max_iterations = 1000
-        # Scatter pattern of the 12x12 element blocks into the 3n x 3n matrix.
+        self._elements = CorotatedElements(rest, tets, self._dm_inv, self._ke)
+        # Scatter of the 12x12 element blocks into the CSR matrix K: entry e of the flattened
+        # blocks adds to K.data[self._k_slot[e]] (one bincount per step).
         dof = (3 * tets[:, :, None] + np.arange(3)).reshape(m, 12)
-        self._rows = np.repeat(dof, 12, axis=1).ravel()
-        self._cols = np.tile(dof, (1, 12)).ravel()
+        n = 3 * len(rest)
+        keys = np.repeat(dof, 12, axis=1).ravel() * n + np.tile(dof, (1, 12)).ravel()
+        slots, self._k_slot = np.unique(keys, return_inverse=True)
+        self._k_indices = (slots % n).astype(np.int32)
+        self._k_indptr = np.searchsorted(slots // n, np.arange(n + 1)).astype(np.int32)
         self._dof = dof
 
     # ----------------------------------------------------------------- physics
     def rotations(self, q: np.ndarray | None = None) -> np.ndarray:
-        """Per-tet rotations R_e [m, 3, 3] of the current (or given) positions; I for linear FEM."""
-        if not self.corotational:
-            return np.broadcast_to(np.eye(3), (len(self.tets), 3, 3))
-        x = (self.q if q is None else q)[self.tets]
-        ds = (x[:, 1:] - x[:, :1]).transpose(0, 2, 1)
-        return polar_rotations(ds @ self._dm_inv)
-
-    def _block_rotations(self, r: np.ndarray) -> np.ndarray:
-        rb = np.zeros((len(r), 12, 12))
-        for a in range(4):
-            rb[:, 3 * a : 3 * a + 3, 3 * a : 3 * a + 3] = r
-        return rb
+        """Per-tet rotations R_e [tet_count, 3, 3] of the current (or given) positions [m]
+        (polar decomposition of the deformation gradient); I for linear FEM."""
+        return self._element_terms(q)[0]
 
     def elastic_forces(self, q: np.ndarray | None = None) -> np.ndarray:
         """Elastic node forces [node_count, 3] [N]: f_e = -R K_e (R^T x - X) per tet."""
-        q = self.q if q is None else q
-        rb = self._block_rotations(self.rotations(q))
-        x = q[self.tets].reshape(-1, 12)
-        x0 = self.rest[self.tets].reshape(-1, 12)
-        local = np.einsum("mji,mj->mi", rb, x) - x0  # R^T x - X
-        fe = -np.einsum("mij,mjk,mk->mi", rb, self._ke, local)
-        f = np.zeros(3 * len(self.q))
-        np.add.at(f, self._dof.ravel(), fe.ravel())
-        return f.reshape(-1, 3)
+        return self._assemble_forces(self._element_terms(q)[1])
 
     def stiffness_matrix(self, q: np.ndarray | None = None) -> sp.csr_matrix:
         """K = sum R K_e R^T, sparse [3 node_count, 3 node_count] [N/m] (R held constant)."""
-        rb = self._block_rotations(self.rotations(q))
-        kr = rb @ self._ke @ rb.transpose(0, 2, 1)
+        return self._assemble_stiffness(self._element_terms(q)[2])
+
+    def _element_terms(self, q):
+        return self._elements.compute(self.q if q is None else np.asarray(q, float), self.corotational)
+
+    def _assemble_forces(self, element_forces: np.ndarray) -> np.ndarray:
+        f = np.bincount(self._dof.ravel(), weights=element_forces.ravel(), minlength=3 * len(self.q))
+        return f.reshape(-1, 3)
+
+    def _assemble_stiffness(self, element_stiffness: np.ndarray) -> sp.csr_matrix:
         n = 3 * len(self.rest)
-        return sp.csr_matrix((kr.ravel(), (self._rows, self._cols)), shape=(n, n))
+        data = np.bincount(self._k_slot, weights=element_stiffness.ravel(), minlength=len(self._k_indices))
+        return sp.csr_matrix((data, self._k_indices, self._k_indptr), shape=(n, n))
 
     def kinetic_energy(self) -> float:
         """1/2 sum m v^2 [J]."""
@@ -234,9 +222,10 @@ class FemBody(SparseNodeSystem, ContactObject):
         """
         dt = self._check_dt(dt)
         mat = self.material
-        k = self.stiffness_matrix()
+        _, element_forces, element_stiffness = self._element_terms(None)
+        k = self._assemble_stiffness(element_stiffness)
         m_diag = np.repeat(self.mass, 3)
-        f = self.elastic_forces() + self.mass[:, None] * np.asarray(gravity, float)
+        f = self._assemble_forces(element_forces) + self.mass[:, None] * np.asarray(gravity, float)
         if external is not None:
             f = f + np.asarray(external, float).reshape(f.shape)
         a = sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k

@@ -1,0 +1,111 @@
+"""Compiled projected Gauss-Seidel sweeps over the contacts of one island (thesis eq. 5.6).
+
+The loop is sequential by nature (each contact sees the impulses just updated), so it runs as
+one Warp thread on the CPU: compiled, it costs microseconds per sweep where the same loop in
+Python cost milliseconds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from softvr.device import load_kernels, resolve_device
+
+__all__ = ["pgs_sweeps"]
+
+
+@wp.kernel
+def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
+                friction: wp.array(dtype=wp.float64), row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
+                rel: wp.array(dtype=wp.float64), max_sweeps: int, tolerance: wp.float64,
+                sweeps: wp.array(dtype=wp.int32)):
+    rows = delassus.shape[0]
+    count = rows / 3
+    zero = wp.float64(0.0)
+    done = int(0)
+    for sweep in range(max_sweeps):
+        if done == 0:
+            biggest = zero
+            largest = zero
+            for n in range(count):
+                r0 = 3 * n
+                # Normal row alone: a joint 3x3 solve can ask for a negative normal impulse on
+                # oblique approach, which the projection would then zero.
+                ln = wp.max(lam[r0] + row_inv[r0] * (target[r0] - rel[r0]), zero)
+                dn = ln - lam[r0]
+                if dn != zero:
+                    for i in range(rows):
+                        rel[i] = rel[i] + delassus[r0, i] * dn  # B is symmetric: row = column
+                    lam[r0] = ln
+                # Friction rows one at a time, each clamped to the pyramid of the new normal
+                # impulse: row-wise projection converges to the box-constrained solution, where a
+                # joint 2x2 solve clamped afterwards can stall with one row at its bound and the
+                # other off its optimum.
+                bound = friction[n] * ln
+                t1 = wp.clamp(lam[r0 + 1] + row_inv[r0 + 1] * (target[r0 + 1] - rel[r0 + 1]), -bound, bound)
+                d1 = t1 - lam[r0 + 1]
+                if d1 != zero:
+                    for i in range(rows):
+                        rel[i] = rel[i] + delassus[r0 + 1, i] * d1
+                    lam[r0 + 1] = t1
+                t2 = wp.clamp(lam[r0 + 2] + row_inv[r0 + 2] * (target[r0 + 2] - rel[r0 + 2]), -bound, bound)
+                d2 = t2 - lam[r0 + 2]
+                if d2 != zero:
+                    for i in range(rows):
+                        rel[i] = rel[i] + delassus[r0 + 2, i] * d2
+                    lam[r0 + 2] = t2
+                biggest = wp.max(biggest, wp.max(wp.abs(dn), wp.max(wp.abs(d1), wp.abs(d2))))
+                largest = wp.max(largest, wp.max(ln, wp.max(wp.abs(t1), wp.abs(t2))))
+            sweeps[0] = sweep + 1
+            if biggest <= tolerance * wp.max(largest, wp.float64(1.0e-30)):
+                done = 1
+
+
+def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, lam: np.ndarray, rel: np.ndarray,
+               max_sweeps: int, tolerance: float) -> int:
+    """Projected Gauss-Seidel on ``0 <= lambda _|_ B lambda - target >= 0`` with friction.
+
+    Per contact (3 rows: normal, tangent 1, tangent 2) the normal impulse is updated and
+    clamped at 0, then each tangent impulse in turn, clamped to the 4-sided pyramid
+    ``|lambda_t| <= mu lambda_n`` of the new normal impulse.
+
+    Parameters
+    ----------
+    delassus : ndarray, shape [3c, 3c]
+        Symmetric Delassus operator B [m/s per N s].
+    target : ndarray, shape [3c] [m/s]
+        Constraint velocities aimed at (normal: -gap/dt; tangents: 0).
+    friction : ndarray, shape [c]
+        Coulomb coefficients mu.
+    lam : ndarray, shape [3c] [N s]
+        Impulses: the warm start in, the solution out (updated in place).
+    rel : ndarray, shape [3c] [m/s]
+        Constraint velocities ``B lambda + J v_free`` of ``lam``, kept consistent (in place).
+    max_sweeps : int
+    tolerance : float
+        Stop after a sweep whose largest impulse change is below ``tolerance`` times the
+        largest impulse.
+
+    Returns
+    -------
+    int
+        Sweeps made.
+    """
+    device = resolve_device("cpu")
+    load_kernels(_pgs_kernel, device)
+    count = len(friction)
+    diagonal = np.diagonal(delassus)
+    row_inv = np.where(diagonal > 1e-300, 1.0 / np.maximum(diagonal, 1e-300), 0.0)  # an immovable row: no update
+    lam_w = wp.array(lam, dtype=wp.float64, device=device)
+    rel_w = wp.array(rel, dtype=wp.float64, device=device)
+    sweeps = wp.zeros(1, dtype=wp.int32, device=device)
+    wp.launch(_pgs_kernel, dim=1, device=device,
+              inputs=[wp.array(np.ascontiguousarray(delassus), dtype=wp.float64, device=device),
+                      wp.array(target, dtype=wp.float64, device=device),
+                      wp.array(friction, dtype=wp.float64, device=device),
+                      wp.array(row_inv, dtype=wp.float64, device=device),
+                      lam_w, rel_w, int(max_sweeps), float(tolerance), sweeps])
+    lam[:] = lam_w.numpy()
+    rel[:] = rel_w.numpy()
+    return int(sweeps.numpy()[0])

@@ -1,0 +1,101 @@
+"""Compiled per-tet work of co-rotational FEM: rotations, elastic forces, rotated stiffness.
+
+One Warp thread per tetrahedron (split over the CPU cores by :func:`softvr.device.launch`)
+computes what ``FemBody`` needs each step, from one polar decomposition:
+
+    R_e            rotation of F = Ds Dm^-1 = R S (``wp.svd3``: R = U V^T, det R = +1)
+    f_e = -R_e K_e (R_e^T x_e - X_e)                    [12]     element elastic forces
+    K_e^R = R_e K_e R_e^T                               [12, 12] element stiffness, rotated
+
+The scatter into the sparse ``A`` stays in NumPy (one ``bincount`` over a precomputed map),
+because CPU atomics from several launch threads would race.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from softvr.device import launch, load_kernels, resolve_device
+
+__all__ = ["CorotatedElements"]
+
+
+@wp.kernel
+def _corotated_kernel(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
+                      dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array3d(dtype=wp.float64), corotational: int,
+                      rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.float64),
+                      kr: wp.array3d(dtype=wp.float64), offset: int):
+    e = wp.tid() + offset
+    x0 = q[tets[e, 0]]
+    ds = wp.matrix_from_cols(q[tets[e, 1]] - x0, q[tets[e, 2]] - x0, q[tets[e, 3]] - x0)
+    r = wp.identity(n=3, dtype=wp.float64)
+    if corotational != 0:
+        u, sigma, v = wp.svd3(ds * dm_inv[e])
+        r = u * wp.transpose(v)
+    rotations[e] = r
+    rt = wp.transpose(r)
+    # R^T x - X per node, in the element's rotated frame.
+    local0 = rt * q[tets[e, 0]] - rest[tets[e, 0]]
+    local1 = rt * q[tets[e, 1]] - rest[tets[e, 1]]
+    local2 = rt * q[tets[e, 2]] - rest[tets[e, 2]]
+    local3 = rt * q[tets[e, 3]] - rest[tets[e, 3]]
+    for a in range(4):
+        fa = wp.vec3d()
+        for b in range(4):
+            kab = wp.mat33d()
+            for i in range(3):
+                for j in range(3):
+                    kab[i, j] = ke[e, 3 * a + i, 3 * b + j]
+            lb = local0
+            if b == 1:
+                lb = local1
+            elif b == 2:
+                lb = local2
+            elif b == 3:
+                lb = local3
+            fa = fa + kab * lb
+            rk = r * kab * rt
+            for i in range(3):
+                for j in range(3):
+                    kr[e, 3 * a + i, 3 * b + j] = rk[i, j]
+        fa = -(r * fa)
+        for i in range(3):
+            forces[e, 3 * a + i] = fa[i]
+
+
+class CorotatedElements:
+    """Per-step element quantities of a co-rotational tet mesh, computed in one launch.
+
+    Parameters
+    ----------
+    rest : ndarray, shape [node_count, 3] [m]
+    tets : ndarray, shape [tet_count, 4]
+    dm_inv : ndarray, shape [tet_count, 3, 3] [1/m]
+        Inverse rest edge matrices.
+    ke : ndarray, shape [tet_count, 12, 12] [N/m]
+        Linear element stiffness matrices (rest frame).
+    """
+
+    def __init__(self, rest: np.ndarray, tets: np.ndarray, dm_inv: np.ndarray, ke: np.ndarray):
+        self._device = resolve_device("cpu")
+        load_kernels(_corotated_kernel, self._device)
+        d = self._device
+        m = len(tets)
+        self._rest = wp.array(np.ascontiguousarray(rest, np.float64), dtype=wp.vec3d, device=d)
+        self._tets = wp.array(np.ascontiguousarray(tets, np.int32), dtype=wp.int32, device=d)
+        self._dm_inv = wp.array(np.ascontiguousarray(dm_inv, np.float64), dtype=wp.mat33d, device=d)
+        self._ke = wp.array(np.ascontiguousarray(ke, np.float64), dtype=wp.float64, device=d)
+        self._rotations = wp.empty(m, dtype=wp.mat33d, device=d)
+        self._forces = wp.empty((m, 12), dtype=wp.float64, device=d)
+        self._kr = wp.empty((m, 12, 12), dtype=wp.float64, device=d)
+
+    def compute(self, q: np.ndarray, corotational: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rotations R_e [tet_count, 3, 3], element forces f_e [tet_count, 12] [N] and rotated
+        stiffness K_e^R [tet_count, 12, 12] [N/m] at node positions ``q`` [node_count, 3] [m]
+        (R_e = I when ``corotational`` is False). The arrays are views valid until the next call."""
+        q_w = wp.array(np.ascontiguousarray(q, np.float64), dtype=wp.vec3d, device=self._device)
+        launch(_corotated_kernel, self._tets.shape[0],
+               [q_w, self._rest, self._tets, self._dm_inv, self._ke, int(corotational), self._rotations, self._forces,
+                self._kr], self._device, min_chunk=256)
+        return self._rotations.numpy(), self._forces.numpy(), self._kr.numpy()
