@@ -17,6 +17,7 @@ from softvr.collision import (
     TriangleMesh,
     box_vs_box,
     box_vs_plane,
+    edges_vs_edges,
     points_vs_mesh,
     points_vs_plane,
     points_vs_sphere,
@@ -70,6 +71,8 @@ class Scene:
         Static triangle meshes (thin sheets, walls).
     ccd : bool
         Continuous collision detection of points against meshes (sweeps over the step).
+    edge_contacts : bool
+        Edge-edge contacts between collision surfaces (besides vertex-triangle).
     friction : float
         Coulomb coefficient between two bodies.
     last_solution : ContactSolution or None
@@ -82,6 +85,7 @@ class Scene:
     spheres: list = field(default_factory=list)
     meshes: list = field(default_factory=list)
     ccd: bool = True
+    edge_contacts: bool = True
     friction: float = 0.5
     pgs_iterations: int = 500
     contact_margin: float = 0.005
@@ -170,6 +174,9 @@ class Scene:
                 for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
                     out.append(surface_vs_surface(x, y, margin=m, friction=self.friction, dt=dt, ccd=self.ccd,
                                                   velocities_a=vx, velocities_b=vy))
+                if self.edge_contacts:
+                    out.append(edges_vs_edges(sa, sb, margin=m, friction=self.friction, dt=dt, velocities_a=va,
+                                              velocities_b=vb))
         for n, (i, r) in enumerate(self._sphere_bodies):
             out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, velocity=v_free[i], dt=dt) for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:

@@ -4,12 +4,13 @@ So far: points (of any contact object, through point entities) against static ha
 and spheres, rigid spheres against planes and each other, and rigid boxes against planes
 and each other (corner-face). Points against static
 triangle meshes use Warp's BVH, discretely and by CCD (first time of impact). Deforming
-surfaces of two bodies meet vertex-triangle (BVH refit each step, discrete and swept);
-edge-edge contacts come next.
+surfaces of two bodies meet vertex-triangle (BVH refit each step, discrete and swept) and
+edge-edge (BVH over edges, speculative).
 """
 
 from softvr.collision.box import box_corners, box_vs_box, box_vs_plane
 from softvr.collision.contacts import Contacts, ContactSide
+from softvr.collision.edges import edges_vs_edges
 from softvr.collision.mesh import TriangleMesh, points_vs_mesh
 from softvr.collision.plane import Plane, points_vs_plane
 from softvr.collision.sphere import Sphere, points_vs_sphere, sphere_vs_plane, sphere_vs_sphere
@@ -22,6 +23,7 @@ __all__ = [
     "box_vs_box",
     "box_vs_plane",
     "Contacts",
+    "edges_vs_edges",
     "Plane",
     "Sphere",
     "TriangleMesh",

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks", "rigid_side"]
+__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks", "rigid_side", "stencil_side"]
 
 
 @dataclass
@@ -96,3 +96,26 @@ def rigid_side(body_index: int, offsets) -> ContactSide:
     """Contact side of points fixed in a rigid body at world offsets [c, 3] from its centre."""
     jac = _rigid_jacobian(offsets)
     return ContactSide(body_index, np.zeros((len(jac), 1), int), jac)
+
+
+def stencil_side(body_index: int, points, vertices: np.ndarray, weights: np.ndarray) -> ContactSide:
+    """Contact side of points ``sum_v weights[c, v] p[vertices[c, v]]`` on a surface of point
+    entities (a triangle's barycentric point, an edge's interpolated point).
+
+    Parameters
+    ----------
+    body_index : int
+    points : RigidPoints or EmbeddedPoints
+        The surface vertices.
+    vertices : ndarray of int, shape [contact_count, k]
+    weights : ndarray, shape [contact_count, k]
+        Summing to 1 per contact.
+    """
+    if hasattr(points, "weights"):  # embedded: combine the vertices' node stencils
+        nodes = points.nodes[vertices]  # [c, k, s]
+        w = points.weights[vertices] * weights[:, :, None]
+        c, k = len(vertices), nodes.shape[1] * nodes.shape[2]
+        return ContactSide(body_index, nodes.reshape(c, k), w.reshape(c, k)[:, :, None, None] * np.eye(3))
+    # rigid: the velocity of the body-fixed point at the contact position
+    at = np.einsum("cv,cvx->cx", weights, points.positions()[vertices])
+    return rigid_side(body_index, at - points.body.position)

@@ -6,7 +6,7 @@ vertices of one surface are then queried against the other's triangles: within t
 margin (closest point) or, sweeping the vertex over its motion relative to the other body
 during the step, at the first crossing (CCD). The contact point on the triangle moves with the
 three triangle vertices' stencils (barycentric), so the two sides' impulses are equal and
-opposite. Edge-edge contacts are not generated yet.
+opposite. Edge-edge contacts are in :mod:`softvr.collision.edges`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, rigid_side
+from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, stencil_side
+from softvr.collision.edges import EdgeSet
 from softvr.collision.mesh import query_points
 from softvr.device import resolve_device
 from softvr.errors import InputError
@@ -49,27 +50,14 @@ class CollisionSurface:
         self._vertices = wp.array(points.positions(), dtype=wp.vec3, device=self.device)
         self._mesh = wp.Mesh(points=self._vertices, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                       device=self.device))
+        self.edge_set = EdgeSet(self.triangles, points.positions(), self.device)
 
     def refit(self) -> None:
-        """Move the BVH to the current vertex positions."""
-        self._vertices.assign(wp.array(self.points.positions(), dtype=wp.vec3, device=self.device))
+        """Move the triangle and edge BVHs to the current vertex positions."""
+        p = self.points.positions()
+        self._vertices.assign(wp.array(p, dtype=wp.vec3, device=self.device))
         self._mesh.refit()
-
-
-def _triangle_side(surface: CollisionSurface, faces: np.ndarray, bary: np.ndarray) -> ContactSide:
-    """Contact side for surface points sum_v bary_v p_v of the given triangles."""
-    pts = surface.points
-    if hasattr(pts, "weights"):  # embedded: combine the three vertex stencils
-        tri = surface.triangles[faces]  # [c, 3]
-        nodes = pts.nodes[tri]  # [c, 3, k]
-        weights = pts.weights[tri] * bary[:, :, None]  # [c, 3, k]
-        c, k = len(faces), 3 * pts.nodes.shape[1]
-        blocks = nodes.reshape(c, k)
-        jac = weights.reshape(c, k)[:, :, None, None] * np.eye(3)
-        return ContactSide(surface.body_index, blocks, jac)
-    # rigid: the velocity of the body-fixed point at the contact position
-    corners = pts.positions()[surface.triangles[faces]]  # [c, 3, 3]
-    return rigid_side(surface.body_index, np.einsum("cv,cvx->cx", bary, corners) - pts.body.position)
+        self.edge_set.refit(p)
 
 
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,
@@ -92,7 +80,7 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
     side_a = ContactSide(a.body_index, *point_jacobian_blocks(a.points, which))
     ids = (np.int64(min(a.body_index, b.body_index)) << 40) | (np.int64(max(a.body_index, b.body_index)) << 20)
     ids = ids | (np.int64(a.body_index < b.body_index) << 19) | which.astype(np.int64)
-    return Contacts(side_a, _triangle_side(b, faces, bary), normal, gap, p[which], at, ids,
+    return Contacts(side_a, stencil_side(b.body_index, b.points, b.triangles[faces], bary), normal, gap, p[which], at, ids,
                     np.full(len(which), float(friction)))
 
 
