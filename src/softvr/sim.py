@@ -189,7 +189,18 @@ class Scene:
                 if self._pair_enabled(i, j):
                     out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
                                           margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt))
-        return out
+        return [self._movable(c) for c in out]
+
+    def _movable(self, contacts):
+        """Drop contacts that no impulse can act on: both sides fixed nodes / infinite mass."""
+        if not len(contacts):
+            return contacts
+        stuck = np.ones(len(contacts), bool)
+        for side in (contacts.a, contacts.b):
+            if side is not None:
+                unused = ~np.abs(side.jac).any(axis=(2, 3))  # stencil entries of weight 0
+                stuck &= (self.bodies[side.body].immovable(side.blocks) | unused).all(axis=1)
+        return contacts.select(~stuck) if stuck.any() else contacts
 
     def step(self, dt: float) -> ContactSolution:
         """Advance every body by ``dt`` [s] with contact; returns the contact solution."""

@@ -13,7 +13,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from softvr.examples import example_box_stack, example_cloth_sphere, example_oranges, example_soft_cube, run
+from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_oranges, example_soft_cube,
+                             run)
 from softvr.examples.run import SCENES, single_threaded_blas
 
 SMALL = dict(width=64, height=48)
@@ -112,13 +113,38 @@ def test_oranges_bounce_and_roll_in_their_lanes():
     check_common(ex, e0, images)
     end = np.array([o.q.mean(axis=0) for o in ex.oranges])
     assert (end[:, 0] > start[:, 0] + 0.1).all()  # moving forward
-    np.testing.assert_allclose(end[:, 1], start[:, 1], atol=0.02)  # in their lanes
+    np.testing.assert_allclose(end[:-1, 1], start[:-1, 1], atol=0.02)  # in their lanes
+    assert end[-1, 1] < start[-1, 1] - 0.03  # the last one crosses towards its neighbour's lane
+    # Soft-soft contact keeps them apart: centres at least two squashed radii away.
+    for i in range(len(end)):
+        for j in range(i):
+            assert np.linalg.norm(end[i] - end[j]) > 2 * 0.85 * ex.radius
     assert ex.metrics[-1]["contacts"] > 0  # at least one has landed
     # Their surfaces stay round: every surface vertex within 15 % of the radius from the centre.
     for s in ex.surfaces:
         p = s.positions()
         r = np.linalg.norm(p - p.mean(axis=0), axis=1)
         np.testing.assert_allclose(r, ex.radius, rtol=0.15)
+
+
+def test_candy_scale_and_candies_landing_on_the_jello():
+    """The full scene has the thesis' size (10 K tets, 25-28 K collision triangles); the small
+    one runs: candies land on the block and rest on it without sinking in (every contact's
+    gap >= -1 mm after the solve), energy never grows."""
+    full = example_candy.Example(frames=1, **SMALL)
+    assert 9_000 <= full.tet_count <= 12_000 and 24_000 <= full.triangle_count <= 30_000
+    # The block's collision surface is closed and outward (each edge in two triangles).
+    edges = np.sort(np.concatenate([full.block_triangles[:, [0, 1]], full.block_triangles[:, [1, 2]],
+                                    full.block_triangles[:, [2, 0]]]), axis=1)
+    assert (np.unique(edges, axis=0, return_counts=True)[1] == 2).all()
+    ex = example_candy.Example(frames=10, scale=example_candy.SMALL_SCALE, **SMALL)
+    top = ex.block.q[:, 2].max()
+    e0, images = run_frames(ex, 10, render_every=9)
+    check_common(ex, e0, images)
+    centres = np.array([c.q.mean(axis=0) if hasattr(c, "tets") else c.position for c in ex.candies])
+    assert (centres[:, 2] < top + 0.06).sum() >= 2  # at least two have come down onto the block
+    assert (centres[:, 2] > top - 0.01).all()  # none sank into it
+    assert ex.metrics[-1]["active_contacts"] > 0
 
 
 def test_run_writes_video_sheet_and_metrics(tmp_path):
@@ -136,13 +162,13 @@ def test_run_writes_video_sheet_and_metrics(tmp_path):
 def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
     assert (tmp_path / "soft_cube.mp4").stat().st_size > 0
-    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges"}
-    for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges):
+    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy"}
+    for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges, example_candy):
         assert module.DEFAULT_FRAMES >= 30 and callable(module.main)
 
 
 @pytest.mark.parametrize("scene, message", [
-    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges"),
+    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy"),
     ("scenes/my_scene.json", "scene files are not supported yet (they come with the scene-format issue)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):

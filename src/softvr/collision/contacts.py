@@ -69,6 +69,12 @@ class Contacts:
     def __len__(self) -> int:
         return len(self.gap)
 
+    def select(self, keep: np.ndarray) -> Contacts:
+        """The contacts where ``keep`` [contact_count] (bool or indices) selects."""
+        sides = [None if s is None else ContactSide(s.body, s.blocks[keep], s.jac[keep]) for s in (self.a, self.b)]
+        return Contacts(*sides, self.normal[keep], self.gap[keep], self.point_a[keep], self.point_b[keep],
+                        self.ids[keep], self.friction[keep], self.area[keep])
+
 
 def point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Velocity blocks [c, k] and 3 x block_size Jacobian blocks [c, k, 3, bs] of the selected

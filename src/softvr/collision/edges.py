@@ -5,11 +5,14 @@ vertex meets a face: two boxes edge on edge, a cloth fold over a ridge. Here eve
 surface a is tested against the edges of surface b that its box (grown by the contact margin
 and the step's relative motion) overlaps in a Warp BVH over b's edges, refitted every step.
 
-For a pair whose closest points lie inside both edges (the end regions belong to the
+Only pairs with a crease on at least one side are tested (two nearly flat edges cannot cross
+while the vertices around them stay outside the other surface). For a pair whose closest
+points lie inside both edges (the end regions belong to the
 vertex-triangle contacts) the contact normal is ``e_a x e_b``, turned to point out of b (the
 side of the mean normal of b's faces at its edge), and the gap is the distance of the closest
-points along it, negative once the edges have crossed. Nearly parallel edges are left to
-vertex-triangle contacts (their cross product has no reliable direction).
+points along it, negative once the edges have crossed. Nearly parallel edges, and pairs whose
+normal is not close to both surfaces' normals at the edges, are left to vertex-triangle
+contacts (there the cross product has no reliable direction, or points along a surface).
 
 Continuous detection is speculative: a pair whose grown boxes meet gets a contact with the
 gap at the start of the step, and the velocity constraint ``n . (p_dot_a - p_dot_b) >= -gap/dt``
@@ -28,8 +31,16 @@ __all__ = ["EdgeSet", "edges_vs_edges", "surface_edges"]
 
 #: Pairs whose edges make less than this angle [rad] are left to vertex-triangle contacts.
 MIN_EDGE_ANGLE = np.radians(10.0)
+#: The normal e_a x e_b must point within acos(this) of b's mean edge normal, and against a's:
+#: on a flat patch of b, or beside a steep edge of a, e_a x e_b lies along the surface and
+#: would push sideways (and two such contacts can contradict each other).
+MIN_NORMAL_ALIGNMENT = 0.5
+#: Edges whose two triangles meet at more than this angle [rad] are creases (and open borders):
+#: a pair of edges needs a crease on one side to cross without a vertex meeting a face; pairs
+#: of smooth (nearly flat) edges only repeat the vertex-triangle contacts around them.
+SHARP_EDGE_ANGLE = np.radians(30.0)
 #: Candidate pairs kept per edge of a (the closest are not sorted: first found).
-PAIRS_PER_EDGE = 4
+PAIRS_PER_EDGE = 2
 
 
 def surface_edges(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -80,19 +91,25 @@ class EdgeSet:
         self._upper.assign(wp.array(upper, dtype=wp.vec3, device=self.device))
         self._bvh.refit()
 
-    def edge_normals(self, vertices: np.ndarray) -> np.ndarray:
-        """Unit mean normal [edge_count, 3] of the (one or two) triangles at each edge."""
+    def edge_normals(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit mean normal [edge_count, 3] of the (one or two) triangles at each edge, and
+        which edges are creases (bool [edge_count]: faces at more than SHARP_EDGE_ANGLE, or a border)."""
         v = np.asarray(vertices, float)[self.triangles]
         face_n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
         face_n /= np.maximum(np.linalg.norm(face_n, axis=1, keepdims=True), 1e-300)
-        n = face_n[self.adjacent[:, 0]] + np.where(self.adjacent[:, 1:] >= 0, face_n[self.adjacent[:, 1]], 0.0)
-        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        border = self.adjacent[:, 1] < 0
+        first, second = face_n[self.adjacent[:, 0]], face_n[self.adjacent[:, 1]]
+        sharp = border | (np.einsum("ex,ex->e", first, second) < np.cos(SHARP_EDGE_ANGLE))
+        n = first + np.where(border[:, None], 0.0, second)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300), sharp
 
 
 @wp.kernel
 def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.array2d(dtype=wp.int32),
-                reach_a: wp.array(dtype=float), verts_b: wp.array(dtype=wp.vec3), edges_b: wp.array2d(dtype=wp.int32),
-                normals_b: wp.array(dtype=wp.vec3), min_sine: float, pair_edge: wp.array2d(dtype=wp.int32),
+                reach_a: wp.array(dtype=float), normals_a: wp.array(dtype=wp.vec3), sharp_a: wp.array(dtype=wp.int32),
+                verts_b: wp.array(dtype=wp.vec3), edges_b: wp.array2d(dtype=wp.int32),
+                normals_b: wp.array(dtype=wp.vec3), sharp_b: wp.array(dtype=wp.int32), min_sine: float,
+                min_alignment: float, pair_edge: wp.array2d(dtype=wp.int32),
                 pair_st: wp.array2d(dtype=wp.vec2), pair_normal: wp.array2d(dtype=wp.vec3),
                 pair_gap: wp.array2d(dtype=float)):
     i = wp.tid()
@@ -104,7 +121,7 @@ def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.ar
     j = int(0)
     found = int(0)
     while wp.bvh_query_next(query, j):
-        if found < pair_edge.shape[1]:
+        if found < pair_edge.shape[1] and (sharp_a[i] != 0 or sharp_b[j] != 0):
             p2 = verts_b[edges_b[j, 0]]
             q2 = verts_b[edges_b[j, 1]]
             st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-9)
@@ -115,10 +132,13 @@ def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.ar
             n = wp.cross(ea, eb)
             size = wp.length(n)
             interior = s > 1.0e-3 and s < 1.0 - 1.0e-3 and t > 1.0e-3 and t < 1.0 - 1.0e-3
+            aligned = False
             if interior and st[2] <= reach and size > min_sine * wp.length(ea) * wp.length(eb):
                 n = n / size
                 if wp.dot(n, normals_b[j]) < 0.0:
                     n = -n
+                aligned = wp.dot(n, normals_b[j]) >= min_alignment and -wp.dot(n, normals_a[i]) >= min_alignment
+            if aligned:
                 pair_edge[i, found] = j
                 pair_st[i, found] = wp.vec2(s, t)
                 pair_normal[i, found] = n
@@ -152,6 +172,8 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
         reach += dt * np.linalg.norm(rel, axis=1)[ea.edges].max(axis=1)
     device = b.device
     load_kernels(_edge_pairs, device)
+    normals_a, sharp_a = ea.edge_normals(pa)
+    normals_b, sharp_b = eb.edge_normals(pb)
     shape = (len(ea.edges), PAIRS_PER_EDGE)
     pair_edge = wp.full(shape, -1, dtype=wp.int32, device=device)
     pair_st = wp.zeros(shape, dtype=wp.vec2, device=device)
@@ -160,10 +182,14 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
     wp.launch(_edge_pairs, dim=len(ea.edges), device=device,
               inputs=[eb._bvh.id, wp.array(pa, dtype=wp.vec3, device=device),
                       wp.array(ea.edges.astype(np.int32), dtype=wp.int32, device=device),
-                      wp.array(reach, dtype=float, device=device), wp.array(pb, dtype=wp.vec3, device=device),
+                      wp.array(reach, dtype=float, device=device),
+                      wp.array(normals_a, dtype=wp.vec3, device=device),
+                      wp.array(sharp_a.astype(np.int32), dtype=wp.int32, device=device),
+                      wp.array(pb, dtype=wp.vec3, device=device),
                       wp.array(eb.edges.astype(np.int32), dtype=wp.int32, device=device),
-                      wp.array(eb.edge_normals(pb), dtype=wp.vec3, device=device), float(np.sin(MIN_EDGE_ANGLE)),
-                      pair_edge, pair_st, pair_normal, pair_gap])
+                      wp.array(normals_b, dtype=wp.vec3, device=device),
+                      wp.array(sharp_b.astype(np.int32), dtype=wp.int32, device=device), float(np.sin(MIN_EDGE_ANGLE)),
+                      float(MIN_NORMAL_ALIGNMENT), pair_edge, pair_st, pair_normal, pair_gap])
     edge_b = pair_edge.numpy()
     edge_a, slot = np.nonzero(edge_b >= 0)
     edge_b = edge_b[edge_a, slot]

@@ -27,7 +27,6 @@ def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=w
     for sweep in range(max_sweeps):
         if done == 0:
             biggest = zero
-            largest = zero
             for n in range(count):
                 r0 = 3 * n
                 # Normal row alone: a joint 3x3 solve can ask for a negative normal impulse on
@@ -55,10 +54,13 @@ def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=w
                     for i in range(rows):
                         rel[i] = rel[i] + delassus[r0 + 2, i] * d2
                     lam[r0 + 2] = t2
-                biggest = wp.max(biggest, wp.max(wp.abs(dn), wp.max(wp.abs(d1), wp.abs(d2))))
-                largest = wp.max(largest, wp.max(ln, wp.max(wp.abs(t1), wp.abs(t2))))
+                # The velocity correction each update made on its own row [m/s]: unlike the
+                # impulse change it vanishes at a solution even where redundant contacts leave
+                # the impulses free to drift without changing any velocity.
+                change = wp.max(wp.abs(dn) * delassus[r0, r0], wp.abs(d1) * delassus[r0 + 1, r0 + 1])
+                biggest = wp.max(biggest, wp.max(change, wp.abs(d2) * delassus[r0 + 2, r0 + 2]))
             sweeps[0] = sweep + 1
-            if biggest <= tolerance * wp.max(largest, wp.float64(1.0e-30)):
+            if biggest <= tolerance:
                 done = 1
 
 
@@ -83,9 +85,9 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
     rel : ndarray, shape [3c] [m/s]
         Constraint velocities ``B lambda + J v_free`` of ``lam``, kept consistent (in place).
     max_sweeps : int
-    tolerance : float
-        Stop after a sweep whose largest impulse change is below ``tolerance`` times the
-        largest impulse.
+    tolerance : float [m/s]
+        Stop after a sweep whose largest velocity correction ``B_ii |delta lambda_i|`` is
+        below ``tolerance``.
 
     Returns
     -------

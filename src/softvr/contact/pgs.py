@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from softvr.collision.contacts import Contacts
 from softvr.contact._pgs_kernels import pgs_sweeps
@@ -58,7 +59,7 @@ class ContactSolution:
     islands: list
 
 
-def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-7,
+def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,
                    warm_start: dict | None = None) -> ContactSolution:
     """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
 
@@ -75,9 +76,10 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         removed within the step, and a positive gap may close but not be crossed.
     iterations : int
         Most PGS sweeps per island.
-    tolerance : float
-        A sweep whose largest impulse change is below ``tolerance`` times the largest impulse
-        ends the loop.
+    tolerance : float [m/s]
+        A sweep whose largest velocity correction (``B_ii |delta lambda_i|`` over the rows) is
+        below ``tolerance`` ends the loop: 1e-5 m/s leaves ~1e-5 dt of penetration per step
+        (80 nm at 8 ms).
     warm_start : dict, optional
         ``{contact id: world impulse vector (3,)}`` of the previous step, filled in with this
         step's. Kept in world coordinates because the friction frame follows the tangential
@@ -139,8 +141,9 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
             if side is not None:
                 touched[side.body].append(side.blocks.ravel())
     touched = {j: np.unique(np.concatenate(b)) for j, b in touched.items() if b}
-    # G_j: the island's contact rows (frame-projected point velocities) on body j's touched blocks.
-    g = {j: np.zeros((rows, len(b) * bodies[j].block_size)) for j, b in touched.items()}
+    # G_j: the island's contact rows (frame-projected point velocities) on body j's touched
+    # blocks, sparse (a row touches one stencil): gathered as COO triplets per body.
+    triplets = {j: ([], [], []) for j in touched}
     target = np.zeros(rows)
     mu = np.zeros(int(offsets[-1]))
     lam = np.zeros(rows)
@@ -159,7 +162,8 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
             cols = bs * local[:, :, None] + np.arange(bs)  # [c, k, bs]
             rr = np.broadcast_to(contact_rows[:, None, :, None], w.shape)
             cc = np.broadcast_to(cols[:, :, None, :], w.shape)
-            np.add.at(g[side.body], (rr.ravel(), cc.ravel()), w.ravel())
+            for store, values in zip(triplets[side.body], (rr, cc, w)):
+                store.append(values.ravel())
         target[contact_rows[:, 0]] = -c.gap / dt
         mu[offsets[s] : offsets[s + 1]] = c.friction
         if warm:
@@ -167,11 +171,16 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
                 if cid in warm:
                     lam[contact_rows[n]] = _project(f[n] @ np.asarray(warm[cid], float), c.friction[n])
 
+    g = {j: sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                          shape=(rows, len(touched[j]) * bodies[j].block_size)) for j, (r, c, v) in triplets.items()}
     # Delassus operator B = sum_j G_j (A_j^-1)_touched G_j^T and the constraint velocities.
     delassus = np.zeros((rows, rows))
     rel = np.zeros(rows)
     for j, blocks in touched.items():
-        delassus += g[j] @ bodies[j].compliance(blocks) @ g[j].T
+        used = np.flatnonzero(np.diff(g[j].indptr))  # rows of the contacts on body j
+        gj = g[j][used]
+        gw = gj @ bodies[j].compliance(blocks)  # [used rows, touched velocities], dense
+        delassus[np.ix_(used, used)] += (gj @ gw.T).T
         rel += g[j] @ v_free[j][blocks].ravel()
     rel += delassus @ lam
     sweeps = pgs_sweeps(delassus, target, mu, lam, rel, iterations, tol)

@@ -61,6 +61,10 @@ class SparseNodeSystem:
             out[self._free] = sol
         return out.reshape(-1, 3)
 
+    def immovable(self, blocks: np.ndarray) -> np.ndarray:
+        """Fixed nodes among ``blocks`` (bool, the shape of ``blocks``)."""
+        return self.fixed[np.asarray(blocks, int)]
+
     def integrate(self, v: np.ndarray, dt: float) -> None:
         """``q += dt v`` (G = I for node positions), after checking the step stayed finite and
         bounded (a node covering a thousand body sizes per second has blown up); counts the step."""

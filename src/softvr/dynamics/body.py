@@ -100,6 +100,11 @@ class ContactObject(ABC):
         unit[dofs, np.arange(len(dofs))] = 1.0
         return self.solve_columns(unit)[dofs]
 
+    def immovable(self, blocks: np.ndarray) -> np.ndarray:
+        """Which velocity ``blocks`` (any shape) no impulse can move: bool, the shape of ``blocks``
+        (fixed nodes, bodies of infinite mass). Contacts between immovable blocks only are dropped."""
+        return np.zeros(np.shape(blocks), bool)
+
     @abstractmethod
     def integrate(self, v: np.ndarray, dt: float) -> None:
         """Set the velocity to ``v`` and advance the state: ``q += dt G v``; count the step.

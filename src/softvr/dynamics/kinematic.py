@@ -52,6 +52,10 @@ class _InfiniteMass(RigidFrame):
             raise InputError("columns", "shape [6, k]", f"shape {cols.shape}")
         return np.zeros_like(cols)
 
+    def immovable(self, blocks) -> np.ndarray:
+        """All of them: no impulse moves an infinite mass (bool, the shape of ``blocks``)."""
+        return np.ones(np.shape(blocks), bool)
+
     def kinetic_energy(self) -> float:
         """0 [J]: the motion is prescribed, not dynamic (the mass is infinite)."""
         return 0.0

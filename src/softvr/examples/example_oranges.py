@@ -4,9 +4,9 @@ Four oranges, each a smooth sphere surface embedded (barycentric, thesis 5.1.2) 
 co-rotational FEM mesh of ~280 tets built by :func:`softvr.volume.grid_tet_mesh` around a
 sphere mask (the mesh that will later carry the orange's volume through tetrahedral
 rasterization, thesis ch. 3), are thrown onto the ground with different speeds, heights and
-spins; they bounce, squash and roll in parallel lanes. The embedded surface vertices are both
-the collision points and the rendered mesh. Oranges do not collide with each other yet (the
-scene has no deformable-deformable contact), so their lanes do not cross. Run
+spins; they bounce, squash and roll in parallel lanes, the last one thrown across its
+neighbour's lane so that the two collide (soft-soft vertex-triangle and edge-edge contacts).
+The embedded surface vertices are both the collision points and the rendered mesh. Run
 ``softvr run oranges`` (or ``python -m softvr.examples.example_oranges``).
 """
 
@@ -135,13 +135,15 @@ class Example(PhysicsExample):
         for i in range(int(count)):
             x0, z0, vx, vz = _LAUNCHES[i]
             centre = np.array([x0, lanes[i], z0])
+            # The last orange of several crosses into its neighbour's lane, meeting it mid-way.
+            vy = -(lanes[i] - lanes[i - 1]) / 1.2 if i == count - 1 and count > 1 else 0.0
             body = FemBody(nodes + centre, tets, material, name=f"orange {i}")
             # Rolling spin about the lane's normal: omega_y = v_x / r.
             omega = np.array([0.0, vx / radius, 0.0])
-            body.v[:] = np.array([vx, 0.0, vz]) + np.cross(omega, body.q - centre)
+            body.v[:] = np.array([vx, vy, vz]) + np.cross(omega, body.q - centre)
             tet_index, weights = embed_in_tets(body.q, body.tets, verts + centre)
             surface = EmbeddedPoints(body, body.tets[tet_index], weights)
-            scene.add_body(body, collision_points=surface)
+            scene.add_body(body, collision_points=surface, collision_triangles=self.triangles)
             self.oranges.append(body)
             self.surfaces.append(surface)
         self.radius, self.material, self.orange_density = radius, material, density

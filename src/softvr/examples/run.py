@@ -7,6 +7,7 @@ soft-cube      a soft co-rotational FEM cube dropped on the ground (friction 0.5
 box-stack      five rigid boxes stacked on the ground (box-box contacts, dt 10 ms)
 cloth-sphere   a mass-spring cloth draped over a static sphere and the ground
 oranges        soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
+candy          soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale: 10 K tets, 25 K tris)
 =============  ==============================================================================
 
 Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
@@ -48,6 +49,7 @@ SCENES = {
     "box-stack": "box_stack",
     "cloth-sphere": "cloth_sphere",
     "oranges": "oranges",
+    "candy": "candy",
 }
 
 
