@@ -67,6 +67,12 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
     assert sv["active_contacts_end"] > 0 and sv["pgs_iterations_end"] > 0
     assert result["targets"]["penetration_met"] is True
     assert "targets:" in out and "softvr" in out
+    # The candy scene ran at its quick scale: candies reached the block (contacts between
+    # bodies) and the solver kept the normal constraints to its tolerance.
+    candy = result["candy"]
+    assert candy["quick"] is True and candy["steps"] == 20 and len(candy["trace"]["step_s"]) == 20
+    assert candy["contacts_max"] > 0 and candy["residual_max_m_s"] < 1e-3
+    assert "Candy scene" in out and "candy scale real time:" in out
 
 
 def test_missing_and_failing_peers_get_a_row(monkeypatch, tmp_path, capsys):
@@ -74,7 +80,8 @@ def test_missing_and_failing_peers_get_a_row(monkeypatch, tmp_path, capsys):
     monkeypatch.setattr(P, "installed", lambda name: name != "mujoco")
     monkeypatch.setattr(P, "run_peer_process", lambda name, scene, repeat, timeout_s: {"failed": "failed: exit status -11"})
     js = tmp_path / "c.json"
-    assert C.main(["--quick", "--engines", "softvr,mujoco,pybullet", "--json", str(js), "--no-progress"]) == 0
+    assert C.main(["--quick", "--engines", "softvr,mujoco,pybullet", "--json", str(js), "--no-progress",
+                   "--no-candy"]) == 0
     out = capsys.readouterr().out
     assert "skipped: not installed (pip install softvr[peers])" in out
     assert "failed: exit status -11" in out
@@ -82,6 +89,7 @@ def test_missing_and_failing_peers_get_a_row(monkeypatch, tmp_path, capsys):
     assert rows["mujoco"]["status"] == "skipped" and rows["pybullet"]["status"] == "failed"
     assert rows["softvr"]["vs_fastest_peer"] is None  # no peer ran: no ratio, and the targets say so
     assert "no peer ran" in out
+    assert "candy scale real time: not measured (--no-candy)" in out
 
 
 def test_unknown_engine_is_an_argument_error():

@@ -181,6 +181,50 @@ def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
             "steps_per_s_runs": rates, "version": softvr.__version__, "trace": trace}
 
 
+#: The candy scene's simulated time in the full / quick bench [s].
+CANDY_DURATION_S = 0.8
+CANDY_QUICK_DURATION_S = 0.16
+#: Thesis 4.4: 0.4 s per 8 ms step with adhesion, 13 min for 25 s (0.25 s per step) without.
+THESIS_CANDY_S_PER_STEP = 0.25
+
+
+def run_candy(*, quick: bool = False, progress: bool = True) -> dict:
+    """softvr on the thesis' candy scene (:mod:`softvr.examples.example_candy`, no adhesion):
+    candies fall on a Jell-O block, 8 ms steps. Full: ~10 K tets, ~25 K collision triangles,
+    0.8 s simulated (the candies land and start to pile); quick: the small scale, 0.16 s.
+
+    Returns ms per step (mean over the steps with contacts between bodies, and overall),
+    contacts (mean / max), PGS sweeps (mean / max), the largest normal-velocity residual and
+    the sizes; peers do not run this scene.
+    """
+    from tqdm import tqdm
+
+    from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
+    from softvr.examples.run import single_threaded_blas
+
+    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE)
+    steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
+    trace = {k: [] for k in ("step_s", "contacts", "pgs_iterations", "residual")}
+    with single_threaded_blas():
+        for _ in tqdm(range(steps), desc="bench contact: candy", unit="step", disable=not progress, leave=False):
+            t = time.perf_counter()
+            sol = ex.scene.step(ex.dt)
+            trace["step_s"].append(time.perf_counter() - t)
+            trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
+            trace["pgs_iterations"].append(int(sol.iterations))
+            trace["residual"].append(float(sol.residual))
+    ms = 1e3 * np.asarray(trace["step_s"])
+    busy = np.asarray(trace["contacts"]) > 0
+    return {"tets": ex.tet_count, "collision_triangles": ex.triangle_count, "bodies": len(ex.scene.bodies),
+            "dt_s": ex.dt, "steps": steps, "ms_per_step": float(ms.mean()),
+            "ms_per_step_in_contact": float(ms[busy].mean()) if busy.any() else None,
+            "ms_per_step_max": float(ms.max()), "contacts_mean": float(np.mean(trace["contacts"])),
+            "contacts_max": int(max(trace["contacts"])), "pgs_iterations_mean": float(np.mean(trace["pgs_iterations"])),
+            "pgs_iterations_max": int(max(trace["pgs_iterations"])), "residual_max_m_s": float(max(trace["residual"])),
+            "real_time_factor": ex.dt * 1e3 / float(ms.mean()), "thesis_s_per_step": THESIS_CANDY_S_PER_STEP,
+            "quick": quick, "trace": trace}
+
+
 # ----------------------------------------------------------------------------- the run
 def _git_commit() -> str | None:
     """The checkout's commit (``+dirty`` with local changes), or None outside a git checkout."""
@@ -223,12 +267,13 @@ def _summarize(rec: dict, scene: CubeScene) -> dict:
 
 
 def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines=ENGINES, progress: bool = True,
-                      scene: CubeScene | None = None, peer_timeout_s: float = 600.0) -> dict:
+                      scene: CubeScene | None = None, peer_timeout_s: float = 600.0, candy: bool = True) -> dict:
     """Run softvr and every installed peer on the cube; returns the JSON-ready result.
 
     Keys: ``schema``, ``machine``, ``config`` (the scene and settings), ``engines`` (one record
     per engine, in ``engines`` order: ``status`` "ok" / "skipped" / "failed", ``reason``, the
-    measures of the module docstring and the per-step ``trace``), ``targets``, ``wall_s``.
+    measures of the module docstring and the per-step ``trace``), ``candy`` (:func:`run_candy`,
+    None when ``candy`` is False), ``targets``, ``wall_s``.
     """
     from tqdm import tqdm
 
@@ -297,6 +342,7 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
                                   "engines run round robin (one simulation each per round)",
                    "penetration": "max over steps of the deepest node centre below z = 0"},
         "engines": records,
+        "candy": run_candy(quick=quick, progress=progress) if candy else None,
         "wall_s": None,
         "loadavg_start": load_start,
         "loadavg_end": _loadavg(),
@@ -309,7 +355,11 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
 def _targets(result: dict) -> dict:
     sv = next((r for r in result["engines"] if r["engine"] == "softvr" and r["status"] == "ok"), None)
     out = {"speedup_target": TARGET_SPEEDUP, "penetration_target_m": TARGET_PENETRATION_M,
-           "fastest_peer": result["config"]["fastest_peer"], "candy_scale_real_time": "not measured yet"}
+           "fastest_peer": result["config"]["fastest_peer"]}
+    candy = result.get("candy")
+    if candy is not None:
+        out["candy_ms_per_step"] = candy["ms_per_step"]
+        out["candy_real_time_met"] = candy["ms_per_step"] <= candy["dt_s"] * 1e3
     if sv is None:
         return out
     out["softvr_penetration_m"] = sv["max_penetration_m"]
@@ -341,6 +391,17 @@ def format_table(result: dict) -> str:
                      f"{ratio:>15} {_mm(r['max_penetration_m'], 2):>10} {_mm(r['bottom_end_m'], 2):>9} "
                      f"{_mm(r['centre_end_m'], 1):>9} {contacts:>8} {pgs:>12} {r['cores_used']:>5.2f}  "
                      f"{r['material']}: {r['note']}")
+    candy = result.get("candy")
+    if candy is not None:
+        lines += ["", f"Candy scene (thesis Fig. 4.1 without adhesion, softvr only): {candy['tets']} tets, "
+                      f"{candy['collision_triangles']} collision triangles, {candy['bodies']} bodies, dt "
+                      f"{candy['dt_s'] * 1e3:g} ms, {candy['steps']} steps",
+                  f"  {candy['ms_per_step']:.0f} ms per step (in contact {candy['ms_per_step_in_contact'] or 0:.0f}, "
+                  f"max {candy['ms_per_step_max']:.0f}), {candy['real_time_factor']:.3f}x real time; contacts mean "
+                  f"{candy['contacts_mean']:.0f} / max {candy['contacts_max']}; PGS sweeps mean "
+                  f"{candy['pgs_iterations_mean']:.0f} / max {candy['pgs_iterations_max']}; residual max "
+                  f"{candy['residual_max_m_s']:.2g} m/s; thesis: {candy['thesis_s_per_step'] * 1e3:.0f} ms per step "
+                  f"(1.8 GHz Core 2 Duo, 97 contacts mean)"]
     lines.append("")
     lines.append(_targets_text(result))
     return "\n".join(lines)
@@ -362,7 +423,14 @@ def _targets_text(result: dict) -> str:
     else:
         speed = (f"speed {t['softvr_vs_fastest_peer']:.3f}x the fastest peer ({t['fastest_peer']}) vs >= "
                  f"{TARGET_SPEEDUP:g}x -> {'MET' if t['speedup_met'] else 'NOT met'}")
-    return f"targets: {speed}; {pen}; candy scale real time: not measured yet"
+    candy = result.get("candy")
+    if candy is None:
+        real_time = "candy scale real time: not measured (--no-candy)"
+    else:
+        real_time = (f"candy scale real time: {candy['ms_per_step']:.0f} ms per {candy['dt_s'] * 1e3:g} ms step -> "
+                     f"{'MET' if t['candy_real_time_met'] else 'NOT met'}"
+                     + (" (quick scale)" if candy["quick"] else ""))
+    return f"targets: {speed}; {pen}; {real_time}"
 
 
 ENGINE_STYLE = {"softvr": "tab:blue", "mujoco": "tab:orange", "pybullet": "tab:green", "newton": "tab:red"}
@@ -454,7 +522,8 @@ def main(argv: list[str] | None = None) -> int:
     """``softvr bench contact [--quick] [--repeat N] [--engines LIST] [--json PATH] [--plot PATH] [--profile]``."""
     p = argparse.ArgumentParser(
         prog="softvr bench contact",
-        description="Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when installed).",
+        description="Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when installed); "
+                    "then the thesis' candy scene at full scale (softvr).",
     )
     p.add_argument("--quick", action="store_true", help="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)")
     p.add_argument("--repeat", type=int, default=None, metavar="N", help="rounds; each runs every engine once, round robin (default 3, quick 1)")
@@ -462,6 +531,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", metavar="PATH", help="write all results as JSON")
     p.add_argument("--plot", metavar="PATH", help="write a PNG: penetration, heights, steps/s")
     p.add_argument("--profile", action="store_true", help="also print a cProfile of one softvr step in contact")
+    p.add_argument("--no-candy", action="store_true", help="skip the candy-scale scene")
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     if a.repeat is not None and a.repeat < 1:
@@ -473,7 +543,8 @@ def main(argv: list[str] | None = None) -> int:
     from softvr.errors import SoftvrError
 
     try:
-        result = run_contact_bench(quick=a.quick, repeat=a.repeat, engines=engines, progress=not a.no_progress)
+        result = run_contact_bench(quick=a.quick, repeat=a.repeat, engines=engines, progress=not a.no_progress,
+                                   candy=not a.no_candy)
     except SoftvrError as exc:
         print(f"softvr bench contact: {exc}", file=sys.stderr)
         return 2
