@@ -165,12 +165,20 @@ class Scene:
                     for mesh in self.meshes]
         for surface in self._surfaces:
             surface.refit()
+        # Broad phase: each surface's box, grown by the margin and its vertices' motion.
+        moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
+        boxes = []
+        for s, v in zip(self._surfaces, moving):
+            p = s.points.positions()
+            reach = m + dt * float(np.sqrt((v**2).sum(axis=1).max(initial=0.0)))
+            boxes.append((p.min(axis=0) - reach, p.max(axis=0) + reach))
         for n, sa in enumerate(self._surfaces):
-            for sb in self._surfaces[n + 1 :]:
+            for k, sb in enumerate(self._surfaces[n + 1 :], n + 1):
                 if not self._pair_enabled(sa.body_index, sb.body_index):
                     continue
-                va = sa.points.velocities(v_free[sa.body_index])
-                vb = sb.points.velocities(v_free[sb.body_index])
+                if (boxes[n][0] > boxes[k][1]).any() or (boxes[k][0] > boxes[n][1]).any():
+                    continue
+                va, vb = moving[n], moving[k]
                 for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
                     out.append(surface_vs_surface(x, y, margin=m, friction=self.friction, dt=dt, ccd=self.ccd,
                                                   velocities_a=vx, velocities_b=vy))

@@ -79,13 +79,16 @@ class EdgeSet:
         self._lower = wp.array(lower, dtype=wp.vec3, device=device)
         self._upper = wp.array(upper, dtype=wp.vec3, device=device)
         self._bvh = wp.Bvh(self._lower, self._upper)
+        self.normals, self.sharp = self.edge_normals(vertices)
 
     def _boxes(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ends = np.asarray(vertices, float)[self.edges]
         return ends.min(axis=1), ends.max(axis=1)
 
     def refit(self, vertices: np.ndarray) -> None:
-        """Move the BVH to vertex positions [vertex_count, 3] [m]."""
+        """Move the BVH, the edge normals and the crease flags to vertex positions
+        [vertex_count, 3] [m]."""
+        self.normals, self.sharp = self.edge_normals(vertices)
         lower, upper = self._boxes(vertices)
         self._lower.assign(wp.array(lower, dtype=wp.vec3, device=self.device))
         self._upper.assign(wp.array(upper, dtype=wp.vec3, device=self.device))
@@ -153,7 +156,7 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
     Parameters
     ----------
     a, b : CollisionSurface
-        Refitted to this step's positions.
+        Refitted to this step's positions (edge normals and creases are the refit's).
     margin : float [m]
         Proximity within which edge pairs become contacts.
     friction : float
@@ -172,8 +175,7 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
         reach += dt * np.linalg.norm(rel, axis=1)[ea.edges].max(axis=1)
     device = b.device
     load_kernels(_edge_pairs, device)
-    normals_a, sharp_a = ea.edge_normals(pa)
-    normals_b, sharp_b = eb.edge_normals(pb)
+    normals_a, sharp_a, normals_b, sharp_b = ea.normals, ea.sharp, eb.normals, eb.sharp
     shape = (len(ea.edges), PAIRS_PER_EDGE)
     pair_edge = wp.full(shape, -1, dtype=wp.int32, device=device)
     pair_st = wp.zeros(shape, dtype=wp.vec2, device=device)

@@ -15,57 +15,55 @@ from softvr.device import load_kernels, resolve_device
 __all__ = ["pgs_sweeps"]
 
 
+@wp.func
+def _relax_row(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
+               row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), rel: wp.array(dtype=wp.float64),
+               r: int, lower: wp.float64, upper: wp.float64, relaxation: wp.float64) -> wp.float64:
+    """One projected Gauss-Seidel update of row ``r`` within [lower, upper]; keeps ``rel``
+    consistent and returns the velocity correction it made on its own row [m/s]: unlike the
+    impulse change, that vanishes at a solution even where redundant contacts leave the
+    impulses free to drift without changing any velocity."""
+    value = wp.clamp(lam[r] + relaxation * row_inv[r] * (target[r] - rel[r]), lower, upper)
+    change = value - lam[r]
+    if change != wp.float64(0.0):
+        for i in range(delassus.shape[0]):
+            rel[i] = rel[i] + delassus[r, i] * change  # B is symmetric: row r = column r
+        lam[r] = value
+    return wp.abs(change) * delassus[r, r]
+
+
 @wp.kernel
 def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
                 friction: wp.array(dtype=wp.float64), row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
-                rel: wp.array(dtype=wp.float64), max_sweeps: int, tolerance: wp.float64,
+                rel: wp.array(dtype=wp.float64), max_sweeps: int, tolerance: wp.float64, relaxation: wp.float64,
                 sweeps: wp.array(dtype=wp.int32)):
-    rows = delassus.shape[0]
-    count = rows / 3
-    zero = wp.float64(0.0)
+    count = delassus.shape[0] / 3
+    unbounded = wp.float64(1.0e300)
     done = int(0)
     for sweep in range(max_sweeps):
         if done == 0:
-            biggest = zero
+            biggest = wp.float64(0.0)
             for n in range(count):
                 r0 = 3 * n
-                # Normal row alone: a joint 3x3 solve can ask for a negative normal impulse on
-                # oblique approach, which the projection would then zero.
-                ln = wp.max(lam[r0] + row_inv[r0] * (target[r0] - rel[r0]), zero)
-                dn = ln - lam[r0]
-                if dn != zero:
-                    for i in range(rows):
-                        rel[i] = rel[i] + delassus[r0, i] * dn  # B is symmetric: row = column
-                    lam[r0] = ln
-                # Friction rows one at a time, each clamped to the pyramid of the new normal
-                # impulse: row-wise projection converges to the box-constrained solution, where a
-                # joint 2x2 solve clamped afterwards can stall with one row at its bound and the
-                # other off its optimum.
-                bound = friction[n] * ln
-                t1 = wp.clamp(lam[r0 + 1] + row_inv[r0 + 1] * (target[r0 + 1] - rel[r0 + 1]), -bound, bound)
-                d1 = t1 - lam[r0 + 1]
-                if d1 != zero:
-                    for i in range(rows):
-                        rel[i] = rel[i] + delassus[r0 + 1, i] * d1
-                    lam[r0 + 1] = t1
-                t2 = wp.clamp(lam[r0 + 2] + row_inv[r0 + 2] * (target[r0 + 2] - rel[r0 + 2]), -bound, bound)
-                d2 = t2 - lam[r0 + 2]
-                if d2 != zero:
-                    for i in range(rows):
-                        rel[i] = rel[i] + delassus[r0 + 2, i] * d2
-                    lam[r0 + 2] = t2
-                # The velocity correction each update made on its own row [m/s]: unlike the
-                # impulse change it vanishes at a solution even where redundant contacts leave
-                # the impulses free to drift without changing any velocity.
-                change = wp.max(wp.abs(dn) * delassus[r0, r0], wp.abs(d1) * delassus[r0 + 1, r0 + 1])
-                biggest = wp.max(biggest, wp.max(change, wp.abs(d2) * delassus[r0 + 2, r0 + 2]))
+                # The normal row alone first: a joint 3x3 solve can ask for a negative normal
+                # impulse on oblique approach, which the projection would then zero.
+                change = _relax_row(delassus, target, row_inv, lam, rel, r0, wp.float64(0.0), unbounded, relaxation)
+                # Then the friction rows one at a time, each clamped to the pyramid of the new
+                # normal impulse: row-wise projection converges to the box-constrained solution,
+                # where a joint 2x2 solve clamped afterwards can stall with one row at its bound
+                # and the other off its optimum.
+                bound = friction[n] * lam[r0]
+                for t in range(1, 3):
+                    change = wp.max(change, _relax_row(delassus, target, row_inv, lam, rel, r0 + t, -bound, bound,
+                                                                relaxation))
+                biggest = wp.max(biggest, change)
             sweeps[0] = sweep + 1
             if biggest <= tolerance:
                 done = 1
 
 
 def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, lam: np.ndarray, rel: np.ndarray,
-               max_sweeps: int, tolerance: float) -> int:
+               max_sweeps: int, tolerance: float, relaxation: float = 1.0) -> int:
     """Projected Gauss-Seidel on ``0 <= lambda _|_ B lambda - target >= 0`` with friction.
 
     Per contact (3 rows: normal, tangent 1, tangent 2) the normal impulse is updated and
@@ -107,7 +105,7 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
                       wp.array(target, dtype=wp.float64, device=device),
                       wp.array(friction, dtype=wp.float64, device=device),
                       wp.array(row_inv, dtype=wp.float64, device=device),
-                      lam_w, rel_w, int(max_sweeps), float(tolerance), sweeps])
+                      lam_w, rel_w, int(max_sweeps), float(tolerance), float(relaxation), sweeps])
     lam[:] = lam_w.numpy()
     rel[:] = rel_w.numpy()
     return int(sweeps.numpy()[0])
