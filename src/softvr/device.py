@@ -1,4 +1,5 @@
-"""Choice of Warp device, and one helper that spreads a CPU launch over all cores.
+"""Choice of Warp device, one helper that spreads a CPU launch over all cores, and one that
+keeps OpenBLAS from competing with it.
 
 Warp runs a CPU launch on one thread but releases the GIL while it runs, so launching
 one chunk of the thread range per core from a thread pool uses every core (DESIGN.md:
@@ -8,15 +9,17 @@ index of their chunk as their last argument and add it to ``wp.tid()``.
 
 from __future__ import annotations
 
+import ctypes
 import os
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from functools import lru_cache
 
 import warp as wp
 
 from softvr.errors import InputError
 
-__all__ = ["cpu_workers", "launch", "load_kernels", "resolve_device"]
+__all__ = ["cpu_workers", "launch", "load_kernels", "resolve_device", "single_threaded_blas"]
 
 
 @lru_cache(maxsize=1)
@@ -117,3 +120,54 @@ def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024
     ]
     for f in futures:
         f.result()
+
+
+_SET = ("openblas_set_num_threads", "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",
+        "openblas_set_num_threads64_")
+_GET = ("openblas_get_num_threads", "scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_",
+        "openblas_get_num_threads64_")
+
+
+@lru_cache(maxsize=1)
+def _openblas_controls() -> tuple:
+    """(get, set) of every OpenBLAS loaded in this process (numpy's and SciPy's wheels each bundle one)."""
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
+            paths = {line.split()[-1] for line in f if "openblas" in line.lower() and ".so" in line}
+    except OSError:  # not Linux: leave the thread count alone
+        return ()
+    out = []
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        get = next((getattr(lib, n) for n in _GET if hasattr(lib, n)), None)
+        put = next((getattr(lib, n) for n in _SET if hasattr(lib, n)), None)
+        if get is not None and put is not None:
+            get.restype, put.argtypes = ctypes.c_int, [ctypes.c_int]
+            out.append((get, put))
+    return tuple(out)
+
+
+@contextmanager
+def single_threaded_blas():
+    """Run the body with OpenBLAS on one thread, then restore the previous thread counts.
+
+    The contact solver works on many small dense and sparse systems (a Delassus matrix of a
+    few hundred rows, a SuperLU solve per step) while :func:`launch` already keeps every core
+    busy; OpenBLAS threads only add synchronisation there (the contact benchmark's cube runs
+    1.3x faster on one BLAS thread, the soft-cube demo 2-6x on a busy machine).
+    :meth:`softvr.Scene.step` runs in it. Linux only (elsewhere this does nothing).
+    """
+    import scipy.linalg  # noqa: F401, PLC0415 - load SciPy's OpenBLAS too, so it is limited as well
+
+    controls = _openblas_controls()
+    before = [get() for get, _ in controls]
+    for _, put in controls:
+        put(1)
+    try:
+        yield
+    finally:
+        for (_, put), n in zip(controls, before):
+            put(max(int(n), 1))

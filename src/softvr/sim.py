@@ -26,6 +26,7 @@ from softvr.collision import (
     surface_vs_surface,
 )
 from softvr.contact import ContactSolution, solve_contacts
+from softvr.device import single_threaded_blas
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 
@@ -211,7 +212,15 @@ class Scene:
         return contacts.select(~stuck) if stuck.any() else contacts
 
     def step(self, dt: float) -> ContactSolution:
-        """Advance every body by ``dt`` [s] with contact; returns the contact solution."""
+        """Advance every body by ``dt`` [s] with contact; returns the contact solution.
+
+        Runs with OpenBLAS on one thread (:func:`softvr.device.single_threaded_blas`): the
+        compiled kernels already use every core.
+        """
+        with single_threaded_blas():
+            return self._step(dt)
+
+    def _step(self, dt: float) -> ContactSolution:
         v_free = [body.unconstrained_velocity(dt, self.gravity) for body in self.bodies]
         contacts = self._detect(v_free, dt)
         warm, self._warm = self._warm, {}

@@ -15,17 +15,11 @@ import pytest
 
 from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_oranges, example_soft_cube,
                              run)
-from softvr.examples.run import SCENES, single_threaded_blas
+from softvr.examples.run import SCENES
 
 SMALL = dict(width=64, height=48)
 FIELDS = {"frame", "sim_time_s", "step_ms", "render_ms", "wall_ms", "max_penetration_m", "contacts",
           "active_contacts", "pgs_iterations", "pgs_residual_m_per_s", "kinetic_energy_j", "energy_j"}
-
-
-@pytest.fixture(autouse=True, scope="module")
-def one_blas_thread():
-    with single_threaded_blas():
-        yield
 
 
 def run_frames(example, frames: int, render_every: int = 4):

@@ -21,7 +21,7 @@ vertex spheres touch it), the height of the lowest node and of the node centroid
 contact count of the last step (softvr: contacts handed to the solver, speculative ones within
 the 5 mm margin included; JSON: also those carrying an impulse), softvr's PGS sweeps, and the
 cores used (process CPU time / wall time of the stepping calls: the peers run on one thread,
-softvr's sparse LU solve and dense products use BLAS threads).
+softvr's compiled element and collision kernels split over the cores, BLAS stays on one thread).
 ``--profile`` adds a cProfile of one softvr step with the cube resting on the plane.
 
 Examples
@@ -200,19 +200,17 @@ def run_candy(*, quick: bool = False, progress: bool = True) -> dict:
     from tqdm import tqdm
 
     from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
-    from softvr.examples.run import single_threaded_blas
 
     ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE)
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
     trace = {k: [] for k in ("step_s", "contacts", "pgs_iterations", "residual")}
-    with single_threaded_blas():
-        for _ in tqdm(range(steps), desc="bench contact: candy", unit="step", disable=not progress, leave=False):
-            t = time.perf_counter()
-            sol = ex.scene.step(ex.dt)
-            trace["step_s"].append(time.perf_counter() - t)
-            trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
-            trace["pgs_iterations"].append(int(sol.iterations))
-            trace["residual"].append(float(sol.residual))
+    for _ in tqdm(range(steps), desc="bench contact: candy", unit="step", disable=not progress, leave=False):
+        t = time.perf_counter()
+        sol = ex.scene.step(ex.dt)
+        trace["step_s"].append(time.perf_counter() - t)
+        trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
+        trace["pgs_iterations"].append(int(sol.iterations))
+        trace["residual"].append(float(sol.residual))
     ms = 1e3 * np.asarray(trace["step_s"])
     busy = np.asarray(trace["contacts"]) > 0
     return {"tets": ex.tet_count, "collision_triangles": ex.triangle_count, "bodies": len(ex.scene.bodies),

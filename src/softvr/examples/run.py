@@ -15,18 +15,16 @@ Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
 contact count, PGS sweeps, kinetic and total energy), all atomically.
 
 This module also holds what the demos share: :class:`PhysicsExample` (the frame loop and its
-metrics), :func:`run_example` (frames to files) and :func:`single_threaded_blas`.
+metrics) and :func:`run_example` (frames to files).
 """
 
 from __future__ import annotations
 
 import argparse
-import ctypes
 import importlib
 import json
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +38,6 @@ __all__ = [
     "main",
     "run_example",
     "run_module",
-    "single_threaded_blas",
 ]
 
 #: ``softvr run`` scene name -> example module (``softvr.examples.example_<module>``).
@@ -51,56 +48,6 @@ SCENES = {
     "oranges": "oranges",
     "candy": "candy",
 }
-
-
-# ----------------------------------------------------------------------------- BLAS threads
-_SET = ("openblas_set_num_threads", "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",
-        "openblas_set_num_threads64_")
-_GET = ("openblas_get_num_threads", "scipy_openblas_get_num_threads", "scipy_openblas_get_num_threads64_",
-        "openblas_get_num_threads64_")
-
-
-def _openblas_controls() -> list[tuple]:
-    """(get, set) of every OpenBLAS loaded in this process (numpy's and SciPy's wheels each bundle one)."""
-    try:
-        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
-            paths = {line.split()[-1] for line in f if "openblas" in line.lower() and ".so" in line}
-    except OSError:  # not Linux: leave the thread count alone
-        return []
-    out = []
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        get = next((getattr(lib, n) for n in _GET if hasattr(lib, n)), None)
-        put = next((getattr(lib, n) for n in _SET if hasattr(lib, n)), None)
-        if get is not None and put is not None:
-            get.restype, put.argtypes = ctypes.c_int, [ctypes.c_int]
-            out.append((get, put))
-    return out
-
-
-@contextmanager
-def single_threaded_blas():
-    """Run the body with OpenBLAS on one thread, then restore the previous thread counts.
-
-    The contact solver works on many small dense and sparse systems (a Delassus matrix of a
-    few hundred rows, a SuperLU solve per step); OpenBLAS threads only add synchronisation
-    there. On a 2-core machine that is already busy, the soft-cube demo runs 2-6x faster on
-    one thread. Linux only (elsewhere this does nothing).
-    """
-    import scipy.linalg  # noqa: F401, PLC0415 - load SciPy's OpenBLAS too, so it is limited as well
-
-    controls = _openblas_controls()
-    before = [get() for get, _ in controls]
-    for _, put in controls:
-        put(1)
-    try:
-        yield
-    finally:
-        for (_, put), n in zip(controls, before):
-            put(max(int(n), 1))
 
 
 # ----------------------------------------------------------------------------- shared demo loop
@@ -321,9 +268,8 @@ def check_run_args(parser: argparse.ArgumentParser, args) -> None:
 
 def run_module(module, args, **options) -> int:
     """Build ``module.Example`` from parsed demo options (plus scene ``options``) and run it to files."""
-    with single_threaded_blas():
-        example = module.Example(frames=args.frames, width=args.size[0], height=args.size[1], **options)
-        run_example(example, args.out, progress=not args.quiet)
+    example = module.Example(frames=args.frames, width=args.size[0], height=args.size[1], **options)
+    run_example(example, args.out, progress=not args.quiet)
     return 0
 
 
