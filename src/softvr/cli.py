@@ -3,6 +3,7 @@
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
 ``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy) to MP4
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
+``softvr view SCENE``       a physics demo played live in a window (space pauses, n steps)
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton
 ``softvr info PATH``        what a volume file holds
@@ -31,11 +32,13 @@ def _run(argv: list[str]) -> int:
 
 
 def _view(argv: list[str]) -> int:
-    if not argv or argv[0] != "volume":
-        raise SystemExit("usage: softvr view volume [PATH] [--cells N] (only 'volume' can be viewed so far)")
-    from softvr.render import viewer
+    if argv and argv[0] == "volume":
+        from softvr.render import viewer
 
-    return viewer.main(argv[1:])
+        return viewer.main(argv[1:])
+    from softvr.examples import run
+
+    return run.view_main(argv)
 
 
 _BENCH_AREAS = ("volume", "contact")

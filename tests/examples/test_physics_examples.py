@@ -141,6 +141,25 @@ def test_candy_scale_and_candies_landing_on_the_jello():
     assert ex.metrics[-1]["active_contacts"] > 0
 
 
+def test_view_plays_a_scene_live_in_a_window(display):
+    """Under Xvfb: the window opens, frames advance on the timer, it closes on time."""
+    ex = example_soft_cube.Example(frames=3, width=160, height=120)
+    assert run.view_example(ex, timeout_s=3.0) == 3  # all frames played, then idle until closed
+    assert [r["frame"] for r in ex.metrics] == [0, 1, 2]
+
+
+def test_view_without_a_display_says_so(monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    from softvr.errors import InputError
+
+    with pytest.raises(InputError, match="display"):
+        run.view_main(["soft-cube", "--frames", "2"])
+    with pytest.raises(SystemExit):
+        run.view_main(["teapot"])
+    assert "unknown scene 'teapot'" in capsys.readouterr().err
+
+
 def test_run_writes_video_sheet_and_metrics(tmp_path):
     out = tmp_path / "out"
     assert run.main(["box-stack", "--frames", "3", "--size", "64", "48", "--out", str(out), "--quiet"]) == 0

@@ -38,6 +38,8 @@ __all__ = [
     "main",
     "run_example",
     "run_module",
+    "view_example",
+    "view_main",
 ]
 
 #: ``softvr run`` scene name -> example module (``softvr.examples.example_<module>``).
@@ -270,6 +272,91 @@ def run_module(module, args, **options) -> int:
     """Build ``module.Example`` from parsed demo options (plus scene ``options``) and run it to files."""
     example = module.Example(frames=args.frames, width=args.size[0], height=args.size[1], **options)
     run_example(example, args.out, progress=not args.quiet)
+    return 0
+
+
+def view_example(example: PhysicsExample, *, timeout_s: float | None = None) -> int:
+    """Play ``example`` live in a window: one frame per timer tick, drawn on screen.
+
+    Mouse: the trackball camera (left rotates, right zooms, middle pans). Keys: space pauses
+    and resumes, ``n`` advances one frame while paused, ``q`` quits. The simulation stops
+    after ``example.frames`` frames (the window stays open). Returns the frames simulated.
+
+    Raises :class:`~softvr.errors.InputError` when there is no display.
+    """
+    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
+    from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
+
+    from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
+
+    renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True)
+    example.setup_render(renderer)
+    window = renderer.vtk_renderer.GetRenderWindow()
+    window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, q: quit)")
+    interactor = vtkRenderWindowInteractor()
+    interactor.SetRenderWindow(window)
+    style = vtkInteractorStyleTrackballCamera()
+    interactor.SetInteractorStyle(style)
+    state = {"paused": False}
+    deadline = None if timeout_s is None else time.perf_counter() + timeout_s
+
+    def advance() -> None:
+        if example.frame < example.frames:
+            example.step()
+            example.update_render(renderer)
+            window.Render()
+
+    def on_timer(*_) -> None:
+        if deadline is not None and time.perf_counter() >= deadline:
+            interactor.TerminateApp()
+        elif not state["paused"]:
+            advance()
+
+    def on_char(*_) -> None:
+        key = interactor.GetKeyCode()
+        if key == " ":
+            state["paused"] = not state["paused"]
+        elif key == "n" and state["paused"]:
+            advance()
+        else:
+            style.OnChar()
+
+    interactor.Initialize()
+    example.update_render(renderer)
+    renderer.render()
+    interactor.AddObserver("TimerEvent", on_timer)
+    style.AddObserver("CharEvent", on_char)
+    interactor.CreateRepeatingTimer(max(1, int(1000 / example.fps)))
+    try:
+        interactor.Start()
+    finally:
+        style.RemoveAllObservers()
+        interactor.RemoveAllObservers()
+        interactor.SetRenderWindow(None)
+        renderer.close()
+    return example.frame
+
+
+def view_main(argv: list[str] | None = None) -> int:
+    """``softvr view SCENE [--frames N] [--size W H] [--seconds S]``: a demo played live in a window."""
+    names = ", ".join(SCENES)
+    p = argparse.ArgumentParser(prog="softvr view", description="Play a physics demo live in a window.")
+    p.add_argument("scene", metavar="SCENE", help=f"volume, or one of: {names}")
+    p.add_argument("--frames", type=int, default=None, help="frames to simulate (default per scene)")
+    p.add_argument("--size", type=int, nargs=2, default=(900, 700), metavar=("W", "H"))
+    p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
+    args = p.parse_args(argv)
+    if args.scene not in SCENES:
+        p.error(f"unknown scene {args.scene!r}; choose volume or one of: {names}")
+    module = importlib.import_module(f"softvr.examples.example_{SCENES[args.scene]}")
+    args.frames = module.DEFAULT_FRAMES if args.frames is None else args.frames
+    args.out = None
+    check_run_args(p, args)
+    from softvr.render._backend import require_display  # noqa: PLC0415
+
+    require_display()  # before building a large scene
+    example = module.Example(frames=args.frames, width=args.size[0], height=args.size[1])
+    view_example(example, timeout_s=args.seconds)
     return 0
 
 

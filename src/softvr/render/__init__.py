@@ -32,7 +32,7 @@ Examples
 (72, 296, 3)
 """
 
-from softvr.render._backend import APT_PACKAGES, RenderBackendError, has_display, offscreen_backend
+from softvr.render._backend import APT_PACKAGES, RenderBackendError, has_display, offscreen_backend, require_display
 from softvr.render.camera import VIEWS, Camera
 from softvr.render.contact_sheet import contact_sheet, save_png
 from softvr.render.presets import PRESETS, Preset, label_colors
@@ -44,7 +44,6 @@ from softvr.render.viewer import (
     VolumeViewer,
     move_in_view_plane,
     pick_node,
-    require_display,
     view_volume,
 )
 from softvr.render.volume_render import VolumeRenderer, render_volume

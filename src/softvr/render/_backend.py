@@ -41,7 +41,7 @@ import os
 import sys
 from functools import lru_cache
 
-from softvr.errors import SoftvrError
+from softvr.errors import InputError, SoftvrError
 
 __all__ = [
     "APT_PACKAGES",
@@ -50,6 +50,7 @@ __all__ = [
     "new_offscreen_window",
     "new_onscreen_window",
     "offscreen_backend",
+    "require_display",
 ]
 
 #: Debian/Ubuntu packages that off-screen (EGL or OSMesa) and on-screen (X/GLX) rendering need.
@@ -222,3 +223,19 @@ def new_onscreen_window(width: int, height: int):
         window = vtkRenderWindow()
     window.SetSize(int(width), int(height))
     return window
+
+
+def require_display() -> None:
+    """Raise :class:`InputError` unless an on-screen window can be opened."""
+    if not has_display():
+        found = "DISPLAY and WAYLAND_DISPLAY unset"
+        if os.environ.get("DISPLAY"):
+            found = f"DISPLAY={os.environ['DISPLAY']!r} but no X server answers there"
+        elif os.environ.get("WAYLAND_DISPLAY"):
+            found = "only WAYLAND_DISPLAY (VTK needs X; start XWayland so that DISPLAY is set)"
+        raise InputError(
+            "display",
+            "a graphical display for the interactive viewer (for off-screen output, such as "
+            "images and videos, run `softvr demo` instead)",
+            found,
+        )

@@ -20,7 +20,7 @@ import numpy as np
 
 from softvr.render._offscreen import OffscreenView
 from softvr.errors import InputError
-from softvr.render._backend import new_offscreen_window, offscreen_backend
+from softvr.render._backend import new_offscreen_window, new_onscreen_window, offscreen_backend, require_display
 from softvr.render.camera import Camera
 
 __all__ = ["SurfaceRenderer", "tet_boundary_faces"]
@@ -122,6 +122,8 @@ class SurfaceRenderer(OffscreenView):
         FXAA edge smoothing (a post-process, so edge pixels blend with the background).
     backend : {"egl", "osmesa"}, optional
         Force an off-screen OpenGL window kind.
+    onscreen : bool
+        Draw into a window on the display instead (for live viewers; needs a display).
 
     Examples
     --------
@@ -139,7 +141,7 @@ class SurfaceRenderer(OffscreenView):
 
     def __init__(self, width: int = 640, height: int = 480, camera: "Camera | str | None" = "iso", *,
                  bounds=None, background=(0.10, 0.11, 0.13), background_top=(0.32, 0.36, 0.43),
-                 antialias: bool = True, backend: str | None = None):
+                 antialias: bool = True, backend: str | None = None, onscreen: bool = False):
         for name, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise InputError(name, "an integer number of pixels in [1, 16384]", repr(v))
@@ -149,8 +151,13 @@ class SurfaceRenderer(OffscreenView):
         self._camera = Camera.coerce(camera)
         self._bounds = None if bounds is None else self._check_bounds(bounds)
         bottom, top = _rgb(background, "background"), _rgb(background_top, "background_top")
-        self._window = new_offscreen_window(self.width, self.height, backend)
-        self.backend = offscreen_backend(backend)
+        if onscreen:
+            require_display()
+            self._window = new_onscreen_window(self.width, self.height)
+            self.backend = "onscreen"
+        else:
+            self._window = new_offscreen_window(self.width, self.height, backend)
+            self.backend = offscreen_backend(backend)
         self._renderer = vtkRenderer()
         self._renderer.SetBackground(*bottom)
         self._renderer.SetBackground2(*top)

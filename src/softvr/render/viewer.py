@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softvr.errors import InputError, SoftvrError
-from softvr.render._backend import has_display, new_onscreen_window
+from softvr.render._backend import new_onscreen_window, require_display
 from softvr.render._scene import VolumeScene, check_volume
 from softvr.render.camera import Camera
 from softvr.render.presets import Preset
@@ -277,24 +277,6 @@ class NodeDragger:
 
 
 # ----------------------------------------------------------------------------- VTK window
-def require_display() -> None:
-    """Raise :class:`InputError` unless an on-screen window can be opened."""
-    import os  # noqa: PLC0415
-
-    if not has_display():
-        found = "DISPLAY and WAYLAND_DISPLAY unset"
-        if os.environ.get("DISPLAY"):
-            found = f"DISPLAY={os.environ['DISPLAY']!r} but no X server answers there"
-        elif os.environ.get("WAYLAND_DISPLAY"):
-            found = "only WAYLAND_DISPLAY (VTK needs X; start XWayland so that DISPLAY is set)"
-        raise InputError(
-            "display",
-            "a graphical display for the interactive viewer (for off-screen output, such as "
-            "images and videos, run `softvr demo` instead)",
-            found,
-        )
-
-
 def _check_mesh(nodes, tets) -> tuple[np.ndarray, np.ndarray]:
     n = np.asarray(nodes, dtype=np.float64)
     if n.ndim != 2 or n.shape[1] != 3 or len(n) == 0 or not np.isfinite(n).all():
