@@ -158,14 +158,19 @@ class Scene:
         """Collision detection of this step (with the unconstrained velocities for speculation)."""
         m = self.contact_margin
         out = []
-        for c in self._colliders:
-            v = c.points.velocities(v_free[c.body])
-            out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt) for p in self.planes]
-            out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt) for s in self.spheres]
-            out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd)
-                    for mesh in self.meshes]
         for surface in self._surfaces:
             surface.refit()
+        # Points that are vertices of a collision surface carry its vertex areas (thesis 4.3.1).
+        areas = {id(s.points): s.vertex_area for s in self._surfaces}
+        for c in self._colliders:
+            v = c.points.velocities(v_free[c.body])
+            a = areas.get(id(c.points))
+            out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a)
+                    for p in self.planes]
+            out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a)
+                    for s in self.spheres]
+            out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd, areas=a)
+                    for mesh in self.meshes]
         # Broad phase: each surface's box, grown by the margin and its vertices' motion.
         moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
         boxes = []

@@ -45,7 +45,9 @@ class Contacts:
     point_a, point_b : ndarray, shape [contact_count, 3] [m]
         Contact points P on a and P' on b.
     area : ndarray, shape [contact_count] [m^2]
-        Local area each contact stands for (0 when unknown).
+        Local area each contact stands for: the smaller of its two primitives' areas, a
+        triangle's own and the mean of the incident triangles' at vertices and edges (thesis
+        4.3.1); 0 when unknown (points that are not collision-surface vertices).
     ids : ndarray of int64, shape [contact_count]
         Stable identifiers (same feature pair -> same id across steps) for warm starts.
     friction : ndarray, shape [contact_count]

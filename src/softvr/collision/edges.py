@@ -210,4 +210,5 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
            | (first.astype(np.int64) << 21) | second.astype(np.int64))
     return Contacts(stencil_side(a.body_index, a.points, verts_a, weights_a),
                     stencil_side(b.body_index, b.points, verts_b, weights_b), normal, gap,
-                    point_a, point_b, ids, np.full(len(gap), float(friction)))
+                    point_a, point_b, ids, np.full(len(gap), float(friction)),
+                    np.minimum(a.edge_area[edge_a], b.edge_area[edge_b]))  # the smaller primitive's (4.3.1)

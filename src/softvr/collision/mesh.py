@@ -143,7 +143,8 @@ class TriangleMesh:
 
 
 def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float = 0.0, velocities=None,
-                   dt: float = 0.0, ccd: bool = True) -> Contacts:
+                   dt: float = 0.0, ccd: bool = True,
+                   areas=None) -> Contacts:
     """Contacts of point entities with a static triangle mesh.
 
     Parameters
@@ -157,7 +158,8 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         Unconstrained point velocities of the step (for CCD).
     dt : float [s]
     ccd : bool
-        Sweep each point over ``velocities * dt`` and take the first crossing.
+        Sweep each point over ``velocities * dt`` and take the first crossing.    areas : ndarray, shape [point_count] [m^2], optional
+        Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
     """
     p = points.positions()
     motion = np.zeros_like(p) if velocities is None else np.asarray(velocities, float) * dt
@@ -174,4 +176,5 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         point_b=surface,
         ids=(np.int64(mesh.id) << 32) | (np.int64(1) << 30) | which.astype(np.int64),
         friction=np.full(k, mesh.friction),
+        area=None if areas is None else np.asarray(areas, float)[which],
     )

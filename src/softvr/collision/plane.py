@@ -42,7 +42,7 @@ class Plane:
 
 
 def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.0, velocities=None,
-                    dt: float = 0.0) -> Contacts:
+                    dt: float = 0.0, areas=None) -> Contacts:
     """Contacts of a body's point entities with a plane: points closer than ``margin``, or that
     would come that close within ``dt`` at ``velocities`` (no tunnelling at any speed).
 
@@ -59,7 +59,8 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
     velocities : ndarray, shape [point_count, 3] [m/s], optional
         Predicted point velocities (e.g. the unconstrained ones of this step).
     dt : float [s]
-        Step over which ``velocities`` apply.
+        Step over which ``velocities`` apply.    areas : ndarray, shape [point_count] [m^2], optional
+        Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
     """
     n = plane.unit_normal()
     p = points.positions()
@@ -79,4 +80,5 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
         point_b=p[hit] - gap[hit, None] * n,
         ids=(np.int64(plane.id) << 32) | hit.astype(np.int64),
         friction=np.full(k, float(plane.friction)),
+        area=None if areas is None else np.asarray(areas, float)[hit],
     )

@@ -37,8 +37,9 @@ class Sphere:
 
 
 def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float = 0.0, velocities=None,
-                     dt: float = 0.0) -> Contacts:
-    """Contacts of point entities with a static sphere (gap along the outward radial normal)."""
+                     dt: float = 0.0, areas=None) -> Contacts:
+    """Contacts of point entities with a static sphere (gap along the outward radial normal);
+    ``areas`` [point_count] [m^2] as in :func:`~softvr.collision.points_vs_plane`."""
     c = np.asarray(sphere.center, float)
     p = points.positions()
     d = p - c
@@ -59,6 +60,7 @@ def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float =
         point_b=c + sphere.radius * n[hit],
         ids=(np.int64(sphere.id) << 32) | hit.astype(np.int64),
         friction=np.full(len(hit), float(sphere.friction)),
+        area=None if areas is None else np.asarray(areas, float)[hit],
     )
 
 

@@ -51,13 +51,33 @@ class CollisionSurface:
         self._mesh = wp.Mesh(points=self._vertices, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                       device=self.device))
         self.edge_set = EdgeSet(self.triangles, points.positions(), self.device)
+        self._incident = np.bincount(self.triangles.ravel(), minlength=n)  # triangles per vertex
+        self._update_areas(points.positions())
 
     def refit(self) -> None:
-        """Move the triangle and edge BVHs to the current vertex positions."""
+        """Move the triangle and edge BVHs (and the primitive areas) to the current vertex positions."""
         p = self.points.positions()
         self._vertices.assign(wp.array(p, dtype=wp.vec3, device=self.device))
         self._mesh.refit()
         self.edge_set.refit(p)
+        self._update_areas(p)
+
+    def _update_areas(self, p: np.ndarray) -> None:
+        """Local contact areas of the primitives (thesis 4.3.1): a triangle's own area, and at
+        vertices and edges the mean area of the incident triangles.
+
+        Sets ``triangle_area`` [triangle_count], ``vertex_area`` [vertex_count] and
+        ``edge_area`` [edge_count] [m^2] (0 for a vertex no triangle uses).
+        """
+        v = p[self.triangles]
+        self.triangle_area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+        total = np.bincount(self.triangles.ravel(), weights=np.repeat(self.triangle_area, 3),
+                            minlength=len(self._incident))
+        self.vertex_area = total / np.maximum(self._incident, 1)
+        adjacent = self.edge_set.adjacent
+        two = adjacent[:, 1] >= 0
+        self.edge_area = (self.triangle_area[adjacent[:, 0]] + np.where(two, self.triangle_area[adjacent[:, 1]], 0.0)) \
+            / np.where(two, 2.0, 1.0)
 
 
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,
@@ -80,8 +100,10 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
     side_a = ContactSide(a.body_index, *point_jacobian_blocks(a.points, which))
     ids = (np.int64(min(a.body_index, b.body_index)) << 40) | (np.int64(max(a.body_index, b.body_index)) << 20)
     ids = ids | (np.int64(a.body_index < b.body_index) << 19) | which.astype(np.int64)
+    # Local area: the smaller of the two primitives' (thesis 4.3.1).
+    area = np.minimum(a.vertex_area[which], b.triangle_area[faces])
     return Contacts(side_a, stencil_side(b.body_index, b.points, b.triangles[faces], bary), normal, gap, p[which], at, ids,
-                    np.full(len(which), float(friction)))
+                    np.full(len(which), float(friction)), area)
 
 
 def _locate(surface: CollisionSurface, at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

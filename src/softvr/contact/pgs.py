@@ -49,6 +49,8 @@ class ContactSolution:
     residual : float [m/s]
         Largest violation of a normal velocity constraint by the final velocities.
     islands : list of list of int
+    contacts : list of Contacts
+        The non-empty contact sets solved, in the order of ``impulses`` and ``frames``.
     """
 
     velocities: list
@@ -57,6 +59,7 @@ class ContactSolution:
     iterations: int
     residual: float
     islands: list
+    contacts: list
 
 
 def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,
@@ -103,7 +106,7 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         residual = max(residual, float(np.max(violation, initial=0.0)))
         if warm_start is not None:
             warm_start.update(zip(c.ids.tolist(), np.einsum("cr,crx->cx", impulses[k], frames[k])))
-    return ContactSolution(velocities, impulses, frames, sweeps, residual, islands)
+    return ContactSolution(velocities, impulses, frames, sweeps, residual, islands, contact_sets)
 
 
 def _side_velocity(side, v_blocks: np.ndarray) -> np.ndarray:
