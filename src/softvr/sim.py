@@ -26,11 +26,18 @@ from softvr.collision import (
     surface_vs_surface,
 )
 from softvr.contact import ContactSolution, solve_contacts
+from softvr.contact.adhesion import Adhesion, AdhesionState, combine
 from softvr.device import single_threaded_blas
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
 
 __all__ = ["Scene"]
+
+
+def _check_adhesion(adhesion):
+    if adhesion is not None and not isinstance(adhesion, Adhesion):
+        raise InputError("adhesion", "a softvr.contact.Adhesion or None", type(adhesion).__name__)
+    return adhesion
 
 
 @dataclass
@@ -78,6 +85,12 @@ class Scene:
         Coulomb coefficient between two bodies.
     last_solution : ContactSolution or None
     time : float [s]
+    external : dict[int, ndarray]
+        Generalized external force per body index, applied every step until removed (the
+        shape of the body's ``v``: [6] force and torque [N, N m] for a rigid body, [node_count,
+        3] [N] for a deformable one).
+    adhesion_state : AdhesionState
+        Adhesion intensity beta of every adhesive contact, by contact id.
     """
 
     gravity: tuple = (0.0, 0.0, -9.81)
@@ -98,9 +111,13 @@ class Scene:
     _filtered: set = field(default_factory=set)
     _surfaces: list = field(default_factory=list)
     _warm: dict = field(default_factory=dict)
+    _adhesion: dict = field(default_factory=dict)
+    external: dict = field(default_factory=dict)
+    adhesion_state: AdhesionState = field(default_factory=AdhesionState)
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
-                 collision_sphere: float | None = None, collision_box=None, margin: float | None = None) -> int:
+                 collision_sphere: float | None = None, collision_box=None, margin: float | None = None,
+                 adhesion: Adhesion | None = None) -> int:
         """Add a contact object and return its index.
 
         ``collision_points`` (point entities) collide with planes, static spheres and static
@@ -108,15 +125,21 @@ class Scene:
         form the body's collision surface, which meets the other bodies' surfaces;
         ``collision_sphere`` [m] makes a rigid body a sphere of that radius about its centre,
         colliding with planes and the other sphere bodies; ``collision_box`` (3 half extents
-        [m]) makes it a box, colliding with planes and the other box bodies.
+        [m]) makes it a box, colliding with planes and the other box bodies. ``adhesion`` makes
+        its surface adhesive (thesis ch. 4) where the other side is too
+        (:func:`softvr.contact.combine`).
         """
         if not isinstance(body, ContactObject):
             raise InputError("body", "a softvr.dynamics.ContactObject", type(body).__name__)
         self.bodies.append(body)
         index = len(self.bodies) - 1
+        self._adhesion[("body", index)] = _check_adhesion(adhesion)
+        margin = self.contact_margin if margin is None else float(margin)
+        if adhesion is not None:
+            # Bonded contacts must stay detected until they fully debond.
+            margin = max(margin, adhesion.debond_gap)
         if collision_points is not None:
-            self._colliders.append(_Collider(index, collision_points,
-                                             self.contact_margin if margin is None else float(margin)))
+            self._colliders.append(_Collider(index, collision_points, margin))
         if collision_triangles is not None:
             if collision_points is None:
                 raise InputError("collision_triangles", "collision_points to build them on", "no points")
@@ -137,25 +160,37 @@ class Scene:
                 raise InputError("body index", f"an index in [0, {len(self.bodies) - 1}]", repr(i))
         self._filtered.add((min(a, b), max(a, b)))
 
+    def _margin(self, body: int) -> float:
+        """Detection margin [m] of a body's surface: the scene's, or its adhesion's debond gap."""
+        adhesion = self._adhesion[("body", body)]
+        return self.contact_margin if adhesion is None else max(self.contact_margin, adhesion.debond_gap)
+
     def _pair_enabled(self, a: int, b: int) -> bool:
         return (min(a, b), max(a, b)) not in self._filtered
 
-    def add_sphere(self, sphere: Sphere) -> None:
-        """Add a static sphere."""
+    def add_sphere(self, sphere: Sphere, *, adhesion: Adhesion | None = None) -> None:
+        """Add a static sphere (optionally adhesive)."""
+        self._adhesion[("static", id(sphere))] = _check_adhesion(adhesion)
         self.spheres.append(sphere)
 
-    def add_mesh(self, mesh: TriangleMesh) -> None:
-        """Add a static triangle mesh."""
+    def add_mesh(self, mesh: TriangleMesh, *, adhesion: Adhesion | None = None) -> None:
+        """Add a static triangle mesh (optionally adhesive)."""
         if not isinstance(mesh, TriangleMesh):
             raise InputError("mesh", "a softvr.collision.TriangleMesh", type(mesh).__name__)
+        self._adhesion[("static", id(mesh))] = _check_adhesion(adhesion)
         self.meshes.append(mesh)
 
-    def add_plane(self, plane: Plane) -> None:
+    def add_plane(self, plane: Plane, *, adhesion: Adhesion | None = None) -> None:
+        """Add a static plane (optionally adhesive)."""
         plane.unit_normal()  # validates
+        self._adhesion[("static", id(plane))] = _check_adhesion(adhesion)
         self.planes.append(plane)
 
-    def _detect(self, v_free: list, dt: float) -> list:
-        """Collision detection of this step (with the unconstrained velocities for speculation)."""
+    def _detect(self, v_free: list, dt: float) -> tuple[list, list]:
+        """Collision detection of this step (with the unconstrained velocities for speculation).
+
+        Returns the contact sets and, per set, the pair's combined :class:`Adhesion` (or None).
+        """
         m = self.contact_margin
         out = []
         for surface in self._surfaces:
@@ -165,18 +200,18 @@ class Scene:
         for c in self._colliders:
             v = c.points.velocities(v_free[c.body])
             a = areas.get(id(c.points))
-            out += [points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a)
+            out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a), p)
                     for p in self.planes]
-            out += [points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a)
+            out += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a), s)
                     for s in self.spheres]
-            out += [points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd, areas=a)
-                    for mesh in self.meshes]
+            out += [(points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd,
+                                    areas=a), mesh) for mesh in self.meshes]
         # Broad phase: each surface's box, grown by the margin and its vertices' motion.
         moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
         boxes = []
         for s, v in zip(self._surfaces, moving):
             p = s.points.positions()
-            reach = m + dt * float(np.sqrt((v**2).sum(axis=1).max(initial=0.0)))
+            reach = self._margin(s.body_index) + dt * float(np.sqrt((v**2).sum(axis=1).max(initial=0.0)))
             boxes.append((p.min(axis=0) - reach, p.max(axis=0) + reach))
         for n, sa in enumerate(self._surfaces):
             for k, sb in enumerate(self._surfaces[n + 1 :], n + 1):
@@ -185,25 +220,32 @@ class Scene:
                 if (boxes[n][0] > boxes[k][1]).any() or (boxes[k][0] > boxes[n][1]).any():
                     continue
                 va, vb = moving[n], moving[k]
+                pair = combine(self._adhesion[("body", sa.body_index)], self._adhesion[("body", sb.body_index)])
+                pm = m if pair is None else max(m, pair.debond_gap)  # bonded contacts stay detected
                 for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
-                    out.append(surface_vs_surface(x, y, margin=m, friction=self.friction, dt=dt, ccd=self.ccd,
-                                                  velocities_a=vx, velocities_b=vy))
+                    out.append((surface_vs_surface(x, y, margin=pm, friction=self.friction, dt=dt, ccd=self.ccd,
+                                                   velocities_a=vx, velocities_b=vy), None))
                 if self.edge_contacts:
-                    out.append(edges_vs_edges(sa, sb, margin=m, friction=self.friction, dt=dt, velocities_a=va,
-                                              velocities_b=vb))
+                    out.append((edges_vs_edges(sa, sb, margin=pm, friction=self.friction, dt=dt, velocities_a=va,
+                                               velocities_b=vb), None))
         for n, (i, r) in enumerate(self._sphere_bodies):
-            out += [sphere_vs_plane(i, self.bodies[i], r, p, margin=m, velocity=v_free[i], dt=dt) for p in self.planes]
+            out += [(sphere_vs_plane(i, self.bodies[i], r, p, margin=m, velocity=v_free[i], dt=dt), p)
+                    for p in self.planes]
             for j, rj in self._sphere_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
-                        out.append(sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
-                                                margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt))
+                    out.append((sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
+                                                 margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
         for n, (i, h) in enumerate(self._box_bodies):
-            out += [box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt) for p in self.planes]
+            out += [(box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt), p) for p in self.planes]
             for j, hj in self._box_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
-                    out.append(box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
-                                          margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt))
-        return [self._movable(c) for c in out]
+                    out.append((box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
+                                           margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
+        contacts = [self._movable(c) for c, _ in out]
+        adhesions = [combine(self._adhesion[("body", c.a.body)],
+                             self._adhesion[("body", c.b.body)] if static is None else self._adhesion.get(("static", id(static))))
+                     for c, static in zip(contacts, (s for _, s in out))]
+        return contacts, adhesions
 
     def _movable(self, contacts):
         """Drop contacts that no impulse can act on: both sides fixed nodes / infinite mass."""
@@ -226,10 +268,15 @@ class Scene:
             return self._step(dt)
 
     def _step(self, dt: float) -> ContactSolution:
-        v_free = [body.unconstrained_velocity(dt, self.gravity) for body in self.bodies]
-        contacts = self._detect(v_free, dt)
+        v_free = [body.unconstrained_velocity(dt, self.gravity, self.external.get(i))
+                  for i, body in enumerate(self.bodies)]
+        contacts, adhesions = self._detect(v_free, dt)
+        stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
         warm, self._warm = self._warm, {}
-        solution = solve_contacts(self.bodies, v_free, contacts, dt, iterations=self.pgs_iterations, warm_start=warm)
+        solution = solve_contacts(self.bodies, v_free, contacts, dt, iterations=self.pgs_iterations, warm_start=warm,
+                                  adhesion=stiffness)
+        solved = [a for c, a in zip(contacts, adhesions) if len(c)]
+        self.adhesion_state.evolve(solution.contacts, solved, solution.impulses, solution.gaps_after, dt)
         current = {int(i) for c in contacts for i in c.ids}
         self._warm = {k: v for k, v in warm.items() if k in current}
         for body, v in zip(self.bodies, solution.velocities):

@@ -18,12 +18,12 @@ __all__ = ["pgs_sweeps"]
 @wp.func
 def _relax_row(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
                row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), rel: wp.array(dtype=wp.float64),
-               r: int, lower: wp.float64, upper: wp.float64, relaxation: wp.float64) -> wp.float64:
+               r: int, lower: wp.float64, upper: wp.float64) -> wp.float64:
     """One projected Gauss-Seidel update of row ``r`` within [lower, upper]; keeps ``rel``
     consistent and returns the velocity correction it made on its own row [m/s]: unlike the
     impulse change, that vanishes at a solution even where redundant contacts leave the
     impulses free to drift without changing any velocity."""
-    value = wp.clamp(lam[r] + relaxation * row_inv[r] * (target[r] - rel[r]), lower, upper)
+    value = wp.clamp(lam[r] + row_inv[r] * (target[r] - rel[r]), lower, upper)
     change = value - lam[r]
     if change != wp.float64(0.0):
         for i in range(delassus.shape[0]):
@@ -32,30 +32,46 @@ def _relax_row(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp
     return wp.abs(change) * delassus[r, r]
 
 
+@wp.func
+def _adhesive_bound(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
+                    lam: wp.array(dtype=wp.float64), rel: wp.array(dtype=wp.float64), r: int,
+                    k: wp.float64) -> wp.float64:
+    """The implicit adhesive impulse limit of row ``r`` (thesis eq. 4.16, steps 3, 6-7 of
+    4.3.2): ``k d_bar / (1 + k B_rr)`` with ``d_bar = B_rr lambda_r + target_r - rel_r`` (the
+    row's right-hand side without its own impulse) and ``k = dt^2 A C beta^2``; 0 for k = 0."""
+    b = delassus[r, r]
+    d_bar = b * lam[r] + target[r] - rel[r]
+    return k * d_bar / (wp.float64(1.0) + k * b)
+
+
 @wp.kernel
 def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=wp.float64),
-                friction: wp.array(dtype=wp.float64), row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64),
-                rel: wp.array(dtype=wp.float64), max_sweeps: int, tolerance: wp.float64, relaxation: wp.float64,
-                sweeps: wp.array(dtype=wp.int32)):
+                friction: wp.array(dtype=wp.float64), adhesion: wp.array(dtype=wp.float64),
+                row_inv: wp.array(dtype=wp.float64), lam: wp.array(dtype=wp.float64), rel: wp.array(dtype=wp.float64),
+                max_sweeps: int, tolerance: wp.float64, sweeps: wp.array(dtype=wp.int32)):
     count = delassus.shape[0] / 3
+    zero = wp.float64(0.0)
     unbounded = wp.float64(1.0e300)
     done = int(0)
     for sweep in range(max_sweeps):
         if done == 0:
-            biggest = wp.float64(0.0)
+            biggest = zero
             for n in range(count):
                 r0 = 3 * n
+                k = adhesion[n]
                 # The normal row alone first: a joint 3x3 solve can ask for a negative normal
-                # impulse on oblique approach, which the projection would then zero.
-                change = _relax_row(delassus, target, row_inv, lam, rel, r0, wp.float64(0.0), unbounded, relaxation)
-                # Then the friction rows one at a time, each clamped to the pyramid of the new
-                # normal impulse: row-wise projection converges to the box-constrained solution,
-                # where a joint 2x2 solve clamped afterwards can stall with one row at its bound
-                # and the other off its optimum.
-                bound = friction[n] * lam[r0]
+                # impulse on oblique approach, which the projection would then zero. Adhesion
+                # lowers the bound below 0 by the implicit spring of eq. 4.16.
+                lower = wp.min(_adhesive_bound(delassus, target, lam, rel, r0, k), zero)
+                change = _relax_row(delassus, target, row_inv, lam, rel, r0, lower, unbounded)
+                # Then the tangent rows one at a time, each within the larger of the Coulomb
+                # pyramid of the new normal impulse and the implicit tangential adhesion: row-
+                # wise projection converges to the box-constrained solution, where a joint 2x2
+                # solve clamped afterwards can stall with one row at its bound and the other off.
+                coulomb = friction[n] * wp.max(lam[r0], zero)
                 for t in range(1, 3):
-                    change = wp.max(change, _relax_row(delassus, target, row_inv, lam, rel, r0 + t, -bound, bound,
-                                                                relaxation))
+                    bound = wp.max(coulomb, wp.abs(_adhesive_bound(delassus, target, lam, rel, r0 + t, k)))
+                    change = wp.max(change, _relax_row(delassus, target, row_inv, lam, rel, r0 + t, -bound, bound))
                 biggest = wp.max(biggest, change)
             sweeps[0] = sweep + 1
             if biggest <= tolerance:
@@ -63,12 +79,13 @@ def _pgs_kernel(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dtype=w
 
 
 def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, lam: np.ndarray, rel: np.ndarray,
-               max_sweeps: int, tolerance: float, relaxation: float = 1.0) -> int:
+               max_sweeps: int, tolerance: float, adhesion: np.ndarray | None = None) -> int:
     """Projected Gauss-Seidel on ``0 <= lambda _|_ B lambda - target >= 0`` with friction.
 
     Per contact (3 rows: normal, tangent 1, tangent 2) the normal impulse is updated and
     clamped at 0, then each tangent impulse in turn, clamped to the 4-sided pyramid
-    ``|lambda_t| <= mu lambda_n`` of the new normal impulse.
+    ``|lambda_t| <= mu lambda_n`` of the new normal impulse. With ``adhesion`` the bounds
+    widen to the implicit adhesive limits of thesis eq. 4.16 (:mod:`softvr.contact.adhesion`).
 
     Parameters
     ----------
@@ -86,6 +103,8 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
     tolerance : float [m/s]
         Stop after a sweep whose largest velocity correction ``B_ii |delta lambda_i|`` is
         below ``tolerance``.
+    adhesion : ndarray, shape [c] [kg], optional
+        ``k = dt^2 A C beta^2`` per contact (0: no adhesion).
 
     Returns
     -------
@@ -104,8 +123,9 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
               inputs=[wp.array(np.ascontiguousarray(delassus), dtype=wp.float64, device=device),
                       wp.array(target, dtype=wp.float64, device=device),
                       wp.array(friction, dtype=wp.float64, device=device),
+                      wp.array(np.zeros(count) if adhesion is None else adhesion, dtype=wp.float64, device=device),
                       wp.array(row_inv, dtype=wp.float64, device=device),
-                      lam_w, rel_w, int(max_sweeps), float(tolerance), float(relaxation), sweeps])
+                      lam_w, rel_w, int(max_sweeps), float(tolerance), sweeps])
     lam[:] = lam_w.numpy()
     rel[:] = rel_w.numpy()
     return int(sweeps.numpy()[0])

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from softvr.collision.contacts import Contacts
 from softvr.contact._pgs_kernels import pgs_sweeps
 from softvr.contact.islands import contact_islands
+from softvr.errors import InputError
 
 __all__ = ["ContactSolution", "solve_contacts"]
 
@@ -51,6 +52,8 @@ class ContactSolution:
     islands : list of list of int
     contacts : list of Contacts
         The non-empty contact sets solved, in the order of ``impulses`` and ``frames``.
+    gaps_after : list of ndarray, each [contact_count] [m]
+        Linearized normal gap at the end of the step (``gap + dt n . v_rel``).
     """
 
     velocities: list
@@ -60,10 +63,11 @@ class ContactSolution:
     residual: float
     islands: list
     contacts: list
+    gaps_after: list
 
 
 def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,
-                   warm_start: dict | None = None) -> ContactSolution:
+                   warm_start: dict | None = None, adhesion: list | None = None) -> ContactSolution:
     """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
 
     Parameters
@@ -87,8 +91,17 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         ``{contact id: world impulse vector (3,)}`` of the previous step, filled in with this
         step's. Kept in world coordinates because the friction frame follows the tangential
         velocity and turns from step to step.
+    adhesion : list of ndarray, optional
+        Per contact set, ``A C beta^2`` [N/m] of each contact (implicit adhesion, thesis eq.
+        4.16; :meth:`softvr.contact.AdhesionState.stiffness`); None or zeros: plain contact.
     """
-    contact_sets = [c for c in contact_sets if len(c)]
+    if adhesion is None:
+        adhesion = [None] * len(contact_sets)
+    if len(adhesion) != len(contact_sets):
+        raise InputError("adhesion", f"one entry per contact set ({len(contact_sets)})", f"{len(adhesion)} entries")
+    kept = [(c, a) for c, a in zip(contact_sets, adhesion) if len(c)]
+    contact_sets = [c for c, _ in kept]
+    stiffness = [np.zeros(len(c)) if a is None else np.asarray(a, float) for c, a in kept]
     velocities = [np.array(v, float, copy=True) for v in v_free]
     impulses = [np.zeros((len(c), 3)) for c in contact_sets]
     frames = [np.zeros((len(c), 3, 3)) for c in contact_sets]
@@ -98,15 +111,18 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         sets = [k for k, c in enumerate(contact_sets) if c.a.body in island]
         if sets:
             sweeps += _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt,
-                                    iterations, tolerance, warm_start)
+                                    iterations, tolerance, warm_start, stiffness)
     residual = 0.0
+    gaps_after = []
     for k, c in enumerate(contact_sets):
         rel = _relative_velocity(c, [v.reshape(-1, bodies[j].block_size) for j, v in enumerate(velocities)])
-        violation = -np.einsum("ci,ci->c", rel, c.normal) - c.gap / dt
+        approach = -np.einsum("ci,ci->c", rel, c.normal)
+        violation = approach - c.gap / dt
         residual = max(residual, float(np.max(violation, initial=0.0)))
+        gaps_after.append(c.gap - dt * approach)
         if warm_start is not None:
             warm_start.update(zip(c.ids.tolist(), np.einsum("cr,crx->cx", impulses[k], frames[k])))
-    return ContactSolution(velocities, impulses, frames, sweeps, residual, islands, contact_sets)
+    return ContactSolution(velocities, impulses, frames, sweeps, residual, islands, contact_sets, gaps_after)
 
 
 def _side_velocity(side, v_blocks: np.ndarray) -> np.ndarray:
@@ -133,7 +149,7 @@ def _frames(contacts: Contacts, rel_velocity: np.ndarray) -> np.ndarray:
 
 
 def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt, iterations, tol,
-                  warm):
+                  warm, stiffness):
     v_free = [np.asarray(v, float).reshape(-1, b.block_size) for b, v in zip(bodies, v_free)]
     offsets = np.cumsum([0] + [len(contact_sets[k]) for k in sets])
     rows = 3 * int(offsets[-1])
@@ -149,6 +165,7 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
     triplets = {j: ([], [], []) for j in touched}
     target = np.zeros(rows)
     mu = np.zeros(int(offsets[-1]))
+    k_adhesion = np.zeros(int(offsets[-1]))  # dt^2 A C beta^2 per contact [kg]
     lam = np.zeros(rows)
     for s, k in enumerate(sets):
         c = contact_sets[k]
@@ -169,15 +186,18 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
                 store.append(values.ravel())
         target[contact_rows[:, 0]] = -c.gap / dt
         mu[offsets[s] : offsets[s + 1]] = c.friction
+        k_adhesion[offsets[s] : offsets[s + 1]] = dt * dt * stiffness[k]
         if warm:
             for n, cid in enumerate(c.ids.tolist()):
                 if cid in warm:
-                    lam[contact_rows[n]] = _project(f[n] @ np.asarray(warm[cid], float), c.friction[n])
+                    start = f[n] @ np.asarray(warm[cid], float)
+                    # An adhesive contact may keep a pulling (negative) normal impulse.
+                    lam[contact_rows[n]] = start if stiffness[k][n] > 0 else _project(start, c.friction[n])
 
     g = {j: sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
                           shape=(rows, len(touched[j]) * bodies[j].block_size)) for j, (r, c, v) in triplets.items()}
     rel_free = sum(g[j] @ v_free[j][blocks].ravel() for j, blocks in touched.items())
-    sweeps, lam = _solve_working_set(bodies, touched, g, rel_free, target, mu, lam, iterations, tol)
+    sweeps, lam = _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam, iterations, tol)
     for j, blocks in touched.items():
         bs = bodies[j].block_size
         impulse = np.zeros_like(v_free[j])
@@ -189,13 +209,13 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
     return sweeps
 
 
-def _solve_working_set(bodies, touched, g, rel_free, target, mu, lam, iterations, tol):
+def _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam, iterations, tol):
     """PGS on the contacts that can push (working set), grown until no other one is violated.
 
     Most contacts near a resting pile are speculative (a gap within the margin, not closing)
     and end with zero impulse; PGS over all of them pays ``O(rows)`` per update for nothing.
-    The working set starts with the warm-started contacts and those whose unconstrained
-    motion violates their constraint; after each solve the normal rows outside it are checked
+    The working set starts with the warm-started contacts, the adhesive ones (they may pull)
+    and those whose unconstrained motion violates their constraint; after each solve the normal rows outside it are checked
     with the columns of the Delassus operator ``B = sum_j G_j (A_j^-1)_touched G_j^T`` (eq. 5.6)
     of the working rows, and violated ones join. The columns are computed once per contact.
     Returns (PGS sweeps, impulses [rows]).
@@ -205,7 +225,7 @@ def _solve_working_set(bodies, touched, g, rel_free, target, mu, lam, iterations
     columns = np.zeros((rows, 0))  # B[:, working rows]
     working = np.zeros(0, int)  # working rows, 3 per contact
     normal = np.arange(0, rows, 3)
-    joining = normal[(lam[normal] > 0) | (rel_free[normal] < target[normal] - tol)]
+    joining = normal[(lam[normal] != 0) | (k_adhesion > 0) | (rel_free[normal] < target[normal] - tol)]
     sweeps = 0
     while len(joining):
         new_rows = (joining[:, None] + np.arange(3)).ravel()
@@ -218,8 +238,9 @@ def _solve_working_set(bodies, touched, g, rel_free, target, mu, lam, iterations
         working = np.concatenate([working, new_rows])
         w_lam = lam[working]
         w_rel = rel_free[working] + columns[working] @ w_lam
-        sweeps += pgs_sweeps(np.ascontiguousarray(columns[working]), target[working], mu[working[0::3] // 3], w_lam,
-                             w_rel, iterations, tol)
+        contacts = working[0::3] // 3
+        sweeps += pgs_sweeps(np.ascontiguousarray(columns[working]), target[working], mu[contacts], w_lam, w_rel,
+                             iterations, tol, k_adhesion[contacts])
         lam = np.zeros(rows)
         lam[working] = w_lam
         rel = rel_free + columns @ w_lam

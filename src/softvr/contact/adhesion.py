@@ -1,0 +1,178 @@
+"""Implicit adhesion with bonding and debonding (thesis ch. 4, after Raous et al. [RCC99]).
+
+Adhesive contact obeys (eq. 4.10) ``0 <= -p + C beta^2 g  _|_  g >= 0``: under traction p
+the interface opens a gap g and pulls back like a spring of stiffness ``C beta^2`` per unit
+area, with ``beta`` in [0, 1] the adhesion intensity of the contact. The constraint is
+implicit in the contact solver (eqs. 4.13-4.16): in each projected Gauss-Seidel update of a
+contact with local area A, the lower bound of its normal impulse becomes
+
+    lambda_n >= min(k d_bar / (1 + k B_ii), 0),   k = dt^2 A C beta^2          (eq. 4.16)
+
+and its tangential impulses may reach the same implicit adhesive bound in either direction,
+or the Coulomb bound, whichever holds more (steps 4-8 of 4.3.2). This module holds the
+material parameters and the per-contact intensities; the projection itself is in
+:mod:`softvr.contact._pgs_kernels`.
+
+After each step (4.3.3) the intensity evolves by explicit Euler, from the tractions
+``p = -lambda / (dt A)`` of the solve and the gap the traction law gives, ``g = p / (C beta^2)``:
+
+* bonding under normal compression c (eq. 4.11): ``beta_dot = r max(c - beta p0, 0)``;
+* debonding (eq. 4.12): ``beta_dot = min(W - C g^2 beta, 0) / eta``, with p the norm of the
+  normal and tangential adhesive tractions under normal traction, of the tangential one alone
+  under compression (where bonding acts as well); the tangential adhesive traction is what
+  exceeds the Coulomb bound ``mu lambda_n`` (friction carries the rest);
+* a contact whose gap exceeds ``debond_gap`` is fully debonded and forgotten (touching again
+  later makes a new contact at ``beta0``); one that debonds to 0 while still close stays at 0.
+
+Debonding starts once ``C g^2 beta = W``, that is at the traction ``p* = sqrt(W C beta^3)``.
+
+Combining two materials: C, W, r and p0 are the geometric means of the two sides (so a
+non-adhesive side, C = 0, makes the pair non-adhesive), eta the geometric mean, beta0 and
+``debond_gap`` the smaller of the two. A static plane or mesh takes the ``Adhesion`` given to
+:meth:`softvr.Scene.add_plane` / ``add_mesh``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from softvr.errors import InputError
+
+__all__ = ["Adhesion", "AdhesionState", "combine"]
+
+
+@dataclass(frozen=True)
+class Adhesion:
+    """Adhesion parameters of a material (thesis 4.2).
+
+    Attributes
+    ----------
+    stiffness : float [N/m^3]
+        Adhesion stiffness C: traction per unit gap at full intensity (thesis: 1e6-1e8).
+    max_energy : float [J/m^2]
+        Maximum adhesion energy W; debonding starts once ``C g^2 beta`` exceeds it.
+    viscosity : float [J s/m^2]
+        Debonding viscosity eta > 0: larger debonds more slowly.
+    bonding_rate : float [1/(Pa s)]
+        Bonding rate r under compression.
+    saturation : float [Pa]
+        Compression p0 at which bonding saturates (beta stops growing at c = beta p0).
+    initial : float
+        Intensity beta0 in [0, 1] of a new contact.
+    debond_gap : float [m]
+        Gap beyond which a contact is fully debonded.
+    """
+
+    stiffness: float
+    max_energy: float
+    viscosity: float
+    bonding_rate: float = 0.0
+    saturation: float = 1.0
+    initial: float = 1.0
+    debond_gap: float = 0.005
+
+    def __post_init__(self) -> None:
+        checks = (
+            ("stiffness", self.stiffness >= 0, "a finite value >= 0 [N/m^3]"),
+            ("max_energy", self.max_energy >= 0, "a finite value >= 0 [J/m^2]"),
+            ("viscosity", self.viscosity > 0, "a finite value > 0 [J s/m^2] (eta = 0 would debond instantly)"),
+            ("bonding_rate", self.bonding_rate >= 0, "a finite value >= 0 [1/(Pa s)]"),
+            ("saturation", self.saturation > 0, "a finite value > 0 [Pa]"),
+            ("initial", 0.0 <= self.initial <= 1.0, "an intensity in [0, 1]"),
+            ("debond_gap", self.debond_gap > 0, "a finite gap > 0 [m]"),
+        )
+        for name, ok, expected in checks:
+            value = getattr(self, name)
+            if not (ok and math.isfinite(value)):
+                raise InputError(f"Adhesion.{name}", expected, repr(value))
+
+    def traction_limit(self, beta: float = 1.0) -> float:
+        """Traction [Pa] at which debonding starts for intensity ``beta``: sqrt(W C beta^3)."""
+        return math.sqrt(self.max_energy * self.stiffness * beta**3)
+
+
+def combine(a: Adhesion | None, b: Adhesion | None) -> Adhesion | None:
+    """The adhesion of a contact between materials ``a`` and ``b`` (module docstring); None
+    (no adhesion) when either side has none."""
+    if a is None or b is None:
+        return None
+    return Adhesion(stiffness=math.sqrt(a.stiffness * b.stiffness), max_energy=math.sqrt(a.max_energy * b.max_energy),
+                    viscosity=math.sqrt(a.viscosity * b.viscosity),
+                    bonding_rate=math.sqrt(a.bonding_rate * b.bonding_rate),
+                    saturation=math.sqrt(a.saturation * b.saturation), initial=min(a.initial, b.initial),
+                    debond_gap=min(a.debond_gap, b.debond_gap))
+
+
+class AdhesionState:
+    """Adhesion intensities of the tracked contacts, by stable contact id.
+
+    A contact is tracked from the step it first touches (normal impulse > 0 or gap <= 0 at the
+    end of the step), starting at ``beta0``, until it is no longer detected or its gap exceeds
+    ``debond_gap``; only tracked contacts adhere.
+
+    Attributes
+    ----------
+    intensity : dict[int, float]
+        beta of every tracked adhesive contact.
+    """
+
+    def __init__(self):
+        self.intensity: dict[int, float] = {}
+
+    def stiffness(self, contacts, adhesion: Adhesion | None) -> np.ndarray:
+        """``A C beta^2`` [N/m] per contact of one contact set: the implicit adhesive stiffness
+        the solver uses (``k = dt^2 A C beta^2``, eq. 4.16). 0 without adhesion or area, and for
+        contacts that have not touched yet: a speculative contact (a gap within the margin)
+        must not pull the surfaces together from a distance."""
+        if adhesion is None or not len(contacts):
+            return np.zeros(len(contacts))
+        beta = np.array([self.intensity.get(int(i), 0.0) for i in contacts.ids])
+        return contacts.area * adhesion.stiffness * beta**2
+
+    def evolve(self, contact_sets, adhesions, impulses, gaps_after, dt: float) -> None:
+        """Bonding / debonding of every adhesive contact after a step (thesis 4.3.3).
+
+        Parameters
+        ----------
+        contact_sets : list of Contacts
+        adhesions : list of Adhesion or None
+            One per contact set.
+        impulses : list of ndarray, each [contact_count, 3] [N s]
+            (normal, tangent, binormal) impulses of the solve.
+        gaps_after : list of ndarray, each [contact_count] [m]
+            Normal gap at the end of the step (full debond beyond ``debond_gap``).
+        dt : float [s]
+        """
+        updated: dict[int, float] = {}
+        for contacts, adhesion, lam, gap in zip(contact_sets, adhesions, impulses, gaps_after):
+            if adhesion is None or not len(contacts):
+                continue
+            lam = np.asarray(lam, float)
+            # A contact bonds from the step it first touches (pushed, or closed): at beta0.
+            tracked = np.array([int(i) in self.intensity for i in contacts.ids], bool)
+            touched = tracked | (lam[:, 0] > 0) | (gap <= 0)
+            beta = np.array([self.intensity.get(int(i), adhesion.initial) for i in contacts.ids])
+            area = np.maximum(contacts.area, 1e-300)
+            p = -lam / (dt * area[:, None])  # tractions (normal > 0 under traction)
+            # The tangential traction adhesion carries: what exceeds the Coulomb bound (friction
+            # carries the rest, and debonds nothing).
+            coulomb = contacts.friction * np.maximum(lam[:, 0], 0.0)
+            tangential = np.maximum(np.linalg.norm(lam[:, 1:], axis=1) - coulomb, 0.0) / (dt * area)
+            pulled = p[:, 0] > 0
+            debond_p = np.where(pulled, np.hypot(p[:, 0], tangential), tangential)
+            # C g^2 beta with the traction law's gap g = p / (C beta^2): p^2 / (C beta^3); no
+            # adhesion (C beta = 0) stores no energy.
+            held = adhesion.stiffness * beta**3
+            energy = np.divide(debond_p**2, held, out=np.zeros_like(held), where=held > 0)
+            rate = np.minimum(adhesion.max_energy - energy, 0.0) / adhesion.viscosity
+            compression = np.where(pulled, 0.0, -p[:, 0])
+            rate += adhesion.bonding_rate * np.maximum(compression - beta * adhesion.saturation, 0.0)
+            beta = np.clip(np.nan_to_num(beta + dt * rate, nan=0.0), 0.0, 1.0)
+            # Fully debonded past the gap threshold: forgotten, so that a later touch is a new
+            # contact (starting at beta0). A contact debonded to 0 while still close stays at 0.
+            keep = touched & (gap <= adhesion.debond_gap)
+            updated.update(zip(contacts.ids[keep].tolist(), beta[keep].tolist()))
+        self.intensity = updated

@@ -1,0 +1,203 @@
+"""Implicit adhesion (thesis ch. 4) against the model's own analytic consequences.
+
+Pull-off force. At intensity beta = 1 the interface holds a traction p with a gap
+g = p / C (eq. 4.10, p = C beta^2 g); its debonding term C g^2 beta (eq. 4.12) reaches the
+maximum energy W at p* = sqrt(W C). A rigid cube resting on an adhesive plane and pulled up by
+a slowly ramped force F therefore starts to debond when the traction over its contacts,
+(F - m g) / sum(A_i), reaches p*: F* = m g + sum(A_i) sqrt(W C). With a small viscosity eta
+debonding then runs away within a few steps (the energy p^2 / (C beta^3) grows as beta
+drops), so the cube separates at F* within the ramp's few-step overshoot: the test allows
+5 % above F* and nothing below. Pulled sideways (no friction) it lets go at
+F_t* = sum(A_i) sqrt(W C), the tangential traction alone debonding under compression (4.3.3).
+
+Contact areas are the thesis' (4.3.1): the cube's surface is q x q quads per face split in
+two, so every vertex carries A = (L/q)^2 / 2 (tests/contact/test_contact_area.py).
+"""
+
+import numpy as np
+import pytest
+
+from softvr import Scene
+from softvr.collision import Plane
+from softvr.contact import Adhesion, combine
+from softvr.dynamics import RigidBody, RigidPoints
+from softvr.errors import InputError
+from softvr.examples.example_candy import box_surface
+
+EDGE, QUADS, DENSITY, G = 0.1, 4, 800.0, 9.81
+
+
+def adhesive_cube(adhesion, *, friction=0.5, dt=0.002):
+    verts, tris = box_surface((EDGE,) * 3, QUADS)
+    cube = RigidBody.box((EDGE,) * 3, DENSITY, position=(0.0, 0.0, EDGE / 2), name="cube")
+    scene = Scene(contact_margin=0.002)
+    scene.add_body(cube, collision_points=RigidPoints(cube, verts - EDGE / 2), collision_triangles=tris,
+                   adhesion=adhesion)
+    scene.add_plane(Plane(friction=friction), adhesion=adhesion)
+    for _ in range(20):  # settle
+        scene.step(dt)
+    return scene, cube
+
+
+def mean_beta(scene):
+    values = list(scene.adhesion_state.intensity.values())
+    return float(np.mean(values)) if values else 0.0
+
+
+def ramp_until_debonded(scene, cube, direction, rate, dt, limit):
+    """Ramp a force along ``direction`` at ``rate`` [N/s], applied at the centre of the bottom
+    face (so that a sideways pull shears the interface without tipping the cube); return the
+    force when the mean intensity first falls below 1/2 (the runaway), and the largest force
+    with beta still 1."""
+    holding = 0.0
+    lever = np.array([0.0, 0.0, -EDGE / 2])  # bottom-face centre from the centre of mass
+    for n in range(1, int(limit / (rate * dt))):
+        force = rate * n * dt * np.asarray(direction, float)
+        scene.external[0] = np.concatenate([force, np.cross(lever, force)])
+        force = float(np.linalg.norm(force))
+        scene.step(dt)
+        beta = mean_beta(scene)
+        if beta == 1.0:
+            holding = force
+        if beta < 0.5:
+            return force, holding
+    raise AssertionError("never debonded")
+
+
+def contact_area_sum():
+    return (QUADS + 1) ** 2 * (EDGE / QUADS) ** 2 / 2  # bottom-face vertices, A = h^2 / 2 each
+
+
+def test_normal_pull_off_force_is_m_g_plus_area_times_sqrt_w_c():
+    adhesion = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3)
+    scene, cube = adhesive_cube(adhesion)
+    assert len(scene.last_solution.contacts[0]) == (QUADS + 1) ** 2
+    np.testing.assert_allclose(scene.last_solution.contacts[0].area, (EDGE / QUADS) ** 2 / 2, rtol=1e-9)
+    predicted = cube.mass * G + contact_area_sum() * np.sqrt(1.0 * 1e7)
+    separated, held = ramp_until_debonded(scene, cube, (0, 0, 1), rate=40.0, dt=0.002, limit=2 * predicted)
+    assert predicted <= separated <= 1.05 * predicted
+    assert held >= 0.99 * predicted  # no debonding below F*
+    # Then it comes off: pulled on, the cube leaves the plane and the contacts are forgotten.
+    for _ in range(100):
+        scene.step(0.002)
+    assert cube.position[2] > EDGE / 2 + adhesion.debond_gap and not scene.adhesion_state.intensity
+
+
+def test_tangential_pull_off_force_is_area_times_sqrt_w_c():
+    adhesion = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3)
+    scene, cube = adhesive_cube(adhesion, friction=0.0)
+    predicted = contact_area_sum() * np.sqrt(1.0 * 1e7)
+    separated, held = ramp_until_debonded(scene, cube, (1, 0, 0), rate=40.0, dt=0.002, limit=2 * predicted)
+    assert predicted <= separated <= 1.05 * predicted
+    assert held >= 0.99 * predicted
+
+
+def test_larger_viscosity_debonds_more_slowly():
+    forces = []
+    for eta in (1e-3, 3e-2):
+        scene, cube = adhesive_cube(Adhesion(stiffness=1e7, max_energy=1.0, viscosity=eta))
+        forces.append(ramp_until_debonded(scene, cube, (0, 0, 1), rate=40.0, dt=0.002, limit=200.0)[0])
+    assert forces[1] > 1.02 * forces[0]  # the ramp got further before the runaway
+
+
+def test_bonding_saturates_at_the_compression_over_p0():
+    """A regular tetrahedron standing on a face carries its weight on three contacts equally
+    (statically determinate, unlike the cube's 25), each with compression c = m g / (3 A),
+    A = the face area (every vertex touches three faces of that area). Initially unbonded, it
+    bonds at beta_dot = r (c - beta p0) (eq. 4.11): beta rises to c / p0 and stays there."""
+    side = 0.1
+    corners = np.array([[0.0, 0.0, 0.0], [side, 0.0, 0.0], [side / 2, side * np.sqrt(3) / 2, 0.0],
+                        [side / 2, side * np.sqrt(3) / 6, side * np.sqrt(2.0 / 3.0)]])
+    faces = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [2, 0, 3]])
+    centre = corners.mean(axis=0)
+    body = RigidBody.sphere(0.03, 1000.0, position=centre, name="tetrahedron")
+    area = np.sqrt(3) / 4 * side**2
+    c = body.mass * G / (3 * area)
+    p0 = 2.0 * c
+    adhesion = Adhesion(stiffness=1e7, max_energy=1e3, viscosity=1.0, bonding_rate=5.0 / c, saturation=p0,
+                        initial=0.0)
+    scene = Scene(contact_margin=0.002)
+    scene.add_body(body, collision_points=RigidPoints(body, corners - centre), collision_triangles=faces,
+                   adhesion=adhesion)
+    scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
+    history = []
+    for _ in range(400):
+        scene.step(0.002)
+        history.append(sorted(scene.adhesion_state.intensity.values()))
+    history = np.array(history)
+    assert history.shape == (400, 3)
+    np.testing.assert_allclose(scene.last_solution.contacts[0].area, area, rtol=1e-9)
+    assert history.min() >= 0.0 and history.max() <= c / p0 * (1 + 1e-3)
+    np.testing.assert_allclose(history[-1], c / p0, rtol=0.01)
+    # beta_dot = r c (1 - beta / (c / p0)): after t, beta = (c / p0)(1 - exp(-r p0 t)).
+    t = 0.002 * np.arange(1, 401)
+    expected = c / p0 * (1 - np.exp(-(5.0 / c) * p0 * t))
+    np.testing.assert_allclose(history.mean(axis=1), expected, atol=0.02 * c / p0)
+
+
+def test_adhesion_off_gives_exactly_plain_contact():
+    plain, cube_a = adhesive_cube(None)
+    off, cube_b = adhesive_cube(Adhesion(stiffness=0.0, max_energy=1.0, viscosity=1.0))
+    for scene in (plain, off):
+        scene.external[0] = np.array([3.0, 1.0, 2.0, 0.0, 0.0, 0.01])
+        for _ in range(50):
+            scene.step(0.002)
+    np.testing.assert_array_equal(cube_a.position, cube_b.position)
+    np.testing.assert_array_equal(cube_a.v, cube_b.v)
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("stiffness", -1.0, "Adhesion.stiffness"), ("initial", 1.5, "Adhesion.initial"),
+    ("initial", -0.1, "Adhesion.initial"), ("viscosity", 0.0, "Adhesion.viscosity"),
+])
+def test_bad_parameters_are_clear_errors(field, value, match):
+    args = {"stiffness": 1e7, "max_energy": 1.0, "viscosity": 1.0} | {field: value}
+    with pytest.raises(InputError, match=match):
+        Adhesion(**args)
+
+
+def test_combining_materials():
+    jello = Adhesion(stiffness=4e7, max_energy=2.0, viscosity=0.1, initial=0.8)
+    candy = Adhesion(stiffness=1e6, max_energy=0.5, viscosity=0.4, initial=1.0)
+    both = combine(jello, candy)
+    assert both.stiffness == pytest.approx(np.sqrt(4e7 * 1e6)) and both.max_energy == pytest.approx(1.0)
+    assert both.viscosity == pytest.approx(0.2) and both.initial == 0.8
+    assert combine(jello, None) is None and combine(None, candy) is None
+
+
+@pytest.mark.parametrize("stiffness", [1e6, 1e7, 1e8])
+@pytest.mark.parametrize("dt", [0.001, 0.002, 0.005])
+def test_stable_over_the_thesis_range_of_stiffness_and_time_step(stiffness, dt):
+    """Thesis 4.4: stable for C in 1e6..1e8 N/m^3 at dt 1-5 ms. A soft FEM cube lands on an
+    adhesive plane, sticks, then a ramped pull tears it off. The system only dissipates, so
+    its kinetic energy can never exceed what went in: the gravitational energy released plus
+    the work of the pull (elastic and adhesive energies are >= 0)."""
+    from softvr.dynamics import EmbeddedPoints, FemBody, Material
+    from softvr.volume import Volume, boundary_faces, grid_tet_mesh
+
+    h = 0.05
+    nodes, tets = grid_tet_mesh(Volume(np.zeros((2, 2, 2), np.uint8), spacing=(h,) * 3, origin=(h / 2, h / 2,
+                                                                                                   0.01 + h / 2)), 2)
+    body = FemBody(nodes, tets, Material(1e5, 0.3, 1000.0, alpha=1.0, beta=1e-3), name="jelly")
+    faces = boundary_faces(tets)
+    adhesion = Adhesion(stiffness=stiffness, max_energy=0.5, viscosity=0.05)
+    scene = Scene(contact_margin=0.002)
+    scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(nodes))[:, None],
+                                                         np.ones((len(nodes), 1))),
+                   collision_triangles=faces, adhesion=adhesion)
+    scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
+    mass = body.mass.sum()
+    work = 0.0
+    com0 = body.q[:, 2] @ body.mass / mass
+    stuck = False
+    for n in range(int(0.6 / dt)):
+        t = n * dt
+        force = max(t - 0.2, 0.0) * 400.0  # [N], after 0.2 s of rest
+        scene.external[0] = np.tile([0.0, 0.0, force / len(nodes)], (len(nodes), 1))
+        z0 = body.q[:, 2].mean()
+        scene.step(dt)
+        work += force * (body.q[:, 2].mean() - z0)
+        energy_in = mass * G * (com0 - body.q[:, 2] @ body.mass / mass) + work
+        stuck |= any(lam[:, 0].min() < 0 for lam in scene.last_solution.impulses)  # adhesion pulled
+        assert np.isfinite(body.q).all() and body.kinetic_energy() <= energy_in * (1 + 1e-6) + 1e-9
+    assert stuck
