@@ -5,7 +5,8 @@
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
 ``softvr view SCENE``       a physics demo played live in a window (space pauses, n steps)
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
-``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton
+``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
+``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
 ``softvr info PATH``        what a volume file holds
 """
 
@@ -41,7 +42,7 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact")
+_BENCH_AREAS = ("volume", "contact", "adhesion")
 
 
 def _bench(argv: list[str]) -> int:

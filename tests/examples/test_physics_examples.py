@@ -141,6 +141,18 @@ def test_candy_scale_and_candies_landing_on_the_jello():
     assert ex.metrics[-1]["active_contacts"] > 0
 
 
+def test_adhesive_candies_stick_to_the_jello():
+    """With adhesion some contacts pull (negative normal impulse) once the candies have
+    landed and bonded, every intensity stays in [0, 1], and energy still never grows."""
+    ex = example_candy.Example(frames=24, scale=example_candy.SMALL_SCALE, adhesion=True, **SMALL)
+    e0, images = run_frames(ex, 24, render_every=23)
+    check_common(ex, e0, images)
+    pulled = [int((i[:, 0] < 0).sum()) for i in ex.scene.last_solution.impulses]
+    beta = np.array(list(ex.scene.adhesion_state.intensity.values()))
+    assert beta.size > 0 and beta.min() >= 0.0 and beta.max() <= 1.0
+    assert sum(pulled) > 0
+
+
 def test_view_plays_a_scene_live_in_a_window(display):
     """Under Xvfb: the window opens, frames advance on the timer, it closes on time."""
     ex = example_soft_cube.Example(frames=3, width=160, height=120)

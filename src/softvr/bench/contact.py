@@ -188,10 +188,10 @@ CANDY_QUICK_DURATION_S = 0.16
 THESIS_CANDY_S_PER_STEP = 0.25
 
 
-def run_candy(*, quick: bool = False, progress: bool = True) -> dict:
-    """softvr on the thesis' candy scene (:mod:`softvr.examples.example_candy`, no adhesion):
-    candies fall on a Jell-O block, 8 ms steps. Full: ~10 K tets, ~25 K collision triangles,
-    0.8 s simulated (the candies land and start to pile); quick: the small scale, 0.16 s.
+def run_candy(*, quick: bool = False, progress: bool = True, adhesion: bool = False) -> dict:
+    """softvr on the thesis' candy scene (:mod:`softvr.examples.example_candy`; with or without
+    adhesion): candies fall on a Jell-O block, 8 ms steps. Full: ~10 K tets, ~25 K collision
+    triangles, 0.8 s simulated (the candies land and start to pile); quick: the small scale, 0.16 s.
 
     Returns ms per step (mean over the steps with contacts between bodies, and overall),
     contacts (mean / max), PGS sweeps (mean / max), the largest normal-velocity residual and
@@ -201,14 +201,16 @@ def run_candy(*, quick: bool = False, progress: bool = True) -> dict:
 
     from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
 
-    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE)
+    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, adhesion=adhesion)
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
-    trace = {k: [] for k in ("step_s", "contacts", "pgs_iterations", "residual")}
-    for _ in tqdm(range(steps), desc="bench contact: candy", unit="step", disable=not progress, leave=False):
+    trace = {k: [] for k in ("step_s", "contacts", "pulling_contacts", "pgs_iterations", "residual")}
+    label = "candy + adhesion" if adhesion else "candy"
+    for _ in tqdm(range(steps), desc=label, unit="step", disable=not progress, leave=False):
         t = time.perf_counter()
         sol = ex.scene.step(ex.dt)
         trace["step_s"].append(time.perf_counter() - t)
         trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
+        trace["pulling_contacts"].append(int(sum(int((i[:, 0] < 0).sum()) for i in sol.impulses)))
         trace["pgs_iterations"].append(int(sol.iterations))
         trace["residual"].append(float(sol.residual))
     ms = 1e3 * np.asarray(trace["step_s"])
@@ -220,7 +222,7 @@ def run_candy(*, quick: bool = False, progress: bool = True) -> dict:
             "contacts_max": int(max(trace["contacts"])), "pgs_iterations_mean": float(np.mean(trace["pgs_iterations"])),
             "pgs_iterations_max": int(max(trace["pgs_iterations"])), "residual_max_m_s": float(max(trace["residual"])),
             "real_time_factor": ex.dt * 1e3 / float(ms.mean()), "thesis_s_per_step": THESIS_CANDY_S_PER_STEP,
-            "quick": quick, "trace": trace}
+            "quick": quick, "adhesion": adhesion, "trace": trace}
 
 
 # ----------------------------------------------------------------------------- the run

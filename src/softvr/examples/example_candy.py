@@ -9,9 +9,12 @@ are soft (FEM balls and beans with embedded icosphere surfaces), half rigid (box
 balls); they rain down in a shuffled grid, bounce, squash the block and pile up on it. Every
 pair of collision surfaces meets vertex-triangle and edge-edge.
 
-Adhesion (the point of the thesis' scene) comes with the adhesion issue; this is the plain
-contact scene, also the candy-scale benchmark (``softvr bench contact``). Run
-``softvr run candy`` (or ``python -m softvr.examples.example_candy``).
+With ``adhesion=True`` (``--adhesion``) the Jell-O is adhesive (C = 4e7 N/m^3, the thesis'
+value) and every candy has its own adhesion stiffness (1e6 to 4e7 N/m^3), so the pieces bond
+to the block, and debond as it wobbles, at different rates (thesis 4.4). Without it this is
+the plain contact scene of the candy-scale benchmark (``softvr bench contact``); both run in
+``softvr bench adhesion``. Run ``softvr run candy`` (or ``python -m
+softvr.examples.example_candy``).
 """
 
 from __future__ import annotations
@@ -24,10 +27,17 @@ import numpy as np
 from softvr.examples.example_oranges import icosphere, orange_mesh
 from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
 
-__all__ = ["DEFAULT_FRAMES", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE", "box_surface", "main"]
+__all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",
+           "box_surface", "main"]
 
 #: 4 s at 25 frames per second.
 DEFAULT_FRAMES = 100
+
+#: The Jell-O's adhesion (thesis 4.4: its stiffness dominates the scene's, 4e7 N/m^3).
+JELLO_ADHESION = dict(stiffness=4e7, max_energy=0.05, viscosity=0.05, bonding_rate=2e-3, saturation=2000.0,
+                      initial=0.5, debond_gap=0.003)
+#: Adhesion stiffness of the candies in turn [N/m^3] ("diverse adhesion coefficients").
+CANDY_STIFFNESS = (4e7, 1e6, 1e7, 4e6)
 
 _JELLO = (0.95, 0.25, 0.3)
 _CANDY_COLORS = [(0.98, 0.8, 0.2), (0.3, 0.7, 0.95), (0.55, 0.9, 0.35), (0.95, 0.5, 0.85), (1.0, 0.6, 0.2),
@@ -121,6 +131,8 @@ class Example(PhysicsExample):
     steps_per_frame : int
     seed : int
         Shuffles the drop positions, spins and orientations.
+    adhesion : bool
+        Adhesive Jell-O and candies (:data:`JELLO_ADHESION`, :data:`CANDY_STIFFNESS`).
     """
 
     name = "candy"
@@ -129,9 +141,10 @@ class Example(PhysicsExample):
                  scale: CandyScale = FULL_SCALE, block_size=(0.3, 0.3, 0.12), block_young: float = 3e4,
                  block_poisson: float = 0.4, block_density: float = 1050.0, candy_radius: float = 0.03,
                  candy_young: float = 2e5, candy_density: float = 1200.0, friction: float = 0.3,
-                 dt: float = 0.008, steps_per_frame: int = 5, seed: int = 7):
+                 dt: float = 0.008, steps_per_frame: int = 5, seed: int = 7, adhesion: bool = False):
         from softvr import Scene
         from softvr.collision import Plane
+        from softvr.contact import Adhesion
         from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints, embed_in_tets
         from softvr.dynamics.rigid import quat_from_rotvec
         from softvr.render import Camera
@@ -156,7 +169,10 @@ class Example(PhysicsExample):
         verts, self.block_triangles = box_surface(size, scale.block_surface)
         tet_index, weights = embed_in_tets(nodes, tets, verts + corner)
         self.block_surface = EmbeddedPoints(self.block, tets[tet_index], weights)
-        scene.add_body(self.block, collision_points=self.block_surface, collision_triangles=self.block_triangles)
+        self.adhesion = adhesion
+        jello = Adhesion(**JELLO_ADHESION) if adhesion else None
+        scene.add_body(self.block, collision_points=self.block_surface, collision_triangles=self.block_triangles,
+                       adhesion=jello)
 
         unit, self.candy_triangles = icosphere(scale.candy_subdivisions)
         ball_nodes, ball_tets, _, _, fraction = orange_mesh(candy_radius, voxels=2 * scale.candy_cells,
@@ -193,7 +209,9 @@ class Example(PhysicsExample):
                     local, tris = 0.8 * candy_radius * unit, self.candy_triangles
                 body.v[3:] = rng.normal(0.0, 3.0, 3)
                 points = RigidPoints(body, local)
-            scene.add_body(body, collision_points=points, collision_triangles=tris)
+            sticky = None if not adhesion else Adhesion(**{**JELLO_ADHESION,
+                                                           "stiffness": CANDY_STIFFNESS[k % len(CANDY_STIFFNESS)]})
+            scene.add_body(body, collision_points=points, collision_triangles=tris, adhesion=sticky)
             self.candies.append(body)
             self.candy_surfaces.append((points, np.asarray(tris, np.int32)))
         span = 0.5 * size[:2].max() + 0.05
@@ -236,16 +254,18 @@ class Example(PhysicsExample):
 
     def describe(self) -> dict:
         return {**super().describe(), "tets": self.tet_count, "collision_triangles": self.triangle_count,
-                "candies": len(self.candies), "friction": self.plane.friction}
+                "candies": len(self.candies), "friction": self.plane.friction, "adhesion": self.adhesion}
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the candy demo to ``<out>/candy.mp4``, ``_sheet.png`` and ``_metrics.json``."""
     parser = demo_parser("python -m softvr.examples.example_candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--small", action="store_true", help="a ~1 K-tet version instead of the thesis' scale")
+    parser.add_argument("--adhesion", action="store_true", help="adhesive Jell-O and candies (thesis Fig. 4.1)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, scale=SMALL_SCALE if args.small else FULL_SCALE)
+    return run_module(sys.modules[__name__], args, scale=SMALL_SCALE if args.small else FULL_SCALE,
+                      adhesion=args.adhesion)
 
 
 if __name__ == "__main__":
