@@ -13,8 +13,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_oranges, example_soft_cube,
-                             run)
+from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_oranges,
+                             example_soft_cube, run)
 from softvr.examples.run import SCENES
 
 SMALL = dict(width=64, height=48)
@@ -153,6 +153,24 @@ def test_adhesive_candies_stick_to_the_jello():
     assert sum(pulled) > 0
 
 
+def test_cloth_sticks_to_the_wall_then_peels():
+    """The swung cloth bonds to the wall on impact and then loses bonded vertices (debonding
+    under its weight), never passing through the wall; without adhesion nothing bonds."""
+    ex = example_cloth_wall.Example(frames=6, quads=8, **SMALL)
+    bonded = []
+    e0, images = run_frames(ex, 6, render_every=5)
+    check_common(ex, e0, images)
+    for _ in range(30):
+        ex.step()
+        bonded.append(ex.on_wall())
+    assert max(bonded) > 10 and bonded[-1] < max(bonded)
+    plain = example_cloth_wall.Example(frames=3, quads=8, adhesion=None, **SMALL)
+    for _ in range(3):
+        plain.step()
+    assert plain.on_wall() == 0 and plain.metrics[-1]["contacts"] > 0
+    plain.close()
+
+
 def test_view_plays_a_scene_live_in_a_window(display):
     """Under Xvfb: the window opens, frames advance on the timer, it closes on time."""
     ex = example_soft_cube.Example(frames=3, width=160, height=120)
@@ -187,13 +205,14 @@ def test_run_writes_video_sheet_and_metrics(tmp_path):
 def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
     assert (tmp_path / "soft_cube.mp4").stat().st_size > 0
-    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy"}
-    for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges, example_candy):
+    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy", "cloth_wall"}
+    for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges, example_candy,
+                   example_cloth_wall):
         assert module.DEFAULT_FRAMES >= 30 and callable(module.main)
 
 
 @pytest.mark.parametrize("scene, message", [
-    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy"),
+    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall"),
     ("scenes/my_scene.json", "scene files are not supported yet (they come with the scene-format issue)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):

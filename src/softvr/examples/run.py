@@ -8,6 +8,7 @@ box-stack      five rigid boxes stacked on the ground (box-box contacts, dt 10 m
 cloth-sphere   a mass-spring cloth draped over a static sphere and the ground
 oranges        soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
 candy          soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale: 10 K tets, 25 K tris)
+cloth-wall     a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
 =============  ==============================================================================
 
 Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
@@ -49,6 +50,7 @@ SCENES = {
     "cloth-sphere": "cloth_sphere",
     "oranges": "oranges",
     "candy": "candy",
+    "cloth-wall": "cloth_wall",
 }
 
 
