@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from softvr.bench.contact import _git_commit, run_candy
-from softvr.bench.volume import _atomic_write, _loadavg, _machine_info, write_json
+from softvr.bench._report import print_and_write
+from softvr.bench.volume import _atomic_write, _loadavg, _machine_info
 
 __all__ = ["TARGET_COST_RATIO", "format_table", "main", "run_adhesion_bench", "write_plot"]
 
@@ -143,15 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     result = run_adhesion_bench(quick=a.quick, progress=not a.no_progress)
-    print(format_table(result))
-    print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
-          f"at end {result['loadavg_end']}")
-    if a.json:
-        write_json(result, a.json)
-        print(f"wrote {a.json}")
-    if a.plot:
-        write_plot(result, a.plot)
-        print(f"wrote {a.plot}")
+    print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 
 

@@ -42,7 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from softvr.bench import _contact_peers as P
-from softvr.bench.volume import _atomic_write, _loadavg, _machine_info, write_json
+from softvr.bench._report import print_and_write
+from softvr.bench.volume import _atomic_write, _loadavg, _machine_info
 
 __all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
            "run_softvr", "softvr_scene", "write_plot"]
@@ -548,19 +549,8 @@ def main(argv: list[str] | None = None) -> int:
     except SoftvrError as exc:
         print(f"softvr bench contact: {exc}", file=sys.stderr)
         return 2
-    print(format_table(result))
-    m = result["machine"]
-    print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
-          f"at end {result['loadavg_end']} ({m['cores']} cores)")
-    if a.profile:
-        print()
-        print(profile_softvr_step(QUICK_SCENE if a.quick else FULL_SCENE))
-    if a.json:
-        write_json(result, a.json)
-        print(f"wrote {a.json}")
-    if a.plot:
-        write_plot(result, a.plot)
-        print(f"wrote {a.plot}")
+    profile = profile_softvr_step(QUICK_SCENE if a.quick else FULL_SCENE) if a.profile else ""
+    print_and_write(result, format_table(result), a.json, a.plot, write_plot, after_table=profile)
     return 0
 
 

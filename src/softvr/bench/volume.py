@@ -903,15 +903,9 @@ def main(argv: list[str] | None = None) -> int:
     except SoftvrError as exc:
         print(f"softvr bench volume: {exc}", file=sys.stderr)
         return 2
-    print(format_table(result))
-    print(f"\nwall time {result['wall_s']:.0f} s; load average at start {result['loadavg_start']}, "
-          f"at end {result['loadavg_end']} ({result['machine']['cores']} cores)")
-    if a.json:
-        write_json(result, a.json)
-        print(f"wrote {a.json}")
-    if a.plot:
-        write_plot(result, a.plot)
-        print(f"wrote {a.plot}")
+    from softvr.bench._report import print_and_write
+
+    print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 
 
