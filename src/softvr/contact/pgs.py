@@ -8,14 +8,16 @@ is reduced to the LCP of eq. 5.6 on the impulses, ``0 <= lambda _|_ B lambda - d
 ``B = J D_A^-1 J^T`` and ``d = c - J v_free``, where ``v_free = A^-1 b`` is every object's
 unconstrained velocity and ``D_A`` the block diagonal of A with **one block per contact
 object**: objects are independent until couplings join them (eq. 5.3), so ``D_A^-1`` is
-exactly each object's own ``A^-1`` (a sparse LU for FEM bodies, ``M^-1`` for rigid ones) and
-the outer Jacobi loop over velocities of eq. 5.6 converges in one pass. It becomes a real loop
-once couplings put off-diagonal blocks into A (coupling islands, issue 5).
+exactly each object's own ``A^-1`` (read off a reordered sparse LU for FEM and cloth bodies,
+``M^-1`` for rigid ones) and the outer Jacobi loop over velocities of eq. 5.6 converges in one
+pass. It becomes a real loop once couplings put off-diagonal blocks into A (coupling islands).
 
-The LCP is solved by projected Gauss-Seidel over contacts, each a 3x3 block taken as its
-normal row, then its two tangent rows clamped to the friction pyramid.
+The LCP is solved by compiled projected Gauss-Seidel (:mod:`._pgs_kernels`) over contacts,
+each a 3x3 block taken as its normal row, then its two tangent rows one at a time, on a
+working set of the contacts that can act (the others are checked after each solve).
 Friction is a 4-sided Coulomb pyramid, |lambda_t1|, |lambda_t2| <= mu lambda_n, with t1 along
-the unconstrained tangential velocity. Impulses lambda are in N s.
+the unconstrained tangential velocity. Adhesive contacts (:mod:`.adhesion`) widen the bounds
+by the implicit adhesion constraints of thesis eq. 4.16. Impulses lambda are in N s.
 """
 
 from __future__ import annotations
@@ -215,9 +217,10 @@ def _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam
     Most contacts near a resting pile are speculative (a gap within the margin, not closing)
     and end with zero impulse; PGS over all of them pays ``O(rows)`` per update for nothing.
     The working set starts with the warm-started contacts, the adhesive ones (they may pull)
-    and those whose unconstrained motion violates their constraint; after each solve the normal rows outside it are checked
-    with the columns of the Delassus operator ``B = sum_j G_j (A_j^-1)_touched G_j^T`` (eq. 5.6)
-    of the working rows, and violated ones join. The columns are computed once per contact.
+    and those whose unconstrained motion violates their constraint; after each solve the
+    normal rows outside it are checked with the columns of the Delassus operator
+    ``B = sum_j G_j (A_j^-1)_touched G_j^T`` (eq. 5.6) of the working rows, and violated ones
+    join. The columns are computed once per contact.
     Returns (PGS sweeps, impulses [rows]).
     """
     rows = len(target)
