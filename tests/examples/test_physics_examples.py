@@ -202,6 +202,17 @@ def test_run_writes_video_sheet_and_metrics(tmp_path):
     assert doc["summary"]["max_penetration_m"] < 1e-3
 
 
+def test_run_passes_scene_options_on(tmp_path, capsys):
+    out = tmp_path / "candy"
+    assert run.main(["candy", "--small", "--adhesion", "--frames", "1", "--size", "32", "24", "--out", str(out),
+                     "--quiet"]) == 0
+    doc = json.loads((out / "candy_metrics.json").read_text())
+    assert doc["adhesion"] is True and doc["tets"] < 2000  # --adhesion and --small reached the scene
+    with pytest.raises(SystemExit):
+        run.main(["candy", "--help"])
+    assert "--adhesion" in capsys.readouterr().out
+
+
 def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
     assert (tmp_path / "soft_cube.mp4").stat().st_size > 0

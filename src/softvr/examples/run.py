@@ -363,14 +363,22 @@ def view_main(argv: list[str] | None = None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``softvr run SCENE [--frames N] [--out DIR] [--size W H]``; returns the exit code."""
+    """``softvr run SCENE [--frames N] [--out DIR] [--size W H] [scene options]``; returns the
+    exit code. Everything after SCENE goes to the scene's own ``main`` (e.g. ``softvr run candy
+    --adhesion``; ``softvr run SCENE --help`` lists the scene's options)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     names = ", ".join(SCENES)
+    named = [a for a in argv if a in SCENES]
+    if named and ("-h" in argv or "--help" in argv):  # the scene's own help, with its options
+        rest = list(argv)
+        rest.remove(named[0])
+        return importlib.import_module(f"softvr.examples.example_{SCENES[named[0]]}").main(rest)
     p = demo_parser("softvr run", "Run a physics demo headless: MP4, PNG contact sheet and JSON metrics.",
                     frames=None)
     p.add_argument("scene", metavar="SCENE", help=f"one of: {names}")
-    p.epilog = "Scenes: " + names + ". Each has its own default frame count."
-    args = p.parse_args(argv)
+    p.epilog = ("Scenes: " + names + ". Each has its own default frame count and options "
+                "(softvr run SCENE --help).")
+    args, _ = p.parse_known_args(argv)
     scene = args.scene
     if scene not in SCENES:
         looks_like_file = any(c in scene for c in "/\\") or Path(scene).suffix != "" or Path(scene).exists()
@@ -379,11 +387,9 @@ def main(argv: list[str] | None = None) -> int:
                     f"the scene-format issue). Built-in scenes: {names}")
         p.error(f"unknown scene {scene!r}; choose one of: {names}")
     module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
-    if args.frames is None:
-        args.frames = module.DEFAULT_FRAMES
-    check_run_args(p, args)
-    return run_module(module, args)
-
+    rest = list(argv)
+    rest.remove(scene)
+    return module.main(rest)
 
 if __name__ == "__main__":
     raise SystemExit(main())
