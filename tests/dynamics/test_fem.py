@@ -166,6 +166,8 @@ def test_compliance_is_the_block_of_the_inverse_step_matrix():
     w = body.compliance(blocks)
     np.testing.assert_allclose(w, inverse[np.ix_(dofs, dofs)], atol=1e-10 * np.abs(inverse).max())
     assert not w[6:9].any() and not w[:, 6:9].any()
+    with pytest.raises(InputError, match="distinct node indices"):
+        body.compliance([0, 5, 5])
     # The same factorization serves solve(): A^-1 rhs exact to round-off.
     rhs = np.random.default_rng(2).standard_normal(body.v.shape)
     np.testing.assert_allclose(body.solve(rhs).ravel(), inverse @ rhs.ravel(), atol=1e-10 * np.abs(inverse @ rhs.ravel()).max())

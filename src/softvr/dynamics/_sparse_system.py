@@ -121,6 +121,8 @@ class SparseNodeSystem:
         Rows and columns of fixed nodes are 0.
         """
         blocks = np.asarray(blocks, int).ravel()
+        if len(np.unique(blocks)) != len(blocks) or (blocks < 0).any() or (blocks >= len(self.q)).any():
+            raise InputError("blocks", f"distinct node indices in [0, {len(self.q) - 1}]", str(blocks.tolist()[:8]))
         dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
         free_index = np.cumsum(self._free) - 1  # velocity -> row of the free system
         keep = self._free[dofs]
