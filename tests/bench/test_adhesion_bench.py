@@ -1,7 +1,8 @@
 """``softvr bench adhesion --quick`` runs both candy scenes and writes its JSON and PNG.
 
 Truths: without adhesion no contact ever pulls (normal impulses are >= 0, Signorini); with
-it some do, and the scene is the same (same sizes, same number of steps).
+it some do, and the scene is the same (same sizes, same number of steps); the pull-off case
+separates at m g + sum(A) sqrt(W C).
 """
 
 import json
@@ -26,3 +27,10 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
     assert plain["contacts_max"] > 0 and sticky["contacts_max"] > 0
     assert result["targets"]["cost_ratio"] > 0
     assert "targets: real time" in out and "adhesion's cost at equal contact count" in out
+    # The pull-off case separates at the force the model predicts (tests/contact/test_adhesion.py),
+    # and MuJoCo's adhesion actuator, given that force as its gain, runs beside it when installed.
+    pull = result["pull_off"]
+    assert pull["softvr"]["status"] == "ok"
+    assert pull["predicted_separation_n"] <= pull["softvr"]["separation_force_n"] <= 1.05 * pull["predicted_separation_n"]
+    assert pull["mujoco"]["status"] == "ok" or pull["mujoco"]["status"].startswith("skipped: not installed")
+    assert "Pull-off:" in out

@@ -7,7 +7,9 @@ steps with contacts), contacts (mean / max), contacts pulling (negative normal i
 adhesion at work), PGS sweeps (mean / max) and the largest normal-velocity residual. The cost
 of adhesion at equal contact count is the ratio of the mean ms per contact-step of the steps
 with contacts (adhesive / plain). The plot is the thesis' Fig. 4.4: contacts and ms per step
-over time, with and without adhesion.
+over time, with and without adhesion. Side by side, the pull-off case (:data:`PULL_OFF`): a
+cube pulled off an adhesive plane in softvr and in MuJoCo (``adhesion`` actuator), force at
+separation against the prediction and steps/s; and its lift-vs-pull curve in the plot.
 
 Targets (issue): the whole candy scene in real time (<= 8 ms per 8 ms step; the thesis took
 400 ms with adhesion, 250 ms without), and adhesion's cost at equal contact count <= 1.2x
@@ -32,10 +34,19 @@ from softvr.bench.contact import _git_commit, run_candy
 from softvr.bench._report import print_and_write
 from softvr.bench.volume import _atomic_write, _loadavg, _machine_info
 
-__all__ = ["TARGET_COST_RATIO", "format_table", "main", "run_adhesion_bench", "write_plot"]
+__all__ = ["PULL_OFF", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
+           "softvr_pull_off", "write_plot"]
 
 #: Adhesion's cost at equal contact count, x plain contact.
 TARGET_COST_RATIO = 1.2
+
+#: The pull-off case: a 10 cm rigid cube (800 kg/m^3) on an adhesive plane, pulled up by a force
+#: ramped at 40 N/s, dt 2 ms. softvr: C = 1e7 N/m^3, W = 1 J/m^2, eta = 1e-3 J s/m^2, the
+#: cube's surface 4 x 4 quads per face (25 bottom contacts of A = (2.5 cm)^2 / 2 each), so
+#: debonding starts at F* = m g + sum(A) sqrt(W C) (tests/contact/test_adhesion.py). MuJoCo: an
+#: ``adhesion`` actuator on the cube with gain sum(A) sqrt(W C) [N] (its pull-off force limit).
+PULL_OFF = dict(edge=0.1, quads=4, density=800.0, stiffness=1e7, max_energy=1.0, viscosity=1e-3, rate=40.0,
+                dt=0.002, lift=0.004)
 #: Thesis 4.4: seconds per 8 ms step with and without adhesion (1.8 GHz Core 2 Duo).
 THESIS_S_PER_STEP = {"adhesion": 0.4, "plain": 0.25}
 
@@ -46,6 +57,85 @@ def _cost_per_contact(run: dict) -> float | None:
     contacts = np.asarray(run["trace"]["contacts"])
     busy = contacts > 0
     return float(np.mean(ms[busy] / contacts[busy])) if busy.any() else None
+
+
+def _pull_off_prediction(case: dict) -> tuple[float, float]:
+    """(adhesive force limit sum(A) sqrt(W C) [N], predicted separation force m g + that [N])."""
+    area = (case["quads"] + 1) ** 2 * (case["edge"] / case["quads"]) ** 2 / 2
+    limit = area * float(np.sqrt(case["stiffness"] * case["max_energy"]))
+    return limit, case["density"] * case["edge"] ** 3 * 9.81 + limit
+
+
+def softvr_pull_off(case: dict = PULL_OFF) -> dict:
+    """softvr on the pull-off case: the force when the cube has lifted ``lift`` [m], the
+    trace of force and lift, and steps/s of the ramp."""
+    from softvr import Scene
+    from softvr.collision import Plane
+    from softvr.contact import Adhesion
+    from softvr.dynamics import RigidBody, RigidPoints
+    from softvr.examples.example_candy import box_surface
+
+    edge, dt = case["edge"], case["dt"]
+    verts, tris = box_surface((edge,) * 3, case["quads"])
+    cube = RigidBody.box((edge,) * 3, case["density"], position=(0.0, 0.0, edge / 2), name="cube")
+    adhesion = Adhesion(stiffness=case["stiffness"], max_energy=case["max_energy"], viscosity=case["viscosity"])
+    scene = Scene(contact_margin=0.002)
+    scene.add_body(cube, collision_points=RigidPoints(cube, verts - edge / 2), collision_triangles=tris,
+                   adhesion=adhesion)
+    scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
+    for _ in range(20):
+        scene.step(dt)
+    return _ramp(lambda force: scene.external.update({0: np.array([0.0, 0.0, force, 0.0, 0.0, 0.0])}),
+                 lambda: scene.step(dt), lambda: float(cube.position[2]) - edge / 2, case)
+
+
+def mujoco_pull_off(case: dict = PULL_OFF) -> dict:
+    """MuJoCo on the pull-off case (adhesion actuator, default soft contacts), or a record
+    saying it is not installed."""
+    try:
+        import mujoco
+    except ImportError:
+        return {"status": "skipped: not installed (pip install softvr[peers])"}
+    limit, _ = _pull_off_prediction(case)
+    h = case["edge"] / 2
+    xml = f"""<mujoco><option timestep="{case['dt']}"/><worldbody>
+      <geom type="plane" size="1 1 .1" friction="0.5"/>
+      <body name="cube" pos="0 0 {h}"><freejoint/><geom type="box" size="{h} {h} {h}" density="{case['density']}"/>
+      </body></worldbody>
+      <actuator><adhesion body="cube" ctrlrange="0 1" gain="{limit}"/></actuator></mujoco>"""
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    data.ctrl[0] = 1.0
+    cube = model.body("cube").id
+    for _ in range(20):
+        mujoco.mj_step(model, data)
+    rest = float(data.xpos[cube][2])
+
+    def push(force):
+        data.xfrc_applied[cube, 2] = force
+
+    out = _ramp(push, lambda: mujoco.mj_step(model, data), lambda: float(data.xpos[cube][2]) - rest, case)
+    out["version"] = mujoco.__version__
+    return out
+
+
+def _ramp(push, step, lift, case: dict) -> dict:
+    """Ramp the pull at ``rate`` until the lift exceeds ``case["lift"]``; force and lift trace."""
+    forces, lifts = [], []
+    elapsed = 0.0
+    _, predicted = _pull_off_prediction(case)
+    for n in range(1, int(3 * predicted / (case["rate"] * case["dt"]))):
+        force = case["rate"] * n * case["dt"]
+        push(force)
+        t = time.perf_counter()
+        step()
+        elapsed += time.perf_counter() - t
+        forces.append(force)
+        lifts.append(lift())
+        if lifts[-1] > case["lift"]:
+            return {"status": "ok", "separation_force_n": force, "steps": n, "steps_per_s": n / elapsed,
+                    "trace": {"force_n": forces, "lift_m": lifts}}
+    return {"status": "failed: never separated", "trace": {"force_n": forces, "lift_m": lifts}}
 
 
 def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
@@ -61,6 +151,9 @@ def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
         run["ms_per_contact"] = _cost_per_contact(run)
         run["pulling_contacts_max"] = int(max(run["trace"]["pulling_contacts"]))
         run["thesis_s_per_step"] = THESIS_S_PER_STEP[name]
+    limit, predicted = _pull_off_prediction(PULL_OFF)
+    pull_off = {"case": PULL_OFF, "adhesive_limit_n": limit, "predicted_separation_n": predicted,
+                "softvr": softvr_pull_off(), "mujoco": mujoco_pull_off()}
     plain, sticky = runs["plain"]["ms_per_contact"], runs["adhesion"]["ms_per_contact"]
     ratio = None if not plain or sticky is None else sticky / plain
     machine = _machine_info("cpu")
@@ -70,6 +163,7 @@ def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
         "machine": machine,
         "config": {"quick": quick, "scene": "softvr.examples.example_candy"},
         "runs": runs,
+        "pull_off": pull_off,
         "targets": {"real_time_ms": runs["adhesion"]["dt_s"] * 1e3,
                     "real_time_met": runs["adhesion"]["ms_per_step"] <= runs["adhesion"]["dt_s"] * 1e3,
                     "cost_ratio": ratio, "cost_ratio_target": TARGET_COST_RATIO,
@@ -94,6 +188,18 @@ def format_table(result: dict) -> str:
                      f"{r['contacts_mean']:>6.0f} / {r['contacts_max']:<4d} {r['pulling_contacts_max']:>7d} "
                      f"{r['pgs_iterations_mean']:>6.0f} / {r['pgs_iterations_max']:<4d} {r['residual_max_m_s']:>9.2g} "
                      f"{r['ms_per_contact'] or 0:>10.3f} {r['thesis_s_per_step'] * 1e3:>9.0f}")
+    pull = result["pull_off"]
+    lines += ["", f"Pull-off: 10 cm cube on an adhesive plane, pull ramped at {pull['case']['rate']:g} N/s, dt "
+                  f"{pull['case']['dt'] * 1e3:g} ms; predicted separation m g + sum(A) sqrt(W C) = "
+                  f"{pull['predicted_separation_n']:.2f} N"]
+    for engine in ("softvr", "mujoco"):
+        r = pull[engine]
+        if r["status"] != "ok":
+            lines.append(f"  {engine:<7} {r['status']}")
+            continue
+        lines.append(f"  {engine:<7} separated at {r['separation_force_n']:.2f} N "
+                     f"({r['separation_force_n'] / pull['predicted_separation_n'] - 1:+.1%}), "
+                     f"{r['steps_per_s']:.0f} steps/s")
     t = result["targets"]
     ratio = "-" if t["cost_ratio"] is None else f"{t['cost_ratio']:.2f}x"
     lines += ["", f"targets: real time {runs['adhesion']['ms_per_step']:.0f} ms per {t['real_time_ms']:g} ms step -> "
@@ -109,7 +215,7 @@ def write_plot(result: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.2))
     for name, color in (("plain", "tab:blue"), ("adhesion", "tab:red")):
         r = result["runs"][name]
         t = (np.arange(len(r["trace"]["contacts"])) + 1) * r["dt_s"]
@@ -117,6 +223,13 @@ def write_plot(result: dict, path) -> None:
         axes[1].plot(t, 1e3 * np.asarray(r["trace"]["step_s"]), color=color, label=name)
     axes[0].set(xlabel="time [s]", ylabel="contacts", title="contact constraints per step")
     axes[1].set(xlabel="time [s]", ylabel="ms per step", title="time per 8 ms step")
+    pull = result["pull_off"]
+    for engine, color in (("softvr", "tab:red"), ("mujoco", "tab:orange")):
+        r = pull[engine]
+        if "trace" in r:
+            axes[2].plot(r["trace"]["force_n"], 1e3 * np.asarray(r["trace"]["lift_m"]), color=color, label=engine)
+    axes[2].axvline(pull["predicted_separation_n"], color="k", ls=":", lw=1, label="predicted F*")
+    axes[2].set(xlabel="pull [N]", ylabel="lift [mm]", title="pull-off of an adhesive cube")
     for ax in axes:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
