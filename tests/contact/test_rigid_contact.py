@@ -82,3 +82,17 @@ def test_collision_filter_lets_a_pair_pass_through_each_other():
         scene.step(0.005)
     assert a.position[0] > 0.0 > b.position[0]  # passed through each other untouched
     np.testing.assert_allclose([a.v[0], b.v[0]], [2.0, -2.0])
+
+
+def test_sphere_dropped_on_the_ground_rests_carried_by_its_weight():
+    """A rigid sphere body falling onto a plane (Scene sphere-plane contact, speculative over
+    the step) stops at the plane, and its single contact carries m g dt per step."""
+    ball = RigidBody.sphere(0.05, 1000.0, position=(0.0, 0.0, 0.3), name="ball")
+    scene = Scene()
+    scene.add_body(ball, collision_sphere=0.05)
+    scene.add_plane(Plane(friction=0.5))
+    for _ in range(200):
+        solution = scene.step(0.005)
+    assert ball.position[2] == pytest.approx(0.05, abs=1e-6)
+    assert abs(ball.v[2]) < 1e-6
+    assert solution.impulses[0][:, 0].sum() == pytest.approx(ball.mass * 9.81 * 0.005, rel=1e-6)

@@ -71,9 +71,10 @@ def _empty(body_index: int, other: int | None, block_size: int) -> Contacts:
     return Contacts(side, other_side, z3, np.zeros(0), z3, z3, np.zeros(0, np.int64), np.zeros(0))
 
 
-def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margin: float = 0.0,
+def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margin: float = 0.0, velocity=None,
                     dt: float = 0.0) -> Contacts:
-    """Contact of a rigid sphere body (centre = its position) with a plane."""
+    """Contact of a rigid sphere body (centre = its position) with a plane; ``velocity`` [6]
+    (the step's unconstrained one) makes it speculative over ``dt`` [s]."""
     n = plane.unit_normal()
     gap = float((body.position - np.asarray(plane.point, float)) @ n) - radius
     approach = 0.0 if velocity is None else dt * min(float(np.asarray(velocity, float)[:3] @ n), 0.0)
