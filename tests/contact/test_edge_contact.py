@@ -10,7 +10,6 @@ gravity, free bodies), so the inelastic contact of equal masses leaves both at h
 """
 
 import numpy as np
-import pytest
 
 from softvr import Scene
 from softvr.collision.edges import surface_edges

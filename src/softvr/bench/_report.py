@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["print_and_write"]
+__all__ = ["print_and_write", "save_figure"]
 
 
 def print_and_write(result: dict, table: str, json_path, plot_path, write_plot, *, after_table: str = "") -> None:
@@ -23,3 +23,17 @@ def print_and_write(result: dict, table: str, json_path, plot_path, write_plot, 
     if plot_path:
         write_plot(result, plot_path)
         print(f"wrote {plot_path}")
+
+
+def save_figure(fig, path) -> None:
+    """Write a Matplotlib figure to ``path`` as PNG, atomically, then close it."""
+    from pathlib import Path
+
+    import matplotlib.pyplot as plt
+
+    from softvr.bench.volume import _atomic_write
+
+    try:
+        _atomic_write(Path(path), lambda tmp: fig.savefig(tmp, format="png", dpi=110))
+    finally:
+        plt.close(fig)

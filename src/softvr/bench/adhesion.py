@@ -26,13 +26,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
 from softvr.bench.contact import _git_commit, run_candy
-from softvr.bench._report import print_and_write
-from softvr.bench.volume import _atomic_write, _loadavg, _machine_info
+from softvr.bench._report import print_and_write, save_figure
+from softvr.bench.volume import _loadavg, _machine_info
 
 __all__ = ["PULL_OFF", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
            "softvr_pull_off", "write_plot"]
@@ -238,13 +237,7 @@ def write_plot(result: dict, path) -> None:
                  fontsize=9)
     fig.tight_layout()
 
-    def save(tmp):
-        fig.savefig(tmp, format="png", dpi=110)
-
-    try:
-        _atomic_write(Path(path), save)
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def main(argv: list[str] | None = None) -> int:

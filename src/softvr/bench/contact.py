@@ -42,8 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from softvr.bench import _contact_peers as P
-from softvr.bench._report import print_and_write
-from softvr.bench.volume import _atomic_write, _loadavg, _machine_info
+from softvr.bench._report import print_and_write, save_figure
+from softvr.bench.volume import _loadavg, _machine_info
 
 __all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
            "run_softvr", "softvr_scene", "write_plot"]
@@ -490,13 +490,7 @@ def write_plot(result: dict, path) -> None:
                  f"- {m['cpu_model']}, {m['cores']} cores, {m['date'][:10]}", fontsize=9)
     fig.tight_layout()
 
-    def save(tmp):
-        fig.savefig(tmp, format="png", dpi=110)
-
-    try:
-        _atomic_write(Path(path), save)
-    finally:
-        plt.close(fig)
+    save_figure(fig, path)
 
 
 def profile_softvr_step(scene: CubeScene, top: int = 25) -> str:

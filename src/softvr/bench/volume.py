@@ -848,10 +848,9 @@ def write_plot(result: dict, path) -> None:
     fig.suptitle(f"softvr volume deformation, rotated 45/45 deg - {m['cpu_model']}, {m['cores']} cores, "
                  f"{m['device_name']}, Warp {m['versions']['warp']}, {m['date'][:10]}", fontsize=9)
 
-    def save(tmp):
-        fig.savefig(tmp, format="png", dpi=110)
+    from softvr.bench._report import save_figure
 
-    _atomic_write(Path(path), save)
+    save_figure(fig, path)
 
 
 def _legend_or_empty(ax) -> None:

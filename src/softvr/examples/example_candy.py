@@ -146,7 +146,7 @@ class Example(PhysicsExample):
         from softvr.collision import Plane
         from softvr.contact import Adhesion
         from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints, embed_in_tets
-        from softvr.dynamics.rigid import quat_from_rotvec
+        from softvr.dynamics.rigid import quat_from_rotvec, quat_to_matrix
         from softvr.render import Camera
         from softvr.volume import Volume, grid_tet_mesh
 
@@ -188,8 +188,6 @@ class Example(PhysicsExample):
             turn = quat_from_rotvec(rng.normal(0.0, 0.6, 3))
             if k % 2 == 0:  # soft: a ball, or a bean (the same mesh stretched)
                 stretch = np.array([1.0, 1.0, 1.0]) if k % 4 == 0 else np.array([1.35, 0.9, 0.8])
-                from softvr.dynamics.rigid import quat_to_matrix
-
                 rot = quat_to_matrix(turn)
                 body = FemBody((ball_nodes * stretch) @ rot.T + centre, ball_tets, soft, name=f"soft candy {k}")
                 surface_verts = (candy_radius * unit * stretch) @ rot.T + centre
