@@ -1,7 +1,8 @@
 """The ``softvr`` command: one entry point, one subcommand per job.
 
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
-``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall) to MP4
+``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall,
+                            lips, probe) to MP4, metrics and plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
 ``softvr view SCENE``       a physics demo played live in a window (space pauses, n steps)
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6

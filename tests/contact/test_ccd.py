@@ -45,3 +45,21 @@ def test_resting_proximity_contact_has_the_surface_normal():
     # Warp's BVH queries run in float32: ~1e-7 m rounding over a 3 mm offset tilts the normal ~3e-5.
     np.testing.assert_allclose(contacts.normal[0], [0, 0, 1], atol=1e-4)
     assert contacts.gap[0] == pytest.approx(0.002, abs=1e-6)
+
+
+def test_sweep_leaving_a_closed_surface_gets_the_outward_normal():
+    """A point 1 cm inside a closed unit cube, moving out through its top face: the sweep meets
+    the face from behind, which is no contact (a contact on that side would pull the point back
+    in); the proximity query gives the outward normal +z and the penetration depth -1 cm. A
+    point above the cube moving down into it is a sweep hit on the outside, gap = its distance."""
+    from softvr.collision.mesh import query_points
+    from softvr.examples.example_candy import box_surface
+
+    verts, tris = box_surface((1.0, 1.0, 1.0), 2)
+    cube = TriangleMesh(verts - 0.5, tris, thickness=0.0)
+    points = np.array([[0.1, 0.1, 0.49], [0.1, 0.1, 0.53]])
+    motion = np.array([[0.0, 0.0, 0.05], [0.0, 0.0, -0.05]])
+    which, normal, gap, _ = query_points(cube._mesh.id, cube.device, points, motion, 0.02, 0.0, True, closed=True)
+    assert which.tolist() == [0, 1]
+    np.testing.assert_allclose(normal, [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], atol=1e-6)
+    np.testing.assert_allclose(gap, [-0.01, 0.03], atol=1e-6)

@@ -13,8 +13,8 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_oranges,
-                             example_soft_cube, run)
+from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_lips,
+                             example_oranges, example_probe, example_soft_cube, run)
 from softvr.examples.run import SCENES
 
 SMALL = dict(width=64, height=48)
@@ -36,15 +36,17 @@ def run_frames(example, frames: int, render_every: int = 4):
     return e0, images
 
 
-def check_common(example, e0: float, images, *, penetration: float = 1e-3):
+def check_common(example, e0: float, images, *, penetration: float = 1e-3, extra_fields=(), driven: bool = False):
+    """Frames, times, penetration, images; and energy never grows, unless ``driven`` (jaws or a
+    tool moving on a script do work on the bodies)."""
     m = example.metrics
     assert [r["frame"] for r in m] == list(range(len(m)))
-    assert set(m[0]) == FIELDS
+    assert set(m[0]) == FIELDS | set(extra_fields)
     steps = np.arange(1, len(m) + 1) * example.steps_per_frame
     np.testing.assert_allclose([r["sim_time_s"] for r in m], steps * example.dt, rtol=1e-9)
     assert max(r["max_penetration_m"] for r in m) < penetration
     energy = np.array([r["energy_j"] for r in m])
-    assert energy.max() <= e0 + 1e-6 + 1e-4 * abs(e0), "energy grew"
+    assert driven or energy.max() <= e0 + 1e-6 + 1e-4 * abs(e0), "energy grew"
     assert all(r["wall_ms"] >= r["step_ms"] > 0 for r in m)
     for image in images:
         assert image.shape == (48, 64, 3) and image.dtype == np.uint8
@@ -171,6 +173,64 @@ def test_cloth_sticks_to_the_wall_then_peels():
     plain.close()
 
 
+def _run_lips(adhesion):
+    ex = example_lips.Example(frames=35, adhesion=adhesion, **SMALL)
+    e0, images = run_frames(ex, 35, render_every=17)
+    check_common(ex, e0, images, penetration=5e-4, driven=True,
+                 extra_fields={"opening_m", "lip_gap_m", "lip_force_n", "bonded_contacts"})
+    m = ex.metrics
+    # The opening (jaws apart beyond their start) at which the lips' surfaces are 0.5 mm apart.
+    parted = next(r["opening_m"] for r in m if r["sim_time_s"] > ex.press_time + ex.hold_time and r["lip_gap_m"] > 5e-4)
+    return m, parted
+
+
+def test_lips_stick_as_they_open():
+    """Thesis Fig. 4.3. Dry lips part as soon as the jaws are back where the lips first touched
+    (their elastic recovery, ~1 mm into the opening), and a contact never pulls (lambda_n >= 0:
+    the force between them stays >= 0). Adhesive lips bond under the press, pull on each other
+    as the jaws open (force < 0) and part at least 2 mm later. Pressing is the same for both
+    (adhesion acts in tension only): the largest pressing force agrees within 1 %."""
+    sticky, sticky_parted = _run_lips(example_lips.LIPS_ADHESION)
+    dry, dry_parted = _run_lips(None)
+    assert max(r["bonded_contacts"] for r in sticky) > 20 and max(r["bonded_contacts"] for r in dry) == 0
+    assert min(r["lip_force_n"] for r in dry) >= -1e-3 * max(r["lip_force_n"] for r in dry)
+    assert min(r["lip_force_n"] for r in sticky) < -0.5
+    assert dry_parted < 2e-3 and sticky_parted > dry_parted + 2e-3
+    press = [max(r["lip_force_n"] for r in m) for m in (sticky, dry)]
+    assert press[0] == pytest.approx(press[1], rel=0.01)
+
+
+def _run_probe(adhesion):
+    ex = example_probe.Example(frames=35, cells=(8, 8, 4), speed=0.02, adhesion=adhesion, **SMALL)
+    e0, images = run_frames(ex, 35, render_every=17)
+    check_common(ex, e0, images, penetration=1e-4, driven=True,
+                 extra_fields={"indentation_m", "probe_force_n", "surface_lift_m", "bonded_contacts"})
+    assert ex.metrics[-1]["indentation_m"] == pytest.approx(-0.003)  # withdrawn 3 mm above the surface
+    return ex.metrics, ex
+
+
+def test_probe_pressed_and_withdrawn_pulls_the_tissue_only_with_adhesion(tmp_path):
+    """Dry contact only pushes: the probe force is never negative, and once the probe is above
+    the rest surface the tissue is back below it (within 0.1 mm). With adhesion the force turns
+    tensile while withdrawing and the tissue surface follows the probe above its rest height.
+    Loading is the same with and without adhesion (tension only): peak forces within 1 %. The
+    force rises monotonically while pressing (a stiffening contact: the contact area grows)."""
+    sticky, ex = _run_probe(example_probe.PROBE_ADHESION)
+    dry, _ = _run_probe(None)
+    peak = [max(r["probe_force_n"] for r in m) for m in (sticky, dry)]
+    assert peak[0] == pytest.approx(peak[1], rel=0.01)
+    assert min(r["probe_force_n"] for r in dry) >= -1e-3 * peak[1]
+    assert min(r["probe_force_n"] for r in sticky) < -0.05 * peak[0]
+    above = [r for r in dry if r["indentation_m"] < 0 and r["sim_time_s"] > ex.press_time]
+    assert max(r["surface_lift_m"] for r in above) < 1e-4
+    assert max(r["surface_lift_m"] for r in sticky) > 3e-4
+    pressing = [r["probe_force_n"] for r in dry if 0 < r["indentation_m"] and r["sim_time_s"] < ex.press_time]
+    assert len(pressing) > 5 and (np.diff(pressing) > 0).all()
+    # Its plot is written next to the run's files.
+    written = ex.write_plots({"frames": sticky}, tmp_path)
+    assert [p.name for p in written] == ["probe_force.png"] and iio.imread(written[0]).shape[2] >= 3
+
+
 def test_view_plays_a_scene_live_in_a_window(display):
     """Under Xvfb: the window opens, frames advance on the timer, it closes on time."""
     ex = example_soft_cube.Example(frames=3, width=160, height=120)
@@ -216,14 +276,15 @@ def test_run_passes_scene_options_on(tmp_path, capsys):
 def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
     assert (tmp_path / "soft_cube.mp4").stat().st_size > 0
-    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy", "cloth_wall"}
+    assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy", "cloth_wall", "lips",
+                                    "probe"}
     for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges, example_candy,
-                   example_cloth_wall):
+                   example_cloth_wall, example_lips, example_probe):
         assert module.DEFAULT_FRAMES >= 30 and callable(module.main)
 
 
 @pytest.mark.parametrize("scene, message", [
-    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall"),
+    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall, lips, probe"),
     ("scenes/my_scene.json", "scene files are not supported yet (they come with the scene-format issue)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):

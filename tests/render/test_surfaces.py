@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 
 from softvr.errors import InputError
-from softvr.render import Camera, SurfaceRenderer, tet_boundary_faces
-from softvr.volume import Volume, grid_tet_mesh
-from softvr.volume.tetmesh import tet_signed_volumes
+from softvr.render import Camera, SurfaceRenderer
 
 W, H = 200, 160
 SCALE = 1.0  # half the image height in world units
@@ -127,21 +125,3 @@ def test_bad_input_is_rejected_by_name():
         r.render()
 
 
-def test_tet_boundary_is_closed_and_outward():
-    vol = Volume(np.zeros((6, 6, 6), np.uint8), spacing=(0.5, 0.5, 0.5))
-    nodes, tets = grid_tet_mesh(vol, 2)
-    faces = tet_boundary_faces(tets)
-    assert faces.shape == (6 * 4 * 2, 3)  # 6 sides of 2 x 2 cubes, 2 triangles each
-    p = nodes[faces]
-    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    outward = p.mean(axis=1) - nodes.mean(axis=0)
-    assert (np.einsum("fi,fi->f", normals, outward) > 0).all()
-    # Divergence theorem: sum over faces of (p0 . n) / 6 = enclosed volume (= sum of tets).
-    enclosed = np.einsum("fi,fi->f", p[:, 0], normals).sum() / 6
-    assert enclosed == pytest.approx(tet_signed_volumes(nodes, tets).sum(), rel=1e-12)
-    # Every boundary edge is shared by exactly two boundary triangles (a closed surface).
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    assert (counts == 2).all()
-    with pytest.raises(InputError, match="tets"):
-        tet_boundary_faces(np.zeros((3, 3), int))

@@ -96,3 +96,9 @@ def test_boundary_faces_close_the_box_and_point_outward():
     # Divergence theorem: the closed outward surface encloses the box's volume.
     enclosed = np.einsum("fi,fi->f", p[:, 0], normals).sum() / 6.0
     assert enclosed == pytest.approx(np.prod(np.array(vol.shape) * vol.spacing))
+    # Every boundary edge is shared by exactly two boundary triangles (a closed surface).
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts == 2).all()
+    with pytest.raises(InputError, match="tets"):
+        boundary_faces(np.zeros((3, 3), int))

@@ -40,12 +40,10 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
-import json
 import os
 import platform
 import statistics
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -733,40 +731,6 @@ def _targets_text(result: dict) -> str:
             s += f" (GPU target {TARGET_GPU_RATE / 1e9:.0f} G voxels/s applies to an H100; not measured here)"
         lines.append(s)
     return "\n".join(lines)
-
-
-def _atomic_write(path: Path, write) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp makes 0600 files
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def write_json(result: dict, path) -> None:
-    def dump(tmp):
-        with open(tmp, "w") as f:
-            json.dump(result, f, indent=1, default=_json_default)
-            f.write("\n")
-
-    _atomic_write(Path(path), dump)
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
 
 
 def write_plot(result: dict, path) -> None:

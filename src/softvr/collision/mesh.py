@@ -35,7 +35,9 @@ def _query_points(
     """Per point: the closest surface point within ``reach`` or, sweeping ``motion`` (the
     displacement over the step), the first crossing. Normals face the point's side; for a
     ``closed`` (watertight, outward) surface a point inside gets the outward normal and a
-    negative gap (its penetration depth)."""
+    negative gap (its penetration depth), and a sweep only counts when it enters the solid:
+    a point inside moving out meets the surface from behind, and a contact on that side would
+    pull it back in."""
     i = wp.tid()
     p = points[i]
     hit[i] = 0
@@ -44,7 +46,7 @@ def _query_points(
     if ccd != 0 and travel > 0.0:
         direction = d / travel
         ray = wp.mesh_query_ray(mesh, p, direction, travel + reach)
-        if ray.result:
+        if ray.result and (closed == 0 or wp.dot(ray.normal, direction) < 0.0):
             n = ray.normal
             if wp.dot(n, direction) > 0.0:
                 n = -n

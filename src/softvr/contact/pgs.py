@@ -67,6 +67,19 @@ class ContactSolution:
     contacts: list
     gaps_after: list
 
+    def force_on(self, body: int, dt: float) -> np.ndarray:
+        """Net contact force [3] [N] on body ``body`` over the step, ``sum F^T lambda / dt``
+        (F the contact frame; + on side a, - on side b): negative along a contact normal where
+        adhesion pulls. A force sensor on a tool or a jaw."""
+        total = np.zeros(3)
+        for contacts, impulses, frames in zip(self.contacts, self.impulses, self.frames):
+            world = np.einsum("ci,cij->j", impulses, frames)
+            if contacts.a.body == body:
+                total += world
+            if contacts.b is not None and contacts.b.body == body:
+                total -= world
+        return total / float(dt)
+
 
 def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,
                    warm_start: dict | None = None, adhesion: list | None = None) -> ContactSolution:

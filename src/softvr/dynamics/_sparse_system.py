@@ -15,10 +15,15 @@ __all__ = ["SparseNodeSystem"]
 class SparseNodeSystem:
     """Solves and integration for node-based bodies (FEM nodes, cloth vertices).
 
-    Expects ``self._a_free`` (A over the free velocities, rebuilt by each
-    ``unconstrained_velocity``), ``self._precond`` (its Jacobi preconditioner), ``self._free``
-    (bool mask of free velocities), ``self.rest`` [node_count, 3], ``self.q``, ``self.v``,
-    ``cg_tolerance``, ``cg_max_iterations`` and ``_node_word`` ("node", "vertex") for reports.
+    Expects ``self.fixed`` (bool [node_count]), ``self.fixed_velocity`` [node_count, 3] [m/s],
+    ``self.rest`` [node_count, 3], ``self.q``, ``self.v``, ``cg_tolerance``,
+    ``cg_max_iterations`` and ``_node_word`` ("node", "vertex") for reports. Each
+    ``unconstrained_velocity`` keeps ``self._a_free`` (A over the free velocities),
+    ``self._precond`` and ``self._free`` (bool mask of free velocities).
+
+    Fixed nodes are Dirichlet boundary nodes: they move at ``fixed_velocity`` (0: clamped),
+    which no force or contact impulse changes; the free nodes feel that motion through the
+    off-diagonal blocks of ``A`` (a jaw, a hand or a clamp driving the body).
     """
 
     _node_word = "node"
@@ -27,10 +32,28 @@ class SparseNodeSystem:
         """Keep this step's ``A`` (free rows / columns) and return ``A^-1 (M v0 + dt f)`` [n, 3]
         (thesis eq. 5.2; ``b`` in this form because the damping force cancels ``dt D v0``)."""
         self._free = ~np.repeat(self.fixed, 3)
-        self._a_free = a.tocsr()[self._free][:, self._free].tocsr()
+        a = a.tocsr()
+        self._a_free = a[self._free][:, self._free].tocsr()
         self._precond = self._lagged_factor_preconditioner() or sp.diags(1.0 / self._a_free.diagonal())
         b = m_diag * self.v.ravel() + dt * np.asarray(forces, float).ravel()
-        return self._cg(b, self.v.ravel())
+        driven = self._checked_fixed_velocity().ravel()
+        moving = ~self._free & (driven != 0.0)
+        if moving.any():
+            # A v = b with v_fixed given: A_ff v_f = b_f - A_fd v_d.
+            b[self._free] -= a[self._free][:, moving] @ driven[moving]
+        v = self._cg(b, self.v.ravel())
+        v.ravel()[~self._free] = driven[~self._free]
+        return v
+
+    def _checked_fixed_velocity(self) -> np.ndarray:
+        vf = np.asarray(self.fixed_velocity, float)
+        if vf.shape != self.q.shape:
+            raise InputError("fixed_velocity", f"an array of shape {self.q.shape} [m/s]", f"shape {vf.shape}")
+        bad = ~np.isfinite(vf).all(axis=1)
+        if bad.any():
+            n = int(np.argmax(bad))
+            raise InputError(f"fixed_velocity[{n}]", "finite values [m/s]", repr(vf[n].tolist()))
+        return vf
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         """``A^-1 rhs`` [n, 3] for this step's ``A`` (fixed nodes give 0): by the step's

@@ -239,7 +239,7 @@ class ClothBody(SparseNodeSystem, ContactObject):
     alpha : float [1/s]
         Mass-proportional Rayleigh damping, >= 0 (also slows rigid motion, like air drag).
     fixed : array_like of bool, shape [vertex_count], optional
-        Vertices held at their current position (pinned).
+        Vertices held at their current position (pinned), or driven at ``fixed_velocity``.
     name : str
         Named in divergence reports.
 
@@ -263,6 +263,9 @@ class ClothBody(SparseNodeSystem, ContactObject):
     spring_stiffness : ndarray, shape [spring_count] [N/m]
     rest_length : ndarray, shape [spring_count] [m]
     fixed : ndarray of bool, shape [vertex_count]
+    fixed_velocity : ndarray, shape [vertex_count, 3] [m/s]
+        Velocity of the fixed vertices over the next step (default 0, pinned); set it to drive
+        them (a hand, a frame). Ignored at free vertices.
     step_count : int
     last_cg_iterations : int
         CG iterations of the last solve.
@@ -312,6 +315,7 @@ class ClothBody(SparseNodeSystem, ContactObject):
             raise InputError("fixed", f"a bool array of shape ({len(rest)},)", f"shape {self.fixed.shape}")
         self.q = rest.copy()
         self.v = np.zeros_like(rest)
+        self.fixed_velocity = np.zeros_like(rest)
         self.step_count = 0
         self.last_cg_iterations = 0
         self.last_cg_converged = True
@@ -427,7 +431,7 @@ class ClothBody(SparseNodeSystem, ContactObject):
         """Vertex velocities [vertex_count, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2).
 
         ``A = M + dt D + dt^2 K`` and ``b = M v0 + dt (f_springs(q0) + M g + external)`` at the
-        current state; fixed vertices keep zero velocity. ``external`` [vertex_count, 3] [N] adds
+        current state; fixed vertices move at ``fixed_velocity``. ``external`` [vertex_count, 3] [N] adds
         vertex forces. Also prepares :meth:`solve` for this step.
         """
         dt = self._check_dt(dt)

@@ -119,7 +119,7 @@ class FemBody(SparseNodeSystem, ContactObject):
         Young's modulus per tet (e.g. from voxel data).
     per_tet_density : array_like, shape [tet_count] [kg/m^3], optional
     fixed : array_like of bool, shape [node_count], optional
-        Nodes held at their current position (a clamped boundary).
+        Boundary nodes: held at their position (clamped), or driven at ``fixed_velocity``.
     corotational : bool
         False gives plain linear FEM (R = I), which produces spurious forces under rotation.
     name : str
@@ -133,6 +133,9 @@ class FemBody(SparseNodeSystem, ContactObject):
         Node velocities.
     mass : ndarray, shape [node_count] [kg]
         Lumped node masses (a quarter of each incident tet's mass).
+    fixed_velocity : ndarray, shape [node_count, 3] [m/s]
+        Velocity of the fixed nodes over the next step (default 0, clamped); set it to drive
+        them (a jaw, a clamp). Ignored at free nodes.
     step_count : int
     last_cg_iterations : int
         CG iterations of the last solve.
@@ -168,6 +171,7 @@ class FemBody(SparseNodeSystem, ContactObject):
             raise InputError("fixed", f"a bool array of shape ({len(rest)},)", f"shape {self.fixed.shape}")
         self.q = rest.copy()
         self.v = np.zeros_like(rest)
+        self.fixed_velocity = np.zeros_like(rest)
         self.step_count = 0
         self.last_cg_iterations = 0
         self.cg_tolerance = 1e-8
@@ -217,7 +221,7 @@ class FemBody(SparseNodeSystem, ContactObject):
         """Node velocities [node_count, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2).
 
         ``A = M + dt (alpha M + beta K) + dt^2 K`` and ``b = M v0 + dt f(q0)`` with
-        ``K = sum R K_e R^T`` at the current state; fixed nodes keep zero velocity.
+        ``K = sum R K_e R^T`` at the current state; fixed nodes move at ``fixed_velocity``.
         ``external`` [node_count, 3] [N] adds node forces.
         """
         dt = self._check_dt(dt)

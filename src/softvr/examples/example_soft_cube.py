@@ -64,7 +64,7 @@ class Example(PhysicsExample):
         from softvr.collision import Plane
         from softvr.dynamics import EmbeddedPoints, FemBody, Material
         from softvr.render import Camera
-        from softvr.render.surfaces import tet_boundary_faces
+        from softvr.volume import boundary_faces
         from softvr.volume import Volume, grid_tet_mesh
 
         spacing = np.full(3, size / cells)
@@ -73,7 +73,7 @@ class Example(PhysicsExample):
         nodes = nodes @ _rotation(*tilt).T
         nodes[:, 2] += drop - nodes[:, 2].min()
         self.body = FemBody(nodes, tets, Material(young, poisson, density, alpha=alpha, beta=beta), name="soft cube")
-        faces = tet_boundary_faces(self.body.tets)
+        faces = boundary_faces(self.body.tets)
         # Surface nodes are both the collision points and the render mesh's vertices.
         self.surface_nodes, local = np.unique(faces, return_inverse=True)
         self.faces = local.reshape(-1, 3).astype(np.int32)

@@ -9,6 +9,8 @@ cloth-sphere   a mass-spring cloth draped over a static sphere and the ground
 oranges        soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
 candy          soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale: 10 K tets, 25 K tris)
 cloth-wall     a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
+lips           two soft lips pressed together stick briefly as they open (thesis Fig. 4.3)
+probe          a probe pressed into soft tissue and pulled back: force against displacement
 =============  ==============================================================================
 
 Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
@@ -23,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 import time
 from pathlib import Path
@@ -51,6 +52,8 @@ SCENES = {
     "oranges": "oranges",
     "candy": "candy",
     "cloth-wall": "cloth_wall",
+    "lips": "lips",
+    "probe": "probe",
 }
 
 
@@ -115,7 +118,19 @@ class PhysicsExample:
         return kinetic, kinetic + potential
 
     def before_step(self) -> None:
-        """Hook called before every physics step (scripted events)."""
+        """Hook called before every physics step (scripted events, driven boundaries)."""
+
+    def after_step(self, solution) -> None:
+        """Hook called after every physics step with its contact solution (sensors)."""
+
+    def frame_metrics(self) -> dict:
+        """Scene-specific entries of this frame's metrics record (called after its last step)."""
+        return {}
+
+    def write_plots(self, doc: dict, out: Path) -> list[Path]:
+        """Plots of a finished run (``doc`` the metrics document) into folder ``out``; returns
+        the files written (none by default)."""
+        return []
 
     def step(self) -> dict:
         """Advance one frame (``steps_per_frame`` physics steps); returns the frame's metrics."""
@@ -124,6 +139,7 @@ class PhysicsExample:
         for _ in range(self.steps_per_frame):
             self.before_step()
             solution = self.scene.step(self.dt)
+            self.after_step(solution)
             deepest = max(deepest, self.penetration())
             sweeps = max(sweeps, int(solution.iterations))
             residual = max(residual, float(solution.residual))
@@ -143,6 +159,7 @@ class PhysicsExample:
             "pgs_residual_m_per_s": residual,
             "kinetic_energy_j": kinetic,
             "energy_j": energy,
+            **self.frame_metrics(),
         }
         self.metrics.append(record)
         self.frame += 1
@@ -190,23 +207,17 @@ class PhysicsExample:
                 "bodies": [getattr(b, "name", type(b).__name__) for b in self.scene.bodies]}
 
 
-def _write_json(data: dict, path: Path) -> Path:
-    from softvr.render._atomic import atomic_output  # noqa: PLC0415
-
-    with atomic_output(path, ".json") as tmp:
-        tmp.write_text(json.dumps(data, indent=1))
-    return path
-
-
 def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_frames: int = 8) -> dict:
     """Step and render every frame of ``example``; write ``<out>/<name>.mp4``,
-    ``<name>_sheet.png`` and ``<name>_metrics.json``. Returns the metrics document.
+    ``<name>_sheet.png``, ``<name>_metrics.json`` and the example's plots
+    (:meth:`PhysicsExample.write_plots`). Returns the metrics document.
 
     The example is closed afterwards. ``out`` is created if missing.
     """
     from tqdm import tqdm  # noqa: PLC0415
 
     from softvr.render import contact_sheet, save_png, write_mp4  # noqa: PLC0415
+    from softvr.render._atomic import write_json  # noqa: PLC0415
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -242,11 +253,13 @@ def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_fr
         "max_pgs_iterations": max(m["pgs_iterations"] for m in metrics),
     }
     doc = {"scene": name, **example.describe(), "summary": summary, "frames": metrics}
-    path = _write_json(doc, out / f"{name}_metrics.json")
+    path = write_json(doc, out / f"{name}_metrics.json")
+    plots = example.write_plots(doc, out)
     if progress:
         print(f"{name}: {summary['frames']} frames, {summary['sim_time_s']:.2f} s simulated in {wall:.1f} s; "
               f"deepest penetration {summary['max_penetration_m'] * 1e3:.3f} mm")
-        print(f"wrote {mp4}\nwrote {sheet}\nwrote {path}")
+        for written in (mp4, sheet, path, *plots):
+            print(f"wrote {written}")
     return doc
 
 

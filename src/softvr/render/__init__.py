@@ -36,7 +36,7 @@ from softvr.render._backend import APT_PACKAGES, RenderBackendError, has_display
 from softvr.render.camera import VIEWS, Camera
 from softvr.render.contact_sheet import contact_sheet, save_png
 from softvr.render.presets import PRESETS, Preset, label_colors
-from softvr.render.surfaces import SurfaceRenderer, tet_boundary_faces
+from softvr.render.surfaces import SurfaceRenderer
 from softvr.render.video import write_mp4
 from softvr.render.viewer import (
     NodeDragger,
@@ -69,7 +69,6 @@ __all__ = [
     "render_volume",
     "require_display",
     "save_png",
-    "tet_boundary_faces",
     "view_volume",
     "write_mp4",
 ]

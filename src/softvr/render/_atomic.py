@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from collections.abc import Iterator
@@ -10,7 +11,7 @@ from pathlib import Path
 
 from softvr.errors import InputError
 
-__all__ = ["atomic_output"]
+__all__ = ["atomic_output", "write_json"]
 
 
 def _umask() -> int:
@@ -55,3 +56,23 @@ def atomic_output(path: str | os.PathLike, suffix: str) -> Iterator[Path]:
         except FileNotFoundError:
             pass
         raise
+
+
+def write_json(data: dict, path: str | os.PathLike) -> Path:
+    """Write ``data`` as indented JSON to ``path`` (its folder is created), atomically; numpy
+    scalars and arrays become numbers and lists. Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path, ".json") as tmp:
+        tmp.write_text(json.dumps(data, indent=1, default=_json_default) + "\n")
+    return path
+
+
+def _json_default(o):
+    import numpy as np  # noqa: PLC0415
+
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"{type(o).__name__} is not JSON serializable")

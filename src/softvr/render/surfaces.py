@@ -7,8 +7,8 @@ Static scenery is a ground quad (:meth:`~SurfaceRenderer.add_plane`, checkered s
 and rolling are visible) and spheres (:meth:`~SurfaceRenderer.add_sphere`). A light kit
 (key, fill, back and head lights) and Phong shading make the shapes read as solids.
 
-:func:`tet_boundary_faces` gives the outward-oriented surface of a tetrahedral mesh, the
-triangles a FEM body is drawn with.
+:func:`softvr.volume.boundary_faces` gives the outward-oriented surface of a tetrahedral
+mesh, the triangles a FEM body is drawn with.
 
 Like :class:`~softvr.render.VolumeRenderer`, it renders without a display (EGL, else
 OSMesa; see :func:`~softvr.render.offscreen_backend`).
@@ -23,46 +23,7 @@ from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, new_onscreen_window, offscreen_backend, require_display
 from softvr.render.camera import Camera
 
-__all__ = ["SurfaceRenderer", "tet_boundary_faces"]
-
-# Faces of a positively oriented tet (x0, x1, x2, x3), each opposite one node and ordered
-# counter-clockwise seen from outside (normal (b - a) x (c - a) points away from the tet).
-_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-
-
-def tet_boundary_faces(tets) -> np.ndarray:
-    """The boundary triangles of a tetrahedral mesh, oriented outward.
-
-    A face is on the boundary when exactly one tet has it. The tets must be positively
-    oriented (as :func:`softvr.volume.grid_tet_mesh` and :class:`softvr.dynamics.FemBody`
-    require); each boundary face then keeps its tet's outward winding, so its normal
-    ``(x1 - x0) x (x2 - x0)`` points out of the mesh.
-
-    Parameters
-    ----------
-    tets : array_like of int, shape [tet_count, 4]
-
-    Returns
-    -------
-    ndarray of int32, shape [face_count, 3]
-        Node indices (into the mesh's node array) per boundary triangle.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> from softvr.volume import Volume, grid_tet_mesh
-    >>> nodes, tets = grid_tet_mesh(Volume(np.zeros((2, 2, 2), np.uint8)), cells=1)
-    >>> tet_boundary_faces(tets).shape  # 6 cube faces, 2 triangles each
-    (12, 3)
-    """
-    t = np.asarray(tets)
-    if t.ndim != 2 or t.shape[1] != 4 or not np.issubdtype(t.dtype, np.integer):
-        raise InputError("tets", "an integer array [tet_count, 4]", f"shape {t.shape}, dtype {t.dtype}")
-    faces = t[:, _TET_FACES].reshape(-1, 3)
-    keys = np.sort(faces, axis=1)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    return faces[counts[inverse.ravel()] == 1].astype(np.int32)
-
+__all__ = ["SurfaceRenderer"]
 
 def _rgb(color, what: str) -> tuple[float, float, float]:
     c = np.asarray(color, float).reshape(-1)

@@ -229,8 +229,18 @@ def boundary_faces(tets) -> np.ndarray:
     -------
     ndarray of int32, shape [face_count, 3]
         Triangles whose right-handed normal points out of the mesh.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from softvr.volume import Volume, grid_tet_mesh
+    >>> nodes, tets = grid_tet_mesh(Volume(np.zeros((2, 2, 2), np.uint8)), cells=1)
+    >>> boundary_faces(tets).shape  # 6 cube faces, 2 triangles each
+    (12, 3)
     """
     t = np.asarray(tets)
+    if t.ndim != 2 or t.shape[1] != 4 or not np.issubdtype(t.dtype, np.integer):
+        raise InputError("tets", "an integer array [tet_count, 4]", f"shape {t.shape}, dtype {t.dtype}")
     # Face opposite vertex k, ordered so that its normal points away from vertex k.
     faces = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
     key = np.sort(faces, axis=1)
