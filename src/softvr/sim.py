@@ -28,7 +28,10 @@ from softvr.collision import (
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.contact.adhesion import Adhesion, AdhesionState, combine
 from softvr.device import single_threaded_blas
+from softvr.collision.contacts import ContactSide, Contacts
 from softvr.dynamics.body import ContactObject
+from softvr.dynamics.couplings import Coupling
+from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
 
 __all__ = ["Scene"]
@@ -91,6 +94,10 @@ class Scene:
         3] [N] for a deformable one).
     adhesion_state : AdhesionState
         Adhesion intensity beta of every adhesive contact, by contact id.
+    couplings : list of Coupling
+        Zero-length springs between bodies (thesis 5.3.2); coupled bodies are stepped together,
+        one :class:`~softvr.dynamics.CouplingIsland` per group (found on the first step after
+        a change).
     """
 
     gravity: tuple = (0.0, 0.0, -9.81)
@@ -114,6 +121,8 @@ class Scene:
     _adhesion: dict = field(default_factory=dict)
     external: dict = field(default_factory=dict)
     adhesion_state: AdhesionState = field(default_factory=AdhesionState)
+    couplings: list = field(default_factory=list)
+    _units: list | None = None
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
                  collision_sphere: float | None = None, collision_box=None, margin: float | None = None,
@@ -132,6 +141,7 @@ class Scene:
         if not isinstance(body, ContactObject):
             raise InputError("body", "a softvr.dynamics.ContactObject", type(body).__name__)
         self.bodies.append(body)
+        self._units = None
         index = len(self.bodies) - 1
         self._adhesion[("body", index)] = _check_adhesion(adhesion)
         margin = self.contact_margin if margin is None else float(margin)
@@ -152,6 +162,25 @@ class Scene:
                 raise InputError(name, "a rigid body (RigidBody, FixedBody, KinematicBody)", type(body).__name__)
             store.append((index, float(shape) if name == "collision_sphere" else np.asarray(shape, float)))
         return index
+
+    def add_coupling(self, coupling: Coupling, *, collide: bool = False) -> None:
+        """Couple two bodies of the scene by zero-length springs (thesis 5.3.2).
+
+        ``collide=False`` (the default) switches collision off between the two: parts solidly
+        attached over a large surface have no relative motion there (thesis 5.2.1).
+        """
+        if not isinstance(coupling, Coupling):
+            raise InputError("coupling", "a softvr.dynamics.Coupling", type(coupling).__name__)
+        index = {id(b): i for i, b in enumerate(self.bodies)}
+        ends = [index.get(id(b)) for b in coupling.bodies]
+        if None in ends:
+            missing = coupling.bodies[ends.index(None)]
+            raise InputError(coupling.name, "a coupling between bodies added to the scene",
+                             f"{missing.name!r} is not in it")
+        self.couplings.append(coupling)
+        self._units = None
+        if not collide:
+            self.disable_collision(*ends)
 
     def disable_collision(self, a: int, b: int) -> None:
         """Never make contacts between bodies ``a`` and ``b`` (e.g. a soft part coupled to a bone)."""
@@ -267,20 +296,88 @@ class Scene:
         with single_threaded_blas():
             return self._step(dt)
 
+    def solve_units(self) -> tuple[list, list]:
+        """What the solvers step: one :class:`~softvr.dynamics.CouplingIsland` per group of
+        coupled bodies, the others alone (thesis 5.3.2). Returns the units and, per body, its
+        ``(unit index, first velocity block in the unit)``."""
+        if self._units is None:
+            units, where = [], [None] * len(self.bodies)
+            for group in coupling_islands(self.bodies, self.couplings):
+                if len(group) == 1:
+                    where[group[0]] = (len(units), 0)
+                    units.append(self.bodies[group[0]])
+                    continue
+                members = [self.bodies[i] for i in group]
+                ids = {id(m) for m in members}
+                island = CouplingIsland(members, [c for c in self.couplings if id(c.bodies[0]) in ids],
+                                        name="coupling island of " + ", ".join(repr(m.name) for m in members))
+                for i, m in zip(group, members):
+                    where[i] = (len(units), island.block_offset(m))
+                units.append(island)
+            self._units = (units, where)
+        return self._units
+
+    def _to_units(self, contacts: Contacts, where: list) -> Contacts:
+        """The contacts with each side on its unit's velocity blocks (a rigid member's 6-velocity
+        block becomes a linear and an angular block of 3 inside a coupling island)."""
+        sides = []
+        for side in (contacts.a, contacts.b):
+            if side is None:
+                sides.append(None)
+                continue
+            unit, first = where[side.body]
+            if self._units[0][unit] is self.bodies[side.body]:
+                sides.append(ContactSide(unit, side.blocks, side.jac))
+            elif side.jac.shape[-1] == 3:
+                sides.append(ContactSide(unit, side.blocks + first, side.jac))
+            else:  # a rigid member: [c, k, 3, 6] -> [c, 2k, 3, 3]
+                c, k = side.blocks.shape
+                blocks = (first + 2 * side.blocks[:, :, None] + np.arange(2)).reshape(c, 2 * k)
+                jac = side.jac.reshape(c, k, 3, 2, 3).transpose(0, 1, 3, 2, 4).reshape(c, 2 * k, 3, 3)
+                sides.append(ContactSide(unit, blocks, jac))
+        return Contacts(sides[0], sides[1], contacts.normal, contacts.gap, contacts.point_a, contacts.point_b,
+                        contacts.ids, contacts.friction, contacts.area)
+
     def _step(self, dt: float) -> ContactSolution:
-        v_free = [body.unconstrained_velocity(dt, self.gravity, self.external.get(i))
-                  for i, body in enumerate(self.bodies)]
+        units, where = self.solve_units()
+        external = [self.external.get(i) for i in range(len(self.bodies))]
+        v_units = []
+        for u, unit in enumerate(units):
+            if isinstance(unit, CouplingIsland):
+                ext = [external[i] for i, (w, _) in enumerate(where) if w == u]
+                v_units.append(unit.unconstrained_velocity(dt, self.gravity, ext))
+            else:
+                v_units.append(unit.unconstrained_velocity(dt, self.gravity, external[where.index((u, 0))]))
+        v_free = [self._body_velocity(v_units, where, i) for i in range(len(self.bodies))]
         contacts, adhesions = self._detect(v_free, dt)
+        kept = [(c, a) for c, a in zip(contacts, adhesions) if len(c)]
+        contacts, adhesions = [c for c, _ in kept], [a for _, a in kept]
         stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
         warm, self._warm = self._warm, {}
-        solution = solve_contacts(self.bodies, v_free, contacts, dt, iterations=self.pgs_iterations, warm_start=warm,
-                                  adhesion=stiffness)
-        solved = [a for c, a in zip(contacts, adhesions) if len(c)]
-        self.adhesion_state.evolve(solution.contacts, solved, solution.impulses, solution.gaps_after, dt)
+        solved = solve_contacts(units, v_units, [self._to_units(c, where) for c in contacts], dt,
+                                iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness)
+        members = [[i for i, (w, _) in enumerate(where) if w == u] for u in range(len(units))]
+        solution = ContactSolution(
+            velocities=[self._body_velocity(solved.velocities, where, i) for i in range(len(self.bodies))],
+            impulses=solved.impulses, frames=solved.frames, iterations=solved.iterations, residual=solved.residual,
+            islands=[sorted(i for u in island for i in members[u]) for island in solved.islands],
+            contacts=contacts, gaps_after=solved.gaps_after)
+        self.adhesion_state.evolve(solution.contacts, adhesions, solution.impulses, solution.gaps_after, dt)
         current = {int(i) for c in contacts for i in c.ids}
         self._warm = {k: v for k, v in warm.items() if k in current}
-        for body, v in zip(self.bodies, solution.velocities):
-            body.integrate(v, dt)
+        for unit, v in zip(units, solved.velocities):
+            unit.integrate(v, dt)
         self.time += dt
         self.last_solution = solution
         return solution
+
+    def _body_velocity(self, unit_velocities: list, where: list, body: int) -> np.ndarray:
+        """Body ``body``'s share of its unit's velocity (its ``v`` shape)."""
+        unit, first = where[body]
+        v = unit_velocities[unit]
+        units = self._units[0]
+        if units[unit] is self.bodies[body]:
+            return v
+        b = self.bodies[body]
+        flat = np.asarray(v, float).ravel()
+        return flat[3 * first : 3 * first + b.velocity_size].reshape(np.shape(b.v))

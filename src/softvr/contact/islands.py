@@ -1,6 +1,12 @@
-"""Contact islands: bodies linked by contacts are solved together, others apart (thesis 5.3.3)."""
+"""Contact islands: bodies linked by contacts are solved together, others apart (thesis 5.3.3).
+
+The bodies here are the solver's units: a coupling island counts as one (thesis 5.3.3: "two
+coupling islands belong to the same contact island if and only if they share a contact").
+"""
 
 from __future__ import annotations
+
+from softvr.dynamics.islands import connected_components
 
 __all__ = ["contact_islands"]
 
@@ -19,22 +25,7 @@ def contact_islands(body_count: int, pairs) -> list[list[int]]:
     list of list of int
         Body indices per island, islands with at least one contact first, sorted.
     """
-    parent = list(range(body_count))
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    touched = set()
-    for a, b in pairs:
-        touched.add(a)
-        if b is not None:
-            touched.add(b)
-            parent[find(a)] = find(b)
-    groups: dict[int, list[int]] = {}
-    for i in range(body_count):
-        groups.setdefault(find(i), []).append(i)
-    islands = sorted(groups.values())
+    pairs = list(pairs)
+    touched = {i for pair in pairs for i in pair if i is not None}
+    islands = connected_components(body_count, [(a, b) for a, b in pairs if b is not None])
     return sorted(islands, key=lambda g: not any(i in touched for i in g))

@@ -7,6 +7,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg import solve_triangular
 
+from softvr.dynamics.body import StepSystem
 from softvr.errors import InputError
 
 __all__ = ["SparseNodeSystem"]
@@ -17,7 +18,8 @@ class SparseNodeSystem:
 
     Expects ``self.fixed`` (bool [node_count]), ``self.fixed_velocity`` [node_count, 3] [m/s],
     ``self.rest`` [node_count, 3], ``self.q``, ``self.v``, ``cg_tolerance``,
-    ``cg_max_iterations`` and ``_node_word`` ("node", "vertex") for reports. Each
+    ``cg_max_iterations``, ``_node_word`` ("node", "vertex") for reports and
+    ``_step_matrices(dt, gravity, external) -> (A, b)`` (eq. 5.2, over all velocities). Each
     ``unconstrained_velocity`` keeps ``self._a_free`` (A over the free velocities),
     ``self._precond`` and ``self._free`` (bool mask of free velocities).
 
@@ -27,28 +29,45 @@ class SparseNodeSystem:
     """
 
     _node_word = "node"
+    #: Solve each step by sparse LU instead of CG (coupling islands: stiff springs make CG slow).
+    direct_solve = False
 
-    def _solve_step(self, a, m_diag: np.ndarray, forces: np.ndarray, dt: float) -> np.ndarray:
-        """Keep this step's ``A`` (free rows / columns) and return ``A^-1 (M v0 + dt f)`` [n, 3]
-        (thesis eq. 5.2; ``b`` in this form because the damping force cancels ``dt D v0``)."""
+    def _solve_step(self, a, b: np.ndarray) -> np.ndarray:
+        """Keep this step's ``A`` (free rows / columns) and return the velocities [n, 3] solving
+        ``A v = b`` (thesis eq. 5.2) with the fixed ones at ``fixed_velocity``."""
         self._free = ~np.repeat(self.fixed, 3)
         a = a.tocsr()
         self._a_free = a[self._free][:, self._free].tocsr()
         self._precond = self._lagged_factor_preconditioner() or sp.diags(1.0 / self._a_free.diagonal())
-        b = m_diag * self.v.ravel() + dt * np.asarray(forces, float).ravel()
+        b = np.array(b, float).ravel()
         driven = self._checked_fixed_velocity().ravel()
         moving = ~self._free & (driven != 0.0)
         if moving.any():
             # A v = b with v_fixed given: A_ff v_f = b_f - A_fd v_d.
             b[self._free] -= a[self._free][:, moving] @ driven[moving]
-        v = self._cg(b, self.v.ravel())
-        v.ravel()[~self._free] = driven[~self._free]
+        if self.direct_solve:
+            self._factor(np.zeros(0, int))
+            v = self._lu_solve(b.reshape(-1, 1)).reshape(-1, 3)
+        else:
+            v = self._cg(b, self.v.ravel())
+        v.reshape(-1)[~self._free] = driven[~self._free]
         return v
+
+    def step_system(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> StepSystem:
+        """This step's ``A v = b`` (eq. 5.2) with the fixed velocities prescribed."""
+        a, b = self._step_matrices(dt, gravity, external)
+        return StepSystem(a, b, np.repeat(self.fixed, 3), self._checked_fixed_velocity().ravel().copy())
+
+    def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:
+        """Velocities [n, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2), the fixed ones at
+        ``fixed_velocity``; also prepares :meth:`solve` for this step. ``external`` [n, 3] [N]
+        adds forces."""
+        return self._solve_step(*self._step_matrices(dt, gravity, external))
 
     def _checked_fixed_velocity(self) -> np.ndarray:
         vf = np.asarray(self.fixed_velocity, float)
-        if vf.shape != self.q.shape:
-            raise InputError("fixed_velocity", f"an array of shape {self.q.shape} [m/s]", f"shape {vf.shape}")
+        if vf.shape != self.v.shape:
+            raise InputError("fixed_velocity", f"an array of shape {self.v.shape} [m/s]", f"shape {vf.shape}")
         bad = ~np.isfinite(vf).all(axis=1)
         if bad.any():
             n = int(np.argmax(bad))
@@ -144,8 +163,8 @@ class SparseNodeSystem:
         Rows and columns of fixed nodes are 0.
         """
         blocks = np.asarray(blocks, int).ravel()
-        if len(np.unique(blocks)) != len(blocks) or (blocks < 0).any() or (blocks >= len(self.q)).any():
-            raise InputError("blocks", f"distinct node indices in [0, {len(self.q) - 1}]", str(blocks.tolist()[:8]))
+        if len(np.unique(blocks)) != len(blocks) or (blocks < 0).any() or (blocks >= len(self.v)).any():
+            raise InputError("blocks", f"distinct node indices in [0, {len(self.v) - 1}]", str(blocks.tolist()[:8]))
         dofs = (3 * blocks[:, None] + np.arange(3)).ravel()
         free_index = np.cumsum(self._free) - 1  # velocity -> row of the free system
         keep = self._free[dofs]

@@ -5,7 +5,9 @@ A contact object has a state vector ``q`` and a velocity vector ``v`` with ``q_d
 the solution of the linearized backward-Euler system ``A v = b`` (eq. 5.2); contact and
 coupling solvers then need ``A^-1`` applied to generalized impulses (:meth:`solve`), and
 finally the object integrates its state with the constrained velocity (:meth:`integrate`).
-Objects are independent (A is block diagonal, eq. 5.3), so each solves its own block.
+Objects are independent (A is block diagonal, eq. 5.3), so each solves its own block; objects
+joined by couplings (eq. 5.4) are solved together by a
+:class:`~softvr.dynamics.CouplingIsland`, which assembles their :meth:`~ContactObject.step_system`.
 
 Shapes are the subclass's natural ones (node arrays ``[node_count, 3]`` for deformables,
 ``[6]`` for a rigid body); :attr:`velocity_size` is the flattened length used by Jacobians.
@@ -14,12 +16,36 @@ Shapes are the subclass's natural ones (node arrays ``[node_count, 3]`` for defo
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from softvr.errors import InputError, SimulationError
 
-__all__ = ["ContactObject"]
+__all__ = ["ContactObject", "StepSystem"]
+
+
+@dataclass
+class StepSystem:
+    """One object's backward-Euler step ``A v = b`` (thesis eq. 5.2) over its flattened velocity.
+
+    Attributes
+    ----------
+    matrix : scipy.sparse matrix, shape [n, n]
+        ``A`` [kg, kg m^2] (n = velocity_size).
+    rhs : ndarray, shape [n]
+        ``b`` [N s, N m s].
+    prescribed : ndarray of bool, shape [n]
+        Velocities that are set, not solved for (fixed nodes, infinite masses).
+    value : ndarray, shape [n] [m/s, rad/s]
+        The prescribed velocities (ignored elsewhere).
+    """
+
+    matrix: sp.spmatrix
+    rhs: np.ndarray
+    prescribed: np.ndarray
+    value: np.ndarray
 
 
 class ContactObject(ABC):
@@ -61,6 +87,12 @@ class ContactObject(ABC):
         -------
         ndarray, the shape of ``v``
         """
+
+    def step_system(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> StepSystem:
+        """This step's ``A v = b`` (eq. 5.2) for a coupling island to assemble (eq. 5.4); the
+        arguments as for :meth:`unconstrained_velocity`."""
+        raise InputError(self.name, "a body that can be coupled (rigid, FEM, cloth, fixed, kinematic)",
+                         type(self).__name__)
 
     @abstractmethod
     def solve(self, rhs: np.ndarray) -> np.ndarray:

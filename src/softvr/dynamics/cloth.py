@@ -427,13 +427,9 @@ class ClothBody(SparseNodeSystem, ContactObject):
         outer = self.damping * unit[:, :, None] * unit[:, None, :]
         return self._assemble(outer) + sp.diags(np.repeat(self.alpha * self.mass, 3))
 
-    def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:
-        """Vertex velocities [vertex_count, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2).
-
-        ``A = M + dt D + dt^2 K`` and ``b = M v0 + dt (f_springs(q0) + M g + external)`` at the
-        current state; fixed vertices move at ``fixed_velocity``. ``external`` [vertex_count, 3] [N] adds
-        vertex forces. Also prepares :meth:`solve` for this step.
-        """
+    def _step_matrices(self, dt: float, gravity, external):
+        """``A = M + dt D + dt^2 K`` and ``b = M v0 + dt (f_springs(q0) + M g + external)`` at
+        the current state (thesis eq. 5.2); ``external`` [vertex_count, 3] [N] adds vertex forces."""
         dt = self._check_dt(dt)
         g = np.asarray(gravity, float)
         if g.shape != (3,) or not np.isfinite(g).all():
@@ -454,4 +450,4 @@ class ClothBody(SparseNodeSystem, ContactObject):
             blocks = blocks + dt * self.damping * unit[:, :, None] * unit[:, None, :]
         m_diag = np.repeat(self.mass, 3)
         a = self._assemble(blocks) + sp.diags(m_diag * (1.0 + dt * self.alpha))
-        return self._solve_step(a, m_diag, f, dt)
+        return a, m_diag * self.v.ravel() + dt * f.ravel()

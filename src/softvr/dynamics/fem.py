@@ -217,13 +217,10 @@ class FemBody(SparseNodeSystem, ContactObject):
         """1/2 sum m v^2 [J]."""
         return 0.5 * float(np.sum(self.mass[:, None] * self.v**2))
 
-    def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:
-        """Node velocities [node_count, 3] [m/s] solving ``A v = b`` (thesis eq. 5.2).
-
-        ``A = M + dt (alpha M + beta K) + dt^2 K`` and ``b = M v0 + dt f(q0)`` with
-        ``K = sum R K_e R^T`` at the current state; fixed nodes move at ``fixed_velocity``.
-        ``external`` [node_count, 3] [N] adds node forces.
-        """
+    def _step_matrices(self, dt: float, gravity, external):
+        """``A = M + dt (alpha M + beta K) + dt^2 K`` and ``b = M v0 + dt f(q0)`` (thesis eq.
+        5.2; the damping force cancels ``dt D v0``) with ``K = sum R K_e R^T`` at the current
+        state; ``external`` [node_count, 3] [N] adds node forces."""
         dt = self._check_dt(dt)
         mat = self.material
         _, element_forces, element_stiffness = self._element_terms(None)
@@ -233,8 +230,7 @@ class FemBody(SparseNodeSystem, ContactObject):
         if external is not None:
             f = f + np.asarray(external, float).reshape(f.shape)
         a = sp.diags(m_diag * (1 + dt * mat.alpha)) + (dt * mat.beta + dt * dt) * k
-        return self._solve_step(a, m_diag, f, dt)
-
+        return a, m_diag * self.v.ravel() + dt * f.ravel()
 
 
 def _per_tet(values, default: float, m: int, name: str, unit: str) -> np.ndarray:

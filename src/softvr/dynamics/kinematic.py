@@ -26,7 +26,9 @@ from collections.abc import Callable
 from fractions import Fraction
 
 import numpy as np
+import scipy.sparse as sp
 
+from softvr.dynamics.body import StepSystem
 from softvr.dynamics.rigid import RigidFrame, _unit_quaternion, _vector, quat_conjugate, quat_multiply, quat_to_rotvec
 from softvr.errors import InputError
 
@@ -51,6 +53,11 @@ class _InfiniteMass(RigidFrame):
         if cols.ndim != 2 or cols.shape[0] != 6:
             raise InputError("columns", "shape [6, k]", f"shape {cols.shape}")
         return np.zeros_like(cols)
+
+    def step_system(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> StepSystem:
+        """All six velocities prescribed at this step's :meth:`unconstrained_velocity` (``A = I``)."""
+        v = self.unconstrained_velocity(dt, gravity, external)
+        return StepSystem(sp.identity(6, format="csr"), v.copy(), np.ones(6, bool), v)
 
     def immovable(self, blocks) -> np.ndarray:
         """All of them: no impulse moves an infinite mass (bool, the shape of ``blocks``)."""

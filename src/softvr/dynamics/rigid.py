@@ -39,8 +39,9 @@ so a constant ``omega`` rotates the body at exactly ``|omega|``.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
-from softvr.dynamics.body import ContactObject
+from softvr.dynamics.body import ContactObject, StepSystem
 from softvr.errors import InputError
 
 __all__ = [
@@ -443,6 +444,20 @@ class RigidBody(RigidFrame):
         v1[:3] = self.v[:3] + dt * (g + ext[:3] / self.mass)
         v1[3:] = w0 + a_inv @ (dt * (ext[3:] - np.cross(w0, l0)))
         return v1
+
+    def step_system(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> StepSystem:
+        """``A = M = blockdiag(m I3, I_w)`` and ``b = M v0 + dt (m g + f_ext, tau_ext - omega0 x
+        I_w omega0)`` (eq. 5.2 with the gyroscopic torque explicit: a coupling island needs a
+        symmetric ``A``; an uncoupled body keeps its :attr:`gyroscopic` setting)."""
+        dt = self._check_dt(dt)
+        g = _vector(gravity, 3, "gravity", "m/s^2")
+        ext = self._check_external(external)
+        if not np.isfinite(self.v).all():
+            raise self._diverged("velocity NaN/inf")
+        m = self.mass_matrix()
+        w0 = self.v[3:]
+        force = np.concatenate([self.mass * g + ext[:3], ext[3:] - np.cross(w0, m[3:, 3:] @ w0)])
+        return StepSystem(sp.csr_matrix(m), m @ self.v + dt * force, np.zeros(6, bool), np.zeros(6))
 
     def solve(self, rhs) -> np.ndarray:
         """``M^-1 rhs`` with the step's ``M = blockdiag(m I3, I_w)`` (``I_w`` at the step's start).
