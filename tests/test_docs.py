@@ -19,6 +19,8 @@ MODULES = [
     "softvr.sim",
     "softvr.dynamics.cloth",
     "softvr.render.surfaces",
+    "softvr.haptics",
+    "softvr.dynamics.couplings",
 ]
 
 
