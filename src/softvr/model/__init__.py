@@ -1,0 +1,17 @@
+"""Model creation (thesis 5.2): from a part's surface to its render, collision and dynamics
+representations, its coupling nodes, and a collision-free start.
+
+* :func:`collision_mesh`: quadric simplification of the render surface to a triangle budget.
+* :func:`dynamics_mesh`: regular cubes over the bounding box, 5 tets each, those not touching
+  the part dropped; :func:`embed_surface` binds surface vertices to them barycentrically.
+* :func:`nodes_near_surface`: coupling nodes, the nodes within a radius of another part.
+* :func:`intersecting_triangle_pairs`: crossing triangles of two surfaces.
+
+Lengths in metres.
+"""
+
+from softvr.model.couplings import nodes_near_surface
+from softvr.model.intersections import intersecting_triangle_pairs
+from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
+
+__all__ = ["collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "nodes_near_surface"]
