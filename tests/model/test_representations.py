@@ -95,3 +95,29 @@ def test_crossing_triangles_are_found():
     assert len(intersecting_triangle_pairs(unit, tris, unit + [2.1, 0.0, 0.0], tris)) == 0
     with pytest.raises(InputError, match="surface b"):
         intersecting_triangle_pairs(unit, tris, unit, tris + 10_000)
+
+
+def test_push_apart_leaves_no_crossing_triangles_on_a_case_that_starts_intersecting():
+    """A soft 6 cm ball sunk 1 cm into a fixed 10 cm block: 0 crossing triangle pairs and no
+    surface vertex inside afterwards (checked by the independent crossing test and the
+    block's exact signed distance), with the deformation local: the ball's far side moves
+    less than a fifth of the deepest push."""
+    from softvr.model import push_apart
+
+    unit, tris = icosphere(3)
+    ball = 0.03 * unit + [0.0, 0.0, 0.02]  # bottom at -1 cm: 1 cm into the block below z = 0
+    block_lo, block_hi = np.array([-0.05, -0.05, -0.1]), np.array([0.05, 0.05, 0.0])
+    bv, bt = box_surface(block_hi - block_lo, 8)
+    bv = bv + block_lo
+    assert len(intersecting_triangle_pairs(ball, tris, bv, bt)) > 0
+    nodes, tets = dynamics_mesh(ball, tris, 0.01)
+    embedding = embed_surface(nodes, tets, ball)
+    moved, report = push_apart(nodes, tets, embedding, tris, bv, bt, margin=2e-4)
+    index, weights = embedding
+    surface = np.einsum("pk,pkc->pc", weights, moved[tets[index]])
+    assert report.clean and report.iterations < 20
+    assert len(intersecting_triangle_pairs(surface, tris, bv, bt)) == 0
+    assert box_distance(surface, block_lo, block_hi).min() >= 0.0
+    shift = np.linalg.norm(moved - nodes, axis=1)
+    top = nodes[:, 2] > 0.045
+    assert shift.max() >= 0.01 and shift[top].max() < 0.2 * shift.max()

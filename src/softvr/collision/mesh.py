@@ -143,18 +143,24 @@ class TriangleMesh:
         self._mesh = wp.Mesh(points=self._points, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                         device=self.device))
 
-    def signed_distance(self, points, *, closed: bool = True) -> np.ndarray:
+    def signed_distance(self, points, *, closed: bool = True, normals: bool = False):
         """Distance [point_count] [m] of ``points`` [point_count, 3] [m] to the surface (BVH
-        query); for a ``closed`` (watertight, outward) mesh negative inside."""
+        query); for a ``closed`` (watertight, outward) mesh negative inside. With ``normals``
+        also the unit direction [point_count, 3] from the closest surface point outward (the
+        face normal where the point lies on the surface)."""
         p = np.asarray(points, float)
         if p.ndim != 2 or p.shape[1] != 3 or not np.isfinite(p).all():
             raise InputError("points", "finite points [point_count, 3] [m]", f"shape {p.shape}")
         reach = 2.0 * float(np.linalg.norm(np.ptp(np.vstack([self.vertices, p]), axis=0))) + 1.0
-        which, _, gap, _ = query_points(self._mesh.id, self.device, p, np.zeros_like(p), reach, 0.0, False,
-                                        closed=closed)
+        which, normal, gap, _ = query_points(self._mesh.id, self.device, p, np.zeros_like(p), reach, 0.0, False,
+                                             closed=closed)
         out = np.full(len(p), np.inf)
         out[which] = gap
-        return out
+        if not normals:
+            return out
+        n = np.zeros_like(p)
+        n[which] = normal
+        return out, n
 
 
 def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float = 0.0, velocities=None,

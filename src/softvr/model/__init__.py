@@ -6,6 +6,8 @@ representations, its coupling nodes, and a collision-free start.
   the part dropped; :func:`embed_surface` binds surface vertices to them barycentrically.
 * :func:`nodes_near_surface`: coupling nodes, the nodes within a radius of another part.
 * :func:`intersecting_triangle_pairs`: crossing triangles of two surfaces.
+* :func:`push_apart`: the collision-free start, a smooth deformation of a part's tets that
+  takes its surface out of an obstacle, with a :class:`SeparationReport` of what remains.
 
 Lengths in metres.
 """
@@ -13,5 +15,7 @@ Lengths in metres.
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
+from softvr.model.separation import SeparationReport, push_apart
 
-__all__ = ["collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "nodes_near_surface"]
+__all__ = ["SeparationReport", "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs",
+           "nodes_near_surface", "push_apart"]
