@@ -303,13 +303,17 @@ class Scene:
         if self._units is None:
             units, where = [], [None] * len(self.bodies)
             for group in coupling_islands(self.bodies, self.couplings):
-                if len(group) == 1:
+                body = self.bodies[group[0]]
+                coupled = any(b is body for c in self.couplings for b in c.bodies)
+                if len(group) == 1 and (body.infinite_mass or not coupled):
                     where[group[0]] = (len(units), 0)
                     units.append(self.bodies[group[0]])
                     continue
                 members = [self.bodies[i] for i in group]
                 ids = {id(m) for m in members}
-                island = CouplingIsland(members, [c for c in self.couplings if id(c.bodies[0]) in ids],
+                mine = [c for c in self.couplings if any(id(b) in ids for b in c.bodies)]
+                guests = list({id(b): b for c in mine for b in c.bodies if id(b) not in ids}.values())
+                island = CouplingIsland(members, mine, guests=guests,
                                         name="coupling island of " + ", ".join(repr(m.name) for m in members))
                 for i, m in zip(group, members):
                     where[i] = (len(units), island.block_offset(m))

@@ -248,3 +248,40 @@ def test_bad_couplings_are_clear_errors():
     scene.add_body(a)
     with pytest.raises(InputError, match="'b' is not in it"):
         scene.add_coupling(Coupling(one, RigidPoints(b, [[0.0, 0.0, 0.0]]), 1e3))
+
+
+def test_parts_tied_to_a_fixed_bone_are_separate_islands():
+    """A fixed bone couples nothing (its motion is prescribed): two muscles tied to it are two
+    islands, each carrying the bone as a guest; the bone is stepped once per step, and each
+    muscle hangs as it would alone (the same nodes as a scene with only that muscle)."""
+    bone = FixedBody(name="scapula")
+    nodes, tets = box_mesh((0.05, 0.05, 0.05), (2, 2, 2))
+
+    def muscle(x):
+        m = FemBody(nodes + [x, 0.0, -0.05], tets, Material(2e4, 0.3, 1000.0, alpha=5.0), name=f"muscle {x}")
+        top = np.isclose(m.q[:, 2], 0.0)
+        return m, Coupling(node_points(m, top), RigidPoints.from_world(bone, m.q[top]), 3e3, name=f"origin {x}")
+
+    (m0, c0), (m1, c1) = muscle(0.0), muscle(0.1)
+    scene = Scene()
+    for body in (bone, m0, m1):
+        scene.add_body(body)
+    scene.add_coupling(c0)
+    scene.add_coupling(c1)
+    units, where = scene.solve_units()
+    assert len(units) == 3 and units[where[0][0]] is bone
+    assert all(isinstance(units[where[i][0]], CouplingIsland) for i in (1, 2)) and where[1][0] != where[2][0]
+    assert units[where[1][0]].guests == [bone]
+    alone_bone = FixedBody(name="scapula")
+    alone, link = muscle(0.0)
+    link = Coupling(link.a, RigidPoints.from_world(alone_bone, alone.q[np.isclose(alone.q[:, 2], 0.0)]), 3e3)
+    single = Scene()
+    single.add_body(alone_bone)
+    single.add_body(alone)
+    single.add_coupling(link)
+    for _ in range(20):
+        scene.step(0.005)
+        single.step(0.005)
+    assert bone.step_count == 20
+    np.testing.assert_allclose(m0.q, alone.q, atol=1e-12)
+    assert m0.q[:, 2].min() < -0.0501  # it sags under gravity

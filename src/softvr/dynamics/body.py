@@ -65,6 +65,9 @@ class ContactObject(ABC):
     v: np.ndarray
     step_count: int
 
+    #: True for bodies no force moves (fixed, scripted): couplings to them join no island.
+    infinite_mass: bool = False
+
     @property
     def velocity_size(self) -> int:
         """Length of the flattened velocity vector."""

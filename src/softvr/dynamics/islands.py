@@ -2,7 +2,10 @@
 
 Two contact objects belong to the same coupling island if and only if they share a coupling;
 islands are found once (couplings are not created or removed while simulating) by union-find
-(:func:`coupling_islands`). Each island is one :class:`CouplingIsland`: the members' step
+(:func:`coupling_islands`). A body of infinite mass (a fixed or scripted bone) joins no
+island: its motion is prescribed, so it couples nothing to anything. Each island that has
+couplings to it carries it as a *guest*, whose velocities enter the island's system as known
+values (the parts attached to a fixed scapula stay separate islands, solved independently). Each island is one :class:`CouplingIsland`: the members' step
 systems ``A_j v_j = b_j`` (eq. 5.2) plus the couplings' off-diagonal blocks (eq. 5.4), solved
 together. The island presents the interface of a single contact object (thesis 5.3.3), so the
 contact solver treats it like any body: its velocity is the members' velocities one after the
@@ -56,7 +59,8 @@ def connected_components(count: int, pairs) -> list[list[int]]:
 
 
 def coupling_islands(bodies: list, couplings: list) -> list[list[int]]:
-    """Indices of ``bodies`` grouped into coupling islands (one group per uncoupled body too).
+    """Indices of ``bodies`` grouped into coupling islands (one group per uncoupled body too);
+    couplings to bodies of infinite mass link nothing (module docstring).
 
     Raises :class:`~softvr.errors.InputError` for a coupling to a body that is not in the list.
     """
@@ -68,7 +72,8 @@ def coupling_islands(bodies: list, couplings: list) -> list[list[int]]:
             if id(body) not in index:
                 raise InputError(f"{c.name}", "couplings between bodies of the scene", f"{body.name!r} is not in it")
             ends.append(index[id(body)])
-        pairs.append(tuple(ends))
+        if not any(body.infinite_mass for body in c.bodies):
+            pairs.append(tuple(ends))
     return connected_components(len(bodies), pairs)
 
 
@@ -80,15 +85,18 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
     members : list of ContactObject
         The coupled bodies (each must offer :meth:`~ContactObject.step_system`).
     couplings : list of Coupling
-        Couplings between members.
+        Couplings between members, or between a member and a guest.
+    guests : list of ContactObject
+        Bodies of infinite mass the members are coupled to: their prescribed velocities enter
+        the system, but the island neither integrates them nor takes their contacts.
     name : str
 
     Attributes
     ----------
     v : ndarray, shape [block_count, 3] [m/s, rad/s]
-        The members' velocities one after the other, cut into blocks of 3.
-    offsets : ndarray of int, shape [member_count + 1]
-        Where each member's flattened velocity starts in the island's.
+        The members' velocities one after the other, then the guests', cut into blocks of 3.
+    offsets : ndarray of int, shape [member_count + guest_count + 1]
+        Where each member's (then guest's) flattened velocity starts in the island's.
     fixed : ndarray of bool, shape [block_count]
         Prescribed blocks of the step (fixed nodes, infinite-mass members).
     fixed_velocity : ndarray, shape [block_count, 3]
@@ -101,15 +109,19 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
     block_size = 3
     direct_solve = True
 
-    def __init__(self, members: list, couplings: list, *, name: str = "coupling island"):
+    def __init__(self, members: list, couplings: list, *, guests=(), name: str = "coupling island"):
         if not members:
             raise InputError(name, "at least one member body", "none")
-        for m in members:
+        for m in [*members, *guests]:
             if not isinstance(m, ContactObject):
                 raise InputError(f"{name} member", "a softvr.dynamics.ContactObject", type(m).__name__)
             if m.velocity_size % 3:
                 raise InputError(f"{name} member {m.name!r}", "a velocity size divisible by 3", str(m.velocity_size))
-        ids = {id(m) for m in members}
+        for g in guests:
+            if not g.infinite_mass:
+                raise InputError(f"{name} guest {g.name!r}", "a body of infinite mass (fixed, kinematic)",
+                                 type(g).__name__)
+        ids = {id(m) for m in [*members, *guests]}
         for c in couplings:
             if not isinstance(c, Coupling):
                 raise InputError(f"{name} coupling", "a softvr.dynamics.Coupling", type(c).__name__)
@@ -117,9 +129,10 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
                 raise InputError(c.name, f"couplings between members of {name!r}", "a body outside it")
         self.name = name
         self.members = list(members)
+        self.guests = list(guests)
         self.couplings = list(couplings)
-        self.offsets = np.cumsum([0] + [m.velocity_size for m in self.members])
-        self._offset = {id(m): int(o) for m, o in zip(self.members, self.offsets)}
+        self.offsets = np.cumsum([0] + [m.velocity_size for m in [*self.members, *self.guests]])
+        self._offset = {id(m): int(o) for m, o in zip([*self.members, *self.guests], self.offsets)}
         blocks = int(self.offsets[-1]) // 3
         self.fixed = np.zeros(blocks, bool)
         self.fixed_velocity = np.zeros((blocks, 3))
@@ -128,11 +141,12 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
     # -- state ---------------------------------------------------------------------------
     @property
     def v(self) -> np.ndarray:
-        return np.concatenate([np.asarray(m.v, float).ravel() for m in self.members]).reshape(-1, 3)
+        bodies = [*self.members, *self.guests]
+        return np.concatenate([np.asarray(m.v, float).ravel() for m in bodies]).reshape(-1, 3)
 
     def member_slices(self) -> list[slice]:
-        """Slice of each member's flattened velocity in the island's."""
-        return [slice(int(a), int(b)) for a, b in zip(self.offsets[:-1], self.offsets[1:])]
+        """Slice of each member's flattened velocity in the island's (guests not included)."""
+        return [slice(int(a), int(b)) for a, b in zip(self.offsets[:len(self.members)], self.offsets[1:])]
 
     def split(self, v) -> list[np.ndarray]:
         """An island velocity [block_count, 3] as the members' velocities (their ``v`` shapes)."""
@@ -148,14 +162,15 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
 
     # -- step ----------------------------------------------------------------------------
     def step_system(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None):
-        """The island's ``A v = b``: the members' systems on the block diagonal plus every
-        coupling's terms (eq. 5.4). ``external``: None or one entry per member (None or the
-        member's generalized force). Returns ``(A, b, prescribed, value)`` over the island."""
+        """The island's ``A v = b``: the members' and guests' systems on the block diagonal plus
+        every coupling's terms (eq. 5.4). ``external``: None or one entry per member (None or
+        the member's generalized force). Returns ``(A, b, prescribed, value)`` over the island."""
         dt = self._check_dt(dt)
         external = [None] * len(self.members) if external is None else list(external)
         if len(external) != len(self.members):
             raise InputError("external", f"one entry per member ({len(self.members)})", f"{len(external)}")
         systems = [m.step_system(dt, gravity, e) for m, e in zip(self.members, external)]
+        systems += [g.step_system(dt, gravity, None) for g in self.guests]
         size = int(self.offsets[-1])
         a = sp.block_diag([s.matrix for s in systems], format="csr")
         b = np.concatenate([np.asarray(s.rhs, float).ravel() for s in systems])
@@ -180,7 +195,8 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
         return self._solve_step(a, b)
 
     def integrate(self, v, dt: float) -> None:
-        """Every member integrates its share of ``v`` (each checks itself for divergence)."""
+        """Every member integrates its share of ``v`` (each checks itself for divergence); the
+        guests are integrated as their own units."""
         dt = self._check_dt(dt)
         for member, vm in zip(self.members, self.split(v)):
             member.integrate(vm, dt)

@@ -39,6 +39,7 @@ class _InfiniteMass(RigidFrame):
     """Shared behaviour of bodies no force can move."""
 
     mass = math.inf
+    infinite_mass = True
 
     def solve(self, rhs) -> np.ndarray:
         """``A^-1 rhs = 0``: infinite mass, impulses change nothing. ``rhs`` [6] or [k, 6]."""
