@@ -30,7 +30,7 @@ def test_docstring_examples_run(name):
     assert result.failed == 0
 
 
-DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md"]
+DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md"]
 
 
 @pytest.mark.parametrize("doc", DOCS)

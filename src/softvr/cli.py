@@ -1,6 +1,8 @@
 """The ``softvr`` command: one entry point, one subcommand per job.
 
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
+``softvr demo shoulder``    the procedural shoulder palpated through a 1 kHz haptic loop
+``softvr build-model P``    part meshes + a parts file (TOML) -> a simulation model (thesis 5.2)
 ``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall,
                             lips, probe) to MP4, metrics and plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
@@ -22,9 +24,19 @@ __all__ = ["main"]
 
 
 def _demo(argv: list[str]) -> int:
+    if argv and argv[0] == "shoulder":
+        from softvr.examples import example_shoulder
+
+        return example_shoulder.main(argv[1:])
     from softvr.examples import example_volume_deform
 
-    return example_volume_deform.main(argv)
+    return example_volume_deform.main(argv[1:] if argv and argv[0] == "volume" else argv)
+
+
+def _build_model(argv: list[str]) -> int:
+    from softvr.model import build
+
+    return build.main(argv)
 
 
 def _run(argv: list[str]) -> int:
@@ -43,7 +55,7 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact", "adhesion")
+_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder")
 
 
 def _bench(argv: list[str]) -> int:
@@ -66,7 +78,7 @@ def _info(argv: list[str]) -> int:
     return 0
 
 
-_COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info}
+_COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -277,14 +277,17 @@ def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
     assert (tmp_path / "soft_cube.mp4").stat().st_size > 0
     assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy", "cloth_wall", "lips",
-                                    "probe"}
+                                    "probe", "shoulder"}
+    from softvr.examples import example_shoulder
+
     for module in (example_soft_cube, example_box_stack, example_cloth_sphere, example_oranges, example_candy,
-                   example_cloth_wall, example_lips, example_probe):
+                   example_cloth_wall, example_lips, example_probe, example_shoulder):
         assert module.DEFAULT_FRAMES >= 30 and callable(module.main)
 
 
 @pytest.mark.parametrize("scene, message", [
-    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall, lips, probe"),
+    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, "
+               "cloth-wall, lips, probe, shoulder"),
     ("scenes/my_scene.json", "scene files are not supported yet (they come with the scene-format issue)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):

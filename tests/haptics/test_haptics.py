@@ -60,22 +60,33 @@ def test_free_tool_follows_the_hand_and_renders_no_stiffness():
     np.testing.assert_allclose(model.force, [0.0, 0.0, -finger.mass * 9.81], atol=0.05 * finger.mass * 9.81)
 
 
-def test_loop_thread_keeps_its_rate_while_the_simulation_steps():
-    """A scripted hand, the loop in its thread, the simulation stepping in this one for 0.5 s:
-    ~500 ticks at a ~1 ms median period, forces clipped to max_force."""
+@pytest.mark.parametrize("process", [False, True])
+def test_loop_keeps_its_rate_while_the_simulation_steps(process):
+    """A hand the loop reads from its thread or process while the simulation steps here for
+    0.5 s: ~500 ticks at a ~1 ms median period; the hand follows the published simulation
+    clock; forces are clipped to max_force."""
     hand = ScriptedDevice(lambda t: np.array([0.0, 0.0, 0.02 - 0.02 * min(t, 0.25)]))
     scene, finger, loop, tool = finger_on_ground(hand)
+    hand.clock = loop.simulation_clock
+    loop.process = process
     loop.max_force = 1.5
-    loop.publish(HandleModel(stiffness=-1e4 * np.eye(3)))
     with loop:
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < 0.5:
             tool.publish(scene.step(0.005))
+            if scene.time > 0.3:
+                # A stiff model: the clipped force must come back.
+                loop.publish(HandleModel(stiffness=-1e4 * np.eye(3)), time=scene.time)
+        time.sleep(0.01)
+        clipped = np.linalg.norm(loop.last_force())
     stats = loop.period_stats()
     assert 400 <= stats["count"] <= 520
     assert stats["p50_ms"] == pytest.approx(1.0, abs=0.1)
-    assert np.linalg.norm(hand.last_force) == 0.0  # stop() sends zero last
-    assert hand.forces_sent == loop.ticks + 1
+    assert loop.handle_position()[2] == pytest.approx(0.015, abs=1e-9)  # path(t >= 0.25) in simulated time
+    assert clipped == pytest.approx(1.5)
+    assert np.linalg.norm(loop.last_force()) == pytest.approx(1.5)  # the zero of stop() goes to the device
+    if not process:
+        assert np.linalg.norm(hand.last_force) == 0.0 and hand.forces_sent == loop.ticks + 1
 
 
 def test_bad_haptic_input_is_reported():

@@ -73,6 +73,8 @@ class Coupling:
                                  f"[{'N/m' if positive else 'N s/m'}]", repr(value))
         self.a, self.b = a, b
         self.stiffness, self.damping = float(stiffness), float(damping)
+        self._embedded = {}
+        self._normal_key = None
 
     @property
     def bodies(self) -> tuple:
@@ -80,7 +82,7 @@ class Coupling:
         return self.a.body, self.b.body
 
     def __len__(self) -> int:
-        return len(self.a.positions())
+        return len(self.a.nodes) if hasattr(self.a, "nodes") else len(self.a.local)
 
     def stretch(self) -> np.ndarray:
         """``p_a - p_b`` [spring_count, 3] [m]: how far each spring is stretched."""
@@ -97,20 +99,38 @@ class Coupling:
 
     def relative_jacobian(self, offsets: dict, size: int) -> sp.csr_matrix:
         """``D = [J_a, -J_b]`` [3 spring_count, size]: relative point velocity of the springs from
-        the velocities of an island whose bodies start at ``offsets[id(body)]``."""
-        blocks = []
-        for points, sign in ((self.a, 1.0), (self.b, -1.0)):
-            jac = sp.csr_matrix(points.jacobian()) * sign
-            start = offsets[id(points.body)]
-            placed = sp.hstack([sp.csr_matrix((jac.shape[0], start)), jac,
-                                sp.csr_matrix((jac.shape[0], size - start - jac.shape[1]))])
-            blocks.append(placed)
-        return (blocks[0] + blocks[1]).tocsr()
+        the velocities of an island whose bodies start at ``offsets[id(body)]``.
 
-    def step_terms(self, offsets: dict, size: int, dt: float) -> tuple[sp.csr_matrix, np.ndarray]:
-        """This coupling's share of an island's ``A`` [size, size] and ``b`` [size] (module
-        docstring, eq. 5.4)."""
-        d = self.relative_jacobian(offsets, size)
-        matrix = (dt * self.damping + dt * dt * self.stiffness) * (d.T @ d)
-        rhs = -dt * self.stiffness * (d.T @ self.stretch().ravel())
-        return matrix.tocsr(), rhs
+        An embedded side's ``J`` (fixed barycentric weights) is built once and kept; a rigid
+        side's depends on the body's rotation and is rebuilt each call (3 x 6 per spring)."""
+        rows, cols, vals = [], [], []
+        for points, sign in ((self.a, 1.0), (self.b, -1.0)):
+            start = offsets[id(points.body)]
+            if hasattr(points, "weights"):
+                cache = self._embedded.get(id(points))
+                if cache is None:
+                    jac = points.jacobian().tocoo()
+                    cache = self._embedded[id(points)] = (jac.row, jac.col, jac.data)
+                r, c, v = cache
+            else:
+                jac = points.jacobian()  # [3 p, 6], dense
+                r, c = np.nonzero(np.ones_like(jac, bool))
+                v = jac.ravel()
+            rows.append(r)
+            cols.append(c + start)
+            vals.append(sign * v)
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(3 * len(self), size))
+
+    def step_terms(self, offsets: dict, size: int, dt: float) -> tuple[sp.coo_matrix, np.ndarray]:
+        """This coupling's share of an island's ``A`` [size, size] (COO) and ``b`` [size] (module
+        docstring, eq. 5.4). ``D^T D`` is kept while the rigid sides have not turned."""
+        key = (size, tuple(offsets[id(p.body)] for p in (self.a, self.b)),
+               tuple(p.body.rotation.tobytes() for p in (self.a, self.b) if not hasattr(p, "weights")))
+        if self._normal_key != key:
+            d = self.relative_jacobian(offsets, size)
+            self._d, self._dtd, self._normal_key = d, (d.T @ d).tocoo(), key
+        scale = dt * self.damping + dt * dt * self.stiffness
+        matrix = sp.coo_matrix((scale * self._dtd.data, (self._dtd.row, self._dtd.col)), shape=self._dtd.shape)
+        rhs = -dt * self.stiffness * (self._d.T @ self.stretch().ravel())
+        return matrix, rhs

@@ -172,12 +172,16 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
         systems = [m.step_system(dt, gravity, e) for m, e in zip(self.members, external)]
         systems += [g.step_system(dt, gravity, None) for g in self.guests]
         size = int(self.offsets[-1])
-        a = sp.block_diag([s.matrix for s in systems], format="csr")
+        blocks = [sp.block_diag([s.matrix for s in systems], format="coo")]
         b = np.concatenate([np.asarray(s.rhs, float).ravel() for s in systems])
         for c in self.couplings:
             ca, cb = c.step_terms(self._offset, size, dt)
-            a = a + ca
-            b = b + cb
+            blocks.append(ca)
+            b += cb
+        # One summation of every block's triplets (duplicates add up in the CSR conversion).
+        a = sp.csr_matrix((np.concatenate([m.data for m in blocks]),
+                           (np.concatenate([m.row for m in blocks]), np.concatenate([m.col for m in blocks]))),
+                          shape=(size, size))
         prescribed = np.concatenate([s.prescribed for s in systems])
         value = np.concatenate([s.value for s in systems])
         return a.tocsr(), b, prescribed, value

@@ -11,6 +11,7 @@ candy          soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 sca
 cloth-wall     a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
 lips           two soft lips pressed together stick briefly as they open (thesis Fig. 4.3)
 probe          a probe pressed into soft tissue and pulled back: force against displacement
+shoulder       coupled anatomy palpated through a 1 kHz haptic loop (thesis ch. 5; also ``softvr demo shoulder``)
 =============  ==============================================================================
 
 Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
@@ -54,6 +55,7 @@ SCENES = {
     "cloth-wall": "cloth_wall",
     "lips": "lips",
     "probe": "probe",
+    "shoulder": "shoulder",
 }
 
 
@@ -113,8 +115,10 @@ class PhysicsExample:
 
     def energies(self) -> tuple[float, float]:
         """(kinetic, kinetic + gravitational) energy [J] of all bodies."""
-        kinetic = sum(float(b.kinetic_energy()) for b in self.scene.bodies)
-        potential = sum(gravity_potential(b, self.scene.gravity) for b in self.scene.bodies)
+        # Bodies of infinite mass move on a script (or not at all): no energy of their own.
+        moving = [b for b in self.scene.bodies if not b.infinite_mass]
+        kinetic = sum(float(b.kinetic_energy()) for b in moving)
+        potential = sum(gravity_potential(b, self.scene.gravity) for b in moving)
         return kinetic, kinetic + potential
 
     def before_step(self) -> None:

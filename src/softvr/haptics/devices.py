@@ -9,7 +9,7 @@ a Virtuose through its SDK) plugs in by subclassing :class:`HapticDevice`.
 
 from __future__ import annotations
 
-import threading
+import multiprocessing
 import time
 from collections.abc import Callable
 
@@ -55,22 +55,31 @@ class HapticDevice:
 
 
 class ScriptedDevice(HapticDevice):
-    """A hand that follows ``path(t) -> [3] [m]``, ``t`` in seconds since :meth:`start` (or
-    since the first reading)."""
+    """A hand that follows ``path(t) -> [3] [m]``.
 
-    def __init__(self, path: Callable[[float], np.ndarray]):
+    ``t`` is ``clock()`` when a clock is given (e.g. ``lambda: scene.time``: the hand moves
+    with simulated time, so a headless run slower than real time follows the same path), else
+    wall-clock seconds since :meth:`start` (or since the first reading).
+    """
+
+    def __init__(self, path: Callable[[float], np.ndarray], *, clock: Callable[[], float] | None = None):
         super().__init__()
         if not callable(path):
             raise InputError("path", "a callable t [s] -> position [3] [m]", type(path).__name__)
+        if clock is not None and not callable(clock):
+            raise InputError("clock", "a callable () -> time [s]", type(clock).__name__)
         self.path = path
+        self.clock = clock
         self._t0 = None
 
     def start(self) -> None:
-        """Start the path's clock now."""
+        """Start the path's wall clock now."""
         self._t0 = time.perf_counter()
 
     def elapsed(self) -> float:
-        """Seconds since :meth:`start`."""
+        """The path's time [s]: ``clock()``, or seconds since :meth:`start`."""
+        if self.clock is not None:
+            return float(self.clock())
         if self._t0 is None:
             self.start()
         return time.perf_counter() - self._t0
@@ -80,19 +89,18 @@ class ScriptedDevice(HapticDevice):
 
 
 class MouseDevice(HapticDevice):
-    """A hand moved by mouse events (the viewer calls :meth:`move_to`)."""
+    """A hand moved by mouse events (the viewer calls :meth:`move_to`). Its position lives in
+    shared memory, so a haptic loop in another process sees the moves."""
 
     def __init__(self, position=(0.0, 0.0, 0.0)):
         super().__init__()
-        self._lock = threading.Lock()
-        self._position = _point(position, "position")
+        self._shared = multiprocessing.RawArray("d", 3)
+        self._position = np.frombuffer(self._shared, dtype=np.float64)
+        self._position[:] = _point(position, "position")
 
     def move_to(self, position) -> None:
         """Set the handle position [3] [m]."""
-        p = _point(position, "position")
-        with self._lock:
-            self._position = p
+        self._position[:] = _point(position, "position")
 
     def position(self) -> np.ndarray:
-        with self._lock:
-            return self._position.copy()
+        return self._position.copy()

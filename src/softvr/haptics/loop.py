@@ -10,14 +10,19 @@ In between, the loop reads the device every millisecond and renders
 which responds to the hand at 1 kHz (pressing further into tissue pushes back harder at once)
 while the deformation itself is computed at the simulation's rate.
 
-The loop runs in a daemon thread; its ticks are scheduled on absolute times (``t0 + n T``), so
-a late tick does not shift the ones after it, and it sleeps until just before each tick, then
-spins, to keep the period within tens of microseconds. Its period statistics are what
-``softvr bench shoulder`` reports.
+The loop runs in its own process (``process=True``: the thesis gives it its own core; a
+thread shares the interpreter lock with the simulation, whose long calls delay it by
+milliseconds) or thread. Both talk through one block of shared memory: the model (written
+under a sequence counter, so the loop never reads half of one), the last handle position and
+force, the simulation clock, and a ring of the last 65 536 loop periods. Ticks are scheduled
+on absolute times (``t0 + n T``), so a late tick does not shift the ones after it; the loop
+sleeps until just before each tick, then spins. Its period statistics are what ``softvr bench
+shoulder`` reports.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import sys
 import threading
 import time
@@ -29,6 +34,12 @@ from softvr.errors import InputError
 from softvr.haptics.devices import HapticDevice
 
 __all__ = ["HandleModel", "HapticLoop"]
+
+# Shared block layout (float64 slots).
+_X0, _F0, _K = slice(0, 3), slice(3, 6), slice(6, 15)
+_SEQ, _TIME, _TICKS, _COUNT = 15, 16, 17, 18
+_POS, _FORCE = slice(19, 22), slice(22, 25)
+_RING_START, _RING = 25, 65536
 
 
 @dataclass(frozen=True)
@@ -54,24 +65,68 @@ class HandleModel:
         return self.force + self.stiffness @ (np.asarray(x, float) - self.position)
 
 
+def _render(data: np.ndarray, device: HapticDevice, max_force: float) -> np.ndarray:
+    """One loop iteration on the shared block: read the device, render the model's force."""
+    x = np.asarray(device.position(), float)
+    while True:  # seqlock read: retry while the simulation is writing a model
+        seq = data[_SEQ]
+        x0, f0, k = data[_X0].copy(), data[_F0].copy(), data[_K].reshape(3, 3).copy()
+        if seq == data[_SEQ] and seq % 2 == 0:
+            break
+    # Elementwise, not BLAS: the forked loop process must not touch a thread pool.
+    force = f0 + (k * (x - x0)[None, :]).sum(axis=1)
+    magnitude = float(np.sqrt((force * force).sum()))
+    if magnitude > max_force:
+        force = force * (max_force / magnitude)
+    device.send_force(force)
+    data[_POS], data[_FORCE] = x, force
+    data[_TICKS] += 1
+    return force
+
+
+def _run(shared, device: HapticDevice, period: float, max_force: float, stop) -> None:
+    """The loop: ticks at ``t0 + n period`` until ``stop`` is set, then a zero force."""
+    data = np.frombuffer(shared, dtype=np.float64)
+    ring = data[_RING_START:]
+    t0 = time.perf_counter()
+    last = None
+    n = 0
+    while not stop.is_set():
+        n += 1
+        target = t0 + n * period
+        remaining = target - time.perf_counter()
+        if remaining > 3e-4:
+            time.sleep(remaining - 2e-4)
+        while time.perf_counter() < target:
+            pass
+        now = time.perf_counter()
+        if last is not None:
+            count = int(data[_COUNT])
+            ring[count % _RING] = now - last
+            data[_COUNT] = count + 1
+        last = now
+        _render(data, device, max_force)
+    device.send_force(np.zeros(3))
+
+
 class HapticLoop:
-    """Reads a device and sends it forces at ``rate`` Hz from a thread.
+    """Reads a device and sends it forces at ``rate`` Hz, in a process or a thread.
 
     Parameters
     ----------
     device : HapticDevice
+        In a process, the loop works on a copy of the device (fork): its inputs must come
+        through shared memory (:class:`~softvr.haptics.MouseDevice` does; a
+        :class:`~softvr.haptics.ScriptedDevice` should use :meth:`simulation_clock`).
     rate : float [Hz]
         Loop rate (1000 by default).
     max_force : float [N]
         Forces are clipped to this magnitude (protects the device and the hand).
-
-    Attributes
-    ----------
-    ticks : int
-        Loop iterations so far.
+    process : bool
+        Run in a separate process (its own interpreter lock) instead of a thread.
     """
 
-    def __init__(self, device: HapticDevice, *, rate: float = 1000.0, max_force: float = 10.0):
+    def __init__(self, device: HapticDevice, *, rate: float = 1000.0, max_force: float = 10.0, process: bool = False):
         if not isinstance(device, HapticDevice):
             raise InputError("device", "a softvr.haptics.HapticDevice", type(device).__name__)
         if not (np.isfinite(rate) and 1.0 <= rate <= 20000.0):
@@ -81,45 +136,74 @@ class HapticLoop:
         self.device = device
         self.period = 1.0 / float(rate)
         self.max_force = float(max_force)
-        self.ticks = 0
-        self._model = HandleModel()
-        self._position = np.asarray(device.position(), float)
-        self._stamps: list[float] = []
-        self._stop = threading.Event()
-        self._thread = None
+        self.process = bool(process)
+        self._shared = multiprocessing.RawArray("d", _RING_START + _RING)
+        self._data = np.frombuffer(self._shared, dtype=np.float64)
+        self._data[_POS] = np.asarray(device.position(), float)
+        self._runner = None
+        self._stop = None
         self._switch_interval = None
 
     # -- the simulation's side -------------------------------------------------------------
-    def publish(self, model: HandleModel) -> None:
-        """Hand the loop a new linearization (one reference swap: no lock needed)."""
-        self._model = model
+    def publish(self, model: HandleModel, time: float | None = None) -> None:
+        """Hand the loop a new linearization (and the simulation ``time`` [s], see
+        :meth:`simulation_clock`)."""
+        d = self._data
+        d[_SEQ] += 1  # odd: writing
+        d[_X0], d[_F0], d[_K] = model.position, model.force, np.asarray(model.stiffness, float).ravel()
+        d[_SEQ] += 1
+        if time is not None:
+            d[_TIME] = time
+
+    def simulation_clock(self) -> float:
+        """The simulation time [s] last published: a clock a scripted device can follow from
+        the loop's process."""
+        return float(self._data[_TIME])
 
     def handle_position(self) -> np.ndarray:
         """The device position [3] [m] the loop read last (the simulation's handle target)."""
-        return self._position.copy()
+        return self._data[_POS].copy()
+
+    @property
+    def ticks(self) -> int:
+        """Loop iterations so far."""
+        return int(self._data[_TICKS])
+
+    def last_force(self) -> np.ndarray:
+        """The force [3] [N] the loop sent last."""
+        return self._data[_FORCE].copy()
 
     # -- the loop --------------------------------------------------------------------------
     def start(self) -> "HapticLoop":
-        """Start the thread."""
-        if self._thread is not None:
+        """Start the loop's process or thread."""
+        if self._runner is not None:
             raise InputError("HapticLoop.start", "a loop that is not running", "already started")
-        # The interpreter hands the GIL over every 5 ms by default; a 1 ms loop needs it faster.
-        self._switch_interval = sys.getswitchinterval()
-        sys.setswitchinterval(min(self._switch_interval, 1e-4))
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="softvr-haptics", daemon=True)
-        self._thread.start()
+        args = (self._shared, self.device, self.period, self.max_force)
+        if self.process:
+            context = multiprocessing.get_context("fork")
+            self._stop = context.Event()
+            self._runner = context.Process(target=_run, args=(*args, self._stop), name="softvr-haptics", daemon=True)
+        else:
+            # The interpreter hands its lock over every 5 ms by default; a 1 ms loop needs it sooner.
+            self._switch_interval = sys.getswitchinterval()
+            sys.setswitchinterval(min(self._switch_interval, 1e-4))
+            self._stop = threading.Event()
+            self._runner = threading.Thread(target=_run, args=(*args, self._stop), name="softvr-haptics", daemon=True)
+        self._runner.start()
         return self
 
     def stop(self) -> None:
-        """Stop the thread and wait for it; sends a zero force last."""
-        if self._thread is None:
+        """Stop the loop and wait for it (it sends a zero force last)."""
+        if self._runner is None:
             return
         self._stop.set()
-        self._thread.join()
-        self._thread = None
-        sys.setswitchinterval(self._switch_interval)
-        self.device.send_force(np.zeros(3))
+        self._runner.join(timeout=5.0)
+        if self.process and self._runner.is_alive():
+            self._runner.terminate()
+        self._runner = None
+        if self._switch_interval is not None:
+            sys.setswitchinterval(self._switch_interval)
+            self._switch_interval = None
 
     def __enter__(self):
         return self.start()
@@ -127,39 +211,17 @@ class HapticLoop:
     def __exit__(self, *exc) -> None:
         self.stop()
 
-    def _run(self) -> None:
-        t0 = time.perf_counter()
-        n = 0
-        while not self._stop.is_set():
-            n += 1
-            target = t0 + n * self.period
-            remaining = target - time.perf_counter()
-            if remaining > 3e-4:
-                time.sleep(remaining - 2e-4)
-            while time.perf_counter() < target:
-                pass
-            self._stamps.append(time.perf_counter())
-            self.tick()
-
     def tick(self) -> np.ndarray:
-        """One loop iteration: read the device, render the linearized force; returns it [3] [N]."""
-        x = np.asarray(self.device.position(), float)
-        self._position = x
-        force = self._model.force_at(x)
-        magnitude = float(np.linalg.norm(force))
-        if magnitude > self.max_force:
-            force = force * (self.max_force / magnitude)
-        self.device.send_force(force)
-        self.ticks += 1
-        return force
+        """One iteration here and now (no loop running): read the device, render the model's
+        force; returns it [3] [N]."""
+        return _render(self._data, self.device, self.max_force)
 
     def period_stats(self) -> dict:
-        """Loop periods so far: ``count``, ``p50_ms``, ``p99_ms``, ``max_ms``, ``rate_hz`` (the
-        mean rate)."""
-        stamps = np.array(self._stamps)
-        if len(stamps) < 2:
+        """Loop periods of the last 65 536 ticks: ``count`` (all ticks timed), ``p50_ms``,
+        ``p99_ms``, ``max_ms``, ``rate_hz`` (mean rate over the window)."""
+        count = int(self._data[_COUNT])
+        if count == 0:
             return {"count": 0, "p50_ms": None, "p99_ms": None, "max_ms": None, "rate_hz": None}
-        periods = np.diff(stamps) * 1e3
-        return {"count": int(len(periods)), "p50_ms": float(np.percentile(periods, 50)),
-                "p99_ms": float(np.percentile(periods, 99)), "max_ms": float(periods.max()),
-                "rate_hz": float(len(periods) / (stamps[-1] - stamps[0]))}
+        periods = self._data[_RING_START:_RING_START + min(count, _RING)] * 1e3
+        return {"count": count, "p50_ms": float(np.percentile(periods, 50)), "p99_ms": float(np.percentile(periods, 99)),
+                "max_ms": float(periods.max()), "rate_hz": float(1e3 / periods.mean())}

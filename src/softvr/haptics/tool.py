@@ -95,5 +95,5 @@ class HapticTool:
         basis = self.blocked_directions(solution)
         model = HandleModel(position=self.handle.position.copy(), force=self.force(),
                             stiffness=-self.coupling.stiffness * (basis.T @ basis))
-        self.loop.publish(model)
+        self.loop.publish(model, time=self.scene.time)
         return model

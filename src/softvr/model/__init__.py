@@ -8,14 +8,19 @@ representations, its coupling nodes, and a collision-free start.
 * :func:`intersecting_triangle_pairs`: crossing triangles of two surfaces.
 * :func:`push_apart`: the collision-free start, a smooth deformation of a part's tets that
   takes its surface out of an obstacle, with a :class:`SeparationReport` of what remains.
+* :func:`read_parts` / :func:`build_model` / :class:`Model` / :func:`load_model`: the whole
+  pipeline of ``softvr build-model PARTS.toml``, from part meshes to a scene.
 
 Lengths in metres.
 """
 
+from softvr.model.build import Model, PartModel, build_model, load_mesh, load_model
 from softvr.model.couplings import nodes_near_surface
+from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import SeparationReport, push_apart
 
-__all__ = ["SeparationReport", "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs",
-           "nodes_near_surface", "push_apart"]
+__all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
+           "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "load_mesh", "load_model",
+           "nodes_near_surface", "push_apart", "read_parts"]

@@ -1,0 +1,325 @@
+"""``softvr build-model PARTS.toml``: from part meshes to a ready simulation model (thesis 5.2).
+
+For every part of the parts file (:mod:`softvr.model.parts`): its mesh is the render surface;
+the collision surface is its quadric simplification; a soft part gets a tet mesh of the cubes
+touching it with both surfaces embedded; a rigid one gets its mass properties from the closed
+surface (``trimesh``). Couplings bind the chosen nodes of part ``a`` (tet nodes of a soft part,
+collision vertices of a rigid one) to part ``b`` where they are. Then the collision-free start
+(:func:`softvr.model.push_apart`): every soft part that crosses a part it may collide with is
+deformed out of it; crossings that remain are reported.
+
+The result, a :class:`Model`, is saved as one ``.npz`` file (a JSON manifest inside, versioned)
+and turned into a :class:`softvr.Scene` by :meth:`Model.build_scene`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from softvr.errors import InputError
+from softvr.model.couplings import nodes_near_surface
+from softvr.model.intersections import intersecting_triangle_pairs
+from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
+from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
+from softvr.model.separation import push_apart
+
+__all__ = ["Model", "PartModel", "build_model", "load_mesh", "load_model", "main"]
+
+MODEL_FORMAT = "softvr-model 1"
+
+
+def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices [n, 3] [m] and triangles [t, 3] of a mesh file (OBJ, STL, PLY, glTF / GLB, OFF;
+    a glTF scene's meshes are merged in world coordinates)."""
+    import trimesh  # noqa: PLC0415
+
+    path = Path(path)
+    try:
+        mesh = trimesh.load(path, force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many types for bad files
+        raise InputError("mesh", "a readable triangle mesh", f"{type(exc).__name__}: {exc}", source=str(path)) from None
+    v, t = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int32)
+    if len(t) < 4:
+        raise InputError("mesh", "a closed surface of at least 4 triangles", f"{len(t)} triangles", source=str(path))
+    return v, t
+
+
+@dataclass
+class PartModel:
+    """One part's representations (arrays in metres; soft parts only have tets).
+
+    Attributes
+    ----------
+    spec : PartSpec
+    render_vertices, render_triangles : [n, 3] [m], [t, 3]
+    collision_vertices, collision_triangles : [k, 3] [m], [c, 3]
+    rest_nodes, start_nodes : [node_count, 3] [m]
+        Soft parts: the tet nodes at rest, and where the simulation starts (the collision-free
+        deformation of them).
+    tets : [tet_count, 4]
+    render_embedding, collision_embedding : (tet_index [n], weights [n, 4])
+    mass : float [kg]
+    center : [3] [m]
+        Rigid parts: centre of mass (the body frame's origin; axes those of the world).
+    inertia : [3, 3] [kg m^2]
+        Rigid parts: inertia about the centre of mass.
+    """
+
+    spec: PartSpec
+    render_vertices: np.ndarray
+    render_triangles: np.ndarray
+    collision_vertices: np.ndarray
+    collision_triangles: np.ndarray
+    rest_nodes: np.ndarray | None = None
+    start_nodes: np.ndarray | None = None
+    tets: np.ndarray | None = None
+    render_embedding: tuple | None = None
+    collision_embedding: tuple | None = None
+    mass: float = 0.0
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    inertia: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    @property
+    def soft(self) -> bool:
+        return self.spec.kind == "soft"
+
+    def collision_now(self) -> np.ndarray:
+        """Collision vertices at the start state [k, 3] [m]."""
+        if not self.soft:
+            return self.collision_vertices
+        index, weights = self.collision_embedding
+        return np.einsum("pk,pkc->pc", weights, self.start_nodes[self.tets[index]])
+
+
+@dataclass
+class Model:
+    """Parts, couplings (with their node lists) and the start-state report.
+
+    Attributes
+    ----------
+    parts : list of PartModel
+    couplings : list of (CouplingSpec, ndarray [k, 3] [m])
+        Each coupling with the world positions of its springs at rest.
+    crossings : dict[str, int]
+        ``"a / b"`` -> triangle pairs still crossing after the collision-free start.
+    """
+
+    parts: list
+    couplings: list
+    crossings: dict
+
+    def part(self, name: str) -> PartModel:
+        for p in self.parts:
+            if p.spec.name == name:
+                return p
+        raise InputError("part", f"one of {[p.spec.name for p in self.parts]}", repr(name))
+
+    # -- to a scene ------------------------------------------------------------------------
+    def build_scene(self, scene=None):
+        """Add every part and coupling to ``scene`` (a new :class:`softvr.Scene` by default).
+
+        Returns ``(scene, bodies, render_points)``: bodies by part name, and per part the
+        point entity whose ``positions()`` are its render vertices.
+        """
+        from softvr import Scene  # noqa: PLC0415
+        from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material,  # noqa: PLC0415
+                                     RigidBody, RigidPoints)
+
+        scene = Scene() if scene is None else scene
+        bodies, render, collision, index = {}, {}, {}, {}
+        for part in self.parts:
+            s = part.spec
+            if part.soft:
+                body = FemBody(part.rest_nodes, part.tets, Material(s.young, s.poisson, s.density, alpha=s.alpha,
+                                                                     beta=s.beta), name=s.name)
+                body.q[:] = part.start_nodes
+                ti, w = part.collision_embedding
+                points = EmbeddedPoints(body, part.tets[ti], w)
+                ri, rw = part.render_embedding
+                render[s.name] = EmbeddedPoints(body, part.tets[ri], rw)
+            else:
+                if s.kind == "rigid":
+                    body = RigidBody(part.mass, part.inertia, position=part.center, name=s.name)
+                elif s.kind == "fixed":
+                    body = FixedBody(position=part.center, name=s.name)
+                else:  # kinematic: holds its pose until the application scripts it
+                    center = part.center.copy()
+                    body = KinematicBody(lambda t, c=center: (c, np.array([1.0, 0.0, 0.0, 0.0])), name=s.name)
+                points = RigidPoints(body, part.collision_vertices - part.center)
+                render[s.name] = RigidPoints(body, part.render_vertices - part.center)
+            index[s.name] = scene.add_body(body, collision_points=points, collision_triangles=part.collision_triangles)
+            bodies[s.name] = body
+            collision[s.name] = points
+        for spec, springs in self.couplings:
+            a, b = self.part(spec.a), self.part(spec.b)
+            sides = []
+            for part, body in ((a, bodies[spec.a]), (b, bodies[spec.b])):
+                if part.soft:
+                    from softvr.dynamics import embed_in_tets  # noqa: PLC0415
+
+                    ti, w = embed_in_tets(part.start_nodes, part.tets, springs, tolerance=np.inf)
+                    sides.append(EmbeddedPoints(body, part.tets[ti], w))
+                else:
+                    sides.append(RigidPoints.from_world(body, springs))
+            scene.add_coupling(Coupling(sides[0], sides[1], spec.stiffness, damping=spec.damping,
+                                        name=f"{spec.a} - {spec.b}"), collide=spec.collide)
+        return scene, bodies, render
+
+    # -- files -----------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the model to ``path`` (``.npz``) atomically; returns the path."""
+        from softvr.render._atomic import atomic_output  # noqa: PLC0415
+
+        arrays, manifest = {}, {"format": MODEL_FORMAT, "parts": [], "couplings": [], "crossings": self.crossings}
+        for i, p in enumerate(self.parts):
+            entry = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(p.spec).items()}
+            manifest["parts"].append({"spec": entry, "mass": p.mass})
+            for key in ("render_vertices", "render_triangles", "collision_vertices", "collision_triangles",
+                        "rest_nodes", "start_nodes", "tets", "center", "inertia"):
+                value = getattr(p, key)
+                if value is not None:
+                    arrays[f"p{i}_{key}"] = np.asarray(value)
+            for key in ("render_embedding", "collision_embedding"):
+                if getattr(p, key) is not None:
+                    arrays[f"p{i}_{key}_tet"], arrays[f"p{i}_{key}_weights"] = getattr(p, key)
+        for i, (spec, springs) in enumerate(self.couplings):
+            manifest["couplings"].append(vars(spec))
+            arrays[f"c{i}_springs"] = springs
+        arrays["manifest"] = np.array(json.dumps(manifest))
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(path, ".npz") as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, **arrays)
+        return path
+
+
+def load_model(path) -> Model:
+    """Read a model saved by :meth:`Model.save`."""
+    path = Path(path)
+    try:
+        data = np.load(path, allow_pickle=False)
+        manifest = json.loads(str(data["manifest"]))
+    except (OSError, KeyError, ValueError) as exc:
+        raise InputError("model", f"a {MODEL_FORMAT} .npz file", f"{type(exc).__name__}: {exc}", source=str(path)) from None
+    if manifest.get("format") != MODEL_FORMAT:
+        raise InputError("format", MODEL_FORMAT, manifest.get("format"), source=str(path))
+    parts = []
+    for i, entry in enumerate(manifest["parts"]):
+        spec = PartSpec(**{**entry["spec"], "mesh": Path(entry["spec"]["mesh"])})
+        kw = {key: data[f"p{i}_{key}"] for key in ("render_vertices", "render_triangles", "collision_vertices",
+                                                   "collision_triangles", "rest_nodes", "start_nodes", "tets",
+                                                   "center", "inertia") if f"p{i}_{key}" in data}
+        for key in ("render_embedding", "collision_embedding"):
+            if f"p{i}_{key}_tet" in data:
+                kw[key] = (data[f"p{i}_{key}_tet"], data[f"p{i}_{key}_weights"])
+        parts.append(PartModel(spec=spec, mass=entry["mass"], **kw))
+    couplings = [(CouplingSpec(**c), data[f"c{i}_springs"]) for i, c in enumerate(manifest["couplings"])]
+    return Model(parts=parts, couplings=couplings, crossings=manifest["crossings"])
+
+
+def _rigid_properties(v, t, density: float, name: str):
+    import trimesh  # noqa: PLC0415
+
+    mesh = trimesh.Trimesh(v, t, process=False)
+    if not mesh.is_watertight or mesh.volume <= 0:
+        raise InputError(f"part {name!r} mesh", "a closed, outward surface (positive volume) for a rigid part",
+                         f"watertight={mesh.is_watertight}, volume={mesh.volume:.3g} m^3")
+    mesh.density = density
+    return float(mesh.mass), np.asarray(mesh.center_mass, float), np.asarray(mesh.moment_inertia, float)
+
+
+def build_model(parts, *, progress: bool = True, separation_iterations: int = 30, separation_rounds: int = 5) -> Model:
+    """Build a :class:`Model` from a parts file (path or :class:`PartsFile`); the collision-free
+    start sweeps the intersecting pairs up to ``separation_rounds`` times, each push taking up
+    to ``separation_iterations`` relaxation steps."""
+    from tqdm import tqdm  # noqa: PLC0415
+
+    spec = parts if isinstance(parts, PartsFile) else read_parts(parts)
+    models = []
+    for p in tqdm(spec.parts, desc="parts", unit="part", disable=not progress):
+        v, t = load_mesh(p.mesh)
+        cv, ct = collision_mesh(v, t, p.collision_triangles)
+        part = PartModel(spec=p, render_vertices=v, render_triangles=t, collision_vertices=cv, collision_triangles=ct)
+        if p.kind == "soft":
+            nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), p.cell_size)
+            part.rest_nodes, part.start_nodes, part.tets = nodes, nodes.copy(), tets
+            part.render_embedding = embed_surface(nodes, tets, v)
+            part.collision_embedding = embed_surface(nodes, tets, cv)
+            part.mass = float(p.density * np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6)
+        else:
+            part.mass, part.center, part.inertia = _rigid_properties(v, t, p.density, p.name)
+        models.append(part)
+    by_name = {m.spec.name: m for m in models}
+    couplings = []
+    for c in spec.couplings:
+        a, b = by_name[c.a], by_name[c.b]
+        candidates = a.start_nodes if a.soft else a.collision_vertices
+        chosen = set(int(n) for n in c.nodes)
+        if any(n >= len(candidates) for n in chosen):
+            raise InputError(f"coupling {c.a} - {c.b}.nodes", f"indices below {len(candidates)}", sorted(chosen)[-1],
+                             source=str(spec.path))
+        if c.radius is not None:
+            chosen |= set(nodes_near_surface(candidates, b.collision_vertices, b.collision_triangles, c.radius).tolist())
+        if not chosen:
+            raise InputError(f"coupling {c.a} - {c.b}", f"nodes of {c.a} within {c.radius} m of {c.b}", "none",
+                             source=str(spec.path))
+        couplings.append((c, candidates[sorted(chosen)].copy()))
+    apart = {frozenset((c.a, c.b)) for c in spec.couplings if not c.collide}
+    names = [m.spec.name for m in models]
+    pairs = [(by_name[a], by_name[b]) for i, a in enumerate(names) for b in names[i + 1:]
+             if frozenset((a, b)) not in apart]
+
+    def crossing(a, b) -> int:
+        return len(intersecting_triangle_pairs(a.collision_now(), a.collision_triangles, b.collision_now(),
+                                               b.collision_triangles))
+
+    # Pushing one part out of another can push it into a third: sweep the pairs until a sweep
+    # moves nothing (or the budget is spent). The smaller soft part of a pair moves.
+    for _ in range(separation_rounds):
+        moved = False
+        for a, b in pairs:
+            if not (a.soft or b.soft) or not crossing(a, b):
+                continue
+            moving, obstacle = (a, b) if a.soft and (not b.soft or len(a.tets) <= len(b.tets)) else (b, a)
+            moving.start_nodes, _ = push_apart(moving.start_nodes, moving.tets, moving.collision_embedding,
+                                               moving.collision_triangles, obstacle.collision_now(),
+                                               obstacle.collision_triangles, iterations=separation_iterations)
+            moved = True
+        if not moved:
+            break
+    crossings = {f"{a.spec.name} / {b.spec.name}": n for a, b in pairs if (n := crossing(a, b))}
+    return Model(parts=models, couplings=couplings, crossings=crossings)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``softvr build-model PARTS.toml [-o MODEL.npz]``."""
+    import argparse  # noqa: PLC0415
+
+    parser = argparse.ArgumentParser(prog="softvr build-model",
+                                     description="Build a simulation model from part meshes (thesis 5.2).")
+    parser.add_argument("parts", help="parts file (TOML, format 'softvr-parts 1')")
+    parser.add_argument("-o", "--out", help="model file to write (default: PARTS with .model.npz)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    args = parser.parse_args(argv)
+    model = build_model(args.parts, progress=not args.quiet)
+    out = Path(args.out) if args.out else Path(args.parts).with_suffix(".model.npz")
+    model.save(out)
+    for p in model.parts:
+        s = p.spec
+        size = f"{len(p.tets)} tets" if p.soft else f"{p.mass:.3g} kg"
+        print(f"  {s.name:<20} {s.kind:<9} render {len(p.render_triangles):>6} tris, collision "
+              f"{len(p.collision_triangles):>5} tris, {size}")
+    print(f"  {len(model.couplings)} couplings, "
+          f"{sum(len(s) for _, s in model.couplings)} springs")
+    if model.crossings:
+        print("  still crossing after the collision-free start: "
+              + ", ".join(f"{k} ({v} triangle pairs)" for k, v in model.crossings.items()))
+    else:
+        print("  collision-free start: no crossing triangles")
+    print(f"wrote {out}")
+    return 0

@@ -1,0 +1,226 @@
+"""The parts file of ``softvr build-model`` (thesis 5.2): which meshes, what they are, how they
+are coupled. TOML, versioned::
+
+    format = "softvr-parts 1"
+
+    [defaults]                  # optional, for every part
+    cell_size = 0.008           # [m] tet cube size of soft parts
+    collision_triangles = 300   # collision mesh budget
+
+    [[part]]
+    name = "scapula"
+    mesh = "scapula.ply"        # OBJ, STL, PLY, glTF/GLB (relative to this file)
+    kind = "fixed"              # fixed | kinematic | rigid | soft
+    density = 1900.0            # [kg/m^3] rigid and soft parts
+
+    [[part]]
+    name = "supraspinatus"
+    mesh = "supraspinatus.ply"
+    kind = "soft"
+    young = 3.0e4               # [Pa]
+    poisson = 0.4
+    density = 1050.0
+    alpha = 2.0                 # [1/s] Rayleigh damping (optional)
+    beta = 0.01                 # [s]
+
+    [[coupling]]
+    a = "supraspinatus"         # the coupled nodes are this part's
+    b = "scapula"
+    radius = 0.004              # [m] a's tet nodes within this distance of b's surface ...
+    nodes = [0, 5, 9]           # ... and / or these node indices of a
+    stiffness = 2.0e3           # [N/m] per spring
+    damping = 0.0               # [N s/m]
+    collide = false             # collision between a and b (off by default)
+
+Every error names the file, the field path (``part[2].young``), what was expected and what
+was found; all of a file's errors are reported at once.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from softvr.errors import InputError
+
+__all__ = ["CouplingSpec", "PartSpec", "PartsFile", "read_parts"]
+
+FORMAT = "softvr-parts 1"
+KINDS = ("fixed", "kinematic", "rigid", "soft")
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
+
+
+@dataclass
+class PartSpec:
+    """One anatomical part (thesis Table 5.1 row)."""
+
+    name: str
+    mesh: Path
+    kind: str
+    density: float = 1000.0
+    young: float = 3e4
+    poisson: float = 0.4
+    alpha: float = 2.0
+    beta: float = 0.01
+    cell_size: float = 0.008
+    collision_triangles: int = 300
+    friction: float = 0.5
+
+
+@dataclass
+class CouplingSpec:
+    """Zero-length springs from nodes of part ``a`` to part ``b``."""
+
+    a: str
+    b: str
+    stiffness: float
+    radius: float | None = None
+    nodes: list = field(default_factory=list)
+    damping: float = 0.0
+    collide: bool = False
+
+
+@dataclass
+class PartsFile:
+    """A validated parts file."""
+
+    path: Path
+    parts: list
+    couplings: list
+
+    def part(self, name: str) -> PartSpec:
+        return next(p for p in self.parts if p.name == name)
+
+
+class _Errors:
+    """Collects every problem of a file, raised together."""
+
+    def __init__(self, source: str):
+        self.source, self.items = source, []
+
+    def add(self, what: str, expected: str, found) -> None:
+        self.items.append((what, expected, found if isinstance(found, str) else repr(found)))
+
+    def raise_if_any(self) -> None:
+        if not self.items:
+            return
+        if len(self.items) == 1:
+            raise InputError(*self.items[0], source=self.source)
+        lines = "; ".join(f"{w}: expected {e}, found {f}" for w, e, f in self.items)
+        raise InputError(f"{len(self.items)} problems", "a valid parts file", lines, source=self.source)
+
+
+def _number(table: dict, key: str, where: str, errors: _Errors, *, default=None, positive=False, minimum=None,
+            maximum=None, unit=""):
+    value = table.get(key, default)
+    if value is None:
+        errors.add(f"{where}.{key}", f"a number [{unit}]", "nothing")
+        return None
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    ok = ok and (not positive or value > 0) and (minimum is None or value >= minimum)
+    ok = ok and (maximum is None or value < maximum)
+    if not ok:
+        bounds = "> 0" if positive else (f">= {minimum}" if minimum is not None else "finite")
+        if maximum is not None:
+            bounds += f" and < {maximum}"
+        errors.add(f"{where}.{key}", f"a number {bounds} [{unit}]".replace(" []", ""), value)
+        return None
+    return float(value)
+
+
+def read_parts(path) -> PartsFile:
+    """Read and validate a parts file (module docstring); mesh paths are resolved against its
+    folder and must exist."""
+    path = Path(path)
+    source = str(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("parts file", "an existing TOML file", "no such file", source=source) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("TOML", "valid TOML", str(exc), source=source) from None
+    errors = _Errors(source)
+    if doc.get("format") != FORMAT:
+        errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
+    defaults = doc.get("defaults", {})
+    if not isinstance(defaults, dict):
+        errors.add("defaults", "a table", type(defaults).__name__)
+        defaults = {}
+    parts, names = [], set()
+    raw_parts = doc.get("part", [])
+    if not isinstance(raw_parts, list) or not raw_parts:
+        errors.add("part", "one or more [[part]] tables", raw_parts if raw_parts else "none")
+        raw_parts = []
+    for i, raw in enumerate(raw_parts):
+        where = f"part[{i}]"
+        table = {**defaults, **raw}
+        name = table.get("name")
+        if not isinstance(name, str) or not name:
+            errors.add(f"{where}.name", "a non-empty string", name if name is not None else "nothing")
+            name = f"part {i}"
+        elif name in names:
+            errors.add(f"{where}.name", "a name no other part has", name)
+        names.add(name)
+        kind = table.get("kind")
+        if kind not in KINDS:
+            errors.add(f"{where}.kind", " | ".join(KINDS), kind if kind is not None else "nothing")
+        mesh = table.get("mesh")
+        mesh_path = None
+        if not isinstance(mesh, str):
+            errors.add(f"{where}.mesh", "a mesh file name", mesh if mesh is not None else "nothing")
+        else:
+            mesh_path = (path.parent / mesh).resolve()
+            if mesh_path.suffix.lower() not in MESH_SUFFIXES:
+                errors.add(f"{where}.mesh", f"a mesh file ({', '.join(MESH_SUFFIXES)})", mesh)
+            elif not mesh_path.is_file():
+                errors.add(f"{where}.mesh", "an existing file", f"no file {mesh_path}")
+        spec = PartSpec(name=name, mesh=mesh_path, kind=kind)
+        for key, kw in (("density", dict(positive=True, unit="kg/m^3")), ("young", dict(positive=True, unit="Pa")),
+                        ("poisson", dict(minimum=-0.99, maximum=0.5)), ("alpha", dict(minimum=0.0, unit="1/s")),
+                        ("beta", dict(minimum=0.0, unit="s")), ("cell_size", dict(positive=True, unit="m")),
+                        ("friction", dict(minimum=0.0))):
+            value = _number(table, key, where, errors, default=getattr(spec, key), **kw)
+            if value is not None:
+                setattr(spec, key, value)
+        budget = table.get("collision_triangles", spec.collision_triangles)
+        if not (isinstance(budget, int) and not isinstance(budget, bool) and budget >= 4):
+            errors.add(f"{where}.collision_triangles", "an integer >= 4", budget)
+        else:
+            spec.collision_triangles = budget
+        parts.append(spec)
+    couplings = []
+    raw_couplings = doc.get("coupling", [])
+    if not isinstance(raw_couplings, list):
+        errors.add("coupling", "[[coupling]] tables", type(raw_couplings).__name__)
+        raw_couplings = []
+    for i, raw in enumerate(raw_couplings):
+        where = f"coupling[{i}]"
+        ends = []
+        for side in ("a", "b"):
+            ref = raw.get(side)
+            if ref not in names:
+                errors.add(f"{where}.{side}", f"the name of a part ({', '.join(sorted(names))})",
+                           ref if ref is not None else "nothing")
+            ends.append(ref)
+        if ends[0] == ends[1] and ends[0] is not None:
+            errors.add(f"{where}.b", "another part than a", ends[1])
+        stiffness = _number(raw, "stiffness", where, errors, positive=True, unit="N/m")
+        damping = _number(raw, "damping", where, errors, default=0.0, minimum=0.0, unit="N s/m")
+        radius = raw.get("radius")
+        if radius is not None:
+            radius = _number(raw, "radius", where, errors, minimum=0.0, unit="m")
+        nodes = raw.get("nodes", [])
+        if not (isinstance(nodes, list) and all(isinstance(n, int) and n >= 0 for n in nodes)):
+            errors.add(f"{where}.nodes", "a list of node indices >= 0", nodes)
+            nodes = []
+        if radius is None and not nodes:
+            errors.add(where, "radius and / or nodes (which nodes of a to couple)", "neither")
+        collide = raw.get("collide", False)
+        if not isinstance(collide, bool):
+            errors.add(f"{where}.collide", "true or false", collide)
+        couplings.append(CouplingSpec(a=ends[0], b=ends[1], stiffness=stiffness or 0.0, radius=radius, nodes=nodes,
+                                      damping=damping or 0.0, collide=bool(collide)))
+    errors.raise_if_any()
+    return PartsFile(path=path, parts=parts, couplings=couplings)
