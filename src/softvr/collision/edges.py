@@ -79,7 +79,28 @@ class EdgeSet:
         self._lower = wp.array(lower, dtype=wp.vec3, device=device)
         self._upper = wp.array(upper, dtype=wp.vec3, device=device)
         self._bvh = wp.Bvh(self._lower, self._upper)
+        self.edges_wp = wp.array(self.edges.astype(np.int32), dtype=wp.int32, device=device)
+        self._pairs = None
+        self._upload(vertices)
+
+    def _upload(self, vertices: np.ndarray) -> None:
+        """Edge normals, crease flags and the vertices, as the kernels read them this step."""
         self.normals, self.sharp = self.edge_normals(vertices)
+        self.vertices_wp = wp.array(np.asarray(vertices, float), dtype=wp.vec3, device=self.device)
+        self.normals_wp = wp.array(self.normals, dtype=wp.vec3, device=self.device)
+        self.sharp_wp = wp.array(self.sharp.astype(np.int32), dtype=wp.int32, device=self.device)
+
+    def pair_outputs(self):
+        """The edge-pair kernel's outputs for this set as side a (kept between calls): pair
+        edge (reset to -1: no pair), (s, t), normal, gap, each [edge_count, PAIRS_PER_EDGE]."""
+        if self._pairs is None:
+            shape = (len(self.edges), PAIRS_PER_EDGE)
+            self._pairs = (wp.empty(shape, dtype=wp.int32, device=self.device),
+                           wp.empty(shape, dtype=wp.vec2, device=self.device),
+                           wp.empty(shape, dtype=wp.vec3, device=self.device),
+                           wp.empty(shape, dtype=float, device=self.device))
+        self._pairs[0].fill_(-1)
+        return self._pairs
 
     def _boxes(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ends = np.asarray(vertices, float)[self.edges]
@@ -88,7 +109,7 @@ class EdgeSet:
     def refit(self, vertices: np.ndarray) -> None:
         """Move the BVH, the edge normals and the crease flags to vertex positions
         [vertex_count, 3] [m]."""
-        self.normals, self.sharp = self.edge_normals(vertices)
+        self._upload(vertices)
         lower, upper = self._boxes(vertices)
         self._lower.assign(wp.array(lower, dtype=wp.vec3, device=self.device))
         self._upper.assign(wp.array(upper, dtype=wp.vec3, device=self.device))
@@ -175,23 +196,12 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
         reach += dt * np.linalg.norm(rel, axis=1)[ea.edges].max(axis=1)
     device = b.device
     load_kernels(_edge_pairs, device)
-    normals_a, sharp_a, normals_b, sharp_b = ea.normals, ea.sharp, eb.normals, eb.sharp
-    shape = (len(ea.edges), PAIRS_PER_EDGE)
-    pair_edge = wp.full(shape, -1, dtype=wp.int32, device=device)
-    pair_st = wp.zeros(shape, dtype=wp.vec2, device=device)
-    pair_normal = wp.zeros(shape, dtype=wp.vec3, device=device)
-    pair_gap = wp.zeros(shape, dtype=float, device=device)
+    pair_edge, pair_st, pair_normal, pair_gap = ea.pair_outputs()
     wp.launch(_edge_pairs, dim=len(ea.edges), device=device,
-              inputs=[eb._bvh.id, wp.array(pa, dtype=wp.vec3, device=device),
-                      wp.array(ea.edges.astype(np.int32), dtype=wp.int32, device=device),
-                      wp.array(reach, dtype=float, device=device),
-                      wp.array(normals_a, dtype=wp.vec3, device=device),
-                      wp.array(sharp_a.astype(np.int32), dtype=wp.int32, device=device),
-                      wp.array(pb, dtype=wp.vec3, device=device),
-                      wp.array(eb.edges.astype(np.int32), dtype=wp.int32, device=device),
-                      wp.array(normals_b, dtype=wp.vec3, device=device),
-                      wp.array(sharp_b.astype(np.int32), dtype=wp.int32, device=device), float(np.sin(MIN_EDGE_ANGLE)),
-                      float(MIN_NORMAL_ALIGNMENT), pair_edge, pair_st, pair_normal, pair_gap])
+              inputs=[eb._bvh.id, ea.vertices_wp, ea.edges_wp, wp.array(reach, dtype=float, device=device),
+                      ea.normals_wp, ea.sharp_wp, eb.vertices_wp, eb.edges_wp, eb.normals_wp, eb.sharp_wp,
+                      float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), pair_edge, pair_st, pair_normal,
+                      pair_gap])
     edge_b = pair_edge.numpy()
     edge_a, slot = np.nonzero(edge_b >= 0)
     edge_b = edge_b[edge_a, slot]

@@ -83,8 +83,23 @@ def _query_points(
         surface[i] = c
 
 
+def _query_outputs(n: int, device: str, buffers: dict | None):
+    """Output arrays of :func:`query_points` for ``n`` points: new ones, or the ones kept in
+    ``buffers`` for this count (the kernel writes ``hit`` of every point and the rest where it
+    hits, and only those are read, so old contents do no harm)."""
+    out = None if buffers is None else buffers.get(n)
+    if out is None:
+        out = (wp.empty(n, dtype=wp.int32, device=device), wp.empty(n, dtype=wp.vec3, device=device),
+               wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.vec3, device=device))
+        if buffers is not None:
+            if len(buffers) > 16:  # many point counts: forget the old ones
+                buffers.clear()
+            buffers[n] = out
+    return out
+
+
 def query_points(mesh_id, device: str, points: np.ndarray, motion: np.ndarray, reach: float, thickness: float,
-                 ccd: bool, *, closed: bool):
+                 ccd: bool, *, closed: bool, buffers: dict | None = None):
     """Run the proximity / sweep query of every point against a Warp mesh.
 
     Returns
@@ -97,10 +112,7 @@ def query_points(mesh_id, device: str, points: np.ndarray, motion: np.ndarray, r
         The contact point on the mesh.
     """
     n = len(points)
-    hit = wp.zeros(n, dtype=wp.int32, device=device)
-    normal = wp.zeros(n, dtype=wp.vec3, device=device)
-    gap = wp.zeros(n, dtype=float, device=device)
-    surface = wp.zeros(n, dtype=wp.vec3, device=device)
+    hit, normal, gap, surface = _query_outputs(n, device, buffers)
     wp.launch(_query_points, dim=n, device=device,
               inputs=[mesh_id, wp.array(points, dtype=wp.vec3, device=device),
                       wp.array(motion, dtype=wp.vec3, device=device), float(reach), float(thickness), int(ccd),
@@ -142,6 +154,7 @@ class TriangleMesh:
         self._points = wp.array(v, dtype=wp.vec3, device=self.device)
         self._mesh = wp.Mesh(points=self._points, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                         device=self.device))
+        self._query_buffers = {}  # output arrays of the point queries, by point count
 
     def signed_distance(self, points, *, closed: bool = True, normals: bool = False):
         """Distance [point_count] [m] of ``points`` [point_count, 3] [m] to the surface (BVH
@@ -153,7 +166,7 @@ class TriangleMesh:
             raise InputError("points", "finite points [point_count, 3] [m]", f"shape {p.shape}")
         reach = 2.0 * float(np.linalg.norm(np.ptp(np.vstack([self.vertices, p]), axis=0))) + 1.0
         which, normal, gap, _ = query_points(self._mesh.id, self.device, p, np.zeros_like(p), reach, 0.0, False,
-                                             closed=closed)
+                                             closed=closed, buffers=self._query_buffers)
         out = np.full(len(p), np.inf)
         out[which] = gap
         if not normals:
@@ -179,13 +192,14 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         Unconstrained point velocities of the step (for CCD).
     dt : float [s]
     ccd : bool
-        Sweep each point over ``velocities * dt`` and take the first crossing.    areas : ndarray, shape [point_count] [m^2], optional
+        Sweep each point over ``velocities * dt`` and take the first crossing.
+    areas : ndarray, shape [point_count] [m^2], optional
         Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
     """
     p = points.positions()
     motion = np.zeros_like(p) if velocities is None else np.asarray(velocities, float) * dt
     which, normal, gap, surface = query_points(mesh._mesh.id, mesh.device, p, motion, margin, mesh.thickness, ccd,
-                                               closed=False)
+                                               closed=False, buffers=mesh._query_buffers)
     blocks, jac = point_jacobian_blocks(points, which)
     k = len(which)
     return Contacts(

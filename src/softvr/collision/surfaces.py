@@ -52,6 +52,7 @@ class CollisionSurface:
                                                                       device=self.device))
         self.edge_set = EdgeSet(self.triangles, points.positions(), self.device)
         self._incident = np.bincount(self.triangles.ravel(), minlength=n)  # triangles per vertex
+        self._query_buffers = {}  # this surface's vertex queries reuse their output arrays
         self._update_areas(points.positions())
 
     def refit(self) -> None:
@@ -95,7 +96,8 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
         if velocities_b is not None:
             rel = rel - np.asarray(velocities_b, float).mean(axis=0)
         motion = rel * dt
-    which, normal, gap, at = query_points(b._mesh.id, b.device, p, motion, margin, 0.0, ccd, closed=True)
+    which, normal, gap, at = query_points(b._mesh.id, b.device, p, motion, margin, 0.0, ccd, closed=True,
+                                          buffers=a._query_buffers)
     faces, bary = _locate(b, at)
     side_a = ContactSide(a.body_index, *point_jacobian_blocks(a.points, which))
     ids = (np.int64(min(a.body_index, b.body_index)) << 40) | (np.int64(max(a.body_index, b.body_index)) << 20)

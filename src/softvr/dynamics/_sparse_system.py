@@ -29,7 +29,9 @@ class SparseNodeSystem:
     """
 
     _node_word = "node"
-    #: Solve each step by sparse LU instead of CG (coupling islands: stiff springs make CG slow).
+    #: Solve by sparse LU until a factorization exists, then by CG preconditioned with the last
+    #: one (falling back to LU if CG does not converge): coupling islands, whose stiff springs
+    #: make Jacobi-preconditioned CG crawl.
     direct_solve = False
 
     def _solve_step(self, a, b: np.ndarray) -> np.ndarray:
@@ -45,11 +47,15 @@ class SparseNodeSystem:
         if moving.any():
             # A v = b with v_fixed given: A_ff v_f = b_f - A_fd v_d.
             b[self._free] -= a[self._free][:, moving] @ driven[moving]
-        if self.direct_solve:
+        lagged = getattr(self, "_lu", None) is not None and self._lu.shape[0] == self._a_free.shape[0]
+        if self.direct_solve and not lagged:
             self._factor(np.zeros(0, int))
             v = self._lu_solve(b.reshape(-1, 1)).reshape(-1, 3)
         else:
             v = self._cg(b, self.v.ravel())
+            if self.direct_solve and not self.last_cg_converged:
+                self._factor(np.zeros(0, int))
+                v = self._lu_solve(b.reshape(-1, 1)).reshape(-1, 3)
         v.reshape(-1)[~self._free] = driven[~self._free]
         return v
 

@@ -102,8 +102,10 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
     fixed_velocity : ndarray, shape [block_count, 3]
         Their prescribed velocities.
 
-    Each step's system is solved by sparse LU (stiff couplings make CG crawl); the factorization
-    is reused for the contact solve's Delassus blocks.
+    The first step's system is solved by sparse LU; later ones by CG preconditioned with the
+    last factorization (stiff couplings make plain CG crawl; the exact inverse of a step ago
+    needs a few iterations), by LU again if that does not converge in 100. The contact solve's
+    Delassus blocks come from a factorization too.
     """
 
     block_size = 3
@@ -137,6 +139,10 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
         self.fixed = np.zeros(blocks, bool)
         self.fixed_velocity = np.zeros((blocks, 3))
         self.step_count = 0
+        self.last_cg_iterations = 0
+        self.last_cg_converged = True
+        self.cg_tolerance = 1e-10
+        self.cg_max_iterations = 100
 
     # -- state ---------------------------------------------------------------------------
     @property

@@ -204,8 +204,15 @@ class RigidFrame(ContactObject):
 
     @property
     def rotation(self) -> np.ndarray:
-        """Rotation matrix R [3, 3], body to world."""
-        return quat_to_matrix(self.orientation)
+        """Rotation matrix R [3, 3], body to world (a read-only array, recomputed when the
+        orientation changes: point entities ask for it many times per step)."""
+        key = self.orientation.tobytes()
+        cached = getattr(self, "_rotation_cache", None)
+        if cached is None or cached[0] != key:
+            r = quat_to_matrix(self.orientation)
+            r.flags.writeable = False
+            cached = self._rotation_cache = (key, r)
+        return cached[1]
 
     @property
     def velocity(self) -> np.ndarray:
