@@ -66,3 +66,24 @@ def test_without_edge_edge_contacts_the_edges_pass_through():
     for _ in range(40):
         scene.step(0.005)
     assert a.position[2] - b.position[2] < 2 * HALF * np.sqrt(2) - 0.02  # 2 cm deep before vertices meet faces
+
+
+def test_edges_crossed_deeper_than_the_margin_make_no_contact():
+    """Cube a's edge placed 1 cm through cube b's edge (deeper than the 2 mm margin), moving
+    fast (a reach of centimetres): edge-edge detection reports no pair behind the other by
+    more than the margin (such a pair is seen from the wrong side, not a depth to undo in one
+    step); at the touching distance it reports the crossing pair with gap ~ 0."""
+    from softvr.collision import CollisionSurface, edges_vs_edges
+
+    corners, faces = cube_surface(HALF)
+    gaps = {}
+    for depth in (0.01, 0.0):
+        a = RigidBody.box((2 * HALF,) * 3, 500.0, position=(0.0, 0.0, 2 * HALF * np.sqrt(2) - depth),
+                          orientation=quat_from_rotvec([np.pi / 4, 0.0, 0.0]))
+        b = RigidBody.box((2 * HALF,) * 3, 500.0, orientation=quat_from_rotvec([0.0, np.pi / 4, 0.0]))
+        sa, sb = CollisionSurface(0, RigidPoints(a, corners), faces), CollisionSurface(1, RigidPoints(b, corners), faces)
+        fast = np.tile([0.0, 0.0, -3.0], (8, 1))
+        c = edges_vs_edges(sa, sb, margin=0.002, dt=0.01, velocities_a=fast, velocities_b=np.zeros((8, 3)))
+        gaps[depth] = c.gap
+    assert (gaps[0.01] >= -0.002).all()
+    assert len(gaps[0.0]) >= 1 and np.abs(gaps[0.0]).min() < 1e-9

@@ -204,6 +204,11 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
                       pair_gap])
     edge_b = pair_edge.numpy()
     edge_a, slot = np.nonzero(edge_b >= 0)
+    # The motion-grown reach speculates on edges that are apart; an edge "behind" another by
+    # more than the margin is a pair seen from the wrong side (thin parts, an edge across a
+    # body), not a penetration to undo in one step: vertex-triangle contacts cover real depth.
+    deep = pair_gap.numpy()[edge_a, slot] < -margin
+    edge_a, slot = edge_a[~deep], slot[~deep]
     edge_b = edge_b[edge_a, slot]
     st = pair_st.numpy()[edge_a, slot].astype(float)
     normal = pair_normal.numpy()[edge_a, slot].astype(float)
