@@ -40,14 +40,17 @@ _MUSCLE_COLOR = (0.72, 0.3, 0.3)
 
 def palpation_path(variant: str, t: float) -> np.ndarray:
     """The scripted hand [3] [m] at time ``t`` [s]: in over 1 s, then pressing in and out
-    (period 2 s) while sliding up and down (period 6 s) and sideways (period 9 s)."""
+    (period 2 s) while sliding (periods 6 and 9 s): on the deltoid (palpation), on the
+    supraspinatus under the acromion (arthroscopy)."""
     approach = min(t, 1.0)
     press = 0.5 - 0.5 * np.cos(2 * np.pi * max(t - 1.0, 0.0) / 2.0)
     if variant == "palpation":
         return np.array([0.09 - 0.02 * approach - 0.01 * press,
                          0.02 * np.sin(2 * np.pi * t / 9.0), -0.02 + 0.025 * np.sin(2 * np.pi * t / 6.0)])
-    return np.array([0.075 - 0.025 * approach, 0.01 * np.sin(2 * np.pi * t / 9.0),
-                     0.046 - 0.004 * press + 0.002 * np.sin(2 * np.pi * t / 6.0)])
+    # Arthroscopy: in under the acromion (whose collision with the probe is off: the portal),
+    # then pressing the supraspinatus from above and sweeping along it.
+    return np.array([0.075 - 0.05 * approach + 0.006 * np.sin(2 * np.pi * t / 6.0),
+                     -0.009 + 0.008 * np.sin(2 * np.pi * t / 9.0), 0.048 - 0.006 * press])
 
 
 class Example(PhysicsExample):
