@@ -26,10 +26,10 @@ from softvr.collision import (
     sphere_vs_sphere,
     surface_vs_surface,
 )
+from softvr.collision.contacts import ContactSide, Contacts
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.contact.adhesion import Adhesion, AdhesionState, combine
 from softvr.device import cpu_workers, single_threaded_blas
-from softvr.collision.contacts import ContactSide, Contacts
 from softvr.dynamics.body import ContactObject
 from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands

@@ -126,11 +126,11 @@ class Model:
         point entity whose ``positions()`` are its render vertices.
         """
         from softvr import Scene  # noqa: PLC0415
-        from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material,  # noqa: PLC0415
-                                     RigidBody, RigidPoints)
+        from softvr.dynamics import (  # noqa: PLC0415
+            Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody, RigidPoints, embed_in_tets)
 
         scene = Scene() if scene is None else scene
-        bodies, render, collision, index = {}, {}, {}, {}
+        bodies, render = {}, {}
         for part in self.parts:
             s = part.spec
             if part.soft:
@@ -151,16 +151,14 @@ class Model:
                     body = KinematicBody(lambda t, c=center: (c, np.array([1.0, 0.0, 0.0, 0.0])), name=s.name)
                 points = RigidPoints(body, part.collision_vertices - part.center)
                 render[s.name] = RigidPoints(body, part.render_vertices - part.center)
-            index[s.name] = scene.add_body(body, collision_points=points, collision_triangles=part.collision_triangles)
+            scene.add_body(body, collision_points=points, collision_triangles=part.collision_triangles)
             bodies[s.name] = body
-            collision[s.name] = points
         for spec, springs in self.couplings:
             a, b = self.part(spec.a), self.part(spec.b)
             sides = []
             for part, body in ((a, bodies[spec.a]), (b, bodies[spec.b])):
                 if part.soft:
-                    from softvr.dynamics import embed_in_tets  # noqa: PLC0415
-
+                    # Springs at nodes near (not inside) b bind to b's nearest tet, extrapolated.
                     ti, w = embed_in_tets(part.start_nodes, part.tets, springs, tolerance=np.inf)
                     sides.append(EmbeddedPoints(body, part.tets[ti], w))
                 else:
