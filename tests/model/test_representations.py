@@ -121,3 +121,21 @@ def test_push_apart_leaves_no_crossing_triangles_on_a_case_that_starts_intersect
     shift = np.linalg.norm(moved - nodes, axis=1)
     top = nodes[:, 2] > 0.045
     assert shift.max() >= 0.01 and shift[top].max() < 0.2 * shift.max()
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".stl", ".ply", ".glb"])
+def test_part_meshes_load_from_every_format(tmp_path, suffix):
+    """The pipeline reads OBJ, STL, PLY and glTF (binary) alike: the same closed box back."""
+    import trimesh
+
+    from softvr.model import load_mesh
+
+    v, t = box_surface((0.1, 0.06, 0.04), 3)
+    path = tmp_path / f"part{suffix}"
+    trimesh.Trimesh(v, t).export(path)
+    v2, t2 = load_mesh(path)
+    assert len(t2) == len(t)
+    assert enclosed_volume(v2, t2) == pytest.approx(0.1 * 0.06 * 0.04, rel=1e-6)
+    with pytest.raises(InputError, match="part.obj"):
+        (tmp_path / "part.obj").write_text("v 0 0 0\nf 1 1 1\n")
+        load_mesh(tmp_path / "part.obj")
