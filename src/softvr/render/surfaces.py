@@ -318,6 +318,29 @@ class SurfaceRenderer(OffscreenView):
             self._bounds = self._check_bounds(bounds)
         self._camera_pending = True
 
+    def set_view(self, eye, forward, up, projection) -> None:
+        """An explicit camera from the next render on (a CAVE screen's off-axis frustum): at
+        ``eye`` [3] [m] looking along ``forward`` with ``up``, and the 4x4 OpenGL
+        ``projection`` as is. :meth:`set_camera` / :meth:`reset_camera` return to the fitted
+        camera."""
+        from vtkmodules.vtkCommonMath import vtkMatrix4x4  # noqa: PLC0415
+
+        eye, forward = np.asarray(eye, float), np.asarray(forward, float)
+        p = np.asarray(projection, float)
+        if p.shape != (4, 4) or not np.isfinite(p).all():
+            raise InputError("projection", "a finite 4x4 matrix", f"shape {p.shape}")
+        cam = self.vtk_camera
+        cam.SetPosition(*eye)
+        cam.SetFocalPoint(*(eye + forward))
+        cam.SetViewUp(*np.asarray(up, float))
+        matrix = vtkMatrix4x4()
+        for i in range(4):
+            for j in range(4):
+                matrix.SetElement(i, j, p[i, j])
+        cam.SetExplicitProjectionTransformMatrix(matrix)
+        cam.UseExplicitProjectionTransformMatrixOn()
+        self._camera_pending = False
+
     def reset_camera(self) -> None:
         """Refit the camera at the next render (to the surfaces as they are then)."""
         self._camera_pending = True
@@ -338,6 +361,7 @@ class SurfaceRenderer(OffscreenView):
         """Draw the scene; returns RGB uint8 [height, width, 3], row 0 at the top."""
         self._check_open()
         if self._camera_pending:
+            self.vtk_camera.UseExplicitProjectionTransformMatrixOff()
             self._camera.apply(self.vtk_camera, self.scene_bounds(), self.width / self.height)
             self._camera_pending = False
         self._renderer.ResetCameraClippingRange()

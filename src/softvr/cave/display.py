@@ -1,0 +1,227 @@
+"""Display files: the screens of a CAVE, a PowerWall or a tiled wall (thesis 6.2, 6.4).
+
+Each screen is given in the tracker frame (metres, z up) by three corners, its pixel size, the
+render node that draws it and its stereo mode. TOML, versioned::
+
+    format = "softvr-display 1"
+    eye_separation = 0.065            # [m], for stereo
+
+    [[screen]]
+    name = "front"
+    lower_left = [-1.875, 1.875, 0.0]
+    lower_right = [1.875, 1.875, 0.0]
+    upper_left = [-1.875, 1.875, 3.12]
+    pixels = [1400, 1050]
+    node = "front"                    # the render process that draws it
+    stereo = "none"                   # none | side-by-side | anaglyph | quad-buffer
+
+Every problem of a file is reported at once, naming the file, the field and what was found:
+corners that do not make a rectangle, duplicate nodes, unknown stereo modes. Presets: a single
+wall, a 4-wall cube, the thesis' RAVE (3.75 x 3.12 m screens) as wall / cube / amphitheatre, a
+2 x 2 PowerWall.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from softvr.cave.projection import ScreenView, screen_view
+from softvr.errors import InputError
+
+__all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "load_display", "preset", "tile"]
+
+FORMAT = "softvr-display 1"
+STEREO_MODES = ("none", "side-by-side", "anaglyph", "quad-buffer")
+
+
+@dataclass(frozen=True)
+class Screen:
+    """One screen: corners [3] [m] in the tracker frame, ``pixels`` (width, height)."""
+
+    name: str
+    lower_left: tuple
+    lower_right: tuple
+    upper_left: tuple
+    pixels: tuple = (1024, 768)
+    node: str = ""
+    stereo: str = "none"
+
+    @property
+    def upper_right(self) -> np.ndarray:
+        return np.asarray(self.lower_right) + np.asarray(self.upper_left) - np.asarray(self.lower_left)
+
+    @property
+    def size(self) -> tuple[float, float]:
+        """(width, height) [m]."""
+        ll = np.asarray(self.lower_left)
+        return (float(np.linalg.norm(np.asarray(self.lower_right) - ll)),
+                float(np.linalg.norm(np.asarray(self.upper_left) - ll)))
+
+    def view(self, eye, *, near: float = 0.05, far: float = 100.0) -> ScreenView:
+        """The off-axis camera of this screen for ``eye`` [3] [m]."""
+        return screen_view(self.lower_left, self.lower_right, self.upper_left, eye, near=near, far=far, name=self.name)
+
+    def problems(self) -> list[tuple[str, str, str]]:
+        """(field, expected, found) for what is wrong with this screen (empty when fine)."""
+        out = []
+        ll, lr, ul = (np.asarray(c, float) for c in (self.lower_left, self.lower_right, self.upper_left))
+        width, height = lr - ll, ul - ll
+        if min(np.linalg.norm(width), np.linalg.norm(height)) < 1e-6:
+            out.append(("corners", "three distinct corners", "a screen of zero width or height"))
+        else:
+            cosine = abs(width @ height) / (np.linalg.norm(width) * np.linalg.norm(height))
+            if cosine > 1e-3:
+                angle = math.degrees(math.acos(min(1.0, cosine)))
+                out.append(("corners", "lower-left -> lower-right perpendicular to lower-left -> upper-left "
+                            "(a rectangle)", f"edges at {angle:.2f} degrees"))
+        if not (len(self.pixels) == 2 and all(isinstance(p, int) and 0 < p <= 16384 for p in self.pixels)):
+            out.append(("pixels", "[width, height] in 1..16384", repr(self.pixels)))
+        if self.stereo not in STEREO_MODES:
+            out.append(("stereo", " | ".join(STEREO_MODES), repr(self.stereo)))
+        return out
+
+
+@dataclass
+class Display:
+    """The screens of one installation and the viewer's eye separation [m]."""
+
+    screens: list
+    eye_separation: float = 0.065
+    name: str = "display"
+
+    def __post_init__(self) -> None:
+        _raise_all(_problems(self.screens, self.eye_separation), self.name)
+
+    def screen(self, name: str) -> Screen:
+        for s in self.screens:
+            if s.name == name:
+                return s
+        raise InputError("screen", f"one of {[s.name for s in self.screens]}", repr(name))
+
+    def views(self, eye, **kw) -> dict:
+        """Screen name -> :class:`ScreenView` for ``eye`` [3] [m] (the virtual camera cluster)."""
+        return {s.name: s.view(eye, **kw) for s in self.screens}
+
+    def eyes(self, head, right) -> tuple[np.ndarray, np.ndarray]:
+        """Left and right eye positions [3] [m] of a head at ``head`` whose right is ``right``."""
+        r = np.asarray(right, float) / np.linalg.norm(right)
+        h = np.asarray(head, float)
+        return h - 0.5 * self.eye_separation * r, h + 0.5 * self.eye_separation * r
+
+
+def _problems(screens: list, eye_separation) -> list:
+    """(field, expected, found) for everything wrong with a set of screens."""
+    out = []
+    for i, s in enumerate(screens):
+        out += [(f"screen[{i}] ({s.name}).{f}", e, v) for f, e, v in s.problems()]
+    nodes = [s.node or s.name for s in screens]
+    out += [(f"screen[{i}].node", "one screen per render node", f"{n!r} twice")
+            for i, n in enumerate(nodes) if n in nodes[:i]]
+    ok = isinstance(eye_separation, (int, float)) and math.isfinite(eye_separation) and 0 <= eye_separation < 0.2
+    if not ok:
+        out.append(("eye_separation", "a distance in [0, 0.2) m", repr(eye_separation)))
+    if not screens:
+        out.append(("screen", "at least one [[screen]]", "none"))
+    return out
+
+
+def _raise_all(problems: list, source: str) -> None:
+    if not problems:
+        return
+    if len(problems) == 1:
+        raise InputError(*problems[0], source=source)
+    raise InputError(f"{len(problems)} problems", "a valid display", "; ".join(f"{w}: expected {e}, found {f}"
+                                                                             for w, e, f in problems), source=source)
+
+
+def tile(screen: Screen, columns: int, rows: int) -> list[Screen]:
+    """``screen`` split into ``columns`` x ``rows`` tiles (row 0 at the bottom), each with its
+    share of the pixels and its own node: a tiled wall."""
+    ll, lr, ul = (np.asarray(c, float) for c in (screen.lower_left, screen.lower_right, screen.upper_left))
+    dx, dy = (lr - ll) / columns, (ul - ll) / rows
+    w, h = screen.pixels[0] // columns, screen.pixels[1] // rows
+    out = []
+    for j in range(rows):
+        for i in range(columns):
+            corner = ll + i * dx + j * dy
+            out.append(Screen(f"{screen.name}_{i}{j}", tuple(corner), tuple(corner + dx), tuple(corner + dy), (w, h),
+                              node=f"{screen.node or screen.name}_{i}{j}", stereo=screen.stereo))
+    return out
+
+
+def _rave(layout: str, pixels=(1400, 1050)) -> list[Screen]:
+    """The RAVE II of thesis 6.4: four 3.75 x 3.12 m screens, the side ones hinged at the front
+    screen's edges and turned 0 (wall), 90 (cube) or 45 (amphitheatre) degrees towards the
+    viewer; the floor under the cube."""
+    w, h = 3.75, 3.12
+    turn = {"wall": 0.0, "cube": 90.0, "amphitheatre": 45.0}[layout]
+    a = math.radians(turn)
+    front = Screen("front", (-w / 2, w / 2, 0.0), (w / 2, w / 2, 0.0), (-w / 2, w / 2, h), pixels, "front")
+    # The left screen runs from its outer edge to the front screen's left edge.
+    outer_left = (-w / 2 - w * math.cos(a), w / 2 - w * math.sin(a), 0.0)
+    left = Screen("left", outer_left, (-w / 2, w / 2, 0.0), (outer_left[0], outer_left[1], h), pixels, "left")
+    outer_right = (w / 2 + w * math.cos(a), w / 2 - w * math.sin(a), 0.0)
+    right = Screen("right", (w / 2, w / 2, 0.0), outer_right, (w / 2, w / 2, h), pixels, "right")
+    screens = [left, front, right]
+    if layout == "cube":
+        screens.append(Screen("floor", (-w / 2, -w / 2, 0.0), (w / 2, -w / 2, 0.0), (-w / 2, w / 2, 0.0), pixels,
+                              "floor"))
+    return screens
+
+
+PRESETS = {
+    "single-wall": lambda: Display([Screen("wall", (-1.5, 1.5, 0.0), (1.5, 1.5, 0.0), (-1.5, 1.5, 2.25), (1600, 1200),
+                                           "wall")], name="single-wall"),
+    "cube": lambda: Display([Screen(s.name, s.lower_left, s.lower_right, s.upper_left, (1024, 1024), s.node)
+                             for s in _rave("cube")], name="cube"),
+    "rave-wall": lambda: Display(_rave("wall"), name="rave-wall"),
+    "rave-cube": lambda: Display(_rave("cube"), name="rave-cube"),
+    "rave-amphitheatre": lambda: Display(_rave("amphitheatre"), name="rave-amphitheatre"),
+    "powerwall-2x2": lambda: Display(tile(Screen("wall", (-2.0, 2.0, 0.5), (2.0, 2.0, 0.5), (-2.0, 2.0, 2.75),
+                                                 (3840, 2160), "wall"), 2, 2), name="powerwall-2x2"),
+}
+
+
+def preset(name: str) -> Display:
+    """A built-in display (:data:`PRESETS`)."""
+    if name not in PRESETS:
+        raise InputError("display preset", " | ".join(PRESETS), repr(name))
+    return PRESETS[name]()
+
+
+def load_display(path) -> Display:
+    """Read and validate a display file (module docstring)."""
+    path = Path(path)
+    source = str(path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise InputError("display file", "an existing TOML file", "no such file", source=source) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("TOML", "valid TOML", str(exc), source=source) from None
+    problems = []
+    if doc.get("format") != FORMAT:
+        problems.append(("format", f'"{FORMAT}"', repr(doc.get("format"))))
+    screens = []
+    for i, raw in enumerate(doc.get("screen", [])):
+        corners = {}
+        for key in ("lower_left", "lower_right", "upper_left"):
+            value = raw.get(key)
+            ok = isinstance(value, list) and len(value) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+            if not ok:
+                problems.append((f"screen[{i}].{key}", "[x, y, z] in metres", repr(value)))
+                value = [0.0, 0.0, 0.0]
+            corners[key] = tuple(float(v) for v in value)
+        pixels = raw.get("pixels", [1024, 768])
+        screens.append(Screen(str(raw.get("name", f"screen {i}")), corners["lower_left"], corners["lower_right"],
+                              corners["upper_left"], tuple(pixels) if isinstance(pixels, list) else pixels,
+                              str(raw.get("node", "")), raw.get("stereo", "none")))
+    separation = doc.get("eye_separation", 0.065)
+    _raise_all(problems + _problems(screens, separation), source)
+    return Display(screens, float(separation), name=source)
