@@ -24,14 +24,13 @@ wall, a 4-wall cube, the thesis' RAVE (3.75 x 3.12 m screens) as wall / cube / a
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from softvr.cave.projection import ScreenView, screen_view
-from softvr.errors import InputError
+from softvr.errors import InputError, raise_all, read_toml
 
 __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "load_display", "preset", "tile"]
 
@@ -95,7 +94,7 @@ class Display:
     name: str = "display"
 
     def __post_init__(self) -> None:
-        _raise_all(_problems(self.screens, self.eye_separation), self.name)
+        raise_all(_problems(self.screens, self.eye_separation), self.name, "display")
 
     def screen(self, name: str) -> Screen:
         for s in self.screens:
@@ -128,15 +127,6 @@ def _problems(screens: list, eye_separation) -> list:
     if not screens:
         out.append(("screen", "at least one [[screen]]", "none"))
     return out
-
-
-def _raise_all(problems: list, source: str) -> None:
-    if not problems:
-        return
-    if len(problems) == 1:
-        raise InputError(*problems[0], source=source)
-    raise InputError(f"{len(problems)} problems", "a valid display", "; ".join(f"{w}: expected {e}, found {f}"
-                                                                             for w, e, f in problems), source=source)
 
 
 def tile(screen: Screen, columns: int, rows: int) -> list[Screen]:
@@ -198,12 +188,7 @@ def load_display(path) -> Display:
     """Read and validate a display file (module docstring)."""
     path = Path(path)
     source = str(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError("display file", "an existing TOML file", "no such file", source=source) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("TOML", "valid TOML", str(exc), source=source) from None
+    doc = read_toml(path, "display file")
     problems = []
     if doc.get("format") != FORMAT:
         problems.append(("format", f'"{FORMAT}"', repr(doc.get("format"))))
@@ -223,5 +208,5 @@ def load_display(path) -> Display:
                               corners["upper_left"], tuple(pixels) if isinstance(pixels, list) else pixels,
                               str(raw.get("node", "")), raw.get("stereo", "none")))
     separation = doc.get("eye_separation", 0.065)
-    _raise_all(problems + _problems(screens, separation), source)
+    raise_all(problems + _problems(screens, separation), source, "display")
     return Display(screens, float(separation), name=source)

@@ -39,11 +39,10 @@ was found; all of a file's errors are reported at once.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from softvr.errors import InputError
+from softvr.errors import raise_all, read_toml
 
 __all__ = ["CouplingSpec", "PartSpec", "PartsFile", "read_parts"]
 
@@ -104,12 +103,7 @@ class _Errors:
         self.items.append((what, expected, found if isinstance(found, str) else repr(found)))
 
     def raise_if_any(self) -> None:
-        if not self.items:
-            return
-        if len(self.items) == 1:
-            raise InputError(*self.items[0], source=self.source)
-        lines = "; ".join(f"{w}: expected {e}, found {f}" for w, e, f in self.items)
-        raise InputError(f"{len(self.items)} problems", "a valid parts file", lines, source=self.source)
+        raise_all(self.items, self.source, "parts file")
 
 
 def _number(table: dict, key: str, where: str, errors: _Errors, *, default=None, positive=False, minimum=None,
@@ -135,12 +129,7 @@ def read_parts(path) -> PartsFile:
     folder and must exist."""
     path = Path(path)
     source = str(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError("parts file", "an existing TOML file", "no such file", source=source) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("TOML", "valid TOML", str(exc), source=source) from None
+    doc = read_toml(path, "parts file")
     errors = _Errors(source)
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
