@@ -140,7 +140,7 @@ class Example(PhysicsExample):
             self.loop.start()
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
                          bounds=(-0.05, 0.1, -0.07, 0.07, -0.12, 0.08),
-                         camera=Camera("front", azimuth=60, elevation=15, zoom=1.1))
+                         camera=Camera("front", azimuth=-60, elevation=15, zoom=1.1))
 
     # -- physics -------------------------------------------------------------------------
     def before_step(self) -> None:
