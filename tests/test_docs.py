@@ -21,6 +21,8 @@ MODULES = [
     "softvr.render.surfaces",
     "softvr.haptics",
     "softvr.dynamics.couplings",
+    "softvr.cave.tracking",
+    "softvr.cave.rig",
 ]
 
 
@@ -30,7 +32,7 @@ def test_docstring_examples_run(name):
     assert result.failed == 0
 
 
-DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md"]
+DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md", "docs/cave.md"]
 
 
 @pytest.mark.parametrize("doc", DOCS)

@@ -10,6 +10,7 @@
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
 ``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
+``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr info PATH``        what a volume file holds
 """
 
@@ -66,6 +67,12 @@ def _bench(argv: list[str]) -> int:
     return importlib.import_module(f"softvr.bench.{argv[0]}").main(argv[1:])
 
 
+def _cave(argv: list[str]) -> int:
+    from softvr.cave import _command
+
+    return _command.main(argv)
+
+
 def _info(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="softvr info", description="Print what a volume file holds.")
     parser.add_argument("path")
@@ -78,7 +85,8 @@ def _info(argv: list[str]) -> int:
     return 0
 
 
-_COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model}
+_COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model,
+             "cave": _cave}
 
 
 def main(argv: list[str] | None = None) -> int:

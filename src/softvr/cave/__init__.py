@@ -6,11 +6,25 @@
   amphitheatre, 2x2 PowerWall); :func:`tile` splits a screen into a tiled wall.
 * :func:`screen_view`: the off-axis (generalized perspective) frustum of a screen from an eye;
   :func:`render_screen` draws a :class:`~softvr.render.SurfaceRenderer` scene through it.
+* Head tracking (:mod:`softvr.cave.tracking`): :class:`HeadPose`, the :class:`Tracker` plug-in
+  point, :class:`FixedTracker`, :class:`ScriptedTracker`, :class:`OscTracker` (OSC over UDP).
+* The user entity (:mod:`softvr.cave.rig`): :class:`UserPose`, :func:`move`, :func:`turn`,
+  :class:`CameraRig` (every screen's camera in the world for a user, head and eye).
+* :func:`render_stereo`: side-by-side, anaglyph or quad-buffer stereo of one screen.
+* :func:`preview_layout` / :func:`preview_image`: all screens unfolded into one desktop picture.
 """
 
-from softvr.cave.display import PRESETS, STEREO_MODES, Display, Screen, load_display, preset, tile
+from softvr.cave.display import PRESETS, STEREO_MODES, Display, Screen, eye_pair, load_display, preset, tile
 from softvr.cave.projection import ScreenView, frustum_matrix, screen_view
 from softvr.cave.render import render_screen
+from softvr.cave.preview import Placement, preview_image, preview_layout
+from softvr.cave.rig import EYES, CameraRig, UserPose, move, turn, world_view
+from softvr.cave.stereo import render_stereo
+from softvr.cave.tracking import (DEFAULT_HEAD, FixedTracker, HeadPose, OscTracker, ScriptedTracker, Tracker,
+                                  decode_osc, encode_osc, encode_osc_bundle, quaternion_about)
 
 __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "ScreenView", "frustum_matrix", "load_display", "preset",
            "render_screen", "screen_view", "tile"]
+__all__ += ["DEFAULT_HEAD", "EYES", "CameraRig", "FixedTracker", "HeadPose", "OscTracker", "Placement",
+            "ScriptedTracker", "Tracker", "UserPose", "decode_osc", "encode_osc", "encode_osc_bundle", "eye_pair",
+            "move", "preview_image", "preview_layout", "quaternion_about", "render_stereo", "turn", "world_view"]

@@ -32,7 +32,7 @@ import numpy as np
 from softvr.cave.projection import ScreenView, screen_view
 from softvr.errors import InputError, raise_all, read_toml
 
-__all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "load_display", "preset", "tile"]
+__all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "eye_pair", "load_display", "preset", "tile"]
 
 FORMAT = "softvr-display 1"
 STEREO_MODES = ("none", "side-by-side", "anaglyph", "quad-buffer")
@@ -108,9 +108,15 @@ class Display:
 
     def eyes(self, head, right) -> tuple[np.ndarray, np.ndarray]:
         """Left and right eye positions [3] [m] of a head at ``head`` whose right is ``right``."""
-        r = np.asarray(right, float) / np.linalg.norm(right)
-        h = np.asarray(head, float)
-        return h - 0.5 * self.eye_separation * r, h + 0.5 * self.eye_separation * r
+        return eye_pair(head, right, self.eye_separation)
+
+
+def eye_pair(head, right, separation: float) -> tuple[np.ndarray, np.ndarray]:
+    """Left and right eye positions [3] [m]: ``head`` [3] [m] -/+ ``separation`` / 2 [m] along
+    ``right`` [3] (any length; the head's right axis)."""
+    r = np.asarray(right, float) / np.linalg.norm(right)
+    h = np.asarray(head, float)
+    return h - 0.5 * separation * r, h + 0.5 * separation * r
 
 
 def _problems(screens: list, eye_separation) -> list:

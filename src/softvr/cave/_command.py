@@ -1,0 +1,358 @@
+"""``softvr cave``: run a scene on a CAVE, a PowerWall or a tiled wall.
+
+``softvr cave preview DISPLAY SCENE``        every screen rendered here, unfolded into one picture
+``softvr cave master DISPLAY SCENE``         the master: input, clock, simulation, streaming
+``softvr cave node DISPLAY --node NAME``     one render node per screen (needs no scene: it gets
+                                             everything from the master's snapshot)
+``softvr cave local DISPLAY SCENE``          master + every node as processes on this machine
+``softvr cave keys DIR --display DISPLAY``   CURVE keys: only nodes holding them can join
+
+DISPLAY is a display file (TOML, ``softvr-display 1``) or a preset name (single-wall, cube,
+rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2). SCENE is ``sheet`` (an analytic
+rippling sheet with 10 K vertices and a turning box) or a ``softvr run`` scene (box-stack,
+soft-cube, cloth-sphere, ...), simulated on the master and streamed to the nodes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from softvr.errors import InputError
+
+__all__ = ["main"]
+
+_DEFAULT_PUBLISH = "tcp://127.0.0.1:5560"
+_DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
+
+
+def load_display_arg(text: str):
+    """A display from a preset name or a display file path."""
+    from softvr.cave.display import PRESETS, load_display, preset  # noqa: PLC0415
+
+    if text in PRESETS:
+        return preset(text)
+    if not Path(text).exists():
+        raise InputError("DISPLAY", f"a display file or one of the presets {', '.join(PRESETS)}",
+                         f"{text!r} (no such file)")
+    return load_display(text)
+
+
+def make_source(scene: str, frames: int):
+    """The master's frame source for a scene name (module docstring)."""
+    from softvr.cave.app import ExampleSource, WavingSheet  # noqa: PLC0415
+    from softvr.examples.run import SCENES  # noqa: PLC0415
+
+    if scene == "sheet":
+        return WavingSheet()
+    if scene not in SCENES:
+        raise InputError("SCENE", f"sheet or one of {', '.join(SCENES)}", repr(scene))
+    module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
+    return ExampleSource(module.Example(frames=frames, width=64, height=48))
+
+
+def scripted_navigation(source):
+    """The master's default input: the user entity slowly swings around the scene's centre
+    (which it shows 1.2 m in front of the viewer at table height) and the head sways 15 cm
+    side to side; a ``toggle highlight`` event every 5 s."""
+    from softvr.cave.app import user_pose_facing  # noqa: PLC0415
+
+    bounds = np.asarray(source.bounds()).reshape(3, 2)
+    center = bounds.mean(axis=1)
+
+    def navigation(n: int, t: float):
+        user = user_pose_facing(center, 0.35 * math.sin(0.25 * t))
+        head = [0.15 * math.sin(0.7 * t), 0.0, 1.7, 1.0, 0.0, 0.0, 0.0]
+        fps = float(getattr(source, "fps", 60.0))
+        events = [("toggle", ("highlight",))] if n and n % max(int(5 * fps), 1) == 0 else []
+        return user, head, events
+
+    return navigation
+
+
+def _tracker(spec: str | None):
+    if not spec or spec == "scripted":
+        return None
+    from softvr.cave.tracking import FixedTracker, OscTracker  # noqa: PLC0415
+
+    if spec == "fixed":
+        return FixedTracker()
+    if spec.startswith("osc:") and spec[4:].isdigit():
+        return OscTracker(int(spec[4:]))
+    raise InputError("--tracker", "scripted | fixed | osc:PORT", repr(spec))
+
+
+def _write_json(data: dict, path: Path) -> None:
+    from softvr.render._atomic import write_json  # noqa: PLC0415
+
+    write_json(data, path)
+
+
+# ------------------------------------------------------------------------------- subcommands
+def _preview(args) -> int:
+    from softvr.cave.app import ClusterState  # noqa: PLC0415
+    from softvr.cave.preview import preview_image  # noqa: PLC0415
+    from softvr.cave.render import StateRenderer  # noqa: PLC0415
+    from softvr.cave.stream import MeshEncoder  # noqa: PLC0415
+    from softvr.cave.protocol import decode, encode  # noqa: PLC0415
+    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
+
+    display = load_display_arg(args.display)
+    source = make_source(args.scene, args.frames)
+    navigation = scripted_navigation(source)
+    state = ClusterState(source.items)
+    encoders = {h: MeshEncoder(i["rest"]) for h, i in enumerate(source.items) if i["kind"] == "mesh"}
+    for n in range(args.frames):
+        vertices = source.advance()
+        user, head, events = navigation(n, n / float(getattr(source, "fps", 60.0)))
+        meshes = [[h, *u] for h, e in encoders.items() if (u := e.encode(vertices[h])) is not None]
+        payload = {"n": n, "t": n / 60.0, "user": np.ravel(user).tolist(), "head": list(head),
+                   "events": [[e, list(a)] for e, a in events], "meshes": meshes}
+        state.apply_frame(decode(encode("frame", 0, payload)).payload)
+    images = {}
+    for screen in display.screens:
+        renderer = StateRenderer(screen, display.eye_separation, scale=args.scale)
+        images[screen.name] = renderer(state)
+        renderer.close()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    path = save_png(preview_image(display, images), out / "cave_preview.png")
+    print(f"wrote {path}")
+    return 0
+
+
+def _config(args):
+    from softvr.cave.cluster import ClusterConfig  # noqa: PLC0415
+
+    return ClusterConfig(publish=args.publish, control=args.control, barrier=not args.no_barrier, keys=args.keys)
+
+
+def _master(args, on_bound=None) -> dict:
+    from softvr.cave.cluster import Master  # noqa: PLC0415
+
+    display = load_display_arg(args.display)
+    source = make_source(args.scene, args.frames)
+    nodes = [s.node or s.name for s in display.screens]
+    with Master(source, nodes, _config(args), navigation=scripted_navigation(source),
+                tracker=_tracker(args.tracker)) as master:
+        if on_bound is not None:
+            on_bound(master.config)
+        if not args.quiet:
+            print(f"cave master: publishing on {master.config.publish}, control on {master.config.control}; "
+                  f"waiting for {', '.join(nodes)}", flush=True)
+        master.wait_for_nodes(args.join_timeout)
+        summary = master.run(args.frames, fps=args.fps, progress=not args.quiet)
+        if args.out:
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            _write_json({"summary": summary, **master.log}, out / "master.json")
+    return summary
+
+
+def _node(args) -> int:
+    from softvr.cave.cluster import Node  # noqa: PLC0415
+    from softvr.cave.render import StateRenderer  # noqa: PLC0415
+    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
+
+    display = load_display_arg(args.display)
+    screens = [s for s in display.screens if (s.node or s.name) == args.node]
+    if not screens:
+        raise InputError("--node", f"one of {[s.node or s.name for s in display.screens]}", repr(args.node))
+    out = Path(args.out) if args.out else None
+    if out:
+        out.mkdir(parents=True, exist_ok=True)
+    renderer = None if args.no_render else StateRenderer(screens[0], display.eye_separation, scale=args.scale)
+
+    def present(state) -> None:
+        if out and renderer is not None and args.save_every and state.n % args.save_every == 0:
+            save_png(renderer.image, out / f"{args.node}_{state.n:06d}.png")
+
+    node = Node(args.node, _config(args), render=renderer, present=present, drop_rate=args.drop_rate,
+                seed=args.seed)
+    signal.signal(signal.SIGTERM, lambda *_: setattr(node, "finished", True))
+    try:
+        summary = node.run(max_seconds=args.max_seconds)
+    finally:
+        node.close()
+    if out:
+        if renderer is not None and renderer.image is not None:
+            save_png(renderer.image, out / f"{args.node}_last.png")
+        _write_json({**summary, "presented_frames": node.log.presented}, out / f"{args.node}.json")
+    if renderer is not None:
+        renderer.close()
+    if not args.quiet:
+        print(json.dumps({k: summary[k] for k in ("node", "presented", "last_frame", "counters")}))
+    return 0
+
+
+def node_command(display: str, node: str, publish: str, control: str, *, out=None, extra=()) -> list[str]:
+    """The command line that starts a render node process."""
+    cmd = [sys.executable, "-m", "softvr", "cave", "node", display, "--node", node, "--publish", publish,
+           "--control", control, "--quiet"]
+    if out:
+        cmd += ["--out", str(out)]
+    return cmd + list(extra)
+
+
+def _local(args) -> int:
+    display = load_display_arg(args.display)
+    nodes = [s.node or s.name for s in display.screens]
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    processes = []
+    extra = ["--scale", str(args.scale), "--save-every", str(args.save_every)]
+    if args.keys:
+        extra += ["--keys", args.keys]
+    if args.no_barrier:
+        extra.append("--no-barrier")
+
+    def start_nodes(config) -> None:
+        for name in nodes:
+            processes.append(subprocess.Popen(node_command(args.display, name, config.publish, config.control,
+                                                           out=out, extra=extra)))
+
+    args.publish, args.control = "tcp://127.0.0.1:0", "tcp://127.0.0.1:0"
+    try:
+        summary = _master(args, on_bound=start_nodes)
+    finally:
+        deadline = time.monotonic() + 30
+        for p in processes:
+            try:
+                p.wait(timeout=max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                p.kill()
+    _compose_previews(display, out)
+    print(json.dumps({k: summary[k] for k in ("frames", "mismatches", "joins", "evictions", "sync_ms")}))
+    return 0 if summary["mismatches"] == 0 else 1
+
+
+def _compose_previews(display, out: Path) -> None:
+    """``cave_preview.png`` from every node's last image, and ``cave_preview.mp4`` from the
+    frames every node saved."""
+    import imageio.v3 as iio  # noqa: PLC0415
+
+    from softvr.cave.preview import preview_image  # noqa: PLC0415
+    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
+    from softvr.render.video import write_mp4  # noqa: PLC0415
+
+    def images(suffix: str) -> dict | None:
+        found = {s.name: out / f"{s.node or s.name}_{suffix}.png" for s in display.screens}
+        if not all(p.exists() for p in found.values()):
+            return None
+        return {name: iio.imread(p)[..., :3] for name, p in found.items()}
+
+    last = images("last")
+    if last is None:
+        return
+    save_png(preview_image(display, last), out / "cave_preview.png")
+    first = display.screens[0].node or display.screens[0].name
+    numbers = sorted(p.stem.rsplit("_", 1)[1] for p in out.glob(f"{first}_[0-9]*.png"))
+    frames = [preview_image(display, imgs) for n in numbers if (imgs := images(n)) is not None]
+    if len(frames) > 1:
+        write_mp4(frames, out / "cave_preview.mp4", fps=10)
+
+
+def _keys(args) -> int:
+    from softvr.cave.cluster import make_keys  # noqa: PLC0415
+
+    nodes = list(args.nodes or [])
+    if args.display:
+        nodes += [s.node or s.name for s in load_display_arg(args.display).screens]
+    if not nodes:
+        raise InputError("--display / --nodes", "the nodes to make keys for", "none")
+    folder = make_keys(args.folder, nodes)
+    print(f"wrote CURVE keys for master and {', '.join(nodes)} to {folder}")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="softvr cave", description=__doc__.splitlines()[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n".join(__doc__.splitlines()[2:]))
+    sub = p.add_subparsers(dest="command", required=True)
+
+    def common(q, scene: bool) -> None:
+        q.add_argument("display", metavar="DISPLAY", help="display file (TOML) or preset name")
+        if scene:
+            q.add_argument("scene", metavar="SCENE", help="sheet, or a softvr run scene")
+        q.add_argument("--quiet", action="store_true", help="no progress output")
+
+    def network(q) -> None:
+        q.add_argument("--publish", default=_DEFAULT_PUBLISH, help=f"master's frame endpoint ({_DEFAULT_PUBLISH})")
+        q.add_argument("--control", default=_DEFAULT_CONTROL, help=f"master's control endpoint ({_DEFAULT_CONTROL})")
+        q.add_argument("--keys", help="CURVE key folder (softvr cave keys)")
+        q.add_argument("--no-barrier", action="store_true", help="no software swap barrier (hardware genlock)")
+
+    def master_options(q) -> None:
+        q.add_argument("--frames", type=int, default=300, help="frames to run (default 300)")
+        q.add_argument("--fps", type=float, default=60.0, help="frame rate to pace at, 0: as fast as possible")
+        q.add_argument("--tracker", default="scripted", help="head: scripted | fixed | osc:PORT (default scripted)")
+        q.add_argument("--join-timeout", type=float, default=60.0, help="seconds to wait for every node")
+
+    q = sub.add_parser("preview", help="every screen rendered here, unfolded into one picture")
+    common(q, True)
+    q.add_argument("--frames", type=int, default=30, help="frames to simulate first (default 30)")
+    q.add_argument("--scale", type=float, default=0.25, help="pixel scale of the screens (default 0.25)")
+    q.add_argument("--out", default="softvr-cave", help="output folder")
+
+    q = sub.add_parser("master", help="the master process")
+    common(q, True)
+    network(q)
+    master_options(q)
+    q.add_argument("--out", help="write master.json (per-frame digests, joins, timings) here")
+
+    q = sub.add_parser("node", help="one render node")
+    common(q, False)
+    network(q)
+    q.add_argument("--node", required=True, help="this node's name (a screen's node in DISPLAY)")
+    q.add_argument("--out", help="write <node>.json, <node>_last.png and saved frames here")
+    q.add_argument("--scale", type=float, default=1.0, help="pixel scale of the screen (default 1)")
+    q.add_argument("--save-every", type=int, default=0, help="save every K-th presented frame as PNG")
+    q.add_argument("--no-render", action="store_true", help="follow the state without drawing")
+    q.add_argument("--drop-rate", type=float, default=0.0, help="drop this fraction of frames (testing)")
+    q.add_argument("--seed", type=int, default=None, help="seed of the dropped frames")
+    q.add_argument("--max-seconds", type=float, default=None, help="stop after this long")
+
+    q = sub.add_parser("local", help="master and all nodes on this machine")
+    common(q, True)
+    master_options(q)
+    q.add_argument("--keys", help="CURVE key folder (softvr cave keys)")
+    q.add_argument("--no-barrier", action="store_true", help="no software swap barrier")
+    q.add_argument("--out", default="softvr-cave", help="output folder (default ./softvr-cave)")
+    q.add_argument("--scale", type=float, default=0.25, help="pixel scale of the screens (default 0.25)")
+    q.add_argument("--save-every", type=int, default=10, help="save every K-th frame per node (default 10)")
+
+    q = sub.add_parser("keys", help="make CURVE keys for a cluster")
+    q.add_argument("folder", metavar="DIR")
+    q.add_argument("--display", help="make a key for every node of this display")
+    q.add_argument("--nodes", nargs="*", help="node names")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if getattr(args, "frames", 1) < 1:
+        raise InputError("--frames", "at least 1", repr(args.frames))
+    if getattr(args, "scale", 1.0) <= 0 or not math.isfinite(getattr(args, "scale", 1.0)):
+        raise InputError("--scale", "a positive number", repr(args.scale))
+    if args.command == "master":
+        args.fps = args.fps or None
+        summary = _master(args)
+        print(json.dumps({k: summary[k] for k in ("frames", "mismatches", "joins", "evictions", "sync_ms")}))
+        return 0
+    if args.command == "local":
+        args.fps = args.fps or None
+    return {"preview": _preview, "node": _node, "local": _local, "keys": _keys}[args.command](args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

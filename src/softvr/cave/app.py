@@ -1,0 +1,303 @@
+"""What runs on every copy of a cluster application: its state, and where the master gets it.
+
+* :class:`ClusterState` — the application state every node holds and the master owns: frame
+  number, time, the user entity's pose (world <- tracker), the head pose, flags set by
+  events, static items (planes, spheres) and surface meshes with their streamed vertices.
+  Nodes apply frames to it deterministically; :meth:`ClusterState.digest` hashes it so that
+  copies can be compared frame by frame.
+* :class:`RecordingRenderer` — stands in for a :class:`~softvr.render.SurfaceRenderer` so that
+  any physics demo (``softvr run`` scenes) describes its surfaces to the cluster unchanged.
+* Frame sources for the master: :class:`ExampleSource` (a simulated demo) and
+  :class:`WavingSheet` (an analytic deforming sheet for tests and the benchmark).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+
+import numpy as np
+
+from softvr.cave.protocol import PacketError, check_head, check_mesh_update, check_user
+from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder
+
+__all__ = ["ClusterState", "ExampleSource", "RecordingRenderer", "WavingSheet", "user_pose_facing"]
+
+_IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
+
+
+class RecordingRenderer:
+    """The calls a demo makes on its renderer (``add_mesh``, ``add_plane``, ``add_sphere``,
+    ``update``), kept as data: ``items`` (one dict per call, its index the handle) and the
+    meshes' current ``vertices``."""
+
+    def __init__(self):
+        self.items: list[dict] = []
+        self.vertices: dict[int, np.ndarray] = {}
+
+    def add_mesh(self, vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0, *,
+                 feature_angle: float | None = 60.0) -> int:
+        v = np.array(vertices, float)
+        self.items.append({"kind": "mesh", "rest": v.copy(), "faces": np.asarray(triangles, np.int32),
+                           "color": [float(c) for c in color], "opacity": float(opacity)})
+        self.vertices[len(self.items) - 1] = v
+        return len(self.items) - 1
+
+    def add_plane(self, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), size: float = 4.0,
+                  color=(0.55, 0.57, 0.6), *, tiles: int = 8) -> int:
+        self.items.append({"kind": "plane", "point": [float(x) for x in point], "normal": [float(x) for x in normal],
+                           "size": float(size), "color": [float(c) for c in color], "tiles": int(tiles)})
+        return len(self.items) - 1
+
+    def add_sphere(self, center, radius: float, color=(0.75, 0.75, 0.78), opacity: float = 1.0) -> int:
+        self.items.append({"kind": "sphere", "center": [float(x) for x in center], "radius": float(radius),
+                           "color": [float(c) for c in color], "opacity": float(opacity)})
+        return len(self.items) - 1
+
+    def update(self, handle: int, vertices) -> None:
+        self.vertices[handle] = np.array(vertices, float)
+
+    def bounds(self) -> np.ndarray:
+        """(xmin, xmax, ymin, ymax, zmin, zmax) [m] of the meshes and spheres."""
+        points = [v for v in self.vertices.values()]
+        points += [np.asarray(i["center"]) + s * i["radius"] for i in self.items if i["kind"] == "sphere"
+                   for s in (-1, 1)]
+        p = np.vstack([np.atleast_2d(x) for x in points]) if points else np.zeros((1, 3))
+        return np.stack([p.min(axis=0), p.max(axis=0)], axis=1).ravel()
+
+
+def user_pose_facing(center, yaw: float = 0.0, *, anchor=(0.0, 1.2, 1.0)) -> np.ndarray:
+    """The user pose [4, 4] (world <- tracker) that shows world point ``center`` [3] [m] at
+    tracker point ``anchor`` [3] [m] (in front of the viewer, at table height), the CAVE
+    turned by ``yaw`` [rad] about the vertical through it."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    pose = np.eye(4)
+    pose[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+    pose[:3, 3] = np.asarray(center, float) - pose[:3, :3] @ np.asarray(anchor, float)
+    return pose
+
+
+def _positive(value, what: str, high: float = 1e6) -> float:
+    v = float(value)
+    if not 0 < v <= high:
+        raise PacketError("malformed", f"snapshot {what}: expected a number in (0, {high:g}], found {v!r}")
+    return v
+
+
+def _check_floats(value, shape, what: str) -> np.ndarray:
+    a = np.asarray(value, float) if isinstance(value, list) else None
+    if a is None or a.shape != shape or not np.isfinite(a).all():
+        raise PacketError("malformed", f"snapshot {what}: expected finite numbers of shape {shape}")
+    return a
+
+
+class ClusterState:
+    """The state of a cluster application (module docstring).
+
+    Attributes
+    ----------
+    n : int
+        Frame number (-1 before the first frame).
+    t : float [s]
+        Application time.
+    user : ndarray, shape [4, 4]
+        The user entity's pose: world <- tracker frame (navigation moves it).
+    head : ndarray, shape [7]
+        Head position [m] and orientation quaternion (w, x, y, z) in the tracker frame.
+    flags : dict of str -> bool
+        Application switches flipped by ``toggle`` events.
+    items : list of dict
+        Static items (``plane``, ``sphere``) and meshes as :class:`RecordingRenderer` records
+        them; a handle is an index into this list.
+    meshes : dict of int -> MeshDecoder
+        The streamed vertex state of every mesh item.
+    quantum : float [m]
+        Vertex quantization step of the stream.
+    """
+
+    def __init__(self, items: list, quantum: float = DEFAULT_QUANTUM):
+        self.items = items
+        self.quantum = float(quantum)
+        self.meshes = {h: MeshDecoder(i["rest"], quantum) for h, i in enumerate(items) if i["kind"] == "mesh"}
+        self.n, self.t = -1, 0.0
+        self.user = np.eye(4)
+        self.head = np.array(_IDENTITY_HEAD)
+        self.flags: dict[str, bool] = {}
+        self._geometry = None
+
+    # ----------------------------------------------------------------- frames
+    def apply_frame(self, frame: dict) -> None:
+        """Apply a validated ``frame`` payload (frame ``n`` must be ``self.n + 1``). Raises
+        ``ValueError`` if a mesh update does not fit this state (the caller resyncs)."""
+        for update in frame["meshes"]:
+            mesh = self.meshes.get(update[0])
+            if mesh is None:
+                raise ValueError(f"an update for mesh {update[0]}, which this state does not have")
+            mesh.apply(update[1:])
+        for name, args in frame["events"]:
+            if name == "toggle" and args and isinstance(args[0], str):
+                self.flags[args[0]] = not self.flags.get(args[0], False)
+        self.n, self.t = frame["n"], frame["t"]
+        self.user = np.asarray(frame["user"], float).reshape(4, 4)
+        self.head = np.asarray(frame["head"], float)
+
+    def digest(self) -> bytes:
+        """16-byte BLAKE2b of everything a render depends on (frame, time, poses, flags, mesh
+        states): equal digests, equal pictures."""
+        h = hashlib.blake2b(digest_size=16)
+        h.update(np.array([self.n], np.int64).tobytes() + np.array([self.t], float).tobytes())
+        h.update(self.user.tobytes() + self.head.tobytes())
+        h.update(repr(sorted(k for k, v in self.flags.items() if v)).encode())  # as a snapshot keeps them
+        for handle in sorted(self.meshes):
+            h.update(handle.to_bytes(4, "little") + self.meshes[handle].state_bytes())
+        return h.digest()
+
+    def geometry_digest(self) -> bytes:
+        """16-byte BLAKE2b of the items' fixed parts (kinds, faces, rest shapes, colours): a
+        node keeps its renderer across a resync when this is unchanged."""
+        if self._geometry is None:
+            h = hashlib.blake2b(digest_size=16)
+            for item in self.items:
+                for key in sorted(item):
+                    value = item[key]
+                    h.update(key.encode() + (value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode()))
+            self._geometry = h.digest()
+        return self._geometry
+
+    def mesh_vertices(self, handle: int) -> np.ndarray:
+        """Current vertices [v, 3] [m] of mesh item ``handle``."""
+        return self.meshes[handle].vertices()
+
+    # -------------------------------------------------------------- snapshots
+    def snapshot(self) -> dict:
+        """The whole state as msgpack-ready data (geometry included, so a node needs no scene
+        file)."""
+        items = []
+        for h, item in enumerate(self.items):
+            if item["kind"] == "mesh":
+                items.append({"kind": "mesh", "rest": item["rest"].astype(float).tobytes(),
+                              "faces": item["faces"].astype(np.int32).tobytes(), "color": item["color"],
+                              "opacity": item["opacity"], "key": self.meshes[h].key()})
+            else:
+                items.append(dict(item))
+        return {"n": self.n, "t": self.t, "user": self.user.ravel().tolist(), "head": self.head.tolist(),
+                "flags": sorted(k for k, v in self.flags.items() if v), "quantum": self.quantum, "items": items}
+
+    @classmethod
+    def from_snapshot(cls, data: dict) -> "ClusterState":
+        """Rebuild a state from :meth:`snapshot` data received from the network, checking every
+        field (raises :class:`~softvr.cave.protocol.PacketError`)."""
+        try:
+            return cls._from_snapshot(data)
+        except PacketError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError, IndexError) as exc:
+            raise PacketError("malformed", f"snapshot: {type(exc).__name__}: {exc}") from None
+
+    @classmethod
+    def _from_snapshot(cls, data: dict) -> "ClusterState":
+        quantum = float(data["quantum"])
+        if not 1e-9 <= quantum <= 1.0:
+            raise PacketError("malformed", "snapshot quantum: expected 1e-9..1 m")
+        items, keys = [], {}
+        for h, raw in enumerate(data["items"][:65536]):
+            kind = raw["kind"]
+            color = _check_floats(raw["color"], (3,), "color").tolist()
+            if kind == "mesh":
+                rest = np.frombuffer(raw["rest"], float).reshape(-1, 3).copy()
+                faces = np.frombuffer(raw["faces"], np.int32).reshape(-1, 3).copy()
+                if not np.isfinite(rest).all() or (faces.size and (faces.min() < 0 or faces.max() >= len(rest))):
+                    raise PacketError("malformed", f"snapshot mesh {h}: non-finite vertices or bad face indices")
+                items.append({"kind": "mesh", "rest": rest, "faces": faces, "color": color,
+                              "opacity": _positive(raw["opacity"], "opacity", 1.0)})
+                keys[h] = raw["key"]
+            elif kind == "plane":
+                items.append({"kind": "plane", "point": _check_floats(raw["point"], (3,), "plane point").tolist(),
+                              "normal": _check_floats(raw["normal"], (3,), "plane normal").tolist(),
+                              "size": _positive(raw["size"], "plane size"), "color": color,
+                              "tiles": min(max(int(raw["tiles"]), 1), 256)})
+            elif kind == "sphere":
+                items.append({"kind": "sphere", "center": _check_floats(raw["center"], (3,), "center").tolist(),
+                              "radius": _positive(raw["radius"], "radius"), "color": color,
+                              "opacity": _positive(raw["opacity"], "opacity", 1.0)})
+            else:
+                raise PacketError("malformed", f"snapshot item {h}: unknown kind {kind!r}")
+        state = cls(items, quantum)
+        for h, key in keys.items():
+            if key is not None:
+                state.meshes[h].apply(check_mesh_update([h, *key])[1:])
+        state.n, state.t = int(data["n"]), float(data["t"])
+        state.user = np.asarray(check_user(data["user"]), float).reshape(4, 4)
+        state.head = np.asarray(check_head(data["head"]), float)
+        state.flags = {str(f): True for f in data["flags"][:1024]}
+        return state
+
+
+class ExampleSource:
+    """Frames from a physics demo (a :class:`~softvr.examples.run.PhysicsExample`): every
+    frame advances it one frame and reads its surfaces through a :class:`RecordingRenderer`."""
+
+    def __init__(self, example):
+        self.example = example
+        self.recorder = RecordingRenderer()
+        example.setup_render(self.recorder)
+        self.fps = float(example.fps)
+
+    @property
+    def items(self) -> list:
+        return self.recorder.items
+
+    def advance(self) -> dict:
+        """Step the demo one frame; mesh handle -> vertices [v, 3] [m]."""
+        self.example.step()
+        self.example.update_render(self.recorder)
+        return self.recorder.vertices
+
+    def bounds(self) -> np.ndarray:
+        return self.recorder.bounds()
+
+
+class WavingSheet:
+    """An analytic deforming body: a square sheet of ``side`` [m] with ``vertices`` grid points
+    rippled by travelling waves (amplitude ``amplitude`` [m]), over a ground plane; a box
+    turning above it moves rigidly (streamed as a pose)."""
+
+    def __init__(self, vertices: int = 10_000, side: float = 1.0, amplitude: float = 0.05, fps: float = 60.0):
+        k = max(int(round(math.sqrt(vertices))), 2)
+        x, y = np.meshgrid(np.linspace(-side / 2, side / 2, k), np.linspace(-side / 2, side / 2, k), indexing="ij")
+        self.grid = np.c_[x.ravel(), y.ravel()]
+        quads = np.arange(k * k).reshape(k, k)[:-1, :-1].ravel()
+        faces = np.concatenate([np.c_[quads, quads + k, quads + k + 1], np.c_[quads, quads + k + 1, quads + 1]])
+        self.amplitude, self.fps, self.frame = float(amplitude), float(fps), 0
+        self.recorder = RecordingRenderer()
+        self.recorder.add_plane(point=(0.0, 0.0, 0.0), size=3.0, tiles=12)
+        self.sheet = self.recorder.add_mesh(self._sheet(0.0), faces, color=(0.85, 0.45, 0.35))
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * 0.08
+        box_faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
+                     [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+        self._box = corners
+        self.box = self.recorder.add_mesh(self._box_at(0.0), box_faces, color=(0.3, 0.55, 0.85))
+
+    def _sheet(self, t: float) -> np.ndarray:
+        x, y = self.grid[:, 0], self.grid[:, 1]
+        z = 0.4 + self.amplitude * (np.sin(8 * x - 3 * t) + 0.5 * np.sin(6 * y + 2 * t))
+        return np.c_[x, y, z]
+
+    def _box_at(self, t: float) -> np.ndarray:
+        c, s = math.cos(t), math.sin(t)
+        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return self._box @ rotation.T + (0.0, 0.0, 0.8)
+
+    @property
+    def items(self) -> list:
+        return self.recorder.items
+
+    def advance(self) -> dict:
+        self.frame += 1
+        t = self.frame / self.fps
+        self.recorder.update(self.sheet, self._sheet(t))
+        self.recorder.update(self.box, self._box_at(t))
+        return self.recorder.vertices
+
+    def bounds(self) -> np.ndarray:
+        return self.recorder.bounds()
