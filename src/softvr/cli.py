@@ -10,6 +10,7 @@
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
 ``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
+``softvr bench cave``       render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr info PATH``        what a volume file holds
 """
@@ -56,7 +57,7 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder")
+_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave")
 
 
 def _bench(argv: list[str]) -> int:

@@ -98,3 +98,14 @@ def test_presets_and_a_valid_file_load():
     left, right = rave.eyes((0, 0, 1.7), (1, 0, 0))
     np.testing.assert_allclose(right - left, [0.065, 0, 0])
     np.testing.assert_allclose(frustum_matrix(-1, 1, -1, 1, 1, 3)[2:, 2:], [[-2, -3], [-1, 0]])
+
+
+def test_a_saved_display_loads_back_to_the_same_screens(tmp_path):
+    from softvr.cave import save_display
+
+    wall = preset("powerwall-2x2")
+    wall.screens[0] = Screen('tile "a"', wall.screens[0].lower_left, wall.screens[0].lower_right,
+                             wall.screens[0].upper_left, (640, 360), "n\\0", "anaglyph")
+    path = save_display(wall, tmp_path / "wall.toml")
+    again = load_display(path)
+    assert again.screens == wall.screens and again.eye_separation == wall.eye_separation

@@ -14,7 +14,8 @@
 * :func:`preview_layout` / :func:`preview_image`: all screens unfolded into one desktop picture.
 """
 
-from softvr.cave.display import PRESETS, STEREO_MODES, Display, Screen, eye_pair, load_display, preset, tile
+from softvr.cave.display import (PRESETS, STEREO_MODES, Display, Screen, eye_pair, load_display, preset, save_display,
+                                 tile)
 from softvr.cave.projection import ScreenView, frustum_matrix, screen_view
 from softvr.cave.render import render_screen
 from softvr.cave.preview import Placement, preview_image, preview_layout
@@ -24,7 +25,7 @@ from softvr.cave.tracking import (DEFAULT_HEAD, FixedTracker, HeadPose, OscTrack
                                   decode_osc, encode_osc, encode_osc_bundle, quaternion_about)
 
 __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "ScreenView", "frustum_matrix", "load_display", "preset",
-           "render_screen", "screen_view", "tile"]
+           "render_screen", "save_display", "screen_view", "tile"]
 __all__ += ["DEFAULT_HEAD", "EYES", "CameraRig", "FixedTracker", "HeadPose", "OscTracker", "Placement",
             "ScriptedTracker", "Tracker", "UserPose", "decode_osc", "encode_osc", "encode_osc_bundle", "eye_pair",
             "move", "preview_image", "preview_layout", "quaternion_about", "render_stereo", "turn", "world_view"]

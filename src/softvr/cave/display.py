@@ -23,6 +23,7 @@ wall, a 4-wall cube, the thesis' RAVE (3.75 x 3.12 m screens) as wall / cube / a
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +33,7 @@ import numpy as np
 from softvr.cave.projection import ScreenView, screen_view
 from softvr.errors import InputError, raise_all, read_toml
 
-__all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "eye_pair", "load_display", "preset", "tile"]
+__all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "eye_pair", "load_display", "preset", "save_display", "tile"]
 
 FORMAT = "softvr-display 1"
 STEREO_MODES = ("none", "side-by-side", "anaglyph", "quad-buffer")
@@ -188,6 +189,26 @@ def preset(name: str) -> Display:
     if name not in PRESETS:
         raise InputError("display preset", " | ".join(PRESETS), repr(name))
     return PRESETS[name]()
+
+
+def save_display(display: Display, path) -> Path:
+    """Write ``display`` as a display file (module docstring) that :func:`load_display` reads
+    back to the same screens; atomically (an existing file survives a failed write)."""
+    from softvr.render._atomic import atomic_output  # noqa: PLC0415
+
+    def vec(v) -> str:
+        return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+    lines = [f'format = "{FORMAT}"', f"eye_separation = {float(display.eye_separation)!r}"]
+    for s in display.screens:
+        lines += ["", "[[screen]]", f"name = {json.dumps(s.name)}", f"lower_left = {vec(s.lower_left)}",
+                  f"lower_right = {vec(s.lower_right)}", f"upper_left = {vec(s.upper_left)}",
+                  f"pixels = [{int(s.pixels[0])}, {int(s.pixels[1])}]", f"node = {json.dumps(s.node or s.name)}",
+                  f"stereo = {json.dumps(s.stereo)}"]
+    path = Path(path)
+    with atomic_output(path, path.suffix or ".toml") as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    return path
 
 
 def load_display(path) -> Display:

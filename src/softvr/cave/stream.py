@@ -86,7 +86,7 @@ def _unpack(data: bytes, width: int, count: int) -> np.ndarray:
         raise ValueError(f"corrupt mesh data ({exc})") from None
     if len(raw) != size or d.unconsumed_tail or not d.eof:
         raise ValueError(f"expected {size} bytes of int{8 * width} for {count} vertices")
-    return np.frombuffer(raw, _WIDTH_DTYPE[width]).reshape(count, 3).astype(np.int64)
+    return np.frombuffer(raw, _WIDTH_DTYPE[width]).reshape(count, 3)
 
 
 class MeshEncoder:
@@ -127,8 +127,9 @@ class MeshEncoder:
 
 
 class MeshDecoder:
-    """A node's copy of one mesh: ``rest`` [v, 3] [m], and either a pose or the quantized
-    integers; :meth:`vertices` [v, 3] [m] what to draw."""
+    """A node's copy of one mesh: ``rest`` [v, 3] [m], and either a ``pose`` [7] or the
+    quantized integers ``ints`` [v, 3] (int32, units of ``quantum``); :meth:`vertices`
+    [v, 3] [m] what to draw."""
 
     def __init__(self, rest, quantum: float = DEFAULT_QUANTUM):
         self.rest = np.array(rest, float)
@@ -147,11 +148,12 @@ class MeshDecoder:
             if not np.linalg.norm(self.pose[3:]) > 0:
                 raise ValueError("a pose with a zero quaternion")
         elif kind == "key":
-            self.ints, self.pose = _unpack(update[1], 4, n), None
+            self.ints, self.pose = _unpack(update[1], 4, n).copy(), None
         elif kind == "delta":
             if self.ints is None:
                 raise ValueError("a delta with no key before it")
-            self.ints = self.ints + _unpack(update[2], update[1], n)
+            # int32 holds every position the encoder allows (|integer| < 2**31): exact sums.
+            np.add(self.ints, _unpack(update[2], update[1], n), out=self.ints, casting="unsafe")
         else:
             raise ValueError(f"unknown mesh update {kind!r}")
 

@@ -1,0 +1,45 @@
+"""``softvr cave``: the local cluster ends with every node on the master's state and writes its
+unfolded preview; the amphitheatre's preview is three screens wide; keys are made for every
+node of a display; bad input is named (the layout itself is checked in test_preview.py)."""
+
+import pytest
+
+from softvr.cli import main
+
+
+def test_local_cluster_writes_the_unfolded_preview_and_video(tmp_path, capsys):
+    out = tmp_path / "cave"
+    code = main(["cave", "local", "cube", "sheet", "--frames", "20", "--fps", "0", "--scale", "0.06",
+                 "--save-every", "5", "--out", str(out), "--quiet"])
+    assert code == 0
+    import imageio.v3 as iio
+
+    preview = iio.imread(out / "cave_preview.png")
+    assert preview.shape[0] > 50 and preview.std() > 10
+    assert (out / "cave_preview.mp4").stat().st_size > 1000
+    assert '"mismatches": 0' in capsys.readouterr().out
+    for node in ("front", "left", "right", "floor"):
+        assert (out / f"{node}_last.png").exists() and (out / f"{node}.json").exists()
+
+
+def test_preview_and_keys(tmp_path):
+    assert main(["cave", "preview", "rave-amphitheatre", "sheet", "--frames", "3", "--scale", "0.05",
+                 "--out", str(tmp_path)]) == 0
+    import imageio.v3 as iio
+
+    picture = iio.imread(tmp_path / "cave_preview.png")
+    assert picture.shape[1] > 2.5 * picture.shape[0]  # three 3.75 x 3.12 m screens side by side
+    assert main(["cave", "keys", str(tmp_path / "keys"), "--display", "cube"]) == 0
+    assert sorted(p.name for p in (tmp_path / "keys" / "authorized").iterdir()) == [
+        "floor.key", "front.key", "left.key", "right.key"]
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["cave", "preview", "dome", "sheet"], "DISPLAY"),
+    (["cave", "preview", "cube", "teapot"], "SCENE"),
+    (["cave", "node", "cube", "--node", "ceiling"], "--node"),
+])
+def test_bad_arguments_are_named(argv, fragment, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err
