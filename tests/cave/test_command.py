@@ -43,3 +43,32 @@ def test_bad_arguments_are_named(argv, fragment, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert fragment in err and "Traceback" not in err
+
+
+def _free_endpoint() -> str:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp://127.0.0.1:{s.getsockname()[1]}"
+
+
+def test_master_with_its_window_drives_a_node(display, tmp_path):
+    """``softvr cave master --window`` (keyboard navigation, the master screen on screen, under
+    Xvfb) runs a node process to the end: it presents all frames."""
+    import json
+    import subprocess
+
+    from softvr.cave._command import node_command
+
+    publish, control = _free_endpoint(), _free_endpoint()
+    node = subprocess.Popen(node_command("single-wall", "wall", publish, control, out=tmp_path,
+                                         extra=["--no-render", "--max-seconds", "120"]))
+    try:
+        assert main(["cave", "master", "single-wall", "sheet", "--window", "--frames", "30", "--fps", "0",
+                     "--publish", publish, "--control", control, "--quiet"]) == 0
+        assert node.wait(timeout=60) == 0
+    finally:
+        node.kill()
+    log = json.loads((tmp_path / "wall.json").read_text())
+    assert log["presented"] == 30 and log["last_frame"] == 29

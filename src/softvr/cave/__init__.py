@@ -12,12 +12,20 @@
   :class:`CameraRig` (every screen's camera in the world for a user, head and eye).
 * :func:`render_stereo`: side-by-side, anaglyph or quad-buffer stereo of one screen.
 * :func:`preview_layout` / :func:`preview_image`: all screens unfolded into one desktop picture.
+* The render cluster (:mod:`softvr.cave.cluster`): :class:`Master` (input, clock, simulation,
+  streaming) and a :class:`Node` per screen over ZeroMQ, :class:`ClusterConfig`,
+  :func:`make_keys` (CURVE); the wire format in :mod:`softvr.cave.protocol`, the body-state
+  stream in :mod:`softvr.cave.stream`, the shared application state in :mod:`softvr.cave.app`;
+  :class:`StateRenderer` draws a node's screen; :class:`KeyboardNavigation` is the master's
+  keyboard / mouse input.
 """
 
 from softvr.cave.display import (PRESETS, STEREO_MODES, Display, Screen, eye_pair, load_display, preset, save_display,
                                  tile)
 from softvr.cave.projection import ScreenView, frustum_matrix, screen_view
-from softvr.cave.render import render_screen
+from softvr.cave.cluster import ClusterConfig, Master, Node, make_keys
+from softvr.cave.navigation import KeyboardNavigation
+from softvr.cave.render import StateRenderer, render_screen
 from softvr.cave.preview import Placement, preview_image, preview_layout
 from softvr.cave.rig import EYES, CameraRig, UserPose, move, turn, world_view
 from softvr.cave.stereo import render_stereo
@@ -29,3 +37,4 @@ __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "ScreenView", "frustu
 __all__ += ["DEFAULT_HEAD", "EYES", "CameraRig", "FixedTracker", "HeadPose", "OscTracker", "Placement",
             "ScriptedTracker", "Tracker", "UserPose", "decode_osc", "encode_osc", "encode_osc_bundle", "eye_pair",
             "move", "preview_image", "preview_layout", "quaternion_about", "render_stereo", "turn", "world_view"]
+__all__ += ["ClusterConfig", "KeyboardNavigation", "Master", "Node", "StateRenderer", "make_keys"]

@@ -99,25 +99,17 @@ def _write_json(data: dict, path: Path) -> None:
 
 # ------------------------------------------------------------------------------- subcommands
 def _preview(args) -> int:
-    from softvr.cave.app import ClusterState  # noqa: PLC0415
+    from softvr.cave.app import FrameBuilder  # noqa: PLC0415
     from softvr.cave.preview import preview_image  # noqa: PLC0415
     from softvr.cave.render import StateRenderer  # noqa: PLC0415
-    from softvr.cave.stream import MeshEncoder  # noqa: PLC0415
-    from softvr.cave.protocol import decode, encode  # noqa: PLC0415
     from softvr.render.contact_sheet import save_png  # noqa: PLC0415
 
     display = load_display_arg(args.display)
     source = make_source(args.scene, args.frames)
-    navigation = scripted_navigation(source)
-    state = ClusterState(source.items)
-    encoders = {h: MeshEncoder(i["rest"]) for h, i in enumerate(source.items) if i["kind"] == "mesh"}
-    for n in range(args.frames):
-        vertices = source.advance()
-        user, head, events = navigation(n, n / float(getattr(source, "fps", 60.0)))
-        meshes = [[h, *u] for h, e in encoders.items() if (u := e.encode(vertices[h])) is not None]
-        payload = {"n": n, "t": n / 60.0, "user": np.ravel(user).tolist(), "head": list(head),
-                   "events": [[e, list(a)] for e, a in events], "meshes": meshes}
-        state.apply_frame(decode(encode("frame", 0, payload)).payload)
+    frames = FrameBuilder(source, navigation=scripted_navigation(source))
+    for _ in range(args.frames):
+        frames.next_packet(0)
+    state = frames.state
     images = {}
     for screen in display.screens:
         renderer = StateRenderer(screen, display.eye_separation, scale=args.scale)
@@ -142,20 +134,59 @@ def _master(args, on_bound=None) -> dict:
     display = load_display_arg(args.display)
     source = make_source(args.scene, args.frames)
     nodes = [s.node or s.name for s in display.screens]
-    with Master(source, nodes, _config(args), navigation=scripted_navigation(source),
-                tracker=_tracker(args.tracker)) as master:
+    tracker = _tracker(args.tracker)
+    navigation = scripted_navigation(source)
+    window = None
+    if getattr(args, "window", False):
+        from softvr.cave.navigation import KeyboardNavigation  # noqa: PLC0415
+        from softvr.cave.rig import CameraRig  # noqa: PLC0415
+
+        navigation = KeyboardNavigation(navigation(0, 0.0)[0])
+        window = _MasterWindow(display.screen(CameraRig(display).master), display.eye_separation, navigation)
+    with Master(source, nodes, _config(args), navigation=navigation, tracker=tracker) as master:
         if on_bound is not None:
             on_bound(master.config)
         if not args.quiet:
             print(f"cave master: publishing on {master.config.publish}, control on {master.config.control}; "
                   f"waiting for {', '.join(nodes)}", flush=True)
         master.wait_for_nodes(args.join_timeout)
-        summary = master.run(args.frames, fps=args.fps, progress=not args.quiet)
+        summary = master.run(args.frames, fps=args.fps, progress=not args.quiet,
+                             on_frame=None if window is None else lambda _record: window.show(master.state))
         if args.out:
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)
             _write_json({"summary": summary, **master.log}, out / "master.json")
+    for closing in (tracker, window):
+        if closing is not None:
+            closing.close()
     return summary
+
+
+class _MasterWindow:
+    """The master's own view: its master screen in a window whose keys and mouse navigate
+    (:class:`~softvr.cave.navigation.KeyboardNavigation`)."""
+
+    def __init__(self, screen, separation: float, navigation):
+        from softvr.cave.render import StateRenderer  # noqa: PLC0415
+
+        self.view = StateRenderer(screen, separation, scale=min(1.0, 800 / screen.pixels[0]), onscreen=True)
+        self.navigation, self.interactor = navigation, None
+
+    def show(self, state) -> None:
+        from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
+
+        self.view(state)
+        if self.interactor is None:
+            self.interactor = vtkRenderWindowInteractor()
+            self.interactor.SetRenderWindow(self.view.window)
+            self.interactor.Initialize()
+            self.navigation.attach(self.interactor)
+        self.interactor.ProcessEvents()
+
+    def close(self) -> None:
+        if self.interactor is not None:
+            self.interactor.SetRenderWindow(None)
+        self.view.close()
 
 
 def _node(args) -> int:
@@ -309,6 +340,8 @@ def _parser() -> argparse.ArgumentParser:
     network(q)
     master_options(q)
     q.add_argument("--out", help="write master.json (per-frame digests, joins, timings) here")
+    q.add_argument("--window", action="store_true",
+                   help="show the master screen in a window; keys (w a s d, arrows, q e, r f) and mouse drags navigate")
 
     q = sub.add_parser("node", help="one render node")
     common(q, False)

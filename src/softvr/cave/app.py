@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
-from softvr.cave.protocol import PacketError, check_head, check_mesh_update, check_user
-from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder
+from softvr.cave.protocol import PacketError, check_head, check_mesh_update, check_user, decode, encode
+from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
 
-__all__ = ["ClusterState", "ExampleSource", "RecordingRenderer", "WavingSheet", "user_pose_facing"]
+__all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "WavingSheet", "user_pose_facing"]
 
 _IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
 
@@ -233,6 +233,51 @@ class ClusterState:
         state.head = np.asarray(check_head(data["head"]), float)
         state.flags = {str(f): True for f in data["flags"][:1024]}
         return state
+
+
+class FrameBuilder:
+    """The master's side of an application: each frame's packet from a frame source, the
+    navigation and the tracker, and the master's own :class:`ClusterState`.
+
+    Parameters
+    ----------
+    source
+        ``items`` (:class:`RecordingRenderer` records), ``advance()`` -> mesh handle ->
+        vertices [v, 3] [m] of the next frame, ``fps`` [1/s].
+    navigation : callable, optional
+        ``navigation(n, t)`` -> (user pose [4, 4] world <- tracker, head pose [7] or None,
+        events [(name, args)]); None: the user stands still.
+    tracker : optional
+        ``poll()`` -> a pose with ``position`` [3] [m] and ``orientation`` (w, x, y, z);
+        overrides the navigation's head.
+    quantum : float [m]
+        Vertex quantization of the mesh stream.
+    """
+
+    def __init__(self, source, *, navigation=None, tracker=None, quantum: float = DEFAULT_QUANTUM):
+        self.source, self.navigation, self.tracker = source, navigation, tracker
+        self.fps = float(getattr(source, "fps", 60.0))
+        self.state = ClusterState(source.items, quantum)
+        self.encoders = {h: MeshEncoder(i["rest"], quantum) for h, i in enumerate(source.items) if i["kind"] == "mesh"}
+
+    def next_packet(self, session: int) -> bytes:
+        """Advance the source one frame; returns the frame's packet, already applied to
+        :attr:`state` through the nodes' own decoder (one code path, equal states)."""
+        n = self.state.n + 1
+        t = n / self.fps
+        vertices = self.source.advance()
+        meshes = [[h, *u] for h, e in self.encoders.items() if (u := e.encode(vertices[h])) is not None]
+        user, head, events = self.navigation(n, t) if self.navigation else (self.state.user, None, [])
+        if self.tracker is not None:
+            pose = self.tracker.poll()
+            head = np.r_[pose.position, pose.orientation]
+        head = self.state.head if head is None else head
+        payload = {"n": n, "t": t, "user": np.asarray(user, float).ravel().tolist(),
+                   "head": np.asarray(head, float).tolist(), "events": [[e, list(a)] for e, a in events],
+                   "meshes": meshes}
+        packet = encode("frame", session, payload)
+        self.state.apply_frame(decode(packet, session).payload)
+        return packet
 
 
 class ExampleSource:

@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from softvr.cave.app import ClusterState
+from softvr.cave.app import ClusterState, FrameBuilder
 from softvr.cave.protocol import PacketError, decode, encode
-from softvr.cave.stream import DEFAULT_QUANTUM, MeshEncoder
+from softvr.cave.stream import DEFAULT_QUANTUM
 from softvr.errors import InputError
 
 __all__ = ["ClusterConfig", "Master", "Node", "make_keys"]
@@ -120,30 +120,19 @@ class Master:
 
     Parameters
     ----------
-    source
-        Frame source: ``items`` (the :class:`~softvr.cave.app.RecordingRenderer` records),
-        ``advance()`` -> mesh handle -> vertices [v, 3] [m] for the next frame, ``fps``.
+    source, navigation, tracker, quantum
+        What makes the frames (:class:`~softvr.cave.app.FrameBuilder`).
     nodes : list of str
         The render nodes that make the display (:class:`~softvr.cave.Display` screens' nodes).
     config : ClusterConfig
-    navigation : callable, optional
-        ``navigation(n, t)`` -> (user pose [4, 4] world <- tracker, head pose [7] or None,
-        events list of (name, args)); None: the user stands still.
-    tracker : optional
-        A head tracker (``poll()`` -> pose with ``position`` [3] and ``orientation`` (w, x,
-        y, z)); overrides the navigation's head.
-    quantum : float [m]
-        Vertex quantization of the mesh stream.
     """
 
     def __init__(self, source, nodes, config: ClusterConfig | None = None, *, navigation=None, tracker=None,
                  quantum: float = DEFAULT_QUANTUM, context: zmq.Context | None = None):
         self.config = config or ClusterConfig()
-        self.source, self.nodes = source, list(nodes)
-        self.navigation, self.tracker = navigation, tracker
+        self.nodes = list(nodes)
         self.session = random.SystemRandom().getrandbits(62)
-        self.state = ClusterState(source.items, quantum)
-        self.encoders = {h: MeshEncoder(i["rest"], quantum) for h, i in enumerate(source.items) if i["kind"] == "mesh"}
+        self.frames = FrameBuilder(source, navigation=navigation, tracker=tracker, quantum=quantum)
         self.members: dict[str, float] = {}  # node -> when it last reported [monotonic s]
         self.log = {"joins": [], "evictions": [], "mismatches": 0, "frames": []}
         self._digest = self.state.digest()
@@ -176,6 +165,11 @@ class Master:
         self._auth.configure_curve(domain="*", location=str(keys / "authorized"))
         for s in (self.pub, self.router):
             s.curve_secretkey, s.curve_publickey, s.curve_server = secret, public, True
+
+    @property
+    def state(self) -> ClusterState:
+        """The master's copy of the application state (what every node must hold)."""
+        return self.frames.state
 
     # ------------------------------------------------------------------ control
     def _handle_control(self, barrier_frame: int | None, pending: set | None) -> None:
@@ -227,26 +221,8 @@ class Master:
     def step(self) -> dict:
         """Publish the next frame and, with the barrier, wait until every member rendered
         it; returns the frame's record."""
-        n = self.state.n + 1
-        fps = float(getattr(self.source, "fps", 60.0))
-        t = n / fps
-        vertices = self.source.advance()
-        meshes = []
-        for h, enc in self.encoders.items():
-            update = enc.encode(vertices[h])
-            if update is not None:
-                meshes.append([h, *update])
-        user, head, events = (self.navigation(n, t) if self.navigation else (self.state.user, None, []))
-        if self.tracker is not None:
-            pose = self.tracker.poll()
-            head = np.r_[pose.position, pose.orientation]
-        head = self.state.head if head is None else head
-        payload = {"n": n, "t": t, "user": np.asarray(user, float).ravel().tolist(),
-                   "head": np.asarray(head, float).tolist(), "events": [[e, list(a)] for e, a in events],
-                   "meshes": meshes}
-        packet = encode("frame", self.session, payload)
-        # The master's copy goes through the nodes' own decoder: one code path, equal states.
-        self.state.apply_frame(decode(packet, self.session).payload)
+        packet = self.frames.next_packet(self.session)
+        n = self.state.n
         self._digest = self.state.digest()
         t0 = time.perf_counter()
         self.pub.send(packet)
@@ -282,15 +258,17 @@ class Master:
         self.sync.add(elapsed)
         return elapsed
 
-    def run(self, frames: int, *, fps: float | None = None, progress: bool = False) -> dict:
-        """Publish ``frames`` frames (paced at ``fps`` when given), then ``bye``; returns
-        :meth:`summary`."""
+    def run(self, frames: int, *, fps: float | None = None, progress: bool = False, on_frame=None) -> dict:
+        """Publish ``frames`` frames (paced at ``fps`` when given; ``on_frame(record)`` after
+        each, e.g. to draw the master's own view), then ``bye``; returns :meth:`summary`."""
         from tqdm import tqdm  # noqa: PLC0415
 
         period = 1.0 / fps if fps else 0.0
         next_time = time.monotonic()
         for _ in tqdm(range(frames), desc="cave master", unit="frame", disable=not progress):
-            self.step()
+            record = self.step()
+            if on_frame is not None:
+                on_frame(record)
             if period:
                 next_time += period
                 delay = next_time - time.monotonic()
@@ -484,6 +462,9 @@ class Node:
             packet = decode(data)
             if packet.kind != "snapshot":
                 raise PacketError("malformed", "only snapshots come on the control socket")
+            if not self._awaiting:  # the answer to a repeated join: the state is already current
+                self.log.counters["stale"] += 1
+                return
             state = ClusterState.from_snapshot(packet.payload["state"])
         except PacketError as exc:
             self.log.counters[exc.reason] += 1

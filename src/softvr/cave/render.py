@@ -34,10 +34,12 @@ class StateRenderer:
         Eye separation (the display's).
     scale : float
         Pixel scale of the render against the screen's own pixels (previews, tests).
+    onscreen : bool
+        Draw into a window (the master's own view) instead of off-screen.
     """
 
-    def __init__(self, screen: Screen, separation: float = 0.065, *, scale: float = 1.0):
-        self.screen, self.separation, self.scale = screen, float(separation), float(scale)
+    def __init__(self, screen: Screen, separation: float = 0.065, *, scale: float = 1.0, onscreen: bool = False):
+        self.screen, self.separation, self.scale, self.onscreen = screen, float(separation), float(scale), onscreen
         self.image: np.ndarray | None = None
         self._renderer = None
         self._items = None
@@ -49,7 +51,8 @@ class StateRenderer:
         if self._renderer is not None:
             self._renderer.close()
         w, h = (max(int(round(p * self.scale)), 8) for p in self.screen.pixels)
-        self._renderer = r = SurfaceRenderer(w, h, background=(0.16, 0.17, 0.2), background_top=(0.16, 0.17, 0.2))
+        self._renderer = r = SurfaceRenderer(w, h, background=(0.16, 0.17, 0.2), background_top=(0.16, 0.17, 0.2),
+                                             onscreen=self.onscreen)
         self._handles = {}
         for handle, item in enumerate(state.items):
             if item["kind"] == "mesh":
@@ -74,6 +77,11 @@ class StateRenderer:
         head = HeadPose(tuple(state.head[:3]), tuple(state.head[3:]))
         self.image = render_stereo(self._renderer, self.screen, head, self.separation, user=UserPose(matrix=state.user))
         return self.image
+
+    @property
+    def window(self):
+        """The VTK render window (None before the first frame)."""
+        return None if self._renderer is None else self._renderer.vtk_renderer.GetRenderWindow()
 
     def close(self) -> None:
         if self._renderer is not None:
