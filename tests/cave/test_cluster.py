@@ -154,3 +154,30 @@ def test_only_nodes_with_keys_the_master_holds_can_join(tmp_path):
         bad.finished = True
         for n in (good, bad, master):
             n.close()
+
+
+def test_nodes_on_the_wire_survive_100k_fuzzed_packets(tmp_path, frame_maker):
+    """The fuzzer's packets go out on the master's own PUB socket between frames, through the
+    transport to two node processes: they present every frame with the master's digest and
+    count every fuzzed packet as dropped."""
+    from cave_packets import fuzzed_packets
+
+    valid = [frame_maker.next() for _ in range(5)] + [frame_maker.snapshot]
+    names = ["left", "front"]
+    with _master(names) as master:
+        processes = [_start(master, name, tmp_path, "--no-render") for name in names]
+        master.wait_for_nodes(60)
+        packets = fuzzed_packets(valid, 100_000, seed=11)
+        for _ in range(100):
+            master.step()
+            for _ in range(1000):
+                master.pub.send(next(packets))
+        master.run(0)
+        _finish(processes)
+    digests = _digests(master)
+    for name in names:
+        log = _log(tmp_path, name)
+        assert [p[0] for p in log["presented_frames"]] == list(range(100))
+        assert all(digests[n] == d for n, d, *_ in log["presented_frames"])
+        dropped = sum(v for k, v in log["counters"].items() if k != "stale")
+        assert dropped == 100_000, log["counters"]

@@ -72,3 +72,23 @@ def test_master_with_its_window_drives_a_node(display, tmp_path):
         node.kill()
     log = json.loads((tmp_path / "wall.json").read_text())
     assert log["presented"] == 30 and log["last_frame"] == 29
+
+
+def test_a_gltf_scene_is_shown_z_up_with_its_colours(tmp_path):
+    """A glTF (y-up) box of height 2 m exported by trimesh comes in z-up: its vertices span
+    2 m in z; its base colour survives; the preview renders it."""
+    import trimesh
+
+    from softvr.cave.app import SceneFileSource
+
+    box = trimesh.creation.box((1.0, 2.0, 0.5))
+    box.visual.face_colors = [200, 30, 30, 255]
+    path = tmp_path / "box.glb"
+    trimesh.Scene(box).export(path)
+    source = SceneFileSource(path)
+    mesh = [i for i in source.items if i["kind"] == "mesh"][0]
+    extent = mesh["rest"].max(axis=0) - mesh["rest"].min(axis=0)
+    assert extent.tolist() == pytest.approx([1.0, 0.5, 2.0])
+    assert mesh["color"] == pytest.approx([200 / 255, 30 / 255, 30 / 255])
+    assert main(["cave", "preview", "single-wall", str(path), "--frames", "1", "--scale", "0.05",
+                 "--out", str(tmp_path)]) == 0

@@ -15,7 +15,7 @@ import pytest
 from softvr.cave.cluster import ClusterConfig, Node
 from softvr.cave.protocol import MAX_EVENTS, PacketError, decode, encode
 
-from conftest import fuzzed_packets
+from cave_packets import fuzzed_packets
 
 _FRAME = {"n": 3, "t": 0.05, "user": np.eye(4).ravel().tolist(), "head": [0, 0, 1.7, 1, 0, 0, 0],
           "events": [["toggle", ["grid"]]], "meshes": [[1, "pose", [0, 0, 0, 1, 0, 0, 0]]]}
@@ -24,7 +24,8 @@ _FRAME = {"n": 3, "t": 0.05, "user": np.eye(4).ravel().tolist(), "head": [0, 0, 
 def test_a_frame_round_trips():
     p = decode(encode("frame", 7, _FRAME), session=7)
     assert p.kind == "frame" and p.session == 7 and p.payload["n"] == 3
-    assert p.payload["events"] == [("toggle", ("grid",))] and p.payload["meshes"] == [(1, "pose", [0, 0, 0, 1, 0, 0, 0])]
+    assert p.payload["events"] == [("toggle", ("grid",))]
+    assert p.payload["meshes"] == [(1, "pose", [0, 0, 0, 1, 0, 0, 0])]
 
 
 def _broken(**changes):

@@ -225,8 +225,9 @@ def format_table(result: dict) -> str:
     t, th = result["targets"], result["thesis"]
     pickled = result["peers"]["pickled_state_bytes"]
     streamed = t["bytes_per_frame_measured"]
-    lines += ["", f"thesis: {th['nodes']} nodes, {th['round_trip_us']:g} us round trip, {th['peak_packet_bytes']} B peak "
-                  f"packets; its state shipping (pickle of the whole 10 K-vertex float32 state): {pickled} B per frame, "
+    lines += ["", f"thesis: {th['nodes']} nodes, {th['round_trip_us']:g} us round trip, "
+                  f"{th['peak_packet_bytes']} B peak packets; its state shipping (pickle of the whole 10 K-vertex "
+                  f"float32 state): {pickled} B per frame, "
                   f"{pickled / streamed:.1f}x the streamed frame",
               f"targets: {t['at_nodes']} nodes sync p99 < {t['sync_p99_ms']:g} ms: {t['sync_p99_measured_ms']:.3f} -> "
               f"{'MET' if t['sync_p99_met'] else 'NOT met'}; streamed state < {t['bytes_per_frame'] // 1000} kB/frame: "

@@ -9,8 +9,9 @@
 
 DISPLAY is a display file (TOML, ``softvr-display 1``) or a preset name (single-wall, cube,
 rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2). SCENE is ``sheet`` (an analytic
-rippling sheet with 10 K vertices and a turning box) or a ``softvr run`` scene (box-stack,
-soft-cube, cloth-sphere, ...), simulated on the master and streamed to the nodes.
+rippling sheet with 10 K vertices and a turning box), a ``softvr run`` scene (box-stack,
+soft-cube, cloth-sphere, ...) simulated on the master and streamed to the nodes, or a glTF /
+GLB (or OBJ, STL, PLY) file shown as a static scene to walk through.
 """
 
 from __future__ import annotations
@@ -49,13 +50,17 @@ def load_display_arg(text: str):
 
 def make_source(scene: str, frames: int):
     """The master's frame source for a scene name (module docstring)."""
-    from softvr.cave.app import ExampleSource, WavingSheet  # noqa: PLC0415
+    from softvr.cave.app import ExampleSource, SceneFileSource, WavingSheet  # noqa: PLC0415
     from softvr.examples.run import SCENES  # noqa: PLC0415
 
     if scene == "sheet":
         return WavingSheet()
+    if Path(scene).suffix.lower() in (".gltf", ".glb", ".obj", ".stl", ".ply"):
+        if not Path(scene).is_file():
+            raise InputError("SCENE", "an existing scene file", f"{scene!r} (no such file)")
+        return SceneFileSource(scene)
     if scene not in SCENES:
-        raise InputError("SCENE", f"sheet or one of {', '.join(SCENES)}", repr(scene))
+        raise InputError("SCENE", f"sheet, a glTF / mesh file, or one of {', '.join(SCENES)}", repr(scene))
     module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
     return ExampleSource(module.Example(frames=frames, width=64, height=48))
 

@@ -7,8 +7,9 @@
   copies can be compared frame by frame.
 * :class:`RecordingRenderer` — stands in for a :class:`~softvr.render.SurfaceRenderer` so that
   any physics demo (``softvr run`` scenes) describes its surfaces to the cluster unchanged.
-* Frame sources for the master: :class:`ExampleSource` (a simulated demo) and
-  :class:`WavingSheet` (an analytic deforming sheet for tests and the benchmark).
+* Frame sources for the master: :class:`ExampleSource` (a simulated demo),
+  :class:`SceneFileSource` (a static glTF / mesh-file scene) and :class:`WavingSheet` (an
+  analytic deforming sheet for tests and the benchmark).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 from softvr.cave.protocol import PacketError, check_head, check_mesh_update, check_user, decode, encode
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
 
-__all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "WavingSheet", "user_pose_facing"]
+__all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "SceneFileSource", "WavingSheet",
+           "user_pose_facing"]
 
 _IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
 
@@ -162,7 +164,8 @@ class ClusterState:
             for item in self.items:
                 for key in sorted(item):
                     value = item[key]
-                    h.update(key.encode() + (value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode()))
+                    fixed = value.tobytes() if isinstance(value, np.ndarray) else repr(value).encode()
+                    h.update(key.encode() + fixed)
             self._geometry = h.digest()
         return self._geometry
 
@@ -298,6 +301,58 @@ class ExampleSource:
         """Step the demo one frame; mesh handle -> vertices [v, 3] [m]."""
         self.example.step()
         self.example.update_render(self.recorder)
+        return self.recorder.vertices
+
+    def bounds(self) -> np.ndarray:
+        return self.recorder.bounds()
+
+
+class SceneFileSource:
+    """A static scene from a mesh file (glTF / GLB scenes keep one mesh per node, with its base
+    colour; OBJ, STL, PLY load as one mesh) over a ground plane, for walking through on a
+    display. glTF's y-up is turned to softvr's z-up."""
+
+    fps = 60.0
+
+    def __init__(self, path):
+        from pathlib import Path  # noqa: PLC0415
+
+        import trimesh  # noqa: PLC0415
+
+        from softvr.errors import InputError  # noqa: PLC0415
+
+        path = Path(path)
+        try:
+            scene = trimesh.load(path, force="scene")
+        except Exception as exc:  # trimesh raises many types for bad files
+            raise InputError("scene file", "a readable glTF / GLB / OBJ / STL / PLY file",
+                             f"{type(exc).__name__}: {exc}", source=str(path)) from None
+        y_up = path.suffix.lower() in (".gltf", ".glb")
+        self.recorder = RecordingRenderer()
+        meshes = []
+        for node in scene.graph.nodes_geometry:
+            transform, name = scene.graph[node]
+            mesh = scene.geometry[name]
+            if not hasattr(mesh, "faces") or len(mesh.faces) == 0:
+                continue  # points, paths
+            v = trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform)
+            if y_up:
+                v = np.c_[v[:, 0], -v[:, 2], v[:, 1]]
+            color = np.asarray(getattr(mesh.visual, "main_color", (204, 204, 204, 255)), float)[:3] / 255.0
+            meshes.append((v, np.asarray(mesh.faces, np.int32), color))
+        if not meshes:
+            raise InputError("scene file", "at least one triangle mesh", "none", source=str(path))
+        low = min(v[:, 2].min() for v, _, _ in meshes)
+        span = max(np.ptp(np.vstack([v for v, _, _ in meshes]), axis=0).max(), 1e-3)
+        self.recorder.add_plane(point=(0.0, 0.0, low), size=3.0 * span, tiles=12)
+        for v, f, color in meshes:
+            self.recorder.add_mesh(v, f, color=tuple(color))
+
+    @property
+    def items(self) -> list:
+        return self.recorder.items
+
+    def advance(self) -> dict:
         return self.recorder.vertices
 
     def bounds(self) -> np.ndarray:

@@ -312,6 +312,7 @@ class _NodeLog:
     joins: list = field(default_factory=list)
     counters: dict = field(default_factory=lambda: {"foreign": 0, "version": 0, "session": 0, "malformed": 0,
                                                     "inconsistent": 0, "stale": 0, "injected_drops": 0})
+    unsent: int = 0  # messages to the master dropped because it was not connected
 
 
 class Node:
@@ -370,11 +371,20 @@ class Node:
         self.poller.register(self.dealer, zmq.POLLIN)
 
     # ---------------------------------------------------------------- protocol
+    def _send(self, data: bytes) -> None:
+        # A DEALER with no connected master (not up yet, gone, or refusing our CURVE key)
+        # would block in send: drop the message instead; joins are retried, readies are
+        # superseded by the next frame's.
+        try:
+            self.dealer.send(data, zmq.NOBLOCK)
+        except zmq.Again:
+            self.log.unsent += 1
+
     def _join(self) -> None:
         self._awaiting = True
         self._join_sent = time.monotonic()
         self.log.joins.append(self._join_sent)
-        self.dealer.send(encode("join", 0, {"node": self.name}))
+        self._send(encode("join", 0, {"node": self.name}))
 
     def _resync(self) -> None:
         if not self._awaiting:
@@ -439,11 +449,11 @@ class Node:
             self.render_state(self.state)
         self._rendered_at = time.monotonic()
         if self.state.n < 0:  # the state before the first frame: nothing to present
-            self.dealer.send(encode("ready", self.session, {"node": self.name, "n": -1, "hash": self.state.digest()}))
+            self._send(encode("ready", self.session, {"node": self.name, "n": -1, "hash": self.state.digest()}))
         elif self.config.barrier:
             self._pending = self.state.n
             self._ready_sent = time.monotonic()
-            self.dealer.send(encode("ready", self.session, {"node": self.name, "n": self.state.n,
+            self._send(encode("ready", self.session, {"node": self.name, "n": self.state.n,
                                                             "hash": self.state.digest()}))
         else:
             self._pending = self.state.n
@@ -516,6 +526,7 @@ class Node:
         last = self.log.presented[-1] if self.log.presented else None
         return {"node": self.name, "pid": os.getpid(), "presented": len(self.log.presented),
                 "last_frame": None if last is None else last[0], "counters": dict(self.log.counters),
+                "unsent": self.log.unsent,
                 "resyncs": self.log.resyncs, "joins": self.log.joins, "barrier_wait_ms": self.barrier_wait.summary()}
 
     def close(self) -> None:

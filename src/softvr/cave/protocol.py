@@ -34,7 +34,8 @@ from dataclasses import dataclass
 
 import msgpack
 
-__all__ = ["KINDS", "MAGIC", "VERSION", "Packet", "PacketError", "check_head", "check_mesh_update", "check_user", "decode", "encode"]
+__all__ = ["KINDS", "MAGIC", "VERSION", "Packet", "PacketError", "check_head", "check_mesh_update", "check_user",
+           "decode", "encode"]
 
 MAGIC = "softvr-cave"
 VERSION = 1

@@ -117,6 +117,8 @@ class FemBody(SparseNodeSystem, ContactObject):
         Uniform material, or the default for ``per_tet_young`` / ``per_tet_density``.
     per_tet_young : array_like, shape [tet_count] [Pa], optional
         Young's modulus per tet (e.g. from voxel data).
+    per_tet_poisson : array_like, shape [tet_count], optional
+        Poisson ratio per tet, each in (-1, 0.5).
     per_tet_density : array_like, shape [tet_count] [kg/m^3], optional
     fixed : array_like of bool, shape [node_count], optional
         Boundary nodes: held at their position (clamped), or driven at ``fixed_velocity``.
@@ -143,8 +145,8 @@ class FemBody(SparseNodeSystem, ContactObject):
         CG relative residual (default 1e-8).
     """
 
-    def __init__(self, nodes, tets, material: Material, *, per_tet_young=None, per_tet_density=None,
-                 fixed=None, corotational: bool = True, name: str = "fem body"):
+    def __init__(self, nodes, tets, material: Material, *, per_tet_young=None, per_tet_poisson=None,
+                 per_tet_density=None, fixed=None, corotational: bool = True, name: str = "fem body"):
         rest, tets = check_tets(nodes, tets)
         if not isinstance(material, Material):
             raise InputError("material", "a softvr.dynamics.Material", type(material).__name__)
@@ -156,7 +158,12 @@ class FemBody(SparseNodeSystem, ContactObject):
         self.rest = rest
         self.tets = tets
         self.corotational = corotational
-        nu = material.poisson
+        nu = np.full(m, material.poisson) if per_tet_poisson is None else np.asarray(per_tet_poisson, float)
+        bad = ~((nu > -1.0) & (nu < 0.5)) if nu.shape == (m,) else np.ones(1, bool)
+        if bad.any():
+            e = int(np.argmax(bad))
+            found = repr(nu[e]) if nu.shape == (m,) else f"shape {nu.shape}"
+            raise InputError(f"per_tet_poisson[{e}]", f"{m} values in (-1, 0.5)", found)
         lam, mu = young * nu / ((1 + nu) * (1 - 2 * nu)), young / (2 * (1 + nu))
         b, self.tet_volume, self._dm_inv = _strain_matrices(rest, tets)
         # Element stiffness K_e = V B^T C B, shape [m, 12, 12].

@@ -8,6 +8,8 @@ representations, its coupling nodes, and a collision-free start.
 * :func:`intersecting_triangle_pairs`: crossing triangles of two surfaces.
 * :func:`push_apart`: the collision-free start, a smooth deformation of a part's tets that
   takes its surface out of an obstacle, with a :class:`SeparationReport` of what remains.
+* :class:`TissueTable` / :func:`tissue_fem_body`: FEM materials integrated from voxel
+  intensities (thesis 3.3.2), :func:`voxel_owners` the tet of each voxel.
 * :func:`read_parts` / :func:`build_model` / :class:`Model` / :func:`load_model`: the whole
   pipeline of ``softvr build-model PARTS.toml``, from part meshes to a scene.
 
@@ -20,7 +22,9 @@ from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import SeparationReport, push_apart
+from softvr.model.tissue import CT_TISSUE, TetTissue, TissueTable, tet_tissue, tissue_fem_body, voxel_owners
 
 __all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
            "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "load_mesh", "load_model",
            "nodes_near_surface", "push_apart", "read_parts"]
+__all__ += ["CT_TISSUE", "TetTissue", "TissueTable", "tet_tissue", "tissue_fem_body", "voxel_owners"]
