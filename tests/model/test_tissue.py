@@ -16,7 +16,7 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from softvr.dynamics import FemBody, Material
-from softvr.model import CT_TISSUE, TissueTable, tet_tissue, tissue_fem_body, voxel_owners
+from softvr.model import CT_TISSUE, TissueTable, tissue_fem_body, voxel_owners
 from softvr.model.tissue import _SHIFT
 from softvr.volume import Volume, grid_tet_mesh
 

@@ -105,7 +105,12 @@ class KeyboardNavigation:
     # -------------------------------------------------------------------- VTK
     def attach(self, interactor) -> None:
         """Follow the keys and left-button drags of a ``vtkRenderWindowInteractor`` (call its
-        ``ProcessEvents()`` once per frame)."""
+        ``ProcessEvents()`` once per frame). Its interactor style becomes a passive one: the
+        camera is the screen's off-axis view, and a trackball style would both move it and
+        grab the mouse events after a button press."""
+        from vtkmodules.vtkInteractionStyle import vtkInteractorStyleUser  # noqa: PLC0415
+
+        interactor.SetInteractorStyle(vtkInteractorStyleUser())
         def key_press(obj, _event) -> None:
             self.key_down(obj.GetKeySym() or "")
 
