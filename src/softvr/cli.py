@@ -2,6 +2,7 @@
 
 ``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
 ``softvr demo shoulder``    the procedural shoulder palpated through a 1 kHz haptic loop
+``softvr demo palpation``   the head CT pressed by a probe: FEM from the voxels, deformed CT volume-rendered
 ``softvr build-model P``    part meshes + a parts file (TOML) -> a simulation model (thesis 5.2)
 ``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall,
                             lips, probe) to MP4, metrics and plots
@@ -30,6 +31,10 @@ def _demo(argv: list[str]) -> int:
         from softvr.examples import example_shoulder
 
         return example_shoulder.main(argv[1:])
+    if argv and argv[0] == "palpation":
+        from softvr.examples import example_palpation
+
+        return example_palpation.main(argv[1:])
     from softvr.examples import example_volume_deform
 
     return example_volume_deform.main(argv[1:] if argv and argv[0] == "volume" else argv)

@@ -167,20 +167,27 @@ def tet_tissue(volume: Volume, nodes, tets, table: TissueTable = CT_TISSUE, *, d
 
 
 def tissue_fem_body(volume: Volume, nodes, tets, table: TissueTable = CT_TISSUE, *, unit: float = 1e-3,
-                    alpha: float = 0.0, beta: float = 0.0, fixed=None, name: str = "tissue",
-                    device: str | None = None):
+                    alpha: float = 0.0, beta: float = 0.0, fixed=None, fix_denser_than: float | None = None,
+                    name: str = "tissue", device: str | None = None):
     """A :class:`~softvr.dynamics.FemBody` of the tissue in ``volume`` embedded in (``nodes``
     [node_count, 3] in the volume's units, ``tets`` [tet_count, 4]): per-tet E, nu, rho from
     :func:`tet_tissue`, nodes in metres (times ``unit`` [m per volume unit]), Rayleigh damping
-    ``alpha`` [1/s], ``beta`` [s]. Returns ``(body, tissue)``."""
+    ``alpha`` [1/s], ``beta`` [s]. ``fixed`` [node_count] bool clamps nodes; with
+    ``fix_denser_than`` [kg/m^3] the nodes of every tet denser than that are clamped too (bone
+    holding the soft tissue). Returns ``(body, tissue)``."""
     from softvr.dynamics import FemBody, Material  # noqa: PLC0415
 
     if not (isinstance(unit, (int, float)) and np.isfinite(unit) and unit > 0):
         raise InputError("unit", "metres per volume unit, > 0 (1e-3 for millimetres)", repr(unit))
     nodes, tets = check_tets(nodes, tets)
     tissue = tet_tissue(volume, nodes, tets, table, device=device)
+    clamp = np.zeros(len(nodes), bool) if fixed is None else np.array(fixed, bool)
+    if clamp.shape != (len(nodes),):
+        raise InputError("fixed", f"a bool array of shape ({len(nodes)},)", f"shape {clamp.shape}")
+    if fix_denser_than is not None:
+        clamp[np.unique(tets[tissue.density > float(fix_denser_than)])] = True
     default = Material(float(np.median(tissue.young)), float(np.median(tissue.poisson)),
                        float(np.median(tissue.density)), alpha=alpha, beta=beta)
     body = FemBody(nodes * unit, tets, default, per_tet_young=tissue.young, per_tet_poisson=tissue.poisson,
-                   per_tet_density=tissue.density, fixed=fixed, name=name)
+                   per_tet_density=tissue.density, fixed=clamp, name=name)
     return body, tissue

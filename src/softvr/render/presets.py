@@ -99,6 +99,9 @@ class Preset:
 #:     Hounsfield units: air (< -500) transparent; skin and soft tissue (-500..200)
 #:     skin-coloured and faint, shown mainly at boundaries via gradient opacity, so the
 #:     skin surface reads as a semi-transparent shell; bone (> 250) white and opaque.
+#: ``"ct-skin"``
+#:     Hounsfield units: the skin as an opaque shaded surface (everything above -300 HU),
+#:     for seeing the body's outside deform (palpation).
 #: ``"mri"``
 #:     T1-weighted uint8 (0..255) brain: background (< 20) transparent, grey levels with
 #:     opacity rising towards white matter.
@@ -119,6 +122,13 @@ PRESETS: dict[str, Preset] = {
         opacities=((-1000, 0.0), (-500, 0.0), (-300, 0.05), (200, 0.08), (250, 0.2), (600, 0.85), (3000, 0.95)),
         gradient_opacities=((0, 0.15), (80, 1.0)),
         specular=0.2,
+    ),
+    "ct-skin": Preset(
+        "ct-skin",
+        colors=((-1000, 0.0, 0.0, 0.0), (-400, 0.80, 0.55, 0.45), (-100, 0.90, 0.68, 0.58), (200, 0.92, 0.72, 0.62),
+                (3000, 0.92, 0.72, 0.62)),
+        opacities=((-1000, 0.0), (-500, 0.0), (-300, 0.9), (3000, 0.95)),
+        specular=0.25,
     ),
     "mri": Preset(
         "mri",

@@ -18,6 +18,7 @@ Examples
 
 from softvr.volume._io import load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
+from softvr.volume.isosurface import iso_surface
 from softvr.volume.rasterize import OutputGrid, RasterStats, Rasterizer, deform, fit_output_grid
 from softvr.volume.tetmesh import boundary_faces, check_tets, grid_tet_mesh, load_tet_mesh
 
@@ -32,6 +33,7 @@ __all__ = [
     "deform",
     "fit_output_grid",
     "grid_tet_mesh",
+    "iso_surface",
     "load",
     "load_tet_mesh",
     "save",

@@ -31,7 +31,7 @@ from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
 from softvr.volume import _raster_kernels as K
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
-from softvr.volume.tetmesh import check_tets
+from softvr.volume.tetmesh import check_tets, tet_signed_volumes
 
 __all__ = ["OutputGrid", "RasterStats", "Rasterizer", "deform", "fit_output_grid"]
 
@@ -170,6 +170,11 @@ class Rasterizer:
     vectorized_rows : bool
         CPU only: write each row with the vectorized C++ loop (default) instead of the
         Warp reference loop; both give bit-identical voxels.
+    inverted : {"error", "skip"}
+        What a deformed tet turned inside out (or flat) does: raise an
+        :class:`~softvr.errors.InputError` naming it (default), or write nothing this frame
+        (interactive simulations, where an embedding tet in air may fold for a moment;
+        ``skipped_tets`` counts them).
 
     Examples
     --------
@@ -195,6 +200,7 @@ class Rasterizer:
         device: str | None = None,
         cell_size: int = 8,
         vectorized_rows: bool = True,
+        inverted: str = "error",
     ):
         if not isinstance(volume, Volume):
             raise InputError("volume", "a softvr.volume.Volume", type(volume).__name__)
@@ -206,6 +212,10 @@ class Rasterizer:
         if key not in _METHODS:
             raise InputError("culling", "True, False, 'bbox', 'cells' or 'spans'", repr(culling))
         self.method = _METHODS[key]
+        if inverted not in ("error", "skip"):
+            raise InputError("inverted", "'error' or 'skip'", repr(inverted))
+        self.inverted = inverted
+        self.skipped_tets = 0
         interp = interpolation or ("nearest" if volume.is_label else "linear")
         if interp not in ("linear", "nearest"):
             raise InputError("interpolation", "'linear' or 'nearest'", repr(interpolation))
@@ -278,6 +288,53 @@ class Rasterizer:
                 raise InputError("out", "a Volume with writeable data", "read-only data")
         return self._run(deformed_nodes, out_grid, count_writes=False, into=out)
 
+    def update(self, out: Volume, deformed_nodes, previous_nodes, *, tolerance: float = 0.0):
+        """Bring ``out`` (a volume this rasterizer wrote for ``previous_nodes``) to
+        ``deformed_nodes``, rasterizing only where the mesh moved.
+
+        Voxels can change only inside the old and new footprints of the tets with a node that
+        moved by more than ``tolerance`` [volume units]; the box around those footprints (one
+        voxel of margin) is rasterized anew, with every tet that reaches into it, and copied
+        into ``out`` (the rest of ``out`` is already right). Equal to a full :meth:`deform`
+        onto ``out``'s grid (up to the round-off of the sub-grid's origin).
+
+        Parameters
+        ----------
+        out : Volume
+            Output volume, updated in place (its data C-contiguous, the input's dtype).
+        deformed_nodes, previous_nodes : array_like, shape [node_count, 3]
+            Node positions now and when ``out`` was written [volume units, world frame].
+        tolerance : float
+            Node motion [volume units] below which a node counts as still.
+
+        Returns
+        -------
+        tuple of 2 ndarray (int) or None
+            The rewritten index box of ``out`` (lower and upper corner, inclusive), or None
+            when nothing moved. ``stats`` describes the partial run.
+        """
+        x1 = np.asarray(deformed_nodes, float)
+        x0 = np.asarray(previous_nodes, float)
+        if x1.shape != self.nodes.shape or x0.shape != self.nodes.shape:
+            raise InputError("deformed_nodes / previous_nodes", f"arrays of the rest nodes' shape {self.nodes.shape}",
+                             f"shapes {x1.shape}, {x0.shape}")
+        moved = np.linalg.norm(x1 - x0, axis=1) > tolerance
+        if not moved.any():
+            return None
+        tets = self.tets[moved[self.tets].any(axis=1)]
+        corners = out.world_to_index(np.concatenate([x0[tets].reshape(-1, 3), x1[tets].reshape(-1, 3)]))
+        shape = np.asarray(out.shape)
+        lo = np.clip(np.floor(corners.min(axis=0)).astype(int) - 1, 0, shape - 1)
+        hi = np.clip(np.ceil(corners.max(axis=0)).astype(int) + 1, 0, shape - 1)
+        if np.any(corners.max(axis=0) < -1) or np.any(corners.min(axis=0) > shape):
+            return None  # moved entirely outside the output grid
+        window = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
+        sub = Volume(np.empty(tuple(hi - lo + 1), out.dtype), out.spacing.copy(), out.index_to_world(lo),
+                     out.direction.copy())
+        self.deform(x1, out=sub)
+        out.data[window] = sub.data
+        return lo, hi
+
     def write_counts(self, deformed_nodes, out_grid: Volume | None = None) -> Volume:
         """How many tets claim each output voxel (0 outside the mesh, 1 inside).
 
@@ -299,7 +356,17 @@ class Rasterizer:
             raise InputError(
                 "deformed_nodes", f"an array of the rest nodes' shape {self.nodes.shape}", f"shape {x1.shape}"
             )
-        x1, _ = check_tets(x1, self.tets, nodes_name="deformed_nodes")
+        folded = None
+        if self.inverted == "skip":
+            x1 = np.asarray(x1, np.float64)
+            if not np.isfinite(x1).all():
+                n = int(np.argmax(~np.isfinite(x1).all(axis=1)))
+                raise InputError(f"deformed_nodes[{n}]", "finite coordinates", str(x1[n].tolist()))
+            volume = tet_signed_volumes(x1, self.tets)
+            folded = volume <= 1e-12 * float(np.prod(np.maximum(np.ptp(x1, axis=0), 1e-300)))
+            self.skipped_tets = int(folded.sum())
+        else:
+            x1, _ = check_tets(x1, self.tets, nodes_name="deformed_nodes")
         if into is not None:
             grid = OutputGrid.of(into)
         elif out_grid is None:
@@ -313,6 +380,10 @@ class Rasterizer:
         shape = grid.shape
         face_w, affine_w, box_w = self._setup(grid.world_to_index(x1), shape)
         box = box_w.numpy()
+        if folded is not None and folded.any():
+            box = box.copy()
+            box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
+            box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
         dev = self.device
         if count_writes:

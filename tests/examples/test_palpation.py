@@ -1,0 +1,78 @@
+"""The palpation demo on a synthetic CT: a ball of soft tissue (40 HU, r 14 mm) around a
+bone core (1500 HU, r 6 mm) in air, 1 mm voxels.
+
+Truths: the bone core's tets are clamped (denser than 1150 kg/m^3); the FEM's mass is the
+voxel integral of the table's density (within voxelization, 3 %); under the press the
+deformed CT differs from the rest CT (by more than 100 HU) only near the probe (within the
+contact patch plus two mesh cubes of the press point, 18 mm; nothing in the far half of the
+ball), and the rendered frame only within that distance of the press point's projection;
+when the probe has withdrawn the tissue relaxes back; the skin surface of the deformed label
+volume moves in by about the indentation at the press point.
+"""
+
+import numpy as np
+import pytest
+
+from softvr.model import CT_TISSUE
+from softvr.volume import Volume
+
+
+@pytest.fixture(scope="module")
+def ball_ct():
+    n = 40
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+    r = np.linalg.norm(ijk - 19.5, axis=-1)
+    hu = np.where(r < 6.0, 1500.0, np.where(r < 14.0, 40.0, -1000.0)).astype(np.int16)
+    labels = np.where(r < 6.0, 2, np.where(r < 14.0, 1, 0)).astype(np.uint8)
+    return Volume(hu, spacing=(1.0, 1.0, 1.0)), Volume(labels, spacing=(1.0, 1.0, 1.0), is_label=True)
+
+
+def _project(renderer, point_mm):
+    from vtkmodules.vtkRenderingCore import vtkCoordinate
+
+    c = vtkCoordinate()
+    c.SetCoordinateSystemToWorld()
+    c.SetValue(*point_mm)
+    x, y = c.GetComputedDisplayValue(renderer.vtk_renderer)
+    return x, renderer.vtk_renderer.GetRenderWindow().GetSize()[1] - 1 - y  # image rows run down
+
+
+def test_palpating_a_synthetic_ct(ball_ct):
+    from softvr.examples.example_palpation import Example
+
+    ct, labels = ball_ct
+    with Example(ct, cells=(8, 8, 8), frames=8, width=96, height=96, radius=0.005, depth=0.003, dt=0.01,
+                 labels=labels) as ex:
+        ex.azimuth = 0.0  # look at the pressed side (+y) head on
+        rest_volume = ex.deformed.data.copy()
+        rest_image = ex.render()
+        rest_skin = ex.label_surface(1)[0]
+        assert ex.body.fixed.any()
+        voxels = float(CT_TISSUE(ct.data)[2].astype(float).sum()) * 1e-9
+        assert ex.body.mass.sum() == pytest.approx(voxels, rel=0.03)
+        while ex.frame < 4:  # the deepest point of the press is half way
+            ex.step()
+        pressed_image = ex.render()
+        assert ex.indentation() > 0.001
+        press = ex.target / 1e-3
+        # Far away the shell moves by micrometres: boundary voxels change by a few HU there.
+        changed = np.argwhere(np.abs(ex.deformed.data.astype(int) - rest_volume) > 100)
+        assert len(changed) > 20
+        # Contact patch radius sqrt(2 R d) ~ 5.5 mm, plus two 5 mm mesh cubes (the tets of the
+        # moved nodes reach one cube further), plus a voxel: 18 mm. The far half of the ball
+        # (its centre is 13.5 mm behind the skin point) does not change.
+        assert np.linalg.norm(changed - press, axis=1).max() < 18.0
+        assert changed[:, 1].min() > 19.5
+        diff = np.abs(pressed_image.astype(int) - rest_image.astype(int)).max(axis=2) > 24
+        rows, cols = np.nonzero(diff)
+        assert len(rows) > 0
+        x, y = _project(ex._renderer, press)
+        side = _project(ex._renderer, press + (18.0, 0.0, 0.0))  # the volume bound, seen head on
+        assert np.hypot(cols - x, rows - y).max() < np.hypot(side[0] - x, side[1] - y)
+        skin = ex.label_surface(1)[0]
+        near = np.linalg.norm(rest_skin - press, axis=1) < 2.0
+        moved_in = press[1] - skin[np.linalg.norm(skin[:, [0, 2]] - press[[0, 2]], axis=1) < 1.5][:, 1].max()
+        assert near.any() and 0.5 * ex.indentation() / 1e-3 < moved_in < 1.5 * ex.indentation() / 1e-3 + 1.0
+        while ex.frame < ex.frames:
+            ex.step()
+        assert np.abs(ex.body.q - ex.body.rest).max() < 0.5e-3  # relaxed after the probe left
