@@ -32,7 +32,7 @@ def test_docstring_examples_run(name):
     assert result.failed == 0
 
 
-DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md", "docs/cave.md"]
+DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md", "docs/cave.md", "docs/palpation.md"]
 
 
 @pytest.mark.parametrize("doc", DOCS)

@@ -12,6 +12,7 @@
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
 ``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
 ``softvr bench cave``       render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback
+``softvr bench palpation``  palpation frame split: FEM step, full and incremental rasterization, rendering
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr info PATH``        what a volume file holds
 """
@@ -62,7 +63,7 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave")
+_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave", "palpation")
 
 
 def _bench(argv: list[str]) -> int:

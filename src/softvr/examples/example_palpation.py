@@ -110,6 +110,7 @@ class Example:
         # Embedding tets in the air in front of the skin fold as the skin is pressed: skip them.
         self.rasterizer = Rasterizer(volume, self.nodes, self.tets, device=device, inverted="skip")
         self.incremental = incremental
+        self.tolerance_mm = 0.01  # node motion [mm] that does not need re-rasterizing yet
         self.deformed = self.rasterizer.deform(self.nodes, out_grid=volume)
         self.labels = labels
         if labels is not None:
@@ -152,12 +153,15 @@ class Example:
             pairs.append((self.label_rasterizer, self.labels_deformed))
         for rasterizer, out in pairs:
             if self.incremental:
-                box = rasterizer.update(out, nodes_mm, self._drawn_nodes, tolerance=0.01)
+                box = rasterizer.update(out, nodes_mm, self._drawn_nodes, tolerance=self.tolerance_mm)
                 voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
             else:
                 rasterizer.deform(nodes_mm, out=out)
                 voxels = int(np.prod(self.volume.shape))
-        self._drawn_nodes = nodes_mm
+        # Nodes that moved less than the tolerance keep their last drawn position, so their
+        # motion adds up until it is drawn (the volume never lags by more than the tolerance).
+        moved = np.linalg.norm(nodes_mm - self._drawn_nodes, axis=1) > self.tolerance_mm
+        self._drawn_nodes = np.where(moved[:, None], nodes_mm, self._drawn_nodes)
         t2 = time.perf_counter()
         self.metrics.append({"frame": self.frame, "fem_ms": 1e3 * (t1 - t0), "raster_ms": 1e3 * (t2 - t1),
                              "raster_voxels": voxels, "indentation_m": self.indentation(),
