@@ -58,6 +58,9 @@ class Example:
         Rasterize only around the tets that moved (else the whole volume every frame).
     skin_triangles_budget : int
         Triangles of the skin's collision surface (simplified iso-surface).
+    render_step : int
+        Volume-render every ``render_step``-th voxel per axis (2: an eighth of the voxels; the
+        CPU ray caster re-derives gradients of the whole volume every frame, which dominates).
     labels : Volume, optional
         A segmentation on the CT's grid: deformed by the same mesh every frame
         (:attr:`labels_deformed`), its labels shown as surfaces by :meth:`label_surface`.
@@ -68,7 +71,7 @@ class Example:
     def __init__(self, volume=None, cells=(16, 16, 8), frames: int = 40, width: int = 512, height: int = 512, *,
                  radius: float = 0.012, depth: float = 0.005, dt: float = 0.01, steps_per_frame: int = 1,
                  incremental: bool = True, skin_triangles_budget: int = 4000, labels=None,
-                 device: str | None = None):
+                 render_step: int = 2, device: str | None = None):
         from softvr import Scene
         from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
         from softvr.examples.example_oranges import icosphere
@@ -124,6 +127,11 @@ class Example:
         self._drawn_nodes = self.nodes.copy()
         self.width, self.height = width, height
         self.preset, self.azimuth = "ct-skin", -40.0
+        if not (isinstance(render_step, int) and render_step >= 1):
+            from softvr.errors import InputError
+
+            raise InputError("render_step", "an integer >= 1", repr(render_step))
+        self.render_step = render_step
         self.frame = 0
         self.metrics: list[dict] = []
         self._renderer = None
@@ -172,12 +180,18 @@ class Example:
     def render(self) -> np.ndarray:
         """Volume-render the deformed CT; returns RGB uint8 [height, width, 3]."""
         from softvr.render import Camera, VolumeRenderer
+        from softvr.volume import Volume
 
         t0 = time.perf_counter()
         if self._renderer is None:
             self._renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
                                             camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3))
-        image = self._renderer.render(self.deformed)
+        shown = self.deformed
+        if self.render_step > 1:
+            k = self.render_step
+            shown = Volume(np.ascontiguousarray(shown.data[::k, ::k, ::k]), shown.spacing * k, shown.origin.copy(),
+                           shown.direction.copy())
+        image = self._renderer.render(shown)
         if self.metrics:
             self.metrics[-1]["render_ms"] = 1e3 * (time.perf_counter() - t0)
         return image
@@ -200,7 +214,8 @@ class Example:
                 "clamped_nodes": int(self.body.fixed.sum()), "press_point_m": self.target.tolist(),
                 "young_pa_min_median_max": [float(np.min(self.tissue.young)), float(np.median(self.tissue.young)),
                                             float(np.max(self.tissue.young))],
-                "mass_kg": float(self.body.mass.sum()), "dt_s": self.dt, "incremental": self.incremental}
+                "mass_kg": float(self.body.mass.sum()), "dt_s": self.dt, "incremental": self.incremental,
+                "render_step": self.render_step}
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -223,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
     p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"))
     p.add_argument("--full", action="store_true", help="rasterize the whole volume every frame")
+    p.add_argument("--render-step", type=int, default=2, help="render every k-th voxel per axis (default 2)")
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -240,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     images = []
     with Example(volume, tuple(args.cells), args.frames, *args.size, incremental=not args.full,
-                 device=args.device) as ex:
+                 render_step=args.render_step, device=args.device) as ex:
         if not args.quiet:
             print(f"softvr demo palpation: {ex.volume!r}; {len(ex.tets)} tets, {int(ex.body.fixed.sum())} clamped "
                   f"nodes (bone), mass {ex.body.mass.sum():.2f} kg", flush=True)
