@@ -8,6 +8,7 @@
                             lips, probe) to MP4, metrics and plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
 ``softvr view SCENE``       a physics demo played live in a window (space pauses, n steps)
+``softvr view palpation``   the palpated head CT live in a window
 ``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
 ``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
 ``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
@@ -58,6 +59,10 @@ def _view(argv: list[str]) -> int:
         from softvr.render import viewer
 
         return viewer.main(argv[1:])
+    if argv and argv[0] == "palpation":
+        from softvr.examples import example_palpation
+
+        return example_palpation.view_main(argv[1:])
     from softvr.examples import run
 
     return run.view_main(argv)

@@ -76,3 +76,10 @@ def test_palpating_a_synthetic_ct(ball_ct):
         while ex.frame < ex.frames:
             ex.step()
         assert np.abs(ex.body.q - ex.body.rest).max() < 0.5e-3  # relaxed after the probe left
+
+
+def test_the_live_view_plays_frames_in_a_window(ball_ct, display):
+    from softvr.examples.example_palpation import Example, view
+
+    with Example(ball_ct[0], cells=(8, 8, 8), frames=5, width=96, height=96, radius=0.005, depth=0.003) as ex:
+        assert view(ex, timeout_s=3.0) == 5

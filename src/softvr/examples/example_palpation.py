@@ -6,7 +6,8 @@ units (:mod:`softvr.model.tissue`), and the nodes of bone-dense tets are clamped
 holds the soft tissue. A round probe presses into the cheek and withdraws; the co-rotational
 FEM deforms under it through frictional contact. Every frame the CT is rasterized from the
 deformed mesh — only the box around the tets that moved (:meth:`softvr.volume.Rasterizer.update`)
-— and volume-rendered. Run ``softvr demo palpation`` (``--input FILE`` for another CT).
+— and volume-rendered. Run ``softvr demo palpation`` (``--input FILE`` for another CT), or
+``softvr view palpation`` to watch it live in a window.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Example", "main", "press_point"]
+__all__ = ["Example", "main", "press_point", "view", "view_main"]
 
 _UNIT = 1e-3  # metres per millimetre: CT geometry is in mm, the FEM in m
 _SKIN_HU = -300.0  # between air (-1000) and fat (-100)
@@ -227,6 +228,89 @@ class Example:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def view(example: Example, *, timeout_s: float | None = None) -> int:
+    """Play ``example`` live in a window: one frame per timer tick (FEM step, incremental
+    rasterization, volume rendering). Mouse: trackball camera; space pauses; ``q`` quits.
+    Returns the frames played. Raises :class:`~softvr.errors.InputError` with no display."""
+    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera
+    from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindowInteractor
+
+    from softvr.render import Camera
+    from softvr.render._backend import new_onscreen_window, require_display
+    from softvr.render._scene import VolumeScene
+    from softvr.volume import Volume
+
+    require_display()
+    window = new_onscreen_window(example.width, example.height)
+    window.SetWindowName("softvr: palpation (space: pause, q: quit)")
+    renderer = vtkRenderer()
+    window.AddRenderer(renderer)
+    scene = VolumeScene(example.preset, "cpu", sample_distance=0.5)
+    k = example.render_step
+
+    def show() -> None:
+        d = example.deformed
+        scene.update(Volume(np.ascontiguousarray(d.data[::k, ::k, ::k]), d.spacing * k, d.origin.copy(),
+                            d.direction.copy()))
+        window.Render()
+
+    show()
+    renderer.AddVolume(scene.prop)
+    Camera("front", azimuth=example.azimuth, elevation=5, zoom=1.3).apply(
+        renderer.GetActiveCamera(), np.asarray(scene.bounds(), float), example.width / example.height)
+    renderer.ResetCameraClippingRange()
+    interactor = vtkRenderWindowInteractor()
+    interactor.SetRenderWindow(window)
+    style = vtkInteractorStyleTrackballCamera()
+    interactor.SetInteractorStyle(style)
+    state = {"paused": False}
+    deadline = None if timeout_s is None else time.perf_counter() + timeout_s
+
+    def on_timer(*_) -> None:
+        if deadline is not None and time.perf_counter() >= deadline:
+            interactor.TerminateApp()
+        elif not state["paused"] and example.frame < example.frames:
+            example.step()
+            show()
+
+    def on_char(*_) -> None:
+        if interactor.GetKeyCode() == " ":
+            state["paused"] = not state["paused"]
+        else:
+            style.OnChar()
+
+    interactor.Initialize()
+    interactor.AddObserver("TimerEvent", on_timer)
+    style.AddObserver("CharEvent", on_char)
+    interactor.CreateRepeatingTimer(max(1, int(1000 * example.dt * example.steps_per_frame)))
+    try:
+        interactor.Start()
+    finally:
+        style.RemoveAllObservers()
+        interactor.RemoveAllObservers()
+        window.Finalize()
+        interactor.SetRenderWindow(None)
+    return example.frame
+
+
+def view_main(argv: list[str] | None = None) -> int:
+    """``softvr view palpation [--input CT] [--frames N] [--size W H] [--seconds S]``."""
+    p = argparse.ArgumentParser(prog="softvr view palpation", description="The palpation demo live in a window.")
+    p.add_argument("--input", help="CT volume file (Hounsfield units) instead of the bundled head CT")
+    p.add_argument("--frames", type=int, default=200, help="frames of the press and release (default 200)")
+    p.add_argument("--size", type=int, nargs=2, default=(700, 700), metavar=("W", "H"))
+    p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
+    args = p.parse_args(argv)
+    from softvr.render._backend import require_display
+    from softvr.volume import load
+
+    require_display()  # before building the model
+    volume = load(args.input) if args.input else None
+    with Example(volume, frames=max(args.frames, 2), width=args.size[0], height=args.size[1]) as ex:
+        view(ex, timeout_s=args.seconds)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
