@@ -94,16 +94,21 @@ def _cluster_run(nodes: int, load: str, frames: int, folder: Path) -> dict:
             master.wait_for_nodes(120)
             summary = master.run(frames, fps=60.0)
         finally:
-            for p in procs:
-                try:
-                    p.wait(timeout=60)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            _reap(procs, 60)
     waits = [json.loads((out / f"{name}.json").read_text())["barrier_wait_ms"] for name in names]
     worst = max(waits, key=lambda w: w.get("p99", 0.0))
     return {"nodes": nodes, "load": load, "frames": frames, "sync_ms": summary["sync_ms"],
             "barrier_wait_ms": worst, "frame_bytes": summary["frame_bytes"], "mismatches": summary["mismatches"],
             "evictions": summary["evictions"], "sync_trace_ms": [1e3 * v for v in master.sync.values]}
+
+
+def _reap(processes, seconds: float) -> None:
+    """Wait for node processes to finish after the master's bye; kill what outlives ``seconds``."""
+    for p in processes:
+        try:
+            p.wait(timeout=seconds)
+        except subprocess.TimeoutExpired:
+            p.kill()
 
 
 def echo_node(publish: str, control: str, name: str) -> None:
@@ -151,11 +156,7 @@ def _zmq_floor(nodes: int, frames: int) -> dict:
             time.sleep(max(0.0, 1 / 60 - (time.perf_counter() - t0)))
         pub.send(b"bye")
     finally:
-        for p in procs:
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        _reap(procs, 10)
         pub.close(0)
         router.close(0)
     a = 1e3 * np.asarray(times)

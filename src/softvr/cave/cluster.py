@@ -435,29 +435,33 @@ class Node:
             self._buffer.append(packet)
             return
         self._present()  # a frame after n means every node rendered n: its go was lost
+        if self._apply(packet):
+            self._rendered()
+
+    def _apply(self, packet) -> bool:
+        """Apply a frame; one that does not fit the state (a mesh update of the wrong size)
+        is counted and starts a resync."""
         try:
             self.state.apply_frame(packet.payload)
         except ValueError:
             self.log.counters["inconsistent"] += 1
             self._resync()
-            return
-        self._rendered()
+            return False
+        return True
 
     def _rendered(self) -> None:
         """Render the current state, then report it (barrier) or present it."""
         if self.render_state is not None:
             self.render_state(self.state)
         self._rendered_at = time.monotonic()
-        if self.state.n < 0:  # the state before the first frame: nothing to present
-            self._send(encode("ready", self.session, {"node": self.name, "n": -1, "hash": self.state.digest()}))
-        elif self.config.barrier:
+        if self.state.n >= 0:  # (the state before the first frame has nothing to present)
             self._pending = self.state.n
-            self._ready_sent = time.monotonic()
-            self._send(encode("ready", self.session, {"node": self.name, "n": self.state.n,
-                                                            "hash": self.state.digest()}))
-        else:
-            self._pending = self.state.n
-            self._present()
+            if not self.config.barrier:
+                self._present()
+                return
+            self._ready_sent = self._rendered_at
+        # Before the first frame too: the master waits for every node's renderer to be up.
+        self._send(encode("ready", self.session, {"node": self.name, "n": self.state.n, "hash": self.state.digest()}))
 
     def _present(self) -> None:
         if self._pending is None or self.state is None or self._pending != self.state.n:
@@ -491,11 +495,7 @@ class Node:
                 self._resync()
                 self._buffer = [f for f in buffered if f.payload["n"] > self.state.n]
                 return
-            try:
-                self.state.apply_frame(frame.payload)
-            except ValueError:
-                self.log.counters["inconsistent"] += 1
-                self._resync()
+            if not self._apply(frame):
                 return
         if self._gap_at is not None and self.log.resyncs:
             self.log.resyncs[-1].update(synced_at=time.monotonic(), to=self.state.n)

@@ -232,19 +232,20 @@ class Example:
 
 def view(example: Example, *, timeout_s: float | None = None) -> int:
     """Play ``example`` live in a window: one frame per timer tick (FEM step, incremental
-    rasterization, volume rendering). Mouse: trackball camera; space pauses; ``q`` quits.
+    rasterization, volume rendering). Mouse: trackball camera; space pauses, ``n`` steps
+    while paused, ``q`` quits.
     Returns the frames played. Raises :class:`~softvr.errors.InputError` with no display."""
-    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera
-    from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindowInteractor
+    from vtkmodules.vtkRenderingCore import vtkRenderer
 
     from softvr.render import Camera
     from softvr.render._backend import new_onscreen_window, require_display
+    from softvr.render._live import play
     from softvr.render._scene import VolumeScene
     from softvr.volume import Volume
 
     require_display()
     window = new_onscreen_window(example.width, example.height)
-    window.SetWindowName("softvr: palpation (space: pause, q: quit)")
+    window.SetWindowName("softvr: palpation (space: pause, n: step, q: quit)")
     renderer = vtkRenderer()
     window.AddRenderer(renderer)
     scene = VolumeScene(example.preset, "cpu", sample_distance=0.5)
@@ -256,42 +257,20 @@ def view(example: Example, *, timeout_s: float | None = None) -> int:
                             d.direction.copy()))
         window.Render()
 
+    def advance() -> None:
+        if example.frame < example.frames:
+            example.step()
+            show()
+
     show()
     renderer.AddVolume(scene.prop)
     Camera("front", azimuth=example.azimuth, elevation=5, zoom=1.3).apply(
         renderer.GetActiveCamera(), np.asarray(scene.bounds(), float), example.width / example.height)
     renderer.ResetCameraClippingRange()
-    interactor = vtkRenderWindowInteractor()
-    interactor.SetRenderWindow(window)
-    style = vtkInteractorStyleTrackballCamera()
-    interactor.SetInteractorStyle(style)
-    state = {"paused": False}
-    deadline = None if timeout_s is None else time.perf_counter() + timeout_s
-
-    def on_timer(*_) -> None:
-        if deadline is not None and time.perf_counter() >= deadline:
-            interactor.TerminateApp()
-        elif not state["paused"] and example.frame < example.frames:
-            example.step()
-            show()
-
-    def on_char(*_) -> None:
-        if interactor.GetKeyCode() == " ":
-            state["paused"] = not state["paused"]
-        else:
-            style.OnChar()
-
-    interactor.Initialize()
-    interactor.AddObserver("TimerEvent", on_timer)
-    style.AddObserver("CharEvent", on_char)
-    interactor.CreateRepeatingTimer(max(1, int(1000 * example.dt * example.steps_per_frame)))
     try:
-        interactor.Start()
+        play(window, advance, period_ms=int(1000 * example.dt * example.steps_per_frame), timeout_s=timeout_s)
     finally:
-        style.RemoveAllObservers()
-        interactor.RemoveAllObservers()
         window.Finalize()
-        interactor.SetRenderWindow(None)
     return example.frame
 
 

@@ -303,21 +303,13 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None) -> 
 
     Raises :class:`~softvr.errors.InputError` when there is no display.
     """
-    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
-    from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
-
+    from softvr.render._live import play  # noqa: PLC0415
     from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
 
     renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True)
     example.setup_render(renderer)
     window = renderer.vtk_renderer.GetRenderWindow()
     window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, q: quit)")
-    interactor = vtkRenderWindowInteractor()
-    interactor.SetRenderWindow(window)
-    style = vtkInteractorStyleTrackballCamera()
-    interactor.SetInteractorStyle(style)
-    state = {"paused": False}
-    deadline = None if timeout_s is None else time.perf_counter() + timeout_s
 
     def advance() -> None:
         if example.frame < example.frames:
@@ -325,33 +317,11 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None) -> 
             example.update_render(renderer)
             window.Render()
 
-    def on_timer(*_) -> None:
-        if deadline is not None and time.perf_counter() >= deadline:
-            interactor.TerminateApp()
-        elif not state["paused"]:
-            advance()
-
-    def on_char(*_) -> None:
-        key = interactor.GetKeyCode()
-        if key == " ":
-            state["paused"] = not state["paused"]
-        elif key == "n" and state["paused"]:
-            advance()
-        else:
-            style.OnChar()
-
-    interactor.Initialize()
     example.update_render(renderer)
     renderer.render()
-    interactor.AddObserver("TimerEvent", on_timer)
-    style.AddObserver("CharEvent", on_char)
-    interactor.CreateRepeatingTimer(max(1, int(1000 / example.fps)))
     try:
-        interactor.Start()
+        play(window, advance, period_ms=int(1000 / example.fps), timeout_s=timeout_s)
     finally:
-        style.RemoveAllObservers()
-        interactor.RemoveAllObservers()
-        interactor.SetRenderWindow(None)
         renderer.close()
     return example.frame
 
