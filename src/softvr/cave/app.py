@@ -374,11 +374,10 @@ class WavingSheet:
         self.recorder = RecordingRenderer()
         self.recorder.add_plane(point=(0.0, 0.0, 0.0), size=3.0, tiles=12)
         self.sheet = self.recorder.add_mesh(self._sheet(0.0), faces, color=(0.85, 0.45, 0.35))
-        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * 0.08
-        box_faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1], [2, 3, 7], [2, 7, 6],
-                     [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
-        self._box = corners
-        self.box = self.recorder.add_mesh(self._box_at(0.0), box_faces, color=(0.3, 0.55, 0.85))
+        from softvr.model.shapes import BOX_TRIANGLES, box_corners  # noqa: PLC0415
+
+        self._box = box_corners((0.08, 0.08, 0.08))
+        self.box = self.recorder.add_mesh(self._box_at(0.0), BOX_TRIANGLES, color=(0.3, 0.55, 0.85))
 
     def _sheet(self, t: float) -> np.ndarray:
         x, y = self.grid[:, 0], self.grid[:, 1]

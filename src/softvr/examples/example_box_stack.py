@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 
+from softvr.model.shapes import BOX_TRIANGLES, box_corners
 from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
 
 __all__ = ["DEFAULT_FRAMES", "Example", "box_surface", "main"]
@@ -22,23 +23,12 @@ __all__ = ["DEFAULT_FRAMES", "Example", "box_surface", "main"]
 #: 3 s at 25 frames per second.
 DEFAULT_FRAMES = 75
 
-_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-# Corner k = 4 i + 2 j + l has signs (i, j, l) of _SIGNS (0: -, 1: +); two outward triangles per face.
-_BOX_TRIANGLES = np.array([
-    [0, 1, 3], [0, 3, 2],  # -x
-    [4, 6, 7], [4, 7, 5],  # +x
-    [0, 4, 5], [0, 5, 1],  # -y
-    [2, 3, 7], [2, 7, 6],  # +y
-    [0, 2, 6], [0, 6, 4],  # -z
-    [1, 5, 7], [1, 7, 3],  # +z
-], np.int32)
-
 _COLORS = [(0.85, 0.33, 0.25), (0.95, 0.7, 0.25), (0.35, 0.7, 0.45), (0.3, 0.55, 0.85), (0.6, 0.4, 0.75)]
 
 
 def box_surface(body, half_extents) -> np.ndarray:
     """World corners [8, 3] [m] of a rigid box, in the vertex order of the box triangles."""
-    return body.position + (_SIGNS * np.asarray(half_extents, float)) @ body.rotation.T
+    return body.position + box_corners(half_extents) @ body.rotation.T
 
 
 class Example(PhysicsExample):
@@ -106,7 +96,7 @@ class Example(PhysicsExample):
 
     def setup_render(self, renderer) -> None:
         renderer.add_plane(size=3.0, tiles=12)
-        self._meshes = [renderer.add_mesh(box_surface(b, self.half), _BOX_TRIANGLES, color=_COLORS[i % len(_COLORS)])
+        self._meshes = [renderer.add_mesh(box_surface(b, self.half), BOX_TRIANGLES, color=_COLORS[i % len(_COLORS)])
                         for i, b in enumerate(self.boxes)]
 
     def update_render(self, renderer) -> None:

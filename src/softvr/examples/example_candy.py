@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.examples.example_oranges import icosphere, orange_mesh
+from softvr.examples.example_oranges import orange_mesh
+from softvr.model.shapes import icosphere
 from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
 
 __all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",

@@ -16,9 +16,10 @@ import sys
 
 import numpy as np
 
+from softvr.model.shapes import icosphere
 from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
 
-__all__ = ["DEFAULT_FRAMES", "Example", "icosphere", "orange_mesh", "main"]
+__all__ = ["DEFAULT_FRAMES", "Example", "orange_mesh", "main"]
 
 #: 3 s at 25 frames per second.
 DEFAULT_FRAMES = 75
@@ -28,38 +29,6 @@ _LAUNCHES = [(-0.7, 0.35, 0.75, 0.0), (-0.6, 0.55, 0.5, 0.5), (-0.75, 0.25, 0.9,
              (-0.7, 0.3, 0.8, 0.3), (-0.7, 0.6, 0.4, 0.0)]
 _COLORS = [(0.98, 0.55, 0.1), (0.95, 0.62, 0.12), (0.99, 0.5, 0.08), (0.93, 0.58, 0.16), (0.97, 0.66, 0.2),
            (0.96, 0.52, 0.12)]
-
-
-def icosphere(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """A unit sphere of subdivided icosahedron triangles, counter-clockwise from outside.
-
-    Returns vertices [10 * 4^s + 2, 3] on the unit sphere and triangles [20 * 4^s, 3].
-    """
-    t = (1 + 5**0.5) / 2
-    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
-         (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
-         (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    verts = [np.asarray(p, float) / np.linalg.norm(p) for p in v]
-    faces = [tuple(x) for x in f]
-    for _ in range(subdivisions):
-        cache: dict = {}
-
-        def mid(a, b):
-            key = (min(a, b), max(a, b))
-            if key not in cache:
-                p = verts[a] + verts[b]
-                verts.append(p / np.linalg.norm(p))
-                cache[key] = len(verts) - 1
-            return cache[key]
-
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return np.array(verts), np.array(faces, np.int32)
 
 
 def orange_mesh(radius: float, voxels: int = 12, cells: int = 4):

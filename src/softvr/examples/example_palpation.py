@@ -75,7 +75,7 @@ class Example:
                  render_step: int = 2, device: str | None = None):
         from softvr import Scene
         from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
-        from softvr.examples.example_oranges import icosphere
+        from softvr.model.shapes import icosphere
         from softvr.model import CT_TISSUE, tissue_fem_body
         from softvr.volume import Rasterizer, grid_tet_mesh
 

@@ -78,7 +78,7 @@ class Example(PhysicsExample):
         from softvr import Scene
         from softvr.contact import Adhesion
         from softvr.dynamics import EmbeddedPoints, FemBody, KinematicBody, Material, RigidPoints
-        from softvr.examples.example_oranges import icosphere
+        from softvr.model.shapes import icosphere
         from softvr.render import Camera
         from softvr.volume import Volume, boundary_faces, grid_tet_mesh
 

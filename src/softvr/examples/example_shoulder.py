@@ -88,7 +88,7 @@ class Example(PhysicsExample):
                  model_dir=None):
         from softvr import Scene
         from softvr.dynamics import Coupling, RigidBody, RigidPoints
-        from softvr.examples.example_oranges import icosphere
+        from softvr.model.shapes import icosphere
         from softvr.examples.shoulder_anatomy import write_shoulder_parts
         from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
         from softvr.model import build_model
