@@ -32,7 +32,8 @@ def test_docstring_examples_run(name):
     assert result.failed == 0
 
 
-DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md", "docs/cave.md", "docs/palpation.md"]
+DOCS = ["README.md", "docs/volume.md", "docs/adhesion.md", "docs/anatomy.md", "docs/cave.md", "docs/palpation.md",
+        "docs/scenes.md"]
 
 
 @pytest.mark.parametrize("doc", DOCS)

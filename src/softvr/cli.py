@@ -15,6 +15,7 @@
 ``softvr bench cave``       render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback
 ``softvr bench palpation``  palpation frame split: FEM step, full and incremental rasterization, rendering
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
+``softvr check SCENE``      validate a scene file (every error at once)
 ``softvr info PATH``        what a volume file holds
 """
 
@@ -49,6 +50,10 @@ def _build_model(argv: list[str]) -> int:
 
 
 def _run(argv: list[str]) -> int:
+    if argv and argv[0].endswith(".toml"):
+        from softvr.scene import _command
+
+        return _command.run_main(argv)
     from softvr.examples import run
 
     return run.main(argv)
@@ -63,6 +68,10 @@ def _view(argv: list[str]) -> int:
         from softvr.examples import example_palpation
 
         return example_palpation.view_main(argv[1:])
+    if argv and argv[0].endswith(".toml"):
+        from softvr.scene import _command
+
+        return _command.view_main(argv)
     from softvr.examples import run
 
     return run.view_main(argv)
@@ -85,6 +94,12 @@ def _cave(argv: list[str]) -> int:
     return _command.main(argv)
 
 
+def _check(argv: list[str]) -> int:
+    from softvr.scene import _command
+
+    return _command.check_main(argv)
+
+
 def _info(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="softvr info", description="Print what a volume file holds.")
     parser.add_argument("path")
@@ -98,7 +113,7 @@ def _info(argv: list[str]) -> int:
 
 
 _COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model,
-             "cave": _cave}
+             "cave": _cave, "check": _check}
 
 
 def main(argv: list[str] | None = None) -> int:

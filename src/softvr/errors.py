@@ -64,3 +64,72 @@ def read_toml(path, kind: str) -> dict:
         raise InputError(kind, "an existing TOML file", "no such file", source=str(path)) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError("TOML", "valid TOML", str(exc), source=str(path)) from None
+
+
+class Problems:
+    """Every problem of an input file, collected while reading it and raised together
+    (:func:`raise_all`). Getters read one field of a TOML table, check it and record what
+    is wrong under its field path (``body[2].young``); they return None for a bad value."""
+
+    def __init__(self, source: str | None, kind: str):
+        self.source, self.kind, self.items = source, kind, []
+
+    def add(self, what: str, expected: str, found) -> None:
+        self.items.append((what, expected, found if isinstance(found, str) else repr(found)))
+
+    def raise_if_any(self) -> None:
+        raise_all(self.items, self.source, self.kind)
+
+    def number(self, table: dict, key: str, where: str, *, default=None, positive=False, minimum=None,
+               maximum=None, unit: str = "") -> float | None:
+        """A finite number (``> 0`` with ``positive``, in ``[minimum, maximum)``)."""
+        import math
+
+        value = table.get(key, default)
+        if value is None:
+            self.add(f"{where}.{key}", f"a number [{unit}]".replace(" []", ""), "nothing")
+            return None
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        ok = ok and (not positive or value > 0) and (minimum is None or value >= minimum)
+        ok = ok and (maximum is None or value < maximum)
+        if not ok:
+            bounds = "> 0" if positive else (f">= {minimum}" if minimum is not None else "finite")
+            if maximum is not None:
+                bounds += f" and < {maximum}"
+            self.add(f"{where}.{key}", f"a number {bounds} [{unit}]".replace(" []", ""), value)
+            return None
+        return float(value)
+
+    def integer(self, table: dict, key: str, where: str, *, default=None, minimum: int = 0) -> int | None:
+        value = table.get(key, default)
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= minimum):
+            self.add(f"{where}.{key}", f"an integer >= {minimum}", value if value is not None else "nothing")
+            return None
+        return value
+
+    def vector(self, table: dict, key: str, where: str, size: int = 3, *, default=None, unit: str = ""):
+        """A list of ``size`` finite numbers, as a tuple of floats."""
+        import math
+
+        value = table.get(key, default)
+        ok = isinstance(value, (list, tuple)) and len(value) == size and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+        if not ok:
+            self.add(f"{where}.{key}", f"{size} numbers [{unit}]".replace(" []", ""),
+                     value if value is not None else "nothing")
+            return None
+        return tuple(float(v) for v in value)
+
+    def choice(self, table: dict, key: str, where: str, choices, *, default=None):
+        value = table.get(key, default)
+        if value not in choices:
+            self.add(f"{where}.{key}", " | ".join(choices), value if value is not None else "nothing")
+            return None
+        return value
+
+    def boolean(self, table: dict, key: str, where: str, *, default: bool = False) -> bool:
+        value = table.get(key, default)
+        if not isinstance(value, bool):
+            self.add(f"{where}.{key}", "true or false", value)
+            return default
+        return value

@@ -38,11 +38,10 @@ was found; all of a file's errors are reported at once.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from softvr.errors import raise_all, read_toml
+from softvr.errors import Problems, read_toml
 
 __all__ = ["CouplingSpec", "PartSpec", "PartsFile", "read_parts"]
 
@@ -93,44 +92,13 @@ class PartsFile:
         return next(p for p in self.parts if p.name == name)
 
 
-class _Errors:
-    """Collects every problem of a file, raised together."""
-
-    def __init__(self, source: str):
-        self.source, self.items = source, []
-
-    def add(self, what: str, expected: str, found) -> None:
-        self.items.append((what, expected, found if isinstance(found, str) else repr(found)))
-
-    def raise_if_any(self) -> None:
-        raise_all(self.items, self.source, "parts file")
-
-
-def _number(table: dict, key: str, where: str, errors: _Errors, *, default=None, positive=False, minimum=None,
-            maximum=None, unit=""):
-    value = table.get(key, default)
-    if value is None:
-        errors.add(f"{where}.{key}", f"a number [{unit}]", "nothing")
-        return None
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    ok = ok and (not positive or value > 0) and (minimum is None or value >= minimum)
-    ok = ok and (maximum is None or value < maximum)
-    if not ok:
-        bounds = "> 0" if positive else (f">= {minimum}" if minimum is not None else "finite")
-        if maximum is not None:
-            bounds += f" and < {maximum}"
-        errors.add(f"{where}.{key}", f"a number {bounds} [{unit}]".replace(" []", ""), value)
-        return None
-    return float(value)
-
-
 def read_parts(path) -> PartsFile:
     """Read and validate a parts file (module docstring); mesh paths are resolved against its
     folder and must exist."""
     path = Path(path)
     source = str(path)
     doc = read_toml(path, "parts file")
-    errors = _Errors(source)
+    errors = Problems(source, "parts file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
     defaults = doc.get("defaults", {})
@@ -170,7 +138,7 @@ def read_parts(path) -> PartsFile:
                         ("poisson", dict(minimum=-0.99, maximum=0.5)), ("alpha", dict(minimum=0.0, unit="1/s")),
                         ("beta", dict(minimum=0.0, unit="s")), ("cell_size", dict(positive=True, unit="m")),
                         ("friction", dict(minimum=0.0))):
-            value = _number(table, key, where, errors, default=getattr(spec, key), **kw)
+            value = errors.number(table, key, where, default=getattr(spec, key), **kw)
             if value is not None:
                 setattr(spec, key, value)
         budget = table.get("collision_triangles", spec.collision_triangles)
@@ -195,11 +163,11 @@ def read_parts(path) -> PartsFile:
             ends.append(ref)
         if ends[0] == ends[1] and ends[0] is not None:
             errors.add(f"{where}.b", "another part than a", ends[1])
-        stiffness = _number(raw, "stiffness", where, errors, positive=True, unit="N/m")
-        damping = _number(raw, "damping", where, errors, default=0.0, minimum=0.0, unit="N s/m")
+        stiffness = errors.number(raw, "stiffness", where, positive=True, unit="N/m")
+        damping = errors.number(raw, "damping", where, default=0.0, minimum=0.0, unit="N s/m")
         radius = raw.get("radius")
         if radius is not None:
-            radius = _number(raw, "radius", where, errors, minimum=0.0, unit="m")
+            radius = errors.number(raw, "radius", where, minimum=0.0, unit="m")
         nodes = raw.get("nodes", [])
         if not (isinstance(nodes, list) and all(isinstance(n, int) and n >= 0 for n in nodes)):
             errors.add(f"{where}.nodes", "a list of node indices >= 0", nodes)

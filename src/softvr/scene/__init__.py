@@ -1,0 +1,29 @@
+"""Scene files: one versioned TOML description of a simulation (bodies and their shapes,
+materials, adhesion, obstacles, collision filters, kinematic motion, render settings),
+validated with every error at once, and built into a running demo.
+
+* :func:`read_scene` -> :class:`SceneFile` (``softvr check SCENE``).
+* :class:`SceneExample` / :func:`load_scene`: the scene as a demo (``softvr run SCENE.toml``,
+  ``softvr view SCENE.toml``).
+* :data:`BUNDLED`: the scene files shipped with softvr (``softvr run soft-cube.toml``).
+"""
+
+from pathlib import Path
+
+from softvr.scene.build import SceneExample, load_scene
+from softvr.scene.schema import BODY_TYPES, FORMAT, BodySpec, SceneFile, read_scene
+
+__all__ = ["BODY_TYPES", "BUNDLED", "FORMAT", "BodySpec", "SceneExample", "SceneFile", "bundled", "load_scene",
+           "read_scene"]
+
+#: Folder of the bundled scene files.
+BUNDLED = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def bundled(name: str) -> Path:
+    """The path of a bundled scene file (``"soft-cube.toml"``), or ``name`` itself when that is
+    a file."""
+    path = Path(name)
+    if path.is_file() or path.parent != Path("."):
+        return path
+    return BUNDLED / name

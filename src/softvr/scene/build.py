@@ -1,0 +1,225 @@
+"""From a validated scene file to a running simulation: :class:`SceneExample`.
+
+Each ``[[body]]`` becomes a contact object with its collision geometry and a drawn surface:
+
+=========  =====================================================================================
+rigid      box (box collider) or sphere (sphere collider): ``RigidBody.box`` / ``.sphere`` of the
+           material's density
+fem        box: a grid of ``cells``^3 cubes, 5 tets each; mesh: the model pipeline's dynamics
+           mesh (cubes of ``cells`` metres touching the surface) with the surface embedded in it;
+           co-rotational FEM of the material
+cloth      a ``cloth = [w, h]`` sheet of ``quads``, mass-spring cloth, in the body's x-y plane
+fixed      box (box collider of a fixed body) or mesh (a static triangle mesh obstacle)
+kinematic  box or sphere moved through ``motion`` keyframes (linear in between, held after)
+=========  =====================================================================================
+
+The scene runs, draws and records like every demo (:class:`~softvr.examples.run.PhysicsExample`):
+``softvr run SCENE.toml``, ``softvr view SCENE.toml``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softvr.examples.run import PhysicsExample
+from softvr.scene.schema import BodySpec, SceneFile, read_scene
+
+__all__ = ["SceneExample", "load_scene"]
+
+
+def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation matrix [3, 3] and quaternion (w, x, y, z) of x-then-y-then-z angles [deg]."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_euler("xyz", degrees, degrees=True)
+    x, y, z, w = r.as_quat()
+    return r.as_matrix(), np.array([w, x, y, z])
+
+
+class _Drawn:
+    """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]."""
+
+    def __init__(self, vertices, triangles, color):
+        self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
+
+
+class SceneExample(PhysicsExample):
+    """A scene file played as a demo (module docstring).
+
+    Parameters
+    ----------
+    scene_file : SceneFile
+        From :func:`~softvr.scene.read_scene`.
+    frames : int, optional
+        Override the file's ``simulation.frames``.
+    width, height : int, optional
+        Override the file's ``render.size``.
+    """
+
+    def __init__(self, scene_file: SceneFile, frames: int | None = None, width: int | None = None,
+                 height: int | None = None):
+        from softvr import Scene
+        from softvr.collision import Plane, Sphere
+        from softvr.contact import Adhesion
+        from softvr.render import Camera
+
+        self.file = scene_file
+        self.name = scene_file.path.stem
+        sim, ren = scene_file.simulation, scene_file.render
+        self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()}
+        scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
+                      contact_margin=sim["contact_margin"])
+        self.planes = []
+        for i, p in enumerate(scene_file.planes):
+            plane = Plane(point=p["point"], normal=p["normal"], friction=p["friction"], id=i)
+            scene.add_plane(plane, adhesion=self.adhesions.get(p["adhesion"]))
+            self.planes.append((plane, p["size"]))
+        self.spheres = []
+        for i, s in enumerate(scene_file.spheres):
+            sphere = Sphere(center=s["center"], radius=s["radius"], friction=s["friction"], id=len(self.planes) + i)
+            scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
+            self.spheres.append(sphere)
+        self.bodies, self.drawn, self.index = {}, [], {}
+        for spec in scene_file.bodies:
+            self._add(scene, spec)
+        for a, b in scene_file.filters:
+            scene.disable_collision(self.index[a], self.index[b])
+        w, h = ren["size"]
+        camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
+        super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
+                         bounds=ren["bounds"], camera=camera)
+
+    # -- building ----------------------------------------------------------------------
+    def _add(self, scene, spec: BodySpec) -> None:
+        from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody
+        from softvr.model.shapes import BOX_TRIANGLES, box_corners, icosphere
+
+        rotation, quaternion = _rotation(spec.rotation)
+        centre = np.asarray(spec.position, float)
+        adhesion = self.adhesions.get(spec.adhesion)
+        material = self.file.materials.get(spec.material)
+        if spec.type in ("rigid", "fixed", "kinematic") and spec.shape in ("box", "sphere"):
+            if spec.type == "rigid":
+                make = RigidBody.box if spec.shape == "box" else RigidBody.sphere
+                body = make(spec.size, material["density"], position=centre, orientation=quaternion,
+                            velocity=spec.velocity, name=spec.name)
+            elif spec.type == "fixed":
+                body = FixedBody(centre, quaternion, name=spec.name)
+            else:
+                body = KinematicBody(self._keyframes(spec, centre, quaternion), name=spec.name)
+            if spec.shape == "box":
+                collider = {"collision_box": np.asarray(spec.size) / 2}
+                local, triangles = box_corners(np.asarray(spec.size) / 2), BOX_TRIANGLES
+            else:
+                collider = {"collision_sphere": spec.size}
+                unit, triangles = icosphere(3)
+                local = unit * spec.size
+            index = scene.add_body(body, adhesion=adhesion, **collider)
+            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
+        elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
+            from softvr.collision import TriangleMesh
+            from softvr.model import load_mesh
+
+            v, t = load_mesh(spec.mesh)
+            v = v @ rotation.T + centre
+            scene.add_mesh(TriangleMesh(v, t, id=100 + len(self.drawn)), adhesion=adhesion)
+            self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
+            return
+        elif spec.type == "fem":
+            m = Material(material["young"], material["poisson"], material["density"], alpha=material["alpha"],
+                         beta=material["beta"])
+            nodes, tets, surface, embedding = self._tet_mesh(spec, rotation, centre)
+            fixed = None if spec.fixed_below is None else nodes[:, 2] < spec.fixed_below
+            body = FemBody(nodes, tets, m, fixed=fixed, name=spec.name)
+            body.v[:] = spec.velocity
+            tet_nodes, weights = embedding
+            points = EmbeddedPoints(body, tet_nodes, weights)
+            index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
+            self.drawn.append(_Drawn(points.positions, surface, spec.color))
+        else:  # cloth
+            from softvr.dynamics import ClothBody
+
+            c = spec.cloth
+            w, h = spec.size
+            origin = centre - rotation @ np.array([w / 2, h / 2, 0.0])
+            body = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0], v_axis=rotation[:, 1],
+                                  density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
+                                  damping=c["damping"], alpha=c["alpha"], name=spec.name)
+            if spec.fixed_below is not None:
+                body.fixed[:] = body.q[:, 2] < spec.fixed_below
+            body.v[:] = spec.velocity
+            n = len(body.q)
+            points = EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1)))
+            index = scene.add_body(body, collision_points=points, adhesion=adhesion)
+            self.drawn.append(_Drawn(lambda b=body: b.q, body.triangles, spec.color))
+        self.bodies[spec.name] = body
+        self.index[spec.name] = index
+
+    @staticmethod
+    def _tet_mesh(spec: BodySpec, rotation, centre):
+        """Nodes [n, 3] [m], tets, the collision / drawn surface over the embedded points and
+        the embedding (tet node indices [k, 4] or [k, 1], weights)."""
+        from softvr.volume import Volume, boundary_faces, grid_tet_mesh
+
+        if spec.shape == "box":
+            size, cells = np.asarray(spec.size, float), int(spec.cells)
+            spacing = size / cells
+            grid = Volume(np.zeros((cells,) * 3, np.uint8), spacing=spacing, origin=spacing / 2 - size / 2)
+            nodes, tets = grid_tet_mesh(grid, cells)
+            nodes = nodes @ rotation.T + centre
+            faces = boundary_faces(tets)
+            on_surface, local = np.unique(faces, return_inverse=True)
+            return nodes, tets, local.reshape(-1, 3).astype(np.int32), (on_surface[:, None],
+                                                                        np.ones((len(on_surface), 1)))
+        from softvr.model import dynamics_mesh, embed_surface, load_mesh
+
+        v, t = load_mesh(spec.mesh)
+        v = v @ rotation.T + centre
+        nodes, tets = dynamics_mesh(v, t, float(spec.cells))
+        tet_index, weights = embed_surface(nodes, tets, v)
+        return nodes, tets, t, (tets[tet_index], weights)
+
+    @staticmethod
+    def _keyframes(spec: BodySpec, centre, quaternion):
+        times = np.asarray(spec.motion.get("times", [0.0]), float)
+        positions = np.asarray(spec.motion.get("positions", [centre]), float)
+
+        def pose(t: float):
+            p = np.array([np.interp(t, times, positions[:, k]) for k in range(3)])
+            return p, quaternion
+
+        return pose
+
+    # -- the demo interface ---------------------------------------------------------------
+    def penetration(self) -> float:
+        """Deepest drawn vertex below any plane or inside any static sphere [m]."""
+        deepest = 0.0
+        for d in self.drawn:
+            x = np.asarray(d.vertices())
+            for plane, _ in self.planes:
+                n = plane.unit_normal()
+                deepest = max(deepest, float(-((x - np.asarray(plane.point)) @ n).min()))
+            for s in self.spheres:
+                deepest = max(deepest, float((s.radius - np.linalg.norm(x - np.asarray(s.center), axis=1)).max()))
+        return deepest
+
+    def setup_render(self, renderer) -> None:
+        for plane, size in self.planes:
+            renderer.add_plane(point=plane.point, normal=plane.normal, size=size, tiles=12)
+        for s in self.spheres:
+            renderer.add_sphere(s.center, s.radius)
+        self._handles = [renderer.add_mesh(d.vertices(), d.triangles, color=d.color) for d in self.drawn]
+
+    def update_render(self, renderer) -> None:
+        for handle, d in zip(self._handles, self.drawn):
+            renderer.update(handle, d.vertices())
+
+    def describe(self) -> dict:
+        return {**super().describe(), "scene_file": str(self.file.path),
+                "body_types": {b.name: b.type for b in self.file.bodies}}
+
+
+def load_scene(path, **overrides) -> SceneExample:
+    """Read, validate and build a scene file; ``overrides`` (frames, width, height) go to
+    :class:`SceneExample`."""
+    return SceneExample(read_scene(path), **overrides)

@@ -1,0 +1,344 @@
+"""The scene file: one versioned TOML description of a simulation, validated all at once.
+
+::
+
+    format = "softvr-scene 1"
+
+    [simulation]
+    dt = 0.005                  # [s]
+    steps_per_frame = 8
+    frames = 120
+    gravity = [0.0, 0.0, -9.81] # [m/s^2]
+    friction = 0.5              # Coulomb, where a contact's sides give none
+    pgs_iterations = 500
+    contact_margin = 0.005      # [m]
+
+    [render]
+    size = [640, 480]           # [pixels]
+    camera = "iso"              # front | side | top | iso ... (softvr.render.Camera views)
+    azimuth = 0.0               # [deg]
+    elevation = 0.0             # [deg]
+    zoom = 1.0
+    bounds = [-0.5, 0.5, -0.5, 0.5, 0.0, 0.6]   # [m] (optional: fitted to the bodies)
+
+    [material.jelly]            # named materials (FEM and rigid bodies)
+    young = 1.5e5               # [Pa]
+    poisson = 0.28
+    density = 1000.0            # [kg/m^3]
+    alpha = 1.0                 # [1/s] Rayleigh damping
+    beta = 0.002                # [s]
+
+    [adhesion.tacky]            # named softvr.contact.Adhesion parameters (thesis ch. 4)
+    stiffness = 1e7
+    max_energy = 5.0
+
+    [[plane]]                   # static half-spaces
+    point = [0.0, 0.0, 0.0]
+    normal = [0.0, 0.0, 1.0]
+    friction = 0.5
+    adhesion = "tacky"          # optional
+    size = 3.0                  # [m] drawn square
+
+    [[sphere]]                  # static spheres
+    center = [0.0, 0.0, 0.25]
+    radius = 0.25
+    friction = 0.5
+
+    [[body]]
+    name = "cube"
+    type = "fem"                # rigid | fem | cloth | fixed | kinematic
+    box = [0.3, 0.3, 0.3]       # [m] shape: box, sphere = r, mesh = "file" (OBJ, STL, PLY, glTF), cloth = [w, h]
+    cells = 4                   # fem box: cubes per axis (5 tets each); fem mesh: cell_size [m]
+    material = "jelly"
+    position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
+    rotation = [0.0, 0.0, 0.0]  # [deg] about x, then y, then z
+    velocity = [0.0, 0.0, 0.0]  # [m/s]
+    fixed_below = 0.01          # [m] fem / cloth: clamp the nodes below this height
+    color = [0.9, 0.5, 0.4]
+    adhesion = "tacky"
+
+    # cloth: cloth = [w, h], quads = [nu, nv], area_density [kg/m^2], stretch, shear, bend [N/m],
+    #        damping [N s/m], alpha [1/s]
+    # kinematic: [body.motion] times = [...] [s], positions = [[x, y, z], ...] [m] (linear between)
+
+    [[filter]]                  # bodies that never collide with each other
+    a = "cube"
+    b = "floor box"
+
+Every error names the file, the field path (``body[2].material``), what was expected and what
+was found, all of a file's errors at once: missing mesh files, unknown body types, numbers out
+of range or of the wrong kind, references to materials, adhesions or bodies that do not exist.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from softvr.errors import Problems, read_toml
+
+__all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
+
+FORMAT = "softvr-scene 1"
+BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic")
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
+_SHAPES = {"rigid": ("box", "sphere"), "fem": ("box", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
+           "kinematic": ("box", "sphere")}
+_ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
+
+
+@dataclass
+class BodySpec:
+    """One ``[[body]]`` (module docstring); shape in ``shape`` ("box", "sphere", "mesh",
+    "cloth") with its ``size`` (box [3] [m], sphere radius [m], cloth [w, h] [m]) or
+    ``mesh`` path."""
+
+    name: str
+    type: str
+    shape: str
+    size: tuple | float | None = None
+    mesh: Path | None = None
+    cells: float = 4
+    material: str | None = None
+    position: tuple = (0.0, 0.0, 0.0)
+    rotation: tuple = (0.0, 0.0, 0.0)
+    velocity: tuple = (0.0, 0.0, 0.0)
+    fixed_below: float | None = None
+    color: tuple = (0.8, 0.6, 0.5)
+    adhesion: str | None = None
+    cloth: dict = field(default_factory=dict)
+    motion: dict = field(default_factory=dict)
+
+
+@dataclass
+class SceneFile:
+    """A validated scene file (module docstring)."""
+
+    path: Path
+    simulation: dict
+    render: dict
+    materials: dict
+    adhesions: dict
+    planes: list
+    spheres: list
+    bodies: list
+    filters: list
+
+    def body(self, name: str) -> BodySpec:
+        return next(b for b in self.bodies if b.name == name)
+
+
+def _named_tables(doc: dict, key: str, errors: Problems) -> dict:
+    tables = doc.get(key, {})
+    if not isinstance(tables, dict) or not all(isinstance(v, dict) for v in tables.values()):
+        errors.add(key, f"[{key}.NAME] tables", type(tables).__name__)
+        return {}
+    return tables
+
+
+def _list(doc: dict, key: str, errors: Problems) -> list:
+    items = doc.get(key, [])
+    if not isinstance(items, list) or not all(isinstance(v, dict) for v in items):
+        errors.add(key, f"[[{key}]] tables", type(items).__name__)
+        return []
+    return items
+
+
+def _simulation(doc: dict, errors: Problems) -> dict:
+    t = doc.get("simulation", {})
+    w = "simulation"
+    out = {"dt": errors.number(t, "dt", w, default=0.005, positive=True, unit="s"),
+           "steps_per_frame": errors.integer(t, "steps_per_frame", w, default=4, minimum=1),
+           "frames": errors.integer(t, "frames", w, default=100, minimum=1),
+           "gravity": errors.vector(t, "gravity", w, default=[0.0, 0.0, -9.81], unit="m/s^2"),
+           "friction": errors.number(t, "friction", w, default=0.5, minimum=0.0),
+           "pgs_iterations": errors.integer(t, "pgs_iterations", w, default=500, minimum=1),
+           "contact_margin": errors.number(t, "contact_margin", w, default=0.005, minimum=0.0, unit="m")}
+    return out
+
+
+def _render(doc: dict, errors: Problems) -> dict:
+    t = doc.get("render", {})
+    w = "render"
+    size = t.get("size", [640, 480])
+    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and 0 < v <= 16384 for v in size)):
+        errors.add(f"{w}.size", "[width, height] in pixels, 1..16384", size)
+        size = [640, 480]
+    bounds = t.get("bounds")
+    if bounds is not None:
+        bounds = errors.vector(t, "bounds", w, 6, unit="m")
+    camera = t.get("camera", "iso")
+    if not isinstance(camera, str):
+        errors.add(f"{w}.camera", "a view name (front, side, top, iso, ...)", camera)
+        camera = "iso"
+    return {"size": tuple(size), "camera": camera, "bounds": bounds,
+            "azimuth": errors.number(t, "azimuth", w, default=0.0, unit="deg"),
+            "elevation": errors.number(t, "elevation", w, default=0.0, unit="deg"),
+            "zoom": errors.number(t, "zoom", w, default=1.0, positive=True)}
+
+
+def _materials(doc: dict, errors: Problems) -> dict:
+    out = {}
+    for name, t in _named_tables(doc, "material", errors).items():
+        w = f"material.{name}"
+        out[name] = {"young": errors.number(t, "young", w, default=1e5, positive=True, unit="Pa"),
+                     "poisson": errors.number(t, "poisson", w, default=0.3, minimum=-0.99, maximum=0.5),
+                     "density": errors.number(t, "density", w, default=1000.0, positive=True, unit="kg/m^3"),
+                     "alpha": errors.number(t, "alpha", w, default=0.0, minimum=0.0, unit="1/s"),
+                     "beta": errors.number(t, "beta", w, default=0.0, minimum=0.0, unit="s")}
+    return out
+
+
+def _adhesions(doc: dict, errors: Problems) -> dict:
+    out = {}
+    for name, t in _named_tables(doc, "adhesion", errors).items():
+        w = f"adhesion.{name}"
+        unknown = sorted(set(t) - set(_ADHESION_KEYS))
+        if unknown:
+            errors.add(f"{w}.{unknown[0]}", f"one of {', '.join(_ADHESION_KEYS)}", unknown[0])
+        # stiffness, max_energy and viscosity have no default (softvr.contact.Adhesion).
+        required = ("stiffness", "max_energy", "viscosity")
+        out[name] = {k: errors.number(t, k, w, minimum=0.0) for k in _ADHESION_KEYS if k in t or k in required}
+    return out
+
+
+def _ref(table: dict, key: str, where: str, known: dict | set, what: str, errors: Problems, *, required=False):
+    value = table.get(key)
+    if value is None and not required:
+        return None
+    if value not in known:
+        names = ", ".join(sorted(known)) or f"none defined: add a [{what}.NAME] table"
+        errors.add(f"{where}.{key}", f"the name of a {what} ({names})", value if value is not None else "nothing")
+        return None
+    return value
+
+
+def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, errors: Problems) -> BodySpec | None:
+    w = f"body[{i}]"
+    name = t.get("name")
+    if not isinstance(name, str) or not name:
+        errors.add(f"{w}.name", "a non-empty string", name if name is not None else "nothing")
+        name = f"body {i}"
+    kind = errors.choice(t, "type", w, BODY_TYPES)
+    allowed = _SHAPES.get(kind, ("box", "sphere", "mesh", "cloth"))
+    given = [s for s in ("box", "sphere", "mesh", "cloth") if s in t]
+    shape, size, mesh = None, None, None
+    if len(given) != 1 or given[0] not in allowed:
+        errors.add(w, f"one shape of {' | '.join(allowed)} for a {kind or 'body'}",
+                   ", ".join(given) if given else "no shape")
+    else:
+        shape = given[0]
+        if shape == "box":
+            size = errors.vector(t, "box", w, unit="m")
+            if size is not None and min(size) <= 0:
+                errors.add(f"{w}.box", "3 edge lengths > 0 [m]", list(size))
+        elif shape == "sphere":
+            size = errors.number(t, "sphere", w, positive=True, unit="m")
+        elif shape == "cloth":
+            size = errors.vector(t, "cloth", w, 2, unit="m")
+        else:
+            mesh_name = t["mesh"]
+            if not isinstance(mesh_name, str):
+                errors.add(f"{w}.mesh", "a mesh file name", mesh_name)
+            else:
+                mesh = (scene_dir / mesh_name).resolve()
+                if mesh.suffix.lower() not in MESH_SUFFIXES:
+                    errors.add(f"{w}.mesh", f"a mesh file ({', '.join(MESH_SUFFIXES)})", mesh_name)
+                elif not mesh.is_file():
+                    errors.add(f"{w}.mesh", "an existing file", f"no file {mesh}")
+    spec = BodySpec(name=name, type=kind, shape=shape, size=size, mesh=mesh)
+    if kind in ("rigid", "fem"):
+        spec.material = _ref(t, "material", w, materials, "material", errors, required=True)
+    spec.adhesion = _ref(t, "adhesion", w, adhesions, "adhesion", errors)
+    for key in ("position", "rotation", "velocity"):
+        value = errors.vector(t, key, w, default=list(getattr(spec, key)), unit="deg" if key == "rotation" else "m")
+        if value is not None:
+            setattr(spec, key, value)
+    color = errors.vector(t, "color", w, default=list(spec.color))
+    if color is not None and not all(0 <= c <= 1 for c in color):
+        errors.add(f"{w}.color", "r, g, b in [0, 1]", list(color))
+    elif color is not None:
+        spec.color = color
+    if "fixed_below" in t:
+        spec.fixed_below = errors.number(t, "fixed_below", w, unit="m")
+    if kind == "fem":
+        spec.cells = (errors.number(t, "cells", w, positive=True, unit="m") if shape == "mesh"
+                      else errors.integer(t, "cells", w, default=4, minimum=1))
+    if kind == "cloth":
+        spec.cloth = {"quads": t.get("quads", [16, 16]),
+                      "area_density": errors.number(t, "area_density", w, default=0.2, positive=True, unit="kg/m^2"),
+                      **{k: errors.number(t, k, w, default=d, minimum=0.0, unit=u) for k, d, u in (
+                          ("stretch", 200.0, "N/m"), ("shear", 20.0, "N/m"), ("bend", 1.0, "N/m"),
+                          ("damping", 0.05, "N s/m"), ("alpha", 0.1, "1/s"))}}
+        quads = spec.cloth["quads"]
+        if not (isinstance(quads, list) and len(quads) == 2 and all(isinstance(q, int) and q >= 1 for q in quads)):
+            errors.add(f"{w}.quads", "[nu, nv] quads, integers >= 1", quads)
+    if kind == "kinematic":
+        spec.motion = _motion(t.get("motion"), f"{w}.motion", errors)
+    elif "motion" in t:
+        errors.add(f"{w}.motion", "a motion only on a kinematic body", f"a {kind} body")
+    return spec
+
+
+def _motion(t, w: str, errors: Problems) -> dict:
+    if not isinstance(t, dict):
+        errors.add(w, "a [body.motion] table: times [s] and positions [m]", t if t is not None else "nothing")
+        return {}
+    times, positions = t.get("times"), t.get("positions")
+    ok_times = isinstance(times, list) and len(times) >= 1 and all(
+        isinstance(x, (int, float)) and not isinstance(x, bool) for x in times) and all(
+        b > a for a, b in zip(times, times[1:]))
+    if not ok_times:
+        errors.add(f"{w}.times", "increasing times [s], at least one", times if times is not None else "nothing")
+    ok_positions = isinstance(positions, list) and all(
+        isinstance(p, list) and len(p) == 3 and all(isinstance(x, (int, float)) for x in p) for p in positions)
+    if not ok_positions or (ok_times and len(positions) != len(times)):
+        errors.add(f"{w}.positions", "one [x, y, z] [m] per time", positions if positions is not None else "nothing")
+    return {"times": times, "positions": positions} if ok_times and ok_positions else {}
+
+
+def read_scene(path) -> SceneFile:
+    """Read and validate a scene file (module docstring); mesh paths are resolved against its
+    folder and must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
+    path = Path(path)
+    doc = read_toml(path, "scene file")
+    errors = Problems(str(path), "scene file")
+    if doc.get("format") != FORMAT:
+        errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
+    known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter"}
+    for key in sorted(set(doc) - known):
+        errors.add(key, f"one of {', '.join(sorted(known))}", key)
+    simulation, render = _simulation(doc, errors), _render(doc, errors)
+    materials, adhesions = _materials(doc, errors), _adhesions(doc, errors)
+    planes = []
+    for i, t in enumerate(_list(doc, "plane", errors)):
+        w = f"plane[{i}]"
+        planes.append({"point": errors.vector(t, "point", w, default=[0.0, 0.0, 0.0], unit="m"),
+                       "normal": errors.vector(t, "normal", w, default=[0.0, 0.0, 1.0]),
+                       "friction": errors.number(t, "friction", w, default=simulation["friction"] or 0.5, minimum=0.0),
+                       "size": errors.number(t, "size", w, default=3.0, positive=True, unit="m"),
+                       "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
+    spheres = []
+    for i, t in enumerate(_list(doc, "sphere", errors)):
+        w = f"sphere[{i}]"
+        spheres.append({"center": errors.vector(t, "center", w, unit="m"),
+                        "radius": errors.number(t, "radius", w, positive=True, unit="m"),
+                        "friction": errors.number(t, "friction", w, default=simulation["friction"] or 0.5, minimum=0.0),
+                        "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
+    bodies, names = [], set()
+    raw_bodies = _list(doc, "body", errors)
+    for i, t in enumerate(raw_bodies):
+        spec = _body(i, t, path.parent, materials, adhesions, errors)
+        if spec.name in names:
+            errors.add(f"body[{i}].name", "a name no other body has", spec.name)
+        names.add(spec.name)
+        bodies.append(spec)
+    if not raw_bodies and not planes and not spheres:
+        errors.add("body", "at least one [[body]]", "none")
+    filters = []
+    for i, t in enumerate(_list(doc, "filter", errors)):
+        ends = [_ref(t, side, f"filter[{i}]", names, "body", errors, required=True) for side in ("a", "b")]
+        filters.append(tuple(ends))
+    errors.raise_if_any()
+    return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
+                     planes=planes, spheres=spheres, bodies=bodies, filters=filters)
