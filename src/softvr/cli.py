@@ -50,7 +50,7 @@ def _build_model(argv: list[str]) -> int:
 
 
 def _run(argv: list[str]) -> int:
-    if argv and argv[0].endswith(".toml"):
+    if argv and argv[0].lower().endswith((".toml", ".gltf", ".glb")):
         from softvr.scene import _command
 
         return _command.run_main(argv)
@@ -68,7 +68,7 @@ def _view(argv: list[str]) -> int:
         from softvr.examples import example_palpation
 
         return example_palpation.view_main(argv[1:])
-    if argv and argv[0].endswith(".toml"):
+    if argv and argv[0].lower().endswith((".toml", ".gltf", ".glb")):
         from softvr.scene import _command
 
         return _command.view_main(argv)

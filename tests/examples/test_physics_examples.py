@@ -288,7 +288,7 @@ def test_each_example_main_runs(tmp_path):
 @pytest.mark.parametrize("scene, message", [
     ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, "
                "cloth-wall, lips, probe, shoulder"),
-    ("scenes/my_scene.json", "scene files are not supported yet (they come with the scene-format issue)"),
+    ("scenes/my_scene.json", "scene files are TOML (.toml) or glTF (.gltf, .glb)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):
     with pytest.raises(SystemExit) as exc:

@@ -143,3 +143,79 @@ def test_bundled_scenes_check_and_play(name, capsys):
         assert drift < 1e-3
     if name == "cloth-sphere.toml":
         assert ex.bodies["cloth"].q[:, 2].min() > -0.003
+
+
+def _glb_with_extras(path, mesh, node_extras, scene_extras, translation):
+    """A GLB as Blender's exporter writes custom properties: node and scene ``extras``."""
+    import json
+    import struct
+
+    import trimesh
+
+    scene = trimesh.Scene()
+    scene.add_geometry(mesh, node_name="gel", geom_name="gel_mesh",
+                       transform=trimesh.transformations.translation_matrix(translation))
+    data = scene.export(file_type="glb")
+    length = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + length])
+    doc["nodes"][0]["extras"] = node_extras
+    doc["scenes"][doc.get("scene", 0)]["extras"] = scene_extras
+    chunk = json.dumps(doc).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    rest = data[20 + length:]
+    body = struct.pack("<I4s", len(chunk), b"JSON") + chunk + rest
+    path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+
+
+def test_a_gltf_with_blender_extras_loads_as_the_equivalent_toml_scene(tmp_path, capsys):
+    """The glTF box (0.1 x 0.2 x 0.3, y up, at y = 0.5) and the TOML scene with the same box
+    in z-up coordinates (0.1 x 0.3 x 0.2 at z = 0.5) give the same FEM body."""
+    import trimesh
+
+    _glb_with_extras(tmp_path / "gel.glb", trimesh.creation.box((0.1, 0.2, 0.3)),
+                     {"softvr_type": "fem", "softvr_young": 2e4, "softvr_poisson": 0.4, "softvr_density": 900.0,
+                      "softvr_cells": 0.045, "blender_only": 1},
+                     {"softvr_dt": 0.01, "softvr_frames": 3}, (0.0, 0.5, 0.0))
+    trimesh.creation.box((0.1, 0.3, 0.2)).export(tmp_path / "gel.obj")
+    toml = _write(tmp_path, '''
+[simulation]
+dt = 0.01
+frames = 3
+[material.gel]
+young = 2e4
+poisson = 0.4
+density = 900.0
+[[plane]]
+[[body]]
+name = "gel"
+type = "fem"
+mesh = "gel.obj"
+cells = 0.045
+material = "gel"
+position = [0.0, 0.0, 0.5]
+''')
+    from softvr.scene import load_scene
+
+    a, b = load_scene(tmp_path / "gel.glb"), load_scene(toml)
+    fa, fb = a.bodies["gel"], b.bodies["gel"]
+    assert a.frames == b.frames == 3 and a.dt == b.dt
+    assert len(fa.tets) == len(fb.tets)
+    np.testing.assert_allclose(np.sort(fa.rest, axis=0), np.sort(fb.rest, axis=0), atol=1e-12)
+    assert fa.mass.sum() == pytest.approx(fb.mass.sum(), rel=1e-12)
+    assert abs(fa.stiffness_matrix()).sum() == pytest.approx(abs(fb.stiffness_matrix()).sum(), rel=1e-9)
+    assert main(["check", str(tmp_path / "gel.glb")]) == 0
+    assert "1 fem" in capsys.readouterr().out
+
+
+def test_bad_gltf_properties_are_named_by_node(tmp_path):
+    import trimesh
+
+    _glb_with_extras(tmp_path / "bad.glb", trimesh.creation.box((0.1, 0.1, 0.1)),
+                     {"softvr_type": "fem", "softvr_young": -1.0, "softvr_cells": "big"}, {"softvr_dt": 0},
+                     (0.0, 0.0, 0.0))
+    from softvr.scene import read_gltf_scene
+
+    with pytest.raises(InputError) as info:
+        read_gltf_scene(tmp_path / "bad.glb")
+    for fragment in ("bad.glb", "node 'gel'.young", "node 'gel'.cells", "scene.dt"):
+        assert fragment in str(info.value), fragment

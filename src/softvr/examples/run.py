@@ -370,8 +370,8 @@ def main(argv: list[str] | None = None) -> int:
     if scene not in SCENES:
         looks_like_file = any(c in scene for c in "/\\") or Path(scene).suffix != "" or Path(scene).exists()
         if looks_like_file:
-            p.error(f"{scene!r} looks like a scene file; scene files are not supported yet (they come with "
-                    f"the scene-format issue). Built-in scenes: {names}")
+            p.error(f"{scene!r} looks like a scene file; scene files are TOML (.toml) or glTF (.gltf, .glb) "
+                    f"(softvr check SCENE). Built-in scenes: {names}")
         p.error(f"unknown scene {scene!r}; choose one of: {names}")
     module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
     rest = list(argv)

@@ -9,12 +9,13 @@ __all__ = ["check_main", "run_main", "view_main"]
 
 def check_main(argv: list[str] | None = None) -> int:
     """Validate a scene file: a summary, or every problem (exit status 2)."""
-    from softvr.scene import bundled, read_scene
+    from softvr.scene import bundled, read_any
 
     p = argparse.ArgumentParser(prog="softvr check", description="Validate a scene file; all its errors at once.")
-    p.add_argument("scene", metavar="SCENE", help="scene file (TOML, softvr-scene 1), or a bundled one's name")
+    p.add_argument("scene", metavar="SCENE",
+                   help="scene file (TOML, softvr-scene 1; or glTF / GLB with softvr extras), or a bundled one's name")
     args = p.parse_args(argv)
-    scene = read_scene(bundled(args.scene))
+    scene = read_any(bundled(args.scene))
     kinds = {}
     for b in scene.bodies:
         kinds[b.type] = kinds.get(b.type, 0) + 1

@@ -3,12 +3,13 @@
 Each ``[[body]]`` becomes a contact object with its collision geometry and a drawn surface:
 
 =========  =====================================================================================
-rigid      box (box collider) or sphere (sphere collider): ``RigidBody.box`` / ``.sphere`` of the
-           material's density
+rigid      box (box collider), sphere (sphere collider) or mesh (its vertices and triangles
+           collide; mass, centre and inertia of the closed mesh): of the material's density
 fem        box: a grid of ``cells``^3 cubes, 5 tets each; mesh: the model pipeline's dynamics
            mesh (cubes of ``cells`` metres touching the surface) with the surface embedded in it;
            co-rotational FEM of the material
-cloth      a ``cloth = [w, h]`` sheet of ``quads``, mass-spring cloth, in the body's x-y plane
+cloth      a ``cloth = [w, h]`` sheet of ``quads`` in the body's x-y plane (or a glTF mesh),
+           mass-spring cloth
 fixed      box (box collider of a fixed body) or mesh (a static triangle mesh obstacle)
 kinematic  box or sphere moved through ``motion`` keyframes (linear in between, held after)
 =========  =====================================================================================
@@ -24,7 +25,7 @@ import numpy as np
 from softvr.examples.run import PhysicsExample
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 
-__all__ = ["SceneExample", "load_scene"]
+__all__ = ["SceneExample", "load_scene", "read_any"]
 
 
 def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
@@ -98,7 +99,26 @@ class SceneExample(PhysicsExample):
         centre = np.asarray(spec.position, float)
         adhesion = self.adhesions.get(spec.adhesion)
         material = self.file.materials.get(spec.material)
-        if spec.type in ("rigid", "fixed", "kinematic") and spec.shape in ("box", "sphere"):
+        if spec.type == "rigid" and spec.shape == "mesh":
+            import trimesh
+
+            from softvr.dynamics import RigidPoints
+
+            v, t = self._surface(spec, rotation, centre)
+            props = trimesh.Trimesh(v, t, process=False).mass_properties
+            if not props["volume"] > 0:
+                from softvr.errors import InputError
+
+                raise InputError(f"body {spec.name!r} mesh", "a closed, outward surface (volume > 0)",
+                                 f"volume {props['volume']:.3g} m^3")
+            com = np.asarray(props["center_mass"])
+            body = RigidBody(material["density"] * props["volume"], material["density"] * props["inertia"],
+                             position=com, velocity=spec.velocity, name=spec.name)
+            local = v - com
+            index = scene.add_body(body, collision_points=RigidPoints(body, local), collision_triangles=t,
+                                   adhesion=adhesion)
+            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color))
+        elif spec.type in ("rigid", "fixed", "kinematic") and spec.shape in ("box", "sphere"):
             if spec.type == "rigid":
                 make = RigidBody.box if spec.shape == "box" else RigidBody.sphere
                 body = make(spec.size, material["density"], position=centre, orientation=quaternion,
@@ -118,10 +138,8 @@ class SceneExample(PhysicsExample):
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
             from softvr.collision import TriangleMesh
-            from softvr.model import load_mesh
 
-            v, t = load_mesh(spec.mesh)
-            v = v @ rotation.T + centre
+            v, t = self._surface(spec, rotation, centre)
             scene.add_mesh(TriangleMesh(v, t, id=100 + len(self.drawn)), adhesion=adhesion)
             self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
             return
@@ -140,11 +158,15 @@ class SceneExample(PhysicsExample):
             from softvr.dynamics import ClothBody
 
             c = spec.cloth
-            w, h = spec.size
-            origin = centre - rotation @ np.array([w / 2, h / 2, 0.0])
-            body = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0], v_axis=rotation[:, 1],
-                                  density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
-                                  damping=c["damping"], alpha=c["alpha"], name=spec.name)
+            springs = dict(density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
+                           damping=c["damping"], alpha=c["alpha"], name=spec.name)
+            if spec.mesh_data is not None:
+                body = ClothBody(*self._surface(spec, rotation, centre), **springs)
+            else:
+                w, h = spec.size
+                origin = centre - rotation @ np.array([w / 2, h / 2, 0.0])
+                body = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0],
+                                      v_axis=rotation[:, 1], **springs)
             if spec.fixed_below is not None:
                 body.fixed[:] = body.q[:, 2] < spec.fixed_below
             body.v[:] = spec.velocity
@@ -171,13 +193,20 @@ class SceneExample(PhysicsExample):
             on_surface, local = np.unique(faces, return_inverse=True)
             return nodes, tets, local.reshape(-1, 3).astype(np.int32), (on_surface[:, None],
                                                                         np.ones((len(on_surface), 1)))
-        from softvr.model import dynamics_mesh, embed_surface, load_mesh
+        from softvr.model import dynamics_mesh, embed_surface
 
-        v, t = load_mesh(spec.mesh)
-        v = v @ rotation.T + centre
+        v, t = SceneExample._surface(spec, rotation, centre)
         nodes, tets = dynamics_mesh(v, t, float(spec.cells))
         tet_index, weights = embed_surface(nodes, tets, v)
         return nodes, tets, t, (tets[tet_index], weights)
+
+    @staticmethod
+    def _surface(spec: BodySpec, rotation, centre) -> tuple[np.ndarray, np.ndarray]:
+        """The body's mesh (from its file, or given in memory) placed in the world [m]."""
+        from softvr.model import load_mesh
+
+        v, t = spec.mesh_data if spec.mesh_data is not None else load_mesh(spec.mesh)
+        return np.asarray(v, float) @ rotation.T + centre, np.asarray(t, np.int32)
 
     @staticmethod
     def _keyframes(spec: BodySpec, centre, quaternion):
@@ -219,7 +248,18 @@ class SceneExample(PhysicsExample):
                 "body_types": {b.name: b.type for b in self.file.bodies}}
 
 
+def read_any(path) -> SceneFile:
+    """A scene file (TOML) or a glTF / GLB scene with softvr extras, validated."""
+    from pathlib import Path
+
+    if Path(path).suffix.lower() in (".gltf", ".glb"):
+        from softvr.scene.gltf import read_gltf_scene
+
+        return read_gltf_scene(path)
+    return read_scene(path)
+
+
 def load_scene(path, **overrides) -> SceneExample:
-    """Read, validate and build a scene file; ``overrides`` (frames, width, height) go to
-    :class:`SceneExample`."""
-    return SceneExample(read_scene(path), **overrides)
+    """Read, validate and build a scene (TOML scene file, or glTF / GLB with softvr extras);
+    ``overrides`` (frames, width, height) go to :class:`SceneExample`."""
+    return SceneExample(read_any(path), **overrides)

@@ -48,6 +48,8 @@
     name = "cube"
     type = "fem"                # rigid | fem | cloth | fixed | kinematic
     box = [0.3, 0.3, 0.3]       # [m] shape: box, sphere = r, mesh = "file" (OBJ, STL, PLY, glTF), cloth = [w, h]
+                                # (rigid: box | sphere | mesh; fem: box | mesh; fixed: box | mesh;
+                                #  kinematic: box | sphere; cloth: cloth)
     cells = 4                   # fem box: cubes per axis (5 tets each); fem mesh: cell_size [m]
     material = "jelly"
     position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
@@ -82,7 +84,7 @@ __all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
 FORMAT = "softvr-scene 1"
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
-_SHAPES = {"rigid": ("box", "sphere"), "fem": ("box", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
+_SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
            "kinematic": ("box", "sphere")}
 _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
 
@@ -108,6 +110,7 @@ class BodySpec:
     adhesion: str | None = None
     cloth: dict = field(default_factory=dict)
     motion: dict = field(default_factory=dict)
+    mesh_data: tuple | None = None  # (vertices [n, 3] [m], triangles [t, 3]) given in memory (glTF)
 
 
 @dataclass
