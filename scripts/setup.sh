@@ -35,6 +35,17 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   touch "$stamp"
 fi
 
+# Blender as a Python module (bpy 4.2, CPython 3.11 only, ~0.5 GB) for the test that exports a
+# scene with Blender's own glTF exporter; in its own environment, apart from softvr's.
+if [ "$job" = test ] && "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+  if [ ! -f .venv-blender/.bpy-installed ]; then
+    echo "setup: installing Blender's Python module (bpy 4.2) into .venv-blender"
+    "$PY" -m venv .venv-blender
+    .venv-blender/bin/pip install -q "bpy==4.2.*"
+    touch .venv-blender/.bpy-installed
+  fi
+fi
+
 case "$job" in
   demo) exec .venv/bin/python -m softvr demo "$@" ;;
   test) exec .venv/bin/python -m pytest -q "$@" ;;
