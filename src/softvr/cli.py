@@ -16,6 +16,7 @@
 ``softvr bench palpation``  palpation frame split: FEM step, full and incremental rasterization, rendering
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr check SCENE``      validate a scene file (every error at once)
+``softvr blender-addon``    write softvr-blender.zip, the Blender add-on
 ``softvr info PATH``        what a volume file holds
 """
 
@@ -100,6 +101,18 @@ def _check(argv: list[str]) -> int:
     return _command.check_main(argv)
 
 
+def _blender_addon(argv: list[str]) -> int:
+    from softvr.blender import build_addon
+
+    p = argparse.ArgumentParser(prog="softvr blender-addon",
+                                description="Write softvr-blender.zip, the Blender (>= 4.2) add-on, for "
+                                            "Edit > Preferences > Add-ons > Install from Disk.")
+    p.add_argument("-o", "--out", default=".", help="folder to write it into (default: here)")
+    args = p.parse_args(argv)
+    print(f"wrote {build_addon(args.out)}")
+    return 0
+
+
 def _info(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="softvr info", description="Print what a volume file holds.")
     parser.add_argument("path")
@@ -113,7 +126,7 @@ def _info(argv: list[str]) -> int:
 
 
 _COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model,
-             "cave": _cave, "check": _check}
+             "cave": _cave, "check": _check, "blender-addon": _blender_addon}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -83,3 +83,47 @@ position = [0.0, 0.0, 0.5]
     np.testing.assert_allclose(np.sort(fa.rest, axis=0), np.sort(fb.rest, axis=0), atol=1e-7)  # float32 glTF
     assert fa.mass.sum() == pytest.approx(fb.mass.sum(), rel=1e-6)
     assert (fa.material.young, fa.material.poisson, fa.material.density) == (2e4, 0.4, 900.0)
+
+
+ADDON_SCRIPT = """
+import os
+import sys
+
+import bpy
+
+zip_path, glb = sys.argv[1], sys.argv[2]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path)
+bpy.ops.preferences.addon_enable(module="softvr_blender")
+bpy.ops.mesh.primitive_cube_add(size=0.1, location=(0.0, 0.0, 0.2))
+bpy.context.active_object.name = "jelly"
+bpy.ops.softvr.mark(kind="fem")
+bpy.context.active_object["softvr_young"] = 5.0e4
+bpy.ops.mesh.primitive_cube_add(size=0.04, location=(0.3, 0.0, 0.3))
+bpy.context.active_object.name = "die"
+bpy.ops.softvr.mark(kind="rigid")
+bpy.ops.softvr.export(filepath=glb)
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def test_the_addon_installs_marks_and_exports_a_scene_that_checks_and_runs(tmp_path, capsys):
+    from softvr.blender import build_addon
+    from softvr.cli import main
+
+    addon = build_addon(tmp_path)
+    glb = tmp_path / "addon.glb"
+    done = subprocess.run([str(BLENDER_PYTHON), "-c", ADDON_SCRIPT, str(addon), str(glb)], capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0 and glb.exists(), done.stderr[-2000:]
+    assert main(["check", str(glb)]) == 0
+    assert "1 fem, 1 rigid" in capsys.readouterr().out
+    with load_scene(glb, frames=3, width=64, height=48) as ex:
+        jelly, die = ex.bodies["jelly"], ex.bodies["die"]
+        assert jelly.material.young == 5.0e4 and jelly.material.poisson == 0.4  # set, and the add-on's default
+        assert die.mass == pytest.approx(1000.0 * 0.04**3, rel=1e-6)
+        z0 = die.position[2]
+        for _ in range(3):
+            ex.step()
+        assert die.position[2] < z0  # it falls
