@@ -196,6 +196,11 @@ class Scene:
                 raise InputError("body index", f"an index in [0, {len(self.bodies) - 1}]", repr(i))
         self._filtered.add((min(a, b), max(a, b)))
 
+    def collision_enabled(self, a: int, b: int) -> bool:
+        """Whether bodies ``a`` and ``b`` make contacts (not switched off by
+        :meth:`disable_collision` or a coupling)."""
+        return (min(a, b), max(a, b)) not in self._filtered
+
     def _margin(self, body: int) -> float:
         """Detection margin [m] of a body's surface: the scene's, or its adhesion's debond gap."""
         adhesion = self._adhesion[("body", body)]

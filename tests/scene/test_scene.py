@@ -45,6 +45,11 @@ material = "jelly"
 [[filter]]
 a = "a"
 b = "ghost"
+[[coupling]]
+a = "b"
+b = "nobody"
+radius = 0.01
+stiffness = 100.0
 [lights]
 ''')
     with pytest.raises(InputError) as info:
@@ -52,7 +57,7 @@ b = "ghost"
     message = str(info.value)
     for fragment in ("scene.toml", "simulation.dt", "material.jelly.young", "body[0].type", "rigid | fem",
                      "body[1].mesh", "missing.obj", "body[1].material", "rubber", "body[2].name",
-                     "filter[0].b", "ghost", "lights"):
+                     "filter[0].b", "ghost", "coupling[0].b", "nobody", "lights"):
         assert fragment in message, fragment
     assert main(["check", str(path)]) == 2
     err = capsys.readouterr().err
@@ -219,3 +224,74 @@ def test_bad_gltf_properties_are_named_by_node(tmp_path):
         read_gltf_scene(tmp_path / "bad.glb")
     for fragment in ("bad.glb", "node 'gel'.young", "node 'gel'.cells", "scene.dt"):
         assert fragment in str(info.value), fragment
+
+
+def test_check_refuses_bodies_that_start_inside_each_other_or_the_ground(tmp_path, capsys):
+    path = _write(tmp_path, '''
+[material.wood]
+density = 600.0
+[[plane]]
+[[body]]
+name = "left"
+type = "rigid"
+box = [0.2, 0.2, 0.2]
+material = "wood"
+position = [0.0, 0.0, 0.15]
+[[body]]
+name = "right"
+type = "rigid"
+box = [0.2, 0.2, 0.2]
+material = "wood"
+position = [0.15, 0.05, 0.2]
+[[body]]
+name = "sunk"
+type = "rigid"
+sphere = 0.05
+material = "wood"
+position = [1.0, 0.0, 0.02]
+''')
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "bodies 'left' and 'right'" in err and "crossing triangle pairs" in err
+    assert "body 'sunk'" in err and "30.00 mm below" in err
+
+
+def test_a_coupled_soft_block_hangs_from_a_fixed_post(tmp_path):
+    """Zero-length springs from the block's top nodes to a fixed box carry its weight: with
+    k = 2e4 N/m per spring the block sags by about m g / (n k), far less than free fall."""
+    path = _write(tmp_path, '''
+[simulation]
+dt = 0.01
+[material.gel]
+young = 5e4
+poisson = 0.3
+density = 1000.0
+alpha = 5.0
+[[body]]
+name = "post"
+type = "fixed"
+box = [0.1, 0.1, 0.02]
+position = [0.0, 0.0, 0.51]
+[[body]]
+name = "block"
+type = "fem"
+box = [0.1, 0.1, 0.1]
+cells = 2
+material = "gel"
+position = [0.0, 0.0, 0.45]
+[[coupling]]
+a = "block"
+b = "post"
+radius = 0.001
+stiffness = 2e4
+''')
+    ex = load_scene(path, frames=1)
+    block = ex.bodies["block"]
+    springs = len(ex.scene.couplings[0].a.nodes)
+    assert springs == 9  # the 3 x 3 top nodes touch the post
+    z0 = block.q[:, 2].mean()
+    for _ in range(100):
+        ex.scene.step(0.01)
+    sag = z0 - block.q[:, 2].mean()
+    weight = 1000.0 * 0.1**3 * 9.81
+    assert 0 < sag < 10 * weight / (springs * 2e4) + 2e-3  # spring stretch plus the gel's own sag

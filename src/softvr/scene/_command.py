@@ -15,13 +15,20 @@ def check_main(argv: list[str] | None = None) -> int:
     p.add_argument("scene", metavar="SCENE",
                    help="scene file (TOML, softvr-scene 1; or glTF / GLB with softvr extras), or a bundled one's name")
     args = p.parse_args(argv)
+    from softvr.errors import raise_all
+    from softvr.scene import SceneExample
+
     scene = read_any(bundled(args.scene))
+    # The geometry too: bodies that start inside each other or below the ground.
+    with SceneExample(scene, frames=1) as example:
+        raise_all(example.start_problems(), str(scene.path), "scene (collision-free start)")
     kinds = {}
     for b in scene.bodies:
         kinds[b.type] = kinds.get(b.type, 0) + 1
     bodies = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "no bodies"
     print(f"{scene.path}: ok — {bodies}; {len(scene.planes)} planes, {len(scene.spheres)} spheres, "
-          f"{len(scene.materials)} materials, {len(scene.adhesions)} adhesions, {len(scene.filters)} filters; "
+          f"{len(scene.materials)} materials, {len(scene.adhesions)} adhesions, {len(scene.filters)} filters, "
+          f"{len(scene.couplings)} couplings; "
           f"{scene.simulation['frames']} frames of {scene.simulation['steps_per_frame']} x "
           f"{scene.simulation['dt']:g} s")
     return 0

@@ -80,11 +80,13 @@ class SceneExample(PhysicsExample):
             sphere = Sphere(center=s["center"], radius=s["radius"], friction=s["friction"], id=len(self.planes) + i)
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
-        self.bodies, self.drawn, self.index = {}, [], {}
+        self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
         for spec in scene_file.bodies:
             self._add(scene, spec)
         for a, b in scene_file.filters:
             scene.disable_collision(self.index[a], self.index[b])
+        for c in scene_file.couplings:
+            self._couple(scene, c)
         w, h = ren["size"]
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
         super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
@@ -176,6 +178,55 @@ class SceneExample(PhysicsExample):
             self.drawn.append(_Drawn(lambda b=body: b.q, body.triangles, spec.color))
         self.bodies[spec.name] = body
         self.index[spec.name] = index
+        self._drawn_by_name[spec.name] = self.drawn[-1]
+
+    def _couple(self, scene, c: dict) -> None:
+        """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface."""
+        from softvr.dynamics import Coupling, EmbeddedPoints, RigidPoints, embed_in_tets
+        from softvr.errors import InputError
+        from softvr.model import nodes_near_surface
+
+        a, b = self.bodies[c["a"]], self.bodies[c["b"]]
+        surface = self._drawn_by_name[c["b"]]
+        nodes = np.flatnonzero(np.ones(len(a.q), bool))
+        near = nodes[nodes_near_surface(a.q, surface.vertices(), surface.triangles, c["radius"])]
+        if len(near) == 0:
+            raise InputError(f"coupling {c['a']} - {c['b']}", f"nodes of {c['a']!r} within {c['radius']} m of "
+                             f"{c['b']!r}", "none", source=str(self.file.path))
+        springs = a.q[near]
+        side_a = EmbeddedPoints(a, near[:, None], np.ones((len(near), 1)))
+        if hasattr(b, "tets"):
+            ti, w = embed_in_tets(b.q, b.tets, springs, tolerance=np.inf)
+            side_b = EmbeddedPoints(b, b.tets[ti], w)
+        else:
+            side_b = RigidPoints.from_world(b, springs)
+        scene.add_coupling(Coupling(side_a, side_b, c["stiffness"], damping=c["damping"],
+                                    name=f"{c['a']} - {c['b']}"), collide=c["collide"])
+
+    def start_problems(self) -> list:
+        """(what, expected, found) for bodies that start intersecting each other (crossing
+        surface triangles; pairs that may not collide are left out) or below a plane."""
+        from softvr.model import intersecting_triangle_pairs
+
+        out = []
+        names = list(self._drawn_by_name)
+        for i, a in enumerate(names):
+            da = self._drawn_by_name[a]
+            for plane, _ in self.planes:
+                depth = float(-((da.vertices() - np.asarray(plane.point)) @ plane.unit_normal()).min())
+                if depth > 1e-6:
+                    out.append((f"body {a!r}", "a start above every plane", f"{depth * 1e3:.2f} mm below one"))
+            for b in names[i + 1:]:
+                # Cloth is an open sheet (no crossing test); coupled or filtered pairs may overlap.
+                if "cloth" in (self.file.body(a).type, self.file.body(b).type) or \
+                        not self.scene.collision_enabled(self.index[a], self.index[b]):
+                    continue
+                db = self._drawn_by_name[b]
+                crossing = intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)
+                if len(crossing):
+                    out.append((f"bodies {a!r} and {b!r}", "surfaces apart at the start",
+                                f"{len(crossing)} crossing triangle pairs"))
+        return out
 
     @staticmethod
     def _tet_mesh(spec: BodySpec, rotation, centre):

@@ -67,6 +67,14 @@
     a = "cube"
     b = "floor box"
 
+    [[coupling]]                # zero-length springs (thesis 5.3.2)
+    a = "cube"                  # a fem or cloth body: its nodes ...
+    b = "post"                  # ... within radius of this body's surface are tied to it
+    radius = 0.005              # [m]
+    stiffness = 2.0e3           # [N/m] per spring
+    damping = 0.0               # [N s/m]
+    collide = false             # contacts between a and b (off by default)
+
 Every error names the file, the field path (``body[2].material``), what was expected and what
 was found, all of a file's errors at once: missing mesh files, unknown body types, numbers out
 of range or of the wrong kind, references to materials, adhesions or bodies that do not exist.
@@ -126,6 +134,7 @@ class SceneFile:
     spheres: list
     bodies: list
     filters: list
+    couplings: list = field(default_factory=list)
 
     def body(self, name: str) -> BodySpec:
         return next(b for b in self.bodies if b.name == name)
@@ -308,7 +317,7 @@ def read_scene(path) -> SceneFile:
     errors = Problems(str(path), "scene file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
-    known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter"}
+    known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
     simulation, render = _simulation(doc, errors), _render(doc, errors)
@@ -342,6 +351,27 @@ def read_scene(path) -> SceneFile:
     for i, t in enumerate(_list(doc, "filter", errors)):
         ends = [_ref(t, side, f"filter[{i}]", names, "body", errors, required=True) for side in ("a", "b")]
         filters.append(tuple(ends))
+    couplings = [_coupling(i, t, bodies, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
     errors.raise_if_any()
     return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
-                     planes=planes, spheres=spheres, bodies=bodies, filters=filters)
+                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings)
+
+
+def _coupling(i: int, t: dict, bodies: list, errors: Problems) -> dict:
+    """A ``[[coupling]]``: zero-length springs (thesis 5.3.2) from the nodes of ``a`` (fem or
+    cloth) within ``radius`` of ``b``'s surface at the start to ``b``."""
+    w = f"coupling[{i}]"
+    by_name = {b.name: b for b in bodies}
+    a = _ref(t, "a", w, by_name, "body", errors, required=True)
+    b = _ref(t, "b", w, by_name, "body", errors, required=True)
+    if a is not None and by_name[a].type not in ("fem", "cloth"):
+        errors.add(f"{w}.a", "a fem or cloth body (its nodes are coupled)", f"{a!r}, a {by_name[a].type} body")
+    if b is not None and by_name[b].type == "fixed" and by_name[b].shape == "mesh":
+        errors.add(f"{w}.b", "a body (a fixed mesh is an obstacle, not a body: use a fixed box or a kinematic body)",
+                   repr(b))
+    if a is not None and a == b:
+        errors.add(f"{w}.b", "another body than a", repr(b))
+    return {"a": a, "b": b, "radius": errors.number(t, "radius", w, minimum=0.0, unit="m"),
+            "stiffness": errors.number(t, "stiffness", w, positive=True, unit="N/m"),
+            "damping": errors.number(t, "damping", w, default=0.0, minimum=0.0, unit="N s/m"),
+            "collide": errors.boolean(t, "collide", w, default=False)}
