@@ -295,3 +295,18 @@ stiffness = 2e4
     sag = z0 - block.q[:, 2].mean()
     weight = 1000.0 * 0.1**3 * 9.81
     assert 0 < sag < 10 * weight / (springs * 2e4) + 2e-3  # spring stretch plus the gel's own sag
+
+
+def test_the_viewer_opens_a_scene_and_its_screenshot_shows_it(display, tmp_path):
+    """Under Xvfb: ``softvr view soft-cube.toml`` plays a second with the contact and tet
+    overlays on; the screenshot has the cube's colour in it (its red channel well above the
+    others somewhere) and the yellow tet edges / status text."""
+    import imageio.v3 as iio
+
+    shot = tmp_path / "view.png"
+    assert main(["view", "soft-cube.toml", "--seconds", "2", "--screenshot", str(shot),
+                 "--show", "contacts", "tets"]) == 0
+    image = iio.imread(shot).astype(int)
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    assert ((r > 150) & (r - b > 60) & (g < 160)).mean() > 0.01  # the cube (0.85, 0.45, 0.35)
+    assert ((r > 180) & (g > 180) & (b < 120)).sum() > 50  # the yellow tet edges and status line

@@ -294,33 +294,94 @@ def run_module(module, args, **options) -> int:
     return 0
 
 
-def view_example(example: PhysicsExample, *, timeout_s: float | None = None) -> int:
+def view_example(example: PhysicsExample, *, timeout_s: float | None = None, screenshot=None,
+                 overlays: tuple = ("contacts",)) -> int:
     """Play ``example`` live in a window: one frame per timer tick, drawn on screen.
 
     Mouse: the trackball camera (left rotates, right zooms, middle pans). Keys: space pauses
-    and resumes, ``n`` advances one frame while paused, ``q`` quits. The simulation stops
-    after ``example.frames`` frames (the window stays open). Returns the frames simulated.
+    and resumes, ``n`` advances one frame while paused, ``q`` quits; ``c`` shows the contacts
+    (points, normal force lines, the largest a tenth of the view across), ``a`` colours them by adhesion intensity, ``t`` shows the
+    FEM bodies' tet edges. A status line gives the frame, the simulated time, the frame rate
+    and the ms of the physics step and of the render. The simulation stops after
+    ``example.frames`` frames (the window stays open). ``overlays`` names those shown at the
+    start (``"contacts"``, ``"adhesion"``, ``"tets"``); ``screenshot`` (a PNG path) saves the
+    window as it is when the loop ends. Returns the frames simulated.
 
     Raises :class:`~softvr.errors.InputError` when there is no display.
     """
     from softvr.render._live import play  # noqa: PLC0415
+    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
+    from softvr.render.overlays import ContactOverlay, LineOverlay, TextOverlay  # noqa: PLC0415
     from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
 
     renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True)
     example.setup_render(renderer)
     window = renderer.vtk_renderer.GetRenderWindow()
-    window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, q: quit)")
+    window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, c / a / t: contacts / adhesion / tets)")
+    status = TextOverlay(renderer.vtk_renderer)
+    contacts = ContactOverlay(renderer.vtk_renderer)
+    bounds = np.asarray(example.bounds if example.bounds is not None else (-1, 1, -1, 1, -1, 1), float)
+    reach = float(np.linalg.norm(bounds[1::2] - bounds[0::2]))
+    from softvr.volume import tet_edges  # noqa: PLC0415
+
+    soft = [b for b in example.scene.bodies if hasattr(b, "tets")]
+    tets = [LineOverlay(renderer.vtk_renderer, tet_edges(b.tets)) for b in soft]
+    shown = {name: name in overlays for name in ("contacts", "adhesion", "tets")}
+    last = {"time": time.perf_counter()}
+
+    def draw_overlays() -> None:
+        solution = example.scene.last_solution
+        points, normals, forces, beta = [], [], [], []
+        if solution is not None and shown["contacts"]:
+            intensity = example.scene.adhesion_state.intensity
+            for c, impulse in zip(solution.contacts, solution.impulses):
+                if len(impulse):
+                    points.append(c.point_a)
+                    normals.append(c.normal)
+                    forces.append(impulse[:, 0] / example.dt)
+                    beta.append([intensity.get(int(i), 0.0) for i in c.ids])
+        cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
+        forces = cat(forces, (0,))
+        # The largest force is drawn a tenth of the view across; the others in proportion.
+        contacts.scale = 0.1 * reach / max(float(forces.max(initial=0.0)), 1e-9)
+        contacts.update(cat(points, (0, 3)), cat(normals, (0, 3)), forces,
+                        cat(beta, (0,)) if shown["adhesion"] else None)
+        contacts.show(shown["contacts"])
+        for overlay, body in zip(tets, soft):
+            overlay.show(shown["tets"])
+            if shown["tets"]:
+                overlay.update(body.q)
+        m = example.metrics[-1] if example.metrics else {}
+        drawn = example.metrics[-2] if len(example.metrics) > 1 else {}  # this frame's render is not done yet
+        now = time.perf_counter()
+        fps = 1.0 / max(now - last["time"], 1e-6)
+        last["time"] = now
+        status.set(f"frame {example.frame}/{example.frames}  t {example.scene.time:.3f} s  {fps:4.1f} fps  "
+                   f"step {m.get('step_ms', 0.0):.1f} ms  render {drawn.get('render_ms', 0.0):.1f} ms  "
+                   f"contacts {m.get('contacts', 0)}")
 
     def advance() -> None:
         if example.frame < example.frames:
+            t0 = time.perf_counter()
             example.step()
             example.update_render(renderer)
+            draw_overlays()
             window.Render()
+            example.metrics[-1]["render_ms"] = (time.perf_counter() - t0) * 1e3 - example.metrics[-1]["step_ms"]
+
+    def toggle(name: str):
+        def flip() -> None:
+            shown[name] = not shown[name]
+            draw_overlays()
+        return flip
 
     example.update_render(renderer)
+    draw_overlays()
     renderer.render()
     try:
-        play(window, advance, period_ms=int(1000 / example.fps), timeout_s=timeout_s)
+        play(window, advance, period_ms=int(1000 / example.fps), timeout_s=timeout_s,
+             keys={"c": toggle("contacts"), "a": toggle("adhesion"), "t": toggle("tets")},
+             on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot))
     finally:
         renderer.close()
     return example.frame

@@ -7,11 +7,14 @@ import time
 __all__ = ["play"]
 
 
-def play(window, advance, *, period_ms: int, timeout_s: float | None = None) -> None:
+def play(window, advance, *, period_ms: int, timeout_s: float | None = None, keys: dict | None = None,
+         on_exit=None) -> None:
     """Run ``window``'s event loop, calling ``advance()`` (step and draw one frame) every
     ``period_ms`` until the window closes or ``timeout_s`` pass. Mouse: trackball camera;
-    space pauses and resumes, ``n`` advances one frame while paused, ``q`` quits. The
-    observers and the window are released on the way out."""
+    space pauses and resumes, ``n`` advances one frame while paused, ``q`` quits; ``keys``
+    maps more characters to callables (overlay toggles); ``on_exit()`` runs when ``timeout_s``
+    ends the loop, the window still up (a screenshot). The observers and the window are released on the
+    way out."""
     from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
     from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
 
@@ -24,6 +27,8 @@ def play(window, advance, *, period_ms: int, timeout_s: float | None = None) -> 
 
     def on_timer(*_) -> None:
         if deadline is not None and time.perf_counter() >= deadline:
+            if on_exit is not None:  # while the window is still up and drawn
+                on_exit()
             interactor.TerminateApp()
         elif not state["paused"]:
             advance()
@@ -34,6 +39,9 @@ def play(window, advance, *, period_ms: int, timeout_s: float | None = None) -> 
             state["paused"] = not state["paused"]
         elif key == "n" and state["paused"]:
             advance()
+        elif keys and key in keys:
+            keys[key]()
+            window.Render()
         else:
             style.OnChar()
 

@@ -80,7 +80,8 @@ class SurfaceRenderer(OffscreenView):
         Background RGB in [0, 1] at the bottom and top of the image (a vertical gradient;
         equal colours give a flat background).
     antialias : bool
-        FXAA edge smoothing (a post-process, so edge pixels blend with the background).
+        FXAA edge smoothing (a post-process, so edge pixels blend with the background);
+        off-screen only.
     backend : {"egl", "osmesa"}, optional
         Force an off-screen OpenGL window kind.
     onscreen : bool
@@ -124,7 +125,8 @@ class SurfaceRenderer(OffscreenView):
         self._renderer.SetBackground2(*top)
         self._renderer.SetGradientBackground(bottom != top)
         self._renderer.SetTwoSidedLighting(True)  # cloth is seen from both sides
-        self._renderer.SetUseFXAA(bool(antialias))
+        # FXAA's post pass leaves an on-screen window's back buffer unreadable (blank grabs).
+        self._renderer.SetUseFXAA(bool(antialias) and not onscreen)
         vtkLightKit().AddLightsToRenderer(self._renderer)
         self._window.AddRenderer(self._renderer)
         self._init_grabber()

@@ -58,8 +58,11 @@ def view_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="softvr view", description="Play a scene file live in a window.")
     p.add_argument("scene", metavar="SCENE.toml")
     p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
+    p.add_argument("--screenshot", metavar="PNG", help="save the window when it closes")
+    p.add_argument("--show", nargs="*", default=["contacts"], choices=["contacts", "adhesion", "tets"],
+                   help="overlays shown at the start (keys c, a, t toggle them)")
     args = p.parse_args(argv)
     require_display()
     with load_scene(bundled(args.scene)) as example:
-        view_example(example, timeout_s=args.seconds)
+        view_example(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=tuple(args.show))
     return 0

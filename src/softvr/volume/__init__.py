@@ -20,7 +20,7 @@ from softvr.volume._io import load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
 from softvr.volume.isosurface import iso_surface
 from softvr.volume.rasterize import OutputGrid, RasterStats, Rasterizer, deform, fit_output_grid
-from softvr.volume.tetmesh import boundary_faces, check_tets, grid_tet_mesh, load_tet_mesh
+from softvr.volume.tetmesh import boundary_faces, check_tets, grid_tet_mesh, load_tet_mesh, tet_edges
 
 __all__ = [
     "OutputGrid",
@@ -37,4 +37,5 @@ __all__ = [
     "load",
     "load_tet_mesh",
     "save",
+    "tet_edges",
 ]

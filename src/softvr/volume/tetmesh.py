@@ -9,7 +9,7 @@ import numpy as np
 from softvr.errors import InputError
 from softvr.volume._volume import Volume
 
-__all__ = ["boundary_faces", "check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_signed_volumes"]
+__all__ = ["boundary_faces", "check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_edges", "tet_signed_volumes"]
 
 # Corner c = (a, b, c) of a unit cube has index a + 2 b + 4 c. A cube splits into the centre
 # tet of its 4 "odd" corners and the 4 corner tets of its "even" corners; mirrored cubes
@@ -246,3 +246,10 @@ def boundary_faces(tets) -> np.ndarray:
     key = np.sort(faces, axis=1)
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     return faces[np.sort(first[counts == 1])].astype(np.int32)
+
+
+def tet_edges(tets) -> np.ndarray:
+    """The edges [e, 2] of tetrahedra [m, 4], each once (lower node index first)."""
+    t = np.asarray(tets)
+    pairs = np.concatenate([t[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))])
+    return np.unique(np.sort(pairs, axis=1), axis=0)
