@@ -130,11 +130,16 @@ position = [0.0, 0.0, 0.2]
     np.testing.assert_allclose(np.linalg.norm(drawn - [0.0, 0.0, 0.2], axis=1), 0.05, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", ["soft-cube.toml", "box-stack.toml", "cloth-sphere.toml"])
+def test_every_bundled_scene_is_tested():
+    assert sorted(p.name for p in BUNDLED.glob("*.toml")) == ["box-stack.toml", "cloth-sphere.toml", "probe.toml",
+                                                              "soft-cube.toml"]
+
+
+@pytest.mark.parametrize("name", ["soft-cube.toml", "box-stack.toml", "cloth-sphere.toml", "probe.toml"])
 def test_bundled_scenes_check_and_play(name, capsys):
     assert main(["check", name]) == 0
     assert "ok" in capsys.readouterr().out
-    frames = {"soft-cube.toml": 12, "box-stack.toml": 10, "cloth-sphere.toml": 10}[name]
+    frames = {"soft-cube.toml": 12, "box-stack.toml": 10, "cloth-sphere.toml": 10, "probe.toml": 20}[name]
     with load_scene(BUNDLED / name, frames=frames, width=64, height=48) as ex:
         start = {k: b.q.copy() if hasattr(b, "q") else np.asarray(b.position).copy() for k, b in ex.bodies.items()}
         for _ in range(frames):
@@ -148,6 +153,11 @@ def test_bundled_scenes_check_and_play(name, capsys):
         assert drift < 1e-3
     if name == "cloth-sphere.toml":
         assert ex.bodies["cloth"].q[:, 2].min() > -0.003
+    if name == "probe.toml":  # at 0.4 s the probe is 4 mm past the rest surface: the tissue gives way
+        tissue = ex.bodies["tissue"]
+        assert ex.bodies["probe"].position[2] == pytest.approx(0.011 - 0.005 * 0.4 / 0.5)
+        assert tissue.q[:, 2].min() > -0.0301 and (tissue.q[:, 2] < -1e-3).any()
+        assert np.linalg.norm(tissue.q - ex.bodies["probe"].position, axis=1).min() > 0.01 - 1e-3
 
 
 def _glb_with_extras(path, mesh, node_extras, scene_extras, translation):

@@ -4,10 +4,12 @@ Each ``[[body]]`` becomes a contact object with its collision geometry and a dra
 
 =========  =====================================================================================
 rigid      box (box collider), sphere (sphere collider) or mesh (its vertices and triangles
-           collide; mass, centre and inertia of the closed mesh): of the material's density
-fem        box: a grid of ``cells``^3 cubes, 5 tets each; mesh: the model pipeline's dynamics
-           mesh (cubes of ``cells`` metres touching the surface) with the surface embedded in it;
-           co-rotational FEM of the material
+           collide; mass, centre and inertia of the closed mesh): of the material's density.
+           Box and sphere colliders meet planes and each other only, so in a scene with fem or
+           cloth bodies every rigid shape collides through its surface instead
+fem        box: a grid of ``cells``^3 cubes, 5 tets each; sphere (an icosphere) or mesh: the model
+           pipeline's dynamics mesh (cubes of ``cells`` metres touching the surface) with the
+           surface embedded in it; co-rotational FEM of the material
 cloth      a ``cloth = [w, h]`` sheet of ``quads`` in the body's x-y plane (or a glTF mesh),
            mass-spring cloth
 fixed      box (box collider of a fixed body) or mesh (a static triangle mesh obstacle)
@@ -81,6 +83,7 @@ class SceneExample(PhysicsExample):
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
+        self._soft_scene = any(b.type in ("fem", "cloth") for b in scene_file.bodies)
         for spec in scene_file.bodies:
             self._add(scene, spec)
         for a, b in scene_file.filters:
@@ -136,6 +139,12 @@ class SceneExample(PhysicsExample):
                 collider = {"collision_sphere": spec.size}
                 unit, triangles = icosphere(3)
                 local = unit * spec.size
+            if self._soft_scene:
+                # Box and sphere colliders meet only planes and each other: with soft bodies
+                # about, rigid shapes collide through their surface (points and triangles).
+                from softvr.dynamics import RigidPoints
+
+                collider = {"collision_points": RigidPoints(body, local), "collision_triangles": triangles}
             index = scene.add_body(body, adhesion=adhesion, **collider)
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
@@ -256,7 +265,15 @@ class SceneExample(PhysicsExample):
         """The body's mesh (from its file, or given in memory) placed in the world [m]."""
         from softvr.model import load_mesh
 
-        v, t = spec.mesh_data if spec.mesh_data is not None else load_mesh(spec.mesh)
+        if spec.mesh_data is not None:
+            v, t = spec.mesh_data
+        elif spec.shape == "sphere":
+            from softvr.model.shapes import icosphere
+
+            v, t = icosphere(3)
+            v = v * spec.size
+        else:
+            v, t = load_mesh(spec.mesh)
         return np.asarray(v, float) @ rotation.T + centre, np.asarray(t, np.int32)
 
     @staticmethod

@@ -48,9 +48,9 @@
     name = "cube"
     type = "fem"                # rigid | fem | cloth | fixed | kinematic
     box = [0.3, 0.3, 0.3]       # [m] shape: box, sphere = r, mesh = "file" (OBJ, STL, PLY, glTF), cloth = [w, h]
-                                # (rigid: box | sphere | mesh; fem: box | mesh; fixed: box | mesh;
+                                # (rigid: box | sphere | mesh; fem: box | sphere | mesh; fixed: box | mesh;
                                 #  kinematic: box | sphere; cloth: cloth)
-    cells = 4                   # fem box: cubes per axis (5 tets each); fem mesh: cell_size [m]
+    cells = 4                   # fem box: cubes per axis (5 tets each); fem sphere / mesh: cube size [m]
     material = "jelly"
     position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
     rotation = [0.0, 0.0, 0.0]  # [deg] about x, then y, then z
@@ -92,7 +92,7 @@ __all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
 FORMAT = "softvr-scene 1"
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
-_SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
+_SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
            "kinematic": ("box", "sphere")}
 _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
 
@@ -274,7 +274,7 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     if "fixed_below" in t:
         spec.fixed_below = errors.number(t, "fixed_below", w, unit="m")
     if kind == "fem":
-        spec.cells = (errors.number(t, "cells", w, positive=True, unit="m") if shape == "mesh"
+        spec.cells = (errors.number(t, "cells", w, positive=True, unit="m") if shape in ("mesh", "sphere")
                       else errors.integer(t, "cells", w, default=4, minimum=1))
     if kind == "cloth":
         spec.cloth = {"quads": t.get("quads", [16, 16]),
