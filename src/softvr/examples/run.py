@@ -298,7 +298,9 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
                  overlays: tuple = ("contacts",)) -> int:
     """Play ``example`` live in a window: one frame per timer tick, drawn on screen.
 
-    Mouse: the trackball camera (left rotates, right zooms, middle pans). Keys: space pauses
+    Mouse: the trackball camera (left rotates, right zooms, middle pans); the right button
+    (or control + left) on a body grabs it and drags it with a spring
+    (:class:`~softvr.examples._drag_tool.DragTool`). Keys: space pauses
     and resumes, ``n`` advances one frame while paused, ``q`` quits; ``c`` shows the contacts
     (points, normal force lines, the largest a tenth of the view across), ``a`` colours them by adhesion intensity, ``t`` shows the
     FEM bodies' tet edges. A status line gives the frame, the simulated time, the frame rate
@@ -309,6 +311,7 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
 
     Raises :class:`~softvr.errors.InputError` when there is no display.
     """
+    from softvr.examples._drag_tool import DragTool  # noqa: PLC0415
     from softvr.render._live import play  # noqa: PLC0415
     from softvr.render.contact_sheet import save_png  # noqa: PLC0415
     from softvr.render.overlays import ContactOverlay, LineOverlay, TextOverlay  # noqa: PLC0415
@@ -360,9 +363,38 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
                    f"step {m.get('step_ms', 0.0):.1f} ms  render {drawn.get('render_ms', 0.0):.1f} ms  "
                    f"contacts {m.get('contacts', 0)}")
 
+    tool = DragTool(example.scene, renderer.vtk_renderer)
+
+    def mouse(interactor, style) -> None:
+        """Right button (or control + left) drags a body; otherwise the trackball camera."""
+        def press(obj, event) -> None:
+            right = event == "RightButtonPressEvent"
+            if (right or interactor.GetControlKey()) and tool.press(*interactor.GetEventPosition()):
+                return
+            (style.OnRightButtonDown if right else style.OnLeftButtonDown)()
+
+        def move(obj, event) -> None:
+            if tool.grab is not None:
+                tool.move(*interactor.GetEventPosition())
+            else:
+                style.OnMouseMove()
+
+        def release(obj, event) -> None:
+            if tool.grab is not None:
+                tool.release()
+            else:
+                (style.OnRightButtonUp if event == "RightButtonReleaseEvent" else style.OnLeftButtonUp)()
+
+        for event in ("RightButtonPressEvent", "LeftButtonPressEvent"):
+            style.AddObserver(event, press)
+        style.AddObserver("MouseMoveEvent", move)
+        for event in ("RightButtonReleaseEvent", "LeftButtonReleaseEvent"):
+            style.AddObserver(event, release)
+
     def advance() -> None:
         if example.frame < example.frames:
             t0 = time.perf_counter()
+            tool.apply()
             example.step()
             example.update_render(renderer)
             draw_overlays()
@@ -381,7 +413,7 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
     try:
         play(window, advance, period_ms=int(1000 / example.fps), timeout_s=timeout_s,
              keys={"c": toggle("contacts"), "a": toggle("adhesion"), "t": toggle("tets")},
-             on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot))
+             on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot), setup=mouse)
     finally:
         renderer.close()
     return example.frame

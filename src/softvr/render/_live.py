@@ -8,12 +8,13 @@ __all__ = ["play"]
 
 
 def play(window, advance, *, period_ms: int, timeout_s: float | None = None, keys: dict | None = None,
-         on_exit=None) -> None:
+         on_exit=None, setup=None) -> None:
     """Run ``window``'s event loop, calling ``advance()`` (step and draw one frame) every
     ``period_ms`` until the window closes or ``timeout_s`` pass. Mouse: trackball camera;
     space pauses and resumes, ``n`` advances one frame while paused, ``q`` quits; ``keys``
     maps more characters to callables (overlay toggles); ``on_exit()`` runs when ``timeout_s``
-    ends the loop, the window still up (a screenshot). The observers and the window are released on the
+    ends the loop, the window still up (a screenshot); ``setup(interactor, style)`` adds
+    observers of its own (mouse tools) before the loop starts. The observers and the window are released on the
     way out."""
     from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
     from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
@@ -46,6 +47,8 @@ def play(window, advance, *, period_ms: int, timeout_s: float | None = None, key
             style.OnChar()
 
     interactor.Initialize()
+    if setup is not None:
+        setup(interactor, style)
     interactor.AddObserver("TimerEvent", on_timer)
     style.AddObserver("CharEvent", on_char)
     interactor.CreateRepeatingTimer(max(1, int(period_ms)))
