@@ -16,7 +16,7 @@ representations, its coupling nodes, and a collision-free start.
 Lengths in metres.
 """
 
-from softvr.model.build import Model, PartModel, build_model, load_mesh, load_model
+from softvr.model.build import Model, PartModel, build_model, load_mesh, load_model, rigid_properties
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.intersections import intersecting_triangle_pairs
@@ -28,5 +28,5 @@ from softvr.model.tissue import CT_TISSUE, TetTissue, TissueTable, tet_tissue, t
 __all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
            "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "load_mesh", "load_model",
            "nodes_near_surface", "push_apart", "read_parts"]
-__all__ += ["BOX_TRIANGLES", "box_corners", "icosphere"]
+__all__ += ["BOX_TRIANGLES", "box_corners", "icosphere", "rigid_properties"]
 __all__ += ["CT_TISSUE", "TetTissue", "TissueTable", "tet_tissue", "tissue_fem_body", "voxel_owners"]

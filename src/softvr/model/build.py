@@ -220,12 +220,16 @@ def load_model(path) -> Model:
     return Model(parts=parts, couplings=couplings, crossings=manifest["crossings"])
 
 
-def _rigid_properties(v, t, density: float, name: str):
+def rigid_properties(v, t, density: float, name: str):
+    """Mass [kg], centre of mass [3] [m] and inertia about it [3, 3] [kg m^2] of the solid a
+    closed, outward triangle surface (``v`` [n, 3] [m], ``t`` [k, 3]) bounds, of uniform
+    ``density`` [kg/m^3]; anything else is an :class:`InputError` naming ``name``."""
     import trimesh  # noqa: PLC0415
 
     mesh = trimesh.Trimesh(v, t, process=False)
+    mesh.merge_vertices()  # glTF and OBJ exports split vertices along seams; geometry is what counts
     if not mesh.is_watertight or mesh.volume <= 0:
-        raise InputError(f"part {name!r} mesh", "a closed, outward surface (positive volume) for a rigid part",
+        raise InputError(f"{name} mesh", "a closed, outward surface (positive volume) for a rigid body",
                          f"watertight={mesh.is_watertight}, volume={mesh.volume:.3g} m^3")
     mesh.density = density
     return float(mesh.mass), np.asarray(mesh.center_mass, float), np.asarray(mesh.moment_inertia, float)
@@ -250,7 +254,7 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
             part.collision_embedding = embed_surface(nodes, tets, cv)
             part.mass = float(p.density * np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6)
         else:
-            part.mass, part.center, part.inertia = _rigid_properties(v, t, p.density, p.name)
+            part.mass, part.center, part.inertia = rigid_properties(v, t, p.density, f"part {p.name!r}")
         models.append(part)
     by_name = {m.spec.name: m for m in models}
     couplings = []

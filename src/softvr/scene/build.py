@@ -105,20 +105,13 @@ class SceneExample(PhysicsExample):
         adhesion = self.adhesions.get(spec.adhesion)
         material = self.file.materials.get(spec.material)
         if spec.type == "rigid" and spec.shape == "mesh":
-            import trimesh
-
             from softvr.dynamics import RigidPoints
+            from softvr.model import rigid_properties
 
             v, t = self._surface(spec, rotation, centre)
-            props = trimesh.Trimesh(v, t, process=False).mass_properties
-            if not props["volume"] > 0:
-                from softvr.errors import InputError
-
-                raise InputError(f"body {spec.name!r} mesh", "a closed, outward surface (volume > 0)",
-                                 f"volume {props['volume']:.3g} m^3")
-            com = np.asarray(props["center_mass"])
-            body = RigidBody(material["density"] * props["volume"], material["density"] * props["inertia"],
-                             position=com, velocity=spec.velocity, name=spec.name)
+            mass, com, inertia = rigid_properties(v, t, material["density"], f"body {spec.name!r}")
+            body = RigidBody(mass, inertia, position=com, velocity=spec.velocity,
+                             angular_velocity=spec.angular_velocity, name=spec.name)
             local = v - com
             index = scene.add_body(body, collision_points=RigidPoints(body, local), collision_triangles=t,
                                    adhesion=adhesion)
@@ -127,7 +120,7 @@ class SceneExample(PhysicsExample):
             if spec.type == "rigid":
                 make = RigidBody.box if spec.shape == "box" else RigidBody.sphere
                 body = make(spec.size, material["density"], position=centre, orientation=quaternion,
-                            velocity=spec.velocity, name=spec.name)
+                            velocity=spec.velocity, angular_velocity=spec.angular_velocity, name=spec.name)
             elif spec.type == "fixed":
                 body = FixedBody(centre, quaternion, name=spec.name)
             else:
@@ -155,12 +148,19 @@ class SceneExample(PhysicsExample):
             self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
             return
         elif spec.type == "fem":
+            from softvr.model import rigid_properties
+
             m = Material(material["young"], material["poisson"], material["density"], alpha=material["alpha"],
                          beta=material["beta"])
             nodes, tets, surface, embedding = self._tet_mesh(spec, rotation, centre)
-            fixed = None if spec.fixed_below is None else nodes[:, 2] < spec.fixed_below
-            body = FemBody(nodes, tets, m, fixed=fixed, name=spec.name)
-            body.v[:] = spec.velocity
+            if spec.shape != "box":
+                # The embedding cubes reach past the surface: the object weighs rho times the
+                # volume its surface encloses, spread over them.
+                inside = rigid_properties(*self._surface(spec, rotation, centre), 1.0, f"body {spec.name!r}")[0]
+                tet_volume = np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6.0
+                m = Material(m.young, m.poisson, m.density * inside / tet_volume, alpha=m.alpha, beta=m.beta)
+            body = FemBody(nodes, tets, m, fixed=self._clamped(spec, nodes), name=spec.name)
+            self._set_velocity(body, spec, centre)
             tet_nodes, weights = embedding
             points = EmbeddedPoints(body, tet_nodes, weights)
             index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
@@ -178,12 +178,14 @@ class SceneExample(PhysicsExample):
                 origin = centre - rotation @ np.array([w / 2, h / 2, 0.0])
                 body = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0],
                                       v_axis=rotation[:, 1], **springs)
-            if spec.fixed_below is not None:
-                body.fixed[:] = body.q[:, 2] < spec.fixed_below
-            body.v[:] = spec.velocity
+            body.fixed[:] = self._clamped(spec, body.q)
+            self._set_velocity(body, spec, centre)
             n = len(body.q)
             points = EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1)))
-            index = scene.add_body(body, collision_points=points, adhesion=adhesion)
+            # The triangles give the contacts their areas (adhesion works on tractions) and
+            # meet other bodies' surfaces.
+            index = scene.add_body(body, collision_points=points, collision_triangles=body.triangles,
+                                   adhesion=adhesion)
             self.drawn.append(_Drawn(lambda b=body: b.q, body.triangles, spec.color))
         self.bodies[spec.name] = body
         self.index[spec.name] = index
@@ -259,6 +261,24 @@ class SceneExample(PhysicsExample):
         nodes, tets = dynamics_mesh(v, t, float(spec.cells))
         tet_index, weights = embed_surface(nodes, tets, v)
         return nodes, tets, t, (tets[tet_index], weights)
+
+    @staticmethod
+    def _clamped(spec: BodySpec, nodes) -> np.ndarray:
+        """Nodes [n] bool held by ``fixed_below`` / ``fixed_above``."""
+        held = np.zeros(len(nodes), bool)
+        if spec.fixed_below is not None:
+            held |= nodes[:, 2] < spec.fixed_below
+        if spec.fixed_above is not None:
+            held |= nodes[:, 2] > spec.fixed_above
+        return held
+
+    @staticmethod
+    def _set_velocity(body, spec: BodySpec, centre) -> None:
+        """Node velocities v + w x (x - c) [m/s] of a deformable body (c: ``spin_centre``, else
+        the body's position); held nodes stay still."""
+        c = np.asarray(spec.spin_centre if spec.spin_centre is not None else centre, float)
+        body.v[:] = np.asarray(spec.velocity) + np.cross(np.asarray(spec.angular_velocity), body.q - c)
+        body.v[body.fixed] = 0.0
 
     @staticmethod
     def _surface(spec: BodySpec, rotation, centre) -> tuple[np.ndarray, np.ndarray]:

@@ -55,7 +55,8 @@
     position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
     rotation = [0.0, 0.0, 0.0]  # [deg] about x, then y, then z
     velocity = [0.0, 0.0, 0.0]  # [m/s]
-    fixed_below = 0.01          # [m] fem / cloth: clamp the nodes below this height
+    angular_velocity = [0.0, 0.0, 0.0]  # [rad/s] about spin_centre (default: position)
+    fixed_below = 0.01          # [m] fem / cloth: clamp the nodes below (fixed_above: above) a height
     color = [0.9, 0.5, 0.4]
     adhesion = "tacky"
 
@@ -113,7 +114,10 @@ class BodySpec:
     position: tuple = (0.0, 0.0, 0.0)
     rotation: tuple = (0.0, 0.0, 0.0)
     velocity: tuple = (0.0, 0.0, 0.0)
+    angular_velocity: tuple = (0.0, 0.0, 0.0)
+    spin_centre: tuple | None = None
     fixed_below: float | None = None
+    fixed_above: float | None = None
     color: tuple = (0.8, 0.6, 0.5)
     adhesion: str | None = None
     cloth: dict = field(default_factory=dict)
@@ -262,17 +266,20 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     if kind in ("rigid", "fem"):
         spec.material = _ref(t, "material", w, materials, "material", errors, required=True)
     spec.adhesion = _ref(t, "adhesion", w, adhesions, "adhesion", errors)
-    for key in ("position", "rotation", "velocity"):
-        value = errors.vector(t, key, w, default=list(getattr(spec, key)), unit="deg" if key == "rotation" else "m")
+    for key, unit in (("position", "m"), ("rotation", "deg"), ("velocity", "m/s"), ("angular_velocity", "rad/s")):
+        value = errors.vector(t, key, w, default=list(getattr(spec, key)), unit=unit)
         if value is not None:
             setattr(spec, key, value)
+    if "spin_centre" in t:
+        spec.spin_centre = errors.vector(t, "spin_centre", w, unit="m")
     color = errors.vector(t, "color", w, default=list(spec.color))
     if color is not None and not all(0 <= c <= 1 for c in color):
         errors.add(f"{w}.color", "r, g, b in [0, 1]", list(color))
     elif color is not None:
         spec.color = color
-    if "fixed_below" in t:
-        spec.fixed_below = errors.number(t, "fixed_below", w, unit="m")
+    for key in ("fixed_below", "fixed_above"):
+        if key in t:
+            setattr(spec, key, errors.number(t, key, w, unit="m"))
     if kind == "fem":
         spec.cells = (errors.number(t, "cells", w, positive=True, unit="m") if shape in ("mesh", "sphere")
                       else errors.integer(t, "cells", w, default=4, minimum=1))
