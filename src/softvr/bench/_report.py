@@ -5,7 +5,20 @@ from __future__ import annotations
 from softvr.render._atomic import write_json
 from softvr.render.figure import save_figure
 
-__all__ = ["print_and_write", "save_figure"]
+__all__ = ["bench_parser", "print_and_write", "save_figure"]
+
+
+def bench_parser(area: str, description: str, *, quick: str, plot: str):
+    """The command line every ``softvr bench AREA`` shares: ``--quick`` (help ``quick``),
+    ``--json PATH``, ``--plot PATH`` (help ``plot``), ``--no-progress``; add the area's own."""
+    import argparse  # noqa: PLC0415
+
+    p = argparse.ArgumentParser(prog=f"softvr bench {area}", description=description)
+    p.add_argument("--quick", action="store_true", help=quick)
+    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
+    p.add_argument("--plot", metavar="PATH", help=plot)
+    p.add_argument("--no-progress", action="store_true")
+    return p
 
 
 def print_and_write(result: dict, table: str, json_path, plot_path, write_plot, *, after_table: str = "") -> None:

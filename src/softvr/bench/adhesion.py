@@ -23,14 +23,13 @@ Examples
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
 from softvr.bench.contact import _git_commit, run_candy
-from softvr.bench._report import print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.volume import _loadavg, _machine_info
 
 __all__ = ["PULL_OFF", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
@@ -242,12 +241,9 @@ def write_plot(result: dict, path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench adhesion [--quick] [--json PATH] [--plot PATH]``."""
-    p = argparse.ArgumentParser(prog="softvr bench adhesion",
-                                description="The candy scene (thesis Fig. 4.1) with and without adhesion.")
-    p.add_argument("--quick", action="store_true", help="the small candy scene, 0.16 s (seconds; CI)")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG: contacts and ms per step (thesis Fig. 4.4)")
-    p.add_argument("--no-progress", action="store_true")
+    p = bench_parser("adhesion", "The candy scene (thesis Fig. 4.1) with and without adhesion.",
+                     quick="the small candy scene, 0.16 s (seconds; CI)",
+                     plot="write a PNG: contacts and ms per step (thesis Fig. 4.4)")
     a = p.parse_args(argv)
     result = run_adhesion_bench(quick=a.quick, progress=not a.no_progress)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)

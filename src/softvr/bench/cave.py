@@ -22,7 +22,6 @@ with sync overhead p99 < 1 ms; streamed deformable state < 100 kB per frame.
 
 from __future__ import annotations
 
-import argparse
 import json
 import pickle
 import subprocess
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softvr.bench._report import print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
 
@@ -277,12 +276,9 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["--echo-node"]:
         echo_node(*argv[1:4])
         return 0
-    p = argparse.ArgumentParser(prog="softvr bench cave", description="Render cluster synchronization on loopback.")
-    p.add_argument("--quick", action="store_true", help="2 and 4 nodes, 60 frames (CI)")
+    p = bench_parser("cave", "Render cluster synchronization on loopback.", quick="2 and 4 nodes, 60 frames (CI)",
+                     plot="write a PNG: sync overhead and bytes per frame")
     p.add_argument("--nodes", type=int, nargs="+", default=[2, 4, 8, 16], help="node counts (default 2 4 8 16)")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG: sync overhead and bytes per frame")
-    p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     result = run_cave_bench(quick=a.quick, progress=not a.no_progress, node_counts=a.nodes)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)

@@ -32,7 +32,6 @@ Examples
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -42,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from softvr.bench import _contact_peers as P
-from softvr.bench._report import print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.volume import _loadavg, _machine_info
 
 __all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
@@ -515,19 +514,14 @@ def profile_softvr_step(scene: CubeScene, top: int = 25) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench contact [--quick] [--repeat N] [--engines LIST] [--json PATH] [--plot PATH] [--profile]``."""
-    p = argparse.ArgumentParser(
-        prog="softvr bench contact",
-        description="Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when installed); "
-                    "then the thesis' candy scene at full scale (softvr).",
-    )
-    p.add_argument("--quick", action="store_true", help="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)")
+    p = bench_parser("contact", "Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when "
+                     "installed); then the thesis' candy scene at full scale (softvr).",
+                     quick="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)",
+                     plot="write a PNG: penetration, heights, steps/s")
     p.add_argument("--repeat", type=int, default=None, metavar="N", help="rounds; each runs every engine once, round robin (default 3, quick 1)")
     p.add_argument("--engines", default=",".join(ENGINES), help=f"comma list of {', '.join(ENGINES)}")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG: penetration, heights, steps/s")
     p.add_argument("--profile", action="store_true", help="also print a cProfile of one softvr step in contact")
     p.add_argument("--no-candy", action="store_true", help="skip the candy-scale scene")
-    p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     if a.repeat is not None and a.repeat < 1:
         p.error("--repeat must be >= 1")

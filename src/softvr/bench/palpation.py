@@ -14,13 +14,12 @@ Target on this 2-core CPU: a full frame <= 33 ms on the head CT; on an H100 when
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
-from softvr.bench._report import print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
 
@@ -136,12 +135,9 @@ def write_plot(result: dict, path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench palpation [--quick] [--device D] [--json PATH] [--plot PATH]``."""
-    p = argparse.ArgumentParser(prog="softvr bench palpation", description=__doc__.splitlines()[0])
-    p.add_argument("--quick", action="store_true", help="6 frames at 128 x 128 (CI)")
+    p = bench_parser("palpation", __doc__.splitlines()[0], quick="6 frames at 128 x 128 (CI)",
+                     plot="write a PNG of the stages over the press")
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG of the stages over the press")
-    p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     result = run_palpation_bench(quick=a.quick, progress=not a.no_progress, device=a.device)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)

@@ -14,13 +14,12 @@ anatomy with a haptic loop to run side by side; the thesis' numbers are the refe
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
-from softvr.bench._report import print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
 
@@ -143,12 +142,8 @@ def write_plot(result: dict, path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench shoulder [--quick] [--json PATH] [--plot PATH]``."""
-    p = argparse.ArgumentParser(prog="softvr bench shoulder",
-                                description="The coupled shoulder palpated through the 1 kHz haptic loop.")
-    p.add_argument("--quick", action="store_true", help="0.2 s per variant (seconds; CI)")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG: ms per step, contacts, force on the hand")
-    p.add_argument("--no-progress", action="store_true")
+    p = bench_parser("shoulder", "The coupled shoulder palpated through the 1 kHz haptic loop.",
+                     quick="0.2 s per variant (seconds; CI)", plot="write a PNG: ms per step, contacts, force on the hand")
     a = p.parse_args(argv)
     result = run_shoulder_bench(quick=a.quick, progress=not a.no_progress)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)

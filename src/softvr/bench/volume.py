@@ -38,7 +38,6 @@ docs/img/bench_volume.png``.
 
 from __future__ import annotations
 
-import argparse
 import datetime as _dt
 import os
 import platform
@@ -826,22 +825,18 @@ def _legend_or_empty(ax) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench volume [--device cpu|cuda] [--quick] [--repeat N] [--json PATH] [--plot PATH]``."""
-    p = argparse.ArgumentParser(
-        prog="softvr bench volume",
-        description="Volume deformation benchmark: thesis Figs 3.5 / 3.6 and VTK / SimpleITK peers.",
-    )
+    from softvr.bench._report import bench_parser
+
+    p = bench_parser("volume", "Volume deformation benchmark: thesis Figs 3.5 / 3.6 and VTK / SimpleITK peers.",
+                     quick="small volumes, seconds (CI)", plot="write a PNG with Fig 3.5 / 3.6 style panels")
     p.add_argument("--device", choices=["cpu", "cuda"], default=None, help="Warp device (default: CUDA when present)")
-    p.add_argument("--quick", action="store_true", help="small volumes, seconds (CI)")
     p.add_argument("--repeat", type=int, default=None, metavar="N", help="timed runs per case, median (default 3, quick 1)")
-    p.add_argument("--json", metavar="PATH", help="write all results as JSON")
-    p.add_argument("--plot", metavar="PATH", help="write a PNG with Fig 3.5 / 3.6 style panels")
     p.add_argument("--sections", default="peers,fig35,fig36", help="comma list of peers, fig35, fig36")
     p.add_argument("--fig35-sizes", default=None, help="comma list of cube edges (default 128,256,384,512)")
     p.add_argument("--fig36-size", type=int, default=None, help="cube edge of the Fig 3.6 volume (default 384)")
     p.add_argument("--no-mri", action="store_true", help="leave the 35 M-voxel MRI out of Fig 3.5")
     p.add_argument("--max-case-s", type=float, default=None, metavar="S",
                    help="stop a case's timed runs once they add up to S seconds (default 4; quick 1)")
-    p.add_argument("--no-progress", action="store_true")
     a = p.parse_args(argv)
     if a.repeat is not None and a.repeat < 1:
         p.error("--repeat must be >= 1")
