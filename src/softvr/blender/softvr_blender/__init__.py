@@ -52,6 +52,13 @@ def _export(filepath):
     bpy.ops.export_scene.gltf(filepath=filepath, export_format="GLB", export_extras=True)
 
 
+def _export_temporary():
+    """Export the scene to a new temporary ``.glb``; returns its path."""
+    path = os.path.join(tempfile.mkdtemp(prefix="softvr-"), "scene.glb")
+    _export(path)
+    return path
+
+
 class SOFTVR_AddonPreferences(bpy.types.AddonPreferences):
     bl_idname = __name__
     softvr_command: StringProperty(name="softvr command", subtype="FILE_PATH",
@@ -107,9 +114,8 @@ class SOFTVR_OT_check(bpy.types.Operator):
     bl_label = "Check with softvr"
 
     def execute(self, context):
-        path = os.path.join(tempfile.mkdtemp(prefix="softvr-"), "scene.glb")
-        _export(path)
-        done = subprocess.run([_softvr_command(context), "check", path], capture_output=True, text=True)
+        done = subprocess.run([_softvr_command(context), "check", _export_temporary()], capture_output=True,
+                              text=True)
         report = (done.stdout or done.stderr).strip().splitlines()
         self.report({"INFO"} if done.returncode == 0 else {"ERROR"}, report[-1] if report else "softvr check failed")
         return {"FINISHED"} if done.returncode == 0 else {"CANCELLED"}
@@ -121,9 +127,7 @@ class SOFTVR_OT_play(bpy.types.Operator):
     bl_label = "Play in softvr"
 
     def execute(self, context):
-        path = os.path.join(tempfile.mkdtemp(prefix="softvr-"), "scene.glb")
-        _export(path)
-        subprocess.Popen([_softvr_command(context), "view", path])
+        subprocess.Popen([_softvr_command(context), "view", _export_temporary()])
         return {"FINISHED"}
 
 
