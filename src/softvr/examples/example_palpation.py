@@ -178,21 +178,24 @@ class Example:
         self.frame += 1
         return self.deformed
 
+    def shown_volume(self):
+        """The deformed CT as rendered: every ``render_step``-th voxel per axis."""
+        from softvr.volume import Volume
+
+        k, d = self.render_step, self.deformed
+        if k == 1:
+            return d
+        return Volume(np.ascontiguousarray(d.data[::k, ::k, ::k]), d.spacing * k, d.origin.copy(), d.direction.copy())
+
     def render(self) -> np.ndarray:
         """Volume-render the deformed CT; returns RGB uint8 [height, width, 3]."""
         from softvr.render import Camera, VolumeRenderer
-        from softvr.volume import Volume
 
         t0 = time.perf_counter()
         if self._renderer is None:
             self._renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
                                             camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3))
-        shown = self.deformed
-        if self.render_step > 1:
-            k = self.render_step
-            shown = Volume(np.ascontiguousarray(shown.data[::k, ::k, ::k]), shown.spacing * k, shown.origin.copy(),
-                           shown.direction.copy())
-        image = self._renderer.render(shown)
+        image = self._renderer.render(self.shown_volume())
         if self.metrics:
             self.metrics[-1]["render_ms"] = 1e3 * (time.perf_counter() - t0)
         return image
@@ -241,7 +244,6 @@ def view(example: Example, *, timeout_s: float | None = None) -> int:
     from softvr.render._backend import new_onscreen_window, require_display
     from softvr.render._live import play
     from softvr.render._scene import VolumeScene
-    from softvr.volume import Volume
 
     require_display()
     window = new_onscreen_window(example.width, example.height)
@@ -249,12 +251,9 @@ def view(example: Example, *, timeout_s: float | None = None) -> int:
     renderer = vtkRenderer()
     window.AddRenderer(renderer)
     scene = VolumeScene(example.preset, "cpu", sample_distance=0.5)
-    k = example.render_step
 
     def show() -> None:
-        d = example.deformed
-        scene.update(Volume(np.ascontiguousarray(d.data[::k, ::k, ::k]), d.spacing * k, d.origin.copy(),
-                            d.direction.copy()))
+        scene.update(example.shown_volume())
         window.Render()
 
     def advance() -> None:
