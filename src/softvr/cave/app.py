@@ -72,11 +72,10 @@ def user_pose_facing(center, yaw: float = 0.0, *, anchor=(0.0, 1.2, 1.0)) -> np.
     """The user pose [4, 4] (world <- tracker) that shows world point ``center`` [3] [m] at
     tracker point ``anchor`` [3] [m] (in front of the viewer, at table height), the CAVE
     turned by ``yaw`` [rad] about the vertical through it."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    pose = np.eye(4)
-    pose[:3, :3] = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
-    pose[:3, 3] = np.asarray(center, float) - pose[:3, :3] @ np.asarray(anchor, float)
-    return pose
+    from softvr.cave.rig import UserPose, turn  # noqa: PLC0415
+
+    anchor = np.asarray(anchor, float)
+    return np.array(turn(UserPose(np.asarray(center, float) - anchor), yaw, about=anchor).matrix)
 
 
 def _positive(value, what: str, high: float = 1e6) -> float:
