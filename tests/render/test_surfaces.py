@@ -4,7 +4,9 @@ Truths: an orthographic camera with parallel scale s shows ``height / (2 s)`` pi
 unit, so a unit square facing it covers that many pixels squared (each edge may land up to
 1 px off: between (L - 2)^2 and (L + 2)^2 pixels); moving the mesh by d moves its pixel
 centroid by d times that scale; a tet mesh's boundary is closed and outward (its enclosed
-volume by the divergence theorem equals the sum of the tet volumes).
+volume by the divergence theorem equals the sum of the tet volumes); a CT ball's disc has the
+radius the perspective camera fit predicts, and ball and surfaces composite by depth as renders of
+each alone say they must.
 """
 
 import numpy as np
@@ -12,6 +14,7 @@ import pytest
 
 from softvr.errors import InputError
 from softvr.render import Camera, SurfaceRenderer
+from softvr.volume import Volume
 
 W, H = 200, 160
 SCALE = 1.0  # half the image height in world units
@@ -125,3 +128,118 @@ def test_bad_input_is_rejected_by_name():
         r.render()
 
 
+
+# ------------------------------------------------------------------------------------ volumes
+# A CT-like ball in metres: 40^3 int16 voxels of 1 mm, 1000 HU within 12 voxels of the grid
+# centre (the world origin), -1000 HU (air, transparent in the "ct" preset) elsewhere.
+VN, VS, VR = 40, 1e-3, 12
+VW = VH = 96
+FLAT = dict(background=(0.2, 0.3, 0.4), background_top=(0.2, 0.3, 0.4), antialias=False)
+FLAT_RGB = np.round(np.array(FLAT["background"]) * 255).astype(int)
+HALF = (VN - 1) / 2 * VS  # the grid's bounds (voxel centres) are +-HALF on every axis
+CENTRE = (VH // 2, VW // 2)  # (row, col) of the pixel the ball's centre projects to
+
+
+def ct_ball(inside: int = 1000) -> Volume:
+    c = (VN - 1) / 2
+    i = np.arange(VN) - c
+    x, y, z = np.meshgrid(i, i, i, indexing="ij")
+    data = np.where(x**2 + y**2 + z**2 <= VR**2, inside, -1000).astype(np.int16)
+    return Volume(data, spacing=(VS, VS, VS), origin=(-c * VS,) * 3)
+
+
+def not_background(image: np.ndarray) -> np.ndarray:
+    return (np.abs(image.astype(int) - FLAT_RGB) > 0).any(axis=2)
+
+
+def test_volume_is_drawn_and_framed_by_the_camera_fit():
+    """The "front" camera fitted to the grid box +-h (h = 19.5 mm; Camera.apply: 5 % margin,
+    30 degree view angle, square image) sits at distance d = h (1.05 / tan 15deg + 1) from the
+    centre, since the nearest corners (y = +h) must fit the frustum. A ball of radius R on the
+    axis then shows as a disc of radius (H / 2) R / sqrt(d^2 - R^2) / tan 15deg pixels. The
+    drawn surface of the ball is where the interpolated HU cross the preset's opacity onset
+    (-500 HU), between the last voxel inside (12 voxels out) and the first outside (13), so
+    R is in [12, 13] mm; each rim pixel may go either way: +-1 px."""
+    with SurfaceRenderer(VW, VH, "front", **FLAT) as r:
+        r.add_volume(ct_ball())
+        np.testing.assert_allclose(r.scene_bounds(), [-HALF, HALF] * 3, atol=1e-12)
+        image = r.render()
+        eye = np.asarray(r.vtk_camera.GetPosition())
+    tan = np.tan(np.radians(15.0))
+    d = HALF * (1.05 / tan + 1)
+    np.testing.assert_allclose(eye, [0.0, d, 0.0], atol=1e-9)
+
+    def disc_px(radius):
+        return VH / 2 * radius / np.sqrt(d**2 - radius**2) / tan
+
+    mask = not_background(image)
+    assert mask[CENTRE]
+    for row, col in [(1, 1), (1, VW - 2), (VH - 2, 1), (VH - 2, VW - 2)]:
+        np.testing.assert_array_equal(image[row - 1 : row + 2, col - 1 : col + 2], np.broadcast_to(FLAT_RGB, (3, 3, 3)))
+    r_px = np.sqrt(mask.sum() / np.pi)  # the radius of a disc of the drawn area
+    assert disc_px(12 * VS) - 1 <= r_px <= disc_px(13 * VS) + 1  # about 20 % of the image
+    np.testing.assert_allclose(centroid(mask), [(VW - 1) / 2, (VH - 1) / 2], atol=1.0)
+
+
+def test_volume_and_surfaces_are_composited_by_depth():
+    """Truth: renders of the square alone and of the ball alone, with the same camera (fixed by
+    ``bounds``). A square in front of the ball covers it exactly; the ball covers a square
+    behind it, up to the light that the ray caster lets through the ball: it stops a ray once
+    it is almost opaque, so up to ~2 % (5 levels of 255) of the square behind may show."""
+    ball = ct_ball()
+    front = SQUARE * 0.010 + (0.0, 0.016, 0.0)  # 10 mm square between the camera and the ball
+    behind = SQUARE * 0.030 + (0.0, -0.016, 0.0)  # 30 mm: it sticks out around the ball
+
+    def render(volume=True, square=None):
+        with SurfaceRenderer(VW, VH, "front", bounds=[-HALF, HALF] * 3, **FLAT) as r:
+            if volume:
+                r.add_volume(ball)
+            if square is not None:
+                r.add_mesh(square, SQUARE_TRIS, color=(0.9, 0.2, 0.1))
+            return r.render().astype(int)
+
+    ball_only = render()
+    ball_mask = not_background(ball_only)
+
+    square_only = render(volume=False, square=front)
+    covered_by_square = not_background(square_only)
+    assert covered_by_square[CENTRE] and ball_mask[covered_by_square].all()  # it hides ball only
+    both = render(square=front)
+    np.testing.assert_array_equal(both[covered_by_square], square_only[covered_by_square])
+
+    square_only = render(volume=False, square=behind)
+    assert np.abs(square_only[CENTRE] - ball_only[CENTRE]).max() > 50  # the square would show
+    both = render(square=behind)
+    assert np.abs(both[CENTRE] - ball_only[CENTRE]).max() <= 5
+    # Around the ball the square behind is seen through the air voxels (transparent).
+    around = not_background(square_only) & ~ball_mask
+    assert around.sum() > 100
+    assert np.abs(both[around] - square_only[around]).max() <= 1
+
+
+def test_update_volume_and_volume_handles():
+    with SurfaceRenderer(VW, VH, "front", **FLAT) as r:
+        v = r.add_volume(ct_ball(), preset="ct-skin")
+        m = r.add_mesh(SQUARE * 0.005 + (0.0, 0.0, -0.015), SQUARE_TRIS)
+        assert not_background(r.render())[CENTRE]
+        r.set_visible(v, False)
+        assert not not_background(r.render())[CENTRE]
+        r.set_visible(v, True)
+        r.update_volume(v, ct_ball(inside=-1000))  # all air: nothing to see
+        assert not not_background(r.render())[CENTRE]
+        r.update_volume(v, ct_ball())
+        assert not_background(r.render())[CENTRE]
+        with pytest.raises(InputError, match="update_volume"):
+            r.update(v, SQUARE)
+        with pytest.raises(InputError, match="handle.*volume"):
+            r.update_volume(m, ct_ball())
+        with pytest.raises(InputError, match="handle"):
+            r.update_volume(9, ct_ball())
+        with pytest.raises(InputError, match="handle"):
+            r.set_color(v, (1, 0, 0))
+        with pytest.raises(InputError, match="sample_distance"):
+            r.add_volume(ct_ball(), sample_distance=0)
+        with pytest.raises(InputError, match="preset"):
+            r.add_volume(ct_ball(), preset="bone")
+        with pytest.raises(InputError, match="volume"):
+            r.update_volume(v, np.zeros((4, 4, 4)))

@@ -7,6 +7,11 @@ Static scenery is a ground quad (:meth:`~SurfaceRenderer.add_plane`, checkered s
 and rolling are visible) and spheres (:meth:`~SurfaceRenderer.add_sphere`). A light kit
 (key, fill, back and head lights) and Phong shading make the shapes read as solids.
 
+A :class:`~softvr.volume.Volume` (a CT, deformed or not) can be drawn in the same image
+(:meth:`~SurfaceRenderer.add_volume`, :meth:`~SurfaceRenderer.update_volume`): it is ray
+cast in software and composited by depth with the surfaces, so a probe in front of the
+volume hides it and one inside or behind it is hidden by what lies in front.
+
 :func:`softvr.volume.boundary_faces` gives the outward-oriented surface of a tetrahedral
 mesh, the triangles a FEM body is drawn with.
 
@@ -19,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from softvr.render._offscreen import OffscreenView
+from softvr.render._scene import VolumeScene
 from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, new_onscreen_window, offscreen_backend, require_display
 from softvr.render.camera import Camera
@@ -47,15 +53,18 @@ def _positive(value, what: str, unit: str) -> float:
 
 
 class _Item:
-    """One surface: its kind, actor and (for meshes) the vertex array VTK reads from and the
-    indices of the vertices that triangles use (None: all)."""
+    """One surface or volume: its kind, actor (a ``vtkVolume`` for a volume) and (for meshes)
+    the vertex array VTK reads from and the indices of the vertices that triangles use (None:
+    all); ``scene`` is a volume's :class:`~softvr.render._scene.VolumeScene`."""
 
-    def __init__(self, kind: str, actor, points=None, polydata=None, array=None, used=None):
+    def __init__(self, kind: str, actor, points=None, polydata=None, array=None, used=None, scene=None):
         self.kind, self.actor, self.points, self.polydata, self.array = kind, actor, points, polydata, array
-        self.used = used
+        self.used, self.scene = used, scene
 
     def bounds(self) -> np.ndarray:
         """(xmin, xmax, ymin, ymax, zmin, zmax) [m]."""
+        if self.scene is not None:
+            return np.asarray(self.scene.bounds(), float)
         if self.array is not None:
             x = self.array if self.used is None else self.array[self.used]
             return np.stack([x.min(axis=0), x.max(axis=0)], axis=1).ravel()
@@ -74,8 +83,8 @@ class SurfaceRenderer(OffscreenView):
         on the world axes with z up (``"front"`` looks from +y), which suits z-up physics scenes.
     bounds : array_like of 6 float, optional [m]
         World box (xmin, xmax, ymin, ymax, zmin, zmax) the camera is fitted to. Default: the
-        meshes and spheres at the first :meth:`render` (planes only when there is nothing
-        else). The camera then stays fixed until :meth:`set_camera` or :meth:`reset_camera`.
+        meshes, spheres and volumes at the first :meth:`render` (planes only when there is
+        nothing else). The camera then stays fixed until :meth:`set_camera` or :meth:`reset_camera`.
     background, background_top : tuple of 3 float
         Background RGB in [0, 1] at the bottom and top of the image (a vertical gradient;
         equal colours give a flat background).
@@ -284,10 +293,54 @@ class SurfaceRenderer(OffscreenView):
         self._style(actor, _rgb(color, "color"), opacity)
         return self._add(_Item("sphere", actor))
 
+    def add_volume(self, volume, preset="ct", sample_distance: float = 1.0) -> int:
+        """Add a volume (a CT), drawn with the surfaces; returns its handle for :meth:`update_volume`.
+
+        The volume is ray cast on the CPU (``vtkFixedPointVolumeRayCastMapper``) and
+        composited by depth with the surfaces: rays stop at the opaque surfaces, so a surface
+        in front of the volume hides it and the volume hides what lies behind it.
+
+        Parameters
+        ----------
+        volume : softvr.volume.Volume
+            Voxels ``data`` [nx, ny, nz] (at least 2 along each axis) placed by ``spacing``
+            [3], ``origin`` [3] and ``direction`` [3, 3], in the world units of the surfaces
+            [m].
+        preset : str or Preset
+            Transfer function: a name from :data:`softvr.render.PRESETS` (``"ct"``: soft
+            tissue faint, bone opaque; ``"ct-skin"``: the skin as an opaque surface; ``"mri"``,
+            ``"labels"``, ``"auto"``) or a :class:`~softvr.render.Preset`.
+        sample_distance : float [voxels]
+            Ray step in units of the smallest voxel spacing.
+
+        Returns
+        -------
+        int
+            Handle of the volume. Its bounds count for the camera fit like a mesh's.
+        """
+        self._check_open()
+        sample_distance = _positive(sample_distance, "sample_distance", "voxels")
+        scene = VolumeScene(preset, "cpu", sample_distance)
+        scene.update(volume)
+        return self._add(_Item("volume", scene.prop, scene=scene))
+
+    def update_volume(self, handle: int, volume) -> None:
+        """Show ``volume`` (any shape, spacing, origin, direction; see :meth:`add_volume`) in
+        volume ``handle`` from the next render on. The camera stays where it is (see
+        :meth:`reset_camera`)."""
+        self._check_open()
+        item = self._item(handle)
+        if item.kind != "volume":
+            raise InputError("handle", "the handle of a volume (add_volume)", f"a {item.kind}")
+        item.scene.update(volume)
+
     def update(self, handle: int, vertices) -> None:
         """New vertex positions [vertex_count, 3] [m] of mesh ``handle`` (same topology)."""
         self._check_open()
         item = self._item(handle)
+        if item.kind == "volume":
+            raise InputError("handle", "the handle of a mesh (add_mesh); a volume changes with update_volume",
+                             "a volume")
         if item.kind != "mesh":
             raise InputError("handle", "the handle of a mesh (add_mesh)", f"a {item.kind}")
         item.array[:] = self._check_vertices(vertices, len(item.array), "vertices")
@@ -298,6 +351,9 @@ class SurfaceRenderer(OffscreenView):
     def set_color(self, handle: int, color, opacity: float | None = None) -> None:
         """Change the colour (and opacity) of a mesh or sphere (a plane keeps its checkerboard)."""
         item = self._item(handle)
+        if item.kind == "volume":
+            raise InputError("handle", "the handle of a mesh, sphere or plane (a volume's colours are its preset)",
+                             "a volume")
         prop = item.actor.GetProperty()
         prop.SetColor(*_rgb(color, "color"))
         if opacity is not None:
@@ -307,7 +363,7 @@ class SurfaceRenderer(OffscreenView):
             self._update_translucency()
 
     def set_visible(self, handle: int, visible: bool) -> None:
-        """Show or hide a surface."""
+        """Show or hide a surface or volume (a hidden one does not count for the camera fit)."""
         self._item(handle).actor.SetVisibility(bool(visible))
 
     # ---------------------------------------------------------------- camera
@@ -375,7 +431,10 @@ class SurfaceRenderer(OffscreenView):
 
     # --------------------------------------------------------------- helpers
     def _add(self, item: _Item) -> int:
-        self._renderer.AddActor(item.actor)
+        if item.kind == "volume":
+            self._renderer.AddVolume(item.actor)
+        else:
+            self._renderer.AddActor(item.actor)
         self._items.append(item)
         self._update_translucency()
         return len(self._items) - 1
@@ -386,7 +445,7 @@ class SurfaceRenderer(OffscreenView):
         return self._items[int(handle)]
 
     def _update_translucency(self) -> None:
-        translucent = any(it.actor.GetProperty().GetOpacity() < 1 for it in self._items)
+        translucent = any(it.actor.GetProperty().GetOpacity() < 1 for it in self._items if it.kind != "volume")
         self._renderer.SetUseDepthPeeling(translucent)
 
     @staticmethod
