@@ -22,7 +22,7 @@ from softvr.collision import Plane
 from softvr.contact import Adhesion, combine
 from softvr.dynamics import RigidBody, RigidPoints
 from softvr.errors import InputError
-from softvr.examples.example_candy import box_surface
+from softvr.model.shapes import box_surface
 
 EDGE, QUADS, DENSITY, G = 0.1, 4, 800.0, 9.81
 

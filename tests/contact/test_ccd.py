@@ -53,7 +53,7 @@ def test_sweep_leaving_a_closed_surface_gets_the_outward_normal():
     in); the proximity query gives the outward normal +z and the penetration depth -1 cm. A
     point above the cube moving down into it is a sweep hit on the outside, gap = its distance."""
     from softvr.collision.mesh import query_points
-    from softvr.examples.example_candy import box_surface
+    from softvr.model.shapes import box_surface
 
     verts, tris = box_surface((1.0, 1.0, 1.0), 2)
     cube = TriangleMesh(verts - 0.5, tris, thickness=0.0)

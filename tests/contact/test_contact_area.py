@@ -12,7 +12,7 @@ import pytest
 from softvr import Scene
 from softvr.collision import Plane
 from softvr.dynamics import RigidBody, RigidPoints
-from softvr.examples.example_candy import box_surface
+from softvr.model.shapes import box_surface
 
 
 def rigid_cube(edge, quads, centre, name):

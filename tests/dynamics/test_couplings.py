@@ -216,7 +216,7 @@ def test_a_coupled_pair_rests_on_the_ground_carrying_its_weight():
     """Contacts on a coupling island: a bone with a muscle tied on top comes to rest on the
     ground; the ground carries both weights (the contact forces on the bone, the only member
     touching it) and the couplings keep the muscle on the bone (stretch = its weight / (k n))."""
-    from softvr.examples.example_candy import box_surface
+    from softvr.model.shapes import box_surface
 
     bone, muscle, link = _bone_and_muscle(0.0)
     verts, tris = box_surface((0.1, 0.1, 0.1), 2)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from softvr.errors import InputError
-from softvr.examples.example_candy import box_surface
+from softvr.model.shapes import box_surface
 from softvr.model.shapes import icosphere
 from softvr.model import collision_mesh, dynamics_mesh, embed_surface, intersecting_triangle_pairs, nodes_near_surface
 

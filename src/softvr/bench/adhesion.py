@@ -71,7 +71,7 @@ def softvr_pull_off(case: dict = PULL_OFF) -> dict:
     from softvr.collision import Plane
     from softvr.contact import Adhesion
     from softvr.dynamics import RigidBody, RigidPoints
-    from softvr.examples.example_candy import box_surface
+    from softvr.model.shapes import box_surface
 
     edge, dt = case["edge"], case["dt"]
     verts, tris = box_surface((edge,) * 3, case["quads"])

@@ -25,11 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from softvr.examples.example_oranges import orange_mesh
-from softvr.model.shapes import icosphere
+from softvr.model.shapes import box_surface, icosphere
 from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
 
-__all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",
-           "box_surface", "main"]
+__all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE", "main"]
 
 #: 4 s at 25 frames per second.
 DEFAULT_FRAMES = 100
@@ -74,39 +73,6 @@ class CandyScale:
 FULL_SCALE = CandyScale()
 #: A quick version for tests (~1 K tets).
 SMALL_SCALE = CandyScale(block_cells=(6, 6, 3), block_surface=12, candies=4, candy_cells=4, candy_subdivisions=1)
-
-
-def box_surface(size, quads: int) -> tuple[np.ndarray, np.ndarray]:
-    """Closed, outward triangulated surface of the box [0, size] with about ``quads`` quads along
-    its longest edge (square-ish quads on every face). Returns vertices [n, 3] [m] and
-    triangles [t, 3]."""
-    size = np.asarray(size, float)
-    counts = np.maximum(1, np.round(size / size.max() * quads).astype(int))
-    verts, tris, index = [], [], {}
-
-    def vertex(p):
-        key = tuple(np.round(p / size * 2 * counts.max()).astype(int))
-        if key not in index:
-            index[key] = len(verts)
-            verts.append(p)
-        return index[key]
-
-    for axis in range(3):
-        u, w = (axis + 1) % 3, (axis + 2) % 3
-        for side in (0.0, 1.0):
-            for i in range(counts[u]):
-                for j in range(counts[w]):
-                    corners = []
-                    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                        p = np.zeros(3)
-                        p[axis] = side * size[axis]
-                        p[u] = (i + di) / counts[u] * size[u]
-                        p[w] = (j + dj) / counts[w] * size[w]
-                        corners.append(vertex(p))
-                    a, b, c, d = corners
-                    # (u, w, axis) is right-handed: counter-clockwise seen from +axis on side 1.
-                    tris += [(a, b, c), (a, c, d)] if side else [(a, c, b), (a, d, c)]
-    return np.array(verts), np.array(tris, np.int32)
 
 
 class Example(PhysicsExample):

@@ -32,7 +32,7 @@ def _box(lo, hi, edge: float = 0.006):
     happen at vertices and edges, so a soft part's faces need more than two triangles)."""
     import trimesh  # noqa: PLC0415
 
-    from softvr.examples.example_candy import box_surface  # noqa: PLC0415
+    from softvr.model.shapes import box_surface  # noqa: PLC0415
 
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     v, t = box_surface(hi - lo, max(1, int(np.ceil((hi - lo).max() / edge))))

@@ -23,13 +23,13 @@ from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import SeparationReport, push_apart
-from softvr.model.shapes import BOX_TRIANGLES, box_corners, icosphere
+from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
 from softvr.model.tet_files import TET_SUFFIXES, load_tet_mesh, save_tet_mesh
 from softvr.model.tissue import CT_TISSUE, TetTissue, TissueTable, tet_tissue, tissue_fem_body, voxel_owners
 
 __all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
            "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "load_mesh", "load_model",
            "nodes_near_surface", "push_apart", "read_parts"]
-__all__ += ["BOX_TRIANGLES", "box_corners", "icosphere", "rigid_properties"]
+__all__ += ["BOX_TRIANGLES", "box_corners", "box_surface", "icosphere", "rigid_properties"]
 __all__ += ["TET_SUFFIXES", "load_tet_mesh", "save_tet_mesh"]
 __all__ += ["CT_TISSUE", "TetTissue", "TissueTable", "tet_tissue", "tissue_fem_body", "voxel_owners"]

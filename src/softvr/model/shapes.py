@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["BOX_TRIANGLES", "box_corners", "icosphere"]
+__all__ = ["BOX_TRIANGLES", "box_corners", "box_surface", "icosphere"]
 
 #: Corner k = 4 i + 2 j + l of :func:`box_corners` has signs (i, j, l) (0: -, 1: +); two
 #: outward (counter-clockwise from outside) triangles per face.
@@ -24,6 +24,39 @@ def box_corners(half_extents) -> np.ndarray:
     """The 8 corners [8, 3] [m] of a box centred on the origin with ``half_extents`` [3] [m],
     in the vertex order of :data:`BOX_TRIANGLES`."""
     return _SIGNS * np.asarray(half_extents, float)
+
+
+def box_surface(size, quads: int) -> tuple[np.ndarray, np.ndarray]:
+    """Closed, outward triangulated surface of the box [0, size] with about ``quads`` quads along
+    its longest edge (square-ish quads on every face). Returns vertices [n, 3] [m] and
+    triangles [t, 3]."""
+    size = np.asarray(size, float)
+    counts = np.maximum(1, np.round(size / size.max() * quads).astype(int))
+    verts, tris, index = [], [], {}
+
+    def vertex(p):
+        key = tuple(np.round(p / size * 2 * counts.max()).astype(int))
+        if key not in index:
+            index[key] = len(verts)
+            verts.append(p)
+        return index[key]
+
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3
+        for side in (0.0, 1.0):
+            for i in range(counts[u]):
+                for j in range(counts[w]):
+                    corners = []
+                    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                        p = np.zeros(3)
+                        p[axis] = side * size[axis]
+                        p[u] = (i + di) / counts[u] * size[u]
+                        p[w] = (j + dj) / counts[w] * size[w]
+                        corners.append(vertex(p))
+                    a, b, c, d = corners
+                    # (u, w, axis) is right-handed: counter-clockwise seen from +axis on side 1.
+                    tris += [(a, b, c), (a, c, d)] if side else [(a, c, b), (a, d, c)]
+    return np.array(verts), np.array(tris, np.int32)
 
 
 def icosphere(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:

@@ -9,12 +9,18 @@ rigid      box (box collider), sphere (sphere collider) or mesh (its vertices an
            cloth bodies every rigid shape collides through its surface instead
 fem        box: a grid of ``cells``^3 cubes, 5 tets each; sphere (an icosphere) or mesh: the model
            pipeline's dynamics mesh (cubes of ``cells`` metres touching the surface) with the
-           surface embedded in it; co-rotational FEM of the material
+           surface embedded in it; tets: a tet mesh file, its boundary the surface; co-rotational
+           FEM of the material. ``drive`` moves the held nodes (driven boundary, ``fixed_velocity``)
 cloth      a ``cloth = [w, h]`` sheet of ``quads`` in the body's x-y plane (or a glTF mesh),
            mass-spring cloth
 fixed      box (box collider of a fixed body) or mesh (a static triangle mesh obstacle)
 kinematic  box or sphere moved through ``motion`` keyframes (linear in between, held after)
+tool       a rigid box or sphere on a virtual coupling to a haptic handle that follows ``motion``
+           (:class:`softvr.haptics.HapticTool`; ``haptics = true``: the 1 kHz loop in its own process)
 =========  =====================================================================================
+
+A ``[[model]]`` adds the parts of a parts file (built by :func:`softvr.model.build_model` as
+the scene loads) or of a built model: bodies named as the parts, its couplings as springs.
 
 The scene runs, draws and records like every demo (:class:`~softvr.examples.run.PhysicsExample`):
 ``softvr run SCENE.toml``, ``softvr view SCENE.toml``.
@@ -39,11 +45,36 @@ def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
     return r.as_matrix(), np.array([w, x, y, z])
 
 
+def _linear(times, values, t: float) -> np.ndarray:
+    """Keyframes ``values`` [k, 3] at ``times`` [k] [s], linear in between, held outside."""
+    return np.array([np.interp(t, times, values[:, k]) for k in range(3)])
+
+
+def _attached(body, points) -> object:
+    """Point entity on ``body`` at world ``points`` [n, 3] [m] as it is now: barycentric in
+    its tets (a fem body), its nearest nodes (cloth), or fixed in its frame (rigid)."""
+    from softvr.dynamics import EmbeddedPoints, RigidPoints, embed_in_tets
+
+    if hasattr(body, "tets"):
+        ti, w = embed_in_tets(body.q, body.tets, points, tolerance=np.inf)
+        return EmbeddedPoints(body, body.tets[ti], w)
+    if hasattr(body, "q"):
+        nearest = np.linalg.norm(body.q[None, :, :] - points[:, None, :], axis=2).argmin(axis=1)
+        return EmbeddedPoints(body, nearest[:, None], np.ones((len(points), 1)))
+    return RigidPoints.from_world(body, points)
+
+
+#: Model parts' colours by kind.
+_PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rigid": (0.95, 0.95, 0.9),
+                "soft": (0.72, 0.3, 0.3)}
+
+
 class _Drawn:
     """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]."""
 
-    def __init__(self, vertices, triangles, color):
+    def __init__(self, vertices, triangles, color, opacity: float = 1.0):
         self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
+        self.opacity = opacity
 
 
 class SceneExample(PhysicsExample):
@@ -83,22 +114,49 @@ class SceneExample(PhysicsExample):
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
-        self._soft_scene = any(b.type in ("fem", "cloth") for b in scene_file.bodies)
+        self.tools, self._driven = [], []
+        self._soft_scene = bool(scene_file.models) or any(b.type in ("fem", "cloth") for b in scene_file.bodies)
+        for model in scene_file.models:
+            self._add_model(scene, model)
         for spec in scene_file.bodies:
             self._add(scene, spec)
         for a, b in scene_file.filters:
             scene.disable_collision(self.index[a], self.index[b])
+        for spec in scene_file.bodies:
+            if spec.collides_with is not None:
+                for other, j in self.index.items():
+                    if other != spec.name and other not in spec.collides_with:
+                        scene.disable_collision(self.index[spec.name], j)
         for c in scene_file.couplings:
             self._couple(scene, c)
+        for tool in self.tools:
+            if tool.haptics:
+                tool.loop.start()
         w, h = ren["size"]
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
         super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
                          bounds=ren["bounds"], camera=camera)
 
     # -- building ----------------------------------------------------------------------
+    def _add_model(self, scene, model: dict) -> None:
+        """The parts of a parts file (built now) or of a built model, with their couplings."""
+        from softvr.model import build_model, load_model
+
+        path = model["file"]
+        built = load_model(path) if path.suffix.lower() == ".npz" else build_model(path, progress=False)
+        first = len(scene.bodies)
+        _, bodies, render_points = built.build_scene(scene)
+        for k, (name, body) in enumerate(bodies.items()):
+            part = built.part(name)
+            color = model["colors"].get(name, _PART_COLORS.get(part.spec.kind, _PART_COLORS["soft"]))
+            self.bodies[name], self.index[name] = body, first + k
+            self.drawn.append(_Drawn(render_points[name].positions, part.render_triangles, color,
+                                     model["opacity"].get(name, 1.0)))
+            self._drawn_by_name[name] = self.drawn[-1]
+
     def _add(self, scene, spec: BodySpec) -> None:
         from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody
-        from softvr.model.shapes import BOX_TRIANGLES, box_corners, icosphere
+        from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
 
         rotation, quaternion = _rotation(spec.rotation)
         centre = np.asarray(spec.position, float)
@@ -116,8 +174,8 @@ class SceneExample(PhysicsExample):
             index = scene.add_body(body, collision_points=RigidPoints(body, local), collision_triangles=t,
                                    adhesion=adhesion)
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color))
-        elif spec.type in ("rigid", "fixed", "kinematic") and spec.shape in ("box", "sphere"):
-            if spec.type == "rigid":
+        elif spec.type in ("rigid", "fixed", "kinematic", "tool") and spec.shape in ("box", "sphere"):
+            if spec.type in ("rigid", "tool"):
                 make = RigidBody.box if spec.shape == "box" else RigidBody.sphere
                 body = make(spec.size, material["density"], position=centre, orientation=quaternion,
                             velocity=spec.velocity, angular_velocity=spec.angular_velocity, name=spec.name)
@@ -126,19 +184,26 @@ class SceneExample(PhysicsExample):
             else:
                 body = KinematicBody(self._keyframes(spec, centre, quaternion), name=spec.name)
             if spec.shape == "box":
-                collider = {"collision_box": np.asarray(spec.size) / 2}
-                local, triangles = box_corners(np.asarray(spec.size) / 2), BOX_TRIANGLES
+                half = np.asarray(spec.size) / 2
+                collider = {"collision_box": half}
+                if spec.surface_quads > 1:
+                    local, triangles = box_surface(spec.size, spec.surface_quads)
+                    local = local - half
+                else:
+                    local, triangles = box_corners(half), BOX_TRIANGLES
             else:
                 collider = {"collision_sphere": spec.size}
                 unit, triangles = icosphere(3)
                 local = unit * spec.size
-            if self._soft_scene:
+            if self._soft_scene or spec.surface_quads > 1 or spec.type == "tool":
                 # Box and sphere colliders meet only planes and each other: with soft bodies
                 # about, rigid shapes collide through their surface (points and triangles).
                 from softvr.dynamics import RigidPoints
 
                 collider = {"collision_points": RigidPoints(body, local), "collision_triangles": triangles}
             index = scene.add_body(body, adhesion=adhesion, **collider)
+            if spec.type == "tool":
+                self.tools.append(self._tool(scene, spec, body))
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
             from softvr.collision import TriangleMesh
@@ -153,7 +218,7 @@ class SceneExample(PhysicsExample):
             m = Material(material["young"], material["poisson"], material["density"], alpha=material["alpha"],
                          beta=material["beta"])
             nodes, tets, surface, embedding = self._tet_mesh(spec, rotation, centre)
-            if spec.shape != "box":
+            if spec.shape in ("sphere", "mesh"):
                 # The embedding cubes reach past the surface: the object weighs rho times the
                 # volume its surface encloses, spread over them.
                 inside = rigid_properties(*self._surface(spec, rotation, centre), 1.0, f"body {spec.name!r}")[0]
@@ -161,6 +226,8 @@ class SceneExample(PhysicsExample):
                 m = Material(m.young, m.poisson, m.density * inside / tet_volume, alpha=m.alpha, beta=m.beta)
             body = FemBody(nodes, tets, m, fixed=self._clamped(spec, nodes), name=spec.name)
             self._set_velocity(body, spec, centre)
+            if spec.drive:
+                self._driven.append((body, spec.drive))
             tet_nodes, weights = embedding
             points = EmbeddedPoints(body, tet_nodes, weights)
             index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
@@ -180,6 +247,8 @@ class SceneExample(PhysicsExample):
                                       v_axis=rotation[:, 1], **springs)
             body.fixed[:] = self._clamped(spec, body.q)
             self._set_velocity(body, spec, centre)
+            if spec.drive:
+                self._driven.append((body, spec.drive))
             n = len(body.q)
             points = EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1)))
             # The triangles give the contacts their areas (adhesion works on tractions) and
@@ -192,27 +261,39 @@ class SceneExample(PhysicsExample):
         self._drawn_by_name[spec.name] = self.drawn[-1]
 
     def _couple(self, scene, c: dict) -> None:
-        """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface."""
-        from softvr.dynamics import Coupling, EmbeddedPoints, RigidPoints, embed_in_tets
+        """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface, or at
+        the world ``points`` (tied to both bodies where they are at the start)."""
+        from softvr.dynamics import Coupling, EmbeddedPoints
         from softvr.errors import InputError
         from softvr.model import nodes_near_surface
 
         a, b = self.bodies[c["a"]], self.bodies[c["b"]]
-        surface = self._drawn_by_name[c["b"]]
-        nodes = np.flatnonzero(np.ones(len(a.q), bool))
-        near = nodes[nodes_near_surface(a.q, surface.vertices(), surface.triangles, c["radius"])]
-        if len(near) == 0:
-            raise InputError(f"coupling {c['a']} - {c['b']}", f"nodes of {c['a']!r} within {c['radius']} m of "
-                             f"{c['b']!r}", "none", source=str(self.file.path))
-        springs = a.q[near]
-        side_a = EmbeddedPoints(a, near[:, None], np.ones((len(near), 1)))
-        if hasattr(b, "tets"):
-            ti, w = embed_in_tets(b.q, b.tets, springs, tolerance=np.inf)
-            side_b = EmbeddedPoints(b, b.tets[ti], w)
+        if c["points"] is not None:
+            springs = np.asarray(c["points"], float)
+            side_a = _attached(a, springs)
         else:
-            side_b = RigidPoints.from_world(b, springs)
-        scene.add_coupling(Coupling(side_a, side_b, c["stiffness"], damping=c["damping"],
+            surface = self._drawn_by_name[c["b"]]
+            near = np.flatnonzero(nodes_near_surface(a.q, surface.vertices(), surface.triangles, c["radius"]))
+            if len(near) == 0:
+                raise InputError(f"coupling {c['a']} - {c['b']}", f"nodes of {c['a']!r} within {c['radius']} m of "
+                                 f"{c['b']!r}", "none", source=str(self.file.path))
+            springs = a.q[near]
+            side_a = EmbeddedPoints(a, near[:, None], np.ones((len(near), 1)))
+        scene.add_coupling(Coupling(side_a, _attached(b, springs), c["stiffness"], damping=c["damping"],
                                     name=f"{c['a']} - {c['b']}"), collide=c["collide"])
+
+    def _tool(self, scene, spec: BodySpec, body):
+        """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling to a handle
+        that follows the motion keyframes in simulated time."""
+        from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
+
+        path = self._keyframes(spec, np.asarray(spec.position, float), None)
+        device = ScriptedDevice(lambda t: path(t)[0])
+        loop = HapticLoop(device, max_force=spec.tool["max_force"], process=spec.tool["haptics"])
+        device.clock = loop.simulation_clock
+        tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"])
+        tool.haptics = spec.tool["haptics"]
+        return tool
 
     def start_problems(self) -> list:
         """(what, expected, found) for bodies that start intersecting each other (crossing
@@ -229,7 +310,7 @@ class SceneExample(PhysicsExample):
                     out.append((f"body {a!r}", "a start above every plane", f"{depth * 1e3:.2f} mm below one"))
             for b in names[i + 1:]:
                 # Cloth is an open sheet (no crossing test); coupled or filtered pairs may overlap.
-                if "cloth" in (self.file.body(a).type, self.file.body(b).type) or \
+                if "cloth" in (getattr(self.file.body(a), "type", None), getattr(self.file.body(b), "type", None)) or \
                         not self.scene.collision_enabled(self.index[a], self.index[b]):
                     continue
                 db = self._drawn_by_name[b]
@@ -245,17 +326,32 @@ class SceneExample(PhysicsExample):
         the embedding (tet node indices [k, 4] or [k, 1], weights)."""
         from softvr.volume import Volume, boundary_faces, grid_tet_mesh
 
-        if spec.shape == "box":
-            size, cells = np.asarray(spec.size, float), int(spec.cells)
-            spacing = size / cells
-            grid = Volume(np.zeros((cells,) * 3, np.uint8), spacing=spacing, origin=spacing / 2 - size / 2)
-            nodes, tets = grid_tet_mesh(grid, cells)
+        from softvr.model import dynamics_mesh, embed_surface
+
+        if spec.shape in ("box", "tets"):
+            if spec.shape == "box":
+                size = np.asarray(spec.size, float)
+                cells = np.broadcast_to(np.asarray(spec.cells, int), (3,))
+                spacing = size / cells
+                grid = Volume(np.zeros(tuple(cells), np.uint8), spacing=spacing, origin=spacing / 2 - size / 2)
+                nodes, tets = grid_tet_mesh(grid, tuple(cells))
+            else:
+                from softvr.model import load_tet_mesh
+
+                nodes, tets = load_tet_mesh(spec.mesh)
+                nodes = nodes * np.asarray(spec.scale)
             nodes = nodes @ rotation.T + centre
+            if spec.shape == "box" and spec.surface_quads > 1:
+                from softvr.model.shapes import box_surface
+
+                v, t = box_surface(size, spec.surface_quads)
+                v = (v - size / 2) @ rotation.T + centre
+                tet_index, weights = embed_surface(nodes, tets, v)
+                return nodes, tets, t, (tets[tet_index], weights)
             faces = boundary_faces(tets)
             on_surface, local = np.unique(faces, return_inverse=True)
             return nodes, tets, local.reshape(-1, 3).astype(np.int32), (on_surface[:, None],
                                                                         np.ones((len(on_surface), 1)))
-        from softvr.model import dynamics_mesh, embed_surface
 
         v, t = SceneExample._surface(spec, rotation, centre)
         nodes, tets = dynamics_mesh(v, t, float(spec.cells))
@@ -294,18 +390,35 @@ class SceneExample(PhysicsExample):
             v = v * spec.size
         else:
             v, t = load_mesh(spec.mesh)
-        return np.asarray(v, float) @ rotation.T + centre, np.asarray(t, np.int32)
+        v = np.asarray(v, float) * np.asarray(spec.scale)
+        return v @ rotation.T + centre, np.asarray(t, np.int32)
 
     @staticmethod
     def _keyframes(spec: BodySpec, centre, quaternion):
+        """Pose function t [s] -> (position [3] [m], quaternion) of the motion keyframes."""
         times = np.asarray(spec.motion.get("times", [0.0]), float)
         positions = np.asarray(spec.motion.get("positions", [centre]), float)
+        return lambda t: (_linear(times, positions, t), quaternion)
 
-        def pose(t: float):
-            p = np.array([np.interp(t, times, positions[:, k]) for k in range(3)])
-            return p, quaternion
+    def before_step(self) -> None:
+        # Driven nodes move over the step [t, t + dt] at its mean speed, so they land on their path.
+        t, dt = self.scene.time, self.dt
+        for body, drive in self._driven:
+            times, offsets = np.asarray(drive["times"], float), np.asarray(drive["offsets"], float)
+            speed = (_linear(times, offsets, t + dt) - _linear(times, offsets, t)) / dt
+            body.fixed_velocity[body.fixed] = speed
+        for tool in self.tools:
+            if not tool.haptics:
+                tool.loop.tick()  # one device reading per step instead of the loop's thousand per second
 
-        return pose
+    def after_step(self, solution) -> None:
+        for tool in self.tools:
+            tool.publish(solution)
+
+    def close(self) -> None:
+        for tool in self.tools:
+            tool.loop.stop()
+        super().close()
 
     # -- the demo interface ---------------------------------------------------------------
     def penetration(self) -> float:
@@ -325,7 +438,8 @@ class SceneExample(PhysicsExample):
             renderer.add_plane(point=plane.point, normal=plane.normal, size=size, tiles=12)
         for s in self.spheres:
             renderer.add_sphere(s.center, s.radius)
-        self._handles = [renderer.add_mesh(d.vertices(), d.triangles, color=d.color) for d in self.drawn]
+        self._handles = [renderer.add_mesh(d.vertices(), d.triangles, color=d.color, opacity=d.opacity)
+                         for d in self.drawn]
 
     def update_render(self, renderer) -> None:
         for handle, d in zip(self._handles, self.drawn):

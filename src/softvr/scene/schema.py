@@ -46,10 +46,10 @@
 
     [[body]]
     name = "cube"
-    type = "fem"                # rigid | fem | cloth | fixed | kinematic
+    type = "fem"                # rigid | fem | cloth | fixed | kinematic | tool
     box = [0.3, 0.3, 0.3]       # [m] shape: box, sphere = r, mesh = "file" (OBJ, STL, PLY, glTF), cloth = [w, h]
                                 # (rigid: box | sphere | mesh; fem: box | sphere | mesh; fixed: box | mesh;
-                                #  kinematic: box | sphere; cloth: cloth)
+                                #  kinematic, tool: box | sphere; cloth: cloth)
     cells = 4                   # fem box: cubes per axis (5 tets each); fem sphere / mesh: cube size [m]
     material = "jelly"
     position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
@@ -60,9 +60,20 @@
     color = [0.9, 0.5, 0.4]
     adhesion = "tacky"
 
+    scale = [1.0, 1.0, 1.0]     # sphere / mesh / tets: stretch along the shape's own axes first
+    surface_quads = 1           # box: quads of its drawn / collision surface along the longest edge
+    collides_with = ["floor"]   # optional: collide with these bodies only
+
+    # fem: tets = "lip.vtu" (a VTK tet mesh, nodes in metres) is a fourth shape; box: cells = n
+    #      or [nx, ny, nz]
+    # fem / cloth: [body.drive] times = [...] [s], offsets = [[dx, dy, dz], ...] [m]: the held
+    #      nodes (fixed_below / fixed_above) move by these offsets (linear between, held after)
     # cloth: cloth = [w, h], quads = [nu, nv], area_density [kg/m^2], stretch, shear, bend [N/m],
     #        damping [N s/m], alpha [1/s]
     # kinematic: [body.motion] times = [...] [s], positions = [[x, y, z], ...] [m] (linear between)
+    # tool: a rigid sphere or box (material) on a virtual coupling (stiffness [N/m], damping
+    #       [N s/m]) to a haptic handle that follows [body.motion]; haptics = true runs the
+    #       1 kHz haptic loop in its own process, max_force [N] caps what the hand feels
 
     [[filter]]                  # bodies that never collide with each other
     a = "cube"
@@ -75,6 +86,14 @@
     stiffness = 2.0e3           # [N/m] per spring
     damping = 0.0               # [N s/m]
     collide = false             # contacts between a and b (off by default)
+    # points = [[x, y, z], ...] [m]: instead of radius, springs at these world points (any two
+    #          bodies, rigid ones too; each point is tied to both where it is at the start)
+
+    [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
+    file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
+                                    # (built when the scene loads) or a built model (.npz)
+    colors = { deltoid = [0.7, 0.3, 0.3] }   # optional, per part
+    opacity = { deltoid = 0.45 }             # optional, per part
 
 Every error names the file, the field path (``body[2].material``), what was expected and what
 was found, all of a file's errors at once: missing mesh files, unknown body types, numbers out
@@ -87,29 +106,36 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from softvr.errors import Problems, read_toml
+from softvr.model.tet_files import TET_SUFFIXES
 
 __all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
 
 FORMAT = "softvr-scene 1"
-BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic")
+BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
-_SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh"), "cloth": ("cloth",), "fixed": ("box", "mesh"),
-           "kinematic": ("box", "sphere")}
+_SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
+           "fixed": ("box", "mesh"), "kinematic": ("box", "sphere"), "tool": ("box", "sphere")}
+_SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
 _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
 
 
 @dataclass
 class BodySpec:
     """One ``[[body]]`` (module docstring); shape in ``shape`` ("box", "sphere", "mesh",
-    "cloth") with its ``size`` (box [3] [m], sphere radius [m], cloth [w, h] [m]) or
-    ``mesh`` path."""
+    "tets", "cloth") with its ``size`` (box [3] [m], sphere radius [m], cloth [w, h] [m]) or
+    ``mesh`` path (a surface, or for "tets" a tet mesh file)."""
 
     name: str
     type: str
     shape: str
     size: tuple | float | None = None
     mesh: Path | None = None
-    cells: float = 4
+    cells: float | tuple = 4
+    scale: tuple = (1.0, 1.0, 1.0)
+    surface_quads: int = 1
+    collides_with: tuple | None = None
+    drive: dict = field(default_factory=dict)
+    tool: dict = field(default_factory=dict)
     material: str | None = None
     position: tuple = (0.0, 0.0, 0.0)
     rotation: tuple = (0.0, 0.0, 0.0)
@@ -139,9 +165,15 @@ class SceneFile:
     bodies: list
     filters: list
     couplings: list = field(default_factory=list)
+    models: list = field(default_factory=list)
 
-    def body(self, name: str) -> BodySpec:
-        return next(b for b in self.bodies if b.name == name)
+    def body(self, name: str) -> BodySpec | None:
+        """The ``[[body]]`` of this name (None for a model's part)."""
+        return next((b for b in self.bodies if b.name == name), None)
+
+    def model_parts(self) -> dict:
+        """Part name -> kind ("fixed", "kinematic", "rigid", "soft") of every model's parts."""
+        return {name: kind for m in self.models for name, kind in m["parts"].items()}
 
 
 def _named_tables(doc: dict, key: str, errors: Problems) -> dict:
@@ -237,7 +269,7 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         name = f"body {i}"
     kind = errors.choice(t, "type", w, BODY_TYPES)
     allowed = _SHAPES.get(kind, ("box", "sphere", "mesh", "cloth"))
-    given = [s for s in ("box", "sphere", "mesh", "cloth") if s in t]
+    given = [s for s in _SHAPE_KEYS if s in t]
     shape, size, mesh = None, None, None
     if len(given) != 1 or given[0] not in allowed:
         errors.add(w, f"one shape of {' | '.join(allowed)} for a {kind or 'body'}",
@@ -253,17 +285,28 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         elif shape == "cloth":
             size = errors.vector(t, "cloth", w, 2, unit="m")
         else:
-            mesh_name = t["mesh"]
-            if not isinstance(mesh_name, str):
-                errors.add(f"{w}.mesh", "a mesh file name", mesh_name)
-            else:
-                mesh = (scene_dir / mesh_name).resolve()
-                if mesh.suffix.lower() not in MESH_SUFFIXES:
-                    errors.add(f"{w}.mesh", f"a mesh file ({', '.join(MESH_SUFFIXES)})", mesh_name)
-                elif not mesh.is_file():
-                    errors.add(f"{w}.mesh", "an existing file", f"no file {mesh}")
+            mesh = _file(t, shape, w, scene_dir, MESH_SUFFIXES if shape == "mesh" else TET_SUFFIXES,
+                         "a mesh file" if shape == "mesh" else "a tet mesh file", errors)
     spec = BodySpec(name=name, type=kind, shape=shape, size=size, mesh=mesh)
-    if kind in ("rigid", "fem"):
+    if "scale" in t:
+        scale = errors.vector(t, "scale", w)
+        if shape not in ("sphere", "mesh", "tets"):
+            errors.add(f"{w}.scale", "a scale only on a sphere, mesh or tets shape", f"a {shape} shape")
+        elif scale is not None and min(scale) <= 0:
+            errors.add(f"{w}.scale", "3 factors > 0", list(scale))
+        elif scale is not None:
+            spec.scale = scale
+    if "surface_quads" in t:
+        if shape != "box" or kind == "fixed":
+            errors.add(f"{w}.surface_quads", "surface quads only on a moving box", f"a {kind} {shape}")
+        spec.surface_quads = errors.integer(t, "surface_quads", w, minimum=1)
+    if "collides_with" in t:
+        others = t["collides_with"]
+        if not (isinstance(others, list) and all(isinstance(o, str) for o in others)):
+            errors.add(f"{w}.collides_with", "a list of body names", others)
+        else:
+            spec.collides_with = tuple(others)
+    if kind in ("rigid", "fem", "tool"):
         spec.material = _ref(t, "material", w, materials, "material", errors, required=True)
     spec.adhesion = _ref(t, "adhesion", w, adhesions, "adhesion", errors)
     for key, unit in (("position", "m"), ("rotation", "deg"), ("velocity", "m/s"), ("angular_velocity", "rad/s")):
@@ -280,9 +323,22 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     for key in ("fixed_below", "fixed_above"):
         if key in t:
             setattr(spec, key, errors.number(t, key, w, unit="m"))
-    if kind == "fem":
-        spec.cells = (errors.number(t, "cells", w, positive=True, unit="m") if shape in ("mesh", "sphere")
-                      else errors.integer(t, "cells", w, default=4, minimum=1))
+    if kind == "fem" and shape in ("mesh", "sphere"):
+        spec.cells = errors.number(t, "cells", w, positive=True, unit="m")
+    elif kind == "fem" and shape == "box":
+        cells = t.get("cells", 4)
+        if isinstance(cells, list):
+            if not (len(cells) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in cells)):
+                errors.add(f"{w}.cells", "cubes per axis: an integer >= 1 or 3 of them", cells)
+            spec.cells = tuple(cells)
+        else:
+            spec.cells = errors.integer(t, "cells", w, default=4, minimum=1)
+    if "drive" in t:
+        if kind not in ("fem", "cloth"):
+            errors.add(f"{w}.drive", "a drive only on a fem or cloth body (it moves the held nodes)", f"a {kind} body")
+        elif "fixed_below" not in t and "fixed_above" not in t:
+            errors.add(f"{w}.drive", "held nodes to drive: fixed_below or fixed_above", "neither")
+        spec.drive = _keyframes(t["drive"], f"{w}.drive", "offsets", errors)
     if kind == "cloth":
         spec.cloth = {"quads": t.get("quads", [16, 16]),
                       "area_density": errors.number(t, "area_density", w, default=0.2, positive=True, unit="kg/m^2"),
@@ -292,18 +348,38 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         quads = spec.cloth["quads"]
         if not (isinstance(quads, list) and len(quads) == 2 and all(isinstance(q, int) and q >= 1 for q in quads)):
             errors.add(f"{w}.quads", "[nu, nv] quads, integers >= 1", quads)
-    if kind == "kinematic":
-        spec.motion = _motion(t.get("motion"), f"{w}.motion", errors)
+    if kind in ("kinematic", "tool"):
+        spec.motion = _keyframes(t.get("motion"), f"{w}.motion", "positions", errors)
     elif "motion" in t:
-        errors.add(f"{w}.motion", "a motion only on a kinematic body", f"a {kind} body")
+        errors.add(f"{w}.motion", "a motion only on a kinematic body or a tool", f"a {kind} body")
+    if kind == "tool":
+        spec.tool = {"stiffness": errors.number(t, "stiffness", w, positive=True, unit="N/m"),
+                     "damping": errors.number(t, "damping", w, default=0.0, minimum=0.0, unit="N s/m"),
+                     "haptics": errors.boolean(t, "haptics", w, default=False),
+                     "max_force": errors.number(t, "max_force", w, default=10.0, positive=True, unit="N")}
     return spec
 
 
-def _motion(t, w: str, errors: Problems) -> dict:
+def _file(t: dict, key: str, w: str, scene_dir: Path, suffixes: tuple, what: str, errors: Problems) -> Path | None:
+    """The existing file ``t[key]`` names, relative to the scene's folder."""
+    name = t[key]
+    if not isinstance(name, str):
+        errors.add(f"{w}.{key}", f"{what} name", name)
+        return None
+    path = (scene_dir / name).resolve()
+    if path.suffix.lower() not in suffixes:
+        errors.add(f"{w}.{key}", f"{what} ({', '.join(suffixes)})", name)
+    elif not path.is_file():
+        errors.add(f"{w}.{key}", "an existing file", f"no file {path}")
+    return path
+
+
+def _keyframes(t, w: str, key: str, errors: Problems) -> dict:
+    """``times`` [s] and one [x, y, z] [m] of ``key`` per time (a motion or a drive)."""
     if not isinstance(t, dict):
-        errors.add(w, "a [body.motion] table: times [s] and positions [m]", t if t is not None else "nothing")
+        errors.add(w, f"a table: times [s] and {key} [m]", t if t is not None else "nothing")
         return {}
-    times, positions = t.get("times"), t.get("positions")
+    times, positions = t.get("times"), t.get(key)
     ok_times = isinstance(times, list) and len(times) >= 1 and all(
         isinstance(x, (int, float)) and not isinstance(x, bool) for x in times) and all(
         b > a for a, b in zip(times, times[1:]))
@@ -312,8 +388,8 @@ def _motion(t, w: str, errors: Problems) -> dict:
     ok_positions = isinstance(positions, list) and all(
         isinstance(p, list) and len(p) == 3 and all(isinstance(x, (int, float)) for x in p) for p in positions)
     if not ok_positions or (ok_times and len(positions) != len(times)):
-        errors.add(f"{w}.positions", "one [x, y, z] [m] per time", positions if positions is not None else "nothing")
-    return {"times": times, "positions": positions} if ok_times and ok_positions else {}
+        errors.add(f"{w}.{key}", "one [x, y, z] [m] per time", positions if positions is not None else "nothing")
+    return {"times": times, key: positions} if ok_times and ok_positions else {}
 
 
 def read_scene(path) -> SceneFile:
@@ -324,7 +400,8 @@ def read_scene(path) -> SceneFile:
     errors = Problems(str(path), "scene file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
-    known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling"}
+    known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling",
+             "model"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
     simulation, render = _simulation(doc, errors), _render(doc, errors)
@@ -344,7 +421,9 @@ def read_scene(path) -> SceneFile:
                         "radius": errors.number(t, "radius", w, positive=True, unit="m"),
                         "friction": errors.number(t, "friction", w, default=simulation["friction"] or 0.5, minimum=0.0),
                         "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
-    bodies, names = [], set()
+    models = [_model(i, t, path.parent, errors) for i, t in enumerate(_list(doc, "model", errors))]
+    names = {name for m in models for name in m["parts"]}
+    bodies = []
     raw_bodies = _list(doc, "body", errors)
     for i, t in enumerate(raw_bodies):
         spec = _body(i, t, path.parent, materials, adhesions, errors)
@@ -352,33 +431,89 @@ def read_scene(path) -> SceneFile:
             errors.add(f"body[{i}].name", "a name no other body has", spec.name)
         names.add(spec.name)
         bodies.append(spec)
-    if not raw_bodies and not planes and not spheres:
+    if not raw_bodies and not planes and not spheres and not models:
         errors.add("body", "at least one [[body]]", "none")
+    for i, spec in enumerate(bodies):
+        for other in spec.collides_with or ():
+            if other not in names:
+                errors.add(f"body[{i}].collides_with", f"names of bodies ({', '.join(sorted(names))})", repr(other))
     filters = []
     for i, t in enumerate(_list(doc, "filter", errors)):
         ends = [_ref(t, side, f"filter[{i}]", names, "body", errors, required=True) for side in ("a", "b")]
         filters.append(tuple(ends))
-    couplings = [_coupling(i, t, bodies, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
+    parts = {name: kind for m in models for name, kind in m["parts"].items()}
+    couplings = [_coupling(i, t, bodies, parts, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
     errors.raise_if_any()
     return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
-                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings)
+                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings, models=models)
 
 
-def _coupling(i: int, t: dict, bodies: list, errors: Problems) -> dict:
+def _model(i: int, t: dict, scene_dir: Path, errors: Problems) -> dict:
+    """A ``[[model]]``: its file and part name -> kind (a parts file is validated now)."""
+    w = f"model[{i}]"
+    empty = {"parts": {}, "colors": {}, "opacity": {}}
+    if "file" not in t:
+        errors.add(f"{w}.file", "a parts file (.toml) or a built model (.npz)", "nothing")
+        return {"file": None, **empty}
+    path = _file(t, "file", w, scene_dir, (".toml", ".npz"), "a parts file or a built model", errors)
+    if path is None or not path.is_file() or path.suffix.lower() not in (".toml", ".npz"):
+        return {"file": path, **empty}
+    from softvr.errors import InputError  # noqa: PLC0415
+    from softvr.model import load_model, read_parts  # noqa: PLC0415
+
+    try:
+        specs = read_parts(path).parts if path.suffix.lower() == ".toml" else [p.spec for p in load_model(path).parts]
+    except InputError as exc:
+        errors.add(f"{w}.file", "a valid parts file or model", str(exc))
+        return {"file": path, **empty}
+    parts = {p.name: p.kind for p in specs}
+    looks = {}
+    for key, check in (("colors", lambda v: isinstance(v, list) and len(v) == 3 and all(
+            isinstance(c, (int, float)) and 0 <= c <= 1 for c in v)), ("opacity", lambda v: isinstance(
+            v, (int, float)) and 0 < v <= 1)):
+        table = t.get(key, {})
+        if not isinstance(table, dict):
+            errors.add(f"{w}.{key}", "a table: part name = value", table)
+            table = {}
+        for name, value in table.items():
+            if name not in parts:
+                errors.add(f"{w}.{key}.{name}", f"a part of the model ({', '.join(parts)})", repr(name))
+            elif not check(value):
+                errors.add(f"{w}.{key}.{name}", "r, g, b in [0, 1]" if key == "colors" else "a number in (0, 1]", value)
+        looks[key] = {k: v for k, v in table.items() if k in parts}
+    return {"file": path, "parts": parts, **looks}
+
+
+def _coupling(i: int, t: dict, bodies: list, parts: dict, errors: Problems) -> dict:
     """A ``[[coupling]]``: zero-length springs (thesis 5.3.2) from the nodes of ``a`` (fem or
-    cloth) within ``radius`` of ``b``'s surface at the start to ``b``."""
+    cloth) within ``radius`` of ``b``'s surface at the start to ``b``, or at given world
+    ``points`` between any two bodies."""
     w = f"coupling[{i}]"
-    by_name = {b.name: b for b in bodies}
-    a = _ref(t, "a", w, by_name, "body", errors, required=True)
-    b = _ref(t, "b", w, by_name, "body", errors, required=True)
-    if a is not None and by_name[a].type not in ("fem", "cloth"):
-        errors.add(f"{w}.a", "a fem or cloth body (its nodes are coupled)", f"{a!r}, a {by_name[a].type} body")
-    if b is not None and by_name[b].type == "fixed" and by_name[b].shape == "mesh":
-        errors.add(f"{w}.b", "a body (a fixed mesh is an obstacle, not a body: use a fixed box or a kinematic body)",
-                   repr(b))
+    kinds = {**{name: ("fem" if kind == "soft" else kind) for name, kind in parts.items()},
+             **{b.name: b.type for b in bodies}}
+    meshes = {b.name for b in bodies if b.type == "fixed" and b.shape == "mesh"}
+    a = _ref(t, "a", w, kinds, "body", errors, required=True)
+    b = _ref(t, "b", w, kinds, "body", errors, required=True)
+    points = None
+    if "points" in t:
+        points = t["points"]
+        if "radius" in t:
+            errors.add(f"{w}.points", "radius or points, not both", "both")
+        if not (isinstance(points, list) and points and all(
+                isinstance(p, list) and len(p) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                             for x in p) for p in points)):
+            errors.add(f"{w}.points", "a list of [x, y, z] [m]", points)
+            points = None
+    elif a is not None and kinds[a] not in ("fem", "cloth"):
+        errors.add(f"{w}.a", "a fem or cloth body (its nodes are coupled), or points", f"{a!r}, a {kinds[a]} body")
+    for side, name in (("a", a), ("b", b)):
+        if name in meshes:
+            errors.add(f"{w}.{side}", "a body (a fixed mesh is an obstacle, not a body: use a fixed box or a "
+                       "kinematic body)", repr(name))
     if a is not None and a == b:
         errors.add(f"{w}.b", "another body than a", repr(b))
-    return {"a": a, "b": b, "radius": errors.number(t, "radius", w, minimum=0.0, unit="m"),
+    return {"a": a, "b": b, "points": points,
+            "radius": None if points is not None else errors.number(t, "radius", w, minimum=0.0, unit="m"),
             "stiffness": errors.number(t, "stiffness", w, positive=True, unit="N/m"),
             "damping": errors.number(t, "damping", w, default=0.0, minimum=0.0, unit="N s/m"),
             "collide": errors.boolean(t, "collide", w, default=False)}
