@@ -71,3 +71,44 @@ def test_lips_scene_moves_as_the_demo(capsys):
         assert parted["demo"] > 22
         jaw = lips[0].q[lips[0].fixed, 2].mean() - lips[1].q[lips[1].fixed, 2].mean()
         assert jaw == pytest.approx(0.026 + 2 * 0.0025, abs=1e-9)  # 0.6 s: each jaw 2.5 mm out
+
+
+def test_shoulder_scene_is_the_demos_model_tools_and_path(capsys):
+    """The parts file the scene names holds the demo's procedural anatomy, so the model pipeline
+    builds the same bodies and springs; the handle's 50 ms keyframes of the demo's path differ
+    from it by < 0.02 mm (chord error of its 2 s press), so over 0.8 s the tool moves with the
+    demo's within 0.1 mm (the two haptic processes read their handles at their own instants)."""
+    from softvr.examples.example_shoulder import Example
+
+    assert main(["check", "shoulder.toml"]) == 0
+    assert "12 model parts (8 soft)" in capsys.readouterr().out
+    frames = 20
+    with load_scene(BUNDLED / "shoulder.toml", frames=frames, width=64, height=48) as scene, \
+            Example(frames=frames) as demo:
+        assert sorted(scene.bodies) == sorted([*demo.bodies, "finger", "inner finger"])
+        assert [len(c) for c in scene.scene.couplings] == [len(c) for c in demo.scene.couplings]
+        for name, body in demo.bodies.items():
+            if hasattr(body, "q"):
+                np.testing.assert_array_equal(scene.bodies[name].q, body.q)
+        finger = scene.bodies["finger"]
+        for _ in range(frames):
+            record = scene.step()
+            demo.step()
+            np.testing.assert_allclose(finger.position, demo.tools[0][0].position, atol=1e-4)
+            np.testing.assert_allclose(scene.bodies["inner finger"].position, demo.tools[1][0].position, atol=1e-4)
+        assert record["max_penetration_m"] < 1e-3
+        assert scene.tools[0].loop.period_stats()["p50_ms"] == pytest.approx(1.0, abs=0.1)  # the 1 kHz loop ran
+        np.testing.assert_allclose(scene.bodies["deltoid"].q, demo.bodies["deltoid"].q, atol=1e-4)
+
+
+def test_shoulder_arthroscopy_scene_checks_and_plays(capsys):
+    assert main(["check", "shoulder-arthroscopy.toml"]) == 0
+    with load_scene(BUNDLED / "shoulder-arthroscopy.toml", frames=3, width=64, height=48) as scene:
+        probe = scene.index["probe"]
+        for name in ("scapula", "humerus"):  # the portal: the probe passes the bones
+            assert not scene.scene.collision_enabled(probe, scene.index[name])
+        assert scene.scene.collision_enabled(probe, scene.index["supraspinatus"])
+        for _ in range(3):
+            record = scene.step()
+        assert record["max_penetration_m"] < 1e-3
+        assert scene.bodies["probe"].position[0] < 0.075  # on its way in under the acromion

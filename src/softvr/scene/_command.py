@@ -25,7 +25,10 @@ def check_main(argv: list[str] | None = None) -> int:
     kinds = {}
     for b in scene.bodies:
         kinds[b.type] = kinds.get(b.type, 0) + 1
+    parts = scene.model_parts()
     bodies = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "no bodies"
+    if parts:
+        bodies += f" + {len(parts)} model parts ({sum(k == 'soft' for k in parts.values())} soft)"
     print(f"{scene.path}: ok — {bodies}; {len(scene.planes)} planes, {len(scene.spheres)} spheres, "
           f"{len(scene.materials)} materials, {len(scene.adhesions)} adhesions, {len(scene.filters)} filters, "
           f"{len(scene.couplings)} couplings; "

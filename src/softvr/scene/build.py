@@ -193,7 +193,7 @@ class SceneExample(PhysicsExample):
                     local, triangles = box_corners(half), BOX_TRIANGLES
             else:
                 collider = {"collision_sphere": spec.size}
-                unit, triangles = icosphere(3)
+                unit, triangles = icosphere(spec.subdivisions)
                 local = unit * spec.size
             if self._soft_scene or spec.surface_quads > 1 or spec.type == "tool":
                 # Box and sphere colliders meet only planes and each other: with soft bodies
@@ -386,7 +386,7 @@ class SceneExample(PhysicsExample):
         elif spec.shape == "sphere":
             from softvr.model.shapes import icosphere
 
-            v, t = icosphere(3)
+            v, t = icosphere(spec.subdivisions)
             v = v * spec.size
         else:
             v, t = load_mesh(spec.mesh)

@@ -62,6 +62,7 @@
 
     scale = [1.0, 1.0, 1.0]     # sphere / mesh / tets: stretch along the shape's own axes first
     surface_quads = 1           # box: quads of its drawn / collision surface along the longest edge
+    subdivisions = 3            # sphere: icosphere subdivisions of its surface (1280 triangles at 3)
     collides_with = ["floor"]   # optional: collide with these bodies only
 
     # fem: tets = "lip.vtu" (a VTK tet mesh, nodes in metres) is a fourth shape; box: cells = n
@@ -133,6 +134,7 @@ class BodySpec:
     cells: float | tuple = 4
     scale: tuple = (1.0, 1.0, 1.0)
     surface_quads: int = 1
+    subdivisions: int = 3
     collides_with: tuple | None = None
     drive: dict = field(default_factory=dict)
     tool: dict = field(default_factory=dict)
@@ -300,6 +302,10 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         if shape != "box" or kind == "fixed":
             errors.add(f"{w}.surface_quads", "surface quads only on a moving box", f"a {kind} {shape}")
         spec.surface_quads = errors.integer(t, "surface_quads", w, minimum=1)
+    if "subdivisions" in t:
+        if shape != "sphere":
+            errors.add(f"{w}.subdivisions", "subdivisions only on a sphere", f"a {shape} shape")
+        spec.subdivisions = min(errors.integer(t, "subdivisions", w, minimum=0) or 0, 6)
     if "collides_with" in t:
         others = t["collides_with"]
         if not (isinstance(others, list) and all(isinstance(o, str) for o in others)):
