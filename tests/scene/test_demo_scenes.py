@@ -112,3 +112,34 @@ def test_shoulder_arthroscopy_scene_checks_and_plays(capsys):
             record = scene.step()
         assert record["max_penetration_m"] < 1e-3
         assert scene.bodies["probe"].position[0] < 0.075  # on its way in under the acromion
+
+
+def test_palpation_scene_deforms_and_draws_the_ct_as_the_demo(capsys):
+    """The [volume] builds the demo's tissue FEM (same cubes, per-tet materials, clamped bone,
+    skin) and the probe's keyframes are the demo's path at every step time, so the nodes move
+    exactly as the demo's; the rasterized CT equals the demo's but for voxels of nodes that
+    moved by the redraw tolerance (10 um) within float round-off of it: < 0.01 % of them."""
+    from softvr.examples.example_palpation import Example
+
+    assert main(["check", "palpation.toml"]) == 0
+    assert "a volume body 'head'" in capsys.readouterr().out
+    frames = 40
+    with load_scene(BUNDLED / "palpation.toml", frames=frames, width=96, height=96) as scene, \
+            Example(frames=frames, width=96, height=96) as demo:
+        head = scene.bodies["head"]
+        np.testing.assert_array_equal(head.q, demo.body.q)
+        np.testing.assert_array_equal(head.fixed, demo.body.fixed)
+        np.testing.assert_array_equal(head.mass, demo.body.mass)
+        deepest = 0.0
+        for frame in range(frames):
+            record = scene.step()
+            demo.step()
+            np.testing.assert_allclose(head.q, demo.body.q, atol=1e-12)
+            assert (scene.volume.deformed.data != demo.deformed.data).mean() < 1e-4
+            deepest = max(deepest, demo.indentation())
+        assert deepest > 0.004  # the probe went ~5 mm into the cheek
+        assert record["raster_voxels"] >= 0 and "raster_ms" in record
+        image = scene.render()
+    # The CT is drawn (skin colours in the middle of the image), not just the probe.
+    middle = image[32:64, 32:64].reshape(-1, 3).astype(int)
+    assert (middle[:, 0] - middle[:, 2] > 40).mean() > 0.3

@@ -27,6 +27,8 @@ def check_main(argv: list[str] | None = None) -> int:
         kinds[b.type] = kinds.get(b.type, 0) + 1
     parts = scene.model_parts()
     bodies = ", ".join(f"{n} {k}" for k, n in sorted(kinds.items())) or "no bodies"
+    if scene.volume is not None:
+        bodies += f" + a volume body {scene.volume['name']!r}"
     if parts:
         bodies += f" + {len(parts)} model parts ({sum(k == 'soft' for k in parts.values())} soft)"
     print(f"{scene.path}: ok — {bodies}; {len(scene.planes)} planes, {len(scene.spheres)} spheres, "

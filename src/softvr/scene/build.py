@@ -72,9 +72,65 @@ _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rig
 class _Drawn:
     """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]."""
 
-    def __init__(self, vertices, triangles, color, opacity: float = 1.0):
+    def __init__(self, vertices, triangles, color, opacity: float = 1.0, visible: bool = True):
         self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
-        self.opacity = opacity
+        self.opacity, self.visible = opacity, visible
+
+
+def _read_volume(source, scene_path: str):
+    """The ``[volume] file``: a dataset of :mod:`softvr.datasets` by name, or a volume file."""
+    from softvr.scene.schema import DATASETS
+
+    if isinstance(source, str) and source in DATASETS:
+        import softvr.datasets
+
+        return getattr(softvr.datasets, DATASETS[source])()
+    from softvr.volume import load
+
+    return load(source)
+
+
+class _DeformedVolume:
+    """A volume drawn through the deformed tets of its FEM body (thesis ch. 3): after each frame
+    only the box around the tets that moved is rasterized again (``incremental``).
+
+    ``deformed`` is the volume now, in its own units; :meth:`shown` the rendered one in metres."""
+
+    def __init__(self, volume, body, nodes, tets, spec: dict):
+        from softvr.volume import Rasterizer
+
+        self.unit, self.body, self.spec = spec["unit"], body, spec
+        # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted.
+        self.rasterizer = Rasterizer(volume, nodes, tets, inverted="skip")
+        self.deformed = self.rasterizer.deform(nodes, out_grid=volume)
+        self._drawn_nodes = np.array(nodes, float)
+        self.tolerance = 1e-5 / self.unit  # 10 um of node motion in volume units: not redrawn yet
+
+    def update(self) -> dict:
+        """Rasterize the volume for the body's current nodes; returns frame metrics."""
+        import time
+
+        t0 = time.perf_counter()
+        nodes = self.body.q / self.unit
+        if self.spec["incremental"]:
+            box = self.rasterizer.update(self.deformed, nodes, self._drawn_nodes, tolerance=self.tolerance)
+            voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
+            # Nodes that moved less than the tolerance keep their drawn position, so their
+            # motion adds up until it is drawn.
+            moved = np.linalg.norm(nodes - self._drawn_nodes, axis=1) > self.tolerance
+            self._drawn_nodes[moved] = nodes[moved]
+        else:
+            self.rasterizer.deform(nodes, out=self.deformed)
+            voxels = int(np.prod(self.deformed.shape))
+        return {"raster_ms": 1e3 * (time.perf_counter() - t0), "raster_voxels": voxels}
+
+    def shown(self):
+        """The deformed volume as drawn [m]: every ``render_step``-th voxel per axis."""
+        from softvr.volume import Volume
+
+        k, d = self.spec["render_step"], self.deformed
+        data = d.data if k == 1 else np.ascontiguousarray(d.data[::k, ::k, ::k])
+        return Volume(data, d.spacing * k * self.unit, d.origin * self.unit, d.direction.copy())
 
 
 class SceneExample(PhysicsExample):
@@ -115,7 +171,10 @@ class SceneExample(PhysicsExample):
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
         self.tools, self._driven = [], []
-        self._soft_scene = bool(scene_file.models) or any(b.type in ("fem", "cloth") for b in scene_file.bodies)
+        self._soft_scene = bool(scene_file.models) or scene_file.volume is not None or any(b.type in ("fem", "cloth") for b in scene_file.bodies)
+        self.volume = None
+        if scene_file.volume is not None:
+            self._add_volume(scene, scene_file.volume)
         for model in scene_file.models:
             self._add_model(scene, model)
         for spec in scene_file.bodies:
@@ -138,6 +197,34 @@ class SceneExample(PhysicsExample):
                          bounds=ren["bounds"], camera=camera)
 
     # -- building ----------------------------------------------------------------------
+    def _add_volume(self, scene, spec: dict) -> None:
+        """The ``[volume]``: a FEM body over the volume's tissue with per-tet materials from its
+        voxels, the skin (iso-surface) as its collision surface, and a rasterizer that draws
+        the volume through the deformed tets every frame (:class:`_DeformedVolume`)."""
+        from scipy.ndimage import binary_dilation
+
+        from softvr.dynamics import EmbeddedPoints
+        from softvr.model import CT_TISSUE, collision_mesh, embed_surface, tissue_fem_body
+        from softvr.volume import grid_tet_mesh, iso_surface
+
+        volume = _read_volume(spec["file"], str(self.file.path))
+        unit = spec["unit"]
+        # Cubes holding tissue, grown by two voxels so that the skin lies inside them.
+        tissue = binary_dilation(volume.data > spec["threshold"], iterations=2)
+        nodes, tets = grid_tet_mesh(volume, spec["cells"], mask=tissue)
+        body, _ = tissue_fem_body(volume, nodes, tets, CT_TISSUE, unit=unit, alpha=spec["alpha"], beta=spec["beta"],
+                                  fix_denser_than=spec["fix_denser_than"], name=spec["name"])
+        skin, triangles = iso_surface(volume, spec["threshold"], step=2)
+        skin, triangles = collision_mesh(skin * unit, triangles, spec["skin_triangles"])
+        tet_index, weights = embed_surface(nodes * unit, tets, skin)
+        points = EmbeddedPoints(body, tets[tet_index], weights)
+        self.index[spec["name"]] = scene.add_body(body, collision_points=points, collision_triangles=triangles)
+        self.bodies[spec["name"]] = body
+        # The skin is drawn by the volume itself.
+        self._drawn_by_name[spec["name"]] = _Drawn(points.positions, triangles, (0.9, 0.7, 0.6), visible=False)
+        self.drawn.append(self._drawn_by_name[spec["name"]])
+        self.volume = _DeformedVolume(volume, body, nodes, tets, spec)
+
     def _add_model(self, scene, model: dict) -> None:
         """The parts of a parts file (built now) or of a built model, with their couplings."""
         from softvr.model import build_model, load_model
@@ -440,10 +527,21 @@ class SceneExample(PhysicsExample):
             renderer.add_sphere(s.center, s.radius)
         self._handles = [renderer.add_mesh(d.vertices(), d.triangles, color=d.color, opacity=d.opacity)
                          for d in self.drawn]
+        for handle, d in zip(self._handles, self.drawn):
+            if not d.visible:
+                renderer.set_visible(handle, False)
+        if self.volume is not None:
+            self._volume_handle = renderer.add_volume(self.volume.shown(), preset=self.volume.spec["preset"])
 
     def update_render(self, renderer) -> None:
         for handle, d in zip(self._handles, self.drawn):
             renderer.update(handle, d.vertices())
+        if self.volume is not None:
+            renderer.update_volume(self._volume_handle, self.volume.shown())
+
+    def frame_metrics(self) -> dict:
+        # The volume follows the body once per frame, before it is drawn.
+        return self.volume.update() if self.volume is not None else {}
 
     def describe(self) -> dict:
         return {**super().describe(), "scene_file": str(self.file.path),

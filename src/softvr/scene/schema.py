@@ -90,6 +90,23 @@
     # points = [[x, y, z], ...] [m]: instead of radius, springs at these world points (any two
     #          bodies, rigid ones too; each point is tied to both where it is at the start)
 
+    [volume]                    # a CT / MRI embedded in a FEM body built from its voxels (thesis
+    file = "head-ct"            # 3.3.2): a volume file or DICOM folder (softvr.volume.load), or a
+                                # dataset: head-ct | mri-ch2 | mri-ch2better (softvr.datasets)
+    name = "head"               # the FEM body's name (for filters, couplings, collides_with)
+    unit = 0.001                # [m] per volume unit (0.001: the volume is in millimetres)
+    cells = [16, 16, 8]         # mesh cubes per axis over the volume (5 tets each; empty ones dropped)
+    threshold = -300.0          # tissue above it; the skin (collision surface) is its iso-surface
+    skin_triangles = 4000       # the skin simplified to this many triangles
+    fix_denser_than = 1150.0    # [kg/m^3] nodes of denser tets (bone) are held
+    alpha = 2.0                 # [1/s] Rayleigh damping
+    beta = 0.01                 # [s]
+    preset = "ct-skin"          # transfer function (softvr.render.PRESETS)
+    render_step = 2             # render every k-th voxel per axis
+    incremental = true          # rasterize only around the tets that moved
+    # Every frame the volume is rasterized through the deformed tets (thesis ch. 3) and drawn
+    # with the bodies' surfaces; E, nu, rho of each tet come from the voxels (softvr.model.CT_TISSUE).
+
     [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
     file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
                                     # (built when the scene loads) or a built model (.npz)
@@ -168,6 +185,7 @@ class SceneFile:
     filters: list
     couplings: list = field(default_factory=list)
     models: list = field(default_factory=list)
+    volume: dict | None = None
 
     def body(self, name: str) -> BodySpec | None:
         """The ``[[body]]`` of this name (None for a model's part)."""
@@ -407,7 +425,7 @@ def read_scene(path) -> SceneFile:
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
     known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling",
-             "model"}
+             "model", "volume"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
     simulation, render = _simulation(doc, errors), _render(doc, errors)
@@ -429,6 +447,9 @@ def read_scene(path) -> SceneFile:
                         "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
     models = [_model(i, t, path.parent, errors) for i, t in enumerate(_list(doc, "model", errors))]
     names = {name for m in models for name in m["parts"]}
+    volume = _volume(doc["volume"], path.parent, errors) if "volume" in doc else None
+    if volume is not None:
+        names.add(volume["name"])
     bodies = []
     raw_bodies = _list(doc, "body", errors)
     for i, t in enumerate(raw_bodies):
@@ -437,7 +458,7 @@ def read_scene(path) -> SceneFile:
             errors.add(f"body[{i}].name", "a name no other body has", spec.name)
         names.add(spec.name)
         bodies.append(spec)
-    if not raw_bodies and not planes and not spheres and not models:
+    if not raw_bodies and not planes and not spheres and not models and volume is None:
         errors.add("body", "at least one [[body]]", "none")
     for i, spec in enumerate(bodies):
         for other in spec.collides_with or ():
@@ -448,10 +469,64 @@ def read_scene(path) -> SceneFile:
         ends = [_ref(t, side, f"filter[{i}]", names, "body", errors, required=True) for side in ("a", "b")]
         filters.append(tuple(ends))
     parts = {name: kind for m in models for name, kind in m["parts"].items()}
+    if volume is not None:
+        parts[volume["name"]] = "soft"
     couplings = [_coupling(i, t, bodies, parts, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
     errors.raise_if_any()
     return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
-                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings, models=models)
+                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings, models=models,
+                     volume=volume)
+
+
+#: ``[volume] file`` names of the volumes in :mod:`softvr.datasets`.
+DATASETS = {"head-ct": "head_ct", "mri-ch2": "mri_ch2", "mri-ch2better": "mri_ch2better"}
+
+
+def _volume(t, scene_dir: Path, errors: Problems) -> dict | None:
+    """The ``[volume]`` table (module docstring)."""
+    w = "volume"
+    if not isinstance(t, dict):
+        errors.add(w, "a [volume] table", type(t).__name__)
+        return None
+    from softvr.render import PRESETS  # noqa: PLC0415
+
+    known = {"file", "name", "unit", "cells", "threshold", "skin_triangles", "fix_denser_than", "alpha", "beta",
+             "preset", "render_step", "incremental"}
+    for key in sorted(set(t) - known):
+        errors.add(f"{w}.{key}", f"one of {', '.join(sorted(known))}", key)
+    file = t.get("file")
+    source = None
+    if not isinstance(file, str):
+        errors.add(f"{w}.file", f"a volume file or folder, or a dataset ({', '.join(DATASETS)})",
+                   file if file is not None else "nothing")
+    elif file in DATASETS:
+        source = file
+    else:
+        source = (scene_dir / file).resolve()
+        if not source.exists():
+            errors.add(f"{w}.file", f"an existing volume file or folder, or a dataset ({', '.join(DATASETS)})",
+                       f"no file {source}")
+    cells = t.get("cells", [16, 16, 8])
+    if not (isinstance(cells, list) and len(cells) == 3 and all(
+            isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in cells)):
+        errors.add(f"{w}.cells", "3 integers >= 1 (mesh cubes per axis)", cells)
+        cells = [16, 16, 8]
+    name = t.get("name", "volume")
+    if not isinstance(name, str) or not name:
+        errors.add(f"{w}.name", "a non-empty string", name)
+        name = "volume"
+    preset = t.get("preset", "ct-skin")
+    if preset not in PRESETS:
+        errors.add(f"{w}.preset", f"one of {', '.join(sorted(PRESETS))}", preset)
+    return {"file": source, "name": name, "cells": tuple(cells), "preset": preset,
+            "unit": errors.number(t, "unit", w, default=0.001, positive=True, unit="m per volume unit"),
+            "threshold": errors.number(t, "threshold", w, default=-300.0),
+            "skin_triangles": errors.integer(t, "skin_triangles", w, default=4000, minimum=4),
+            "fix_denser_than": errors.number(t, "fix_denser_than", w, default=1150.0, positive=True, unit="kg/m^3"),
+            "alpha": errors.number(t, "alpha", w, default=2.0, minimum=0.0, unit="1/s"),
+            "beta": errors.number(t, "beta", w, default=0.01, minimum=0.0, unit="s"),
+            "render_step": errors.integer(t, "render_step", w, default=2, minimum=1),
+            "incremental": errors.boolean(t, "incremental", w, default=True)}
 
 
 def _model(i: int, t: dict, scene_dir: Path, errors: Problems) -> dict:
