@@ -143,3 +143,46 @@ def test_palpation_scene_deforms_and_draws_the_ct_as_the_demo(capsys):
     # The CT is drawn (skin colours in the middle of the image), not just the probe.
     middle = image[32:64, 32:64].reshape(-1, 3).astype(int)
     assert (middle[:, 0] - middle[:, 2] > 40).mean() > 0.3
+
+
+def test_volume_scene_follows_the_demos_press_and_twist(capsys):
+    """The node animation holds the demo's press_and_twist at every frame's time (float32 in
+    metres: < 1e-7 m off), on the demo's mesh (the whole 16 x 16 x 8 grid)."""
+    from softvr.examples.example_volume_deform import Example, press_and_twist
+
+    assert main(["check", "volume.toml"]) == 0
+    frames = 36
+    demo = Example(frames=frames)
+    with load_scene(BUNDLED / "volume.toml", frames=frames, width=96, height=72) as scene:
+        head = scene.bodies["head"]
+        np.testing.assert_array_equal(head.tets, demo.tets)
+        np.testing.assert_allclose(head.q, demo.nodes * 1e-3, atol=1e-12)
+        for frame in range(frames):
+            record = scene.step()
+            want = press_and_twist(demo.nodes, demo.bounds, frame / (frames - 1), demo.press_point) * 1e-3
+            np.testing.assert_allclose(head.q, want, atol=1e-7)
+        assert record["raster_voxels"] > 0
+        image = scene.render()
+    middle = image[24:48, 32:64].reshape(-1, 3).astype(int)
+    assert (middle.sum(axis=1) > 200).mean() > 0.3  # the bright CT fills the middle
+
+
+def test_volume_section_errors_are_named_at_once(tmp_path):
+    from softvr.errors import InputError
+    from softvr.scene import read_scene
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('format = "softvr-scene 1"\n[volume]\nfile = "no-such.nrrd"\ncells = [16, 16]\npreset = "glow"\n'
+                   'animation = "missing.npz"\nunit = -1.0\nshine = 1\n')
+    with pytest.raises(InputError) as err:
+        read_scene(bad)
+    text = str(err.value)
+    for field in ("volume.file", "volume.cells", "volume.preset", "volume.animation", "volume.unit", "volume.shine"):
+        assert field in text, field
+    # An animation that does not fit the mesh: named with its file and field.
+    np.savez(tmp_path / "short.npz", times=[0.0, 1.0], nodes=np.zeros((2, 5, 3)))
+    good = tmp_path / "anim.toml"
+    good.write_text('format = "softvr-scene 1"\n[volume]\nfile = "head-ct"\ncells = [4, 4, 2]\nmask = false\n'
+                    'animation = "short.npz"\n')
+    with pytest.raises(InputError, match=r"short.npz: nodes: expected \[2, 75, 3\]"):
+        load_scene(good, frames=1)

@@ -46,8 +46,42 @@ def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _linear(times, values, t: float) -> np.ndarray:
-    """Keyframes ``values`` [k, 3] at ``times`` [k] [s], linear in between, held outside."""
-    return np.array([np.interp(t, times, values[:, k]) for k in range(3)])
+    """Keyframes ``values`` [k, ...] at ``times`` [k] [s], linear in between, held outside."""
+    j = int(np.clip(np.searchsorted(times, t, side="right"), 1, len(times) - 1))
+    if len(times) == 1 or t <= times[0]:
+        return np.asarray(values[0], float)
+    if t >= times[-1]:
+        return np.asarray(values[-1], float)
+    w = (t - times[j - 1]) / (times[j] - times[j - 1])
+    return (1.0 - w) * values[j - 1] + w * values[j]
+
+
+def _drive(drive: dict):
+    """Offset [3] [m] of a body's held nodes at time t [s] (its ``[body.drive]`` keyframes)."""
+    times, offsets = np.asarray(drive["times"], float), np.asarray(drive["offsets"], float)
+    return lambda t: _linear(times, offsets, t)
+
+
+def _node_animation(path, nodes) -> tuple[np.ndarray, np.ndarray]:
+    """``times`` [k] [s] and ``nodes`` [k, node_count, 3] [m] of a node animation (.npz), checked
+    against the mesh's nodes [node_count, 3] [m]: same count, the first key at them."""
+    from softvr.errors import InputError
+
+    try:
+        with np.load(path) as f:
+            times, cache = np.asarray(f["times"], float), np.asarray(f["nodes"], float)
+    except (OSError, ValueError, KeyError) as exc:
+        raise InputError("animation", "an .npz with arrays times [k] [s] and nodes [k, node_count, 3] [m]",
+                         f"{type(exc).__name__}: {exc}", source=str(path)) from None
+    if times.ndim != 1 or len(times) == 0 or np.any(np.diff(times) <= 0):
+        raise InputError("times", "increasing times [s], at least one", f"shape {times.shape}", source=str(path))
+    if cache.shape != (len(times), *nodes.shape):
+        raise InputError("nodes", f"[{len(times)}, {len(nodes)}, 3]: one position per mesh node per time",
+                         f"shape {cache.shape}", source=str(path))
+    off = float(np.abs(cache[0] - nodes).max())
+    if off > 1e-6:
+        raise InputError("nodes[0]", "the mesh's rest nodes (within 1 um)", f"{off:.3g} m off", source=str(path))
+    return times, cache
 
 
 def _attached(body, points) -> object:
@@ -210,7 +244,7 @@ class SceneExample(PhysicsExample):
         volume = _read_volume(spec["file"], str(self.file.path))
         unit = spec["unit"]
         # Cubes holding tissue, grown by two voxels so that the skin lies inside them.
-        tissue = binary_dilation(volume.data > spec["threshold"], iterations=2)
+        tissue = binary_dilation(volume.data > spec["threshold"], iterations=2) if spec["mask"] else None
         nodes, tets = grid_tet_mesh(volume, spec["cells"], mask=tissue)
         body, _ = tissue_fem_body(volume, nodes, tets, CT_TISSUE, unit=unit, alpha=spec["alpha"], beta=spec["beta"],
                                   fix_denser_than=spec["fix_denser_than"], name=spec["name"])
@@ -224,6 +258,10 @@ class SceneExample(PhysicsExample):
         self._drawn_by_name[spec["name"]] = _Drawn(points.positions, triangles, (0.9, 0.7, 0.6), visible=False)
         self.drawn.append(self._drawn_by_name[spec["name"]])
         self.volume = _DeformedVolume(volume, body, nodes, tets, spec)
+        if spec["animation"] is not None:
+            times, cache = _node_animation(spec["animation"], body.q)
+            body.fixed[:] = True
+            self._driven.append((body, lambda t: _linear(times, cache, t)))
 
     def _add_model(self, scene, model: dict) -> None:
         """The parts of a parts file (built now) or of a built model, with their couplings."""
@@ -314,7 +352,7 @@ class SceneExample(PhysicsExample):
             body = FemBody(nodes, tets, m, fixed=self._clamped(spec, nodes), name=spec.name)
             self._set_velocity(body, spec, centre)
             if spec.drive:
-                self._driven.append((body, spec.drive))
+                self._driven.append((body, _drive(spec.drive)))
             tet_nodes, weights = embedding
             points = EmbeddedPoints(body, tet_nodes, weights)
             index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
@@ -335,7 +373,7 @@ class SceneExample(PhysicsExample):
             body.fixed[:] = self._clamped(spec, body.q)
             self._set_velocity(body, spec, centre)
             if spec.drive:
-                self._driven.append((body, spec.drive))
+                self._driven.append((body, _drive(spec.drive)))
             n = len(body.q)
             points = EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1)))
             # The triangles give the contacts their areas (adhesion works on tractions) and
@@ -490,10 +528,9 @@ class SceneExample(PhysicsExample):
     def before_step(self) -> None:
         # Driven nodes move over the step [t, t + dt] at its mean speed, so they land on their path.
         t, dt = self.scene.time, self.dt
-        for body, drive in self._driven:
-            times, offsets = np.asarray(drive["times"], float), np.asarray(drive["offsets"], float)
-            speed = (_linear(times, offsets, t + dt) - _linear(times, offsets, t)) / dt
-            body.fixed_velocity[body.fixed] = speed
+        for body, offset in self._driven:
+            speed = (offset(t + dt) - offset(t)) / dt  # [3], or [node_count, 3] (an animation)
+            body.fixed_velocity[body.fixed] = speed[body.fixed] if speed.ndim == 2 else speed
         for tool in self.tools:
             if not tool.haptics:
                 tool.loop.tick()  # one device reading per step instead of the loop's thousand per second

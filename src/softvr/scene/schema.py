@@ -104,6 +104,9 @@
     preset = "ct-skin"          # transfer function (softvr.render.PRESETS)
     render_step = 2             # render every k-th voxel per axis
     incremental = true          # rasterize only around the tets that moved
+    mask = true                 # drop the cubes without tissue (false: the whole grid)
+    animation = "press.npz"     # optional: every node follows this cache (times [k] [s], nodes
+                                # [k, node_count, 3] [m], linear between): a scripted deformation
     # Every frame the volume is rasterized through the deformed tets (thesis ch. 3) and drawn
     # with the bodies' surfaces; E, nu, rho of each tet come from the voxels (softvr.model.CT_TISSUE).
 
@@ -491,7 +494,7 @@ def _volume(t, scene_dir: Path, errors: Problems) -> dict | None:
     from softvr.render import PRESETS  # noqa: PLC0415
 
     known = {"file", "name", "unit", "cells", "threshold", "skin_triangles", "fix_denser_than", "alpha", "beta",
-             "preset", "render_step", "incremental"}
+             "preset", "render_step", "incremental", "mask", "animation"}
     for key in sorted(set(t) - known):
         errors.add(f"{w}.{key}", f"one of {', '.join(sorted(known))}", key)
     file = t.get("file")
@@ -518,7 +521,9 @@ def _volume(t, scene_dir: Path, errors: Problems) -> dict | None:
     preset = t.get("preset", "ct-skin")
     if preset not in PRESETS:
         errors.add(f"{w}.preset", f"one of {', '.join(sorted(PRESETS))}", preset)
-    return {"file": source, "name": name, "cells": tuple(cells), "preset": preset,
+    animation = _file(t, "animation", w, scene_dir, (".npz",), "a node animation", errors) if "animation" in t else None
+    return {"file": source, "name": name, "cells": tuple(cells), "preset": preset, "animation": animation,
+            "mask": errors.boolean(t, "mask", w, default=True),
             "unit": errors.number(t, "unit", w, default=0.001, positive=True, unit="m per volume unit"),
             "threshold": errors.number(t, "threshold", w, default=-300.0),
             "skin_triangles": errors.integer(t, "skin_triangles", w, default=4000, minimum=4),
