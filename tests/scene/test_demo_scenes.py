@@ -186,3 +186,10 @@ def test_volume_section_errors_are_named_at_once(tmp_path):
                     'animation = "short.npz"\n')
     with pytest.raises(InputError, match=r"short.npz: nodes: expected \[2, 75, 3\]"):
         load_scene(good, frames=1)
+
+
+def test_every_demo_has_its_scene_file():
+    from softvr.examples.run import SCENES
+
+    demos = set(SCENES) | {"volume", "palpation", "shoulder-arthroscopy", "candy-adhesive"}
+    assert demos == {p.stem for p in BUNDLED.glob("*.toml")}
