@@ -8,10 +8,12 @@
 ``softvr cave keys DIR --display DISPLAY``   CURVE keys: only nodes holding them can join
 
 DISPLAY is a display file (TOML, ``softvr-display 1``) or a preset name (single-wall, cube,
-rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2). SCENE is ``sheet`` (an analytic
-rippling sheet with 10 K vertices and a turning box), a ``softvr run`` scene (box-stack,
-soft-cube, cloth-sphere, ...) simulated on the master and streamed to the nodes, or a glTF /
-GLB (or OBJ, STL, PLY) file shown as a static scene to walk through.
+rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2); it may be left out when SCENE is a
+scene file with a ``[display]`` section. SCENE is ``sheet`` (an analytic rippling sheet with
+10 K vertices and a turning box), a ``softvr run`` demo (box-stack, soft-cube, ...) or scene
+file (TOML, or glTF / GLB with softvr properties) simulated on the master and streamed to the
+nodes, or a glTF / GLB (or OBJ, STL, PLY) file without softvr properties shown as a static
+scene to walk through.
 """
 
 from __future__ import annotations
@@ -55,7 +57,17 @@ def make_source(scene: str, frames: int):
 
     if scene == "sheet":
         return WavingSheet()
-    if Path(scene).suffix.lower() in (".gltf", ".glb", ".obj", ".stl", ".ply"):
+    suffix = Path(scene).suffix.lower()
+    from softvr.scene import bundled, has_softvr_bodies, load_scene  # noqa: PLC0415
+
+    if suffix == ".toml" or (suffix in (".gltf", ".glb") and has_softvr_bodies(scene)):
+        example = load_scene(bundled(scene), frames=frames, width=64, height=48)
+        if example.volume is not None:
+            example.close()
+            raise InputError("SCENE", "a scene of surfaces (a [volume] is not streamed to render nodes yet)",
+                             f"{scene!r} with a volume")
+        return ExampleSource(example)
+    if suffix in (".gltf", ".glb", ".obj", ".stl", ".ply"):
         if not Path(scene).is_file():
             raise InputError("SCENE", "an existing scene file", f"{scene!r} (no such file)")
         return SceneFileSource(scene)
@@ -63,6 +75,28 @@ def make_source(scene: str, frames: int):
         raise InputError("SCENE", f"sheet, a glTF / mesh file, or one of {', '.join(SCENES)}", repr(scene))
     module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
     return ExampleSource(module.Example(frames=frames, width=64, height=48))
+
+
+def resolve_places(args) -> None:
+    """``[DISPLAY] SCENE`` into ``args.display`` and ``args.scene``: without DISPLAY, the scene
+    file's ``[display]``."""
+    places = args.places
+    if len(places) == 2:
+        args.display, args.scene = places
+        return
+    if len(places) != 1:
+        raise InputError("[DISPLAY] SCENE", "a scene, after a display unless the scene file names one",
+                         " ".join(places))
+    args.scene = places[0]
+    display = None
+    if Path(args.scene).suffix.lower() == ".toml":
+        from softvr.scene import bundled, read_scene  # noqa: PLC0415
+
+        display = read_scene(bundled(args.scene)).display
+    if display is None:
+        raise InputError("DISPLAY", "a display file or preset (the scene file has no [display] section)",
+                         f"only the scene {args.scene!r}")
+    args.display = display
 
 
 def scripted_navigation(source):
@@ -317,9 +351,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(q, scene: bool) -> None:
-        q.add_argument("display", metavar="DISPLAY", help="display file (TOML) or preset name")
         if scene:
-            q.add_argument("scene", metavar="SCENE", help="sheet, or a softvr run scene")
+            q.add_argument("places", nargs="+", metavar="[DISPLAY] SCENE",
+                           help="display file (TOML) or preset name (optional when the scene file has a "
+                                "[display]); sheet, a softvr run demo, or a scene file")
+        else:
+            q.add_argument("display", metavar="DISPLAY", help="display file (TOML) or preset name")
         q.add_argument("--quiet", action="store_true", help="no progress output")
 
     def network(q) -> None:
@@ -378,6 +415,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if hasattr(args, "places"):
+        resolve_places(args)
     if getattr(args, "frames", 1) < 1:
         raise InputError("--frames", "at least 1", repr(args.frames))
     if getattr(args, "scale", 1.0) <= 0 or not math.isfinite(getattr(args, "scale", 1.0)):

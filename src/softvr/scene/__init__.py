@@ -13,11 +13,11 @@ validated with every error at once, and built into a running demo.
 from pathlib import Path
 
 from softvr.scene.build import SceneExample, load_scene, read_any
-from softvr.scene.gltf import read_gltf_scene
+from softvr.scene.gltf import has_softvr_bodies, read_gltf_scene
 from softvr.scene.schema import BODY_TYPES, FORMAT, BodySpec, SceneFile, read_scene
 
-__all__ = ["BODY_TYPES", "BUNDLED", "FORMAT", "BodySpec", "SceneExample", "SceneFile", "bundled", "load_scene",
-           "read_any", "read_gltf_scene", "read_scene"]
+__all__ = ["BODY_TYPES", "BUNDLED", "FORMAT", "BodySpec", "SceneExample", "SceneFile", "bundled", "has_softvr_bodies",
+           "load_scene", "read_any", "read_gltf_scene", "read_scene"]
 
 #: Folder of the bundled scene files.
 BUNDLED = Path(__file__).resolve().parent.parent / "scenes"

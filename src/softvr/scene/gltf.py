@@ -36,7 +36,7 @@ import numpy as np
 from softvr.errors import InputError, Problems
 from softvr.scene.schema import BodySpec, SceneFile
 
-__all__ = ["read_gltf_scene"]
+__all__ = ["has_softvr_bodies", "read_gltf_scene"]
 
 _PREFIX = "softvr_"
 _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed")
@@ -60,6 +60,15 @@ def _gltf_json(path: Path) -> dict:
 
 def _properties(extras) -> dict:
     return {k[len(_PREFIX):]: v for k, v in (extras or {}).items() if isinstance(k, str) and k.startswith(_PREFIX)}
+
+
+def has_softvr_bodies(path) -> bool:
+    """Whether a glTF / GLB file has nodes with softvr custom properties (a physics scene, not
+    only scenery); False for a missing file."""
+    path = Path(path)
+    if not path.is_file():
+        return False
+    return any(_properties(node.get("extras")) for node in _gltf_json(path).get("nodes", []))
 
 
 def read_gltf_scene(path) -> SceneFile:

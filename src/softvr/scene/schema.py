@@ -110,6 +110,9 @@
     # Every frame the volume is rasterized through the deformed tets (thesis ch. 3) and drawn
     # with the bodies' surfaces; E, nu, rho of each tet come from the voxels (softvr.model.CT_TISSUE).
 
+    [display]                   # the screens it is shown on (softvr cave preview|master|local SCENE)
+    preset = "cube"             # a softvr.cave preset, or file = "my-cave.toml" (softvr-display 1)
+
     [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
     file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
                                     # (built when the scene loads) or a built model (.npz)
@@ -189,6 +192,7 @@ class SceneFile:
     couplings: list = field(default_factory=list)
     models: list = field(default_factory=list)
     volume: dict | None = None
+    display: str | None = None  # a softvr.cave display preset name or a display file's path
 
     def body(self, name: str) -> BodySpec | None:
         """The ``[[body]]`` of this name (None for a model's part)."""
@@ -428,7 +432,7 @@ def read_scene(path) -> SceneFile:
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
     known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling",
-             "model", "volume"}
+             "model", "volume", "display"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
     simulation, render = _simulation(doc, errors), _render(doc, errors)
@@ -451,6 +455,7 @@ def read_scene(path) -> SceneFile:
     models = [_model(i, t, path.parent, errors) for i, t in enumerate(_list(doc, "model", errors))]
     names = {name for m in models for name in m["parts"]}
     volume = _volume(doc["volume"], path.parent, errors) if "volume" in doc else None
+    display = _display(doc["display"], path.parent, errors) if "display" in doc else None
     if volume is not None:
         names.add(volume["name"])
     bodies = []
@@ -478,7 +483,31 @@ def read_scene(path) -> SceneFile:
     errors.raise_if_any()
     return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                      planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings, models=models,
-                     volume=volume)
+                     volume=volume, display=display)
+
+
+def _display(t, scene_dir: Path, errors: Problems) -> str | None:
+    """The ``[display]`` table: a preset name, or a display file (loaded now, to check it)."""
+    from softvr.cave.display import PRESETS, load_display  # noqa: PLC0415
+    from softvr.errors import InputError  # noqa: PLC0415
+
+    if not isinstance(t, dict) or len(set(t) & {"preset", "file"}) != 1 or set(t) - {"preset", "file"}:
+        errors.add("display", "a table with preset = NAME or file = PATH", t)
+        return None
+    if "preset" in t:
+        if t["preset"] not in PRESETS:
+            errors.add("display.preset", f"one of {', '.join(PRESETS)}", t["preset"])
+            return None
+        return t["preset"]
+    path = _file(t, "file", "display", scene_dir, (".toml",), "a display file", errors)
+    if path is None or not path.is_file():
+        return None
+    try:
+        load_display(path)
+    except InputError as exc:
+        errors.add("display.file", "a valid display file", str(exc))
+        return None
+    return str(path)
 
 
 #: ``[volume] file`` names of the volumes in :mod:`softvr.datasets`.
