@@ -189,6 +189,14 @@ class Scene:
         if not collide:
             self.disable_collision(*ends)
 
+    @property
+    def collision_surfaces(self) -> tuple:
+        """The bodies' collision surfaces in the order added
+        (:class:`~softvr.collision.CollisionSurface`: ``body_index``, ``points`` whose
+        ``positions()`` [n, 3] [m] move with the body, ``triangles`` [t, 3], ``edge_set.edges``
+        [e, 2])."""
+        return tuple(self._surfaces)
+
     def disable_collision(self, a: int, b: int) -> None:
         """Never make contacts between bodies ``a`` and ``b`` (e.g. a soft part coupled to a bone)."""
         for i in (a, b):

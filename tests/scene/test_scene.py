@@ -342,6 +342,20 @@ def test_the_viewer_opens_a_scene_and_its_screenshot_shows_it(display, tmp_path)
     assert ((r > 180) & (g > 180) & (b < 120)).sum() > 50  # the yellow tet edges and status line
 
 
+def test_the_viewer_shows_the_collision_surface_instead_of_the_render_surface(display, tmp_path):
+    """``--show collision --hide render contacts``: the cyan collision edges and no cube colour
+    (thesis 5.1's representations, toggled by keys k and r)."""
+    import imageio.v3 as iio
+
+    shot = tmp_path / "collision.png"
+    assert main(["view", "soft-cube.toml", "--seconds", "1", "--screenshot", str(shot), "--show", "collision",
+                 "--hide", "render", "contacts"]) == 0
+    image = iio.imread(shot).astype(int)
+    r, g, b = image[..., 0], image[..., 1], image[..., 2]
+    assert ((r > 150) & (r - b > 60) & (g < 160)).mean() < 1e-3  # no cube surface
+    assert ((b > 180) & (g > 160) & (r < 140)).sum() > 50  # the cyan (0.3, 0.9, 1.0) edges
+
+
 def test_the_mouse_tool_pulls_the_grabbed_body_towards_the_pointer(display):
     """Grabbing the resting soft cube at the window centre and moving the pointer 80 px up:
     the spring (k = 400 m per s^2 per kg) lifts the grabbed node towards the target; releasing

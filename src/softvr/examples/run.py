@@ -41,6 +41,7 @@ __all__ = [
     "main",
     "run_example",
     "run_module",
+    "VIEW_LAYERS",
     "view_example",
     "view_main",
 ]
@@ -294,20 +295,27 @@ def run_module(module, args, **options) -> int:
     return 0
 
 
+#: What :func:`view_example` can show, each toggled by a key: the render surfaces (and volume),
+#: the collision surfaces' edges, the FEM tets' edges, the contacts, their adhesion colours.
+VIEW_LAYERS = {"render": "r", "collision": "k", "tets": "t", "contacts": "c", "adhesion": "a"}
+
+
 def view_example(example: PhysicsExample, *, timeout_s: float | None = None, screenshot=None,
-                 overlays: tuple = ("contacts",)) -> int:
+                 overlays: tuple = ("render", "contacts")) -> int:
     """Play ``example`` live in a window: one frame per timer tick, drawn on screen.
 
     Mouse: the trackball camera (left rotates, right zooms, middle pans); the right button
     (or control + left) on a body grabs it and drags it with a spring
     (:class:`~softvr.examples._drag_tool.DragTool`). Keys: space pauses
     and resumes, ``n`` advances one frame while paused, ``q`` quits; ``c`` shows the contacts
-    (points, normal force lines, the largest a tenth of the view across), ``a`` colours them by adhesion intensity, ``t`` shows the
-    FEM bodies' tet edges. A status line gives the frame, the simulated time, the frame rate
-    and the ms of the physics step and of the render. The simulation stops after
-    ``example.frames`` frames (the window stays open). ``overlays`` names those shown at the
-    start (``"contacts"``, ``"adhesion"``, ``"tets"``); ``screenshot`` (a PNG path) saves the
-    window as it is when the loop ends. Returns the frames simulated.
+    (points, normal force lines, the largest a tenth of the view across), ``a`` colours them by
+    adhesion intensity; the three representations of a body (thesis 5.1): ``r`` its render
+    surface, ``k`` its collision surface (edges, cyan), ``t`` its FEM tets (edges, yellow). A
+    status line gives the frame, the simulated time, the frame rate and the ms of the physics
+    step and of the render. The simulation stops after ``example.frames`` frames (the window
+    stays open). ``overlays`` names the layers shown at the start (keys of
+    :data:`VIEW_LAYERS`); ``screenshot`` (a PNG path) saves the window as it is when the loop
+    ends. Returns the frames simulated.
 
     Raises :class:`~softvr.errors.InputError` when there is no display.
     """
@@ -320,7 +328,13 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
     renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True)
     example.setup_render(renderer)
     window = renderer.vtk_renderer.GetRenderWindow()
-    window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, c / a / t: contacts / adhesion / tets)")
+    unknown = sorted(set(overlays) - set(VIEW_LAYERS))
+    if unknown:
+        from softvr.errors import InputError  # noqa: PLC0415
+
+        raise InputError("overlays", f"names of {', '.join(VIEW_LAYERS)}", ", ".join(unknown))
+    window.SetWindowName(f"softvr: {example.name} (space: pause, n: step, "
+                         + ", ".join(f"{k}: {name}" for name, k in VIEW_LAYERS.items()) + ")")
     status = TextOverlay(renderer.vtk_renderer)
     contacts = ContactOverlay(renderer.vtk_renderer)
     bounds = np.asarray(example.bounds if example.bounds is not None else (-1, 1, -1, 1, -1, 1), float)
@@ -329,7 +343,10 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
 
     soft = [b for b in example.scene.bodies if hasattr(b, "tets")]
     tets = [LineOverlay(renderer.vtk_renderer, tet_edges(b.tets)) for b in soft]
-    shown = {name: name in overlays for name in ("contacts", "adhesion", "tets")}
+    surfaces = example.scene.collision_surfaces
+    collision = [LineOverlay(renderer.vtk_renderer, s.edge_set.edges, color=(0.3, 0.9, 1.0)) for s in surfaces]
+    render_handles = renderer.handles("mesh") + renderer.handles("volume")
+    shown = {name: name in overlays for name in VIEW_LAYERS}
     last = {"time": time.perf_counter()}
 
     def draw_overlays() -> None:
@@ -354,6 +371,12 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
             overlay.show(shown["tets"])
             if shown["tets"]:
                 overlay.update(body.q)
+        for overlay, surface in zip(collision, surfaces):
+            overlay.show(shown["collision"])
+            if shown["collision"]:
+                overlay.update(surface.points.positions())
+        for handle in render_handles:
+            renderer.set_visible(handle, shown["render"])
         m = example.metrics[-1] if example.metrics else {}
         drawn = example.metrics[-2] if len(example.metrics) > 1 else {}  # this frame's render is not done yet
         now = time.perf_counter()
@@ -412,7 +435,7 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
     renderer.render()
     try:
         play(window, advance, period_ms=int(1000 / example.fps), timeout_s=timeout_s,
-             keys={"c": toggle("contacts"), "a": toggle("adhesion"), "t": toggle("tets")},
+             keys={key: toggle(name) for name, key in VIEW_LAYERS.items()},
              on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot), setup=mouse)
     finally:
         renderer.close()

@@ -362,6 +362,11 @@ class SurfaceRenderer(OffscreenView):
             prop.SetOpacity(float(opacity))
             self._update_translucency()
 
+    def handles(self, kind: str | None = None) -> list[int]:
+        """Handles of the items added so far, or of those of one ``kind`` ("mesh", "plane",
+        "sphere", "volume")."""
+        return [h for h, item in enumerate(self._items) if kind is None or item.kind == kind]
+
     def set_visible(self, handle: int, visible: bool) -> None:
         """Show or hide a surface or volume (a hidden one does not count for the camera fit)."""
         self._item(handle).actor.SetVisibility(bool(visible))

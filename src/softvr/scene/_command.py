@@ -56,7 +56,7 @@ def run_main(argv: list[str] | None = None) -> int:
 
 def view_main(argv: list[str] | None = None) -> int:
     """``softvr view SCENE.toml [--seconds S]``: the scene live in a window."""
-    from softvr.examples.run import view_example
+    from softvr.examples.run import VIEW_LAYERS, view_example
     from softvr.render._backend import require_display
     from softvr.scene import bundled, load_scene
 
@@ -64,10 +64,14 @@ def view_main(argv: list[str] | None = None) -> int:
     p.add_argument("scene", metavar="SCENE.toml")
     p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
     p.add_argument("--screenshot", metavar="PNG", help="save the window when it closes")
-    p.add_argument("--show", nargs="*", default=["contacts"], choices=["contacts", "adhesion", "tets"],
-                   help="overlays shown at the start (keys c, a, t toggle them)")
+    keys = ", ".join(f"{k} {name}" for name, k in VIEW_LAYERS.items())
+    p.add_argument("--show", nargs="*", default=[], choices=list(VIEW_LAYERS),
+                   help=f"layers shown at the start besides render and contacts (keys toggle them: {keys})")
+    p.add_argument("--hide", nargs="*", default=[], choices=list(VIEW_LAYERS), help="layers hidden at the start")
     args = p.parse_args(argv)
     require_display()
+    shown = ({"render", "contacts"} | set(args.show)) - set(args.hide)
     with load_scene(bundled(args.scene)) as example:
-        view_example(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=tuple(args.show))
+        view_example(example, timeout_s=args.seconds, screenshot=args.screenshot,
+                      overlays=tuple(name for name in VIEW_LAYERS if name in shown))
     return 0
