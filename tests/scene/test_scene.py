@@ -383,3 +383,51 @@ def test_the_mouse_tool_pulls_the_grabbed_body_towards_the_pointer(display):
             assert tool.point()[2] > start[2] + 0.02
             tool.release()
             assert ex.scene.external == {}
+
+
+def test_kinematic_and_tool_meshes_follow_their_keyframes(tmp_path):
+    """A kinematic mesh is where its keyframes put it; a tool mesh hangs from its handle, in
+    equilibrium, m g / k below it (the virtual coupling a spring of stiffness k)."""
+    import trimesh
+
+    trimesh.creation.box((0.02, 0.02, 0.02)).export(tmp_path / "cube.obj")
+    path = tmp_path / "tools.toml"
+    path.write_text('''format = "softvr-scene 1"
+[simulation]
+dt = 0.01
+steps_per_frame = 10
+frames = 30
+[material.wood]
+density = 1000.0
+[[body]]
+name = "pusher"
+type = "kinematic"
+mesh = "cube.obj"
+position = [0.5, 0.0, 0.5]
+[body.motion]
+times = [0.0, 1.0]
+positions = [[0.5, 0.0, 0.5], [0.5, 0.1, 0.5]]
+[[body]]
+name = "hand"
+type = "tool"
+mesh = "cube.obj"
+material = "wood"
+position = [0.0, 0.0, 0.5]
+stiffness = 300.0
+damping = 1.0
+[body.motion]
+times = [0.0, 1.0]
+positions = [[0.0, 0.0, 0.5], [0.0, 0.0, 0.55]]
+''')
+    with load_scene(path) as ex:
+        pusher, hand = ex._drawn_by_name["pusher"], ex._drawn_by_name["hand"]
+        corners = pusher.vertices() - [0.5, 0.0, 0.5]
+        for _ in range(5):
+            ex.step()
+        np.testing.assert_allclose(pusher.vertices(), corners + [0.5, 0.05, 0.5], atol=1e-12)  # at 0.5 s
+        for _ in range(25):
+            ex.step()
+        mass = 1000.0 * 0.02**3
+        sag = mass * 9.81 / 300.0
+        centre = hand.vertices().mean(axis=0)  # the cube's centre: its position and its centre of mass
+        np.testing.assert_allclose(centre, [0.0, 0.0, 0.55 - sag], atol=0.02 * sag)

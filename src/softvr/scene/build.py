@@ -14,8 +14,8 @@ fem        box: a grid of ``cells``^3 cubes, 5 tets each; sphere (an icosphere) 
 cloth      a ``cloth = [w, h]`` sheet of ``quads`` in the body's x-y plane (or a glTF mesh),
            mass-spring cloth
 fixed      box (box collider of a fixed body) or mesh (a static triangle mesh obstacle)
-kinematic  box or sphere moved through ``motion`` keyframes (linear in between, held after)
-tool       a rigid box or sphere on a virtual coupling to a haptic handle that follows ``motion``
+kinematic  box, sphere or mesh moved through ``motion`` keyframes (linear in between, held after)
+tool       a rigid box, sphere or mesh on a virtual coupling to a haptic handle that follows ``motion``
            (:class:`softvr.haptics.HapticTool`; ``haptics = true``: the 1 kHz loop in its own process)
 =========  =====================================================================================
 
@@ -287,18 +287,25 @@ class SceneExample(PhysicsExample):
         centre = np.asarray(spec.position, float)
         adhesion = self.adhesions.get(spec.adhesion)
         material = self.file.materials.get(spec.material)
-        if spec.type == "rigid" and spec.shape == "mesh":
+        if spec.type in ("rigid", "kinematic", "tool") and spec.shape == "mesh":
             from softvr.dynamics import RigidPoints
             from softvr.model import rigid_properties
 
             v, t = self._surface(spec, rotation, centre)
-            mass, com, inertia = rigid_properties(v, t, material["density"], f"body {spec.name!r}")
-            body = RigidBody(mass, inertia, position=com, velocity=spec.velocity,
-                             angular_velocity=spec.angular_velocity, name=spec.name)
-            local = v - com
+            if spec.type == "kinematic":
+                # Its frame: the world axes at the body's position, moved through the keyframes.
+                body = KinematicBody(self._keyframes(spec, centre, np.array([1.0, 0.0, 0.0, 0.0])), name=spec.name)
+                origin = centre
+            else:
+                mass, origin, inertia = rigid_properties(v, t, material["density"], f"body {spec.name!r}")
+                body = RigidBody(mass, inertia, position=origin, velocity=spec.velocity,
+                                 angular_velocity=spec.angular_velocity, name=spec.name)
+            local = v - origin
             index = scene.add_body(body, collision_points=RigidPoints(body, local), collision_triangles=t,
                                    adhesion=adhesion)
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color))
+            if spec.type == "tool":  # the handle holds the body's position, not its centre of mass
+                self.tools.append(self._tool(scene, spec, body, tip=centre - origin))
         elif spec.type in ("rigid", "fixed", "kinematic", "tool") and spec.shape in ("box", "sphere"):
             if spec.type in ("rigid", "tool"):
                 make = RigidBody.box if spec.shape == "box" else RigidBody.sphere
@@ -407,16 +414,16 @@ class SceneExample(PhysicsExample):
         scene.add_coupling(Coupling(side_a, _attached(b, springs), c["stiffness"], damping=c["damping"],
                                     name=f"{c['a']} - {c['b']}"), collide=c["collide"])
 
-    def _tool(self, scene, spec: BodySpec, body):
-        """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling to a handle
-        that follows the motion keyframes in simulated time."""
+    def _tool(self, scene, spec: BodySpec, body, tip=(0.0, 0.0, 0.0)):
+        """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling, at ``tip`` [3]
+        [m] in its frame, to a handle that follows the motion keyframes in simulated time."""
         from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
 
         path = self._keyframes(spec, np.asarray(spec.position, float), None)
         device = ScriptedDevice(lambda t: path(t)[0])
         loop = HapticLoop(device, max_force=spec.tool["max_force"], process=spec.tool["haptics"])
         device.clock = loop.simulation_clock
-        tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"])
+        tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"], tip=tip)
         tool.haptics = spec.tool["haptics"]
         return tool
 

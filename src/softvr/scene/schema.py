@@ -49,7 +49,7 @@
     type = "fem"                # rigid | fem | cloth | fixed | kinematic | tool
     box = [0.3, 0.3, 0.3]       # [m] shape: box, sphere = r, mesh = "file" (OBJ, STL, PLY, glTF), cloth = [w, h]
                                 # (rigid: box | sphere | mesh; fem: box | sphere | mesh; fixed: box | mesh;
-                                #  kinematic, tool: box | sphere; cloth: cloth)
+                                #  kinematic, tool: box | sphere | mesh; cloth: cloth)
     cells = 4                   # fem box: cubes per axis (5 tets each); fem sphere / mesh: cube size [m]
     material = "jelly"
     position = [0.0, 0.0, 0.3]  # [m] of the shape's centre
@@ -72,7 +72,7 @@
     # cloth: cloth = [w, h], quads = [nu, nv], area_density [kg/m^2], stretch, shear, bend [N/m],
     #        damping [N s/m], alpha [1/s]
     # kinematic: [body.motion] times = [...] [s], positions = [[x, y, z], ...] [m] (linear between)
-    # tool: a rigid sphere or box (material) on a virtual coupling (stiffness [N/m], damping
+    # tool: a rigid sphere, box or mesh (material) on a virtual coupling (stiffness [N/m], damping
     #       [N s/m]) to a haptic handle that follows [body.motion]; haptics = true runs the
     #       1 kHz haptic loop in its own process, max_force [N] caps what the hand feels
 
@@ -138,7 +138,7 @@ FORMAT = "softvr-scene 1"
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
 _SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
-           "fixed": ("box", "mesh"), "kinematic": ("box", "sphere"), "tool": ("box", "sphere")}
+           "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
 _SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
 _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
 
