@@ -431,3 +431,37 @@ positions = [[0.0, 0.0, 0.5], [0.0, 0.0, 0.55]]
         sag = mass * 9.81 / 300.0
         centre = hand.vertices().mean(axis=0)  # the cube's centre: its position and its centre of mass
         np.testing.assert_allclose(centre, [0.0, 0.0, 0.55 - sag], atol=0.02 * sag)
+
+
+def test_render_settings_light_the_scene(tmp_path):
+    """A white body lit only by a red light looks red (a diffuse surface reflects the light's
+    colour; the surfaces' 12 % ambient term adds 0.12 x 255 = 31 of white); with the default
+    light kit it is grey; the background is the file's colour."""
+    def render(lights: str) -> np.ndarray:
+        path = tmp_path / "lit.toml"
+        path.write_text(f'''format = "softvr-scene 1"
+[render]
+size = [64, 48]
+camera = "front"
+background = [0.0, 0.2, 0.0]
+background_top = [0.0, 0.2, 0.0]
+{lights}
+[material.wood]
+density = 500.0
+[[body]]
+name = "box"
+type = "fixed"
+box = [0.4, 0.4, 0.4]
+color = [1.0, 1.0, 1.0]
+''')
+        with load_scene(path, frames=1) as ex:
+            return ex.render().astype(int)
+
+    red = render('light_kit = false\n[[light]]\nposition = [0.0, 2.0, 0.0]\ncolor = [1.0, 0.0, 0.0]')
+    kit = render("")
+    centre = (slice(20, 28), slice(28, 36))
+    r, g, b = (red[centre][..., k].mean() for k in range(3))
+    assert r > 150 and abs(g - 31) < 4 and abs(b - 31) < 4
+    r, g, b = (kit[centre][..., k].mean() for k in range(3))
+    assert min(r, g, b) > 100 and max(r, g, b) - min(r, g, b) < 20
+    np.testing.assert_allclose(red[0, 0], [0, 51, 0], atol=2)  # 0.2 * 255

@@ -179,13 +179,19 @@ class PhysicsExample:
         """Move the surfaces to the current state (called before every render)."""
         raise NotImplementedError
 
+    def renderer_options(self) -> dict:
+        """Extra :class:`~softvr.render.SurfaceRenderer` arguments (background, light kit) of
+        this scene (none by default)."""
+        return {}
+
     def render(self) -> np.ndarray:
         """Draw the current state; returns RGB uint8 [height, width, 3]."""
         t0 = time.perf_counter()
         if self._renderer is None:
             from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
 
-            self._renderer = SurfaceRenderer(self.width, self.height, self.camera, bounds=self.bounds)
+            self._renderer = SurfaceRenderer(self.width, self.height, self.camera, bounds=self.bounds,
+                                             **self.renderer_options())
             self.setup_render(self._renderer)
         self.update_render(self._renderer)
         image = self._renderer.render()
@@ -325,7 +331,8 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
     from softvr.render.overlays import ContactOverlay, LineOverlay, TextOverlay  # noqa: PLC0415
     from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
 
-    renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True)
+    renderer = SurfaceRenderer(example.width, example.height, example.camera, bounds=example.bounds, onscreen=True,
+                               **example.renderer_options())
     example.setup_render(renderer)
     window = renderer.vtk_renderer.GetRenderWindow()
     unknown = sorted(set(overlays) - set(VIEW_LAYERS))

@@ -95,6 +95,9 @@ class SurfaceRenderer(OffscreenView):
         Force an off-screen OpenGL window kind.
     onscreen : bool
         Draw into a window on the display instead (for live viewers; needs a display).
+    light_kit : bool
+        Light the scene with VTK's light kit (key, fill, back and head lights, the default);
+        without it only the lights of :meth:`add_light` shine.
 
     Examples
     --------
@@ -112,7 +115,8 @@ class SurfaceRenderer(OffscreenView):
 
     def __init__(self, width: int = 640, height: int = 480, camera: "Camera | str | None" = "iso", *,
                  bounds=None, background=(0.10, 0.11, 0.13), background_top=(0.32, 0.36, 0.43),
-                 antialias: bool = True, backend: str | None = None, onscreen: bool = False):
+                 antialias: bool = True, backend: str | None = None, onscreen: bool = False,
+                 light_kit: bool = True):
         for name, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
                 raise InputError(name, "an integer number of pixels in [1, 16384]", repr(v))
@@ -136,7 +140,10 @@ class SurfaceRenderer(OffscreenView):
         self._renderer.SetTwoSidedLighting(True)  # cloth is seen from both sides
         # FXAA's post pass leaves an on-screen window's back buffer unreadable (blank grabs).
         self._renderer.SetUseFXAA(bool(antialias) and not onscreen)
-        vtkLightKit().AddLightsToRenderer(self._renderer)
+        if light_kit:
+            vtkLightKit().AddLightsToRenderer(self._renderer)
+        else:
+            self._renderer.AutomaticLightCreationOff()
         self._window.AddRenderer(self._renderer)
         self._init_grabber()
         self._items: list[_Item] = []
@@ -361,6 +368,26 @@ class SurfaceRenderer(OffscreenView):
                 raise InputError("opacity", "a number in (0, 1]", repr(opacity))
             prop.SetOpacity(float(opacity))
             self._update_translucency()
+
+    def add_light(self, position, focal_point=(0.0, 0.0, 0.0), color=(1.0, 1.0, 1.0), intensity: float = 1.0) -> None:
+        """Add a directional light shining from ``position`` [3] [m] towards ``focal_point``
+        [3] [m], of ``color`` (r, g, b in [0, 1]) and ``intensity`` (1: full), fixed in the
+        scene (it does not follow the camera)."""
+        from vtkmodules.vtkRenderingCore import vtkLight  # noqa: PLC0415
+
+        p, f = _vec3(position, "position", "m"), _vec3(focal_point, "focal_point", "m")
+        if np.allclose(p, f):
+            raise InputError("position", "a point other than focal_point (the light's direction)", repr(p.tolist()))
+        if not (isinstance(intensity, (int, float)) and np.isfinite(intensity) and intensity >= 0):
+            raise InputError("intensity", "a number >= 0", repr(intensity))
+        light = vtkLight()
+        light.SetLightTypeToSceneLight()
+        light.SetPositional(False)
+        light.SetPosition(*p)
+        light.SetFocalPoint(*f)
+        light.SetColor(*_rgb(color, "color"))
+        light.SetIntensity(float(intensity))
+        self._renderer.AddLight(light)
 
     def handles(self, kind: str | None = None) -> list[int]:
         """Handles of the items added so far, or of those of one ``kind`` ("mesh", "plane",

@@ -20,6 +20,15 @@
     elevation = 0.0             # [deg]
     zoom = 1.0
     bounds = [-0.5, 0.5, -0.5, 0.5, 0.0, 0.6]   # [m] (optional: fitted to the bodies)
+    background = [0.10, 0.11, 0.13]             # r, g, b at the bottom ...
+    background_top = [0.32, 0.36, 0.43]         # ... and the top (a vertical gradient)
+    light_kit = true            # VTK's key / fill / back / head lights (false: only [[light]]s)
+
+    [[light]]                   # directional scene lights
+    position = [1.0, -1.0, 2.0] # [m] shining from here ...
+    focal_point = [0.0, 0.0, 0.0]   # [m] ... towards here
+    color = [1.0, 0.95, 0.9]
+    intensity = 0.8
 
     [material.jelly]            # named materials (FEM and rigid bodies)
     young = 1.5e5               # [Pa]
@@ -246,10 +255,29 @@ def _render(doc: dict, errors: Problems) -> dict:
     if not isinstance(camera, str):
         errors.add(f"{w}.camera", "a view name (front, side, top, iso, ...)", camera)
         camera = "iso"
-    return {"size": tuple(size), "camera": camera, "bounds": bounds,
+    colors = {}
+    for key, default in (("background", (0.10, 0.11, 0.13)), ("background_top", (0.32, 0.36, 0.43))):
+        colors[key] = _color(t, key, w, default, errors)
+    lights = []
+    for i, light in enumerate(_list(doc, "light", errors)):
+        lw = f"light[{i}]"
+        lights.append({"position": errors.vector(light, "position", lw, unit="m"),
+                       "focal_point": errors.vector(light, "focal_point", lw, default=[0.0, 0.0, 0.0], unit="m"),
+                       "color": _color(light, "color", lw, (1.0, 1.0, 1.0), errors),
+                       "intensity": errors.number(light, "intensity", lw, default=1.0, minimum=0.0)})
+    return {"size": tuple(size), "camera": camera, "bounds": bounds, **colors, "lights": lights,
+            "light_kit": errors.boolean(t, "light_kit", w, default=True),
             "azimuth": errors.number(t, "azimuth", w, default=0.0, unit="deg"),
             "elevation": errors.number(t, "elevation", w, default=0.0, unit="deg"),
             "zoom": errors.number(t, "zoom", w, default=1.0, positive=True)}
+
+
+def _color(t: dict, key: str, w: str, default, errors: Problems) -> tuple:
+    color = errors.vector(t, key, w, default=list(default))
+    if color is not None and not all(0 <= c <= 1 for c in color):
+        errors.add(f"{w}.{key}", "r, g, b in [0, 1]", list(color))
+        return tuple(default)
+    return tuple(color) if color is not None else tuple(default)
 
 
 def _materials(doc: dict, errors: Problems) -> dict:
@@ -432,7 +460,7 @@ def read_scene(path) -> SceneFile:
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
     known = {"format", "simulation", "render", "material", "adhesion", "plane", "sphere", "body", "filter", "coupling",
-             "model", "volume", "display"}
+             "model", "volume", "display", "light"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
     simulation, render = _simulation(doc, errors), _render(doc, errors)
