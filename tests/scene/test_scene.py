@@ -465,3 +465,22 @@ color = [1.0, 1.0, 1.0]
     r, g, b = (kit[centre][..., k].mean() for k in range(3))
     assert min(r, g, b) > 100 and max(r, g, b) - min(r, g, b) < 20
     np.testing.assert_allclose(red[0, 0], [0, 51, 0], atol=2)  # 0.2 * 255
+
+
+def test_run_writes_video_frames_sheet_and_metrics_of_a_scene_file(tmp_path, capsys):
+    import json
+
+    import imageio.v3 as iio
+
+    out = tmp_path / "out"
+    assert main(["run", "lips.toml", "--frames", "4", "--size", "64", "48", "--png-every", "2", "--out", str(out),
+                 "--quiet"]) == 0
+    assert len(list(iio.imiter(out / "lips.mp4"))) == 4
+    frames = sorted(p.name for p in (out / "lips_frames").iterdir())
+    assert frames == ["frame_00000.png", "frame_00002.png"]
+    assert iio.imread(out / "lips_frames" / "frame_00002.png").shape == (48, 64, 3)
+    doc = json.loads((out / "lips_metrics.json").read_text())
+    assert len(doc["frames"]) == 4 and doc["scene_file"].endswith("lips.toml")
+    with pytest.raises(SystemExit):
+        main(["run", "lips.toml", "--png-every", "-1"])
+    assert "--png-every" in capsys.readouterr().err

@@ -218,10 +218,12 @@ class PhysicsExample:
                 "bodies": [getattr(b, "name", type(b).__name__) for b in self.scene.bodies]}
 
 
-def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_frames: int = 8) -> dict:
+def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_frames: int = 8,
+                png_every: int = 0) -> dict:
     """Step and render every frame of ``example``; write ``<out>/<name>.mp4``,
     ``<name>_sheet.png``, ``<name>_metrics.json`` and the example's plots
-    (:meth:`PhysicsExample.write_plots`). Returns the metrics document.
+    (:meth:`PhysicsExample.write_plots`); with ``png_every`` = k > 0 also every k-th frame as
+    ``<name>_frames/frame_NNNNN.png``. Returns the metrics document.
 
     The example is closed afterwards. ``out`` is created if missing.
     """
@@ -266,6 +268,12 @@ def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_fr
     doc = {"scene": name, **example.describe(), "summary": summary, "frames": metrics}
     path = write_json(doc, out / f"{name}_metrics.json")
     plots = example.write_plots(doc, out)
+    if png_every > 0:
+        frames_dir = out / f"{name}_frames"
+        frames_dir.mkdir(exist_ok=True)
+        for i in range(0, len(images), png_every):
+            save_png(images[i], frames_dir / f"frame_{i:05d}.png")
+        plots.append(frames_dir)
     if progress:
         print(f"{name}: {summary['frames']} frames, {summary['sim_time_s']:.2f} s simulated in {wall:.1f} s; "
               f"deepest penetration {summary['max_penetration_m'] * 1e3:.3f} mm")
@@ -283,6 +291,8 @@ def demo_parser(prog: str, description: str, frames: int | None, out: str = "sof
     p.add_argument("--size", type=int, nargs=2, default=(640, 480), metavar=("W", "H"),
                    help="image size in pixels (default 640 480)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--png-every", type=int, default=0, metavar="K",
+                   help="also write every K-th frame as a PNG into <out>/<name>_frames (default 0: none)")
     return p
 
 
@@ -290,6 +300,8 @@ def check_run_args(parser: argparse.ArgumentParser, args) -> None:
     """Reject a frame count below 1 and image sizes outside [1, 16384] (exits with status 2)."""
     if args.frames < 1:
         parser.error(f"--frames: expected an integer >= 1, got {args.frames}")
+    if args.png_every < 0:
+        parser.error(f"--png-every: expected an integer >= 0, got {args.png_every}")
     if not all(1 <= s <= 16384 for s in args.size):
         parser.error(f"--size: expected two pixel counts in [1, 16384], got {args.size[0]} {args.size[1]}")
 
@@ -297,7 +309,7 @@ def check_run_args(parser: argparse.ArgumentParser, args) -> None:
 def run_module(module, args, **options) -> int:
     """Build ``module.Example`` from parsed demo options (plus scene ``options``) and run it to files."""
     example = module.Example(frames=args.frames, width=args.size[0], height=args.size[1], **options)
-    run_example(example, args.out, progress=not args.quiet)
+    run_example(example, args.out, progress=not args.quiet, png_every=args.png_every)
     return 0
 
 

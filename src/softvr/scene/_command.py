@@ -47,10 +47,14 @@ def run_main(argv: list[str] | None = None) -> int:
     p = demo_parser("softvr run", "Run a scene file headless: MP4, PNG contact sheet and JSON metrics.", None)
     p.add_argument("scene", metavar="SCENE.toml")
     args = p.parse_args(argv)
+    if args.frames is not None and args.frames < 1:
+        p.error(f"--frames: expected an integer >= 1, got {args.frames}")
+    if args.png_every < 0:
+        p.error(f"--png-every: expected an integer >= 0, got {args.png_every}")
     size = None if args.size == (640, 480) else args.size
     with load_scene(bundled(args.scene), frames=args.frames, width=size and size[0],
                     height=size and size[1]) as example:
-        run_example(example, args.out, progress=not args.quiet)
+        run_example(example, args.out, progress=not args.quiet, png_every=args.png_every)
     return 0
 
 
