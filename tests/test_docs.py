@@ -23,7 +23,6 @@ MODULES = [
     "softvr.dynamics.couplings",
     "softvr.cave.tracking",
     "softvr.cave.rig",
-    "softvr.model.tet_files",
 ]
 
 

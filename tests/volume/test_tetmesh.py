@@ -102,3 +102,53 @@ def test_boundary_faces_close_the_box_and_point_outward():
     assert (counts == 2).all()
     with pytest.raises(InputError, match="tets"):
         boundary_faces(np.zeros((3, 3), int))
+
+
+# Two tets sharing the face (1, 2, 3), in the legacy ASCII format of "VTK File Formats"
+# (POINTS, CELLS with a count before each cell, CELL_TYPES 10 = VTK_TETRA).
+LEGACY_TWO_TETS = """# vtk DataFile Version 3.0
+two tets
+ASCII
+DATASET UNSTRUCTURED_GRID
+POINTS 5 double
+0 0 0
+1 0 0
+0 1 0
+0 0 1
+1 1 1
+CELLS 2 10
+4 0 1 2 3
+4 4 3 2 1
+CELL_TYPES 2
+10
+10
+"""
+
+
+def test_a_legacy_vtk_file_written_by_hand_reads_as_written(tmp_path):
+    path = tmp_path / "two.vtk"
+    path.write_text(LEGACY_TWO_TETS)
+    nodes, tets = load_tet_mesh(path)
+    np.testing.assert_array_equal(nodes, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]])
+    np.testing.assert_array_equal(tets, [[0, 1, 2, 3], [4, 3, 2, 1]])
+
+
+@pytest.mark.parametrize("suffix", [".vtu", ".msh"])
+def test_save_tet_mesh_round_trips(tmp_path, suffix):
+    from softvr.volume import save_tet_mesh
+
+    nodes, tets = grid_tet_mesh(Volume(np.zeros((4, 3, 3), np.uint8), spacing=(0.01, 0.01, 0.01)), (3, 2, 2))
+    path = save_tet_mesh(tmp_path / f"grid{suffix}", nodes, tets)
+    q, t = load_tet_mesh(path)
+    np.testing.assert_allclose(q, nodes, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(t, tets)
+
+
+def test_a_failed_save_keeps_the_old_file(tmp_path):
+    from softvr.volume import save_tet_mesh
+
+    path = tmp_path / "mesh.vtu"
+    path.write_text("old")
+    with pytest.raises(InputError, match="tets"):
+        save_tet_mesh(path, np.zeros((4, 3)), [[0, 1, 2, 7]])
+    assert path.read_text() == "old"

@@ -10,7 +10,6 @@ representations, its coupling nodes, and a collision-free start.
   takes its surface out of an obstacle, with a :class:`SeparationReport` of what remains.
 * :class:`TissueTable` / :func:`tissue_fem_body`: FEM materials integrated from voxel
   intensities (thesis 3.3.2), :func:`voxel_owners` the tet of each voxel.
-* :func:`load_tet_mesh` / :func:`save_tet_mesh`: tet meshes in VTK files (.vtu, .vtk).
 * :func:`read_parts` / :func:`build_model` / :class:`Model` / :func:`load_model`: the whole
   pipeline of ``softvr build-model PARTS.toml``, from part meshes to a scene.
 
@@ -24,12 +23,11 @@ from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import SeparationReport, push_apart
 from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
-from softvr.model.tet_files import TET_SUFFIXES, load_tet_mesh, save_tet_mesh
+from softvr.volume.tetmesh import save_tet_mesh  # noqa: F401  TEMPORARY, for a helper mid-change
 from softvr.model.tissue import CT_TISSUE, TetTissue, TissueTable, tet_tissue, tissue_fem_body, voxel_owners
 
 __all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
            "collision_mesh", "dynamics_mesh", "embed_surface", "intersecting_triangle_pairs", "load_mesh", "load_model",
            "nodes_near_surface", "push_apart", "read_parts"]
 __all__ += ["BOX_TRIANGLES", "box_corners", "box_surface", "icosphere", "rigid_properties"]
-__all__ += ["TET_SUFFIXES", "load_tet_mesh", "save_tet_mesh"]
 __all__ += ["CT_TISSUE", "TetTissue", "TissueTable", "tet_tissue", "tissue_fem_body", "voxel_owners"]

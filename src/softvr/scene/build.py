@@ -468,7 +468,7 @@ class SceneExample(PhysicsExample):
                 grid = Volume(np.zeros(tuple(cells), np.uint8), spacing=spacing, origin=spacing / 2 - size / 2)
                 nodes, tets = grid_tet_mesh(grid, tuple(cells))
             else:
-                from softvr.model import load_tet_mesh
+                from softvr.volume import load_tet_mesh
 
                 nodes, tets = load_tet_mesh(spec.mesh)
                 nodes = nodes * np.asarray(spec.scale)

@@ -74,8 +74,8 @@
     subdivisions = 3            # sphere: icosphere subdivisions of its surface (1280 triangles at 3)
     collides_with = ["floor"]   # optional: collide with these bodies only
 
-    # fem: tets = "lip.vtu" (a VTK tet mesh, nodes in metres) is a fourth shape; box: cells = n
-    #      or [nx, ny, nz]
+    # fem: tets = "lip.vtu" (a tet mesh file: VTK, Gmsh, Medit, ...; nodes in metres) is a
+    #      fourth shape; box: cells = n or [nx, ny, nz]
     # fem / cloth: [body.drive] times = [...] [s], offsets = [[dx, dy, dz], ...] [m]: the held
     #      nodes (fixed_below / fixed_above) move by these offsets (linear between, held after)
     # cloth: cloth = [w, h], quads = [nu, nv], area_density [kg/m^2], stretch, shear, bend [N/m],
@@ -139,7 +139,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from softvr.errors import Problems, read_toml
-from softvr.model.tet_files import TET_SUFFIXES
+from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
 __all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
 
@@ -340,7 +340,7 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         elif shape == "cloth":
             size = errors.vector(t, "cloth", w, 2, unit="m")
         else:
-            mesh = _file(t, shape, w, scene_dir, MESH_SUFFIXES if shape == "mesh" else TET_SUFFIXES,
+            mesh = _file(t, shape, w, scene_dir, MESH_SUFFIXES if shape == "mesh" else TET_MESH_SUFFIXES,
                          "a mesh file" if shape == "mesh" else "a tet mesh file", errors)
     spec = BodySpec(name=name, type=kind, shape=shape, size=size, mesh=mesh)
     if "scale" in t:

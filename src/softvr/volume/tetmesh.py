@@ -9,7 +9,12 @@ import numpy as np
 from softvr.errors import InputError
 from softvr.volume._volume import Volume
 
-__all__ = ["boundary_faces", "check_tets", "grid_tet_mesh", "load_tet_mesh", "tet_edges", "tet_signed_volumes"]
+__all__ = ["TET_MESH_SUFFIXES", "boundary_faces", "check_tets", "grid_tet_mesh", "load_tet_mesh", "save_tet_mesh",
+           "tet_edges", "tet_signed_volumes"]
+
+#: Tet mesh files :func:`load_tet_mesh` reads (through meshio): VTK XML and legacy, Gmsh,
+#: Medit, Abaqus, XDMF, MED — what TetGen, fTetWild, Gmsh and ParaView write.
+TET_MESH_SUFFIXES = (".vtu", ".vtk", ".msh", ".mesh", ".inp", ".xdmf", ".med")
 
 # Corner c = (a, b, c) of a unit cube has index a + 2 b + 4 c. A cube splits into the centre
 # tet of its 4 "odd" corners and the 4 corner tets of its "even" corners; mirrored cubes
@@ -215,6 +220,22 @@ def load_tet_mesh(path, *, fix_orientation: bool = False) -> tuple[np.ndarray, n
         neg = tet_signed_volumes(nodes, tets) < 0
         tets[neg] = tets[neg][:, [0, 2, 1, 3]]
     return check_tets(nodes, tets, source=str(p))
+
+
+def save_tet_mesh(path, nodes, tets) -> Path:
+    """Write nodes [node_count, 3] and tets [tet_count, 4] (checked as :func:`check_tets`
+    does) to a mesh file whose format follows the suffix (``.vtu`` for ParaView and softvr
+    scenes, ``.msh``, ...; through meshio), atomically: a failed write leaves an existing file
+    as it was. Returns the path."""
+    import meshio
+
+    from softvr.render._atomic import atomic_output
+
+    nodes, tets = check_tets(nodes, tets, source=str(path))
+    path = Path(path)
+    with atomic_output(path, path.suffix) as tmp:
+        meshio.write(tmp, meshio.Mesh(nodes, [("tetra", tets)]))
+    return path
 
 
 def boundary_faces(tets) -> np.ndarray:
