@@ -23,6 +23,7 @@ MODULES = [
     "softvr.dynamics.couplings",
     "softvr.cave.tracking",
     "softvr.cave.rig",
+    "softvr.volume.incremental",
 ]
 
 

@@ -51,7 +51,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
             ex.step()
             m = ex.metrics[-1]
             s = time.perf_counter()
-            ex.rasterizer.deform(ex.body.q / 1e-3, out=full)
+            ex.drawing.rasterizer.deform(ex.body.q / 1e-3, out=full)
             trace["raster_full_ms"].append(1e3 * (time.perf_counter() - s))
             ex.render()
             trace["fem_ms"].append(m["fem_ms"])
@@ -62,7 +62,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         # The incremental volume must equal the full one at the end (the benchmark's own check).
         agree = float(np.mean(ex.deformed.data == full.data))
         scene = ex.describe()
-        rasterizer_device = ex.rasterizer.device
+        rasterizer_device = ex.drawing.rasterizer.device
     med = {k: float(np.median(v)) for k, v in trace.items()}
     frame_ms = med["fem_ms"] + med["raster_incremental_ms"] + med["render_ms"]
     machine = _machine_info(rasterizer_device)

@@ -77,7 +77,7 @@ class Example:
         from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
         from softvr.model.shapes import icosphere
         from softvr.model import CT_TISSUE, tissue_fem_body
-        from softvr.volume import Rasterizer, grid_tet_mesh
+        from softvr.volume import DeformedVolume, grid_tet_mesh
 
         if volume is None:
             from softvr.datasets import head_ct
@@ -112,20 +112,18 @@ class Example:
                        collision_triangles=faces)
         self.scene = scene
         # Embedding tets in the air in front of the skin fold as the skin is pressed: skip them.
-        self.rasterizer = Rasterizer(volume, self.nodes, self.tets, device=device, inverted="skip")
-        self.incremental = incremental
-        self.tolerance_mm = 0.01  # node motion [mm] that does not need re-rasterizing yet
-        self.deformed = self.rasterizer.deform(self.nodes, out_grid=volume)
+        # Node motion under 0.01 mm is drawn once it adds up.
+        self.drawing = DeformedVolume(volume, self.nodes, self.tets, tolerance=0.01, incremental=incremental,
+                                      device=device, inverted="skip")
         self.labels = labels
         if labels is not None:
             if labels.shape != volume.shape:
                 from softvr.errors import InputError
 
                 raise InputError("labels", f"a label volume of the CT's shape {volume.shape}", f"shape {labels.shape}")
-            self.label_rasterizer = Rasterizer(labels, self.nodes, self.tets, device=device, inverted="skip",
-                                               interpolation="nearest", background=0)
-            self.labels_deformed = self.label_rasterizer.deform(self.nodes, out_grid=labels)
-        self._drawn_nodes = self.nodes.copy()
+            self.label_drawing = DeformedVolume(labels, self.nodes, self.tets, tolerance=0.01,
+                                                incremental=incremental, device=device, inverted="skip",
+                                                interpolation="nearest", background=0)
         self.width, self.height = width, height
         self.preset, self.azimuth = "ct-skin", -40.0
         if not (isinstance(render_step, int) and render_step >= 1):
@@ -156,27 +154,29 @@ class Example:
         for _ in range(self.steps_per_frame):
             self.scene.step(self.dt)
         t1 = time.perf_counter()
-        nodes_mm = self.body.q / _UNIT
-        pairs = [(self.rasterizer, self.deformed)]
+        drawn = self.drawing.update(self.body.q / _UNIT)
         if self.labels is not None:
-            pairs.append((self.label_rasterizer, self.labels_deformed))
-        for rasterizer, out in pairs:
-            if self.incremental:
-                box = rasterizer.update(out, nodes_mm, self._drawn_nodes, tolerance=self.tolerance_mm)
-                voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
-            else:
-                rasterizer.deform(nodes_mm, out=out)
-                voxels = int(np.prod(self.volume.shape))
-        # Nodes that moved less than the tolerance keep their last drawn position, so their
-        # motion adds up until it is drawn (the volume never lags by more than the tolerance).
-        moved = np.linalg.norm(nodes_mm - self._drawn_nodes, axis=1) > self.tolerance_mm
-        self._drawn_nodes = np.where(moved[:, None], nodes_mm, self._drawn_nodes)
+            self.label_drawing.update(self.body.q / _UNIT)
         t2 = time.perf_counter()
         self.metrics.append({"frame": self.frame, "fem_ms": 1e3 * (t1 - t0), "raster_ms": 1e3 * (t2 - t1),
-                             "raster_voxels": voxels, "indentation_m": self.indentation(),
+                             "raster_voxels": drawn["raster_voxels"], "indentation_m": self.indentation(),
                              "max_displacement_m": float(np.linalg.norm(self.body.q - self.body.rest, axis=1).max())})
         self.frame += 1
         return self.deformed
+
+    @property
+    def incremental(self) -> bool:
+        return self.drawing.incremental
+
+    @property
+    def deformed(self):
+        """The CT as drawn now (its own grid, mm)."""
+        return self.drawing.deformed
+
+    @property
+    def labels_deformed(self):
+        """The segmentation as drawn now (None without ``labels``)."""
+        return self.label_drawing.deformed if self.labels is not None else None
 
     def shown_volume(self):
         """The deformed CT as rendered: every ``render_step``-th voxel per axis."""

@@ -125,41 +125,29 @@ def _read_volume(source, scene_path: str):
 
 
 class _DeformedVolume:
-    """A volume drawn through the deformed tets of its FEM body (thesis ch. 3): after each frame
-    only the box around the tets that moved is rasterized again (``incremental``).
-
-    ``deformed`` is the volume now, in its own units; :meth:`shown` the rendered one in metres."""
+    """The scene's volume: a :class:`~softvr.volume.DeformedVolume` following its FEM body
+    (nodes in metres, the volume in its own units); :meth:`shown` the rendered one in metres."""
 
     def __init__(self, volume, body, nodes, tets, spec: dict):
-        from softvr.volume import Rasterizer
+        from softvr.volume import DeformedVolume
 
         self.unit, self.body, self.spec = spec["unit"], body, spec
-        # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted.
-        self.rasterizer = Rasterizer(volume, nodes, tets, inverted="skip")
-        self.deformed = self.rasterizer.deform(nodes, out_grid=volume)
-        self._drawn_nodes = np.array(nodes, float)
-        self.tolerance = 1e-5 / self.unit  # 10 um of node motion in volume units: not redrawn yet
+        # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted; node
+        # motion under 10 um is drawn once it adds up.
+        self.drawing = DeformedVolume(volume, nodes, tets, tolerance=1e-5 / self.unit,
+                                      incremental=spec["incremental"], inverted="skip")
+
+    @property
+    def deformed(self):
+        """The volume as drawn now, in its own units."""
+        return self.drawing.deformed
 
     def update(self) -> dict:
-        """Rasterize the volume for the body's current nodes; returns frame metrics."""
-        import time
-
-        t0 = time.perf_counter()
-        nodes = self.body.q / self.unit
-        if self.spec["incremental"]:
-            box = self.rasterizer.update(self.deformed, nodes, self._drawn_nodes, tolerance=self.tolerance)
-            voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
-            # Nodes that moved less than the tolerance keep their drawn position, so their
-            # motion adds up until it is drawn.
-            moved = np.linalg.norm(nodes - self._drawn_nodes, axis=1) > self.tolerance
-            self._drawn_nodes[moved] = nodes[moved]
-        else:
-            self.rasterizer.deform(nodes, out=self.deformed)
-            voxels = int(np.prod(self.deformed.shape))
-        return {"raster_ms": 1e3 * (time.perf_counter() - t0), "raster_voxels": voxels}
+        """Draw the volume for the body's current nodes; returns frame metrics."""
+        return self.drawing.update(self.body.q / self.unit)
 
     def shown(self):
-        """The deformed volume as drawn [m]: every ``render_step``-th voxel per axis."""
+        """The deformed volume as rendered [m]: every ``render_step``-th voxel per axis."""
         from softvr.volume import Volume
 
         k, d = self.spec["render_step"], self.deformed

@@ -18,12 +18,14 @@ Examples
 
 from softvr.volume._io import load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
+from softvr.volume.incremental import DeformedVolume
 from softvr.volume.isosurface import iso_surface
 from softvr.volume.rasterize import OutputGrid, RasterStats, Rasterizer, deform, fit_output_grid
 from softvr.volume.tetmesh import (TET_MESH_SUFFIXES, boundary_faces, check_tets, grid_tet_mesh, load_tet_mesh,
                                    save_tet_mesh, tet_edges)
 
 __all__ = [
+    "DeformedVolume",
     "OutputGrid",
     "SUPPORTED_DTYPES",
     "TET_MESH_SUFFIXES",
