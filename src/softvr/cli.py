@@ -4,6 +4,7 @@
 ``softvr demo shoulder``    the procedural shoulder palpated through a 1 kHz haptic loop
 ``softvr demo palpation``   the head CT pressed by a probe: FEM from the voxels, deformed CT volume-rendered
 ``softvr build-model P``    part meshes + a parts file (TOML) -> a simulation model (thesis 5.2)
+``softvr tetmesh SURFACE``  the tet mesh a scene builds for a FEM body of a surface (.vtu or .npz)
 ``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall,
                             lips, probe) to MP4, metrics and plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
@@ -48,6 +49,12 @@ def _build_model(argv: list[str]) -> int:
     from softvr.model import build
 
     return build.main(argv)
+
+
+def _tetmesh(argv: list[str]) -> int:
+    from softvr.model import _command
+
+    return _command.tetmesh_main(argv)
 
 
 def _run(argv: list[str]) -> int:
@@ -126,6 +133,7 @@ def _info(argv: list[str]) -> int:
 
 
 _COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info": _info, "build-model": _build_model,
+             "tetmesh": _tetmesh,
              "cave": _cave, "check": _check, "blender-addon": _blender_addon}
 
 

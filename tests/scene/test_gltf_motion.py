@@ -4,7 +4,9 @@ keyframes and the add-on's properties), read without Blender.
 Truths: a kinematic box keyed at two glTF (y-up) translations is, at each time, where linear
 interpolation of those keys turned z-up puts it (its corners the box's half-size around it);
 a tool's properties and a coupling's springs are those of the equivalent TOML scene written by
-hand; bad properties and bad animation data are each named in one error.
+hand; bad properties and bad animation data are each named in one error. ``softvr tetmesh``
+writes the nodes and tets ``dynamics_mesh`` gives for the same surface, whose volume lies between
+the box's and that of the whole cubes over it.
 """
 
 import json
@@ -310,3 +312,44 @@ def _write_json(path, doc):
     chunk += b" " * (-len(chunk) % 4)
     body = struct.pack("<I4s", len(chunk), b"JSON") + chunk + struct.pack("<I4s", len(binary), b"BIN\0") + binary
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+
+
+def test_softvr_tetmesh_writes_the_fem_mesh_a_scene_builds(tmp_path, capsys):
+    """``softvr tetmesh`` (the add-on's tet preview): the nodes and tets of ``dynamics_mesh`` on
+    the same surface, in .npz (with every tet edge once) and .vtu; the cubes cover the box (their
+    volume at least the box's) and stay within the grid of whole cubes over it."""
+    import trimesh
+
+    from softvr.cli import main
+    from softvr.model import dynamics_mesh, load_mesh
+    from softvr.volume import load_tet_mesh
+
+    size, h = np.array([0.1, 0.2, 0.3]), 0.045
+    trimesh.creation.box(size).export(tmp_path / "box.stl")
+    assert main(["tetmesh", str(tmp_path / "box.stl"), "--cell-size", str(h), "-o", str(tmp_path / "box.npz")]) == 0
+    assert main(["tetmesh", str(tmp_path / "box.stl"), "--cell-size", str(h)]) == 0  # box.vtu beside it
+    assert "box.vtu" in capsys.readouterr().out
+    nodes, tets = dynamics_mesh(*load_mesh(tmp_path / "box.stl"), h)
+    with np.load(tmp_path / "box.npz") as f:
+        np.testing.assert_array_equal(f["nodes"], nodes)
+        np.testing.assert_array_equal(f["tets"], tets)
+        assert f["nodes"].dtype == np.float64 and f["edges"].shape[1] == 2
+        edges = {tuple(sorted((int(t[i]), int(t[j])))) for t in tets for i in range(4) for j in range(i + 1, 4)}
+        assert {tuple(e) for e in f["edges"].tolist()} == edges and len(f["edges"]) == len(edges)
+    vtu_nodes, vtu_tets = load_tet_mesh(tmp_path / "box.vtu")
+    np.testing.assert_allclose(vtu_nodes, nodes)
+    np.testing.assert_array_equal(vtu_tets, tets)
+    volume = np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6.0
+    assert np.prod(size) <= volume <= np.prod(np.ceil(size / h) * h) * (1 + 1e-9)
+
+
+def test_softvr_tetmesh_refuses_a_missing_file_and_a_bad_cell_size(tmp_path, capsys):
+    from softvr.cli import main
+
+    assert main(["tetmesh", str(tmp_path / "nothing.obj"), "--cell-size", "0.01"]) == 2
+    assert "nothing.obj" in capsys.readouterr().err
+    import trimesh
+
+    trimesh.creation.box((0.1, 0.1, 0.1)).export(tmp_path / "box.obj")
+    assert main(["tetmesh", str(tmp_path / "box.obj"), "--cell-size", "0"]) == 2
+    assert "--cell-size" in capsys.readouterr().err
