@@ -484,3 +484,49 @@ def test_run_writes_video_frames_sheet_and_metrics_of_a_scene_file(tmp_path, cap
     with pytest.raises(SystemExit):
         main(["run", "lips.toml", "--png-every", "-1"])
     assert "--png-every" in capsys.readouterr().err
+
+
+def test_a_body_has_its_own_render_collision_and_dynamics_representations(tmp_path):
+    """Thesis 5.1: the drawn surface (render_mesh) is placed as the shape and carried by the
+    tets; the collision surface is the shape simplified to its triangle budget; the tets are
+    the cubes around the shape."""
+    import trimesh
+
+    from softvr.model.shapes import icosphere
+
+    fine = trimesh.Trimesh(*icosphere(4))  # 5120 triangles, unit radius
+    path = tmp_path / "ball.toml"
+    path.write_text('''format = "softvr-scene 1"
+[material.gel]
+young = 5e4
+[[plane]]
+[[body]]
+name = "ball"
+type = "fem"
+sphere = 0.05
+cells = 0.02
+collision_triangles = 80
+render_mesh = "fine_5cm.obj"
+material = "gel"
+position = [0.0, 0.0, 0.1]
+''')
+    from softvr.errors import InputError
+
+    with pytest.raises(InputError, match=r"body\[0\]\.render_mesh: expected an existing file"):
+        read_scene(path)
+    fine.apply_scale(0.05)
+    fine.export(tmp_path / "fine_5cm.obj")
+    with load_scene(path, frames=3) as ex:
+        (surface,) = ex.scene.collision_surfaces
+        assert 60 <= len(surface.triangles) <= 100  # about the budget of 80
+        drawn = ex._drawn_by_name["ball"]
+        assert len(drawn.triangles) == 5120
+        # As placed (the OBJ file holds 8 decimals).
+        np.testing.assert_allclose(drawn.vertices(), np.asarray(fine.vertices) + [0.0, 0.0, 0.1], atol=1e-8)
+        body = ex.bodies["ball"]
+        for _ in range(3):
+            ex.step()
+        # Carried by the tets: the drawn surface moved with the nodes (it fell).
+        fall = body.q[:, 2].mean() - (body.rest[:, 2].mean())
+        assert fall < -1e-3
+        assert drawn.vertices()[:, 2].mean() - 0.1 == pytest.approx(fall, abs=2e-3)

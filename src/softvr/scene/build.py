@@ -289,7 +289,8 @@ class SceneExample(PhysicsExample):
                 body = RigidBody(mass, inertia, position=origin, velocity=spec.velocity,
                                  angular_velocity=spec.angular_velocity, name=spec.name)
             local = v - origin
-            index = scene.add_body(body, collision_points=RigidPoints(body, local), collision_triangles=t,
+            cv, ct = self._collision_surface(spec, v, t)
+            index = scene.add_body(body, collision_points=RigidPoints(body, cv - origin), collision_triangles=ct,
                                    adhesion=adhesion)
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color))
             if spec.type == "tool":  # the handle holds the body's position, not its centre of mass
@@ -330,6 +331,8 @@ class SceneExample(PhysicsExample):
 
             v, t = self._surface(spec, rotation, centre)
             scene.add_mesh(TriangleMesh(v, t, id=100 + len(self.drawn)), adhesion=adhesion)
+            if spec.render_mesh is not None:
+                v, t = self._surface(spec, rotation, centre, spec.render_mesh)
             self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
             return
         elif spec.type == "fem":
@@ -376,9 +379,35 @@ class SceneExample(PhysicsExample):
             index = scene.add_body(body, collision_points=points, collision_triangles=body.triangles,
                                    adhesion=adhesion)
             self.drawn.append(_Drawn(lambda b=body: b.q, body.triangles, spec.color))
+        if spec.render_mesh is not None or (spec.type == "fem" and spec.collision_triangles is not None):
+            # Drawn: the render mesh, or the full shape when only the collision surface is simplified.
+            self.drawn[-1] = self._render_surface(spec, body, rotation, centre, spec.render_mesh)
         self.bodies[spec.name] = body
         self.index[spec.name] = index
         self._drawn_by_name[spec.name] = self.drawn[-1]
+
+    @staticmethod
+    def _collision_surface(spec: BodySpec, vertices, triangles):
+        """The shape's surface, simplified to ``collision_triangles`` when given."""
+        if spec.collision_triangles is None:
+            return vertices, triangles
+        from softvr.model import collision_mesh
+
+        return collision_mesh(vertices, triangles, spec.collision_triangles)
+
+    def _render_surface(self, spec: BodySpec, body, rotation, centre, file=None) -> "_Drawn":
+        """A drawn surface (``file``, else the shape's own) placed as the shape and carried by
+        the body: barycentric in its tets (extrapolated from the nearest tet where it pokes
+        out), or fixed in its frame."""
+        from softvr.dynamics import EmbeddedPoints, RigidPoints, embed_in_tets
+
+        v, t = self._surface(spec, rotation, centre, file)
+        if hasattr(body, "tets"):
+            ti, w = embed_in_tets(body.q, body.tets, v, tolerance=np.inf)
+            points = EmbeddedPoints(body, body.tets[ti], w)
+        else:
+            points = RigidPoints.from_world(body, v)
+        return _Drawn(points.positions, t, spec.color)
 
     def _couple(self, scene, c: dict) -> None:
         """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface, or at
@@ -474,9 +503,13 @@ class SceneExample(PhysicsExample):
                                                                         np.ones((len(on_surface), 1)))
 
         v, t = SceneExample._surface(spec, rotation, centre)
-        nodes, tets = dynamics_mesh(v, t, float(spec.cells))
-        tet_index, weights = embed_surface(nodes, tets, v)
-        return nodes, tets, t, (tets[tet_index], weights)
+        cv, ct = SceneExample._collision_surface(spec, v, t)
+        # The cubes touching the shape or its simplified collision surface (which may reach a
+        # little further out), as the model pipeline makes them.
+        nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), float(spec.cells)) \
+            if cv is not v else dynamics_mesh(v, t, float(spec.cells))
+        tet_index, weights = embed_surface(nodes, tets, cv)
+        return nodes, tets, ct, (tets[tet_index], weights)
 
     @staticmethod
     def _clamped(spec: BodySpec, nodes) -> np.ndarray:
@@ -497,11 +530,13 @@ class SceneExample(PhysicsExample):
         body.v[body.fixed] = 0.0
 
     @staticmethod
-    def _surface(spec: BodySpec, rotation, centre) -> tuple[np.ndarray, np.ndarray]:
-        """The body's mesh (from its file, or given in memory) placed in the world [m]."""
+    def _surface(spec: BodySpec, rotation, centre, file=None) -> tuple[np.ndarray, np.ndarray]:
+        """The body's mesh (from its file, or given in memory; or ``file``) placed in the world [m]."""
         from softvr.model import load_mesh
 
-        if spec.mesh_data is not None:
+        if file is not None:
+            v, t = load_mesh(file)
+        elif spec.mesh_data is not None:
             v, t = spec.mesh_data
         elif spec.shape == "sphere":
             from softvr.model.shapes import icosphere

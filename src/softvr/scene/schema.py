@@ -73,6 +73,9 @@
     surface_quads = 1           # box: quads of its drawn / collision surface along the longest edge
     subdivisions = 3            # sphere: icosphere subdivisions of its surface (1280 triangles at 3)
     collides_with = ["floor"]   # optional: collide with these bodies only
+    render_mesh = "hi.obj"      # optional: the drawn surface, when it is not the shape (thesis 5.1:
+                                # render, collision and dynamics representations); placed as the shape
+    collision_triangles = 500   # mesh / sphere: the collision surface simplified to about this many
 
     # fem: tets = "lip.vtu" (a tet mesh file: VTK, Gmsh, Medit, ...; nodes in metres) is a
     #      fourth shape; box: cells = n or [nx, ny, nz]
@@ -167,6 +170,8 @@ class BodySpec:
     scale: tuple = (1.0, 1.0, 1.0)
     surface_quads: int = 1
     subdivisions: int = 3
+    render_mesh: Path | None = None
+    collision_triangles: int | None = None
     collides_with: tuple | None = None
     drive: dict = field(default_factory=dict)
     tool: dict = field(default_factory=dict)
@@ -359,6 +364,16 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         if shape != "sphere":
             errors.add(f"{w}.subdivisions", "subdivisions only on a sphere", f"a {shape} shape")
         spec.subdivisions = min(errors.integer(t, "subdivisions", w, minimum=0) or 0, 6)
+    if "render_mesh" in t:
+        if kind not in ("rigid", "fem", "kinematic", "tool", "fixed"):
+            errors.add(f"{w}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed body",
+                       f"a {kind} body")
+        spec.render_mesh = _file(t, "render_mesh", w, scene_dir, MESH_SUFFIXES, "a mesh file", errors)
+    if "collision_triangles" in t:
+        if shape not in ("mesh", "sphere") or kind == "fixed":
+            errors.add(f"{w}.collision_triangles", "a triangle budget only on a moving mesh or sphere",
+                       f"a {kind} {shape}")
+        spec.collision_triangles = errors.integer(t, "collision_triangles", w, minimum=4)
     if "collides_with" in t:
         others = t["collides_with"]
         if not (isinstance(others, list) and all(isinstance(o, str) for o in others)):
