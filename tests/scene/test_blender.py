@@ -4,7 +4,9 @@ exporter, load into the same bodies and parameters as the equivalent TOML scene.
 
 Truth: the TOML scene written by hand with the same box (Blender's cube of size 0.2 at height
 0.5, z up) and the same properties; the FEM bodies must have the same nodes, tets and masses,
-and the scene the same time step and frame count.
+and the scene the same time step and frame count. The add-on's authoring tools (keyframed
+kinematic bodies, picked coupling vertices, tet and CAVE previews) against ``dynamics_mesh``, the
+``softvr cave preview`` picture and the keyframes and vertices set in Blender.
 """
 
 import os
@@ -128,3 +130,129 @@ def test_the_addon_installs_marks_and_exports_a_scene_that_checks_and_runs(tmp_p
         for _ in range(3):
             ex.step()
         assert die.position[2] < z0  # it falls
+
+
+AUTHORING_SCRIPT = """
+import json
+import os
+import sys
+
+import bpy
+import bmesh
+
+zip_path, glb, softvr, report = sys.argv[1:5]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path)
+bpy.ops.preferences.addon_enable(module="softvr_blender")
+bpy.context.preferences.addons["softvr_blender"].preferences.softvr_command = softvr
+scene = bpy.context.scene
+scene.frame_set(1)
+bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0.0, 0.0, 0.15))
+gel = bpy.context.active_object
+gel.name = "gel"
+bpy.ops.softvr.mark(kind="fem")
+gel["softvr_cells"] = 0.045
+bpy.ops.mesh.primitive_uv_sphere_add(radius=0.03, segments=12, ring_count=6, location=(0.3, 0.0, 0.15))
+probe = bpy.context.active_object
+probe.name = "probe"
+bpy.ops.softvr.mark(kind="kinematic")
+probe.keyframe_insert("location", frame=1)
+probe.location = (0.3, 0.1, 0.25)
+probe.keyframe_insert("location", frame=1 + scene.render.fps)  # one second later
+scene.frame_set(1)
+bpy.ops.mesh.primitive_cube_add(size=0.04, location=(0.0, 0.0, 0.27))
+post = bpy.context.active_object
+post.name = "post"
+bpy.ops.softvr.mark(kind="kinematic")  # no keyframes: it holds still
+scene["softvr_dt"] = 0.01
+scene["softvr_steps_per_frame"] = 5
+
+# Two vertices of the gel's top face (x > 0) picked in edit mode, the post selected too.
+bpy.ops.object.select_all(action="DESELECT")
+post.select_set(True)
+gel.select_set(True)
+bpy.context.view_layer.objects.active = gel
+bpy.ops.object.mode_set(mode="EDIT")
+mesh = bmesh.from_edit_mesh(gel.data)
+for v in mesh.verts:
+    world = gel.matrix_world @ v.co
+    v.select = world.z > 0.2 and world.x > 0
+mesh.select_flush(False)
+bmesh.update_edit_mesh(gel.data)
+assert bpy.ops.softvr.pick_coupling() == {"FINISHED"}
+bpy.ops.object.mode_set(mode="OBJECT")
+
+bpy.ops.object.select_all(action="DESELECT")
+gel.select_set(True)
+bpy.context.view_layer.objects.active = gel
+assert bpy.ops.softvr.preview_tets() == {"FINISHED"}
+assert bpy.ops.softvr.preview_tets() == {"FINISHED"}  # again: replaced, not doubled
+tets = bpy.data.objects["gel tets"]
+assert bpy.ops.softvr.cave_preview(frames=2) == {"FINISHED"}
+image = bpy.data.images["softvr CAVE preview"]
+bpy.ops.softvr.export(filepath=glb)
+with open(report, "w") as f:
+    json.dump({"tet_nodes": len(tets.data.vertices), "tet_edges": len(tets.data.edges),
+               "tet_faces": len(tets.data.polygons), "display_type": tets.display_type,
+               "hide_render": tets.hide_render, "tet_objects": sum(o.name.startswith("gel tets") for o in bpy.data.objects),
+               "image": list(image.size), "image_pixels": len(image.pixels)}, f)
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def test_authoring_in_blender_keyframes_couplings_tet_preview_and_cave_preview(tmp_path):
+    """In Blender with the add-on: a FEM cube, a kinematic sphere keyed at two locations one
+    second apart, a still kinematic post; two of the cube's vertices picked as coupling points
+    to the post; the tet preview and the CAVE preview. Truths: the tet object has the nodes and
+    edges of ``dynamics_mesh`` for the same cube and cell size; the CAVE image is the size of
+    the picture ``softvr cave preview cube`` makes; in the export the sphere is at its second
+    keyframe's location one second in, and the coupling's springs are at the picked vertices."""
+    import struct
+
+    import trimesh
+
+    from softvr.blender import build_addon
+    from softvr.cli import main
+    from softvr.model import dynamics_mesh
+    from softvr.scene.gltf import read_gltf_scene
+
+    softvr = Path(sys.executable).with_name("softvr")
+    assert softvr.exists()
+    addon, glb, report = build_addon(tmp_path), tmp_path / "authored.glb", tmp_path / "report.json"
+    done = subprocess.run([str(BLENDER_PYTHON), "-c", AUTHORING_SCRIPT, str(addon), str(glb), str(softvr),
+                           str(report)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and report.exists(), (done.stdout[-2000:], done.stderr[-2000:])
+    import json
+
+    got = json.loads(report.read_text())
+    cube = trimesh.creation.box((0.2, 0.2, 0.2))
+    nodes, tets = dynamics_mesh(np.asarray(cube.vertices) + [0.0, 0.0, 0.15], cube.faces, 0.045)
+    edges = {tuple(sorted((int(t[i]), int(t[j])))) for t in tets for i in range(4) for j in range(i + 1, 4)}
+    assert (got["tet_nodes"], got["tet_edges"], got["tet_faces"]) == (len(nodes), len(edges), 0)
+    assert got["display_type"] == "WIRE" and got["hide_render"] and got["tet_objects"] == 1
+
+    assert main(["cave", "preview", "cube", str(glb), "--frames", "1", "--out", str(tmp_path / "cave"), "--quiet"]) == 0
+    png = (tmp_path / "cave" / "cave_preview.png").read_bytes()
+    assert got["image"] == list(struct.unpack(">II", png[16:24]))  # the PNG's IHDR width, height
+    assert got["image_pixels"] == 4 * got["image"][0] * got["image"][1]
+
+    scene = read_gltf_scene(glb)
+    assert sorted(b.name for b in scene.bodies) == ["gel", "post", "probe"]  # the tet preview is no body
+    assert scene.display == "cube"
+    picked = [[0.1, -0.1, 0.25], [0.1, 0.1, 0.25]]  # the top face's vertices with x > 0, Blender's z up
+    (coupling,) = scene.couplings
+    assert (coupling["a"], coupling["b"], coupling["stiffness"]) == ("gel", "post", 2000.0)
+    points = np.asarray(coupling["points"])
+    np.testing.assert_allclose(points[np.lexsort(points.T)], picked, atol=1e-6)
+    with load_scene(glb) as ex:
+        probe = ex.bodies["probe"]
+        np.testing.assert_allclose(probe.position, [0.3, 0.0, 0.15], atol=1e-6)  # frame 1 is t = 0
+        (springs,) = ex.scene.couplings
+        a = springs.a.positions()
+        np.testing.assert_allclose(a[np.lexsort(a.T)], picked, atol=1e-6)
+        for _ in range(20):  # 20 frames of 5 x 0.01 s
+            ex.step()
+        assert ex.scene.time == pytest.approx(1.0)
+        np.testing.assert_allclose(probe.position, [0.3, 0.1, 0.25], atol=1e-6)  # the second keyframe
+        np.testing.assert_allclose(ex.bodies["post"].position, [0.0, 0.0, 0.27], atol=1e-6)  # still

@@ -167,6 +167,7 @@ positions = [[0.0, 0.0, 0.3], [0.0, -0.1, 0.3]]
         np.testing.assert_allclose(a.motion["positions"], b.motion["positions"], atol=1e-7)
     assert g.body("finger").tool == t.body("finger").tool
     assert g.body("finger").collides_with == ("post",)
+    assert g.display is None and t.display is None
     assert g.materials["finger"]["density"] == 500.0
     with load_scene(path) as ex:
         assert ex.bodies["finger"].mass == pytest.approx(500.0 * 0.02**3, rel=1e-5)
@@ -240,13 +241,13 @@ def test_bad_motion_tool_and_coupling_properties_are_named_by_node(tmp_path):
         ("finger", (0.02, 0.02, 0.02), (0.0, 0.3, 0.0), {"softvr_type": "tool", "softvr_collides_with": "gel, ghost"}),
         ("cloth", (0.1, 0.1, 0.01), (0.5, 0.3, 0.0), {
             "softvr_type": "cloth", "softvr_couple_to": "gel", "softvr_coupling_stiffness": 10.0,
-            "softvr_coupling_points": [0.0, 0.1]})])
+            "softvr_coupling_points": [0.0, 0.1]})], {"softvr_display": "moon"})
     with pytest.raises(InputError) as info:
         read_gltf_scene(path)
     message = str(info.value)
     for fragment in ("bad.glb", "node 'gel'.couple_to", "'nobody'", "node 'gel'.coupling_stiffness",
                      "node 'finger'.stiffness", "node 'finger'.collides_with", "'ghost'",
-                     "node 'cloth'.coupling_points"):
+                     "node 'cloth'.coupling_points", "scene.display", "'moon'"):
         assert fragment in message, fragment
 
 

@@ -30,7 +30,8 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
 ============================  ================================================================
 
 Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
-``softvr_friction``, ``softvr_ground`` (true: a ground plane at z = 0), ``softvr_start_time``
+``softvr_friction``, ``softvr_ground`` (true: a ground plane at z = 0), ``softvr_display`` (the
+screens it is shown on: a :mod:`softvr.cave` preset or a display file), ``softvr_start_time``
 [s] (the animation time that is the simulation's t = 0; default: the first key of the
 kinematic bodies' and tools' animations). Each node's mesh is taken in world coordinates (its
 node transform applied) and turned from glTF's y-up to softvr's z-up; its material's base colour
@@ -309,6 +310,7 @@ def read_gltf_scene(path) -> SceneFile:
                   "friction": errors.number(scene_props, "friction", "scene", default=0.5, minimum=0.0),
                   "pgs_iterations": 500, "contact_margin": 0.005}
     start_time = errors.number(scene_props, "start_time", "scene", unit="s") if "start_time" in scene_props else None
+    display = _display(scene_props, path.parent, errors) if "display" in scene_props else None
     nodes = doc.get("nodes", [])
     parent = {child: i for i, node in enumerate(nodes) for child in node.get("children", [])}
     loaded = trimesh.load(path, force="scene")
@@ -416,7 +418,22 @@ def read_gltf_scene(path) -> SceneFile:
                      render={"size": (640, 480), "camera": "iso", "bounds": None, "azimuth": 0.0, "elevation": 0.0,
                              "zoom": 1.0},
                      materials=materials, adhesions={}, planes=planes, spheres=[], bodies=bodies, filters=[],
-                     couplings=[c for _, c in couplings])
+                     couplings=[c for _, c in couplings], display=display)
+
+
+def _display(scene_props: dict, folder: Path, errors: Problems) -> str | None:
+    """``softvr_display``: a :mod:`softvr.cave` display preset, or a display file (relative to
+    the scene's folder)."""
+    from softvr.cave.display import PRESETS
+
+    value = scene_props["display"]
+    if isinstance(value, str) and value in PRESETS:
+        return value
+    if isinstance(value, str) and value.lower().endswith(".toml") and (folder / value).is_file():
+        return str((folder / value).resolve())
+    errors.add("scene.display", f"a display preset ({', '.join(PRESETS)}) or an existing display file (.toml)",
+               repr(value))
+    return None
 
 
 def _linear_at(times, values, t: float) -> np.ndarray:

@@ -2,17 +2,20 @@
 
 Objects get softvr custom properties (``softvr_type``, ``softvr_young``, ...), which Blender's
 glTF exporter writes as extras: the exported ``.glb`` is a softvr scene as is (softvr's
-``softvr.scene.gltf`` reads it). The add-on only edits those properties and runs the exporter
-and the ``softvr`` command; nothing else is needed in Blender.
+``softvr.scene.gltf`` reads it). Kinematic bodies and tools move as their location keyframes;
+couplings are properties of one of the two objects (*Pick coupling vertices* writes them). The
+add-on only edits those properties and runs the exporter and the ``softvr`` command (``softvr
+check``, ``view``, ``tetmesh``, ``cave preview``); nothing else is needed in Blender.
 """
 
 bl_info = {
     "name": "softvr",
     "author": "softvr developers",
-    "version": (0, 1, 0),
+    "version": (0, 2, 0),
     "blender": (4, 2, 0),
     "location": "Properties > Object / Scene > softvr",
-    "description": "Mark objects as rigid, FEM, cloth or fixed bodies for softvr; check, export and play the scene",
+    "description": "Mark objects as rigid, FEM, cloth, fixed, kinematic or tool bodies for softvr; couple them, "
+                   "preview their tet meshes; check, export and play the scene",
     "category": "Physics",
 }
 
@@ -22,13 +25,15 @@ import subprocess
 import tempfile
 
 import bpy
-from bpy.props import EnumProperty, StringProperty
+from bpy.props import EnumProperty, IntProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
 KINDS = [("fem", "FEM (soft)", "Co-rotational finite elements on the object's tet mesh"),
          ("rigid", "Rigid", "A rigid body of the closed mesh"),
          ("cloth", "Cloth", "A mass-spring cloth of the mesh's triangles"),
          ("fixed", "Fixed", "A static obstacle"),
+         ("kinematic", "Kinematic", "Moved by its location keyframes (holds still without), pushes what it meets"),
+         ("tool", "Tool", "A rigid body on a spring to a hand that follows its location keyframes (haptics)"),
          ("none", "Not simulated", "Scenery: drawn, not simulated")]
 
 #: Properties each kind needs (SI units), set when an object is marked and missing.
@@ -39,8 +44,12 @@ DEFAULTS = {
     "cloth": {"softvr_area_density": 0.2, "softvr_stretch": 200.0, "softvr_shear": 20.0, "softvr_bend": 1.0,
               "softvr_damping": 0.05},
     "fixed": {},
+    "kinematic": {},
+    "tool": {"softvr_density": 1000.0, "softvr_stiffness": 300.0, "softvr_damping": 2.0, "softvr_haptics": False},
 }
-SCENE_DEFAULTS = {"softvr_dt": 0.005, "softvr_steps_per_frame": 4, "softvr_frames": 100, "softvr_friction": 0.5}
+SCENE_DEFAULTS = {"softvr_dt": 0.005, "softvr_steps_per_frame": 4, "softvr_frames": 100, "softvr_friction": 0.5,
+                  "softvr_display": "cube"}
+PREVIEW_IMAGE = "softvr CAVE preview"
 
 
 def _softvr_command(context):
@@ -49,6 +58,9 @@ def _softvr_command(context):
 
 
 def _export(filepath):
+    scene = bpy.context.scene
+    # The simulation's t = 0 is the scene's start frame, in the exporter's animation seconds.
+    scene["softvr_start_time"] = scene.frame_start / (scene.render.fps * scene.render.fps_base)
     bpy.ops.export_scene.gltf(filepath=filepath, export_format="GLB", export_extras=True)
 
 
@@ -57,6 +69,15 @@ def _export_temporary():
     path = os.path.join(tempfile.mkdtemp(prefix="softvr-"), "scene.glb")
     _export(path)
     return path
+
+
+def _run_softvr(operator, context, *args):
+    """Run ``softvr ARGS``; on failure report its last error line. Returns whether it worked."""
+    done = subprocess.run([_softvr_command(context), *args], capture_output=True, text=True)
+    if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        operator.report({"ERROR"}, lines[-1] if lines else f"softvr {args[0]} failed ({done.returncode})")
+    return done.returncode == 0
 
 
 class SOFTVR_AddonPreferences(bpy.types.AddonPreferences):
@@ -96,6 +117,106 @@ class SOFTVR_OT_mark(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class SOFTVR_OT_pick_coupling(bpy.types.Operator):
+    """Couple the active object at its selected vertices (their world positions) to the other
+    selected object"""
+    bl_idname = "softvr.pick_coupling"
+    bl_label = "Pick coupling vertices"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        obj = context.active_object
+        if obj is None or obj.type != "MESH":
+            self.report({"ERROR"}, "softvr: the active object must be a mesh with selected vertices")
+            return {"CANCELLED"}
+        if obj.mode == "EDIT":
+            # Edit mode keeps the selection in its own mesh: switch out to read it, then back.
+            bpy.ops.object.mode_set(mode="OBJECT")
+            points = [obj.matrix_world @ v.co for v in obj.data.vertices if v.select]
+            bpy.ops.object.mode_set(mode="EDIT")
+        else:
+            points = [obj.matrix_world @ v.co for v in obj.data.vertices if v.select]
+        if not points:
+            self.report({"ERROR"}, f"softvr: no vertices of {obj.name!r} selected (select them in edit mode)")
+            return {"CANCELLED"}
+        # Blender's world coordinates (z up) are softvr's.
+        obj["softvr_coupling_points"] = [float(c) for p in points for c in p]
+        if "softvr_coupling_radius" in obj:
+            del obj["softvr_coupling_radius"]  # points instead of a radius
+        others = [o for o in context.selected_objects if o != obj]
+        if len(others) == 1:
+            obj["softvr_couple_to"] = others[0].name
+        if "softvr_coupling_stiffness" not in obj:
+            obj["softvr_coupling_stiffness"] = 2000.0
+        to = obj.get("softvr_couple_to")
+        if to is None:
+            self.report({"WARNING"}, f"softvr: {len(points)} coupling points on {obj.name!r}; select the object to "
+                                     "couple to as well (or set softvr_couple_to)")
+        else:
+            self.report({"INFO"}, f"softvr: {len(points)} coupling points on {obj.name!r}, coupled to {to!r}")
+        return {"FINISHED"}
+
+
+def _write_obj(obj, depsgraph, path):
+    """The object's evaluated mesh in world coordinates as a Wavefront OBJ."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        world = obj.matrix_world
+        with open(path, "w") as f:
+            for v in mesh.vertices:
+                x, y, z = world @ v.co
+                f.write(f"v {x!r} {y!r} {z!r}\n")
+            for polygon in mesh.polygons:
+                f.write("f " + " ".join(str(i + 1) for i in polygon.vertices) + "\n")
+    finally:
+        evaluated.to_mesh_clear()
+
+
+class SOFTVR_OT_preview_tets(bpy.types.Operator):
+    """Show the tet mesh softvr builds for each selected FEM object (its cubes of softvr_cells),
+    as a wire object "<name> tets" (not exported as a body)"""
+    bl_idname = "softvr.preview_tets"
+    bl_label = "Preview tet mesh"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        import numpy as np
+
+        fem = [o for o in context.selected_objects if o.type == "MESH" and o.get("softvr_type") == "fem"]
+        if not fem:
+            self.report({"ERROR"}, "softvr: select objects marked FEM")
+            return {"CANCELLED"}
+        folder = tempfile.mkdtemp(prefix="softvr-tets-")
+        depsgraph = context.evaluated_depsgraph_get()
+        summary = []
+        for obj in fem:
+            surface, out = os.path.join(folder, "surface.obj"), os.path.join(folder, "tets.npz")
+            _write_obj(obj, depsgraph, surface)
+            cells = float(obj.get("softvr_cells", DEFAULTS["fem"]["softvr_cells"]))
+            if not _run_softvr(self, context, "tetmesh", surface, "--cell-size", repr(cells), "-o", out):
+                return {"CANCELLED"}
+            with np.load(out) as f:
+                nodes, edges = f["nodes"], f["edges"]
+            name = f"{obj.name} tets"
+            old = bpy.data.objects.get(name)
+            if old is not None:
+                old_mesh = old.data
+                bpy.data.objects.remove(old)
+                if old_mesh is not None and old_mesh.users == 0:
+                    bpy.data.meshes.remove(old_mesh)
+            mesh = bpy.data.meshes.new(name)
+            mesh.from_pydata(nodes.tolist(), edges.tolist(), [])
+            mesh.update()
+            preview = bpy.data.objects.new(name, mesh)  # nodes in world coordinates: identity transform
+            (obj.users_collection[0] if obj.users_collection else context.scene.collection).objects.link(preview)
+            preview.display_type = "WIRE"
+            preview.hide_render = True  # a look, not part of the scene: no softvr properties, no faces
+            summary.append(f"{obj.name}: {len(nodes)} nodes, {len(edges)} edges")
+        self.report({"INFO"}, "softvr tets: " + "; ".join(summary))
+        return {"FINISHED"}
+
+
 class SOFTVR_OT_export(bpy.types.Operator, ExportHelper):
     """Export the scene as a softvr scene (glTF binary with softvr extras)"""
     bl_idname = "softvr.export"
@@ -131,6 +252,31 @@ class SOFTVR_OT_play(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class SOFTVR_OT_cave_preview(bpy.types.Operator):
+    """Simulate the scene a few frames and render every screen of the CAVE display (the scene's
+    softvr_display) unfolded into one picture: the image named softvr CAVE preview"""
+    bl_idname = "softvr.cave_preview"
+    bl_label = "Play on the CAVE preview"
+    frames: IntProperty(name="Frames", default=30, min=1, description="frames to simulate before the picture")
+
+    def execute(self, context):
+        display = str(context.scene.get("softvr_display", SCENE_DEFAULTS["softvr_display"]))
+        glb, out = _export_temporary(), tempfile.mkdtemp(prefix="softvr-cave-")
+        if not _run_softvr(self, context, "cave", "preview", display, glb, "--frames", str(self.frames),
+                           "--out", out, "--quiet"):
+            return {"CANCELLED"}
+        old = bpy.data.images.get(PREVIEW_IMAGE)
+        if old is not None:
+            bpy.data.images.remove(old)
+        image = bpy.data.images.load(os.path.join(out, "cave_preview.png"))
+        image.name = PREVIEW_IMAGE
+        image.pack()  # kept in the .blend: the temporary folder may go
+        width, height = image.size
+        self.report({"INFO"}, f"softvr: {display} after {self.frames} frames, image {PREVIEW_IMAGE!r} "
+                              f"({width} x {height}; Image Editor)")
+        return {"FINISHED"}
+
+
 class SOFTVR_PT_object(bpy.types.Panel):
     bl_label = "softvr"
     bl_space_type = "PROPERTIES"
@@ -139,9 +285,14 @@ class SOFTVR_PT_object(bpy.types.Panel):
 
     def draw(self, context):
         layout, obj = self.layout, context.object
-        row = layout.row(align=True)
+        grid = layout.grid_flow(columns=3, align=True)
         for kind, label, _ in KINDS:
-            row.operator("softvr.mark", text=label).kind = kind
+            grid.operator("softvr.mark", text=label).kind = kind
+        row = layout.row()
+        row.operator("softvr.pick_coupling")
+        row.operator("softvr.preview_tets")
+        if obj is None:
+            return
         for key in sorted(k for k in obj.keys() if k.startswith("softvr_")):
             layout.prop(obj, f'["{key}"]', text=key[len("softvr_"):])
 
@@ -160,10 +311,11 @@ class SOFTVR_PT_scene(bpy.types.Panel):
         row.operator("softvr.check")
         row.operator("softvr.export")
         row.operator("softvr.play")
+        layout.operator("softvr.cave_preview")
 
 
-CLASSES = (SOFTVR_AddonPreferences, SOFTVR_OT_mark, SOFTVR_OT_export, SOFTVR_OT_check, SOFTVR_OT_play,
-           SOFTVR_PT_object, SOFTVR_PT_scene)
+CLASSES = (SOFTVR_AddonPreferences, SOFTVR_OT_mark, SOFTVR_OT_pick_coupling, SOFTVR_OT_preview_tets, SOFTVR_OT_export,
+           SOFTVR_OT_check, SOFTVR_OT_play, SOFTVR_OT_cave_preview, SOFTVR_PT_object, SOFTVR_PT_scene)
 
 
 def register():
