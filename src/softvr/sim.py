@@ -141,7 +141,10 @@ class Scene:
         form the body's collision surface, which meets the other bodies' surfaces;
         ``collision_sphere`` [m] makes a rigid body a sphere of that radius about its centre,
         colliding with planes and the other sphere bodies; ``collision_box`` (3 half extents
-        [m]) makes it a box, colliding with planes and the other box bodies. ``adhesion`` makes
+        [m]) makes it a box, colliding with planes and the other box bodies. A body may have
+        both a primitive and a surface: the exact primitive meets the planes and the bodies
+        with the same primitive, its surface everything else (soft bodies, static spheres and
+        meshes, the other primitive). ``adhesion`` makes
         its surface adhesive (thesis ch. 4) where the other side is too
         (:func:`softvr.contact.combine`).
         """
@@ -246,11 +249,13 @@ class Scene:
             surface.refit()
         # Points that are vertices of a collision surface carry its vertex areas (thesis 4.3.1).
         areas = {id(s.points): s.vertex_area for s in self._surfaces}
+        primitive = {i: "sphere" for i, _ in self._sphere_bodies} | {i: "box" for i, _ in self._box_bodies}
         for c in self._colliders:
             v = c.points.velocities(v_free[c.body])
             a = areas.get(id(c.points))
-            out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a), p)
-                    for p in self.planes]
+            if c.body not in primitive:  # a primitive meets the planes exactly
+                out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a), p)
+                        for p in self.planes]
             out += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a), s)
                     for s in self.spheres]
             out += [(points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd,
@@ -266,6 +271,8 @@ class Scene:
             for k, sb in enumerate(self._surfaces[n + 1 :], n + 1):
                 if not self._pair_enabled(sa.body_index, sb.body_index):
                     continue
+                if primitive.get(sa.body_index, "a") == primitive.get(sb.body_index, "b"):
+                    continue  # two boxes or two spheres: their primitives meet exactly
                 if (boxes[n][0] > boxes[k][1]).any() or (boxes[k][0] > boxes[n][1]).any():
                     continue
                 va, vb = moving[n], moving[k]

@@ -102,3 +102,43 @@ def test_sphere_dropped_on_the_ground_rests_carried_by_its_weight():
     assert ball.position[2] == pytest.approx(0.05, abs=1e-6)
     assert abs(ball.v[2]) < 1e-6
     assert solution.impulses[0][:, 0].sum() == pytest.approx(ball.mass * 9.81 * 0.005, rel=1e-6)
+
+
+def test_a_primitive_with_a_surface_meets_planes_and_its_kind_exactly_and_the_rest_by_its_surface():
+    """Scene.add_body with a box collider and a box surface: on the ground only the box-plane
+    test makes contacts (4 corners, none from the surface's points), two such boxes meet box to
+    box, and a static sphere (which a box collider alone never meets) holds the box up through
+    its surface: at rest the vertex at its bottom face's centre lies on the sphere's top, so its
+    centre is at z = 2 r + h (points meet the sphere: the surface has one at the face centre)."""
+    from softvr.collision import Sphere
+    from softvr.model.shapes import box_surface
+
+    half = np.array([0.1, 0.1, 0.05])
+    vertices, triangles = box_surface(2 * half, 8)
+
+    def box(position):
+        body = RigidBody.box(2 * half, 500.0, position=position)
+        return body, dict(collision_box=half, collision_points=RigidPoints(body, vertices - half),
+                          collision_triangles=triangles)
+
+    scene = Scene(friction=0.6)
+    scene.add_plane(Plane(friction=0.6))
+    lower, options = box((0.0, 0.0, 0.05 + 1e-4))
+    scene.add_body(lower, **options)
+    upper, options = box((0.0, 0.0, 0.15 + 2e-4))
+    scene.add_body(upper, **options)
+    for _ in range(30):
+        solution = scene.step(0.01)
+    kinds = sorted(len(c.gap) for c in solution.contacts if len(c.gap))
+    assert kinds == [4, 4]  # box-plane and box-box: 4 corners each, no surface duplicates
+    np.testing.assert_allclose([lower.position[2], upper.position[2]], [0.05, 0.15], atol=5e-4)
+
+    r = 0.2
+    scene = Scene(friction=0.6)
+    scene.add_sphere(Sphere(center=(0.0, 0.0, r), radius=r, friction=0.6))
+    on_ball, options = box((0.0, 0.0, 2 * r + half[2] + 1e-3))
+    scene.add_body(on_ball, **options)
+    for _ in range(60):
+        scene.step(0.01)
+    # Its surface's points meet the sphere: the box rests on the sphere's top.
+    assert on_ball.position[2] == pytest.approx(2 * r + half[2], abs=2e-3)

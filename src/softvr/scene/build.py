@@ -3,10 +3,9 @@
 Each ``[[body]]`` becomes a contact object with its collision geometry and a drawn surface:
 
 =========  =====================================================================================
-rigid      box (box collider), sphere (sphere collider) or mesh (its vertices and triangles
-           collide; mass, centre and inertia of the closed mesh): of the material's density.
-           Box and sphere colliders meet planes and each other only, so in a scene with fem or
-           cloth bodies every rigid shape collides through its surface instead
+rigid      box or sphere (an exact box / sphere collider for planes and its own kind, and its
+           surface for everything else) or mesh (its vertices and triangles collide; mass,
+           centre and inertia of the closed mesh): of the material's density
 fem        box: a grid of ``cells``^3 cubes, 5 tets each; sphere (an icosphere) or mesh: the model
            pipeline's dynamics mesh (cubes of ``cells`` metres touching the surface) with the
            surface embedded in it; tets: a tet mesh file, its boundary the surface; co-rotational
@@ -193,7 +192,6 @@ class SceneExample(PhysicsExample):
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
         self.tools, self._driven = [], []
-        self._soft_scene = bool(scene_file.models) or scene_file.volume is not None or any(b.type in ("fem", "cloth") for b in scene_file.bodies)
         self.volume = None
         if scene_file.volume is not None:
             self._add_volume(scene, scene_file.volume)
@@ -316,13 +314,11 @@ class SceneExample(PhysicsExample):
                 collider = {"collision_sphere": spec.size}
                 unit, triangles = icosphere(spec.subdivisions)
                 local = unit * spec.size
-            if self._soft_scene or spec.surface_quads > 1 or spec.type == "tool":
-                # Box and sphere colliders meet only planes and each other: with soft bodies
-                # about, rigid shapes collide through their surface (points and triangles).
-                from softvr.dynamics import RigidPoints
+            from softvr.dynamics import RigidPoints
 
-                collider = {"collision_points": RigidPoints(body, local), "collision_triangles": triangles}
-            index = scene.add_body(body, adhesion=adhesion, **collider)
+            # The primitive meets planes and its kind exactly, the surface everything else.
+            index = scene.add_body(body, adhesion=adhesion, collision_points=RigidPoints(body, local),
+                                   collision_triangles=triangles, **collider)
             if spec.type == "tool":
                 self.tools.append(self._tool(scene, spec, body))
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
