@@ -300,7 +300,7 @@ def check_run_args(parser: argparse.ArgumentParser, args) -> None:
     """Reject a frame count below 1 and image sizes outside [1, 16384] (exits with status 2)."""
     if args.frames < 1:
         parser.error(f"--frames: expected an integer >= 1, got {args.frames}")
-    if args.png_every < 0:
+    if getattr(args, "png_every", 0) < 0:
         parser.error(f"--png-every: expected an integer >= 0, got {args.png_every}")
     if not all(1 <= s <= 16384 for s in args.size):
         parser.error(f"--size: expected two pixel counts in [1, 16384], got {args.size[0]} {args.size[1]}")
