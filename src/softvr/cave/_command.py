@@ -89,10 +89,11 @@ def resolve_places(args) -> None:
                          " ".join(places))
     args.scene = places[0]
     display = None
-    if Path(args.scene).suffix.lower() == ".toml":
-        from softvr.scene import bundled, read_scene  # noqa: PLC0415
+    suffix = Path(args.scene).suffix.lower()
+    from softvr.scene import bundled, has_softvr_bodies, read_any  # noqa: PLC0415
 
-        display = read_scene(bundled(args.scene)).display
+    if suffix == ".toml" or (suffix in (".gltf", ".glb") and has_softvr_bodies(args.scene)):
+        display = read_any(bundled(args.scene)).display
     if display is None:
         raise InputError("DISPLAY", "a display file or preset (the scene file has no [display] section)",
                          f"only the scene {args.scene!r}")

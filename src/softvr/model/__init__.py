@@ -23,7 +23,6 @@ from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import SeparationReport, push_apart
 from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
-from softvr.volume.tetmesh import save_tet_mesh  # noqa: F401  TEMPORARY, for a helper mid-change
 from softvr.model.tissue import CT_TISSUE, TetTissue, TissueTable, tet_tissue, tissue_fem_body, voxel_owners
 
 __all__ = ["CouplingSpec", "Model", "PartModel", "PartSpec", "PartsFile", "SeparationReport", "build_model",
