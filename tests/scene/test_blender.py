@@ -105,6 +105,7 @@ bpy.context.active_object["softvr_young"] = 5.0e4
 bpy.ops.mesh.primitive_cube_add(size=0.04, location=(0.3, 0.0, 0.3))
 bpy.context.active_object.name = "die"
 bpy.ops.softvr.mark(kind="rigid")
+bpy.ops.softvr.adhesive()
 bpy.ops.softvr.export(filepath=glb)
 sys.stdout.flush()
 os._exit(0)
@@ -126,6 +127,12 @@ def test_the_addon_installs_marks_and_exports_a_scene_that_checks_and_runs(tmp_p
         jelly, die = ex.bodies["jelly"], ex.bodies["die"]
         assert jelly.material.young == 5.0e4 and jelly.material.poisson == 0.4  # set, and the add-on's default
         assert die.mass == pytest.approx(1000.0 * 0.04**3, rel=1e-6)
+        # "Make adhesive": the add-on's default adhesion (wet tissue, thesis ch. 4) on the die only.
+        from softvr.contact import Adhesion
+
+        glue = ex.scene._adhesion[("body", ex.index["die"])]
+        assert vars(glue) == vars(Adhesion(stiffness=1e7, max_energy=0.4, viscosity=0.2, debond_gap=0.003))
+        assert ex.scene._adhesion[("body", ex.index["jelly"])] is None
         z0 = die.position[2]
         for _ in range(3):
             ex.step()

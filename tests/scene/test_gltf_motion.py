@@ -354,3 +354,27 @@ def test_softvr_tetmesh_refuses_a_missing_file_and_a_bad_cell_size(tmp_path, cap
     trimesh.creation.box((0.1, 0.1, 0.1)).export(tmp_path / "box.obj")
     assert main(["tetmesh", str(tmp_path / "box.obj"), "--cell-size", "0"]) == 2
     assert "--cell-size" in capsys.readouterr().err
+
+
+def test_adhesion_properties_make_the_same_adhesive_surfaces_as_toml(tmp_path):
+    """softvr_adhesion_* on a node and softvr_ground_adhesion_* on the scene: the bodies and the
+    ground get the softvr.contact.Adhesion of the equivalent [adhesion.NAME] tables; a missing
+    required parameter and an unknown one are named."""
+    sticky = {"stiffness": 1e7, "max_energy": 0.4, "viscosity": 0.2, "debond_gap": 0.003}
+    path = _glb(tmp_path / "sticky.glb", [
+        ("pad", (0.1, 0.1, 0.02), (0.0, 0.2, 0.0), {"softvr_type": "rigid", "softvr_density": 500.0,
+                                                   **{f"softvr_adhesion_{k}": v for k, v in sticky.items()}})],
+        scene_extras={**{f"softvr_ground_adhesion_{k}": v for k, v in sticky.items()}, "softvr_frames": 2})
+    scene = read_gltf_scene(path)
+    assert scene.adhesions == {"pad": sticky, "ground": sticky}
+    assert scene.body("pad").adhesion == "pad" and scene.planes[0]["adhesion"] == "ground"
+    from softvr.contact import Adhesion
+
+    with load_scene(path, frames=1) as ex:
+        assert vars(ex.scene._adhesion[("body", ex.index["pad"])]) == vars(Adhesion(**sticky))
+    bad = _glb(tmp_path / "bad.glb", [
+        ("pad", (0.1, 0.1, 0.02), (0.0, 0.2, 0.0), {"softvr_type": "rigid", "softvr_adhesion_stiffness": 1e7,
+                                                   "softvr_adhesion_max_energy": 0.4, "softvr_adhesion_glue": 1.0})])
+    with pytest.raises(InputError) as err:
+        read_gltf_scene(bad)
+    assert "node 'pad'.adhesion.viscosity" in str(err.value) and "node 'pad'.adhesion.glue" in str(err.value)

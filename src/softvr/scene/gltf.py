@@ -27,10 +27,15 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
 ``softvr_coupling_radius``    [m] springs at this body's nodes within it of the other's surface
                               (fem, cloth) ...
 ``softvr_coupling_points``    ... or at these world points: x0, y0, z0, x1, ... [m] (any body)
+``softvr_adhesion_stiffness`` [N/m^3]: the surface is adhesive (thesis ch. 4); with
+                              ``softvr_adhesion_max_energy`` [J/m^2], ``..._viscosity`` (all
+                              three required) and optional ``..._bonding_rate``,
+                              ``..._saturation``, ``..._initial``, ``..._debond_gap`` [m]
 ============================  ================================================================
 
 Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
-``softvr_friction``, ``softvr_ground`` (true: a ground plane at z = 0), ``softvr_display`` (the
+``softvr_friction``, ``softvr_ground`` (true: a ground plane at z = 0; ``softvr_ground_adhesion_*``
+as a node's ``softvr_adhesion_*`` make it adhesive), ``softvr_display`` (the
 screens it is shown on: a :mod:`softvr.cave` preset or a display file), ``softvr_start_time``
 [s] (the animation time that is the simulation's t = 0; default: the first key of the
 kinematic bodies' and tools' animations). Each node's mesh is taken in world coordinates (its
@@ -314,7 +319,7 @@ def read_gltf_scene(path) -> SceneFile:
     nodes = doc.get("nodes", [])
     parent = {child: i for i, node in enumerate(nodes) for child in node.get("children", [])}
     loaded = trimesh.load(path, force="scene")
-    materials, bodies, couplings, moving, named = {}, [], [], [], {}
+    materials, adhesions, bodies, couplings, moving, named = {}, {}, [], [], [], {}
     for i, node in enumerate(nodes):
         props = _properties(node.get("extras"))
         if not props:
@@ -349,6 +354,10 @@ def read_gltf_scene(path) -> SceneFile:
                 "alpha": errors.number(props, "alpha", where, default=0.0, minimum=0.0, unit="1/s"),
                 "beta": errors.number(props, "beta", where, default=0.0, minimum=0.0, unit="s")}
             spec.material = name
+        sticky = _adhesion(props, "adhesion_", where, errors)
+        if sticky is not None:
+            adhesions[name] = sticky
+            spec.adhesion = name
         if kind == "fem":
             spec.cells = errors.number(props, "cells", where, default=0.02, positive=True, unit="m")
         if "fixed_below" in props:
@@ -410,15 +419,27 @@ def read_gltf_scene(path) -> SceneFile:
                        "kinematic to hold it still)", f"{other!r}, a fixed object")
     if not bodies:
         errors.add("nodes", "at least one node with a softvr_type custom property", "none")
-    errors.raise_if_any()
     ground = scene_props.get("ground", True)
+    ground_adhesion = _adhesion(scene_props, "ground_adhesion_", "scene", errors)
+    errors.raise_if_any()
+    if ground_adhesion is not None:
+        adhesions["ground"] = ground_adhesion
     planes = [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": simulation["friction"],
-               "size": 3.0, "adhesion": None}] if ground else []
+               "size": 3.0, "adhesion": None if ground_adhesion is None else "ground"}] if ground else []
     return SceneFile(path=path, simulation=simulation,
                      render={"size": (640, 480), "camera": "iso", "bounds": None, "azimuth": 0.0, "elevation": 0.0,
                              "zoom": 1.0},
-                     materials=materials, adhesions={}, planes=planes, spheres=[], bodies=bodies, filters=[],
+                     materials=materials, adhesions=adhesions, planes=planes, spheres=[], bodies=bodies, filters=[],
                      couplings=[c for _, c in couplings], display=display)
+
+
+def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | None:
+    """The :class:`softvr.contact.Adhesion` parameters of the ``softvr_<prefix>*`` extras, or
+    None when there are none."""
+    from softvr.scene.schema import adhesion_parameters
+
+    table = {k[len(prefix):]: v for k, v in props.items() if k.startswith(prefix)}
+    return adhesion_parameters(table, f"{where}.{prefix.rstrip('_')}", errors) if table else None
 
 
 def _display(scene_props: dict, folder: Path, errors: Problems) -> str | None:

@@ -144,7 +144,7 @@ from pathlib import Path
 from softvr.errors import Problems, read_toml
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "read_scene"]
+__all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "adhesion_parameters", "read_scene"]
 
 FORMAT = "softvr-scene 1"
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
@@ -298,16 +298,19 @@ def _materials(doc: dict, errors: Problems) -> dict:
 
 
 def _adhesions(doc: dict, errors: Problems) -> dict:
-    out = {}
-    for name, t in _named_tables(doc, "adhesion", errors).items():
-        w = f"adhesion.{name}"
-        unknown = sorted(set(t) - set(_ADHESION_KEYS))
-        if unknown:
-            errors.add(f"{w}.{unknown[0]}", f"one of {', '.join(_ADHESION_KEYS)}", unknown[0])
-        # stiffness, max_energy and viscosity have no default (softvr.contact.Adhesion).
-        required = ("stiffness", "max_energy", "viscosity")
-        out[name] = {k: errors.number(t, k, w, minimum=0.0) for k in _ADHESION_KEYS if k in t or k in required}
-    return out
+    return {name: adhesion_parameters(t, f"adhesion.{name}", errors)
+            for name, t in _named_tables(doc, "adhesion", errors).items()}
+
+
+def adhesion_parameters(t: dict, w: str, errors: Problems) -> dict:
+    """:class:`softvr.contact.Adhesion` keyword arguments from a table (``[adhesion.NAME]``, or
+    a glTF node's ``softvr_adhesion_*`` extras), every problem named under ``w``."""
+    unknown = sorted(set(t) - set(_ADHESION_KEYS))
+    if unknown:
+        errors.add(f"{w}.{unknown[0]}", f"one of {', '.join(_ADHESION_KEYS)}", unknown[0])
+    # stiffness, max_energy and viscosity have no default (softvr.contact.Adhesion).
+    required = ("stiffness", "max_energy", "viscosity")
+    return {k: errors.number(t, k, w, minimum=0.0) for k in _ADHESION_KEYS if k in t or k in required}
 
 
 def _ref(table: dict, key: str, where: str, known: dict | set, what: str, errors: Problems, *, required=False):

@@ -50,6 +50,9 @@ DEFAULTS = {
 SCENE_DEFAULTS = {"softvr_dt": 0.005, "softvr_steps_per_frame": 4, "softvr_frames": 100, "softvr_friction": 0.5,
                   "softvr_display": "cube"}
 PREVIEW_IMAGE = "softvr CAVE preview"
+#: Adhesion a surface gets with "Make adhesive" (softvr.contact.Adhesion; wet tissue, thesis ch. 4).
+ADHESION_DEFAULTS = {"softvr_adhesion_stiffness": 1.0e7, "softvr_adhesion_max_energy": 0.4,
+                     "softvr_adhesion_viscosity": 0.2, "softvr_adhesion_debond_gap": 0.003}
 
 
 def _softvr_command(context):
@@ -217,6 +220,29 @@ class SOFTVR_OT_preview_tets(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class SOFTVR_OT_adhesive(bpy.types.Operator):
+    """Make the selected bodies' surfaces adhesive (or, with Off, not)"""
+    bl_idname = "softvr.adhesive"
+    bl_label = "Make adhesive"
+    bl_options = {"REGISTER", "UNDO"}
+    on: bpy.props.BoolProperty(name="On", default=True)
+
+    def execute(self, context):
+        changed = 0
+        for obj in context.selected_objects:
+            if "softvr_type" not in obj:
+                continue
+            if self.on:
+                for key, value in ADHESION_DEFAULTS.items():
+                    obj[key] = obj.get(key, value)
+            else:
+                for key in [k for k in obj.keys() if k.startswith("softvr_adhesion_")]:
+                    del obj[key]
+            changed += 1
+        self.report({"INFO"}, f"softvr: {changed} bodies {'adhesive' if self.on else 'not adhesive'}")
+        return {"FINISHED"}
+
+
 class SOFTVR_OT_export(bpy.types.Operator, ExportHelper):
     """Export the scene as a softvr scene (glTF binary with softvr extras)"""
     bl_idname = "softvr.export"
@@ -291,6 +317,9 @@ class SOFTVR_PT_object(bpy.types.Panel):
         row = layout.row()
         row.operator("softvr.pick_coupling")
         row.operator("softvr.preview_tets")
+        row = layout.row(align=True)
+        row.operator("softvr.adhesive", text="Make adhesive").on = True
+        row.operator("softvr.adhesive", text="Not adhesive").on = False
         if obj is None:
             return
         for key in sorted(k for k in obj.keys() if k.startswith("softvr_")):
@@ -314,8 +343,8 @@ class SOFTVR_PT_scene(bpy.types.Panel):
         layout.operator("softvr.cave_preview")
 
 
-CLASSES = (SOFTVR_AddonPreferences, SOFTVR_OT_mark, SOFTVR_OT_pick_coupling, SOFTVR_OT_preview_tets, SOFTVR_OT_export,
-           SOFTVR_OT_check, SOFTVR_OT_play, SOFTVR_OT_cave_preview, SOFTVR_PT_object, SOFTVR_PT_scene)
+CLASSES = (SOFTVR_AddonPreferences, SOFTVR_OT_mark, SOFTVR_OT_adhesive, SOFTVR_OT_pick_coupling, SOFTVR_OT_preview_tets,
+           SOFTVR_OT_export, SOFTVR_OT_check, SOFTVR_OT_play, SOFTVR_OT_cave_preview, SOFTVR_PT_object, SOFTVR_PT_scene)
 
 
 def register():
