@@ -8,7 +8,7 @@ file with those errors for a missing file or bad syntax.
 
 from __future__ import annotations
 
-__all__ = ["InputError", "SimulationError", "SoftvrError", "raise_all", "read_toml"]
+__all__ = ["InputError", "Problems", "SimulationError", "SoftvrError", "raise_all", "read_toml", "with_unit"]
 
 
 class SoftvrError(Exception):
@@ -32,6 +32,8 @@ class InputError(SoftvrError, ValueError):
 
     def __init__(self, what: str, expected: str, found: str, source: str | None = None):
         self.what, self.expected, self.found, self.source = what, expected, found, source
+        #: Every ``(what, expected, found)`` of a file reported at once (:func:`raise_all`).
+        self.problems = [(what, expected, found)]
         where = f"{source}: " if source else ""
         super().__init__(f"{where}{what}: expected {expected}, found {found}")
 
@@ -47,9 +49,12 @@ def raise_all(problems: list, source: str | None, kind: str) -> None:
     if not problems:
         return
     if len(problems) == 1:
-        raise InputError(*problems[0], source=source)
-    lines = "; ".join(f"{w}: expected {e}, found {f}" for w, e, f in problems)
-    raise InputError(f"{len(problems)} problems", f"a valid {kind}", lines, source=source)
+        error = InputError(*problems[0], source=source)
+    else:
+        lines = "".join(f"\n  - {w}: expected {e}, found {f}" for w, e, f in problems)
+        error = InputError(f"{len(problems)} problems", f"a valid {kind}", lines, source=source)
+    error.problems = list(problems)
+    raise error
 
 
 def read_toml(path, kind: str) -> dict:
@@ -66,10 +71,67 @@ def read_toml(path, kind: str) -> dict:
         raise InputError("TOML", "valid TOML", str(exc), source=str(path)) from None
 
 
+#: Units people write in input files, as (factor to SI, the SI unit softvr reads): how a
+#: number written with a unit is reported (softvr files hold bare SI numbers).
+_UNITS = {
+    "m": (1.0, "m"), "cm": (1e-2, "m"), "mm": (1e-3, "m"), "um": (1e-6, "m"), "µm": (1e-6, "m"), "km": (1e3, "m"),
+    "in": (0.0254, "m"), "ft": (0.3048, "m"),
+    "s": (1.0, "s"), "ms": (1e-3, "s"), "us": (1e-6, "s"), "µs": (1e-6, "s"), "min": (60.0, "s"),
+    "kg": (1.0, "kg"), "g": (1e-3, "kg"),
+    "Pa": (1.0, "Pa"), "kPa": (1e3, "Pa"), "MPa": (1e6, "Pa"), "GPa": (1e9, "Pa"), "psi": (6894.757, "Pa"),
+    "N/m^2": (1.0, "Pa"), "N/mm^2": (1e6, "Pa"),
+    "kg/m^3": (1.0, "kg/m^3"), "kg/m3": (1.0, "kg/m^3"), "g/cm^3": (1e3, "kg/m^3"), "g/cm3": (1e3, "kg/m^3"),
+    "g/cc": (1e3, "kg/m^3"), "g/ml": (1e3, "kg/m^3"), "kg/l": (1e3, "kg/m^3"),
+    "kg/m^2": (1.0, "kg/m^2"), "g/m^2": (1e-3, "kg/m^2"), "g/cm^2": (10.0, "kg/m^2"),
+    "N": (1.0, "N"), "mN": (1e-3, "N"), "kN": (1e3, "N"),
+    "N/m": (1.0, "N/m"), "N/mm": (1e3, "N/m"), "N/cm": (1e2, "N/m"),
+    "N s/m": (1.0, "N s/m"), "Ns/m": (1.0, "N s/m"),
+    "m/s": (1.0, "m/s"), "cm/s": (1e-2, "m/s"), "mm/s": (1e-3, "m/s"), "km/h": (1 / 3.6, "m/s"),
+    "m/s^2": (1.0, "m/s^2"), "m/s2": (1.0, "m/s^2"),
+    "rad/s": (1.0, "rad/s"), "deg/s": (0.017453292519943295, "rad/s"), "rpm": (0.10471975511965977, "rad/s"),
+    "deg": (1.0, "deg"), "°": (1.0, "deg"), "rad": (57.29577951308232, "deg"),
+    "1/s": (1.0, "1/s"), "Hz": (1.0, "1/s"),
+    "J/m^2": (1.0, "J/m^2"), "N/m^3": (1.0, "N/m^3"),
+}
+_QUANTITY = {"m": "a length", "s": "a time", "kg": "a mass", "Pa": "a pressure (stress)", "kg/m^3": "a density",
+             "kg/m^2": "an area density", "N": "a force", "N/m": "a stiffness", "N s/m": "a damping",
+             "m/s": "a speed", "m/s^2": "an acceleration", "rad/s": "an angular speed", "deg": "an angle",
+             "1/s": "a rate", "J/m^2": "an energy per area", "N/m^3": "a stiffness per area"}
+
+
+def with_unit(value, unit: str) -> str | None:
+    """What to tell someone who wrote ``value`` (e.g. ``"5 mm"``) where softvr reads a bare
+    number in ``unit`` (e.g. ``"m"``): the SI number to write instead, or that the unit is of
+    another quantity; None when ``value`` is not a number with a unit."""
+    import math
+    import re
+
+    if not isinstance(value, str):
+        return None
+    match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S.*?)\s*", value)
+    if match is None:
+        return None
+    number, written = float(match.group(1)), match.group(2).replace(" ", "").replace("·", "").replace("*", "")
+    known = {k.replace(" ", ""): v for k, v in _UNITS.items()}
+    if written not in known or not math.isfinite(number):
+        return f"{value!r} (softvr files hold bare numbers in SI units: [{unit}])"
+    factor, si = known[written]
+    if si != unit:
+        what = _QUANTITY.get(si, si)
+        return f"{value!r}: {what} [{si}], not [{unit}] (softvr files hold bare numbers in SI units)"
+    return f"{value!r} (softvr files hold bare numbers in SI units: write {number * factor:.6g} [{unit}])"
+
+
 class Problems:
     """Every problem of an input file, collected while reading it and raised together
     (:func:`raise_all`). Getters read one field of a TOML table, check it and record what
-    is wrong under its field path (``body[2].young``); they return None for a bad value."""
+    is wrong under its field path (``body[2].young``); they return None for a bad value.
+
+    Numbers are SI. A number written with a unit (``"5 mm"``) is reported with the SI number
+    to write instead (:func:`with_unit`); ``plausible = (low, high)`` bounds a number to what
+    it can be in its SI unit, so that one given in other units (a density in g/cm^3, a time
+    step in ms, a size in mm) is reported, not simulated.
+    """
 
     def __init__(self, source: str | None, kind: str):
         self.source, self.kind, self.items = source, kind, []
@@ -81,8 +143,9 @@ class Problems:
         raise_all(self.items, self.source, self.kind)
 
     def number(self, table: dict, key: str, where: str, *, default=None, positive=False, minimum=None,
-               maximum=None, unit: str = "") -> float | None:
-        """A finite number (``> 0`` with ``positive``, in ``[minimum, maximum)``)."""
+               maximum=None, unit: str = "", plausible: tuple | None = None) -> float | None:
+        """A finite number (``> 0`` with ``positive``, in ``[minimum, maximum)``, within
+        ``plausible`` (class docstring))."""
         import math
 
         value = table.get(key, default)
@@ -96,7 +159,12 @@ class Problems:
             bounds = "> 0" if positive else (f">= {minimum}" if minimum is not None else "finite")
             if maximum is not None:
                 bounds += f" and < {maximum}"
-            self.add(f"{where}.{key}", f"a number {bounds} [{unit}]".replace(" []", ""), value)
+            self.add(f"{where}.{key}", f"a number {bounds} [{unit}]".replace(" []", ""),
+                     with_unit(value, unit) or value)
+            return None
+        if plausible is not None and not plausible[0] <= value <= plausible[1]:
+            self.add(f"{where}.{key}", f"{_QUANTITY.get(unit, 'a number')} in SI units, {plausible[0]:g} .. "
+                     f"{plausible[1]:g} [{unit}]", f"{value!r} (in other units?)")
             return None
         return float(value)
 
@@ -107,16 +175,24 @@ class Problems:
             return None
         return value
 
-    def vector(self, table: dict, key: str, where: str, size: int = 3, *, default=None, unit: str = ""):
-        """A list of ``size`` finite numbers, as a tuple of floats."""
+    def vector(self, table: dict, key: str, where: str, size: int = 3, *, default=None, unit: str = "",
+               plausible: tuple | None = None):
+        """A list of ``size`` finite numbers, as a tuple of floats; each within ``plausible``
+        (class docstring)."""
         import math
 
         value = table.get(key, default)
         ok = isinstance(value, (list, tuple)) and len(value) == size and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
         if not ok:
+            written = next((w for v in value if (w := with_unit(v, unit))), None) \
+                if isinstance(value, (list, tuple)) and unit else None
             self.add(f"{where}.{key}", f"{size} numbers [{unit}]".replace(" []", ""),
-                     value if value is not None else "nothing")
+                     written or (value if value is not None else "nothing"))
+            return None
+        if plausible is not None and not all(plausible[0] <= v <= plausible[1] for v in value):
+            self.add(f"{where}.{key}", f"{size} numbers, each {_QUANTITY.get(unit, 'a number')} in SI units, "
+                     f"{plausible[0]:g} .. {plausible[1]:g} [{unit}]", f"{list(value)!r} (in other units?)")
             return None
         return tuple(float(v) for v in value)
 

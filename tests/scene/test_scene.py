@@ -66,6 +66,92 @@ stiffness = 100.0
     assert "body[1].mesh" in err and "Traceback" not in err
 
 
+def test_one_check_reports_every_kind_of_problem_with_the_intersecting_start(tmp_path, capsys):
+    """A missing mesh file, an unknown body type, numbers in other units (with a unit, or out
+    of what SI values can be), a coupling to a missing object and two boxes that start
+    crossing: one `softvr check` names them all (the boxes are built although other bodies
+    are broken)."""
+    path = _write(tmp_path, '''
+[simulation]
+dt = 5
+[material.gel]
+young = "20 kPa"
+density = 1.05
+[material.wood]
+density = 600.0
+[[plane]]
+[[body]]
+name = "organ"
+type = "fem"
+mesh = "organ.stl"
+cells = 0.01
+material = "wood"
+[[body]]
+name = "thing"
+type = "blob"
+sphere = 0.1
+[[body]]
+name = "big"
+type = "rigid"
+box = [100, 100, 100]
+material = "wood"
+[[body]]
+name = "left"
+type = "rigid"
+box = [0.2, 0.2, 0.2]
+material = "wood"
+position = [0.0, 0.0, 0.15]
+[[body]]
+name = "right"
+type = "rigid"
+box = [0.2, 0.2, "20 cm"]
+material = "wood"
+position = [0.15, 0.05, 0.2]
+[[body]]
+name = "crossing"
+type = "rigid"
+box = [0.2, 0.2, 0.2]
+material = "wood"
+position = [0.1, -0.05, 0.2]
+[[coupling]]
+a = "left"
+b = "ghost"
+points = [[0.0, 0.0, 0.3]]
+stiffness = 100.0
+''')
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    expected = {
+        "missing mesh file": ("body[0].mesh", "organ.stl"),
+        "unknown body type": ("body[1].type", "found blob"),
+        "a step in ms": ("simulation.dt", "0.1 [s]", "5 (in other units?)"),
+        "a unit in a string": ("material.gel.young", "'20 kPa'", "write 20000 [Pa]"),
+        "a density in g/cm^3": ("material.gel.density", "1.05 (in other units?)"),
+        "a size in mm": ("body[2].box", "[100, 100, 100]"),
+        "a size with a unit": ("body[4].box", "write 0.2 [m]"),
+        "coupling to a missing object": ("coupling[0].b", "ghost"),
+        "intersecting start": ("bodies 'left' and 'crossing'", "crossing triangle pairs"),
+    }
+    for what, fragments in expected.items():
+        assert all(f in err for f in fragments), (what, err)
+    assert "9 problems" in err and "Traceback" not in err
+    # The broken bodies were left out of the geometric check, not reported as crossing.
+    assert "'right'" not in err and "'big'" not in err
+
+
+def test_numbers_written_with_units_are_told_their_si_value():
+    from softvr.errors import with_unit
+
+    # Conversions by hand: 5 mm = 0.005 m, 1.05 g/cm^3 = 1050 kg/m^3, 2 N/mm = 2000 N/m, 90 deg/s = pi/2 rad/s.
+    assert "write 0.005 [m]" in with_unit("5 mm", "m")
+    assert "write 1050 [kg/m^3]" in with_unit("1.05 g/cm^3", "kg/m^3")
+    assert "write 2000 [N/m]" in with_unit("2 N/mm", "N/m")
+    assert "write 1.5708 [rad/s]" in with_unit("90 deg/s", "rad/s")
+    assert "a mass [kg], not [m]" in with_unit("3 kg", "m")
+    assert "bare numbers in SI units: [m]" in with_unit("3 furlongs", "m")
+    assert with_unit("fast", "s") is None and with_unit(5.0, "s") is None
+
+
 def test_bodies_are_built_with_the_files_parameters(tmp_path):
     path = _write(tmp_path, '''
 [simulation]

@@ -15,13 +15,26 @@ def check_main(argv: list[str] | None = None) -> int:
     p.add_argument("scene", metavar="SCENE",
                    help="scene file (TOML, softvr-scene 1; or glTF / GLB with softvr extras), or a bundled one's name")
     args = p.parse_args(argv)
-    from softvr.errors import raise_all
+    from softvr.errors import InputError, raise_all
     from softvr.scene import SceneExample
+    from softvr.scene.schema import read_scene_with_problems
 
-    scene = read_any(bundled(args.scene))
-    # The geometry too: bodies that start inside each other or below the ground.
-    with SceneExample(scene, frames=1) as example:
-        raise_all(example.start_problems(), str(scene.path), "scene (collision-free start)")
+    path = bundled(args.scene)
+    if path.suffix.lower() in (".gltf", ".glb"):
+        scene, problems = read_any(path), []
+    else:
+        scene, problems = read_scene_with_problems(path)
+    # The geometry too, of what is valid: bodies that start inside each other or below the
+    # ground, reported with the file's other problems.
+    if scene.bodies or scene.models or scene.volume is not None:
+        try:
+            with SceneExample(scene, frames=1) as example:
+                problems = problems + example.start_problems()
+        except InputError as exc:
+            if not problems:
+                raise
+            problems = problems + [(exc.what, exc.expected, exc.found)]
+    raise_all(problems, str(scene.path), "scene file")
     kinds = {}
     for b in scene.bodies:
         kinds[b.type] = kinds.get(b.type, 0) + 1

@@ -134,6 +134,11 @@
 Every error names the file, the field path (``body[2].material``), what was expected and what
 was found, all of a file's errors at once: missing mesh files, unknown body types, numbers out
 of range or of the wrong kind, references to materials, adhesions or bodies that do not exist.
+Numbers are SI, bare: one written with a unit (``box = [0.2, 0.2, "20 cm"]``) is reported with
+the SI number to write, and a time step, density, Young's modulus or body size outside what it
+can be in SI units (:data:`PLAUSIBLE`: a step in ms, a density in g/cm^3, a size in mm) is
+reported, not simulated. ``softvr check`` also builds the valid rest
+(:func:`read_scene_with_problems`) and reports bodies that start crossing, with the others.
 """
 
 from __future__ import annotations
@@ -141,10 +146,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from softvr.errors import Problems, read_toml
+from softvr.errors import Problems, raise_all, read_toml
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_TYPES", "FORMAT", "BodySpec", "SceneFile", "adhesion_parameters", "read_scene"]
+__all__ = ["BODY_TYPES", "FORMAT", "PLAUSIBLE", "BodySpec", "SceneFile", "adhesion_parameters", "read_scene",
+           "read_scene_with_problems"]
 
 FORMAT = "softvr-scene 1"
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
@@ -153,6 +159,13 @@ _SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", 
            "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
 _SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
 _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "saturation", "initial", "debond_gap")
+#: What a value can be in its SI unit (:class:`softvr.errors.Problems`): outside, it was most
+#: likely written in other units (a step in ms, a density in g/cm^3, a stiffness in MPa, a
+#: size in mm) and is reported instead of simulated.
+PLAUSIBLE = {"dt": (1e-7, 0.1),            # [s] a contact simulation's step
+             "density": (10.0, 30000.0),   # [kg/m^3] foams .. osmium
+             "young": (1.0, 1e12),          # [Pa] hydrogels .. diamond
+             "size": (0.0, 50.0)}           # [m] a body's box edges, sphere radius, cloth sides
 
 
 @dataclass
@@ -236,7 +249,7 @@ def _list(doc: dict, key: str, errors: Problems) -> list:
 def _simulation(doc: dict, errors: Problems) -> dict:
     t = doc.get("simulation", {})
     w = "simulation"
-    out = {"dt": errors.number(t, "dt", w, default=0.005, positive=True, unit="s"),
+    out = {"dt": errors.number(t, "dt", w, default=0.005, positive=True, unit="s", plausible=PLAUSIBLE["dt"]),
            "steps_per_frame": errors.integer(t, "steps_per_frame", w, default=4, minimum=1),
            "frames": errors.integer(t, "frames", w, default=100, minimum=1),
            "gravity": errors.vector(t, "gravity", w, default=[0.0, 0.0, -9.81], unit="m/s^2"),
@@ -289,9 +302,11 @@ def _materials(doc: dict, errors: Problems) -> dict:
     out = {}
     for name, t in _named_tables(doc, "material", errors).items():
         w = f"material.{name}"
-        out[name] = {"young": errors.number(t, "young", w, default=1e5, positive=True, unit="Pa"),
+        out[name] = {"young": errors.number(t, "young", w, default=1e5, positive=True, unit="Pa",
+                                            plausible=PLAUSIBLE["young"]),
                      "poisson": errors.number(t, "poisson", w, default=0.3, minimum=-0.99, maximum=0.5),
-                     "density": errors.number(t, "density", w, default=1000.0, positive=True, unit="kg/m^3"),
+                     "density": errors.number(t, "density", w, default=1000.0, positive=True, unit="kg/m^3",
+                                              plausible=PLAUSIBLE["density"]),
                      "alpha": errors.number(t, "alpha", w, default=0.0, minimum=0.0, unit="1/s"),
                      "beta": errors.number(t, "beta", w, default=0.0, minimum=0.0, unit="s")}
     return out
@@ -340,13 +355,13 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     else:
         shape = given[0]
         if shape == "box":
-            size = errors.vector(t, "box", w, unit="m")
+            size = errors.vector(t, "box", w, unit="m", plausible=PLAUSIBLE["size"])
             if size is not None and min(size) <= 0:
                 errors.add(f"{w}.box", "3 edge lengths > 0 [m]", list(size))
         elif shape == "sphere":
-            size = errors.number(t, "sphere", w, positive=True, unit="m")
+            size = errors.number(t, "sphere", w, positive=True, unit="m", plausible=PLAUSIBLE["size"])
         elif shape == "cloth":
-            size = errors.vector(t, "cloth", w, 2, unit="m")
+            size = errors.vector(t, "cloth", w, 2, unit="m", plausible=PLAUSIBLE["size"])
         else:
             mesh = _file(t, shape, w, scene_dir, MESH_SUFFIXES if shape == "mesh" else TET_MESH_SUFFIXES,
                          "a mesh file" if shape == "mesh" else "a tet mesh file", errors)
@@ -472,6 +487,27 @@ def _keyframes(t, w: str, key: str, errors: Problems) -> dict:
 def read_scene(path) -> SceneFile:
     """Read and validate a scene file (module docstring); mesh paths are resolved against its
     folder and must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
+    scene, problems = read_scene_with_problems(path)
+    raise_all(problems, str(path), "scene file")
+    return scene
+
+
+def _complete(table: dict, defaults: dict) -> dict:
+    """``table`` with its bad (None) values replaced by ``defaults``'."""
+    return {k: defaults[k] if v is None and k in defaults else v for k, v in table.items()}
+
+
+def read_scene_with_problems(path) -> tuple[SceneFile, list]:
+    """A scene file's problems, and the scene without the parts that have one.
+
+    Returns the :class:`SceneFile` with every body, plane, sphere, model, volume, filter and
+    coupling that has a problem left out (bad simulation, render and material numbers take
+    their defaults, bodies keep their geometry), and the ``(what, expected, found)`` problems
+    of the whole file: so that ``softvr check`` can also build what is valid and report
+    bodies that start crossing, together with everything else. A coupling with a problem
+    still excuses its two bodies from colliding (as a filter), as it would when mended.
+    A missing file or bad TOML raises :class:`~softvr.errors.InputError` (nothing to check).
+    """
     path = Path(path)
     doc = read_toml(path, "scene file")
     errors = Problems(str(path), "scene file")
@@ -481,43 +517,63 @@ def read_scene(path) -> SceneFile:
              "model", "volume", "display", "light"}
     for key in sorted(set(doc) - known):
         errors.add(key, f"one of {', '.join(sorted(known))}", key)
-    simulation, render = _simulation(doc, errors), _render(doc, errors)
-    materials, adhesions = _materials(doc, errors), _adhesions(doc, errors)
+    defaults = Problems(None, "defaults")
+    simulation = _complete(_simulation(doc, errors), _simulation({}, defaults))
+    render = _complete(_render(doc, errors), _render({}, defaults))
+    material_default = _materials({"material": {"_": {}}}, defaults)["_"]
+    materials = {k: _complete(v, material_default) for k, v in _materials(doc, errors).items()}
+    adhesions = {k: v for k, v in _adhesions(doc, errors).items() if None not in v.values()}
+
+    def counted(read, *args):
+        """``read(*args)`` and whether it found a problem."""
+        before = len(errors.items)
+        out = read(*args)
+        return out, len(errors.items) > before
+
     planes = []
     for i, t in enumerate(_list(doc, "plane", errors)):
         w = f"plane[{i}]"
-        planes.append({"point": errors.vector(t, "point", w, default=[0.0, 0.0, 0.0], unit="m"),
-                       "normal": errors.vector(t, "normal", w, default=[0.0, 0.0, 1.0]),
-                       "friction": errors.number(t, "friction", w, default=simulation["friction"] or 0.5, minimum=0.0),
-                       "size": errors.number(t, "size", w, default=3.0, positive=True, unit="m"),
-                       "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
+        plane, bad = counted(lambda: {
+            "point": errors.vector(t, "point", w, default=[0.0, 0.0, 0.0], unit="m"),
+            "normal": errors.vector(t, "normal", w, default=[0.0, 0.0, 1.0]),
+            "friction": errors.number(t, "friction", w, default=simulation["friction"], minimum=0.0),
+            "size": errors.number(t, "size", w, default=3.0, positive=True, unit="m"),
+            "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
+        planes += [] if bad else [plane]
     spheres = []
     for i, t in enumerate(_list(doc, "sphere", errors)):
         w = f"sphere[{i}]"
-        spheres.append({"center": errors.vector(t, "center", w, unit="m"),
-                        "radius": errors.number(t, "radius", w, positive=True, unit="m"),
-                        "friction": errors.number(t, "friction", w, default=simulation["friction"] or 0.5, minimum=0.0),
-                        "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
-    models = [_model(i, t, path.parent, errors) for i, t in enumerate(_list(doc, "model", errors))]
-    names = {name for m in models for name in m["parts"]}
-    volume = _volume(doc["volume"], path.parent, errors) if "volume" in doc else None
+        sphere, bad = counted(lambda: {
+            "center": errors.vector(t, "center", w, unit="m"),
+            "radius": errors.number(t, "radius", w, positive=True, unit="m"),
+            "friction": errors.number(t, "friction", w, default=simulation["friction"], minimum=0.0),
+            "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
+        spheres += [] if bad else [sphere]
+    raw_models = [counted(_model, i, t, path.parent, errors) for i, t in enumerate(_list(doc, "model", errors))]
+    models = [m for m, bad in raw_models if not bad]
+    names = {name for m, _ in raw_models for name in m["parts"]}
+    volume, bad_volume = counted(_volume, doc["volume"], path.parent, errors) if "volume" in doc else (None, False)
     display = _display(doc["display"], path.parent, errors) if "display" in doc else None
     if volume is not None:
         names.add(volume["name"])
-    bodies = []
+    bodies, bad_bodies = [], set()
     raw_bodies = _list(doc, "body", errors)
     for i, t in enumerate(raw_bodies):
-        spec = _body(i, t, path.parent, materials, adhesions, errors)
+        spec, bad = counted(_body, i, t, path.parent, materials, adhesions, errors)
         if spec.name in names:
             errors.add(f"body[{i}].name", "a name no other body has", spec.name)
+            bad = True
         names.add(spec.name)
         bodies.append(spec)
-    if not raw_bodies and not planes and not spheres and not models and volume is None:
+        if bad:
+            bad_bodies.add(i)
+    if not raw_bodies and not planes and not spheres and not raw_models and volume is None:
         errors.add("body", "at least one [[body]]", "none")
     for i, spec in enumerate(bodies):
         for other in spec.collides_with or ():
             if other not in names:
                 errors.add(f"body[{i}].collides_with", f"names of bodies ({', '.join(sorted(names))})", repr(other))
+                bad_bodies.add(i)
     filters = []
     for i, t in enumerate(_list(doc, "filter", errors)):
         ends = [_ref(t, side, f"filter[{i}]", names, "body", errors, required=True) for side in ("a", "b")]
@@ -525,11 +581,19 @@ def read_scene(path) -> SceneFile:
     parts = {name: kind for m in models for name, kind in m["parts"].items()}
     if volume is not None:
         parts[volume["name"]] = "soft"
-    couplings = [_coupling(i, t, bodies, parts, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
-    errors.raise_if_any()
-    return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
-                     planes=planes, spheres=spheres, bodies=bodies, filters=filters, couplings=couplings, models=models,
-                     volume=volume, display=display)
+    couplings = [counted(_coupling, i, t, bodies, parts, errors) for i, t in enumerate(_list(doc, "coupling", errors))]
+    # What is left to build: the parts without problems, and what refers only to them.
+    kept = [b for i, b in enumerate(bodies) if i not in bad_bodies]
+    present = {b.name for b in kept} | {name for m in models for name in m["parts"]}
+    if volume is not None and not bad_volume:
+        present.add(volume["name"])
+    filters += [(c["a"], c["b"]) for c, bad in couplings if bad and not c["collide"]]
+    scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
+                      planes=planes, spheres=spheres, bodies=kept,
+                      filters=[f for f in filters if set(f) <= present],
+                      couplings=[c for c, bad in couplings if not bad and {c["a"], c["b"]} <= present],
+                      models=models, volume=None if bad_volume else volume, display=display)
+    return scene, errors.items
 
 
 def _display(t, scene_dir: Path, errors: Problems) -> str | None:
