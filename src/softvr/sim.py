@@ -6,6 +6,7 @@ detection, constrained velocities per contact island (eqs. 5.5-5.6), then integr
 
 from __future__ import annotations
 
+import time as _clock
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -35,7 +36,10 @@ from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
 
-__all__ = ["Scene"]
+__all__ = ["STAGES", "Scene"]
+
+#: The stages of a step, in order (:attr:`Scene.stage_ms`).
+STAGES = ("dynamics", "collision", "contact", "integrate")
 
 
 def _check_adhesion(adhesion):
@@ -89,6 +93,10 @@ class Scene:
         Coulomb coefficient between two bodies.
     last_solution : ContactSolution or None
     time : float [s]
+    stage_ms : dict[str, float] [ms]
+        Wall time of each stage of the last step, in the order they run (:data:`STAGES`):
+        ``dynamics`` (unconstrained velocities, eq. 5.2), ``collision`` (detection),
+        ``contact`` (the LCP per contact island and adhesion, eqs. 5.5-5.6), ``integrate``.
     external : dict[int, ndarray]
         Generalized external force per body index, applied every step until removed (the
         shape of the body's ``v``: [6] force and torque [N, N m] for a rigid body, [node_count,
@@ -117,6 +125,7 @@ class Scene:
     contact_margin: float = 0.005
     last_solution: ContactSolution | None = None
     time: float = 0.0
+    stage_ms: dict = field(default_factory=dict)
     _colliders: list = field(default_factory=list)
     _sphere_bodies: list = field(default_factory=list)
     _box_bodies: list = field(default_factory=list)
@@ -390,10 +399,13 @@ class Scene:
         return [solve(u) for u in range(len(units))]
 
     def _step(self, dt: float) -> ContactSolution:
+        t0 = _clock.perf_counter()
         units, where = self.solve_units()
         v_units = self._unconstrained_velocities(units, where, dt)
         v_free = [self._body_velocity(v_units, where, i) for i in range(len(self.bodies))]
+        t1 = _clock.perf_counter()
         contacts, adhesions = self._detect(v_free, dt)
+        t2 = _clock.perf_counter()
         kept = [(c, a) for c, a in zip(contacts, adhesions) if len(c)]
         contacts, adhesions = [c for c, _ in kept], [a for _, a in kept]
         stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
@@ -409,9 +421,12 @@ class Scene:
         self.adhesion_state.evolve(solution.contacts, adhesions, solution.impulses, solution.gaps_after, dt)
         current = {int(i) for c in contacts for i in c.ids}
         self._warm = {k: v for k, v in warm.items() if k in current}
+        t3 = _clock.perf_counter()
         for unit, v in zip(units, solved.velocities):
             unit.integrate(v, dt)
         self.time += dt
+        t4 = _clock.perf_counter()
+        self.stage_ms = {k: float(ms) for k, ms in zip(STAGES, 1e3 * np.diff([t0, t1, t2, t3, t4]))}
         self.last_solution = solution
         return solution
 

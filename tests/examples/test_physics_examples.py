@@ -18,7 +18,7 @@ from softvr.examples import (example_box_stack, example_candy, example_cloth_sph
 from softvr.examples.run import SCENES
 
 SMALL = dict(width=64, height=48)
-FIELDS = {"frame", "sim_time_s", "step_ms", "render_ms", "wall_ms", "max_penetration_m", "contacts",
+FIELDS = {"frame", "sim_time_s", "step_ms", "stage_ms", "render_ms", "wall_ms", "max_penetration_m", "contacts",
           "active_contacts", "pgs_iterations", "pgs_residual_m_per_s", "kinetic_energy_j", "energy_j"}
 
 
@@ -48,6 +48,12 @@ def check_common(example, e0: float, images, *, penetration: float = 1e-3, extra
     energy = np.array([r["energy_j"] for r in m])
     assert driven or energy.max() <= e0 + 1e-6 + 1e-4 * abs(e0), "energy grew"
     assert all(r["wall_ms"] >= r["step_ms"] > 0 for r in m)
+    # The stages run inside the frame's steps, one after the other: each took time, together
+    # no more than the frame's physics.
+    for r in m:
+        assert list(r["stage_ms"]) == ["dynamics", "collision", "contact", "integrate"]
+        assert all(ms > 0 for ms in r["stage_ms"].values())
+        assert sum(r["stage_ms"].values()) <= r["step_ms"]
     for image in images:
         assert image.shape == (48, 64, 3) and image.dtype == np.uint8
         assert image.std() > 5  # a scene, not a blank frame

@@ -83,7 +83,9 @@ class PhysicsExample:
     fps : float
         Frames per second of the video; ``dt * steps_per_frame = 1 / fps``.
     metrics : list of dict
-        One record per frame: ``frame``, ``sim_time_s``, ``step_ms`` (physics), ``render_ms``,
+        One record per frame: ``frame``, ``sim_time_s``, ``step_ms`` (physics), ``stage_ms``
+        (the physics by stage, summed over the frame's steps: :data:`softvr.sim.STAGES`; the
+        rest of ``step_ms`` is the example's own hooks), ``render_ms``,
         ``wall_ms`` (both), ``max_penetration_m`` (deepest over the frame's steps),
         ``contacts`` and ``active_contacts`` (normal impulse > 0) of the frame's last step,
         ``pgs_iterations`` (most sweeps in one step of the frame), ``pgs_residual_m_per_s``,
@@ -139,11 +141,16 @@ class PhysicsExample:
 
     def step(self) -> dict:
         """Advance one frame (``steps_per_frame`` physics steps); returns the frame's metrics."""
+        from softvr.sim import STAGES  # noqa: PLC0415
+
         t0 = time.perf_counter()
         deepest, sweeps, residual, solution = 0.0, 0, 0.0, None
+        stage_ms = dict.fromkeys(STAGES, 0.0)
         for _ in range(self.steps_per_frame):
             self.before_step()
             solution = self.scene.step(self.dt)
+            for stage in STAGES:
+                stage_ms[stage] += self.scene.stage_ms[stage]
             self.after_step(solution)
             deepest = max(deepest, self.penetration())
             sweeps = max(sweeps, int(solution.iterations))
@@ -155,6 +162,7 @@ class PhysicsExample:
             "frame": self.frame,
             "sim_time_s": float(self.scene.time),
             "step_ms": step_ms,
+            "stage_ms": stage_ms,
             "render_ms": 0.0,
             "wall_ms": step_ms,
             "max_penetration_m": float(deepest),
@@ -231,6 +239,7 @@ def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_fr
 
     from softvr.render import contact_sheet, save_png, write_mp4  # noqa: PLC0415
     from softvr.render._atomic import write_json  # noqa: PLC0415
+    from softvr.sim import STAGES  # noqa: PLC0415
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -261,6 +270,7 @@ def run_example(example: PhysicsExample, out, *, progress: bool = True, sheet_fr
         "wall_s": wall,
         "step_ms_median": float(np.median(step_ms)),
         "step_ms_max": float(step_ms.max()),
+        "stage_ms_median": {k: float(np.median([m["stage_ms"][k] for m in metrics])) for k in STAGES},
         "max_penetration_m": max(m["max_penetration_m"] for m in metrics),
         "max_contacts": max(m["contacts"] for m in metrics),
         "max_pgs_iterations": max(m["pgs_iterations"] for m in metrics),
@@ -401,9 +411,10 @@ def view_example(example: PhysicsExample, *, timeout_s: float | None = None, scr
         now = time.perf_counter()
         fps = 1.0 / max(now - last["time"], 1e-6)
         last["time"] = now
+        stages = "  ".join(f"{k} {v:.1f}" for k, v in m.get("stage_ms", {}).items())
         status.set(f"frame {example.frame}/{example.frames}  t {example.scene.time:.3f} s  {fps:4.1f} fps  "
-                   f"step {m.get('step_ms', 0.0):.1f} ms  render {drawn.get('render_ms', 0.0):.1f} ms  "
-                   f"contacts {m.get('contacts', 0)}")
+                   f"contacts {m.get('contacts', 0)}\n"
+                   f"ms: step {m.get('step_ms', 0.0):.1f} ({stages})  render {drawn.get('render_ms', 0.0):.1f}")
 
     tool = DragTool(example.scene, renderer.vtk_renderer)
 
