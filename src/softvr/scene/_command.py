@@ -30,6 +30,9 @@ def check_main(argv: list[str] | None = None) -> int:
         try:
             with SceneExample(scene, frames=1) as example:
                 problems = problems + example.start_problems()
+                for moved, obstacle, displacement in example.separation:
+                    print(f"collision-free start: {moved!r} pushed out of {obstacle!r} (its nodes moved up to "
+                          f"{displacement * 1e3:.2f} mm)")
         except InputError as exc:
             if not problems:
                 raise

@@ -206,6 +206,8 @@ class SceneExample(PhysicsExample):
                 for other, j in self.index.items():
                     if other != spec.name and other not in spec.collides_with:
                         scene.disable_collision(self.index[spec.name], j)
+        #: (moved body, obstacle, its largest node displacement [m]) of the collision-free start.
+        self.separation = self._collision_free_start(scene) if sim.get("collision_free_start") else []
         for c in scene_file.couplings:
             self._couple(scene, c)
         for tool in self.tools:
@@ -439,6 +441,51 @@ class SceneExample(PhysicsExample):
         tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"], tip=tip)
         tool.haptics = spec.tool["haptics"]
         return tool
+
+    def _collision_free_start(self, scene, rounds: int = 4) -> list:
+        """Push every soft body that starts crossing another body out of it (thesis 5.2.3,
+        :func:`softvr.model.push_apart`: a smooth deformation of its tets; it starts from that
+        deformed state, its rest shape unchanged). Of two soft bodies the one with fewer tets
+        moves; two rigid ones are left (:meth:`start_problems` reports them), as are pairs that
+        may not collide or are coupled without contact. Pushing one body out can push it into a
+        third, so the pairs are swept until nothing moves (at most ``rounds`` sweeps).
+        """
+        from softvr.dynamics import embed_in_tets
+        from softvr.model import intersecting_triangle_pairs, push_apart
+
+        apart = {frozenset((c["a"], c["b"])) for c in self.file.couplings if not c["collide"]}
+        names = list(self._drawn_by_name)
+        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+                 if scene.collision_enabled(self.index[a], self.index[b]) and frozenset((a, b)) not in apart]
+
+        def soft(name) -> bool:
+            return hasattr(self.bodies[name], "tets") and not self.bodies[name].fixed.all()
+
+        def crossing(a, b) -> bool:
+            da, db = self._drawn_by_name[a], self._drawn_by_name[b]
+            return len(intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)) > 0
+
+        start, pushed = {}, []
+        for _ in range(rounds):
+            changed = False
+            for a, b in pairs:
+                if not (soft(a) or soft(b)) or not crossing(a, b):
+                    continue
+                smaller = soft(a) and (not soft(b) or len(self.bodies[a].tets) <= len(self.bodies[b].tets))
+                mover, obstacle = (a, b) if smaller else (b, a)
+                body, surface, other = self.bodies[mover], self._drawn_by_name[mover], self._drawn_by_name[obstacle]
+                start.setdefault(mover, body.q.copy())
+                embedding = embed_in_tets(body.q, body.tets, surface.vertices(), tolerance=np.inf)
+                nodes, report = push_apart(body.q, body.tets, embedding, surface.triangles, other.vertices(),
+                                           other.triangles)
+                nodes[body.fixed] = body.q[body.fixed]  # clamped nodes stay where the scene put them
+                body.q[:] = nodes
+                if (mover, obstacle) not in pushed:
+                    pushed.append((mover, obstacle))
+                changed = changed or report.max_displacement > 0
+            if not changed:
+                break
+        return [(a, b, float(np.linalg.norm(self.bodies[a].q - start[a], axis=1).max())) for a, b in pushed]
 
     def start_problems(self) -> list:
         """(what, expected, found) for bodies that start intersecting each other (crossing
