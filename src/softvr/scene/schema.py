@@ -12,6 +12,8 @@
     friction = 0.5              # Coulomb, where a contact's sides give none
     pgs_iterations = 500
     contact_margin = 0.005      # [m]
+    collision_free_start = false    # true: soft bodies that start crossing another body are
+                                # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)
 
     [render]
     size = [640, 480]           # [pixels]
@@ -255,7 +257,8 @@ def _simulation(doc: dict, errors: Problems) -> dict:
            "gravity": errors.vector(t, "gravity", w, default=[0.0, 0.0, -9.81], unit="m/s^2"),
            "friction": errors.number(t, "friction", w, default=0.5, minimum=0.0),
            "pgs_iterations": errors.integer(t, "pgs_iterations", w, default=500, minimum=1),
-           "contact_margin": errors.number(t, "contact_margin", w, default=0.005, minimum=0.0, unit="m")}
+           "contact_margin": errors.number(t, "contact_margin", w, default=0.005, minimum=0.0, unit="m"),
+           "collision_free_start": errors.boolean(t, "collision_free_start", w, default=False)}
     return out
 
 
