@@ -47,8 +47,10 @@ DEFAULTS = {
     "kinematic": {},
     "tool": {"softvr_density": 1000.0, "softvr_stiffness": 300.0, "softvr_damping": 2.0, "softvr_haptics": False},
 }
+#: A scene's properties when its first object is marked; modelled objects often overlap a
+#: little, so soft ones are pushed apart before the first step (thesis 5.2.3).
 SCENE_DEFAULTS = {"softvr_dt": 0.005, "softvr_steps_per_frame": 4, "softvr_frames": 100, "softvr_friction": 0.5,
-                  "softvr_display": "cube"}
+                  "softvr_display": "cube", "softvr_collision_free_start": True}
 PREVIEW_IMAGE = "softvr CAVE preview"
 #: Adhesion a surface gets with "Make adhesive" (softvr.contact.Adhesion; wet tissue, thesis ch. 4).
 ADHESION_DEFAULTS = {"softvr_adhesion_stiffness": 1.0e7, "softvr_adhesion_max_energy": 0.4,
@@ -263,8 +265,16 @@ class SOFTVR_OT_check(bpy.types.Operator):
     def execute(self, context):
         done = subprocess.run([_softvr_command(context), "check", _export_temporary()], capture_output=True,
                               text=True)
-        report = (done.stdout or done.stderr).strip().splitlines()
-        self.report({"INFO"} if done.returncode == 0 else {"ERROR"}, report[-1] if report else "softvr check failed")
+        # Every line: what the collision-free start pushed and the summary, or every problem
+        # (the error and its list, after any library warnings on stderr).
+        if done.returncode == 0:
+            lines = done.stdout.strip().splitlines()
+        else:
+            lines = done.stderr.strip().splitlines()
+            first = next((i for i, line in enumerate(lines) if line.startswith("softvr ")), 0)
+            lines = lines[first:] or ["softvr check failed"]
+        for line in lines:
+            self.report({"INFO"} if done.returncode == 0 else {"ERROR"}, line)
         return {"FINISHED"} if done.returncode == 0 else {"CANCELLED"}
 
 
