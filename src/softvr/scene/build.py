@@ -593,10 +593,28 @@ class SceneExample(PhysicsExample):
 
     @staticmethod
     def _keyframes(spec: BodySpec, centre, quaternion):
-        """Pose function t [s] -> (position [3] [m], quaternion) of the motion keyframes."""
+        """Pose function t [s] -> (position [3] [m], quaternion (w, x, y, z)) of the motion
+        keyframes: positions linear in between, held outside. ``quaternion`` [4] is the body
+        frame's rest orientation; with ``rotations`` (the shape's orientation per key, slerped
+        in between, held outside) the frame turns with the shape: keyed rotation times the
+        frame's rest orientation relative to the shape's (``spec.rotation``)."""
         times = np.asarray(spec.motion.get("times", [0.0]), float)
         positions = np.asarray(spec.motion.get("positions", [centre]), float)
-        return lambda t: (_linear(times, positions, t), quaternion)
+        if "rotations" not in spec.motion:
+            return lambda t: (_linear(times, positions, t), quaternion)
+        from scipy.spatial.transform import Rotation, Slerp
+
+        keys = Rotation.from_euler("xyz", spec.motion["rotations"], degrees=True)
+        w, x, y, z = quaternion
+        # A box's frame is the shape's (identity here); a mesh's has the world's axes at rest.
+        frame = Rotation.from_euler("xyz", spec.rotation, degrees=True).inv() * Rotation.from_quat([x, y, z, w])
+        turn = Slerp(times, keys) if len(times) > 1 else (lambda t: keys[0])
+
+        def pose(t: float):
+            x, y, z, w = (turn(np.clip(t, times[0], times[-1])) * frame).as_quat()
+            return _linear(times, positions, t), np.array([w, x, y, z])
+
+        return pose
 
     def before_step(self) -> None:
         # Driven nodes move over the step [t, t + dt] at its mean speed, so they land on their path.

@@ -8,24 +8,33 @@ fields, prefixed ``softvr_``:
 ============================  ================================================================
 node extras                   meaning (as in the TOML scene file, :mod:`softvr.scene.schema`)
 ============================  ================================================================
-``softvr_type``               rigid | fem | cloth | fixed | kinematic | tool (nodes without it
-                              are not simulated)
+``softvr_type``               rigid | fem | cloth | fixed | kinematic | tool, or volume | model
+                              (an Empty: below); nodes without it are not simulated
 ``softvr_density``            [kg/m^3] (rigid, fem, tool)
 ``softvr_young``              [Pa] (fem)
 ``softvr_poisson``            (fem)
 ``softvr_alpha``              [1/s], ``softvr_beta`` [s]: Rayleigh damping (fem)
 ``softvr_cells``              [m] tet cube size (fem)
-``softvr_fixed_below``        [m] clamp nodes below this height (fem, cloth)
+``softvr_fixed_below``        [m] clamp nodes below (``softvr_fixed_above``: above) this height
+                              (fem, cloth)
+``softvr_drive_times``        [s] and ``softvr_drive_offsets`` (x0, y0, z0, x1, ... [m], 3 per
+                              time): the clamped nodes move by these offsets, linear between,
+                              held after (fem, cloth; ``[body.drive]``)
+``softvr_velocity``           [m/s] (3 numbers) start velocity, with ``softvr_angular_velocity``
+                              [rad/s] about ``softvr_spin_centre`` [m] (default: the object's
+                              origin; rigid bodies: their centre of mass)
 ``softvr_area_density``       [kg/m^2], ``softvr_stretch``, ``softvr_shear``, ``softvr_bend`` (cloth)
 ``softvr_stiffness``          [N/m] hand - tool coupling (tool, required)
 ``softvr_damping``            [N s/m] (tool; default 0), ``softvr_haptics`` (tool: true runs the
                               1 kHz haptic loop; default false), ``softvr_max_force`` [N] (tool)
-``softvr_collides_with``      "a, b": collide with these bodies only (node names, comma-separated)
-``softvr_couple_to``          another body's node name: zero-length springs to it (a coupling)
+``softvr_collides_with``      "a, b": collide with these bodies only (node names or model parts,
+                              comma-separated)
+``softvr_couple_to``          another body's node name or a model part: zero-length springs to
+                              it (a coupling)
 ``softvr_coupling_stiffness`` [N/m] per spring (required with ``softvr_couple_to``)
 ``softvr_coupling_damping``   [N s/m] (default 0), ``softvr_coupling_collide`` (default false)
 ``softvr_coupling_radius``    [m] springs at this body's nodes within it of the other's surface
-                              (fem, cloth) ...
+                              (fem, cloth, volume) ...
 ``softvr_coupling_points``    ... or at these world points: x0, y0, z0, x1, ... [m] (any body)
 ``softvr_adhesion_stiffness`` [N/m^3]: the surface is adhesive (thesis ch. 4); with
                               ``softvr_adhesion_max_energy`` [J/m^2], ``..._viscosity`` (all
@@ -33,28 +42,56 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
                               ``..._saturation``, ``..._initial``, ``..._debond_gap`` [m]
 ============================  ================================================================
 
-Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
-``softvr_friction``, ``softvr_ground`` (true: a ground plane at z = 0; ``softvr_ground_adhesion_*``
-as a node's ``softvr_adhesion_*`` make it adhesive), ``softvr_display`` (the
-screens it is shown on: a :mod:`softvr.cave` preset or a display file), ``softvr_start_time``
-[s] (the animation time that is the simulation's t = 0; default: the first key of the
-kinematic bodies' and tools' animations). Each node's mesh is taken in world coordinates (its
-node transform applied) and turned from glTF's y-up to softvr's z-up; its material's base colour
-is its colour. Every bad property is reported at once, named by the node.
+Every body's ``position`` is its object's origin (the node's world translation) and its mesh,
+taken in world coordinates (the node transform applied) and turned from glTF's y-up to softvr's
+z-up, is kept relative to it; its material's base colour is its colour. Vectors in custom
+properties (velocities, spin centre, drive offsets, coupling points, gravity) are in *Blender's*
+world coordinates (z up), which are softvr's: custom properties are written verbatim, not turned
+to glTF's y-up like the meshes (the add-on's *Pick coupling vertices* writes the points).
 
-**Kinematic bodies and tools** move as the node's glTF *translation animation* (what Blender
-writes for an object with location keyframes): the node's translation keys, turned z-up, are the
-body's ``motion`` (linear in between; STEP keys are held, CUBICSPLINE keys pass through their
-values, their tangents dropped). Keys are the node's *local* translation, so only an object
-without a parent may be animated. The body's ``position`` (its reference point, which the motion
-moves) is the node's world translation; its mesh is kept relative to it and placed at the
-motion's start. Rotation and scale keys are ignored: a kinematic body or a tool keeps its rest
-orientation. A kinematic body or tool without an animation holds still.
+**Volumes and models** are Empties (nodes without a mesh; their transform is not used):
+``softvr_type = "volume"`` is the scene's ``[volume]``, its FEM body named as the node, with the
+``[volume]`` fields prefixed (``softvr_file``: a volume file or folder relative to the glTF's
+folder, or a dataset; ``softvr_unit``, ``softvr_cells`` (3 integers), ``softvr_threshold``,
+``softvr_skin_triangles``, ``softvr_fix_denser_than``, ``softvr_alpha``, ``softvr_beta``,
+``softvr_preset``, ``softvr_render_step``, ``softvr_incremental``, ``softvr_mask``,
+``softvr_animation``); it may carry coupling properties. ``softvr_type = "model"`` is a
+``[[model]]``: ``softvr_file`` (a parts file .toml, or a built model .npz, relative to the
+glTF's folder), optional ``softvr_colors`` / ``softvr_opacity`` (part name -> value). Its parts
+are bodies named as the parts, for couplings and ``softvr_collides_with``.
+
+Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
+``softvr_friction``, ``softvr_gravity`` [m/s^2], ``softvr_pgs_iterations``,
+``softvr_contact_margin`` [m], ``softvr_ground`` (true: a ground plane at z = 0;
+``softvr_ground_adhesion_*`` as a node's ``softvr_adhesion_*`` make it adhesive),
+``softvr_display`` (the screens it is shown on: a :mod:`softvr.cave` preset or a display file),
+``softvr_start_time`` [s] (the animation time that is the simulation's t = 0; default: the first
+key of the kinematic bodies' and tools' animations), and the ``[render]`` fields
+``softvr_size`` [w, h], ``softvr_camera``, ``softvr_azimuth`` [deg], ``softvr_elevation``
+[deg], ``softvr_zoom``, ``softvr_bounds`` [m], ``softvr_background``,
+``softvr_background_top`` (r, g, b), ``softvr_light_kit``. Booleans may be 0 / 1 (as Blender
+may write them). Every bad property is reported at once, named by the node.
+
+**Lights**: the ``KHR_lights_punctual`` lights (Blender: Include > Punctual Lights) are the
+scene's lights (``[[light]]``), shining from the light node's world position: a directional
+(sun) or spot light towards its node's -z axis (the spot's cone is not kept), a point light
+towards the scene's origin. Their intensity (1: full) undoes Blender's export in its default
+lighting mode (Standard): a sun's is its strength [W/m^2] (glTF lux / 683), a point or spot
+lamp's its power [W] / 1000 (glTF candela 4 pi / 683 / 1000), so Blender's default sun
+(1 W/m^2) and lamp (1000 W) have intensity 1.
+
+**Kinematic bodies and tools** move as the node's glTF *translation and rotation animations*
+(what Blender writes for an object with location and rotation keyframes): the node's keys,
+turned z-up and each channel sampled at the union of both channels' key times, are the body's
+``motion`` (positions linear in between, rotations slerped; STEP keys are held, CUBICSPLINE
+keys pass through their values, their tangents dropped). Keys are the node's *local*
+transform, so only an object without a parent may be animated. The motion moves the node's
+origin and turns the body about it (its mesh kept in the node's own axes); the body starts
+where the motion starts (``position`` and ``rotation`` the keyed ones at t = 0, whatever frame
+Blender was on at export). A tool's handle is a point: rotation keys that turn it are
+refused. Scale keys are ignored. A kinematic body or tool without an animation holds still.
 
 **Couplings** (zero-length springs, thesis 5.3.2) are written on one of the two bodies.
-``softvr_coupling_points`` are in *Blender's* world coordinates (z up), which are softvr's:
-custom properties are written verbatim, not turned to glTF's y-up like the meshes (the add-on's
-*Pick coupling vertices* writes them).
 """
 
 from __future__ import annotations
@@ -68,12 +105,15 @@ from urllib.parse import unquote
 import numpy as np
 
 from softvr.errors import InputError, Problems
-from softvr.scene.schema import BodySpec, SceneFile
+from softvr.scene.schema import BodySpec, SceneFile, _color, _keyframes, _model, _render, _volume
 
 __all__ = ["has_softvr_bodies", "read_gltf_scene"]
 
 _PREFIX = "softvr_"
-_GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
+_GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", "model")
+#: Scene extras that are ``[render]`` fields.
+_RENDER_KEYS = ("size", "camera", "azimuth", "elevation", "zoom", "bounds", "background", "background_top",
+                "light_kit")
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _FLOAT = 5126  # accessor componentType of 32-bit floats
 _COUPLING_KEYS = ("couple_to", "coupling_stiffness", "coupling_damping", "coupling_radius", "coupling_points",
@@ -201,19 +241,20 @@ def _z_up(v) -> np.ndarray:
     return np.stack([v[..., 0], -v[..., 2], v[..., 1]], axis=-1)
 
 
-def _translation_keys(doc: dict, buffers: _Buffers, node: int, where: str, errors: Problems):
-    """Times [k] [s] and local translations [k, 3] (glTF y-up) of the node's translation
-    animation; None without one (or on a problem, recorded in ``errors``)."""
+def _channel_keys(doc: dict, buffers: _Buffers, node: int, path: str, where: str, errors: Problems):
+    """Times [k] [s] and local values (glTF y-up) of the node's ``path`` animation:
+    translations [k, 3] [m] ("translation") or unit quaternions [k, 4] (x, y, z, w)
+    ("rotation"); None without one (or on a problem, recorded in ``errors``)."""
     found = []
     for a, animation in enumerate(doc.get("animations", [])):
         for c, channel in enumerate(animation.get("channels", [])):
             target = channel.get("target", {})
-            if target.get("node") == node and target.get("path") == "translation":
+            if target.get("node") == node and target.get("path") == path:
                 found.append((a, c, animation, channel))
     if not found:
         return None
     if len(found) > 1:
-        errors.add(f"{where} animation", "one translation animation",
+        errors.add(f"{where} animation", f"one {path} animation",
                    f"{len(found)} (animations {', '.join(str(a) for a, *_ in found)})")
         return None
     a, c, animation, channel = found[0]
@@ -226,7 +267,7 @@ def _translation_keys(doc: dict, buffers: _Buffers, node: int, where: str, error
     interpolation = sampler.get("interpolation", "LINEAR")
     try:
         times = buffers.floats(sampler.get("input"), ("SCALAR",))[:, 0]
-        values = buffers.floats(sampler.get("output"), ("VEC3",))
+        values = buffers.floats(sampler.get("output"), ("VEC4",) if path == "rotation" else ("VEC3",))
     except _Bad as bad:
         errors.add(f"{where} animations[{a}] {bad.args[0]}", *bad.args[1:])
         return None
@@ -237,8 +278,12 @@ def _translation_keys(doc: dict, buffers: _Buffers, node: int, where: str, error
                    interpolation)
         return None
     if len(values) != len(times):
-        errors.add(f"{where} animations[{a}].samplers[{s}]", f"one translation per time ({len(times)})",
-                   f"{len(values)} translations")
+        errors.add(f"{where} animations[{a}].samplers[{s}]", f"one {path} per time ({len(times)})",
+                   f"{len(values)} {path}s")
+        return None
+    if path == "rotation" and np.any(np.abs(np.linalg.norm(values, axis=1) - 1.0) > 1e-3):
+        errors.add(f"{where} animations[{a}].samplers[{s}].output", "unit quaternions (x, y, z, w)",
+                   f"norms {np.linalg.norm(values, axis=1).round(4).tolist()}")
         return None
     if np.any(np.diff(times) <= 0):
         errors.add(f"{where} animations[{a}].samplers[{s}].input", "increasing times [s]", times.tolist())
@@ -251,6 +296,110 @@ def _translation_keys(doc: dict, buffers: _Buffers, node: int, where: str, error
         order = np.argsort(times, kind="stable")
         times, values = times[order], np.r_[values, values[:-1]][order]
     return times, values
+
+
+def _z_up_rotations(quaternions):
+    """glTF y-up unit quaternions [k, 4] (x, y, z, w) -> the same turns in softvr's z-up frame
+    (a scipy Rotation of k): R' = C R C^T for C of :func:`_z_up`, i.e. the axis turned by C."""
+    from scipy.spatial.transform import Rotation
+
+    q = np.asarray(quaternions, float)
+    return Rotation.from_quat(np.c_[_z_up(q[:, :3]), q[:, 3]])
+
+
+def _slerp_at(times, rotations, t):
+    """Orientations ``rotations`` (a scipy Rotation of k) keyed at ``times`` [k] [s], slerped in
+    between and held outside, at ``t`` [s] (a number, or an array for a Rotation of as many)."""
+    from scipy.spatial.transform import Slerp
+
+    if len(times) == 1:
+        return rotations[np.zeros(np.shape(t), int)] if np.ndim(t) else rotations[0]
+    return Slerp(times, rotations)(np.clip(t, times[0], times[-1]))
+
+
+def _degrees(rotations) -> list:
+    """x-then-y-then-z angles [deg] ([3], or [k, 3] for k orientations) of a scipy Rotation: the
+    scene format's ``rotation`` and ``motion.rotations``."""
+    import warnings
+
+    with warnings.catch_warnings():
+        # At gimbal lock scipy picks one of the many angle triples of the orientation: still exact.
+        warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
+        return rotations.as_euler("xyz", degrees=True).tolist()
+
+
+def _node_motion(doc: dict, buffers: _Buffers, node: int, origin, where: str, errors: Problems):
+    """The node's translation and rotation animations turned z-up and sampled at the union of
+    their key times: times [k] [s], positions [k, 3] [m] (``origin`` [3] [m] throughout without
+    translation keys) and orientations (a scipy Rotation of k; None without rotation keys).
+    None without either animation (or on a problem, recorded in ``errors``)."""
+    moves = _channel_keys(doc, buffers, node, "translation", where, errors)
+    turns = _channel_keys(doc, buffers, node, "rotation", where, errors)
+    if moves is None and turns is None:
+        return None
+    times = np.unique(np.concatenate([keys[0] for keys in (moves, turns) if keys is not None]))
+    positions = np.tile(origin, (len(times), 1)) if moves is None else _z_up(_linear_at(moves[0], moves[1], times).T)
+    rotations = None if turns is None else _slerp_at(turns[0], _z_up_rotations(turns[1]), times)
+    return times, positions, rotations
+
+
+def _world_matrix(nodes: list, parent: dict, i: int) -> np.ndarray:
+    """Node ``i``'s world transform [4, 4] (glTF y-up): its matrix or translation, rotation
+    and scale, after its parents'."""
+    from scipy.spatial.transform import Rotation
+
+    node = nodes[i]
+    if "matrix" in node:
+        local = np.asarray(node["matrix"], float).reshape(4, 4).T  # glTF matrices are column-major
+    else:
+        local = np.eye(4)
+        local[:3, :3] = Rotation.from_quat(node.get("rotation", [0.0, 0.0, 0.0, 1.0])).as_matrix() * np.asarray(
+            node.get("scale", [1.0, 1.0, 1.0]), float)
+        local[:3, 3] = node.get("translation", [0.0, 0.0, 0.0])
+    return local if i not in parent else _world_matrix(nodes, parent, parent[i]) @ local
+
+
+#: Blender's glTF exporter (lighting mode Standard, its default) writes a sun of S [W/m^2] as
+#: 683 S [lux] and a point or spot lamp of P [W] as 683 P / (4 pi) [cd]; softvr's light
+#: intensity (1: full) is S, and P / 1000 for a lamp (Blender's default 1000 W lamp is 1).
+_LUMENS_PER_WATT = 683.0
+_LAMP_WATTS = 1000.0
+
+
+def _lights(doc: dict, parent: dict, errors: Problems) -> list:
+    """``[[light]]`` entries of the nodes' KHR_lights_punctual lights (module docstring)."""
+    lights = doc.get("extensions", {}).get("KHR_lights_punctual", {}).get("lights", [])
+    nodes, out = doc.get("nodes", []), []
+    for i, node in enumerate(nodes):
+        ref = node.get("extensions", {}).get("KHR_lights_punctual")
+        if ref is None:
+            continue
+        where, k = f"node {node.get('name') or f'node {i}'!r}", ref.get("light")
+        if not (isinstance(k, int) and 0 <= k < len(lights)):
+            errors.add(f"{where}.extensions.KHR_lights_punctual.light", f"one of the file's {len(lights)} lights", k)
+            continue
+        light, w = lights[k], f"KHR_lights_punctual.lights[{k}]"
+        kind = errors.choice(light, "type", w, ("directional", "point", "spot"))
+        color = _color(light, "color", w, (1.0, 1.0, 1.0), errors)
+        intensity = errors.number(light, "intensity", w, default=1.0, minimum=0.0)
+        matrix = _world_matrix(nodes, parent, i)
+        position = _z_up(matrix[:3, 3])
+        if kind == "point":  # no direction: it shines towards the scene's origin
+            focal_point = np.zeros(3)
+            if np.allclose(position, focal_point):
+                errors.add(where, "a point light away from the scene origin (it shines towards it)",
+                           "one at the origin")
+                continue
+        else:  # glTF lights shine along their node's -z
+            axis = matrix[:3, :3] @ [0.0, 0.0, -1.0]
+            focal_point = position + _z_up(axis / np.linalg.norm(axis))
+        if kind is None or intensity is None:
+            continue
+        scale = 1.0 if kind == "directional" else 4.0 * np.pi / _LAMP_WATTS
+        out.append({"position": tuple(float(x) for x in position),
+                    "focal_point": tuple(float(x) for x in focal_point), "color": color,
+                    "intensity": intensity * scale / _LUMENS_PER_WATT})
+    return out
 
 
 def _coupling(name: str, where: str, props: dict, kind: str, errors: Problems) -> dict | None:
@@ -287,12 +436,15 @@ def _coupling(name: str, where: str, props: dict, kind: str, errors: Problems) -
             "collide": _boolean(props, "coupling_collide", where, errors)}
 
 
+def _booleans(table: dict, keys) -> dict:
+    """``table`` with the values 0 / 1 of ``keys`` as false / true (Blender may write booleans
+    as 0 / 1)."""
+    return {k: bool(v) if k in keys and type(v) is int and v in (0, 1) else v for k, v in table.items()}
+
+
 def _boolean(props: dict, key: str, where: str, errors: Problems) -> bool:
-    """A bool property (Blender may write booleans as 0 / 1)."""
-    value = props.get(key, False)
-    if isinstance(value, int) and not isinstance(value, bool) and value in (0, 1):
-        return bool(value)
-    return errors.boolean(props, key, where, default=False)
+    """A bool property, false by default (Blender may write booleans as 0 / 1)."""
+    return errors.boolean(_booleans(props, (key,)), key, where, default=False)
 
 
 def read_gltf_scene(path) -> SceneFile:
@@ -311,15 +463,19 @@ def read_gltf_scene(path) -> SceneFile:
     simulation = {"dt": errors.number(scene_props, "dt", "scene", default=0.005, positive=True, unit="s"),
                   "steps_per_frame": errors.integer(scene_props, "steps_per_frame", "scene", default=4, minimum=1),
                   "frames": errors.integer(scene_props, "frames", "scene", default=100, minimum=1),
-                  "gravity": (0.0, 0.0, -9.81),
+                  "gravity": errors.vector(scene_props, "gravity", "scene", default=[0.0, 0.0, -9.81], unit="m/s^2"),
                   "friction": errors.number(scene_props, "friction", "scene", default=0.5, minimum=0.0),
-                  "pgs_iterations": 500, "contact_margin": 0.005}
+                  "pgs_iterations": errors.integer(scene_props, "pgs_iterations", "scene", default=500, minimum=1),
+                  "contact_margin": errors.number(scene_props, "contact_margin", "scene", default=0.005, minimum=0.0,
+                                                  unit="m")}
+    render = _render({"render": _booleans({k: v for k, v in scene_props.items() if k in _RENDER_KEYS},
+                                          ("light_kit",))}, errors, "scene")
     start_time = errors.number(scene_props, "start_time", "scene", unit="s") if "start_time" in scene_props else None
     display = _display(scene_props, path.parent, errors) if "display" in scene_props else None
     nodes = doc.get("nodes", [])
     parent = {child: i for i, node in enumerate(nodes) for child in node.get("children", [])}
     loaded = trimesh.load(path, force="scene")
-    materials, adhesions, bodies, couplings, moving, named = {}, {}, [], [], [], {}
+    materials, adhesions, bodies, couplings, moving, named, volumes, models = {}, {}, [], [], [], {}, [], []
     for i, node in enumerate(nodes):
         props = _properties(node.get("extras"))
         if not props:
@@ -327,10 +483,21 @@ def read_gltf_scene(path) -> SceneFile:
         name = node.get("name") or f"node {i}"
         where = f"node {name!r}"
         kind = errors.choice(props, "type", where, _GLTF_TYPES)
+        if kind == "model":  # an Empty: a [[model]], whose parts become bodies
+            table = {k: v for k, v in props.items() if k != "type"}
+            for key in sorted(set(table) - {"file", "colors", "opacity"}):
+                errors.add(f"{where}.{key}", "file, colors or opacity (a model node)", key)
+            models.append(_model(len(models), table, path.parent, errors, where))
+            continue
         named[name] = kind
-        coupling = _coupling(name, where, props, kind, errors)
+        coupling = _coupling(name, where, props, "fem" if kind == "volume" else kind, errors)
         if coupling is not None:
             couplings.append((where, coupling))
+        if kind == "volume":  # an Empty: the [volume], its FEM body named as the node
+            table = {k: v for k, v in props.items() if k not in ("type", *_COUPLING_KEYS)}
+            volumes.append(_volume({**_booleans(table, ("mask", "incremental")), "name": name}, path.parent, errors,
+                                   where))
+            continue
         if name not in loaded.graph.nodes_geometry:
             errors.add(where, "a node with a triangle mesh", "no mesh")
             continue
@@ -338,8 +505,12 @@ def read_gltf_scene(path) -> SceneFile:
         mesh = loaded.geometry[geometry]
         v = _z_up(trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform))
         color = tuple(float(c) for c in np.asarray(getattr(mesh.visual, "main_color", (204, 153, 128, 255)))[:3] / 255)
-        spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color)
-        spec.mesh_data = (v, np.asarray(mesh.faces, np.int32))
+        # Its position is the object's origin (the node's world translation), as a TOML body's;
+        # its mesh is kept relative to it.
+        origin = _z_up(np.asarray(transform, float)[:3, 3])
+        spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color,
+                        position=tuple(float(x) for x in origin))
+        spec.mesh_data = (v - origin, np.asarray(mesh.faces, np.int32))
         if "collides_with" in props:
             others = props["collides_with"]
             if not isinstance(others, str):
@@ -360,8 +531,22 @@ def read_gltf_scene(path) -> SceneFile:
             spec.adhesion = name
         if kind == "fem":
             spec.cells = errors.number(props, "cells", where, default=0.02, positive=True, unit="m")
-        if "fixed_below" in props:
-            spec.fixed_below = errors.number(props, "fixed_below", where, unit="m")
+        for key in ("fixed_below", "fixed_above"):
+            if key in props:
+                setattr(spec, key, errors.number(props, key, where, unit="m"))
+        # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
+        for key, unit in (("velocity", "m/s"), ("angular_velocity", "rad/s"), ("spin_centre", "m")):
+            value = errors.vector(props, key, where, unit=unit) if key in props else None
+            if value is not None:
+                setattr(spec, key, value)
+        if "drive_times" in props or "drive_offsets" in props:
+            if kind not in ("fem", "cloth"):
+                errors.add(f"{where}.drive_offsets", "a drive only on a fem or cloth object (it moves the held nodes)",
+                           f"a {kind} object")
+            elif "fixed_below" not in props and "fixed_above" not in props:
+                errors.add(f"{where}.drive_offsets", "held nodes to drive: softvr_fixed_below or softvr_fixed_above",
+                           "neither")
+            spec.drive = _keyframes(props, where, "offsets", errors, prefix="drive_", flat=True)
         if kind == "cloth":
             spec.cloth = {"area_density": errors.number(props, "area_density", where, default=0.2, positive=True),
                           **{k: errors.number(props, k, where, default=d, minimum=0.0) for k, d in (
@@ -374,30 +559,50 @@ def read_gltf_scene(path) -> SceneFile:
                          "max_force": errors.number(props, "max_force", where, default=10.0, positive=True,
                                                     unit="N")}
         if kind in ("kinematic", "tool"):
-            # The reference point: the node's world translation; the mesh is kept relative to it.
-            origin = _z_up(np.asarray(transform, float)[:3, 3])
-            spec.mesh_data = (v - origin, spec.mesh_data[1])
-            spec.position = tuple(float(x) for x in origin)
-            keys = _translation_keys(doc, buffers, i, where, errors)
+            keys = _node_motion(doc, buffers, i, origin, where, errors)
             if keys is not None and i in parent:
                 errors.add(f"{where} animation", "an animated object without a parent (its keys are its local "
-                           "translation)", f"a child of node {nodes[parent[i]].get('name') or parent[i]!r}")
+                           "transform)", f"a child of node {nodes[parent[i]].get('name') or parent[i]!r}")
                 keys = None
+            if keys is not None and keys[2] is not None:
+                if kind == "tool":
+                    turned = float((keys[2][0].inv() * keys[2]).magnitude().max())
+                    if turned > 1e-6:
+                        errors.add(f"{where} animation", "location keys only on a tool (its handle is a point; a "
+                                   "kinematic object may rotate)",
+                                   f"rotation keys turning it {np.degrees(turned):.3g} deg")
+                    keys = (*keys[:2], None)  # a still orientation: its rest one
+                elif "matrix" in node:
+                    errors.add(f"{where}.matrix", "translation, rotation and scale on an animated node (glTF 2.0)",
+                               "a matrix")
+                else:
+                    # Its keys turn the node's own axes: its mesh in them (its rest rotation undone).
+                    rest = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0]
+                    spec.mesh_data = (rest.inv().apply(spec.mesh_data[0]), spec.mesh_data[1])
             moving.append((spec, keys))
         bodies.append(spec)
+    if len(volumes) > 1:
+        errors.add("nodes", "one volume node (a scene has one volume)", ", ".join(repr(v["name"]) for v in volumes))
+    volume = volumes[0] if volumes else None
+    parts = {name: kind for m in models for name, kind in m["parts"].items()}
+    for name in sorted(set(parts) & set(named)):
+        errors.add(f"node {name!r}", "a name no model part has", repr(name))
     # Simulation time 0: the scene's start time, else the first key of any motion.
     starts = [keys[0][0] for _, keys in moving if keys is not None]
     t0 = start_time if start_time is not None else (min(starts) if starts else 0.0)
     for spec, keys in moving:
         if keys is None:  # holds still
             spec.motion = {"times": [0.0], "positions": [list(spec.position)]}
-        else:
-            times, translations = keys
-            positions = _z_up(translations)
-            spec.motion = {"times": (times - t0).tolist(), "positions": positions.tolist()}
-            # It starts where its motion starts (whatever frame Blender was on at export).
-            spec.position = tuple(float(x) for x in _linear_at(times - t0, positions, 0.0))
-    names = {b.name for b in bodies}
+            continue
+        times, positions, rotations = keys
+        times = times - t0
+        spec.motion = {"times": times.tolist(), "positions": positions.tolist()}
+        # It starts where its motion starts (whatever frame Blender was on at export).
+        spec.position = tuple(float(x) for x in _linear_at(times, positions, 0.0))
+        if rotations is not None:
+            spec.motion["rotations"] = _degrees(rotations)
+            spec.rotation = tuple(_degrees(_slerp_at(times, rotations, 0.0)))
+    names = {b.name for b in bodies} | set(parts) | ({volume["name"]} if volume is not None else set())
     for spec in bodies:
         for other in spec.collides_with or ():
             if other not in names:
@@ -410,15 +615,17 @@ def read_gltf_scene(path) -> SceneFile:
                        "a fixed object")
         if other is None:
             continue
-        if other not in named:
-            errors.add(f"{where}.couple_to", f"the name of a softvr object ({', '.join(sorted(named))})", repr(other))
+        if other not in named and other not in parts:
+            errors.add(f"{where}.couple_to", f"the name of a softvr object or model part "
+                       f"({', '.join(sorted({*named, *parts}))})", repr(other))
         elif other == c["a"]:
             errors.add(f"{where}.couple_to", "another object than itself", repr(other))
-        elif named[other] == "fixed":
+        elif named.get(other) == "fixed":
             errors.add(f"{where}.couple_to", "a body (a fixed glTF object is an obstacle, not a body: mark it "
                        "kinematic to hold it still)", f"{other!r}, a fixed object")
-    if not bodies:
+    if not bodies and volume is None and not models:
         errors.add("nodes", "at least one node with a softvr_type custom property", "none")
+    render["lights"] = _lights(doc, parent, errors)
     ground = scene_props.get("ground", True)
     ground_adhesion = _adhesion(scene_props, "ground_adhesion_", "scene", errors)
     errors.raise_if_any()
@@ -426,11 +633,9 @@ def read_gltf_scene(path) -> SceneFile:
         adhesions["ground"] = ground_adhesion
     planes = [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": simulation["friction"],
                "size": 3.0, "adhesion": None if ground_adhesion is None else "ground"}] if ground else []
-    return SceneFile(path=path, simulation=simulation,
-                     render={"size": (640, 480), "camera": "iso", "bounds": None, "azimuth": 0.0, "elevation": 0.0,
-                             "zoom": 1.0},
-                     materials=materials, adhesions=adhesions, planes=planes, spheres=[], bodies=bodies, filters=[],
-                     couplings=[c for _, c in couplings], display=display)
+    return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
+                     planes=planes, spheres=[], bodies=bodies, filters=[], couplings=[c for _, c in couplings],
+                     models=models, volume=volume, display=display)
 
 
 def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | None:

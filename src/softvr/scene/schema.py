@@ -85,7 +85,9 @@
     #      nodes (fixed_below / fixed_above) move by these offsets (linear between, held after)
     # cloth: cloth = [w, h], quads = [nu, nv], area_density [kg/m^2], stretch, shear, bend [N/m],
     #        damping [N s/m], alpha [1/s]
-    # kinematic: [body.motion] times = [...] [s], positions = [[x, y, z], ...] [m] (linear between)
+    # kinematic: [body.motion] times = [...] [s], positions = [[x, y, z], ...] [m] (linear between),
+    #            optional rotations = [[rx, ry, rz], ...] [deg]: the body's orientation at each time
+    #            (about x, then y, then z, as rotation; slerp between), turning it about its position
     # tool: a rigid sphere, box or mesh (material) on a virtual coupling (stiffness [N/m], damping
     #       [N s/m]) to a haptic handle that follows [body.motion]; haptics = true runs the
     #       1 kHz haptic loop in its own process, max_force [N] caps what the hand feels
@@ -262,9 +264,11 @@ def _simulation(doc: dict, errors: Problems) -> dict:
     return out
 
 
-def _render(doc: dict, errors: Problems) -> dict:
+def _render(doc: dict, errors: Problems, where: str = "render") -> dict:
+    """The ``[render]`` table and the ``[[light]]`` list of ``doc``, problems named under
+    ``where`` (a glTF scene's extras: ``"scene"``)."""
     t = doc.get("render", {})
-    w = "render"
+    w = where
     size = t.get("size", [640, 480])
     if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and 0 < v <= 16384 for v in size)):
         errors.add(f"{w}.size", "[width, height] in pixels, 1..16384", size)
@@ -444,7 +448,10 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         if not (isinstance(quads, list) and len(quads) == 2 and all(isinstance(q, int) and q >= 1 for q in quads)):
             errors.add(f"{w}.quads", "[nu, nv] quads, integers >= 1", quads)
     if kind in ("kinematic", "tool"):
-        spec.motion = _keyframes(t.get("motion"), f"{w}.motion", "positions", errors)
+        spec.motion = _keyframes(t.get("motion"), f"{w}.motion", "positions", errors, rotations=kind == "kinematic")
+        if kind == "tool" and isinstance(t.get("motion"), dict) and "rotations" in t["motion"]:
+            errors.add(f"{w}.motion.rotations", "positions only on a tool (its handle is a point; a kinematic "
+                       "body may rotate)", "rotations")
     elif "motion" in t:
         errors.add(f"{w}.motion", "a motion only on a kinematic body or a tool", f"a {kind} body")
     if kind == "tool":
@@ -469,22 +476,45 @@ def _file(t: dict, key: str, w: str, scene_dir: Path, suffixes: tuple, what: str
     return path
 
 
-def _keyframes(t, w: str, key: str, errors: Problems) -> dict:
-    """``times`` [s] and one [x, y, z] [m] of ``key`` per time (a motion or a drive)."""
+def _keyframes(t, w: str, key: str, errors: Problems, *, rotations: bool = False, prefix: str = "",
+               flat: bool = False) -> dict:
+    """``times`` [s] and one [x, y, z] [m] of ``key`` per time (a motion or a drive); with
+    ``rotations``, optionally one [rx, ry, rz] [deg] (x, then y, then z) of ``rotations`` per
+    time too. A glTF node's extras read with ``prefix`` (keys ``<prefix>times`` and
+    ``<prefix><key>``, named so) and ``flat`` (``key`` a flat list x0, y0, z0, x1, ... [m])."""
+    import math
+
     if not isinstance(t, dict):
         errors.add(w, f"a table: times [s] and {key} [m]", t if t is not None else "nothing")
         return {}
-    times, positions = t.get("times"), t.get(key)
-    ok_times = isinstance(times, list) and len(times) >= 1 and all(
-        isinstance(x, (int, float)) and not isinstance(x, bool) for x in times) and all(
+
+    def number(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    def triples(v) -> bool:
+        return isinstance(v, list) and all(isinstance(p, list) and len(p) == 3 and all(map(number, p)) for p in v)
+
+    times, given = t.get(prefix + "times"), t.get(prefix + key)
+    ok_times = isinstance(times, list) and len(times) >= 1 and all(map(number, times)) and all(
         b > a for a, b in zip(times, times[1:]))
     if not ok_times:
-        errors.add(f"{w}.times", "increasing times [s], at least one", times if times is not None else "nothing")
-    ok_positions = isinstance(positions, list) and all(
-        isinstance(p, list) and len(p) == 3 and all(isinstance(x, (int, float)) for x in p) for p in positions)
-    if not ok_positions or (ok_times and len(positions) != len(times)):
-        errors.add(f"{w}.{key}", "one [x, y, z] [m] per time", positions if positions is not None else "nothing")
-    return {"times": times, key: positions} if ok_times and ok_positions else {}
+        errors.add(f"{w}.{prefix}times", "increasing times [s], at least one",
+                   times if times is not None else "nothing")
+    positions = given
+    if flat and isinstance(given, list) and len(given) % 3 == 0 and all(map(number, given)):
+        positions = [given[j:j + 3] for j in range(0, len(given), 3)]
+    ok_positions = triples(positions) and (not ok_times or len(positions) == len(times))
+    if not ok_positions:
+        errors.add(f"{w}.{prefix}{key}", "x0, y0, z0, x1, ... [m]: 3 numbers per time" if flat else
+                   "one [x, y, z] [m] per time", given if given is not None else "nothing")
+    out = {"times": times, key: positions} if ok_times and ok_positions else {}
+    if rotations and "rotations" in t:
+        angles = t["rotations"]
+        if not triples(angles) or (ok_times and len(angles) != len(times)):
+            errors.add(f"{w}.rotations", "one [rx, ry, rz] [deg] per time (about x, then y, then z)", angles)
+        elif out:
+            out["rotations"] = angles
+    return out
 
 
 def read_scene(path) -> SceneFile:
@@ -627,9 +657,10 @@ def _display(t, scene_dir: Path, errors: Problems) -> str | None:
 DATASETS = {"head-ct": "head_ct", "mri-ch2": "mri_ch2", "mri-ch2better": "mri_ch2better"}
 
 
-def _volume(t, scene_dir: Path, errors: Problems) -> dict | None:
-    """The ``[volume]`` table (module docstring)."""
-    w = "volume"
+def _volume(t, scene_dir: Path, errors: Problems, where: str = "volume") -> dict | None:
+    """The ``[volume]`` table (module docstring), problems named under ``where`` (a glTF
+    volume node: ``node 'NAME'``)."""
+    w = where
     if not isinstance(t, dict):
         errors.add(w, "a [volume] table", type(t).__name__)
         return None
@@ -676,9 +707,10 @@ def _volume(t, scene_dir: Path, errors: Problems) -> dict | None:
             "incremental": errors.boolean(t, "incremental", w, default=True)}
 
 
-def _model(i: int, t: dict, scene_dir: Path, errors: Problems) -> dict:
-    """A ``[[model]]``: its file and part name -> kind (a parts file is validated now)."""
-    w = f"model[{i}]"
+def _model(i: int, t: dict, scene_dir: Path, errors: Problems, where: str | None = None) -> dict:
+    """A ``[[model]]``: its file and part name -> kind (a parts file is validated now);
+    problems named under ``where`` (a glTF model node: ``node 'NAME'``), else ``model[i]``."""
+    w = where or f"model[{i}]"
     empty = {"parts": {}, "colors": {}, "opacity": {}}
     if "file" not in t:
         errors.add(f"{w}.file", "a parts file (.toml) or a built model (.npz)", "nothing")
