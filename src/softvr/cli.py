@@ -15,6 +15,8 @@
 ``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
 ``softvr bench cave``       render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback
 ``softvr bench palpation``  palpation frame split: FEM step, full and incremental rasterization, rendering
+``softvr bench scene``      scene files: read, build, start check and frames of every bundled scene; glTF vs
+                            TOML; box-stack vs MuJoCo
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr check SCENE``      validate a scene file (every error at once)
 ``softvr blender-addon``    write softvr-blender.zip, the Blender add-on
@@ -85,7 +87,7 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave", "palpation")
+_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave", "palpation", "scene")
 
 
 def _bench(argv: list[str]) -> int:
