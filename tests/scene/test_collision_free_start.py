@@ -6,7 +6,8 @@ surface point on or above the table top and its clamped nodes where the scene pu
 `softvr check` refuses the sunk cube without the option and accepts it with; of two
 overlapping soft spheres the one with fewer tets moves, and afterwards none of its surface
 points is inside the other (behind every face plane of its convex hull, by SciPy); two
-rigid boxes cannot be pushed and are still reported.
+rigid boxes cannot be pushed and are still reported, as is a ball sunk into a fixed mesh (an
+obstacle, not a body).
 """
 
 import numpy as np
@@ -121,3 +122,28 @@ position = [0.15, 0.05, 0.2]
 ''')
     assert main(["check", str(path)]) == 2
     assert "bodies 'left' and 'right'" in capsys.readouterr().err
+
+
+def test_a_body_crossing_a_fixed_mesh_is_reported(tmp_path, capsys):
+    """A fixed mesh is an obstacle, not a body: a rigid ball sunk into it is still reported."""
+    import trimesh
+
+    trimesh.creation.box((0.4, 0.4, 0.2)).export(tmp_path / "table.obj")
+    path = tmp_path / "ball.toml"
+    path.write_text('''format = "softvr-scene 1"
+[material.wood]
+density = 600.0
+[[body]]
+name = "table"
+type = "fixed"
+mesh = "table.obj"
+position = [0.0, 0.0, 0.1]
+[[body]]
+name = "ball"
+type = "rigid"
+sphere = 0.05
+material = "wood"
+position = [0.0, 0.0, 0.24]
+''')
+    assert main(["check", str(path)]) == 2
+    assert "bodies 'ball' and 'table'" in capsys.readouterr().err

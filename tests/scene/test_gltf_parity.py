@@ -525,3 +525,42 @@ def _rewrite(path, doc):
     chunk += b" " * (-len(chunk) % 4)
     body = struct.pack("<I4s", len(chunk), b"JSON") + chunk + rest
     path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+
+
+def test_check_of_a_gltf_names_bad_objects_and_the_crossing_valid_ones_at_once(tmp_path, capsys):
+    """As for TOML: a bad object (density in g/cm^3) is left out of the geometric check and
+    reported; two valid rigid boxes that start crossing are reported with it; a bad coupling
+    is reported without hiding its object."""
+    from softvr.cli import main
+
+    rigid = {"softvr_type": "rigid", "softvr_density": 600.0}
+    path = tmp_path / "crossing.glb"
+    _glb(path, [("left", (0.2, 0.2, 0.2), (0.0, 0.15, 0.0), IDENTITY, rigid),
+                ("right", (0.2, 0.2, 0.2), (0.15, 0.2, -0.05), IDENTITY, rigid),
+                ("heavy", (0.2, 0.2, 0.2), (0.1, 0.2, 0.0), IDENTITY, {**rigid, "softvr_density": 1.05}),
+                ("far", (0.1, 0.1, 0.1), (2.0, 0.1, 0.0), IDENTITY,
+                 {**rigid, "softvr_couple_to": "ghost", "softvr_coupling_stiffness": 100.0,
+                  "softvr_coupling_points": [2.0, 0.0, 0.1]})])
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "3 problems" in err
+    assert "node 'heavy'.density" in err and "1.05 (in other units?)" in err
+    assert "node 'far'.couple_to" in err and "ghost" in err
+    assert "bodies 'left' and 'right'" in err and "'heavy'" not in err.split("node 'heavy'.density")[1]
+
+
+def test_a_gltf_scene_extra_asks_for_the_collision_free_start(tmp_path, capsys):
+    """``softvr_collision_free_start`` (what the add-on sets; Blender writes 1): a soft box
+    sunk 10 mm into a fixed table starts on it (every surface point at or above its top,
+    z = 0.2 m, after the y-up -> z-up turn)."""
+    from softvr.cli import main
+
+    path = tmp_path / "sunk.glb"
+    _glb(path, [("table", (0.4, 0.2, 0.4), (0.0, 0.1, 0.0), IDENTITY, {"softvr_type": "fixed"}),
+                ("jelly", (0.1, 0.1, 0.1), (0.0, 0.24, 0.0), IDENTITY,
+                 {"softvr_type": "fem", "softvr_young": 2e4, "softvr_cells": 0.025})],
+         scene_extras={"softvr_collision_free_start": 1})
+    assert main(["check", str(path)]) == 0
+    assert "'jelly' pushed out of 'table'" in capsys.readouterr().out
+    with load_scene(path, frames=1) as example:
+        assert example._drawn_by_name["jelly"].vertices()[:, 2].min() >= 0.2 - 1e-6

@@ -9,7 +9,7 @@ __all__ = ["check_main", "run_main", "view_main"]
 
 def check_main(argv: list[str] | None = None) -> int:
     """Validate a scene file: a summary, or every problem (exit status 2)."""
-    from softvr.scene import bundled, read_any
+    from softvr.scene import bundled
 
     p = argparse.ArgumentParser(prog="softvr check", description="Validate a scene file; all its errors at once.")
     p.add_argument("scene", metavar="SCENE",
@@ -17,13 +17,9 @@ def check_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     from softvr.errors import InputError, raise_all
     from softvr.scene import SceneExample
-    from softvr.scene.schema import read_scene_with_problems
+    from softvr.scene.build import read_any_with_problems
 
-    path = bundled(args.scene)
-    if path.suffix.lower() in (".gltf", ".glb"):
-        scene, problems = read_any(path), []
-    else:
-        scene, problems = read_scene_with_problems(path)
+    scene, problems = read_any_with_problems(bundled(args.scene))
     # The geometry too, of what is valid: bodies that start inside each other or below the
     # ground, reported with the file's other problems.
     if scene.bodies or scene.models or scene.volume is not None:
@@ -36,7 +32,7 @@ def check_main(argv: list[str] | None = None) -> int:
         except InputError as exc:
             if not problems:
                 raise
-            problems = problems + [(exc.what, exc.expected, exc.found)]
+            problems = problems + exc.problems
     raise_all(problems, str(scene.path), "scene file")
     kinds = {}
     for b in scene.bodies:

@@ -32,7 +32,7 @@ import numpy as np
 from softvr.examples.run import PhysicsExample
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 
-__all__ = ["SceneExample", "load_scene", "read_any"]
+__all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems"]
 
 
 def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
@@ -180,6 +180,7 @@ class SceneExample(PhysicsExample):
         self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
                       contact_margin=sim["contact_margin"])
+        self.scene = scene  # (again in PhysicsExample.__init__) the collision-free start needs it
         self.planes = []
         for i, p in enumerate(scene_file.planes):
             plane = Plane(point=p["point"], normal=p["normal"], friction=p["friction"], id=i)
@@ -191,6 +192,7 @@ class SceneExample(PhysicsExample):
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
+        self._obstacles = {}  # name -> the collision surface of a fixed mesh (a static obstacle, not a body)
         self.tools, self._driven = [], []
         self.volume = None
         if scene_file.volume is not None:
@@ -207,7 +209,7 @@ class SceneExample(PhysicsExample):
                     if other != spec.name and other not in spec.collides_with:
                         scene.disable_collision(self.index[spec.name], j)
         #: (moved body, obstacle, its largest node displacement [m]) of the collision-free start.
-        self.separation = self._collision_free_start(scene) if sim.get("collision_free_start") else []
+        self.separation = self._collision_free_start() if sim.get("collision_free_start") else []
         for c in scene_file.couplings:
             self._couple(scene, c)
         for tool in self.tools:
@@ -329,6 +331,7 @@ class SceneExample(PhysicsExample):
 
             v, t = self._surface(spec, rotation, centre)
             scene.add_mesh(TriangleMesh(v, t, id=100 + len(self.drawn)), adhesion=adhesion)
+            self._obstacles[spec.name] = _Drawn(lambda v=v: v, t, spec.color)
             if spec.render_mesh is not None:
                 v, t = self._surface(spec, rotation, centre, spec.render_mesh)
             self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
@@ -442,7 +445,7 @@ class SceneExample(PhysicsExample):
         tool.haptics = spec.tool["haptics"]
         return tool
 
-    def _collision_free_start(self, scene, rounds: int = 4) -> list:
+    def _collision_free_start(self, rounds: int = 4) -> list:
         """Push every soft body that starts crossing another body out of it (thesis 5.2.3,
         :func:`softvr.model.push_apart`: a smooth deformation of its tets; it starts from that
         deformed state, its rest shape unchanged). Of two soft bodies the one with fewer tets
@@ -451,19 +454,16 @@ class SceneExample(PhysicsExample):
         third, so the pairs are swept until nothing moves (at most ``rounds`` sweeps).
         """
         from softvr.dynamics import embed_in_tets
-        from softvr.model import intersecting_triangle_pairs, push_apart
+        from softvr.model import push_apart
 
-        apart = {frozenset((c["a"], c["b"])) for c in self.file.couplings if not c["collide"]}
-        names = list(self._drawn_by_name)
-        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
-                 if scene.collision_enabled(self.index[a], self.index[b]) and frozenset((a, b)) not in apart]
+        pairs = self._start_pairs()
 
         def soft(name) -> bool:
-            return hasattr(self.bodies[name], "tets") and not self.bodies[name].fixed.all()
+            body = self.bodies.get(name)
+            return hasattr(body, "tets") and not body.fixed.all()
 
         def crossing(a, b) -> bool:
-            da, db = self._drawn_by_name[a], self._drawn_by_name[b]
-            return len(intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)) > 0
+            return len(self._crossing(a, b)) > 0
 
         start, pushed = {}, []
         for _ in range(rounds):
@@ -473,7 +473,7 @@ class SceneExample(PhysicsExample):
                     continue
                 smaller = soft(a) and (not soft(b) or len(self.bodies[a].tets) <= len(self.bodies[b].tets))
                 mover, obstacle = (a, b) if smaller else (b, a)
-                body, surface, other = self.bodies[mover], self._drawn_by_name[mover], self._drawn_by_name[obstacle]
+                body, surface, other = self.bodies[mover], self._surface_of(mover), self._surface_of(obstacle)
                 start.setdefault(mover, body.q.copy())
                 embedding = embed_in_tets(body.q, body.tets, surface.vertices(), tolerance=np.inf)
                 nodes, report = push_apart(body.q, body.tets, embedding, surface.triangles, other.vertices(),
@@ -487,29 +487,42 @@ class SceneExample(PhysicsExample):
                 break
         return [(a, b, float(np.linalg.norm(self.bodies[a].q - start[a], axis=1).max())) for a, b in pushed]
 
-    def start_problems(self) -> list:
-        """(what, expected, found) for bodies that start intersecting each other (crossing
-        surface triangles; pairs that may not collide are left out) or below a plane."""
+    def _surface_of(self, name: str) -> _Drawn:
+        """The surface a body (or a fixed mesh obstacle) starts crossing others with."""
+        return self._drawn_by_name[name] if name in self._drawn_by_name else self._obstacles[name]
+
+    def _start_pairs(self) -> list:
+        """Name pairs whose surfaces must start apart: bodies that may collide (not filtered,
+        not coupled without contact), and every body with every fixed mesh; cloth is an open
+        sheet and left out."""
+        apart = {frozenset((c["a"], c["b"])) for c in self.file.couplings if not c["collide"]}
+        names = [n for n in self._drawn_by_name if getattr(self.file.body(n), "type", None) != "cloth"]
+        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
+                 if self.scene.collision_enabled(self.index[a], self.index[b]) and frozenset((a, b)) not in apart]
+        return pairs + [(a, o) for a in names for o in self._obstacles]
+
+    def _crossing(self, a: str, b: str) -> np.ndarray:
+        """Crossing triangle pairs [k, 2] of two named surfaces (:meth:`_surface_of`)."""
         from softvr.model import intersecting_triangle_pairs
 
+        da, db = self._surface_of(a), self._surface_of(b)
+        return intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)
+
+    def start_problems(self) -> list:
+        """(what, expected, found) for bodies that start intersecting each other or a fixed
+        mesh (crossing surface triangles; pairs that may not collide are left out) or below a
+        plane."""
         out = []
-        names = list(self._drawn_by_name)
-        for i, a in enumerate(names):
-            da = self._drawn_by_name[a]
+        for a, da in self._drawn_by_name.items():
             for plane, _ in self.planes:
                 depth = float(-((da.vertices() - np.asarray(plane.point)) @ plane.unit_normal()).min())
                 if depth > 1e-6:
                     out.append((f"body {a!r}", "a start above every plane", f"{depth * 1e3:.2f} mm below one"))
-            for b in names[i + 1:]:
-                # Cloth is an open sheet (no crossing test); coupled or filtered pairs may overlap.
-                if "cloth" in (getattr(self.file.body(a), "type", None), getattr(self.file.body(b), "type", None)) or \
-                        not self.scene.collision_enabled(self.index[a], self.index[b]):
-                    continue
-                db = self._drawn_by_name[b]
-                crossing = intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)
-                if len(crossing):
-                    out.append((f"bodies {a!r} and {b!r}", "surfaces apart at the start",
-                                f"{len(crossing)} crossing triangle pairs"))
+        for a, b in self._start_pairs():
+            crossing = self._crossing(a, b)
+            if len(crossing):
+                out.append((f"bodies {a!r} and {b!r}", "surfaces apart at the start",
+                            f"{len(crossing)} crossing triangle pairs"))
         return out
 
     @staticmethod
@@ -698,6 +711,20 @@ def read_any(path) -> SceneFile:
 
         return read_gltf_scene(path)
     return read_scene(path)
+
+
+def read_any_with_problems(path) -> tuple[SceneFile, list]:
+    """A scene file (TOML) or glTF / GLB scene without its parts that have a problem, and its
+    problems (:func:`~softvr.scene.schema.read_scene_with_problems`)."""
+    from pathlib import Path
+
+    if Path(path).suffix.lower() in (".gltf", ".glb"):
+        from softvr.scene.gltf import read_gltf_scene_with_problems
+
+        return read_gltf_scene_with_problems(path)
+    from softvr.scene.schema import read_scene_with_problems
+
+    return read_scene_with_problems(path)
 
 
 def load_scene(path, **overrides) -> SceneExample:

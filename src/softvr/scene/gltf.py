@@ -62,7 +62,9 @@ are bodies named as the parts, for couplings and ``softvr_collides_with``.
 
 Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
 ``softvr_friction``, ``softvr_gravity`` [m/s^2], ``softvr_pgs_iterations``,
-``softvr_contact_margin`` [m], ``softvr_ground`` (true: a ground plane at z = 0;
+``softvr_contact_margin`` [m], ``softvr_collision_free_start`` (soft bodies that start
+crossing another are pushed out of it first; the add-on sets it), ``softvr_ground`` (true: a
+ground plane at z = 0;
 ``softvr_ground_adhesion_*`` as a node's ``softvr_adhesion_*`` make it adhesive),
 ``softvr_display`` (the screens it is shown on: a :mod:`softvr.cave` preset or a display file),
 ``softvr_start_time`` [s] (the animation time that is the simulation's t = 0; default: the first
@@ -104,10 +106,11 @@ from urllib.parse import unquote
 
 import numpy as np
 
-from softvr.errors import InputError, Problems
-from softvr.scene.schema import BodySpec, SceneFile, _color, _keyframes, _model, _render, _volume
+from softvr.errors import InputError, Problems, raise_all
+from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _keyframes, _model, _render,
+                                 _simulation, _volume)
 
-__all__ = ["has_softvr_bodies", "read_gltf_scene"]
+__all__ = ["has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
 
 _PREFIX = "softvr_"
 _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", "model")
@@ -449,7 +452,19 @@ def _boolean(props: dict, key: str, where: str, errors: Problems) -> bool:
 
 def read_gltf_scene(path) -> SceneFile:
     """A :class:`~softvr.scene.SceneFile` from a glTF / GLB scene whose nodes carry softvr
-    properties as extras (module docstring)."""
+    properties as extras (module docstring). Raises one :class:`~softvr.errors.InputError`
+    listing every problem."""
+    scene, problems = read_gltf_scene_with_problems(path)
+    raise_all(problems, str(path), "glTF scene")
+    return scene
+
+
+def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
+    """A glTF scene's problems, and the scene without the objects that have one (as
+    :func:`softvr.scene.schema.read_scene_with_problems` for TOML: ``softvr check`` builds the
+    rest to find bodies that start crossing). An object's bad coupling properties leave out the
+    coupling, not the object; the coupled pair still does not collide. An unreadable file
+    raises :class:`~softvr.errors.InputError`."""
     import trimesh
 
     path = Path(path)
@@ -460,14 +475,16 @@ def read_gltf_scene(path) -> SceneFile:
     errors = Problems(str(path), "glTF scene")
     scenes = doc.get("scenes") or [{}]
     scene_props = _properties(scenes[doc.get("scene", 0)].get("extras"))
-    simulation = {"dt": errors.number(scene_props, "dt", "scene", default=0.005, positive=True, unit="s"),
+    simulation = {"dt": errors.number(scene_props, "dt", "scene", default=0.005, positive=True, unit="s",
+                                      plausible=PLAUSIBLE["dt"]),
                   "steps_per_frame": errors.integer(scene_props, "steps_per_frame", "scene", default=4, minimum=1),
                   "frames": errors.integer(scene_props, "frames", "scene", default=100, minimum=1),
                   "gravity": errors.vector(scene_props, "gravity", "scene", default=[0.0, 0.0, -9.81], unit="m/s^2"),
                   "friction": errors.number(scene_props, "friction", "scene", default=0.5, minimum=0.0),
                   "pgs_iterations": errors.integer(scene_props, "pgs_iterations", "scene", default=500, minimum=1),
                   "contact_margin": errors.number(scene_props, "contact_margin", "scene", default=0.005, minimum=0.0,
-                                                  unit="m")}
+                                                  unit="m"),
+                  "collision_free_start": _boolean(scene_props, "collision_free_start", "scene", errors)}
     render = _render({"render": _booleans({k: v for k, v in scene_props.items() if k in _RENDER_KEYS},
                                           ("light_kit",))}, errors, "scene")
     start_time = errors.number(scene_props, "start_time", "scene", unit="s") if "start_time" in scene_props else None
@@ -476,6 +493,7 @@ def read_gltf_scene(path) -> SceneFile:
     parent = {child: i for i, node in enumerate(nodes) for child in node.get("children", [])}
     loaded = trimesh.load(path, force="scene")
     materials, adhesions, bodies, couplings, moving, named, volumes, models = {}, {}, [], [], [], {}, [], []
+    model_nodes = []
     for i, node in enumerate(nodes):
         props = _properties(node.get("extras"))
         if not props:
@@ -488,6 +506,7 @@ def read_gltf_scene(path) -> SceneFile:
             for key in sorted(set(table) - {"file", "colors", "opacity"}):
                 errors.add(f"{where}.{key}", "file, colors or opacity (a model node)", key)
             models.append(_model(len(models), table, path.parent, errors, where))
+            model_nodes.append(where)
             continue
         named[name] = kind
         coupling = _coupling(name, where, props, "fem" if kind == "volume" else kind, errors)
@@ -519,9 +538,11 @@ def read_gltf_scene(path) -> SceneFile:
                 spec.collides_with = tuple(o.strip() for o in others.split(",") if o.strip())
         if kind in ("rigid", "fem", "tool"):
             materials[name] = {
-                "young": errors.number(props, "young", where, default=1e5, positive=True, unit="Pa"),
+                "young": errors.number(props, "young", where, default=1e5, positive=True, unit="Pa",
+                                       plausible=PLAUSIBLE["young"]),
                 "poisson": errors.number(props, "poisson", where, default=0.3, minimum=-0.99, maximum=0.5),
-                "density": errors.number(props, "density", where, default=1000.0, positive=True, unit="kg/m^3"),
+                "density": errors.number(props, "density", where, default=1000.0, positive=True, unit="kg/m^3",
+                                         plausible=PLAUSIBLE["density"]),
                 "alpha": errors.number(props, "alpha", where, default=0.0, minimum=0.0, unit="1/s"),
                 "beta": errors.number(props, "beta", where, default=0.0, minimum=0.0, unit="s")}
             spec.material = name
@@ -628,14 +649,34 @@ def read_gltf_scene(path) -> SceneFile:
     render["lights"] = _lights(doc, parent, errors)
     ground = scene_props.get("ground", True)
     ground_adhesion = _adhesion(scene_props, "ground_adhesion_", "scene", errors)
-    errors.raise_if_any()
-    if ground_adhesion is not None:
+    # What is left to build: the objects without problems of their own (module docstring).
+    whats = [w for w, _, _ in errors.items]
+
+    def flawed(where: str, couplings_too: bool = False) -> bool:
+        return any((w == where or w.startswith((where + ".", where + " "))) and
+                   (couplings_too or not w.startswith(where + ".coupl")) for w in whats)
+
+    defaults = Problems(None, "defaults")
+    simulation = _complete(simulation, _simulation({}, defaults))
+    render = _complete(render, _render({}, defaults))
+    bodies = [b for b in bodies if not flawed(f"node {b.name!r}")]
+    models = [m for m, where in zip(models, model_nodes) if not flawed(where)]
+    if volume is not None and (flawed(f"node {volume['name']!r}") or len(volumes) > 1):
+        volume = None
+    present = {b.name for b in bodies} | {name for m in models for name in m["parts"]} | (
+        {volume["name"]} if volume is not None else set())
+    kept = [c for where, c in couplings if not flawed(where, couplings_too=True) and {c["a"], c["b"]} <= present]
+    filters = [(c["a"], c["b"]) for where, c in couplings
+               if flawed(where, couplings_too=True) and not c["collide"] and {c["a"], c["b"]} <= present]
+    if ground_adhesion is not None and None not in ground_adhesion.values():
         adhesions["ground"] = ground_adhesion
+    adhesions = {k: v for k, v in adhesions.items() if None not in v.values()}
     planes = [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": simulation["friction"],
-               "size": 3.0, "adhesion": None if ground_adhesion is None else "ground"}] if ground else []
-    return SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
-                     planes=planes, spheres=[], bodies=bodies, filters=[], couplings=[c for _, c in couplings],
-                     models=models, volume=volume, display=display)
+               "size": 3.0, "adhesion": "ground" if "ground" in adhesions else None}] if ground else []
+    scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
+                      planes=planes, spheres=[], bodies=bodies, filters=filters, couplings=kept, models=models,
+                      volume=volume, display=display)
+    return scene, errors.items
 
 
 def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | None:
