@@ -263,3 +263,48 @@ def test_authoring_in_blender_keyframes_couplings_tet_preview_and_cave_preview(t
         assert ex.scene.time == pytest.approx(1.0)
         np.testing.assert_allclose(probe.position, [0.3, 0.1, 0.25], atol=1e-6)  # the second keyframe
         np.testing.assert_allclose(ex.bodies["post"].position, [0.0, 0.0, 0.27], atol=1e-6)  # still
+
+
+CHECK_SCRIPT = """
+import os
+import sys
+
+import bpy
+
+zip_path, softvr = sys.argv[1:3]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path)
+bpy.ops.preferences.addon_enable(module="softvr_blender")
+bpy.context.preferences.addons["softvr_blender"].preferences.softvr_command = softvr
+bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0.0, 0.0, 0.15))
+bpy.context.active_object.name = "gel"
+bpy.ops.softvr.mark(kind="fem")
+bpy.context.active_object["softvr_cells"] = 0.045
+bpy.ops.mesh.primitive_cube_add(size=0.4, location=(0.0, 0.0, -0.13))  # its top 2 cm into the gel
+bpy.context.active_object.name = "table"
+bpy.ops.softvr.mark(kind="fixed")
+print("CHECK", sorted(bpy.ops.softvr.check()))
+bpy.context.scene["softvr_collision_free_start"] = False
+try:
+    bpy.ops.softvr.check()
+except RuntimeError:  # an operator's error report, in a script
+    print("CHECK FAILED")
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def test_the_addons_check_runs_the_validator_and_the_collision_free_start(tmp_path):
+    """A FEM cube modelled 2 cm into a fixed table: the add-on's Check (the scene's default
+    collision-free start on) pushes it out and passes, saying so; with the start turned off
+    the same scene fails, naming the crossing pair."""
+    from softvr.blender import build_addon
+
+    softvr = Path(sys.executable).with_name("softvr")
+    done = subprocess.run([str(BLENDER_PYTHON), "-c", CHECK_SCRIPT, str(build_addon(tmp_path)), str(softvr)],
+                          capture_output=True, text=True, timeout=300)
+    out = done.stdout + done.stderr
+    assert done.returncode == 0, out[-2000:]
+    assert "Info: collision-free start: 'gel' pushed out of 'table'" in out
+    assert "CHECK ['FINISHED']" in out
+    assert "bodies 'gel' and 'table': expected surfaces apart at the start" in out and "CHECK FAILED" in out
