@@ -108,13 +108,18 @@ def with_unit(value, unit: str) -> str | None:
 
     if not isinstance(value, str):
         return None
+    try:
+        float(value)
+        return f"{value!r} (a string: write the number without quotes)"
+    except ValueError:
+        pass
     match = re.fullmatch(r"\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S.*?)\s*", value)
     if match is None:
         return None
     number, written = float(match.group(1)), match.group(2).replace(" ", "").replace("·", "").replace("*", "")
     known = {k.replace(" ", ""): v for k, v in _UNITS.items()}
-    if written not in known or not math.isfinite(number):
-        return f"{value!r} (softvr files hold bare numbers in SI units: [{unit}])"
+    if written not in known or not math.isfinite(number) or not unit:
+        return f"{value!r} (softvr files hold bare numbers in SI units{f': [{unit}]' if unit else ''})"
     factor, si = known[written]
     if si != unit:
         what = _QUANTITY.get(si, si)

@@ -149,6 +149,7 @@ def test_numbers_written_with_units_are_told_their_si_value():
     assert "write 1.5708 [rad/s]" in with_unit("90 deg/s", "rad/s")
     assert "a mass [kg], not [m]" in with_unit("3 kg", "m")
     assert "bare numbers in SI units: [m]" in with_unit("3 furlongs", "m")
+    assert "write the number without quotes" in with_unit("0.5", "")
     assert with_unit("fast", "s") is None and with_unit(5.0, "s") is None
 
 
