@@ -480,9 +480,10 @@ class SceneExample(PhysicsExample):
                                            other.triangles)
                 nodes[body.fixed] = body.q[body.fixed]  # clamped nodes stay where the scene put them
                 body.q[:] = nodes
-                if (mover, obstacle) not in pushed:
-                    pushed.append((mover, obstacle))
-                changed = changed or report.max_displacement > 0
+                if report.max_displacement > 0:  # none of its vertices inside: nothing to push
+                    changed = True
+                    if (mover, obstacle) not in pushed:
+                        pushed.append((mover, obstacle))
             if not changed:
                 break
         return [(a, b, float(np.linalg.norm(self.bodies[a].q - start[a], axis=1).max())) for a, b in pushed]
