@@ -564,3 +564,56 @@ def test_a_gltf_scene_extra_asks_for_the_collision_free_start(tmp_path, capsys):
     assert "'jelly' pushed out of 'table'" in capsys.readouterr().out
     with load_scene(path, frames=1) as example:
         assert example._drawn_by_name["jelly"].vertices()[:, 2].min() >= 0.2 - 1e-6
+
+
+def test_a_render_mesh_and_a_collision_budget_read_as_the_equivalent_toml(tmp_path):
+    """A rigid die (0.1 m box) drawn as another object's mesh (a 0.12 m box, scenery: no
+    softvr_type) and a fem block whose collision surface is simplified to 8 triangles: the
+    drawn die is the other object's box where it is (z-up), the same as TOML's ``render_mesh``
+    file gives, and it moves with the die; the budget is TOML's ``collision_triangles``."""
+    import trimesh
+
+    path = _glb(tmp_path / "drawn.glb", [
+        ("die", (0.1, 0.1, 0.1), (0.0, 0.3, 0.0), IDENTITY,
+         {"softvr_type": "rigid", "softvr_density": 500.0, "softvr_render_mesh": "die look"}),
+        ("die look", (0.12, 0.12, 0.12), (0.0, 0.3, 0.0), IDENTITY, None),
+        ("block", (0.2, 0.1, 0.2), (0.5, 0.05, 0.0), IDENTITY,
+         {"softvr_type": "fem", "softvr_cells": 0.05, "softvr_collision_triangles": 8})])
+    trimesh.creation.box((0.12, 0.12, 0.12)).export(tmp_path / "look.obj")
+    trimesh.creation.box((0.1, 0.1, 0.1)).export(tmp_path / "die.obj")
+    trimesh.creation.box((0.2, 0.2, 0.1)).export(tmp_path / "block.obj")
+    toml = _toml(tmp_path / "drawn.toml", '''
+[material.die]
+density = 500.0
+[material.block]
+[[plane]]
+[[body]]
+name = "die"
+type = "rigid"
+mesh = "die.obj"
+render_mesh = "look.obj"
+material = "die"
+position = [0.0, 0.0, 0.3]
+[[body]]
+name = "block"
+type = "fem"
+mesh = "block.obj"
+cells = 0.05
+material = "block"
+collision_triangles = 8
+position = [0.5, 0.0, 0.05]
+''')
+    glb_scene, toml_scene = read_gltf_scene(path), read_scene(toml)
+    assert glb_scene.body("block").collision_triangles == toml_scene.body("block").collision_triangles == 8
+    with load_scene(path, frames=2) as a, load_scene(toml, frames=2) as b:
+        drawn = _sorted(a._drawn_by_name["die"].vertices())
+        corners = _sorted(np.array(np.meshgrid([-0.06, 0.06], [-0.06, 0.06], [0.24, 0.36])).reshape(3, -1).T)
+        np.testing.assert_allclose(drawn, corners, atol=1e-6)
+        np.testing.assert_allclose(drawn, _sorted(b._drawn_by_name["die"].vertices()), atol=1e-6)
+        assert len(a._drawn_by_name["block"].triangles) == len(b._drawn_by_name["block"].triangles)
+        for _ in range(2):
+            a.step()
+        fall = a.bodies["die"].position[2] - 0.3
+        assert fall < -1e-3  # it falls, and its drawn box with it
+        np.testing.assert_allclose(_sorted(a._drawn_by_name["die"].vertices()), corners + [0.0, 0.0, fall],
+                                   atol=1e-6)

@@ -591,7 +591,9 @@ class SceneExample(PhysicsExample):
         """The body's mesh (from its file, or given in memory; or ``file``) placed in the world [m]."""
         from softvr.model import load_mesh
 
-        if file is not None:
+        if isinstance(file, tuple):  # given in memory (a glTF object's mesh)
+            v, t = file
+        elif file is not None:
             v, t = load_mesh(file)
         elif spec.mesh_data is not None:
             v, t = spec.mesh_data

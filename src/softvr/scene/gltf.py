@@ -27,6 +27,11 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
 ``softvr_stiffness``          [N/m] hand - tool coupling (tool, required)
 ``softvr_damping``            [N s/m] (tool; default 0), ``softvr_haptics`` (tool: true runs the
                               1 kHz haptic loop; default false), ``softvr_max_force`` [N] (tool)
+``softvr_render_mesh``        another object's name (scenery: no ``softvr_type``): its mesh is
+                              drawn instead, where it is, carried by the body (thesis 5.1;
+                              TOML ``render_mesh``)
+``softvr_collision_triangles`` the collision surface simplified to about this many triangles
+                              (rigid, fem, kinematic, tool)
 ``softvr_collides_with``      "a, b": collide with these bodies only (node names or model parts,
                               comma-separated)
 ``softvr_couple_to``          another body's node name or a model part: zero-length springs to
@@ -530,6 +535,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
         spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color,
                         position=tuple(float(x) for x in origin))
         spec.mesh_data = (v - origin, np.asarray(mesh.faces, np.int32))
+        unturn = None  # a rotating kinematic body's mesh is kept in the node's own axes
         if "collides_with" in props:
             others = props["collides_with"]
             if not isinstance(others, str):
@@ -598,9 +604,30 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
                                "a matrix")
                 else:
                     # Its keys turn the node's own axes: its mesh in them (its rest rotation undone).
-                    rest = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0]
-                    spec.mesh_data = (rest.inv().apply(spec.mesh_data[0]), spec.mesh_data[1])
+                    unturn = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0].inv()
+                    spec.mesh_data = (unturn.apply(spec.mesh_data[0]), spec.mesh_data[1])
             moving.append((spec, keys))
+        if "collision_triangles" in props:
+            if kind in ("fixed", "cloth"):
+                errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool "
+                           "object", f"a {kind} object")
+            spec.collision_triangles = errors.integer(props, "collision_triangles", where, minimum=4)
+        if "render_mesh" in props:
+            # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
+            other = props["render_mesh"]
+            if kind == "cloth":
+                errors.add(f"{where}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed object",
+                           "a cloth object")
+            elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry:
+                errors.add(f"{where}.render_mesh", "the name of an object with a mesh", repr(other))
+            else:
+                drawn, geometry = loaded.graph[other]
+                shape = loaded.geometry[geometry]
+                vertices = _z_up(trimesh.transformations.transform_points(np.asarray(shape.vertices, float),
+                                                                          drawn)) - origin
+                if unturn is not None:
+                    vertices = unturn.apply(vertices)
+                spec.render_mesh = (vertices, np.asarray(shape.faces, np.int32))
         bodies.append(spec)
     if len(volumes) > 1:
         errors.add("nodes", "one volume node (a scene has one volume)", ", ".join(repr(v["name"]) for v in volumes))

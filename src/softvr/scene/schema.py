@@ -187,7 +187,7 @@ class BodySpec:
     scale: tuple = (1.0, 1.0, 1.0)
     surface_quads: int = 1
     subdivisions: int = 3
-    render_mesh: Path | None = None
+    render_mesh: Path | tuple | None = None  # a mesh file, or (vertices [n, 3] [m], triangles) in memory (glTF)
     collision_triangles: int | None = None
     collides_with: tuple | None = None
     drive: dict = field(default_factory=dict)
