@@ -665,18 +665,11 @@ class SceneExample(PhysicsExample):
         return deepest
 
     def renderer_options(self) -> dict:
-        r = self._render_settings()
+        r = self.file.render
         return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"]}
 
-    def _render_settings(self) -> dict:
-        """The file's ``[render]`` over the format's defaults (a glTF scene sets only some)."""
-        from softvr.errors import Problems
-        from softvr.scene.schema import _render
-
-        return {**_render({}, Problems("defaults", "scene file")), **self.file.render}
-
     def setup_render(self, renderer) -> None:
-        for light in self._render_settings()["lights"]:
+        for light in self.file.render["lights"]:
             renderer.add_light(light["position"], light["focal_point"], light["color"], light["intensity"])
         for plane, size in self.planes:
             renderer.add_plane(point=plane.point, normal=plane.normal, size=size, tiles=12)
