@@ -3,10 +3,86 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 import numpy as np
 
-__all__ = ["ContactSide", "Contacts", "point_jacobian_blocks", "rigid_side", "stencil_side"]
+from softvr.errors import InputError
+
+__all__ = ["MAX_BODIES", "MAX_FEATURES", "ContactKind", "ContactSide", "Contacts", "contact_keys", "point_jacobian_blocks", "rigid_side",
+           "stencil_side", "unpack_keys"]
+
+
+class ContactKind(IntEnum):
+    """What meets what in a contact: the first field of its key (:func:`contact_keys`)."""
+
+    POINT_PLANE = 0  #: a body's collision point against a static plane
+    POINT_SPHERE = 1  #: a collision point against a static sphere
+    POINT_MESH = 2  #: a collision point against a static triangle mesh
+    VERTEX_TRIANGLE = 3  #: a surface vertex of body a against a triangle of body b
+    EDGE_EDGE = 4  #: an edge of body a against an edge of body b
+    SPHERE_PLANE = 5  #: a rigid sphere primitive against a static plane
+    SPHERE_SPHERE = 6  #: two rigid sphere primitives
+    BOX_PLANE = 7  #: a rigid box primitive's corner against a static plane
+    BOX_BOX = 8  #: a box primitive's corner (or edge pair) against another box
+
+
+# Bit layout of a key, most significant first: kind 4 | body a 10 | body b 10 | feature a 20 |
+# feature b 20 = 64 bits. One int64 per contact keeps matching a sort or a hash on any device.
+_FIELDS = (("kind", 4), ("body_a", 10), ("body_b", 10), ("feature_a", 20), ("feature_b", 20))
+_SHIFTS = {}
+_shift = 64
+for _name, _bits in _FIELDS:
+    _shift -= _bits
+    _SHIFTS[_name] = (_shift, _bits)
+del _shift, _name, _bits
+#: Largest body index and feature index a key holds.
+MAX_BODIES = 1 << 10
+MAX_FEATURES = 1 << 20
+
+
+def contact_keys(kind, body_a, feature_a, body_b, feature_b) -> np.ndarray:
+    """Scene-unique keys [c] (int64) of contacts: (kind, body a, feature a, body b, feature b).
+
+    The same feature pair of the same two bodies gets the same key on every step, so warm
+    starts and adhesion intensities follow it; different pairs never share one.
+
+    Parameters
+    ----------
+    kind : ContactKind
+    body_a : int or ndarray of int [c]
+        Body index of side a in the scene.
+    feature_a : int or ndarray of int [c]
+        Side a's feature: a collision point, surface vertex, edge, box corner (0 for a sphere).
+    body_b : int or ndarray of int [c]
+        Body index of side b, or for static geometry (no side b) the static's index among the
+        scene's planes, spheres or meshes (``kind`` tells which).
+    feature_b : int or ndarray of int [c]
+        Side b's feature: a triangle, edge, corner, or 0.
+
+    Raises
+    ------
+    InputError
+        If a body index reaches :data:`MAX_BODIES` or a feature :data:`MAX_FEATURES`.
+    """
+    fields = {"kind": int(kind), "body_a": body_a, "body_b": body_b, "feature_a": feature_a, "feature_b": feature_b}
+    arrays = np.broadcast_arrays(*(np.asarray(v, np.int64) for v in fields.values()))
+    key = np.zeros(arrays[0].shape, np.uint64)
+    for (name, (shift, bits)), value in zip(_SHIFTS.items(), arrays):
+        if value.size and (value.min() < 0 or value.max() >= (1 << bits)):
+            bad = value[(value < 0) | (value >= (1 << bits))].flat[0]
+            raise InputError(f"contact {name}", f"an index in [0, {(1 << bits) - 1}] (the contact key's capacity)",
+                             str(int(bad)))
+        key |= value.astype(np.uint64) << np.uint64(shift)
+    return key.view(np.int64)
+
+
+def unpack_keys(keys) -> dict[str, np.ndarray]:
+    """The fields of contact keys [c] (:func:`contact_keys`): ``kind``, ``body_a``, ``body_b``,
+    ``feature_a``, ``feature_b``, each int64 [c]."""
+    k = np.asarray(keys, np.int64).view(np.uint64)
+    return {name: ((k >> np.uint64(shift)) & np.uint64((1 << bits) - 1)).astype(np.int64)
+            for name, (shift, bits) in _SHIFTS.items()}
 
 
 @dataclass
@@ -49,7 +125,9 @@ class Contacts:
         triangle's own and the mean of the incident triangles' at vertices and edges (thesis
         4.3.1); 0 when unknown (points that are not collision-surface vertices).
     ids : ndarray of int64, shape [contact_count]
-        Stable identifiers (same feature pair -> same id across steps) for warm starts.
+        Keys unique in the scene (:func:`contact_keys`: kind, body and feature of both sides),
+        the same for the same feature pair on every step: they carry warm starts and adhesion
+        intensities from step to step.
     friction : ndarray, shape [contact_count]
         Coulomb coefficient mu.
     """
