@@ -38,6 +38,7 @@ class SparseNodeSystem:
         """Keep this step's ``A`` (free rows / columns) and return the velocities [n, 3] solving
         ``A v = b`` (thesis eq. 5.2) with the fixed ones at ``fixed_velocity``."""
         self._free = ~np.repeat(self.fixed, 3)
+        self._factor_age = getattr(self, "_factor_age", 0) + 1
         a = a.tocsr()
         self._a_free = a[self._free][:, self._free].tocsr()
         self._precond = self._lagged_factor_preconditioner() or sp.diags(1.0 / self._a_free.diagonal())
@@ -163,10 +164,18 @@ class SparseNodeSystem:
         """Rows and columns of ``A^-1`` at the velocities of nodes ``blocks`` [k]:
         shape [3k, 3k] [m/s per N s] (the per-object block of the Delassus operator, eq. 5.6).
 
-        The step's ``A`` is factored with those velocities eliminated last; then
+        ``A`` is factored with those velocities eliminated last; then
         ``(A^-1)_CC = U_CC^-1 L_CC^-1`` is the inverse of the trailing corner of the factors, and
         no solve with the ``3k`` unit columns is needed (they cost ~10x the factorization).
         Rows and columns of fixed nodes are 0.
+
+        The factorization is kept over steps (:attr:`compliance_is_exact` turns False): while
+        this step's CG, preconditioned by it, needs at most :attr:`lag_iterations` iterations
+        (``A`` has hardly changed), it is younger than :attr:`max_factor_age` steps and its
+        trailing corner holds every requested velocity, the block comes from the kept corner
+        inverse. The contact solver then corrects with the exact ``A^-1`` (eq. 5.6's outer loop
+        with the kept ``A`` as ``D_A``). A refactorization keeps the previous corner's
+        velocities in the corner too, so contacts that come and go do not refactor each step.
         """
         blocks = np.asarray(blocks, int).ravel()
         if len(np.unique(blocks)) != len(blocks) or (blocks < 0).any() or (blocks >= len(self.v)).any():
@@ -175,15 +184,50 @@ class SparseNodeSystem:
         free_index = np.cumsum(self._free) - 1  # velocity -> row of the free system
         keep = self._free[dofs]
         last = free_index[dofs[keep]]
-        self._factor(last)
-        k, n = len(last), self._a_free.shape[0]
-        out = np.zeros((len(dofs), len(dofs)))
-        if k:
+        n = self._a_free.shape[0]
+        if not self._corner_reusable(last, n):
+            corner = getattr(self, "_corner_last", None)
+            if corner is not None and getattr(self, "_lu", None) is not None and self._lu.shape[0] == n \
+                    and len(np.union1d(corner, last)) <= 2 * len(last) + 24:
+                last_all = np.concatenate([corner, np.setdiff1d(last, corner)])
+            else:
+                last_all = last
+            self._factor(last_all)
+            k = len(last_all)
             lower = self._lu.L[n - k :, n - k :].toarray()
             upper = self._lu.U[n - k :, n - k :].toarray()
-            inv = solve_triangular(upper, solve_triangular(lower, np.eye(k), lower=True, unit_diagonal=True))
-            out[np.ix_(keep, keep)] = inv
+            self._corner_inv = solve_triangular(upper, solve_triangular(lower, np.eye(k), lower=True, unit_diagonal=True))
+            self._corner_last = last_all
+            self._corner_position = np.full(n, -1)
+            self._corner_position[last_all] = np.arange(k)
+        at = self._corner_position[last]
+        inv = self._corner_inv if np.array_equal(at, np.arange(len(self._corner_inv))) \
+            else self._corner_inv[np.ix_(at, at)]
+        if keep.all():
+            return inv.copy()
+        out = np.zeros((len(dofs), len(dofs)))
+        out[np.ix_(keep, keep)] = inv
         return out
+
+    #: Most CG iterations of a step's unconstrained solve (preconditioned by the kept
+    #: factorization) with which :meth:`compliance` still reuses that factorization.
+    lag_iterations = 4
+    #: Most steps a factorization is kept for :meth:`compliance`.
+    max_factor_age = 16
+
+    @property
+    def compliance_is_exact(self) -> bool:
+        """Whether :meth:`compliance` of this step is this step's ``A^-1`` (else the kept one's)."""
+        return self._factor_is_current()
+
+    def _corner_reusable(self, last: np.ndarray, n: int) -> bool:
+        """Whether the kept factorization can give the compliance of the free velocities ``last``."""
+        lu, at = getattr(self, "_lu", None), getattr(self, "_corner_position", None)
+        if lu is None or at is None or lu.shape[0] != n or len(at) != n:
+            return False
+        if self._factor_age >= self.max_factor_age or self.last_cg_iterations > self.lag_iterations:
+            return False
+        return bool((at[last] >= 0).all())
 
     def _factor_is_current(self) -> bool:
         return getattr(self, "_lu_matrix", None) is self._a_free
@@ -209,6 +253,8 @@ class SparseNodeSystem:
             raise self._diverged("step matrix A needed pivoting: it is not positive definite")
         self._lu_order = order
         self._lu_matrix = self._a_free
+        self._factor_age = 0
+        self._corner_position = None  # the corner inverse belongs to the previous order
 
     def _lu_solve(self, cols: np.ndarray) -> np.ndarray:
         """``A^-1 C`` [velocity_size, k] with the current factorization (fixed rows 0)."""
