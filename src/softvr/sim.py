@@ -411,7 +411,7 @@ class Scene:
         stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
         warm, self._warm = self._warm, {}
         solved = solve_contacts(units, v_units, [self._to_units(c, where) for c in contacts], dt,
-                                iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness)
+                                iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness, slip=self.adhesion_state.slip)
         members = [[i for i, (w, _) in enumerate(where) if w == u] for u in range(len(units))]
         solution = ContactSolution(
             velocities=[self._body_velocity(solved.velocities, where, i) for i in range(len(self.bodies))],

@@ -38,7 +38,10 @@ def _adhesive_bound(delassus: wp.array2d(dtype=wp.float64), target: wp.array(dty
                     k: wp.float64) -> wp.float64:
     """The implicit adhesive impulse limit of row ``r`` (thesis eq. 4.16, steps 3, 6-7 of
     4.3.2): ``k d_bar / (1 + k B_rr)`` with ``d_bar = B_rr lambda_r + target_r - rel_r`` (the
-    row's right-hand side without its own impulse) and ``k = dt^2 A C beta^2``; 0 for k = 0."""
+    row's right-hand side without its own impulse) and ``k = dt^2 A C beta^2``; 0 for k = 0.
+    On a bonded contact's tangent row the target is ``-t . u / dt`` (u its slip since bonding),
+    so this is the impulse of the tangential spring stretched by the slip at the end of the
+    step, ``dt A C beta^2 t . (u + dt v)`` (:mod:`softvr.contact.adhesion`)."""
     b = delassus[r, r]
     d_bar = b * lam[r] + target[r] - rel[r]
     return k * d_bar / (wp.float64(1.0) + k * b)
@@ -92,7 +95,8 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
     delassus : ndarray, shape [3c, 3c]
         Symmetric Delassus operator B [m/s per N s].
     target : ndarray, shape [3c] [m/s]
-        Constraint velocities aimed at (normal: -gap/dt; tangents: 0).
+        Constraint velocities aimed at (normal: -gap/dt; tangents: 0, or ``-t . u / dt`` on a
+        bonded contact with slip u since bonding).
     friction : ndarray, shape [c]
         Coulomb coefficients mu.
     lam : ndarray, shape [3c] [N s]

@@ -10,8 +10,22 @@ contact with local area A, the lower bound of its normal impulse becomes
 
 and its tangential impulses may reach the same implicit adhesive bound in either direction,
 or the Coulomb bound, whichever holds more (steps 4-8 of 4.3.2). This module holds the
-material parameters and the per-contact intensities; the projection itself is in
-:mod:`softvr.contact._pgs_kernels`.
+material parameters, the per-contact intensities and tangential slips; the projection itself
+is in :mod:`softvr.contact._pgs_kernels`.
+
+Tangential adhesion is a spring on the slip (extending eqs. 4.10 and 4.16 to the tangent
+plane as in [RCC99]). The thesis' tangential "gap" is the slip of one step, ``dt v_t``, so its
+bound is a damper: under any sideways force above friction a bonded contact creeps, step after
+step. Here every bonded contact keeps its slip since bonding, ``u`` [m] (world, in the tangent
+plane; :attr:`AdhesionState.slip`), and the tangential gap of the step is the slip at its end,
+``u + dt v_t``. The traction law ``p_t = -C beta^2 (u + dt v_t)`` (eq. 4.10 along a tangent t)
+makes the tangent row's target ``-u . t / dt`` (:func:`softvr.contact.solve_contacts`), and
+the bound of eq. 4.16 on that row, ``k d_bar / (1 + k B_tt)`` with ``d_bar`` including the
+target, is then the impulse of the stretched spring ``dt A C beta^2 (u + dt v_t) . t``. A force
+F held by bonded contacts therefore stretches them by ``F / sum(A C beta^2)`` and no further.
+Within the Coulomb bound (the larger of the two holds, 4.3.2) the contact returns to where it
+bonded. A contact whose bond has given (beta = 0) or that is forgotten loses its slip: bonding
+again anchors it anew.
 
 After each step (4.3.3) the intensity evolves by explicit Euler, from the tractions
 ``p = -lambda / (dt A)`` of the solve and the gap the traction law gives, ``g = p / (C beta^2)``:
@@ -22,7 +36,9 @@ After each step (4.3.3) the intensity evolves by explicit Euler, from the tracti
   under compression (where bonding acts as well); the tangential adhesive traction is what
   exceeds the Coulomb bound ``mu lambda_n`` (friction carries the rest);
 * a contact whose gap exceeds ``debond_gap`` is fully debonded and forgotten (touching again
-  later makes a new contact at ``beta0``); one that debonds to 0 while still close stays at 0.
+  later makes a new contact at ``beta0``); one that debonds to 0 while still close stays at 0;
+* a contact without area (a collision point with no surface around it) does not adhere: it
+  stands for no interface, and a traction ``lambda / (dt A)`` would be infinite.
 
 Debonding starts once ``C g^2 beta = W``, that is at the traction ``p* = sqrt(W C beta^3)``.
 
@@ -109,24 +125,31 @@ def combine(a: Adhesion | None, b: Adhesion | None) -> Adhesion | None:
 class AdhesionState:
     """Adhesion intensities of the tracked contacts, by stable contact id.
 
-    A contact is tracked from the step it first touches (normal impulse > 0 or gap <= 0 at the
-    end of the step), starting at ``beta0``, until it is no longer detected or its gap exceeds
-    ``debond_gap``; only tracked contacts adhere.
+    A contact with area is tracked from the step it first touches (normal impulse > 0 or gap
+    <= 0 at the end of the step), starting at ``beta0``, until it is no longer detected or its
+    gap exceeds ``debond_gap``; only tracked contacts adhere.
 
     Attributes
     ----------
     intensity : dict[int, float]
         beta of every tracked adhesive contact.
+    slip : dict[int, ndarray]
+        Tangential slip ``u`` [3] [m] (world) of every bonded contact since it bonded: the
+        stretch of its tangential adhesive spring. The contact solver reads it and leaves the
+        slip at the end of the step (``slip=`` of :func:`softvr.contact.solve_contacts`);
+        :meth:`evolve` forgets it with the bond.
     """
 
     def __init__(self):
         self.intensity: dict[int, float] = {}
+        self.slip: dict[int, np.ndarray] = {}
 
     def stiffness(self, contacts, adhesion: Adhesion | None) -> np.ndarray:
         """``A C beta^2`` [N/m] per contact of one contact set: the implicit adhesive stiffness
         the solver uses (``k = dt^2 A C beta^2``, eq. 4.16). 0 without adhesion or area, and for
         contacts that have not touched yet: a speculative contact (a gap within the margin)
-        must not pull the surfaces together from a distance."""
+        must not pull the surfaces together from a distance. Its tangential slips are in
+        :attr:`slip`."""
         if adhesion is None or not len(contacts):
             return np.zeros(len(contacts))
         beta = np.array([self.intensity.get(int(i), 0.0) for i in contacts.ids])
@@ -155,12 +178,16 @@ class AdhesionState:
             tracked = np.array([int(i) in self.intensity for i in contacts.ids], bool)
             touched = tracked | (lam[:, 0] > 0) | (gap <= 0)
             beta = np.array([self.intensity.get(int(i), adhesion.initial) for i in contacts.ids])
-            area = np.maximum(contacts.area, 1e-300)
-            p = -lam / (dt * area[:, None])  # tractions (normal > 0 under traction)
+            # Tractions per unit area (normal > 0 under traction); a contact without area has
+            # none and is not tracked (below).
+            area = np.asarray(contacts.area, float)
+            has_area = area > 0
+            per_area = np.divide(1.0, dt * area, out=np.zeros_like(area), where=has_area)
+            p = -lam * per_area[:, None]
             # The tangential traction adhesion carries: what exceeds the Coulomb bound (friction
             # carries the rest, and debonds nothing).
             coulomb = contacts.friction * np.maximum(lam[:, 0], 0.0)
-            tangential = np.maximum(np.linalg.norm(lam[:, 1:], axis=1) - coulomb, 0.0) / (dt * area)
+            tangential = np.maximum(np.linalg.norm(lam[:, 1:], axis=1) - coulomb, 0.0) * per_area
             pulled = p[:, 0] > 0
             debond_p = np.where(pulled, np.hypot(p[:, 0], tangential), tangential)
             # C g^2 beta with the traction law's gap g = p / (C beta^2): p^2 / (C beta^3); no
@@ -173,6 +200,9 @@ class AdhesionState:
             beta = np.clip(np.nan_to_num(beta + dt * rate, nan=0.0), 0.0, 1.0)
             # Fully debonded past the gap threshold: forgotten, so that a later touch is a new
             # contact (starting at beta0). A contact debonded to 0 while still close stays at 0.
-            keep = touched & (gap <= adhesion.debond_gap)
+            keep = touched & has_area & (gap <= adhesion.debond_gap)
             updated.update(zip(contacts.ids[keep].tolist(), beta[keep].tolist()))
         self.intensity = updated
+        # A bond that gave (or a forgotten contact) loses its anchor: bonding again starts a
+        # new, unstretched tangential spring.
+        self.slip = {i: u for i, u in self.slip.items() if updated.get(i, 0.0) > 0}

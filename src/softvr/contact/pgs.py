@@ -17,7 +17,11 @@ each a 3x3 block taken as its normal row, then its two tangent rows one at a tim
 working set of the contacts that can act (the others are checked after each solve).
 Friction is a 4-sided Coulomb pyramid, |lambda_t1|, |lambda_t2| <= mu lambda_n, with t1 along
 the unconstrained tangential velocity. Adhesive contacts (:mod:`.adhesion`) widen the bounds
-by the implicit adhesion constraints of thesis eq. 4.16. Impulses lambda are in N s.
+by the implicit adhesion constraints of thesis eq. 4.16. Their tangent rows aim at undoing the
+contact's slip since bonding ``u`` [m] within the step, ``t . v = -t . u / dt`` instead of 0, so
+that the implicit bound of eq. 4.16 on those rows is the force of a tangential spring stretched
+by the slip at the end of the step, ``dt A C beta^2 t . (u + dt v)`` (a bonded contact holds
+like a spring instead of creeping). Impulses lambda are in N s.
 """
 
 from __future__ import annotations
@@ -33,6 +37,10 @@ from softvr.contact.islands import contact_islands
 from softvr.errors import InputError
 
 __all__ = ["ContactSolution", "solve_contacts"]
+
+#: Most passes of eq. 5.6's outer loop per island when a body's compliance is a kept
+#: factorization's (:attr:`softvr.dynamics.FemBody.compliance_is_exact`); one pass otherwise.
+OUTER_ITERATIONS = 8
 
 
 @dataclass
@@ -82,7 +90,8 @@ class ContactSolution:
 
 
 def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,
-                   warm_start: dict | None = None, adhesion: list | None = None) -> ContactSolution:
+                   warm_start: dict | None = None, adhesion: list | None = None,
+                   slip: dict | None = None) -> ContactSolution:
     """Constrained velocities of all bodies (thesis eq. 5.5), contact island by island.
 
     Parameters
@@ -109,6 +118,13 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
     adhesion : list of ndarray, optional
         Per contact set, ``A C beta^2`` [N/m] of each contact (implicit adhesion, thesis eq.
         4.16; :meth:`softvr.contact.AdhesionState.stiffness`); None or zeros: plain contact.
+    slip : dict, optional
+        ``{contact id: tangential slip u (3,) [m], world}`` of the bonded contacts
+        (:attr:`softvr.contact.AdhesionState.slip`): the stretch of their tangential adhesive
+        springs, missing for 0. Updated in place for every contact with adhesion (``A C beta^2
+        > 0``) to its slip at the end of the step, ``u + dt v_t`` (``v_t`` the final relative
+        velocity in the tangent plane); kept in world coordinates because the tangent frame
+        follows the tangential velocity and turns from step to step.
     """
     if adhesion is None:
         adhesion = [None] * len(contact_sets)
@@ -126,7 +142,7 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         sets = [k for k, c in enumerate(contact_sets) if c.a.body in island]
         if sets:
             sweeps += _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt,
-                                    iterations, tolerance, warm_start, stiffness)
+                                    iterations, tolerance, warm_start, stiffness, slip or {})
     residual = 0.0
     gaps_after = []
     for k, c in enumerate(contact_sets):
@@ -135,6 +151,13 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         violation = approach - c.gap / dt
         residual = max(residual, float(np.max(violation, initial=0.0)))
         gaps_after.append(c.gap - dt * approach)
+        bonded = stiffness[k] > 0
+        if slip is not None and bonded.any():
+            # The spring's stretch at the end of the step, in the current tangent plane.
+            n = c.normal[bonded]
+            u = _slips(slip, c.ids[bonded], n) + dt * rel[bonded]
+            u -= np.einsum("ci,ci->c", u, n)[:, None] * n
+            slip.update(zip(c.ids[bonded].tolist(), u))
         if warm_start is not None:
             warm_start.update(zip(c.ids.tolist(), np.einsum("cr,crx->cx", impulses[k], frames[k])))
     return ContactSolution(velocities, impulses, frames, sweeps, residual, islands, contact_sets, gaps_after)
@@ -163,8 +186,15 @@ def _frames(contacts: Contacts, rel_velocity: np.ndarray) -> np.ndarray:
     return np.stack([n, t1, np.cross(n, t1)], axis=1)
 
 
+def _slips(slip: dict, ids: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Tangential slips [c, 3] [m] of contacts ``ids`` (0 where none is stored), in the plane
+    normal to ``normal`` [c, 3] (the normal turns a little between steps)."""
+    u = np.array([slip.get(int(i), (0.0, 0.0, 0.0)) for i in ids], float).reshape(-1, 3)
+    return u - np.einsum("ci,ci->c", u, normal)[:, None] * normal
+
+
 def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impulses, frames, dt, iterations, tol,
-                  warm, stiffness):
+                  warm, stiffness, slip):
     v_free = [np.asarray(v, float).reshape(-1, b.block_size) for b, v in zip(bodies, v_free)]
     offsets = np.cumsum([0] + [len(contact_sets[k]) for k in sets])
     rows = 3 * int(offsets[-1])
@@ -200,6 +230,12 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
             for store, values in zip(triplets[side.body], (rr, cc, w)):
                 store.append(values.ravel())
         target[contact_rows[:, 0]] = -c.gap / dt
+        # Bonded contacts' tangent rows aim at undoing their slip within the step: with the
+        # implicit bound of eq. 4.16 that is a tangential spring on the slip (module docstring).
+        bonded = stiffness[k] > 0
+        if bonded.any():
+            u = _slips(slip, c.ids[bonded], c.normal[bonded])
+            target[contact_rows[bonded, 1:]] = -np.einsum("ctx,cx->ct", f[bonded, 1:], u) / dt
         mu[offsets[s] : offsets[s + 1]] = c.friction
         k_adhesion[offsets[s] : offsets[s + 1]] = dt * dt * stiffness[k]
         if warm:
@@ -212,13 +248,33 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
     g = {j: sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
                           shape=(rows, len(touched[j]) * bodies[j].block_size)) for j, (r, c, v) in triplets.items()}
     rel_free = sum(g[j] @ v_free[j][blocks].ravel() for j, blocks in touched.items())
-    sweeps, lam = _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam, iterations, tol)
-    for j, blocks in touched.items():
-        bs = bodies[j].block_size
-        impulse = np.zeros_like(v_free[j])
-        impulse[blocks] = (g[j].T @ lam).reshape(-1, bs)
-        velocities[j] = (v_free[j] + np.asarray(bodies[j].solve(impulse.reshape(velocities[j].shape)),
-                                                  float).reshape(v_free[j].shape)).reshape(velocities[j].shape)
+    # Bodies whose compliance is a kept (earlier) A^-1: the PGS solves with that D_A and the
+    # outer loop of eq. 5.6 moves the rest, (B - B~) lambda, to the right-hand side, with B
+    # applied exactly through the bodies' own solves, until it stops changing.
+    lagged = [j for j in touched if not getattr(bodies[j], "compliance_is_exact", True)]
+    rhs, sweeps = rel_free, 0
+    for _ in range(OUTER_ITERATIONS):
+        # The passes share the sweep budget: where PGS cannot converge (redundant contacts) the
+        # outer loop must not multiply its cost.
+        done, lam, predicted = _solve_working_set(bodies, touched, g, rhs, target, mu, k_adhesion, lam,
+                                                  max(iterations - sweeps, 1), tol)
+        sweeps += done
+        for j, blocks in touched.items():
+            bs = bodies[j].block_size
+            impulse = np.zeros_like(v_free[j])
+            impulse[blocks] = (g[j].T @ lam).reshape(-1, bs)
+            velocities[j] = (v_free[j] + np.asarray(bodies[j].solve(impulse.reshape(velocities[j].shape)),
+                                                      float).reshape(v_free[j].shape)).reshape(velocities[j].shape)
+        if not lagged:
+            break
+        actual = sum(g[j] @ np.asarray(velocities[j], float).reshape(v_free[j].shape)[blocks].ravel()
+                     for j, blocks in touched.items())
+        # actual = rel_free0 + B lambda; predicted = rhs + B~ lambda.
+        corrected = actual - (predicted - rhs)
+        change = float(np.abs(corrected - rhs).max(initial=0.0))
+        rhs = corrected
+        if change <= tol or sweeps >= iterations:
+            break
     for s, k in enumerate(sets):
         impulses[k] = lam[3 * offsets[s] : 3 * offsets[s + 1]].reshape(-1, 3)
     return sweeps
@@ -234,7 +290,8 @@ def _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam
     normal rows outside it are checked with the columns of the Delassus operator
     ``B = sum_j G_j (A_j^-1)_touched G_j^T`` (eq. 5.6) of the working rows, and violated ones
     join. The columns are computed once per contact.
-    Returns (PGS sweeps, impulses [rows]).
+    Returns (PGS sweeps, impulses [rows], the contact rows' velocities ``rel_free + B lambda``
+    [rows] [m/s] predicted with the bodies' compliances).
     """
     rows = len(target)
     compliance = {j: bodies[j].compliance(blocks) for j, blocks in touched.items()}
@@ -263,7 +320,7 @@ def _solve_working_set(bodies, touched, g, rel_free, target, mu, k_adhesion, lam
         outside = np.ones(rows, bool)
         outside[working] = False
         joining = normal[outside[normal] & (rel[normal] < target[normal] - tol)]
-    return sweeps, lam
+    return sweeps, lam, rel_free + columns @ lam[working]
 
 
 def _project(lam: np.ndarray, mu: float) -> np.ndarray:
