@@ -86,6 +86,7 @@ class CollisionSurface:
         adjacent = self.edge_set.adjacent
         self.edge_area = third[adjacent[:, 0]] + np.where(adjacent[:, 1] >= 0, third[adjacent[:, 1]], 0.0)
 
+
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,
                        dt: float = 0.0, ccd: bool = True, velocities_a=None, velocities_b=None) -> Contacts:
     """Contacts of a's vertices with b's triangles (normal from b towards a).
