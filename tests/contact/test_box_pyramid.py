@@ -95,9 +95,10 @@ def test_crossed_edges_meet_at_the_distance_between_their_lines(height):
     bottom edge horizontal along (cos 60, sin 60, 0), its middle placed at m = (x_b + 0.02,
     -0.01, z_b + ``height``). The two lines are horizontal and not parallel, so their distance
     is the height difference ``height``, their common perpendicular is vertical, and it
-    stands where a's line crosses x = x_b, at y = m_y + (x_b - m_x) tan 60 (inside both edges). The gap must equal ``height``, the normal be
-    +z and the point the middle of the perpendicular, all to round-off (1e-12 m), as one
-    edge-edge contact (the faces' separating axes all overlap more here).
+    stands where a's line crosses x = x_b, at y = m_y + (x_b - m_x) tan 60 (inside both
+    edges). The gap must equal ``height``, the normal be +z and the point the middle of the
+    perpendicular, all to round-off (1e-12 m), as one edge-edge contact (the faces' separating
+    axes all overlap more here; corner-face contacts alone report none at all).
     """
     hb, ha = np.array([0.1, 0.07, 0.05]), np.array([0.06, 0.08, 0.04])
     x_b, top_b = (hb[2] - hb[0]) / np.sqrt(2), (hb[0] + hb[2]) / np.sqrt(2)

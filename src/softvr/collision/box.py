@@ -182,7 +182,8 @@ def _clip(poly: np.ndarray, labels: np.ndarray, pairs: np.ndarray, side: int, bo
     # plane (by a crossing, or at a vertex within tol) the new side edge follows; coming back,
     # the rest of edge i does.
     line = 4 + side
-    points, out, met, keep = np.empty((2 * m, 3)), np.empty(2 * m, int), np.empty((2 * m, 2), int), np.empty(2 * m, bool)
+    points, out, met = np.empty((2 * m, 3)), np.empty(2 * m, int), np.empty((2 * m, 2), int)
+    keep = np.empty(2 * m, bool)
     points[0::2], points[1::2] = poly, poly + t[:, None] * (poly[nxt] - poly)
     out[0::2] = np.where(inside & ~inside[nxt] & ~crossing, line, labels)
     out[1::2] = np.where(inside, line, labels)
