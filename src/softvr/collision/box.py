@@ -263,11 +263,12 @@ def _manifold(a, ha, b, hb, velocity_a, velocity_b, margin: float, dt: float):
     # bounding spheres, then the separating axes, tell which pairs stay apart.
     va = np.zeros(6) if velocity_a is None else np.asarray(velocity_a, float)
     vb = np.zeros(6) if velocity_b is None else np.asarray(velocity_b, float)
-    ra, rb = np.sqrt(ha @ ha), np.sqrt(hb @ hb)
-    reach = margin + dt * (np.linalg.norm(va[:3] - vb[:3]) + np.linalg.norm(va[3:]) * ra + np.linalg.norm(vb[3:]) * rb)
+    size_a, size_b = np.sqrt(ha @ ha), np.sqrt(hb @ hb)
+    reach = margin + dt * (np.linalg.norm(va[:3] - vb[:3]) + np.linalg.norm(va[3:]) * size_a
+                           + np.linalg.norm(vb[3:]) * size_b)
     d = a.position - b.position
     none = np.zeros(0, int)
-    if d @ d >= (ra + rb + reach) ** 2:
+    if d @ d >= (size_a + size_b + reach) ** 2:
         return np.zeros(3), np.zeros((0, 3)), np.zeros(0), none, none, 0.0
     axes, sep = _separation(a, ha, b, hb)
     if sep.max() >= reach:
@@ -282,13 +283,12 @@ def _manifold(a, ha, b, hb, velocity_a, velocity_b, margin: float, dt: float):
         return (n, *_edge_contact(a, ha, (best - 6) // 3, b, hb, (best - 6) % 3, n), 0.0)
     # A corner within the slack outside the reference face stays a corner (_clip): equal boxes
     # stacked at rest keep their corner contacts through micrometres of drift.
-    tol = slack
     if best >= 3:  # b's face turned to a: its outward normal is n
         f_ref = 2 * (best - 3) + int(b.rotation[:, best - 3] @ n > 0.0)
-        points, gap, area, fa, fb = _face_manifold(b, hb, f_ref, a, ha, tol)
+        points, gap, area, fa, fb = _face_manifold(b, hb, f_ref, a, ha, slack)
     else:  # a's face turned to b: outward along -n
         f_ref = 2 * best + int(a.rotation[:, best] @ n < 0.0)
-        points, gap, area, fb, fa = _face_manifold(a, ha, f_ref, b, hb, tol)
+        points, gap, area, fb, fa = _face_manifold(a, ha, f_ref, b, hb, slack)
     return n, points, gap, fa, fb, area
 
 
