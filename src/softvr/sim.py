@@ -226,6 +226,13 @@ class Scene:
         adhesion = self._adhesion[("body", body)]
         return self.contact_margin if adhesion is None else max(self.contact_margin, adhesion.debond_gap)
 
+    def _pair_margin(self, a: tuple, b: tuple) -> float:
+        """Detection margin [m] of a primitive pair (keys of ``_adhesion``): the scene's, or the
+        combined adhesion's debond gap, so that bonded contacts stay detected until they
+        debond (a sphere's contact area is the cap within it, :func:`sphere_vs_plane`)."""
+        pair = combine(self._adhesion[a], self._adhesion.get(b))
+        return self.contact_margin if pair is None else max(self.contact_margin, pair.debond_gap)
+
     def _pair_enabled(self, a: int, b: int) -> bool:
         return (min(a, b), max(a, b)) not in self._filtered
 
@@ -262,13 +269,14 @@ class Scene:
         for c in self._colliders:
             v = c.points.velocities(v_free[c.body])
             a = areas.get(id(c.points))
+            # Each static's index in its list makes the contact keys unique in the scene.
             if c.body not in primitive:  # a primitive meets the planes exactly
-                out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a), p)
-                        for p in self.planes]
-            out += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a), s)
-                    for s in self.spheres]
+                out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a,
+                                         static_index=k), p) for k, p in enumerate(self.planes)]
+            out += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a,
+                                      static_index=k), s) for k, s in enumerate(self.spheres)]
             out += [(points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd,
-                                    areas=a), mesh) for mesh in self.meshes]
+                                    areas=a, static_index=k), mesh) for k, mesh in enumerate(self.meshes)]
         # Broad phase: each surface's box, grown by the margin and its vertices' motion.
         moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
         boxes = []
@@ -294,14 +302,18 @@ class Scene:
                     out.append((edges_vs_edges(sa, sb, margin=pm, friction=self.friction, dt=dt, velocities_a=va,
                                                velocities_b=vb), None))
         for n, (i, r) in enumerate(self._sphere_bodies):
-            out += [(sphere_vs_plane(i, self.bodies[i], r, p, margin=m, velocity=v_free[i], dt=dt), p)
-                    for p in self.planes]
+            for k, p in enumerate(self.planes):
+                pm = self._pair_margin(("body", i), ("static", id(p)))
+                out.append((sphere_vs_plane(i, self.bodies[i], r, p, margin=pm, velocity=v_free[i], dt=dt,
+                                            static_index=k), p))
             for j, rj in self._sphere_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
                     out.append((sphere_vs_sphere(i, self.bodies[i], r, j, self.bodies[j], rj, friction=self.friction,
-                                                 margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
+                                                 margin=self._pair_margin(("body", i), ("body", j)),
+                                                 velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
         for n, (i, h) in enumerate(self._box_bodies):
-            out += [(box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt), p) for p in self.planes]
+            out += [(box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt, static_index=k), p)
+                    for k, p in enumerate(self.planes)]
             for j, hj in self._box_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
                     out.append((box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.collision.contacts import Contacts, stencil_side
+from softvr.collision.contacts import ContactKind, Contacts, contact_keys, stencil_side
 from softvr.device import load_kernels
 
 __all__ = ["EdgeSet", "edges_vs_edges", "surface_edges"]
@@ -218,11 +218,8 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
     verts_a, verts_b = ea.edges[edge_a], eb.edges[edge_b]
     point_a = np.einsum("ck,ckx->cx", weights_a, pa[verts_a])
     point_b = np.einsum("ck,ckx->cx", weights_b, pb[verts_b])
-    # Ids: bit 62 marks edge-edge; both body indices (10 bits each), both edge indices (21 bits).
-    lo, hi = min(a.body_index, b.body_index), max(a.body_index, b.body_index)
-    first, second = (edge_a, edge_b) if a.body_index <= b.body_index else (edge_b, edge_a)
-    ids = ((np.int64(1) << 62) | (np.int64(lo) << 52) | (np.int64(hi) << 42)
-           | (first.astype(np.int64) << 21) | second.astype(np.int64))
+    # An edge of a meets up to PAIRS_PER_EDGE edges of b: both edges name the contact.
+    ids = contact_keys(ContactKind.EDGE_EDGE, a.body_index, edge_a, b.body_index, edge_b)
     return Contacts(stencil_side(a.body_index, a.points, verts_a, weights_a),
                     stencil_side(b.body_index, b.points, verts_b, weights_b), normal, gap,
                     point_a, point_b, ids, np.full(len(gap), float(friction)),

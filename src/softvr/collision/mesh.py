@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks
 from softvr.device import resolve_device
 from softvr.errors import InputError
 
@@ -132,13 +132,11 @@ class TriangleMesh:
     thickness : float [m]
         Half thickness of the sheet: contacts keep points this far from the surface.
     friction : float
-    id : int
-        Part of the contact ids.
     device : str, optional
         Warp device of the BVH.
     """
 
-    def __init__(self, vertices, triangles, *, thickness: float = 0.001, friction: float = 0.5, id: int = 0,
+    def __init__(self, vertices, triangles, *, thickness: float = 0.001, friction: float = 0.5,
                  device: str | None = None):
         v = np.asarray(vertices, float)
         t = np.asarray(triangles)
@@ -150,7 +148,7 @@ class TriangleMesh:
             raise InputError("thickness", "a half thickness >= 0 [m]", repr(thickness))
         self.device = resolve_device(device)
         self.vertices, self.triangles = v, t.astype(np.int32)
-        self.thickness, self.friction, self.id = float(thickness), float(friction), int(id)
+        self.thickness, self.friction = float(thickness), float(friction)
         self._points = wp.array(v, dtype=wp.vec3, device=self.device)
         self._mesh = wp.Mesh(points=self._points, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                         device=self.device))
@@ -177,8 +175,7 @@ class TriangleMesh:
 
 
 def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float = 0.0, velocities=None,
-                   dt: float = 0.0, ccd: bool = True,
-                   areas=None) -> Contacts:
+                   dt: float = 0.0, ccd: bool = True, areas=None, static_index: int = 0) -> Contacts:
     """Contacts of point entities with a static triangle mesh.
 
     Parameters
@@ -195,6 +192,8 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         Sweep each point over ``velocities * dt`` and take the first crossing.
     areas : ndarray, shape [point_count] [m^2], optional
         Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
+    static_index : int
+        Index of the mesh among the scene's static meshes (part of the contact keys).
     """
     p = points.positions()
     motion = np.zeros_like(p) if velocities is None else np.asarray(velocities, float) * dt
@@ -209,7 +208,9 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         gap=gap,
         point_a=p[which],
         point_b=surface,
-        ids=(np.int64(mesh.id) << 32) | (np.int64(1) << 30) | which.astype(np.int64),
+        # A point has one contact per mesh (its closest point or first crossing), so the point alone
+        # names it; the triangle it meets changes as it slides, and must not restart its adhesion.
+        ids=contact_keys(ContactKind.POINT_MESH, body_index, which, static_index, 0),
         friction=np.full(k, mesh.friction),
         area=None if areas is None else np.asarray(areas, float)[which],
     )

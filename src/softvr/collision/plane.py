@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks
+from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks
 from softvr.errors import InputError
 
 __all__ = ["Plane", "points_vs_plane"]
@@ -24,14 +24,11 @@ class Plane:
         Outward normal (normalized on use).
     friction : float
         Coulomb coefficient mu of contacts with it.
-    id : int
-        Part of the contact ids.
     """
 
     point: tuple = (0.0, 0.0, 0.0)
     normal: tuple = (0.0, 0.0, 1.0)
     friction: float = 0.5
-    id: int = 0
 
     def unit_normal(self) -> np.ndarray:
         n = np.asarray(self.normal, float)
@@ -42,7 +39,7 @@ class Plane:
 
 
 def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.0, velocities=None,
-                    dt: float = 0.0, areas=None) -> Contacts:
+                    dt: float = 0.0, areas=None, static_index: int = 0) -> Contacts:
     """Contacts of a body's point entities with a plane: points closer than ``margin``, or that
     would come that close within ``dt`` at ``velocities`` (no tunnelling at any speed).
 
@@ -59,8 +56,12 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
     velocities : ndarray, shape [point_count, 3] [m/s], optional
         Predicted point velocities (e.g. the unconstrained ones of this step).
     dt : float [s]
-        Step over which ``velocities`` apply.    areas : ndarray, shape [point_count] [m^2], optional
+        Step over which ``velocities`` apply.
+    areas : ndarray, shape [point_count] [m^2], optional
         Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
+    static_index : int
+        Index of the plane among the scene's planes: with the body and the point it makes the
+        contact keys unique in the scene (:func:`~softvr.collision.contacts.contact_keys`).
     """
     n = plane.unit_normal()
     p = points.positions()
@@ -78,7 +79,7 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
         gap=gap[hit],
         point_a=p[hit],
         point_b=p[hit] - gap[hit, None] * n,
-        ids=(np.int64(plane.id) << 32) | hit.astype(np.int64),
+        ids=contact_keys(ContactKind.POINT_PLANE, body_index, hit, static_index, 0),
         friction=np.full(k, float(plane.friction)),
         area=None if areas is None else np.asarray(areas, float)[hit],
     )

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, rigid_side
+from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks, rigid_side
 from softvr.collision.plane import Plane
 from softvr.errors import InputError
 
@@ -22,14 +22,11 @@ class Sphere:
     center : tuple of 3 float [m]
     radius : float [m]
     friction : float
-    id : int
-        Part of the contact ids.
     """
 
     center: tuple = (0.0, 0.0, 0.0)
     radius: float = 1.0
     friction: float = 0.5
-    id: int = 0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.radius) and self.radius > 0):
@@ -37,9 +34,10 @@ class Sphere:
 
 
 def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float = 0.0, velocities=None,
-                     dt: float = 0.0, areas=None) -> Contacts:
+                     dt: float = 0.0, areas=None, static_index: int = 0) -> Contacts:
     """Contacts of point entities with a static sphere (gap along the outward radial normal);
-    ``areas`` [point_count] [m^2] as in :func:`~softvr.collision.points_vs_plane`."""
+    ``areas`` [point_count] [m^2] as in :func:`~softvr.collision.points_vs_plane`, and
+    ``static_index`` the sphere's index among the scene's static spheres (part of the keys)."""
     c = np.asarray(sphere.center, float)
     p = points.positions()
     d = p - c
@@ -58,7 +56,7 @@ def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float =
         gap=gap[hit],
         point_a=p[hit],
         point_b=c + sphere.radius * n[hit],
-        ids=(np.int64(sphere.id) << 32) | hit.astype(np.int64),
+        ids=contact_keys(ContactKind.POINT_SPHERE, body_index, hit, static_index, 0),
         friction=np.full(len(hit), float(sphere.friction)),
         area=None if areas is None else np.asarray(areas, float)[hit],
     )
@@ -71,10 +69,39 @@ def _empty(body_index: int, other: int | None, block_size: int) -> Contacts:
     return Contacts(side, other_side, z3, np.zeros(0), z3, z3, np.zeros(0, np.int64), np.zeros(0))
 
 
+def _cap_area(radius: float, margin: float) -> float:
+    """Area [m^2] of the cap of a sphere of ``radius`` [m] within ``margin`` [m] of a tangent
+    plane: 2 pi R h with the cap height h = margin (at most the whole sphere, h = 2 R)."""
+    return 2.0 * np.pi * radius * min(max(margin, 0.0), 2.0 * radius)
+
+
 def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margin: float = 0.0, velocity=None,
-                    dt: float = 0.0) -> Contacts:
-    """Contact of a rigid sphere body (centre = its position) with a plane; ``velocity`` [6]
-    (the step's unconstrained one) makes it speculative over ``dt`` [s]."""
+                    dt: float = 0.0, static_index: int = 0) -> Contacts:
+    """Contact of a rigid sphere body (centre = its position) with a plane.
+
+    Parameters
+    ----------
+    body_index : int
+        Index of the sphere's body in the scene.
+    body : RigidBody or FixedBody or KinematicBody
+    radius : float [m]
+    plane : Plane
+    margin : float [m]
+        Detection margin: a gap below it makes the contact.
+    velocity : ndarray, shape [6], optional
+        The body's unconstrained velocity of the step [m/s, rad/s]: makes the contact
+        speculative over ``dt``.
+    dt : float [s]
+    static_index : int
+        Index of the plane among the scene's planes (part of the contact key).
+
+    Notes
+    -----
+    The one contact carries an area for adhesion (thesis 4.3.1), by a modelling choice: a
+    sphere's contact stands for the cap of its surface within the detection margin of the
+    plane, ``A = 2 pi R h`` with the cap height h = ``margin`` (a smooth sphere has no mesh
+    whose vertex areas could say it). With no margin it has no area, and no adhesion.
+    """
     n = plane.unit_normal()
     gap = float((body.position - np.asarray(plane.point, float)) @ n) - radius
     approach = 0.0 if velocity is None else dt * min(float(np.asarray(velocity, float)[:3] @ n), 0.0)
@@ -82,13 +109,18 @@ def sphere_vs_plane(body_index: int, body, radius: float, plane: Plane, *, margi
         return _empty(body_index, None, 6)
     pa = body.position - radius * n
     return Contacts(rigid_side(body_index, -radius * n), None, n[None], np.array([gap]), pa[None],
-                    (pa - gap * n)[None], np.array([(np.int64(plane.id) << 32) | (1 << 31)]),
-                    np.array([float(plane.friction)]))
+                    (pa - gap * n)[None], contact_keys(ContactKind.SPHERE_PLANE, [body_index], 0, static_index, 0),
+                    np.array([float(plane.friction)]), np.array([_cap_area(radius, margin)]))
 
 
 def sphere_vs_sphere(a_index: int, a, radius_a: float, b_index: int, b, radius_b: float, *, friction: float = 0.5,
                      margin: float = 0.0, velocity_a=None, velocity_b=None, dt: float = 0.0) -> Contacts:
-    """Contact between two rigid sphere bodies; the normal points from b to a."""
+    """Contact between two rigid sphere bodies; the normal points from b towards a.
+
+    Its area (for adhesion) is by the same modelling choice as :func:`sphere_vs_plane`'s: the
+    cap of the smaller sphere's surface within ``margin`` [m] of the other, ``2 pi R h`` with
+    R the smaller radius and h = ``margin``.
+    """
     d = a.position - b.position
     dist = float(np.linalg.norm(d))
     n = d / dist if dist > 1e-12 else np.array([0.0, 0.0, 1.0])
@@ -102,6 +134,6 @@ def sphere_vs_sphere(a_index: int, a, radius_a: float, b_index: int, b, radius_b
     # Both sides act at the midpoint, so the equal and opposite impulses exert no net torque
     # even while the (speculative) contact still has a gap: angular momentum is conserved.
     mid = 0.5 * (pa + pb)
-    cid = (np.int64(min(a_index, b_index)) << 40) | (np.int64(max(a_index, b_index)) << 20)
     return Contacts(rigid_side(a_index, mid - a.position), rigid_side(b_index, mid - b.position), n[None],
-                    np.array([gap]), pa[None], pb[None], np.array([cid]), np.array([float(friction)]))
+                    np.array([gap]), pa[None], pb[None], contact_keys(ContactKind.SPHERE_SPHERE, [a_index], 0, b_index, 0),
+                    np.array([float(friction)]), np.array([_cap_area(min(radius_a, radius_b), margin)]))

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.collision.contacts import Contacts, ContactSide, point_jacobian_blocks, stencil_side
+from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks, stencil_side
 from softvr.collision.edges import EdgeSet
 from softvr.collision.mesh import query_points
 from softvr.device import resolve_device
@@ -106,8 +106,9 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
                                           buffers=a._query_buffers)
     faces, bary = _locate(b, at)
     side_a = ContactSide(a.body_index, *point_jacobian_blocks(a.points, which))
-    ids = (np.int64(min(a.body_index, b.body_index)) << 40) | (np.int64(max(a.body_index, b.body_index)) << 20)
-    ids = ids | (np.int64(a.body_index < b.body_index) << 19) | which.astype(np.int64)
+    # A vertex has one contact per surface (closest point or first crossing), so the vertex
+    # names it; the triangle under it changes as it slides, and must not restart its adhesion.
+    ids = contact_keys(ContactKind.VERTEX_TRIANGLE, a.body_index, which, b.body_index, 0)
     # Local area: the smaller of the two primitives' (thesis 4.3.1).
     area = np.minimum(a.vertex_area[which], b.triangle_area[faces])
     return Contacts(side_a, stencil_side(b.body_index, b.points, b.triangles[faces], bary), normal, gap, p[which], at, ids,

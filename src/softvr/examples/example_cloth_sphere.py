@@ -75,7 +75,7 @@ class Example(PhysicsExample):
                                           damping=damping, alpha=alpha, name="cloth")
         n = len(self.cloth.q)
         self.points = EmbeddedPoints(self.cloth, np.arange(n)[:, None], np.ones((n, 1)))
-        self.sphere = Sphere(center=(0.0, 0.0, radius), radius=radius, friction=friction, id=1)
+        self.sphere = Sphere(center=(0.0, 0.0, radius), radius=radius, friction=friction)
         self.plane = Plane(friction=friction)
         scene = Scene(gravity=(0.0, 0.0, -9.81), friction=friction, pgs_iterations=pgs_iterations)
         scene.add_body(self.cloth, collision_points=self.points)

@@ -81,7 +81,7 @@ class Example(PhysicsExample):
         n = len(q)
         self.points = EmbeddedPoints(self.cloth, np.arange(n)[:, None], np.ones((n, 1)))
         sticky = None if adhesion is None else Adhesion(**adhesion)
-        self.wall = Plane(point=(0.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0), friction=friction, id=1)
+        self.wall = Plane(point=(0.0, 0.0, 0.0), normal=(1.0, 0.0, 0.0), friction=friction)
         scene = Scene(gravity=(0.0, 0.0, -9.81), friction=friction, contact_margin=0.002)
         scene.add_body(self.cloth, collision_points=self.points, collision_triangles=self.cloth.triangles,
                        adhesion=sticky)

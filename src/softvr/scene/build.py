@@ -182,13 +182,13 @@ class SceneExample(PhysicsExample):
                       contact_margin=sim["contact_margin"])
         self.scene = scene  # (again in PhysicsExample.__init__) the collision-free start needs it
         self.planes = []
-        for i, p in enumerate(scene_file.planes):
-            plane = Plane(point=p["point"], normal=p["normal"], friction=p["friction"], id=i)
+        for p in scene_file.planes:
+            plane = Plane(point=p["point"], normal=p["normal"], friction=p["friction"])
             scene.add_plane(plane, adhesion=self.adhesions.get(p["adhesion"]))
             self.planes.append((plane, p["size"]))
         self.spheres = []
-        for i, s in enumerate(scene_file.spheres):
-            sphere = Sphere(center=s["center"], radius=s["radius"], friction=s["friction"], id=len(self.planes) + i)
+        for s in scene_file.spheres:
+            sphere = Sphere(center=s["center"], radius=s["radius"], friction=s["friction"])
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
         self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
@@ -330,7 +330,7 @@ class SceneExample(PhysicsExample):
             from softvr.collision import TriangleMesh
 
             v, t = self._surface(spec, rotation, centre)
-            scene.add_mesh(TriangleMesh(v, t, id=100 + len(self.drawn)), adhesion=adhesion)
+            scene.add_mesh(TriangleMesh(v, t), adhesion=adhesion)
             self._obstacles[spec.name] = _Drawn(lambda v=v: v, t, spec.color)
             if spec.render_mesh is not None:
                 v, t = self._surface(spec, rotation, centre, spec.render_mesh)
