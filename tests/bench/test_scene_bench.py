@@ -52,6 +52,10 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
         assert r["step_ms"] == statistics.median(trace["step_ms"][1:]) and r["first_frame_ms"] == trace["frame_ms"][0]
         # A frame's wall time holds its physics and its render.
         assert all(f >= s + d for f, s, d in zip(trace["frame_ms"], trace["step_ms"], trace["render_ms"]))
+        # The stages of a frame's steps are parts of its physics time (Scene.stage_ms).
+        assert len(r["stage_trace"]) == frames
+        assert all(sum(st.values()) <= s for st, s in zip(r["stage_trace"], trace["step_ms"]))
+        assert set(r["stage_ms"]) == {"dynamics", "collision", "contact", "integrate"}
         assert r["real_time_factor"] == pytest.approx(sim["dt"] * sim["steps_per_frame"] * 1e3 / r["step_ms"])
     cube = result["scenes"][0]
     assert (cube["bodies"], cube["tets"], cube["nodes"]) == (1, 4 ** 3 * 5, 5 ** 3)  # a box of 4^3 cubes

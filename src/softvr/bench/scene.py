@@ -16,8 +16,10 @@ upload), then medians over the others of **step** (``step_ms``: the frame's ``st
 physics steps), **render** (``render_ms``) and **frame** (the wall time of ``step()`` and
 ``render()`` together, with what runs between: energies, the CT volume rasterized through the
 deformed tets). **x real** = simulated ms per frame / step ms = ``dt * steps_per_frame * 1000 /
-step_ms``. One-off costs (imports, module loads, VTK's first window) fall on the first scene that
-needs them. A scene that cannot be built here (the CT scenes without the Debian package
+step_ms``. **step by stage**: the medians of the frame's physics split by
+:data:`softvr.sim.STAGES` (``stage_ms``; per frame in ``stage_trace``): dynamics (eq. 5.2),
+collision, contact (eqs. 5.5-5.6 and adhesion), integrate. One-off costs (imports, module loads,
+VTK's first window) fall on the first scene that needs them. A scene that cannot be built here (the CT scenes without the Debian package
 ``invesalius-examples``) gets a row saying why.
 
 **glTF vs TOML.** soft-cube.toml's scene written twice into a temporary folder: as a GLB whose
@@ -53,6 +55,7 @@ from softvr.bench._contact_peers import NOT_INSTALLED
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.sim import STAGES as STEP_STAGES
 
 __all__ = ["IMAGE", "QUICK_SCENES", "box_stack_mjcf", "format_table", "main", "run_mujoco", "run_scene",
            "run_scene_bench", "soft_cube_twins", "time_load", "write_plot"]
@@ -119,6 +122,7 @@ def run_scene(path, *, frames: int, repeat: int) -> dict:
         problems = example.start_problems()
         check = _ms(t)
         trace = {"step_ms": [], "render_ms": [], "frame_ms": []}
+        stages = []
         for _ in range(frames):
             t = time.perf_counter()
             example.step()
@@ -126,6 +130,7 @@ def run_scene(path, *, frames: int, repeat: int) -> dict:
             trace["frame_ms"].append(_ms(t))
             trace["step_ms"].append(example.metrics[-1]["step_ms"])
             trace["render_ms"].append(example.metrics[-1]["render_ms"])
+            stages.append(example.metrics[-1]["stage_ms"])
         size = _size(example)
         dt, steps = example.dt, example.steps_per_frame
     step = statistics.median(trace["step_ms"][1:])
@@ -135,6 +140,7 @@ def run_scene(path, *, frames: int, repeat: int) -> dict:
             "first_frame_ms": trace["frame_ms"][0], "first_step_ms": trace["step_ms"][0],
             "first_render_ms": trace["render_ms"][0],
             "step_ms": step, "render_ms": statistics.median(trace["render_ms"][1:]),
+            "stage_ms": {k: statistics.median(f[k] for f in stages[1:]) for k in STEP_STAGES}, "stage_trace": stages,
             "frame_ms": statistics.median(trace["frame_ms"][1:]),
             "real_time_factor": dt * steps * 1e3 / step,
             "samples": {"read_ms": read, "build_ms": build}, "trace": trace}
@@ -301,7 +307,7 @@ def format_table(result: dict) -> str:
              f"of {c['repeat']}; step, render, frame: median of frames 2..{c['frames']} [ms]; x real = dt * "
              "steps_per_frame / step"]
     head = (f"{'scene':<26} {'bodies':>6} {'tets':>6} {'read':>6} {'build':>7} {'check':>6} {'1st frame':>9} "
-            f"{'step':>7} {'render':>7} {'frame':>7} {'x real':>7}")
+            f"{'step':>7} {'render':>7} {'frame':>7} {'x real':>7}  step by stage: dyn / coll / contact / integ")
     lines += [head, "-" * len(head)]
     for r in result["scenes"]:
         if r["status"] != "ok":
@@ -309,7 +315,8 @@ def format_table(result: dict) -> str:
             continue
         lines.append(f"{r['scene']:<26} {r['bodies']:>6} {r['tets']:>6} {r['read_ms']:>6.1f} {r['build_ms']:>7.1f} "
                      f"{r['check_ms']:>6.1f} {r['first_frame_ms']:>9.0f} {r['step_ms']:>7.1f} {r['render_ms']:>7.1f} "
-                     f"{r['frame_ms']:>7.1f} {r['real_time_factor']:>7.3f}")
+                     f"{r['frame_ms']:>7.1f} {r['real_time_factor']:>7.3f}  "
+                     + " / ".join(f"{r['stage_ms'][k]:.1f}" for k in STEP_STAGES))
     g = result["gltf_vs_toml"]
     lines += ["", "soft-cube as glTF (box mesh node, softvr_* extras) vs TOML (the same box mesh as OBJ) [ms]:"]
     for kind in ("gltf", "toml"):
