@@ -24,7 +24,8 @@ import pytest
 
 from softvr import Scene
 from softvr.collision import Plane, Sphere, TriangleMesh
-from softvr.collision.contacts import ContactKind, unpack_keys
+from softvr.collision.contacts import MAX_BODIES, MAX_FEATURES, ContactKind, contact_keys, unpack_keys
+from softvr.errors import InputError
 from softvr.contact import Adhesion
 from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints
 from softvr.model.shapes import box_surface, icosphere
@@ -91,6 +92,27 @@ def _distance_to(static, p):
 def _segment_distance(p, a, b):
     t = np.clip((p - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
     return np.linalg.norm(p - (a + t * (b - a)))
+
+
+def test_key_layout_is_the_documented_bit_fields():
+    """A key is kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20 bits (contacts.py),
+    packed here independently with Python integers; the largest indices fit, one more is refused."""
+    rng = np.random.default_rng(7)
+    body_a, body_b = rng.integers(0, MAX_BODIES, 50), rng.integers(0, MAX_BODIES, 50)
+    feature_a, feature_b = rng.integers(0, MAX_FEATURES, 50), rng.integers(0, MAX_FEATURES, 50)
+    keys = contact_keys(ContactKind.EDGE_EDGE, body_a, feature_a, body_b, feature_b)
+    for k, ba, bb, fa, fb in zip(keys.tolist(), body_a, body_b, feature_a, feature_b):
+        packed = (int(ContactKind.EDGE_EDGE) << 60) | (int(ba) << 50) | (int(bb) << 40) | (int(fa) << 20) | int(fb)
+        assert k % (1 << 64) == packed
+    fields = unpack_keys(keys)
+    assert (fields["body_a"] == body_a).all() and (fields["feature_b"] == feature_b).all()
+    assert (fields["kind"] == ContactKind.EDGE_EDGE).all()
+    top = contact_keys(ContactKind.BOX_BOX, MAX_BODIES - 1, MAX_FEATURES - 1, MAX_BODIES - 1, MAX_FEATURES - 1)
+    assert unpack_keys(top)["feature_a"] == MAX_FEATURES - 1
+    with pytest.raises(InputError, match=r"contact body_b: expected an index in \[0, 1023\].*found 1024"):
+        contact_keys(ContactKind.POINT_PLANE, 0, np.arange(3), MAX_BODIES, 0)
+    with pytest.raises(InputError, match="contact feature_a.*found -1"):
+        contact_keys(ContactKind.POINT_PLANE, 0, np.array([0, -1]), 0, 0)
 
 
 def test_keys_are_unique_and_unpack_to_the_bodies_statics_and_features_touching():

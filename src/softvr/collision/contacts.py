@@ -65,16 +65,27 @@ def contact_keys(kind, body_a, feature_a, body_b, feature_b) -> np.ndarray:
     InputError
         If a body index reaches :data:`MAX_BODIES` or a feature :data:`MAX_FEATURES`.
     """
-    fields = {"kind": int(kind), "body_a": body_a, "body_b": body_b, "feature_a": feature_a, "feature_b": feature_b}
-    arrays = np.broadcast_arrays(*(np.asarray(v, np.int64) for v in fields.values()))
-    key = np.zeros(arrays[0].shape, np.uint64)
-    for (name, (shift, bits)), value in zip(_SHIFTS.items(), arrays):
+    # Scalars are packed as Python ints and arrays once each: this runs for every contact set
+    # of every step, mostly on a handful of contacts.
+    base, arrays = 0, []
+    for (name, (shift, bits)), value in zip(_SHIFTS.items(), (kind, body_a, body_b, feature_a, feature_b)):
+        if np.ndim(value) == 0:
+            if not 0 <= int(value) < (1 << bits):
+                _capacity_error(name, bits, int(value))
+            base |= int(value) << shift
+            continue
+        value = np.asarray(value, np.int64)
         if value.size and (value.min() < 0 or value.max() >= (1 << bits)):
-            bad = value[(value < 0) | (value >= (1 << bits))].flat[0]
-            raise InputError(f"contact {name}", f"an index in [0, {(1 << bits) - 1}] (the contact key's capacity)",
-                             str(int(bad)))
-        key |= value.astype(np.uint64) << np.uint64(shift)
+            _capacity_error(name, bits, int(value[(value < 0) | (value >= (1 << bits))].flat[0]))
+        arrays.append(value.astype(np.uint64) << np.uint64(shift))
+    key = np.full(np.broadcast_shapes(*(a.shape for a in arrays)), base, np.uint64)
+    for a in arrays:
+        key |= a
     return key.view(np.int64)
+
+
+def _capacity_error(name: str, bits: int, found: int):
+    raise InputError(f"contact {name}", f"an index in [0, {(1 << bits) - 1}] (the contact key's capacity)", str(found))
 
 
 def unpack_keys(keys) -> dict[str, np.ndarray]:
