@@ -27,7 +27,7 @@ from softvr.collision import (
     sphere_vs_sphere,
     surface_vs_surface,
 )
-from softvr.collision.contacts import ContactSide, Contacts
+from softvr.collision.contacts import ContactSide, Contacts, unpack_keys
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.contact.adhesion import Adhesion, AdhesionState, combine
 from softvr.device import cpu_workers, single_threaded_blas
@@ -263,20 +263,27 @@ class Scene:
         out = []
         for surface in self._surfaces:
             surface.refit()
-        # Points that are vertices of a collision surface carry its vertex areas (thesis 4.3.1).
-        areas = {id(s.points): s.vertex_area for s in self._surfaces}
+        surfaces = {id(s.points): s for s in self._surfaces}
         primitive = {i: "sphere" for i, _ in self._sphere_bodies} | {i: "box" for i, _ in self._box_bodies}
         for c in self._colliders:
             v = c.points.velocities(v_free[c.body])
-            a = areas.get(id(c.points))
+            found = []
             # Each static's index in its list makes the contact keys unique in the scene.
             if c.body not in primitive:  # a primitive meets the planes exactly
-                out += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt, areas=a,
-                                         static_index=k), p) for k, p in enumerate(self.planes)]
-            out += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt, areas=a,
-                                      static_index=k), s) for k, s in enumerate(self.spheres)]
-            out += [(points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd,
-                                    areas=a, static_index=k), mesh) for k, mesh in enumerate(self.meshes)]
+                found += [(points_vs_plane(c.body, c.points, p, margin=c.margin, velocities=v, dt=dt,
+                                           static_index=k), p) for k, p in enumerate(self.planes)]
+            found += [(points_vs_sphere(c.body, c.points, s, margin=c.margin, velocities=v, dt=dt,
+                                        static_index=k), s) for k, s in enumerate(self.spheres)]
+            found += [(points_vs_mesh(c.body, c.points, mesh, margin=c.margin, velocities=v, dt=dt, ccd=self.ccd,
+                                      static_index=k), mesh) for k, mesh in enumerate(self.meshes)]
+            surface = surfaces.get(id(c.points))
+            if surface is not None:
+                # Points that are vertices of a collision surface stand for its area around them
+                # facing the contact (thesis 4.3.1, projected); a contact's point is its feature a.
+                for contacts, _ in found:
+                    contacts.area = surface.facing_vertex_area(unpack_keys(contacts.ids)["feature_a"],
+                                                               contacts.normal)
+            out += found
         # Broad phase: each surface's box, grown by the margin and its vertices' motion.
         moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
         boxes = []

@@ -1,9 +1,16 @@
-"""Local contact areas (thesis 4.3.1) against geometry.
+"""Local contact areas (thesis 4.3.1, projected onto the contact plane) against geometry.
 
-A cube of edge L triangulated with q x q quads per face, each split in two, has every triangle
-of area (L/q)^2 / 2; so does every vertex and edge (the mean of equal incident areas). A
-contact takes the smaller of its two primitives' areas: a finely meshed cube on a coarse one
-gets the fine one's, whichever side the vertex is on.
+A contact stands for its feature's share of the surface projected onto the contact plane: a
+third of every triangle at a vertex or an edge, a triangle's own area, each times the cosine
+between the triangle's normal and the contact's, of the triangles of a closed surface that face
+the contact (:meth:`CollisionSurface.facing_vertex_area`). A cube of
+edge L meshed with q x q quads per face, each split in two along one diagonal, touches with
+one face: its side faces stand perpendicular to the contact plane and project to nothing, so
+a vertex of the touching face carries a third of each of that face's triangles at it (each
+h^2 / 2, h = L / q): h^2 inside the face (six triangles), h^2 / 2 on its border (three), h^2 / 3
+or h^2 / 6 at a corner (two or one, as the diagonals fall), L^2 over the face. A contact takes
+the smaller of its two primitives' areas: a finely meshed cube on a coarse one gets the fine
+one's, whichever side the vertex is on.
 """
 
 import numpy as np
@@ -11,6 +18,8 @@ import pytest
 
 from softvr import Scene
 from softvr.collision import Plane
+from softvr.collision.contacts import ContactKind, unpack_keys
+from softvr.collision.edges import surface_edges
 from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 
@@ -21,26 +30,86 @@ def rigid_cube(edge, quads, centre, name):
     return body, RigidPoints(body, verts - edge / 2), tris
 
 
-def test_plane_contacts_carry_the_vertex_area():
-    body, points, tris = rigid_cube(0.1, 4, (0.0, 0.0, 0.05 + 1e-4), "cube")
+def box_face_shares(edge, quads):
+    """The faces of the cube [0, edge]^3 as :func:`box_surface` meshes it: their outward normals
+    [6, 3], and every vertex's [6, vertex_count] and every edge's (:func:`surface_edges` order)
+    [6, edge_count] share of each face, a third of each of that face's triangles at it [m^2]."""
+    verts, tris = box_surface((edge,) * 3, quads)
+    edges, _ = surface_edges(tris)
+    index = {pair: k for k, pair in enumerate(map(tuple, edges.tolist()))}
+    normals, vertex_share, edge_share = np.zeros((6, 3)), np.zeros((6, len(verts))), np.zeros((6, len(edges)))
+    for f, (axis, side) in enumerate((axis, side) for axis in range(3) for side in (0, 1)):
+        normals[f, axis] = 1.0 if side else -1.0
+        on_face = np.isclose(verts[:, axis], side * edge)
+        for triangle in tris[on_face[tris].all(axis=1)].tolist():
+            a, b, c = verts[triangle]
+            third = np.linalg.norm(np.cross(b - a, c - a)) / 6
+            for k in range(3):
+                vertex_share[f, triangle[k]] += third
+                edge_share[f, index[tuple(sorted((triangle[k], triangle[(k + 1) % 3])))]] += third
+    return normals, vertex_share, edge_share
+
+
+def facing(normals, share, into):
+    """Contact areas [c] [m^2] of features with face shares ``share`` [6, c] on contact planes of
+    unit normals ``into`` [c, 3] pointing into the cube: each face's share projected onto the
+    plane, of the faces that turn towards the contact (outward normal against ``into``)."""
+    return np.einsum("fc,fc->c", share, np.maximum(-normals @ into.T, 0.0))
+
+
+def test_plane_contacts_carry_the_facing_vertex_area():
+    edge, quads = 0.1, 4
+    h = edge / quads
+    body, points, tris = rigid_cube(edge, quads, (0.0, 0.0, edge / 2 + 1e-4), "cube")
     scene = Scene()
     scene.add_body(body, collision_points=points, collision_triangles=tris)
     scene.add_plane(Plane(friction=0.5))
     (contacts,) = scene.step(0.005).contacts
     assert len(contacts) == 25  # the bottom face's 5 x 5 vertices
-    np.testing.assert_allclose(contacts.area, (0.1 / 4) ** 2 / 2, rtol=1e-9)
+    vertex = unpack_keys(contacts.ids)["feature_a"]
+    normals, vertex_share, _ = box_face_shares(edge, quads)
+    np.testing.assert_allclose(contacts.area, facing(normals, vertex_share[:, vertex], contacts.normal), rtol=1e-9)
+    verts, _ = box_surface((edge,) * 3, quads)
+    borders = (np.isclose(verts[vertex, :2], 0.0) | np.isclose(verts[vertex, :2], edge)).sum(axis=1)
+    np.testing.assert_allclose(contacts.area[borders == 0], h**2, rtol=1e-9)
+    np.testing.assert_allclose(contacts.area[borders == 1], h**2 / 2, rtol=1e-9)
+    np.testing.assert_allclose(np.sort(contacts.area[borders == 2]), [h**2 / 6] * 2 + [h**2 / 3] * 2, rtol=1e-9)
+    np.testing.assert_allclose(contacts.area.sum(), edge**2, rtol=1e-9)  # the side faces count nothing
 
 
 @pytest.mark.parametrize("fine_on_top", [True, False])
 def test_surface_contacts_take_the_smaller_primitive_area(fine_on_top):
-    fine, coarse = (0.1, 8), (0.1, 2)
-    top_res, bottom_res = (fine, coarse) if fine_on_top else (coarse, fine)
-    top, top_points, top_tris = rigid_cube(*top_res, (0.01, 0.013, 0.15 + 1e-4), "top")
-    bottom, bottom_points, bottom_tris = rigid_cube(*bottom_res, (0.0, 0.0, 0.05), "bottom")
+    """Each contact's area is its fine side's primitive, projected: a fine vertex's share of its
+    face (at most h^2 = 1.6 cm^2; a coarse triangle has 12.5 cm^2), a fine triangle's h^2 / 2
+    against a coarse vertex (at least (4 h)^2 / 6 = 4.2 cm^2), a fine edge's third of its face
+    triangles (at most h^2 / 3; a coarse edge has at least (4 h)^2 / 6). Vertices just beyond
+    the other cube's rim touch it with a tilted normal and so count less of their face."""
+    edge, fine, coarse = 0.1, 8, 2
+    top_quads, bottom_quads = (fine, coarse) if fine_on_top else (coarse, fine)
+    top, top_points, top_tris = rigid_cube(edge, top_quads, (0.01, 0.013, 0.15 + 1e-4), "top")
+    bottom, bottom_points, bottom_tris = rigid_cube(edge, bottom_quads, (0.0, 0.0, 0.05), "bottom")
     scene = Scene(gravity=(0.0, 0.0, 0.0))
     scene.add_body(top, collision_points=top_points, collision_triangles=top_tris)
     scene.add_body(bottom, collision_points=bottom_points, collision_triangles=bottom_tris)
+    fine_body = 0 if fine_on_top else 1
+    normals, vertex_share, edge_share = box_face_shares(edge, fine)
+    touching = normals[4] if fine_on_top else normals[5]  # the fine cube's face at the other: -z or +z
+    h = edge / fine
     contacts = scene.step(0.005).contacts
-    assert contacts
+    kinds = set()
     for c in contacts:
-        np.testing.assert_allclose(c.area, (0.1 / 8) ** 2 / 2, rtol=1e-9)
+        key = unpack_keys(c.ids)
+        kinds |= set(key["kind"].tolist())
+        # The normal points from side b into side a: into the fine cube where it is side a.
+        fine_a = key["body_a"] == fine_body
+        into_fine = np.where(fine_a[:, None], c.normal, -c.normal)
+        expected = np.empty(len(c))
+        vertex_triangle = key["kind"] == ContactKind.VERTEX_TRIANGLE
+        vertex = vertex_triangle & fine_a
+        expected[vertex] = facing(normals, vertex_share[:, key["feature_a"][vertex]], into_fine[vertex])
+        triangle = vertex_triangle & ~fine_a  # a fine triangle of the touching face under a coarse vertex
+        expected[triangle] = h**2 / 2 * np.maximum(-into_fine[triangle] @ touching, 0.0)
+        fine_edge = np.where(fine_a, key["feature_a"], key["feature_b"])[~vertex_triangle]
+        expected[~vertex_triangle] = facing(normals, edge_share[:, fine_edge], into_fine[~vertex_triangle])
+        np.testing.assert_allclose(c.area, expected, rtol=1e-9)
+    assert kinds == {ContactKind.VERTEX_TRIANGLE, ContactKind.EDGE_EDGE}

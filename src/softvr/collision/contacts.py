@@ -132,9 +132,11 @@ class Contacts:
     point_a, point_b : ndarray, shape [contact_count, 3] [m]
         Contact points P on a and P' on b.
     area : ndarray, shape [contact_count] [m^2]
-        Local area each contact stands for: the smaller of its two primitives' areas, a
-        triangle's own and the mean of the incident triangles' at vertices and edges (thesis
-        4.3.1); 0 when unknown (points that are not collision-surface vertices).
+        Local area each contact stands for: the smaller of its two primitives' areas (thesis
+        4.3.1), each the surface around it projected onto the contact plane (a triangle's own,
+        a third of each incident triangle's at vertices and edges:
+        :meth:`~softvr.collision.surfaces.CollisionSurface.facing_vertex_area`); 0 when unknown
+        (points that are not collision-surface vertices).
     ids : ndarray of int64, shape [contact_count]
         Keys unique in the scene (:func:`contact_keys`: kind, body and feature of both sides),
         the same for the same feature pair on every step: they carry warm starts and adhesion

@@ -223,4 +223,5 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
     return Contacts(stencil_side(a.body_index, a.points, verts_a, weights_a),
                     stencil_side(b.body_index, b.points, verts_b, weights_b), normal, gap,
                     point_a, point_b, ids, np.full(len(gap), float(friction)),
-                    np.minimum(a.edge_area[edge_a], b.edge_area[edge_b]))  # the smaller primitive's (4.3.1)
+                    # the smaller edge's area (4.3.1), each projected onto the contact plane
+                    np.minimum(a.facing_edge_area(edge_a, normal), b.facing_edge_area(edge_b, -normal)))

@@ -33,7 +33,8 @@ class CollisionSurface:
         One point entity per surface vertex.
     triangles : array_like, shape [triangle_count, 3]
         A closed, outward-oriented surface over those vertices (vertices of the other body
-        inside it are pushed out along the outward normal).
+        inside it are pushed out along the outward normal). An open one (border edges: a
+        cloth) touches with both sides (:attr:`two_sided`, for the contact areas).
     device : str, optional
     """
 
@@ -51,12 +52,19 @@ class CollisionSurface:
         self._mesh = wp.Mesh(points=self._vertices, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                       device=self.device))
         self.edge_set = EdgeSet(self.triangles, points.positions(), self.device)
-        self._incident = np.bincount(self.triangles.ravel(), minlength=n)  # triangles per vertex
+        # Vertex -> incident triangles (CSR), so that a contact's vertex area is summed over its
+        # triangles without a loop: triangles of vertex v are _vertex_faces[_vertex_first[v]:][:_incident[v]].
+        self._incident = np.bincount(self.triangles.ravel(), minlength=n)
+        self._vertex_faces = np.argsort(self.triangles.ravel(), kind="stable") // 3
+        self._vertex_first = np.concatenate([[0], np.cumsum(self._incident)[:-1]])
+        # A closed surface touches only with its outside; an open one (a cloth, a lone face) has
+        # no inside, and either of its sides can touch.
+        self.two_sided = bool((self.edge_set.adjacent[:, 1] < 0).any())
         self._query_buffers = {}  # this surface's vertex queries reuse their output arrays
         self._update_areas(points.positions())
 
     def refit(self) -> None:
-        """Move the triangle and edge BVHs (and the primitive areas) to the current vertex positions."""
+        """Move the triangle and edge BVHs (and the triangle areas and normals) to the current vertex positions."""
         p = self.points.positions()
         self._vertices.assign(wp.array(p, dtype=wp.vec3, device=self.device))
         self._mesh.refit()
@@ -64,27 +72,70 @@ class CollisionSurface:
         self._update_areas(p)
 
     def _update_areas(self, p: np.ndarray) -> None:
-        """Local contact areas of the primitives (thesis 4.3.1, with lumped vertex and edge areas).
-
-        A triangle stands for its own area. Every triangle gives a third of its area to each of
-        its vertices and a third to each of its edges, so that vertex areas, and edge areas, each
-        sum to the surface's area at any resolution. The thesis' mean of the incident
-        triangles' areas does not: on a regular grid it counts every interior vertex at half its
-        share (a 10 x 10 face of 100 cm^2 carried 60.5 cm^2 of adhesion, a 1 x 1 face 200 cm^2),
-        so tractions, and the pull-off force, depended on the mesh (docs/adhesion.md).
-        A vertex on a crease still carries the share of every face at it (a scalar per vertex
-        cannot tell which face touches).
-
-        Sets ``triangle_area`` [triangle_count], ``vertex_area`` [vertex_count] and
-        ``edge_area`` [edge_count] [m^2] (0 for a vertex no triangle uses).
-        """
+        """Triangle areas ``triangle_area`` [triangle_count] [m^2] and unit normals
+        ``triangle_normal`` [triangle_count, 3] (0 for a degenerate triangle) at vertex
+        positions ``p`` [vertex_count, 3] [m]."""
         v = p[self.triangles]
-        self.triangle_area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
-        third = self.triangle_area / 3.0
-        self.vertex_area = np.bincount(self.triangles.ravel(), weights=np.repeat(third, 3),
-                                       minlength=len(self._incident))
-        adjacent = self.edge_set.adjacent
-        self.edge_area = third[adjacent[:, 0]] + np.where(adjacent[:, 1] >= 0, third[adjacent[:, 1]], 0.0)
+        n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        size = np.linalg.norm(n, axis=1)
+        self.triangle_area = 0.5 * size
+        self.triangle_normal = n / np.maximum(size, 1e-300)[:, None]
+
+    def _facing(self, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Projected area [k] [m^2] of triangles ``faces`` [k] on planes of unit normals
+        ``normals`` [k, 3] pointing from the other side of each contact into this surface:
+        A_t |n_t . n| on a two-sided surface, and on a closed one only its outside facing the
+        contact, A_t max(-n_t . n, 0) (the faces turned away project onto the same patch of the
+        contact plane from behind, and would count it twice)."""
+        cosine = np.einsum("kx,kx->k", self.triangle_normal[faces], normals)
+        return self.triangle_area[faces] * (np.abs(cosine) if self.two_sided else np.maximum(-cosine, 0.0))
+
+    def facing_vertex_area(self, vertices, normals) -> np.ndarray:
+        """Contact area of vertices: their share of the surface projected onto each contact plane.
+
+        Every triangle gives a third of its area to each of its vertices, projected onto the
+        contact plane (:meth:`_facing`): a flat grid's vertex areas sum to its area at any
+        resolution, and a vertex on a crease carries only the faces that meet the contact (the
+        bottom rim of a closed box, not its sides). Departs from the thesis' mean of the
+        incident triangles' areas (4.3.1), which made the pull-off force depend on the mesh
+        (docs/adhesion.md).
+
+        Parameters
+        ----------
+        vertices : array_like of int, shape [c]
+            Surface vertices in contact.
+        normals : array_like, shape [c, 3]
+            Unit contact normals, pointing from the other side into this surface's body.
+
+        Returns
+        -------
+        ndarray, shape [c] [m^2]
+            0 for a vertex without triangles.
+        """
+        vertices = np.asarray(vertices, np.int64)
+        counts = self._incident[vertices]
+        row = np.repeat(np.arange(len(vertices)), counts)  # the contact of each (contact, triangle) pair
+        # Position of each pair in the CSR: its vertex's first slot plus its rank within the contact.
+        slot = np.arange(len(row)) + np.repeat(self._vertex_first[vertices] - (np.cumsum(counts) - counts), counts)
+        faces = self._vertex_faces[slot]
+        share = self._facing(faces, np.asarray(normals, float).reshape(-1, 3)[row]) / 3.0
+        return np.bincount(row, weights=share, minlength=len(vertices))
+
+    def facing_edge_area(self, edges, normals) -> np.ndarray:
+        """Contact area [c] [m^2] of edges [c] (indices into ``edge_set.edges``): a third of each
+        adjacent triangle's area projected onto the contact plane of unit normal ``normals``
+        [c, 3] (pointing into this surface's body), as :meth:`facing_vertex_area`."""
+        edges = np.asarray(edges, np.int64)
+        normals = np.asarray(normals, float).reshape(-1, 3)
+        first, second = self.edge_set.adjacent[edges].T
+        border = second < 0  # one triangle: an open border
+        area = self._facing(first, normals) + np.where(border, 0.0, self._facing(np.maximum(second, 0), normals))
+        return area / 3.0
+
+    def facing_triangle_area(self, faces, normals) -> np.ndarray:
+        """Contact area [c] [m^2] of triangles [c]: each one's area projected onto the contact
+        plane of unit normal ``normals`` [c, 3] (pointing into this surface's body)."""
+        return self._facing(np.asarray(faces, np.int64), np.asarray(normals, float).reshape(-1, 3))
 
 
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,
@@ -109,8 +160,9 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
     # A vertex has one contact per surface (closest point or first crossing), so the vertex
     # names it; the triangle under it changes as it slides, and must not restart its adhesion.
     ids = contact_keys(ContactKind.VERTEX_TRIANGLE, a.body_index, which, b.body_index, 0)
-    # Local area: the smaller of the two primitives' (thesis 4.3.1).
-    area = np.minimum(a.vertex_area[which], b.triangle_area[faces])
+    # Local area: the smaller of the two primitives' (thesis 4.3.1), each projected onto the
+    # contact plane; the normal points into a and out of b.
+    area = np.minimum(a.facing_vertex_area(which, normal), b.facing_triangle_area(faces, -normal))
     return Contacts(side_a, stencil_side(b.body_index, b.points, b.triangles[faces], bary), normal, gap, p[which], at, ids,
                     np.full(len(which), float(friction)), area)
 
