@@ -40,8 +40,9 @@ TARGET_COST_RATIO = 1.2
 
 #: The pull-off case: a 10 cm rigid cube (800 kg/m^3) on an adhesive plane, pulled up by a force
 #: ramped at 40 N/s, dt 2 ms. softvr: C = 1e7 N/m^3, W = 1 J/m^2, eta = 1e-3 J s/m^2, the
-#: cube's surface 4 x 4 quads per face (25 bottom contacts of A = (2.5 cm)^2 / 2 each), so
-#: debonding starts at F* = m g + sum(A) sqrt(W C) (tests/contact/test_adhesion.py). MuJoCo: an
+#: cube's surface 4 x 4 quads per face (25 bottom contacts whose areas, the surface around each
+#: projected on the plane, sum to the bottom face's (10 cm)^2), so debonding starts at
+#: F* = m g + sum(A) sqrt(W C) (tests/contact/test_adhesion.py). MuJoCo: an
 #: ``adhesion`` actuator on the cube with gain sum(A) sqrt(W C) [N] (its pull-off force limit).
 PULL_OFF = dict(edge=0.1, quads=4, density=800.0, stiffness=1e7, max_energy=1.0, viscosity=1e-3, rate=40.0,
                 dt=0.002, lift=0.004)
@@ -59,7 +60,7 @@ def _cost_per_contact(run: dict) -> float | None:
 
 def _pull_off_prediction(case: dict) -> tuple[float, float]:
     """(adhesive force limit sum(A) sqrt(W C) [N], predicted separation force m g + that [N])."""
-    area = (case["quads"] + 1) ** 2 * (case["edge"] / case["quads"]) ** 2 / 2
+    area = case["edge"] ** 2  # the bottom face: the contacts' projected areas sum to it
     limit = area * float(np.sqrt(case["stiffness"] * case["max_energy"]))
     return limit, case["density"] * case["edge"] ** 3 * 9.81 + limit
 
