@@ -13,7 +13,7 @@ or the Coulomb bound, whichever holds more (steps 4-8 of 4.3.2). This module hol
 material parameters, the per-contact intensities and tangential slips; the projection itself
 is in :mod:`softvr.contact._pgs_kernels`.
 
-Tangential adhesion is a spring on the slip (extending eqs. 4.10 and 4.16 to the tangent
+Tangential adhesion is a spring on the slip (extending eqs. 4.10, 4.12 and 4.16 to the tangent
 plane as in [RCC99]). The thesis' tangential "gap" is the slip of one step, ``dt v_t``, so its
 bound is a damper: under any sideways force above friction a bonded contact creeps, step after
 step. Here every bonded contact keeps its slip since bonding, ``u`` [m] (world, in the tangent
@@ -22,10 +22,28 @@ plane; :attr:`AdhesionState.slip`), and the tangential gap of the step is the sl
 makes the tangent row's target ``-u . t / dt`` (:func:`softvr.contact.solve_contacts`), and
 the bound of eq. 4.16 on that row, ``k d_bar / (1 + k B_tt)`` with ``d_bar`` including the
 target, is then the impulse of the stretched spring ``dt A C beta^2 (u + dt v_t) . t``. A force
-F held by bonded contacts therefore stretches them by ``F / sum(A C beta^2)`` and no further.
-Within the Coulomb bound (the larger of the two holds, 4.3.2) the contact returns to where it
-bonded. A contact whose bond has given (beta = 0) or that is forgotten loses its slip: bonding
-again anchors it anew.
+F below the limit held by bonded contacts therefore stretches them by ``F / sum(A C beta^2)``
+and no further. Within the Coulomb bound (the larger of the two holds, steps 6-7 of 4.3.2)
+the contact returns to where it bonded.
+
+Past its limit a bond under normal traction tears and one under compression slides, after the
+asymmetry of 4.3.3 (compression bonds, traction debonds):
+
+* under normal traction the stretch is kept whole, as in [RCC99]: a bond loaded sideways past
+  ``p*`` stretches on, stores more than W and debonds by eq. 4.12 (an overhanging cloth, a
+  block pulled sideways);
+* under compression (a normal impulse > 0 in the step) the stored stretch is capped at the one
+  whose traction is the debonding limit, ``|u| <= p*(beta) / (C beta^2) = sqrt(W / (C
+  beta))``: the contact slides at its limit, plus the thesis' one-step term ``C beta^2 dt
+  |v_t|``, its anchor dragged along as if it bonded anew on the surface it is pressed onto (a
+  new contact bonds at ``beta0`` on touch). Sliding faster than the spring can follow still
+  debonds by the end-of-step stretch, at a rate that grows with the speed: the thesis' own
+  tangential debonding. Without the cap a contact that lands sliding (a cloth slapping onto a
+  wall) stretches its spring millimetres within a few steps, ``C g^2 beta`` hundreds of times
+  W, and every bond gives at once.
+
+A contact whose bond has given (beta = 0) or that is forgotten loses its slip: bonding again
+anchors it anew.
 
 After each step (4.3.3) the intensity evolves by explicit Euler, from the tractions
 ``p = -lambda / (dt A)`` of the solve and the gap the traction law gives, ``g = p / (C beta^2)``:
@@ -33,8 +51,12 @@ After each step (4.3.3) the intensity evolves by explicit Euler, from the tracti
 * bonding under normal compression c (eq. 4.11): ``beta_dot = r max(c - beta p0, 0)``;
 * debonding (eq. 4.12): ``beta_dot = min(W - C g^2 beta, 0) / eta``, with p the norm of the
   normal and tangential adhesive tractions under normal traction, of the tangential one alone
-  under compression (where bonding acts as well); the tangential adhesive traction is what
-  exceeds the Coulomb bound ``mu lambda_n`` (friction carries the rest);
+  under compression (where bonding acts as well). The tangential adhesive traction is the
+  spring's, ``C beta^2 |u + dt v_t|`` from the slip at the end of the step (before the cap):
+  the part of the tangential impulse that the PGS bound ``max(mu lambda_n, spring)`` lets
+  adhesion carry. Where the spring bound holds, it is all of the tangential impulse; where the
+  Coulomb bound holds more, friction carries the rest; inside both, the contact is back at its
+  anchor and the spring carries nothing;
 * a contact whose gap exceeds ``debond_gap`` is fully debonded and forgotten (touching again
   later makes a new contact at ``beta0``); one that debonds to 0 while still close stays at 0;
 * a contact without area (a collision point with no surface around it) does not adhere: it
@@ -134,10 +156,10 @@ class AdhesionState:
     intensity : dict[int, float]
         beta of every tracked adhesive contact.
     slip : dict[int, ndarray]
-        Tangential slip ``u`` [3] [m] (world) of every bonded contact since it bonded: the
-        stretch of its tangential adhesive spring. The contact solver reads it and leaves the
-        slip at the end of the step (``slip=`` of :func:`softvr.contact.solve_contacts`);
-        :meth:`evolve` forgets it with the bond.
+        Tangential slip ``u`` [3] [m] (world) of every bonded contact since it bonded, less
+        what it slid at its limit while pressed: the stretch of its tangential adhesive spring. The contact solver reads it and leaves the slip at the end of
+        the step (``slip=`` of :func:`softvr.contact.solve_contacts`); :meth:`evolve` debonds
+        by it, caps it and forgets it with the bond.
     """
 
     def __init__(self):
@@ -155,6 +177,10 @@ class AdhesionState:
         beta = np.array([self.intensity.get(int(i), 0.0) for i in contacts.ids])
         return contacts.area * adhesion.stiffness * beta**2
 
+    def _slips(self, ids: np.ndarray) -> np.ndarray:
+        """Stored slips [len(ids), 3] [m] of contacts ``ids``, 0 where none is stored."""
+        return np.array([self.slip.get(int(i), (0.0, 0.0, 0.0)) for i in ids], float).reshape(-1, 3)
+
     def evolve(self, contact_sets, adhesions, impulses, gaps_after, dt: float) -> None:
         """Bonding / debonding of every adhesive contact after a step (thesis 4.3.3).
 
@@ -164,12 +190,16 @@ class AdhesionState:
         adhesions : list of Adhesion or None
             One per contact set.
         impulses : list of ndarray, each [contact_count, 3] [N s]
-            (normal, tangent, binormal) impulses of the solve.
+            (normal, tangent, binormal) impulses of the solve. The tangential adhesive
+            tractions come from :attr:`slip` instead, as the solve left it (the slip at the end
+            of the step); :meth:`evolve` then caps it at the limit stretch ``sqrt(W / (C
+            beta))`` of the new intensity where the contact was pressed (module docstring).
         gaps_after : list of ndarray, each [contact_count] [m]
             Normal gap at the end of the step (full debond beyond ``debond_gap``).
         dt : float [s]
         """
         updated: dict[int, float] = {}
+        slips: dict[int, np.ndarray] = {}
         for contacts, adhesion, lam, gap in zip(contact_sets, adhesions, impulses, gaps_after):
             if adhesion is None or not len(contacts):
                 continue
@@ -184,10 +214,11 @@ class AdhesionState:
             has_area = area > 0
             per_area = np.divide(1.0, dt * area, out=np.zeros_like(area), where=has_area)
             p = -lam * per_area[:, None]
-            # The tangential traction adhesion carries: what exceeds the Coulomb bound (friction
-            # carries the rest, and debonds nothing).
-            coulomb = contacts.friction * np.maximum(lam[:, 0], 0.0)
-            tangential = np.maximum(np.linalg.norm(lam[:, 1:], axis=1) - coulomb, 0.0) * per_area
+            # The tangential traction adhesion carries: its spring's, from the slip the solver
+            # left at the end of the step (friction carries the rest of the tangential impulse,
+            # and debonds nothing). A contact not bonded in the solve has no spring.
+            slip = self._slips(contacts.ids)
+            tangential = adhesion.stiffness * beta**2 * np.linalg.norm(slip, axis=1)
             pulled = p[:, 0] > 0
             debond_p = np.where(pulled, np.hypot(p[:, 0], tangential), tangential)
             # C g^2 beta with the traction law's gap g = p / (C beta^2): p^2 / (C beta^3); no
@@ -202,7 +233,16 @@ class AdhesionState:
             # contact (starting at beta0). A contact debonded to 0 while still close stays at 0.
             keep = touched & has_area & (gap <= adhesion.debond_gap)
             updated.update(zip(contacts.ids[keep].tolist(), beta[keep].tolist()))
+            # Past its limit a pressed bond slides: its anchor is dragged along so that the
+            # stored stretch holds at most the limit traction p*(beta) of the new intensity. A
+            # bond under traction keeps its whole stretch, and tears by it (module docstring).
+            bonded = keep & (beta > 0) & np.any(slip != 0.0, axis=1)
+            if bonded.any():
+                limit = np.sqrt(adhesion.max_energy / (adhesion.stiffness * beta[bonded]))
+                scale = np.minimum(1.0, limit / np.linalg.norm(slip[bonded], axis=1))
+                scale = np.where(lam[bonded, 0] > 0, scale, 1.0)
+                slips.update(zip(contacts.ids[bonded].tolist(), slip[bonded] * scale[:, None]))
         self.intensity = updated
         # A bond that gave (or a forgotten contact) loses its anchor: bonding again starts a
         # new, unstretched tangential spring.
-        self.slip = {i: u for i, u in self.slip.items() if updated.get(i, 0.0) > 0}
+        self.slip = slips

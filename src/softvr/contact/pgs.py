@@ -18,10 +18,15 @@ working set of the contacts that can act (the others are checked after each solv
 Friction is a 4-sided Coulomb pyramid, |lambda_t1|, |lambda_t2| <= mu lambda_n, with t1 along
 the unconstrained tangential velocity. Adhesive contacts (:mod:`.adhesion`) widen the bounds
 by the implicit adhesion constraints of thesis eq. 4.16. Their tangent rows aim at undoing the
-contact's slip since bonding ``u`` [m] within the step, ``t . v = -t . u / dt`` instead of 0, so
-that the implicit bound of eq. 4.16 on those rows is the force of a tangential spring stretched
-by the slip at the end of the step, ``dt A C beta^2 t . (u + dt v)`` (a bonded contact holds
-like a spring instead of creeping). Impulses lambda are in N s.
+contact's stored slip ``u`` [m] within the step, ``t . v = -t . u / dt`` instead of 0, so that
+the implicit bound of eq. 4.16 on those rows is the impulse of a tangential spring stretched by
+the slip at the end of the step, ``dt A C beta^2 t . (u + dt v)``, and each tangent impulse
+lies within the larger of that and the Coulomb bound (steps 6-8 of 4.3.2): a bonded contact
+holds like a spring instead of creeping. ``u`` is the slip since bonding; past the debonding
+limit a contact under normal traction keeps all of it and debonds by eq. 4.12, and one under
+compression slides at its limit (``u`` capped at ``sqrt(W / (C beta))``, with the thesis'
+one-step tangential gap ``dt v`` on top): :class:`softvr.contact.AdhesionState` debonds by
+``u`` and caps it after the step. Impulses lambda are in N s.
 """
 
 from __future__ import annotations
@@ -123,8 +128,11 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         (:attr:`softvr.contact.AdhesionState.slip`): the stretch of their tangential adhesive
         springs, missing for 0. Updated in place for every contact with adhesion (``A C beta^2
         > 0``) to its slip at the end of the step, ``u + dt v_t`` (``v_t`` the final relative
-        velocity in the tangent plane); kept in world coordinates because the tangent frame
-        follows the tangential velocity and turns from step to step.
+        velocity in the tangent plane), not capped at the limit stretch: its spring's
+        traction is the tangential adhesive traction that
+        :meth:`softvr.contact.AdhesionState.evolve` debonds by before capping it. Kept in world
+        coordinates because the tangent frame follows the tangential velocity and turns from
+        step to step.
     """
     if adhesion is None:
         adhesion = [None] * len(contact_sets)
@@ -153,7 +161,8 @@ def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int =
         gaps_after.append(c.gap - dt * approach)
         bonded = stiffness[k] > 0
         if slip is not None and bonded.any():
-            # The spring's stretch at the end of the step, in the current tangent plane.
+            # The spring's stretch at the end of the step, in the current tangent plane (the
+            # cap at the limit is the adhesion state's, after it has debonded by this stretch).
             n = c.normal[bonded]
             u = _slips(slip, c.ids[bonded], n) + dt * rel[bonded]
             u -= np.einsum("ci,ci->c", u, n)[:, None] * n
