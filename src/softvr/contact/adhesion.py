@@ -157,9 +157,10 @@ class AdhesionState:
         beta of every tracked adhesive contact.
     slip : dict[int, ndarray]
         Tangential slip ``u`` [3] [m] (world) of every bonded contact since it bonded, less
-        what it slid at its limit while pressed: the stretch of its tangential adhesive spring. The contact solver reads it and leaves the slip at the end of
-        the step (``slip=`` of :func:`softvr.contact.solve_contacts`); :meth:`evolve` debonds
-        by it, caps it and forgets it with the bond.
+        what it slid at its limit while pressed: the stretch of its tangential adhesive
+        spring. The contact solver reads it and leaves the slip at the end of the step
+        (``slip=`` of :func:`softvr.contact.solve_contacts`); :meth:`evolve` debonds by it,
+        caps it and forgets it with the bond.
     """
 
     def __init__(self):
