@@ -228,8 +228,9 @@ def test_stable_over_the_thesis_range_of_stiffness_and_time_step(stiffness, dt):
 def time_to_full_debond(quads: int, dt: float = 0.004) -> float:
     """A 0.4 m cloth (1 kg/m^2) pinned at its top edge lies against an adhesive wall that
     overhangs by 20 degrees, pressed on at 2 cm/s; gravity pulls it off with a normal traction
-    of rho g sin 20 = 3.4 Pa, above the debonding onset sqrt(W C) = 2.0 Pa. Returns the time
-    [s] at which the last vertex lets go (about 1.1 s)."""
+    of rho g sin 20 = 3.4 Pa and drags it down the wall with rho g cos 20 = 9.2 Pa, both above
+    the debonding onset sqrt(W C) = 2.0 Pa (the bonds' tangential stretch, held under traction,
+    tears them, eq. 4.12). Returns the time [s] at which the last vertex lets go (about 1.1 s)."""
     from softvr.dynamics import ClothBody, EmbeddedPoints
 
     size, top, tilt = 0.4, 1.0, np.radians(20.0)
