@@ -7,10 +7,14 @@ For each contact island the MLCP (eq. 5.5)
 is reduced to the LCP of eq. 5.6 on the impulses, ``0 <= lambda _|_ B lambda - d >= 0`` with
 ``B = J D_A^-1 J^T`` and ``d = c - J v_free``, where ``v_free = A^-1 b`` is every object's
 unconstrained velocity and ``D_A`` the block diagonal of A with **one block per contact
-object**: objects are independent until couplings join them (eq. 5.3), so ``D_A^-1`` is
-exactly each object's own ``A^-1`` (read off a reordered sparse LU for FEM and cloth bodies,
-``M^-1`` for rigid ones) and the outer Jacobi loop over velocities of eq. 5.6 converges in one
-pass. It becomes a real loop once couplings put off-diagonal blocks into A (coupling islands).
+object**: objects are independent until couplings join them (eq. 5.3), so ``D_A^-1`` can be
+each object's own ``A^-1`` (``M^-1`` for rigid bodies; for FEM and cloth bodies and coupling
+islands read off a reordered sparse LU), and the outer Jacobi loop over velocities of eq. 5.6
+then converges in one pass. Node bodies keep their factorization over steps
+(:meth:`softvr.dynamics.FemBody.compliance`), so their ``D_A`` is an earlier step's ``A``: the
+outer loop then runs for real, moving ``(B - B~) lambda`` to the right-hand side with ``B``
+applied exactly through the bodies' own solves, until that term changes by less than the PGS
+tolerance (at most :data:`OUTER_ITERATIONS` passes within one sweep budget).
 
 The LCP is solved by compiled projected Gauss-Seidel (:mod:`._pgs_kernels`) over contacts,
 each a 3x3 block taken as its normal row, then its two tangent rows one at a time, on a
