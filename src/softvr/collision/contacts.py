@@ -66,21 +66,27 @@ def contact_keys(kind, body_a, feature_a, body_b, feature_b) -> np.ndarray:
         If a body index reaches :data:`MAX_BODIES` or a feature :data:`MAX_FEATURES`.
     """
     # Scalars are packed as Python ints and arrays once each: this runs for every contact set
-    # of every step, mostly on a handful of contacts.
+    # of every step, mostly on a handful of contacts or none.
     base, arrays = 0, []
     for (name, (shift, bits)), value in zip(_SHIFTS.items(), (kind, body_a, body_b, feature_a, feature_b)):
-        if np.ndim(value) == 0:
-            if not 0 <= int(value) < (1 << bits):
+        if isinstance(value, (int, np.integer)):
+            if not 0 <= value < (1 << bits):
                 _capacity_error(name, bits, int(value))
             base |= int(value) << shift
             continue
-        value = np.asarray(value, np.int64)
-        if value.size and (value.min() < 0 or value.max() >= (1 << bits)):
-            _capacity_error(name, bits, int(value[(value < 0) | (value >= (1 << bits))].flat[0]))
-        arrays.append(value.astype(np.uint64) << np.uint64(shift))
-    key = np.full(np.broadcast_shapes(*(a.shape for a in arrays)), base, np.uint64)
-    for a in arrays:
-        key |= a
+        value = np.asarray(value)
+        if value.size == 0:
+            return np.zeros(value.shape, np.int64)
+        low, high = value.min(), value.max()
+        if low < 0 or high >= (1 << bits):
+            _capacity_error(name, bits, int(low if low < 0 else high))
+        arrays.append((value.astype(np.uint64), np.uint64(shift)))
+    if not arrays:
+        return np.array(base, np.uint64).view(np.int64)
+    key = np.left_shift(*arrays[0])
+    for value, shift in arrays[1:]:
+        key |= value << shift
+    key |= np.uint64(base)
     return key.view(np.int64)
 
 
