@@ -50,6 +50,9 @@ __all__ = ["ContactSolution", "solve_contacts"]
 #: Most passes of eq. 5.6's outer loop per island when a body's compliance is a kept
 #: factorization's (:attr:`softvr.dynamics.FemBody.compliance_is_exact`); one pass otherwise.
 OUTER_ITERATIONS = 8
+#: Outer passes above which a body's kept factorization is given up (measured: on the cube
+#: most kept steps need 2, on the lips 3-8, where refactoring each step is cheaper).
+KEPT_FACTOR_PASSES = 2
 
 
 @dataclass
@@ -266,7 +269,7 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
     # applied exactly through the bodies' own solves, until it stops changing.
     lagged = [j for j in touched if not getattr(bodies[j], "compliance_is_exact", True)]
     rhs, sweeps = rel_free, 0
-    for _ in range(OUTER_ITERATIONS):
+    for passes in range(1, OUTER_ITERATIONS + 1):
         # The passes share the sweep budget: where PGS cannot converge (redundant contacts) the
         # outer loop must not multiply its cost.
         done, lam, predicted = _solve_working_set(bodies, touched, g, rhs, target, mu, k_adhesion, lam,
@@ -288,6 +291,10 @@ def _solve_island(bodies, v_free, island, contact_sets, sets, velocities, impuls
         rhs = corrected
         if change <= tol or sweeps >= iterations:
             break
+    if lagged and passes > KEPT_FACTOR_PASSES:
+        # The kept A has drifted too far to pay for itself: refactor on the next step.
+        for j in lagged:
+            bodies[j].discard_kept_factorization()
     for s, k in enumerate(sets):
         impulses[k] = lam[3 * offsets[s] : 3 * offsets[s + 1]].reshape(-1, 3)
     return sweeps

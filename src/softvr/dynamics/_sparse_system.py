@@ -220,6 +220,11 @@ class SparseNodeSystem:
         """Whether :meth:`compliance` of this step is this step's ``A^-1`` (else the kept one's)."""
         return self._factor_is_current()
 
+    def discard_kept_factorization(self) -> None:
+        """Make the next :meth:`compliance` refactor (the contact solver found the kept ``A``
+        too far from this step's to converge in a few outer passes)."""
+        self._factor_age = self.max_factor_age
+
     def _corner_reusable(self, last: np.ndarray, n: int) -> bool:
         """Whether the kept factorization can give the compliance of the free velocities ``last``."""
         lu, at = getattr(self, "_lu", None), getattr(self, "_corner_position", None)
