@@ -227,9 +227,10 @@ class Scene:
         return self.contact_margin if adhesion is None else max(self.contact_margin, adhesion.debond_gap)
 
     def _pair_margin(self, a: tuple, b: tuple) -> float:
-        """Detection margin [m] of a primitive pair (keys of ``_adhesion``): the scene's, or the
-        combined adhesion's debond gap, so that bonded contacts stay detected until they
-        debond (a sphere's contact area is the cap within it, :func:`sphere_vs_plane`)."""
+        """Detection margin [m] of a pair (keys of ``_adhesion``: surfaces, primitives, statics):
+        the scene's, or the combined adhesion's debond gap, so that bonded contacts stay
+        detected until they debond (a sphere's contact area is the cap within it,
+        :func:`sphere_vs_plane`)."""
         pair = combine(self._adhesion[a], self._adhesion.get(b))
         return self.contact_margin if pair is None else max(self.contact_margin, pair.debond_gap)
 
@@ -259,7 +260,6 @@ class Scene:
 
         Returns the contact sets and, per set, the pair's combined :class:`Adhesion` (or None).
         """
-        m = self.contact_margin
         out = []
         for surface in self._surfaces:
             surface.refit()
@@ -300,8 +300,7 @@ class Scene:
                 if (boxes[n][0] > boxes[k][1]).any() or (boxes[k][0] > boxes[n][1]).any():
                     continue
                 va, vb = moving[n], moving[k]
-                pair = combine(self._adhesion[("body", sa.body_index)], self._adhesion[("body", sb.body_index)])
-                pm = m if pair is None else max(m, pair.debond_gap)  # bonded contacts stay detected
+                pm = self._pair_margin(("body", sa.body_index), ("body", sb.body_index))
                 for x, y, vx, vy in ((sa, sb, va, vb), (sb, sa, vb, va)):
                     out.append((surface_vs_surface(x, y, margin=pm, friction=self.friction, dt=dt, ccd=self.ccd,
                                                    velocities_a=vx, velocities_b=vy), None))
@@ -319,12 +318,13 @@ class Scene:
                                                  margin=self._pair_margin(("body", i), ("body", j)),
                                                  velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
         for n, (i, h) in enumerate(self._box_bodies):
-            out += [(box_vs_plane(i, self.bodies[i], h, p, margin=m, velocity=v_free[i], dt=dt, static_index=k), p)
-                    for k, p in enumerate(self.planes)]
+            out += [(box_vs_plane(i, self.bodies[i], h, p, margin=self._pair_margin(("body", i), ("static", id(p))),
+                                  velocity=v_free[i], dt=dt, static_index=k), p) for k, p in enumerate(self.planes)]
             for j, hj in self._box_bodies[n + 1 :]:
                 if self._pair_enabled(i, j):
                     out.append((box_vs_box(i, self.bodies[i], h, j, self.bodies[j], hj, friction=self.friction,
-                                           margin=m, velocity_a=v_free[i], velocity_b=v_free[j], dt=dt), None))
+                                           margin=self._pair_margin(("body", i), ("body", j)), velocity_a=v_free[i],
+                                           velocity_b=v_free[j], dt=dt), None))
         contacts = [self._movable(c) for c, _ in out]
         adhesions = [combine(self._adhesion[("body", c.a.body)],
                              self._adhesion[("body", c.b.body)] if static is None else self._adhesion.get(("static", id(static))))
@@ -430,7 +430,8 @@ class Scene:
         stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
         warm, self._warm = self._warm, {}
         solved = solve_contacts(units, v_units, [self._to_units(c, where) for c in contacts], dt,
-                                iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness, slip=self.adhesion_state.slip)
+                                iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness,
+                                slip=self.adhesion_state.slip)
         members = [[i for i, (w, _) in enumerate(where) if w == u] for u in range(len(units))]
         solution = ContactSolution(
             velocities=[self._body_velocity(solved.velocities, where, i) for i in range(len(self.bodies))],
