@@ -120,16 +120,22 @@ def pgs_sweeps(delassus: np.ndarray, target: np.ndarray, friction: np.ndarray, l
     count = len(friction)
     diagonal = np.diagonal(delassus)
     row_inv = np.where(diagonal > 1e-300, 1.0 / np.maximum(diagonal, 1e-300), 0.0)  # an immovable row: no update
-    lam_w = wp.array(lam, dtype=wp.float64, device=device)
-    rel_w = wp.array(rel, dtype=wp.float64, device=device)
+
+    def alias(x) -> wp.array:
+        # The kernel reads (and for lambda and rel writes) the NumPy memory itself: wrapping
+        # costs a third of a copy, and this runs once or more per island and step.
+        return wp.array(x, dtype=wp.float64, device=device, copy=False)
+
+    lam_c, rel_c = np.ascontiguousarray(lam, dtype=np.float64), np.ascontiguousarray(rel, dtype=np.float64)
     sweeps = wp.zeros(1, dtype=wp.int32, device=device)
     wp.launch(_pgs_kernel, dim=1, device=device,
-              inputs=[wp.array(np.ascontiguousarray(delassus), dtype=wp.float64, device=device),
-                      wp.array(target, dtype=wp.float64, device=device),
-                      wp.array(friction, dtype=wp.float64, device=device),
-                      wp.array(np.zeros(count) if adhesion is None else adhesion, dtype=wp.float64, device=device),
-                      wp.array(row_inv, dtype=wp.float64, device=device),
-                      lam_w, rel_w, int(max_sweeps), float(tolerance), sweeps])
-    lam[:] = lam_w.numpy()
-    rel[:] = rel_w.numpy()
+              inputs=[alias(np.ascontiguousarray(delassus, dtype=np.float64)),
+                      alias(np.ascontiguousarray(target, dtype=np.float64)),
+                      alias(np.ascontiguousarray(friction, dtype=np.float64)),
+                      alias(np.zeros(count) if adhesion is None else np.ascontiguousarray(adhesion, dtype=np.float64)),
+                      alias(row_inv), alias(lam_c), alias(rel_c), int(max_sweeps), float(tolerance), sweeps])
+    if lam_c is not lam:
+        lam[:] = lam_c
+    if rel_c is not rel:
+        rel[:] = rel_c
     return int(sweeps.numpy()[0])
