@@ -175,7 +175,7 @@ class TriangleMesh:
 
 
 def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float = 0.0, velocities=None,
-                   dt: float = 0.0, ccd: bool = True, areas=None, static_index: int = 0) -> Contacts:
+                   dt: float = 0.0, ccd: bool = True, static_index: int = 0) -> Contacts:
     """Contacts of point entities with a static triangle mesh.
 
     Parameters
@@ -190,8 +190,6 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
     dt : float [s]
     ccd : bool
         Sweep each point over ``velocities * dt`` and take the first crossing.
-    areas : ndarray, shape [point_count] [m^2], optional
-        Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
     static_index : int
         Index of the mesh among the scene's static meshes (part of the contact keys).
     """
@@ -212,5 +210,4 @@ def points_vs_mesh(body_index: int, points, mesh: TriangleMesh, *, margin: float
         # names it; the triangle it meets changes as it slides, and must not restart its adhesion.
         ids=contact_keys(ContactKind.POINT_MESH, body_index, which, static_index, 0),
         friction=np.full(k, mesh.friction),
-        area=None if areas is None else np.asarray(areas, float)[which],
     )

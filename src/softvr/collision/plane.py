@@ -39,9 +39,12 @@ class Plane:
 
 
 def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.0, velocities=None,
-                    dt: float = 0.0, areas=None, static_index: int = 0) -> Contacts:
+                    dt: float = 0.0, static_index: int = 0) -> Contacts:
     """Contacts of a body's point entities with a plane: points closer than ``margin``, or that
-    would come that close within ``dt`` at ``velocities`` (no tunnelling at any speed).
+    would come that close within ``dt`` at ``velocities`` (no tunnelling at any speed). The
+    contacts carry no area (0): points alone stand for no surface, and :class:`softvr.Scene`
+    gives the vertices of a collision surface their area facing the contact
+    (:meth:`~softvr.collision.CollisionSurface.facing_vertex_area`).
 
     Parameters
     ----------
@@ -57,8 +60,6 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
         Predicted point velocities (e.g. the unconstrained ones of this step).
     dt : float [s]
         Step over which ``velocities`` apply.
-    areas : ndarray, shape [point_count] [m^2], optional
-        Local contact area of each point (e.g. a collision surface's vertex areas); 0 if not given.
     static_index : int
         Index of the plane among the scene's planes: with the body and the point it makes the
         contact keys unique in the scene (:func:`~softvr.collision.contacts.contact_keys`).
@@ -81,5 +82,4 @@ def points_vs_plane(body_index: int, points, plane: Plane, *, margin: float = 0.
         point_b=p[hit] - gap[hit, None] * n,
         ids=contact_keys(ContactKind.POINT_PLANE, body_index, hit, static_index, 0),
         friction=np.full(k, float(plane.friction)),
-        area=None if areas is None else np.asarray(areas, float)[hit],
     )

@@ -34,10 +34,9 @@ class Sphere:
 
 
 def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float = 0.0, velocities=None,
-                     dt: float = 0.0, areas=None, static_index: int = 0) -> Contacts:
+                     dt: float = 0.0, static_index: int = 0) -> Contacts:
     """Contacts of point entities with a static sphere (gap along the outward radial normal);
-    ``areas`` [point_count] [m^2] as in :func:`~softvr.collision.points_vs_plane`, and
-    ``static_index`` the sphere's index among the scene's static spheres (part of the keys)."""
+    ``static_index`` is the sphere's index among the scene's static spheres (part of the keys)."""
     c = np.asarray(sphere.center, float)
     p = points.positions()
     d = p - c
@@ -58,7 +57,6 @@ def points_vs_sphere(body_index: int, points, sphere: Sphere, *, margin: float =
         point_b=c + sphere.radius * n[hit],
         ids=contact_keys(ContactKind.POINT_SPHERE, body_index, hit, static_index, 0),
         friction=np.full(len(hit), float(sphere.friction)),
-        area=None if areas is None else np.asarray(areas, float)[hit],
     )
 
 
