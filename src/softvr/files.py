@@ -10,13 +10,16 @@ The limits are per file and can be raised by the user (``SOFTVR_MAX_FILE_BYTES``
 
 from __future__ import annotations
 
+import json
 import os
 import stat
+import tomllib
 from pathlib import Path
 
 from softvr.errors import InputError
 
-__all__ = ["MAX_ELEMENTS", "MAX_FILE_BYTES", "checked_file", "check_count", "inside_folder"]
+__all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "checked_file", "check_count",
+           "check_tree", "file_name", "inside_folder", "load_json", "native_read", "read_text", "read_toml"]
 
 
 def _limit(name: str, default: int) -> int:
@@ -37,6 +40,15 @@ MAX_FILE_BYTES = _limit("SOFTVR_MAX_FILE_BYTES", 4 << 30)
 #: Largest count an input may ask softvr to allocate (voxels, cells, vertices, frames) before
 #: anything is allocated (2**31; ``SOFTVR_MAX_ELEMENTS`` overrides).
 MAX_ELEMENTS = _limit("SOFTVR_MAX_ELEMENTS", 1 << 31)
+#: Largest text input (a TOML file, a glTF's JSON) [bytes] (64 MiB; ``SOFTVR_MAX_TEXT_BYTES``
+#: overrides): text files this large are not hand-written scenes, and are parsed in memory.
+MAX_TEXT_BYTES = _limit("SOFTVR_MAX_TEXT_BYTES", 64 << 20)
+#: Deepest nesting of tables / arrays a TOML or JSON input may have: softvr's formats nest
+#: at most 5 levels; deeper input is refused before any recursive code walks it.
+MAX_DEPTH = 32
+#: Longest file name an input may write (characters), and longest name component: POSIX's
+#: PATH_MAX and NAME_MAX, beyond which the OS refuses the name anyway.
+_MAX_PATH, _MAX_NAME = 4096, 255
 
 
 def checked_file(path: str | os.PathLike, what: str, *, max_bytes: int | None = None) -> Path:
@@ -87,3 +99,109 @@ def check_count(count, what: str, source: str | None = None, *, limit: int | Non
         raise InputError(what, f"a count in 0 .. {limit} (SOFTVR_MAX_ELEMENTS raises the limit)", str(count),
                          source=source)
     return count
+
+
+def read_text(path: str | os.PathLike, what: str, *, max_bytes: int | None = None) -> str:
+    """The UTF-8 text of the regular file ``path`` (:func:`checked_file`, default limit
+    :data:`MAX_TEXT_BYTES`); bytes that are not UTF-8 are an :class:`InputError` naming
+    their offset."""
+    path = checked_file(path, what, max_bytes=MAX_TEXT_BYTES if max_bytes is None else max_bytes)
+    data = _read_bytes(path, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(what, "UTF-8 text", f"byte 0x{data[exc.start]:02x} at offset {exc.start} ({exc.reason})",
+                         source=str(path)) from None
+
+
+def _read_bytes(path: Path, what: str) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(what, "a readable file", exc.strerror or str(exc), source=str(path)) from None
+
+
+def read_toml(path: str | os.PathLike, kind: str) -> dict:
+    """The table of a TOML file (``kind``: "scene file", "display file", ...), checked by
+    :func:`read_text` and :func:`check_tree`: bad UTF-8, bad TOML, nesting deeper than
+    :data:`MAX_DEPTH` and integers beyond 64 bits (TOML's range) are an :class:`InputError`
+    naming the file (and the field)."""
+    text = read_text(path, kind)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("TOML", "valid TOML", str(exc), source=str(path)) from None
+    except RecursionError:
+        raise InputError("TOML", f"tables and arrays nested at most {MAX_DEPTH} deep", "deeper nesting",
+                         source=str(path)) from None
+    except ValueError as exc:  # an integer of more digits than Python converts (sys.int_info)
+        raise InputError("TOML", "valid TOML", str(exc), source=str(path)) from None
+    check_tree(doc, str(path))
+    return doc
+
+
+def load_json(data: bytes | str, what: str, source: str | None = None):
+    """A JSON document (a glTF's), checked by :func:`check_tree`; bad JSON, bad UTF-8 and
+    nesting that exhausts the parser are an :class:`InputError` naming ``source``."""
+    try:
+        doc = json.loads(data)
+    except RecursionError:
+        raise InputError(what, f"JSON nested at most {MAX_DEPTH} deep", "deeper nesting", source=source) from None
+    except (UnicodeDecodeError, ValueError) as exc:  # JSONDecodeError, too many digits
+        raise InputError(what, "valid UTF-8 JSON", str(exc)[:200], source=source) from None
+    check_tree(doc, source)
+    return doc
+
+
+def check_tree(tree, source: str | None = None, *, max_depth: int = MAX_DEPTH) -> None:
+    """An :class:`InputError` naming the first field of a parsed TOML / JSON tree nested deeper
+    than ``max_depth`` or holding an integer outside the signed 64-bit range (TOML's own
+    limit; beyond it numbers cannot be converted to floats or arrays). Iterative: a deep tree
+    cannot exhaust the stack here."""
+    stack = [(tree, "", 0)]
+    while stack:
+        node, where, depth = stack.pop()
+        if depth > max_depth:
+            raise InputError(where or "document", f"tables and arrays nested at most {max_depth} deep",
+                             "deeper nesting", source=source)
+        if isinstance(node, dict):
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in node.items())
+        elif isinstance(node, list):
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(node))
+        elif isinstance(node, int) and not isinstance(node, bool) and not -(1 << 63) <= node < (1 << 63):
+            raise InputError(where or "document", "an integer within 64 bits", f"an integer of {len(str(node))} "
+                             "digits" if node.bit_length() < 14000 else "a huge integer", source=source)
+
+
+def file_name(folder: str | os.PathLike, name, what: str, source: str | None = None) -> Path:
+    """The file an input names (``name``, relative to ``folder``, or absolute), resolved; an
+    :class:`InputError` naming ``what`` when it is not a string, holds a NUL byte or is longer
+    than the OS allows. Whether it exists is the caller's :func:`checked_file`."""
+    if not isinstance(name, str) or not name:
+        raise InputError(what, "a file name", repr(name)[:200], source=source)
+    if "\x00" in name:
+        raise InputError(what, "a file name without NUL bytes", repr(name)[:200], source=source)
+    if len(name) > _MAX_PATH or any(len(part.encode("utf-8", "surrogateescape")) > _MAX_NAME
+                                    for part in name.split("/")):
+        raise InputError(what, f"a file name of at most {_MAX_NAME} bytes per folder or file name",
+                         f"{name[:40]!r}... ({len(name)} characters)", source=source)
+    try:
+        return (Path(folder) / name).resolve()
+    except (OSError, RuntimeError, ValueError) as exc:  # a symlink loop, an unencodable name
+        raise InputError(what, "a file name that resolves", str(exc), source=source) from None
+
+
+def native_read(read, path: str | os.PathLike, what: str, expected: str):
+    """``read(path)`` by a native reader (meshio, trimesh, SimpleITK) after
+    :func:`checked_file`; any error it raises, ``sys.exit`` included (meshio exits on some
+    unreadable files), becomes an :class:`InputError` naming the file. MemoryError is not
+    caught: sizes are checked before a reader runs, so one is a bug to see."""
+    path = checked_file(path, what)
+    try:
+        return read(path)
+    except MemoryError:
+        raise
+    except SystemExit as exc:
+        raise InputError(what, expected, f"the reader gave up (exit {exc.code!r})", source=str(path)) from None
+    except Exception as exc:  # noqa: BLE001 - native readers raise every type for bad files
+        raise InputError(what, expected, f"{type(exc).__name__}: {str(exc)[:300]}", source=str(path)) from None

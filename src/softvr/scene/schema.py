@@ -150,10 +150,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from softvr.errors import Problems, raise_all, read_toml
+from softvr.errors import InputError, Problems, raise_all
+from softvr.files import checked_file, file_name, read_toml
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_TYPES", "FORMAT", "PLAUSIBLE", "BodySpec", "SceneFile", "adhesion_parameters", "read_scene",
+__all__ = ["BODY_TYPES", "FORMAT", "LIMITS", "PLAUSIBLE", "BodySpec", "SceneFile", "adhesion_parameters", "read_scene",
            "read_scene_with_problems"]
 
 FORMAT = "softvr-scene 1"
@@ -169,7 +170,17 @@ _ADHESION_KEYS = ("stiffness", "max_energy", "viscosity", "bonding_rate", "satur
 PLAUSIBLE = {"dt": (1e-7, 0.1),            # [s] a contact simulation's step
              "density": (10.0, 30000.0),   # [kg/m^3] foams .. osmium
              "young": (1.0, 1e12),          # [Pa] hydrogels .. diamond
-             "size": (0.0, 50.0)}           # [m] a body's box edges, sphere radius, cloth sides
+             "size": (0.0, 50.0),           # [m] a body's box edges, sphere radius, cloth sides
+             "place": (-1e4, 1e4),          # [m] positions, points, centres: within 10 km of the origin
+             "speed": (-1e4, 1e4)}          # [m/s], [rad/s], [m/s^2]: velocities, spins, gravity
+#: Largest count a scene may ask for, checked before anything is built: far above what a
+#: real-time scene needs (a 64^3-cube FEM box is 1.3 million tets), far below what fills a
+#: machine's memory (docs/input-limits.md).
+LIMITS = {"frames": 1_000_000, "steps_per_frame": 10_000, "pgs_iterations": 100_000,
+          "cells": 64,                  # fem box / volume: cubes per axis
+          "surface_quads": 64,          # box: quads along its longest edge (6 n^2 in all)
+          "quads": 1024,                # cloth: quads per side
+          "collision_triangles": 200_000, "skin_triangles": 1_000_000, "render_step": 64}
 
 
 @dataclass
@@ -234,6 +245,26 @@ class SceneFile:
         return {name: kind for m in self.models for name, kind in m["parts"].items()}
 
 
+def _table(doc: dict, key: str, errors: Problems, where: str | None = None) -> dict:
+    """``doc[key]`` if it is a table (an empty one when absent); else a problem and ``{}``."""
+    t = doc.get(key, {})
+    if not isinstance(t, dict):
+        errors.add(where or key, f"a [{key}] table", type(t).__name__)
+        return {}
+    return t
+
+
+def _count(errors: Problems, t: dict, key: str, where: str, *, default=None, minimum: int = 0,
+           limit: str | None = None) -> int | None:
+    """An integer >= ``minimum`` and <= :data:`LIMITS` ``[limit or key]``."""
+    value = errors.integer(t, key, where, default=default, minimum=minimum)
+    top = LIMITS[limit or key]
+    if value is not None and value > top:
+        errors.add(f"{where}.{key}", f"an integer in {minimum} .. {top} (softvr's limit for a scene)", value)
+        return None
+    return value
+
+
 def _named_tables(doc: dict, key: str, errors: Problems) -> dict:
     tables = doc.get(key, {})
     if not isinstance(tables, dict) or not all(isinstance(v, dict) for v in tables.values()):
@@ -251,14 +282,15 @@ def _list(doc: dict, key: str, errors: Problems) -> list:
 
 
 def _simulation(doc: dict, errors: Problems) -> dict:
-    t = doc.get("simulation", {})
+    t = _table(doc, "simulation", errors)
     w = "simulation"
     out = {"dt": errors.number(t, "dt", w, default=0.005, positive=True, unit="s", plausible=PLAUSIBLE["dt"]),
-           "steps_per_frame": errors.integer(t, "steps_per_frame", w, default=4, minimum=1),
-           "frames": errors.integer(t, "frames", w, default=100, minimum=1),
-           "gravity": errors.vector(t, "gravity", w, default=[0.0, 0.0, -9.81], unit="m/s^2"),
+           "steps_per_frame": _count(errors, t, "steps_per_frame", w, default=4, minimum=1),
+           "frames": _count(errors, t, "frames", w, default=100, minimum=1),
+           "gravity": errors.vector(t, "gravity", w, default=[0.0, 0.0, -9.81], unit="m/s^2",
+                                    plausible=PLAUSIBLE["speed"]),
            "friction": errors.number(t, "friction", w, default=0.5, minimum=0.0),
-           "pgs_iterations": errors.integer(t, "pgs_iterations", w, default=500, minimum=1),
+           "pgs_iterations": _count(errors, t, "pgs_iterations", w, default=500, minimum=1),
            "contact_margin": errors.number(t, "contact_margin", w, default=0.005, minimum=0.0, unit="m"),
            "collision_free_start": errors.boolean(t, "collision_free_start", w, default=False)}
     return out
@@ -267,7 +299,7 @@ def _simulation(doc: dict, errors: Problems) -> dict:
 def _render(doc: dict, errors: Problems, where: str = "render") -> dict:
     """The ``[render]`` table and the ``[[light]]`` list of ``doc``, problems named under
     ``where`` (a glTF scene's extras: ``"scene"``)."""
-    t = doc.get("render", {})
+    t = _table(doc, "render", errors, where)
     w = where
     size = t.get("size", [640, 480])
     if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and 0 < v <= 16384 for v in size)):
@@ -275,10 +307,12 @@ def _render(doc: dict, errors: Problems, where: str = "render") -> dict:
         size = [640, 480]
     bounds = t.get("bounds")
     if bounds is not None:
-        bounds = errors.vector(t, "bounds", w, 6, unit="m")
+        bounds = errors.vector(t, "bounds", w, 6, unit="m", plausible=PLAUSIBLE["place"])
+    from softvr.render.camera import VIEWS  # noqa: PLC0415 - VTK, only when a scene is read
+
     camera = t.get("camera", "iso")
-    if not isinstance(camera, str):
-        errors.add(f"{w}.camera", "a view name (front, side, top, iso, ...)", camera)
+    if not isinstance(camera, str) or camera not in VIEWS:
+        errors.add(f"{w}.camera", f"a view name ({', '.join(VIEWS)})", camera)
         camera = "iso"
     colors = {}
     for key, default in (("background", (0.10, 0.11, 0.13)), ("background_top", (0.32, 0.36, 0.43))):
@@ -286,8 +320,9 @@ def _render(doc: dict, errors: Problems, where: str = "render") -> dict:
     lights = []
     for i, light in enumerate(_list(doc, "light", errors)):
         lw = f"light[{i}]"
-        lights.append({"position": errors.vector(light, "position", lw, unit="m"),
-                       "focal_point": errors.vector(light, "focal_point", lw, default=[0.0, 0.0, 0.0], unit="m"),
+        lights.append({"position": errors.vector(light, "position", lw, unit="m", plausible=PLAUSIBLE["place"]),
+                       "focal_point": errors.vector(light, "focal_point", lw, default=[0.0, 0.0, 0.0], unit="m",
+                                                    plausible=PLAUSIBLE["place"]),
                        "color": _color(light, "color", lw, (1.0, 1.0, 1.0), errors),
                        "intensity": errors.number(light, "intensity", lw, default=1.0, minimum=0.0)})
     return {"size": tuple(size), "camera": camera, "bounds": bounds, **colors, "lights": lights,
@@ -339,7 +374,7 @@ def _ref(table: dict, key: str, where: str, known: dict | set, what: str, errors
     value = table.get(key)
     if value is None and not required:
         return None
-    if value not in known:
+    if not isinstance(value, str) or value not in known:
         names = ", ".join(sorted(known)) or f"none defined: add a [{what}.NAME] table"
         errors.add(f"{where}.{key}", f"the name of a {what} ({names})", value if value is not None else "nothing")
         return None
@@ -384,7 +419,7 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     if "surface_quads" in t:
         if shape != "box" or kind == "fixed":
             errors.add(f"{w}.surface_quads", "surface quads only on a moving box", f"a {kind} {shape}")
-        spec.surface_quads = errors.integer(t, "surface_quads", w, minimum=1)
+        spec.surface_quads = _count(errors, t, "surface_quads", w, minimum=1)
     if "subdivisions" in t:
         if shape != "sphere":
             errors.add(f"{w}.subdivisions", "subdivisions only on a sphere", f"a {shape} shape")
@@ -398,7 +433,7 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         if shape not in ("mesh", "sphere") or kind == "fixed":
             errors.add(f"{w}.collision_triangles", "a triangle budget only on a moving mesh or sphere",
                        f"a {kind} {shape}")
-        spec.collision_triangles = errors.integer(t, "collision_triangles", w, minimum=4)
+        spec.collision_triangles = _count(errors, t, "collision_triangles", w, minimum=4)
     if "collides_with" in t:
         others = t["collides_with"]
         if not (isinstance(others, list) and all(isinstance(o, str) for o in others)):
@@ -408,12 +443,13 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
     if kind in ("rigid", "fem", "tool"):
         spec.material = _ref(t, "material", w, materials, "material", errors, required=True)
     spec.adhesion = _ref(t, "adhesion", w, adhesions, "adhesion", errors)
-    for key, unit in (("position", "m"), ("rotation", "deg"), ("velocity", "m/s"), ("angular_velocity", "rad/s")):
-        value = errors.vector(t, key, w, default=list(getattr(spec, key)), unit=unit)
+    for key, unit, bound in (("position", "m", "place"), ("rotation", "deg", "place"), ("velocity", "m/s", "speed"),
+                             ("angular_velocity", "rad/s", "speed")):
+        value = errors.vector(t, key, w, default=list(getattr(spec, key)), unit=unit, plausible=PLAUSIBLE[bound])
         if value is not None:
             setattr(spec, key, value)
     if "spin_centre" in t:
-        spec.spin_centre = errors.vector(t, "spin_centre", w, unit="m")
+        spec.spin_centre = errors.vector(t, "spin_centre", w, unit="m", plausible=PLAUSIBLE["place"])
     color = errors.vector(t, "color", w, default=list(spec.color))
     if color is not None and not all(0 <= c <= 1 for c in color):
         errors.add(f"{w}.color", "r, g, b in [0, 1]", list(color))
@@ -421,17 +457,20 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
         spec.color = color
     for key in ("fixed_below", "fixed_above"):
         if key in t:
-            setattr(spec, key, errors.number(t, key, w, unit="m"))
+            setattr(spec, key, errors.number(t, key, w, unit="m", minimum=PLAUSIBLE["place"][0],
+                                             maximum=PLAUSIBLE["place"][1]))
     if kind == "fem" and shape in ("mesh", "sphere"):
         spec.cells = errors.number(t, "cells", w, positive=True, unit="m")
     elif kind == "fem" and shape == "box":
         cells = t.get("cells", 4)
         if isinstance(cells, list):
-            if not (len(cells) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in cells)):
-                errors.add(f"{w}.cells", "cubes per axis: an integer >= 1 or 3 of them", cells)
+            top = LIMITS["cells"]
+            if not (len(cells) == 3 and all(isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= top
+                                            for c in cells)):
+                errors.add(f"{w}.cells", f"cubes per axis: an integer in 1 .. {top} or 3 of them", cells)
             spec.cells = tuple(cells)
         else:
-            spec.cells = errors.integer(t, "cells", w, default=4, minimum=1)
+            spec.cells = _count(errors, t, "cells", w, default=4, minimum=1)
     if "drive" in t:
         if kind not in ("fem", "cloth"):
             errors.add(f"{w}.drive", "a drive only on a fem or cloth body (it moves the held nodes)", f"a {kind} body")
@@ -445,8 +484,10 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
                           ("stretch", 200.0, "N/m"), ("shear", 20.0, "N/m"), ("bend", 1.0, "N/m"),
                           ("damping", 0.05, "N s/m"), ("alpha", 0.1, "1/s"))}}
         quads = spec.cloth["quads"]
-        if not (isinstance(quads, list) and len(quads) == 2 and all(isinstance(q, int) and q >= 1 for q in quads)):
-            errors.add(f"{w}.quads", "[nu, nv] quads, integers >= 1", quads)
+        top = LIMITS["quads"]
+        if not (isinstance(quads, list) and len(quads) == 2 and all(
+                isinstance(q, int) and not isinstance(q, bool) and 1 <= q <= top for q in quads)):
+            errors.add(f"{w}.quads", f"[nu, nv] quads, integers in 1 .. {top}", quads)
     if kind in ("kinematic", "tool"):
         spec.motion = _keyframes(t.get("motion"), f"{w}.motion", "positions", errors, rotations=kind == "kinematic")
         if kind == "tool" and isinstance(t.get("motion"), dict) and "rotations" in t["motion"]:
@@ -464,15 +505,19 @@ def _body(i: int, t: dict, scene_dir: Path, materials: dict, adhesions: dict, er
 
 def _file(t: dict, key: str, w: str, scene_dir: Path, suffixes: tuple, what: str, errors: Problems) -> Path | None:
     """The existing file ``t[key]`` names, relative to the scene's folder."""
-    name = t[key]
-    if not isinstance(name, str):
-        errors.add(f"{w}.{key}", f"{what} name", name)
+    try:
+        path = file_name(scene_dir, t[key], f"{w}.{key}")
+    except InputError as exc:
+        errors.add(exc.what, f"{what} name ({exc.expected})", exc.found)
         return None
-    path = (scene_dir / name).resolve()
     if path.suffix.lower() not in suffixes:
-        errors.add(f"{w}.{key}", f"{what} ({', '.join(suffixes)})", name)
-    elif not path.is_file():
-        errors.add(f"{w}.{key}", "an existing file", f"no file {path}")
+        errors.add(f"{w}.{key}", f"{what} ({', '.join(suffixes)})", repr(t[key])[:200])
+        return path
+    try:
+        checked_file(path, f"{w}.{key}")
+    except InputError as exc:
+        errors.add(f"{w}.{key}", exc.expected, f"{exc.found}: {path}" if exc.found != "no such file"
+                   else f"no file {path}")
     return path
 
 
@@ -482,14 +527,14 @@ def _keyframes(t, w: str, key: str, errors: Problems, *, rotations: bool = False
     ``rotations``, optionally one [rx, ry, rz] [deg] (x, then y, then z) of ``rotations`` per
     time too. A glTF node's extras read with ``prefix`` (keys ``<prefix>times`` and
     ``<prefix><key>``, named so) and ``flat`` (``key`` a flat list x0, y0, z0, x1, ... [m])."""
-    import math
-
     if not isinstance(t, dict):
         errors.add(w, f"a table: times [s] and {key} [m]", t if t is not None else "nothing")
         return {}
 
-    def number(x) -> bool:
-        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    low, high = PLAUSIBLE["place"]
+
+    def number(x) -> bool:  # times [s], positions [m], angles [deg] alike: within 1e4
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and low <= x <= high
 
     def triples(v) -> bool:
         return isinstance(v, list) and all(isinstance(p, list) and len(p) == 3 and all(map(number, p)) for p in v)
@@ -523,6 +568,15 @@ def read_scene(path) -> SceneFile:
     scene, problems = read_scene_with_problems(path)
     raise_all(problems, str(path), "scene file")
     return scene
+
+
+def _normal(t: dict, w: str, errors: Problems) -> tuple | None:
+    """A plane's ``normal``: 3 numbers, not all zero (any length; the plane normalizes it)."""
+    normal = errors.vector(t, "normal", w, default=[0.0, 0.0, 1.0], plausible=PLAUSIBLE["place"])
+    if normal is not None and sum(c * c for c in normal) < 1e-12:
+        errors.add(f"{w}.normal", "a direction: 3 numbers, not all zero", list(normal))
+        return None
+    return normal
 
 
 def _complete(table: dict, defaults: dict) -> dict:
@@ -567,18 +621,18 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     for i, t in enumerate(_list(doc, "plane", errors)):
         w = f"plane[{i}]"
         plane, bad = counted(lambda: {
-            "point": errors.vector(t, "point", w, default=[0.0, 0.0, 0.0], unit="m"),
-            "normal": errors.vector(t, "normal", w, default=[0.0, 0.0, 1.0]),
+            "point": errors.vector(t, "point", w, default=[0.0, 0.0, 0.0], unit="m", plausible=PLAUSIBLE["place"]),
+            "normal": _normal(t, w, errors),
             "friction": errors.number(t, "friction", w, default=simulation["friction"], minimum=0.0),
-            "size": errors.number(t, "size", w, default=3.0, positive=True, unit="m"),
+            "size": errors.number(t, "size", w, default=3.0, positive=True, unit="m", maximum=PLAUSIBLE["place"][1]),
             "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
         planes += [] if bad else [plane]
     spheres = []
     for i, t in enumerate(_list(doc, "sphere", errors)):
         w = f"sphere[{i}]"
         sphere, bad = counted(lambda: {
-            "center": errors.vector(t, "center", w, unit="m"),
-            "radius": errors.number(t, "radius", w, positive=True, unit="m"),
+            "center": errors.vector(t, "center", w, unit="m", plausible=PLAUSIBLE["place"]),
+            "radius": errors.number(t, "radius", w, positive=True, unit="m", plausible=PLAUSIBLE["size"]),
             "friction": errors.number(t, "friction", w, default=simulation["friction"], minimum=0.0),
             "adhesion": _ref(t, "adhesion", w, adhesions, "adhesion", errors)})
         spheres += [] if bad else [sphere]
@@ -638,7 +692,7 @@ def _display(t, scene_dir: Path, errors: Problems) -> str | None:
         errors.add("display", "a table with preset = NAME or file = PATH", t)
         return None
     if "preset" in t:
-        if t["preset"] not in PRESETS:
+        if not isinstance(t["preset"], str) or t["preset"] not in PRESETS:
             errors.add("display.preset", f"one of {', '.join(PRESETS)}", t["preset"])
             return None
         return t["preset"]
@@ -683,27 +737,28 @@ def _volume(t, scene_dir: Path, errors: Problems, where: str = "volume") -> dict
             errors.add(f"{w}.file", f"an existing volume file or folder, or a dataset ({', '.join(DATASETS)})",
                        f"no file {source}")
     cells = t.get("cells", [16, 16, 8])
+    top = LIMITS["cells"]
     if not (isinstance(cells, list) and len(cells) == 3 and all(
-            isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in cells)):
-        errors.add(f"{w}.cells", "3 integers >= 1 (mesh cubes per axis)", cells)
+            isinstance(c, int) and not isinstance(c, bool) and 1 <= c <= top for c in cells)):
+        errors.add(f"{w}.cells", f"3 integers in 1 .. {top} (mesh cubes per axis)", cells)
         cells = [16, 16, 8]
     name = t.get("name", "volume")
     if not isinstance(name, str) or not name:
         errors.add(f"{w}.name", "a non-empty string", name)
         name = "volume"
     preset = t.get("preset", "ct-skin")
-    if preset not in PRESETS:
+    if not isinstance(preset, str) or preset not in PRESETS:
         errors.add(f"{w}.preset", f"one of {', '.join(sorted(PRESETS))}", preset)
     animation = _file(t, "animation", w, scene_dir, (".npz",), "a node animation", errors) if "animation" in t else None
     return {"file": source, "name": name, "cells": tuple(cells), "preset": preset, "animation": animation,
             "mask": errors.boolean(t, "mask", w, default=True),
             "unit": errors.number(t, "unit", w, default=0.001, positive=True, unit="m per volume unit"),
             "threshold": errors.number(t, "threshold", w, default=-300.0),
-            "skin_triangles": errors.integer(t, "skin_triangles", w, default=4000, minimum=4),
+            "skin_triangles": _count(errors, t, "skin_triangles", w, default=4000, minimum=4),
             "fix_denser_than": errors.number(t, "fix_denser_than", w, default=1150.0, positive=True, unit="kg/m^3"),
             "alpha": errors.number(t, "alpha", w, default=2.0, minimum=0.0, unit="1/s"),
             "beta": errors.number(t, "beta", w, default=0.01, minimum=0.0, unit="s"),
-            "render_step": errors.integer(t, "render_step", w, default=2, minimum=1),
+            "render_step": _count(errors, t, "render_step", w, default=2, minimum=1),
             "incremental": errors.boolean(t, "incremental", w, default=True)}
 
 
