@@ -31,12 +31,17 @@ from pathlib import Path
 import numpy as np
 
 from softvr.cave.projection import ScreenView, screen_view
-from softvr.errors import InputError, raise_all, read_toml
+from softvr.errors import InputError, raise_all
+from softvr.files import read_toml
 
 __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "eye_pair", "load_display", "preset", "save_display", "tile"]
 
 FORMAT = "softvr-display 1"
 STEREO_MODES = ("none", "side-by-side", "anaglyph", "quad-buffer")
+#: Most screens a display file may have (a render node each): far above any installation.
+MAX_SCREENS = 256
+_MAX_NAME = 64  # characters of a screen or node name (they name processes and key files)
+_MAX_COORDINATE = 1e4  # [m]: a screen corner further from the tracker origin is a unit mistake
 
 
 @dataclass(frozen=True)
@@ -218,22 +223,50 @@ def load_display(path) -> Display:
     doc = read_toml(path, "display file")
     problems = []
     if doc.get("format") != FORMAT:
-        problems.append(("format", f'"{FORMAT}"', repr(doc.get("format"))))
-    screens = []
-    for i, raw in enumerate(doc.get("screen", [])):
+        problems.append(("format", f'"{FORMAT}"', repr(doc.get("format"))[:200]))
+    known = {"format", "eye_separation", "screen"}
+    problems += [(key, f"one of {', '.join(sorted(known))}", repr(key)[:100]) for key in sorted(set(doc) - known)]
+    raw_screens = doc.get("screen", [])
+    if not isinstance(raw_screens, list) or not all(isinstance(raw, dict) for raw in raw_screens):
+        problems.append(("screen", "[[screen]] tables", type(raw_screens).__name__))
+        raw_screens = []
+    if len(raw_screens) > MAX_SCREENS:
+        problems.append(("screen", f"at most {MAX_SCREENS} screens", f"{len(raw_screens)}"))
+        raw_screens = []
+    screens, bad = [], False
+    for i, raw in enumerate(raw_screens):
         corners = {}
         for key in ("lower_left", "lower_right", "upper_left"):
             value = raw.get(key)
             ok = isinstance(value, list) and len(value) == 3 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+                isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= _MAX_COORDINATE
+                for v in value)
             if not ok:
-                problems.append((f"screen[{i}].{key}", "[x, y, z] in metres", repr(value)))
+                problems.append((f"screen[{i}].{key}", f"[x, y, z] in metres, within {_MAX_COORDINATE:g}",
+                                 repr(value)[:200]))
+                bad = True
                 value = [0.0, 0.0, 0.0]
             corners[key] = tuple(float(v) for v in value)
+        names = {}
+        for key, default in (("name", f"screen {i}"), ("node", "")):
+            value = raw.get(key, default)
+            if not (isinstance(value, str) and len(value) <= _MAX_NAME and value.isprintable()):
+                problems.append((f"screen[{i}].{key}", f"a printable name of at most {_MAX_NAME} characters",
+                                 repr(value)[:100]))
+                bad, value = True, default
+            names[key] = value
         pixels = raw.get("pixels", [1024, 768])
-        screens.append(Screen(str(raw.get("name", f"screen {i}")), corners["lower_left"], corners["lower_right"],
-                              corners["upper_left"], tuple(pixels) if isinstance(pixels, list) else pixels,
-                              str(raw.get("node", "")), raw.get("stereo", "none")))
+        if not (isinstance(pixels, list) and len(pixels) == 2 and all(
+                isinstance(p, int) and not isinstance(p, bool) and 0 < p <= 16384 for p in pixels)):
+            problems.append((f"screen[{i}].pixels", "[width, height] in 1..16384", repr(pixels)[:200]))
+            bad, pixels = True, [1024, 768]
+        stereo = raw.get("stereo", "none")
+        if not isinstance(stereo, str) or stereo not in STEREO_MODES:
+            problems.append((f"screen[{i}].stereo", " | ".join(STEREO_MODES), repr(stereo)[:100]))
+            bad, stereo = True, "none"
+        screens.append(Screen(names["name"], corners["lower_left"], corners["lower_right"], corners["upper_left"],
+                              tuple(pixels), names["node"], stereo))
     separation = doc.get("eye_separation", 0.065)
-    raise_all(problems + _problems(screens, separation), source, "display")
+    # Corner geometry is only judged of screens whose fields all read.
+    raise_all(problems + ([] if bad else _problems(screens, separation)), source, "display")
     return Display(screens, float(separation), name=source)

@@ -41,13 +41,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from softvr.errors import Problems, read_toml
+from softvr.errors import InputError, Problems
+from softvr.files import checked_file, file_name, read_toml
 
 __all__ = ["CouplingSpec", "PartSpec", "PartsFile", "read_parts"]
 
 FORMAT = "softvr-parts 1"
 KINDS = ("fixed", "kinematic", "rigid", "soft")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
+#: Most parts and couplings a parts file may have, most node indices a coupling may list, and
+#: the largest collision triangle budget: far above an anatomical model's (tens of parts).
+MAX_PARTS, MAX_NODES, MAX_TRIANGLES = 1000, 1_000_000, 200_000
+_MAX_NAME = 128  # characters of a part name
+#: Smallest soft-part tet cube [m]: finer is a unit mistake (a size in mm) or millions of tets.
+MIN_CELL_SIZE = 1e-4
 
 
 @dataclass
@@ -107,57 +114,56 @@ def read_parts(path) -> PartsFile:
         defaults = {}
     parts, names = [], set()
     raw_parts = doc.get("part", [])
-    if not isinstance(raw_parts, list) or not raw_parts:
-        errors.add("part", "one or more [[part]] tables", raw_parts if raw_parts else "none")
+    if not (isinstance(raw_parts, list) and raw_parts and all(isinstance(raw, dict) for raw in raw_parts)):
+        errors.add("part", "one or more [[part]] tables", type(raw_parts).__name__ if raw_parts else "none")
+        raw_parts = []
+    elif len(raw_parts) > MAX_PARTS:
+        errors.add("part", f"at most {MAX_PARTS} [[part]] tables", len(raw_parts))
         raw_parts = []
     for i, raw in enumerate(raw_parts):
         where = f"part[{i}]"
         table = {**defaults, **raw}
         name = table.get("name")
-        if not isinstance(name, str) or not name:
-            errors.add(f"{where}.name", "a non-empty string", name if name is not None else "nothing")
+        if not (isinstance(name, str) and name and len(name) <= _MAX_NAME and name.isprintable()):
+            errors.add(f"{where}.name", f"a printable name of 1 .. {_MAX_NAME} characters",
+                       name if name is not None else "nothing")
             name = f"part {i}"
         elif name in names:
             errors.add(f"{where}.name", "a name no other part has", name)
         names.add(name)
         kind = table.get("kind")
-        if kind not in KINDS:
+        if not isinstance(kind, str) or kind not in KINDS:
             errors.add(f"{where}.kind", " | ".join(KINDS), kind if kind is not None else "nothing")
-        mesh = table.get("mesh")
-        mesh_path = None
-        if not isinstance(mesh, str):
-            errors.add(f"{where}.mesh", "a mesh file name", mesh if mesh is not None else "nothing")
-        else:
-            mesh_path = (path.parent / mesh).resolve()
-            if mesh_path.suffix.lower() not in MESH_SUFFIXES:
-                errors.add(f"{where}.mesh", f"a mesh file ({', '.join(MESH_SUFFIXES)})", mesh)
-            elif not mesh_path.is_file():
-                errors.add(f"{where}.mesh", "an existing file", f"no file {mesh_path}")
+        mesh_path = _mesh(table.get("mesh"), path.parent, f"{where}.mesh", errors)
         spec = PartSpec(name=name, mesh=mesh_path, kind=kind)
         for key, kw in (("density", dict(positive=True, unit="kg/m^3")), ("young", dict(positive=True, unit="Pa")),
                         ("poisson", dict(minimum=-0.99, maximum=0.5)), ("alpha", dict(minimum=0.0, unit="1/s")),
-                        ("beta", dict(minimum=0.0, unit="s")), ("cell_size", dict(positive=True, unit="m")),
+                        ("beta", dict(minimum=0.0, unit="s")),
+                        ("cell_size", dict(minimum=MIN_CELL_SIZE, maximum=10.0, unit="m")),
                         ("friction", dict(minimum=0.0))):
             value = errors.number(table, key, where, default=getattr(spec, key), **kw)
             if value is not None:
                 setattr(spec, key, value)
         budget = table.get("collision_triangles", spec.collision_triangles)
-        if not (isinstance(budget, int) and not isinstance(budget, bool) and budget >= 4):
-            errors.add(f"{where}.collision_triangles", "an integer >= 4", budget)
+        if not (isinstance(budget, int) and not isinstance(budget, bool) and 4 <= budget <= MAX_TRIANGLES):
+            errors.add(f"{where}.collision_triangles", f"an integer in 4 .. {MAX_TRIANGLES}", budget)
         else:
             spec.collision_triangles = budget
         parts.append(spec)
     couplings = []
     raw_couplings = doc.get("coupling", [])
-    if not isinstance(raw_couplings, list):
+    if not isinstance(raw_couplings, list) or not all(isinstance(raw, dict) for raw in raw_couplings):
         errors.add("coupling", "[[coupling]] tables", type(raw_couplings).__name__)
+        raw_couplings = []
+    elif len(raw_couplings) > MAX_PARTS:
+        errors.add("coupling", f"at most {MAX_PARTS} [[coupling]] tables", len(raw_couplings))
         raw_couplings = []
     for i, raw in enumerate(raw_couplings):
         where = f"coupling[{i}]"
         ends = []
         for side in ("a", "b"):
             ref = raw.get(side)
-            if ref not in names:
+            if not isinstance(ref, str) or ref not in names:
                 errors.add(f"{where}.{side}", f"the name of a part ({', '.join(sorted(names))})",
                            ref if ref is not None else "nothing")
             ends.append(ref)
@@ -169,8 +175,9 @@ def read_parts(path) -> PartsFile:
         if radius is not None:
             radius = errors.number(raw, "radius", where, minimum=0.0, unit="m")
         nodes = raw.get("nodes", [])
-        if not (isinstance(nodes, list) and all(isinstance(n, int) and n >= 0 for n in nodes)):
-            errors.add(f"{where}.nodes", "a list of node indices >= 0", nodes)
+        if not (isinstance(nodes, list) and len(nodes) <= MAX_NODES and all(
+                isinstance(n, int) and not isinstance(n, bool) and 0 <= n < MAX_NODES for n in nodes)):
+            errors.add(f"{where}.nodes", f"a list of node indices in 0 .. {MAX_NODES - 1}", nodes)
             nodes = []
         if radius is None and not nodes:
             errors.add(where, "radius and / or nodes (which nodes of a to couple)", "neither")
@@ -181,3 +188,23 @@ def read_parts(path) -> PartsFile:
                                       damping=damping or 0.0, collide=bool(collide)))
     errors.raise_if_any()
     return PartsFile(path=path, parts=parts, couplings=couplings)
+
+
+def _mesh(name, folder: Path, where: str, errors: Problems) -> Path | None:
+    """The existing regular mesh file ``name`` (relative to the parts file's folder)."""
+    if name is None:
+        errors.add(where, "a mesh file name", "nothing")
+        return None
+    try:
+        mesh = file_name(folder, name, where)
+    except InputError as exc:
+        errors.add(where, exc.expected, exc.found)
+        return None
+    if mesh.suffix.lower() not in MESH_SUFFIXES:
+        errors.add(where, f"a mesh file ({', '.join(MESH_SUFFIXES)})", name)
+        return mesh
+    try:
+        checked_file(mesh, where)
+    except InputError as exc:
+        errors.add(where, exc.expected, f"no file {mesh}" if exc.found == "no such file" else f"{exc.found}: {mesh}")
+    return mesh
