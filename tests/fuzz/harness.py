@@ -46,6 +46,7 @@ MEMORY_LIMIT = int(os.environ.get("SOFTVR_FUZZ_MEMORY", 4 << 30))
 #: Peak resident memory a child may reach [bytes] before its outcome counts as ``memory``.
 RSS_LIMIT = int(os.environ.get("SOFTVR_FUZZ_RSS", 1536 << 20))
 BAD_KINDS = ("traceback", "exit", "crash", "hang", "memory")
+_RESTART = 75  # a worker's exit status asking for a fresh child (it reported its last input)
 
 
 @dataclass
@@ -182,7 +183,8 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
                     record = json.loads(line)
                     if not record.get("ready"):
                         outcomes[index] = Outcome(labels[index], record["kind"], record.get("detail", ""),
-                                                  record.get("what"), record.get("source"), record["seconds"])
+                                                  record.get("what"), record.get("source"), record["seconds"],
+                                                  record["rss"])
                         index += 1
                     started = time.monotonic()
                     deadline = started + timeout_s
@@ -190,7 +192,7 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
         code, rss = _reap(proc)
         err.seek(0)
         stderr = err.read().decode("utf-8", "replace")
-    if index >= len(inputs):
+    if index >= len(inputs) or (code == _RESTART and not hung):
         return index
     # The child ended (or was killed) while reading inputs[index]: that input is the culprit.
     kind, detail = _classify(code, rss, hung, stderr, timeout_s)
@@ -253,8 +255,16 @@ def _worker(target: str, todo: str) -> None:
         except BaseException:  # noqa: BLE001 - classifying every other exception is the point
             record = {"kind": "traceback", "detail": traceback.format_exc()[-2000:]}
         record["seconds"] = time.monotonic() - start
+        # The child's peak resident memory so far: an input that pushed it over the limit
+        # allocated what it asked for without a check, even if it then failed cleanly.
+        record["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        if record["rss"] > RSS_LIMIT and record["kind"] in ("ok", "clean"):
+            record = {**record, "kind": "memory", "detail": f"peak RSS {record['rss'] >> 20} MiB after: "
+                                                            f"{record.get('detail', '')}"}
         report.write(json.dumps(record) + "\n")
         report.flush()
+        if record["rss"] > RSS_LIMIT:
+            os._exit(_RESTART)  # a fresh child for the next input: its peak RSS starts low again
 
 
 if __name__ == "__main__":
