@@ -16,7 +16,7 @@ MODULES = [
     "softvr.render.volume_render",
     "softvr.render.camera",
     "softvr.render.contact_sheet",
-    "softvr.sim",
+    "softvr.sim._scene",
     "softvr.dynamics.cloth",
     "softvr.render.surfaces",
     "softvr.haptics",

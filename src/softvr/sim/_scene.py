@@ -35,6 +35,8 @@ from softvr.dynamics.body import ContactObject
 from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
+from softvr.sim._rigid_step import RigidStepper
+from softvr.sim.model import rigid_model_supported
 
 __all__ = ["STAGES", "Scene"]
 
@@ -107,6 +109,11 @@ class Scene:
         Zero-length springs between bodies (thesis 5.3.2); coupled bodies are stepped together,
         one :class:`~softvr.dynamics.CouplingIsland` per group (found on the first step after
         a change).
+    rigid_arrays : bool
+        Step a scene of rigid and fixed bodies on planes, box and sphere primitives and rigid
+        collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
+        compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
+        other scene, every body steps as its own object (the reference path).
     parallel_islands : bool
         Solve the coupling islands' unconstrained steps in parallel threads. Off by default:
         the per-island work is still mostly Python (assembly), so on the shoulder the threads
@@ -137,8 +144,11 @@ class Scene:
     adhesion_state: AdhesionState = field(default_factory=AdhesionState)
     couplings: list = field(default_factory=list)
     parallel_islands: bool = False
+    rigid_arrays: bool = True
     _units: list | None = None
     _pool: object = None
+    _rigid: RigidStepper | None = None
+    _layout: int = 0
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
                  collision_sphere: float | None = None, collision_box=None, margin: float | None = None,
@@ -160,6 +170,7 @@ class Scene:
         if not isinstance(body, ContactObject):
             raise InputError("body", "a softvr.dynamics.ContactObject", type(body).__name__)
         self.bodies.append(body)
+        self._layout += 1
         self._units = None
         index = len(self.bodies) - 1
         self._adhesion[("body", index)] = _check_adhesion(adhesion)
@@ -197,6 +208,7 @@ class Scene:
             raise InputError(coupling.name, "a coupling between bodies added to the scene",
                              f"{missing.name!r} is not in it")
         self.couplings.append(coupling)
+        self._layout += 1
         self._units = None
         if not collide:
             self.disable_collision(*ends)
@@ -215,6 +227,7 @@ class Scene:
             if not 0 <= i < len(self.bodies):
                 raise InputError("body index", f"an index in [0, {len(self.bodies) - 1}]", repr(i))
         self._filtered.add((min(a, b), max(a, b)))
+        self._layout += 1
 
     def collision_enabled(self, a: int, b: int) -> bool:
         """Whether bodies ``a`` and ``b`` make contacts (not switched off by
@@ -241,6 +254,7 @@ class Scene:
         """Add a static sphere (optionally adhesive)."""
         self._adhesion[("static", id(sphere))] = _check_adhesion(adhesion)
         self.spheres.append(sphere)
+        self._layout += 1
 
     def add_mesh(self, mesh: TriangleMesh, *, adhesion: Adhesion | None = None) -> None:
         """Add a static triangle mesh (optionally adhesive)."""
@@ -248,12 +262,14 @@ class Scene:
             raise InputError("mesh", "a softvr.collision.TriangleMesh", type(mesh).__name__)
         self._adhesion[("static", id(mesh))] = _check_adhesion(adhesion)
         self.meshes.append(mesh)
+        self._layout += 1
 
     def add_plane(self, plane: Plane, *, adhesion: Adhesion | None = None) -> None:
         """Add a static plane (optionally adhesive)."""
         plane.unit_normal()  # validates
         self._adhesion[("static", id(plane))] = _check_adhesion(adhesion)
         self.planes.append(plane)
+        self._layout += 1
 
     def _detect(self, v_free: list, dt: float) -> tuple[list, list]:
         """Collision detection of this step (with the unconstrained velocities for speculation).
@@ -417,7 +433,26 @@ class Scene:
             return list(self._pool.map(solve, range(len(units))))
         return [solve(u) for u in range(len(units))]
 
+    def _arrays(self) -> RigidStepper | None:
+        """The array stepper when this scene steps on arrays (:attr:`rigid_arrays`), rebuilt
+        after the scene changed; what the contacts carry (warm starts, adhesion) moves along
+        when the scene changes path."""
+        if self._rigid is not None and self.rigid_arrays and self._rigid.still_valid():
+            return self._rigid
+        if self._rigid is not None:
+            self.adhesion_state, self._warm = self._rigid.carried_out()
+            self._rigid = None
+        if self.rigid_arrays and rigid_model_supported(self):
+            self._rigid = RigidStepper(self)
+        return self._rigid
+
     def _step(self, dt: float) -> ContactSolution:
+        arrays = self._arrays()
+        if arrays is not None:
+            dt = ContactObject._check_dt(dt)
+            self.last_solution, self.stage_ms = arrays.step(dt)
+            self.time += dt
+            return self.last_solution
         t0 = _clock.perf_counter()
         units, where = self.solve_units()
         v_units = self._unconstrained_velocities(units, where, dt)

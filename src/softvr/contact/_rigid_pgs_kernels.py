@@ -1,0 +1,310 @@
+"""Compiled frictional, adhesive contact of rigid bodies, the whole step's contacts in one
+launch: match to the previous step's contacts, projected Gauss-Seidel (thesis eq. 5.6 with
+D_A = M, exact for rigid bodies), adhesion's evolution (4.3.3) and what carries over.
+
+It is :func:`softvr.contact.solve_contacts` followed by
+:meth:`softvr.contact.AdhesionState.evolve` in array form, for rigid bodies: the PGS works on
+body velocities instead of an assembled Delassus matrix (a row's update moves its bodies'
+velocities by ``M^-1 J^T delta lambda``), which is the same iteration, since
+``rel = J v_free + B lambda`` with ``B = J M^-1 J^T``. The sweep is sequential by nature; it
+runs as one thread.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+# Columns of the material table (softvr.sim.model.ADHESION_COLUMNS).
+_C, _W, _ETA, _RATE, _P0, _BETA0, _DEBOND = 0, 1, 2, 3, 4, 5, 6
+
+
+@wp.func
+def _row_response(inv_mass: wp.float64, inv_inertia: wp.mat33d, r: wp.vec3d, d: wp.vec3d) -> wp.float64:
+    """``J M^-1 J^T`` of one body's share of a constraint row along ``d`` at offset ``r``."""
+    rd = wp.cross(r, d)
+    return inv_mass + wp.dot(rd, inv_inertia * rd)
+
+
+@wp.func
+def _row_velocity(v: wp.spatial_vectord, r: wp.vec3d, d: wp.vec3d) -> wp.float64:
+    return wp.dot(wp.vec3d(v[0], v[1], v[2]), d) + wp.dot(wp.vec3d(v[3], v[4], v[5]), wp.cross(r, d))
+
+
+@wp.func
+def _push(v: wp.spatial_vectord, inv_mass: wp.float64, inv_inertia: wp.mat33d, r: wp.vec3d, d: wp.vec3d,
+          amount: wp.float64) -> wp.spatial_vectord:
+    """``v + M^-1 J^T amount`` for an impulse ``amount`` along ``d`` at offset ``r``."""
+    dv = inv_mass * amount * d
+    dw = inv_inertia * (amount * wp.cross(r, d))
+    return wp.spatial_vectord(v[0] + dv[0], v[1] + dv[1], v[2] + dv[2], v[3] + dw[0], v[4] + dw[1], v[5] + dw[2])
+
+
+@wp.func
+def _combined(materials: wp.array2d(dtype=wp.float64), a: int, b: int, column: int) -> wp.float64:
+    """A parameter of the pair's adhesion (:func:`softvr.contact.combine`): geometric mean, or
+    the smaller of the two for beta0 and the debond gap."""
+    if column == _BETA0 or column == _DEBOND:
+        return wp.min(materials[a, column], materials[b, column])
+    return wp.sqrt(materials[a, column] * materials[b, column])
+
+
+@wp.func
+def _find(keys: wp.array(dtype=wp.uint64), count: int, key: wp.uint64) -> int:
+    """Index of ``key`` in ascending ``keys[:count]``, -1 if absent."""
+    low = int(0)
+    high = count - 1
+    while low <= high:
+        mid = (low + high) // 2
+        k = keys[mid]
+        if k == key:
+            return mid
+        if k < key:
+            low = mid + 1
+        else:
+            high = mid - 1
+    return -1
+
+
+@wp.func
+def _point(v: wp.spatial_vectord, r: wp.vec3d) -> wp.vec3d:
+    return wp.vec3d(v[0], v[1], v[2]) + wp.cross(wp.vec3d(v[3], v[4], v[5]), r)
+
+
+@wp.func
+def _side_row(body: int, velocity: wp.array(dtype=wp.spatial_vectord), r: wp.vec3d, d: wp.vec3d) -> wp.float64:
+    if body < 0:
+        return wp.float64(0.0)
+    return _row_velocity(velocity[body], r, d)
+
+
+@wp.func
+def _apply(body: int, velocity: wp.array(dtype=wp.spatial_vectord), inv_mass: wp.array(dtype=wp.float64),
+           inv_inertia: wp.array(dtype=wp.mat33d), r: wp.vec3d, d: wp.vec3d, amount: wp.float64):
+    if body >= 0:
+        velocity[body] = _push(velocity[body], inv_mass[body], inv_inertia[body], r, d, amount)
+
+
+@wp.kernel
+def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64),
+                         body_a: wp.array(dtype=wp.int32), body_b: wp.array(dtype=wp.int32),
+                         offset_a: wp.array(dtype=wp.vec3d), offset_b: wp.array(dtype=wp.vec3d),
+                         normal: wp.array(dtype=wp.vec3d), gap: wp.array(dtype=wp.float64),
+                         area: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
+                         material_a: wp.array(dtype=wp.int32), material_b: wp.array(dtype=wp.int32),
+                         impulse: wp.array(dtype=wp.vec3d), frame: wp.array(dtype=wp.mat33d),
+                         gap_after: wp.array(dtype=wp.float64), intensity: wp.array(dtype=wp.float64),
+                         slip: wp.array(dtype=wp.vec3d), carried_count: wp.array(dtype=wp.int32),
+                         carried_key: wp.array(dtype=wp.uint64), carried_impulse: wp.array(dtype=wp.vec3d),
+                         carried_intensity: wp.array(dtype=wp.float64), carried_slip: wp.array(dtype=wp.vec3d),
+                         materials: wp.array2d(dtype=wp.float64), inv_mass: wp.array(dtype=wp.float64),
+                         inv_inertia: wp.array(dtype=wp.mat33d), velocity: wp.array(dtype=wp.spatial_vectord),
+                         response: wp.array(dtype=wp.vec3d), target: wp.array(dtype=wp.vec3d),
+                         stiffness: wp.array(dtype=wp.float64),
+                         dt: wp.float64, max_sweeps: int, tolerance: wp.float64, stats: wp.array(dtype=wp.float64)):
+    """One thread: the step's contact solve (module docstring). ``velocity`` [n] holds the
+    unconstrained velocities in, the constrained ones out; ``response``, ``target`` and
+    ``stiffness`` [capacity] are scratch; ``stats`` [2]: sweeps, the largest
+    normal-velocity violation [m/s]."""
+    c = wp.min(count[0], key.shape[0])
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    big = wp.float64(1.0e300)
+    carried = carried_count[0]
+    # Frames from the unconstrained velocities, rows' responses, targets (solve_contacts).
+    for i in range(c):
+        a = body_a[i]
+        b = body_b[i]
+        n = normal[i]
+        ra = offset_a[i]
+        rb = offset_b[i]
+        rel = wp.vec3d()
+        if a >= 0:
+            rel = _point(velocity[a], ra)
+        if b >= 0:
+            rel = rel - _point(velocity[b], rb)
+        vt = rel - wp.dot(rel, n) * n
+        speed = wp.length(vt)
+        t1 = wp.vec3d()
+        if speed > wp.float64(1e-9):
+            t1 = vt / speed
+        else:
+            helper = wp.vec3d(one, zero, zero)
+            if wp.abs(n[0]) >= wp.float64(0.9):
+                helper = wp.vec3d(zero, one, zero)
+            t1 = wp.normalize(wp.cross(n, helper))
+        t2 = wp.cross(n, t1)
+        frame[i] = wp.mat33d(n[0], n[1], n[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
+        resp = wp.vec3d()
+        for row in range(3):
+            d = n
+            if row == 1:
+                d = t1
+            if row == 2:
+                d = t2
+            value = zero
+            if a >= 0:
+                value += _row_response(inv_mass[a], inv_inertia[a], ra, d)
+            if b >= 0:
+                value += _row_response(inv_mass[b], inv_inertia[b], rb, d)
+            resp[row] = value
+        response[i] = resp
+        # The previous step's record of this contact: intensity, slip, warm start.
+        m = _find(carried_key, carried, key[i])
+        beta = wp.float64(-1.0)  # not tracked
+        u = wp.vec3d()
+        warm = wp.vec3d()
+        if m >= 0:
+            beta = carried_intensity[m]
+            u = carried_slip[m]
+            warm = carried_impulse[m]
+        u = u - wp.dot(u, n) * n
+        k_ad = zero
+        if material_a[i] >= 0 and material_b[i] >= 0 and beta >= zero:
+            k_ad = area[i] * _combined(materials, material_a[i], material_b[i], _C) * beta * beta
+        stiffness[i] = k_ad
+        intensity[i] = beta
+        slip[i] = u
+        tgt = wp.vec3d(-gap[i] / dt, zero, zero)
+        if k_ad > zero:
+            tgt = wp.vec3d(-gap[i] / dt, -wp.dot(t1, u) / dt, -wp.dot(t2, u) / dt)
+        target[i] = tgt
+        lam = wp.vec3d(wp.dot(n, warm), wp.dot(t1, warm), wp.dot(t2, warm))
+        if k_ad <= zero:
+            # Only an adhesive contact may keep a pulling (negative) normal impulse.
+            ln = wp.max(lam[0], zero)
+            bound = friction[i] * ln
+            lam = wp.vec3d(ln, wp.clamp(lam[1], -bound, bound), wp.clamp(lam[2], -bound, bound))
+        impulse[i] = lam
+    # The warm starts' velocity changes, after every frame is taken from v_free.
+    for i in range(c):
+        f = frame[i]
+        lam = impulse[i]
+        for row in range(3):
+            d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+            _apply(body_a[i], velocity, inv_mass, inv_inertia, offset_a[i], d, lam[row])
+            _apply(body_b[i], velocity, inv_mass, inv_inertia, offset_b[i], d, -lam[row])
+    # Projected Gauss-Seidel (pgs_sweeps): per contact the normal row, then each tangent row
+    # within the larger of the Coulomb bound and the implicit adhesive bound (eq. 4.16).
+    sweeps = int(0)
+    for sweep in range(max_sweeps):
+        biggest = zero
+        for i in range(c):
+            a = body_a[i]
+            b = body_b[i]
+            ra = offset_a[i]
+            rb = offset_b[i]
+            f = frame[i]
+            resp = response[i]
+            tgt = target[i]
+            lam = impulse[i]
+            k = dt * dt * stiffness[i]
+            for row in range(3):
+                d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+                row_rel = _side_row(a, velocity, ra, d) - _side_row(b, velocity, rb, d)
+                diag = resp[row]
+                d_bar = diag * lam[row] + tgt[row] - row_rel
+                adhesive_bound = k * d_bar / (one + k * diag)
+                lower = wp.min(adhesive_bound, zero)
+                upper = big
+                if row > 0:
+                    upper = wp.max(friction[i] * wp.max(lam[0], zero), wp.abs(adhesive_bound))
+                    lower = -upper
+                if diag > wp.float64(1e-300):
+                    value = wp.clamp(lam[row] + (tgt[row] - row_rel) / diag, lower, upper)
+                    change = value - lam[row]
+                    if change != zero:
+                        _apply(a, velocity, inv_mass, inv_inertia, ra, d, change)
+                        _apply(b, velocity, inv_mass, inv_inertia, rb, d, -change)
+                        lam[row] = value
+                    biggest = wp.max(biggest, wp.abs(change) * diag)
+            impulse[i] = lam
+        sweeps = sweep + 1
+        if biggest <= tolerance:
+            break
+    # Gaps after the step, the residual, slips at the end of the step (solve_contacts).
+    residual = zero
+    for i in range(c):
+        a = body_a[i]
+        b = body_b[i]
+        n = normal[i]
+        rel = wp.vec3d()
+        if a >= 0:
+            rel = _point(velocity[a], offset_a[i])
+        if b >= 0:
+            rel = rel - _point(velocity[b], offset_b[i])
+        approach = -wp.dot(rel, n)
+        residual = wp.max(residual, approach - gap[i] / dt)
+        gap_after[i] = gap[i] - dt * approach
+        if stiffness[i] > zero:
+            u = slip[i] + dt * rel
+            slip[i] = u - wp.dot(u, n) * n
+    # Adhesion's evolution (AdhesionState.evolve) and what the next step finds.
+    for i in range(c):
+        n = normal[i]
+        f = frame[i]
+        lam = impulse[i]
+        beta_in = intensity[i]
+        u = slip[i]
+        beta_out = wp.float64(-1.0)
+        u_out = wp.vec3d()
+        ma = material_a[i]
+        mb = material_b[i]
+        resp = response[i]
+        if ma >= 0 and mb >= 0 and resp[0] + resp[1] + resp[2] > zero:
+            stiff = _combined(materials, ma, mb, _C)
+            energy_max = _combined(materials, ma, mb, _W)
+            tracked = beta_in >= zero
+            touched = tracked or lam[0] > zero or gap_after[i] <= zero
+            beta = _combined(materials, ma, mb, _BETA0)
+            if tracked:
+                beta = beta_in
+            ar = area[i]
+            per_area = zero
+            if ar > zero:
+                per_area = one / (dt * ar)
+            p_n = -lam[0] * per_area
+            tangential = stiff * beta * beta * wp.length(u)
+            debond_p = tangential
+            if p_n > zero:
+                debond_p = wp.sqrt(p_n * p_n + tangential * tangential)
+            held = stiff * beta * beta * beta
+            energy = zero
+            if held > zero:
+                energy = debond_p * debond_p / held
+            rate = wp.min(energy_max - energy, zero) / _combined(materials, ma, mb, _ETA)
+            compression = zero
+            if p_n <= zero:
+                compression = -p_n
+            rate += _combined(materials, ma, mb, _RATE) * wp.max(
+                compression - beta * _combined(materials, ma, mb, _P0), zero)
+            beta = beta + dt * rate
+            if not wp.isfinite(beta):
+                beta = zero
+            beta = wp.clamp(beta, zero, one)
+            if touched and ar > zero and gap_after[i] <= _combined(materials, ma, mb, _DEBOND):
+                beta_out = beta
+                if beta > zero and wp.length(u) > zero:
+                    scale = one
+                    if lam[0] > zero:
+                        scale = wp.min(one, wp.sqrt(energy_max / (stiff * beta)) / wp.length(u))
+                    u_out = u * scale
+        intensity[i] = beta_out
+        slip[i] = u_out
+    # Carry over, sorted by key (insertion sort: the detection order changes little).
+    for i in range(c):
+        world = wp.transpose(frame[i]) * impulse[i]
+        j = i - 1
+        while j >= 0 and carried_key[j] > key[i]:
+            carried_key[j + 1] = carried_key[j]
+            carried_impulse[j + 1] = carried_impulse[j]
+            carried_intensity[j + 1] = carried_intensity[j]
+            carried_slip[j + 1] = carried_slip[j]
+            j -= 1
+        carried_key[j + 1] = key[i]
+        carried_impulse[j + 1] = world
+        carried_intensity[j + 1] = intensity[i]
+        carried_slip[j + 1] = slip[i]
+    carried_count[0] = c
+    stats[0] = wp.float64(sweeps)
+    stats[1] = residual
+

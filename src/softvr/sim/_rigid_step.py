@@ -1,0 +1,241 @@
+"""The step of a rigid scene on whole-scene arrays: a fixed sequence of recorded launches.
+
+    unconstrained velocities (eq. 5.2)  ->  contacts, one launch per pair kind
+    ->  contact solve + adhesion (eqs. 5.5-5.6, 4.16, 4.3.3), one launch  ->  integration
+
+The scene's body objects keep working as the user-facing API: their ``position``,
+``orientation`` and ``v`` are views of the state arrays (a value the user assigns is copied
+in before the next step), ``Scene.last_solution`` and ``Scene.adhesion_state`` read the
+arrays when asked. Box pairs are still found by :func:`box_vs_box` per pair (NumPy) and
+appended to the contact arrays.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from softvr.collision import box_vs_box
+from softvr.collision.contacts import Contacts, rigid_side, unpack_keys
+from softvr.collision.rigid_detection import record_detection
+from softvr.contact import ContactSolution
+from softvr.contact.adhesion import AdhesionState
+from softvr.contact.islands import contact_islands
+from softvr.contact.rigid_pgs import record_rigid_solve
+from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
+from softvr.sim.model import build_rigid_model
+
+__all__ = ["RigidStepper"]
+
+
+class _Snapshot:
+    """One step's contacts and velocities, copied out of the arrays, turned into a
+    :class:`ContactSolution` and adhesion dictionaries only when read."""
+
+    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float):
+        self.contacts, self.velocities, self.sweeps, self.residual = contacts, velocities, sweeps, residual
+        self._solution = None
+
+    def solution(self) -> ContactSolution:
+        if self._solution is None:
+            self._solution = self._build()
+        return self._solution
+
+    def _build(self) -> ContactSolution:
+        c = self.contacts
+        movable = c["body_a"] >= 0  # every contact (immovable pairs have no response)
+        kind = unpack_keys(c["key"])
+        static = np.where(c["body_b"] < 0, kind["body_b"], -1)
+        groups: dict = {}
+        for i in np.flatnonzero(movable):
+            groups.setdefault((int(kind["kind"][i]), int(c["body_a"][i]), int(c["body_b"][i]), int(static[i])),
+                              []).append(i)
+        sets, impulses, frames, gaps = [], [], [], []
+        for (_, a, b, _), rows in groups.items():
+            rows = np.asarray(rows)
+            sets.append(Contacts(rigid_side(a, c["offset_a"][rows]), None if b < 0 else rigid_side(b, c["offset_b"][rows]),
+                                 c["normal"][rows], c["gap"][rows], c["point_a"][rows], c["point_b"][rows],
+                                 c["key"][rows], c["friction"][rows], c["area"][rows]))
+            impulses.append(c["impulse"][rows])
+            frames.append(c["frame"][rows])
+            gaps.append(c["gap_after"][rows])
+        islands = contact_islands(len(self.velocities), [(s.a.body, None if s.b is None else s.b.body) for s in sets])
+        return ContactSolution(velocities=self.velocities, impulses=impulses, frames=frames, iterations=self.sweeps,
+                               residual=self.residual, islands=[sorted(i) for i in islands], contacts=sets,
+                               gaps_after=gaps)
+
+
+class LazySolution:
+    """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
+    of an interactive loop never read it)."""
+
+    def __init__(self, snapshot: _Snapshot):
+        self._snapshot = snapshot
+
+    def __getattr__(self, name):
+        return getattr(self._snapshot.solution(), name)
+
+
+class ArrayAdhesionState(AdhesionState):
+    """:class:`AdhesionState` of a rigid scene: the intensities and slips of the last step's
+    contacts, read from its arrays."""
+
+    def __init__(self, snapshot: _Snapshot | None = None):
+        self._snapshot = snapshot
+
+    @property
+    def intensity(self) -> dict:
+        if self._snapshot is None:
+            return {}
+        c = self._snapshot.contacts
+        tracked = c["intensity"] >= 0
+        return dict(zip(c["key"][tracked].tolist(), c["intensity"][tracked].tolist()))
+
+    @property
+    def slip(self) -> dict:
+        if self._snapshot is None:
+            return {}
+        c = self._snapshot.contacts
+        bonded = np.any(c["slip"] != 0.0, axis=1)
+        return dict(zip(c["key"][bonded].tolist(), c["slip"][bonded]))
+
+
+class RigidStepper:
+    """Steps a rigid :class:`~softvr.sim.Scene` (:func:`~softvr.sim.rigid_model_supported`) on
+    its arrays; built from the scene's current state, warm starts and adhesion."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.model, self.state = build_rigid_model(scene)
+        self._settings = self._scene_settings()
+        self._bind_bodies()
+        self._carry_in(scene.adhesion_state, scene._warm)
+        self._recorded = None
+        self._box_pairs = self.model.box_pairs.numpy()
+        self._box_margin = self.model.box_pair_margin.numpy()
+        self._box_material = self.model.box_material.numpy()
+        self._boxes = scene._box_bodies
+        self._external = self.state.external.numpy()
+
+    def _scene_settings(self) -> tuple:
+        s = self.scene
+        # Scene._layout counts the scene's changes (bodies, statics, couplings, filters).
+        return s._layout, float(s.friction), float(s.contact_margin)
+
+    def still_valid(self) -> bool:
+        """Whether the arrays still describe the scene (settings baked into them unchanged)."""
+        return self._settings == self._scene_settings()
+
+    def _bind_bodies(self) -> None:
+        self._position = self.state.body_position.numpy()
+        self._orientation = self.state.body_orientation.numpy()
+        self._velocity = self.state.body_velocity.numpy()
+        self._free = self.state.free_velocity.numpy()
+        self._diverged = self.state.diverged.numpy()
+        for i, body in enumerate(self.scene.bodies):
+            body.position, body.orientation, body.v = self._position[i], self._orientation[i], self._velocity[i]
+
+    def _sync_in(self) -> None:
+        """Copy in any pose or velocity the user assigned since the last step."""
+        for i, body in enumerate(self.scene.bodies):
+            for name, store in (("position", self._position), ("orientation", self._orientation), ("v", self._velocity)):
+                value = getattr(body, name)
+                if value is not store[i]:
+                    store[i] = value
+                    setattr(body, name, store[i])
+
+    def _carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
+        """What the per-object path left (warm starts, intensities, slips), as the carried arrays."""
+        keys = sorted(set(warm) | set(adhesion.intensity))[: self.state.contacts.capacity]
+        c = self.state.contacts
+        c.carried_count.numpy()[0] = len(keys)
+        c.carried_key.numpy()[: len(keys)] = np.asarray(keys, np.int64).view(np.uint64)
+        for n, k in enumerate(keys):
+            c.carried_impulse.numpy()[n] = warm.get(k, (0.0, 0.0, 0.0))
+            c.carried_intensity.numpy()[n] = adhesion.intensity.get(k, -1.0)
+            c.carried_slip.numpy()[n] = adhesion.slip.get(k, (0.0, 0.0, 0.0))
+
+    def carried_out(self) -> tuple[AdhesionState, dict]:
+        """The adhesion state and warm starts (dictionaries by key) for the per-object path."""
+        c = self.state.contacts
+        n = int(c.carried_count.numpy()[0])
+        keys = c.carried_key.numpy()[:n].view(np.int64).tolist()
+        state = AdhesionState()
+        beta, slip, impulse = c.carried_intensity.numpy()[:n], c.carried_slip.numpy()[:n], c.carried_impulse.numpy()[:n]
+        state.intensity = {k: float(b) for k, b in zip(keys, beta) if b >= 0}
+        state.slip = {k: s.copy() for k, s in zip(keys, slip) if np.any(s != 0)}
+        return state, {k: v.copy() for k, v in zip(keys, impulse)}
+
+    def _record(self, dt: float) -> None:
+        s = self.scene
+        key = (dt, tuple(np.asarray(s.gravity, float)), int(s.pgs_iterations))
+        if self._recorded is not None and self._recorded[0] == key:
+            return
+        self._recorded = (key, record_unconstrained(self.model, self.state, dt, s.gravity),
+                          record_detection(self.model, self.state, dt),
+                          record_rigid_solve(self.model, self.state, dt, max_sweeps=s.pgs_iterations),
+                          record_integrate(self.model, self.state, dt))
+
+    def _append_box_pairs(self, dt: float) -> None:
+        """Box-box contacts (:func:`box_vs_box` per pair) appended to the step's contacts."""
+        c = self.state.contacts
+        count = c.count.numpy()
+        bodies = self.scene.bodies
+        for (p, q), margin in zip(self._box_pairs, self._box_margin):
+            (ia, ha), (ib, hb) = self._boxes[p], self._boxes[q]
+            found = box_vs_box(ia, bodies[ia], ha, ib, bodies[ib], hb, friction=self.scene.friction, margin=margin,
+                               velocity_a=self._free[ia], velocity_b=self._free[ib], dt=dt)
+            k = len(found)
+            if not k:
+                continue
+            start = int(count[0])
+            rows = slice(start, start + k)
+            count[0] = start + k
+            c.key.numpy()[rows] = found.ids.view(np.uint64)
+            c.body_a.numpy()[rows], c.body_b.numpy()[rows] = ia, ib
+            c.offset_a.numpy()[rows] = found.point_a - bodies[ia].position
+            c.offset_b.numpy()[rows] = found.point_b - bodies[ib].position
+            c.point_a.numpy()[rows], c.point_b.numpy()[rows] = found.point_a, found.point_b
+            c.normal.numpy()[rows], c.gap.numpy()[rows] = found.normal, found.gap
+            c.area.numpy()[rows], c.friction.numpy()[rows] = found.area, found.friction
+            c.material_a.numpy()[rows], c.material_b.numpy()[rows] = self._box_material[p], self._box_material[q]
+
+    def step(self, dt: float) -> tuple[LazySolution, dict]:
+        """Advance the scene by ``dt`` [s]; the lazily built solution and the stage times [ms]."""
+        s = self.scene
+        t0 = time.perf_counter()
+        self._sync_in()
+        self._record(dt)
+        _, unconstrained, detection, solve, integrate = self._recorded
+        self._external[:] = 0.0
+        for body, force in s.external.items():
+            self._external[body] = force
+        unconstrained.launch()
+        self._check()
+        t1 = time.perf_counter()
+        for launch in detection:
+            launch.launch()
+        if len(self._box_pairs):
+            self._append_box_pairs(dt)
+        t2 = time.perf_counter()
+        solve.launch.launch()
+        t3 = time.perf_counter()
+        integrate.launch()
+        self._check()
+        for body in s.bodies:
+            body.step_count += 1
+        stats = solve.stats.numpy()
+        snapshot = _Snapshot(self.state.contacts.numpy(), [b.v.copy() for b in s.bodies], int(stats[0]),
+                             float(stats[1]))
+        s.adhesion_state = ArrayAdhesionState(snapshot)
+        t4 = time.perf_counter()
+        return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
+                                               (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
+
+    def _check(self) -> None:
+        """Stop with a report naming the body and the step (SimulationError) if one diverged."""
+        if self._diverged.any():
+            i = int(np.flatnonzero(self._diverged)[0])
+            body = self.scene.bodies[i]
+            raise body._diverged(DIVERGENCE_REASONS[int(self._diverged[i])])
