@@ -90,9 +90,11 @@ class Volume:
         return Volume(data, self.spacing.copy(), self.origin.copy(), self.direction.copy(), self.is_label)
 
     def __repr__(self) -> str:
+        # direction rows with 4 significant digits (``softvr info`` prints this); + 0.0 drops "-0"
+        rows = ", ".join("[" + ", ".join(f"{v + 0.0:.4g}" for v in row) + "]" for row in self.direction)
         return (
             f"Volume(shape={self.shape}, dtype={self.dtype}, spacing={self.spacing.tolist()}, "
-            f"origin={self.origin.tolist()}, is_label={self.is_label})"
+            f"origin={self.origin.tolist()}, direction=[{rows}], is_label={self.is_label})"
         )
 
 
