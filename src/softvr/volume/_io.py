@@ -401,7 +401,7 @@ def _is_dicom_file(p: Path) -> bool:
 
 
 #: Bytes read from a stream at a time: memory grows only as real (decompressed) data arrives.
-_CHUNK = 1 << 24
+_CHUNK = 1 << 20
 
 
 def _read_exact(stream, nbytes: int, what: str, source: str) -> bytearray:
