@@ -71,3 +71,42 @@ def test_missing_file_names_path_and_package(tmp_path, monkeypatch, func, attr, 
         func()
     assert str(missing) in str(err.value)
     assert package in str(err.value)
+
+
+def _small_ch2(folder):
+    """A small NIfTI named like the dataset, written by nibabel: the values the test knows."""
+    folder.mkdir(parents=True, exist_ok=True)
+    data = np.arange(24, dtype=np.uint8).reshape(2, 3, 4)
+    nib.save(nib.Nifti1Image(data, np.diag([2.0, 2.0, 2.0, 1.0])), folder / "ch2.nii.gz")
+    return data
+
+
+def test_softvr_data_folder_is_searched_first(tmp_path, monkeypatch):
+    data = _small_ch2(tmp_path / "mine")
+    monkeypatch.setenv("SOFTVR_DATA", str(tmp_path / "mine"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    vol = datasets.mri_ch2()  # found there even where the Debian package is installed
+    np.testing.assert_array_equal(vol.data, data)
+    np.testing.assert_allclose(vol.spacing, [2.0, 2.0, 2.0])
+
+
+def test_cache_folder_before_the_debian_path(tmp_path, monkeypatch):
+    monkeypatch.delenv("SOFTVR_DATA", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(datasets, "CH2_PATH", tmp_path / "debian" / "ch2.nii.gz")
+    assert datasets.cache_folder() == tmp_path / "cache" / "softvr"
+    data = _small_ch2(tmp_path / "cache" / "softvr")
+    np.testing.assert_array_equal(datasets.mri_ch2().data, data)
+
+
+def test_missing_everywhere_says_how_to_provide_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("SOFTVR_DATA", str(tmp_path / "mine"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    monkeypatch.setattr(datasets, "HEAD_CT_PATH", tmp_path / "debian" / "Cranium.inv3")
+    with pytest.raises(InputError) as err:
+        datasets.head_ct()
+    msg = str(err.value)
+    for place in (tmp_path / "mine" / "Cranium.inv3", tmp_path / "cache" / "softvr" / "Cranium.inv3",
+                  tmp_path / "debian" / "Cranium.inv3"):
+        assert str(place) in msg
+    assert "SOFTVR_DATA" in msg and "apt-get install invesalius-examples" in msg

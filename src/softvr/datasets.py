@@ -1,4 +1,4 @@
-"""Real CT and MRI volumes installed by Debian packages.
+"""Real CT and MRI volumes: files installed by Debian packages, or copies of them anywhere.
 
 Each function reads its file afresh (nothing is cached) and returns a
 :class:`~softvr.volume.Volume` whose ``spacing`` and ``origin`` are in **millimetres**,
@@ -6,16 +6,24 @@ the files' own units; all positions derived from these volumes (mesh nodes, cont
 points) are therefore in mm too -- softvr's rule is that volume positions are in the
 units of the volume's spacing.
 
-* :func:`head_ct`: ``/usr/share/doc/invesalius-examples/examples/Cranium.inv3``
-  (Debian package ``invesalius-examples``);
-* :func:`mri_ch2`: ``/usr/share/mricron/templates/ch2.nii.gz`` (``mricron-data``);
-* :func:`mri_ch2better`: ``/usr/share/mricron/templates/ch2better.nii.gz`` (``mricron-data``).
+* :func:`head_ct`: ``Cranium.inv3``, on Debian
+  ``/usr/share/doc/invesalius-examples/examples/Cranium.inv3`` (package ``invesalius-examples``);
+* :func:`mri_ch2`: ``ch2.nii.gz``, on Debian ``/usr/share/mricron/templates/ch2.nii.gz``
+  (``mricron-data``);
+* :func:`mri_ch2better`: ``ch2better.nii.gz``, on Debian
+  ``/usr/share/mricron/templates/ch2better.nii.gz`` (``mricron-data``).
+
+On other systems put the file (same name) into the folder named by the environment variable
+``SOFTVR_DATA`` or into the cache folder ``$XDG_CACHE_HOME/softvr`` (default
+``~/.cache/softvr``); :func:`data_file` searches those first, then the Debian path.
 """
 
 from __future__ import annotations
 
-__all__ = ["CH2BETTER_PATH", "CH2_PATH", "HEAD_CT_PATH", "head_ct", "mri_ch2", "mri_ch2better"]
+__all__ = ["CH2BETTER_PATH", "CH2_PATH", "HEAD_CT_PATH", "cache_folder", "data_file", "head_ct", "mri_ch2",
+           "mri_ch2better"]
 
+import os
 from pathlib import Path
 
 from softvr.errors import InputError
@@ -44,10 +52,10 @@ def head_ct() -> Volume:
     Raises
     ------
     InputError
-        The file is missing (install the Debian package ``invesalius-examples``) or
-        unreadable.
+        The file is missing (install the Debian package ``invesalius-examples``, or see
+        :func:`data_file`) or unreadable.
     """
-    return load(_require(HEAD_CT_PATH, "invesalius-examples"))
+    return load(data_file(HEAD_CT_PATH, "invesalius-examples"))
 
 
 def mri_ch2() -> Volume:
@@ -62,9 +70,10 @@ def mri_ch2() -> Volume:
     Raises
     ------
     InputError
-        The file is missing (install the Debian package ``mricron-data``) or unreadable.
+        The file is missing (install the Debian package ``mricron-data``, or see
+        :func:`data_file`) or unreadable.
     """
-    return load(_require(CH2_PATH, "mricron-data"))
+    return load(data_file(CH2_PATH, "mricron-data"))
 
 
 def mri_ch2better() -> Volume:
@@ -79,17 +88,39 @@ def mri_ch2better() -> Volume:
     Raises
     ------
     InputError
-        The file is missing (install the Debian package ``mricron-data``) or unreadable.
+        The file is missing (install the Debian package ``mricron-data``, or see
+        :func:`data_file`) or unreadable.
     """
-    return load(_require(CH2BETTER_PATH, "mricron-data"))
+    return load(data_file(CH2BETTER_PATH, "mricron-data"))
 
 
-def _require(path: Path, package: str) -> Path:
-    if not path.is_file():
-        raise InputError(
-            "dataset file",
-            f"the file installed by the Debian package {package!r} (apt-get install {package})",
-            "no such file",
-            source=str(path),
-        )
-    return path
+def cache_folder() -> Path:
+    """softvr's data cache folder: ``$XDG_CACHE_HOME/softvr``, by default ``~/.cache/softvr``."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "softvr"
+
+
+def data_file(debian_path: Path, package: str) -> Path:
+    """Where a dataset file is: ``$SOFTVR_DATA/<name>``, else ``<cache_folder()>/<name>``,
+    else ``debian_path`` (``<name>`` = ``debian_path.name``).
+
+    Raises
+    ------
+    InputError
+        None of them is a file; the message lists the places searched and says how to
+        provide the file (the Debian package ``package``, SOFTVR_DATA or the cache folder).
+    """
+    name = debian_path.name
+    searched = []
+    if os.environ.get("SOFTVR_DATA"):
+        searched.append(Path(os.environ["SOFTVR_DATA"]) / name)
+    searched += [cache_folder() / name, Path(debian_path)]
+    for path in searched:
+        if path.is_file():
+            return path
+    raise InputError(
+        "dataset file",
+        f"{name}: install the Debian package {package!r} (apt-get install {package}), or copy {name} into a "
+        f"folder and set SOFTVR_DATA to it, or into {cache_folder()}",
+        "no such file at " + ", ".join(str(p) for p in searched),
+        source=str(debian_path),
+    )
