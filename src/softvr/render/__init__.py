@@ -4,6 +4,9 @@
   numpy RGB images (no display needed: EGL, else OSMesa -- see :func:`offscreen_backend`),
   reusing one VTK pipeline and a fixed camera across frames;
   :func:`render_volume` renders a single volume.
+* :class:`RayCaster`: softvr's own volume ray caster in Warp (``VolumeRenderer(mapper="warp")``):
+  gradients on the fly, empty-space skipping updated where the data changed, jittered ray
+  starts (no banding), drawn into VTK's frame at the surfaces' depth.
 * :class:`Camera` and :data:`VIEWS`: named views (front, side, top, iso, ...) with
   azimuth, elevation, zoom and orthographic projection.
 * :data:`PRESETS` / :class:`Preset`: transfer functions for CT (Hounsfield units), T1 MRI
@@ -36,6 +39,7 @@ from softvr.render._backend import APT_PACKAGES, RenderBackendError, has_display
 from softvr.render.camera import VIEWS, Camera
 from softvr.render.contact_sheet import contact_sheet, save_png
 from softvr.render.presets import PRESETS, Preset, label_colors
+from softvr.render.raycast import RayCaster
 from softvr.render.surfaces import SurfaceRenderer
 from softvr.render.video import write_mp4
 from softvr.render.viewer import (
@@ -55,6 +59,7 @@ __all__ = [
     "Camera",
     "NodeDragger",
     "Preset",
+    "RayCaster",
     "RenderBackendError",
     "SurfaceRenderer",
     "ViewTransform",

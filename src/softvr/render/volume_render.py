@@ -9,7 +9,8 @@ from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, offscreen_backend
 from softvr.render._scene import VolumeScene
 from softvr.render.camera import Camera
-from softvr.render.presets import Preset
+from softvr.render.presets import Preset, resolve_preset
+from softvr.render.raycast import RayCaster, volume_bounds
 
 __all__ = ["VolumeRenderer", "render_volume"]
 
@@ -37,15 +38,19 @@ class VolumeRenderer(OffscreenView):
         default ``Camera("front")``.
     background : tuple of 3 float
         Background RGB in [0, 1].
-    mapper : {"auto", "cpu", "gpu"}
+    mapper : {"auto", "cpu", "gpu", "warp"}
         ``"cpu"``: ``vtkFixedPointVolumeRayCastMapper``, multi-threaded software ray
         casting. ``"gpu"``: ``vtkGPUVolumeRayCastMapper``. ``"auto"`` uses ``"cpu"`` on
         software OpenGL (Mesa llvmpipe, where it is ~3x faster than the shader ray caster)
-        and ``"gpu"`` on a hardware GPU.
+        and ``"gpu"`` on a hardware GPU. ``"warp"``: softvr's :class:`~softvr.render.RayCaster`
+        (Warp, CPU or CUDA; continuous presets only), drawn over and hidden by the surfaces
+        (actors added to :attr:`vtk_renderer`) at their depth.
     sample_distance : float [voxels]
         Ray step in units of the smallest voxel spacing.
     backend : {"egl", "osmesa"}, optional
         Force an off-screen OpenGL window kind.
+    device : str, optional
+        Warp device of ``mapper="warp"`` (default CUDA when present, else CPU).
 
     Examples
     --------
@@ -73,6 +78,7 @@ class VolumeRenderer(OffscreenView):
         mapper: str = "auto",
         sample_distance: float = 0.5,
         backend: str | None = None,
+        device: str | None = None,
     ):
         for name, v in (("width", width), ("height", height)):
             if not isinstance(v, (int, np.integer)) or not 1 <= v <= 16384:
@@ -85,12 +91,19 @@ class VolumeRenderer(OffscreenView):
         self.backend = offscreen_backend(backend)
         self._renderer = vtkRenderer()
         self._renderer.SetBackground(*background)
+        self._background = np.asarray(background, float)
         self._window.AddRenderer(self._renderer)
         if mapper == "auto":
             mapper = "cpu" if self.is_software_gl else "gpu"
         self.mapper = mapper
-        self._scene = VolumeScene(preset, mapper, sample_distance)
-        self._renderer.AddVolume(self._scene.prop)
+        self._caster = None
+        if mapper == "warp":
+            resolve_preset(preset)  # reject unknown names now, not at the first render
+            self._preset_arg = preset
+            self._caster = RayCaster(resolve_preset(preset), sample_distance, device=device)
+        else:
+            self._scene = VolumeScene(preset, mapper, sample_distance)
+            self._renderer.AddVolume(self._scene.prop)
         self._init_grabber()
         self._camera_pending = True
 
@@ -137,10 +150,14 @@ class VolumeRenderer(OffscreenView):
 
     def set_preset(self, preset: "str | Preset") -> None:
         """Change the transfer function from the next render on."""
-        self._scene.set_preset(preset)
+        if self._caster is not None:
+            resolve_preset(preset)
+            self._preset_arg = preset
+        else:
+            self._scene.set_preset(preset)
 
     # ----------------------------------------------------------------- render
-    def render(self, volume) -> np.ndarray:
+    def render(self, volume, *, changed=True) -> np.ndarray:
         """Render ``volume``.
 
         Parameters
@@ -148,6 +165,10 @@ class VolumeRenderer(OffscreenView):
         volume : softvr.volume.Volume
             Voxels ``data`` [nx, ny, nz] (at least 2 along each axis) placed in world
             space by ``spacing``, ``origin`` and ``direction``.
+        changed : True, False or (lo, hi)
+            ``mapper="warp"`` only: which voxels changed since the last call (all, none, or
+            the inclusive index box ``lo`` .. ``hi``), so that only those bricks of the
+            empty-space grid are re-derived. VTK's mappers always take the whole volume.
 
         Returns
         -------
@@ -156,6 +177,8 @@ class VolumeRenderer(OffscreenView):
         """
         if self._closed:
             raise InputError("VolumeRenderer", "an open renderer", "a closed one")
+        if self._caster is not None:
+            return self._render_warp(volume, changed)
         self._scene.update(volume)
         if self._camera_pending:
             self._camera.apply(self.vtk_camera, self._scene.bounds(), self.width / self.height)
@@ -167,6 +190,41 @@ class VolumeRenderer(OffscreenView):
         # viewer) while an EGL context is current fails with BadAccess on Mesa.
         self._window.ReleaseCurrent()
         return image
+
+    def _render_warp(self, volume, changed) -> np.ndarray:
+        """VTK draws the surfaces (if any), then the Warp ray caster composites the volume
+        over their colour, each ray stopped at their depth."""
+        from vtkmodules.vtkCommonCore import vtkFloatArray  # noqa: PLC0415
+        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
+
+        bounds = volume_bounds(volume)
+        if self._camera_pending:
+            self._camera.apply(self.vtk_camera, bounds, self.width / self.height)
+            self._camera_pending = False
+        both = np.asarray(bounds).reshape(3, 2)
+        if self._renderer.VisibleActorCount():
+            props = np.asarray(self._renderer.ComputeVisiblePropBounds()).reshape(3, 2)
+            if np.all(props[:, 1] >= props[:, 0]):
+                both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
+        self._renderer.ResetCameraClippingRange(*both.ravel())
+        if self._renderer.VisibleActorCount():
+            self._window.Render()
+            surface = self.grab()
+            z = vtkFloatArray()
+            self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
+            depth = vtk_to_numpy(z).reshape(self.height, self.width)
+            self._window.ReleaseCurrent()
+        else:  # nothing opaque: skip OpenGL, the background is everywhere at the far plane
+            surface = np.empty((self.height, self.width, 3), np.uint8)
+            surface[:] = np.round(255 * self._background).astype(np.uint8)
+            depth = np.ones((self.height, self.width), np.float32)
+        cam = self.vtk_camera
+        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
+        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
+        light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())
+        self._caster.preset = resolve_preset(self._preset_arg, volume)
+        return self._caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), surface, depth,
+                                 changed=changed)
 
 
 
