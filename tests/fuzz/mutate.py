@@ -176,3 +176,64 @@ def byte_mutants(data: bytes, rng: random.Random, n: int) -> list[bytes]:
 def load_toml(path) -> dict:
     with open(path, "rb") as f:
         return tomllib.load(f)
+
+
+def gltf_seed() -> tuple[dict, bytes]:
+    """A small glTF physics scene as (JSON document, binary buffer): a fixed box, a rigid
+    box with a material, a kinematic box with a translation animation, a light, scene extras
+    (glTF y-up, as Blender writes it)."""
+    import struct
+
+    import numpy as np
+    import trimesh
+
+    scene = trimesh.Scene()
+    for name, size in (("ground", (1.0, 0.1, 1.0)), ("crate", (0.2, 0.2, 0.2)), ("pusher", (0.1, 0.1, 0.1))):
+        scene.add_geometry(trimesh.creation.box(size), node_name=name, geom_name=f"{name} mesh")
+    data = scene.export(file_type="glb")
+    length = struct.unpack("<I", data[12:16])[0]
+    doc = json.loads(data[20:20 + length])
+    binary = bytearray(data[28 + length:28 + length + struct.unpack("<I", data[20 + length:24 + length])[0]])
+    extras = {"ground": {"softvr_type": "fixed"},
+              "crate": {"softvr_type": "rigid", "softvr_density": 500.0, "softvr_collision_triangles": 12},
+              "pusher": {"softvr_type": "kinematic"}}
+    translations = {"ground": [0.0, -0.05, 0.0], "crate": [0.0, 0.2, 0.0], "pusher": [0.5, 0.2, 0.0]}
+    for node in doc["nodes"]:
+        node.pop("matrix", None)
+        node.update(translation=translations[node["name"]], rotation=[0.0, 0.0, 0.0, 1.0],
+                    extras=extras[node["name"]])
+    pusher = next(i for i, n in enumerate(doc["nodes"]) if n["name"] == "pusher")
+
+    def accessor(values, kind):
+        values = np.asarray(values, "<f4")
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(binary), "byteLength": values.nbytes})
+        binary.extend(values.tobytes())
+        binary.extend(b"\0" * (-len(binary) % 4))
+        doc["accessors"].append({"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126,
+                                 "count": len(values), "type": kind})
+        return len(doc["accessors"]) - 1
+
+    doc["animations"] = [{"channels": [{"sampler": 0, "target": {"node": pusher, "path": "translation"}}],
+                          "samplers": [{"input": accessor([0.0, 1.0], "SCALAR"),
+                                        "output": accessor([[0.5, 0.2, 0.0], [0.2, 0.2, 0.0]], "VEC3"),
+                                        "interpolation": "LINEAR"}]}]
+    doc["extensionsUsed"] = ["KHR_lights_punctual"]
+    doc["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "directional", "intensity": 683.0}]}}
+    doc["nodes"].append({"name": "sun", "translation": [1.0, 2.0, 1.0], "rotation": [-0.3, 0.0, 0.0, 0.95],
+                         "extensions": {"KHR_lights_punctual": {"light": 0}}})
+    doc["scenes"][0]["nodes"].append(len(doc["nodes"]) - 1)
+    doc["scenes"][0]["extras"] = {"softvr_frames": 10, "softvr_dt": 0.005, "softvr_camera": "iso"}
+    doc["buffers"][0]["byteLength"] = len(binary)
+    return doc, bytes(binary)
+
+
+def glb_bytes(doc: dict, binary: bytes | None) -> bytes:
+    """A .glb of a JSON document and an optional BIN chunk."""
+    import struct
+
+    chunk = json.dumps(doc).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    body = struct.pack("<I4s", len(chunk), b"JSON") + chunk
+    if binary is not None:
+        body += struct.pack("<I4s", len(binary), b"BIN\0") + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
