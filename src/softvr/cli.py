@@ -21,11 +21,16 @@
 ``softvr check SCENE``      validate a scene file (every error at once)
 ``softvr blender-addon``    write softvr-blender.zip, the Blender add-on
 ``softvr info PATH``        what a volume file holds
+
+Bad input ends a command with ``softvr CMD: error: FILE: FIELD: expected ..., found ...`` and
+exit status 2, never a traceback; anything else that goes wrong is a bug, reported as an
+internal error (exit status 70; ``SOFTVR_DEBUG=1`` shows its traceback).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from softvr.errors import SoftvrError
@@ -160,3 +165,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"softvr {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - the last line: a bug, reported without a traceback
+        if os.environ.get("SOFTVR_DEBUG"):
+            raise
+        print(f"softvr {args.command}: internal error, please report it (with SOFTVR_DEBUG=1 for the traceback): "
+              f"{type(exc).__name__}: {str(exc)[:500]}", file=sys.stderr)
+        return 70  # EX_SOFTWARE

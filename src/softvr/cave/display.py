@@ -40,6 +40,9 @@ FORMAT = "softvr-display 1"
 STEREO_MODES = ("none", "side-by-side", "anaglyph", "quad-buffer")
 #: Most screens a display file may have (a render node each): far above any installation.
 MAX_SCREENS = 256
+#: Most pixels all screens of a display file may have together (8 screens of 8K): every one
+#: is rendered, and ``softvr cave preview`` renders them all in one process.
+MAX_PIXELS = 1 << 28
 _MAX_NAME = 64  # characters of a screen or node name (they name processes and key files)
 _MAX_COORDINATE = 1e4  # [m]: a screen corner further from the tracker origin is a unit mistake
 
@@ -266,6 +269,10 @@ def load_display(path) -> Display:
             bad, stereo = True, "none"
         screens.append(Screen(names["name"], corners["lower_left"], corners["lower_right"], corners["upper_left"],
                               tuple(pixels), names["node"], stereo))
+    total = sum(s.pixels[0] * s.pixels[1] for s in screens)
+    if total > MAX_PIXELS:
+        problems.append(("screen[*].pixels", f"at most {MAX_PIXELS} pixels on all screens together",
+                         f"{total} pixels"))
     separation = doc.get("eye_separation", 0.065)
     # Corner geometry is only judged of screens whose fields all read.
     raise_all(problems + ([] if bad else _problems(screens, separation)), source, "display")

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
+from softvr.files import native_read
+from softvr.scene.gltf import check_gltf
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
@@ -38,14 +40,18 @@ def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh  # noqa: PLC0415
 
     path = Path(path)
-    try:
-        mesh = trimesh.load(path, force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many types for bad files
-        raise InputError("mesh", "a readable triangle mesh", f"{type(exc).__name__}: {exc}", source=str(path)) from None
-    v, t = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int32)
+    if path.suffix.lower() in (".gltf", ".glb"):
+        # Its buffers and images are files too: checked (inside its folder, regular) before trimesh.
+        check_gltf(path)
+    mesh = native_read(lambda file: trimesh.load(file, force="mesh", process=True), path, "mesh",
+                       "a readable triangle mesh")
+    v, t = np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int64)
     if len(t) < 4:
         raise InputError("mesh", "a closed surface of at least 4 triangles", f"{len(t)} triangles", source=str(path))
-    return v, t
+    if not np.all(np.isfinite(v)) or t.min() < 0 or t.max() >= len(v):
+        raise InputError("mesh", "finite vertices and triangles that index them",
+                         f"{len(v)} vertices, triangle indices {t.min()} .. {t.max()}", source=str(path))
+    return v, t.astype(np.int32)
 
 
 @dataclass

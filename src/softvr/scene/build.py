@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from softvr.examples.run import PhysicsExample
+from softvr.files import native_read
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 
 __all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems"]
@@ -544,7 +545,8 @@ class SceneExample(PhysicsExample):
             else:
                 from softvr.volume import load_tet_mesh
 
-                nodes, tets = load_tet_mesh(spec.mesh)
+                # meshio exits the process on some unreadable files: native_read turns that into an error.
+                nodes, tets = native_read(load_tet_mesh, spec.mesh, "tets", "a tet mesh file meshio can read")
                 nodes = nodes * np.asarray(spec.scale)
             nodes = nodes @ rotation.T + centre
             if spec.shape == "box" and spec.surface_quads > 1:

@@ -117,7 +117,7 @@ from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_fil
 from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _keyframes, _model, _render,
                                  _simulation, _volume)
 
-__all__ = ["has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
+__all__ = ["check_gltf", "has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
 
 _PREFIX = "softvr_"
 _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", "model")
@@ -418,6 +418,13 @@ def _texture_refs(table, where: str, textures: int, bad, depth: int = 0) -> None
             if key.endswith("Texture") and not (type(value.get("index")) is int and 0 <= value["index"] < textures):
                 bad(f"{where}.{key}.index", f"an index into textures (0 .. {textures - 1})", value.get("index"))
             _texture_refs(value, f"{where}.{key}", textures, bad, depth + 1)
+
+
+def check_gltf(path) -> None:
+    """An :class:`InputError` when a .gltf / .glb file is not one trimesh may be given: bad
+    JSON, or an index, count, size or buffer / image file that is out of range, outside its
+    folder or not a regular file (:func:`_check_structure`)."""
+    _gltf_json(Path(path))
 
 
 class _Bad(Exception):
