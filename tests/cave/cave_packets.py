@@ -20,9 +20,13 @@ class FrameMaker:
         self.session = session
         self.sheet = WavingSheet(vertices)
         self.reference = ClusterState(self.sheet.items)
-        self.snapshot = encode("snapshot", session, {"n": -1, "state": self.reference.snapshot()})
+        self.snapshot = self.snapshot_for(0)
         self.encoders = {h: MeshEncoder(i["rest"]) for h, i in enumerate(self.sheet.items) if i["kind"] == "mesh"}
         self.n = -1
+
+    def snapshot_for(self, nonce: int) -> bytes:
+        """The snapshot of the state before the first frame, answering a join with ``nonce``."""
+        return encode("snapshot", self.session, {"n": -1, "nonce": nonce, "state": ClusterState(self.sheet.items).snapshot()})
 
     def next(self) -> bytes:
         self.n += 1

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from softvr.cave.cluster import ClusterConfig, Node
-from softvr.cave.protocol import MAX_EVENTS, PacketError, decode, encode
+from softvr.cave.protocol import MAX_EVENTS, VERSION, PacketError, decode, encode
 
 from cave_packets import fuzzed_packets
 
@@ -54,17 +54,17 @@ def test_bad_packets_are_refused_with_their_reason(packet, reason):
 def test_another_protocol_version_is_named():
     import msgpack
 
-    packet = msgpack.packb(["softvr-cave", 2, "frame", 7, _FRAME])
-    with pytest.raises(PacketError, match="version 2") as info:
+    packet = msgpack.packb(["softvr-cave", VERSION + 1, "frame", 7, _FRAME])
+    with pytest.raises(PacketError, match=f"version {VERSION + 1}") as info:
         decode(packet, session=7)
     assert info.value.reason == "version"
 
 
 def test_a_node_survives_100k_fuzzed_packets_and_keeps_its_state(frame_maker):
     # Endpoints nobody binds: the node's sockets connect in the background and stay idle.
-    node = Node("front", ClusterConfig(publish="tcp://127.0.0.1:9", control="tcp://127.0.0.1:9"))
+    node = Node("front", ClusterConfig(publish="tcp://127.0.0.1:9", control="tcp://127.0.0.1:9", curve=False))
     try:
-        node._control(frame_maker.snapshot)
+        node._control(frame_maker.snapshot_for(node.nonce))
         valid = [frame_maker.next() for _ in range(3)]
         for packet in valid:
             node.receive(packet)

@@ -5,7 +5,9 @@
 ``softvr cave node DISPLAY --node NAME``     one render node per screen (needs no scene: it gets
                                              everything from the master's snapshot)
 ``softvr cave local DISPLAY SCENE``          master + every node as processes on this machine
-``softvr cave keys DIR --display DISPLAY``   CURVE keys: only nodes holding them can join
+``softvr cave keys [DIR]``                   CURVE keys (made on first use anyway): the master's,
+                                             ``--display`` / ``--nodes``: and these nodes' here (one
+                                             host), ``--node NAME``: only this node's (on its host)
 
 DISPLAY is a display file (TOML, ``softvr-display 1``) or a preset name (single-wall, cube,
 rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2); it may be left out when SCENE is a
@@ -14,14 +16,23 @@ scene file with a ``[display]`` section. SCENE is ``sheet`` (an analytic ripplin
 file (TOML, or glTF / GLB with softvr properties) simulated on the master and streamed to the
 nodes, or a glTF / GLB (or OBJ, STL, PLY) file without softvr properties shown as a static
 scene to walk through.
+
+Master and nodes use CURVE (encryption, and only nodes whose public keys the master holds may
+join, each under its own name) with keys from ``--keys DIR`` (default ``$SOFTVR_CAVE_KEYS`` or
+``~/.config/softvr/cave-keys``), made there on first use; ``--no-curve`` is allowed on loopback
+endpoints only. A node that hears nothing of its master for ``--master-timeout`` seconds joins
+whichever master answers next and ends (exit status 3) when none does within
+``--master-wait``; the nodes of ``cave local`` end with it.
 """
 
 from __future__ import annotations
 
 import argparse
+import ctypes
 import importlib
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -165,7 +176,13 @@ def _preview(args) -> int:
 def _config(args):
     from softvr.cave.cluster import ClusterConfig  # noqa: PLC0415
 
-    return ClusterConfig(publish=args.publish, control=args.control, barrier=not args.no_barrier, keys=args.keys)
+    extra = {}
+    if getattr(args, "master_timeout", None) is not None:
+        extra["master_timeout_s"] = args.master_timeout
+    if getattr(args, "master_wait", None) is not None:
+        extra["master_wait_s"] = args.master_wait or None
+    return ClusterConfig(publish=args.publish, control=args.control, barrier=not args.no_barrier, keys=args.keys,
+                         curve=not args.no_curve, **extra)
 
 
 def _master(args, on_bound=None) -> dict:
@@ -189,6 +206,9 @@ def _master(args, on_bound=None) -> dict:
         if not args.quiet:
             print(f"cave master: publishing on {master.config.publish}, control on {master.config.control}; "
                   f"waiting for {', '.join(nodes)}", flush=True)
+        if master.unauthorized and not on_bound:
+            print(f"cave master: no public key yet for {', '.join(master.unauthorized)}: copy each node's "
+                  f"nodes/NAME.key to {master.config.key_folder()}/authorized/NAME.key", file=sys.stderr, flush=True)
         master.wait_for_nodes(args.join_timeout)
         summary = master.run(args.frames, fps=args.fps, progress=not args.quiet,
                              on_frame=None if window is None else lambda _record: window.show(master.state))
@@ -262,6 +282,9 @@ def _node(args) -> int:
         renderer.close()
     if not args.quiet:
         print(json.dumps({k: summary[k] for k in ("node", "presented", "last_frame", "counters")}))
+    if node.error:
+        print(f"softvr cave node: {node.error}", file=sys.stderr)
+        return 3
     return 0
 
 
@@ -274,6 +297,24 @@ def node_command(display: str, node: str, publish: str, control: str, *, out=Non
     return cmd + list(extra)
 
 
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _die_with(parent: int):
+    """A ``preexec_fn`` for a child that must end with process ``parent``: on Linux the
+    kernel sends it SIGTERM when the parent dies (prctl PR_SET_PDEATHSIG), even by SIGKILL."""
+    if not sys.platform.startswith("linux"):
+        return None
+    libc = ctypes.CDLL(None, use_errno=True)
+
+    def arm() -> None:
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+        if os.getppid() != parent:  # the parent died before the signal was armed
+            os._exit(1)
+
+    return arm
+
+
 def _local(args) -> int:
     display = load_display_arg(args.display)
     nodes = [s.node or s.name for s in display.screens]
@@ -283,20 +324,28 @@ def _local(args) -> int:
     extra = ["--scale", str(args.scale), "--save-every", str(args.save_every)]
     if args.keys:
         extra += ["--keys", args.keys]
-    if args.no_barrier:
-        extra.append("--no-barrier")
+    for flag in ("no_barrier", "no_curve"):
+        if getattr(args, flag):
+            extra.append("--" + flag.replace("_", "-"))
 
     def start_nodes(config) -> None:
         for name in nodes:
             processes.append(subprocess.Popen(node_command(args.display, name, config.publish, config.control,
-                                                           out=out, extra=extra)))
+                                                           out=out, extra=extra), preexec_fn=_die_with(os.getpid())))
 
     args.publish, args.control = "tcp://127.0.0.1:0", "tcp://127.0.0.1:0"
+    # A SIGTERM ends the master like Ctrl-C does, through the cleanup below.
+    previous = signal.signal(signal.SIGTERM, lambda *_: sys.exit(128 + signal.SIGTERM))
+    finished = False
     try:
         summary = _master(args, on_bound=start_nodes)
+        finished = True
     finally:
-        deadline = time.monotonic() + 30
+        signal.signal(signal.SIGTERM, previous)
+        deadline = time.monotonic() + (30.0 if finished else 5.0)  # after bye the nodes end by themselves
         for p in processes:
+            if not finished:
+                p.terminate()
             try:
                 p.wait(timeout=max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
@@ -333,15 +382,25 @@ def _compose_previews(display, out: Path) -> None:
 
 
 def _keys(args) -> int:
-    from softvr.cave.cluster import make_keys  # noqa: PLC0415
+    from softvr.cave.keys import default_folder, make_keys  # noqa: PLC0415
 
+    folder = Path(args.folder or default_folder())
+    if args.node:
+        if args.display or args.nodes:
+            raise InputError("--node", "alone (a node's host makes its own key only)", "with --display / --nodes")
+        make_keys(folder, [args.node], master=False)
+        print(f"made the CURVE key of node {args.node} in {folder}/nodes (its secret stays here). On the master's "
+              f"host copy {folder}/nodes/{args.node}.key to KEYS/authorized/{args.node}.key, and bring the master's "
+              f"master.key here to {folder}/master.key")
+        return 0
     nodes = list(args.nodes or [])
     if args.display:
         nodes += [s.node or s.name for s in load_display_arg(args.display).screens]
-    if not nodes:
-        raise InputError("--display / --nodes", "the nodes to make keys for", "none")
-    folder = make_keys(args.folder, nodes)
-    print(f"wrote CURVE keys for master and {', '.join(nodes)} to {folder}")
+    make_keys(folder, nodes)
+    made = f"master and {', '.join(nodes)}" if nodes else "master"
+    print(f"CURVE keys of {made} in {folder} (secret keys mode 0600). Nodes on other hosts: run "
+          f"'softvr cave keys --node NAME' there and copy only public keys (master.key there, NAME.key to "
+          f"{folder}/authorized/)")
     return 0
 
 
@@ -363,7 +422,8 @@ def _parser() -> argparse.ArgumentParser:
     def network(q) -> None:
         q.add_argument("--publish", default=_DEFAULT_PUBLISH, help=f"master's frame endpoint ({_DEFAULT_PUBLISH})")
         q.add_argument("--control", default=_DEFAULT_CONTROL, help=f"master's control endpoint ({_DEFAULT_CONTROL})")
-        q.add_argument("--keys", help="CURVE key folder (softvr cave keys)")
+        q.add_argument("--keys", help="CURVE key folder (default $SOFTVR_CAVE_KEYS or ~/.config/softvr/cave-keys)")
+        q.add_argument("--no-curve", action="store_true", help="no encryption nor authentication (loopback only)")
         q.add_argument("--no-barrier", action="store_true", help="no software swap barrier (hardware genlock)")
 
     def master_options(q) -> None:
@@ -397,20 +457,27 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--drop-rate", type=float, default=0.0, help="drop this fraction of frames (testing)")
     q.add_argument("--seed", type=int, default=None, help="seed of the dropped frames")
     q.add_argument("--max-seconds", type=float, default=None, help="stop after this long")
+    q.add_argument("--master-timeout", type=float, default=None,
+                   help="seconds of silence after which the master counts as lost (default 2)")
+    q.add_argument("--master-wait", type=float, default=None,
+                   help="seconds to wait for a (new) master before ending with status 3 (default 60, 0: for ever)")
 
     q = sub.add_parser("local", help="master and all nodes on this machine")
     common(q, True)
     master_options(q)
-    q.add_argument("--keys", help="CURVE key folder (softvr cave keys)")
+    q.add_argument("--keys", help="CURVE key folder (default $SOFTVR_CAVE_KEYS or ~/.config/softvr/cave-keys)")
+    q.add_argument("--no-curve", action="store_true", help="no encryption nor authentication")
     q.add_argument("--no-barrier", action="store_true", help="no software swap barrier")
     q.add_argument("--out", default="softvr-cave", help="output folder (default ./softvr-cave)")
     q.add_argument("--scale", type=float, default=0.25, help="pixel scale of the screens (default 0.25)")
     q.add_argument("--save-every", type=int, default=10, help="save every K-th frame per node (default 10)")
 
     q = sub.add_parser("keys", help="make CURVE keys for a cluster")
-    q.add_argument("folder", metavar="DIR")
-    q.add_argument("--display", help="make a key for every node of this display")
-    q.add_argument("--nodes", nargs="*", help="node names")
+    q.add_argument("folder", metavar="DIR", nargs="?", help="key folder (default $SOFTVR_CAVE_KEYS or "
+                                                            "~/.config/softvr/cave-keys)")
+    q.add_argument("--display", help="also a key for every node of this display (all on this host)")
+    q.add_argument("--nodes", nargs="*", help="also keys for these nodes (on this host)")
+    q.add_argument("--node", help="only this node's key (run on the node's host)")
     return p
 
 

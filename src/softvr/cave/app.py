@@ -19,13 +19,17 @@ import math
 
 import numpy as np
 
-from softvr.cave.protocol import PacketError, check_head, check_mesh_update, check_user, decode, encode
+from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, check_head, check_mesh_update,
+                                  check_user, decode, encode)
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
 
 __all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "SceneFileSource", "WavingSheet",
            "user_pose_facing"]
 
 _IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
+#: Largest mesh a snapshot may carry [vertices] (its rest shape: 24 bytes each).
+MAX_VERTICES = 1 << 22
+_MAX_FLAGS = 1024
 
 
 class RecordingRenderer:
@@ -83,6 +87,12 @@ def _positive(value, what: str, high: float = 1e6) -> float:
     if not 0 < v <= high:
         raise PacketError("malformed", f"snapshot {what}: expected a number in (0, {high:g}], found {v!r}")
     return v
+
+
+def _integer(value, what: str, low: int, high: int) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
+        raise PacketError("malformed", f"snapshot {what}: expected an integer in [{low}, {high}], found {value!r:.40}")
+    return value
 
 
 def _check_floats(value, shape, what: str) -> np.ndarray:
@@ -203,11 +213,15 @@ class ClusterState:
         quantum = float(data["quantum"])
         if not 1e-9 <= quantum <= 1.0:
             raise PacketError("malformed", "snapshot quantum: expected 1e-9..1 m")
+        if not isinstance(data["items"], list) or len(data["items"]) > MAX_MESHES:
+            raise PacketError("malformed", f"snapshot items: expected a list of at most {MAX_MESHES}")
         items, keys = [], {}
-        for h, raw in enumerate(data["items"][:65536]):
+        for h, raw in enumerate(data["items"]):
             kind = raw["kind"]
             color = _check_floats(raw["color"], (3,), "color").tolist()
             if kind == "mesh":
+                if len(raw["rest"]) > 24 * MAX_VERTICES:
+                    raise PacketError("malformed", f"snapshot mesh {h}: more than {MAX_VERTICES} vertices")
                 rest = np.frombuffer(raw["rest"], float).reshape(-1, 3).copy()
                 faces = np.frombuffer(raw["faces"], np.int32).reshape(-1, 3).copy()
                 if not np.isfinite(rest).all() or (faces.size and (faces.min() < 0 or faces.max() >= len(rest))):
@@ -216,10 +230,12 @@ class ClusterState:
                               "opacity": _positive(raw["opacity"], "opacity", 1.0)})
                 keys[h] = raw["key"]
             elif kind == "plane":
+                normal = _check_floats(raw["normal"], (3,), "plane normal")
+                if not np.linalg.norm(normal) > 1e-6:  # a renderer cannot orient a plane without one
+                    raise PacketError("malformed", f"snapshot plane {h}: a zero normal")
                 items.append({"kind": "plane", "point": _check_floats(raw["point"], (3,), "plane point").tolist(),
-                              "normal": _check_floats(raw["normal"], (3,), "plane normal").tolist(),
-                              "size": _positive(raw["size"], "plane size"), "color": color,
-                              "tiles": min(max(int(raw["tiles"]), 1), 256)})
+                              "normal": normal.tolist(), "size": _positive(raw["size"], "plane size"),
+                              "color": color, "tiles": _integer(raw["tiles"], "plane tiles", 1, 256)})
             elif kind == "sphere":
                 items.append({"kind": "sphere", "center": _check_floats(raw["center"], (3,), "center").tolist(),
                               "radius": _positive(raw["radius"], "radius"), "color": color,
@@ -230,10 +246,15 @@ class ClusterState:
         for h, key in keys.items():
             if key is not None:
                 state.meshes[h].apply(check_mesh_update([h, *key])[1:])
-        state.n, state.t = int(data["n"]), float(data["t"])
+        state.n = _integer(data["n"], "n", -1, MAX_FRAME)
+        state.t = _check_floats([data["t"]], (1,), "t")[0].item()
         state.user = np.asarray(check_user(data["user"]), float).reshape(4, 4)
         state.head = np.asarray(check_head(data["head"]), float)
-        state.flags = {str(f): True for f in data["flags"][:1024]}
+        flags = data["flags"]
+        if not (isinstance(flags, list) and len(flags) <= _MAX_FLAGS
+                and all(isinstance(f, str) and 0 < len(f) <= MAX_NAME for f in flags)):
+            raise PacketError("malformed", f"snapshot flags: expected at most {_MAX_FLAGS} names")
+        state.flags = dict.fromkeys(flags, True)
         return state
 
 

@@ -10,13 +10,19 @@ frame     master -> all    ``n`` frame number, ``t`` [s], ``user`` [16] (world <
                            the tracker frame), ``events`` [[name, [args]]], ``meshes``
                            [[handle, "pose", [7]] | [handle, "delta", width, zlib bytes] |
                            [handle, "key", zlib bytes]] (see :mod:`softvr.cave.stream`)
-beat      master -> all    ``n``: the last frame published (a heartbeat: a node behind it
-                           missed a frame and resyncs)
+beat      master -> all    ``n``: the last frame published (-1: none yet). A heartbeat: a node
+                           behind it missed a frame and resyncs; one waiting at the barrier
+                           re-sends its ``ready`` (it may have been lost); a node that hears
+                           no beat nor frame for ``master_timeout_s`` calls its master lost
 go        master -> all    ``n``: every node rendered frame ``n``; present it (swap barrier)
 bye       master -> all    ``n``: the run ended after frame ``n``
-join      node -> master   ``node``: the node's name; asks for a snapshot
+join      node -> master   ``node``: the node's name (the one its CURVE key may use),
+                           ``nonce``: a random number; asks for a snapshot
 ready     node -> master   ``node``, ``n``, ``hash`` (16 bytes): frame ``n`` is rendered
-snapshot  master -> node   ``n``, ``state``: the full application state after frame ``n``
+snapshot  master -> node   ``n``, ``state``: the full application state after frame ``n``;
+                           ``nonce``: the join's it answers (a node takes no other)
+resync    master -> node   ``n``: the node's ``ready`` for frame ``n`` had the wrong digest;
+                           join again
 ========  ===============  ==================================================================
 
 Nothing on a socket is ever unpickled: a packet is data, decoded by msgpack with size limits
@@ -34,18 +40,23 @@ from dataclasses import dataclass
 
 import msgpack
 
-__all__ = ["KINDS", "MAGIC", "VERSION", "Packet", "PacketError", "check_head", "check_mesh_update", "check_user",
+__all__ = ["KINDS", "MAGIC", "MAX_AHEAD", "MAX_FRAME", "VERSION", "Packet", "PacketError", "check_head", "check_mesh_update", "check_user",
            "decode", "encode"]
 
 MAGIC = "softvr-cave"
-VERSION = 1
-KINDS = ("frame", "beat", "go", "bye", "join", "ready", "snapshot")
+VERSION = 2
+KINDS = ("frame", "beat", "go", "bye", "join", "ready", "snapshot", "resync")
 
 #: Limits on what a packet may hold (a node never allocates more for one packet).
 MAX_EVENTS = 256
 MAX_MESHES = 65536
 MAX_BYTES = 256 << 20
 MAX_NAME = 64
+#: A frame more than this many frames ahead of a node's state is implausible: dropped and
+#: counted (``ahead``), never a reason to resync (a forged frame n + 2**40 would loop).
+MAX_AHEAD = 1 << 16
+#: Frame numbers stay below this (far from int64's end: ``n + 1`` never overflows).
+MAX_FRAME = 1 << 62
 
 
 class PacketError(ValueError):
@@ -75,7 +86,7 @@ def _fail(detail: str):
     raise PacketError("malformed", detail)
 
 
-def _int(value, what: str, low: int = 0, high: int = 1 << 62) -> int:
+def _int(value, what: str, low: int = 0, high: int = MAX_FRAME) -> int:
     if not isinstance(value, int) or isinstance(value, bool) or not low <= value <= high:
         _fail(f"{what}: expected an integer in [{low}, {high}], found {type(value).__name__}")
     return value
@@ -169,15 +180,16 @@ def _frame(p: dict) -> dict:
 
 _PAYLOADS = {
     "frame": _frame,
-    "beat": lambda p: {"n": _int(p.get("n"), "n")},
+    "beat": lambda p: {"n": _int(p.get("n"), "n", -1)},
     "go": lambda p: {"n": _int(p.get("n"), "n")},
     "bye": lambda p: {"n": _int(p.get("n"), "n")},
-    "join": lambda p: {"node": _str(p.get("node"), "node")},
+    "join": lambda p: {"node": _str(p.get("node"), "node"), "nonce": _int(p.get("nonce"), "nonce")},
     "ready": lambda p: {"node": _str(p.get("node"), "node"), "n": _int(p.get("n"), "n", -1),
                         "hash": _bytes(p.get("hash"), "hash", 16)},
     # The state's own fields are checked where it is restored (softvr.cave.app.ClusterState).
-    "snapshot": lambda p: {"n": _int(p.get("n"), "n", -1),
+    "snapshot": lambda p: {"n": _int(p.get("n"), "n", -1), "nonce": _int(p.get("nonce"), "nonce"),
                            "state": p["state"] if isinstance(p.get("state"), dict) else _fail("state: expected a map")},
+    "resync": lambda p: {"n": _int(p.get("n"), "n", -1)},
 }
 
 
@@ -202,6 +214,6 @@ def decode(data: bytes, session: int | None = None) -> Packet:
     if not isinstance(payload, dict):
         _fail("payload: expected a map")
     checked = _PAYLOADS[kind](payload)
-    if session is not None and sid != session and kind != "snapshot":
+    if session is not None and sid != session and kind not in ("snapshot", "resync"):
         raise PacketError("session", f"session {sid} is not this run's ({session})")
     return Packet(kind, sid, checked)

@@ -81,7 +81,9 @@ def _unpack(data: bytes, width: int, count: int) -> np.ndarray:
     size = count * 3 * width
     d = zlib.decompressobj()
     try:
-        raw = d.decompress(data, size)  # bounded: a zip bomb stops at the expected size
+        # Bounded by what the mesh holds: a zip bomb stops one byte past it (max_length 0
+        # would mean "unlimited", so an empty mesh gets 1).
+        raw = d.decompress(data, size + 1)
     except zlib.error as exc:
         raise ValueError(f"corrupt mesh data ({exc})") from None
     if len(raw) != size or d.unconsumed_tail or not d.eof:
