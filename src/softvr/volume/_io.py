@@ -206,7 +206,7 @@ def load(path, *, is_label: bool | None = None, frame: int | None = None, series
     except (InputError, MemoryError, KeyboardInterrupt):
         raise
     except Exception as exc:  # a library failed on a corrupt or unexpected file
-        raise InputError("file", f"a readable {_FORMAT_NAMES[fmt]} file", _describe(exc), source) from exc
+        raise InputError(_LIBRARY_PART[fmt], f"a readable {_FORMAT_NAMES[fmt]} file", _describe(exc), source) from exc
     if is_label is not None:
         fields["is_label"] = bool(is_label)
     _pick_frame(fields, frame, source)
@@ -297,6 +297,18 @@ _FORMAT_NAMES = {
 }
 
 
+#: The part of a file a library was reading when it failed (the field of the InputError).
+_LIBRARY_PART = {
+    "nrrd": "NRRD header / data",
+    "nifti": "NIfTI header / data",
+    "metaimage": "MetaImage header / data",
+    "npy": "npy header / data",
+    "npz": "npz members",
+    "inv3": "inv3 members",
+    "dicom": "DICOM data elements",
+}
+
+
 def _suffix_text(p: Path) -> str:
     name = p.name.lower()
     if name.endswith(".nii.gz"):
@@ -334,8 +346,10 @@ def _make_volume(fields: dict, source: str) -> Volume:
             direction=fields.get("direction", np.eye(3)),
             is_label=bool(fields.get("is_label", False)),
         )
-    except InputError as exc:  # re-raise naming the file
-        raise InputError(exc.what, exc.expected, exc.found, source) from None
+    except InputError as exc:  # re-raise naming the file and the file's own field
+        attribute = exc.what.rpartition(".")[2]  # "Volume.spacing" -> "spacing"
+        raise InputError(fields.get("field_names", {}).get(attribute, exc.what), exc.expected, exc.found,
+                         source) from None
     volume.data = _deformable(volume.data, source)  # after the geometry is known good: no warning for a refusal
     return volume
 
@@ -457,15 +471,23 @@ def _read_voxels(f, start: int, count: int, dtype: np.dtype, encoding: str, what
         # a number takes at least 2 characters with its separator; refuse a text that cannot hold them
         if 2 * count > left + 1:
             raise InputError(what, f"{count} numbers as text", f"{left} bytes", source)
-        values = np.array(f.read().split()[:count + 1], dtype=np.float64)
+        try:
+            values = np.array(f.read().split()[:count + 1], dtype=np.float64)
+        except ValueError as exc:
+            raise InputError(what, f"{count} numbers as text", _describe(exc), source) from None
         if values.size != count:
             raise InputError(what, f"{count} numbers as text", f"{values.size} numbers", source)
         return values.astype(dtype)
     stream = {"gzip": lambda: gzip.GzipFile(fileobj=f, mode="rb"), "bzip2": lambda: bz2.BZ2File(f, mode="rb"),
               "zlib": lambda: _Inflated(f)}[encoding]()
-    if skip:
-        _read_exact(stream, skip, what, source)
-    return np.frombuffer(_read_exact(stream, nbytes, what, source), dtype=dtype)
+    try:
+        if skip:
+            _read_exact(stream, skip, what, source)
+        return np.frombuffer(_read_exact(stream, nbytes, what, source), dtype=dtype)
+    except InputError:
+        raise
+    except (zlib.error, OSError, EOFError, ValueError) as exc:  # a corrupt compressed stream
+        raise InputError(what, f"a valid {encoding} stream of voxel data", _describe(exc), source) from None
 
 
 def _columns_geometry(m: np.ndarray, what: str, source: str) -> tuple[np.ndarray, np.ndarray]:
@@ -628,15 +650,13 @@ def _header_lines(f, source: str, end_at_blank: bool) -> list[bytes]:
 
 
 def _read_nrrd(p: Path) -> dict:
-    import nrrd
-
     source = str(p)
     with open(p, "rb") as f:
         lines = _header_lines(f, source, end_at_blank=True)
         data_start = f.tell()
         if not lines or not re.match(rb"NRRD000\d\s*$", lines[0]):
             raise InputError("magic line", "'NRRD0001' .. 'NRRD0005'", repr(lines[0][:40] if lines else b""), source)
-        header = nrrd.read_header(lines)
+        header = _nrrd_fields(lines, source)
         dim = header.get("dimension")
         if dim not in (3, 4):
             raise InputError("dimension", "3 (a 3-D volume) or 4 (3-D frames or channels)", repr(dim), source)
@@ -679,7 +699,8 @@ def _read_nrrd(p: Path) -> dict:
                 byte_skip = 0
             flat = _read_voxels(g, start, count, dtype, encoding, "data", source, skip=byte_skip)
     data = flat.reshape(sizes, order="F")
-    fields: dict = {"data": data}
+    fields: dict = {"data": data, "field_names": {"spacing": "space directions / spacings",
+                                                  "direction": "space directions", "origin": "space origin"}}
     sd = header.get("space directions")
     if sd is not None:
         sd = np.asarray(sd, dtype=np.float64)
@@ -714,6 +735,29 @@ def _read_nrrd(p: Path) -> dict:
     if _LABEL_KEY in header:
         fields["is_label"] = str(header[_LABEL_KEY]).strip().lower() in ("1", "true", "yes")
     return fields
+
+
+def _nrrd_fields(lines: list[bytes], source: str) -> dict:
+    """The NRRD header ``lines`` (magic line first) parsed field by field with pynrrd's
+    parser, so that a value it cannot parse is reported under its field's name."""
+    import nrrd
+
+    header: dict = {}
+    for line in lines[1:]:
+        text = line.decode("ascii", "ignore").rstrip()
+        if not text or text.startswith("#"):
+            continue
+        key, sep, _ = text.partition(":")
+        key = key.strip()
+        if not sep or not key:
+            raise InputError("header", "'field: value' lines", repr(text[:60]), source)
+        if key in header:
+            raise InputError(key, "one line per field", "a second line", source)
+        try:
+            header.update(nrrd.read_header([lines[0], line]))
+        except Exception as exc:  # pynrrd's parse of this one field
+            raise InputError(key, "a valid NRRD value", _describe(exc), source) from None
+    return header
 
 
 def _nrrd_skip(header: dict, keys: tuple, lowest: int, source: str) -> int:
@@ -752,21 +796,37 @@ def _write_nrrd(volume: Volume, data: np.ndarray, path: Path) -> None:
 # --------------------------------------------------------------------------------------
 
 
-def _check_nifti_dims(p: Path, source: str) -> None:
-    """Check the NIfTI-1 / NIfTI-2 header's ``dim`` (sizes) before nibabel sees the file."""
+#: NIfTI ``datatype`` codes of scalar voxels (uint8, int16, int32, float32, float64, int8,
+#: uint16, uint32, int64, uint64); complex and RGB images are not volumes softvr deforms.
+_NIFTI_SCALAR_CODES = (2, 4, 8, 16, 64, 256, 512, 768, 1024, 1280)
+
+
+def _check_nifti_header(p: Path, source: str) -> None:
+    """Check the NIfTI-1 / NIfTI-2 header's ``sizeof_hdr``, ``magic``, ``datatype`` and
+    ``dim`` (sizes) before nibabel sees the file."""
     opener = gzip.open if _suffix_text(p) == ".nii.gz" else open
-    with opener(p, "rb") as f:
-        head = f.read(540)
+    try:
+        with opener(p, "rb") as f:
+            head = f.read(540)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError("gzip stream", "a readable gzip-compressed NIfTI file", _describe(exc), source) from None
     for order in "<>":
         if len(head) >= 348 and struct.unpack(order + "i", head[:4])[0] == 348:
-            dims = struct.unpack(order + "8h", head[40:56])
+            magic, want = head[344:348], (b"n+1\0",)
+            datatype, dims = struct.unpack(order + "h", head[70:72])[0], struct.unpack(order + "8h", head[40:56])
             break
         if len(head) >= 540 and struct.unpack(order + "i", head[:4])[0] == 540:
-            dims = struct.unpack(order + "8q", head[16:80])
+            magic, want = head[4:12], (b"n+2\0\r\n\x1a\n",)
+            datatype, dims = struct.unpack(order + "h", head[12:14])[0], struct.unpack(order + "8q", head[16:80])
             break
     else:
         raise InputError("sizeof_hdr", "348 (NIfTI-1) or 540 (NIfTI-2)", f"{head[:4]!r} ({len(head)} header bytes)",
                          source)
+    if magic not in want:
+        raise InputError("magic", f"{want[0]!r} (a single-file NIfTI image)", repr(magic), source)
+    if datatype not in _NIFTI_SCALAR_CODES:
+        raise InputError("datatype", "a scalar voxel type code (" + ", ".join(map(str, _NIFTI_SCALAR_CODES)) + ")",
+                         str(datatype), source)
     if not 1 <= dims[0] <= 7:
         raise InputError("dim[0]", "the number of dimensions, 1 .. 7", str(dims[0]), source)
     for i in range(1, dims[0] + 1):
@@ -779,8 +839,11 @@ def _read_nifti(p: Path) -> dict:
     import nibabel as nib
 
     source = str(p)
-    _check_nifti_dims(p, source)
-    img = nib.load(str(p))  # header only: nibabel reads no voxels until asked
+    _check_nifti_header(p, source)
+    try:
+        img = nib.load(str(p))  # header only: nibabel reads no voxels until asked
+    except Exception as exc:
+        raise InputError("header", "a NIfTI header nibabel accepts", _describe(exc), source) from exc
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise InputError("file", "a NIfTI-1 or NIfTI-2 image", type(img).__name__, source)
     full = tuple(int(n) for n in img.shape)
@@ -793,6 +856,8 @@ def _read_nifti(p: Path) -> dict:
     count = math.prod(full)
     encoding = "gzip" if _suffix_text(p) == ".nii.gz" else "raw"
     offset = int(proxy.offset)
+    if not 0 <= offset <= _HEADER_BYTES:  # the header is 348 / 540 bytes plus extensions
+        raise InputError("vox_offset", f"0 .. {_HEADER_BYTES} [bytes]", str(offset), source)
     with open(p, "rb") as f:
         if encoding == "raw":
             flat = _read_voxels(f, offset, count, dtype, "raw", "vox_offset / dim (voxel data)", source)
@@ -809,6 +874,7 @@ def _read_nifti(p: Path) -> dict:
         fields["frame_field"] = f"dim[{extra[0] + 1}]"
     affine = np.asarray(img.affine, dtype=np.float64)
     fields["spacing"], fields["direction"] = _columns_geometry(affine[:3, :3], "affine", source)
+    fields["field_names"] = dict.fromkeys(("spacing", "direction", "origin"), "affine (sform / qform)")
     fields["origin"] = affine[:3, 3]
     if img.header.get_intent()[0] == "label":
         fields["is_label"] = True
@@ -928,6 +994,7 @@ def _read_metaimage(p: Path) -> dict:
         "spacing": np.asarray(spacing[:3]),
         "origin": np.asarray(origin[:3]),
         "direction": matrix[:3, :3].T,
+        "field_names": {"spacing": "ElementSpacing", "direction": matrix_key, "origin": origin_key},
     }
     if _LABEL_KEY in h:
         fields["is_label"] = h[_LABEL_KEY].strip().lower() in ("1", "true", "yes")
@@ -992,6 +1059,14 @@ def _check_magic(p: Path, magic: bytes, expected: str) -> None:
         raise InputError("file signature", f"{expected} (starting {magic!r})", f"{head!r}", str(p))
 
 
+def _archive(open_archive, what: str, source: str):
+    """``open_archive()`` (a zip or tar file), its errors an :class:`InputError` naming ``what``."""
+    try:
+        return open_archive()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, tarfile.TarError, OSError, EOFError, zlib.error) as exc:
+        raise InputError(what, "a readable archive (zip / tar.gz)", _describe(exc), source) from None
+
+
 def _npy_header(f, what: str, source: str) -> tuple[tuple, bool, np.dtype, int]:
     """(shape, fortran_order, dtype, count) of the ``.npy`` stream ``f`` (left at its first
     data byte), checked: a plain numeric dtype and at most ``MAX_ELEMENTS`` elements."""
@@ -1003,7 +1078,7 @@ def _npy_header(f, what: str, source: str) -> tuple[tuple, bool, np.dtype, int]:
             shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
         else:
             raise ValueError(f"format version {version} (1.0 and 2.0 are read)")
-    except ValueError as exc:
+    except Exception as exc:  # numpy's literal_eval of the header: ValueError, SyntaxError, TokenError, ...
         raise InputError(what, "a NumPy .npy header", _describe(exc), source) from None
     if dtype.hasobject or dtype.fields is not None or dtype.subdtype is not None:
         raise InputError(f"{what} descr", "a plain numeric dtype", str(dtype), source)
@@ -1032,15 +1107,15 @@ def _read_npy(p: Path) -> dict:
 def _read_npz(p: Path) -> dict:
     source = str(p)
     _check_magic(p, b"PK", "a NumPy .npz (zip) file")
-    with zipfile.ZipFile(p) as z:
+    with _archive(lambda: zipfile.ZipFile(p), "zip directory", source) as z:
         members = {name[:-4]: name for name in z.namelist() if name.endswith(".npy")}
         keys = list(members)
         if "data" not in members:
             raise InputError("key 'data'", "an array named 'data'", f"keys {keys[:20]}", source)
-        fields: dict = {}
+        fields: dict = {"field_names": {k: f"key {k!r}" for k in ("spacing", "origin", "direction")}}
         for key in ("data", "spacing", "origin", "direction", "is_label"):
             if key in members:
-                with z.open(members[key]) as f:
+                with _archive(lambda: z.open(members[key]), f"key {key!r}", source) as f:
                     if key != "data":  # small metadata: refuse a huge claim before reading it
                         shape = _npy_header(f, f"key {key!r}", source)[0]
                         if math.prod(shape) > 9:
@@ -1086,8 +1161,11 @@ def _write_npz(volume: Volume, data: np.ndarray, path: Path) -> None:
 
 def _read_inv3(p: Path) -> dict:
     source = str(p)
-    with tarfile.open(p, "r:gz") as tar:
-        members = [m for m in tar.getmembers() if m.isfile()]
+    with _archive(lambda: tarfile.open(p, "r:gz"), "tar.gz archive", source) as tar:
+        try:
+            members = [m for m in tar.getmembers() if m.isfile()]
+        except (tarfile.TarError, OSError, EOFError, zlib.error) as exc:
+            raise InputError("tar.gz archive", "a readable tar.gz archive", _describe(exc), source) from None
         mains = sorted(
             (m for m in members if PurePosixPath(m.name).name == "main.plist"),
             key=lambda m: len(PurePosixPath(m.name).parts),
@@ -1101,7 +1179,7 @@ def _read_inv3(p: Path) -> dict:
                              source)
         try:
             plist = plistlib.loads(tar.extractfile(main).read(_HEADER_BYTES))
-        except plistlib.InvalidFileException as exc:
+        except Exception as exc:  # plistlib: InvalidFileException, ExpatError, ...
             raise InputError(main.name, "a property list", _describe(exc), source) from None
         matrix = plist.get("matrix")
         if not isinstance(matrix, dict):
@@ -1145,6 +1223,7 @@ def _read_inv3(p: Path) -> dict:
         "spacing": np.asarray(spacing, dtype=np.float64),
         "origin": np.zeros(3),
         "direction": np.eye(3),
+        "field_names": {"spacing": f"{main.name}: spacing"},
     }
 
 
@@ -1190,7 +1269,7 @@ def _dcmread(f: Path, *, stop_before_pixels: bool):
     except InputError:
         raise
     except Exception as exc:
-        raise InputError("file", "a readable DICOM file", _describe(exc), str(f)) from exc
+        raise InputError("DICOM header", "readable DICOM data elements", _describe(exc), str(f)) from exc
 
 
 def _dicom_images(files: list[Path], *, strict: bool) -> list:
@@ -1207,7 +1286,7 @@ def _dicom_images(files: list[Path], *, strict: bool) -> list:
             except (InvalidDicomError, EOFError, OSError, InputError):
                 continue  # not a DICOM file (README.txt, a thumbnail, a FIFO, ...): skip it
             except Exception as exc:
-                raise InputError("file", "a readable DICOM file", _describe(exc), str(f)) from exc
+                raise InputError("DICOM header", "readable DICOM data elements", _describe(exc), str(f)) from exc
         else:
             ds = _dcmread(f, stop_before_pixels=True)
         if "Rows" in ds and "Columns" in ds:  # not a DICOMDIR, structured report, ...
@@ -1372,6 +1451,8 @@ def _dicom_slices(slices: list, source: str) -> dict:
         "spacing": np.array([ps[1], ps[0], dz], dtype=np.float64),
         "origin": origin,
         "direction": np.column_stack([row_dir, col_dir, normal]),
+        "field_names": {"spacing": "PixelSpacing / slice positions", "direction": "ImageOrientationPatient",
+                        "origin": "ImagePositionPatient"},
     }
 
 
@@ -1427,6 +1508,8 @@ def _dicom_multiframe(f: Path, ds) -> dict:
         "spacing": np.array([ps[1], ps[0], dz], dtype=np.float64),
         "origin": origin,
         "direction": np.column_stack([iop[:3], iop[3:], normal]),
+        "field_names": {"spacing": "PixelSpacing / slice positions", "direction": "ImageOrientationPatient",
+                        "origin": "ImagePositionPatient"},
     }
 
 
