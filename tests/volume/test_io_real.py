@@ -310,3 +310,17 @@ def test_repr_shows_the_direction_matrix():
     assert "direction=" in text
     for v in np.round(direction, 4).reshape(-1)[:3]:
         assert f"{v:.4g}" in text
+
+
+@pytest.mark.parametrize(("kw", "what"), [({"frame": -1}, "frame"), ({"frame": True}, "frame"),
+                                          ({"frame": 1.0}, "frame"), ({"series": -2}, "series"),
+                                          ({"series": 0.5}, "series")])
+def test_bad_frame_and_series_options(kw, what):
+    with pytest.raises(InputError) as err:
+        load(_nibabel_file("example4d.nii.gz"), **kw)
+    assert err.value.what == what and "example4d.nii.gz" in err.value.source
+
+
+def test_series_option_only_for_dicom():
+    with pytest.raises(InputError, match=r"standard\.nii\.gz: series: expected None \(only DICOM"):
+        load(_nibabel_file("standard.nii.gz"), series=0)

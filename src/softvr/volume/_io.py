@@ -7,11 +7,14 @@ suffix                    load    save    library, notes
 ========================  ======  ======  ==============================================
 ``.nrrd``, ``.nhdr``      yes     yes     pynrrd; ``.nhdr`` has a detached ``.raw.gz``
 ``.nii``, ``.nii.gz``     yes     yes     nibabel
-``.mha``, ``.mhd``        yes     yes     SimpleITK (MetaImage); ``.mhd`` has a ``.raw``
+``.mha``, ``.mhd``        yes     yes     MetaImage (SimpleITK writes it); ``.mhd`` has
+                                          a ``.raw``
 ``.npy``                  yes     yes     numpy; data only (spacing 1, origin 0)
 ``.npz``                  yes     yes     numpy; keys ``data`` [+ ``spacing``, ``origin``,
                                           ``direction``, ``is_label``]
 ``.inv3``                 yes     no      InVesalius 3 project (tar.gz + plists)
+``.dcm``, ``DICOMDIR``    yes     no      pydicom; one single- or multi-frame image, or
+                                          the series a DICOMDIR lists
 a folder                  yes     yes     DICOM series (pydicom); a path with no suffix
                                           is written as a DICOM series folder
 ========================  ======  ======  ==============================================
@@ -19,9 +22,19 @@ a folder                  yes     yes     DICOM series (pydicom); a path with no
 Conventions
 -----------
 * Arrays are indexed ``data[i, j, k]`` with axis 0 = x, 1 = y, 2 = z (the order of the
-  file's own axes: fastest-varying axis first). Formats or libraries that hand out
-  ``[z, y, x]`` arrays (SimpleITK, InVesalius) are transposed; the result is a view, so
-  it is usually Fortran-ordered (x fastest), not C-contiguous.
+  file's own axes: fastest-varying axis first), so they are usually Fortran-ordered
+  (x fastest), not C-contiguous; formats that store ``[z, y, x]`` (InVesalius, DICOM
+  pixel arrays) are transposed views.
+* Voxels come back in native byte order and in one of
+  :data:`~softvr.volume.SUPPORTED_DTYPES` (the types :func:`~softvr.volume.deform`
+  takes); other stored types are converted with one :class:`UserWarning` that names the
+  file, both types and whether the conversion is exact (see :func:`load`).
+* Untrusted input: a path must be a regular file (not a FIFO, a device or a symlink to
+  one), a detached data file (MetaImage ``ElementDataFile``, NRRD ``data file``, DICOMDIR
+  ``ReferencedFileID``) must lie inside the header's folder, and every size a header
+  states is checked against :data:`softvr.files.MAX_ELEMENTS` and against the bytes the
+  file holds before a voxel buffer is allocated; compressed data are inflated only up to
+  the size the header states (:mod:`softvr.files`).
 * Positions (``spacing``, ``origin``) are kept in the file's own units, which for all
   medical formats here is millimetres; softvr does not convert them.
 * Geometry is stored as the file gives it, with no change of patient coordinate frame:
@@ -630,10 +643,10 @@ _NRRD_ENCODINGS = {"raw": "raw", "gzip": "gzip", "gz": "gzip", "bzip2": "bzip2",
                    "ascii": "ascii", "text": "ascii", "txt": "ascii"}
 
 
-def _header_lines(f, source: str, end_at_blank: bool) -> list[bytes]:
-    """The lines of a text header, each at most :data:`_HEADER_LINE` and all together at most
-    :data:`_HEADER_BYTES` bytes; stops after a blank line (``end_at_blank``, the NRRD
-    separator; ``f`` is left at the first data byte) or at the end of the file."""
+def _nrrd_header_lines(f, source: str) -> list[bytes]:
+    """The lines of an NRRD header, each at most :data:`_HEADER_LINE` and all together at most
+    :data:`_HEADER_BYTES` bytes; stops after the blank line that ends it (``f`` is left at
+    the first data byte) or at the end of the file (a detached ``.nhdr``)."""
     lines: list[bytes] = []
     total = 0
     while True:
@@ -644,7 +657,7 @@ def _header_lines(f, source: str, end_at_blank: bool) -> list[bytes]:
         if total > _HEADER_BYTES or (len(line) == _HEADER_LINE and not line.endswith(b"\n")):
             raise InputError("header", f"a text header of at most {_HEADER_BYTES} bytes in lines of at most "
                              f"{_HEADER_LINE}", "a longer header (binary data, or no blank line after it?)", source)
-        if end_at_blank and lines and not line.strip():
+        if lines and not line.strip():
             return lines
         lines.append(line)
 
@@ -652,7 +665,7 @@ def _header_lines(f, source: str, end_at_blank: bool) -> list[bytes]:
 def _read_nrrd(p: Path) -> dict:
     source = str(p)
     with open(p, "rb") as f:
-        lines = _header_lines(f, source, end_at_blank=True)
+        lines = _nrrd_header_lines(f, source)
         data_start = f.tell()
         if not lines or not re.match(rb"NRRD000\d\s*$", lines[0]):
             raise InputError("magic line", "'NRRD0001' .. 'NRRD0005'", repr(lines[0][:40] if lines else b""), source)
