@@ -60,8 +60,16 @@ class Example:
     skin_triangles_budget : int
         Triangles of the skin's collision surface (simplified iso-surface).
     render_step : int
-        Volume-render every ``render_step``-th voxel per axis (2: an eighth of the voxels; the
-        CPU ray caster re-derives gradients of the whole volume every frame, which dominates).
+        Volume-render every ``render_step``-th voxel per axis (1: full resolution).
+    renderer : {"warp", "vtk"}
+        ``"warp"``: softvr's ray caster (:class:`softvr.render.RayCaster`), which re-derives its
+        empty-space grid only where the rasterizer wrote and draws at full resolution.
+        ``"vtk"``: VTK's CPU ray caster, which re-derives gradients of the whole volume every
+        frame (use ``render_step=2`` with it for speed).
+    sample_distance : float [voxels]
+        Ray step in units of the rendered volume's smallest voxel spacing (1: the world step
+        of VTK's default 0.5 on the former half-resolution rendering; jittered starts keep
+        the skin free of banding at this step).
     labels : Volume, optional
         A segmentation on the CT's grid: deformed by the same mesh every frame
         (:attr:`labels_deformed`), its labels shown as surfaces by :meth:`label_surface`.
@@ -72,7 +80,8 @@ class Example:
     def __init__(self, volume=None, cells=(16, 16, 8), frames: int = 40, width: int = 512, height: int = 512, *,
                  radius: float = 0.012, depth: float = 0.005, dt: float = 0.01, steps_per_frame: int = 1,
                  incremental: bool = True, skin_triangles_budget: int = 4000, labels=None,
-                 render_step: int = 2, device: str | None = None):
+                 render_step: int = 1, renderer: str = "warp", sample_distance: float = 1.0,
+                 device: str | None = None):
         from softvr import Scene
         from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
         from softvr.model.shapes import icosphere
@@ -130,7 +139,12 @@ class Example:
             from softvr.errors import InputError
 
             raise InputError("render_step", "an integer >= 1", repr(render_step))
-        self.render_step = render_step
+        if renderer not in ("warp", "vtk"):
+            from softvr.errors import InputError
+
+            raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
+        self.render_step, self.renderer, self.sample_distance = render_step, renderer, float(sample_distance)
+        self._changed = True  # what the rasterizer rewrote since the last render: everything at first
         self.frame = 0
         self.metrics: list[dict] = []
         self._renderer = None
@@ -155,6 +169,7 @@ class Example:
             self.scene.step(self.dt)
         t1 = time.perf_counter()
         drawn = self.drawing.update(self.body.q / _UNIT)
+        self._note_changed(drawn["box"])
         if self.labels is not None:
             self.label_drawing.update(self.body.q / _UNIT)
         t2 = time.perf_counter()
@@ -163,6 +178,15 @@ class Example:
                              "max_displacement_m": float(np.linalg.norm(self.body.q - self.body.rest, axis=1).max())})
         self.frame += 1
         return self.deformed
+
+    def _note_changed(self, box) -> None:
+        """Grow the region the renderer must re-derive by ``box`` (None: nothing new)."""
+        if box is None or self._changed is True:
+            return
+        if self._changed is False:
+            self._changed = box
+        else:
+            self._changed = (np.minimum(self._changed[0], box[0]), np.maximum(self._changed[1], box[1]))
 
     @property
     def incremental(self) -> bool:
@@ -194,8 +218,16 @@ class Example:
         t0 = time.perf_counter()
         if self._renderer is None:
             self._renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
-                                            camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3))
-        image = self._renderer.render(self.shown_volume())
+                                            camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3),
+                                            mapper="warp" if self.renderer == "warp" else "cpu",
+                                            sample_distance=self.sample_distance)
+        if self.renderer == "warp":
+            # The rewritten box is in full-resolution voxels: a subsampled volume is redone whole.
+            changed = self._changed if self.render_step == 1 else True
+            image = self._renderer.render(self.shown_volume(), changed=changed)
+        else:
+            image = self._renderer.render(self.shown_volume())
+        self._changed = False
         if self.metrics:
             self.metrics[-1]["render_ms"] = 1e3 * (time.perf_counter() - t0)
         return image
@@ -219,7 +251,7 @@ class Example:
                 "young_pa_min_median_max": [float(np.min(self.tissue.young)), float(np.median(self.tissue.young)),
                                             float(np.max(self.tissue.young))],
                 "mass_kg": float(self.body.mass.sum()), "dt_s": self.dt, "incremental": self.incremental,
-                "render_step": self.render_step}
+                "render_step": self.render_step, "renderer": self.renderer, "sample_distance": self.sample_distance}
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -300,7 +332,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
     p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"))
     p.add_argument("--full", action="store_true", help="rasterize the whole volume every frame")
-    p.add_argument("--render-step", type=int, default=2, help="render every k-th voxel per axis (default 2)")
+    p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
+    p.add_argument("--renderer", choices=("warp", "vtk"), default="warp",
+                   help="volume renderer: softvr's Warp ray caster (default) or VTK's CPU ray caster")
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
     p.add_argument("--quiet", action="store_true")
     args = p.parse_args(argv)
@@ -318,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     images = []
     with Example(volume, tuple(args.cells), args.frames, *args.size, incremental=not args.full,
-                 render_step=args.render_step, device=args.device) as ex:
+                 render_step=args.render_step, renderer=args.renderer, device=args.device) as ex:
         if not args.quiet:
             print(f"softvr demo palpation: {ex.volume!r}; {len(ex.tets)} tets, {int(ex.body.fixed.sum())} clamped "
                   f"nodes (bone), mass {ex.body.mass.sum():.2f} kg", flush=True)

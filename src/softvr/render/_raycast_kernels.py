@@ -135,42 +135,46 @@ def brick_occupancy(
     visible: wp.array(dtype=wp.int32),
     lo: float,
     scale: float,
+    reach: int,
     first: wp.vec3i,
     count: wp.vec3i,
-    occupied: wp.array3d(dtype=wp.uint8),
+    seed: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
-    """Whether any value in a brick's range has non-zero opacity: ``visible`` holds the
-    running count of table entries with opacity > 0, so a range is empty iff the counts at
-    its ends are equal."""
+    """0 for a brick with any value of non-zero opacity in its range, else ``reach`` (the
+    seed of the distance field). ``visible`` holds the running count of table entries with
+    opacity > 0, so a range is empty iff the counts at its ends are equal."""
     b = brick_of(wp.tid() + offset, first, count)
     size = visible.shape[0] - 1
     u0 = int(wp.floor(lut_position(bmin[b[0], b[1], b[2]], lo, scale, size)))
     u1 = int(wp.ceil(lut_position(bmax[b[0], b[1], b[2]], lo, scale, size)))
-    occupied[b[0], b[1], b[2]] = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 1, 0))
+    seed[b[0], b[1], b[2]] = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 0, reach))
 
 
 @wp.kernel
-def brick_distance(
-    occupied: wp.array3d(dtype=wp.uint8),
+def brick_distance_pass(
+    src: wp.array3d(dtype=wp.uint8),
+    axis: int,
+    reach: int,
     first: wp.vec3i,
     count: wp.vec3i,
-    reach: int,
-    distance: wp.array3d(dtype=wp.uint8),
+    dst: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
-    """Chebyshev distance [bricks] from each brick to the nearest occupied one, capped at
-    ``reach``: every brick within ``distance - 1`` of brick b is empty, so a ray in b may
-    jump to where it leaves that cube of bricks."""
+    """One axis of the Chebyshev distance transform [bricks], capped at ``reach``:
+    ``dst(b) = min_o max(|o|, src(b + o e_axis))``. The L-infinity distance
+    ``min_c max_i |b_i - c_i|`` to the occupied bricks c nests into one such pass per axis,
+    so three passes from the seed give it exactly."""
     b = brick_of(wp.tid() + offset, first, count)
-    nb = wp.vec3i(occupied.shape[0], occupied.shape[1], occupied.shape[2])
-    best = reach
-    for i in range(wp.max(b[0] - reach + 1, 0), wp.min(b[0] + reach, nb[0])):
-        for j in range(wp.max(b[1] - reach + 1, 0), wp.min(b[1] + reach, nb[1])):
-            for k in range(wp.max(b[2] - reach + 1, 0), wp.min(b[2] + reach, nb[2])):
-                if occupied[i, j, k] != wp.uint8(0):
-                    best = wp.min(best, wp.max(wp.max(wp.abs(i - b[0]), wp.abs(j - b[1])), wp.abs(k - b[2])))
-    distance[b[0], b[1], b[2]] = wp.uint8(best)
+    n = src.shape[axis]
+    best = int(src[b[0], b[1], b[2]])
+    for o in range(1, reach):
+        for sgn in range(2):
+            c = wp.vec3i(b[0], b[1], b[2])
+            c[axis] = b[axis] + wp.where(sgn == 0, o, -o)
+            if c[axis] >= 0 and c[axis] < n:
+                best = wp.min(best, wp.max(o, int(src[c[0], c[1], c[2]])))
+    dst[b[0], b[1], b[2]] = wp.uint8(best)
 
 
 @wp.kernel

@@ -25,9 +25,9 @@ from softvr.render.presets import Preset
 __all__ = ["BRICK", "LUT_SIZE", "REACH", "RayCaster", "transfer_tables", "volume_bounds"]
 
 #: Voxels per brick edge of the empty-space-skipping grid.
-BRICK = 8
+BRICK = 4
 #: Bricks a ray may skip at once along each axis (the cap of the brick distance field).
-REACH = 6
+REACH = 16
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
 _GRADIENT_LUT_SIZE = 256
@@ -137,8 +137,9 @@ class RayCaster:
         nb = np.asarray([-(-(s - 1) // BRICK) for s in shape])
         retabled = self._tables(volume)
         if (shape, name) != self._grid_key:
-            self._bmin, self._bmax, self._occupied, self._distance = (
-                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float, wp.uint8, wp.uint8))
+            # The distance field's seed and passes are kept: an update redoes them near the change only.
+            self._bmin, self._bmax, self._seed, self._pass1, self._pass2, self._distance = (
+                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float) + (wp.uint8,) * 4)
             self._grid_key = (shape, name)
             changed = True
         if changed is True:
@@ -150,25 +151,24 @@ class RayCaster:
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if np.all(last >= first):
-            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, BRICK])
+            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, BRICK],
+                      [self._bmin, self._bmax])
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
-                                                        float(self._lut_scale)])
+                                                        float(self._lut_scale), REACH], [self._seed])
+            # A changed seed moves distances up to REACH - 1 bricks away, along each axis in turn.
             first, last = np.maximum(first - REACH + 1, 0), np.minimum(last + REACH - 1, nb - 1)
-            self._run(K.brick_distance, first, last, [self._occupied, REACH])
+            for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
+                                   (2, self._pass2, self._distance)):
+                self._run(K.brick_distance_pass, first, last, [src, axis, REACH], [dst])
 
-    def _run(self, kernel, first, last, inputs) -> None:
+    def _run(self, kernel, first, last, inputs, outputs) -> None:
         """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
         count = last - first + 1
-        outputs = {K.brick_minmax: [self._bmin, self._bmax], K.brick_occupancy: [self._occupied],
-                   K.brick_distance: [self._distance]}[kernel]
-        if kernel is K.brick_distance:  # the block's corner and size go before ``reach``
-            inputs = [inputs[0], wp.vec3i(*first), wp.vec3i(*count), *inputs[1:]]
-        else:
-            inputs = [*inputs, wp.vec3i(*first), wp.vec3i(*count)]
-        launch(kernel, int(np.prod(count)), [*inputs, *outputs], self.device, min_chunk=32)
+        launch(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
+               min_chunk=32)
 
     def _tables(self, volume) -> bool:
         """Build the transfer tables if the preset, step or unit changed; True if rebuilt."""

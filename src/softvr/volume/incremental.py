@@ -62,11 +62,14 @@ class DeformedVolume:
 
     def update(self, nodes) -> dict:
         """Draw the volume for ``nodes`` [node_count, 3] [volume units]; returns
-        ``raster_ms`` (time taken) and ``raster_voxels`` (voxels rewritten)."""
+        ``raster_ms`` (time taken), ``raster_voxels`` (voxels rewritten) and ``box``: the
+        rewritten index box ``(lo, hi)`` (inclusive, [3] each) or None, which a renderer can
+        take as the only region that changed (:meth:`softvr.render.VolumeRenderer.render`)."""
         t0 = time.perf_counter()
         nodes = np.asarray(nodes, float)
         if self.incremental:
             box = self.rasterizer.update(self.deformed, nodes, self.drawn_nodes, tolerance=self.tolerance)
+            box = None if box is None else (np.asarray(box[0]), np.asarray(box[1]))
             voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
             moved = np.linalg.norm(nodes - self.drawn_nodes, axis=1) > self.tolerance
             self.drawn_nodes[moved] = nodes[moved]
@@ -74,4 +77,5 @@ class DeformedVolume:
             self.rasterizer.deform(nodes, out=self.deformed)
             self.drawn_nodes[:] = nodes
             voxels = int(np.prod(self.deformed.shape))
-        return {"raster_ms": 1e3 * (time.perf_counter() - t0), "raster_voxels": voxels}
+            box = (np.zeros(3, int), np.asarray(self.deformed.shape) - 1)
+        return {"raster_ms": 1e3 * (time.perf_counter() - t0), "raster_voxels": voxels, "box": box}
