@@ -106,14 +106,15 @@ class ContactBuffer:
     def capacity(self) -> int:
         return self.key.shape[0]
 
-    def numpy(self) -> dict[str, np.ndarray]:
-        """Copies of this step's contacts (the first ``count`` of each per-contact array), keys
-        as int64 (:func:`~softvr.collision.contacts.unpack_keys` reads them)."""
-        count = int(self.count.numpy()[0])
-        out = {}
-        for f in fields(self):
-            if f.name in ("count", "carried_count") or f.name.startswith("carried_"):
-                continue
-            out[f.name] = getattr(self, f.name).numpy()[:count].copy()
+    def views(self) -> dict[str, np.ndarray]:
+        """NumPy views of every per-contact array (CPU only: they share the memory), keys as
+        int64 (:func:`~softvr.collision.contacts.unpack_keys` reads them)."""
+        out = {f.name: getattr(self, f.name).numpy() for f in fields(self)
+               if f.name not in ("count", "carried_count") and not f.name.startswith("carried_")}
         out["key"] = out["key"].view(np.int64)
         return out
+
+    def numpy(self, views: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """Copies of this step's contacts (the first ``count`` of each of :meth:`views`)."""
+        count = min(int(self.count.numpy()[0]), self.capacity)
+        return {name: view[:count].copy() for name, view in (views or self.views()).items()}

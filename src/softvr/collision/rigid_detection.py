@@ -2,8 +2,8 @@
 :class:`~softvr.collision.contact_buffer.ContactBuffer` (whole-scene arrays:
 :class:`softvr.sim.RigidModel` / :class:`softvr.sim.RigidState`, or any objects with those
 attributes). The kernels are the array form of :func:`points_vs_plane` (with
-:meth:`CollisionSurface.facing_vertex_area`), :func:`box_vs_plane`, :func:`sphere_vs_plane` and
-:func:`sphere_vs_sphere`; the launches are recorded once and replayed every step.
+:meth:`CollisionSurface.facing_vertex_area`), :func:`box_vs_plane`, :func:`sphere_vs_plane`,
+:func:`sphere_vs_sphere` and :func:`box_vs_box`; the launches are recorded once and replayed every step.
 """
 
 from __future__ import annotations
@@ -11,9 +11,21 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.collision import _primitive_kernels as _k
-from softvr.device import load_kernels
+from softvr.device import load_kernels, replayer
 
-__all__ = ["record_detection"]
+__all__ = ["Detection", "record_detection"]
+
+
+class Detection:
+    """The recorded detection launches of a scene, in order, and the scratch arrays they use."""
+
+    def __init__(self, launches: list, scratch: list):
+        self.launches, self._scratch = launches, scratch
+        self._replays = [replayer(launch) for launch in launches]
+
+    def launch(self) -> None:
+        for replay in self._replays:
+            replay()
 
 
 def _outputs(buffer) -> list:
@@ -22,8 +34,8 @@ def _outputs(buffer) -> list:
             buffer.material_b]
 
 
-def record_detection(model, state, dt: float) -> list:
-    """The launches (``wp.Launch``, in order) that fill ``state.contacts`` from the poses and
+def record_detection(model, state, dt: float) -> Detection:
+    """The launches that fill ``state.contacts`` from the poses and
     the unconstrained velocities (``state.free_velocity``: speculative contacts over ``dt``
     [s]); one per pair kind the scene has."""
     out = _outputs(state.contacts)
@@ -55,4 +67,11 @@ def record_detection(model, state, dt: float) -> list:
         record(_k.sphere_pairs, model.sphere_pairs.shape[0],
                [state.body_position, state.free_velocity, model.sphere_body, model.sphere_radius,
                 model.sphere_material, model.sphere_pairs, model.sphere_pair_margin, float(model.friction), float(dt)])
-    return launches
+    pairs = model.box_pairs.shape[0]
+    scratch = []
+    if pairs:
+        scratch = [wp.zeros((pairs, 16), dtype=dtype, device=model.device)
+                   for dtype in (wp.vec3d, wp.float64, wp.int32, wp.int32)]
+        record(_k.box_pairs, pairs, pose + [model.box_body, model.box_half, model.box_material, model.box_pairs,
+                                            model.box_pair_margin, float(model.friction), float(dt)] + scratch)
+    return Detection(launches, scratch)

@@ -6,8 +6,7 @@
 The scene's body objects keep working as the user-facing API: their ``position``,
 ``orientation`` and ``v`` are views of the state arrays (a value the user assigns is copied
 in before the next step), ``Scene.last_solution`` and ``Scene.adhesion_state`` read the
-arrays when asked. Box pairs are still found by :func:`box_vs_box` per pair (NumPy) and
-appended to the contact arrays.
+arrays when asked.
 """
 
 from __future__ import annotations
@@ -16,13 +15,13 @@ import time
 
 import numpy as np
 
-from softvr.collision import box_vs_box
 from softvr.collision.contacts import Contacts, rigid_side, unpack_keys
 from softvr.collision.rigid_detection import record_detection
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.rigid_pgs import record_rigid_solve
+from softvr.device import replayer
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
 from softvr.sim.model import build_rigid_model
 
@@ -68,10 +67,12 @@ class _Snapshot:
 
 class LazySolution:
     """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
-    of an interactive loop never read it)."""
+    of an interactive loop never read it); ``iterations`` (PGS sweeps) and ``residual`` [m/s]
+    without building it."""
 
     def __init__(self, snapshot: _Snapshot):
         self._snapshot = snapshot
+        self.iterations, self.residual = snapshot.sweeps, snapshot.residual
 
     def __getattr__(self, name):
         return getattr(self._snapshot.solution(), name)
@@ -112,10 +113,6 @@ class RigidStepper:
         self._bind_bodies()
         self._carry_in(scene.adhesion_state, scene._warm)
         self._recorded = None
-        self._box_pairs = self.model.box_pairs.numpy()
-        self._box_margin = self.model.box_pair_margin.numpy()
-        self._box_material = self.model.box_material.numpy()
-        self._boxes = scene._box_bodies
         self._external = self.state.external.numpy()
 
     def _scene_settings(self) -> tuple:
@@ -133,6 +130,7 @@ class RigidStepper:
         self._velocity = self.state.body_velocity.numpy()
         self._free = self.state.free_velocity.numpy()
         self._diverged = self.state.diverged.numpy()
+        self._contacts = self.state.contacts.views()
         for i, body in enumerate(self.scene.bodies):
             body.position, body.orientation, body.v = self._position[i], self._orientation[i], self._velocity[i]
 
@@ -172,34 +170,11 @@ class RigidStepper:
         key = (dt, tuple(np.asarray(s.gravity, float)), int(s.pgs_iterations))
         if self._recorded is not None and self._recorded[0] == key:
             return
-        self._recorded = (key, record_unconstrained(self.model, self.state, dt, s.gravity),
-                          record_detection(self.model, self.state, dt),
-                          record_rigid_solve(self.model, self.state, dt, max_sweeps=s.pgs_iterations),
-                          record_integrate(self.model, self.state, dt))
-
-    def _append_box_pairs(self, dt: float) -> None:
-        """Box-box contacts (:func:`box_vs_box` per pair) appended to the step's contacts."""
-        c = self.state.contacts
-        count = c.count.numpy()
-        bodies = self.scene.bodies
-        for (p, q), margin in zip(self._box_pairs, self._box_margin):
-            (ia, ha), (ib, hb) = self._boxes[p], self._boxes[q]
-            found = box_vs_box(ia, bodies[ia], ha, ib, bodies[ib], hb, friction=self.scene.friction, margin=margin,
-                               velocity_a=self._free[ia], velocity_b=self._free[ib], dt=dt)
-            k = len(found)
-            if not k:
-                continue
-            start = int(count[0])
-            rows = slice(start, start + k)
-            count[0] = start + k
-            c.key.numpy()[rows] = found.ids.view(np.uint64)
-            c.body_a.numpy()[rows], c.body_b.numpy()[rows] = ia, ib
-            c.offset_a.numpy()[rows] = found.point_a - bodies[ia].position
-            c.offset_b.numpy()[rows] = found.point_b - bodies[ib].position
-            c.point_a.numpy()[rows], c.point_b.numpy()[rows] = found.point_a, found.point_b
-            c.normal.numpy()[rows], c.gap.numpy()[rows] = found.normal, found.gap
-            c.area.numpy()[rows], c.friction.numpy()[rows] = found.area, found.friction
-            c.material_a.numpy()[rows], c.material_b.numpy()[rows] = self._box_material[p], self._box_material[q]
+        solve = record_rigid_solve(self.model, self.state, dt, max_sweeps=s.pgs_iterations)
+        self._recorded = (key, replayer(record_unconstrained(self.model, self.state, dt, s.gravity)),
+                          record_detection(self.model, self.state, dt), solve, replayer(solve.launch),
+                          replayer(record_integrate(self.model, self.state, dt)))
+        self._stats = solve.stats.numpy()
 
     def step(self, dt: float) -> tuple[LazySolution, dict]:
         """Advance the scene by ``dt`` [s]; the lazily built solution and the stage times [ms]."""
@@ -207,27 +182,23 @@ class RigidStepper:
         t0 = time.perf_counter()
         self._sync_in()
         self._record(dt)
-        _, unconstrained, detection, solve, integrate = self._recorded
+        _, unconstrained, detection, _, solve, integrate = self._recorded
         self._external[:] = 0.0
         for body, force in s.external.items():
             self._external[body] = force
-        unconstrained.launch()
+        unconstrained()
         self._check()
         t1 = time.perf_counter()
-        for launch in detection:
-            launch.launch()
-        if len(self._box_pairs):
-            self._append_box_pairs(dt)
+        detection.launch()
         t2 = time.perf_counter()
-        solve.launch.launch()
+        solve()
         t3 = time.perf_counter()
-        integrate.launch()
+        integrate()
         self._check()
         for body in s.bodies:
             body.step_count += 1
-        stats = solve.stats.numpy()
-        snapshot = _Snapshot(self.state.contacts.numpy(), [b.v.copy() for b in s.bodies], int(stats[0]),
-                             float(stats[1]))
+        snapshot = _Snapshot(self.state.contacts.numpy(self._contacts), [b.v.copy() for b in s.bodies],
+                             int(self._stats[0]), float(self._stats[1]))
         s.adhesion_state = ArrayAdhesionState(snapshot)
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
