@@ -52,6 +52,37 @@ def trilinear(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) ->
 
 
 @wp.func
+def gradient(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> wp.vec3:
+    """Central differences of the interpolated volume one voxel either side of ``p``, per
+    index axis [value units per voxel]. A shift by a whole voxel keeps the trilinear
+    weights, so ``(f(p + e) - f(p - e)) / 2`` is the trilinear interpolation of the voxels'
+    own central differences: one set of weights for all three axes (edges clamped)."""
+    x = wp.clamp(p[0], 0.0, float(n[0] - 1))
+    y = wp.clamp(p[1], 0.0, float(n[1] - 1))
+    z = wp.clamp(p[2], 0.0, float(n[2] - 1))
+    i = wp.min(int(x), n[0] - 2)
+    j = wp.min(int(y), n[1] - 2)
+    k = wp.min(int(z), n[2] - 2)
+    f = wp.vec3(x - float(i), y - float(j), z - float(k))
+    g = wp.vec3(0.0)
+    for c in range(8):
+        di = c & 1
+        dj = (c >> 1) & 1
+        dk = (c >> 2) & 1
+        w = wp.where(di == 1, f[0], 1.0 - f[0]) * wp.where(dj == 1, f[1], 1.0 - f[1]) * wp.where(
+            dk == 1, f[2], 1.0 - f[2])
+        ii = i + di
+        jj = j + dj
+        kk = k + dk
+        a = ii * s[0] + jj * s[1] + kk * s[2]
+        gx = float(vol[a + (wp.min(ii + 1, n[0] - 1) - ii) * s[0]]) - float(vol[a - (ii - wp.max(ii - 1, 0)) * s[0]])
+        gy = float(vol[a + (wp.min(jj + 1, n[1] - 1) - jj) * s[1]]) - float(vol[a - (jj - wp.max(jj - 1, 0)) * s[1]])
+        gz = float(vol[a + (wp.min(kk + 1, n[2] - 1) - kk) * s[2]]) - float(vol[a - (kk - wp.max(kk - 1, 0)) * s[2]])
+        g = g + w * wp.vec3(gx, gy, gz)
+    return 0.5 * g
+
+
+@wp.func
 def lut_position(v: float, lo: float, scale: float, size: int) -> float:
     return wp.clamp((v - lo) * scale, 0.0, float(size - 1))
 
@@ -275,13 +306,7 @@ def raycast(
             if a > 0.0:
                 color = wp.vec3(c[0], c[1], c[2])
                 if shade != 0 or gradient_scale >= 0.0:
-                    # Central differences of the interpolated volume, one voxel either side.
-                    g = wp.vec3(
-                        trilinear(vol, n, strides, p + wp.vec3(1.0, 0.0, 0.0)) - trilinear(vol, n, strides, p - wp.vec3(1.0, 0.0, 0.0)),
-                        trilinear(vol, n, strides, p + wp.vec3(0.0, 1.0, 0.0)) - trilinear(vol, n, strides, p - wp.vec3(0.0, 1.0, 0.0)),
-                        trilinear(vol, n, strides, p + wp.vec3(0.0, 0.0, 1.0)) - trilinear(vol, n, strides, p - wp.vec3(0.0, 0.0, 1.0)),
-                    ) * 0.5
-                    gw = index_gradient_to_world @ g
+                    gw = index_gradient_to_world @ gradient(vol, n, strides, p)
                     gl = wp.length(gw)
                     if gradient_scale >= 0.0:
                         a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,

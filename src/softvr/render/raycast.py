@@ -158,10 +158,11 @@ class RayCaster:
         if np.all(last >= first):
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
                                                         float(self._lut_scale), REACH], [self._seed])
-            # A changed seed moves distances up to REACH - 1 bricks away, along each axis in turn.
-            first, last = np.maximum(first - REACH + 1, 0), np.minimum(last + REACH - 1, nb - 1)
+            # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
+            # that axis and the axes before it.
             for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
                                    (2, self._pass2, self._distance)):
+                first[axis], last[axis] = max(first[axis] - REACH + 1, 0), min(last[axis] + REACH - 1, nb[axis] - 1)
                 self._run(K.brick_distance_pass, first, last, [src, axis, REACH], [dst])
 
     def _run(self, kernel, first, last, inputs, outputs) -> None:
