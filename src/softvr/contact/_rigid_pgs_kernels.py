@@ -99,7 +99,8 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
                          materials: wp.array2d(dtype=wp.float64), inv_mass: wp.array(dtype=wp.float64),
                          inv_inertia: wp.array(dtype=wp.mat33d), velocity: wp.array(dtype=wp.spatial_vectord),
                          response: wp.array(dtype=wp.vec3d), target: wp.array(dtype=wp.vec3d),
-                         stiffness: wp.array(dtype=wp.float64),
+                         stiffness: wp.array(dtype=wp.float64), start: wp.array(dtype=wp.vec3d),
+                         direction: wp.array(dtype=wp.vec3d), accelerate: int,
                          dt: wp.float64, max_sweeps: int, tolerance: wp.float64, stats: wp.array(dtype=wp.float64)):
     """One thread: the step's contact solve (module docstring). ``velocity`` [n] holds the
     unconstrained velocities in, the constrained ones out; ``response``, ``target`` and
@@ -186,6 +187,10 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
     # Projected Gauss-Seidel (pgs_sweeps): per contact the normal row, then each tangent row
     # within the larger of the Coulomb bound and the implicit adhesive bound (eq. 4.16).
     sweeps = int(0)
+    last = big  # |lambda_k - lambda_k-1|^2 of the previous sweep (none yet)
+    for i in range(c):
+        start[i] = impulse[i]
+        direction[i] = wp.vec3d()
     for sweep in range(max_sweeps):
         biggest = zero
         for i in range(c):
@@ -221,6 +226,32 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
         sweeps = sweep + 1
         if biggest <= tolerance:
             break
+        if accelerate != 0:
+            # Nonsmooth nonlinear conjugate gradient over the sweeps (Silcowitz et al. 2010):
+            # the sweep's change is a descent direction; momentum beta = |change|^2 / |last|^2
+            # along the previous direction, restarted when the change grows.
+            norm = zero
+            for i in range(c):
+                g = impulse[i] - start[i]
+                norm += wp.dot(g, g)
+            beta = norm / last
+            last = norm
+            for i in range(c):
+                g = impulse[i] - start[i]
+                p = direction[i]
+                if beta > one:
+                    p = wp.vec3d()
+                else:
+                    push = beta * p
+                    f = frame[i]
+                    for row in range(3):
+                        d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+                        _apply(body_a[i], velocity, inv_mass, inv_inertia, offset_a[i], d, push[row])
+                        _apply(body_b[i], velocity, inv_mass, inv_inertia, offset_b[i], d, -push[row])
+                    impulse[i] = impulse[i] + push
+                    p = push
+                direction[i] = p + g
+                start[i] = impulse[i]
     # Gaps after the step, the residual, slips at the end of the step (solve_contacts).
     residual = zero
     for i in range(c):

@@ -30,7 +30,8 @@ class RigidSolve:
         self.launch, self.stats, self._scratch = launch, stats, scratch
 
 
-def record_rigid_solve(model, state, dt: float, *, max_sweeps: int = 500, tolerance: float = 1e-5) -> RigidSolve:
+def record_rigid_solve(model, state, dt: float, *, max_sweeps: int = 500, tolerance: float = 1e-5,
+                       accelerate: bool = True) -> RigidSolve:
     """The launch turning ``state.free_velocity`` (unconstrained in) into the constrained
     velocities (out), solving and evolving ``state.contacts`` in place over ``dt`` [s].
     ``max_sweeps`` and ``tolerance`` [m/s] as :func:`softvr.contact.solve_contacts`'s."""
@@ -38,7 +39,8 @@ def record_rigid_solve(model, state, dt: float, *, max_sweeps: int = 500, tolera
     device = model.device
     load_kernels(_k.solve_rigid_contacts, device)
     scratch = [wp.zeros(c.capacity, dtype=wp.vec3d, device=device), wp.zeros(c.capacity, dtype=wp.vec3d, device=device),
-               wp.zeros(c.capacity, dtype=wp.float64, device=device)]
+               wp.zeros(c.capacity, dtype=wp.float64, device=device), wp.zeros(c.capacity, dtype=wp.vec3d, device=device),
+               wp.zeros(c.capacity, dtype=wp.vec3d, device=device), int(accelerate)]
     stats = wp.zeros(2, dtype=wp.float64, device=device)
     launch = wp.launch(_k.solve_rigid_contacts, dim=1, device=device, record_cmd=True,
                        inputs=[c.count, c.key, c.body_a, c.body_b, c.offset_a, c.offset_b, c.normal, c.gap, c.area,

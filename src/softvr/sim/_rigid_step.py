@@ -131,6 +131,8 @@ class RigidStepper:
         self._free = self.state.free_velocity.numpy()
         self._diverged = self.state.diverged.numpy()
         self._contacts = self.state.contacts.views()
+        self._count = self.state.contacts.count.numpy()
+        self._pushed = True
         for i, body in enumerate(self.scene.bodies):
             body.position, body.orientation, body.v = self._position[i], self._orientation[i], self._velocity[i]
 
@@ -167,9 +169,10 @@ class RigidStepper:
 
     def _record(self, dt: float) -> None:
         s = self.scene
-        key = (dt, tuple(np.asarray(s.gravity, float)), int(s.pgs_iterations))
-        if self._recorded is not None and self._recorded[0] == key:
+        if self._recorded is not None and self._recorded[0][0] == dt and self._recorded[0][1] is s.gravity \
+                and self._recorded[0][2] == s.pgs_iterations:
             return
+        key = (dt, s.gravity, s.pgs_iterations)
         solve = record_rigid_solve(self.model, self.state, dt, max_sweeps=s.pgs_iterations)
         self._recorded = (key, replayer(record_unconstrained(self.model, self.state, dt, s.gravity)),
                           record_detection(self.model, self.state, dt), solve, replayer(solve.launch),
@@ -183,9 +186,11 @@ class RigidStepper:
         self._sync_in()
         self._record(dt)
         _, unconstrained, detection, _, solve, integrate = self._recorded
-        self._external[:] = 0.0
-        for body, force in s.external.items():
-            self._external[body] = force
+        if s.external or self._pushed:
+            self._external[:] = 0.0
+            for body, force in s.external.items():
+                self._external[body] = force
+            self._pushed = bool(s.external)
         unconstrained()
         self._check()
         t1 = time.perf_counter()
@@ -197,8 +202,9 @@ class RigidStepper:
         self._check()
         for body in s.bodies:
             body.step_count += 1
-        snapshot = _Snapshot(self.state.contacts.numpy(self._contacts), [b.v.copy() for b in s.bodies],
-                             int(self._stats[0]), float(self._stats[1]))
+        count = min(int(self._count[0]), self.state.contacts.capacity)
+        snapshot = _Snapshot({name: view[:count].copy() for name, view in self._contacts.items()},
+                             list(self._velocity.copy()), int(self._stats[0]), float(self._stats[1]))
         s.adhesion_state = ArrayAdhesionState(snapshot)
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
