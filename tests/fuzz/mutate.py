@@ -9,7 +9,7 @@ import math
 import random
 import tomllib
 
-__all__ = ["HOSTILE", "byte_mutants", "mutate_tree", "paths_of", "toml_text"]
+__all__ = ["HOSTILE", "MILD", "byte_mutants", "mutate_tree", "paths_of", "toml_text"]
 
 
 def _deep_list(depth: int):
@@ -38,6 +38,12 @@ HOSTILE = [
 ]
 
 
+#: Values of the right types at the edges of their ranges: mutants that mostly pass the readers
+#: and reach what builds, renders or allocates from them.
+MILD = [0, 1, 2, 3, 8, 63, 64, 65, 0.0, 1e-6, 0.001, 0.01, 0.5, 2.0, 100.0, 1e4, -0.5, -1e4, True,
+        [0.0, 0.0, 1.0], [1e-3, 1e-3, 1e-3], [100.0, 100.0, 100.0], [0.0, 0.0, 0.0], [64, 64], [1, 1]]
+
+
 def paths_of(tree, prefix=()):
     """Every (key path) of a TOML / JSON tree, tables and lists included."""
     out = [prefix] if prefix else []
@@ -61,11 +67,12 @@ def _copy(tree):
     return json.loads(json.dumps(tree))
 
 
-def mutate_tree(tree, rng: random.Random, *, extra=(), count: int = 1):
-    """A deep copy of ``tree`` with ``count`` random paths set to hostile values (or deleted,
-    or a table's key renamed); ``extra`` adds values specific to the format."""
+def mutate_tree(tree, rng: random.Random, *, extra=(), count: int = 1, pool=None):
+    """A deep copy of ``tree`` with ``count`` random paths set to values of ``pool`` (default
+    :data:`HOSTILE`), deleted, or duplicated (list items); ``extra`` adds values specific to
+    the format."""
     tree = _copy(tree)
-    pool = HOSTILE + list(extra)
+    pool = (HOSTILE if pool is None else pool) + list(extra)
     for _ in range(count):
         paths = paths_of(tree)
         if not paths:

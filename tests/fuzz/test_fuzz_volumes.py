@@ -17,16 +17,18 @@ import struct
 import tarfile
 import zipfile
 
-import nibabel as nib
 import numpy as np
+import pydicom
+import pydicom.data
 import pytest
 from harness import run_reader, summary
+from pydicom.fileset import FileSet
 
 from softvr.volume import Volume, save
 
 SEED = 17
-#: Mutants per seed file (x 13 seed files, + special files: about 1 300 inputs).
-PER_SEED = 100
+#: Mutants per seed file (x 15 seed files, + special files: about 1 360 inputs).
+PER_SEED = 90
 
 #: Values a broken exporter or an attacker writes into a header field.
 HOSTILE = ["1e308", "-1e308", "-5", "-1", "0", "1", "2", "4", "7", "9", "99999999999999999999", "2147483648",
@@ -73,6 +75,17 @@ def _seeds(folder) -> list[tuple[str, dict[str, bytes]]]:
     save(vol, sub)
     first = sorted(sub.iterdir())[0]
     out.append(("v.dcm", {"v.dcm": first.read_bytes()}))
+    rtdose = os.path.join(os.path.dirname(pydicom.data.__file__), "test_files", "rtdose.dcm")  # multi-frame
+    with open(rtdose, "rb") as f:
+        out.append(("dose.dcm", {"dose.dcm": f.read()}))
+    fileset = FileSet()  # a DICOMDIR listing the series, its images in pydicom's folder tree
+    for f in sorted(sub.iterdir()):
+        ds = pydicom.dcmread(f)
+        ds.StudyID = "1"
+        fileset.add(ds)
+    fileset.write(folder / "seed_dicomdir")
+    tree = folder / "seed_dicomdir"
+    out.append(("DICOMDIR", {str(f.relative_to(tree)): f.read_bytes() for f in tree.rglob("*") if f.is_file()}))
     return out
 
 
@@ -143,6 +156,40 @@ def _npy_mutant(raw: bytes, rng: random.Random) -> bytes:
     return raw[:8] + struct.pack("<H", len(body)) + body + raw[10 + header_len:]
 
 
+#: DICOM elements a mutant sets, with values of their own type that a reader must survive.
+_DICOM_VALUES = {
+    "Rows": [0, 1, 2, 65535], "Columns": [0, 1, 3, 65535], "NumberOfFrames": ["0", "-1", "2", "100000", "x"],
+    "BitsAllocated": [0, 1, 7, 12, 32, 64], "BitsStored": [0, 33], "PixelRepresentation": [1, 2],
+    "SamplesPerPixel": [0, 3], "PhotometricInterpretation": ["RGB", "PALETTE COLOR", "YBR_FULL"],
+    "ImagePositionPatient": [["nan", "0", "0"], ["1e308", "1", "1"], ["1", "2"]],
+    "ImageOrientationPatient": [["0"] * 6, ["1", "0", "0", "1", "0", "0"], ["nan"] * 6, ["1", "0"]],
+    "PixelSpacing": [["0", "0"], ["-1", "1"], ["inf", "1"], ["1"]], "SliceThickness": ["0", "-5", "nan"],
+    "RescaleSlope": ["0", "nan", "1e308", "-1"], "RescaleIntercept": ["inf", "1e308"],
+    "GridFrameOffsetVector": [["0"] * 15, ["0", "5"], [str(v) for v in range(15, 0, -1)]],
+    "DoseGridScaling": ["nan", "0", "1e308"], "SeriesInstanceUID": ["", "1.2.3"],
+    "ReferencedFileID": [["..", "..", "etc", "passwd"], ["/etc/passwd"], ["NOPE"], ["PT000000"]],
+    "DirectoryRecordType": ["SERIES", "IMAGE", "PATIENT"],
+}
+
+
+def _dicom_mutant(raw: bytes, rng: random.Random) -> bytes:
+    """One to three DICOM elements (top level or in the DICOMDIR's records) set to hostile
+    values of their own type, or deleted; the bytes as pydicom writes them."""
+    ds = pydicom.dcmread(io.BytesIO(raw))
+    targets = [ds] + list(ds.get("DirectoryRecordSequence", []))
+    for _ in range(rng.randint(1, 3)):
+        target = rng.choice(targets)
+        keyword = rng.choice(sorted(_DICOM_VALUES))
+        if rng.random() < 0.15:
+            if keyword in target:
+                delattr(target, keyword)
+        else:
+            setattr(target, keyword, rng.choice(_DICOM_VALUES[keyword]))
+    blob = io.BytesIO()
+    ds.save_as(blob, enforce_file_format=False)
+    return blob.getvalue()
+
+
 def _byte_mutant(raw: bytes, rng: random.Random) -> bytes:
     b = bytearray(raw)
     kind = rng.randrange(5)
@@ -173,6 +220,11 @@ def _mutant(name: str, files: dict, rng: random.Random) -> dict:
         raw = _nifti_mutant(raw, rng)
     elif structured and name.endswith(".nii.gz"):
         raw = gzip.compress(_nifti_mutant(gzip.decompress(raw), rng))
+    elif structured and (name.endswith(".dcm") or name == "DICOMDIR"):
+        try:
+            raw = _dicom_mutant(raw, rng)
+        except Exception:  # noqa: BLE001 - pydicom refused to write this value: damage the bytes instead
+            raw = _byte_mutant(raw, rng)
     elif structured and name.endswith(".npy"):
         raw = _npy_mutant(raw, rng)
     elif structured and name.endswith(".npz"):
@@ -221,6 +273,7 @@ def _inputs(tmp_path) -> list[str]:
             sub = tmp_path / f"m{s:02d}_{k:03d}"
             sub.mkdir()
             for n, content in _mutant(name, files, rng).items():
+                (sub / n).parent.mkdir(parents=True, exist_ok=True)
                 (sub / n).write_bytes(content)
             os.mkfifo(sub / "pipe.raw")  # a data-file name a mutant may pick: must not block
             paths.append(str(sub / name))

@@ -241,6 +241,22 @@ def rigid_properties(v, t, density: float, name: str):
     return float(mesh.mass), np.asarray(mesh.center_mass, float), np.asarray(mesh.moment_inertia, float)
 
 
+def _part_model(p: PartSpec) -> PartModel:
+    """One part's render, collision and (soft) dynamics meshes or (rigid) mass properties."""
+    v, t = load_mesh(p.mesh)
+    cv, ct = collision_mesh(v, t, p.collision_triangles)
+    part = PartModel(spec=p, render_vertices=v, render_triangles=t, collision_vertices=cv, collision_triangles=ct)
+    if p.kind == "soft":
+        nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), p.cell_size)
+        part.rest_nodes, part.start_nodes, part.tets = nodes, nodes.copy(), tets
+        part.render_embedding = embed_surface(nodes, tets, v)
+        part.collision_embedding = embed_surface(nodes, tets, cv)
+        part.mass = float(p.density * np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6)
+    else:
+        part.mass, part.center, part.inertia = rigid_properties(v, t, p.density, f"part {p.name!r}")
+    return part
+
+
 def build_model(parts, *, progress: bool = True, separation_iterations: int = 30, separation_rounds: int = 5) -> Model:
     """Build a :class:`Model` from a parts file (path or :class:`PartsFile`); the collision-free
     start sweeps the intersecting pairs up to ``separation_rounds`` times, each push taking up
@@ -249,19 +265,13 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
 
     spec = parts if isinstance(parts, PartsFile) else read_parts(parts)
     models = []
-    for p in tqdm(spec.parts, desc="parts", unit="part", disable=not progress):
-        v, t = load_mesh(p.mesh)
-        cv, ct = collision_mesh(v, t, p.collision_triangles)
-        part = PartModel(spec=p, render_vertices=v, render_triangles=t, collision_vertices=cv, collision_triangles=ct)
-        if p.kind == "soft":
-            nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), p.cell_size)
-            part.rest_nodes, part.start_nodes, part.tets = nodes, nodes.copy(), tets
-            part.render_embedding = embed_surface(nodes, tets, v)
-            part.collision_embedding = embed_surface(nodes, tets, cv)
-            part.mass = float(p.density * np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6)
-        else:
-            part.mass, part.center, part.inertia = rigid_properties(v, t, p.density, f"part {p.name!r}")
-        models.append(part)
+    for i, p in enumerate(tqdm(spec.parts, desc="parts", unit="part", disable=not progress)):
+        try:
+            models.append(_part_model(p))
+        except InputError as exc:
+            if exc.source is not None:  # a mesh file's own error names it
+                raise
+            raise InputError(f"part[{i}] ({p.name}).{exc.what}", exc.expected, exc.found, source=str(spec.path)) from None
     by_name = {m.spec.name: m for m in models}
     couplings = []
     for c in spec.couplings:

@@ -19,7 +19,12 @@ import numpy as np
 
 from softvr.errors import InputError
 
-__all__ = ["collision_mesh", "dynamics_mesh", "embed_surface"]
+__all__ = ["MAX_GRID_TETS", "collision_mesh", "dynamics_mesh", "embed_surface"]
+
+#: Most tets the grid of :func:`dynamics_mesh` may have before the ones away from the part are
+#: dropped (5 per cube; 2 million is a 74^3-cube grid, ~1 GB while it is built): a finer
+#: ``cell_size`` for a part this large is a unit mistake, refused before anything is allocated.
+MAX_GRID_TETS = 2_000_000
 
 
 def _check_surface(vertices, triangles, what: str) -> tuple[np.ndarray, np.ndarray]:
@@ -62,7 +67,14 @@ def dynamics_mesh(vertices, triangles, cell_size: float) -> tuple[np.ndarray, np
     if not (np.isfinite(cell_size) and cell_size > 0):
         raise InputError("cell_size", "a cube size > 0 [m]", repr(cell_size))
     lo, hi = v.min(axis=0), v.max(axis=0)
-    cells = np.maximum(1, np.ceil((hi - lo) / cell_size - 1e-9).astype(int))
+    # Counted in floats first: a tiny cell_size would overflow an int cast.
+    per_axis = np.maximum(1.0, np.ceil((hi - lo) / cell_size - 1e-9))
+    grid = float(np.prod(per_axis)) * 5
+    if grid > MAX_GRID_TETS:
+        size = " x ".join(f"{x:.3g}" for x in hi - lo)
+        raise InputError("cell_size", f"cubes of which a {size} m part needs at most {MAX_GRID_TETS} grid tets",
+                         f"{cell_size:g} m ({grid:.3g} tets)")
+    cells = per_axis.astype(int)
     pad = (cells * cell_size - (hi - lo)) / 2  # centre the part in the grid
     origin = lo - pad + cell_size / 2
     nodes, tets = grid_tet_mesh(Volume(np.zeros(tuple(cells), np.uint8), spacing=(cell_size,) * 3, origin=origin),

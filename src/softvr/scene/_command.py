@@ -30,9 +30,9 @@ def check_main(argv: list[str] | None = None) -> int:
                     print(f"collision-free start: {moved!r} pushed out of {obstacle!r} (its nodes moved up to "
                           f"{displacement * 1e3:.2f} mm)")
         except InputError as exc:
-            if not problems:
-                raise
-            problems = problems + exc.problems
+            # Reported as the scene file's problem; a file it names that is at fault (a mesh) is named too.
+            other = f" (in {exc.source})" if exc.source and exc.source != str(scene.path) else ""
+            problems = problems + [(what, expected, f"{found}{other}") for what, expected, found in exc.problems]
     raise_all(problems, str(scene.path), "scene file")
     kinds = {}
     for b in scene.bodies:

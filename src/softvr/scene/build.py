@@ -546,7 +546,8 @@ class SceneExample(PhysicsExample):
                 from softvr.volume import load_tet_mesh
 
                 # meshio exits the process on some unreadable files: native_read turns that into an error.
-                nodes, tets = native_read(load_tet_mesh, spec.mesh, "tets", "a tet mesh file meshio can read")
+                nodes, tets = native_read(load_tet_mesh, spec.mesh, f"body {spec.name!r}.tets",
+                                          "a tet mesh file meshio can read")
                 nodes = nodes * np.asarray(spec.scale)
             nodes = nodes @ rotation.T + centre
             if spec.shape == "box" and spec.surface_quads > 1:
