@@ -1315,7 +1315,7 @@ def _dicomdir_files(p: Path, ds) -> list[Path]:
             continue
         parts = record.ReferencedFileID
         name = "/".join([parts] if isinstance(parts, str) else [str(x) for x in parts])
-        files.append(inside_folder(p.parent, name, f"DirectoryRecordSequence[{i}].ReferencedFileID", str(p)))
+        files.append(_data_file(p, name, f"DirectoryRecordSequence[{i}].ReferencedFileID"))
     check_count(len(files), "number of IMAGE records", str(p))
     return files
 
