@@ -3,7 +3,8 @@
 The InVesalius head CT (Debian ``invesalius-examples``) is embedded in a regular mesh of
 ~10 K tetrahedra; a scripted deformation first presses a dent into the face, then twists
 the head about its long axis. Every frame the CT is rasterized through the deformed mesh
-(thesis ch. 3) and volume-rendered offscreen with VTK; the frames go to an MP4 and a PNG
+(thesis ch. 3) and volume-rendered offscreen (softvr's Warp ray caster, or VTK's with
+``--renderer vtk``); the frames go to an MP4 and a PNG
 contact sheet. Run ``softvr demo`` (or ``python -m softvr.examples.example_volume_deform``).
 """
 
@@ -94,10 +95,13 @@ class Example:
         Rendered image size [pixels].
     culling : bool or str
         Rasterization strategy, see :class:`~softvr.volume.Rasterizer`.
+    renderer : {"warp", "vtk"}
+        Volume renderer: softvr's :class:`~softvr.render.RayCaster` (label volumes always go
+        to VTK's, which draws categorical colours) or VTK's CPU ray caster.
     """
 
     def __init__(self, volume: Volume | None = None, cells=(16, 16, 8), frames: int = 36, device=None,
-                 width: int = 480, height: int = 360, culling=True):
+                 width: int = 480, height: int = 360, culling=True, renderer: str = "warp"):
         if volume is None:
             from softvr.datasets import head_ct
 
@@ -110,6 +114,11 @@ class Example:
         self.frames = max(int(frames), 2)
         self.frame = 0
         self.width, self.height = width, height
+        if renderer not in ("warp", "vtk"):
+            from softvr.errors import InputError
+
+            raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
+        self.renderer = renderer
         self.deformed: Volume | None = None
         self.frame_stats: list[dict] = []
         self._renderer = None
@@ -129,7 +138,8 @@ class Example:
             from softvr.render import Camera, VolumeRenderer
 
             preset = "labels" if self.volume.is_label else ("mri" if self.volume.dtype == np.uint8 else "ct")
-            self._renderer = VolumeRenderer(self.width, self.height, preset=preset,
+            mapper = "warp" if self.renderer == "warp" and preset != "labels" else "cpu"
+            self._renderer = VolumeRenderer(self.width, self.height, preset=preset, mapper=mapper,
                                             camera=Camera("front", azimuth=70, elevation=10, zoom=1.1))
         return self._renderer.render(self.deformed)
 
@@ -150,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"))
     p.add_argument("--culling", default="spans", choices=["bbox", "cells", "spans"])
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    p.add_argument("--renderer", choices=("warp", "vtk"), default="warp",
+                   help="volume renderer: softvr's Warp ray caster (default) or VTK's CPU ray caster")
     args = p.parse_args(argv)
 
     from tqdm import tqdm
@@ -158,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
 
     volume = load(args.input) if args.input else None
     print("softvr demo: preparing (the first run compiles the kernels, ~10-30 s)", flush=True)
-    ex = Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling)
+    ex = Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling,
+                 args.renderer)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"softvr demo: {ex.volume!r}\n  mesh {len(ex.nodes)} nodes, {len(ex.tets)} tets; "
