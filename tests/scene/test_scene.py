@@ -10,12 +10,16 @@ oranges roll on above it (each weighing rho times its sphere), the swung cloth r
 wall and sticks to it with its pinned edge in place.
 """
 
+import json
+import os
+
 import numpy as np
 import pytest
 
 from softvr.cli import main
 from softvr.errors import InputError
 from softvr.scene import BUNDLED, load_scene, read_scene
+from softvr.scene.gltf import read_gltf_scene
 
 
 def _write(tmp_path, text, name="scene.toml"):
@@ -617,3 +621,119 @@ position = [0.0, 0.0, 0.1]
         fall = body.q[:, 2].mean() - (body.rest[:, 2].mean())
         assert fall < -1e-3
         assert drawn.vertices()[:, 2].mean() - 0.1 == pytest.approx(fall, abs=2e-3)
+
+
+# ------------------------------------------------------------------ hostile files (issue 17)
+# Truth: the requirement itself. A bad file is an InputError whose source is the file and
+# whose message names the field at fault; nothing is allocated, opened or parsed that the
+# file asks for beyond a stated limit (softvr.scene.schema.LIMITS, softvr.files).
+_CUBE = ('format = "softvr-scene 1"\n[simulation]\nframes = 10\n[material.jelly]\nyoung = 1e5\n'
+         '[[body]]\nname = "cube"\ntype = "fem"\nbox = [0.1, 0.1, 0.1]\ncells = 2\nmaterial = "jelly"\n'
+         'position = [0.0, 0.0, 0.2]\n')
+
+
+def _raw(tmp_path, text, name="scene.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _refusal(path) -> InputError:
+    with pytest.raises(InputError) as caught:
+        read_scene(path)
+    assert caught.value.source == str(path)
+    return caught.value
+
+
+def test_undecodable_deep_and_huge_toml_is_refused_naming_the_file(tmp_path):
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(_CUBE.replace("cube", "cub\xe9").encode("latin-1"))
+    assert "UTF-8" in str(_refusal(latin)) and "offset" in str(_refusal(latin))
+    deep = _raw(tmp_path, _CUBE + "x = " + "[" * 3000 + "]" * 3000 + "\n", "deep.toml")
+    assert "nested" in str(_refusal(deep))
+    digits = _raw(tmp_path, _CUBE.replace("frames = 10", "frames = " + "9" * 5000), "digits.toml")
+    assert "TOML" in str(_refusal(digits))
+    wide = _raw(tmp_path, _CUBE.replace("frames = 10", "frames = 99999999999999999999"), "wide.toml")
+    assert "simulation.frames" in str(_refusal(wide)) and "64 bits" in str(_refusal(wide))
+
+
+def test_a_list_or_a_number_where_a_table_is_expected_is_named(tmp_path):
+    path = _raw(tmp_path, _CUBE.replace("[simulation]\nframes = 10\n", 'simulation = 3.5\nrender = [1]\n')
+                  + '[[plane]]\nadhesion = ["x"]\n')
+    message = str(_refusal(path))
+    for field in ("simulation", "render", "plane[0].adhesion"):
+        assert f"- {field}:" in message, (field, message)
+
+
+@pytest.mark.parametrize("edit, field", [
+    (("cells = 2", "cells = 4096"), "body[0].cells"),
+    (("cells = 2", "cells = [2, 2, 100000]"), "body[0].cells"),
+    (("cells = 2", "cells = 2\nsurface_quads = 1000000"), "body[0].surface_quads"),
+    (("frames = 10", "frames = 100000000"), "simulation.frames"),
+    (("position = [0.0, 0.0, 0.2]", "position = [1e308, 0.0, 0.2]"), "body[0].position"),
+])
+def test_counts_and_sizes_beyond_the_limits_are_refused_before_building(tmp_path, edit, field):
+    path = _raw(tmp_path, _CUBE.replace(*edit))
+    assert field in str(_refusal(path))
+
+
+def test_cloth_quads_beyond_the_limit_are_refused(tmp_path):
+    cloth = ('format = "softvr-scene 1"\n[[body]]\nname = "sheet"\ntype = "cloth"\ncloth = [0.5, 0.5]\n'
+             'quads = [100000, 2]\n')
+    assert "body[0].quads" in str(_refusal(_raw(tmp_path, cloth)))
+
+
+@pytest.mark.parametrize("name, found", [("a\\u0000b.obj", "NUL"), ("m" * 300 + ".obj", "characters"),
+                                         ("fifo.obj", "FIFO")])
+def test_mesh_names_with_nul_bytes_too_long_or_naming_a_fifo_are_refused(tmp_path, name, found):
+    os.mkfifo(tmp_path / "fifo.obj")
+    path = _raw(tmp_path, _CUBE.replace("box = [0.1, 0.1, 0.1]\ncells = 2", f'mesh = "{name}"\ncells = 0.02'))
+    error = _refusal(path)
+    assert "body[0].mesh" in str(error) and found in str(error)
+
+
+def test_a_tet_mesh_meshio_gives_up_on_is_an_error_not_an_exit(tmp_path, capsys):
+    """meshio calls sys.exit(1) on an unreadable .vtu: softvr check reports it as the scene's
+    problem (exit status 2) instead of the process ending."""
+    (tmp_path / "bad.vtu").write_text("<VTKFile>garbage")
+    path = _raw(tmp_path, _CUBE.replace("box = [0.1, 0.1, 0.1]\ncells = 2", 'tets = "bad.vtu"'))
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "body 'cube'.tets" in err and "bad.vtu" in err
+
+
+def _gltf(tmp_path, edit, name="scene.gltf"):
+    """A one-box glTF scene (external buffer scene.bin) after ``edit(doc)``."""
+    import trimesh
+
+    scene = trimesh.Scene()
+    scene.add_geometry(trimesh.creation.box((0.1, 0.1, 0.1)), node_name="box", geom_name="box")
+    files = scene.export(file_type="gltf")
+    doc = json.loads(files["model.gltf"])
+    (tmp_path / "scene.bin").write_bytes(files[doc["buffers"][0]["uri"]])
+    doc["buffers"][0]["uri"] = "scene.bin"
+    doc["nodes"][0]["extras"] = {"softvr_type": "fixed"}
+    edit(doc)
+    path = tmp_path / name
+    path.write_text(json.dumps(doc).replace('"__deep__"', "[" * 3000 + "]" * 3000))  # deeper than json.dumps goes
+    return path
+
+
+@pytest.mark.parametrize("edit, field, found", [
+    (lambda d: d["buffers"][0].update(uri="../../../../etc/passwd"), "buffers[0].uri", "a file inside"),
+    (lambda d: d["buffers"][0].update(uri="/etc/passwd"), "buffers[0].uri", "a file inside"),
+    (lambda d: d["buffers"][0].update(uri="fifo.bin"), "buffers[0].uri", "FIFO"),
+    (lambda d: d["meshes"][0]["primitives"][0]["attributes"].update(POSITION=99),
+     "meshes[0].primitives[0].attributes.POSITION", "99"),
+    (lambda d: d["accessors"][0].update(count=10 ** 9), "accessors[0]", "bufferViews"),
+    (lambda d: d["nodes"][0].update(extras=[1, 2]), "nodes[0].extras", "list"),
+    (lambda d: d["nodes"][0].update(children=[0]), "nodes[0].children[0]", "one parent"),
+    (lambda d: d.update(asset="__deep__"), "glTF JSON", "nested"),
+])
+def test_gltf_indices_buffers_and_extras_are_checked_before_trimesh_reads_the_file(tmp_path, edit, field, found):
+    os.mkfifo(tmp_path / "fifo.bin")
+    path = _gltf(tmp_path, edit)
+    with pytest.raises(InputError) as caught:
+        read_gltf_scene(path)
+    assert caught.value.source == str(path)
+    assert field in str(caught.value) and found in str(caught.value), str(caught.value)
