@@ -18,6 +18,7 @@ SPHERE_PLANE = wp.constant(wp.uint64(5))
 SPHERE_SPHERE = wp.constant(wp.uint64(6))
 BOX_PLANE = wp.constant(wp.uint64(7))
 BOX_BOX = wp.constant(wp.uint64(8))
+_TWO_PI = wp.constant(wp.float64(6.283185307179586))  # wp.pi is a float32
 
 
 @wp.func
@@ -183,7 +184,7 @@ def boxes_plane(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=
 @wp.func
 def cap_area(radius: wp.float64, margin: wp.float64) -> wp.float64:
     """2 pi R h, the cap within ``margin`` of a tangent plane (:func:`sphere_vs_plane`)."""
-    return wp.float64(2.0 * wp.pi) * radius * wp.min(wp.max(margin, wp.float64(0.0)), wp.float64(2.0) * radius)
+    return _TWO_PI * radius * wp.min(wp.max(margin, wp.float64(0.0)), wp.float64(2.0) * radius)
 
 
 @wp.kernel
