@@ -109,3 +109,42 @@ def test_a_saved_display_loads_back_to_the_same_screens(tmp_path):
     path = save_display(wall, tmp_path / "wall.toml")
     again = load_display(path)
     assert again.screens == wall.screens and again.eye_separation == wall.eye_separation
+
+
+# ------------------------------------------------------------------ hostile files (issue 17)
+_SCREEN = ('[[screen]]\nname = "front"\nlower_left = [-1.0, 1.0, 0.0]\nlower_right = [1.0, 1.0, 0.0]\n'
+           'upper_left = [-1.0, 1.0, 1.5]\npixels = [800, 600]\n')
+
+
+@pytest.mark.parametrize("text, field", [
+    ('screen = 3.5\n', "screen"),
+    ('screen = [1, 2]\n', "screen"),
+    (_SCREEN.replace("[800, 600]", '"800x600"'), "screen[0].pixels"),
+    (_SCREEN.replace("[800, 600]", "[800.5, 600]"), "screen[0].pixels"),
+    (_SCREEN.replace('"front"', '"' + "f" * 300 + '"'), "screen[0].name"),
+    (_SCREEN.replace('"front"', '"a\\u0000b"'), "screen[0].name"),
+    (_SCREEN + 'stereo = ["none"]\n', "screen[0] (front).stereo"),
+    (_SCREEN.replace("[-1.0, 1.0, 0.0]", "[-1e300, 1.0, 0.0]", 1), "screen[0].lower_left"),
+    (_SCREEN.replace("[800, 600]", "[16384, 16384]") * 2, "pixels"),
+])
+def test_a_display_file_of_the_wrong_types_or_sizes_is_refused_naming_the_field(tmp_path, text, field):
+    """Truth: the requirement — an InputError naming the file and the field, never a
+    TypeError / AttributeError from inside the reader."""
+    path = tmp_path / "display.toml"
+    path.write_text('format = "softvr-display 1"\n' + text)
+    with pytest.raises(InputError) as caught:
+        load_display(path)
+    assert caught.value.source == str(path)
+    assert field in str(caught.value), str(caught.value)
+
+
+def test_a_display_file_that_is_not_utf8_or_is_a_fifo_is_refused(tmp_path):
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(('format = "softvr-display 1"\n' + _SCREEN.replace("front", "fr\xf6nt")).encode("latin-1"))
+    with pytest.raises(InputError, match="UTF-8"):
+        load_display(latin)
+    import os
+
+    os.mkfifo(tmp_path / "fifo.toml")
+    with pytest.raises(InputError, match="FIFO"):
+        load_display(tmp_path / "fifo.toml")

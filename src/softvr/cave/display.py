@@ -128,11 +128,13 @@ def eye_pair(head, right, separation: float) -> tuple[np.ndarray, np.ndarray]:
     return h - 0.5 * separation * r, h + 0.5 * separation * r
 
 
-def _problems(screens: list, eye_separation) -> list:
-    """(field, expected, found) for everything wrong with a set of screens."""
+def _problems(screens: list, eye_separation, unread=frozenset()) -> list:
+    """(field, expected, found) for everything wrong with a set of screens; the screens of
+    indices ``unread`` (corners a file got wrong, already reported) are not judged again."""
     out = []
     for i, s in enumerate(screens):
-        out += [(f"screen[{i}] ({s.name}).{f}", e, v) for f, e, v in s.problems()]
+        if i not in unread:
+            out += [(f"screen[{i}] ({s.name}).{f}", e, v) for f, e, v in s.problems()]
     nodes = [s.node or s.name for s in screens]
     out += [(f"screen[{i}].node", "one screen per render node", f"{n!r} twice")
             for i, n in enumerate(nodes) if n in nodes[:i]]
@@ -236,7 +238,7 @@ def load_display(path) -> Display:
     if len(raw_screens) > MAX_SCREENS:
         problems.append(("screen", f"at most {MAX_SCREENS} screens", f"{len(raw_screens)}"))
         raw_screens = []
-    screens, bad = [], False
+    screens, unread = [], set()
     for i, raw in enumerate(raw_screens):
         corners = {}
         for key in ("lower_left", "lower_right", "upper_left"):
@@ -247,7 +249,7 @@ def load_display(path) -> Display:
             if not ok:
                 problems.append((f"screen[{i}].{key}", f"[x, y, z] in metres, within {_MAX_COORDINATE:g}",
                                  repr(value)[:200]))
-                bad = True
+                unread.add(i)
                 value = [0.0, 0.0, 0.0]
             corners[key] = tuple(float(v) for v in value)
         names = {}
@@ -256,24 +258,20 @@ def load_display(path) -> Display:
             if not (isinstance(value, str) and len(value) <= _MAX_NAME and value.isprintable()):
                 problems.append((f"screen[{i}].{key}", f"a printable name of at most {_MAX_NAME} characters",
                                  repr(value)[:100]))
-                bad, value = True, default
+                value = default
             names[key] = value
         pixels = raw.get("pixels", [1024, 768])
         if not (isinstance(pixels, list) and len(pixels) == 2 and all(
                 isinstance(p, int) and not isinstance(p, bool) and 0 < p <= 16384 for p in pixels)):
             problems.append((f"screen[{i}].pixels", "[width, height] in 1..16384", repr(pixels)[:200]))
-            bad, pixels = True, [1024, 768]
-        stereo = raw.get("stereo", "none")
-        if not isinstance(stereo, str) or stereo not in STEREO_MODES:
-            problems.append((f"screen[{i}].stereo", " | ".join(STEREO_MODES), repr(stereo)[:100]))
-            bad, stereo = True, "none"
+            pixels = [1024, 768]
+        stereo = raw.get("stereo", "none")  # judged by Screen.problems (a list compares unequal, no error)
         screens.append(Screen(names["name"], corners["lower_left"], corners["lower_right"], corners["upper_left"],
-                              tuple(pixels), names["node"], stereo))
+                              tuple(pixels), names["node"], stereo if isinstance(stereo, str) else repr(stereo)[:100]))
     total = sum(s.pixels[0] * s.pixels[1] for s in screens)
     if total > MAX_PIXELS:
         problems.append(("screen[*].pixels", f"at most {MAX_PIXELS} pixels on all screens together",
                          f"{total} pixels"))
     separation = doc.get("eye_separation", 0.065)
-    # Corner geometry is only judged of screens whose fields all read.
-    raise_all(problems + ([] if bad else _problems(screens, separation)), source, "display")
+    raise_all(problems + _problems(screens, separation, unread), source, "display")
     return Display(screens, float(separation), name=source)
