@@ -20,12 +20,15 @@
   (<= 1 grey level). On the silhouette a ray grazing the skin may take a sub-step path
   through it in one caster and miss it in the other: the rim is ~2 % of the pixels. Hence:
   mean absolute difference <= 1.0 grey level, 97th percentile <= 4.
-* Banding: a flat skin patch (a tilted plane of tissue, its HU rising 50 per voxel) seen by
-  the palpation trainer's preset must show no periodic stripes: after removing a quadratic
-  trend, the strongest Fourier component of a 64 x 64 patch has an amplitude < 0.7 grey
-  levels (peak to peak 1.4: a visible stripe). White noise of standard deviation s spreads
-  over the 2048 bins: its strongest bin has amplitude ~ 2 s sqrt(ln 2048 / 4096) = 0.09 s,
-  so jitter noise passes. VTK's fixed-point ray caster (today's renderer) fails it.
+* Banding: a flat skin patch seen by the palpation trainer's preset must show no stripes. The
+  patch is a tilted plane whose HU rise 520 per voxel (air to soft tissue within two voxels,
+  as on the head CT) with no clipping, so trilinear interpolation and the gradients are
+  exact and any periodic pattern comes from where the samples fall. After removing a
+  quadratic trend (smooth shading), the 64 x 64 patch's power spectrum above 2.5 cycles has
+  its strongest bin at < 16 x the mean bin. For white noise (jittered sampling error) the
+  N = 2040 bins are independent exponentials: P(max > t mean) ~ N exp(-t) = 2e-4 at t = 16,
+  while a stripe puts its power into one bin (VTK's fixed-point ray caster, today's
+  renderer: 130-370; the Warp caster without jitter: 70-790).
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -98,39 +101,40 @@ def test_head_ct_equals_vtk_gpu_ray_caster(name, head):
     assert diff.mean() <= 1.0 and np.percentile(diff, 97) <= 4, (diff.mean(), np.percentile(diff, 97))
 
 
-def tilted_skin(n: int = 64, slope: float = 50.0) -> Volume:
-    """A flat skin patch: tissue (40 HU) behind a plane tilted off the front view, its HU
-    rising ``slope`` per voxel across the plane (the data itself has no steps)."""
+def tilted_skin(n: int = 64, slope: float = 520.0) -> Volume:
+    """A flat skin patch: HU ``-400 - slope * d`` at signed distance ``d`` [voxels] from a
+    plane tilted off the front view (tissue behind it), unclipped: a linear field."""
     ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1) - (n - 1) / 2
     normal = np.array([0.25, 1.0, 0.35]) / np.linalg.norm([0.25, 1.0, 0.35])
-    return Volume(np.clip(40.0 - slope * (ijk @ normal), -1000, 40).astype(np.int16), spacing=(1.0, 1.0, 1.0))
+    return Volume(np.round(-400.0 - slope * (ijk @ normal)).astype(np.int16), spacing=(1.0, 1.0, 1.0))
 
 
-def band_amplitude(image: np.ndarray) -> float:
-    """Amplitude [grey levels] of the strongest periodic component of the central 64 x 64
-    patch's luminance, after removing a quadratic trend (smooth shading) and the lowest
-    frequencies (below 2.5 cycles per patch)."""
+def band_peak(image: np.ndarray) -> float:
+    """Strongest / mean power of the central 64 x 64 patch's luminance spectrum, after
+    removing a quadratic trend and the frequencies below 2.5 cycles per patch."""
     h, w = image.shape[:2]
     lum = image[h // 2 - 32:h // 2 + 32, w // 2 - 32:w // 2 + 32].astype(float).mean(axis=2)
     y, x = np.mgrid[:64, :64].astype(float)
     basis = np.column_stack([np.ones(x.size), x.ravel(), y.ravel(), x.ravel() ** 2, y.ravel() ** 2, (x * y).ravel()])
     residual = lum.ravel() - basis @ np.linalg.lstsq(basis, lum.ravel(), rcond=None)[0]
-    spectrum = np.fft.rfft2(residual.reshape(64, 64))
+    power = np.abs(np.fft.rfft2(residual.reshape(64, 64))) ** 2
     fy = np.fft.fftfreq(64)[:, None] * 64
-    fx = np.arange(spectrum.shape[1])[None, :]
-    return float(2.0 * np.abs(spectrum[np.hypot(fy, fx) > 2.5]).max() / lum.size)
+    fx = np.arange(power.shape[1])[None, :]
+    kept = power[np.hypot(fy, fx) > 2.5]
+    return float(kept.max() / kept.mean())
 
 
 @pytest.mark.parametrize("sample_distance", [0.5, 1.0])  # the renderer's default, the palpation trainer's
-def test_flat_skin_shows_no_banding_where_vtk_does(sample_distance):
+@pytest.mark.parametrize("azimuth", [0.0, -40.0])
+def test_flat_skin_shows_no_banding_where_vtk_does(sample_distance, azimuth):
     skin = tilted_skin()
-    amplitude = {}
+    peak = {}
     for mapper in ("warp", "cpu"):
-        with VolumeRenderer(128, 128, "ct-skin", Camera("front", zoom=1.6), mapper=mapper,
-                            sample_distance=sample_distance) as renderer:
-            amplitude[mapper] = band_amplitude(renderer.render(skin))
-    assert amplitude["warp"] < 0.7, amplitude
-    assert amplitude["cpu"] > 0.7, amplitude  # the measure sees today's wood grain
+        with VolumeRenderer(128, 128, "ct-skin", Camera("front", azimuth=azimuth, elevation=5.0, zoom=1.6),
+                            mapper=mapper, sample_distance=sample_distance) as renderer:
+            peak[mapper] = band_peak(renderer.render(skin))
+    assert peak["warp"] < 16.0, peak
+    assert peak["cpu"] > 16.0, peak  # the measure sees today's wood grain
 
 
 def _sphere_actor(centre, radius):

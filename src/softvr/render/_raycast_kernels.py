@@ -102,11 +102,15 @@ def lut_scalar(lut: wp.array(dtype=float), u: float) -> float:
 
 @wp.func
 def pixel_noise(x: int, y: int) -> float:
-    """Interleaved gradient noise (Jimenez 2014) in [0, 1): neighbouring pixels get
-    well-spread offsets, so the jittered ray starts give fine noise, not a pattern."""
-    f = 0.06711056 * float(x) + 0.00583715 * float(y)
-    g = 52.9829189 * (f - wp.floor(f))
-    return g - wp.floor(g)
+    """A per-pixel offset in [0, 1) from an integer hash (PCG, O'Neill 2014) of the pixel:
+    uncorrelated between pixels, so the jittered ray starts spread the sampling error over
+    all spatial frequencies (fine noise) instead of concentrating it in stripes. (A
+    quasi-periodic pattern such as interleaved gradient noise leaves a spectral peak of its
+    own.)"""
+    state = wp.uint32(x) * wp.uint32(747796405) + wp.uint32(y) * wp.uint32(1597334677) + wp.uint32(1)
+    word = ((state >> ((state >> wp.uint32(28)) + wp.uint32(4))) ^ state) * wp.uint32(277803737)
+    word = (word >> wp.uint32(22)) ^ word
+    return float(word >> wp.uint32(8)) * (1.0 / 16777216.0)
 
 
 @wp.func

@@ -5,7 +5,7 @@
 ``sample_distance`` of the smallest voxel spacing, gradient (Phong) shading and gradient
 opacity from central differences computed on the fly (nothing per data change), empty-space
 skipping over a min/max grid of bricks (re-derived only where the data changed), early ray
-termination, and ray starts jittered per pixel (interleaved gradient noise) so that a flat
+termination, and ray starts jittered per pixel (a hash of the pixel) so that a flat
 surface shows fine noise instead of wood-grain bands. Rays stop at the depth of the opaque
 surfaces VTK drew (OpenGL depth buffer) and the volume is blended over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
