@@ -324,3 +324,9 @@ def test_bad_frame_and_series_options(kw, what):
 def test_series_option_only_for_dicom():
     with pytest.raises(InputError, match=r"standard\.nii\.gz: series: expected None \(only DICOM"):
         load(_nibabel_file("standard.nii.gz"), series=0)
+
+
+def test_save_to_a_dcm_file_name_is_refused_with_the_folder_hint(tmp_path):
+    with pytest.raises(InputError, match=r"v\.dcm: file name suffix: .*folder of slices"):
+        save(Volume(np.zeros((2, 2, 2), np.int16)), tmp_path / "v.dcm")
+    assert os.listdir(tmp_path) == []
