@@ -24,7 +24,7 @@ import pytest
 from harness import run_reader, summary
 from pydicom.fileset import FileSet
 
-from softvr.volume import Volume, save
+from softvr.volume import SUPPORTED_DTYPES, Volume, load, save
 
 SEED = 17
 #: Mutants per seed file (x 14 seed files, + 11 special files: 1 271 inputs).
@@ -298,11 +298,19 @@ def _inputs(tmp_path) -> list[str]:
     return paths + _special_inputs(tmp_path)
 
 
+def load_checked(path: str) -> None:
+    """The child's reader: ``load``, and what a loaded volume must be (an AssertionError counts
+    as a traceback): native-endian voxels of a deformable type, finite geometry."""
+    vol = load(path)
+    assert vol.data.ndim == 3 and vol.data.dtype in SUPPORTED_DTYPES and vol.data.dtype.isnative, vol
+    assert np.all(np.isfinite(vol.spacing)) and np.all(vol.spacing > 0) and np.all(np.isfinite(vol.origin)), vol
+
+
 @pytest.mark.filterwarnings("ignore")
 def test_fuzz_volume_readers(tmp_path):
     paths = _inputs(tmp_path)
     assert len(paths) == 1271
-    outcomes = run_reader("softvr.volume:load", paths, timeout_s=10.0, env=CHILD_ENV)
+    outcomes = run_reader("test_fuzz_volumes:load_checked", paths, timeout_s=10.0, env=CHILD_ENV)
     result = summary(outcomes, paths)
     print(result["counts"], result["seconds"], "s")
     assert result["n_bad"] == 0, result["bad"]
