@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from softvr.cli import main
 from softvr.volume import Volume, save
@@ -47,3 +48,74 @@ def test_demo_shoulder_and_build_model_dispatch(tmp_path, capsys):
     assert main(["build-model", str(parts)]) == 2
     err = capsys.readouterr().err
     assert "parts.toml" in err and "part[0].mesh" in err and "Traceback" not in err
+
+
+def test_a_bug_is_reported_as_an_internal_error_without_a_traceback(monkeypatch, capsys):
+    """Truth: the CLI contract — bad input exits 2, anything else exits 70 with one line
+    naming the exception type, and no traceback (SOFTVR_DEBUG=1 shows it)."""
+    from softvr import cli
+
+    def broken(argv):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setitem(cli._COMMANDS, "check", broken)
+    monkeypatch.delenv("SOFTVR_DEBUG", raising=False)
+    assert main(["check", "x"]) == 70
+    err = capsys.readouterr().err
+    assert "internal error" in err and "ZeroDivisionError: a bug" in err and "Traceback" not in err
+    monkeypatch.setenv("SOFTVR_DEBUG", "1")
+    with pytest.raises(ZeroDivisionError):
+        main(["check", "x"])
+
+
+class _BigFrames:
+    """A stand-in example whose frames are 1280 x 960 RGB (3.7 MB each): what run_example
+    keeps in memory shows in the peak of traced allocations."""
+
+    name, fps, frame_bytes = "big", 30.0, 1280 * 960 * 3
+
+    def __init__(self, frames):
+        self.frames, self.frame, self.metrics = frames, 0, []
+
+    def step(self):
+        self.frame += 1
+        m = {"sim_time_s": self.frame / self.fps, "step_ms": 1.0, "max_penetration_m": 0.0, "contacts": 0,
+             "pgs_iterations": 1, "stage_ms": {}}
+        self.metrics.append(m)
+        return m
+
+    def render(self):
+        return np.full((960, 1280, 3), self.frame % 256, np.uint8)
+
+    def close(self):
+        pass
+
+    def describe(self):
+        return {}
+
+    def write_plots(self, doc, out):
+        return []
+
+
+def _peak_of_run(example, out) -> int:
+    """Peak traced memory [bytes] while run_example writes ``example``."""
+    import tracemalloc
+
+    from softvr.examples import run
+
+    tracemalloc.start()
+    try:
+        run.run_example(example, out, progress=False)
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_run_streams_frames_to_the_video_instead_of_keeping_them(tmp_path, monkeypatch):
+    """Frames of 3.7 MB: 60 more frames (221 MB) raise the peak of traced memory by less than
+    2 frames' worth, i.e. memory does not grow with --frames."""
+    monkeypatch.setattr("softvr.sim.STAGES", ())
+    short = _peak_of_run(_BigFrames(10), tmp_path / "short")
+    long = _peak_of_run(_BigFrames(70), tmp_path / "long")
+    assert (tmp_path / "long" / "big.mp4").stat().st_size > 0 and (tmp_path / "long" / "big_sheet.png").is_file()
+    assert long - short < 2 * _BigFrames.frame_bytes, f"peak {short / 1e6:.0f} MB -> {long / 1e6:.0f} MB"
