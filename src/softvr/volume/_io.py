@@ -1263,10 +1263,10 @@ def _read_dicom(p: Path, series: int | str | None) -> dict:
             images = _dicom_images(_dicomdir_files(p, ds), strict=True)
             if not images:
                 raise InputError("DirectoryRecordSequence", "IMAGE records of DICOM images", "none", source)
+        elif "Rows" in ds and "Columns" in ds:
+            images = [(p, ds)]
         else:
-            images = _dicom_images([p], strict=True)
-            if not images:
-                raise InputError("Rows / Columns", "a DICOM image", "a DICOM file without an image", source)
+            raise InputError("Rows / Columns", "a DICOM image", "a DICOM file without an image", source)
     slices = _pick_series(images, series, source)
     full = [(f, _dcmread(f, stop_before_pixels=False)) for f, _ in slices]
     if len(full) == 1 and int(full[0][1].get("NumberOfFrames", 1) or 1) > 1:
