@@ -20,6 +20,10 @@ import warp as wp
 
 wp.set_module_options({"enable_backward": False})
 
+#: Voxels per brick edge of the empty-space-skipping grid (a power of two: the ray loop finds
+#: a sample's brick by a shift, not a division).
+BRICK_SHIFT = wp.constant(2)
+BRICK = wp.constant(1 << 2)
 #: Stop a ray once its accumulated opacity reaches this (the rest can change a pixel by < 1 %).
 OPAQUE_ENOUGH = wp.constant(0.99)
 
@@ -137,7 +141,6 @@ def brick_minmax(
     vol: wp.array(dtype=Any),
     n: wp.vec3i,
     strides: wp.vec3i,
-    brick: int,
     first: wp.vec3i,
     count: wp.vec3i,
     lo_out: wp.array3d(dtype=float),
@@ -145,17 +148,17 @@ def brick_minmax(
     offset: int,
 ):
     """Value range of the voxels a sample inside each brick can read: brick ``b`` spans
-    index coordinates [b * brick, (b + 1) * brick], so trilinear interpolation there reads
-    voxels b * brick .. (b + 1) * brick inclusive. Updates bricks ``first .. first + count``."""
+    index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
+    voxels b * BRICK .. (b + 1) * BRICK inclusive. Updates bricks ``first .. first + count``."""
     b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
     by = b[1]
     bz = b[2]
     vmin = float(3.0e38)
     vmax = float(-3.0e38)
-    for i in range(bx * brick, wp.min((bx + 1) * brick, n[0] - 1) + 1):
-        for j in range(by * brick, wp.min((by + 1) * brick, n[1] - 1) + 1):
-            for k in range(bz * brick, wp.min((bz + 1) * brick, n[2] - 1) + 1):
+    for i in range(bx * BRICK, wp.min((bx + 1) * BRICK, n[0] - 1) + 1):
+        for j in range(by * BRICK, wp.min((by + 1) * BRICK, n[1] - 1) + 1):
+            for k in range(bz * BRICK, wp.min((bz + 1) * BRICK, n[2] - 1) + 1):
                 v = fetch(vol, strides, i, j, k)
                 vmin = wp.min(vmin, v)
                 vmax = wp.max(vmax, v)
@@ -174,16 +177,21 @@ def brick_occupancy(
     first: wp.vec3i,
     count: wp.vec3i,
     seed: wp.array3d(dtype=wp.uint8),
+    flips: wp.array(dtype=wp.int32),
     offset: int,
 ):
     """0 for a brick with any value of non-zero opacity in its range, else ``reach`` (the
-    seed of the distance field). ``visible`` holds the running count of table entries with
-    opacity > 0, so a range is empty iff the counts at its ends are equal."""
+    seed of the distance field); ``flips[0]`` counts the seeds that changed. ``visible``
+    holds the running count of table entries with opacity > 0, so a range is empty iff the
+    counts at its ends are equal."""
     b = brick_of(wp.tid() + offset, first, count)
     size = visible.shape[0] - 1
     u0 = int(wp.floor(lut_position(bmin[b[0], b[1], b[2]], lo, scale, size)))
     u1 = int(wp.ceil(lut_position(bmax[b[0], b[1], b[2]], lo, scale, size)))
-    seed[b[0], b[1], b[2]] = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 0, reach))
+    value = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 0, reach))
+    if value != seed[b[0], b[1], b[2]]:
+        seed[b[0], b[1], b[2]] = value
+        wp.atomic_add(flips, 0, 1)
 
 
 @wp.kernel
@@ -232,7 +240,6 @@ def raycast(
     shading: wp.vec4,
     light: wp.vec3,
     shade: int,
-    brick: int,
     distance: wp.array3d(dtype=wp.uint8),
     depth: wp.array2d(dtype=float),
     surface: wp.array3d(dtype=wp.uint8),
@@ -286,8 +293,9 @@ def raycast(
             if t > span[1]:
                 break
             p = o + t * d
-            b = wp.vec3i(wp.clamp(int(p[0]) / brick, 0, nb[0] - 1), wp.clamp(int(p[1]) / brick, 0, nb[1] - 1),
-                         wp.clamp(int(p[2]) / brick, 0, nb[2] - 1))
+            b = wp.vec3i(wp.clamp(int(p[0]) >> BRICK_SHIFT, 0, nb[0] - 1),
+                         wp.clamp(int(p[1]) >> BRICK_SHIFT, 0, nb[1] - 1),
+                         wp.clamp(int(p[2]) >> BRICK_SHIFT, 0, nb[2] - 1))
             r = int(0)
             if b[0] != last[0] or b[1] != last[1] or b[2] != last[2]:
                 r = int(distance[b[0], b[1], b[2]])
@@ -298,7 +306,7 @@ def raycast(
                 # this one, staying on the ray's sample lattice t0 + (k + shift) step so
                 # that skipping changes no sample.
                 out = wp.vec2(t, span[1])
-                bs = float(brick)
+                bs = float(BRICK)
                 out = slab(o[0], d[0], float(b[0] - r + 1) * bs, float(b[0] + r) * bs, out[0], out[1])
                 out = slab(o[1], d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs, out[0], out[1])
                 out = slab(o[2], d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs, out[0], out[1])

@@ -25,8 +25,8 @@ from softvr.render.presets import Preset
 __all__ = ["BRICK", "LUT_SIZE", "REACH", "RayCaster", "transfer_tables", "volume_bounds"]
 
 #: Voxels per brick edge of the empty-space-skipping grid.
-BRICK = 4
-#: Bricks a ray may skip at once along each axis (the cap of the brick distance field).
+BRICK = int(K.BRICK)
+#: Bricks a ray may skip at once along each axis (the cap of the brick distance field, < 255).
 REACH = 16
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
@@ -136,10 +136,12 @@ class RayCaster:
             self._vol = wp.array(flat, dtype=K.VOXEL_TYPES[name], device=dev)
         nb = np.asarray([-(-(s - 1) // BRICK) for s in shape])
         retabled = self._tables(volume)
+        fresh = retabled or (shape, name) != self._grid_key
         if (shape, name) != self._grid_key:
             # The distance field's seed and passes are kept: an update redoes them near the change only.
-            self._bmin, self._bmax, self._seed, self._pass1, self._pass2, self._distance = (
-                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float) + (wp.uint8,) * 4)
+            self._bmin, self._bmax, self._pass1, self._pass2, self._distance = (
+                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float) + (wp.uint8,) * 3)
+            self._seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device=dev)  # no seed value: all written
             self._grid_key = (shape, name)
             changed = True
         if changed is True:
@@ -151,13 +153,16 @@ class RayCaster:
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if np.all(last >= first):
-            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, BRICK],
+            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides],
                       [self._bmin, self._bmax])
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
+            flips = wp.zeros(1, dtype=wp.int32, device=dev)
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
-                                                        float(self._lut_scale), REACH], [self._seed])
+                                                        float(self._lut_scale), REACH], [self._seed, flips])
+            if not flips.numpy()[0] and not fresh:
+                return  # no brick turned empty or occupied: the distances stand
             # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
             # that axis and the axes before it.
             for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
@@ -235,7 +240,7 @@ class RayCaster:
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
-            wp.vec3(*np.asarray(light, float)), int(bool(p.shade)), BRICK, self._distance,
+            wp.vec3(*np.asarray(light, float)), int(bool(p.shade)), self._distance,
             wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev),
             wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev), image,
         ]
