@@ -148,6 +148,21 @@ def test_big_endian_int16_nrrd(tmp_path, encoding):
     _deforms(vol)
 
 
+@pytest.mark.parametrize("encoding", ["raw", "gzip", "bzip2"])
+def test_nrrd_byte_skip_minus_one_reads_the_last_bytes(tmp_path, encoding):
+    # pynrrd's samples use it to read the voxels of a NIfTI file through an .nhdr
+    import bz2
+
+    truth = np.arange(24, dtype="<u2").reshape((2, 3, 4), order="F") * 1000
+    stream = b"\x07" * 352 + truth.tobytes(order="F")
+    packed = {"raw": stream, "gzip": gzip.compress(stream), "bzip2": bz2.compress(stream)}[encoding]
+    (tmp_path / "d.bin").write_bytes(packed)
+    path = tmp_path / "skip.nhdr"
+    path.write_text(f"NRRD0004\ntype: ushort\ndimension: 3\nsizes: 2 3 4\nendian: little\nencoding: {encoding}\n"
+                    "byte skip: -1\ndata file: d.bin\n")
+    np.testing.assert_array_equal(_load_quiet(path).data, truth)
+
+
 def test_four_d_nrrd_picks_the_channel_axis(tmp_path):
     # kinds "vector domain domain domain": the channel axis is the first, fastest one
     truth = np.arange(2 * 3 * 4 * 5, dtype=np.float32).reshape((2, 3, 4, 5), order="F")

@@ -469,7 +469,8 @@ def _read_voxels(f, start: int, count: int, dtype: np.dtype, encoding: str, what
     ``encoding`` is ``raw`` (the file must hold them: checked before anything is
     allocated), ``gzip``, ``bzip2``, ``zlib`` (zlib or gzip stream) or ``ascii``
     (whitespace-separated numbers); ``skip`` bytes of the decoded stream are dropped first
-    (NRRD ``byte skip`` after decompression). Returns a 1-D array."""
+    (NRRD ``byte skip`` after decompression; -1: the voxels are the stream's last bytes, at
+    most :data:`_HEADER_BYTES` after the first). Returns a 1-D array."""
     nbytes = count * dtype.itemsize
     f.seek(start)
     if encoding == "raw":
@@ -494,9 +495,16 @@ def _read_voxels(f, start: int, count: int, dtype: np.dtype, encoding: str, what
     stream = {"gzip": lambda: gzip.GzipFile(fileobj=f, mode="rb"), "bzip2": lambda: bz2.BZ2File(f, mode="rb"),
               "zlib": lambda: _Inflated(f)}[encoding]()
     try:
-        if skip:
+        if skip > 0:
             _read_exact(stream, skip, what, source)
-        return np.frombuffer(_read_exact(stream, nbytes, what, source), dtype=dtype)
+        buf = _read_exact(stream, nbytes, what, source)
+        if skip == -1:
+            tail = stream.read(_HEADER_BYTES + 1)
+            if len(tail) > _HEADER_BYTES:
+                raise InputError("byte skip", f"-1 with at most {_HEADER_BYTES} bytes before the voxel data",
+                                 "a longer stream", source)
+            buf = (buf + tail)[len(tail):]
+        return np.frombuffer(buf, dtype=dtype)
     except InputError:
         raise
     except (zlib.error, OSError, EOFError, ValueError) as exc:  # a corrupt compressed stream
@@ -690,7 +698,7 @@ def _read_nrrd(p: Path) -> dict:
                 raise InputError("endian", "little or big", repr(endian), source)
             dtype = dtype.newbyteorder("<" if endian == "little" else ">")
         line_skip = _nrrd_skip(header, ("line skip", "lineskip"), 0, source)
-        byte_skip = _nrrd_skip(header, ("byte skip", "byteskip"), -1 if encoding == "raw" else 0, source)
+        byte_skip = _nrrd_skip(header, ("byte skip", "byteskip"), 0 if encoding == "ascii" else -1, source)
         name = header.get("data file", header.get("datafile"))
         if name is None:
             data_path = p
@@ -707,7 +715,7 @@ def _read_nrrd(p: Path) -> dict:
                         raise InputError("line skip", f"{line_skip} lines before the data", "the end of the file",
                                          source)
             start = g.tell()
-            if byte_skip == -1:  # the data are the last bytes of the file
+            if byte_skip == -1 and encoding == "raw":  # the data are the last bytes of the file
                 start = max(os.fstat(g.fileno()).st_size - count * dtype.itemsize, start)
                 byte_skip = 0
             flat = _read_voxels(g, start, count, dtype, encoding, "data", source, skip=byte_skip)
