@@ -197,6 +197,17 @@ def test_metaimage_big_endian_int8_with_direction_agrees_with_simpleitk(tmp_path
     _deforms(vol)
 
 
+def test_detached_data_file_names_with_spaces(tmp_path):
+    truth = np.arange(8, dtype=np.uint8).reshape((2, 2, 2), order="F")
+    (tmp_path / "my scan.raw").write_bytes(truth.tobytes(order="F"))
+    (tmp_path / "a.mhd").write_text("NDims = 3\nDimSize = 2 2 2\nElementType = MET_UCHAR\n"
+                                    "ElementDataFile = my scan.raw\n")
+    (tmp_path / "a.nhdr").write_text("NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n"
+                                     "data file: my scan.raw\n")
+    for name in ("a.mhd", "a.nhdr"):
+        np.testing.assert_array_equal(load(tmp_path / name).data, truth)
+
+
 def test_metaimage_four_d_frames(tmp_path):
     truth = np.arange(3 * 4 * 5 * 2, dtype=np.uint16).reshape((3, 4, 5, 2), order="F")
     path = tmp_path / "t.mha"

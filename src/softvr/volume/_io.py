@@ -703,7 +703,8 @@ def _read_nrrd(p: Path) -> dict:
         if name is None:
             data_path = p
         else:
-            if not isinstance(name, str) or name.startswith("LIST") or len(name.split()) > 1:
+            # "LIST" and "<format with %> <min> <max> <step>" name several files; a name may hold spaces
+            if not isinstance(name, str) or name.startswith("LIST") or "%" in name:
                 raise InputError("data file", "one detached data file name (LIST and name patterns are not read)",
                                  repr(name), source)
             data_path, data_start = _data_file(p, name, "data file"), 0
@@ -980,7 +981,7 @@ def _read_metaimage(p: Path) -> dict:
         name = h["ElementDataFile"]
         if name == "LOCAL":
             data_path = p
-        elif name.startswith("LIST") or "%" in name or len(name.split()) > 1:
+        elif name.startswith("LIST") or "%" in name:  # several files; a single name may hold spaces
             raise InputError("ElementDataFile", "LOCAL or one data file name (LIST and name patterns are not read)",
                              repr(name), source)
         else:
