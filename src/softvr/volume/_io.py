@@ -1386,7 +1386,7 @@ def _slice_order(positions: list, normal: np.ndarray, names: list[str], thicknes
             k = int(np.argmin(steps))
             raise InputError(
                 "ImagePositionPatient",
-                "one slice per position along the slice normal",
+                "one slice per position along the slice normal (a time series or two series mixed?)",
                 f"two slices at {dist[k]:.6g} ({names[order[k]]}, {names[order[k + 1]]})",
                 source,
             )
@@ -1394,7 +1394,7 @@ def _slice_order(positions: list, normal: np.ndarray, names: list[str], thicknes
         if np.max(np.abs(steps - dz)) > 1e-3 * dz + 1e-4:
             raise InputError(
                 "ImagePositionPatient",
-                "uniformly spaced slices",
+                "uniformly spaced slices (missing slices, or a localizer: load another series, series=)",
                 f"slice steps from {steps.min():.6g} to {steps.max():.6g}",
                 source,
             )
@@ -1405,7 +1405,7 @@ def _slice_order(positions: list, normal: np.ndarray, names: list[str], thicknes
 
 def _check_image(ds, f: Path, frames: int) -> None:
     if int(ds.get("SamplesPerPixel", 1) or 1) != 1:
-        raise InputError("SamplesPerPixel", "1 (grey-scale; colour images are not volumes)",
+        raise InputError("SamplesPerPixel", "1 (grey-scale; convert a colour image to grey-scale first)",
                          str(ds.SamplesPerPixel), str(f))
     check_count(int(ds.Rows) * int(ds.Columns) * frames, "Rows x Columns x NumberOfFrames (number of voxels)",
                 str(f))
@@ -1447,7 +1447,9 @@ def _dicom_slices(slices: list, source: str) -> dict:
         o = _vec(ds, "ImageOrientationPatient", 6, [1, 0, 0, 0, 1, 0])
         if not np.allclose(o, iop, atol=1e-4):
             raise InputError(
-                "ImageOrientationPatient", f"{iop.tolist()} as in {f0.name}", str(o.tolist()), str(f)
+                "ImageOrientationPatient",
+                f"{iop.tolist()} as in {f0.name} (one orientation; a localizer mixes them: load another series)",
+                str(o.tolist()), str(f)
             )
         sp = _vec(ds, "PixelSpacing", 2, [1, 1])
         if not np.allclose(sp, ps, rtol=1e-4):
