@@ -412,7 +412,7 @@ def _deformable(data: np.ndarray, source: str) -> np.ndarray:
             why = f"the values {lo} .. {hi} exceed 16 bits; " + ("exact below 2**24" if exact else
                                                                   "rounded to 24 significant bits")
     else:
-        target, why = np.dtype(np.float32), "rounded to float32 precision"
+        target, why = np.dtype(np.float32), "exact" if data.dtype.itemsize < 4 else "rounded to float32 precision"
     names = ", ".join(d.name for d in SUPPORTED_DTYPES)
     warnings.warn(f"{source}: voxel type {before} converted to {target.name} ({why}); softvr deforms {names}",
                   UserWarning, stacklevel=4)
