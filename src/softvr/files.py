@@ -14,12 +14,17 @@ import json
 import os
 import stat
 import tomllib
+import zipfile
+import zlib
 from pathlib import Path
+
+import numpy as np
 
 from softvr.errors import InputError, SoftvrError
 
 __all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "checked_file", "check_count",
-           "check_tree", "file_name", "inside_folder", "load_json", "native_read", "read_text", "read_toml"]
+           "check_npz", "check_tree", "file_name", "inside_folder", "load_json", "native_read", "read_text",
+           "read_toml"]
 
 
 def _limit(name: str, default: int) -> int:
@@ -205,3 +210,36 @@ def native_read(read, path: str | os.PathLike, what: str, expected: str):
         raise InputError(what, expected, f"the reader gave up (exit {exc.code!r})", source=str(path)) from None
     except Exception as exc:  # noqa: BLE001 - native readers raise every type for bad files
         raise InputError(what, expected, f"{type(exc).__name__}: {str(exc)[:300]}", source=str(path)) from None
+
+
+def check_npz(path: str | os.PathLike, what: str) -> Path:
+    """``path`` if it is a regular ``.npz`` file whose arrays hold no more than their zip
+    entries say (a header claiming 1e18 elements would make NumPy allocate them before reading)
+    and whose entries together stay within :data:`MAX_FILE_BYTES` uncompressed (no zip bomb);
+    else an :class:`InputError` naming the file and the entry."""
+    path = checked_file(path, what)
+    source = str(path)
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = archive.infolist()
+            total = sum(m.file_size for m in members)
+            if total > MAX_FILE_BYTES:
+                raise InputError(what, f"at most {MAX_FILE_BYTES} bytes uncompressed (SOFTVR_MAX_FILE_BYTES raises "
+                                 "the limit)", f"{total} bytes", source=source)
+            for member in members:
+                with archive.open(member) as f:
+                    version = np.lib.format.read_magic(f)
+                    shape, _, dtype = (np.lib.format.read_array_header_1_0(f) if version == (1, 0)
+                                       else np.lib.format.read_array_header_2_0(f))
+                    count = 1
+                    for n in shape:
+                        count *= n
+                    if dtype.hasobject or count * dtype.itemsize > member.file_size:
+                        raise InputError(f"{what} {member.filename}", "an array no larger than its zip entry",
+                                         f"shape {shape} of {dtype} in {member.file_size} bytes", source=source)
+                    while f.read(1 << 20):  # the rest, in chunks: zipfile checks the CRC at the end
+                        pass
+    except (zipfile.BadZipFile, zlib.error, ValueError, OSError, EOFError, NotImplementedError) as exc:
+        raise InputError(what, "a .npz file (a zip of .npy arrays)", f"{type(exc).__name__}: {str(exc)[:200]}",
+                         source=source) from None
+    return path

@@ -301,3 +301,48 @@ def test_commands_refuse_the_issues_files_with_exit_2_naming_file_and_field(root
         assert outcome.kind == "clean", (name, outcome.kind, outcome.detail)
         assert field in outcome.detail, (name, outcome.detail)
     _check(outcomes, paths, "softvr check on the issue's files (subprocesses)")
+
+
+def _model_mutants(folder: Path, rng: random.Random, n: int) -> list[str]:
+    """Mutants of a built model (.npz): its JSON manifest mutated, an array replaced by one of
+    another shape, dtype or range, the archive's bytes mutated, or an .npy header claiming
+    more elements than its entry holds."""
+    from softvr.model.build import build_model
+
+    model = build_model(_parts_seed(folder), progress=False)
+    seed = model.save(folder / "seed.model.npz")
+    arrays = dict(np.load(seed))
+    manifest = json.loads(str(arrays["manifest"]))
+    odd = [np.zeros((0, 3)), np.full((4, 3), np.nan), np.arange(12).reshape(4, 3) * 10 ** 6, np.zeros((5, 4)),
+           np.array([-1, 0, 1]), np.zeros(3, np.float16), np.array("text")]
+    paths = []
+    for i in range(n):
+        path = folder / f"model{i:04d}.npz"
+        kind = rng.randrange(4)
+        if kind == 0:
+            changed = {**arrays, "manifest": np.array(json.dumps(mutate_tree(manifest, rng, pool=MILD + [[], {}, "x"])))}
+            np.savez(path, **changed)
+        elif kind == 1:
+            key = rng.choice(sorted(k for k in arrays if k != "manifest"))
+            np.savez(path, **{**arrays, key: odd[rng.randrange(len(odd))]})
+        elif kind == 2:
+            path.write_bytes(byte_mutants(seed.read_bytes(), rng, 1)[0])
+        else:
+            np.savez(path, **arrays)  # stored, not deflated: the .npy headers are in the bytes
+            data = path.read_bytes()
+            at = data.find(b"'shape': (", rng.randrange(len(data) // 2))
+            if at >= 0:
+                start = at + len(b"'shape': (")
+                end = data.index(b",", start)
+                data = data[:start] + rng.choice([b"1000000000000", b"99999", b"0"]).ljust(end - start)[:max(
+                    end - start, 1)] + data[end:]
+            path.write_bytes(data)
+        paths.append(str(path))
+    return paths
+
+
+def test_model_file_mutants_are_loaded_or_refused_naming_the_file(root):
+    folder = _folder(root, "models")
+    paths = _model_mutants(folder, random.Random(SEED + 10), 250)
+    outcomes = run_reader("softvr.model.build:load_model", paths)
+    _check(outcomes, paths, "built models (load_model, .npz)")

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.files import native_read
+from softvr.files import check_npz, load_json, native_read
 from softvr.scene.gltf import check_gltf
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
@@ -203,27 +203,95 @@ class Model:
 
 
 def load_model(path) -> Model:
-    """Read a model saved by :meth:`Model.save`."""
-    path = Path(path)
+    """Read a model saved by :meth:`Model.save`; a file that is not one (a bad manifest,
+    arrays of the wrong shapes or indices out of range) is an :class:`InputError` naming the
+    file and the entry."""
+    path = check_npz(path, "model")
+    source = str(path)
     try:
         data = np.load(path, allow_pickle=False)
-        manifest = json.loads(str(data["manifest"]))
+        manifest = load_json(str(data["manifest"]), "model manifest", source)
     except (OSError, KeyError, ValueError) as exc:
-        raise InputError("model", f"a {MODEL_FORMAT} .npz file", f"{type(exc).__name__}: {exc}", source=str(path)) from None
-    if manifest.get("format") != MODEL_FORMAT:
-        raise InputError("format", MODEL_FORMAT, manifest.get("format"), source=str(path))
-    parts = []
-    for i, entry in enumerate(manifest["parts"]):
-        spec = PartSpec(**{**entry["spec"], "mesh": Path(entry["spec"]["mesh"])})
-        kw = {key: data[f"p{i}_{key}"] for key in ("render_vertices", "render_triangles", "collision_vertices",
-                                                   "collision_triangles", "rest_nodes", "start_nodes", "tets",
-                                                   "center", "inertia") if f"p{i}_{key}" in data}
-        for key in ("render_embedding", "collision_embedding"):
-            if f"p{i}_{key}_tet" in data:
-                kw[key] = (data[f"p{i}_{key}_tet"], data[f"p{i}_{key}_weights"])
-        parts.append(PartModel(spec=spec, mass=entry["mass"], **kw))
-    couplings = [(CouplingSpec(**c), data[f"c{i}_springs"]) for i, c in enumerate(manifest["couplings"])]
-    return Model(parts=parts, couplings=couplings, crossings=manifest["crossings"])
+        raise InputError("model", f"a {MODEL_FORMAT} .npz file", f"{type(exc).__name__}: {exc}", source=source) from None
+    if not isinstance(manifest, dict) or manifest.get("format") != MODEL_FORMAT:
+        raise InputError("format", MODEL_FORMAT, repr(manifest.get("format") if isinstance(manifest, dict)
+                                                      else manifest)[:100], source=source)
+    entries, links, crossings = manifest.get("parts"), manifest.get("couplings"), manifest.get("crossings", {})
+    if not (isinstance(entries, list) and entries and all(
+            isinstance(e, dict) and isinstance(e.get("spec"), dict) for e in entries)):
+        raise InputError("manifest.parts", "a list of {spec, mass} entries", repr(entries)[:100], source=source)
+    if not (isinstance(links, list) and all(isinstance(c, dict) for c in links) and isinstance(crossings, dict)):
+        raise InputError("manifest.couplings", "a list of couplings and a crossings table", repr(links)[:100],
+                         source=source)
+    parts = [_loaded_part(data, i, entry, source) for i, entry in enumerate(entries)]
+    names = {p.spec.name for p in parts}
+    couplings = []
+    for i, c in enumerate(links):
+        fields = set(CouplingSpec.__dataclass_fields__)
+        ends = c.get("a"), c.get("b")
+        if not (set(c) <= fields and all(isinstance(e, str) and e in names for e in ends)
+                and _finite(c.get("stiffness")) and _finite(c.get("damping", 0.0))
+                and (c.get("radius") is None or _finite(c["radius"])) and isinstance(c.get("collide", False), bool)
+                and isinstance(c.get("nodes", []), list) and all(type(n) is int for n in c.get("nodes", []))):
+            raise InputError(f"manifest.couplings[{i}]", f"a coupling of two parts ({', '.join(sorted(names))})",
+                             repr(c)[:200], source=source)
+        couplings.append((CouplingSpec(**c), _array(data, f"c{i}_springs", (None, 3), source)))
+    return Model(parts=parts, couplings=couplings, crossings=crossings)
+
+
+def _finite(x) -> bool:
+    return type(x) in (int, float) and bool(np.isfinite(x))
+
+
+def _array(data, key: str, shape: tuple, source: str, *, below: int | None = None) -> np.ndarray:
+    """``data[key]`` if it has ``shape`` (None: any length) and finite numbers (integers in
+    ``0 .. below - 1`` with ``below``); else an :class:`InputError` naming the entry."""
+    if key not in data:
+        raise InputError(key, f"an array of shape {shape}", "none", source=source)
+    a = data[key]
+    ok = a.ndim == len(shape) and all(n is None or a.shape[k] == n for k, n in enumerate(shape))
+    if ok and below is not None:
+        ok = np.issubdtype(a.dtype, np.integer) and (a.size == 0 or (a.min() >= 0 and a.max() < below))
+    elif ok:
+        ok = np.issubdtype(a.dtype, np.number) and bool(np.all(np.isfinite(a)))
+    if not ok:
+        expected = f"shape {shape}" + (f", indices in 0 .. {below - 1}" if below is not None else ", finite numbers")
+        raise InputError(key, expected, f"shape {a.shape} of {a.dtype}", source=source)
+    return a
+
+
+def _loaded_part(data, i: int, entry: dict, source: str) -> PartModel:
+    """Part ``i`` of a model file, every array checked against the others it indexes."""
+    spec_fields = set(PartSpec.__dataclass_fields__)
+    raw = entry["spec"]
+    if not (set(raw) <= spec_fields and all(isinstance(raw.get(k), str) for k in ("name", "mesh", "kind"))
+            and raw["kind"] in ("fixed", "kinematic", "rigid", "soft")):
+        raise InputError(f"manifest.parts[{i}].spec", "a part (name, mesh, kind, ...)", repr(raw)[:200], source=source)
+    numbers = ("density", "young", "poisson", "alpha", "beta", "cell_size", "friction")
+    if not all(_finite(raw[k]) for k in numbers if k in raw) or type(raw.get("collision_triangles", 4)) is not int:
+        raise InputError(f"manifest.parts[{i}].spec", "finite material numbers and an integer triangle budget",
+                         repr(raw)[:200], source=source)
+    spec = PartSpec(**{**raw, "mesh": Path(raw["mesh"])})
+    mass = entry.get("mass")
+    if not (type(mass) in (int, float) and np.isfinite(mass) and mass >= 0):
+        raise InputError(f"manifest.parts[{i}].mass", "a mass >= 0 [kg]", repr(mass), source=source)
+    kw = {}
+    for surface in ("render", "collision"):
+        v = kw[f"{surface}_vertices"] = _array(data, f"p{i}_{surface}_vertices", (None, 3), source)
+        kw[f"{surface}_triangles"] = _array(data, f"p{i}_{surface}_triangles", (None, 3), source, below=len(v))
+    if spec.kind == "soft":
+        nodes = kw["rest_nodes"] = _array(data, f"p{i}_rest_nodes", (None, 3), source)
+        kw["start_nodes"] = _array(data, f"p{i}_start_nodes", (len(nodes), 3), source)
+        tets = kw["tets"] = _array(data, f"p{i}_tets", (None, 4), source, below=len(nodes))
+        for surface in ("render", "collision"):
+            count = len(kw[f"{surface}_vertices"])
+            kw[f"{surface}_embedding"] = (_array(data, f"p{i}_{surface}_embedding_tet", (count,), source,
+                                                 below=len(tets)),
+                                          _array(data, f"p{i}_{surface}_embedding_weights", (count, 4), source))
+    elif spec.kind in ("rigid", "kinematic") or f"p{i}_center" in data:
+        kw["center"] = _array(data, f"p{i}_center", (3,), source)
+        kw["inertia"] = _array(data, f"p{i}_inertia", (3, 3), source)
+    return PartModel(spec=spec, mass=float(mass), **kw)
 
 
 def rigid_properties(v, t, density: float, name: str):
