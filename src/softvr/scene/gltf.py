@@ -263,8 +263,27 @@ def _check_structure(doc, path: Path, binary: bytes | None) -> None:
             if value is not None and not (isinstance(value, list) and len(value) <= 16 and all(
                     type(x) in (int, float) for x in value)):
                 bad(f"{w}.{key}", "at most 16 numbers", value)
-        if "sparse" in a:
-            bad(f"{w}.sparse", "a dense accessor (softvr reads no sparse accessors)", "a sparse one")
+        if "sparse" in a:  # Blender writes shape keys so: its indices and values must fit their views
+            sparse = a["sparse"]
+            if not (isinstance(sparse, dict) and isinstance(sparse.get("indices"), dict)
+                    and isinstance(sparse.get("values"), dict)):
+                bad(f"{w}.sparse", "an object with count, indices and values", type(sparse).__name__)
+            elif count is not None and isinstance(kind, str) and kind in _COMPONENTS and \
+                    type(component) is int and component in _COMPONENT_BYTES:
+                n = integer(sparse, "count", f"{w}.sparse", 1, count)
+                indices, values = sparse["indices"], sparse["values"]
+                if indices.get("componentType") not in (5121, 5123, 5125) or type(indices["componentType"]) is not int:
+                    bad(f"{w}.sparse.indices.componentType", "5121 | 5123 | 5125", indices.get("componentType"))
+                    n = None
+                for part, size in ((indices, _COMPONENT_BYTES.get(indices.get("componentType"), 4)),
+                                   (values, _COMPONENT_BYTES[component] * _COMPONENTS[kind])):
+                    pw = f"{w}.sparse.{'indices' if part is indices else 'values'}"
+                    sv = index(part, "bufferView", pw, "bufferViews", required=True)
+                    so = integer(part, "byteOffset", pw, 0, MAX_FILE_BYTES, default=0)
+                    length = arrays["bufferViews"][sv].get("byteLength") if sv is not None else None
+                    if None not in (n, so) and type(length) is int and so + n * size > length:
+                        bad(pw, f"{n} entries within bufferViews[{sv}] ({length} bytes)",
+                            f"bytes {so} .. {so + n * size}")
         v = index(a, "bufferView", w, "bufferViews")
         if None in (count, offset) or not isinstance(kind, str) or kind not in _COMPONENTS or \
                 type(component) is not int or component not in _COMPONENT_BYTES:
