@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
+from softvr.files import checked_file
 
 __all__ = ["tetmesh_main", "write_tetmesh"]
 
@@ -25,10 +26,7 @@ def write_tetmesh(surface, cell_size: float, out=None) -> tuple[Path, np.ndarray
     with ``.vtu``); returns (path, nodes [n, 3] [m], tets [m, 4])."""
     from softvr.model import dynamics_mesh, load_mesh
 
-    surface = Path(surface)
-    if not surface.is_file():
-        raise InputError("SURFACE", "an existing mesh file (OBJ, STL, PLY, glTF / GLB, OFF)", "no such file",
-                         source=str(surface))
+    surface = checked_file(surface, "SURFACE")  # a regular file: a FIFO would block the mesh reader
     if not (np.isfinite(cell_size) and cell_size > 0):
         raise InputError("--cell-size", "a cube size > 0 [m]", repr(cell_size))
     out = Path(out) if out is not None else surface.with_suffix(".vtu")

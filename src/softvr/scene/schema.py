@@ -143,6 +143,10 @@ the SI number to write, and a time step, density, Young's modulus or body size o
 can be in SI units (:data:`PLAUSIBLE`: a step in ms, a density in g/cm^3, a size in mm) is
 reported, not simulated. ``softvr check`` also builds the valid rest
 (:func:`read_scene_with_problems`) and reports bodies that start crossing, with the others.
+Counts (frames, cells, quads, triangle budgets) are bounded by :data:`LIMITS` before anything
+is built, and the file is read through :mod:`softvr.files` (a regular UTF-8 file, nesting and
+integers bounded, file names without NUL bytes and of lengths the OS accepts):
+docs/input-limits.md.
 """
 
 from __future__ import annotations
