@@ -33,8 +33,11 @@ THESIS = {"voxels": 4.99e6, "tets": 700, "raster_ms": 14.86, "gpu": "GTX 680"}
 
 
 def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int = 512,
-                        device: str | None = None, renderer: str = "warp") -> dict:
-    """The palpation demo's frames, each stage timed; ``quick``: 6 frames at 128 x 128."""
+                        device: str | None = None, renderer: str = "warp", render_step: int = 1,
+                        sample_distance: float | None = None) -> dict:
+    """The palpation demo's frames, each stage timed; ``quick``: 6 frames at 128 x 128.
+    ``renderer``, ``render_step`` and ``sample_distance`` as for the demo's :class:`Example`
+    (``None``: the demo's default)."""
     from tqdm import tqdm
 
     from softvr.examples.example_palpation import Example
@@ -48,7 +51,9 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     trace = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms", "render_cpu_ms",
                              "raster_voxels", "indentation_m")}
     trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms")})
-    with Example(frames=frames, width=size, height=size, device=device, renderer=renderer) as ex:
+    step_option = {} if sample_distance is None else {"sample_distance": sample_distance}
+    with Example(frames=frames, width=size, height=size, device=device, renderer=renderer, render_step=render_step,
+                 **step_option) as ex:
         full = Volume(np.empty(ex.volume.shape, ex.volume.dtype), ex.volume.spacing.copy(), ex.volume.origin.copy(),
                       ex.volume.direction.copy())
         ex.render()  # the renderer's set-up (window, first upload) is not a frame's cost
@@ -169,8 +174,11 @@ def main(argv: list[str] | None = None) -> int:
                      plot="write a PNG of the stages over the press")
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
     p.add_argument("--renderer", choices=("warp", "vtk"), default="warp", help="the demo's volume renderer")
+    p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
+    p.add_argument("--sample-distance", type=float, default=None, help="ray step [voxels] (default: the demo's)")
     a = p.parse_args(argv)
-    result = run_palpation_bench(quick=a.quick, progress=not a.no_progress, device=a.device, renderer=a.renderer)
+    result = run_palpation_bench(quick=a.quick, progress=not a.no_progress, device=a.device, renderer=a.renderer,
+                                 render_step=a.render_step, sample_distance=a.sample_distance)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 

@@ -136,6 +136,12 @@ def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
                     first[2] + tid % count[2])
 
 
+@wp.func
+def exit_along(o: float, inv_d: float, lo: float, hi: float) -> float:
+    """Ray parameter where ``o + t / inv_d`` leaves [lo, hi] on one axis (going forwards)."""
+    return (wp.where(inv_d > 0.0, hi, lo) - o) * inv_d
+
+
 @wp.kernel
 def brick_minmax(
     vol: wp.array(dtype=Any),
@@ -287,6 +293,11 @@ def raycast(
         half = wp.normalize(light + view)
         size = lut.shape[0]
         nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
+        # Reciprocals once per ray: the empty-space jumps multiply (a zero component never exits).
+        inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
+                        wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
+                        wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
+        inv_step = 1.0 / step
         last = wp.vec3i(-1, -1, -1)  # the occupied brick the ray is in (no need to look again)
         while alpha < OPAQUE_ENOUGH:
             t = t0 + (k + shift) * step
@@ -305,12 +316,11 @@ def raycast(
                 # Empty space: jump to where the ray leaves the empty cube of bricks around
                 # this one, staying on the ray's sample lattice t0 + (k + shift) step so
                 # that skipping changes no sample.
-                out = wp.vec2(t, span[1])
                 bs = float(BRICK)
-                out = slab(o[0], d[0], float(b[0] - r + 1) * bs, float(b[0] + r) * bs, out[0], out[1])
-                out = slab(o[1], d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs, out[0], out[1])
-                out = slab(o[2], d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs, out[0], out[1])
-                k = wp.max(k + 1.0, wp.ceil((out[1] - t0) / step - shift))
+                leave = wp.min(wp.min(exit_along(o[0], inv_d[0], float(b[0] - r + 1) * bs, float(b[0] + r) * bs),
+                                      exit_along(o[1], inv_d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs)),
+                               exit_along(o[2], inv_d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs))
+                k = wp.max(k + 1.0, wp.ceil((leave - t0) * inv_step - shift))
                 continue
             v = trilinear(vol, n, strides, p)
             c = lut_rgba(lut, lut_position(v, lut_lo, lut_scale, size))
