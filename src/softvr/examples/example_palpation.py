@@ -221,6 +221,11 @@ class Example:
                                             camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3),
                                             mapper="warp" if self.renderer == "warp" else "cpu",
                                             sample_distance=self.sample_distance)
+            self._probe_actor = _probe_actor(self.radius / _UNIT)
+            self._renderer.vtk_renderer.AddActor(self._probe_actor)
+        # The probe as a surface in the same frame: in front of the skin it hides it, pressed
+        # in it is hidden by the skin around it.
+        self._probe_actor.SetPosition(*(np.asarray(self.probe.position) / _UNIT))
         if self.renderer == "warp":
             # The rewritten box is in full-resolution voxels: a subsampled volume is redone whole.
             changed = self._changed if self.render_step == 1 else True
@@ -263,6 +268,24 @@ class Example:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _probe_actor(radius_mm: float):
+    """A VTK sphere actor of the probe [mm], centred at the origin (moved by SetPosition)."""
+    from vtkmodules.vtkFiltersSources import vtkSphereSource
+    from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
+
+    source = vtkSphereSource()
+    source.SetRadius(radius_mm)
+    source.SetThetaResolution(48)
+    source.SetPhiResolution(24)
+    mapper = vtkPolyDataMapper()
+    mapper.SetInputConnection(source.GetOutputPort())
+    actor = vtkActor()
+    actor.SetMapper(mapper)
+    actor.GetProperty().SetColor(0.55, 0.65, 0.8)
+    actor.GetProperty().SetSpecular(0.4)
+    return actor
 
 
 def view(example: Example, *, timeout_s: float | None = None) -> int:
