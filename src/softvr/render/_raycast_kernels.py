@@ -183,13 +183,14 @@ def brick_occupancy(
     first: wp.vec3i,
     count: wp.vec3i,
     seed: wp.array3d(dtype=wp.uint8),
-    flips: wp.array(dtype=wp.int32),
+    flipped: wp.array(dtype=wp.int32),
     offset: int,
 ):
     """0 for a brick with any value of non-zero opacity in its range, else ``reach`` (the
-    seed of the distance field); ``flips[0]`` counts the seeds that changed. ``visible``
-    holds the running count of table entries with opacity > 0, so a range is empty iff the
-    counts at its ends are equal."""
+    seed of the distance field); ``flipped`` (6: lower corner, upper corner; start empty)
+    grows to the box of the bricks whose seed changed. ``visible`` holds the running count
+    of table entries with opacity > 0, so a range is empty iff the counts at its ends are
+    equal."""
     b = brick_of(wp.tid() + offset, first, count)
     size = visible.shape[0] - 1
     u0 = int(wp.floor(lut_position(bmin[b[0], b[1], b[2]], lo, scale, size)))
@@ -197,7 +198,9 @@ def brick_occupancy(
     value = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 0, reach))
     if value != seed[b[0], b[1], b[2]]:
         seed[b[0], b[1], b[2]] = value
-        wp.atomic_add(flips, 0, 1)
+        for a in range(3):
+            wp.atomic_min(flipped, a, b[a])
+            wp.atomic_max(flipped, 3 + a, b[a])
 
 
 @wp.kernel

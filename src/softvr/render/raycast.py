@@ -158,11 +158,14 @@ class RayCaster:
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
-            flips = wp.zeros(1, dtype=wp.int32, device=dev)
+            flipped = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
-                                                        float(self._lut_scale), REACH], [self._seed, flips])
-            if not flips.numpy()[0] and not fresh:
-                return  # no brick turned empty or occupied: the distances stand
+                                                        float(self._lut_scale), REACH], [self._seed, flipped])
+            if not fresh:  # redo the distances only around the bricks that turned empty or occupied
+                box = flipped.numpy()
+                if np.any(box[3:] < box[:3]):
+                    return
+                first, last = box[:3].astype(int), box[3:].astype(int)
             # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
             # that axis and the axes before it.
             for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
