@@ -184,7 +184,7 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
                     if not record.get("ready"):
                         outcomes[index] = Outcome(labels[index], record["kind"], record.get("detail", ""),
                                                   record.get("what"), record.get("source"), record["seconds"],
-                                                  record["rss"])
+                                                  record["rss"], {"fields": record.get("fields", [])})
                         index += 1
                     started = time.monotonic()
                     deadline = started + timeout_s
@@ -203,10 +203,13 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
 
 
 def names_file_and_field(outcome: Outcome, path) -> bool:
-    """Whether a clean refusal names the input file (its name) and a field (``what``)."""
+    """Whether a clean refusal names the input file (its name) and a field: a reader's
+    InputError its ``what`` and every one of its problems' fields; a command's message
+    ``FILE...: FIELD: expected``."""
     name = Path(path).name
     if outcome.what is not None:  # a reader's InputError
-        return bool(outcome.what) and outcome.source is not None and name in outcome.source
+        fields = outcome.extra.get("fields") or [outcome.what]
+        return outcome.source is not None and name in outcome.source and all(fields)
     return name in outcome.detail and ": expected " in outcome.detail
 
 
@@ -247,7 +250,8 @@ def _worker(target: str, todo: str) -> None:
             func(item)
         except SoftvrError as exc:
             record = {"kind": "clean", "detail": str(exc), "what": getattr(exc, "what", ""),
-                      "source": getattr(exc, "source", None)}
+                      "source": getattr(exc, "source", None),
+                      "fields": [p[0] for p in getattr(exc, "problems", [])]}
         except MemoryError:
             record = {"kind": "memory", "detail": traceback.format_exc()[-2000:]}
         except SystemExit as exc:
