@@ -148,3 +148,12 @@ def test_a_display_file_that_is_not_utf8_or_is_a_fifo_is_refused(tmp_path):
     os.mkfifo(tmp_path / "fifo.toml")
     with pytest.raises(InputError, match="FIFO"):
         load_display(tmp_path / "fifo.toml")
+
+
+def test_two_screens_of_one_name_are_refused(tmp_path):
+    """Images and views are keyed by screen name: a second screen of the same name would
+    silently replace the first in a preview."""
+    path = tmp_path / "display.toml"
+    path.write_text('format = "softvr-display 1"\n' + _SCREEN + 'node = "a"\n' + _SCREEN + 'node = "b"\n')
+    with pytest.raises(InputError, match=r"screen\[1\].name: expected a name no other screen has"):
+        load_display(path)

@@ -138,6 +138,9 @@ def _problems(screens: list, eye_separation, unread=frozenset()) -> list:
     nodes = [s.node or s.name for s in screens]
     out += [(f"screen[{i}].node", "one screen per render node", f"{n!r} twice")
             for i, n in enumerate(nodes) if n in nodes[:i]]
+    names = [s.name for s in screens]  # images, views and previews are keyed by screen name
+    out += [(f"screen[{i}].name", "a name no other screen has", f"{n!r} twice")
+            for i, n in enumerate(names) if n in names[:i]]
     ok = isinstance(eye_separation, (int, float)) and math.isfinite(eye_separation) and 0 <= eye_separation < 0.2
     if not ok:
         out.append(("eye_separation", "a distance in [0, 0.2) m", repr(eye_separation)))
