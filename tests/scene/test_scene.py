@@ -737,3 +737,23 @@ def test_gltf_indices_buffers_and_extras_are_checked_before_trimesh_reads_the_fi
         read_gltf_scene(path)
     assert caught.value.source == str(path)
     assert field in str(caught.value) and found in str(caught.value), str(caught.value)
+
+
+@pytest.mark.parametrize("table, field", [
+    ('[volume]\nfile = "a\\u0000b.nrrd"\n', "volume.file"),
+    ('[volume]\nfile = "' + "v" * 300 + '.nrrd"\n', "volume.file"),
+    ('[display]\nfile = "a\\u0000b.toml"\n', "display.file"),
+    ('[display]\nfile = "fifo.toml"\n', "display.file"),
+])
+def test_volume_and_display_file_names_are_checked_like_mesh_names(tmp_path, table, field):
+    os.mkfifo(tmp_path / "fifo.toml")
+    error = _refusal(_raw(tmp_path, _CUBE + table))
+    assert field in str(error), str(error)
+
+
+@pytest.mark.parametrize("display", ["a\u0000b.toml", "fifo.toml", "../" * 30 + "etc/passwd.toml"])
+def test_a_gltf_scene_display_file_is_checked_and_loaded(tmp_path, display):
+    os.mkfifo(tmp_path / "fifo.toml")
+    path = _gltf(tmp_path, lambda d: d["scenes"][0].update(extras={"softvr_display": display}))
+    with pytest.raises(InputError, match="scene.display"):
+        read_gltf_scene(path)

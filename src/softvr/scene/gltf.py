@@ -112,8 +112,8 @@ from urllib.parse import unquote
 import numpy as np
 
 from softvr.errors import InputError, Problems, raise_all
-from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_file, inside_folder, load_json,
-                          native_read)
+from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_file, file_name, inside_folder,
+                          load_json, native_read)
 from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _keyframes, _model, _render,
                                  _simulation, _volume)
 
@@ -765,9 +765,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     raises :class:`~softvr.errors.InputError`."""
     import trimesh
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("scene", "an existing glTF / GLB file", "no such file", source=str(path))
+    path = checked_file(path, "scene")
     doc, binary = _gltf_json(path, with_binary=True)
     buffers = _Buffers(path, doc, binary)
     errors = Problems(str(path), "glTF scene")
@@ -1018,13 +1016,17 @@ def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | 
 def _display(scene_props: dict, folder: Path, errors: Problems) -> str | None:
     """``softvr_display``: a :mod:`softvr.cave` display preset, or a display file (relative to
     the scene's folder)."""
-    from softvr.cave.display import PRESETS
+    from softvr.cave.display import PRESETS, load_display
 
     value = scene_props["display"]
     if isinstance(value, str) and value in PRESETS:
         return value
-    if isinstance(value, str) and value.lower().endswith(".toml") and (folder / value).is_file():
-        return str((folder / value).resolve())
+    if isinstance(value, str) and value.lower().endswith(".toml"):
+        try:  # loaded now, to check it (as a TOML scene's [display] file)
+            return str(load_display(file_name(folder, value, "scene.display")).name)
+        except InputError as exc:
+            errors.add("scene.display", "a valid display file", str(exc))
+            return None
     errors.add("scene.display", f"a display preset ({', '.join(PRESETS)}) or an existing display file (.toml)",
                repr(value))
     return None

@@ -736,10 +736,15 @@ def _volume(t, scene_dir: Path, errors: Problems, where: str = "volume") -> dict
     elif file in DATASETS:
         source = file
     else:
-        source = (scene_dir / file).resolve()
-        if not source.exists():
-            errors.add(f"{w}.file", f"an existing volume file or folder, or a dataset ({', '.join(DATASETS)})",
-                       f"no file {source}")
+        try:
+            source = file_name(scene_dir, file, f"{w}.file")
+        except InputError as exc:
+            errors.add(exc.what, f"a volume file or folder name ({exc.expected})", exc.found)
+        else:
+            if not source.exists():
+                errors.add(f"{w}.file", f"an existing volume file or folder, or a dataset ({', '.join(DATASETS)})",
+                           f"no file {source}")
+                source = None
     cells = t.get("cells", [16, 16, 8])
     top = LIMITS["cells"]
     if not (isinstance(cells, list) and len(cells) == 3 and all(
