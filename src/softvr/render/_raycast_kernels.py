@@ -250,6 +250,10 @@ def raycast(
     light: wp.vec3,
     shade: int,
     distance: wp.array3d(dtype=wp.uint8),
+    flips: int,
+    flip_lo: wp.vec3,
+    flip_hi: wp.vec3,
+    empty_until: wp.array(dtype=float),
     depth: wp.array2d(dtype=float),
     surface: wp.array3d(dtype=wp.uint8),
     image: wp.array3d(dtype=wp.uint8),
@@ -261,6 +265,12 @@ def raycast(
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
     is (ambient, diffuse, specular, specular power); ``light`` the unit direction towards
     the (head) light. ``gradient_scale`` < 0 disables gradient opacity.
+
+    ``empty_until`` [height * width] carries from frame to frame, per pixel, the index of the
+    first ray sample not known to lie in an empty brick (same camera, grid and table). It
+    stays valid unless a brick that turned occupied since (inside the index box
+    ``flip_lo .. flip_hi`` when ``flips`` != 0) lies on the ray before that sample; then the
+    ray starts over from its entry point.
     """
     tid = wp.tid() + offset
     px = tid % width
@@ -291,7 +301,6 @@ def raycast(
         shift = float(0.5)
         if jitter != 0:
             shift = pixel_noise(px, row)
-        k = float(0.0)
         view = -dw
         half = wp.normalize(light + view)
         size = lut.shape[0]
@@ -301,6 +310,15 @@ def raycast(
                         wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
                         wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
         inv_step = 1.0 / step
+        known = empty_until[tid]
+        if known > 0.0 and flips != 0:
+            on_ray = slab(o[0], d[0], flip_lo[0], flip_hi[0], t0, t0 + (known + shift) * step)
+            on_ray = slab(o[1], d[1], flip_lo[1], flip_hi[1], on_ray[0], on_ray[1])
+            on_ray = slab(o[2], d[2], flip_lo[2], flip_hi[2], on_ray[0], on_ray[1])
+            if on_ray[0] <= on_ray[1]:
+                known = 0.0
+        k = known
+        first = float(-1.0)  # the first sample found in an occupied brick
         last = wp.vec3i(-1, -1, -1)  # the occupied brick the ray is in (no need to look again)
         while alpha < OPAQUE_ENOUGH:
             t = t0 + (k + shift) * step
@@ -315,6 +333,8 @@ def raycast(
                 r = int(distance[b[0], b[1], b[2]])
                 if r == 0:
                     last = b
+                    if first < 0.0:
+                        first = k
             if r > 0:
                 # Empty space: jump to where the ray leaves the empty cube of bricks around
                 # this one, staying on the ray's sample lattice t0 + (k + shift) step so
@@ -350,6 +370,7 @@ def raycast(
                 rgb = rgb + (1.0 - alpha) * a * color
                 alpha = alpha + (1.0 - alpha) * a
             k = k + 1.0
+        empty_until[tid] = wp.where(first >= 0.0, first, k)
     for ch in range(3):
         value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
         image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))

@@ -111,6 +111,8 @@ class RayCaster:
         self._tables_key = None
         self._grid_key = None
         self._vol = None
+        self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
+        self._prefix_key = None
         load_kernels(K.raycast, self.device)
 
     # --------------------------------------------------------------- data
@@ -161,10 +163,13 @@ class RayCaster:
             flipped = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
                                                         float(self._lut_scale), REACH], [self._seed, flipped])
+            box = flipped.numpy()
+            if np.any(box[3:] < box[:3]):
+                return
+            # The rays' empty prefixes must be re-checked against the flipped bricks
+            # [index coordinates covered: b * BRICK .. (b + 1) * BRICK].
+            self._flips.append((box[:3] * BRICK, (box[3:] + 1) * BRICK))
             if not fresh:  # redo the distances only around the bricks that turned empty or occupied
-                box = flipped.numpy()
-                if np.any(box[3:] < box[:3]):
-                    return
                 first, last = box[:3].astype(int), box[3:].astype(int)
             # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
             # that axis and the axes before it.
@@ -236,6 +241,15 @@ class RayCaster:
         gradient_to_world = direction / spacing
         p = self.preset
         dev = self.device
+        # The rays' known-empty prefixes hold for one camera, grid, table and step.
+        key = (width, height, np.asarray(ndc_to_world, float).tobytes(), index_to_world.tobytes(), self._grid_key,
+               self._tables_key, self.jitter)
+        if key != self._prefix_key:
+            self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+            self._prefix_key = key
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
         image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -244,6 +258,7 @@ class RayCaster:
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
             wp.vec3(*np.asarray(light, float)), int(bool(p.shade)), self._distance,
+            len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi), self._empty_until,
             wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev),
             wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev), image,
         ]
