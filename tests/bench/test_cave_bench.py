@@ -12,7 +12,8 @@ from softvr.bench import cave as C
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def test_quick_bench_writes_json_and_png(tmp_path, capsys):
+def test_quick_bench_writes_json_and_png(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("SOFTVR_CAVE_KEYS", str(tmp_path / "keys"))  # CURVE keys made here, not in ~/.config
     js, png = tmp_path / "cave.json", tmp_path / "cave.png"
     assert C.main(["--quick", "--json", str(js), "--plot", str(png), "--no-progress"]) == 0
     out = capsys.readouterr().out
@@ -29,4 +30,7 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
     assert max(events) < 1000 and max(streamed) < 100_000
     assert result["peers"]["pickled_state_bytes"] > 120_000 > 2 * max(streamed)  # 10 K x 3 float32 = 120 kB
     assert all(f["p50"] > 0 for f in result["peers"]["zmq_alone"])
-    assert "ZeroMQ alone" not in out and "zmq alone" in out and "targets:" in out
+    assert "ZeroMQ alone" not in out and "zmq alone" in out and "targets:" in out and "CURVE on" in out
+    assert result["config"]["curve"] is True
+    secrets = list((tmp_path / "keys").rglob("*.key_secret"))
+    assert len(secrets) == 5 and {p.stat().st_mode & 0o777 for p in secrets} == {0o600}  # master + 4 nodes

@@ -12,6 +12,10 @@ deformable body (:class:`~softvr.cave.app.WavingSheet`). Reported per node count
   slowest node);
 * bytes per frame on the wire (mean / max).
 
+Master and nodes run as shipped: CURVE on (keys made on first use in the default key folder,
+:mod:`softvr.cave.keys`), every packet validated, heartbeats both ways; ``--no-curve`` runs
+them without CURVE (loopback), to tell its cost from the other checks'.
+
 Peers, on the same machine in the same run: *ZeroMQ alone* — the same PUB fan-out and ROUTER
 reply with an 8-byte message and nothing decoded (the transport's floor), and the thesis'
 way of shipping state — the whole vertex array pickled every frame (cPickle over
@@ -74,7 +78,7 @@ def _display_file(nodes: int, folder: Path) -> Path:
     return save_display(Display(tile(wall, nodes, 1), name=f"{nodes} tiles"), folder / f"wall{nodes}.toml")
 
 
-def _cluster_run(nodes: int, load: str, frames: int, folder: Path) -> dict:
+def _cluster_run(nodes: int, load: str, frames: int, folder: Path, curve: bool = True) -> dict:
     """One master (here) and ``nodes`` node processes (no rendering), ``frames`` frames at 60 fps."""
     from softvr.cave._command import node_command
     from softvr.cave.app import WavingSheet
@@ -84,10 +88,11 @@ def _cluster_run(nodes: int, load: str, frames: int, folder: Path) -> dict:
     names = [f"wall_{i}0" for i in range(nodes)]
     source = WavingSheet(10_000) if load == "streamed" else _StaticScene()
     out = folder / f"{load}{nodes}"
-    with Master(source, names, ClusterConfig(publish="tcp://127.0.0.1:0", control="tcp://127.0.0.1:0"),
-                navigation=_navigation) as master:
+    config = ClusterConfig(publish="tcp://127.0.0.1:0", control="tcp://127.0.0.1:0", curve=curve)
+    extra = ["--no-render", "--max-seconds", "600"] + ([] if curve else ["--no-curve"])
+    with Master(source, names, config, navigation=_navigation) as master:
         procs = [subprocess.Popen(node_command(str(display), name, master.config.publish, master.config.control,
-                                               out=out, extra=["--no-render", "--max-seconds", "600"]))
+                                               out=out, extra=extra))
                  for name in names]
         try:
             master.wait_for_nodes(120)
@@ -172,8 +177,9 @@ def _pickled_bytes() -> int:
     return len(pickle.dumps({h: v.astype(np.float32) for h, v in vertices.items()}, protocol=pickle.HIGHEST_PROTOCOL))
 
 
-def run_cave_bench(*, quick: bool = False, progress: bool = True, node_counts=(2, 4, 8, 16)) -> dict:
-    """Every node count with both loads, and the peers; ``quick``: 2 and 4 nodes, 60 frames."""
+def run_cave_bench(*, quick: bool = False, progress: bool = True, node_counts=(2, 4, 8, 16), curve: bool = True) -> dict:
+    """Every node count with both loads, and the peers; ``quick``: 2 and 4 nodes, 60 frames;
+    ``curve``: CURVE on (as shipped)."""
     from tqdm import tqdm
 
     t0 = time.perf_counter()
@@ -184,7 +190,7 @@ def run_cave_bench(*, quick: bool = False, progress: bool = True, node_counts=(2
     jobs = [(n, load) for n in counts for load in ("events", "streamed")]
     with tempfile.TemporaryDirectory(prefix="softvr-bench-cave-") as tmp:
         for n, load in tqdm(jobs, desc="bench cave", unit="run", disable=not progress):
-            runs.append(_cluster_run(n, load, frames, Path(tmp)))
+            runs.append(_cluster_run(n, load, frames, Path(tmp), curve))
         for n in counts:
             floor.append(_zmq_floor(n, frames))
     machine = _machine_info("cpu")
@@ -196,7 +202,7 @@ def run_cave_bench(*, quick: bool = False, progress: bool = True, node_counts=(2
         "schema": "softvr-bench-cave/1",
         "machine": machine,
         "config": {"quick": quick, "frames": frames, "fps": 60.0, "node_counts": list(counts),
-                   "streamed_vertices": 10_000},
+                   "streamed_vertices": 10_000, "curve": curve},
         "runs": runs,
         "peers": {"zmq_alone": floor, "pickled_state_bytes": _pickled_bytes()},
         "thesis": THESIS,
@@ -212,7 +218,7 @@ def run_cave_bench(*, quick: bool = False, progress: bool = True, node_counts=(2
 def format_table(result: dict) -> str:
     floor = {f["nodes"]: f for f in result["peers"]["zmq_alone"]}
     lines = [f"Render cluster on loopback: master + N node processes (no drawing), {result['config']['frames']} frames "
-             f"at 60 fps"]
+             f"at 60 fps, CURVE {'on' if result['config'].get('curve', True) else 'off'}"]
     head = (f"{'nodes':>5} {'load':<9} {'sync p50/p99 ms':>16} {'zmq alone p50/p99':>18} {'p99 ratio':>9} "
             f"{'barrier wait p50/p99':>21} {'bytes/frame mean/max':>21} {'bad':>4}")
     lines += [head, "-" * len(head)]
@@ -279,8 +285,9 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser("cave", "Render cluster synchronization on loopback.", quick="2 and 4 nodes, 60 frames (CI)",
                      plot="write a PNG: sync overhead and bytes per frame")
     p.add_argument("--nodes", type=int, nargs="+", default=[2, 4, 8, 16], help="node counts (default 2 4 8 16)")
+    p.add_argument("--no-curve", action="store_true", help="master and nodes without CURVE (its cost)")
     a = p.parse_args(argv)
-    result = run_cave_bench(quick=a.quick, progress=not a.no_progress, node_counts=a.nodes)
+    result = run_cave_bench(quick=a.quick, progress=not a.no_progress, node_counts=a.nodes, curve=not a.no_curve)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 
