@@ -139,3 +139,26 @@ def test_fixed_bodies_stay_put_and_hold_what_rests_on_them():
     assert top.position[2] == pytest.approx(0.05, abs=1e-6)
     force = scene.last_solution.force_on(1, 0.01)
     assert force[2] == pytest.approx(1000.0 * 0.1**3 * G, rel=1e-3)
+
+
+def test_bonds_of_every_kind_survive_a_round_trip_through_the_per_object_path():
+    # Bonding from beta0 = 0 under the boxes' weight (eq. 4.11): a bond the arrays failed to find
+    # again after the round trip would restart at 0, far below the intensity it had reached.
+    glue = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3, bonding_rate=1e-2, saturation=1e3, initial=0.0)
+    scene = Scene()
+    scene.add_plane(Plane(), adhesion=glue)
+    for k in range(2):
+        body = RigidBody.box((0.2, 0.2, 0.1), 500.0, position=(0.0, 0.0, 0.05 + 0.1 * k))
+        scene.add_body(body, collision_box=(0.1, 0.1, 0.05), adhesion=glue)
+    for _ in range(10):
+        scene.step(0.01)
+    scene.rigid_arrays = False
+    scene.step(0.01)
+    scene.rigid_arrays = True
+    before = dict(scene.adhesion_state.intensity)
+    scene.step(0.01)
+    after = scene.adhesion_state.intensity
+    kinds = {int(k) >> 60 & 0xF for k in before}
+    assert kinds == {7, 8} and before.keys() == after.keys()  # box-plane and box-box bonds
+    assert min(before.values()) > 0.05
+    np.testing.assert_allclose([after[k] for k in before], list(before.values()), rtol=0.2)

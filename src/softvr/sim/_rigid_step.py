@@ -147,14 +147,18 @@ class RigidStepper:
 
     def _carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """What the per-object path left (warm starts, intensities, slips), as the carried arrays."""
-        keys = sorted(set(warm) | set(adhesion.intensity))[: self.state.contacts.capacity]
         c = self.state.contacts
-        c.carried_count.numpy()[0] = len(keys)
-        c.carried_key.numpy()[: len(keys)] = np.asarray(keys, np.int64).view(np.uint64)
-        for n, k in enumerate(keys):
-            c.carried_impulse.numpy()[n] = warm.get(k, (0.0, 0.0, 0.0))
-            c.carried_intensity.numpy()[n] = adhesion.intensity.get(k, -1.0)
-            c.carried_slip.numpy()[n] = adhesion.slip.get(k, (0.0, 0.0, 0.0))
+        keys = np.array(sorted(set(warm) | set(adhesion.intensity)), np.int64)[: c.capacity]
+        n = len(keys)
+        c.carried_count.numpy()[0] = n
+        # Ascending as signed int64 is not ascending as the kernel's uint64 bits (kind 8 sets the
+        # top bit): sort the bits.
+        bits = np.sort(keys.view(np.uint64))
+        keys = bits.view(np.int64).tolist()
+        c.carried_key.numpy()[:n] = bits
+        c.carried_impulse.numpy()[:n] = [warm.get(k, (0.0, 0.0, 0.0)) for k in keys] or np.zeros((0, 3))
+        c.carried_intensity.numpy()[:n] = [adhesion.intensity.get(k, -1.0) for k in keys]
+        c.carried_slip.numpy()[:n] = [adhesion.slip.get(k, (0.0, 0.0, 0.0)) for k in keys] or np.zeros((0, 3))
 
     def carried_out(self) -> tuple[AdhesionState, dict]:
         """The adhesion state and warm starts (dictionaries by key) for the per-object path."""
