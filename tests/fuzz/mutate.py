@@ -244,3 +244,22 @@ def glb_bytes(doc: dict, binary: bytes | None) -> bytes:
     if binary is not None:
         body += struct.pack("<I4s", len(binary), b"BIN\0") + binary
     return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def field_mutants(seeds: list, rng: random.Random, per_field: int, pool=None) -> list:
+    """Every field of the ``seeds`` (trees), by its path with list indices folded
+    (``body[].cells`` once, whichever body), set to ``per_field`` values of ``pool`` (default
+    :data:`HOSTILE`) drawn without repeats: each field of each format meets the hostile values
+    instead of the few a random mutant happens to draw."""
+    pool = HOSTILE if pool is None else pool
+    first: dict = {}
+    for seed in seeds:
+        for path in paths_of(seed):
+            first.setdefault(tuple("#" if isinstance(k, int) else k for k in path), (seed, path))
+    out = []
+    for seed, path in first.values():
+        for value in rng.sample(pool, per_field):
+            tree = _copy(seed)
+            _set(tree, path, value if not isinstance(value, (list, dict)) else _copy_value(value))
+            out.append(tree)
+    return out

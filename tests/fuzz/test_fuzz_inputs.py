@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import trimesh
 from harness import RSS_LIMIT, run_cli, run_reader, summary
-from mutate import MILD, byte_mutants, glb_bytes, gltf_seed, load_toml, mutate_tree, toml_text
+from mutate import MILD, byte_mutants, field_mutants, glb_bytes, gltf_seed, load_toml, mutate_tree, toml_text
 
 SEED = 17
 SCENES = Path(__file__).resolve().parents[2] / "src" / "softvr" / "scenes"
@@ -63,6 +63,16 @@ def _toml_mutants(seeds: list, folder: Path, rng: random.Random, n: int, prefix:
     return paths
 
 
+def _field_mutants(seeds: list, folder: Path, rng: random.Random, per_field: int, prefix: str) -> list[str]:
+    """Every field of the TOML ``seeds`` set to ``per_field`` hostile values (mutate.field_mutants)."""
+    paths = []
+    for i, tree in enumerate(field_mutants([load_toml(s) for s in seeds], rng, per_field)):
+        path = folder / f"{prefix}{i:04d}.toml"
+        path.write_text(toml_text(tree))
+        paths.append(str(path))
+    return paths
+
+
 def _check(outcomes, paths, what: str) -> dict:
     report = summary(outcomes, paths)
     peak = max(o.rss_bytes for o in outcomes)
@@ -84,7 +94,8 @@ def test_scene_toml_mutants_are_read_or_refused_naming_file_and_field(root):
     shutil.copytree(SCENES / "lips", folder / "lips")
     shutil.copytree(SCENES / "shoulder", folder / "shoulder")
     rng = random.Random(SEED)
-    paths = _toml_mutants([SCENES / f"{n}.toml" for n in READ_SCENES], folder, rng, 1200, "s")
+    paths = _toml_mutants([SCENES / f"{n}.toml" for n in READ_SCENES], folder, rng, 600, "s")
+    paths += _field_mutants(sorted(SCENES.glob("*.toml")), folder, rng, 6, "f")
     paths += [str(folder / "zero.toml"), str(folder / "fifo.toml")]
     outcomes = run_reader("softvr.scene.schema:read_scene", paths)
     report = _check(outcomes, paths, "scene TOML (read_scene)")
@@ -126,7 +137,13 @@ def _gltf_mutants(folder: Path, rng: random.Random, n: int) -> list[str]:
 
 def test_gltf_mutants_are_read_or_refused_naming_file_and_field(root):
     folder = _folder(root, "gltf")
-    paths = _gltf_mutants(folder, random.Random(SEED + 2), 600)
+    rng = random.Random(SEED + 2)
+    paths = _gltf_mutants(folder, rng, 400)
+    doc, binary = gltf_seed()
+    for i, tree in enumerate(field_mutants([doc], rng, 4)):  # every field of the document, 4 hostile values
+        path = folder / f"f{i:04d}.glb"
+        path.write_bytes(glb_bytes(tree, binary))
+        paths.append(str(path))
     outcomes = run_reader("softvr.scene.gltf:read_gltf_scene", paths)
     report = _check(outcomes, paths, "glTF scenes (read_gltf_scene)")
     assert report["counts"].get("ok", 0) >= 20
@@ -151,7 +168,8 @@ def _display_seeds(folder: Path) -> list[Path]:
 def test_display_mutants_are_read_or_refused_naming_file_and_field(root):
     folder = _folder(root, "display")
     rng = random.Random(SEED + 4)
-    paths = _toml_mutants(_display_seeds(folder), folder, rng, 500, "d")
+    paths = _toml_mutants(_display_seeds(folder), folder, rng, 300, "d")
+    paths += _field_mutants(_display_seeds(folder), folder, rng, 20, "f")
     outcomes = run_reader("softvr.cave.display:load_display", paths)
     _check(outcomes, paths, "display files (load_display)")
 
@@ -186,7 +204,9 @@ def test_parts_mutants_are_read_or_refused_naming_file_and_field(root):
         shutil.copy(mesh, folder / mesh.name)
     seeds = [SCENES / "shoulder" / "shoulder_palpation.toml", SCENES / "shoulder" / "shoulder_arthroscopy.toml",
              _parts_seed(folder)]
-    paths = _toml_mutants(seeds, folder, random.Random(SEED + 6), 500, "p")
+    rng = random.Random(SEED + 6)
+    paths = _toml_mutants(seeds, folder, rng, 300, "p")
+    paths += _field_mutants(seeds, folder, rng, 12, "f")
     outcomes = run_reader("softvr.model.parts:read_parts", paths)
     _check(outcomes, paths, "parts files (read_parts)")
 

@@ -114,8 +114,8 @@ import numpy as np
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_file, file_name, inside_folder,
                           load_json, native_read)
-from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _keyframes, _model, _render,
-                                 _simulation, _volume)
+from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _count, _keyframes, _model,
+                                 _render, _simulation, _volume)
 
 __all__ = ["check_gltf", "has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
 
@@ -773,11 +773,12 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     scene_props = _properties(scenes[doc.get("scene", 0)].get("extras"))
     simulation = {"dt": errors.number(scene_props, "dt", "scene", default=0.005, positive=True, unit="s",
                                       plausible=PLAUSIBLE["dt"]),
-                  "steps_per_frame": errors.integer(scene_props, "steps_per_frame", "scene", default=4, minimum=1),
-                  "frames": errors.integer(scene_props, "frames", "scene", default=100, minimum=1),
-                  "gravity": errors.vector(scene_props, "gravity", "scene", default=[0.0, 0.0, -9.81], unit="m/s^2"),
+                  "steps_per_frame": _count(errors, scene_props, "steps_per_frame", "scene", default=4, minimum=1),
+                  "frames": _count(errors, scene_props, "frames", "scene", default=100, minimum=1),
+                  "gravity": errors.vector(scene_props, "gravity", "scene", default=[0.0, 0.0, -9.81], unit="m/s^2",
+                                           plausible=PLAUSIBLE["speed"]),
                   "friction": errors.number(scene_props, "friction", "scene", default=0.5, minimum=0.0),
-                  "pgs_iterations": errors.integer(scene_props, "pgs_iterations", "scene", default=500, minimum=1),
+                  "pgs_iterations": _count(errors, scene_props, "pgs_iterations", "scene", default=500, minimum=1),
                   "contact_margin": errors.number(scene_props, "contact_margin", "scene", default=0.005, minimum=0.0,
                                                   unit="m"),
                   "collision_free_start": _boolean(scene_props, "collision_free_start", "scene", errors)}
@@ -819,6 +820,9 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             continue
         transform, geometry = loaded.graph[name]
         mesh = loaded.geometry[geometry]
+        if not isinstance(mesh, trimesh.Trimesh):  # points or lines (a primitive's mode)
+            errors.add(where, "a node with a triangle mesh", f"a {type(mesh).__name__}")
+            continue
         v = _z_up(trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform))
         faces = np.asarray(mesh.faces)
         if not np.all(np.isfinite(v)) or len(faces) and (faces.min() < 0 or faces.max() >= len(v)):
@@ -858,10 +862,12 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             spec.cells = errors.number(props, "cells", where, default=0.02, positive=True, unit="m")
         for key in ("fixed_below", "fixed_above"):
             if key in props:
-                setattr(spec, key, errors.number(props, key, where, unit="m"))
+                setattr(spec, key, errors.number(props, key, where, unit="m", minimum=PLAUSIBLE["place"][0],
+                                                 maximum=PLAUSIBLE["place"][1]))
         # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
-        for key, unit in (("velocity", "m/s"), ("angular_velocity", "rad/s"), ("spin_centre", "m")):
-            value = errors.vector(props, key, where, unit=unit) if key in props else None
+        for key, unit, bound in (("velocity", "m/s", "speed"), ("angular_velocity", "rad/s", "speed"),
+                                 ("spin_centre", "m", "place")):
+            value = errors.vector(props, key, where, unit=unit, plausible=PLAUSIBLE[bound]) if key in props else None
             if value is not None:
                 setattr(spec, key, value)
         if "drive_times" in props or "drive_offsets" in props:
@@ -909,15 +915,16 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             if kind in ("fixed", "cloth"):
                 errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool "
                            "object", f"a {kind} object")
-            spec.collision_triangles = errors.integer(props, "collision_triangles", where, minimum=4)
+            spec.collision_triangles = _count(errors, props, "collision_triangles", where, minimum=4)
         if "render_mesh" in props:
             # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
             other = props["render_mesh"]
             if kind == "cloth":
                 errors.add(f"{where}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed object",
                            "a cloth object")
-            elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry:
-                errors.add(f"{where}.render_mesh", "the name of an object with a mesh", repr(other))
+            elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
+                    loaded.geometry[loaded.graph[other][1]], trimesh.Trimesh):
+                errors.add(f"{where}.render_mesh", "the name of an object with a triangle mesh", repr(other))
             else:
                 drawn, geometry = loaded.graph[other]
                 shape = loaded.geometry[geometry]
