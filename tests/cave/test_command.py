@@ -45,6 +45,19 @@ def test_bad_arguments_are_named(argv, fragment, capsys):
     assert fragment in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize("argv, fragments", [
+    (["--join-timeout", "0.3"], ["did not join within 0.3 s", "['wall']", "authorized/NAME.key"]),
+    (["--no-curve", "--publish", "tcp://0.0.0.0:0"], ["loopback", "softvr cave keys", "tcp://0.0.0.0:0"]),
+])
+def test_a_master_that_cannot_start_says_why(argv, fragments, capsys):
+    """No node joining in time, or CURVE off on a public address: exit status 2 and a message
+    that says what to do, no traceback."""
+    assert main(["cave", "master", "single-wall", "sheet", "--frames", "1", "--quiet", "--publish",
+                 _free_endpoint(), "--control", _free_endpoint(), *argv]) == 2
+    err = capsys.readouterr().err
+    assert all(f in err for f in fragments) and "Traceback" not in err, err
+
+
 def _free_endpoint() -> str:
     import socket
 
@@ -62,6 +75,7 @@ def test_master_with_its_window_drives_a_node(display, tmp_path):
     from softvr.cave._command import node_command
 
     publish, control = _free_endpoint(), _free_endpoint()
+    assert main(["cave", "keys", "--display", "single-wall"]) == 0  # the node starts first: it needs master.key
     node = subprocess.Popen(node_command("single-wall", "wall", publish, control, out=tmp_path,
                                          extra=["--no-render", "--max-seconds", "120"]))
     try:
