@@ -157,3 +157,15 @@ def test_two_screens_of_one_name_are_refused(tmp_path):
     path.write_text('format = "softvr-display 1"\n' + _SCREEN + 'node = "a"\n' + _SCREEN + 'node = "b"\n')
     with pytest.raises(InputError, match=r"screen\[1\].name: expected a name no other screen has"):
         load_display(path)
+
+
+def test_an_eye_behind_a_screen_of_a_file_names_the_file(tmp_path):
+    """A screen read from a file carries it: the error its geometry causes later (an eye in
+    its plane) names the file as well as the screen."""
+    path = tmp_path / "display.toml"
+    path.write_text('format = "softvr-display 1"\n' + _SCREEN)
+    screen = load_display(path).screens[0]
+    with pytest.raises(InputError) as caught:
+        screen.view((0.0, 1.0, 0.5))  # in the screen's plane y = 1
+    assert caught.value.source == str(path) and "front eye" in str(caught.value)
+    assert screen == Screen("front", screen.lower_left, screen.lower_right, screen.upper_left, (800, 600))

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +58,9 @@ class Screen:
     pixels: tuple = (1024, 768)
     node: str = ""
     stereo: str = "none"
+    #: The display file it was read from (None for presets and tiles): named by the errors
+    #: its geometry causes later (an eye behind it).
+    source: str | None = field(default=None, compare=False, repr=False)
 
     @property
     def upper_right(self) -> np.ndarray:
@@ -72,7 +75,13 @@ class Screen:
 
     def view(self, eye, *, near: float = 0.05, far: float = 100.0) -> ScreenView:
         """The off-axis camera of this screen for ``eye`` [3] [m]."""
-        return screen_view(self.lower_left, self.lower_right, self.upper_left, eye, near=near, far=far, name=self.name)
+        try:
+            return screen_view(self.lower_left, self.lower_right, self.upper_left, eye, near=near, far=far,
+                               name=self.name)
+        except InputError as exc:
+            if self.source is None or exc.source is not None:
+                raise
+            raise InputError(exc.what, exc.expected, exc.found, source=self.source) from None
 
     def problems(self) -> list[tuple[str, str, str]]:
         """(field, expected, found) for what is wrong with this screen (empty when fine)."""
@@ -270,7 +279,8 @@ def load_display(path) -> Display:
             pixels = [1024, 768]
         stereo = raw.get("stereo", "none")  # judged by Screen.problems (a list compares unequal, no error)
         screens.append(Screen(names["name"], corners["lower_left"], corners["lower_right"], corners["upper_left"],
-                              tuple(pixels), names["node"], stereo if isinstance(stereo, str) else repr(stereo)[:100]))
+                              tuple(pixels), names["node"], stereo if isinstance(stereo, str) else repr(stereo)[:100],
+                              source=source))
     total = sum(s.pixels[0] * s.pixels[1] for s in screens)
     if total > MAX_PIXELS:
         problems.append(("screen[*].pixels", f"at most {MAX_PIXELS} pixels on all screens together",
