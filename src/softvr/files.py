@@ -5,7 +5,14 @@ Readers never hand a path to a native library (SimpleITK, meshio, trimesh, zlib)
 no larger than a stated limit, and a detached data file (a MetaImage ``ElementDataFile``, a
 glTF buffer URI) before :func:`inside_folder` has said it lies in the header's folder.
 The limits are per file and can be raised by the user (``SOFTVR_MAX_FILE_BYTES``,
-``SOFTVR_MAX_ELEMENTS``) for the rare real input that exceeds them.
+``SOFTVR_MAX_ELEMENTS``, ``SOFTVR_MAX_TEXT_BYTES``) for the rare real input that exceeds them
+(docs/input-limits.md).
+
+Text formats are parsed here too: :func:`read_toml` and :func:`load_json` refuse bad UTF-8,
+nesting deeper than :data:`MAX_DEPTH` and integers beyond 64 bits before a reader walks the
+tree; :func:`file_name` checks a file name an input writes (NUL bytes, lengths);
+:func:`check_npz` an ``.npz`` archive's arrays against their entries; :func:`native_read`
+turns a native reader's exceptions and ``sys.exit`` into an error naming the file.
 """
 
 from __future__ import annotations
