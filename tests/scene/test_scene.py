@@ -757,3 +757,11 @@ def test_a_gltf_scene_display_file_is_checked_and_loaded(tmp_path, display):
     path = _gltf(tmp_path, lambda d: d["scenes"][0].update(extras={"softvr_display": display}))
     with pytest.raises(InputError, match="scene.display"):
         read_gltf_scene(path)
+
+
+def test_a_cube_size_too_fine_for_a_fem_sphere_is_named_as_the_body_field(tmp_path, capsys):
+    """A 1 m sphere in 0.1 mm cubes needs 1e12 grid tets: refused before the grid is made."""
+    path = _raw(tmp_path, _CUBE.replace("box = [0.1, 0.1, 0.1]\ncells = 2", "sphere = 0.5\ncells = 0.0001"))
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and "body 'cube'.cells" in err and "tets" in err

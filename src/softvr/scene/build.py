@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from softvr.examples.run import PhysicsExample
+from softvr.errors import InputError
 from softvr.files import native_read
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 
@@ -65,7 +66,6 @@ def _drive(drive: dict):
 def _node_animation(path, nodes) -> tuple[np.ndarray, np.ndarray]:
     """``times`` [k] [s] and ``nodes`` [k, node_count, 3] [m] of a node animation (.npz), checked
     against the mesh's nodes [node_count, 3] [m]: same count, the first key at them."""
-    from softvr.errors import InputError
 
     try:
         with np.load(path) as f:
@@ -566,8 +566,11 @@ class SceneExample(PhysicsExample):
         cv, ct = SceneExample._collision_surface(spec, v, t)
         # The cubes touching the shape or its simplified collision surface (which may reach a
         # little further out), as the model pipeline makes them.
-        nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), float(spec.cells)) \
-            if cv is not v else dynamics_mesh(v, t, float(spec.cells))
+        try:
+            nodes, tets = dynamics_mesh(np.vstack([v, cv]), np.vstack([t, ct + len(v)]), float(spec.cells)) \
+                if cv is not v else dynamics_mesh(v, t, float(spec.cells))
+        except InputError as exc:  # a cube size too fine for the body's size: named as the body's field
+            raise InputError(f"body {spec.name!r}.cells", exc.expected, exc.found) from None
         tet_index, weights = embed_surface(nodes, tets, cv)
         return nodes, tets, ct, (tets[tet_index], weights)
 
