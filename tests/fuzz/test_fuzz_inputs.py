@@ -157,7 +157,13 @@ def test_gltf_mutants_are_read_or_refused_naming_file_and_field(root):
 
 def test_softvr_check_builds_or_refuses_gltf_mutants(root):
     folder = _folder(root, "gltf-check")
-    paths = _gltf_mutants(folder, random.Random(SEED + 3), 80)
+    rng = random.Random(SEED + 3)
+    paths = _gltf_mutants(folder, rng, 60)
+    doc, binary = gltf_seed()
+    for i, tree in enumerate(field_mutants([doc], rng, 1, pool=MILD)):  # every field at an edge of its range
+        path = folder / f"m{i:04d}.glb"
+        path.write_bytes(glb_bytes(tree, binary))
+        paths.append(str(path))
     outcomes = run_reader("softvr.scene._command:check_main", [[p] for p in paths], labels=paths)
     _check(outcomes, paths, "softvr check (glTF, built)")
 
