@@ -81,7 +81,7 @@ def test_a_killed_master_is_noticed_and_a_new_one_joined_or_the_node_exits(tmp_p
     assert rejoined < 10
     right = _log(tmp_path, "right")
     assert len(right["lost"]) == 1 and right["lost"][0] - killed < 10
-    second_frames = [p for p in right["presented_frames"] if p[3] > killed]
+    second_frames = [p for p in right["presented_frames"] if p[3] > right["lost"][0]]  # (go 29 may come late)
     assert [p[0] for p in second_frames] == list(range(30))
     assert all(digests[n] == d for n, d, *_ in second_frames)
 

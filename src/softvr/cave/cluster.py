@@ -252,7 +252,7 @@ class Master:
         self._digests: OrderedDict[int, bytes] = OrderedDict()
         self._digest = self._remember()
         self._snapshot_sent: dict[str, float] = {}  # node -> when its unacknowledged snapshot went out
-        self._wrong: dict[str, int] = {}  # node -> the frame it last reported with another digest
+        self._wrong: dict[str, tuple[int, float]] = {}  # node -> (frame reported with another digest, when told)
         self._snapshot_cache: tuple[int, dict] | None = None
         self._last_publish = time.monotonic()
         self.frame_bytes = _Stats()
@@ -368,9 +368,12 @@ class Master:
             self.members[node] = now  # a node dropped from the barrier that caught up is back
         expected = self._digests.get(n)
         if expected is not None and payload["hash"] != expected:
-            if self._wrong.get(node) != n:  # once per frame: a re-sent ready is the same report
-                self._wrong[node] = n
+            told = self._wrong.get(node)
+            if told is None or told[0] != n:  # a re-sent ready is the same report: one mismatch
                 self.log["mismatches"] += 1
+            if told is None or told[0] != n or now - told[1] >= self.config.snapshot_retry_s:
+                # again if the node still reports it: the first request may have been lost
+                self._wrong[node] = (n, now)
                 self.log["resyncs"] += 1
                 self.router.send_multipart([identity, encode("resync", self.session, {"n": n})])
             return  # not ready: it stays at the barrier until it holds the master's state
