@@ -125,7 +125,8 @@ def corner_sign(corner: int, axis: int) -> wp.float64:
 
 @wp.func
 def corner_offset(corner: int, half: wp.vec3d) -> wp.vec3d:
-    return wp.vec3d(corner_sign(corner, 0) * half[0], corner_sign(corner, 1) * half[1], corner_sign(corner, 2) * half[2])
+    return wp.vec3d(corner_sign(corner, 0) * half[0], corner_sign(corner, 1) * half[1],
+                    corner_sign(corner, 2) * half[2])
 
 
 @wp.kernel

@@ -57,7 +57,8 @@ def record_detection(model, state, dt: float) -> Detection:
     boxes = model.box_body.shape[0]
     if boxes and planes:
         record(_k.boxes_plane, (boxes, planes),
-               pose + [model.box_body, model.box_half, model.box_material, model.box_plane_margin] + plane + [float(dt)])
+               pose + [model.box_body, model.box_half, model.box_material, model.box_plane_margin] + plane
+               + [float(dt)])
     spheres = model.sphere_body.shape[0]
     if spheres and planes:
         record(_k.spheres_plane, (spheres, planes),

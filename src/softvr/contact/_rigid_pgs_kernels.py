@@ -103,8 +103,9 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
                          direction: wp.array(dtype=wp.vec3d), accelerate: int,
                          dt: wp.float64, max_sweeps: int, tolerance: wp.float64, stats: wp.array(dtype=wp.float64)):
     """One thread: the step's contact solve (module docstring). ``velocity`` [n] holds the
-    unconstrained velocities in, the constrained ones out; ``response``, ``target`` and
-    ``stiffness`` [capacity] are scratch; ``stats`` [2]: sweeps, the largest
+    unconstrained velocities in, the constrained ones out; ``response``, ``target``,
+    ``stiffness``, ``start`` and ``direction`` [capacity] are scratch; ``accelerate`` != 0 runs
+    the sweeps as a nonsmooth nonlinear conjugate gradient; ``stats`` [2]: sweeps, the largest
     normal-velocity violation [m/s]."""
     c = wp.min(count[0], key.shape[0])
     zero = wp.float64(0.0)

@@ -34,13 +34,15 @@ def record_rigid_solve(model, state, dt: float, *, max_sweeps: int = 500, tolera
                        accelerate: bool = True) -> RigidSolve:
     """The launch turning ``state.free_velocity`` (unconstrained in) into the constrained
     velocities (out), solving and evolving ``state.contacts`` in place over ``dt`` [s].
-    ``max_sweeps`` and ``tolerance`` [m/s] as :func:`softvr.contact.solve_contacts`'s."""
+    ``max_sweeps`` and ``tolerance`` [m/s] as :func:`softvr.contact.solve_contacts`'s;
+    ``accelerate``: the nonsmooth nonlinear conjugate gradient over the sweeps (same fixed
+    point; docs/physics-core.md), off for the plain PGS of eq. 5.6."""
     c = state.contacts
     device = model.device
     load_kernels(_k.solve_rigid_contacts, device)
-    scratch = [wp.zeros(c.capacity, dtype=wp.vec3d, device=device), wp.zeros(c.capacity, dtype=wp.vec3d, device=device),
-               wp.zeros(c.capacity, dtype=wp.float64, device=device), wp.zeros(c.capacity, dtype=wp.vec3d, device=device),
-               wp.zeros(c.capacity, dtype=wp.vec3d, device=device), int(accelerate)]
+    # Per contact: row responses, targets, adhesive stiffness; NNCG's sweep start and direction.
+    scratch = [wp.zeros(c.capacity, dtype=dtype, device=device)
+               for dtype in (wp.vec3d, wp.vec3d, wp.float64, wp.vec3d, wp.vec3d)] + [int(accelerate)]
     stats = wp.zeros(2, dtype=wp.float64, device=device)
     launch = wp.launch(_k.solve_rigid_contacts, dim=1, device=device, record_cmd=True,
                        inputs=[c.count, c.key, c.body_a, c.body_b, c.offset_a, c.offset_b, c.normal, c.gap, c.area,

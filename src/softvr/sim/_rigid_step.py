@@ -32,8 +32,9 @@ class _Snapshot:
     """One step's contacts and velocities, copied out of the arrays, turned into a
     :class:`ContactSolution` and adhesion dictionaries only when read."""
 
-    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float):
+    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, inv_mass: np.ndarray):
         self.contacts, self.velocities, self.sweeps, self.residual = contacts, velocities, sweeps, residual
+        self._inv_mass = inv_mass  # [n] [1/kg], to leave out contacts no impulse can act on
         self._solution = None
 
     def solution(self) -> ContactSolution:
@@ -43,7 +44,9 @@ class _Snapshot:
 
     def _build(self) -> ContactSolution:
         c = self.contacts
-        movable = c["body_a"] >= 0  # every contact (immovable pairs have no response)
+        # As the per-object path (Scene._movable): contacts between two immovable sides are left out.
+        b_moves = (c["body_b"] >= 0) & (self._inv_mass[np.maximum(c["body_b"], 0)] > 0)
+        movable = (self._inv_mass[c["body_a"]] > 0) | b_moves
         kind = unpack_keys(c["key"])
         static = np.where(c["body_b"] < 0, kind["body_b"], -1)
         groups: dict = {}
@@ -53,7 +56,8 @@ class _Snapshot:
         sets, impulses, frames, gaps = [], [], [], []
         for (_, a, b, _), rows in groups.items():
             rows = np.asarray(rows)
-            sets.append(Contacts(rigid_side(a, c["offset_a"][rows]), None if b < 0 else rigid_side(b, c["offset_b"][rows]),
+            side_b = None if b < 0 else rigid_side(b, c["offset_b"][rows])
+            sets.append(Contacts(rigid_side(a, c["offset_a"][rows]), side_b,
                                  c["normal"][rows], c["gap"][rows], c["point_a"][rows], c["point_b"][rows],
                                  c["key"][rows], c["friction"][rows], c["area"][rows]))
             impulses.append(c["impulse"][rows])
@@ -132,6 +136,7 @@ class RigidStepper:
         self._diverged = self.state.diverged.numpy()
         self._contacts = self.state.contacts.views()
         self._count = self.state.contacts.count.numpy()
+        self._inv_mass = self.model.body_inv_mass.numpy()
         self._pushed = True
         for i, body in enumerate(self.scene.bodies):
             body.position, body.orientation, body.v = self._position[i], self._orientation[i], self._velocity[i]
@@ -139,7 +144,8 @@ class RigidStepper:
     def _sync_in(self) -> None:
         """Copy in any pose or velocity the user assigned since the last step."""
         for i, body in enumerate(self.scene.bodies):
-            for name, store in (("position", self._position), ("orientation", self._orientation), ("v", self._velocity)):
+            for name, store in (("position", self._position), ("orientation", self._orientation),
+                                ("v", self._velocity)):
                 value = getattr(body, name)
                 if value is not store[i]:
                     store[i] = value
@@ -208,7 +214,7 @@ class RigidStepper:
             body.step_count += 1
         count = min(int(self._count[0]), self.state.contacts.capacity)
         snapshot = _Snapshot({name: view[:count].copy() for name, view in self._contacts.items()},
-                             list(self._velocity.copy()), int(self._stats[0]), float(self._stats[1]))
+                             list(self._velocity.copy()), int(self._stats[0]), float(self._stats[1]), self._inv_mass)
         s.adhesion_state = ArrayAdhesionState(snapshot)
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),

@@ -217,7 +217,8 @@ def build_rigid_model(scene, device: str = "cpu") -> tuple[RigidModel, RigidStat
 
     primitive = {i for i, _ in scene._sphere_bodies} | {i for i, _ in scene._box_bodies}
     surfaces = {id(s.points): s for s in scene._surfaces}
-    p_body, p_feature, p_local, p_margin, p_material, p_two, starts, normals, areas = [], [], [], [], [], [], [0], [], []
+    p_body, p_feature, p_local, p_margin, p_material, p_two = [], [], [], [], [], []
+    starts, normals, areas = [0], [], []
     for c in scene._colliders:
         if c.body in primitive:
             continue  # a primitive meets the planes exactly
