@@ -22,6 +22,7 @@ import numpy as np
 from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, check_head, check_mesh_update,
                                   check_user, decode, encode)
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
+from softvr.files import native_read
 
 __all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "SceneFileSource", "WavingSheet",
            "user_pose_facing"]
@@ -342,11 +343,9 @@ class SceneFileSource:
         from softvr.errors import InputError  # noqa: PLC0415
 
         path = Path(path)
-        try:
-            scene = trimesh.load(path, force="scene")
-        except Exception as exc:  # trimesh raises many types for bad files
-            raise InputError("scene file", "a readable glTF / GLB / OBJ / STL / PLY file",
-                             f"{type(exc).__name__}: {exc}", source=str(path)) from None
+        # A regular file of bounded size; trimesh's errors (every type) wrapped, naming the file.
+        scene = native_read(lambda p: trimesh.load(p, force="scene"), path, "scene file",
+                            "a readable glTF / GLB / OBJ / STL / PLY file")
         y_up = path.suffix.lower() in (".gltf", ".glb")
         self.recorder = RecordingRenderer()
         meshes = []

@@ -155,7 +155,13 @@ def world_view(screen: Screen, eye, user: UserPose | None = None, *, near: float
     if user is None:
         return screen.view(eye, near=near, far=far)
     ll, lr, ul, pe = user.to_world(np.array([screen.lower_left, screen.lower_right, screen.upper_left, eye], float))
-    return screen_view(ll, lr, ul, pe, near=near, far=far, name=screen.name)
+    try:
+        return screen_view(ll, lr, ul, pe, near=near, far=far, name=screen.name)
+    except InputError as exc:
+        if screen.source is None or exc.source is not None:
+            raise
+        # An eye in the plane of a screen read from a file: the file is named, as Screen.view does.
+        raise InputError(exc.what, exc.expected, exc.found, source=screen.source) from None
 
 
 class CameraRig:

@@ -28,6 +28,8 @@ def bundled(name: str) -> Path:
     """The path of a bundled scene file (``"soft-cube.toml"``), or ``name`` itself when that is
     a file."""
     path = Path(name)
-    if path.is_file() or path.parent != Path("."):
+    # exists(), not is_file(): a FIFO or device given by a bare name is the user's file, refused
+    # as such by the reader (softvr.files.checked_file), not a missing bundled scene.
+    if path.exists() or path.parent != Path("."):
         return path
     return BUNDLED / name

@@ -661,11 +661,13 @@ class SceneExample(PhysicsExample):
     def penetration(self) -> float:
         """Deepest drawn vertex below any plane or inside any static sphere [m]."""
         deepest = 0.0
+        # The planes' offsets n . point once per call: this runs after every step of a frame.
+        planes = [(n, float(np.asarray(plane.point, float) @ n)) for plane, _ in self.planes
+                  for n in (plane.unit_normal(),)]
         for d in self.drawn:
             x = np.asarray(d.vertices())
-            for plane, _ in self.planes:
-                n = plane.unit_normal()
-                deepest = max(deepest, float(-((x - np.asarray(plane.point)) @ n).min()))
+            for n, offset in planes:
+                deepest = max(deepest, offset - float((x @ n).min()))
             for s in self.spheres:
                 deepest = max(deepest, float((s.radius - np.linalg.norm(x - np.asarray(s.center), axis=1)).max()))
         return deepest

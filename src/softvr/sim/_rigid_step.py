@@ -47,15 +47,16 @@ class _Snapshot:
         # As the per-object path (Scene._movable): contacts between two immovable sides are left out.
         b_moves = (c["body_b"] >= 0) & (self._inv_mass[np.maximum(c["body_b"], 0)] > 0)
         movable = (self._inv_mass[c["body_a"]] > 0) | b_moves
-        kind = unpack_keys(c["key"])
-        static = np.where(c["body_b"] < 0, kind["body_b"], -1)
-        groups: dict = {}
-        for i in np.flatnonzero(movable):
-            groups.setdefault((int(kind["kind"][i]), int(c["body_a"][i]), int(c["body_b"][i]), int(static[i])),
-                              []).append(i)
+        fields = unpack_keys(c["key"])
+        # One set per (kind, body a, body b or static), in the order the sets first appear.
+        pair = np.stack([fields["kind"], c["body_a"], c["body_b"], np.where(c["body_b"] < 0, fields["body_b"], -1)],
+                        axis=1)[movable]
+        index = np.flatnonzero(movable)
+        _, first, group = np.unique(pair, axis=0, return_index=True, return_inverse=True)
         sets, impulses, frames, gaps = [], [], [], []
-        for (_, a, b, _), rows in groups.items():
-            rows = np.asarray(rows)
+        for g in np.argsort(first):
+            rows = index[group.ravel() == g]
+            a, b = int(c["body_a"][rows[0]]), int(c["body_b"][rows[0]])
             side_b = None if b < 0 else rigid_side(b, c["offset_b"][rows])
             sets.append(Contacts(rigid_side(a, c["offset_a"][rows]), side_b,
                                  c["normal"][rows], c["gap"][rows], c["point_a"][rows], c["point_b"][rows],
