@@ -6,7 +6,7 @@ correct one)."""
 import numpy as np
 import pytest
 
-from softvr import Scene, SimulationError
+from softvr import InputError, Scene, SimulationError
 from softvr.collision import Plane, Sphere
 from softvr.contact import Adhesion
 from softvr.dynamics import FixedBody, RigidBody, RigidPoints
@@ -162,3 +162,13 @@ def test_bonds_of_every_kind_survive_a_round_trip_through_the_per_object_path():
     assert kinds == {7, 8} and before.keys() == after.keys()  # box-plane and box-box bonds
     assert min(before.values()) > 0.05
     np.testing.assert_allclose([after[k] for k in before], list(before.values()), rtol=0.2)
+
+
+def test_a_malformed_external_force_is_a_clear_error():
+    body = RigidBody.box((0.1,) * 3, 1000.0)
+    scene = Scene()
+    scene.add_body(body, collision_box=(0.05,) * 3)
+    scene.add_plane(Plane(point=(0.0, 0.0, -1.0)))
+    scene.external[0] = np.zeros(3)  # a rigid body takes force and torque: 6 numbers
+    with pytest.raises(InputError, match=r"external: expected a generalized force of 6 numbers"):
+        scene.step(0.01)

@@ -200,7 +200,8 @@ class RigidStepper:
         if s.external or self._pushed:
             self._external[:] = 0.0
             for body, force in s.external.items():
-                self._external[body] = force
+                if 0 <= body < len(s.bodies):  # as the per-object path: other keys name no body
+                    self._external[body] = s.bodies[body]._check_external(force)
             self._pushed = bool(s.external)
         unconstrained()
         self._check()
