@@ -88,11 +88,29 @@ def _kill(proc: subprocess.Popen) -> None:
         pass
 
 
-def _reap(proc: subprocess.Popen) -> tuple[int, int]:
-    """(return code, peak RSS [bytes]) of a finished or killed child."""
-    _, status, usage = os.wait4(proc.pid, 0)
+def _reap(proc: subprocess.Popen, rss_file: str | None = None) -> tuple[int, int]:
+    """(return code, peak RSS [bytes]) of a finished or killed child: the peak the child wrote
+    to ``rss_file`` at its exit (:func:`_own_peak_rss`), 0 when it wrote none (killed)."""
+    _, status, _ = os.wait4(proc.pid, 0)
     proc.returncode = os.waitstatus_to_exitcode(status)
-    return proc.returncode, usage.ru_maxrss * 1024
+    try:
+        return proc.returncode, int(Path(rss_file).read_text() or 0) if rss_file else 0
+    except (OSError, ValueError):
+        return proc.returncode, 0
+
+
+def _own_peak_rss() -> int:
+    """This process's own peak resident memory [bytes] (Linux ``VmHWM``). Not ``ru_maxrss``:
+    that keeps the forking parent's resident size across exec, so under a pytest process of
+    1.5 GiB every child would count as over the limit."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def run_cli(args: list[str], *, label: str | None = None, timeout_s: float = 60.0,
@@ -100,9 +118,12 @@ def run_cli(args: list[str], *, label: str | None = None, timeout_s: float = 60.
     """``python -m softvr ARGS`` in a limited child; its outcome (module docstring)."""
     label = label or " ".join(map(str, args))
     start = time.monotonic()
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
-        proc = subprocess.Popen([sys.executable, "-m", "softvr", *map(str, args)], stdin=subprocess.DEVNULL,
-                                stdout=out, stderr=err, cwd=cwd, env=_env(env), preexec_fn=_limits(memory_bytes))
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err, \
+            tempfile.NamedTemporaryFile(suffix=".rss") as rss_file:
+        # ``softvr ARGS`` run by this file's --cli mode, which writes its own peak RSS at exit.
+        proc = subprocess.Popen([sys.executable, __file__, "--cli", rss_file.name, *map(str, args)],
+                                stdin=subprocess.DEVNULL, stdout=out, stderr=err, cwd=cwd, env=_env(env),
+                                preexec_fn=_limits(memory_bytes))
         hung = False
         while os.waitid(os.P_PID, proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is None:
             if time.monotonic() - start > timeout_s:
@@ -110,7 +131,7 @@ def run_cli(args: list[str], *, label: str | None = None, timeout_s: float = 60.
                 _kill(proc)
                 break
             time.sleep(0.02)
-        code, rss = _reap(proc)
+        code, rss = _reap(proc, rss_file.name)
         out.seek(0)
         err.seek(0)
         stdout, stderr = out.read().decode("utf-8", "replace"), err.read().decode("utf-8", "replace")
@@ -161,7 +182,7 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
         todo.flush()
         proc = subprocess.Popen([sys.executable, __file__, target, todo.name], stdin=subprocess.DEVNULL,
                                 stdout=subprocess.PIPE, stderr=err, env=_env(env), preexec_fn=_limits(memory_bytes))
-        index, hung, started = first, False, time.monotonic()
+        index, hung, started, seen_rss = first, False, time.monotonic(), 0
         deadline = started + startup_s + timeout_s
         buffer = b""
         with selectors.DefaultSelector() as sel:
@@ -186,10 +207,12 @@ def _batch(target, inputs, labels, first, outcomes, timeout_s, startup_s, memory
                                                   record.get("what"), record.get("source"), record["seconds"],
                                                   record["rss"], {"fields": record.get("fields", [])})
                         index += 1
+                        seen_rss = max(seen_rss, record["rss"])
                     started = time.monotonic()
                     deadline = started + timeout_s
         proc.stdout.close()
-        code, rss = _reap(proc)
+        code, _ = _reap(proc)
+        rss = seen_rss  # the child's own peak by its last report (a killed child writes nothing)
         err.seek(0)
         stderr = err.read().decode("utf-8", "replace")
     if index >= len(inputs) or (code == _RESTART and not hung):
@@ -261,7 +284,7 @@ def _worker(target: str, todo: str) -> None:
         record["seconds"] = time.monotonic() - start
         # The child's peak resident memory so far: an input that pushed it over the limit
         # allocated what it asked for without a check, even if it then failed cleanly.
-        record["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        record["rss"] = _own_peak_rss()
         if record["rss"] > RSS_LIMIT and record["kind"] in ("ok", "clean"):
             record = {**record, "kind": "memory", "detail": f"peak RSS {record['rss'] >> 20} MiB after: "
                                                             f"{record.get('detail', '')}"}
@@ -271,5 +294,19 @@ def _worker(target: str, todo: str) -> None:
             os._exit(_RESTART)  # a fresh child for the next input: its peak RSS starts low again
 
 
+def _cli(rss_file: str, args: list[str]) -> None:
+    """The child of :func:`run_cli`: ``python -m softvr ARGS``, then its own peak RSS into
+    ``rss_file`` (also when the command exits by ``sys.exit``)."""
+    import atexit
+    import runpy
+
+    atexit.register(lambda: Path(rss_file).write_text(str(_own_peak_rss())))
+    sys.argv = ["softvr", *args]
+    runpy.run_module("softvr", run_name="__main__", alter_sys=True)
+
+
 if __name__ == "__main__":
-    _worker(sys.argv[1], sys.argv[2])
+    if sys.argv[1] == "--cli":
+        _cli(sys.argv[2], sys.argv[3:])
+    else:
+        _worker(sys.argv[1], sys.argv[2])
