@@ -70,6 +70,7 @@ def test_loop_keeps_its_rate_while_the_simulation_steps(process):
     hand.clock = loop.simulation_clock
     loop.process = process
     loop.max_force = 1.5
+    started = time.perf_counter()
     with loop:
         t0 = time.perf_counter()
         while time.perf_counter() - t0 < 0.5:
@@ -79,11 +80,15 @@ def test_loop_keeps_its_rate_while_the_simulation_steps(process):
                 loop.publish(HandleModel(stiffness=-1e4 * np.eye(3)), time=scene.time)
         time.sleep(0.01)
         clipped = np.linalg.norm(loop.last_force())
+    ran_ms = 1e3 * (time.perf_counter() - started)
     stats = loop.period_stats()
-    # Ticks are scheduled on absolute times, so late ones catch up: the count holds either way.
+    # Ticks are scheduled on absolute times (t0 + n T), so late ones catch up: one tick per
+    # millisecond the loop ran, never more (+2: the tick at t0 and the one stop() may meet),
+    # and at least 80 % of them (the runner starts a few ms after start(), more under load).
     # A thread shares the interpreter lock with the stepping, so only the process keeps every
     # period at 1 ms; the thread's median merely stays near it.
-    assert 400 <= stats["count"] <= 520, stats
+    assert 0.8 * ran_ms <= stats["count"] <= ran_ms + 2, (ran_ms, stats)
+    assert stats["count"] >= 400, stats
     if process:
         assert stats["p50_ms"] == pytest.approx(1.0, abs=0.1), stats
     else:
