@@ -51,29 +51,46 @@ def point_velocity(v: wp.spatial_vectord, offset: wp.vec3d) -> wp.vec3d:
     return linear(v) + wp.cross(angular(v), offset)
 
 
+@wp.struct
+class ContactOut:
+    """The arrays of a :class:`~softvr.collision.contact_buffer.ContactBuffer` a detection
+    kernel appends to (one argument instead of fourteen)."""
+
+    count: wp.array(dtype=wp.int32)
+    key: wp.array(dtype=wp.uint64)
+    body_a: wp.array(dtype=wp.int32)
+    body_b: wp.array(dtype=wp.int32)
+    offset_a: wp.array(dtype=wp.vec3d)
+    offset_b: wp.array(dtype=wp.vec3d)
+    point_a: wp.array(dtype=wp.vec3d)
+    point_b: wp.array(dtype=wp.vec3d)
+    normal: wp.array(dtype=wp.vec3d)
+    gap: wp.array(dtype=wp.float64)
+    area: wp.array(dtype=wp.float64)
+    friction: wp.array(dtype=wp.float64)
+    material_a: wp.array(dtype=wp.int32)
+    material_b: wp.array(dtype=wp.int32)
+
+
 @wp.func
-def emit(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-         body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d), offset_b: wp.array(dtype=wp.vec3d),
-         point_a: wp.array(dtype=wp.vec3d), point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
-         gap: wp.array(dtype=wp.float64), area: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-         material_a: wp.array(dtype=wp.int32), material_b: wp.array(dtype=wp.int32),
-         k: wp.uint64, a: int, b: int, ra: wp.vec3d, rb: wp.vec3d, pa: wp.vec3d, pb: wp.vec3d, n: wp.vec3d,
-         g: wp.float64, ar: wp.float64, mu: wp.float64, ma: int, mb: int):
-    slot = wp.atomic_add(count, 0, 1)
-    if slot < key.shape[0]:
-        key[slot] = k
-        body_a[slot] = a
-        body_b[slot] = b
-        offset_a[slot] = ra
-        offset_b[slot] = rb
-        point_a[slot] = pa
-        point_b[slot] = pb
-        normal[slot] = n
-        gap[slot] = g
-        area[slot] = ar
-        friction[slot] = mu
-        material_a[slot] = ma
-        material_b[slot] = mb
+def emit(out: ContactOut, k: wp.uint64, a: int, b: int, ra: wp.vec3d, rb: wp.vec3d, pa: wp.vec3d, pb: wp.vec3d,
+         n: wp.vec3d, g: wp.float64, ar: wp.float64, mu: wp.float64, ma: int, mb: int):
+    """Append one contact (dropped past the capacity; the count still tells how many there were)."""
+    slot = wp.atomic_add(out.count, 0, 1)
+    if slot < out.key.shape[0]:
+        out.key[slot] = k
+        out.body_a[slot] = a
+        out.body_b[slot] = b
+        out.offset_a[slot] = ra
+        out.offset_b[slot] = rb
+        out.point_a[slot] = pa
+        out.point_b[slot] = pb
+        out.normal[slot] = n
+        out.gap[slot] = g
+        out.area[slot] = ar
+        out.friction[slot] = mu
+        out.material_a[slot] = ma
+        out.material_b[slot] = mb
 
 
 @wp.kernel
@@ -85,13 +102,7 @@ def points_plane(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype
                  triangle_normal: wp.array(dtype=wp.vec3d), triangle_area: wp.array(dtype=wp.float64),
                  plane_point: wp.array(dtype=wp.vec3d), plane_normal: wp.array(dtype=wp.vec3d),
                  plane_friction: wp.array(dtype=wp.float64), plane_material: wp.array(dtype=wp.int32),
-                 dt: wp.float64,
-                 count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-                 body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d),
-                 offset_b: wp.array(dtype=wp.vec3d), point_a: wp.array(dtype=wp.vec3d),
-                 point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), gap: wp.array(dtype=wp.float64),
-                 area: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                 material_a: wp.array(dtype=wp.int32), material_b: wp.array(dtype=wp.int32)):
+                 dt: wp.float64, out: ContactOut):
     """Thread (point i, plane k): :func:`points_vs_plane` with the vertex's projected area
     (:meth:`CollisionSurface.facing_vertex_area`)."""
     i, k = wp.tid()
@@ -110,8 +121,7 @@ def points_plane(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype
             if point_two_sided[i] != 0:
                 facing = wp.abs(cosine)
             ar += triangle_area[t] * facing / wp.float64(3.0)
-        emit(count, key, body_a, body_b, offset_a, offset_b, point_a, point_b, normal, gap, area, friction,
-             material_a, material_b, contact_key(POINT_PLANE, b, point_feature[i], k, 0), b, -1, r, wp.vec3d(),
+        emit(out, contact_key(POINT_PLANE, b, point_feature[i], k, 0), b, -1, r, wp.vec3d(),
              p, p - g * n, n, g, ar, plane_friction[k], point_material[i], plane_material[k])
 
 
@@ -136,13 +146,7 @@ def boxes_plane(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=
                 box_plane_margin: wp.array2d(dtype=wp.float64),
                 plane_point: wp.array(dtype=wp.vec3d), plane_normal: wp.array(dtype=wp.vec3d),
                 plane_friction: wp.array(dtype=wp.float64), plane_material: wp.array(dtype=wp.int32),
-                dt: wp.float64,
-                count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-                body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d),
-                offset_b: wp.array(dtype=wp.vec3d), point_a: wp.array(dtype=wp.vec3d),
-                point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), gap: wp.array(dtype=wp.float64),
-                area: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                material_a: wp.array(dtype=wp.int32), material_b: wp.array(dtype=wp.int32)):
+                dt: wp.float64, out: ContactOut):
     """Thread (box j, plane k): :func:`box_vs_plane`, the face turned to the plane sharing its
     area among its corners in contact."""
     j, k = wp.tid()
@@ -177,8 +181,7 @@ def boxes_plane(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=
             ar = wp.float64(0.0)
             if corner_sign(c, axis) == facing:
                 ar = face_area
-            emit(count, key, body_a, body_b, offset_a, offset_b, point_a, point_b, normal, gap, area, friction,
-                 material_a, material_b, contact_key(BOX_PLANE, b, c, k, 0), b, -1, r, wp.vec3d(), p, p - g * n, n,
+            emit(out, contact_key(BOX_PLANE, b, c, k, 0), b, -1, r, wp.vec3d(), p, p - g * n, n,
                  g, ar, plane_friction[k], box_material[j], plane_material[k])
 
 
@@ -194,14 +197,7 @@ def spheres_plane(position: wp.array(dtype=wp.vec3d), velocity: wp.array(dtype=w
                   sphere_material: wp.array(dtype=wp.int32), sphere_plane_margin: wp.array2d(dtype=wp.float64),
                   plane_point: wp.array(dtype=wp.vec3d), plane_normal: wp.array(dtype=wp.vec3d),
                   plane_friction: wp.array(dtype=wp.float64), plane_material: wp.array(dtype=wp.int32),
-                  dt: wp.float64,
-                  count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-                  body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d),
-                  offset_b: wp.array(dtype=wp.vec3d), point_a: wp.array(dtype=wp.vec3d),
-                  point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
-                  gap: wp.array(dtype=wp.float64), area: wp.array(dtype=wp.float64),
-                  friction: wp.array(dtype=wp.float64), material_a: wp.array(dtype=wp.int32),
-                  material_b: wp.array(dtype=wp.int32)):
+                  dt: wp.float64, out: ContactOut):
     """Thread (sphere j, plane k): :func:`sphere_vs_plane`."""
     j, k = wp.tid()
     b = sphere_body[j]
@@ -213,8 +209,7 @@ def spheres_plane(position: wp.array(dtype=wp.vec3d), velocity: wp.array(dtype=w
     if wp.min(g, g + approach) < margin:
         r = -radius * n
         p = position[b] + r
-        emit(count, key, body_a, body_b, offset_a, offset_b, point_a, point_b, normal, gap, area, friction,
-             material_a, material_b, contact_key(SPHERE_PLANE, b, 0, k, 0), b, -1, r, wp.vec3d(), p, p - g * n, n,
+        emit(out, contact_key(SPHERE_PLANE, b, 0, k, 0), b, -1, r, wp.vec3d(), p, p - g * n, n,
              g, cap_area(radius, margin), plane_friction[k], sphere_material[j], plane_material[k])
 
 
@@ -222,14 +217,7 @@ def spheres_plane(position: wp.array(dtype=wp.vec3d), velocity: wp.array(dtype=w
 def sphere_pairs(position: wp.array(dtype=wp.vec3d), velocity: wp.array(dtype=wp.spatial_vectord),
                  sphere_body: wp.array(dtype=wp.int32), sphere_radius: wp.array(dtype=wp.float64),
                  sphere_material: wp.array(dtype=wp.int32), pairs: wp.array2d(dtype=wp.int32),
-                 pair_margin: wp.array(dtype=wp.float64), mu: wp.float64, dt: wp.float64,
-                 count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-                 body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d),
-                 offset_b: wp.array(dtype=wp.vec3d), point_a: wp.array(dtype=wp.vec3d),
-                 point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d),
-                 gap: wp.array(dtype=wp.float64), area: wp.array(dtype=wp.float64),
-                 friction: wp.array(dtype=wp.float64), material_a: wp.array(dtype=wp.int32),
-                 material_b: wp.array(dtype=wp.int32)):
+                 pair_margin: wp.array(dtype=wp.float64), mu: wp.float64, dt: wp.float64, out: ContactOut):
     """Thread (sphere pair q): :func:`sphere_vs_sphere`, both sides acting at the midpoint."""
     q = wp.tid()
     ja = pairs[q, 0]
@@ -250,8 +238,7 @@ def sphere_pairs(position: wp.array(dtype=wp.vec3d), velocity: wp.array(dtype=wp
         pa = position[a] - ra * n
         pb = position[b] + rb * n
         mid = wp.float64(0.5) * (pa + pb)
-        emit(count, key, body_a, body_b, offset_a, offset_b, point_a, point_b, normal, gap, area, friction,
-             material_a, material_b, contact_key(SPHERE_SPHERE, a, 0, b, 0), a, b, mid - position[a],
+        emit(out, contact_key(SPHERE_SPHERE, a, 0, b, 0), a, b, mid - position[a],
              mid - position[b], pa, pb, n, g, cap_area(wp.min(ra, rb), margin), mu, sphere_material[ja],
              sphere_material[jb])
 
@@ -414,13 +401,7 @@ def box_pairs(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=wp
               box_half: wp.array(dtype=wp.vec3d), box_material: wp.array(dtype=wp.int32),
               pairs: wp.array2d(dtype=wp.int32), pair_margin: wp.array(dtype=wp.float64), mu: wp.float64,
               dt: wp.float64, cand_point: wp.array2d(dtype=wp.vec3d), cand_gap: wp.array2d(dtype=wp.float64),
-              cand_fa: wp.array2d(dtype=wp.int32), cand_fb: wp.array2d(dtype=wp.int32),
-              count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp.uint64), body_a: wp.array(dtype=wp.int32),
-              body_b: wp.array(dtype=wp.int32), offset_a: wp.array(dtype=wp.vec3d),
-              offset_b: wp.array(dtype=wp.vec3d), point_a: wp.array(dtype=wp.vec3d),
-              point_b: wp.array(dtype=wp.vec3d), normal: wp.array(dtype=wp.vec3d), gap: wp.array(dtype=wp.float64),
-              area: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-              material_a: wp.array(dtype=wp.int32), material_b: wp.array(dtype=wp.int32)):
+              cand_fa: wp.array2d(dtype=wp.int32), cand_fb: wp.array2d(dtype=wp.int32), out: ContactOut):
     """Thread (box pair q): :func:`box_vs_box` -- the separating-axis test over 15 axes, then
     the clipped face manifold or one edge-edge contact (collision/box.py says how and why).
     ``cand_*`` [q, 8] hold each pair's candidate points, gaps and features (scratch)."""
@@ -669,6 +650,5 @@ def box_pairs(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=wp
     for i in range(c):
         h = hits[i]
         p = cand_point[q, h]
-        emit(count, key, body_a, body_b, offset_a, offset_b, point_a, point_b, normal, gap, area, friction,
-             material_a, material_b, contact_key(BOX_BOX, a, cand_fa[q, h], b, cand_fb[q, h]), a, b, p - pa, p - pb,
+        emit(out, contact_key(BOX_BOX, a, cand_fa[q, h], b, cand_fb[q, h]), a, b, p - pa, p - pb,
              p, p, n, cand_gap[q, h], shared / wp.float64(wp.max(c, 1)), mu, box_material[ja], box_material[jb])

@@ -29,9 +29,11 @@ class Detection:
 
 
 def _outputs(buffer) -> list:
-    return [buffer.count, buffer.key, buffer.body_a, buffer.body_b, buffer.offset_a, buffer.offset_b, buffer.point_a,
-            buffer.point_b, buffer.normal, buffer.gap, buffer.area, buffer.friction, buffer.material_a,
-            buffer.material_b]
+    c = _k.ContactOut()
+    for name in ("count", "key", "body_a", "body_b", "offset_a", "offset_b", "point_a", "point_b", "normal", "gap",
+                 "area", "friction", "material_a", "material_b"):
+        setattr(c, name, getattr(buffer, name))
+    return [c]
 
 
 def record_detection(model, state, dt: float) -> Detection:

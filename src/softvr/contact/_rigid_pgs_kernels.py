@@ -71,6 +71,12 @@ def _point(v: wp.spatial_vectord, r: wp.vec3d) -> wp.vec3d:
 
 
 @wp.func
+def _row(frame: wp.mat33d, row: int) -> wp.vec3d:
+    """Row ``row`` of a contact frame: the normal (0) or a tangent (1, 2)."""
+    return wp.vec3d(frame[row, 0], frame[row, 1], frame[row, 2])
+
+
+@wp.func
 def _side_row(body: int, velocity: wp.array(dtype=wp.spatial_vectord), r: wp.vec3d, d: wp.vec3d) -> wp.float64:
     if body < 0:
         return wp.float64(0.0)
@@ -135,14 +141,11 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
                 helper = wp.vec3d(zero, one, zero)
             t1 = wp.normalize(wp.cross(n, helper))
         t2 = wp.cross(n, t1)
-        frame[i] = wp.mat33d(n[0], n[1], n[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
+        f = wp.mat33d(n[0], n[1], n[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
+        frame[i] = f
         resp = wp.vec3d()
         for row in range(3):
-            d = n
-            if row == 1:
-                d = t1
-            if row == 2:
-                d = t2
+            d = _row(f, row)
             value = zero
             if a >= 0:
                 value += _row_response(inv_mass[a], inv_inertia[a], ra, d)
@@ -182,7 +185,7 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
         f = frame[i]
         lam = impulse[i]
         for row in range(3):
-            d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+            d = _row(f, row)
             _apply(body_a[i], velocity, inv_mass, inv_inertia, offset_a[i], d, lam[row])
             _apply(body_b[i], velocity, inv_mass, inv_inertia, offset_b[i], d, -lam[row])
     # Projected Gauss-Seidel (pgs_sweeps): per contact the normal row, then each tangent row
@@ -205,7 +208,7 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
             lam = impulse[i]
             k = dt * dt * stiffness[i]
             for row in range(3):
-                d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+                d = _row(f, row)
                 row_rel = _side_row(a, velocity, ra, d) - _side_row(b, velocity, rb, d)
                 diag = resp[row]
                 d_bar = diag * lam[row] + tgt[row] - row_rel
@@ -246,7 +249,7 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
                     push = beta * p
                     f = frame[i]
                     for row in range(3):
-                        d = wp.vec3d(f[row, 0], f[row, 1], f[row, 2])
+                        d = _row(f, row)
                         _apply(body_a[i], velocity, inv_mass, inv_inertia, offset_a[i], d, push[row])
                         _apply(body_b[i], velocity, inv_mass, inv_inertia, offset_b[i], d, -push[row])
                     impulse[i] = impulse[i] + push
