@@ -1,9 +1,27 @@
-"""Device helpers: the OpenBLAS thread limit applies inside the block and is undone after."""
+"""Device helpers: the OpenBLAS thread limit applies inside the block and is undone after; a
+replayed launch does what the launch does."""
 
 import numpy as np
 import pytest
+import warp as wp
 
-from softvr.device import _openblas_controls, single_threaded_blas
+from softvr.device import _openblas_controls, replayer, single_threaded_blas
+
+
+@wp.kernel
+def _add(values: wp.array(dtype=wp.float64), amount: wp.float64, scale: wp.array(dtype=wp.float64)):
+    i = wp.tid()
+    values[i] = values[i] + amount * scale[i]
+
+
+def test_a_replayed_launch_runs_the_kernel_with_its_recorded_arguments(device):
+    values = wp.zeros(4, dtype=wp.float64, device=device)
+    scale = wp.array([1.0, 2.0, 3.0, 4.0], dtype=wp.float64, device=device)
+    replay = replayer(wp.launch(_add, dim=4, inputs=[values, 0.5, scale], device=device, record_cmd=True))
+    for _ in range(3):
+        replay()
+    # Three replays of values += 0.5 * scale, and nothing at recording time.
+    np.testing.assert_array_equal(values.numpy(), 3 * 0.5 * np.array([1.0, 2.0, 3.0, 4.0]))
 
 
 def test_single_threaded_blas_limits_and_restores_every_openblas():

@@ -136,7 +136,12 @@ def replayer(recorded) -> Callable[[], None]:
         if not recorded.device.is_cpu or recorded.adjoint or getattr(recorded, "block_dim", 1) > 1:
             return recorded.launch
         params, forward = recorded.params, recorded.hooks.forward
-        fields = [(arg.label, type(params[1 + i])) for i, arg in enumerate(recorded.kernel.adj.args)]
+        args = recorded.kernel.adj.args
+        # The layout this relies on (Warp 1.19's CPU invoke): launch bounds, then one ctypes
+        # value per kernel argument. Anything else replays the documented way.
+        if not callable(forward) or len(params) != 1 + len(args):
+            return recorded.launch
+        fields = [(arg.label, type(params[1 + i])) for i, arg in enumerate(args)]
     except AttributeError:
         return recorded.launch
     args = type("ArgsStruct", (ctypes.Structure,), {"_fields_": fields})()
