@@ -35,7 +35,36 @@ class _Snapshot:
     def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, inv_mass: np.ndarray):
         self.contacts, self.velocities, self.sweeps, self.residual = contacts, velocities, sweeps, residual
         self._inv_mass = inv_mass  # [n] [1/kg], to leave out contacts no impulse can act on
+        self._sets = None
+        self._per_set = {}
         self._solution = None
+
+    def sets(self) -> list[np.ndarray]:
+        """Row indices of each contact set: one per (kind, body a, body b or static), in the
+        order the sets first appear; contacts between two immovable sides are left out, as the
+        per-object path (Scene._movable) does."""
+        if self._sets is None:
+            c = self.contacts
+            b_moves = (c["body_b"] >= 0) & (self._inv_mass[np.maximum(c["body_b"], 0)] > 0)
+            movable = (self._inv_mass[c["body_a"]] > 0) | b_moves
+            fields = unpack_keys(c["key"])
+            static = np.where(c["body_b"] < 0, fields["body_b"], -1)
+            rows: dict[tuple, list] = {}
+            # A dict keeps first-appearance order and costs ~1 us per contact; np.unique over
+            # the rows' tuples cost 120 us per call on the box stack's 20 contacts.
+            for row, pair in zip(np.flatnonzero(movable).tolist(),
+                                 zip(fields["kind"][movable].tolist(), c["body_a"][movable].tolist(),
+                                     c["body_b"][movable].tolist(), static[movable].tolist())):
+                rows.setdefault(pair, []).append(row)
+            self._sets = [np.array(r) for r in rows.values()]
+        return self._sets
+
+    def per_set(self, name: str) -> list[np.ndarray]:
+        """The contact field ``name`` split by :meth:`sets` (the solution's ``impulses``,
+        ``frames``, ``gaps_after`` need no Jacobians: an interactive loop reads only them)."""
+        if name not in self._per_set:
+            self._per_set[name] = [self.contacts[name][rows] for rows in self.sets()]
+        return self._per_set[name]
 
     def solution(self) -> ContactSolution:
         if self._solution is None:
@@ -44,40 +73,42 @@ class _Snapshot:
 
     def _build(self) -> ContactSolution:
         c = self.contacts
-        # As the per-object path (Scene._movable): contacts between two immovable sides are left out.
-        b_moves = (c["body_b"] >= 0) & (self._inv_mass[np.maximum(c["body_b"], 0)] > 0)
-        movable = (self._inv_mass[c["body_a"]] > 0) | b_moves
-        fields = unpack_keys(c["key"])
-        # One set per (kind, body a, body b or static), in the order the sets first appear.
-        pair = np.stack([fields["kind"], c["body_a"], c["body_b"], np.where(c["body_b"] < 0, fields["body_b"], -1)],
-                        axis=1)[movable]
-        index = np.flatnonzero(movable)
-        _, first, group = np.unique(pair, axis=0, return_index=True, return_inverse=True)
-        sets, impulses, frames, gaps = [], [], [], []
-        for g in np.argsort(first):
-            rows = index[group.ravel() == g]
+        sets = []
+        for rows in self.sets():
             a, b = int(c["body_a"][rows[0]]), int(c["body_b"][rows[0]])
             side_b = None if b < 0 else rigid_side(b, c["offset_b"][rows])
             sets.append(Contacts(rigid_side(a, c["offset_a"][rows]), side_b,
                                  c["normal"][rows], c["gap"][rows], c["point_a"][rows], c["point_b"][rows],
                                  c["key"][rows], c["friction"][rows], c["area"][rows]))
-            impulses.append(c["impulse"][rows])
-            frames.append(c["frame"][rows])
-            gaps.append(c["gap_after"][rows])
         islands = contact_islands(len(self.velocities), [(s.a.body, None if s.b is None else s.b.body) for s in sets])
-        return ContactSolution(velocities=self.velocities, impulses=impulses, frames=frames, iterations=self.sweeps,
-                               residual=self.residual, islands=[sorted(i) for i in islands], contacts=sets,
-                               gaps_after=gaps)
+        return ContactSolution(velocities=self.velocities, impulses=self.per_set("impulse"),
+                               frames=self.per_set("frame"), iterations=self.sweeps, residual=self.residual,
+                               islands=[sorted(i) for i in islands], contacts=sets,
+                               gaps_after=self.per_set("gap_after"))
 
 
 class LazySolution:
     """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
-    of an interactive loop never read it); ``iterations`` (PGS sweeps) and ``residual`` [m/s]
-    without building it."""
+    of an interactive loop never read it); ``iterations`` (PGS sweeps), ``residual`` [m/s],
+    ``velocities``, ``impulses``, ``frames`` and ``gaps_after`` without building its contact
+    sets' Jacobians."""
 
     def __init__(self, snapshot: _Snapshot):
         self._snapshot = snapshot
         self.iterations, self.residual = snapshot.sweeps, snapshot.residual
+        self.velocities = snapshot.velocities
+
+    @property
+    def impulses(self) -> list:
+        return self._snapshot.per_set("impulse")
+
+    @property
+    def frames(self) -> list:
+        return self._snapshot.per_set("frame")
+
+    @property
+    def gaps_after(self) -> list:
+        return self._snapshot.per_set("gap_after")
 
     def __getattr__(self, name):
         return getattr(self._snapshot.solution(), name)
@@ -139,18 +170,25 @@ class RigidStepper:
         self._count = self.state.contacts.count.numpy()
         self._inv_mass = self.model.body_inv_mass.numpy()
         self._pushed = True
-        for i, body in enumerate(self.scene.bodies):
-            body.position, body.orientation, body.v = self._position[i], self._orientation[i], self._velocity[i]
+        # One view per body and field, made once: a user's assignment rebinds the attribute,
+        # which an identity test against these finds (``store[i]`` makes a new view each time).
+        self._views = [(self._position[i], self._orientation[i], self._velocity[i])
+                       for i in range(len(self.scene.bodies))]
+        for body, views in zip(self.scene.bodies, self._views):
+            body.position, body.orientation, body.v = views
 
     def _sync_in(self) -> None:
         """Copy in any pose or velocity the user assigned since the last step."""
-        for i, body in enumerate(self.scene.bodies):
-            for name, store in (("position", self._position), ("orientation", self._orientation),
-                                ("v", self._velocity)):
-                value = getattr(body, name)
-                if value is not store[i]:
-                    store[i] = value
-                    setattr(body, name, store[i])
+        for body, (position, orientation, v) in zip(self.scene.bodies, self._views):
+            if body.position is not position:
+                position[:] = body.position
+                body.position = position
+            if body.orientation is not orientation:
+                orientation[:] = body.orientation
+                body.orientation = orientation
+            if body.v is not v:
+                v[:] = body.v
+                body.v = v
 
     def _carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """What the per-object path left (warm starts, intensities, slips), as the carried arrays."""
