@@ -10,7 +10,10 @@ index of their chunk as their last argument and add it to ``wp.tid()``.
 from __future__ import annotations
 
 import ctypes
+import logging
 import os
+import sys
+import tempfile
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -20,7 +23,43 @@ import warp as wp
 
 from softvr.errors import InputError
 
-__all__ = ["cpu_workers", "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas"]
+__all__ = [
+    "cpu_workers", "cuda_driver_present", "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas",
+]
+
+
+_log = logging.getLogger(__name__)
+
+# What Warp's native library prints when it cannot dlopen the driver (warp/native/cuda_util.cpp).
+_NO_DRIVER = "Could not find or load the NVIDIA CUDA driver"
+
+
+def cuda_driver_present() -> bool:
+    """Whether the NVIDIA CUDA driver library loads here, tried as Warp's own init tries it."""
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so", "libcuda.so.1")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+        except OSError:
+            continue
+        return True
+    return False
+
+
+@contextmanager
+def _stderr_lines(out: list[str]):
+    """Capture what native code writes to file descriptor 2 in the body into ``out`` (lines)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            out.extend(tmp.read().decode("utf-8", "replace").splitlines(keepends=True))
 
 
 @lru_cache(maxsize=1)
@@ -29,7 +68,19 @@ def _init() -> None:
     if wp.config.log_level == wp.LOG_INFO:
         wp.config.log_level = wp.LOG_WARNING
     wp.config.quiet = True
-    wp.init()
+    if cuda_driver_present():
+        wp.init()
+        return
+    # Without a driver, Warp 1.19's native init fprintf's a warning to stderr on every run (no config
+    # switch turns it off): a CPU-only machine is an expected setup, not a fault. Everything else it
+    # writes is passed through; the fact itself is one INFO line (shown with --verbose / logging INFO).
+    lines: list[str] = []
+    with _stderr_lines(lines):
+        wp.init()
+    rest = [line for line in lines if _NO_DRIVER not in line]
+    if rest:
+        sys.stderr.write("".join(rest))
+    _log.info("no NVIDIA CUDA driver found: Warp runs on the CPU only")
 
 
 def resolve_device(device: str | None = None) -> str:
