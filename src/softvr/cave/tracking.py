@@ -21,7 +21,8 @@ blocks, so a render loop can call it once per frame. Three are built in:
   (foreign addresses, malformed packets) is counted in ``dropped`` and otherwise ignored.
 
 :func:`encode_osc` / :func:`encode_osc_bundle` build packets (for senders and tests) and
-:func:`decode_osc` parses them, all in-house (no OSC dependency).
+:func:`decode_osc` parses them, with python-osc; softvr adds the input limits a network port
+needs (:func:`decode_osc`).
 
 Examples
 --------
@@ -38,11 +39,16 @@ from __future__ import annotations
 
 import math
 import socket
-import struct
 import time
 from dataclasses import dataclass
 
 import numpy as np
+from pythonosc import osc_bundle, osc_message
+from pythonosc.osc_bundle import OscBundle
+from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
+from pythonosc.osc_message import OscMessage
+from pythonosc.osc_message_builder import OscMessageBuilder
+from pythonosc.parsing import osc_types
 
 from softvr.cave.display import eye_pair
 from softvr.errors import InputError
@@ -51,7 +57,6 @@ __all__ = ["DEFAULT_HEAD", "FixedTracker", "HeadPose", "OscTracker", "ScriptedTr
            "encode_osc", "encode_osc_bundle", "quaternion_about"]
 
 OSC_ADDRESS = "/softvr/head"
-_BUNDLE = b"#bundle\0"
 _MAX_BUNDLE_DEPTH = 8  # bundles nest; a hostile packet must not recurse without bound
 
 
@@ -261,109 +266,131 @@ class ScriptedTracker(Tracker):
 
 
 # ------------------------------------------------------------------------------------ OSC 1.0
-def _osc_string(text: str) -> bytes:
-    raw = text.encode("utf-8") + b"\0"
-    return raw + b"\0" * (-len(raw) % 4)
+# python-osc builds and parses the packets. What it leaves to its callers, and a UDP port open to
+# the network must not: it loops forever on a bundle element of negative size, recurses into
+# bundles without bound, pads a missing last float with zeros (a truncated pose would decode as a
+# pose) and ignores trailing bytes. _check_frames and _canonical below refuse those first.
+_TAGS = "fidsTF"  # the argument types softvr reads; python-osc logs a warning per unknown tag
 
 
 def encode_osc(address: str, values) -> bytes:
-    """One OSC 1.0 message: ``address`` (starting with "/") and ``values``, each number as
-    float32 (type tag ``f``) and each string as ``s``, big-endian, 4-byte aligned.
+    """One OSC 1.0 message (python-osc's ``OscMessageBuilder``): ``address`` (starting with
+    "/") and ``values``, each number as float32 (type tag ``f``) and each string as ``s``.
 
     A head pose is ``encode_osc("/softvr/head", [x, y, z, qw, qx, qy, qz])`` (metres, unit
     quaternion).
     """
     if not isinstance(address, str) or not address.startswith("/"):
         raise InputError("OSC address", 'a string starting with "/"', repr(address))
-    tags, payload = [","], []
+    builder = OscMessageBuilder(address)
     for i, v in enumerate(values):
         if isinstance(v, str):
-            tags.append("s")
-            payload.append(_osc_string(v))
+            builder.add_arg(v, OscMessageBuilder.ARG_TYPE_STRING)
         elif isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
-            tags.append("f")
-            payload.append(struct.pack(">f", float(v)))
+            builder.add_arg(float(v), OscMessageBuilder.ARG_TYPE_FLOAT)
         else:
             raise InputError(f"OSC value [{i}]", "a number or a string", repr(v))
-    return _osc_string(address) + _osc_string("".join(tags)) + b"".join(payload)
+    return builder.build().dgram
 
 
-def encode_osc_bundle(elements, timetag: int = 1) -> bytes:
-    """An OSC bundle of encoded messages or bundles (``bytes``); ``timetag`` 1 = immediately."""
-    out = [_BUNDLE, struct.pack(">Q", int(timetag))]
+def encode_osc_bundle(elements, timestamp: float = IMMEDIATELY) -> bytes:
+    """An OSC bundle (python-osc's ``OscBundleBuilder``) of encoded messages or bundles
+    (``bytes``); ``timestamp`` [s since the Unix epoch, UTC], default: immediately."""
+    builder = OscBundleBuilder(timestamp)
     for i, element in enumerate(elements):
         if not isinstance(element, (bytes, bytearray)) or len(element) % 4:
             raise InputError(f"bundle element [{i}]", "an encoded OSC message or bundle (bytes, 4-byte aligned)",
                              type(element).__name__)
-        out += [struct.pack(">i", len(element)), bytes(element)]
-    return b"".join(out)
+        element = bytes(element)
+        try:
+            _check_frames(element)
+            builder.add_content(OscBundle(element) if OscBundle.dgram_is_bundle(element) else OscMessage(element))
+        except (InputError, osc_bundle.ParseError, osc_message.ParseError, UnicodeDecodeError) as exc:
+            raise InputError(f"bundle element [{i}]", "an encoded OSC message or bundle", str(exc)) from None
+    return builder.build().dgram
 
 
-def _read_string(data: bytes, pos: int) -> tuple[str, int]:
-    end = data.find(b"\0", pos)
-    if end < 0:
-        raise InputError("OSC string", "a NUL-terminated string", f"no terminator after byte {pos}")
-    after = end + 1 + (-(end + 1 - pos) % 4)
-    if after > len(data) or any(data[end:after]):
-        raise InputError("OSC string", "NUL padding to a multiple of 4 bytes", f"bad padding at byte {end}")
+def _message_head(data: bytes) -> tuple[str, str]:
+    """Address and type tags of a message (python-osc's string reader), checked."""
     try:
-        return data[pos:end].decode("utf-8"), after
-    except UnicodeDecodeError:
-        raise InputError("OSC string", "UTF-8 text", f"undecodable bytes at {pos}") from None
-
-
-_ARGUMENTS = {"f": ">f", "i": ">i", "d": ">d"}
-
-
-def _decode_message(data: bytes) -> tuple[str, tuple]:
-    if len(data) % 4:
-        raise InputError("OSC packet", "a multiple of 4 bytes", f"{len(data)} bytes")
-    address, pos = _read_string(data, 0)
+        address, pos = osc_types.get_string(data, 0)
+        tags, _ = osc_types.get_string(data, pos) if pos < len(data) else ("", pos)
+    except osc_types.ParseError as exc:
+        raise InputError("OSC string", "NUL-terminated strings padded to 4 bytes", str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise InputError("OSC string", "UTF-8 text", f"undecodable bytes at {exc.start}") from None
     if not address.startswith("/"):
         raise InputError("OSC address", 'a pattern starting with "/"', repr(address[:40]))
-    tags, pos = _read_string(data, pos)
     if not tags.startswith(","):
         raise InputError("OSC type tags", 'a string starting with ","', repr(tags[:40]))
-    values = []
-    for tag in tags[1:]:
-        if tag in _ARGUMENTS:
-            size = struct.calcsize(_ARGUMENTS[tag])
-            if pos + size > len(data):
-                raise InputError("OSC arguments", f"{len(tags) - 1} arguments ({tags})", "a truncated packet")
-            values.append(struct.unpack_from(_ARGUMENTS[tag], data, pos)[0])
-            pos += size
-        elif tag == "s":
-            text, pos = _read_string(data, pos)
-            values.append(text)
-        elif tag in "TF":
-            values.append(tag == "T")
-        else:
-            raise InputError("OSC type tag", "one of f i d s T F", repr(tag))
-    if pos != len(data):
-        raise InputError("OSC packet", f"exactly the arguments of {tags}", f"{len(data) - pos} bytes more")
-    return address, tuple(values)
+    unknown = next((t for t in tags[1:] if t not in _TAGS), None)
+    if unknown is not None:
+        raise InputError("OSC type tag", "one of " + " ".join(_TAGS), repr(unknown))
+    return address, tags
 
 
-def decode_osc(packet: bytes, _depth: int = 0) -> list[tuple[str, tuple]]:
-    """The messages of an OSC 1.0 packet (a message, or a bundle, flattened in order), each
-    ``(address, values)``; type tags f, i, d, s, T, F. A malformed packet is an
-    :class:`~softvr.errors.InputError` saying what is wrong."""
-    data = bytes(packet)
-    if not data.startswith(_BUNDLE):
-        return [_decode_message(data)]
-    if _depth >= _MAX_BUNDLE_DEPTH:
+def _check_frames(data: bytes, depth: int = 0) -> None:
+    """The limits python-osc does not enforce, before it parses ``data``: 4-byte alignment,
+    bundle element sizes within the packet, nesting depth, known type tags."""
+    if len(data) % 4:
+        raise InputError("OSC packet", "a multiple of 4 bytes", f"{len(data)} bytes")
+    if not OscBundle.dgram_is_bundle(data):
+        _message_head(data)
+        return
+    if depth >= _MAX_BUNDLE_DEPTH:
         raise InputError("OSC bundle", f"at most {_MAX_BUNDLE_DEPTH} levels of nesting", "deeper")
     if len(data) < 16:
         raise InputError("OSC bundle", "#bundle, a time tag and elements", f"{len(data)} bytes")
-    out, pos = [], 16
+    pos = 16
     while pos < len(data):
         size = int.from_bytes(data[pos:pos + 4], "big", signed=True) if pos + 4 <= len(data) else -1
         if size <= 0 or size % 4 or pos + 4 + size > len(data):
             raise InputError("OSC bundle element", "a size, a multiple of 4, within the packet",
                              f"{size} at byte {pos}")
-        out += decode_osc(data[pos + 4:pos + 4 + size], _depth + 1)
+        _check_frames(data[pos + 4:pos + 4 + size], depth + 1)
         pos += 4 + size
-    return out
+
+
+def _canonical(message: OscMessage) -> tuple[str, tuple]:
+    """``(address, values)`` of a parsed message whose bytes are exactly what its values encode
+    to: no missing (zero-padded by python-osc) or trailing arguments, NUL padding."""
+    _, tags = _message_head(message.dgram)
+    values = message.params
+    builder = OscMessageBuilder(message.address)
+    for tag, value in zip(tags[1:], values):
+        builder.add_arg(value, tag)
+    expected = builder.build().dgram
+    if expected != message.dgram:
+        if len(expected) != len(message.dgram):
+            found = f"{len(message.dgram)} bytes where the arguments take {len(expected)}"
+        else:
+            k = next(k for k, (a, b) in enumerate(zip(expected, message.dgram)) if a != b)
+            found = f"bytes that differ from their encoding at byte {k} (padding not NUL?)"
+        raise InputError("OSC packet", f"exactly the arguments of {tags}, NUL-padded", found)
+    return message.address, tuple(values)
+
+
+def _messages(element) -> list:
+    """The messages of a parsed python-osc packet, bundles flattened in order."""
+    if isinstance(element, OscMessage):
+        return [element]
+    return [m for content in element for m in _messages(content)]
+
+
+def decode_osc(packet: bytes) -> list[tuple[str, tuple]]:
+    """The messages of an OSC 1.0 packet (a message, or a bundle, flattened in order), each
+    ``(address, values)``; type tags f, i, d, s, T, F. Parsed by python-osc after softvr's
+    limits (at most 8 nested bundles, element sizes within the packet, exact argument bytes);
+    a malformed packet is an :class:`~softvr.errors.InputError` saying what is wrong."""
+    data = bytes(packet)
+    _check_frames(data)
+    try:
+        root = OscBundle(data) if OscBundle.dgram_is_bundle(data) else OscMessage(data)
+    except (osc_bundle.ParseError, osc_message.ParseError) as exc:
+        raise InputError("OSC packet", "an OSC 1.0 message or bundle", str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise InputError("OSC string", "UTF-8 text", f"undecodable bytes at {exc.start}") from None
+    return [_canonical(m) for m in _messages(root)]
 
 
 class OscTracker(Tracker):
