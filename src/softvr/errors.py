@@ -2,13 +2,17 @@
 
 Every error a user can cause by bad input is an :class:`InputError` whose message names
 the file (when there is one), the field or element, what was expected and what was found.
-:func:`raise_all` reports a file's problems together; :func:`read_toml` reads a TOML input
-file with those errors for a missing file or bad syntax.
+:func:`raise_all` reports a file's problems together (:class:`Problems` collects them while a
+reader walks a table; :func:`with_unit` says what to write for a number given with a unit).
+Reading the files is :mod:`softvr.files`'s.
 """
 
 from __future__ import annotations
 
-__all__ = ["InputError", "Problems", "SimulationError", "SoftvrError", "raise_all", "read_toml", "with_unit"]
+import math
+import re
+
+__all__ = ["InputError", "Problems", "SimulationError", "SoftvrError", "raise_all", "with_unit"]
 
 
 class SoftvrError(Exception):
@@ -57,20 +61,6 @@ def raise_all(problems: list, source: str | None, kind: str) -> None:
     raise error
 
 
-def read_toml(path, kind: str) -> dict:
-    """The table of a TOML file; a missing file or bad TOML is an :class:`InputError` naming it."""
-    import tomllib
-    from pathlib import Path
-
-    path = Path(path)
-    try:
-        return tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise InputError(kind, "an existing TOML file", "no such file", source=str(path)) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("TOML", "valid TOML", str(exc), source=str(path)) from None
-
-
 #: Units people write in input files, as (factor to SI, the SI unit softvr reads): how a
 #: number written with a unit is reported (softvr files hold bare SI numbers).
 _UNITS = {
@@ -103,9 +93,6 @@ def with_unit(value, unit: str) -> str | None:
     """What to tell someone who wrote ``value`` (e.g. ``"5 mm"``) where softvr reads a bare
     number in ``unit`` (e.g. ``"m"``): the SI number to write instead, or that the unit is of
     another quantity; None when ``value`` is not a number with a unit."""
-    import math
-    import re
-
     if not isinstance(value, str):
         return None
     try:
@@ -151,8 +138,6 @@ class Problems:
                maximum=None, unit: str = "", plausible: tuple | None = None) -> float | None:
         """A finite number (``> 0`` with ``positive``, in ``[minimum, maximum)``, within
         ``plausible`` (class docstring))."""
-        import math
-
         value = table.get(key, default)
         if value is None:
             self.add(f"{where}.{key}", f"a number [{unit}]".replace(" []", ""), "nothing")
@@ -184,8 +169,6 @@ class Problems:
                plausible: tuple | None = None):
         """A list of ``size`` finite numbers, as a tuple of floats; each within ``plausible``
         (class docstring)."""
-        import math
-
         value = table.get(key, default)
         ok = isinstance(value, (list, tuple)) and len(value) == size and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)

@@ -13,6 +13,9 @@ nesting deeper than :data:`MAX_DEPTH` and integers beyond 64 bits before a reade
 tree; :func:`file_name` checks a file name an input writes (NUL bytes, lengths);
 :func:`check_npz` an ``.npz`` archive's arrays against their entries; :func:`native_read`
 turns a native reader's exceptions and ``sys.exit`` into an error naming the file.
+
+Output is written here too, atomically: :func:`atomic_output` (a temporary file in the target's
+folder, renamed over it on success) and :func:`write_json`.
 """
 
 from __future__ import annotations
@@ -20,18 +23,21 @@ from __future__ import annotations
 import json
 import os
 import stat
+import tempfile
 import tomllib
 import zipfile
 import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from softvr.errors import InputError, SoftvrError
 
-__all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "checked_file", "check_count",
-           "check_npz", "check_tree", "file_name", "inside_folder", "load_json", "native_read", "read_text",
-           "read_toml"]
+__all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "atomic_output", "checked_file",
+           "check_count", "check_npz", "check_tree", "file_name", "inside_folder", "load_json", "native_read",
+           "read_text", "read_toml", "write_json"]
 
 
 def _limit(name: str, default: int) -> int:
@@ -250,3 +256,66 @@ def check_npz(path: str | os.PathLike, what: str) -> Path:
         raise InputError(what, "a .npz file (a zip of .npy arrays)", f"{type(exc).__name__}: {str(exc)[:200]}",
                          source=source) from None
     return path
+
+
+# -- output ------------------------------------------------------------------------------
+def _umask() -> int:
+    """The process umask, read without changing it (Linux), else the usual 0o022."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
+
+
+@contextmanager
+def atomic_output(path: str | os.PathLike, suffix: str) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; on success rename it over ``path``.
+
+    The temporary file lives in the same directory (so :func:`os.replace` is atomic)
+    and ends in ``suffix`` (writers such as ffmpeg pick the format from it). If the body
+    raises, the temporary file is removed and an existing ``path`` is left untouched.
+    The final file gets the permissions a plain ``open(path, "w")`` would give it.
+    """
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError("path", "a file in an existing directory", f"no directory {str(parent)!r}", str(path))
+    fd, tmp_name = tempfile.mkstemp(dir=parent, prefix=f".{path.name}.", suffix=f".tmp{suffix}")
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        if not tmp.exists() or tmp.stat().st_size == 0:
+            raise OSError(f"writing {path} produced no data")
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_json(data: dict, path: str | os.PathLike) -> Path:
+    """Write ``data`` as indented JSON to ``path`` (its folder is created), atomically; numpy
+    scalars and arrays become numbers and lists. Returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path, ".json") as tmp:
+        tmp.write_text(json.dumps(data, indent=1, default=_json_default) + "\n")
+    return path
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"{type(o).__name__} is not JSON serializable")

@@ -25,7 +25,7 @@ from softvr.dynamics._fem_kernels import CorotatedElements
 from softvr.dynamics._sparse_system import SparseNodeSystem
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
-from softvr.volume.tetmesh import check_tets
+from softvr.geometry import check_tets
 
 __all__ = ["FemBody", "Material"]
 

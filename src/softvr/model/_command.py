@@ -16,7 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.files import checked_file
+from softvr.files import atomic_output, checked_file
+from softvr.model.build import load_mesh
+from softvr.model.representations import dynamics_mesh
+from softvr.volume import save_tet_mesh, tet_edges
 
 __all__ = ["tetmesh_main", "write_tetmesh"]
 
@@ -24,8 +27,6 @@ __all__ = ["tetmesh_main", "write_tetmesh"]
 def write_tetmesh(surface, cell_size: float, out=None) -> tuple[Path, np.ndarray, np.ndarray]:
     """The dynamics mesh of a surface file written to ``out`` (default: the surface's name
     with ``.vtu``); returns (path, nodes [n, 3] [m], tets [m, 4])."""
-    from softvr.model import dynamics_mesh, load_mesh
-
     surface = checked_file(surface, "SURFACE")  # a regular file: a FIFO would block the mesh reader
     if not (np.isfinite(cell_size) and cell_size > 0):
         raise InputError("--cell-size", "a cube size > 0 [m]", repr(cell_size))
@@ -33,16 +34,11 @@ def write_tetmesh(surface, cell_size: float, out=None) -> tuple[Path, np.ndarray
     vertices, triangles = load_mesh(surface)
     nodes, tets = dynamics_mesh(vertices, triangles, float(cell_size))
     if out.suffix.lower() == ".npz":
-        from softvr.render._atomic import atomic_output
-        from softvr.volume import tet_edges
-
         with atomic_output(out, ".npz") as tmp:
             with open(tmp, "wb") as f:  # a file object: np.savez would add .npz to the name
                 np.savez(f, nodes=np.asarray(nodes, np.float64), tets=np.asarray(tets, np.int64),
                          edges=tet_edges(tets).astype(np.int64))
     else:
-        from softvr.volume import save_tet_mesh
-
         save_tet_mesh(out, nodes, tets)
     return out, nodes, tets
 

@@ -20,14 +20,17 @@ from pathlib import Path
 
 import numpy as np
 
+from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody,
+                             RigidPoints, embed_in_tets)
 from softvr.errors import InputError
-from softvr.files import check_npz, load_json, native_read
-from softvr.scene.gltf import check_gltf
+from softvr.files import atomic_output, check_npz, load_json, native_read
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import push_apart
+from softvr.scene.gltf import check_gltf
+from softvr.sim import Scene
 
 __all__ = ["Model", "PartModel", "build_model", "load_mesh", "load_model", "main"]
 
@@ -131,10 +134,6 @@ class Model:
         Returns ``(scene, bodies, render_points)``: bodies by part name, and per part the
         point entity whose ``positions()`` are its render vertices.
         """
-        from softvr import Scene  # noqa: PLC0415
-        from softvr.dynamics import (  # noqa: PLC0415
-            Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody, RigidPoints, embed_in_tets)
-
         scene = Scene() if scene is None else scene
         bodies, render = {}, {}
         for part in self.parts:
@@ -176,8 +175,6 @@ class Model:
     # -- files -----------------------------------------------------------------------------
     def save(self, path) -> Path:
         """Write the model to ``path`` (``.npz``) atomically; returns the path."""
-        from softvr.render._atomic import atomic_output  # noqa: PLC0415
-
         arrays, manifest = {}, {"format": MODEL_FORMAT, "parts": [], "couplings": [], "crossings": self.crossings}
         for i, p in enumerate(self.parts):
             entry = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(p.spec).items()}

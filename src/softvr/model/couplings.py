@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from softvr.collision import TriangleMesh
 from softvr.errors import InputError
 
 __all__ = ["nodes_near_surface"]
@@ -12,8 +13,6 @@ __all__ = ["nodes_near_surface"]
 def nodes_near_surface(nodes, vertices, triangles, radius: float) -> np.ndarray:
     """Indices of ``nodes`` [n, 3] [m] within ``radius`` [m] of a triangle surface (its inside
     too, when the surface is closed): the coupling nodes of a soft part attached to it."""
-    from softvr.collision import TriangleMesh  # noqa: PLC0415
-
     if not (np.isfinite(radius) and radius >= 0):
         raise InputError("radius", "a distance >= 0 [m]", repr(radius))
     distance = TriangleMesh(np.asarray(vertices, float), np.asarray(triangles)).signed_distance(nodes)

@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from softvr.collision import TriangleMesh
+from softvr.dynamics import embed_in_tets
 from softvr.errors import InputError
+from softvr.volume import Volume, grid_tet_mesh
 
 __all__ = ["MAX_GRID_TETS", "collision_mesh", "dynamics_mesh", "embed_surface"]
 
@@ -60,9 +63,6 @@ def collision_mesh(vertices, triangles, target_triangles: int) -> tuple[np.ndarr
 def dynamics_mesh(vertices, triangles, cell_size: float) -> tuple[np.ndarray, np.ndarray]:
     """Tets covering a closed surface: regular cubes of ``cell_size`` [m], 5 tets each, the tets
     not touching the part dropped (module docstring). Returns nodes [n, 3] [m] and tets [m, 4]."""
-    from softvr.collision import TriangleMesh  # noqa: PLC0415
-    from softvr.volume import Volume, grid_tet_mesh  # noqa: PLC0415
-
     v, t = _check_surface(vertices, triangles, "dynamics_mesh")
     if not (np.isfinite(cell_size) and cell_size > 0):
         raise InputError("cell_size", "a cube size > 0 [m]", repr(cell_size))
@@ -91,6 +91,4 @@ def dynamics_mesh(vertices, triangles, cell_size: float) -> tuple[np.ndarray, np
 def embed_surface(nodes, tets, vertices) -> tuple[np.ndarray, np.ndarray]:
     """Each vertex [n, 3] [m] bound to the one tet containing it: returns ``tet_index`` [n] and
     barycentric ``weights`` [n, 4] (an error names a vertex outside the tets)."""
-    from softvr.dynamics import embed_in_tets  # noqa: PLC0415
-
     return embed_in_tets(nodes, tets, vertices, tolerance=1e-9)

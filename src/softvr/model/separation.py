@@ -23,6 +23,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from softvr.collision import TriangleMesh
 from softvr.errors import InputError
 from softvr.model.intersections import intersecting_triangle_pairs
 
@@ -89,8 +90,6 @@ def push_apart(nodes, tets, embedding, surface_triangles, obstacle_vertices, obs
         The deformed nodes (the surface follows through the embedding).
     report : SeparationReport
     """
-    from softvr.collision import TriangleMesh  # noqa: PLC0415
-
     x0 = np.asarray(nodes, float)
     t = np.asarray(tets)
     index, weights = embedding

@@ -30,9 +30,11 @@ import numpy as np
 import warp as wp
 
 from softvr.device import load_kernels, resolve_device
-from softvr.errors import InputError
+from softvr.dynamics import FemBody, Material
+from softvr.errors import InputError, raise_all
+from softvr.geometry import check_tets
 from softvr.model._tissue_kernels import voxel_owner_kernel
-from softvr.volume import Volume, check_tets
+from softvr.volume import Volume
 
 __all__ = ["CT_TISSUE", "TetTissue", "TissueTable", "tet_tissue", "tissue_fem_body", "voxel_owners"]
 
@@ -67,8 +69,6 @@ class TissueTable:
             if v.shape != (n,) or not np.isfinite(v).all() or not np.all((v > low) & (v < high)):
                 problems.append((name, f"{n} finite values in ({low:g}, {high:g})", repr(getattr(self, name))))
         if problems:
-            from softvr.errors import raise_all  # noqa: PLC0415
-
             raise_all(problems, "TissueTable", "tissue table")
 
     def __call__(self, values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -175,8 +175,6 @@ def tissue_fem_body(volume: Volume, nodes, tets, table: TissueTable = CT_TISSUE,
     ``alpha`` [1/s], ``beta`` [s]. ``fixed`` [node_count] bool clamps nodes; with
     ``fix_denser_than`` [kg/m^3] the nodes of every tet denser than that are clamped too (bone
     holding the soft tissue). Returns ``(body, tissue)``."""
-    from softvr.dynamics import FemBody, Material  # noqa: PLC0415
-
     if not (isinstance(unit, (int, float)) and np.isfinite(unit) and unit > 0):
         raise InputError("unit", "metres per volume unit, > 0 (1e-3 for millimetres)", repr(unit))
     nodes, tets = check_tets(nodes, tets)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.render._atomic import atomic_output
+from softvr.files import atomic_output
 
 __all__ = ["contact_sheet", "save_png"]
 

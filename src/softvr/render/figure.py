@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from softvr.render._atomic import atomic_output
+from softvr.files import atomic_output
 
 __all__ = ["save_figure"]
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.render._atomic import atomic_output
+from softvr.files import atomic_output
 
 __all__ = ["write_mp4"]
 

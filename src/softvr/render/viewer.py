@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from softvr import datasets
+from softvr import volume as sv
 from softvr.errors import InputError, SoftvrError
 from softvr.render._backend import new_onscreen_window, require_display
 from softvr.render._scene import VolumeScene, check_volume
@@ -643,14 +645,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             width, height = (int(v) for v in args.size.lower().split("x"))
         except ValueError:
             raise InputError("--size", "WIDTHxHEIGHT, e.g. 900x700", repr(args.size)) from None
-        require_display()  # before loading anything big
-        from softvr import volume as sv  # noqa: PLC0415
-
+        require_display()  # before reading the volume
         if args.path:
             vol = sv.load(args.path)
         else:
-            from softvr import datasets  # noqa: PLC0415
-
             vol = datasets.head_ct()
         nodes, tets = sv.grid_tet_mesh(vol, args.cells)
         rasterizer = sv.Rasterizer(vol, nodes, tets, device=args.device)

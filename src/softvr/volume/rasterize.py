@@ -29,9 +29,9 @@ import warp as wp
 
 from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
+from softvr.geometry import check_tets, tet_signed_volumes
 from softvr.volume import _raster_kernels as K
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
-from softvr.volume.tetmesh import check_tets, tet_signed_volumes
 
 __all__ = ["OutputGrid", "RasterStats", "Rasterizer", "deform", "fit_output_grid"]
 
