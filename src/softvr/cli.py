@@ -30,26 +30,37 @@ internal error (exit status 70; ``SOFTVR_DEBUG=1`` shows its traceback).
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
+from importlib.metadata import PackageNotFoundError, version
 
 from softvr.errors import SoftvrError
 
 __all__ = ["main"]
 
 
+_DEMOS = {"volume": "the head CT pressed and twisted through its tet mesh, volume-rendered (default)",
+          "shoulder": "the procedural shoulder palpated through a 1 kHz haptic loop (--variant arthroscopy)",
+          "palpation": "the head CT pressed by a probe, re-rasterized where the mesh moved, volume-rendered"}
+
+
+_DEMO_MODULES = {"volume": "volume_deform", "shoulder": "shoulder", "palpation": "palpation"}
+
+
 def _demo(argv: list[str]) -> int:
-    if argv and argv[0] == "shoulder":
-        from softvr.examples import example_shoulder
-
-        return example_shoulder.main(argv[1:])
-    if argv and argv[0] == "palpation":
-        from softvr.examples import example_palpation
-
-        return example_palpation.main(argv[1:])
-    from softvr.examples import example_volume_deform
-
-    return example_volume_deform.main(argv[1:] if argv and argv[0] == "volume" else argv)
+    if argv and argv[0] in ("-h", "--help"):
+        p = argparse.ArgumentParser(prog="softvr demo", description="Run a bundled demo offscreen: MP4, PNG contact "
+                                    "sheet and JSON metrics (softvr demo NAME --help for its options).",
+                                    epilog="Demos:\n" + "\n".join(f"  {k:10s} {v}" for k, v in _DEMOS.items()),
+                                    formatter_class=argparse.RawDescriptionHelpFormatter)
+        p.add_argument("demo", nargs="?", choices=list(_DEMOS), default="volume", help="which demo (default volume)")
+        p.print_help()
+        return 0
+    name = argv[0] if argv and argv[0] in _DEMOS else "volume"
+    rest = argv[1:] if argv and argv[0] in _DEMOS else argv
+    module = importlib.import_module(f"softvr.examples.example_{_DEMO_MODULES[name]}")
+    return module.main(rest)
 
 
 def _build_model(argv: list[str]) -> int:
@@ -64,8 +75,13 @@ def _tetmesh(argv: list[str]) -> int:
     return _command.tetmesh_main(argv)
 
 
+def _scene_word(argv: list[str]) -> str | None:
+    """The first word of ``argv`` that names a scene file (by its suffix), options before it allowed."""
+    return next((a for a in argv if not a.startswith("-") and a.lower().endswith((".toml", ".gltf", ".glb"))), None)
+
+
 def _run(argv: list[str]) -> int:
-    if argv and argv[0].lower().endswith((".toml", ".gltf", ".glb")):
+    if _scene_word(argv) is not None:
         from softvr.scene import _command
 
         return _command.run_main(argv)
@@ -80,10 +96,10 @@ def _view(argv: list[str]) -> int:
 
         return viewer.main(argv[1:])
     if argv and argv[0] == "palpation":
-        from softvr.examples import example_palpation
+        from softvr.scene import _command
 
-        return example_palpation.view_main(argv[1:])
-    if argv and argv[0].lower().endswith((".toml", ".gltf", ".glb")):
+        return _command.view_main(["palpation.toml", *argv[1:]])
+    if _scene_word(argv) is not None:
         from softvr.scene import _command
 
         return _command.view_main(argv)
@@ -92,15 +108,37 @@ def _view(argv: list[str]) -> int:
     return run.view_main(argv)
 
 
-_BENCH_AREAS = ("volume", "contact", "adhesion", "shoulder", "cave", "palpation", "scene")
+_BENCH_AREAS = {"volume": "rasterizer vs VTK vtkProbeFilter + SciPy and SimpleITK (thesis Figs. 3.5 / 3.6)",
+                "contact": "soft cube vs MuJoCo, PyBullet, Newton; the thesis' candy scene at its scale",
+                "adhesion": "the candy scene with and without adhesion (thesis Fig. 4.4)",
+                "shoulder": "the shoulder, both variants: ms per step, contacts, haptic loop period",
+                "cave": "render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback",
+                "palpation": "the palpation frame: FEM step, full and incremental rasterization, rendering",
+                "scene": "every bundled scene: read, build, start check, step and render ms"}
+
+#: Benches whose kernels take a device; the others step physics on the CPU (``softvr.sim``).
+_BENCH_DEVICE = ("volume", "palpation")
 
 
 def _bench(argv: list[str]) -> int:
-    if not argv or argv[0] not in _BENCH_AREAS:
-        raise SystemExit(f"usage: softvr bench AREA [--quick] [--json PATH] [--plot PATH] (areas: {', '.join(_BENCH_AREAS)})")
-    import importlib
-
-    return importlib.import_module(f"softvr.bench.{argv[0]}").main(argv[1:])
+    p = argparse.ArgumentParser(prog="softvr bench", description="Measure softvr against its peers "
+                                "(softvr bench AREA --help for an area's options).",
+                                epilog="Areas:\n" + "\n".join(f"  {k:10s} {v}" for k, v in _BENCH_AREAS.items()),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("area", choices=list(_BENCH_AREAS), help="what to measure")
+    if not argv or argv[0] in ("-h", "--help"):
+        p.print_help()
+        return 0 if argv else 2
+    area = p.parse_args(argv[:1]).area
+    rest = argv[1:]
+    if area not in _BENCH_DEVICE and "--device" in rest:
+        # One option everywhere; where the kernels run only on the CPU, only cpu is accepted.
+        i = rest.index("--device")
+        value = rest[i + 1] if i + 1 < len(rest) else ""
+        if value != "cpu":
+            p.error(f"--device: expected cpu (softvr bench {area} steps its physics on the CPU), got {value!r}")
+        del rest[i:i + 2]
+    return importlib.import_module(f"softvr.bench.{area}").main(rest)
 
 
 def _cave(argv: list[str]) -> int:
@@ -144,6 +182,14 @@ _COMMANDS = {"demo": _demo, "run": _run, "view": _view, "bench": _bench, "info":
              "cave": _cave, "check": _check, "blender-addon": _blender_addon}
 
 
+def _version() -> str:
+    """The installed distribution's version (pyproject.toml is its one source)."""
+    try:
+        return version("softvr")
+    except PackageNotFoundError:  # run from a checkout that was never installed
+        return "unknown (not installed)"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``softvr`` command line; returns the process exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -153,6 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         epilog="Run 'softvr COMMAND --help' for a command's options.",
     )
     parser.add_argument("command", choices=sorted(_COMMANDS), help="what to do")
+    parser.add_argument("--version", action="version", version=f"softvr {_version()}")
+    if argv and argv[0] == "--version":
+        print(f"softvr {_version()}")
+        return 0
     if not argv or argv[0] in ("-h", "--help"):
         parser.print_help()
         return 0 if argv else 2

@@ -47,19 +47,20 @@ def test_example_steps_and_renders(device):
             assert out.dtype == np.int16
             img = ex.render()
             assert img.shape == (72, 96, 3)
-        assert ex.frame_stats[0]["voxels_written"] == vol.data.size  # frame 0 is the rest shape
+        assert ex.metrics[0]["voxels_written"] == vol.data.size  # frame 0 is the rest shape
     finally:
         ex.close()
 
 
 @pytest.mark.slow
 def test_demo_main_on_the_real_head_ct(tmp_path):
-    rc = main(["--frames", "3", "--out", str(tmp_path), "--size", "160", "120", "--cells", "8", "8", "4", "--device", "cpu"])
+    rc = main(["--frames", "3", "--out", str(tmp_path), "--size", "160", "120", "--cells", "8", "8", "4", "--device", "cpu",
+               "--quiet"])
     assert rc == 0
-    frames = list(iio.imiter(tmp_path / "volume_demo.mp4"))
+    frames = list(iio.imiter(tmp_path / "volume.mp4"))
     assert len(frames) == 3
-    sheet = iio.imread(tmp_path / "volume_demo_sheet.png")
+    sheet = iio.imread(tmp_path / "volume_sheet.png")
     assert sheet.ndim == 3 and sheet.shape[2] == 3
-    stats = json.loads((tmp_path / "volume_demo_stats.json").read_text())
+    stats = json.loads((tmp_path / "volume_metrics.json").read_text())
     assert stats["tets"] == 5 * 8 * 8 * 4 and len(stats["frames"]) == 3
     assert all(f["voxels_written"] > 1e6 for f in stats["frames"])

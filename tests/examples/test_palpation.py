@@ -78,8 +78,39 @@ def test_palpating_a_synthetic_ct(ball_ct):
         assert np.abs(ex.body.q - ex.body.rest).max() < 0.5e-3  # relaxed after the probe left
 
 
-def test_the_live_view_plays_frames_in_a_window(ball_ct, display):
-    from softvr.examples.example_palpation import Example, view
+def test_the_live_view_plays_a_volume_scene_in_a_window(ball_ct, display, tmp_path):
+    """``softvr view palpation`` plays palpation.toml through the one window loop; here the same
+    kind of scene over the synthetic CT: every frame played, the probe pressing the ball's skin."""
+    from softvr.app import play_window
+    from softvr.scene import load_scene
+    from softvr.volume import save
 
-    with Example(ball_ct[0], cells=(8, 8, 8), frames=5, width=96, height=96, radius=0.005, depth=0.003) as ex:
-        assert view(ex, timeout_s=3.0) == 5
+    save(ball_ct[0], tmp_path / "ball.nrrd")
+    (tmp_path / "ball.toml").write_text(f"""format = "softvr-scene 1"
+[simulation]
+dt = 0.01
+frames = 5
+gravity = [0.0, 0.0, 0.0]
+[render]
+size = [96, 96]
+[volume]
+file = "{(tmp_path / 'ball.nrrd').as_posix()}"
+name = "ball"
+unit = 0.001
+cells = [8, 8, 8]
+threshold = -300.0
+[[body]]
+name = "probe"
+type = "kinematic"
+sphere = 0.005
+position = [0.0195, 0.0385, 0.0195]
+[body.motion]
+times = [0.0, 0.05]
+positions = [[0.0195, 0.0385, 0.0195], [0.0195, 0.0325, 0.0195]]
+""")
+    with load_scene(tmp_path / "ball.toml") as player:
+        assert play_window(player, timeout_s=3.0) == 5
+        # The ball's skin (r 14 mm about 19.5 mm) is at y = 33.5 mm; the probe's front goes 6 mm past
+        # it, at rest at the start: the tissue under it must have moved.
+        ball = player.bodies["ball"]
+        assert np.linalg.norm(ball.q - ball.rest, axis=1).max() > 0.5e-3

@@ -15,6 +15,7 @@ import pytest
 
 from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_lips,
                              example_oranges, example_probe, example_soft_cube, run)
+from softvr.app import play_window
 from softvr.examples.run import SCENES
 
 SMALL = dict(width=64, height=48)
@@ -240,7 +241,7 @@ def test_probe_pressed_and_withdrawn_pulls_the_tissue_only_with_adhesion(tmp_pat
 def test_view_plays_a_scene_live_in_a_window(display):
     """Under Xvfb: the window opens, frames advance on the timer, it closes on time."""
     ex = example_soft_cube.Example(frames=3, width=160, height=120)
-    assert run.view_example(ex, timeout_s=3.0) == 3  # all frames played, then idle until closed
+    assert play_window(ex, timeout_s=3.0) == 3  # all frames played, then idle until closed
     assert [r["frame"] for r in ex.metrics] == [0, 1, 2]
 
 
@@ -259,11 +260,11 @@ def test_view_without_a_display_says_so(monkeypatch, capsys):
 def test_run_writes_video_sheet_and_metrics(tmp_path):
     out = tmp_path / "out"
     assert run.main(["box-stack", "--frames", "3", "--size", "64", "48", "--out", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["box_stack.mp4", "box_stack_metrics.json", "box_stack_sheet.png"]
-    assert len(list(iio.imiter(out / "box_stack.mp4"))) == 3
-    assert iio.imread(out / "box_stack_sheet.png").shape[2] == 3
-    doc = json.loads((out / "box_stack_metrics.json").read_text())
-    assert doc["scene"] == "box_stack" and doc["fps"] == pytest.approx(25.0)
+    assert sorted(p.name for p in out.iterdir()) == ["box-stack.mp4", "box-stack_metrics.json", "box-stack_sheet.png"]
+    assert len(list(iio.imiter(out / "box-stack.mp4"))) == 3
+    assert iio.imread(out / "box-stack_sheet.png").shape[2] == 3
+    doc = json.loads((out / "box-stack_metrics.json").read_text())
+    assert doc["scene"] == "box-stack" and doc["fps"] == pytest.approx(25.0)
     assert len(doc["frames"]) == 3 and set(doc["frames"][0]) == FIELDS
     assert doc["summary"]["max_penetration_m"] < 1e-3
 
@@ -281,7 +282,7 @@ def test_run_passes_scene_options_on(tmp_path, capsys):
 
 def test_each_example_main_runs(tmp_path):
     assert example_soft_cube.main(["--frames", "1", "--size", "32", "24", "--out", str(tmp_path), "--quiet"]) == 0
-    assert (tmp_path / "soft_cube.mp4").stat().st_size > 0
+    assert (tmp_path / "soft-cube.mp4").stat().st_size > 0
     assert set(SCENES.values()) == {"soft_cube", "box_stack", "cloth_sphere", "oranges", "candy", "cloth_wall", "lips",
                                     "probe", "shoulder"}
     from softvr.examples import example_shoulder
@@ -292,8 +293,8 @@ def test_each_example_main_runs(tmp_path):
 
 
 @pytest.mark.parametrize("scene, message", [
-    ("teapot", "unknown scene 'teapot'; choose one of: soft-cube, box-stack, cloth-sphere, oranges, candy, "
-               "cloth-wall, lips, probe, shoulder"),
+    ("teapot", "unknown scene 'teapot'; choose a scene file or one of: soft-cube, box-stack, cloth-sphere, oranges, "
+               "candy, cloth-wall, lips, probe, shoulder"),
     ("scenes/my_scene.json", "scene files are TOML (.toml) or glTF (.gltf, .glb)"),
 ])
 def test_run_rejects_unknown_scenes_clearly(scene, message, capsys):

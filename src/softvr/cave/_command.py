@@ -12,7 +12,7 @@
 DISPLAY is a display file (TOML, ``softvr-display 1``) or a preset name (single-wall, cube,
 rave-wall, rave-cube, rave-amphitheatre, powerwall-2x2); it may be left out when SCENE is a
 scene file with a ``[display]`` section. SCENE is ``sheet`` (an analytic rippling sheet with
-10 K vertices and a turning box), a ``softvr run`` demo (box-stack, soft-cube, ...) or scene
+10 K vertices and a turning box), a bundled scene by name (box-stack, soft-cube, ...) or a scene
 file (TOML, or glTF / GLB with softvr properties) simulated on the master and streamed to the
 nodes, or a glTF / GLB (or OBJ, STL, PLY) file without softvr properties shown as a static
 scene to walk through.
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import importlib
 import json
 import math
 import os
@@ -41,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softvr.app import add_device_option
 from softvr.errors import InputError
 
 __all__ = ["main"]
@@ -61,31 +61,30 @@ def load_display_arg(text: str):
     return load_display(text)
 
 
-def make_source(scene: str, frames: int):
-    """The master's frame source for a scene name (module docstring)."""
+def make_source(scene: str, frames: int, device: str | None = None):
+    """The master's frame source for a scene name (module docstring): ``sheet``, a scene file
+    or bundled scene by name (:func:`softvr.scene.build.scene_path`: ``box-stack``,
+    ``box-stack.toml``), or a glTF / mesh file without softvr bodies, shown static."""
     from softvr.cave.app import ExampleSource, SceneFileSource, WavingSheet  # noqa: PLC0415
-    from softvr.examples.run import SCENES  # noqa: PLC0415
+    from softvr.scene import has_softvr_bodies, load_scene  # noqa: PLC0415
+    from softvr.scene.build import scene_path  # noqa: PLC0415
 
     if scene == "sheet":
         return WavingSheet()
-    suffix = Path(scene).suffix.lower()
-    from softvr.scene import bundled, has_softvr_bodies, load_scene  # noqa: PLC0415
-
-    if suffix == ".toml" or (suffix in (".gltf", ".glb") and has_softvr_bodies(scene)):
-        example = load_scene(bundled(scene), frames=frames, width=64, height=48)
-        if example.volume is not None:
-            example.close()
-            raise InputError("SCENE", "a scene of surfaces (a [volume] is not streamed to render nodes yet)",
-                             f"{scene!r} with a volume")
-        return ExampleSource(example)
-    if suffix in (".gltf", ".glb", ".obj", ".stl", ".ply"):
-        if not Path(scene).is_file():
+    path = Path(scene)
+    suffix = path.suffix.lower()
+    # A mesh file, or a glTF without softvr bodies: a static scene to walk through.
+    if suffix in (".obj", ".stl", ".ply") or (suffix in (".gltf", ".glb") and path.is_file()
+                                               and not has_softvr_bodies(scene)):
+        if not path.is_file():
             raise InputError("SCENE", "an existing scene file", f"{scene!r} (no such file)")
         return SceneFileSource(scene)
-    if scene not in SCENES:
-        raise InputError("SCENE", f"sheet, a glTF / mesh file, or one of {', '.join(SCENES)}", repr(scene))
-    module = importlib.import_module(f"softvr.examples.example_{SCENES[scene]}")
-    return ExampleSource(module.Example(frames=frames, width=64, height=48))
+    example = load_scene(scene_path(scene), frames=frames, width=64, height=48, device=device)
+    if example.volume is not None:
+        example.close()
+        raise InputError("SCENE", "a scene of surfaces (a [volume] is not streamed to render nodes yet)",
+                         f"{scene!r} with a volume")
+    return ExampleSource(example)
 
 
 def resolve_places(args) -> None:
@@ -100,11 +99,16 @@ def resolve_places(args) -> None:
                          " ".join(places))
     args.scene = places[0]
     display = None
-    suffix = Path(args.scene).suffix.lower()
-    from softvr.scene import bundled, has_softvr_bodies, read_any  # noqa: PLC0415
+    from softvr.scene import has_softvr_bodies, read_any  # noqa: PLC0415
+    from softvr.scene.build import scene_path  # noqa: PLC0415
 
-    if suffix == ".toml" or (suffix in (".gltf", ".glb") and has_softvr_bodies(args.scene)):
-        display = read_any(bundled(args.scene)).display
+    try:
+        path = scene_path(args.scene)
+    except InputError:  # sheet, or no scene file: no display of its own
+        path = None
+    if path is not None and (path.suffix.lower() == ".toml" or (path.suffix.lower() in (".gltf", ".glb")
+                                                                and has_softvr_bodies(path))):
+        display = read_any(path).display
     if display is None:
         raise InputError("DISPLAY", "a display file or preset (the scene file has no [display] section)",
                          f"only the scene {args.scene!r}")
@@ -143,7 +147,7 @@ def _tracker(spec: str | None):
 
 
 def _write_json(data: dict, path: Path) -> None:
-    from softvr.render._atomic import write_json  # noqa: PLC0415
+    from softvr.files import write_json  # noqa: PLC0415
 
     write_json(data, path)
 
@@ -156,7 +160,7 @@ def _preview(args) -> int:
     from softvr.render.contact_sheet import save_png  # noqa: PLC0415
 
     display = load_display_arg(args.display)
-    source = make_source(args.scene, args.frames)
+    source = make_source(args.scene, args.frames, args.device)
     frames = FrameBuilder(source, navigation=scripted_navigation(source))
     for _ in range(args.frames):
         frames.next_packet(0)
@@ -189,7 +193,7 @@ def _master(args, on_bound=None) -> dict:
     from softvr.cave.cluster import Master  # noqa: PLC0415
 
     display = load_display_arg(args.display)
-    source = make_source(args.scene, args.frames)
+    source = make_source(args.scene, args.frames, args.device)
     nodes = [s.node or s.name for s in display.screens]
     tracker = _tracker(args.tracker)
     navigation = scripted_navigation(source)
@@ -414,7 +418,8 @@ def _parser() -> argparse.ArgumentParser:
         if scene:
             q.add_argument("places", nargs="+", metavar="[DISPLAY] SCENE",
                            help="display file (TOML) or preset name (optional when the scene file has a "
-                                "[display]); sheet, a softvr run demo, or a scene file")
+                                "[display]); sheet, a bundled scene's name, or a scene file")
+            add_device_option(q)
         else:
             q.add_argument("display", metavar="DISPLAY", help="display file (TOML) or preset name")
         q.add_argument("--quiet", action="store_true", help="no progress output")

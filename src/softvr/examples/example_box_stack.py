@@ -3,7 +3,7 @@
 Five 0.2 x 0.2 x 0.1 m boxes (500 kg/m^3) start stacked 0.1 mm apart and settle onto each
 other and the ground (friction 0.6, dt 10 ms); vertex-face box contacts are solved by
 projected Gauss-Seidel with warm starts, and the stack stays put. Run ``softvr run box-stack``
-(or ``python -m softvr.examples.example_box_stack``).
+.
 
 (A sixth box thrown at the stack is left out for now: box-box contacts are vertex-face only,
 and a deep overlap is pushed apart within one step, so an impact at 2-4 m/s injects energy.)
@@ -11,12 +11,10 @@ and a deep overlap is pushed apart within one step, so an impact at 2-4 m/s inje
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from softvr.model.shapes import BOX_TRIANGLES, box_corners
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "Example", "box_surface", "main"]
 
@@ -31,7 +29,7 @@ def box_surface(body, half_extents) -> np.ndarray:
     return body.position + box_corners(half_extents) @ body.rotation.T
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """Five rigid boxes stacked on a plane.
 
     Parameters
@@ -113,10 +111,12 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the box-stack demo to ``<out>/box_stack.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_box_stack", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run box-stack", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args)
+    with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

@@ -13,22 +13,21 @@ With ``adhesion=True`` (``--adhesion``) the Jell-O is adhesive (C = 4e7 N/m^3, t
 value) and every candy has its own adhesion stiffness (1e6 to 4e7 N/m^3), so the pieces bond
 to the block, and debond as it wobbles, at different rates (thesis 4.4). Without it this is
 the plain contact scene of the candy-scale benchmark (``softvr bench contact``); both run in
-``softvr bench adhesion``. Run ``softvr run candy`` (or ``python -m
-softvr.examples.example_candy``).
+``softvr bench adhesion``. Run ``softvr run candy``.
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 
 from softvr.examples.example_oranges import orange_mesh
 from softvr.model.shapes import box_surface, icosphere
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
-__all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE", "main"]
+__all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",
+           "main"]
 
 #: 4 s at 25 frames per second.
 DEFAULT_FRAMES = 100
@@ -75,7 +74,7 @@ FULL_SCALE = CandyScale()
 SMALL_SCALE = CandyScale(block_cells=(6, 6, 3), block_surface=12, candies=4, candy_cells=4, candy_subdivisions=1)
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """Candy pieces dropped on a Jell-O block.
 
     Parameters
@@ -224,13 +223,16 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the candy demo to ``<out>/candy.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--small", action="store_true", help="a ~1 K-tet version instead of the thesis' scale")
     parser.add_argument("--adhesion", action="store_true", help="adhesive Jell-O and candies (thesis Fig. 4.1)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, scale=SMALL_SCALE if args.small else FULL_SCALE,
-                      adhesion=args.adhesion)
+    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
+                      scale=SMALL_SCALE if args.small else FULL_SCALE, adhesion=args.adhesion)
+    with example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

@@ -4,17 +4,15 @@ A 1 m square cloth of 20 x 20 quads (441 vertices, stretch/shear/bend springs, 0
 falls 10 cm onto a static sphere of radius 0.25 m resting on the ground, wraps around it
 and its corners settle on the ground. Every cloth vertex is a collision point against the
 sphere and the ground (friction 0.5); backward Euler with dt = 1/60 s. Run
-``softvr run cloth-sphere`` (or ``python -m softvr.examples.example_cloth_sphere``).
+``softvr run cloth-sphere`` .
 """
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from softvr.dynamics import ClothBody
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "Example", "main"]
 
@@ -22,7 +20,7 @@ __all__ = ["DEFAULT_FRAMES", "Example", "main"]
 DEFAULT_FRAMES = 60
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """A cloth dropped over a static sphere on the ground.
 
     Parameters
@@ -117,10 +115,12 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the cloth demo to ``<out>/cloth_sphere.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_cloth_sphere", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run cloth-sphere", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args)
+    with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

@@ -6,17 +6,14 @@ A square mass-spring cloth hangs from its pinned top edge 12 cm in front of a ve
 line where the cloth leaves it, debonds the contacts (eq. 4.12) from the bottom up until the
 cloth swings free. The thesis shows that this behaviour varies little with the mesh
 resolution; ``quads`` sets it (the spring constants of a regular spring grid give the same
-membrane stiffness at any resolution). Run ``softvr run cloth-wall`` (or ``python -m
-softvr.examples.example_cloth_wall``).
+membrane stiffness at any resolution). Run ``softvr run cloth-wall``.
 """
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "WALL_ADHESION", "Example", "main"]
 
@@ -37,7 +34,7 @@ DEFAULT_FRAMES = 100
 WALL_ADHESION = dict(stiffness=1e6, max_energy=5e-5, viscosity=0.04, initial=1.0, debond_gap=0.004)
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """A cloth swung against an adhesive wall.
 
     Parameters
@@ -125,11 +122,13 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the cloth-wall demo to ``<out>/cloth_wall.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_cloth_wall", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run cloth-wall", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--quads", type=int, default=12, help="quads per cloth side (default 12)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, quads=args.quads)
+    with Example(frames=args.frames, width=args.size[0], height=args.size[1], quads=args.quads) as example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

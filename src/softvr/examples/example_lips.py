@@ -12,12 +12,11 @@ the jaws, the contact force between the lips (negative: adhesion pulls) and the 
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "LIPS_ADHESION", "Example", "main"]
 
@@ -49,7 +48,7 @@ def lip_mesh(length: float, depth: float, thickness: float, cells, bulge: float)
     return nodes, tets
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """Two soft lips pressed together and opened.
 
     Parameters
@@ -121,7 +120,7 @@ class Example(PhysicsExample):
                          camera=Camera("front", azimuth=-35, elevation=20, zoom=1.2))
 
     # -- physics -------------------------------------------------------------------------
-    def before_step(self) -> None:
+    def drive(self) -> None:
         # Driven over the step [t, t + dt] by its mean speed, so the jaws land on their path.
         t, dt = self.scene.time, self.dt
         speed = (self._jaw_travel(t + dt) - self._jaw_travel(t)) / dt
@@ -133,7 +132,7 @@ class Example(PhysicsExample):
         pressed = -self.press * min(t, self.press_time) / self.press_time
         return pressed + self.open_speed * max(0.0, t - self.press_time - self.hold_time)
 
-    def after_step(self, solution) -> None:
+    def sense(self, solution) -> None:
         self._force.append(float(solution.force_on(0, self.dt)[2]))
 
     def opening(self) -> float:
@@ -209,11 +208,15 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the lips demo to ``<out>/lips.mp4``, ``_sheet.png``, ``_metrics.json`` and ``_force.png``."""
-    parser = demo_parser("python -m softvr.examples.example_lips", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run lips", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--dry", action="store_true", help="no adhesion (plain frictional contact)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, adhesion=None if args.dry else LIPS_ADHESION)
+    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
+                      adhesion=None if args.dry else LIPS_ADHESION)
+    with example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

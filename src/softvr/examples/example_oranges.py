@@ -7,17 +7,15 @@ rasterization, thesis ch. 3), are thrown onto the ground with different speeds, 
 spins; they bounce, squash and roll in parallel lanes, the last one thrown across its
 neighbour's lane so that the two collide (soft-soft vertex-triangle and edge-edge contacts).
 The embedded surface vertices are both the collision points and the rendered mesh. Run
-``softvr run oranges`` (or ``python -m softvr.examples.example_oranges``).
+``softvr run oranges`` .
 """
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
 from softvr.model.shapes import icosphere
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "Example", "orange_mesh", "main"]
 
@@ -58,7 +56,7 @@ def orange_mesh(radius: float, voxels: int = 12, cells: int = 4):
     return nodes, tets, radius * verts, tris, fraction
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """Soft oranges thrown onto the ground.
 
     Parameters
@@ -144,11 +142,13 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the oranges demo to ``<out>/oranges.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_oranges", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run oranges", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--count", type=int, default=4, help="oranges, 1 to 6 (default 4)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, count=args.count)
+    with Example(frames=args.frames, width=args.size[0], height=args.size[1], count=args.count) as example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

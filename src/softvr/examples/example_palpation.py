@@ -6,19 +6,21 @@ units (:mod:`softvr.model.tissue`), and the nodes of bone-dense tets are clamped
 holds the soft tissue. A round probe presses into the cheek and withdraws; the co-rotational
 FEM deforms under it through frictional contact. Every frame the CT is rasterized from the
 deformed mesh — only the box around the tets that moved (:meth:`softvr.volume.Rasterizer.update`)
-— and volume-rendered. Run ``softvr demo palpation`` (``--input FILE`` for another CT), or
-``softvr view palpation`` to watch it live in a window.
+— and volume-rendered. Run ``softvr demo palpation`` (``--input FILE`` for another CT);
+``softvr view palpation`` plays the same scene as a scene file (``palpation.toml``) in a window.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Example", "main", "press_point", "view", "view_main"]
+from softvr.app import DEFAULT_OUT, add_device_option, out_folder, record
+from softvr.volume import load
+
+__all__ = ["Example", "main", "press_point"]
 
 _UNIT = 1e-3  # metres per millimetre: CT geometry is in mm, the FEM in m
 _SKIN_HU = -300.0  # between air (-1000) and fat (-100)
@@ -258,6 +260,24 @@ class Example:
                 "mass_kg": float(self.body.mass.sum()), "dt_s": self.dt, "incremental": self.incremental,
                 "render_step": self.render_step, "renderer": self.renderer, "sample_distance": self.sample_distance}
 
+    # -- what softvr.app.record reads ---------------------------------------------------
+    name = "palpation"
+    fps = 12.0
+
+    def summary(self) -> dict:
+        """Median ms per frame of the FEM step, the rasterization and the rendering; the deepest indentation [m]."""
+        med = {f"{k}_median": float(np.median([m.get(k, 0.0) for m in self.metrics]))
+               for k in ("fem_ms", "raster_ms", "render_ms")}
+        return {"frames": len(self.metrics), **med,
+                "max_indentation_m": max(m["indentation_m"] for m in self.metrics)}
+
+    def status(self) -> str:
+        m = self.metrics[-1]
+        return f"indentation {m['indentation_m'] * 1e3:.2f} mm, raster {m['raster_ms']:.0f} ms"
+
+    def write_plots(self, doc: dict, out) -> list:
+        return []
+
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
@@ -288,69 +308,11 @@ def _probe_actor(radius_mm: float):
     return actor
 
 
-def view(example: Example, *, timeout_s: float | None = None) -> int:
-    """Play ``example`` live in a window: one frame per timer tick (FEM step, incremental
-    rasterization, volume rendering). Mouse: trackball camera; space pauses, ``n`` steps
-    while paused, ``q`` quits.
-    Returns the frames played. Raises :class:`~softvr.errors.InputError` with no display."""
-    from vtkmodules.vtkRenderingCore import vtkRenderer
-
-    from softvr.render import Camera
-    from softvr.render._backend import new_onscreen_window, require_display
-    from softvr.render._live import play
-    from softvr.render._scene import VolumeScene
-
-    require_display()
-    window = new_onscreen_window(example.width, example.height)
-    window.SetWindowName("softvr: palpation (space: pause, n: step, q: quit)")
-    renderer = vtkRenderer()
-    window.AddRenderer(renderer)
-    scene = VolumeScene(example.preset, "cpu", sample_distance=0.5)
-
-    def show() -> None:
-        scene.update(example.shown_volume())
-        window.Render()
-
-    def advance() -> None:
-        if example.frame < example.frames:
-            example.step()
-            show()
-
-    show()
-    renderer.AddVolume(scene.prop)
-    Camera("front", azimuth=example.azimuth, elevation=5, zoom=1.3).apply(
-        renderer.GetActiveCamera(), np.asarray(scene.bounds(), float), example.width / example.height)
-    renderer.ResetCameraClippingRange()
-    try:
-        play(window, advance, period_ms=int(1000 * example.dt * example.steps_per_frame), timeout_s=timeout_s)
-    finally:
-        window.Finalize()
-    return example.frame
-
-
-def view_main(argv: list[str] | None = None) -> int:
-    """``softvr view palpation [--input CT] [--frames N] [--size W H] [--seconds S]``."""
-    p = argparse.ArgumentParser(prog="softvr view palpation", description="The palpation demo live in a window.")
-    p.add_argument("--input", help="CT volume file (Hounsfield units) instead of the bundled head CT")
-    p.add_argument("--frames", type=int, default=200, help="frames of the press and release (default 200)")
-    p.add_argument("--size", type=int, nargs=2, default=(700, 700), metavar=("W", "H"))
-    p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
-    args = p.parse_args(argv)
-    from softvr.render._backend import require_display
-    from softvr.volume import load
-
-    require_display()  # before building the model
-    volume = load(args.input) if args.input else None
-    with Example(volume, frames=max(args.frames, 2), width=args.size[0], height=args.size[1]) as ex:
-        view(ex, timeout_s=args.seconds)
-    return 0
-
-
 def main(argv: list[str] | None = None) -> int:
     """``softvr demo palpation``: MP4, PNG contact sheet and JSON metrics of a palpated CT."""
     p = argparse.ArgumentParser(prog="softvr demo palpation", description=__doc__.splitlines()[0])
     p.add_argument("--input", help="CT volume file (Hounsfield units) instead of the bundled head CT")
-    p.add_argument("--out", default="softvr-demo", help="output folder (default ./softvr-demo)")
+    p.add_argument("--out", default=None, metavar="DIR", help=f"output folder (default ./{DEFAULT_OUT}/palpation)")
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
     p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"))
@@ -358,40 +320,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
     p.add_argument("--renderer", choices=("warp", "vtk"), default="warp",
                    help="volume renderer: softvr's Warp ray caster (default) or VTK's CPU ray caster")
-    p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
-    p.add_argument("--quiet", action="store_true")
+    add_device_option(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
     if args.frames < 2:
-        p.error("--frames must be at least 2")
-
-    from tqdm import tqdm
-
-    from softvr.render import contact_sheet, save_png, write_mp4
-    from softvr.render._atomic import write_json
-    from softvr.volume import load
-
+        p.error(f"--frames: expected an integer >= 2, got {args.frames}")
     volume = load(args.input) if args.input else None
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    images = []
     with Example(volume, tuple(args.cells), args.frames, *args.size, incremental=not args.full,
                  render_step=args.render_step, renderer=args.renderer, device=args.device) as ex:
         if not args.quiet:
             print(f"softvr demo palpation: {ex.volume!r}; {len(ex.tets)} tets, {int(ex.body.fixed.sum())} clamped "
                   f"nodes (bone), mass {ex.body.mass.sum():.2f} kg", flush=True)
-        for _ in tqdm(range(ex.frames), desc="palpate + rasterize + render", unit="frame", disable=args.quiet):
-            ex.step()
-            images.append(ex.render())
-        doc = {"scene": ex.describe(), "frames": ex.metrics}
-    mp4 = write_mp4(images, out / "palpation.mp4", fps=12)
-    pick = np.linspace(0, len(images) - 1, min(8, len(images))).round().astype(int)
-    sheet = save_png(contact_sheet([images[i] for i in pick], columns=4, labels=[f"frame {i}" for i in pick]),
-                     out / "palpation_sheet.png")
-    write_json(doc, out / "palpation_metrics.json")
-    if not args.quiet:
-        ms = {k: np.median([f[k] for f in doc["frames"]]) for k in ("fem_ms", "raster_ms", "render_ms")}
-        print("median per frame: FEM %.1f ms, rasterize %.1f ms, render %.1f ms" % tuple(ms.values()))
-        print(f"wrote {mp4}\nwrote {sheet}\nwrote {out / 'palpation_metrics.json'}")
+        record(ex, out_folder(args.out, ex.name), progress=not args.quiet)
     return 0
 
 

@@ -13,12 +13,11 @@ bonds let go (eq. 4.12). ``probe_force.png`` plots the loop. Run ``softvr run pr
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "PROBE_ADHESION", "Example", "hertz_force", "main"]
 
@@ -38,7 +37,7 @@ def hertz_force(depth, radius: float, young: float, poisson: float) -> np.ndarra
     return 4.0 / 3.0 * young / (1.0 - poisson**2) * np.sqrt(radius) * d**1.5
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """A probe pressed into a clamped soft block and withdrawn.
 
     Parameters
@@ -127,7 +126,7 @@ class Example(PhysicsExample):
         """Depth [m] of the probe's lowest point below the rest surface z = 0 (negative: above)."""
         return self.radius - float(self.probe.position[2])
 
-    def after_step(self, solution) -> None:
+    def sense(self, solution) -> None:
         # The tissue pushes the probe up (+z) while it presses; adhesion pulls it down (-z).
         self._force.append(float(solution.force_on(self.probe_index, self.dt)[2]))
 
@@ -198,11 +197,15 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the probe demo to ``<out>/probe.mp4``, ``_sheet.png``, ``_metrics.json`` and ``_force.png``."""
-    parser = demo_parser("python -m softvr.examples.example_probe", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run probe", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--dry", action="store_true", help="no adhesion (plain frictional contact)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, adhesion=None if args.dry else PROBE_ADHESION)
+    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
+                      adhesion=None if args.dry else PROBE_ADHESION)
+    with example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

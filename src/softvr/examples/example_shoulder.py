@@ -20,13 +20,12 @@ plots them. Run ``softvr demo shoulder`` (or ``softvr run shoulder``).
 
 from __future__ import annotations
 
-import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "Example", "main", "palpation_path"]
 
@@ -53,7 +52,7 @@ def palpation_path(variant: str, t: float) -> np.ndarray:
                      -0.009 + 0.008 * np.sin(2 * np.pi * t / 9.0), 0.048 - 0.006 * press])
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """The procedural shoulder palpated by a haptic tool.
 
     Parameters
@@ -143,11 +142,11 @@ class Example(PhysicsExample):
                          camera=Camera("front", azimuth=-60, elevation=15, zoom=1.1))
 
     # -- physics -------------------------------------------------------------------------
-    def before_step(self) -> None:
+    def haptic_tick(self) -> None:
         if not self.haptics:
             self.loop.tick()  # one device reading per step instead of the thread's thousand per second
 
-    def after_step(self, solution) -> None:
+    def sense(self, solution) -> None:
         self._forces.append(self.tool.publish(solution).force)
         gaps = [g.min() for g in solution.gaps_after if len(g)]
         self._gap = min(self._gap, min(gaps, default=0.0))
@@ -220,13 +219,17 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the shoulder demo to ``<out>/shoulder.mp4``, ``_sheet.png``, ``_metrics.json``, ``_force.png``."""
-    parser = demo_parser("softvr demo shoulder", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr demo shoulder", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--variant", choices=("palpation", "arthroscopy"), default="palpation",
                         help="palpation (two fingers, deltoid) or arthroscopy (a probe), default palpation")
     parser.add_argument("--no-haptics", action="store_true", help="no 1 kHz haptic thread")
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args, variant=args.variant, haptics=not args.no_haptics)
+    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
+                      variant=args.variant, haptics=not args.no_haptics)
+    with example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

@@ -4,16 +4,14 @@ A 0.3 m cube of 5-tet cubes (E = 150 kPa, nu = 0.28, 1000 kg/m^3, Rayleigh dampi
 15 cm, lands on an edge, squashes and settles on a plane with Coulomb friction 0.5. Every
 boundary node is a collision point; the contacts are solved by projected Gauss-Seidel each
 5 ms step. The cube is drawn by its boundary triangles, moved every frame. Run
-``softvr run soft-cube`` (or ``python -m softvr.examples.example_soft_cube``).
+``softvr run soft-cube`` .
 """
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 
-from softvr.examples.run import PhysicsExample, check_run_args, demo_parser, run_module
+from softvr.app import Player, check_run_args, record_from_args, run_parser
 
 __all__ = ["DEFAULT_FRAMES", "Example", "main"]
 
@@ -28,7 +26,7 @@ def _rotation(degrees_x: float, degrees_y: float) -> np.ndarray:
     return ry @ rx
 
 
-class Example(PhysicsExample):
+class Example(Player):
     """A soft FEM cube dropped on a plane.
 
     Parameters
@@ -108,10 +106,12 @@ class Example(PhysicsExample):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the soft-cube demo to ``<out>/soft_cube.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = demo_parser("python -m softvr.examples.example_soft_cube", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser("softvr run soft-cube", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
-    return run_module(sys.modules[__name__], args)
+    with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:
+        record_from_args(example, args)
+    return 0
 
 
 if __name__ == "__main__":

@@ -5,19 +5,16 @@ The InVesalius head CT (Debian ``invesalius-examples``) is embedded in a regular
 the head about its long axis. Every frame the CT is rasterized through the deformed mesh
 (thesis ch. 3) and volume-rendered offscreen (softvr's Warp ray caster, or VTK's with
 ``--renderer vtk``); the frames go to an MP4 and a PNG
-contact sheet. Run ``softvr demo`` (or ``python -m softvr.examples.example_volume_deform``).
+contact sheet. Run ``softvr demo``.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import time
-from pathlib import Path
 
 import numpy as np
 
+from softvr.app import DEFAULT_OUT, add_device_option, out_folder, record
 from softvr.volume import Rasterizer, Volume, grid_tet_mesh, load
 
 __all__ = ["Example", "press_and_twist", "main"]
@@ -120,15 +117,18 @@ class Example:
             raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
         self.renderer = renderer
         self.deformed: Volume | None = None
-        self.frame_stats: list[dict] = []
+        #: One record per frame: ``frame``, ``s`` (animation time), ``deform_ms`` and the
+        #: rasterizer's statistics (:attr:`softvr.volume.Rasterizer.stats`).
+        self.metrics: list[dict] = []
         self._renderer = None
 
     def step(self) -> Volume:
-        """Deform the volume for the current frame and advance the frame counter."""
+        """Deform the volume for the current frame, record its metrics and advance the frame counter."""
         s = self.frame / (self.frames - 1)
         moved = press_and_twist(self.nodes, self.bounds, s, self.press_point)
         self.deformed = self.rasterizer.deform(moved)
-        self.frame_stats.append({"frame": self.frame, "s": s, **self.rasterizer.stats.as_dict()})
+        stats = self.rasterizer.stats.as_dict()
+        self.metrics.append({"frame": self.frame, "s": s, "deform_ms": stats["time_total_s"] * 1e3, **stats})
         self.frame += 1
         return self.deformed
 
@@ -143,65 +143,64 @@ class Example:
                                             camera=Camera("front", azimuth=70, elevation=10, zoom=1.1))
         return self._renderer.render(self.deformed)
 
+    # -- what softvr.app.record reads ---------------------------------------------------
+    name = "volume"
+    fps = 12.0
+
+    def describe(self) -> dict:
+        """Facts of the run for the metrics file."""
+        return {"volume": repr(self.volume), "nodes": len(self.nodes), "tets": len(self.tets),
+                "method": self.rasterizer.method, "device": self.rasterizer.device}
+
+    def summary(self) -> dict:
+        """Median and worst deformation time [ms] per frame."""
+        ms = np.array([m["deform_ms"] for m in self.metrics])
+        return {"frames": len(ms), "deform_ms_median": float(np.median(ms)), "deform_ms_max": float(ms.max())}
+
+    def status(self) -> str:
+        m = self.metrics[-1]
+        return f"deform {m['deform_ms']:.1f} ms ({m['voxels_written'] / 1e6:.2f} M voxels)"
+
+    def write_plots(self, doc: dict, out) -> list:
+        return []
+
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
 
 def main(argv: list[str] | None = None) -> int:
-    """``softvr demo [volume]``: run the example and write MP4, PNG contact sheet and JSON."""
-    p = argparse.ArgumentParser(prog="softvr demo", description=__doc__.splitlines()[0])
-    p.add_argument("what", nargs="?", default="volume", choices=["volume"], help="which demo (default: volume)")
+    """``softvr demo [volume]``: run the example and write MP4, PNG contact sheet and metrics JSON."""
+    p = argparse.ArgumentParser(prog="softvr demo volume", description=__doc__.splitlines()[0])
     p.add_argument("--input", help="volume file to deform instead of the bundled head CT")
-    p.add_argument("--out", default="softvr-demo", help="output folder (default: ./softvr-demo)")
+    p.add_argument("--out", default=None, metavar="DIR", help=f"output folder (default ./{DEFAULT_OUT}/volume)")
     p.add_argument("--frames", type=int, default=36)
     p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
     p.add_argument("--size", type=int, nargs=2, default=(480, 360), metavar=("W", "H"))
     p.add_argument("--culling", default="spans", choices=["bbox", "cells", "spans"])
-    p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when present)")
+    add_device_option(p)
     p.add_argument("--renderer", choices=("warp", "vtk"), default="warp",
                    help="volume renderer: softvr's Warp ray caster (default) or VTK's CPU ray caster")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     args = p.parse_args(argv)
-
-    from tqdm import tqdm
-
-    from softvr.render import contact_sheet, save_png, write_mp4
-
+    if args.frames < 2:
+        p.error(f"--frames: expected an integer >= 2, got {args.frames}")
     volume = load(args.input) if args.input else None
-    print("softvr demo: preparing (the first run compiles the kernels, ~10-30 s)", flush=True)
-    ex = Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling,
-                 args.renderer)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    print(f"softvr demo: {ex.volume!r}\n  mesh {len(ex.nodes)} nodes, {len(ex.tets)} tets; "
-          f"rasterizer '{ex.rasterizer.method}' on {ex.rasterizer.device}")
-    images = []
-    t0 = time.perf_counter()
-    try:
-        with tqdm(total=ex.frames, desc="deform + render", unit="frame") as bar:
-            while ex.frame < ex.frames:
-                ex.step()
-                st = ex.rasterizer.stats
-                images.append(ex.render())
-                tqdm.write(f"frame {ex.frame - 1:3d}: deform {st.time_total_s * 1e3:7.1f} ms  "
-                           f"({st.voxels_written / 1e6:.2f} M voxels written, {st.voxels_per_second / 1e6:.0f} M voxels/s)")
-                bar.update()
-    finally:
-        ex.close()
-    mp4 = write_mp4(images, out / "volume_demo.mp4", fps=12)
-    pick = np.linspace(0, len(images) - 1, min(8, len(images))).round().astype(int)
-    sheet = save_png(contact_sheet([images[i] for i in pick], columns=4, labels=[f"frame {i}" for i in pick]),
-                     out / "volume_demo_sheet.png")
-    times = np.array([f["time_total_s"] for f in ex.frame_stats]) * 1e3
-    summary = {"volume": repr(ex.volume), "tets": len(ex.tets), "device": ex.rasterizer.device,
-               "deform_ms_median": float(np.median(times)), "deform_ms_max": float(times.max()),
-               "wall_s": time.perf_counter() - t0, "frames": ex.frame_stats}
-    tmp = out / ".volume_demo_stats.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out / "volume_demo_stats.json")
-    print(f"deformation: median {summary['deform_ms_median']:.1f} ms, max {summary['deform_ms_max']:.1f} ms per frame")
-    print(f"wrote {mp4}\nwrote {sheet}\nwrote {out / 'volume_demo_stats.json'}")
+    if not args.quiet:
+        print("softvr demo: preparing (the first run compiles the kernels, ~10-30 s)", flush=True)
+    with Example(volume, tuple(args.cells), args.frames, args.device, args.size[0], args.size[1], args.culling,
+                 args.renderer) as ex:
+        if not args.quiet:
+            print(f"softvr demo: {ex.volume!r}\n  mesh {len(ex.nodes)} nodes, {len(ex.tets)} tets; "
+                  f"rasterizer '{ex.rasterizer.method}' on {ex.rasterizer.device}")
+        record(ex, out_folder(args.out, ex.name), progress=not args.quiet)
     return 0
 
 

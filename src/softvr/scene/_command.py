@@ -1,25 +1,37 @@
-"""``softvr check SCENE``, ``softvr run SCENE.toml`` and ``softvr view SCENE.toml``."""
+"""``softvr check SCENE``, ``softvr run SCENE.toml`` and ``softvr view SCENE.toml``.
+
+SCENE is a scene file's path or a bundled scene's name, with or without its suffix
+(``candy``, ``candy.toml``): :func:`softvr.scene.build.scene_path`.
+"""
 
 from __future__ import annotations
 
 import argparse
 
-__all__ = ["check_main", "run_main", "view_main"]
+from softvr.app import add_view_options, check_run_args, play_window, record_from_args, run_parser, shown_layers
+from softvr.errors import InputError, raise_all
+from softvr.render._backend import require_display
+from softvr.scene import SceneExample, load_scene
+from softvr.scene.build import read_any_with_problems, scene_path
+
+__all__ = ["SCENE_SUFFIXES", "check_main", "is_scene_file", "run_main", "view_main"]
+
+#: Suffixes of scene files: TOML, glTF, GLB.
+SCENE_SUFFIXES = (".toml", ".gltf", ".glb")
+
+
+def is_scene_file(text: str) -> bool:
+    """Whether a command-line word names a scene file (by its suffix) rather than a demo."""
+    return text.lower().endswith(SCENE_SUFFIXES)
 
 
 def check_main(argv: list[str] | None = None) -> int:
     """Validate a scene file: a summary, or every problem (exit status 2)."""
-    from softvr.scene import bundled
-
     p = argparse.ArgumentParser(prog="softvr check", description="Validate a scene file; all its errors at once.")
     p.add_argument("scene", metavar="SCENE",
                    help="scene file (TOML, softvr-scene 1; or glTF / GLB with softvr extras), or a bundled one's name")
     args = p.parse_args(argv)
-    from softvr.errors import InputError, raise_all
-    from softvr.scene import SceneExample
-    from softvr.scene.build import read_any_with_problems
-
-    scene, problems = read_any_with_problems(bundled(args.scene))
+    scene, problems = read_any_with_problems(scene_path(args.scene))
     # The geometry too, of what is valid: bodies that start inside each other or below the
     # ground, reported with the file's other problems.
     if scene.bodies or scene.models or scene.volume is not None:
@@ -52,42 +64,27 @@ def check_main(argv: list[str] | None = None) -> int:
 
 
 def run_main(argv: list[str] | None = None) -> int:
-    """``softvr run SCENE.toml [--frames N] [--out DIR] [--size W H] [--quiet]``."""
-    from softvr.examples.run import demo_parser, run_example
-    from softvr.scene import bundled, load_scene
-
-    p = demo_parser("softvr run", "Run a scene file headless: MP4, PNG contact sheet and JSON metrics.", None)
-    p.add_argument("scene", metavar="SCENE.toml")
+    """``softvr run SCENE.toml [--frames N] [--out DIR] [--size W H] [--quiet] [--device D]``."""
+    p = run_parser("softvr run", "Run a scene file headless: MP4, PNG contact sheet and JSON metrics.", None,
+                   size=None)
+    p.add_argument("scene", metavar="SCENE.toml", help="scene file (TOML, glTF / GLB) or a bundled one's name")
     args = p.parse_args(argv)
-    if args.frames is not None and args.frames < 1:
-        p.error(f"--frames: expected an integer >= 1, got {args.frames}")
-    if args.png_every < 0:
-        p.error(f"--png-every: expected an integer >= 0, got {args.png_every}")
-    size = None if args.size == (640, 480) else args.size
-    with load_scene(bundled(args.scene), frames=args.frames, width=size and size[0],
-                    height=size and size[1]) as example:
-        run_example(example, args.out, progress=not args.quiet, png_every=args.png_every)
+    check_run_args(p, args)
+    size = args.size or (None, None)
+    with load_scene(scene_path(args.scene), frames=args.frames, width=size[0], height=size[1],
+                    device=args.device) as example:
+        record_from_args(example, args)
     return 0
 
 
 def view_main(argv: list[str] | None = None) -> int:
-    """``softvr view SCENE.toml [--seconds S]``: the scene live in a window."""
-    from softvr.examples.run import VIEW_LAYERS, view_example
-    from softvr.render._backend import require_display
-    from softvr.scene import bundled, load_scene
-
+    """``softvr view SCENE.toml [--seconds S] [--screenshot PNG] [--show ...] [--hide ...]``."""
     p = argparse.ArgumentParser(prog="softvr view", description="Play a scene file live in a window.")
-    p.add_argument("scene", metavar="SCENE.toml")
-    p.add_argument("--seconds", type=float, default=None, help="close the window after this long")
-    p.add_argument("--screenshot", metavar="PNG", help="save the window when it closes")
-    keys = ", ".join(f"{k} {name}" for name, k in VIEW_LAYERS.items())
-    p.add_argument("--show", nargs="*", default=[], choices=list(VIEW_LAYERS),
-                   help=f"layers shown at the start besides render and contacts (keys toggle them: {keys})")
-    p.add_argument("--hide", nargs="*", default=[], choices=list(VIEW_LAYERS), help="layers hidden at the start")
+    p.add_argument("scene", metavar="SCENE.toml", help="scene file (TOML, glTF / GLB) or a bundled one's name")
+    add_view_options(p)
     args = p.parse_args(argv)
+    path = scene_path(args.scene)
     require_display()
-    shown = ({"render", "contacts"} | set(args.show)) - set(args.hide)
-    with load_scene(bundled(args.scene)) as example:
-        view_example(example, timeout_s=args.seconds, screenshot=args.screenshot,
-                      overlays=tuple(name for name in VIEW_LAYERS if name in shown))
+    with load_scene(path, device=args.device) as example:
+        play_window(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))
     return 0

@@ -21,20 +21,23 @@ tool       a rigid box, sphere or mesh on a virtual coupling to a haptic handle 
 A ``[[model]]`` adds the parts of a parts file (built by :func:`softvr.model.build_model` as
 the scene loads) or of a built model: bodies named as the parts, its couplings as springs.
 
-The scene runs, draws and records like every demo (:class:`~softvr.examples.run.PhysicsExample`):
-``softvr run SCENE.toml``, ``softvr view SCENE.toml``.
+The built scene is a :class:`softvr.app.Player`: ``softvr run SCENE.toml`` records it
+(:func:`softvr.app.record`), ``softvr view SCENE.toml`` plays it in a window
+(:func:`softvr.app.play_window`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from softvr.examples.run import PhysicsExample
+from pathlib import Path
+
+from softvr.app import Player
 from softvr.errors import InputError
 from softvr.files import native_read
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 
-__all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems"]
+__all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems", "scene_path"]
 
 
 def _rotation(degrees) -> tuple[np.ndarray, np.ndarray]:
@@ -103,6 +106,10 @@ _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rig
                 "soft": (0.72, 0.3, 0.3)}
 
 
+#: Folder of the bundled scene files (:data:`softvr.scene.BUNDLED`).
+_BUNDLED = Path(__file__).resolve().parent.parent / "scenes"
+
+
 class _Drawn:
     """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]."""
 
@@ -128,14 +135,14 @@ class _DeformedVolume:
     """The scene's volume: a :class:`~softvr.volume.DeformedVolume` following its FEM body
     (nodes in metres, the volume in its own units); :meth:`shown` the rendered one in metres."""
 
-    def __init__(self, volume, body, nodes, tets, spec: dict):
+    def __init__(self, volume, body, nodes, tets, spec: dict, device: str | None = None):
         from softvr.volume import DeformedVolume
 
         self.unit, self.body, self.spec = spec["unit"], body, spec
         # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted; node
         # motion under 10 um is drawn once it adds up.
         self.drawing = DeformedVolume(volume, nodes, tets, tolerance=1e-5 / self.unit,
-                                      incremental=spec["incremental"], inverted="skip")
+                                      incremental=spec["incremental"], inverted="skip", device=device)
 
     @property
     def deformed(self):
@@ -155,7 +162,7 @@ class _DeformedVolume:
         return Volume(data, d.spacing * k * self.unit, d.origin * self.unit, d.direction.copy())
 
 
-class SceneExample(PhysicsExample):
+class SceneExample(Player):
     """A scene file played as a demo (module docstring).
 
     Parameters
@@ -166,10 +173,12 @@ class SceneExample(PhysicsExample):
         Override the file's ``simulation.frames``.
     width, height : int, optional
         Override the file's ``render.size``.
+    device : {"cpu", "cuda", None}
+        Warp device of the volume's rasterizer (None: CUDA when present).
     """
 
     def __init__(self, scene_file: SceneFile, frames: int | None = None, width: int | None = None,
-                 height: int | None = None):
+                 height: int | None = None, device: str | None = None):
         from softvr import Scene
         from softvr.collision import Plane, Sphere
         from softvr.contact import Adhesion
@@ -177,11 +186,12 @@ class SceneExample(PhysicsExample):
 
         self.file = scene_file
         self.name = scene_file.path.stem
+        self.device = device
         sim, ren = scene_file.simulation, scene_file.render
         self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
                       contact_margin=sim["contact_margin"])
-        self.scene = scene  # (again in PhysicsExample.__init__) the collision-free start needs it
+        self.scene = scene  # (again in Player.__init__) the collision-free start needs it
         self.planes = []
         for p in scene_file.planes:
             plane = Plane(point=p["point"], normal=p["normal"], friction=p["friction"])
@@ -248,7 +258,7 @@ class SceneExample(PhysicsExample):
         # The skin is drawn by the volume itself.
         self._drawn_by_name[spec["name"]] = _Drawn(points.positions, triangles, (0.9, 0.7, 0.6), visible=False)
         self.drawn.append(self._drawn_by_name[spec["name"]])
-        self.volume = _DeformedVolume(volume, body, nodes, tets, spec)
+        self.volume = _DeformedVolume(volume, body, nodes, tets, spec, self.device)
         if spec["animation"] is not None:
             times, cache = _node_animation(spec["animation"], body.q)
             body.fixed[:] = True
@@ -638,17 +648,19 @@ class SceneExample(PhysicsExample):
 
         return pose
 
-    def before_step(self) -> None:
+    def drive(self) -> None:
         # Driven nodes move over the step [t, t + dt] at its mean speed, so they land on their path.
         t, dt = self.scene.time, self.dt
         for body, offset in self._driven:
             speed = (offset(t + dt) - offset(t)) / dt  # [3], or [node_count, 3] (an animation)
             body.fixed_velocity[body.fixed] = speed[body.fixed] if speed.ndim == 2 else speed
+
+    def haptic_tick(self) -> None:
         for tool in self.tools:
             if not tool.haptics:
                 tool.loop.tick()  # one device reading per step instead of the loop's thousand per second
 
-    def after_step(self, solution) -> None:
+    def sense(self, solution) -> None:
         for tool in self.tools:
             tool.publish(solution)
 
@@ -697,8 +709,7 @@ class SceneExample(PhysicsExample):
         if self.volume is not None:
             renderer.update_volume(self._volume_handle, self.volume.shown())
 
-    def frame_metrics(self) -> dict:
-        # The volume follows the body once per frame, before it is drawn.
+    def update_volume(self) -> dict:
         return self.volume.update() if self.volume is not None else {}
 
     def describe(self) -> dict:
@@ -708,8 +719,6 @@ class SceneExample(PhysicsExample):
 
 def read_any(path) -> SceneFile:
     """A scene file (TOML) or a glTF / GLB scene with softvr extras, validated."""
-    from pathlib import Path
-
     if Path(path).suffix.lower() in (".gltf", ".glb"):
         from softvr.scene.gltf import read_gltf_scene
 
@@ -720,8 +729,6 @@ def read_any(path) -> SceneFile:
 def read_any_with_problems(path) -> tuple[SceneFile, list]:
     """A scene file (TOML) or glTF / GLB scene without its parts that have a problem, and its
     problems (:func:`~softvr.scene.schema.read_scene_with_problems`)."""
-    from pathlib import Path
-
     if Path(path).suffix.lower() in (".gltf", ".glb"):
         from softvr.scene.gltf import read_gltf_scene_with_problems
 
@@ -733,5 +740,30 @@ def read_any_with_problems(path) -> tuple[SceneFile, list]:
 
 def load_scene(path, **overrides) -> SceneExample:
     """Read, validate and build a scene (TOML scene file, or glTF / GLB with softvr extras);
-    ``overrides`` (frames, width, height) go to :class:`SceneExample`."""
+    ``overrides`` (frames, width, height, device) go to :class:`SceneExample`."""
     return SceneExample(read_any(path), **overrides)
+
+
+def scene_path(text: str) -> Path:
+    """The scene file ``text`` names: an existing file, else a bundled scene by its file name
+    (``candy.toml``) or its name without the suffix (``candy``).
+
+    Raises
+    ------
+    InputError
+        Naming ``text`` as the user wrote it: a folder, or neither a file nor a bundled scene.
+    """
+    path = Path(text)
+    bundled = sorted(p.stem for p in _BUNDLED.glob("*.toml"))
+    expected = f"a scene file (TOML, glTF / GLB) or a bundled scene: {', '.join(bundled)}"
+    if path.is_dir():
+        raise InputError("SCENE", expected, f"{text!r} (a folder)")
+    # exists(), not is_file(): a FIFO or device given by name is the user's file, refused as such
+    # by the reader (softvr.files.checked_file), not a missing bundled scene.
+    if path.exists():
+        return path
+    if path.parent == Path("."):
+        for candidate in (_BUNDLED / text, _BUNDLED / f"{text}.toml"):
+            if candidate.is_file():
+                return candidate
+    raise InputError("SCENE", expected, f"{text!r} (no such file)")

@@ -1,0 +1,247 @@
+"""The player: a built :class:`softvr.Scene` advanced frame by frame, its per-step hooks in one
+declared order (:data:`STEP_ORDER`), its metrics recorded per frame, its state drawn."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from softvr.render.surfaces import SurfaceRenderer
+from softvr.sim import STAGES
+
+__all__ = ["FRAME_ORDER", "STEP_ORDER", "Player", "gravity_potential"]
+
+#: What one sub-step does, in this order: the scripted boundaries move (driven nodes, keyframed
+#: events: :meth:`Player.drive`), the haptic devices are read (:meth:`Player.haptic_tick`), the
+#: physics steps (:meth:`softvr.Scene.step`), the step's contact solution is read (sensors, the
+#: haptic tool's force: :meth:`Player.sense`). Driving first puts the boundaries' velocities
+#: into the step that moves them; reading the devices before the step gives the tool the
+#: newest handle position.
+STEP_ORDER = ("drive", "haptics", "physics", "sense")
+
+#: What follows a frame's last sub-step, in this order: the volume follows its body
+#: (:meth:`Player.update_volume`), then the frame's metrics are taken (:meth:`Player.frame_metrics`).
+FRAME_ORDER = ("volume", "metrics")
+
+
+def gravity_potential(body, gravity) -> float:
+    """Gravitational potential energy ``-sum m g . x`` [J] of a body (zero at the origin).
+
+    Parameters
+    ----------
+    body : RigidBody or a node body
+        A rigid body (scalar ``mass`` [kg], ``position`` [3] [m]) or a node body (``mass``
+        [n] [kg], ``q`` [n, 3] [m]).
+    gravity : array_like, shape [3] [m/s^2]
+    """
+    g = np.asarray(gravity, float)
+    if hasattr(body, "position") and np.ndim(getattr(body, "mass", None)) == 0:
+        return -float(body.mass) * float(np.asarray(body.position) @ g)
+    return -float(np.sum(np.asarray(body.mass) * (np.asarray(body.q) @ g)))
+
+
+class Player:
+    """A :class:`softvr.Scene` played ``steps_per_frame`` sub-steps of ``dt`` per frame, drawn
+    with a :class:`~softvr.render.SurfaceRenderer`.
+
+    A scene to play subclasses it: it builds ``scene``, defines :meth:`penetration`,
+    :meth:`setup_render` (add surfaces, keep handles) and :meth:`update_render` (move them), and
+    overrides the hooks it needs (:data:`STEP_ORDER`, :data:`FRAME_ORDER`).
+    :func:`~softvr.app.record` writes its frames to files, :func:`~softvr.app.play_window`
+    plays it in a window.
+
+    Parameters
+    ----------
+    scene : softvr.Scene
+    dt : float [s]
+        Physics step.
+    steps_per_frame : int
+        Sub-steps per frame; ``dt * steps_per_frame = 1 / fps``.
+    frames : int
+        Frames to play (at least 1).
+    width, height : int [pixels]
+        Image size.
+    bounds : array_like, shape [6] [m], optional
+        (xmin, xmax, ymin, ymax, zmin, zmax) the camera frames.
+    camera : str or Camera, optional
+        Camera of the renderer (default the class's ``camera``).
+
+    Attributes
+    ----------
+    name : str
+        Output name (``soft-cube``, ...): the files are ``<out>/<name>.mp4``, ...
+    fps : float
+        Frames per second of the video.
+    metrics : list of dict
+        One record per frame: ``frame``, ``sim_time_s``, ``step_ms`` (physics), ``stage_ms``
+        (the physics by stage, summed over the frame's steps: :data:`softvr.sim.STAGES`; the
+        rest of ``step_ms`` is the hooks), ``render_ms``, ``wall_ms`` (both),
+        ``max_penetration_m`` (deepest over the frame's steps), ``contacts`` and
+        ``active_contacts`` (normal impulse > 0) of the frame's last step, ``pgs_iterations``
+        (most sweeps in one step of the frame), ``pgs_residual_m_per_s``, ``kinetic_energy_j``,
+        ``energy_j`` (kinetic + gravitational, zero at z = 0; elastic energy not included, so
+        for dissipative physics it never exceeds the initial value).
+    """
+
+    name = "physics"
+    camera = "iso"
+
+    def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
+                 bounds=None, camera=None):
+        self.scene = scene
+        self.dt = float(dt)
+        self.steps_per_frame = int(steps_per_frame)
+        self.fps = 1.0 / (self.dt * self.steps_per_frame)
+        self.frames = max(int(frames), 1)
+        self.frame = 0
+        self.width, self.height = int(width), int(height)
+        self.bounds = bounds
+        if camera is not None:
+            self.camera = camera
+        self.metrics: list[dict] = []
+        self._renderer = None
+
+    # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
+    def drive(self) -> None:
+        """Move the scripted boundaries (driven nodes, keyframed events) for the coming step."""
+
+    def haptic_tick(self) -> None:
+        """Read the haptic devices that do not run a loop of their own (one reading per step)."""
+
+    def sense(self, solution) -> None:
+        """Read the step's contact solution (sensors, the haptic tool's force)."""
+
+    def update_volume(self) -> dict:
+        """Make the volume follow its body (once per frame, before it is drawn); returns metrics."""
+        return {}
+
+    def frame_metrics(self) -> dict:
+        """Scene-specific entries of this frame's metrics record (after its last step)."""
+        return {}
+
+    # -- physics -------------------------------------------------------------------------
+    def penetration(self) -> float:
+        """Deepest current overlap [m] of any collision geometry (0 when nothing overlaps)."""
+        raise NotImplementedError
+
+    def energies(self) -> tuple[float, float]:
+        """(kinetic, kinetic + gravitational) energy [J] of all bodies."""
+        # Bodies of infinite mass move on a script (or not at all): no energy of their own.
+        moving = [b for b in self.scene.bodies if not b.infinite_mass]
+        kinetic = sum(float(b.kinetic_energy()) for b in moving)
+        potential = sum(gravity_potential(b, self.scene.gravity) for b in moving)
+        return kinetic, kinetic + potential
+
+    def step(self) -> dict:
+        """Advance one frame (``steps_per_frame`` sub-steps, each in :data:`STEP_ORDER`, then
+        :data:`FRAME_ORDER`); returns the frame's metrics record."""
+        t0 = time.perf_counter()
+        deepest, sweeps, residual, solution = 0.0, 0, 0.0, None
+        stage_ms = dict.fromkeys(STAGES, 0.0)
+        for _ in range(self.steps_per_frame):
+            self.drive()
+            self.haptic_tick()
+            solution = self.scene.step(self.dt)
+            self.sense(solution)
+            for stage in STAGES:
+                stage_ms[stage] += self.scene.stage_ms[stage]
+            deepest = max(deepest, self.penetration())
+            sweeps = max(sweeps, int(solution.iterations))
+            residual = max(residual, float(solution.residual))
+        step_ms = (time.perf_counter() - t0) * 1e3
+        kinetic, energy = self.energies()
+        impulses = [i for i in solution.impulses if len(i)]
+        volume = self.update_volume()
+        record = {
+            "frame": self.frame,
+            "sim_time_s": float(self.scene.time),
+            "step_ms": step_ms,
+            "stage_ms": stage_ms,
+            "render_ms": 0.0,
+            "wall_ms": step_ms,
+            "max_penetration_m": float(deepest),
+            "contacts": int(sum(len(i) for i in impulses)),
+            "active_contacts": int(sum(int((i[:, 0] > 0).sum()) for i in impulses)),
+            "pgs_iterations": sweeps,
+            "pgs_residual_m_per_s": residual,
+            "kinetic_energy_j": kinetic,
+            "energy_j": energy,
+            **volume,
+            **self.frame_metrics(),
+        }
+        self.metrics.append(record)
+        self.frame += 1
+        return record
+
+    # -- rendering ----------------------------------------------------------------------
+    def setup_render(self, renderer) -> None:
+        """Add this scene's surfaces to ``renderer`` (called once)."""
+        raise NotImplementedError
+
+    def update_render(self, renderer) -> None:
+        """Move the surfaces to the current state (called before every render)."""
+        raise NotImplementedError
+
+    def renderer_options(self) -> dict:
+        """Extra :class:`~softvr.render.SurfaceRenderer` arguments (background, light kit)."""
+        return {}
+
+    def render(self) -> np.ndarray:
+        """Draw the current state offscreen; returns RGB uint8 [height, width, 3]."""
+        t0 = time.perf_counter()
+        if self._renderer is None:
+            self._renderer = SurfaceRenderer(self.width, self.height, self.camera, bounds=self.bounds,
+                                             **self.renderer_options())
+            self.setup_render(self._renderer)
+        self.update_render(self._renderer)
+        image = self._renderer.render()
+        if self.metrics:
+            ms = (time.perf_counter() - t0) * 1e3
+            self.metrics[-1]["render_ms"] = ms
+            self.metrics[-1]["wall_ms"] = self.metrics[-1]["step_ms"] + ms
+        return image
+
+    # -- what a run reports --------------------------------------------------------------
+    def describe(self) -> dict:
+        """Scene facts for the metrics file (subclasses add theirs)."""
+        return {"dt_s": self.dt, "steps_per_frame": self.steps_per_frame, "fps": self.fps,
+                "bodies": [getattr(b, "name", type(b).__name__) for b in self.scene.bodies]}
+
+    def summary(self) -> dict:
+        """The run's summary for the metrics file: frames, simulated time, median and worst
+        physics ms, median ms per stage, deepest penetration [m], most contacts and sweeps."""
+        m = self.metrics
+        step_ms = np.array([r["step_ms"] for r in m])
+        return {
+            "frames": len(m),
+            "sim_time_s": m[-1]["sim_time_s"],
+            "step_ms_median": float(np.median(step_ms)),
+            "step_ms_max": float(step_ms.max()),
+            "stage_ms_median": {k: float(np.median([r["stage_ms"][k] for r in m])) for k in STAGES},
+            "max_penetration_m": max(r["max_penetration_m"] for r in m),
+            "max_contacts": max(r["contacts"] for r in m),
+            "max_pgs_iterations": max(r["pgs_iterations"] for r in m),
+        }
+
+    def status(self) -> str:
+        """One line on the last frame for a progress bar."""
+        r = self.metrics[-1]
+        return f"t={r['sim_time_s']:.2f}s pen={r['max_penetration_m'] * 1e3:.2f}mm contacts={r['contacts']}"
+
+    def write_plots(self, doc: dict, out) -> list:
+        """Plots of a finished run (``doc`` the metrics document) into folder ``out``; returns
+        the files written (none by default)."""
+        return []
+
+    def close(self) -> None:
+        """Release the renderer (and, in subclasses, haptic processes)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
