@@ -23,6 +23,7 @@ from __future__ import annotations
 import zlib
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 __all__ = ["DEFAULT_QUANTUM", "MeshDecoder", "MeshEncoder", "fit_rigid", "pose_matrix"]
 
@@ -33,30 +34,8 @@ _WIDTH_DTYPE = {1: np.int8, 2: np.int16, 4: np.int32}
 def pose_matrix(pose) -> np.ndarray:
     """Rotation [3, 3] and translation [3] of a pose [7] (position [m], quaternion w x y z)."""
     p = np.asarray(pose, float)
-    w, x, y, z = p[3:] / np.linalg.norm(p[3:])
-    rotation = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                         [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                         [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    return rotation, p[:3]
-
-
-def _quaternion(r: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) of a rotation matrix (Shepperd's branch-free-enough form)."""
-    t = np.trace(r)
-    if t > 0:
-        s = 2.0 * np.sqrt(t + 1.0)
-        q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(r)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + r[i, i] - r[j, j] - r[k, k])
-        q = np.empty(4)
-        q[0] = (r[k, j] - r[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (r[j, i] + r[i, j]) / s
-        q[1 + k] = (r[k, i] + r[i, k]) / s
-    q = np.asarray(q, float)
-    return q / np.linalg.norm(q)
+    w, x, y, z = p[3:]
+    return Rotation.from_quat((x, y, z, w)).as_matrix(), p[:3]  # SciPy normalises the quaternion
 
 
 def fit_rigid(rest: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, float]:
@@ -66,7 +45,8 @@ def fit_rigid(rest: np.ndarray, current: np.ndarray) -> tuple[np.ndarray, float]
     u, _, vt = np.linalg.svd((rest - c0).T @ (current - c1))
     d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
     rotation = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
-    q = _quaternion(rotation)
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    q = np.array([w, x, y, z])
     r, _ = pose_matrix(np.r_[0.0, 0.0, 0.0, q])  # the rotation the node will rebuild from q
     t = c1 - c0 @ r.T
     error = float(np.abs(rest @ r.T + t - current).max()) if len(rest) else 0.0

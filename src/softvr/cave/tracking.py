@@ -37,7 +37,6 @@ Examples
 
 from __future__ import annotations
 
-import math
 import socket
 import time
 from dataclasses import dataclass
@@ -49,6 +48,7 @@ from pythonosc.osc_bundle_builder import IMMEDIATELY, OscBundleBuilder
 from pythonosc.osc_message import OscMessage
 from pythonosc.osc_message_builder import OscMessageBuilder
 from pythonosc.parsing import osc_types
+from scipy.spatial.transform import Rotation, Slerp
 
 from softvr.cave.display import eye_pair
 from softvr.errors import InputError
@@ -86,9 +86,8 @@ def quaternion_about(axis, angle: float) -> tuple[float, float, float, float]:
     a = _finite(axis, (3,), "axis", "unit-free")
     if np.linalg.norm(a) == 0:
         raise InputError("axis", "a non-zero vector", repr(axis))
-    a = a / np.linalg.norm(a)
-    s = math.sin(0.5 * float(angle))
-    return (math.cos(0.5 * float(angle)), *(float(v) for v in s * a))
+    x, y, z, w = Rotation.from_rotvec(float(angle) * a / np.linalg.norm(a)).as_quat()
+    return (float(w), float(x), float(y), float(z))
 
 
 @dataclass(frozen=True)
@@ -118,11 +117,7 @@ class HeadPose:
     def rotation(self) -> np.ndarray:
         """Rotation [3, 3], head axes to the tracker frame: columns right, forward, up."""
         w, x, y, z = self.orientation
-        return np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ])
+        return Rotation.from_quat((x, y, z, w)).as_matrix()
 
     @property
     def right(self) -> np.ndarray:
@@ -190,19 +185,6 @@ class FixedTracker(Tracker):
         return self.pose
 
 
-def _slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
-    """Spherical linear interpolation of unit quaternions, along the shorter arc."""
-    dot = float(q0 @ q1)
-    if dot < 0:  # q and -q are the same rotation; take the short way round
-        q1, dot = -q1, -dot
-    if dot > 1 - 1e-12:
-        q = q0 + t * (q1 - q0)
-    else:
-        theta = math.acos(min(1.0, dot))
-        q = (math.sin((1 - t) * theta) * q0 + math.sin(t * theta) * q1) / math.sin(theta)
-    return q / np.linalg.norm(q)
-
-
 class ScriptedTracker(Tracker):
     """A head path from keyframes, played against a clock.
 
@@ -214,7 +196,8 @@ class ScriptedTracker(Tracker):
     positions : array_like, shape [k, 3] [m]
         Head positions at the keyframes (tracker frame), interpolated linearly.
     orientations : array_like, shape [k, 4], optional
-        Unit quaternions (w, x, y, z) at the keyframes, interpolated by slerp; default identity.
+        Unit quaternions (w, x, y, z) at the keyframes, interpolated by SciPy's ``Slerp`` (the
+        shorter arc: ``q`` and ``-q`` are one rotation); default identity.
     clock : callable, optional
         Returns the time [s]; default :func:`time.monotonic` (tests pass a fake clock).
     loop : bool
@@ -237,6 +220,8 @@ class ScriptedTracker(Tracker):
         else:
             q = _finite(orientations, (k, 4), "orientations", "unit quaternions (w, x, y, z)")
             self.orientations = np.array([_unit_quaternion(row, f"orientations[{i}]") for i, row in enumerate(q)])
+        # x, y, z, w: SciPy's order. Slerp needs two keys; one key is held at every time.
+        self._slerp = Slerp(t, Rotation.from_quat(np.roll(self.orientations, -1, axis=1))) if k > 1 else None
         self.clock = time.monotonic if clock is None else clock
         if not callable(self.clock):
             raise InputError("clock", "a callable returning seconds", repr(clock))
@@ -259,7 +244,8 @@ class ScriptedTracker(Tracker):
         i = int(np.searchsorted(times, t, side="right")) - 1
         s = (t - times[i]) / (times[i + 1] - times[i])
         position = (1 - s) * self.positions[i] + s * self.positions[i + 1]
-        return HeadPose(position, _slerp(self.orientations[i], self.orientations[i + 1], s))
+        x, y, z, w = self._slerp(t).as_quat()
+        return HeadPose(position, (w, x, y, z))
 
     def poll(self) -> HeadPose:
         return self.pose_at(float(self.clock()) - self._start)

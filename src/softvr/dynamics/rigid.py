@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
 
 from softvr.dynamics.body import ContactObject, StepSystem
 from softvr.errors import InputError
@@ -59,6 +60,14 @@ GYROSCOPIC_MODES = ("implicit", "explicit")
 
 
 # ------------------------------------------------------------------ quaternion algebra
+# softvr's one quaternion helper, (w, x, y, z) first (SciPy's Rotation is (x, y, z, w)). The
+# rotation-vector maps are SciPy's. Product, conjugate and matrix stay written out because they
+# run per body per step, where a Rotation object costs more than the arithmetic: one quaternion,
+# timeit on the 2-core CI machine, ours vs SciPy: product 19 vs 59 us, conjugate 1.1 vs 31 us
+# (``Rotation.inv``), matrix 3.4 vs 16 us. tests/test_quaternion.py holds all five to SciPy.
+_TO_SCIPY, _FROM_SCIPY = [1, 2, 3, 0], [3, 0, 1, 2]  # (w, x, y, z) <-> (x, y, z, w)
+
+
 def quat_multiply(a, b) -> np.ndarray:
     """Hamilton product ``a (x) b`` of quaternions (w, x, y, z), shapes [..., 4] (broadcast)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
@@ -80,27 +89,18 @@ def quat_conjugate(q) -> np.ndarray:
 def quat_from_rotvec(phi) -> np.ndarray:
     """Unit quaternion (w, x, y, z) of the rotation vector ``phi`` [rad] (axis * angle), [..., 3] -> [..., 4].
 
-    Exact (no small-angle approximation): ``(cos(|phi|/2), sin(|phi|/2) phi / |phi|)``.
+    ``(cos(|phi|/2), sin(|phi|/2) phi / |phi|)``, SciPy's ``Rotation.from_rotvec`` (exact at
+    small angles too).
     """
-    phi = np.asarray(phi, float)
-    angle = np.linalg.norm(phi, axis=-1, keepdims=True)
-    # sin(angle/2) / angle, = 1/2 at angle 0: np.sinc(x) = sin(pi x) / (pi x).
-    s = 0.5 * np.sinc(angle / (2 * np.pi))
-    return np.concatenate([np.cos(0.5 * angle), s * phi], axis=-1)
+    return Rotation.from_rotvec(np.asarray(phi, float)).as_quat()[..., _FROM_SCIPY]
 
 
 def quat_to_rotvec(q) -> np.ndarray:
     """Rotation vector [rad] (axis * angle, angle in [0, pi]) of a unit quaternion, [..., 4] -> [..., 3].
 
-    ``q`` and ``-q`` give the same (shortest) rotation.
+    ``q`` and ``-q`` give the same (shortest) rotation; SciPy's ``Rotation.as_rotvec``.
     """
-    q = np.asarray(q, float)
-    q = np.where(q[..., :1] < 0, -q, q)
-    w, xyz = q[..., :1], q[..., 1:]
-    s = np.linalg.norm(xyz, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        factor = np.where(s > 0, 2.0 * np.arctan2(s, w) / s, 2.0 / w)
-    return factor * xyz
+    return Rotation.from_quat(np.asarray(q, float)[..., _TO_SCIPY]).as_rotvec()
 
 
 def quat_to_matrix(q) -> np.ndarray:
