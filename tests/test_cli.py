@@ -69,7 +69,7 @@ def test_a_bug_is_reported_as_an_internal_error_without_a_traceback(monkeypatch,
 
 
 class _BigFrames:
-    """A stand-in example whose frames are 1280 x 960 RGB (3.7 MB each): what run_example
+    """A stand-in player whose frames are 1280 x 960 RGB (3.7 MB each): what softvr.app.record
     keeps in memory shows in the peak of traced allocations."""
 
     name, fps, frame_bytes = "big", 30.0, 1280 * 960 * 3
@@ -93,28 +93,33 @@ class _BigFrames:
     def describe(self):
         return {}
 
+    def summary(self):
+        return {"frames": len(self.metrics)}
+
+    def status(self):
+        return ""
+
     def write_plots(self, doc, out):
         return []
 
 
 def _peak_of_run(example, out) -> int:
-    """Peak traced memory [bytes] while run_example writes ``example``."""
+    """Peak traced memory [bytes] while softvr.app.record writes ``example``."""
     import tracemalloc
 
-    from softvr.examples import run
+    from softvr.app import record
 
     tracemalloc.start()
     try:
-        run.run_example(example, out, progress=False)
+        record(example, out, progress=False)
         return tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
 
 
-def test_run_streams_frames_to_the_video_instead_of_keeping_them(tmp_path, monkeypatch):
+def test_run_streams_frames_to_the_video_instead_of_keeping_them(tmp_path):
     """Frames of 3.7 MB: 60 more frames (221 MB) raise the peak of traced memory by less than
     2 frames' worth, i.e. memory does not grow with --frames."""
-    monkeypatch.setattr("softvr.sim.STAGES", ())
     short = _peak_of_run(_BigFrames(10), tmp_path / "short")
     long = _peak_of_run(_BigFrames(70), tmp_path / "long")
     assert (tmp_path / "long" / "big.mp4").stat().st_size > 0 and (tmp_path / "long" / "big_sheet.png").is_file()

@@ -35,7 +35,7 @@ import os
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
-from softvr.errors import SoftvrError
+from softvr.errors import InputError, SoftvrError
 
 __all__ = ["main"]
 
@@ -136,7 +136,7 @@ def _bench(argv: list[str]) -> int:
         i = rest.index("--device")
         value = rest[i + 1] if i + 1 < len(rest) else ""
         if value != "cpu":
-            p.error(f"--device: expected cpu (softvr bench {area} steps its physics on the CPU), got {value!r}")
+            raise InputError("--device", f"cpu (softvr bench {area} steps its physics on the CPU)", repr(value))
         del rest[i:i + 2]
     return importlib.import_module(f"softvr.bench.{area}").main(rest)
 

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from softvr.app._record import output_name, record
 from softvr.app._window import VIEW_LAYERS
+from softvr.device import resolve_device
 
 __all__ = ["DEFAULT_OUT", "add_device_option", "add_view_options", "check_run_args", "out_folder", "record_from_args",
            "run_parser", "shown_layers"]
@@ -60,13 +61,16 @@ def run_parser(prog: str, description: str, frames: int | None, size=(640, 480))
 
 def check_run_args(parser: argparse.ArgumentParser, args) -> None:
     """Reject a frame count below 1, a negative ``--png-every`` and image sizes outside
-    [1, 16384] (exits with status 2, naming the option)."""
+    [1, 16384] (exits with status 2, naming the option), and a ``--device`` this machine lacks
+    (:class:`~softvr.errors.InputError`)."""
     if args.frames is not None and args.frames < 1:
         parser.error(f"--frames: expected an integer >= 1, got {args.frames}")
     if getattr(args, "png_every", 0) < 0:
         parser.error(f"--png-every: expected an integer >= 0, got {args.png_every}")
     if args.size is not None and not all(1 <= s <= 16384 for s in args.size):
         parser.error(f"--size: expected two pixel counts in [1, 16384], got {args.size[0]} {args.size[1]}")
+    if getattr(args, "device", None) is not None:
+        resolve_device(args.device)  # cuda where none is present: an InputError naming the device
 
 
 def record_from_args(player, args) -> dict:

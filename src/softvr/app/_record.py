@@ -10,7 +10,7 @@ import numpy as np
 from tqdm import tqdm
 
 from softvr.render import contact_sheet, save_png, write_mp4
-from softvr.render._atomic import write_json
+from softvr.files import write_json
 
 __all__ = ["output_name", "record"]
 

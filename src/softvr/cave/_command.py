@@ -67,8 +67,11 @@ def make_source(scene: str, frames: int, device: str | None = None):
     ``box-stack.toml``), or a glTF / mesh file without softvr bodies, shown static."""
     from softvr.cave.app import ExampleSource, SceneFileSource, WavingSheet  # noqa: PLC0415
     from softvr.scene import has_softvr_bodies, load_scene  # noqa: PLC0415
+    from softvr.device import resolve_device  # noqa: PLC0415
     from softvr.scene.build import scene_path  # noqa: PLC0415
 
+    if device is not None:
+        resolve_device(device)  # cuda where none is present: an InputError naming the device
     if scene == "sheet":
         return WavingSheet()
     path = Path(scene)

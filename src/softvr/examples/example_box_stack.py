@@ -109,9 +109,9 @@ class Example(Player):
                 "max_drift_m": float(self.drift().max())}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the box-stack demo to ``<out>/box_stack.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run box-stack", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run box-stack", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
     with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:

@@ -221,9 +221,9 @@ class Example(Player):
                 "candies": len(self.candies), "friction": self.plane.friction, "adhesion": self.adhesion}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the candy demo to ``<out>/candy.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--small", action="store_true", help="a ~1 K-tet version instead of the thesis' scale")
     parser.add_argument("--adhesion", action="store_true", help="adhesive Jell-O and candies (thesis Fig. 4.1)")
     args = parser.parse_args(argv)

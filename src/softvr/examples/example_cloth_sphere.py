@@ -113,9 +113,9 @@ class Example(Player):
                 "friction": self.plane.friction, "pgs_iterations_max": self.scene.pgs_iterations}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the cloth demo to ``<out>/cloth_sphere.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run cloth-sphere", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run cloth-sphere", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
     with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:

@@ -120,9 +120,9 @@ class Example(Player):
                 "vertices": len(self.cloth.q), "size_m": self.size}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the cloth-wall demo to ``<out>/cloth_wall.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run cloth-wall", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run cloth-wall", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--quads", type=int, default=12, help="quads per cloth side (default 12)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)

@@ -206,9 +206,9 @@ class Example(Player):
                 "open_speed_m_per_s": self.open_speed}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the lips demo to ``<out>/lips.mp4``, ``_sheet.png``, ``_metrics.json`` and ``_force.png``."""
-    parser = run_parser("softvr run lips", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run lips", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--dry", action="store_true", help="no adhesion (plain frictional contact)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)

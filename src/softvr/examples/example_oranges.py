@@ -140,9 +140,9 @@ class Example(Player):
                 "mass_kg_each": float(self.oranges[0].mass.sum()), "friction": self.plane.friction}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the oranges demo to ``<out>/oranges.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run oranges", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run oranges", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--count", type=int, default=4, help="oranges, 1 to 6 (default 4)")
     args = parser.parse_args(argv)
     check_run_args(parser, args)

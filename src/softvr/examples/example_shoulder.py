@@ -217,9 +217,9 @@ class Example(Player):
                 "haptic_loop": self.haptics, "model_crossings": self.model.crossings}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the shoulder demo to ``<out>/shoulder.mp4``, ``_sheet.png``, ``_metrics.json``, ``_force.png``."""
-    parser = run_parser("softvr demo shoulder", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr demo shoulder", __doc__.splitlines()[0], DEFAULT_FRAMES)
     parser.add_argument("--variant", choices=("palpation", "arthroscopy"), default="palpation",
                         help="palpation (two fingers, deltoid) or arthroscopy (a probe), default palpation")
     parser.add_argument("--no-haptics", action="store_true", help="no 1 kHz haptic thread")

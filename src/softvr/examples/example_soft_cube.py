@@ -104,9 +104,9 @@ class Example(Player):
                 "friction": self.plane.friction, "mass_kg": float(self.body.mass.sum())}
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     """Run the soft-cube demo to ``<out>/soft_cube.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser("softvr run soft-cube", __doc__.splitlines()[0], DEFAULT_FRAMES)
+    parser = run_parser(prog or "softvr run soft-cube", __doc__.splitlines()[0], DEFAULT_FRAMES)
     args = parser.parse_args(argv)
     check_run_args(parser, args)
     with Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:

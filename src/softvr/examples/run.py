@@ -28,7 +28,7 @@ import sys
 from pathlib import Path
 
 from softvr.app import add_view_options, check_run_args, play_window, shown_layers
-from softvr.render._backend import require_display
+from softvr.render import require_display
 
 __all__ = ["SCENES", "main", "module", "view_main"]
 
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     if named:
         rest = list(argv)
         rest.remove(named[0])
-        return module(named[0]).main(rest)
+        return module(named[0]).main(rest, prog=f"softvr run {named[0]}")
     p = argparse.ArgumentParser(prog="softvr run", description="Run a physics demo or a scene file headless: MP4, "
                                 "PNG contact sheet and JSON metrics.",
                                 epilog=f"Demos: {names}; each has its own options (softvr run NAME --help). "

@@ -9,8 +9,9 @@ from __future__ import annotations
 import argparse
 
 from softvr.app import add_view_options, check_run_args, play_window, record_from_args, run_parser, shown_layers
+from softvr.device import resolve_device
 from softvr.errors import InputError, raise_all
-from softvr.render._backend import require_display
+from softvr.render import require_display
 from softvr.scene import SceneExample, load_scene
 from softvr.scene.build import read_any_with_problems, scene_path
 
@@ -84,6 +85,8 @@ def view_main(argv: list[str] | None = None) -> int:
     add_view_options(p)
     args = p.parse_args(argv)
     path = scene_path(args.scene)
+    if args.device is not None:
+        resolve_device(args.device)  # cuda where none is present: named before a window opens
     require_display()
     with load_scene(path, device=args.device) as example:
         play_window(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))

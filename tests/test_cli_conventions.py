@@ -1,0 +1,126 @@
+"""One convention for every ``softvr`` subcommand (issue 20, "CLI").
+
+Truths, written down here and not read from softvr: every subcommand's ``--help`` exits 0 with a
+usage line that names the command as typed (``softvr run soft-cube``, never ``python -m``); the
+commands that run kernels (run, view, demo, bench, cave) take ``--device cpu|cuda``; ``--out DIR``
+puts a run's files into DIR, named after the scene as the command line spells it, and without it
+they go to ``softvr-out/NAME/``; ``softvr --version`` prints the installed distribution's version
+(importlib.metadata); a bundled scene is found by its name with or without ``.toml`` and by its
+path, and a path that is no scene file is named as the user wrote it.
+"""
+
+import subprocess
+import sys
+from importlib.metadata import version
+
+import pytest
+
+from softvr.cli import main
+
+#: Every subcommand and nested command with a --help of its own (as typed after ``softvr``).
+HELPS = [
+    ["demo"], ["demo", "volume"], ["demo", "shoulder"], ["demo", "palpation"],
+    ["run"], *[["run", name] for name in ("soft-cube", "box-stack", "cloth-sphere", "oranges", "candy", "cloth-wall",
+                                          "lips", "probe", "shoulder")],
+    ["run", "soft-cube.toml"], ["view", "soft-cube"], ["view", "soft-cube.toml"], ["view", "volume"],
+    ["view", "palpation"],
+    ["bench"], *[["bench", area] for area in ("volume", "contact", "adhesion", "shoulder", "cave", "palpation",
+                                              "scene")],
+    ["cave"], *[["cave", c] for c in ("preview", "master", "node", "local", "keys")],
+    ["check"], ["build-model"], ["tetmesh"], ["blender-addon"], ["info"],
+]
+
+#: Commands that run kernels, each of which must offer --device.
+DEVICE = [["run", "soft-cube"], ["run", "soft-cube.toml"], ["view", "soft-cube"], ["view", "soft-cube.toml"],
+          ["demo", "volume"], ["demo", "shoulder"], ["demo", "palpation"], ["bench", "volume"],
+          ["bench", "palpation"], ["cave", "preview"], ["cave", "master"], ["cave", "local"]]
+
+
+def _help(words, capsys) -> str:
+    with pytest.raises(SystemExit) as exc:
+        code = main([*words, "--help"])
+        raise SystemExit(code)
+    captured = capsys.readouterr()
+    assert exc.value.code in (0, None), (words, captured.err[-500:])
+    assert "Traceback" not in captured.err + captured.out
+    return captured.out
+
+
+@pytest.mark.parametrize("words", HELPS, ids=" ".join)
+def test_every_help_exits_0_and_names_the_command_as_typed(words, capsys):
+    out = _help(words, capsys)
+    assert "usage: softvr" in out and "python -m" not in out, out[:300]
+    if words[0] == "run" and len(words) == 2 and not words[1].endswith(".toml"):
+        assert f"usage: softvr run {words[1]}" in out
+
+
+def test_the_top_level_and_listing_helps_list_what_exists(capsys):
+    assert main(["--help"]) == 0
+    top = capsys.readouterr().out
+    assert all(c in top for c in ("demo", "run", "view", "bench", "cave", "check", "build-model", "--version"))
+    assert all(d in _help(["demo"], capsys) for d in ("volume", "shoulder", "palpation"))
+    bench = _help(["bench"], capsys)
+    assert all(a in bench for a in ("volume", "contact", "adhesion", "shoulder", "cave", "palpation", "scene"))
+
+
+@pytest.mark.parametrize("words", DEVICE, ids=" ".join)
+def test_commands_that_run_kernels_take_a_device(words, capsys):
+    out = _help(words, capsys)
+    assert "--device" in out and "cpu" in out and "cuda" in out
+
+
+def test_version_is_the_installed_distributions():
+    proc = subprocess.run([sys.executable, "-m", "softvr", "--version"], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"softvr {version('softvr')}"
+
+
+def test_help_loads_neither_warp_nor_numpy():
+    """``softvr --help`` answers before the physics stack is imported (no Warp start-up)."""
+    code = ("import contextlib, io, sys\nimport softvr.cli\nwith contextlib.redirect_stdout(io.StringIO()):\n"
+            "    softvr.cli.main(['--help'])\nprint(sorted(m for m in ('warp', 'numpy', 'vtk') if m in sys.modules))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0 and proc.stdout.strip() == "[]", proc.stdout + proc.stderr
+
+
+def test_a_cuda_device_where_none_is_present_is_named(capsys):
+    import warp as wp
+
+    if wp.is_cuda_available():
+        pytest.skip("a CUDA device is present")
+    assert main(["run", "box-stack", "--frames", "1", "--device", "cuda", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "device" in err and "cpu" in err and "Traceback" not in err
+    assert main(["bench", "scene", "--device", "cuda"]) != 0  # physics benches: cpu only, said so
+    assert "--device" in capsys.readouterr().err
+
+
+def test_out_and_the_one_naming_rule(tmp_path, monkeypatch):
+    """A demo and its scene file, options before or after the scene, write the same file names;
+    without --out, into softvr-out/NAME/."""
+    small = ["--frames", "1", "--size", "32", "24", "--quiet"]
+    assert main(["run", "box-stack", *small, "--out", str(tmp_path / "demo")]) == 0
+    assert main(["run", *small, "--out", str(tmp_path / "file"), "box-stack.toml"]) == 0
+    names = ["box-stack.mp4", "box-stack_metrics.json", "box-stack_sheet.png"]
+    assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == names
+    assert sorted(p.name for p in (tmp_path / "file").iterdir()) == names
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "box-stack.toml", *small]) == 0
+    assert sorted(p.name for p in (tmp_path / "softvr-out" / "box-stack").iterdir()) == names
+
+
+def test_a_bundled_scene_by_name_and_by_path(capsys):
+    from softvr.scene import BUNDLED
+
+    outs = []
+    for word in ("soft-cube", "soft-cube.toml", str(BUNDLED / "soft-cube.toml")):
+        assert main(["check", word]) == 0, word
+        outs.append(capsys.readouterr().out.split(":")[0])
+    assert len(set(outs)) == 1 and outs[0].endswith("soft-cube.toml")
+
+
+@pytest.mark.parametrize("word, what", [(".", "'.' (a folder)"), ("nosuch.toml", "'nosuch.toml' (no such file)"),
+                                        ("some/where/else.toml", "'some/where/else.toml' (no such file)")])
+def test_a_path_that_is_no_scene_is_named_as_written(word, what, capsys):
+    assert main(["check", word]) == 2
+    err = capsys.readouterr().err
+    assert what in err and "scenes/" not in err and "Traceback" not in err
