@@ -114,20 +114,34 @@ import numpy as np
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_file, file_name, inside_folder,
                           load_json, native_read)
-from softvr.scene.schema import (PLAUSIBLE, BodySpec, SceneFile, _color, _complete, _count, _keyframes, _model,
-                                 _render, _simulation, _volume)
+from softvr.scene._description import (GLTF_CELLS, Body, Coupling, Drive, Material, Plane, Render, Simulation,
+                                       read_table)
+from softvr.scene._keys import known_key
+from softvr.scene.display import PRESETS as DISPLAY_PRESETS
+from softvr.scene.display import read_display
+from softvr.scene.schema import (BodySpec, SceneFile, _model, _volume, adhesion_parameters, render_settings,
+                                 simulation_settings)
 
 __all__ = ["check_gltf", "has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
 
 _PREFIX = "softvr_"
 _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", "model")
-#: Scene extras that are ``[render]`` fields.
-_RENDER_KEYS = ("size", "camera", "azimuth", "elevation", "zoom", "bounds", "background", "background_top",
-                "light_kit")
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _FLOAT = 5126  # accessor componentType of 32-bit floats
 _COUPLING_KEYS = ("couple_to", "coupling_stiffness", "coupling_damping", "coupling_radius", "coupling_points",
                   "coupling_collide")
+_MATERIAL_KEYS = tuple(Material.model_fields)
+#: A body node's own custom properties: the ``[[body]]`` fields its mesh and transform do not give.
+_NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_velocity", "spin_centre", "area_density",
+                   "stretch", "shear", "bend", "damping", "alpha", "stiffness", "haptics", "max_force",
+                   "collision_triangles")
+#: Every custom property of a body node (and ``adhesion_*``, :class:`~softvr.scene._description.Adhesion`'s).
+_NODE_KEYS = {"type", "render_mesh", "collides_with", "drive_times", "drive_offsets", *_NODE_BODY_KEYS, *_MATERIAL_KEYS,
+              *_COUPLING_KEYS}
+#: Every custom property of the scene (and ``ground_adhesion_*``).
+_SCENE_KEYS = {*Simulation.model_fields, *Render.model_fields, "start_time", "ground", "display"}
+#: Properties that are booleans, which Blender may write as 0 / 1.
+_BOOLEANS = ("haptics", "coupling_collide", "collision_free_start", "light_kit", "mask", "incremental", "ground")
 
 
 def _glb_chunks(path: Path) -> tuple[bytes, bytes | None]:
@@ -681,7 +695,10 @@ def _lights(doc: dict, parent: dict, errors: Problems) -> list:
             continue
         light, w = lights[k], f"KHR_lights_punctual.lights[{k}]"
         kind = errors.choice(light, "type", w, ("directional", "point", "spot"))
-        color = _color(light, "color", w, (1.0, 1.0, 1.0), errors)
+        color = errors.vector(light, "color", w, default=[1.0, 1.0, 1.0])
+        if color is not None and not all(0 <= c <= 1 for c in color):
+            errors.add(f"{w}.color", "r, g, b in [0, 1]", list(color))
+            color = None
         intensity = errors.number(light, "intensity", w, default=1.0, minimum=0.0)
         matrix = _world_matrix(nodes, parent, i)
         position = _z_up(matrix[:3, 3])
@@ -694,7 +711,7 @@ def _lights(doc: dict, parent: dict, errors: Problems) -> list:
         else:  # glTF lights shine along their node's -z
             axis = matrix[:3, :3] @ [0.0, 0.0, -1.0]
             focal_point = position + _z_up(axis / np.linalg.norm(axis))
-        if kind is None or intensity is None:
+        if kind is None or intensity is None or color is None:
             continue
         scale = 1.0 if kind == "directional" else 4.0 * np.pi / _LAMP_WATTS
         out.append({"position": tuple(float(x) for x in position),
@@ -703,8 +720,29 @@ def _lights(doc: dict, parent: dict, errors: Problems) -> list:
     return out
 
 
+def _flat_triples(flat, field: str, expected: str, where: str, errors: Problems) -> list | None:
+    """A flat custom property x0, y0, z0, x1, ... [m] as [[x0, y0, z0], ...] (Blender's custom
+    properties hold flat lists); else a problem named ``field``, and None."""
+    if isinstance(flat, list) and flat and len(flat) % 3 == 0 and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in flat):
+        return np.asarray(flat, float).reshape(-1, 3).tolist()
+    errors.add(f"{where}.{field}", expected, flat)
+    return None
+
+
+def _renamed(model, table: dict, where: str, prefix: str, errors: Problems, **options):
+    """``table`` read as ``model`` (:func:`read_table`), its problems named as the custom
+    properties they came from: ``<where>.<prefix><field>`` (``node 'gel'.coupling_stiffness``)."""
+    found = Problems(errors.source, errors.kind)
+    out, bad = read_table(model, table, where, found, **options)
+    head = f"{where}."
+    errors.items += [(f"{head}{prefix}{w[len(head):]}" if w.startswith(head) else w, e, f) for w, e, f in found.items]
+    return out, bad
+
+
 def _coupling(name: str, where: str, props: dict, kind: str, errors: Problems) -> dict | None:
-    """The coupling written on a node (module docstring); its other body is checked later."""
+    """The coupling written on a node (module docstring) as a ``[[coupling]]``
+    (:class:`~softvr.scene._description.Coupling`); its other body is checked later."""
     if not any(k in props for k in _COUPLING_KEYS):
         return None
     other = props.get("couple_to")
@@ -712,40 +750,28 @@ def _coupling(name: str, where: str, props: dict, kind: str, errors: Problems) -
         errors.add(f"{where}.couple_to", "the name of the object to couple to", other if other is not None else
                    "nothing (coupling properties without it)")
         other = None
-    points, radius = None, None
+    table = {k[len("coupling_"):]: v for k, v in props.items() if k.startswith("coupling_") and k != "coupling_points"}
     if "coupling_points" in props:
-        flat = props["coupling_points"]
-        ok = isinstance(flat, list) and len(flat) >= 3 and len(flat) % 3 == 0 and all(
-            isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) for x in flat)
-        if not ok:
-            errors.add(f"{where}.coupling_points", "a flat list x0, y0, z0, x1, ... [m] (3 numbers per point)",
-                       flat)
-        else:
-            points = np.asarray(flat, float).reshape(-1, 3).tolist()
-        if "coupling_radius" in props:
-            errors.add(f"{where}.coupling_points", "coupling_radius or coupling_points, not both", "both")
-    elif "coupling_radius" in props:
-        radius = errors.number(props, "coupling_radius", where, minimum=0.0, unit="m")
-        if kind not in ("fem", "cloth", None):
-            errors.add(f"{where}.coupling_radius", "a fem or cloth body (its nodes are coupled), or coupling_points",
-                       f"a {kind} body")
-    else:
-        errors.add(f"{where}.coupling_radius", "coupling_radius [m] or coupling_points", "neither")
-    return {"a": name, "b": other, "points": points, "radius": radius,
-            "stiffness": errors.number(props, "coupling_stiffness", where, positive=True, unit="N/m"),
-            "damping": errors.number(props, "coupling_damping", where, default=0.0, minimum=0.0, unit="N s/m"),
-            "collide": _boolean(props, "coupling_collide", where, errors)}
+        table["points"] = _flat_triples(props["coupling_points"], "coupling_points",
+                                        "a flat list x0, y0, z0, x1, ... [m] (3 numbers per point)", where, errors)
+    elif "coupling_radius" in props and kind not in ("fem", "cloth", None):
+        errors.add(f"{where}.coupling_radius", "a fem or cloth body (its nodes are coupled), or coupling_points",
+                   f"a {kind} body")
+    coupling, _ = _renamed(Coupling, {k: v for k, v in table.items() if v is not None}, where, "coupling_", errors)
+    return {**coupling.model_dump(), "a": name, "b": other,
+            "points": table.get("points"), "radius": None if "points" in table else coupling.radius}
 
 
-def _booleans(table: dict, keys) -> dict:
-    """``table`` with the values 0 / 1 of ``keys`` as false / true (Blender may write booleans
-    as 0 / 1)."""
-    return {k: bool(v) if k in keys and type(v) is int and v in (0, 1) else v for k, v in table.items()}
+def _booleans(table: dict) -> dict:
+    """``table`` with the values 0 / 1 of its boolean properties as false / true (Blender may
+    write booleans as 0 / 1)."""
+    return {k: bool(v) if k in _BOOLEANS and type(v) is int and v in (0, 1) else v for k, v in table.items()}
 
 
-def _boolean(props: dict, key: str, where: str, errors: Problems) -> bool:
-    """A bool property, false by default (Blender may write booleans as 0 / 1)."""
-    return errors.boolean(_booleans(props, (key,)), key, where, default=False)
+def _unknown(props: dict, known: set, prefixes: tuple, where: str, errors: Problems) -> None:
+    """The custom properties no softvr field has, each named with the nearest known one."""
+    for key in sorted(k for k in props if k not in known and not k.startswith(prefixes)):
+        errors.add(f"{where}.{key}", known_key(known, key), repr(key))
 
 
 def read_gltf_scene(path) -> SceneFile:
@@ -755,6 +781,40 @@ def read_gltf_scene(path) -> SceneFile:
     scene, problems = read_gltf_scene_with_problems(path)
     raise_all(problems, str(path), "glTF scene")
     return scene
+
+
+def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
+    """A body node's extras as a ``[[body]]`` and its ``[material.NAME]`` (the description's
+    models, without the shape: the node's mesh is it). The glTF rules between fields are here."""
+    material_keys = _MATERIAL_KEYS if kind in ("rigid", "fem", "tool") else ()
+    table = {k: v for k, v in props.items() if k in _NODE_BODY_KEYS and k not in material_keys}
+    if "drive_times" in props or "drive_offsets" in props:
+        if kind not in ("fem", "cloth"):
+            errors.add(f"{where}.drive_offsets", "a drive only on a fem or cloth object (it moves the held nodes)",
+                       f"a {kind} object")
+        elif "fixed_below" not in props and "fixed_above" not in props:
+            errors.add(f"{where}.drive_offsets", "held nodes to drive: softvr_fixed_below or softvr_fixed_above",
+                       "neither")
+        offsets = _flat_triples(props.get("drive_offsets"), "drive_offsets",
+                                "x0, y0, z0, x1, ... [m]: 3 numbers per time", where, errors)
+        drive, _ = _renamed(Drive, {"times": props.get("drive_times"), **({"offsets": offsets} if offsets else {})},
+                            where, "drive_", errors)
+        table["drive"] = None if drive is None or drive.offsets is None or drive.times is None else drive.model_dump()
+    if kind == "tool" and "stiffness" not in props:
+        errors.add(f"{where}.stiffness", "a number > 0 [N/m]", "nothing")
+    if "collision_triangles" in props and kind in ("fixed", "cloth"):
+        errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool object",
+                   f"a {kind} object")
+    if kind == "fem" and isinstance(props.get("cells"), list):
+        errors.add(f"{where}.cells", "a number > 0 [m]", props["cells"])
+        table.pop("cells")
+    body, _ = read_table(Body, {"name": name, "type": kind, **{k: v for k, v in table.items() if v is not None}},
+                         where, errors, rules=False)
+    material = None
+    if material_keys:
+        read, _ = read_table(Material, {k: props[k] for k in material_keys if k in props}, where, errors)
+        material = read.model_dump()
+    return body, material
 
 
 def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
@@ -770,20 +830,11 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     buffers = _Buffers(path, doc, binary)
     errors = Problems(str(path), "glTF scene")
     scenes = doc.get("scenes") or [{}]
-    scene_props = _properties(scenes[doc.get("scene", 0)].get("extras"))
-    simulation = {"dt": errors.number(scene_props, "dt", "scene", default=0.005, positive=True, unit="s",
-                                      plausible=PLAUSIBLE["dt"]),
-                  "steps_per_frame": _count(errors, scene_props, "steps_per_frame", "scene", default=4, minimum=1),
-                  "frames": _count(errors, scene_props, "frames", "scene", default=100, minimum=1),
-                  "gravity": errors.vector(scene_props, "gravity", "scene", default=[0.0, 0.0, -9.81], unit="m/s^2",
-                                           plausible=PLAUSIBLE["speed"]),
-                  "friction": errors.number(scene_props, "friction", "scene", default=0.5, minimum=0.0),
-                  "pgs_iterations": _count(errors, scene_props, "pgs_iterations", "scene", default=500, minimum=1),
-                  "contact_margin": errors.number(scene_props, "contact_margin", "scene", default=0.005, minimum=0.0,
-                                                  unit="m"),
-                  "collision_free_start": _boolean(scene_props, "collision_free_start", "scene", errors)}
-    render = _render({"render": _booleans({k: v for k, v in scene_props.items() if k in _RENDER_KEYS},
-                                          ("light_kit",))}, errors, "scene")
+    scene_props = _booleans(_properties(scenes[doc.get("scene", 0)].get("extras")))
+    _unknown(scene_props, _SCENE_KEYS, ("ground_adhesion_",), "scene", errors)
+    simulation = simulation_settings({k: v for k, v in scene_props.items() if k in Simulation.model_fields}, "scene",
+                                     errors)
+    render = render_settings({k: v for k, v in scene_props.items() if k in Render.model_fields}, [], "scene", errors)
     start_time = errors.number(scene_props, "start_time", "scene", unit="s") if "start_time" in scene_props else None
     display = _display(scene_props, path.parent, errors) if "display" in scene_props else None
     nodes = doc.get("nodes", [])
@@ -793,17 +844,15 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     materials, adhesions, bodies, couplings, moving, named, volumes, models = {}, {}, [], [], [], {}, [], []
     model_nodes = []
     for i, node in enumerate(nodes):
-        props = _properties(node.get("extras"))
+        props = _booleans(_properties(node.get("extras")))
         if not props:
             continue
         name = node.get("name") or f"node {i}"
         where = f"node {name!r}"
         kind = errors.choice(props, "type", where, _GLTF_TYPES)
         if kind == "model":  # an Empty: a [[model]], whose parts become bodies
-            table = {k: v for k, v in props.items() if k != "type"}
-            for key in sorted(set(table) - {"file", "colors", "opacity"}):
-                errors.add(f"{where}.{key}", "file, colors or opacity (a model node)", key)
-            models.append(_model(len(models), table, path.parent, errors, where))
+            models.append(_model(len(models), {k: v for k, v in props.items() if k != "type"}, path.parent, errors,
+                                 where))
             model_nodes.append(where)
             continue
         named[name] = kind
@@ -812,9 +861,9 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             couplings.append((where, coupling))
         if kind == "volume":  # an Empty: the [volume], its FEM body named as the node
             table = {k: v for k, v in props.items() if k not in ("type", *_COUPLING_KEYS)}
-            volumes.append(_volume({**_booleans(table, ("mask", "incremental")), "name": name}, path.parent, errors,
-                                   where))
+            volumes.append(_volume({**table, "name": name}, path.parent, errors, where))
             continue
+        _unknown(props, _NODE_KEYS, ("adhesion_",), where, errors)
         if name not in loaded.graph.nodes_geometry:
             errors.add(where, "a node with a triangle mesh", "no mesh")
             continue
@@ -834,8 +883,12 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
         # Its position is the object's origin (the node's world translation), as a TOML body's;
         # its mesh is kept relative to it.
         origin = _z_up(np.asarray(transform, float)[:3, 3])
+        body, material = _node_body(name, where, kind, props, errors)
         spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color,
-                        position=tuple(float(x) for x in origin))
+                        position=tuple(float(x) for x in origin), fixed_below=body.fixed_below,
+                        fixed_above=body.fixed_above, collision_triangles=body.collision_triangles,
+                        # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
+                        velocity=body.velocity, angular_velocity=body.angular_velocity, spin_centre=body.spin_centre)
         spec.mesh_data = (v - origin, np.asarray(mesh.faces, np.int32))
         unturn = None  # a rotating kinematic body's mesh is kept in the node's own axes
         if "collides_with" in props:
@@ -844,51 +897,21 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
                 errors.add(f"{where}.collides_with", "node names, comma-separated", others)
             else:
                 spec.collides_with = tuple(o.strip() for o in others.split(",") if o.strip())
-        if kind in ("rigid", "fem", "tool"):
-            materials[name] = {
-                "young": errors.number(props, "young", where, default=1e5, positive=True, unit="Pa",
-                                       plausible=PLAUSIBLE["young"]),
-                "poisson": errors.number(props, "poisson", where, default=0.3, minimum=-0.99, maximum=0.5),
-                "density": errors.number(props, "density", where, default=1000.0, positive=True, unit="kg/m^3",
-                                         plausible=PLAUSIBLE["density"]),
-                "alpha": errors.number(props, "alpha", where, default=0.0, minimum=0.0, unit="1/s"),
-                "beta": errors.number(props, "beta", where, default=0.0, minimum=0.0, unit="s")}
+        if material is not None:
+            materials[name] = material
             spec.material = name
         sticky = _adhesion(props, "adhesion_", where, errors)
         if sticky is not None:
             adhesions[name] = sticky
             spec.adhesion = name
         if kind == "fem":
-            spec.cells = errors.number(props, "cells", where, default=0.02, positive=True, unit="m")
-        for key in ("fixed_below", "fixed_above"):
-            if key in props:
-                setattr(spec, key, errors.number(props, key, where, unit="m", minimum=PLAUSIBLE["place"][0],
-                                                 maximum=PLAUSIBLE["place"][1]))
-        # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
-        for key, unit, bound in (("velocity", "m/s", "speed"), ("angular_velocity", "rad/s", "speed"),
-                                 ("spin_centre", "m", "place")):
-            value = errors.vector(props, key, where, unit=unit, plausible=PLAUSIBLE[bound]) if key in props else None
-            if value is not None:
-                setattr(spec, key, value)
-        if "drive_times" in props or "drive_offsets" in props:
-            if kind not in ("fem", "cloth"):
-                errors.add(f"{where}.drive_offsets", "a drive only on a fem or cloth object (it moves the held nodes)",
-                           f"a {kind} object")
-            elif "fixed_below" not in props and "fixed_above" not in props:
-                errors.add(f"{where}.drive_offsets", "held nodes to drive: softvr_fixed_below or softvr_fixed_above",
-                           "neither")
-            spec.drive = _keyframes(props, where, "offsets", errors, prefix="drive_", flat=True)
+            spec.cells = GLTF_CELLS if body.cells is None else float(body.cells)
+        if body.drive is not None:
+            spec.drive = {"times": body.drive.times, "offsets": body.drive.offsets}
         if kind == "cloth":
-            spec.cloth = {"area_density": errors.number(props, "area_density", where, default=0.2, positive=True),
-                          **{k: errors.number(props, k, where, default=d, minimum=0.0) for k, d in (
-                              ("stretch", 200.0), ("shear", 20.0), ("bend", 1.0), ("damping", 0.05),
-                              ("alpha", 0.1))}}
+            spec.cloth = body.cloth_parameters()
         if kind == "tool":
-            spec.tool = {"stiffness": errors.number(props, "stiffness", where, positive=True, unit="N/m"),
-                         "damping": errors.number(props, "damping", where, default=0.0, minimum=0.0, unit="N s/m"),
-                         "haptics": _boolean(props, "haptics", where, errors),
-                         "max_force": errors.number(props, "max_force", where, default=10.0, positive=True,
-                                                    unit="N")}
+            spec.tool = body.tool_parameters()
         if kind in ("kinematic", "tool"):
             keys = _node_motion(doc, buffers, i, origin, where, errors)
             if keys is not None and i in parent:
@@ -911,11 +934,6 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
                     unturn = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0].inv()
                     spec.mesh_data = (unturn.apply(spec.mesh_data[0]), spec.mesh_data[1])
             moving.append((spec, keys))
-        if "collision_triangles" in props:
-            if kind in ("fixed", "cloth"):
-                errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool "
-                           "object", f"a {kind} object")
-            spec.collision_triangles = _count(errors, props, "collision_triangles", where, minimum=4)
         if "render_mesh" in props:
             # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
             other = props["render_mesh"]
@@ -979,7 +997,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     if not bodies and volume is None and not models:
         errors.add("nodes", "at least one node with a softvr_type custom property", "none")
     render["lights"] = _lights(doc, parent, errors)
-    ground = scene_props.get("ground", True)
+    ground = errors.boolean(scene_props, "ground", "scene", default=True)
     ground_adhesion = _adhesion(scene_props, "ground_adhesion_", "scene", errors)
     # What is left to build: the objects without problems of their own (module docstring).
     whats = [w for w, _, _ in errors.items]
@@ -988,9 +1006,6 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
         return any((w == where or w.startswith((where + ".", where + " "))) and
                    (couplings_too or not w.startswith(where + ".coupl")) for w in whats)
 
-    defaults = Problems(None, "defaults")
-    simulation = _complete(simulation, _simulation({}, defaults))
-    render = _complete(render, _render({}, defaults))
     bodies = [b for b in bodies if not flawed(f"node {b.name!r}")]
     models = [m for m, where in zip(models, model_nodes) if not flawed(where)]
     if volume is not None and (flawed(f"node {volume['name']!r}") or len(volumes) > 1):
@@ -1000,11 +1015,11 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     kept = [c for where, c in couplings if not flawed(where, couplings_too=True) and {c["a"], c["b"]} <= present]
     filters = [(c["a"], c["b"]) for where, c in couplings
                if flawed(where, couplings_too=True) and not c["collide"] and {c["a"], c["b"]} <= present]
-    if ground_adhesion is not None and None not in ground_adhesion.values():
+    if ground_adhesion is not None:
         adhesions["ground"] = ground_adhesion
-    adhesions = {k: v for k, v in adhesions.items() if None not in v.values()}
-    planes = [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": simulation["friction"],
-               "size": 3.0, "adhesion": "ground" if "ground" in adhesions else None}] if ground else []
+    plane = Plane().model_dump()  # the ground: a [[plane]] of the description's defaults
+    planes = [{**plane, "friction": simulation["friction"], "adhesion": "ground" if "ground" in adhesions else None}
+              ] if ground else []
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=[], bodies=bodies, filters=filters, couplings=kept, models=models,
                       volume=volume, display=display)
@@ -1013,29 +1028,27 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
 
 def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | None:
     """The :class:`softvr.contact.Adhesion` parameters of the ``softvr_<prefix>*`` extras, or
-    None when there are none."""
-    from softvr.scene.schema import adhesion_parameters
-
+    None when there are none (or they have a problem)."""
     table = {k[len(prefix):]: v for k, v in props.items() if k.startswith(prefix)}
     return adhesion_parameters(table, f"{where}.{prefix.rstrip('_')}", errors) if table else None
 
 
 def _display(scene_props: dict, folder: Path, errors: Problems) -> str | None:
-    """``softvr_display``: a :mod:`softvr.cave` display preset, or a display file (relative to
-    the scene's folder)."""
-    from softvr.cave.display import PRESETS, load_display
-
+    """``softvr_display``: a display preset (:data:`softvr.scene.display.PRESETS`), or a display
+    file (relative to the scene's folder)."""
     value = scene_props["display"]
-    if isinstance(value, str) and value in PRESETS:
+    if isinstance(value, str) and value in DISPLAY_PRESETS:
         return value
     if isinstance(value, str) and value.lower().endswith(".toml"):
-        try:  # loaded now, to check it (as a TOML scene's [display] file)
-            return str(load_display(file_name(folder, value, "scene.display")).name)
+        try:  # read now, to check it (as a TOML scene's [display] file)
+            file = file_name(folder, value, "scene.display")
+            read_display(file)
+            return str(file.name)
         except InputError as exc:
             errors.add("scene.display", "a valid display file", str(exc))
             return None
-    errors.add("scene.display", f"a display preset ({', '.join(PRESETS)}) or an existing display file (.toml)",
-               repr(value))
+    errors.add("scene.display", f"a display preset ({', '.join(DISPLAY_PRESETS)}) or an existing display file "
+               "(.toml)", repr(value))
     return None
 
 

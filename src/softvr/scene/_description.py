@@ -1,0 +1,739 @@
+"""The scene description: every table of a scene file as one pydantic model, its defaults written once.
+
+A TOML scene file (:mod:`softvr.scene.schema`) and a glTF scene's extras (:mod:`softvr.scene.gltf`)
+are both validated by these models. Each field's type checks its value and words what was
+expected as the rest of softvr does (:class:`softvr.errors.Problems`: SI units, a number written
+with a unit told its SI value, counts bounded by :data:`LIMITS`); every model refuses keys it does
+not know, naming the nearest known one. :func:`read_table` validates one table and turns
+pydantic's errors into softvr's ``(field path, expected, found)`` problems, all at once; a bad
+field then takes its default, so that the valid rest of a file can still be built
+(``softvr check``). Rules between the fields of a table (a body's shape allowed for its type, a
+tool's required stiffness) are the models' ``problems`` methods; references between tables
+(material names, body names) are checked by the readers, which see the whole file.
+"""
+
+import copy
+import dataclasses
+import typing
+from pathlib import Path
+from typing import Annotated, Any, ClassVar
+
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr, ValidationError, ValidationInfo,
+                      model_validator)
+from pydantic_core import PydanticCustomError
+
+from softvr.errors import InputError, Problems
+from softvr.files import checked_file, file_name
+from softvr.scene._keys import known_key
+from softvr.sim import Scene
+from softvr.volume.tetmesh import TET_MESH_SUFFIXES
+
+__all__ = ["BODY_TYPES", "DATASETS", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE", "Adhesion", "Body", "Coupling",
+           "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
+           "Render", "Simulation", "Sphere", "Volume", "known_key", "read_table"]
+
+BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
+MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
+#: ``[volume] file`` names of the volumes in :mod:`softvr.datasets`.
+DATASETS = {"head-ct": "head_ct", "mri-ch2": "mri_ch2", "mri-ch2better": "mri_ch2better"}
+#: What a value can be in its SI unit (:class:`softvr.errors.Problems`): outside, it was most
+#: likely written in other units (a step in ms, a density in g/cm^3, a stiffness in MPa, a
+#: size in mm) and is reported instead of simulated.
+PLAUSIBLE = {"dt": (1e-7, 0.1),            # [s] a contact simulation's step
+             "density": (10.0, 30000.0),   # [kg/m^3] foams .. osmium
+             "young": (1.0, 1e12),          # [Pa] hydrogels .. diamond
+             "size": (0.0, 50.0),           # [m] a body's box edges, sphere radius, cloth sides
+             "place": (-1e4, 1e4),          # [m] positions, points, centres: within 10 km of the origin
+             "speed": (-1e4, 1e4)}          # [m/s], [rad/s], [m/s^2]: velocities, spins, gravity
+#: Largest count a scene may ask for, checked before anything is built: far above what a
+#: real-time scene needs (a 64^3-cube FEM box is 1.3 million tets), far below what fills a
+#: machine's memory (docs/input-limits.md).
+LIMITS = {"frames": 1_000_000, "steps_per_frame": 10_000, "pgs_iterations": 100_000,
+          "cells": 64,                  # fem box / volume: cubes per axis
+          "surface_quads": 64,          # box: quads along its longest edge (6 n^2 in all)
+          "quads": 1024,                # cloth: quads per side
+          "collision_triangles": 200_000, "skin_triangles": 1_000_000, "render_step": 64}
+#: The contact settings a scene file leaves out are softvr.Scene's own.
+_SCENE = {f.name: f.default for f in dataclasses.fields(Scene)}
+
+
+# --- field types: each checks its value with softvr's wording ------------------------------------------------------
+
+def _problem(expected: str, found, field: str | None = None) -> PydanticCustomError:
+    """A pydantic error carrying softvr's ``expected`` and ``found`` (and a ``field`` below the
+    one validated, for rules between fields); :func:`read_table` reads them back."""
+    context = {"expected": expected, "found": found if isinstance(found, str) else repr(found)[:200]}
+    return PydanticCustomError("softvr", "{expected}", {**context, **({"field": field} if field else {})})
+
+
+def _check(read, *, required: bool = False) -> BeforeValidator:
+    """A field check: ``read(problems, table)`` reads key ``"v"`` of ``table`` with a
+    :class:`~softvr.errors.Problems` getter, so the wording is the one every softvr file gets.
+    ``required``: a missing value (the field's default None, validated) is "nothing", except
+    when :func:`read_table` validates again without the bad fields (context ``partial``)."""
+
+    def check(value, info: ValidationInfo):
+        if value is None and (not required or (info.context or {}).get("partial")):
+            return None
+        problems = Problems(None, "")
+        out = read(problems, {} if value is None else {"v": value})
+        if problems.items:
+            raise _problem(problems.items[0][1], problems.items[0][2])
+        return out
+
+    return BeforeValidator(check)
+
+
+def _required():
+    """A field with no default: missing, it is reported as "nothing" (:func:`_check`)."""
+    return Field(None, validate_default=True)
+
+
+def Number(unit: str = "", *, required: bool = False, **bounds):  # noqa: N802 - a type
+    """A finite number [unit]: ``positive``, ``minimum``, ``maximum``, ``plausible`` as
+    :meth:`softvr.errors.Problems.number`."""
+    return Annotated[float | None, _check(lambda p, t: p.number(t, "v", "", unit=unit, **bounds), required=required)]
+
+
+def Vector(size: int = 3, unit: str = "", *, plausible: tuple | None = None, positive: str | None = None,
+           required: bool = False):  # noqa: N802 - a type
+    """``size`` finite numbers [unit] as a tuple; ``positive``: each > 0, else this is expected."""
+
+    def read(p: Problems, t: dict):
+        value = p.vector(t, "v", "", size, unit=unit, plausible=plausible)
+        if value is not None and positive and min(value) <= 0:
+            p.add("", positive, list(value))
+            return None
+        return value
+
+    return Annotated[tuple[float, ...] | None, _check(read, required=required)]
+
+
+def Count(limit: str | None = None, minimum: int = 0):  # noqa: N802 - a type
+    """An integer >= ``minimum``, and <= :data:`LIMITS` ``[limit]`` when given."""
+
+    def read(p: Problems, t: dict):
+        value = p.integer(t, "v", "", minimum=minimum)
+        if value is not None and limit is not None and value > LIMITS[limit]:
+            p.add("", f"an integer in {minimum} .. {LIMITS[limit]} (softvr's limit for a scene)", value)
+            return None
+        return value
+
+    return Annotated[int | None, _check(read)]
+
+
+def _integers(count: int, top: int, expected: str, default: tuple):
+    """``count`` integers in 1 .. ``top`` (cubes per axis, quads per side), ``default`` when absent."""
+
+    def read(p: Problems, t: dict):
+        value = t.get("v", list(default))
+        if not (isinstance(value, list) and len(value) == count and all(
+                type(c) is int and 1 <= c <= top for c in value)):
+            p.add("", expected, value)
+            return None
+        return tuple(value)
+
+    return Annotated[tuple[int, ...] | None, _check(read)]
+
+
+def _read_color(p: Problems, t: dict):
+    color = p.vector(t, "v", "")
+    if color is not None and not all(0 <= c <= 1 for c in color):
+        p.add("", "r, g, b in [0, 1]", list(color))
+        return None
+    return color
+
+
+Color = Annotated[tuple[float, ...] | None, _check(_read_color)]
+Boolean = Annotated[bool | None, _check(lambda p, t: p.boolean(t, "v", "", default=None))]
+
+
+def Choice(choices, *, required: bool = False):  # noqa: N802 - a type
+    """One of ``choices``."""
+    return Annotated[str | None, _check(lambda p, t: p.choice(t, "v", "", choices), required=required)]
+
+
+def _read_name(p: Problems, t: dict):
+    name = t.get("v")
+    if not isinstance(name, str) or not name:
+        p.add("", "a non-empty string", name if name is not None else "nothing")
+        return None
+    return name
+
+
+Name = Annotated[str | None, _check(_read_name)]
+RequiredName = Annotated[str | None, _check(_read_name, required=True)]
+
+
+def _table_of(expected: str) -> BeforeValidator:
+    """A nested table (``[body.motion]``): anything else is reported as not ``expected``."""
+
+    def check(value):
+        if value is not None and not isinstance(value, dict):
+            raise _problem(expected, type(value).__name__ if not isinstance(value, (int, float, str)) else value)
+        return value
+
+    return BeforeValidator(check)
+
+
+def existing_file(folder: Path, name, field: str, suffixes: tuple, what: str) -> Path:
+    """The existing regular file ``name`` (relative to ``folder``) of one of ``suffixes``, read
+    later through :mod:`softvr.files`; else an :class:`InputError` naming ``field``, ``what``
+    was expected."""
+    try:
+        path = file_name(folder, name, field)
+    except InputError as exc:
+        raise InputError(field, f"{what} name ({exc.expected})", exc.found) from None
+    if path.suffix.lower() not in suffixes:
+        raise InputError(field, f"{what} ({', '.join(suffixes)})", repr(name)[:200])
+    try:
+        checked_file(path, field)
+    except InputError as exc:
+        raise InputError(field, exc.expected, f"{exc.found}: {path}" if exc.found != "no such file"
+                         else f"no file {path}") from None
+    return path
+
+
+def File(suffixes: tuple, what: str):  # noqa: N802 - a type
+    """An :func:`existing_file` named relative to the scene's folder (validation context ``folder``)."""
+
+    def check(value, info: ValidationInfo):
+        if value is None:
+            return None
+        try:
+            return existing_file((info.context or {}).get("folder", Path(".")), value, info.field_name, suffixes,
+                                 what)
+        except InputError as exc:
+            raise _problem(exc.expected, exc.found) from None
+
+    return Annotated[Path | None, BeforeValidator(check)]
+
+
+class _Table(BaseModel):
+    """A table of a scene file: unknown keys refused (named with the nearest known one)."""
+
+    model_config = ConfigDict(extra="forbid")
+    #: How a value that is not this table is described ("a [simulation] table").
+    WHAT: ClassVar[str] = "a table"
+    #: The keys the table was written with, bad ones too (:func:`read_table`): the rules
+    #: between fields judge what was written, not what was left after a bad value.
+    _given: set = PrivateAttr(default_factory=set)
+
+    @property
+    def given(self) -> set:
+        return self._given or set(self.model_fields_set)
+
+    def problems(self) -> list:
+        """(field, expected, found) of what its fields get wrong together (none by default)."""
+        return []
+
+
+# --- keyframes ----------------------------------------------------------------------------------------------------
+
+def _number_in_place(x) -> bool:  # times [s], positions [m], angles [deg] alike: within 10 km / 1e4
+    low, high = PLAUSIBLE["place"]
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and low <= x <= high
+
+
+def _read_times(p: Problems, t: dict):
+    times = t.get("v")
+    if not (isinstance(times, list) and times and all(map(_number_in_place, times))
+            and all(b > a for a, b in zip(times, times[1:]))):
+        p.add("", "increasing times [s], at least one", times if times is not None else "nothing")
+        return None
+    return times
+
+
+def _triples(expected: str):
+    def read(p: Problems, t: dict):
+        value = t.get("v")
+        if not (isinstance(value, list) and all(isinstance(v, list) and len(v) == 3 and all(map(_number_in_place, v))
+                                                for v in value)):
+            p.add("", expected, value if value is not None else "nothing")
+            return None
+        return value
+
+    return read
+
+
+Times = Annotated[list | None, _check(_read_times, required=True)]
+_POSITIONS = "one [x, y, z] [m] per time"
+_ROTATIONS = "one [rx, ry, rz] [deg] per time (about x, then y, then z)"
+
+
+class Motion(_Table):
+    """``[body.motion]``: a kinematic body's or a tool handle's keyframes, linear between."""
+
+    times: Times = _required()                     # [s]
+    positions: Annotated[list | None, _check(_triples(_POSITIONS), required=True)] = _required()   # [m]
+    rotations: Annotated[list | None, _check(_triples(_ROTATIONS))] = None                          # [deg]
+
+    @model_validator(mode="after")
+    def _one_per_time(self):
+        if self.positions is not None and self.times is not None and len(self.positions) != len(self.times):
+            raise _problem(_POSITIONS, self.positions, "positions")
+        if self.rotations is not None and self.times is not None and len(self.rotations) != len(self.times):
+            raise _problem(_ROTATIONS, self.rotations, "rotations")
+        return self
+
+
+class Drive(_Table):
+    """``[body.drive]``: offsets [m] of a fem or cloth body's held nodes at times [s]."""
+
+    times: Times = _required()
+    offsets: Annotated[list | None, _check(_triples(_POSITIONS), required=True)] = _required()
+
+    @model_validator(mode="after")
+    def _one_per_time(self):
+        if self.offsets is not None and self.times is not None and len(self.offsets) != len(self.times):
+            raise _problem(_POSITIONS, self.offsets, "offsets")
+        return self
+
+
+# --- the tables -----------------------------------------------------------------------------------------------------
+
+class Simulation(_Table):
+    """``[simulation]`` (a glTF scene's extras): the time step and the contact solver."""
+
+    WHAT: ClassVar[str] = "a [simulation] table"
+    dt: Number("s", positive=True, plausible=PLAUSIBLE["dt"]) = 0.005    # [s]
+    steps_per_frame: Count("steps_per_frame", 1) = 4
+    frames: Count("frames", 1) = 100
+    gravity: Vector(3, "m/s^2", plausible=PLAUSIBLE["speed"]) = _SCENE["gravity"]   # [m/s^2]
+    friction: Number(minimum=0.0) = _SCENE["friction"]
+    pgs_iterations: Count("pgs_iterations", 1) = _SCENE["pgs_iterations"]
+    contact_margin: Number("m", minimum=0.0) = _SCENE["contact_margin"]            # [m]
+    collision_free_start: Boolean = False
+
+
+def _read_views(p: Problems, t: dict):
+    from softvr.render.camera import VIEWS  # noqa: PLC0415 - softvr.render loads VTK: only when a scene is read
+
+    camera = t.get("v")
+    if not isinstance(camera, str) or camera not in VIEWS:
+        p.add("", f"a view name ({', '.join(VIEWS)})", camera)
+        return None
+    return camera
+
+
+class Render(_Table):
+    """``[render]`` (a glTF scene's extras): the camera, the image and its light."""
+
+    WHAT: ClassVar[str] = "a [render] table"
+    size: _integers(2, 16384, "[width, height] in pixels, 1..16384", (640, 480)) = (640, 480)   # [pixels]
+    camera: Annotated[str | None, _check(_read_views)] = "iso"
+    azimuth: Number("deg") = 0.0
+    elevation: Number("deg") = 0.0
+    zoom: Number(positive=True) = 1.0
+    bounds: Vector(6, "m", plausible=PLAUSIBLE["place"]) = None                    # [m] None: fitted
+    background: Color = (0.10, 0.11, 0.13)
+    background_top: Color = (0.32, 0.36, 0.43)
+    light_kit: Boolean = True
+
+
+class Light(_Table):
+    """``[[light]]``: a directional light."""
+
+    position: Vector(3, "m", plausible=PLAUSIBLE["place"], required=True) = _required()
+    focal_point: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)
+    color: Color = (1.0, 1.0, 1.0)
+    intensity: Number(minimum=0.0) = 1.0
+
+
+class Material(_Table):
+    """``[material.NAME]`` (a glTF node's extras): an isotropic linear-elastic material."""
+
+    young: Number("Pa", positive=True, plausible=PLAUSIBLE["young"]) = 1e5          # [Pa]
+    poisson: Number(minimum=-0.99, maximum=0.5) = 0.3
+    density: Number("kg/m^3", positive=True, plausible=PLAUSIBLE["density"]) = 1000.0   # [kg/m^3]
+    alpha: Number("1/s", minimum=0.0) = 0.0                                          # [1/s]
+    beta: Number("s", minimum=0.0) = 0.0                                             # [s]
+
+
+_PARAMETER = Number(minimum=0.0)
+_REQUIRED_PARAMETER = Number(minimum=0.0, required=True)
+
+
+class Adhesion(_Table):
+    """``[adhesion.NAME]`` (a glTF node's ``softvr_adhesion_*``): :class:`softvr.contact.Adhesion`'s
+    parameters; the three without a default there are required."""
+
+    stiffness: _REQUIRED_PARAMETER = _required()      # [N/m^3]
+    max_energy: _REQUIRED_PARAMETER = _required()     # [J/m^2]
+    viscosity: _REQUIRED_PARAMETER = _required()      # [J s/m^2]
+    bonding_rate: _PARAMETER = None                   # [1/(Pa s)]
+    saturation: _PARAMETER = None                     # [Pa]
+    initial: _PARAMETER = None
+    debond_gap: _PARAMETER = None                     # [m]
+
+    def parameters(self) -> dict:
+        """The keyword arguments of :class:`softvr.contact.Adhesion` (its defaults for the rest)."""
+        return {k: v for k, v in self.model_dump().items() if v is not None or k in ("stiffness", "max_energy",
+                                                                                     "viscosity")}
+
+
+def _read_normal(p: Problems, t: dict):
+    normal = p.vector(t, "v", "", plausible=PLAUSIBLE["place"])
+    if normal is not None and sum(c * c for c in normal) < 1e-12:
+        p.add("", "a direction: 3 numbers, not all zero", list(normal))
+        return None
+    return normal
+
+
+class Plane(_Table):
+    """``[[plane]]``: a static half-space (``friction`` None: the simulation's)."""
+
+    point: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)           # [m]
+    normal: Annotated[tuple[float, ...] | None, _check(_read_normal)] = (0.0, 0.0, 1.0)
+    friction: Number(minimum=0.0) = None
+    size: Number("m", positive=True, maximum=PLAUSIBLE["place"][1]) = 3.0           # [m] drawn square
+    adhesion: Any = None                                                            # an [adhesion.NAME]
+
+
+class Sphere(_Table):
+    """``[[sphere]]``: a static sphere (``friction`` None: the simulation's)."""
+
+    center: Vector(3, "m", plausible=PLAUSIBLE["place"], required=True) = _required()     # [m]
+    radius: Number("m", positive=True, plausible=PLAUSIBLE["size"], required=True) = _required()   # [m]
+    friction: Number(minimum=0.0) = None
+    adhesion: Any = None
+
+
+class Filter(_Table):
+    """``[[filter]]``: two bodies that never collide (names checked by the reader)."""
+
+    a: Any = None
+    b: Any = None
+
+
+def _read_points(p: Problems, t: dict):
+    points = t.get("v")
+    if not (isinstance(points, list) and points and all(
+            isinstance(q, list) and len(q) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                        for x in q) for q in points)):
+        p.add("", "a list of [x, y, z] [m]", points)
+        return None
+    return points
+
+
+class Coupling(_Table):
+    """``[[coupling]]``: zero-length springs (thesis 5.3.2) from ``a``'s nodes within ``radius``
+    of ``b``'s surface, or at world ``points`` (names checked by the reader)."""
+
+    a: Any = None
+    b: Any = None
+    radius: Number("m", minimum=0.0) = None                                         # [m]
+    points: Annotated[list | None, _check(_read_points)] = None                     # [m]
+    stiffness: Number("N/m", positive=True, required=True) = _required()            # [N/m] per spring
+    damping: Number("N s/m", minimum=0.0) = 0.0                                     # [N s/m]
+    collide: Boolean = False
+
+    def problems(self) -> list:
+        out = []
+        if "points" in self.given and "radius" in self.given:
+            out.append(("points", "radius or points, not both", "both"))
+        elif "points" not in self.given and "radius" not in self.given:
+            out.append(("radius", "a number [m]", "nothing"))
+        return out
+
+
+class ModelTable(_Table):
+    """``[[model]]``: a parts file (.toml) or a built model (.npz) and its parts' looks (parts
+    checked by the reader, which loads the file)."""
+
+    file: Any = None
+    colors: Annotated[dict | None, _table_of("a table: part name = value")] = None
+    opacity: Annotated[dict | None, _table_of("a table: part name = value")] = None
+
+
+def _read_cells(p: Problems, t: dict):
+    """A fem body's cells: cubes per axis (1 or 3 integers) or a cube size [m]; which one its
+    shape takes is :meth:`Body.problems`'."""
+    cells = t.get("v")
+    if isinstance(cells, list):
+        top = LIMITS["cells"]
+        if not (len(cells) == 3 and all(type(c) is int and 1 <= c <= top for c in cells)):
+            p.add("", f"cubes per axis: an integer in 1 .. {top} or 3 of them", cells)
+            return None
+        return tuple(cells)
+    if type(cells) is int and cells >= 1:  # cubes per axis of a box, or a mesh's cube size [m]
+        return cells
+    return p.number(t, "v", "", positive=True, unit="m")
+
+
+def _read_body_names(p: Problems, t: dict):
+    names = t.get("v")
+    if not (isinstance(names, list) and all(isinstance(o, str) for o in names)):
+        p.add("", "a list of body names", names)
+        return None
+    return tuple(names)
+
+
+#: A body's shape keys (exactly one) and the shapes each body type takes.
+SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
+          "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
+SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
+#: Defaults of a cloth body's and a tool's own fields (``damping`` and ``alpha`` are both's).
+CLOTH = {"quads": (16, 16), "area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05,
+         "alpha": 0.1}
+TOOL = {"damping": 0.0, "haptics": False, "max_force": 10.0}
+#: A FEM box's cubes per axis (a TOML mesh or sphere body states its cube size [m]) and a FEM
+#: glTF object's cube size [m].
+BOX_CELLS = 4
+GLTF_CELLS = 0.02
+
+
+class Body(_Table):
+    """``[[body]]`` (a glTF node's extras, without the shape): a body, its shape, its start and
+    its type's own fields (module docstring of :mod:`softvr.scene.schema`). Fields that
+    another type takes a default from :data:`CLOTH` or :data:`TOOL` (None here: not given)."""
+
+    name: RequiredName = _required()
+    type: Choice(BODY_TYPES, required=True) = _required()
+    box: Vector(3, "m", plausible=PLAUSIBLE["size"], positive="3 edge lengths > 0 [m]") = None
+    sphere: Number("m", positive=True, plausible=PLAUSIBLE["size"]) = None           # [m] radius
+    mesh: File(MESH_SUFFIXES, "a mesh file") = None
+    tets: File(TET_MESH_SUFFIXES, "a tet mesh file") = None
+    cloth: Vector(2, "m", plausible=PLAUSIBLE["size"]) = None                         # [m] w, h
+    cells: Annotated[Any, _check(_read_cells)] = None
+    scale: Vector(3, positive="3 factors > 0") = (1.0, 1.0, 1.0)    # sphere / mesh / tets: along its axes
+    surface_quads: Count("surface_quads", 1) = 1                     # box
+    subdivisions: Count() = 3                                        # sphere: icosphere subdivisions
+    render_mesh: File(MESH_SUFFIXES, "a mesh file") = None
+    collision_triangles: Count("collision_triangles", 4) = None
+    collides_with: Annotated[tuple | None, _check(_read_body_names)] = None
+    material: Any = None
+    adhesion: Any = None
+    position: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)        # [m]
+    rotation: Vector(3, "deg", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)      # [deg] x, then y, then z
+    velocity: Vector(3, "m/s", plausible=PLAUSIBLE["speed"]) = (0.0, 0.0, 0.0)      # [m/s]
+    angular_velocity: Vector(3, "rad/s", plausible=PLAUSIBLE["speed"]) = (0.0, 0.0, 0.0)   # [rad/s]
+    spin_centre: Vector(3, "m", plausible=PLAUSIBLE["place"]) = None                # [m]
+    fixed_below: Number("m", minimum=PLAUSIBLE["place"][0], maximum=PLAUSIBLE["place"][1]) = None   # [m]
+    fixed_above: Number("m", minimum=PLAUSIBLE["place"][0], maximum=PLAUSIBLE["place"][1]) = None   # [m]
+    color: Color = (0.8, 0.6, 0.5)
+    drive: Annotated[Drive | None, _table_of("a table: times [s] and offsets [m]")] = None
+    motion: Annotated[Motion | None, _table_of("a table: times [s] and positions [m]")] = None
+    quads: _integers(2, LIMITS["quads"], f"[nu, nv] quads, integers in 1 .. {LIMITS['quads']}", CLOTH["quads"]) = None
+    area_density: Number("kg/m^2", positive=True) = None          # [kg/m^2]
+    stretch: Number("N/m", minimum=0.0) = None                    # [N/m]
+    shear: Number("N/m", minimum=0.0) = None                      # [N/m]
+    bend: Number("N/m", minimum=0.0) = None                       # [N/m]
+    damping: Number("N s/m", minimum=0.0) = None                  # [N s/m] cloth, or the tool's coupling
+    alpha: Number("1/s", minimum=0.0) = None                      # [1/s] cloth
+    stiffness: Number("N/m", positive=True) = None                # [N/m] tool: hand - tool coupling
+    haptics: Boolean = None
+    max_force: Number("N", positive=True) = None                  # [N]
+
+    def shape(self) -> str | None:
+        """The one shape key given, when it is one the body's type takes."""
+        given = [s for s in SHAPE_KEYS if s in self.given]
+        return given[0] if len(given) == 1 and given[0] in SHAPES.get(self.type, SHAPE_KEYS) else None
+
+    def problems(self) -> list:
+        """The rules between a body's fields (module docstring of :mod:`softvr.scene.schema`)."""
+        given, kind, out = self.given, self.type, []
+        allowed = SHAPES.get(kind, ("box", "sphere", "mesh", "cloth"))
+        shapes = [s for s in SHAPE_KEYS if s in given]
+        shape = self.shape()
+        if shape is None:
+            out.append(("", f"one shape of {' | '.join(allowed)} for a {kind or 'body'}",
+                        ", ".join(shapes) if shapes else "no shape"))
+        if "scale" in given and shape not in ("sphere", "mesh", "tets"):
+            out.append(("scale", "a scale only on a sphere, mesh or tets shape", f"a {shape} shape"))
+        if "surface_quads" in given and (shape != "box" or kind == "fixed"):
+            out.append(("surface_quads", "surface quads only on a moving box", f"a {kind} {shape}"))
+        if "subdivisions" in given and shape != "sphere":
+            out.append(("subdivisions", "subdivisions only on a sphere", f"a {shape} shape"))
+        if "render_mesh" in given and kind not in ("rigid", "fem", "kinematic", "tool", "fixed"):
+            out.append(("render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed body",
+                        f"a {kind} body"))
+        if "collision_triangles" in given and (shape not in ("mesh", "sphere") or kind == "fixed"):
+            out.append(("collision_triangles", "a triangle budget only on a moving mesh or sphere",
+                        f"a {kind} {shape}"))
+        top = LIMITS["cells"]
+        if kind == "fem" and shape in ("mesh", "sphere"):
+            if "cells" not in given:
+                out.append(("cells", "a number > 0 [m]", "nothing"))
+            elif isinstance(self.cells, tuple):
+                out.append(("cells", "a number > 0 [m]", list(self.cells)))
+        elif kind == "fem" and shape == "box" and isinstance(self.cells, float):
+            out.append(("cells", f"cubes per axis: an integer in 1 .. {top} or 3 of them", self.cells))
+        elif kind == "fem" and shape == "box" and isinstance(self.cells, int) and self.cells > top:
+            out.append(("cells", f"an integer in 1 .. {top} (softvr's limit for a scene)", self.cells))
+        if "drive" in given:
+            if kind not in ("fem", "cloth"):
+                out.append(("drive", "a drive only on a fem or cloth body (it moves the held nodes)", f"a {kind} body"))
+            elif "fixed_below" not in given and "fixed_above" not in given:
+                out.append(("drive", "held nodes to drive: fixed_below or fixed_above", "neither"))
+        if kind in ("kinematic", "tool") and "motion" not in given:
+            out.append(("motion", "a table: times [s] and positions [m]", "nothing"))
+        elif "motion" in given and kind not in ("kinematic", "tool"):
+            out.append(("motion", "a motion only on a kinematic body or a tool", f"a {kind} body"))
+        if kind == "tool" and self.motion is not None and self.motion.rotations is not None:
+            out.append(("motion.rotations", "positions only on a tool (its handle is a point; a kinematic body may "
+                        "rotate)", "rotations"))
+        if kind == "tool" and "stiffness" not in given:
+            out.append(("stiffness", "a number > 0 [N/m]", "nothing"))
+        return out
+
+    def cloth_parameters(self) -> dict:
+        """A cloth body's quads and material (:data:`CLOTH` for what it does not give)."""
+        return {k: d if getattr(self, k) is None else getattr(self, k) for k, d in CLOTH.items()}
+
+    def tool_parameters(self) -> dict:
+        """A tool's coupling to its handle (:data:`TOOL` for what it does not give)."""
+        return {"stiffness": self.stiffness, **{k: d if getattr(self, k) is None else getattr(self, k)
+                                                for k, d in TOOL.items()}}
+
+
+def _read_volume_file(p: Problems, t: dict):
+    file = t.get("v")
+    if not isinstance(file, str):
+        p.add("", f"a volume file or folder, or a dataset ({', '.join(DATASETS)})", file if file is not None else
+              "nothing")
+        return None
+    return file
+
+
+def _read_preset(p: Problems, t: dict):
+    from softvr.render import PRESETS  # noqa: PLC0415 - softvr.render loads VTK: only when a volume is read
+
+    preset = t.get("v")
+    if not isinstance(preset, str) or preset not in PRESETS:
+        p.add("", f"one of {', '.join(sorted(PRESETS))}", preset)
+        return None
+    return preset
+
+
+class Volume(_Table):
+    """``[volume]`` (a glTF volume node's extras): a CT / MRI embedded in a FEM body built from
+    its voxels (thesis 3.3.2); ``file`` (a dataset name, or a file the reader resolves)."""
+
+    WHAT: ClassVar[str] = "a [volume] table"
+    file: Annotated[str | None, _check(_read_volume_file, required=True)] = _required()
+    name: Name = "volume"
+    unit: Number("m per volume unit", positive=True) = 0.001                        # [m] per volume unit
+    cells: _integers(3, LIMITS["cells"], f"3 integers in 1 .. {LIMITS['cells']} (mesh cubes per axis)",
+                     (16, 16, 8)) = (16, 16, 8)
+    threshold: Number() = -300.0
+    skin_triangles: Count("skin_triangles", 4) = 4000
+    fix_denser_than: Number("kg/m^3", positive=True) = 1150.0                        # [kg/m^3]
+    alpha: Number("1/s", minimum=0.0) = 2.0                                          # [1/s]
+    beta: Number("s", minimum=0.0) = 0.01                                            # [s]
+    preset: Annotated[str | None, _check(_read_preset)] = "ct-skin"
+    render_step: Count("render_step", 1) = 2
+    incremental: Boolean = True
+    mask: Boolean = True
+    animation: File((".npz",), "a node animation") = None
+
+
+class DisplayTable(_Table):
+    """``[display]``: a display preset or a display file (checked by the reader)."""
+
+    preset: Any = None
+    file: Any = None
+
+
+class Document(_Table):
+    """A scene file's top-level keys (each table validated by its own model)."""
+
+    format: Any = None
+    simulation: Any = None
+    render: Any = None
+    material: Any = None
+    adhesion: Any = None
+    plane: Any = None
+    sphere: Any = None
+    body: Any = None
+    filter: Any = None
+    coupling: Any = None
+    model: Any = None
+    volume: Any = None
+    display: Any = None
+    light: Any = None
+
+
+# --- validation -----------------------------------------------------------------------------------------------------
+
+def _model_of(annotation) -> type[BaseModel] | None:
+    """The model class inside a field's annotation (``Annotated[Motion | None, ...]``)."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    return next((m for a in typing.get_args(annotation) if (m := _model_of(a)) is not None), None)
+
+
+def _path(loc) -> str:
+    return "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in loc)
+
+
+def _problems(exc: ValidationError, model: type[BaseModel], where: str) -> list:
+    """softvr's ``(field path, expected, found)`` of each of pydantic's errors."""
+    out = []
+    for e in exc.errors(include_url=False):
+        loc = e["loc"]
+        if e["type"] == "extra_forbidden":
+            owner = model
+            for step in loc[:-1]:
+                owner = _model_of(owner.model_fields[step].annotation) if isinstance(step, str) else owner
+            out.append((f"{where}{_path(loc)}".lstrip("."), known_key(owner.model_fields, loc[-1]), repr(loc[-1])))
+        elif e["type"] == "softvr":
+            field = e["ctx"].get("field")
+            out.append((f"{where}{_path(loc)}{'.' + field if field else ''}".lstrip("."), e["ctx"]["expected"],
+                        e["ctx"]["found"]))
+        else:  # a check of pydantic's own (none is expected: every field has a softvr check)
+            out.append((f"{where}{_path(loc)}".lstrip("."), e["msg"], repr(e.get("input"))[:200]))
+    return out
+
+
+def _drop(data: dict, loc: tuple) -> bool:
+    """Remove the bad value at ``loc`` from ``data``: a key of a nested table, not the whole
+    table, so that its other fields are judged on. Whether there was one to remove."""
+    if not loc:
+        return False
+    *parents, key = loc
+    table = data
+    for step in parents:
+        nested = table.get(step) if isinstance(table, dict) else None
+        if not isinstance(nested, dict):  # inside a list: the field is dropped whole
+            return data.pop(loc[0], _MISSING) is not _MISSING
+        table = nested
+    return table.pop(key, _MISSING) is not _MISSING
+
+
+_MISSING = object()
+
+
+def read_table(model: type[_Table], table, where: str, errors: Problems, *, folder: Path | None = None,
+               rules: bool = True):
+    """``table`` validated as ``model``, its problems added to ``errors`` named under ``where``
+    (``body[2]``, ``node 'cube'``): the model, its bad fields taking their defaults (None when
+    a required one is bad, or ``table`` is no table), and whether it had a problem.
+
+    ``folder``: where file names are relative to; ``rules``: with the model's rules between
+    fields (``problems``; a glTF node has its own).
+    """
+    if not isinstance(table, dict):
+        errors.add(where, model.WHAT, table if isinstance(table, (int, float, str)) else type(table).__name__)
+        return None, True
+    found, data, context = [], copy.deepcopy(table), {"folder": folder or Path(".")}
+    for _ in range(len(data) + 1):
+        try:
+            out = model.model_validate(data, context=context)
+        except ValidationError as exc:
+            new = [p for p in _problems(exc, model, where) if p not in found]
+            found += new
+            dropped = [_drop(data, e["loc"]) for e in exc.errors()]  # every one, not the first only
+            if not new or not any(dropped) and context.get("partial"):
+                out = None
+                break
+            # Again without the bad fields: they take their defaults, the rest is judged on.
+            context = {**context, "partial": True}
+            continue
+        out._given = set(table)
+        found += [(f"{where}.{f}" if f else where, e, v if isinstance(v, str) else repr(v))
+                  for f, e, v in (out.problems() if rules else [])]
+        break
+    errors.items.extend(found)
+    return out, bool(found)
+
