@@ -54,15 +54,10 @@ ALLOWED = {
     ("softvr.model.build", "softvr.scene.gltf"):
         "load_mesh checks a glTF's buffers with check_gltf, whose home is scene/gltf.py; it moves to "
         "softvr.files when the glTF reader is rewritten (issue 19)",
-    ("softvr.scene.gltf", "softvr.cave.display"):
-        "glTF scenes hold display descriptions, which live in cave (issue 19: scene ⇄ cave)",
-    ("softvr.app._record", "softvr.render._atomic"): _WRITES,
     ("softvr.bench._report", "softvr.render._atomic"): _WRITES,
     ("softvr.blender", "softvr.render._atomic"): _WRITES,
     ("softvr.cave.display", "softvr.render._atomic"): _WRITES,
     ("softvr.app._window", "softvr.render._live"): _RENDER,
-    ("softvr.examples.run", "softvr.render._backend"): _RENDER,
-    ("softvr.scene._command", "softvr.render._backend"): _RENDER,
     ("softvr.bench._volume_peers", "softvr.volume._volume"):
         "the volume bench reads a private module of softvr.volume until the benches are rewritten (issue 19)",
     ("softvr.bench.cave", "softvr.cave._command"):

@@ -15,13 +15,15 @@ tree; :func:`file_name` checks a file name an input writes (NUL bytes, lengths);
 turns a native reader's exceptions and ``sys.exit`` into an error naming the file.
 
 Output is written here too, atomically: :func:`atomic_output` (a temporary file in the target's
-folder, renamed over it on success) and :func:`write_json`.
+folder, renamed over it on success), :func:`atomic_files` (a file and the files its writer puts
+beside it), :func:`atomic_folder` (a folder swapped in) and :func:`write_json`.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 import stat
 import tempfile
 import tomllib
@@ -35,7 +37,8 @@ import numpy as np
 
 from softvr.errors import InputError, SoftvrError
 
-__all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "atomic_output", "checked_file",
+__all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "atomic_files", "atomic_folder",
+           "atomic_output", "checked_file",
            "check_count", "check_npz", "check_tree", "file_name", "inside_folder", "load_json", "native_read",
            "read_text", "read_toml", "write_json"]
 
@@ -301,6 +304,55 @@ def atomic_output(path: str | os.PathLike, suffix: str) -> Iterator[Path]:
         except FileNotFoundError:
             pass
         raise
+
+
+@contextmanager
+def atomic_files(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield ``path``'s name inside a fresh hidden folder next to it, for a writer that may put
+    more files beside it (an ``.nhdr``'s detached ``.raw``); on success every file written there
+    is moved next to ``path`` (:func:`os.replace`), ``path`` itself last, so a reader never finds
+    the header before its data. On failure nothing is moved and the folder is removed."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    folder = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent))
+    try:
+        main = folder / path.name
+        yield main
+        if not main.is_file():
+            raise RuntimeError(f"writer produced no {path.name}")
+        for f in sorted(f for f in folder.iterdir() if f.name != path.name) + [main]:
+            os.replace(f, parent / f.name)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@contextmanager
+def atomic_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a fresh hidden folder next to ``path`` to fill; on success it takes ``path``'s place.
+    A folder already at ``path`` is moved aside first and deleted only once the new one is in (put
+    back if the swap fails), so a failure at any point leaves the old folder as it was."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    folder = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent))
+    backup: Path | None = None
+    try:
+        yield folder
+        os.chmod(folder, 0o777 & ~_umask())  # mkdtemp's 0o700, opened up as a plain mkdir would
+        if path.is_dir():
+            backup = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=parent))
+            os.rmdir(backup)
+            os.rename(path, backup)
+        try:
+            os.rename(folder, path)
+        except BaseException:
+            if backup is not None:
+                os.rename(backup, path)
+                backup = None
+            raise
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+        if backup is not None:
+            shutil.rmtree(backup, ignore_errors=True)
 
 
 def write_json(data: dict, path: str | os.PathLike) -> Path:

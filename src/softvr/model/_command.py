@@ -17,6 +17,7 @@ import numpy as np
 
 from softvr.errors import InputError
 from softvr.files import atomic_output, checked_file
+from softvr.geometry import tet_signed_volumes
 from softvr.model.build import load_mesh
 from softvr.model.representations import dynamics_mesh
 from softvr.volume import save_tet_mesh, tet_edges
@@ -54,7 +55,7 @@ def tetmesh_main(argv: list[str] | None = None) -> int:
                                        "default SURFACE with .vtu")
     args = p.parse_args(argv)
     out, nodes, tets = write_tetmesh(args.surface, args.cell_size, args.out)
-    volume = np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6.0
+    volume = np.abs(tet_signed_volumes(nodes, tets)).sum()
     print(f"wrote {out}: {len(nodes)} nodes, {len(tets)} tets of {args.cell_size:g} m cubes, "
           f"{volume * 1e6:.4g} cm^3")
     return 0

@@ -14,16 +14,19 @@ and turned into a :class:`softvr.Scene` by :meth:`Model.build_scene`.
 
 from __future__ import annotations
 
+import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody,
                              RigidPoints, embed_in_tets)
 from softvr.errors import InputError
 from softvr.files import atomic_output, check_npz, load_json, native_read
+from softvr.geometry import tet_signed_volumes
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
@@ -316,7 +319,7 @@ def _part_model(p: PartSpec) -> PartModel:
         part.rest_nodes, part.start_nodes, part.tets = nodes, nodes.copy(), tets
         part.render_embedding = embed_surface(nodes, tets, v)
         part.collision_embedding = embed_surface(nodes, tets, cv)
-        part.mass = float(p.density * np.abs(np.linalg.det(nodes[tets[:, 1:]] - nodes[tets[:, :1]])).sum() / 6)
+        part.mass = float(p.density * np.abs(tet_signed_volumes(nodes, tets)).sum())
     else:
         part.mass, part.center, part.inertia = rigid_properties(v, t, p.density, f"part {p.name!r}")
     return part
@@ -326,8 +329,6 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
     """Build a :class:`Model` from a parts file (path or :class:`PartsFile`); the collision-free
     start sweeps the intersecting pairs up to ``separation_rounds`` times, each push taking up
     to ``separation_iterations`` relaxation steps."""
-    from tqdm import tqdm  # noqa: PLC0415
-
     spec = parts if isinstance(parts, PartsFile) else read_parts(parts)
     models = []
     for i, p in enumerate(tqdm(spec.parts, desc="parts", unit="part", disable=not progress)):
@@ -381,8 +382,6 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr build-model PARTS.toml [-o MODEL.npz]``."""
-    import argparse  # noqa: PLC0415
-
     parser = argparse.ArgumentParser(prog="softvr build-model",
                                      description="Build a simulation model from part meshes (thesis 5.2).")
     parser.add_argument("parts", help="parts file (TOML, format 'softvr-parts 1')")

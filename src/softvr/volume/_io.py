@@ -57,15 +57,14 @@ from __future__ import annotations
 
 import bz2
 import contextlib
+import datetime
 import gzip
 import math
 import os
 import plistlib
 import re
-import shutil
 import struct
 import tarfile
-import tempfile
 import warnings
 import zipfile
 import zlib
@@ -74,7 +73,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.files import check_count, checked_file, inside_folder
+from softvr.files import atomic_files, atomic_folder, check_count, checked_file, inside_folder
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
 
 __all__ = ["LOAD_SUFFIXES", "SAVE_SUFFIXES", "load", "save"]
@@ -289,9 +288,17 @@ def save(volume: Volume, path) -> Path:
         raise InputError("folder", "an existing folder to write into", f"{parent} does not exist", source)
     data = _data_for_format(volume, fmt, source)
     if fmt == "dicom":
-        _replace_folder_atomically(p, lambda tmp: _write_dicom(volume, data, tmp), source)
+        if p.exists() and not p.is_dir():
+            raise InputError(
+                "path", "a folder for the DICOM series (or a file name with a suffix)", "an existing file", source
+            )
+        if p.is_dir():
+            _check_replaceable_dicom_folder(p, source)
+        with atomic_folder(p) as folder:
+            _write_dicom(volume, data, folder)
     else:
-        _replace_files_atomically(p, lambda tmp_file: _WRITERS[fmt](volume, data, tmp_file))
+        with atomic_files(p) as file:
+            _WRITERS[fmt](volume, data, file)
     return p
 
 
@@ -546,63 +553,6 @@ def _data_for_format(volume: Volume, fmt: str, source: str) -> np.ndarray:
             "Volume.data dtype", f"one of bool, {names} for {_FORMAT_NAMES[fmt]}{hint}", str(data.dtype), source
         )
     return data
-
-
-def _replace_files_atomically(p: Path, write) -> None:
-    """Run ``write(tmp_path)`` in a temporary folder next to ``p``, then move the result in.
-
-    Every file the writer creates (e.g. a detached ``.raw`` next to an ``.nhdr``) is moved
-    to the target folder with :func:`os.replace`; the main file goes last.
-    """
-    parent = p.parent if str(p.parent) else Path(".")
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent))
-    try:
-        tmp_file = tmpdir / p.name
-        write(tmp_file)
-        produced = sorted(f for f in tmpdir.iterdir() if f.name != p.name) + [tmp_file]
-        if not tmp_file.is_file():
-            raise RuntimeError(f"writer produced no {p.name}")
-        for f in produced:
-            os.replace(f, parent / f.name)
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
-
-
-def _replace_folder_atomically(p: Path, write, source: str) -> None:
-    """Run ``write(tmp_folder)`` then swap the new folder in place of ``p``."""
-    if p.exists() and not p.is_dir():
-        raise InputError(
-            "path", "a folder for the DICOM series (or a file name with a suffix)", "an existing file", source
-        )
-    if p.is_dir():
-        _check_replaceable_dicom_folder(p, source)
-    parent = p.parent if str(p.parent) else Path(".")
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent))
-    backup: Path | None = None
-    try:
-        write(tmpdir)
-        os.chmod(tmpdir, 0o777 & ~_umask())
-        if p.is_dir():
-            backup = Path(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".old", dir=parent))
-            os.rmdir(backup)
-            os.rename(p, backup)
-        try:
-            os.rename(tmpdir, p)
-        except BaseException:
-            if backup is not None:
-                os.rename(backup, p)
-                backup = None
-            raise
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
-        if backup is not None:
-            shutil.rmtree(backup, ignore_errors=True)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _check_replaceable_dicom_folder(p: Path, source: str) -> None:
@@ -1554,8 +1504,6 @@ def _slice_thickness(ds) -> float:
 
 
 def _write_dicom(volume: Volume, data: np.ndarray, folder: Path) -> None:
-    import datetime
-
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.uid import ExplicitVRLittleEndian, SecondaryCaptureImageStorage, generate_uid
     from pydicom.valuerep import format_number_as_ds
