@@ -166,7 +166,8 @@ def load(path, *, is_label: bool | None = None, frame: int | None = None, series
       normalized columns, ``origin`` = the affine translation (RAS+, kept as-is). Singleton
       dimensions beyond the third (``[nx, ny, nz, 1]``) are dropped.
     * DICOM: slices are sorted by ``ImagePositionPatient`` projected on the slice normal
-      (row cosine x column cosine); x runs along the rows (columns of the pixel array),
+      (row cosine x column cosine; not SimpleITK's series reader, which averages over a missing
+      slice and scans folders natively: docs/volume.md); x runs along the rows (columns of the pixel array),
       ``spacing`` = (PixelSpacing[1], PixelSpacing[0], slice-position step) and ``origin``
       = position of the first sorted slice. A multi-frame file is one volume with its
       frames as slices, placed by ``GridFrameOffsetVector`` (RT dose) or the per-frame
