@@ -7,7 +7,6 @@ keeps 24 significant bits, so a float32 round trip is within 2^-24 relative.
 """
 
 import math
-import socket
 import struct
 
 import numpy as np
