@@ -255,7 +255,7 @@ class ScriptedTracker(Tracker):
 # python-osc builds and parses the packets. What it leaves to its callers, and a UDP port open to
 # the network must not: it loops forever on a bundle element of negative size, recurses into
 # bundles without bound, pads a missing last float with zeros (a truncated pose would decode as a
-# pose) and ignores trailing bytes. _check_frames and _canonical below refuse those first.
+# pose) and ignores trailing bytes. _check_frames (before it parses) and _canonical (after) refuse those.
 _TAGS = "fidsTF"  # the argument types softvr reads; python-osc logs a warning per unknown tag
 
 
