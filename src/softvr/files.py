@@ -38,9 +38,8 @@ import numpy as np
 from softvr.errors import InputError, SoftvrError
 
 __all__ = ["MAX_DEPTH", "MAX_ELEMENTS", "MAX_FILE_BYTES", "MAX_TEXT_BYTES", "atomic_files", "atomic_folder",
-           "atomic_output", "checked_file",
-           "check_count", "check_npz", "check_tree", "file_name", "inside_folder", "load_json", "native_read",
-           "read_text", "read_toml", "write_json"]
+           "atomic_output", "checked_file", "check_count", "check_npz", "check_tree", "file_name", "inside_folder",
+           "load_json", "native_read", "read_text", "read_toml", "write_json"]
 
 
 def _limit(name: str, default: int) -> int:
