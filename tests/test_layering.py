@@ -139,6 +139,8 @@ def _violations(graph) -> dict[tuple[str, str], str]:
     found = {}
     for importer, target, line, _ in graph:
         here, there = _layer_of(importer), _layer_of(target)
+        if here not in _RANK or there not in _RANK:
+            continue  # test_every_package_has_a_layer names it
         if here != there and _RANK[there] >= _RANK[here]:
             how = "above" if _RANK[there] > _RANK[here] else "in the tier of"
             found[(importer, target)] = f"line {line}: {importer} imports {target}: {there} is {how} {here}"
@@ -149,7 +151,8 @@ def _violations(graph) -> dict[tuple[str, str], str]:
 
 def test_every_package_has_a_layer():
     """A new package is placed in TIERS (and DESIGN.md) before it is imported."""
-    missing = sorted({_layer_of(m) for m, *_ in _graph()} - set(_RANK))
+    modules = {_module_name(path) for path in (SRC / "softvr").rglob("*.py")}
+    missing = sorted({_layer_of(m) for m in modules} - set(_RANK))
     assert not missing, f"not in TIERS (tests/test_layering.py) nor DESIGN.md's layer order: {missing}"
 
 
