@@ -17,7 +17,7 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
-#: DESIGN.md's layer order, lowest first. A package imports its own modules and any tier below its
+#: DESIGN.md's data flow read as an import order, lowest first. A package imports its own modules and any tier below its
 #: own; packages in one tier are independent of each other. ``softvr`` is the package root (the
 #: public API: ``softvr.Scene`` and the errors). The base is ``errors``, ``files`` (every file read,
 #: TOML / JSON, atomic writes), ``device`` and ``geometry`` (tet-mesh checks). Where DESIGN.md's
