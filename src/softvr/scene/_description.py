@@ -89,14 +89,14 @@ def _required():
     return Field(None, validate_default=True)
 
 
-def Number(unit: str = "", *, required: bool = False, **bounds):  # noqa: N802 - a type
+def number(unit: str = "", *, required: bool = False, **bounds) -> BeforeValidator:
     """A finite number [unit]: ``positive``, ``minimum``, ``maximum``, ``plausible`` as
     :meth:`softvr.errors.Problems.number`."""
-    return Annotated[float | None, _check(lambda p, t: p.number(t, "v", "", unit=unit, **bounds), required=required)]
+    return _check(lambda p, t: p.number(t, "v", "", unit=unit, **bounds), required=required)
 
 
-def Vector(size: int = 3, unit: str = "", *, plausible: tuple | None = None, positive: str | None = None,
-           required: bool = False):  # noqa: N802 - a type
+def vector(size: int = 3, unit: str = "", *, plausible: tuple | None = None, positive: str | None = None,
+           required: bool = False) -> BeforeValidator:
     """``size`` finite numbers [unit] as a tuple; ``positive``: each > 0, else this is expected."""
 
     def read(p: Problems, t: dict):
@@ -106,10 +106,10 @@ def Vector(size: int = 3, unit: str = "", *, plausible: tuple | None = None, pos
             return None
         return value
 
-    return Annotated[tuple[float, ...] | None, _check(read, required=required)]
+    return _check(read, required=required)
 
 
-def Count(limit: str | None = None, minimum: int = 0):  # noqa: N802 - a type
+def count(limit: str | None = None, minimum: int = 0) -> BeforeValidator:
     """An integer >= ``minimum``, and <= :data:`LIMITS` ``[limit]`` when given."""
 
     def read(p: Problems, t: dict):
@@ -119,21 +119,21 @@ def Count(limit: str | None = None, minimum: int = 0):  # noqa: N802 - a type
             return None
         return value
 
-    return Annotated[int | None, _check(read)]
+    return _check(read)
 
 
-def _integers(count: int, top: int, expected: str, default: tuple):
-    """``count`` integers in 1 .. ``top`` (cubes per axis, quads per side), ``default`` when absent."""
+def integers(size: int, top: int, expected: str, default: tuple) -> BeforeValidator:
+    """``size`` integers in 1 .. ``top`` (cubes per axis, quads per side), ``default`` when absent."""
 
     def read(p: Problems, t: dict):
         value = t.get("v", list(default))
-        if not (isinstance(value, list) and len(value) == count and all(
+        if not (isinstance(value, list) and len(value) == size and all(
                 type(c) is int and 1 <= c <= top for c in value)):
             p.add("", expected, value)
             return None
         return tuple(value)
 
-    return Annotated[tuple[int, ...] | None, _check(read)]
+    return _check(read)
 
 
 def _read_color(p: Problems, t: dict):
@@ -148,9 +148,9 @@ Color = Annotated[tuple[float, ...] | None, _check(_read_color)]
 Boolean = Annotated[bool | None, _check(lambda p, t: p.boolean(t, "v", "", default=None))]
 
 
-def Choice(choices, *, required: bool = False):  # noqa: N802 - a type
+def choice(choices, *, required: bool = False) -> BeforeValidator:
     """One of ``choices``."""
-    return Annotated[str | None, _check(lambda p, t: p.choice(t, "v", "", choices), required=required)]
+    return _check(lambda p, t: p.choice(t, "v", "", choices), required=required)
 
 
 def _read_name(p: Problems, t: dict):
@@ -194,7 +194,7 @@ def existing_file(folder: Path, name, field: str, suffixes: tuple, what: str) ->
     return path
 
 
-def File(suffixes: tuple, what: str):  # noqa: N802 - a type
+def file_field(suffixes: tuple, what: str) -> BeforeValidator:
     """An :func:`existing_file` named relative to the scene's folder (validation context ``folder``)."""
 
     def check(value, info: ValidationInfo):
@@ -206,7 +206,7 @@ def File(suffixes: tuple, what: str):  # noqa: N802 - a type
         except InputError as exc:
             raise _problem(exc.expected, exc.found) from None
 
-    return Annotated[Path | None, BeforeValidator(check)]
+    return BeforeValidator(check)
 
 
 class _Table(BaseModel):
@@ -296,13 +296,13 @@ class Simulation(_Table):
     """``[simulation]`` (a glTF scene's extras): the time step and the contact solver."""
 
     WHAT: ClassVar[str] = "a [simulation] table"
-    dt: Number("s", positive=True, plausible=PLAUSIBLE["dt"]) = 0.005    # [s]
-    steps_per_frame: Count("steps_per_frame", 1) = 4
-    frames: Count("frames", 1) = 100
-    gravity: Vector(3, "m/s^2", plausible=PLAUSIBLE["speed"]) = _SCENE["gravity"]   # [m/s^2]
-    friction: Number(minimum=0.0) = _SCENE["friction"]
-    pgs_iterations: Count("pgs_iterations", 1) = _SCENE["pgs_iterations"]
-    contact_margin: Number("m", minimum=0.0) = _SCENE["contact_margin"]            # [m]
+    dt: Annotated[float | None, number("s", positive=True, plausible=PLAUSIBLE["dt"])] = 0.005    # [s]
+    steps_per_frame: Annotated[int | None, count("steps_per_frame", 1)] = 4
+    frames: Annotated[int | None, count("frames", 1)] = 100
+    gravity: Annotated[tuple | None, vector(3, "m/s^2", plausible=PLAUSIBLE["speed"])] = _SCENE["gravity"]   # [m/s^2]
+    friction: Annotated[float | None, number(minimum=0.0)] = _SCENE["friction"]
+    pgs_iterations: Annotated[int | None, count("pgs_iterations", 1)] = _SCENE["pgs_iterations"]
+    contact_margin: Annotated[float | None, number("m", minimum=0.0)] = _SCENE["contact_margin"]            # [m]
     collision_free_start: Boolean = False
 
 
@@ -320,12 +320,13 @@ class Render(_Table):
     """``[render]`` (a glTF scene's extras): the camera, the image and its light."""
 
     WHAT: ClassVar[str] = "a [render] table"
-    size: _integers(2, 16384, "[width, height] in pixels, 1..16384", (640, 480)) = (640, 480)   # [pixels]
+    size: Annotated[tuple | None, integers(2, 16384, "[width, height] in pixels, 1..16384", (640, 480))] = (
+        640, 480)  # [pixels]
     camera: Annotated[str | None, _check(_read_views)] = "iso"
-    azimuth: Number("deg") = 0.0
-    elevation: Number("deg") = 0.0
-    zoom: Number(positive=True) = 1.0
-    bounds: Vector(6, "m", plausible=PLAUSIBLE["place"]) = None                    # [m] None: fitted
+    azimuth: Annotated[float | None, number("deg")] = 0.0
+    elevation: Annotated[float | None, number("deg")] = 0.0
+    zoom: Annotated[float | None, number(positive=True)] = 1.0
+    bounds: Annotated[tuple | None, vector(6, "m", plausible=PLAUSIBLE["place"])] = None  # [m] None: fitted
     background: Color = (0.10, 0.11, 0.13)
     background_top: Color = (0.32, 0.36, 0.43)
     light_kit: Boolean = True
@@ -334,24 +335,25 @@ class Render(_Table):
 class Light(_Table):
     """``[[light]]``: a directional light."""
 
-    position: Vector(3, "m", plausible=PLAUSIBLE["place"], required=True) = _required()
-    focal_point: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)
+    position: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"], required=True)] = _required()
+    focal_point: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"])] = (0.0, 0.0, 0.0)
     color: Color = (1.0, 1.0, 1.0)
-    intensity: Number(minimum=0.0) = 1.0
+    intensity: Annotated[float | None, number(minimum=0.0)] = 1.0
 
 
 class Material(_Table):
     """``[material.NAME]`` (a glTF node's extras): an isotropic linear-elastic material."""
 
-    young: Number("Pa", positive=True, plausible=PLAUSIBLE["young"]) = 1e5          # [Pa]
-    poisson: Number(minimum=-0.99, maximum=0.5) = 0.3
-    density: Number("kg/m^3", positive=True, plausible=PLAUSIBLE["density"]) = 1000.0   # [kg/m^3]
-    alpha: Number("1/s", minimum=0.0) = 0.0                                          # [1/s]
-    beta: Number("s", minimum=0.0) = 0.0                                             # [s]
+    young: Annotated[float | None, number("Pa", positive=True, plausible=PLAUSIBLE["young"])] = 1e5          # [Pa]
+    poisson: Annotated[float | None, number(minimum=-0.99, maximum=0.5)] = 0.3
+    # [kg/m^3]
+    density: Annotated[float | None, number("kg/m^3", positive=True, plausible=PLAUSIBLE["density"])] = 1000.0
+    alpha: Annotated[float | None, number("1/s", minimum=0.0)] = 0.0                                          # [1/s]
+    beta: Annotated[float | None, number("s", minimum=0.0)] = 0.0                                             # [s]
 
 
-_PARAMETER = Number(minimum=0.0)
-_REQUIRED_PARAMETER = Number(minimum=0.0, required=True)
+_PARAMETER = Annotated[float | None, number(minimum=0.0)]
+_REQUIRED_PARAMETER = Annotated[float | None, number(minimum=0.0, required=True)]
 
 
 class Adhesion(_Table):
@@ -383,19 +385,21 @@ def _read_normal(p: Problems, t: dict):
 class Plane(_Table):
     """``[[plane]]``: a static half-space (``friction`` None: the simulation's)."""
 
-    point: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)           # [m]
+    point: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"])] = (0.0, 0.0, 0.0)           # [m]
     normal: Annotated[tuple[float, ...] | None, _check(_read_normal)] = (0.0, 0.0, 1.0)
-    friction: Number(minimum=0.0) = None
-    size: Number("m", positive=True, maximum=PLAUSIBLE["place"][1]) = 3.0           # [m] drawn square
+    friction: Annotated[float | None, number(minimum=0.0)] = None
+    size: Annotated[float | None, number("m", positive=True, maximum=PLAUSIBLE["place"][1])] = 3.0  # [m] drawn square
     adhesion: Any = None                                                            # an [adhesion.NAME]
 
 
 class Sphere(_Table):
     """``[[sphere]]``: a static sphere (``friction`` None: the simulation's)."""
 
-    center: Vector(3, "m", plausible=PLAUSIBLE["place"], required=True) = _required()     # [m]
-    radius: Number("m", positive=True, plausible=PLAUSIBLE["size"], required=True) = _required()   # [m]
-    friction: Number(minimum=0.0) = None
+    center: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"], required=True)] = _required()     # [m]
+    # [m]
+    radius: Annotated[float | None, number("m", positive=True, plausible=PLAUSIBLE["size"],
+                                           required=True)] = _required()
+    friction: Annotated[float | None, number(minimum=0.0)] = None
     adhesion: Any = None
 
 
@@ -422,10 +426,10 @@ class Coupling(_Table):
 
     a: Any = None
     b: Any = None
-    radius: Number("m", minimum=0.0) = None                                         # [m]
+    radius: Annotated[float | None, number("m", minimum=0.0)] = None                                         # [m]
     points: Annotated[list | None, _check(_read_points)] = None                     # [m]
-    stiffness: Number("N/m", positive=True, required=True) = _required()            # [N/m] per spring
-    damping: Number("N s/m", minimum=0.0) = 0.0                                     # [N s/m]
+    stiffness: Annotated[float | None, number("N/m", positive=True, required=True)] = _required()  # [N/m] per spring
+    damping: Annotated[float | None, number("N s/m", minimum=0.0)] = 0.0                                     # [N s/m]
     collide: Boolean = False
 
     def problems(self) -> list:
@@ -483,47 +487,56 @@ BOX_CELLS = 4
 GLTF_CELLS = 0.02
 
 
+_LOW, _HIGH = PLAUSIBLE["place"]  # [m] a held-nodes height
+
+
 class Body(_Table):
     """``[[body]]`` (a glTF node's extras, without the shape): a body, its shape, its start and
     its type's own fields (module docstring of :mod:`softvr.scene.schema`). Fields that
     another type takes a default from :data:`CLOTH` or :data:`TOOL` (None here: not given)."""
 
     name: RequiredName = _required()
-    type: Choice(BODY_TYPES, required=True) = _required()
-    box: Vector(3, "m", plausible=PLAUSIBLE["size"], positive="3 edge lengths > 0 [m]") = None
-    sphere: Number("m", positive=True, plausible=PLAUSIBLE["size"]) = None           # [m] radius
-    mesh: File(MESH_SUFFIXES, "a mesh file") = None
-    tets: File(TET_MESH_SUFFIXES, "a tet mesh file") = None
-    cloth: Vector(2, "m", plausible=PLAUSIBLE["size"]) = None                         # [m] w, h
+    type: Annotated[str | None, choice(BODY_TYPES, required=True)] = _required()
+    box: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["size"], positive="3 edge lengths > 0 [m]")] = None
+    sphere: Annotated[float | None, number("m", positive=True, plausible=PLAUSIBLE["size"])] = None  # [m] radius
+    mesh: Annotated[Path | None, file_field(MESH_SUFFIXES, "a mesh file")] = None
+    tets: Annotated[Path | None, file_field(TET_MESH_SUFFIXES, "a tet mesh file")] = None
+    cloth: Annotated[tuple | None, vector(2, "m", plausible=PLAUSIBLE["size"])] = None  # [m] w, h
     cells: Annotated[Any, _check(_read_cells)] = None
-    scale: Vector(3, positive="3 factors > 0") = (1.0, 1.0, 1.0)    # sphere / mesh / tets: along its axes
-    surface_quads: Count("surface_quads", 1) = 1                     # box
-    subdivisions: Count() = 3                                        # sphere: icosphere subdivisions
-    render_mesh: File(MESH_SUFFIXES, "a mesh file") = None
-    collision_triangles: Count("collision_triangles", 4) = None
+    # sphere / mesh / tets: along its axes
+    scale: Annotated[tuple | None, vector(3, positive="3 factors > 0")] = (1.0, 1.0, 1.0)
+    surface_quads: Annotated[int | None, count("surface_quads", 1)] = 1                     # box
+    subdivisions: Annotated[int | None, count()] = 3  # sphere: icosphere subdivisions
+    render_mesh: Annotated[Path | None, file_field(MESH_SUFFIXES, "a mesh file")] = None
+    collision_triangles: Annotated[int | None, count("collision_triangles", 4)] = None
     collides_with: Annotated[tuple | None, _check(_read_body_names)] = None
     material: Any = None
     adhesion: Any = None
-    position: Vector(3, "m", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)        # [m]
-    rotation: Vector(3, "deg", plausible=PLAUSIBLE["place"]) = (0.0, 0.0, 0.0)      # [deg] x, then y, then z
-    velocity: Vector(3, "m/s", plausible=PLAUSIBLE["speed"]) = (0.0, 0.0, 0.0)      # [m/s]
-    angular_velocity: Vector(3, "rad/s", plausible=PLAUSIBLE["speed"]) = (0.0, 0.0, 0.0)   # [rad/s]
-    spin_centre: Vector(3, "m", plausible=PLAUSIBLE["place"]) = None                # [m]
-    fixed_below: Number("m", minimum=PLAUSIBLE["place"][0], maximum=PLAUSIBLE["place"][1]) = None   # [m]
-    fixed_above: Number("m", minimum=PLAUSIBLE["place"][0], maximum=PLAUSIBLE["place"][1]) = None   # [m]
+    position: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"])] = (0.0, 0.0, 0.0)        # [m]
+    # [deg] x, then y, then z
+    rotation: Annotated[tuple | None, vector(3, "deg", plausible=PLAUSIBLE["place"])] = (0.0, 0.0, 0.0)
+    velocity: Annotated[tuple | None, vector(3, "m/s", plausible=PLAUSIBLE["speed"])] = (0.0, 0.0, 0.0)      # [m/s]
+    # [rad/s]
+    angular_velocity: Annotated[tuple | None, vector(3, "rad/s", plausible=PLAUSIBLE["speed"])] = (0.0, 0.0, 0.0)
+    spin_centre: Annotated[tuple | None, vector(3, "m", plausible=PLAUSIBLE["place"])] = None                # [m]
+    # [m]
+    fixed_below: Annotated[float | None, number("m", minimum=_LOW, maximum=_HIGH)] = None
+    # [m]
+    fixed_above: Annotated[float | None, number("m", minimum=_LOW, maximum=_HIGH)] = None
     color: Color = (0.8, 0.6, 0.5)
     drive: Annotated[Drive | None, _table_of("a table: times [s] and offsets [m]")] = None
     motion: Annotated[Motion | None, _table_of("a table: times [s] and positions [m]")] = None
-    quads: _integers(2, LIMITS["quads"], f"[nu, nv] quads, integers in 1 .. {LIMITS['quads']}", CLOTH["quads"]) = None
-    area_density: Number("kg/m^2", positive=True) = None          # [kg/m^2]
-    stretch: Number("N/m", minimum=0.0) = None                    # [N/m]
-    shear: Number("N/m", minimum=0.0) = None                      # [N/m]
-    bend: Number("N/m", minimum=0.0) = None                       # [N/m]
-    damping: Number("N s/m", minimum=0.0) = None                  # [N s/m] cloth, or the tool's coupling
-    alpha: Number("1/s", minimum=0.0) = None                      # [1/s] cloth
-    stiffness: Number("N/m", positive=True) = None                # [N/m] tool: hand - tool coupling
+    quads: Annotated[tuple | None, integers(2, LIMITS["quads"], f"[nu, nv] quads, integers in 1 .. {LIMITS['quads']}",
+                                            CLOTH["quads"])] = None
+    area_density: Annotated[float | None, number("kg/m^2", positive=True)] = None          # [kg/m^2]
+    stretch: Annotated[float | None, number("N/m", minimum=0.0)] = None                    # [N/m]
+    shear: Annotated[float | None, number("N/m", minimum=0.0)] = None                      # [N/m]
+    bend: Annotated[float | None, number("N/m", minimum=0.0)] = None                       # [N/m]
+    damping: Annotated[float | None, number("N s/m", minimum=0.0)] = None  # [N s/m] cloth, or the tool's coupling
+    alpha: Annotated[float | None, number("1/s", minimum=0.0)] = None                      # [1/s] cloth
+    stiffness: Annotated[float | None, number("N/m", positive=True)] = None  # [N/m] tool: hand - tool coupling
     haptics: Boolean = None
-    max_force: Number("N", positive=True) = None                  # [N]
+    max_force: Annotated[float | None, number("N", positive=True)] = None                  # [N]
 
     def shape(self) -> str | None:
         """The one shape key given, when it is one the body's type takes."""
@@ -554,7 +567,7 @@ class Body(_Table):
         top = LIMITS["cells"]
         if kind == "fem" and shape in ("mesh", "sphere"):
             if "cells" not in given:
-                out.append(("cells", "a number > 0 [m]", "nothing"))
+                out.append(("cells", "a number [m]", "nothing"))
             elif isinstance(self.cells, tuple):
                 out.append(("cells", "a number > 0 [m]", list(self.cells)))
         elif kind == "fem" and shape == "box" and isinstance(self.cells, float):
@@ -574,7 +587,7 @@ class Body(_Table):
             out.append(("motion.rotations", "positions only on a tool (its handle is a point; a kinematic body may "
                         "rotate)", "rotations"))
         if kind == "tool" and "stiffness" not in given:
-            out.append(("stiffness", "a number > 0 [N/m]", "nothing"))
+            out.append(("stiffness", "a number [N/m]", "nothing"))
         return out
 
     def cloth_parameters(self) -> dict:
@@ -606,6 +619,9 @@ def _read_preset(p: Problems, t: dict):
     return preset
 
 
+_VOLUME_CELLS = f"3 integers in 1 .. {LIMITS['cells']} (mesh cubes per axis)"
+
+
 class Volume(_Table):
     """``[volume]`` (a glTF volume node's extras): a CT / MRI embedded in a FEM body built from
     its voxels (thesis 3.3.2); ``file`` (a dataset name, or a file the reader resolves)."""
@@ -613,19 +629,18 @@ class Volume(_Table):
     WHAT: ClassVar[str] = "a [volume] table"
     file: Annotated[str | None, _check(_read_volume_file, required=True)] = _required()
     name: Name = "volume"
-    unit: Number("m per volume unit", positive=True) = 0.001                        # [m] per volume unit
-    cells: _integers(3, LIMITS["cells"], f"3 integers in 1 .. {LIMITS['cells']} (mesh cubes per axis)",
-                     (16, 16, 8)) = (16, 16, 8)
-    threshold: Number() = -300.0
-    skin_triangles: Count("skin_triangles", 4) = 4000
-    fix_denser_than: Number("kg/m^3", positive=True) = 1150.0                        # [kg/m^3]
-    alpha: Number("1/s", minimum=0.0) = 2.0                                          # [1/s]
-    beta: Number("s", minimum=0.0) = 0.01                                            # [s]
+    unit: Annotated[float | None, number("m per volume unit", positive=True)] = 0.001  # [m] per volume unit
+    cells: Annotated[tuple | None, integers(3, LIMITS["cells"], _VOLUME_CELLS, (16, 16, 8))] = (16, 16, 8)
+    threshold: Annotated[float | None, number()] = -300.0
+    skin_triangles: Annotated[int | None, count("skin_triangles", 4)] = 4000
+    fix_denser_than: Annotated[float | None, number("kg/m^3", positive=True)] = 1150.0                        # [kg/m^3]
+    alpha: Annotated[float | None, number("1/s", minimum=0.0)] = 2.0                                          # [1/s]
+    beta: Annotated[float | None, number("s", minimum=0.0)] = 0.01                                            # [s]
     preset: Annotated[str | None, _check(_read_preset)] = "ct-skin"
-    render_step: Count("render_step", 1) = 2
+    render_step: Annotated[int | None, count("render_step", 1)] = 2
     incremental: Boolean = True
     mask: Boolean = True
-    animation: File((".npz",), "a node animation") = None
+    animation: Annotated[Path | None, file_field((".npz",), "a node animation")] = None
 
 
 class DisplayTable(_Table):

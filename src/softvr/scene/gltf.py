@@ -801,7 +801,7 @@ def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
                             where, "drive_", errors)
         table["drive"] = None if drive is None or drive.offsets is None or drive.times is None else drive.model_dump()
     if kind == "tool" and "stiffness" not in props:
-        errors.add(f"{where}.stiffness", "a number > 0 [N/m]", "nothing")
+        errors.add(f"{where}.stiffness", "a number [N/m]", "nothing")
     if "collision_triangles" in props and kind in ("fixed", "cloth"):
         errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool object",
                    f"a {kind} object")
