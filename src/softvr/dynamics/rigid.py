@@ -60,16 +60,20 @@ GYROSCOPIC_MODES = ("implicit", "explicit")
 
 
 # ------------------------------------------------------------------ quaternion algebra
-# softvr's one quaternion helper, (w, x, y, z) first (SciPy's Rotation is (x, y, z, w)). The
-# rotation-vector maps are SciPy's. Product, conjugate and matrix stay written out because they
-# run per body per step, where a Rotation object costs more than the arithmetic: one quaternion,
-# timeit on the 2-core CI machine, ours vs SciPy: product 19 vs 59 us, conjugate 1.1 vs 31 us
-# (``Rotation.inv``), matrix 3.4 vs 16 us. tests/test_quaternion.py holds all five to SciPy.
+# softvr's one quaternion helper, (w, x, y, z) first (SciPy's Rotation is (x, y, z, w)). All five
+# run per body per step. Timed per call on one quaternion (timeit, best of 7, the shared 2-core
+# machine at load ~2), hand-written vs SciPy: product 19 vs 59 us, conjugate 1.1 vs 31 us
+# (``Rotation.inv``), matrix 3.4 vs 16 us -- there a Rotation object costs 3-27x the arithmetic,
+# so those stay written out; rotation vector from / to 17 vs 24 us and 15 vs 24 us -- within 1.5x,
+# and the small-angle and near-pi branches are the hard part, so those are SciPy's now.
+# tests/test_quaternion.py holds all five to SciPy.
 _TO_SCIPY, _FROM_SCIPY = [1, 2, 3, 0], [3, 0, 1, 2]  # (w, x, y, z) <-> (x, y, z, w)
 
 
 def quat_multiply(a, b) -> np.ndarray:
-    """Hamilton product ``a (x) b`` of quaternions (w, x, y, z), shapes [..., 4] (broadcast)."""
+    """Hamilton product ``a (x) b`` of quaternions (w, x, y, z), shapes [..., 4] (broadcast).
+
+    19 us per call vs 59 us for SciPy's ``Rotation`` product (the comment above)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
@@ -82,7 +86,7 @@ def quat_multiply(a, b) -> np.ndarray:
 
 
 def quat_conjugate(q) -> np.ndarray:
-    """Conjugate (the inverse of a unit quaternion), shape [..., 4]."""
+    """Conjugate (the inverse of a unit quaternion), shape [..., 4]; 1.1 us vs 31 us for ``Rotation.inv``."""
     return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
 
 
@@ -104,7 +108,8 @@ def quat_to_rotvec(q) -> np.ndarray:
 
 
 def quat_to_matrix(q) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (w, x, y, z), [..., 4] -> [..., 3, 3]."""
+    """Rotation matrix of a unit quaternion (w, x, y, z), [..., 4] -> [..., 3, 3]; one quaternion
+    3.4 us vs 16 us for ``Rotation.as_matrix``."""
     q = np.asarray(q, float)
     if q.shape == (4,):
         # One body's rotation, asked for many times per step: plain floats are 20x faster
