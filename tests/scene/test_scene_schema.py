@@ -83,6 +83,16 @@ def test_the_typos_of_issue_19_no_longer_pass(tmp_path):
     assert main(["check", str(path)]) == 2
 
 
+def test_an_empty_table_names_what_it_lacks(tmp_path):
+    path = tmp_path / "empty.toml"
+    path.write_text('format = "softvr-scene 1"\n[[plane]]\n[[light]]\n[[sphere]]\n')
+    with pytest.raises(InputError) as info:
+        read_scene(path)
+    assert info.value.problems == [("light[0].position", "3 numbers [m]", "nothing"),
+                                   ("sphere[0].center", "3 numbers [m]", "nothing"),
+                                   ("sphere[0].radius", "a number [m]", "nothing")]
+
+
 def test_a_scene_without_settings_takes_the_described_and_the_simulations_defaults(tmp_path):
     path = tmp_path / "bare.toml"
     path.write_text('format = "softvr-scene 1"\n[[plane]]\n')

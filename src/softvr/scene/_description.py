@@ -732,7 +732,7 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
         errors.add(where, model.WHAT, table if isinstance(table, (int, float, str)) else type(table).__name__)
         return None, True
     found, data, context = [], copy.deepcopy(table), {"folder": folder or Path(".")}
-    for _ in range(len(data) + 1):
+    while True:  # ends: every round drops a bad value or turns partial (once), else stops
         try:
             out = model.model_validate(data, context=context)
         except ValidationError as exc:

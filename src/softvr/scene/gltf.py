@@ -879,7 +879,9 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
                        f"{len(v)} vertices, triangle indices {faces.min() if len(faces) else 0} .. "
                        f"{faces.max() if len(faces) else 0}")
             continue
-        color = tuple(float(c) for c in np.asarray(getattr(mesh.visual, "main_color", (204, 153, 128, 255)))[:3] / 255)
+        base = getattr(mesh.visual, "main_color", None)  # the material's base colour; else a body's default
+        color = Body.model_fields["color"].default if base is None else tuple(
+            float(c) for c in np.asarray(base)[:3] / 255)
         # Its position is the object's origin (the node's world translation), as a TOML body's;
         # its mesh is kept relative to it.
         origin = _z_up(np.asarray(transform, float)[:3, 3])
