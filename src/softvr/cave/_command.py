@@ -444,7 +444,7 @@ def _parser() -> argparse.ArgumentParser:
     common(q, True)
     q.add_argument("--frames", type=int, default=30, help="frames to simulate first (default 30)")
     q.add_argument("--scale", type=float, default=0.25, help="pixel scale of the screens (default 0.25)")
-    q.add_argument("--out", default="softvr-cave", help="output folder")
+    q.add_argument("--out", default="softvr-out/cave", metavar="DIR", help="output folder (default ./softvr-out/cave)")
 
     q = sub.add_parser("master", help="the master process")
     common(q, True)
@@ -476,7 +476,7 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--keys", help="CURVE key folder (default $SOFTVR_CAVE_KEYS or ~/.config/softvr/cave-keys)")
     q.add_argument("--no-curve", action="store_true", help="no encryption nor authentication")
     q.add_argument("--no-barrier", action="store_true", help="no software swap barrier")
-    q.add_argument("--out", default="softvr-cave", help="output folder (default ./softvr-cave)")
+    q.add_argument("--out", default="softvr-out/cave", metavar="DIR", help="output folder (default ./softvr-out/cave)")
     q.add_argument("--scale", type=float, default=0.25, help="pixel scale of the screens (default 0.25)")
     q.add_argument("--save-every", type=int, default=10, help="save every K-th frame per node (default 10)")
 
