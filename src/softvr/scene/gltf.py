@@ -817,6 +817,104 @@ def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
     return body, material
 
 
+def _node_spec(doc: dict, loaded, buffers: _Buffers, i: int, where: str, kind: str, props: dict, parent: dict,
+               errors: Problems):
+    """A body node as the builder takes it: its :class:`BodySpec` (mesh in world coordinates,
+    z up, relative to its origin), its material and adhesion parameters (None without), and
+    the keys of its animation (:func:`_node_motion`; None without one); None when the node has
+    no triangle mesh."""
+    import trimesh
+
+    node, nodes = doc["nodes"][i], doc["nodes"]
+    name = node.get("name") or f"node {i}"
+    keys = None
+    if name not in loaded.graph.nodes_geometry:
+        errors.add(where, "a node with a triangle mesh", "no mesh")
+        return None
+    transform, geometry = loaded.graph[name]
+    mesh = loaded.geometry[geometry]
+    if not isinstance(mesh, trimesh.Trimesh):  # points or lines (a primitive's mode)
+        errors.add(where, "a node with a triangle mesh", f"a {type(mesh).__name__}")
+        return None
+    v = _z_up(trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform))
+    faces = np.asarray(mesh.faces)
+    if not np.all(np.isfinite(v)) or len(faces) and (faces.min() < 0 or faces.max() >= len(v)):
+        errors.add(where, "a mesh of finite vertices whose triangles index them",
+                   f"{len(v)} vertices, triangle indices {faces.min() if len(faces) else 0} .. "
+                   f"{faces.max() if len(faces) else 0}")
+        return None
+    base = getattr(mesh.visual, "main_color", None)  # the material's base colour; else a body's default
+    color = Body.model_fields["color"].default if base is None else tuple(
+        float(c) for c in np.asarray(base)[:3] / 255)
+    # Its position is the object's origin (the node's world translation), as a TOML body's;
+    # its mesh is kept relative to it.
+    origin = _z_up(np.asarray(transform, float)[:3, 3])
+    body, material = _node_body(name, where, kind, props, errors)
+    spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color,
+                    position=tuple(float(x) for x in origin), fixed_below=body.fixed_below,
+                    fixed_above=body.fixed_above, collision_triangles=body.collision_triangles,
+                    # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
+                    velocity=body.velocity, angular_velocity=body.angular_velocity, spin_centre=body.spin_centre)
+    spec.mesh_data = (v - origin, np.asarray(mesh.faces, np.int32))
+    unturn = None  # a rotating kinematic body's mesh is kept in the node's own axes
+    if "collides_with" in props:
+        others = props["collides_with"]
+        if not isinstance(others, str):
+            errors.add(f"{where}.collides_with", "node names, comma-separated", others)
+        else:
+            spec.collides_with = tuple(o.strip() for o in others.split(",") if o.strip())
+    spec.material = name if material is not None else None
+    sticky = _adhesion(props, "adhesion_", where, errors)
+    spec.adhesion = name if sticky is not None else None
+    if kind == "fem":
+        spec.cells = GLTF_CELLS if body.cells is None else float(body.cells)
+    if body.drive is not None:
+        spec.drive = {"times": body.drive.times, "offsets": body.drive.offsets}
+    if kind == "cloth":
+        spec.cloth = body.cloth_parameters()
+    if kind == "tool":
+        spec.tool = body.tool_parameters()
+    if kind in ("kinematic", "tool"):
+        keys = _node_motion(doc, buffers, i, origin, where, errors)
+        if keys is not None and i in parent:
+            errors.add(f"{where} animation", "an animated object without a parent (its keys are its local "
+                       "transform)", f"a child of node {nodes[parent[i]].get('name') or parent[i]!r}")
+            keys = None
+        if keys is not None and keys[2] is not None:
+            if kind == "tool":
+                turned = float((keys[2][0].inv() * keys[2]).magnitude().max())
+                if turned > 1e-6:
+                    errors.add(f"{where} animation", "location keys only on a tool (its handle is a point; a "
+                               "kinematic object may rotate)",
+                               f"rotation keys turning it {np.degrees(turned):.3g} deg")
+                keys = (*keys[:2], None)  # a still orientation: its rest one
+            elif "matrix" in node:
+                errors.add(f"{where}.matrix", "translation, rotation and scale on an animated node (glTF 2.0)",
+                           "a matrix")
+            else:
+                # Its keys turn the node's own axes: its mesh in them (its rest rotation undone).
+                unturn = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0].inv()
+                spec.mesh_data = (unturn.apply(spec.mesh_data[0]), spec.mesh_data[1])
+    if "render_mesh" in props:
+        # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
+        other = props["render_mesh"]
+        if kind == "cloth":
+            errors.add(f"{where}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed object",
+                       "a cloth object")
+        elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
+                loaded.geometry[loaded.graph[other][1]], trimesh.Trimesh):
+            errors.add(f"{where}.render_mesh", "the name of an object with a triangle mesh", repr(other))
+        else:
+            drawn, geometry = loaded.graph[other]
+            shape = loaded.geometry[geometry]
+            vertices = _z_up(trimesh.transformations.transform_points(np.asarray(shape.vertices, float),
+                                                                      drawn)) - origin
+            if unturn is not None:
+                vertices = unturn.apply(vertices)
+            spec.render_mesh = (vertices, np.asarray(shape.faces, np.int32))
+    return spec, material, sticky, keys
+
+
 def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     """A glTF scene's problems, and the scene without the objects that have one (as
     :func:`softvr.scene.schema.read_scene_with_problems` for TOML: ``softvr check`` builds the
@@ -864,95 +962,16 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             volumes.append(_volume({**table, "name": name}, path.parent, errors, where))
             continue
         _unknown(props, _NODE_KEYS, ("adhesion_",), where, errors)
-        if name not in loaded.graph.nodes_geometry:
-            errors.add(where, "a node with a triangle mesh", "no mesh")
+        made = _node_spec(doc, loaded, buffers, i, where, kind, props, parent, errors)
+        if made is None:
             continue
-        transform, geometry = loaded.graph[name]
-        mesh = loaded.geometry[geometry]
-        if not isinstance(mesh, trimesh.Trimesh):  # points or lines (a primitive's mode)
-            errors.add(where, "a node with a triangle mesh", f"a {type(mesh).__name__}")
-            continue
-        v = _z_up(trimesh.transformations.transform_points(np.asarray(mesh.vertices, float), transform))
-        faces = np.asarray(mesh.faces)
-        if not np.all(np.isfinite(v)) or len(faces) and (faces.min() < 0 or faces.max() >= len(v)):
-            errors.add(where, "a mesh of finite vertices whose triangles index them",
-                       f"{len(v)} vertices, triangle indices {faces.min() if len(faces) else 0} .. "
-                       f"{faces.max() if len(faces) else 0}")
-            continue
-        base = getattr(mesh.visual, "main_color", None)  # the material's base colour; else a body's default
-        color = Body.model_fields["color"].default if base is None else tuple(
-            float(c) for c in np.asarray(base)[:3] / 255)
-        # Its position is the object's origin (the node's world translation), as a TOML body's;
-        # its mesh is kept relative to it.
-        origin = _z_up(np.asarray(transform, float)[:3, 3])
-        body, material = _node_body(name, where, kind, props, errors)
-        spec = BodySpec(name=name, type=kind, shape="cloth" if kind == "cloth" else "mesh", color=color,
-                        position=tuple(float(x) for x in origin), fixed_below=body.fixed_below,
-                        fixed_above=body.fixed_above, collision_triangles=body.collision_triangles,
-                        # Custom properties are verbatim Blender world coordinates: z up, as softvr's.
-                        velocity=body.velocity, angular_velocity=body.angular_velocity, spin_centre=body.spin_centre)
-        spec.mesh_data = (v - origin, np.asarray(mesh.faces, np.int32))
-        unturn = None  # a rotating kinematic body's mesh is kept in the node's own axes
-        if "collides_with" in props:
-            others = props["collides_with"]
-            if not isinstance(others, str):
-                errors.add(f"{where}.collides_with", "node names, comma-separated", others)
-            else:
-                spec.collides_with = tuple(o.strip() for o in others.split(",") if o.strip())
+        spec, material, sticky, keys = made
         if material is not None:
             materials[name] = material
-            spec.material = name
-        sticky = _adhesion(props, "adhesion_", where, errors)
         if sticky is not None:
             adhesions[name] = sticky
-            spec.adhesion = name
-        if kind == "fem":
-            spec.cells = GLTF_CELLS if body.cells is None else float(body.cells)
-        if body.drive is not None:
-            spec.drive = {"times": body.drive.times, "offsets": body.drive.offsets}
-        if kind == "cloth":
-            spec.cloth = body.cloth_parameters()
-        if kind == "tool":
-            spec.tool = body.tool_parameters()
         if kind in ("kinematic", "tool"):
-            keys = _node_motion(doc, buffers, i, origin, where, errors)
-            if keys is not None and i in parent:
-                errors.add(f"{where} animation", "an animated object without a parent (its keys are its local "
-                           "transform)", f"a child of node {nodes[parent[i]].get('name') or parent[i]!r}")
-                keys = None
-            if keys is not None and keys[2] is not None:
-                if kind == "tool":
-                    turned = float((keys[2][0].inv() * keys[2]).magnitude().max())
-                    if turned > 1e-6:
-                        errors.add(f"{where} animation", "location keys only on a tool (its handle is a point; a "
-                                   "kinematic object may rotate)",
-                                   f"rotation keys turning it {np.degrees(turned):.3g} deg")
-                    keys = (*keys[:2], None)  # a still orientation: its rest one
-                elif "matrix" in node:
-                    errors.add(f"{where}.matrix", "translation, rotation and scale on an animated node (glTF 2.0)",
-                               "a matrix")
-                else:
-                    # Its keys turn the node's own axes: its mesh in them (its rest rotation undone).
-                    unturn = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0].inv()
-                    spec.mesh_data = (unturn.apply(spec.mesh_data[0]), spec.mesh_data[1])
             moving.append((spec, keys))
-        if "render_mesh" in props:
-            # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
-            other = props["render_mesh"]
-            if kind == "cloth":
-                errors.add(f"{where}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed object",
-                           "a cloth object")
-            elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
-                    loaded.geometry[loaded.graph[other][1]], trimesh.Trimesh):
-                errors.add(f"{where}.render_mesh", "the name of an object with a triangle mesh", repr(other))
-            else:
-                drawn, geometry = loaded.graph[other]
-                shape = loaded.geometry[geometry]
-                vertices = _z_up(trimesh.transformations.transform_points(np.asarray(shape.vertices, float),
-                                                                          drawn)) - origin
-                if unturn is not None:
-                    vertices = unturn.apply(vertices)
-                spec.render_mesh = (vertices, np.asarray(shape.faces, np.int32))
         bodies.append(spec)
     if len(volumes) > 1:
         errors.add("nodes", "one volume node (a scene has one volume)", ", ".join(repr(v["name"]) for v in volumes))
