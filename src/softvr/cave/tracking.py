@@ -257,6 +257,8 @@ class ScriptedTracker(Tracker):
 # bundles without bound, pads a missing last float with zeros (a truncated pose would decode as a
 # pose) and ignores trailing bytes. _check_frames (before it parses) and _canonical (after) refuse those.
 _TAGS = "fidsTF"  # the argument types softvr reads; python-osc logs a warning per unknown tag
+_WRITERS = {"f": osc_types.write_float, "i": osc_types.write_int, "d": osc_types.write_double,
+            "s": osc_types.write_string}  # T and F carry no bytes
 
 
 def encode_osc(address: str, values) -> bytes:
@@ -340,12 +342,11 @@ def _check_frames(data: bytes, depth: int = 0) -> None:
 def _canonical(message: OscMessage) -> tuple[str, tuple]:
     """``(address, values)`` of a parsed message whose bytes are exactly what its values encode
     to: no missing (zero-padded by python-osc) or trailing arguments, NUL padding."""
-    _, tags = _message_head(message.dgram)
+    address, tags = _message_head(message.dgram)
     values = message.params
-    builder = OscMessageBuilder(message.address)
-    for tag, value in zip(tags[1:], values):
-        builder.add_arg(value, tag)
-    expected = builder.build().dgram
+    # python-osc's own writers, not its builder: build() parses its output again (48 -> 6 us a pose).
+    expected = b"".join([osc_types.write_string(address), osc_types.write_string(tags),
+                         *(_WRITERS[t](v) for t, v in zip(tags[1:], values) if t in _WRITERS)])
     if expected != message.dgram:
         if len(expected) != len(message.dgram):
             found = f"{len(message.dgram)} bytes where the arguments take {len(expected)}"
