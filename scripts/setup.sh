@@ -2,6 +2,8 @@
 # Set up softvr on a fresh Debian (12+) machine and run a job:
 #   bash scripts/setup.sh demo   install everything, run `softvr demo` on the bundled head CT
 #   bash scripts/setup.sh test   install everything, run the whole test suite
+#   bash scripts/setup.sh docs   install everything and the docs extra, build the docs site into docs/_build/html
+#                                (warnings are errors; the gallery's images are scripts/gallery.py's, committed)
 # Installs Debian packages (offline datasets, EGL/Mesa for offscreen rendering, Xvfb) and a
 # virtual environment in .venv with softvr and its Python dependencies.
 set -euo pipefail
@@ -34,6 +36,14 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/pip install -q -e ".[dev]"
   touch "$stamp"
 fi
+if [ "$job" = docs ]; then
+  docs_stamp=.venv/.softvr-docs-installed
+  if [ ! -f "$docs_stamp" ] || [ pyproject.toml -nt "$docs_stamp" ]; then
+    echo "setup: installing the docs tools (softvr[docs]) into .venv"
+    .venv/bin/pip install -q -e ".[dev,docs]"
+    touch "$docs_stamp"
+  fi
+fi
 
 # Blender as a Python module (bpy 4.2, CPython 3.11 only, ~0.5 GB) for the test that exports a
 # scene with Blender's own glTF exporter; in its own environment, apart from softvr's.
@@ -49,5 +59,7 @@ fi
 case "$job" in
   demo) exec .venv/bin/python -m softvr demo "$@" ;;
   test) exec .venv/bin/python -m pytest -q "$@" ;;
-  *) echo "usage: bash scripts/setup.sh demo|test [args]"; exit 2 ;;
+  # -E: a fresh environment every time, so a clean clone and a rebuild see the same warnings.
+  docs) exec .venv/bin/python -m sphinx -W --keep-going -E -q -b html docs docs/_build/html "$@" ;;
+  *) echo "usage: bash scripts/setup.sh demo|test|docs [args]"; exit 2 ;;
 esac
