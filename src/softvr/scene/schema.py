@@ -166,7 +166,7 @@ from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 
 __all__ = ["BODY_TYPES", "DATASETS", "FORMAT", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE", "BodySpec", "SceneFile",
-           "adhesion_parameters", "read_scene", "read_scene_with_problems"]
+           "adhesion_parameters", "read_scene", "read_scene_with_problems", "render_settings", "simulation_settings"]
 
 FORMAT = "softvr-scene 1"
 _BODY = Body.model_fields  # the defaults of a [[body]]'s fields
