@@ -12,12 +12,12 @@ from softvr.sim import STAGES
 
 __all__ = ["FRAME_ORDER", "STEP_ORDER", "Player", "gravity_potential"]
 
-#: What one sub-step does, in this order: the scripted boundaries move (driven nodes, keyframed
-#: events: :meth:`Player.drive`), the haptic devices are read (:meth:`Player.haptic_tick`), the
-#: physics steps (:meth:`softvr.Scene.step`), the step's contact solution is read (sensors, the
-#: haptic tool's force: :meth:`Player.sense`). Driving first puts the boundaries' velocities
-#: into the step that moves them; reading the devices before the step gives the tool the
-#: newest handle position.
+#: What one sub-step does (after :meth:`Player.start`, once before the first frame), in this
+#: order: the scripted boundaries move (driven nodes, keyframed events: :meth:`Player.drive`),
+#: the haptic devices are read (:meth:`Player.haptic_tick`), the physics steps
+#: (:meth:`softvr.Scene.step`), the step's contact solution is read (sensors, the haptic tool's
+#: force: :meth:`Player.sense`). Driving first puts the boundaries' velocities into the step
+#: that moves them; reading the devices before the step gives the tool the newest handle position.
 STEP_ORDER = ("drive", "haptics", "physics", "sense")
 
 #: What follows a frame's last sub-step, in this order: the volume follows its body
@@ -101,8 +101,13 @@ class Player:
             self.camera = camera
         self.metrics: list[dict] = []
         self._renderer = None
+        self._started = False
 
     # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
+    def start(self) -> None:
+        """Start what runs beside the steps (haptic processes), once, before the first frame;
+        a player that is built but never played (a start check) starts nothing."""
+
     def drive(self) -> None:
         """Move the scripted boundaries (driven nodes, keyframed events) for the coming step."""
 
@@ -134,8 +139,11 @@ class Player:
         return kinetic, kinetic + potential
 
     def step(self) -> dict:
-        """Advance one frame (``steps_per_frame`` sub-steps, each in :data:`STEP_ORDER`, then
-        :data:`FRAME_ORDER`); returns the frame's metrics record."""
+        """Advance one frame (:meth:`start` before the first, then ``steps_per_frame`` sub-steps,
+        each in :data:`STEP_ORDER`, then :data:`FRAME_ORDER`); returns the frame's metrics record."""
+        if not self._started:
+            self._started = True
+            self.start()
         t0 = time.perf_counter()
         deepest, sweeps, residual, solution = 0.0, 0, 0.0, None
         stage_ms = dict.fromkeys(STAGES, 0.0)

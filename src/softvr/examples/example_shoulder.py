@@ -135,13 +135,15 @@ class Example(Player):
         self.haptics = haptics
         self._forces = []
         self._gap = 0.0
-        if haptics:
-            self.loop.start()
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
                          bounds=(-0.05, 0.1, -0.07, 0.07, -0.12, 0.08),
                          camera=Camera("front", azimuth=-60, elevation=15, zoom=1.1))
 
     # -- physics -------------------------------------------------------------------------
+    def start(self) -> None:
+        if self.haptics:
+            self.loop.start()  # with the first frame: a shoulder built and never played starts no process
+
     def haptic_tick(self) -> None:
         if not self.haptics:
             self.loop.tick()  # one device reading per step instead of the thread's thousand per second

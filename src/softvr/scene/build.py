@@ -36,6 +36,7 @@ from softvr.app import Player
 from softvr.errors import InputError
 from softvr.files import native_read
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
+from softvr.scene.start import collision_free_start, start_pairs, start_problems
 
 __all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems", "scene_path"]
 
@@ -219,13 +220,16 @@ class SceneExample(Player):
                 for other, j in self.index.items():
                     if other != spec.name and other not in spec.collides_with:
                         scene.disable_collision(self.index[spec.name], j)
+        # Cloth is an open sheet: it has no inside to start in.
+        apart = {frozenset((c["a"], c["b"])) for c in scene_file.couplings if not c["collide"]}
+        names = [n for n in self._drawn_by_name if getattr(scene_file.body(n), "type", None) != "cloth"]
+        self._pairs = start_pairs(names, list(self._obstacles),
+                                  lambda a, b: scene.collision_enabled(self.index[a], self.index[b]), apart)
         #: (moved body, obstacle, its largest node displacement [m]) of the collision-free start.
-        self.separation = self._collision_free_start() if sim.get("collision_free_start") else []
+        self.separation = (collision_free_start(self.bodies, self._surfaces(), self._pairs)
+                           if sim.get("collision_free_start") else [])
         for c in scene_file.couplings:
             self._couple(scene, c)
-        for tool in self.tools:
-            if tool.haptics:
-                tool.loop.start()
         w, h = ren["size"]
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
         super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
@@ -456,86 +460,16 @@ class SceneExample(Player):
         tool.haptics = spec.tool["haptics"]
         return tool
 
-    def _collision_free_start(self, rounds: int = 4) -> list:
-        """Push every soft body that starts crossing another body out of it (thesis 5.2.3,
-        :func:`softvr.model.push_apart`: a smooth deformation of its tets; it starts from that
-        deformed state, its rest shape unchanged). Of two soft bodies the one with fewer tets
-        moves; two rigid ones are left (:meth:`start_problems` reports them), as are pairs that
-        may not collide or are coupled without contact. Pushing one body out can push it into a
-        third, so the pairs are swept until nothing moves (at most ``rounds`` sweeps).
-        """
-        from softvr.dynamics import embed_in_tets
-        from softvr.model import push_apart
-
-        pairs = self._start_pairs()
-
-        def soft(name) -> bool:
-            body = self.bodies.get(name)
-            return hasattr(body, "tets") and not body.fixed.all()
-
-        def crossing(a, b) -> bool:
-            return len(self._crossing(a, b)) > 0
-
-        start, pushed = {}, []
-        for _ in range(rounds):
-            changed = False
-            for a, b in pairs:
-                if not (soft(a) or soft(b)) or not crossing(a, b):
-                    continue
-                smaller = soft(a) and (not soft(b) or len(self.bodies[a].tets) <= len(self.bodies[b].tets))
-                mover, obstacle = (a, b) if smaller else (b, a)
-                body, surface, other = self.bodies[mover], self._surface_of(mover), self._surface_of(obstacle)
-                start.setdefault(mover, body.q.copy())
-                embedding = embed_in_tets(body.q, body.tets, surface.vertices(), tolerance=np.inf)
-                nodes, report = push_apart(body.q, body.tets, embedding, surface.triangles, other.vertices(),
-                                           other.triangles)
-                nodes[body.fixed] = body.q[body.fixed]  # clamped nodes stay where the scene put them
-                body.q[:] = nodes
-                if report.max_displacement > 0:  # none of its vertices inside: nothing to push
-                    changed = True
-                    if (mover, obstacle) not in pushed:
-                        pushed.append((mover, obstacle))
-            if not changed:
-                break
-        return [(a, b, float(np.linalg.norm(self.bodies[a].q - start[a], axis=1).max())) for a, b in pushed]
-
-    def _surface_of(self, name: str) -> _Drawn:
-        """The surface a body (or a fixed mesh obstacle) starts crossing others with."""
-        return self._drawn_by_name[name] if name in self._drawn_by_name else self._obstacles[name]
-
-    def _start_pairs(self) -> list:
-        """Name pairs whose surfaces must start apart: bodies that may collide (not filtered,
-        not coupled without contact), and every body with every fixed mesh; cloth is an open
-        sheet and left out."""
-        apart = {frozenset((c["a"], c["b"])) for c in self.file.couplings if not c["collide"]}
-        names = [n for n in self._drawn_by_name if getattr(self.file.body(n), "type", None) != "cloth"]
-        pairs = [(a, b) for i, a in enumerate(names) for b in names[i + 1:]
-                 if self.scene.collision_enabled(self.index[a], self.index[b]) and frozenset((a, b)) not in apart]
-        return pairs + [(a, o) for a in names for o in self._obstacles]
-
-    def _crossing(self, a: str, b: str) -> np.ndarray:
-        """Crossing triangle pairs [k, 2] of two named surfaces (:meth:`_surface_of`)."""
-        from softvr.model import intersecting_triangle_pairs
-
-        da, db = self._surface_of(a), self._surface_of(b)
-        return intersecting_triangle_pairs(da.vertices(), da.triangles, db.vertices(), db.triangles)
+    def _surfaces(self) -> dict:
+        """Name -> the surface a body or a fixed mesh obstacle starts crossing others with."""
+        return {**self._obstacles, **self._drawn_by_name}
 
     def start_problems(self) -> list:
         """(what, expected, found) for bodies that start intersecting each other or a fixed
         mesh (crossing surface triangles; pairs that may not collide are left out) or below a
-        plane."""
-        out = []
-        for a, da in self._drawn_by_name.items():
-            for plane, _ in self.planes:
-                depth = float(-((da.vertices() - np.asarray(plane.point)) @ plane.unit_normal()).min())
-                if depth > 1e-6:
-                    out.append((f"body {a!r}", "a start above every plane", f"{depth * 1e3:.2f} mm below one"))
-        for a, b in self._start_pairs():
-            crossing = self._crossing(a, b)
-            if len(crossing):
-                out.append((f"bodies {a!r} and {b!r}", "surfaces apart at the start",
-                            f"{len(crossing)} crossing triangle pairs"))
-        return out
+        plane (:func:`softvr.scene.start.start_problems`). Needs no start: no haptic process
+        runs, no renderer is made."""
+        return start_problems(self._drawn_by_name, self._surfaces(), [p for p, _ in self.planes], self._pairs)
 
     @staticmethod
     def _tet_mesh(spec: BodySpec, rotation, centre):
@@ -663,6 +597,13 @@ class SceneExample(Player):
     def sense(self, solution) -> None:
         for tool in self.tools:
             tool.publish(solution)
+
+    def start(self) -> None:
+        # The haptic processes start with the first frame, not with the build: softvr check
+        # builds a scene to check its start and never plays it.
+        for tool in self.tools:
+            if tool.haptics:
+                tool.loop.start()
 
     def close(self) -> None:
         for tool in self.tools:
