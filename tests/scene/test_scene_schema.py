@@ -110,6 +110,26 @@ def test_a_scene_without_settings_takes_the_described_and_the_simulations_defaul
     assert gltf.planes == scene.planes  # the ground
 
 
+def test_a_gltf_object_and_a_toml_body_get_the_same_defaults(tmp_path):
+    """Material, cloth and tool fields left out: the same numbers from both readers, the ones
+    docs/scenes.md and the schema's docstring state."""
+    toml = tmp_path / "bodies.toml"
+    toml.write_text('format = "softvr-scene 1"\n[material.m]\n'
+                    '[[body]]\nname = "sheet"\ntype = "cloth"\ncloth = [0.2, 0.2]\n'
+                    '[[body]]\nname = "hand"\ntype = "tool"\nsphere = 0.01\nmaterial = "m"\nstiffness = 100.0\n'
+                    '[body.motion]\ntimes = [0.0]\npositions = [[0.0, 0.0, 0.5]]\n')
+    t = read_scene(toml)
+    g = read_gltf_scene(_glb(tmp_path / "bodies.glb", {
+        "sheet": {"softvr_type": "cloth"}, "hand": {"softvr_type": "tool", "softvr_stiffness": 100.0}}))
+    assert t.materials["m"] == g.materials["hand"] == {"young": 1e5, "poisson": 0.3, "density": 1000.0, "alpha": 0.0,
+                                                       "beta": 0.0}
+    cloth = {"area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05, "alpha": 0.1}
+    for scene in (t, g):
+        assert {k: v for k, v in scene.body("sheet").cloth.items() if k != "quads"} == cloth
+        assert scene.body("hand").tool == {"stiffness": 100.0, "damping": 0.0, "haptics": False, "max_force": 10.0}
+    assert t.body("sheet").cloth["quads"] == (16, 16)
+
+
 def _glb(path: Path, extras: dict, scene_extras: dict | None = None) -> Path:
     """A GLB of one 0.1 m box per name of ``extras``, each with those node extras (custom
     properties as Blender writes them)."""

@@ -28,9 +28,10 @@ from softvr.scene._keys import known_key
 from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_TYPES", "DATASETS", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE", "Adhesion", "Body", "Coupling",
-           "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
-           "Render", "Simulation", "Sphere", "Volume", "known_key", "read_table"]
+__all__ = ["BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE",
+           "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document", "Drive", "Filter", "Light",
+           "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere", "Volume", "existing_file",
+           "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
