@@ -29,8 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "gallery"
 SCENES = ROOT / "src" / "softvr" / "scenes"
 
-# name -> frames. A few frames each: enough for the sheet to show the motion, short enough that
-# the whole gallery runs in minutes on a CPU (the scenes' own defaults run 36-300 frames).
+# name -> frames. A few frames each: enough for the sheet to show the motion (the probe's press, the head's
+# twist), short enough that the whole gallery runs in minutes on a CPU (the scenes' own defaults run 36-300
+# frames; about 8 minutes for all of these on 2 busy cores).
 GALLERY = {
     "soft-cube": 24,
     "box-stack": 30,
@@ -43,8 +44,8 @@ GALLERY = {
     "probe": 30,
     "shoulder": 30,
     "shoulder-arthroscopy": 30,
-    "volume": 12,
-    "palpation": 8,
+    "volume": 24,
+    "palpation": 20,
 }
 
 

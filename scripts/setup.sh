@@ -36,7 +36,9 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   .venv/bin/pip install -q -e ".[dev]"
   touch "$stamp"
 fi
-if [ "$job" = docs ]; then
+# The docs tools for `docs`, and for `test` too: the suite builds the docs site with warnings as errors
+# (tests/test_docs_build.py, ~30 s), so CI catches a docstring or page that breaks it.
+if [ "$job" = docs ] || [ "$job" = test ]; then
   docs_stamp=.venv/.softvr-docs-installed
   if [ ! -f "$docs_stamp" ] || [ pyproject.toml -nt "$docs_stamp" ]; then
     echo "setup: installing the docs tools (softvr[docs]) into .venv"

@@ -26,7 +26,8 @@ def gallery_names() -> list[str]:
 
 def test_every_demo_scene_is_in_the_gallery():
     scenes = sorted(p.stem for p in (ROOT / "src" / "softvr" / "scenes").glob("*.toml"))
-    assert sorted(gallery_names()) == scenes, "a bundled scene without a gallery entry (scripts/gallery.py)"
+    assert sorted(gallery_names()) == scenes, (
+        "each bundled scene has a gallery page: add it to GALLERY in scripts/gallery.py, run scripts/gallery.py NAME")
 
 
 def test_gallery_images_are_the_scripts():
