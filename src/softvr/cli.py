@@ -5,22 +5,23 @@
 ``softvr demo palpation``   the head CT pressed by a probe: FEM from the voxels, deformed CT volume-rendered
 ``softvr build-model P``    part meshes + a parts file (TOML) -> a simulation model (thesis 5.2)
 ``softvr tetmesh SURFACE``  the tet mesh a scene builds for a FEM body of a surface (.vtu or .npz)
-``softvr run SCENE``        a physics demo scene (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall,
-                            lips, probe) to MP4, metrics and plots
+``softvr run SCENE``        a physics demo (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall, lips,
+                            probe, shoulder) or a scene file to MP4, metrics and plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
-``softvr view SCENE``       a physics demo played live in a window (space pauses, n steps)
-``softvr view palpation``   the palpated head CT live in a window
-``softvr bench volume``     rasterizer vs VTK + SciPy and SimpleITK, thesis Figs. 3.5 / 3.6
-``softvr bench contact``    soft cube on a plane vs MuJoCo, PyBullet and Newton; candy scale
-``softvr bench adhesion``   the candy scene with and without adhesion (thesis Fig. 4.4)
-``softvr bench cave``       render-cluster sync overhead and bytes per frame, 2 ... 16 nodes on loopback
-``softvr bench palpation``  palpation frame split: FEM step, full and incremental rasterization, rendering
-``softvr bench scene``      scene files: read, build, start check and frames of every bundled scene; glTF vs
-                            TOML; box-stack vs MuJoCo
+``softvr view SCENE``       a physics demo or scene file played live in a window (space pauses, n steps)
+``softvr view palpation``   the palpated head CT (palpation.toml) live in a window
+``softvr bench AREA``       measurements against peers (softvr bench --help lists the areas)
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
-``softvr check SCENE``      validate a scene file (every error at once)
+``softvr check SCENE``      validate a scene file (every error at once, the start checked too)
 ``softvr blender-addon``    write softvr-blender.zip, the Blender add-on
 ``softvr info PATH``        what a volume file holds
+
+One convention for all of them: ``--help`` everywhere; ``--device cpu|cuda`` where kernels run
+(run, view, demo, bench, cave); ``--out DIR`` with one default, ``softvr-out/NAME/``, and one
+file name rule, ``NAME.mp4``, ``NAME_sheet.png``, ``NAME_metrics.json``
+(:func:`softvr.app.record`); a scene is a bundled scene's name (``candy``, ``candy.toml``) or a
+file's path, options before or after it; ``softvr --version``. Heavy layers are imported by the
+subcommand that needs them, so ``softvr --help`` starts no physics stack.
 
 Bad input ends a command with ``softvr CMD: error: FILE: FIELD: expected ..., found ...`` and
 exit status 2, never a traceback; anything else that goes wrong is a bug, reported as an

@@ -69,7 +69,7 @@ class Example(Player):
             box = RigidBody.box(2 * self.half, density, position=(0.0, 0.0, z), name=f"box {level}")
             scene.add_body(box, collision_box=self.half)
             self.boxes.append(box)
-        self.start = np.array([b.position for b in self.boxes])
+        self.start_positions = np.array([b.position for b in self.boxes])
         self.density = density
         top = 2 * self.half[2] * count
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
@@ -90,7 +90,7 @@ class Example(Player):
 
     def drift(self) -> np.ndarray:
         """Distance [m] of each stacked box from its start position."""
-        return np.linalg.norm(np.array([b.position for b in self.boxes]) - self.start, axis=1)
+        return np.linalg.norm(np.array([b.position for b in self.boxes]) - self.start_positions, axis=1)
 
     def setup_render(self, renderer) -> None:
         renderer.add_plane(size=3.0, tiles=12)
@@ -104,7 +104,7 @@ class Example(Player):
     def describe(self) -> dict:
         return {**super().describe(), "box_size_m": (2 * self.half).tolist(), "density_kg_m3": self.density,
                 "friction": self.plane.friction,
-                "start_positions_m": self.start.tolist(),
+                "start_positions_m": self.start_positions.tolist(),
                 "end_positions_m": [b.position.tolist() for b in self.boxes],
                 "max_drift_m": float(self.drift().max())}
 
