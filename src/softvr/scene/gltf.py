@@ -106,10 +106,12 @@ from __future__ import annotations
 import base64
 import binascii
 import struct
+import warnings
 from pathlib import Path
 from urllib.parse import unquote
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import (MAX_ELEMENTS, MAX_FILE_BYTES, check_count, checked_file, file_name, inside_folder,
@@ -616,8 +618,6 @@ def _channel_keys(doc: dict, buffers: _Buffers, node: int, path: str, where: str
 def _z_up_rotations(quaternions):
     """glTF y-up unit quaternions [k, 4] (x, y, z, w) -> the same turns in softvr's z-up frame
     (a scipy Rotation of k): R' = C R C^T for C of :func:`_z_up`, i.e. the axis turned by C."""
-    from scipy.spatial.transform import Rotation
-
     q = np.asarray(quaternions, float)
     return Rotation.from_quat(np.c_[_z_up(q[:, :3]), q[:, 3]])
 
@@ -625,8 +625,6 @@ def _z_up_rotations(quaternions):
 def _slerp_at(times, rotations, t):
     """Orientations ``rotations`` (a scipy Rotation of k) keyed at ``times`` [k] [s], slerped in
     between and held outside, at ``t`` [s] (a number, or an array for a Rotation of as many)."""
-    from scipy.spatial.transform import Slerp
-
     if len(times) == 1:
         return rotations[np.zeros(np.shape(t), int)] if np.ndim(t) else rotations[0]
     return Slerp(times, rotations)(np.clip(t, times[0], times[-1]))
@@ -635,8 +633,6 @@ def _slerp_at(times, rotations, t):
 def _degrees(rotations) -> list:
     """x-then-y-then-z angles [deg] ([3], or [k, 3] for k orientations) of a scipy Rotation: the
     scene format's ``rotation`` and ``motion.rotations``."""
-    import warnings
-
     with warnings.catch_warnings():
         # At gimbal lock scipy picks one of the many angle triples of the orientation: still exact.
         warnings.filterwarnings("ignore", "Gimbal lock", UserWarning)
@@ -661,8 +657,6 @@ def _node_motion(doc: dict, buffers: _Buffers, node: int, origin, where: str, er
 def _world_matrix(nodes: list, parent: dict, i: int) -> np.ndarray:
     """Node ``i``'s world transform [4, 4] (glTF y-up): its matrix or translation, rotation
     and scale, after its parents'."""
-    from scipy.spatial.transform import Rotation
-
     node = nodes[i]
     if "matrix" in node:
         local = np.asarray(node["matrix"], float).reshape(4, 4).T  # glTF matrices are column-major
@@ -823,7 +817,7 @@ def _node_spec(doc: dict, loaded, buffers: _Buffers, i: int, where: str, kind: s
     z up, relative to its origin), its material and adhesion parameters (None without), and
     the keys of its animation (:func:`_node_motion`; None without one); None when the node has
     no triangle mesh."""
-    import trimesh
+    import trimesh  # noqa: PLC0415 - 0.75 s here: loaded when a glTF's meshes are read, not with softvr.scene
 
     node, nodes = doc["nodes"][i], doc["nodes"]
     name = node.get("name") or f"node {i}"
@@ -921,7 +915,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     rest to find bodies that start crossing). An object's bad coupling properties leave out the
     coupling, not the object; the coupled pair still does not collide. An unreadable file
     raises :class:`~softvr.errors.InputError`."""
-    import trimesh
+    import trimesh  # noqa: PLC0415 - 0.75 s here: loaded when a glTF's meshes are read, not with softvr.scene
 
     path = checked_file(path, "scene")
     doc, binary = _gltf_json(path, with_binary=True)
