@@ -124,3 +124,15 @@ def test_a_path_that_is_no_scene_is_named_as_written(word, what, capsys):
     assert main(["check", word]) == 2
     err = capsys.readouterr().err
     assert what in err and "scenes/" not in err and "Traceback" not in err
+
+
+def test_a_bundled_parts_file_by_name_unless_one_is_here(tmp_path, monkeypatch):
+    """docs/anatomy.md's ``softvr build-model shoulder_palpation.toml``: the bundled parts file,
+    unless the user has a file of that name here."""
+    from softvr import cli
+
+    monkeypatch.chdir(tmp_path)
+    assert cli._bundled_file("shoulder_palpation.toml").endswith("scenes/shoulder/shoulder_palpation.toml")
+    (tmp_path / "shoulder_palpation.toml").write_text("")
+    assert cli._bundled_file("shoulder_palpation.toml") == "shoulder_palpation.toml"
+    assert cli._bundled_file("nosuch.toml") == "nosuch.toml"

@@ -35,6 +35,7 @@ import importlib
 import os
 import sys
 from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
 
 from softvr.errors import InputError, SoftvrError
 
@@ -64,10 +65,28 @@ def _demo(argv: list[str]) -> int:
     return module.main(rest)
 
 
+#: Folder of the bundled scene and parts files (``softvr.scene.BUNDLED``, without importing it).
+_BUNDLED = Path(__file__).resolve().parent / "scenes"
+
+
+def _bundled_file(word: str) -> str:
+    """``word``, or the bundled file of that name (``shoulder_palpation.toml``, in a folder of
+    the bundled scenes) when no such file is here."""
+    if word.startswith("-") or Path(word).exists() or Path(word).parent != Path("."):
+        return word
+    found = sorted(_BUNDLED.glob(f"*/{word}"))
+    return str(found[0]) if found else word
+
+
 def _build_model(argv: list[str]) -> int:
     from softvr.model import build
 
-    return build.main(argv)
+    args = [_bundled_file(a) for a in argv]
+    if args != argv and not {"-o", "--out"} & set(argv):
+        # A bundled parts file: its model goes here, not into the installed package.
+        bundled = next(Path(a) for a, b in zip(args, argv) if a != b)
+        args += ["-o", bundled.name.removesuffix(".toml") + ".model.npz"]
+    return build.main(args)
 
 
 def _tetmesh(argv: list[str]) -> int:
