@@ -136,3 +136,9 @@ def test_a_bundled_parts_file_by_name_unless_one_is_here(tmp_path, monkeypatch):
     (tmp_path / "shoulder_palpation.toml").write_text("")
     assert cli._bundled_file("shoulder_palpation.toml") == "shoulder_palpation.toml"
     assert cli._bundled_file("nosuch.toml") == "nosuch.toml"
+
+
+def test_an_unknown_demo_names_the_demos(capsys):
+    assert main(["demo", "teapot"]) == 2
+    err = capsys.readouterr().err
+    assert "'teapot'" in err and all(d in err for d in ("volume", "shoulder", "palpation"))

@@ -59,6 +59,8 @@ def _demo(argv: list[str]) -> int:
         p.add_argument("demo", nargs="?", choices=list(_DEMOS), default="volume", help="which demo (default volume)")
         p.print_help()
         return 0
+    if argv and not argv[0].startswith("-") and argv[0] not in _DEMOS:
+        raise InputError("DEMO", f"one of {', '.join(_DEMOS)}", repr(argv[0]))
     name = argv[0] if argv and argv[0] in _DEMOS else "volume"
     rest = argv[1:] if argv and argv[0] in _DEMOS else argv
     module = importlib.import_module(f"softvr.examples.example_{_DEMO_MODULES[name]}")
