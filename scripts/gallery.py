@@ -44,8 +44,8 @@ GALLERY = {
     "probe": 30,
     "shoulder": 30,
     "shoulder-arthroscopy": 30,
-    "volume": 24,
-    "palpation": 20,
+    "volume": 36,
+    "palpation": 40,
 }
 
 
