@@ -97,19 +97,22 @@ def _tetmesh(argv: list[str]) -> int:
     return _command.tetmesh_main(argv)
 
 
-def _scene_word(argv: list[str]) -> str | None:
-    """The first word of ``argv`` that names a scene file (by its suffix), options before it allowed."""
-    return next((a for a in argv if not a.startswith("-") and a.lower().endswith((".toml", ".gltf", ".glb"))), None)
+def _demo_named(argv: list[str]) -> bool:
+    """Whether ``argv`` names a Python demo (``softvr run candy``), or names nothing (help)."""
+    from softvr.examples.run import SCENES
+
+    return any(a in SCENES for a in argv) or all(a.startswith("-") for a in argv)
 
 
 def _run(argv: list[str]) -> int:
-    if _scene_word(argv) is not None:
-        from softvr.scene import _command
+    # A demo by name, else a scene: a file's path or a bundled scene's name (candy-adhesive).
+    if _demo_named(argv):
+        from softvr.examples import run
 
-        return _command.run_main(argv)
-    from softvr.examples import run
+        return run.main(argv)
+    from softvr.scene import _command
 
-    return run.main(argv)
+    return _command.run_main(argv)
 
 
 def _view(argv: list[str]) -> int:
@@ -121,13 +124,13 @@ def _view(argv: list[str]) -> int:
         from softvr.scene import _command
 
         return _command.view_main(["palpation.toml", *argv[1:]])
-    if _scene_word(argv) is not None:
-        from softvr.scene import _command
+    if _demo_named(argv):
+        from softvr.examples import run
 
-        return _command.view_main(argv)
-    from softvr.examples import run
+        return run.view_main(argv)
+    from softvr.scene import _command
 
-    return run.view_main(argv)
+    return _command.view_main(argv)
 
 
 _BENCH_AREAS = {"volume": "rasterizer vs VTK vtkProbeFilter + SciPy and SimpleITK (thesis Figs. 3.5 / 3.6)",
