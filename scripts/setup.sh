@@ -62,6 +62,7 @@ case "$job" in
   demo) exec .venv/bin/python -m softvr demo "$@" ;;
   test) exec .venv/bin/python -m pytest -q "$@" ;;
   # -E: a fresh environment every time, so a clean clone and a rebuild see the same warnings.
-  docs) exec .venv/bin/python -m sphinx -W --keep-going -E -q -b html docs docs/_build/html "$@" ;;
+  docs) .venv/bin/python -m sphinx -W --keep-going -E -q -b html docs docs/_build/html "$@"
+        echo "docs: docs/_build/html/index.html" ;;
   *) echo "usage: bash scripts/setup.sh demo|test|docs [args]"; exit 2 ;;
 esac
