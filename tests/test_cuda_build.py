@@ -15,6 +15,10 @@ MODULES = {
     "softvr.collision._primitive_kernels": ("points_plane", "boxes_plane", "spheres_plane", "sphere_pairs",
                                             "box_pairs"),
     "softvr.contact._rigid_pgs_kernels": ("solve_rigid_contacts",),
+    "softvr.dynamics._fem_kernels": ("_corotated_kernel",),
+    "softvr.dynamics._node_kernels": ("element_terms", "assemble", "right_hand_side", "integrate"),
+    "softvr.collision._node_kernels": ("points_vs_planes", "carry_impulses"),
+    "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual"),
 }
 
 

@@ -24,7 +24,8 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "cpu_workers", "cuda_driver_present", "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas",
+    "chunked_replayer", "cpu_workers", "cuda_driver_present", "launch", "load_kernels", "replayer", "resolve_device",
+    "single_threaded_blas",
 ]
 
 
@@ -204,6 +205,31 @@ def replayer(recorded) -> Callable[[], None]:
         forward(bounds, packed)
 
     replay.keep = (recorded, args)  # the struct points into the launch's arrays
+    return replay
+
+
+def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> Callable[[], None]:
+    """Record a 1-D ``kernel`` over ``dim`` threads as :func:`launch` splits it (the last
+    parameter an ``int`` thread offset) and return a function replaying it: the chunks on the
+    CPU cores (the first on the calling thread), or one replay where one chunk suffices (CUDA,
+    one core, a small ``dim``)."""
+    load_kernels(kernel, device)
+    workers = cpu_workers() if device == "cpu" else 1
+    chunks = 1 if workers == 1 or dim < 2 * min_chunk else min(workers, max(1, dim // min_chunk))
+    bounds = [dim * c // chunks for c in range(chunks + 1)]
+    replays = [replayer(wp.launch(kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]], device=device,
+                                  record_cmd=True))
+               for c in range(chunks) if bounds[c + 1] > bounds[c]]
+    if len(replays) == 1:
+        return replays[0]
+    first, rest = replays[0], replays[1:]
+
+    def replay() -> None:
+        futures = [_pool(workers).submit(r) for r in rest]
+        first()
+        for f in futures:
+            f.result()
+
     return replay
 
 

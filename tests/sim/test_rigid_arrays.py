@@ -48,7 +48,7 @@ def test_free_fall_is_semi_implicit_euler_exactly():
         scene.step(dt)
     assert body.v[2] == pytest.approx(-G * n * dt, rel=1e-12)
     assert body.position[2] == pytest.approx(5.0 - G * dt * dt * n * (n + 1) / 2, rel=1e-12)
-    assert scene._rigid is not None and body.step_count == n
+    assert scene._stepper is not None and body.step_count == n
 
 
 def test_a_pose_assigned_between_steps_is_the_one_stepped_from():
@@ -85,7 +85,7 @@ def test_box_stack_on_arrays_follows_the_per_object_path():
         scene = _stack(arrays)
         for _ in range(100):
             scene.step(0.01)
-        assert (scene._rigid is not None) == arrays
+        assert (scene._stepper is not None) == arrays
         finals.append(np.array([b.position for b in scene.bodies]))
     np.testing.assert_allclose(finals[0], finals[1], rtol=0, atol=1e-5)
 
@@ -108,10 +108,10 @@ def test_bonds_carry_over_when_the_scene_changes_path():
     for _ in range(20):
         scene.step(0.002)
     bonds = dict(scene.adhesion_state.intensity)
-    assert len(bonds) == 9 and scene._rigid is not None
+    assert len(bonds) == 9 and scene._stepper is not None
     scene.add_sphere(Sphere(center=(5.0, 0.0, 0.0), radius=0.1))  # not an array scene any more
     scene.step(0.002)
-    assert scene._rigid is None
+    assert scene._stepper is None
     assert scene.adhesion_state.intensity.keys() == bonds.keys()
     np.testing.assert_allclose(list(scene.adhesion_state.intensity.values()), list(bonds.values()), atol=1e-6)
 

@@ -3,10 +3,13 @@
 :class:`Scene` is the user-facing builder and stepper. A scene of rigid bodies on planes,
 box and sphere primitives and rigid collision points steps as whole-scene arrays
 (:class:`RigidModel`, :class:`RigidState`) through a fixed sequence of compiled launches
-(:mod:`softvr.sim._rigid_step`); every other scene through the per-object path.
+(:mod:`softvr.sim._rigid_step`); a scene of FEM bodies on planes as :class:`NodeModel`,
+:class:`NodeState` (:mod:`softvr.sim._node_step`); every other scene through the per-object path.
 """
 
 from softvr.sim._scene import STAGES, Scene
 from softvr.sim.model import RigidModel, RigidState, build_rigid_model, rigid_model_supported
+from softvr.sim.node_model import NodeContacts, NodeModel, NodeState, build_node_model, node_model_supported
 
-__all__ = ["STAGES", "RigidModel", "RigidState", "Scene", "build_rigid_model", "rigid_model_supported"]
+__all__ = ["STAGES", "NodeContacts", "NodeModel", "NodeState", "RigidModel", "RigidState", "Scene", "build_node_model",
+           "build_rigid_model", "node_model_supported", "rigid_model_supported"]

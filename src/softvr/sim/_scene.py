@@ -35,8 +35,10 @@ from softvr.dynamics.body import ContactObject
 from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
+from softvr.sim._node_step import NodeStepper
 from softvr.sim._rigid_step import RigidStepper
 from softvr.sim.model import rigid_model_supported
+from softvr.sim.node_model import node_model_supported
 
 __all__ = ["STAGES", "Scene"]
 
@@ -114,6 +116,10 @@ class Scene:
         collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
         compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
         other scene, every body steps as its own object (the reference path).
+    node_arrays : bool
+        Step a scene of FEM bodies on planes (:func:`~softvr.sim.node_model_supported`) on
+        whole-scene arrays (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block
+        D_A, Chebyshev accelerated, no factorization; on by default. Off: the per-object path.
     parallel_islands : bool
         Solve the coupling islands' unconstrained steps in parallel threads. Off by default:
         the per-island work is still mostly Python (assembly), so on the shoulder the threads
@@ -145,9 +151,10 @@ class Scene:
     couplings: list = field(default_factory=list)
     parallel_islands: bool = False
     rigid_arrays: bool = True
+    node_arrays: bool = True
     _units: list | None = None
     _pool: object = None
-    _rigid: RigidStepper | None = None
+    _stepper: RigidStepper | NodeStepper | None = None
     _layout: int = 0
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
@@ -433,18 +440,22 @@ class Scene:
             return list(self._pool.map(solve, range(len(units))))
         return [solve(u) for u in range(len(units))]
 
-    def _arrays(self) -> RigidStepper | None:
-        """The array stepper when this scene steps on arrays (:attr:`rigid_arrays`), rebuilt
-        after the scene changed; what the contacts carry (warm starts, adhesion) moves along
-        when the scene changes path."""
-        if self._rigid is not None and self.rigid_arrays and self._rigid.still_valid():
-            return self._rigid
-        if self._rigid is not None:
-            self.adhesion_state, self._warm = self._rigid.carried_out()
-            self._rigid = None
+    def _arrays(self) -> RigidStepper | NodeStepper | None:
+        """The array stepper when this scene steps on arrays (:attr:`rigid_arrays`,
+        :attr:`node_arrays`), rebuilt after the scene changed; what the contacts carry (warm
+        starts, adhesion) moves along when the scene changes path."""
+        stepper = self._stepper
+        enabled = self.rigid_arrays if isinstance(stepper, RigidStepper) else self.node_arrays
+        if stepper is not None and enabled and stepper.still_valid():
+            return stepper
+        if stepper is not None:
+            self.adhesion_state, self._warm = stepper.carried_out()
+            self._stepper = None
         if self.rigid_arrays and rigid_model_supported(self):
-            self._rigid = RigidStepper(self)
-        return self._rigid
+            self._stepper = RigidStepper(self)
+        elif self.node_arrays and node_model_supported(self):
+            self._stepper = NodeStepper(self)
+        return self._stepper
 
     def _step(self, dt: float) -> ContactSolution:
         arrays = self._arrays()

@@ -1,0 +1,154 @@
+"""Compiled sweeps of thesis eq. 5.6 over the nodes of a whole scene: an outer Jacobi iteration
+over the velocities with D_A the 3x3 diagonal node blocks of A, an inner projected Gauss-Seidel
+over the contacts with B = J D_A^-1 J^T, and Chebyshev acceleration of the outer iteration.
+
+One sweep k, for every free node i (fixed nodes keep their prescribed velocity):
+
+    v^_i  = D_i^-1 (b_i - sum_{j != i} A_ij v_j^k)            (eq. 5.6: L_A + U_A on the right)
+    v^   += D_A^-1 J^T lambda, lambda <- PGS on 0 <= lambda _|_ J v^ - c >= 0 (friction: the disc)
+    v^k+1 = omega_k (gamma (v^ - v^k) + v^k - v^k-1) + v^k-1              (Chebyshev)
+
+Plain Jacobi (omega = gamma = 1) converges on FEM step matrices (spectral radius of D_A^-1
+(L_A + U_A) below 1 there: 0.96 on the contact bench's cube) but needs ~190 sweeps for 1e-5 m/s;
+the Chebyshev semi-iteration over the spectrum [lo, hi] of D_A^-1 A (gamma = 2 / (lo + hi),
+rho = (hi - lo) / (hi + lo), omega_k by the recurrence in :func:`chebyshev_weights`) needs 30-40
+(docs/physics-core.md). Each contact here touches the nodes of one point (a stencil of up to 4
+nodes with weights); the per-contact PGS update is local, so the inner loop costs
+O(contacts) per sweep.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+#: Nodes in a point's stencil (4: a point embedded in a tet; unused entries have node -1).
+STENCIL = 4
+
+
+@wp.kernel
+def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+           blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+           fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
+           v_hat: wp.array(dtype=wp.vec3d)):
+    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` from the sweep's ``v``."""
+    i = wp.tid()
+    if fixed[i] != 0:
+        v_hat[i] = fixed_velocity[i]
+        return
+    r = b[i]
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if j != i:
+            r = r - blocks[k] * v[j]
+    v_hat[i] = d_inv[i] * r
+
+
+@wp.func
+def _apply(c: int, world: wp.vec3d, point: wp.array(dtype=wp.int32), point_nodes: wp.array2d(dtype=wp.int32),
+           point_weights: wp.array2d(dtype=wp.float64), d_inv: wp.array(dtype=wp.mat33d),
+           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
+    """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s]."""
+    p = point[c]
+    for k in range(STENCIL):
+        node = point_nodes[p, k]
+        if node >= 0:
+            if fixed[node] == 0:
+                v_hat[node] = v_hat[node] + point_weights[p, k] * (d_inv[node] * world)
+
+
+@wp.kernel
+def contacts(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
+             point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+             frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
+             friction: wp.array(dtype=wp.float64), d_inv: wp.array(dtype=wp.mat33d),
+             fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
+             v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32)):
+    """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
+    ``impulse`` [c] (normal, tangent 1, tangent 2) [N s] of the last sweep applied to ``v^``,
+    then ``passes`` PGS passes; counts the sweep in ``sweep[0]``."""
+    n = count[0]
+    for c in range(n):
+        _apply(c, wp.transpose(frame[c]) * impulse[c], point, point_nodes, point_weights, d_inv, fixed, v_hat)
+    for _ in range(passes):
+        for c in range(n):
+            f = frame[c]
+            p = point[c]
+            rel = wp.vec3d()
+            w = wp.mat33d()
+            for k in range(STENCIL):
+                node = point_nodes[p, k]
+                if node >= 0:
+                    wk = point_weights[p, k]
+                    rel = rel + wk * v_hat[node]
+                    if fixed[node] == 0:
+                        w = w + (wk * wk) * d_inv[node]
+            rel_f = f * rel
+            w_f = f * w * wp.transpose(f)
+            old = impulse[c]
+            lam = old
+            # Normal row (target -gap / dt: a speculative contact may close its gap, not cross it).
+            if w_f[0, 0] > wp.float64(0.0):
+                lam_n = wp.max(old[0] + (-gap[c] / dt - rel_f[0]) / w_f[0, 0], wp.float64(0.0))
+                rel_f = rel_f + w_f * wp.vec3d(lam_n - old[0], wp.float64(0.0), wp.float64(0.0))
+                lam = wp.vec3d(lam_n, old[1], old[2])
+                # Tangent rows together, then onto the friction disc |lam_t| <= mu lam_n. The step
+                # is isotropic (1 / the larger eigenvalue of the 2x2 tangent block): the impulse it
+                # aims at opposes the tangential velocity, so a sliding contact's friction ends up
+                # opposite its slip (maximal dissipation); a W-metric step would tilt it towards
+                # the stiffer direction (a block on a 35 degree incline then slid 0.5 % fast).
+                mean = wp.float64(0.5) * (w_f[1, 1] + w_f[2, 2])
+                half = wp.float64(0.5) * (w_f[1, 1] - w_f[2, 2])
+                w_t = mean + wp.sqrt(half * half + w_f[1, 2] * w_f[2, 1])
+                if w_t > wp.float64(0.0):
+                    t1 = lam[1] - rel_f[1] / w_t
+                    t2 = lam[2] - rel_f[2] / w_t
+                    limit = friction[c] * lam_n
+                    norm = wp.sqrt(t1 * t1 + t2 * t2)
+                    if norm > limit:
+                        scale = limit / norm
+                        t1 = t1 * scale
+                        t2 = t2 * scale
+                    lam = wp.vec3d(lam_n, t1, t2)
+            impulse[c] = lam
+            _apply(c, wp.transpose(f) * (lam - old), point, point_nodes, point_weights, d_inv, fixed, v_hat)
+    sweep[0] = sweep[0] + 1
+
+
+@wp.kernel
+def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_prev: wp.array(dtype=wp.vec3d),
+              weights: wp.array(dtype=wp.float64), gamma: wp.float64, sweep: wp.array(dtype=wp.int32),
+              fixed: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
+              change: wp.array(dtype=wp.float64)):
+    """``v^{k+1}`` [m/s] of node ``i`` and its largest component change [m/s]; ``weights`` [K]
+    the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep)."""
+    i = wp.tid()
+    if fixed[i] != 0:
+        v_next[i] = v_hat[i]
+        change[i] = wp.float64(0.0)
+        return
+    omega = weights[sweep[0] - 1]
+    out = omega * (gamma * (v_hat[i] - v[i]) + v[i] - v_prev[i]) + v_prev[i]
+    d = out - v[i]
+    change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
+    v_next[i] = out
+
+
+@wp.kernel
+def residual(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
+             point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+             frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), dt: wp.float64,
+             v: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64), stats: wp.array(dtype=wp.float64)):
+    """Per contact the linearized gap after the step [m] (``gap + dt n . J v``); ``stats[1]``
+    the largest normal-velocity violation [m/s] of the final velocities (one thread)."""
+    worst = wp.float64(0.0)
+    for c in range(count[0]):
+        p = point[c]
+        rel = wp.vec3d()
+        for k in range(STENCIL):
+            node = point_nodes[p, k]
+            if node >= 0:
+                rel = rel + point_weights[p, k] * v[node]
+        vn = wp.dot(wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2]), rel)
+        gap_after[c] = gap[c] + dt * vn
+        worst = wp.max(worst, -gap[c] / dt - vn)
+    stats[1] = worst

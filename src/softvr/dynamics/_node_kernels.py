@@ -1,0 +1,96 @@
+"""Compiled per-node work of the FEM bodies of a whole scene: the step matrix of thesis eq. 5.2
+in node blocks, its right-hand side, and the integration.
+
+    A = M (1 + dt alpha) + (dt beta + dt^2) K,   K = sum_e R_e K_e R_e^T   (3x3 blocks, BSR)
+    b = M v0 + dt (f_elastic + M g + f_external)
+    q1 = q0 + dt v1
+
+Each block of ``A`` gathers R_e K_e,ab R_e^T of its tets and each node its element forces
+through a precomputed list (one thread per block or node, no atomics: the sum is the same on
+every device and in every run); R_e is the polar rotation of :mod:`._fem_kernels`.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from softvr.dynamics._fem_kernels import element_rotation
+
+#: ``NodeState.diverged`` codes.
+NAN_VELOCITY = wp.constant(1)
+TOO_FAST = wp.constant(2)
+
+
+@wp.kernel
+def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
+                  dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
+                  rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.vec3d), offset: int):
+    """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e``
+    (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
+    e = wp.tid() + offset
+    r = element_rotation(q, tets, dm_inv, e, corotational)
+    rotations[e] = r
+    rt = wp.transpose(r)
+    local0 = rt * q[tets[e, 0]] - rest[tets[e, 0]]
+    local1 = rt * q[tets[e, 1]] - rest[tets[e, 1]]
+    local2 = rt * q[tets[e, 2]] - rest[tets[e, 2]]
+    local3 = rt * q[tets[e, 3]] - rest[tets[e, 3]]
+    for a in range(4):
+        fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + ke[e, 4 * a + 3] * local3
+        forces[e, a] = -(r * fa)
+
+
+@wp.kernel
+def assemble(block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+             contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
+             rotations: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d),
+             tet_beta: wp.array(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
+             node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
+             d_inv: wp.array(dtype=wp.mat33d), offset: int):
+    """Block ``k`` of ``A`` [kg]; a diagonal block also writes its inverse ``D_A^-1`` [1/kg].
+    ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that tet adds to block ``k``."""
+    k = wp.tid() + offset
+    m = wp.mat33d()
+    for c in range(contrib_start[k], contrib_start[k + 1]):
+        code = contrib[c]
+        e = code // 16
+        r = rotations[e]
+        m = m + (dt * tet_beta[e] + dt * dt) * (r * ke[e, code % 16] * wp.transpose(r))
+    i = block_row[k]
+    if block_col[k] == i:
+        md = mass[i] * (wp.float64(1.0) + dt * node_alpha[i])
+        m = m + wp.mat33d(md, wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), md, wp.float64(0.0),
+                          wp.float64(0.0), wp.float64(0.0), md)
+        d_inv[i] = wp.inverse(m)
+    blocks[k] = m
+
+
+@wp.kernel
+def right_hand_side(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=wp.int32),
+                    forces: wp.array2d(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
+                    v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d), gravity: wp.vec3d,
+                    dt: wp.float64, b: wp.array(dtype=wp.vec3d)):
+    """``b`` [kg m/s] of node ``i``; ``force[c]`` = 4 tet + a: node a of the tet is node ``i``."""
+    i = wp.tid()
+    f = wp.vec3d()
+    for c in range(force_start[i], force_start[i + 1]):
+        f = f + forces[force[c] // 4, force[c] % 4]
+    b[i] = mass[i] * v[i] + dt * (f + mass[i] * gravity + external[i])
+
+
+@wp.kernel
+def integrate(v_new: wp.array(dtype=wp.vec3d), speed_limit: wp.array(dtype=wp.float64), dt: wp.float64,
+              q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), diverged: wp.array(dtype=wp.int32)):
+    """``q += dt v1``, ``v = v1``; a node whose velocity is not finite or faster than its body's
+    limit [m/s] (a thousand body sizes per second: it has blown up) is flagged and not moved."""
+    i = wp.tid()
+    vi = v_new[i]
+    speed = wp.length(vi)
+    if not (wp.isfinite(vi[0]) and wp.isfinite(vi[1]) and wp.isfinite(vi[2])):
+        diverged[i] = NAN_VELOCITY
+        return
+    if speed > speed_limit[i]:
+        diverged[i] = TOO_FAST
+        return
+    v[i] = vi
+    q[i] = q[i] + dt * vi

@@ -1,0 +1,51 @@
+"""The FEM bodies of a whole scene on arrays: element terms, the step matrix ``A`` of thesis
+eq. 5.2 in 3x3 node blocks with its right-hand side, and the integration, as recorded launches
+replayed every step
+(:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or any objects with those
+attributes; kernels in :mod:`softvr.dynamics._node_kernels`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import warp as wp
+
+from softvr.device import chunked_replayer, load_kernels, replayer
+from softvr.dynamics import _node_kernels as _k
+
+__all__ = ["NODE_DIVERGENCE_REASONS", "record_elements", "record_integrate", "record_system"]
+
+#: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
+NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
+
+
+def record_elements(model, state) -> Callable[[], None]:
+    """A replay writing every tet's rotation and elastic forces [N] (``state.rotations``,
+    ``state.element_forces``) at ``state.q``, split over the CPU cores."""
+    return chunked_replayer(_k.element_terms, model.tet_count,
+                            [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
+                             state.rotations, state.element_forces], model.device, min_chunk=512)
+
+
+def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None], Callable[[], None]]:
+    """Replays writing ``A`` (``state.blocks``, ``state.d_inv``) and ``b`` (``state.b``) of a
+    step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms."""
+    assemble = chunked_replayer(_k.assemble, model.block_count,
+                                [model.block_row, model.block_col, model.contrib_start, model.contrib,
+                                 state.rotations, model.ke, model.tet_beta, model.mass, model.node_alpha, float(dt),
+                                 state.blocks, state.d_inv], model.device, min_chunk=1024)
+    load_kernels(_k.right_hand_side, model.device)
+    rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,
+                    inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
+                            wp.vec3d(*np.asarray(gravity, float)), float(dt), state.b])
+    return assemble, replayer(rhs)
+
+
+def record_integrate(model, state, dt: float, solved: wp.array) -> wp.Launch:
+    """The launch moving every node by the solved velocity ``solved`` [n] [m/s] over ``dt`` [s]
+    into ``state.q`` / ``state.v``; a node past its limits is flagged in ``state.diverged``."""
+    load_kernels(_k.integrate, model.device)
+    return wp.launch(_k.integrate, dim=model.node_count, device=model.device, record_cmd=True,
+                     inputs=[solved, model.speed_limit, float(dt), state.q, state.v, state.diverged])
