@@ -92,6 +92,8 @@ def test_top_level_names_still_work():
     assert set(softvr.__all__) <= set(dir(softvr))
     with pytest.raises(AttributeError, match="nosuch"):
         softvr.nosuch  # noqa: B018
+    proc = python("import softvr; print(softvr.volume.Volume.__name__, softvr.errors.InputError.__name__)")
+    assert proc.stdout.split() == ["Volume", "InputError"], proc.stderr  # subpackages load on first use
 
 
 def test_no_cuda_driver_warning_without_a_driver():

@@ -12,7 +12,7 @@ The names below are loaded on first use (PEP 562): ``import softvr.errors`` or
 
 from __future__ import annotations
 
-from importlib import import_module, metadata
+from importlib import import_module, metadata, util
 from typing import TYPE_CHECKING
 
 try:
@@ -38,9 +38,14 @@ if TYPE_CHECKING:  # type checkers and IDEs see the names as eager imports
 
 def __getattr__(name: str):
     module = _LAZY.get(name)
-    if module is None:
+    if module is not None:
+        value = getattr(import_module(module), name)
+    elif not name.startswith("_") and util.find_spec(f"softvr.{name}") is not None:
+        # ``import softvr; softvr.volume.load(...)`` worked while this file imported the physics stack
+        # (which imported most subpackages); it keeps working, importing the subpackage on first use.
+        value = import_module(f"softvr.{name}")
+    else:
         raise AttributeError(f"module 'softvr' has no attribute {name!r}")
-    value = getattr(import_module(module), name)
     globals()[name] = value  # later look-ups skip this function
     return value
 
