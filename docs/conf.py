@@ -5,6 +5,7 @@ Build (warnings are errors): ``bash scripts/setup.sh docs``, or
 
 Two kinds of pages are written here at build time (git-ignored, never edited by hand):
 
+* ``docs/cli.md``: every ``softvr`` subcommand's ``--help``;
 * ``docs/api/*.rst``: one page per public softvr module, listing exactly the names in its
   ``__all__`` (so the reference is the code's public surface, nothing more);
 * ``docs/gallery/*.md``: one page per demo from ``docs/gallery/manifest.json``, which
@@ -19,9 +20,12 @@ import hashlib
 import importlib
 import inspect
 import json
+import os
 import pkgutil
 import re
+import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from importlib import metadata
 from pathlib import Path
 
@@ -232,6 +236,30 @@ def write_gallery_pages() -> None:
     _write_if_changed(gdir / "index.md", "\n".join(cards))
 
 
+# ---------------------------------------------------------------------------------------------
+# Command-line reference from the command's own --help
+
+def _help(args: list[str]) -> str:
+    # The installed command's text as a user sees it (not parsed from cli.py, which may change shape).
+    path = os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")]))  # this tree's softvr
+    proc = subprocess.run([sys.executable, "-m", "softvr", *args, "--help"], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "COLUMNS": "100", "PYTHONPATH": path})
+    return (proc.stdout or proc.stderr).rstrip()
+
+
+def write_cli_page() -> None:
+    top = _help([])
+    found = re.search(r"\{([a-z0-9,-]+)\}", top)
+    commands = found.group(1).split(",") if found else []
+    with ThreadPoolExecutor(max_workers=4) as pool:  # each --help is a process start: run them side by side
+        texts = list(pool.map(lambda c: _help([c]), commands))
+    page = ["# Command line", "", "Every subcommand of `softvr` (also `python -m softvr`), as its `--help` prints it.",
+            "", "```text", top, "```", ""]
+    for command, text in zip(commands, texts):
+        page += [f"## softvr {command}", "", "```text", text, "```", ""]
+    _write_if_changed(DOCS / "cli.md", "\n".join(page))
+
+
 def _write_if_changed(path: Path, text: str) -> None:
     # Unchanged sources keep their mtime, so an incremental build rereads only what changed.
     if not path.exists() or path.read_text(encoding="utf-8") != text:
@@ -241,6 +269,7 @@ def _write_if_changed(path: Path, text: str) -> None:
 def _generate(app) -> None:
     write_api_pages()
     write_gallery_pages()
+    write_cli_page()
 
 
 def _drop_type_docstring(app, what, name, obj, options, lines) -> None:
