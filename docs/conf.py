@@ -73,7 +73,9 @@ myst_heading_anchors = 3
 
 html_theme = "furo"
 html_title = f"softvr {release}"
-html_static_path = ["gallery/clips"]  # the gallery's MP4s, at _static/NAME.mp4
+# The gallery's sheets and MP4s, at _static/NAME.png and _static/NAME.mp4 (the index's thumbnail grid is
+# HTML, whose images Sphinx would not copy otherwise).
+html_static_path = ["gallery/img", "gallery/clips"]
 
 # Warnings excluded on purpose, each with why (everything else fails the -W build).
 suppress_warnings = [
@@ -219,9 +221,13 @@ def write_gallery_pages() -> None:
              "Every demo scene bundled with softvr, run for a few frames by `scripts/gallery.py` "
              "(`softvr run SCENE.toml --frames N`); each image is the contact sheet that run wrote.", "",
              "```{toctree}", ":hidden:", ""] + list(GALLERY) + ["```", ""]
+    grid = ['<div style="display: flex; flex-wrap: wrap; gap: 12px;">']
+    for name in GALLERY:
+        grid += [f'<a href="{name}.html" style="width: 31%; text-align: center;">'
+                 f'<img src="../_static/{name}.png" alt="{name}" style="width: 100%;"><br>{name}</a>']
+    cards += ["```{raw} html", *grid, "</div>", "```", ""]
     for name in GALLERY:
         e = entries[name]
-        cards += [f"## [{name}]({name}.md)", "", f"[![{name}]({e['image']})]({name}.md)", ""]
         page = [f"# {name}", "", e["description"], "", f"```{{image}} {e['image']}", f":alt: {name} contact sheet",
                 "```", ""]
         if "clip" in e:
