@@ -47,7 +47,7 @@ class NodeSolve:
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
-        self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho
+        self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
         for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual):
@@ -90,7 +90,7 @@ class NodeSolve:
         ``tolerance (1 - rate) / rate`` (checked every ``check_every``). Returns the sweeps made
         and the buffer holding the solved velocities; ``stats[1]`` then holds the largest
         normal-velocity violation [m/s]."""
-        stop = tolerance * (1.0 - self.rate) / self.rate
+        stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
         self._sweep[0] = 0
         k = 0
         while k < self.max_sweeps:

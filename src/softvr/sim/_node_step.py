@@ -47,6 +47,8 @@ def spectrum(model, state) -> tuple[float, float]:
     ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A),
     with :data:`SPECTRUM_MARGIN`."""
     n = model.node_count
+    if not (model.fixed.numpy() == 0).any():
+        return 1.0, 1.0  # nothing to solve for: every node is driven
     blocks = state.blocks.numpy()
     a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
     free = np.repeat(model.fixed.numpy() == 0, 3)
