@@ -146,5 +146,6 @@ def test_an_unknown_demo_names_the_demos(capsys):
 
 def test_a_bundled_scene_without_a_demo_twin_runs_by_name(tmp_path):
     """candy-adhesive exists only as a scene file: ``softvr run candy-adhesive`` finds it."""
-    assert main(["run", "candy-adhesive", "--frames", "1", "--size", "32", "24", "--quiet", "--out", str(tmp_path)]) == 0
+    small = ["--frames", "1", "--size", "32", "24", "--quiet"]
+    assert main(["run", "candy-adhesive", *small, "--out", str(tmp_path)]) == 0
     assert (tmp_path / "candy-adhesive.mp4").is_file()
