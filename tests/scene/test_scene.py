@@ -447,35 +447,6 @@ def test_the_viewer_shows_the_collision_surface_instead_of_the_render_surface(di
     assert ((b > 180) & (g > 160) & (r < 140)).sum() > 50  # the cyan (0.3, 0.9, 1.0) edges
 
 
-def test_the_mouse_tool_pulls_the_grabbed_body_towards_the_pointer(display):
-    """Grabbing the resting soft cube at the window centre and moving the pointer 80 px up:
-    the spring (k = 400 m per s^2 per kg) lifts the grabbed node towards the target; releasing
-    removes the force."""
-    from softvr.examples._drag_tool import DragTool
-    from softvr.render import SurfaceRenderer
-
-    with load_scene(BUNDLED / "soft-cube.toml", frames=1) as ex:
-        for _ in range(60):  # let it land
-            ex.scene.step(ex.dt)
-        with SurfaceRenderer(320, 240, ex.camera, bounds=ex.bounds, onscreen=True) as r:
-            ex.setup_render(r)
-            ex.update_render(r)
-            r.render()
-            tool = DragTool(ex.scene, r.vtk_renderer)
-            assert tool.press(160, 120)
-            start = tool.point()
-            tool.move(160, 200)  # display y grows upwards
-            assert tool.target[2] > start[2] + 0.05
-            gap = np.linalg.norm(tool.target - start)
-            for _ in range(40):
-                tool.apply()
-                ex.scene.step(ex.dt)
-            assert np.linalg.norm(tool.target - tool.point()) < 0.6 * gap
-            assert tool.point()[2] > start[2] + 0.02
-            tool.release()
-            assert ex.scene.external == {}
-
-
 def test_kinematic_and_tool_meshes_follow_their_keyframes(tmp_path):
     """A kinematic mesh is where its keyframes put it; a tool mesh hangs from its handle, in
     equilibrium, m g / k below it (the virtual coupling a spring of stiffness k)."""
