@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from softvr.collision.contacts import Contacts, rigid_side, unpack_keys
+from softvr.collision.contacts import Contacts, rigid_side
 from softvr.collision.rigid_detection import record_detection
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
@@ -46,16 +46,14 @@ class _Snapshot:
         if self._sets is None:
             c = self.contacts
             b_moves = (c["body_b"] >= 0) & (self._inv_mass[np.maximum(c["body_b"], 0)] > 0)
-            movable = (self._inv_mass[c["body_a"]] > 0) | b_moves
-            fields = unpack_keys(c["key"])
-            static = np.where(c["body_b"] < 0, fields["body_b"], -1)
-            rows: dict[tuple, list] = {}
-            # A dict keeps first-appearance order and costs ~1 us per contact; np.unique over
-            # the rows' tuples cost 120 us per call on the box stack's 20 contacts.
-            for row, pair in zip(np.flatnonzero(movable).tolist(),
-                                 zip(fields["kind"][movable].tolist(), c["body_a"][movable].tolist(),
-                                     c["body_b"][movable].tolist(), static[movable].tolist())):
-                rows.setdefault(pair, []).append(row)
+            movable = np.flatnonzero((self._inv_mass[c["body_a"]] > 0) | b_moves)
+            # A key's top 24 bits are (kind, body a, body b or the static's index): the set. A
+            # dict keeps first-appearance order at ~1 us per contact (np.unique and a split cost
+            # 3x that on the box stack's 20 contacts).
+            pair = (c["key"][movable].view(np.uint64) >> np.uint64(40)).tolist()
+            rows: dict[int, list] = {}
+            for row, key in zip(movable.tolist(), pair):
+                rows.setdefault(key, []).append(row)
             self._sets = [np.array(r) for r in rows.values()]
         return self._sets
 
