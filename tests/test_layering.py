@@ -47,7 +47,6 @@ TIERS = (
 TOP_LEVEL_ONLY = TIERS[: TIERS.index(("softvr.scene",))]
 
 #: (importer, imported) -> why it is still there. Each is a violation in a file being rewritten.
-_WRITES = "atomic writes live in softvr.files; render._atomic re-exports them until this file moves (issue 19)"
 _RENDER = "render's private window / backend helpers, used until this file uses render's public API (issue 19)"
 _COMMAND = ("cli dispatches to the package's private _command module; the package exports its command "
             "when cli is rewritten (issue 19)")
@@ -55,15 +54,7 @@ ALLOWED = {
     ("softvr.model.build", "softvr.scene.gltf"):
         "load_mesh checks a glTF's buffers with check_gltf, whose home is scene/gltf.py; it moves to "
         "softvr.files when the glTF reader is rewritten (issue 19)",
-    ("softvr.bench._report", "softvr.render._atomic"): _WRITES,
-    ("softvr.blender", "softvr.render._atomic"): _WRITES,
-    ("softvr.cave.display", "softvr.render._atomic"): _WRITES,
     ("softvr.app._window", "softvr.render._live"): _RENDER,
-    ("softvr.bench._volume_peers", "softvr.volume._volume"):
-        "the volume bench reads a private module of softvr.volume until the benches are rewritten (issue 19)",
-    ("softvr.bench.scene", "softvr.scene.build._rotation"):
-        "the scene bench reads a body's rotation with scene.build's private helper until the benches are "
-        "rewritten (issue 19)",
     ("softvr.bench.cave", "softvr.cave._command"):
         "the cave bench starts the cluster through cave's command until benches run through the player (issue 19)",
     ("softvr.cli", "softvr.cave._command"): _COMMAND,

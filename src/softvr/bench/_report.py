@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from softvr.render._atomic import write_json
+from softvr.files import write_json
 from softvr.render.figure import save_figure
 
 __all__ = ["bench_parser", "print_and_write", "save_figure"]

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from softvr.errors import InputError
-from softvr.volume._volume import Volume
+from softvr.volume import Volume
 
 __all__ = ["ProbeResult", "default_threads", "grid_volume", "probe_rest_positions", "warp_sitk", "warp_vtk_scipy"]
 

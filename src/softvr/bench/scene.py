@@ -157,16 +157,16 @@ def soft_cube_twins(folder) -> tuple[Path, Path]:
     import struct
 
     import trimesh
+    from scipy.spatial.transform import Rotation
 
     from softvr.scene import FORMAT, bundled, read_scene
-    from softvr.scene.build import _rotation
 
     folder = Path(folder)
     source = read_scene(bundled("soft-cube.toml"))
     (body,), sim = source.bodies, source.simulation
     material = source.materials[body.material]
     edge = float(np.max(body.size) / np.max(body.cells))  # cube edge of the mesh path [m]
-    rotation, _ = _rotation(body.rotation)
+    rotation = Rotation.from_euler("xyz", body.rotation, degrees=True).as_matrix()  # the format's x, y, z angles
     # softvr's z-up (x, y, z) is glTF's y-up (x, z, -y).
     y_up = np.eye(4)
     y_up[:3, :3] = [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]

@@ -9,6 +9,8 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
+from softvr.files import atomic_output
+
 __all__ = ["ADDON_SOURCE", "build_addon"]
 
 ADDON_SOURCE = Path(__file__).resolve().parent / "softvr_blender"
@@ -17,8 +19,6 @@ ADDON_SOURCE = Path(__file__).resolve().parent / "softvr_blender"
 def build_addon(folder) -> Path:
     """Write ``softvr-blender.zip`` (the add-on folder ``softvr_blender/``) into ``folder``,
     atomically; returns its path."""
-    from softvr.render._atomic import atomic_output
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     target = folder / "softvr-blender.zip"

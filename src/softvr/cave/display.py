@@ -32,6 +32,7 @@ import numpy as np
 
 from softvr.cave.projection import ScreenView, screen_view
 from softvr.errors import InputError, raise_all
+from softvr.files import atomic_output
 from softvr.scene.display import FORMAT, MAX_PIXELS, MAX_SCREENS, STEREO_MODES, display_problems, read_display, tile
 from softvr.scene.display import PRESETS as _SCREENS
 from softvr.scene.display import Screen as _Screen
@@ -107,8 +108,6 @@ def preset(name: str) -> Display:
 def save_display(display: Display, path) -> Path:
     """Write ``display`` as a display file (module docstring) that :func:`load_display` reads
     back to the same screens; atomically (an existing file survives a failed write)."""
-    from softvr.render._atomic import atomic_output  # noqa: PLC0415
-
     def vec(v) -> str:
         return "[" + ", ".join(repr(float(x)) for x in v) + "]"
 
