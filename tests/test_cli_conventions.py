@@ -9,12 +9,14 @@ they go to ``softvr-out/NAME/``; ``softvr --version`` prints the installed distr
 path, and a path that is no scene file is named as the user wrote it.
 """
 
+import logging
 import subprocess
 import sys
 from importlib.metadata import version
 
 import pytest
 
+from softvr import cli
 from softvr.cli import main
 
 #: Every subcommand and nested command with a --help of its own (as typed after ``softvr``).
@@ -149,3 +151,41 @@ def test_a_bundled_scene_without_a_demo_twin_runs_by_name(tmp_path):
     small = ["--frames", "1", "--size", "32", "24", "--quiet"]
     assert main(["run", "candy-adhesive", *small, "--out", str(tmp_path)]) == 0
     assert (tmp_path / "candy-adhesive.mp4").is_file()
+
+
+def test_verbose_shows_softvr_info_lines_on_stderr(monkeypatch, capsys):
+    """``softvr --verbose CMD`` shows what softvr's loggers say at INFO; without it nothing; and the
+    option belongs to softvr, not to the command (which never sees it)."""
+    seen = []
+
+    def command(argv):
+        seen.append(argv)
+        logging.getLogger("softvr.some.module").info("a line at INFO")
+        return 0
+
+    monkeypatch.setitem(cli._COMMANDS, "check", command)
+    monkeypatch.setattr(logging.getLogger("softvr"), "level", logging.NOTSET)  # restored after the test
+    monkeypatch.setattr(logging.getLogger("softvr"), "handlers", [])
+    assert main(["check", "x.toml"]) == 0
+    assert "a line at INFO" not in capsys.readouterr().err
+    assert main(["--verbose", "check", "x.toml"]) == 0 and main(["-v", "check", "y.toml"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("softvr.some.module: INFO: a line at INFO") == 2, err  # one handler, however often
+    assert seen == [["x.toml"], ["x.toml"], ["y.toml"]]
+    assert main(["--help"]) == 0
+    assert "--verbose" in capsys.readouterr().out
+
+
+def test_verbose_shows_the_missing_cuda_driver_in_one_line():
+    from softvr.device import cuda_driver_present
+
+    if cuda_driver_present():
+        pytest.skip("a CUDA driver is present: nothing to say about its absence")
+    # --device cuda is refused after Warp starts: a command that gets that far and stops (no physics).
+    words = ["run", "soft-cube", "--device", "cuda"]
+    quiet = subprocess.run([sys.executable, "-m", "softvr", *words], capture_output=True, text=True)
+    verbose = subprocess.run([sys.executable, "-m", "softvr", "--verbose", *words], capture_output=True, text=True)
+    assert quiet.returncode == verbose.returncode == 2, verbose.stderr
+    assert "CUDA driver" not in quiet.stderr, quiet.stderr
+    lines = [line for line in verbose.stderr.splitlines() if "CUDA driver" in line]
+    assert lines == ["softvr.device: INFO: no NVIDIA CUDA driver found: Warp runs on the CPU only"], verbose.stderr

@@ -20,7 +20,8 @@ One convention for all of them: ``--help`` everywhere; ``--device cpu|cuda`` whe
 (run, view, demo, bench, cave); ``--out DIR`` with one default, ``softvr-out/NAME/``, and one
 file name rule, ``NAME.mp4``, ``NAME_sheet.png``, ``NAME_metrics.json``
 (:func:`softvr.app.record`); a scene is a bundled scene's name (``candy``, ``candy.toml``) or a
-file's path, options before or after it; ``softvr --version``. Heavy layers are imported by the
+file's path, options before or after it; ``softvr --version``; ``softvr --verbose CMD ...`` (before
+the command, for every command) shows softvr's INFO log lines on stderr (e.g. that no CUDA driver was found). Heavy layers are imported by the
 subcommand that needs them, so ``softvr --help`` starts no physics stack.
 
 Bad input ends a command with ``softvr CMD: error: FILE: FIELD: expected ..., found ...`` and
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import sys
 from importlib.metadata import PackageNotFoundError, version
@@ -92,9 +94,9 @@ def _build_model(argv: list[str]) -> int:
 
 
 def _tetmesh(argv: list[str]) -> int:
-    from softvr.model import _command
+    from softvr.model import command
 
-    return _command.tetmesh_main(argv)
+    return command.tetmesh_main(argv)
 
 
 def _demo_named(argv: list[str]) -> bool:
@@ -110,9 +112,9 @@ def _run(argv: list[str]) -> int:
         from softvr.examples import run
 
         return run.main(argv)
-    from softvr.scene import _command
+    from softvr.scene import command
 
-    return _command.run_main(argv)
+    return command.run_main(argv)
 
 
 def _view(argv: list[str]) -> int:
@@ -121,16 +123,16 @@ def _view(argv: list[str]) -> int:
 
         return viewer.main(argv[1:])
     if argv and argv[0] == "palpation":
-        from softvr.scene import _command
+        from softvr.scene import command
 
-        return _command.view_main(["palpation.toml", *argv[1:]])
+        return command.view_main(["palpation.toml", *argv[1:]])
     if _demo_named(argv):
         from softvr.examples import run
 
         return run.view_main(argv)
-    from softvr.scene import _command
+    from softvr.scene import command
 
-    return _command.view_main(argv)
+    return command.view_main(argv)
 
 
 _BENCH_AREAS = {"volume": "rasterizer vs VTK vtkProbeFilter + SciPy and SimpleITK (thesis Figs. 3.5 / 3.6)",
@@ -167,15 +169,15 @@ def _bench(argv: list[str]) -> int:
 
 
 def _cave(argv: list[str]) -> int:
-    from softvr.cave import _command
+    from softvr.cave import command
 
-    return _command.main(argv)
+    return command.main(argv)
 
 
 def _check(argv: list[str]) -> int:
-    from softvr.scene import _command
+    from softvr.scene import command
 
-    return _command.check_main(argv)
+    return command.check_main(argv)
 
 
 def _blender_addon(argv: list[str]) -> int:
@@ -215,9 +217,29 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
+#: The handler ``--verbose`` puts on the ``softvr`` logger (one, however often main() runs in a process).
+_VERBOSE_HANDLER: logging.Handler | None = None
+
+
+def _log_verbosely() -> None:
+    """Show the INFO lines of softvr's loggers on stderr; other libraries' loggers stay as they are."""
+    global _VERBOSE_HANDLER
+    logger = logging.getLogger("softvr")
+    if _VERBOSE_HANDLER is not None:
+        logger.removeHandler(_VERBOSE_HANDLER)
+    _VERBOSE_HANDLER = logging.StreamHandler(sys.stderr)  # the stderr of now (tests replace it)
+    _VERBOSE_HANDLER.setFormatter(logging.Formatter("%(name)s: %(levelname)s: %(message)s"))
+    logger.addHandler(_VERBOSE_HANDLER)
+    logger.setLevel(logging.INFO)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the ``softvr`` command line; returns the process exit code."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    # --verbose is a top-level option, before the command: what follows the command is the command's.
+    while argv and argv[0] in ("-v", "--verbose"):
+        argv.pop(0)
+        _log_verbosely()
     parser = argparse.ArgumentParser(
         prog="softvr",
         description="softvr: deformable anatomy for VR training (volume deformation, contact, CAVE).",
@@ -225,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("command", choices=sorted(_COMMANDS), help="what to do")
     parser.add_argument("--version", action="version", version=f"softvr {_version()}")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="show softvr's INFO log lines on stderr (give it before the command)")
     if argv and argv[0] == "--version":
         print(f"softvr {_version()}")
         return 0
