@@ -21,8 +21,9 @@ One convention for all of them: ``--help`` everywhere; ``--device cpu|cuda`` whe
 file name rule, ``NAME.mp4``, ``NAME_sheet.png``, ``NAME_metrics.json``
 (:func:`softvr.app.record`); a scene is a bundled scene's name (``candy``, ``candy.toml``) or a
 file's path, options before or after it; ``softvr --version``; ``softvr --verbose CMD ...`` (before
-the command, for every command) shows softvr's INFO log lines on stderr (e.g. that no CUDA driver was found). Heavy layers are imported by the
-subcommand that needs them, so ``softvr --help`` starts no physics stack.
+the command, for every command) shows softvr's INFO log lines on stderr (e.g. that no CUDA driver
+was found). Heavy layers are imported by the subcommand that needs them, so ``softvr --help``
+starts no physics stack.
 
 Bad input ends a command with ``softvr CMD: error: FILE: FIELD: expected ..., found ...`` and
 exit status 2, never a traceback; anything else that goes wrong is a bug, reported as an
