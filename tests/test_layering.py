@@ -48,18 +48,11 @@ TOP_LEVEL_ONLY = TIERS[: TIERS.index(("softvr.scene",))]
 
 #: (importer, imported) -> why it is still there. Each is a violation in a file being rewritten.
 _RENDER = "render's private window / backend helpers, used until this file uses render's public API (issue 19)"
-_COMMAND = ("cli dispatches to the package's private _command module; the package exports its command "
-            "when cli is rewritten (issue 19)")
 ALLOWED = {
     ("softvr.model.build", "softvr.scene.gltf"):
         "load_mesh checks a glTF's buffers with check_gltf, whose home is scene/gltf.py; it moves to "
         "softvr.files when the glTF reader is rewritten (issue 19)",
     ("softvr.app._window", "softvr.render._live"): _RENDER,
-    ("softvr.bench.cave", "softvr.cave._command"):
-        "the cave bench starts the cluster through cave's command until benches run through the player (issue 19)",
-    ("softvr.cli", "softvr.cave._command"): _COMMAND,
-    ("softvr.cli", "softvr.model._command"): _COMMAND,
-    ("softvr.cli", "softvr.scene._command"): _COMMAND,
 }
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from softvr.cave import preset
-from softvr.cave._command import node_command
+from softvr.cave.command import node_command
 from softvr.cave.app import WavingSheet, user_pose_facing
 from softvr.cave.cluster import ClusterConfig, Master, Node, make_keys
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from softvr.cave._command import node_command
+from softvr.cave.command import node_command
 from softvr.cave.app import WavingSheet, user_pose_facing
 from softvr.cave.cluster import ClusterConfig, Master, Node
 from softvr.cave.protocol import decode, encode

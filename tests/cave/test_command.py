@@ -72,7 +72,7 @@ def test_master_with_its_window_drives_a_node(display, tmp_path):
     import json
     import subprocess
 
-    from softvr.cave._command import node_command
+    from softvr.cave.command import node_command
 
     publish, control = _free_endpoint(), _free_endpoint()
     assert main(["cave", "keys", "--display", "single-wall"]) == 0  # the node starts first: it needs master.key

@@ -113,7 +113,7 @@ def test_softvr_check_builds_or_refuses_scene_mutants(root):
         path = folder / f"m{i:04d}.toml"
         path.write_text(toml_text(tree))
         paths.append(str(path))
-    outcomes = run_reader("softvr.scene._command:check_main", [[p] for p in paths], labels=paths)
+    outcomes = run_reader("softvr.scene.command:check_main", [[p] for p in paths], labels=paths)
     _check(outcomes, paths, "softvr check (scene TOML, built)")
 
 
@@ -164,7 +164,7 @@ def test_softvr_check_builds_or_refuses_gltf_mutants(root):
         path = folder / f"m{i:04d}.glb"
         path.write_bytes(glb_bytes(tree, binary))
         paths.append(str(path))
-    outcomes = run_reader("softvr.scene._command:check_main", [[p] for p in paths], labels=paths)
+    outcomes = run_reader("softvr.scene.command:check_main", [[p] for p in paths], labels=paths)
     _check(outcomes, paths, "softvr check (glTF, built)")
 
 
@@ -193,7 +193,7 @@ def test_cave_preview_renders_or_refuses_display_mutants(root):
     paths += _field_mutants([folder / "seed-single-wall.toml"], folder, rng, 2, "f", pool=MILD)
     out = folder / "out"
     argv = [["preview", p, "soft-cube", "--frames", "1", "--scale", "0.05", "--out", str(out)] for p in paths]
-    outcomes = run_reader("softvr.cave._command:main", argv, labels=paths)
+    outcomes = run_reader("softvr.cave.command:main", argv, labels=paths)
     # A screen whose plane holds the scripted viewer's eye is refused when it is rendered
     # (softvr.cave.rig.world_view), naming the file and the screen ("wall eye") like the rest.
     _check(outcomes, paths, "softvr cave preview (display files)")

@@ -28,7 +28,7 @@ position = [0.0, 0.0, 0.15]
 def test_cave_preview_takes_the_scenes_display(tmp_path):
     from PIL import Image
 
-    from softvr.cave._command import main
+    from softvr.cave.command import main
 
     path = tmp_path / "jelly.toml"
     path.write_text(SCENE.format(display='preset = "cube"'))
@@ -59,7 +59,7 @@ def test_a_display_file_is_loaded_and_checked(tmp_path):
 
 
 def test_without_a_display_the_cave_command_says_what_is_missing(tmp_path):
-    from softvr.cave._command import main
+    from softvr.cave.command import main
 
     path = tmp_path / "plain.toml"
     path.write_text(SCENE.format(display="").replace("[display]\n", ""))
@@ -68,7 +68,7 @@ def test_without_a_display_the_cave_command_says_what_is_missing(tmp_path):
 
 
 def test_a_volume_scene_is_not_streamed_to_render_nodes_yet():
-    from softvr.cave._command import make_source
+    from softvr.cave.command import make_source
 
     with pytest.raises(InputError, match=r"\[volume\] is not streamed"):
         make_source("palpation.toml", 2)

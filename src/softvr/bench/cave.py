@@ -80,7 +80,7 @@ def _display_file(nodes: int, folder: Path) -> Path:
 
 def _cluster_run(nodes: int, load: str, frames: int, folder: Path, curve: bool = True) -> dict:
     """One master (here) and ``nodes`` node processes (no rendering), ``frames`` frames at 60 fps."""
-    from softvr.cave._command import node_command
+    from softvr.cave.command import node_command
     from softvr.cave.app import WavingSheet
     from softvr.cave.cluster import ClusterConfig, Master
 
