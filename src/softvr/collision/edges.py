@@ -21,6 +21,8 @@ keeps the edges from crossing during the step to first order.
 
 from __future__ import annotations
 
+from typing import no_type_check
+
 import numpy as np
 import warp as wp
 
@@ -76,19 +78,19 @@ class EdgeSet:
         self.edges, self.adjacent = surface_edges(self.triangles)
         self.device = device
         lower, upper = self._boxes(vertices)
-        self._lower = wp.array(lower, dtype=wp.vec3, device=device)
-        self._upper = wp.array(upper, dtype=wp.vec3, device=device)
+        self._lower: wp.array = wp.array(lower, dtype=wp.vec3, device=device)
+        self._upper: wp.array = wp.array(upper, dtype=wp.vec3, device=device)
         self._bvh = wp.Bvh(self._lower, self._upper)
-        self.edges_wp = wp.array(self.edges.astype(np.int32), dtype=wp.int32, device=device)
+        self.edges_wp: wp.array = wp.array(self.edges.astype(np.int32), dtype=wp.int32, device=device)
         self._pairs = None
         self._upload(vertices)
 
     def _upload(self, vertices: np.ndarray) -> None:
         """Edge normals, crease flags and the vertices, as the kernels read them this step."""
         self.normals, self.sharp = self.edge_normals(vertices)
-        self.vertices_wp = wp.array(np.asarray(vertices, float), dtype=wp.vec3, device=self.device)
-        self.normals_wp = wp.array(self.normals, dtype=wp.vec3, device=self.device)
-        self.sharp_wp = wp.array(self.sharp.astype(np.int32), dtype=wp.int32, device=self.device)
+        self.vertices_wp: wp.array = wp.array(np.asarray(vertices, float), dtype=wp.vec3, device=self.device)
+        self.normals_wp: wp.array = wp.array(self.normals, dtype=wp.vec3, device=self.device)
+        self.sharp_wp: wp.array = wp.array(self.sharp.astype(np.int32), dtype=wp.int32, device=self.device)
 
     def pair_outputs(self):
         """The edge-pair kernel's outputs for this set as side a (kept between calls): pair
@@ -129,6 +131,7 @@ class EdgeSet:
 
 
 @wp.kernel
+@no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.array2d(dtype=wp.int32),
                 reach_a: wp.array(dtype=float), normals_a: wp.array(dtype=wp.vec3), sharp_a: wp.array(dtype=wp.int32),
                 verts_b: wp.array(dtype=wp.vec3), edges_b: wp.array2d(dtype=wp.int32),

@@ -8,6 +8,8 @@ sheet between two steps.
 
 from __future__ import annotations
 
+from typing import no_type_check
+
 import numpy as np
 import warp as wp
 
@@ -19,6 +21,7 @@ __all__ = ["TriangleMesh", "points_vs_mesh", "query_points"]
 
 
 @wp.kernel
+@no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _query_points(
     mesh: wp.uint64,
     points: wp.array(dtype=wp.vec3),
@@ -149,10 +152,10 @@ class TriangleMesh:
         self.device = resolve_device(device)
         self.vertices, self.triangles = v, t.astype(np.int32)
         self.thickness, self.friction = float(thickness), float(friction)
-        self._points = wp.array(v, dtype=wp.vec3, device=self.device)
+        self._points: wp.array = wp.array(v, dtype=wp.vec3, device=self.device)
         self._mesh = wp.Mesh(points=self._points, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                         device=self.device))
-        self._query_buffers = {}  # output arrays of the point queries, by point count
+        self._query_buffers: dict[int, tuple] = {}  # output arrays of the point queries, by point count
 
     def signed_distance(self, points, *, closed: bool = True, normals: bool = False):
         """Distance [point_count] [m] of ``points`` [point_count, 3] [m] to the surface (BVH

@@ -11,6 +11,8 @@ opposite. Edge-edge contacts are in :mod:`softvr.collision.edges`.
 
 from __future__ import annotations
 
+from typing import no_type_check
+
 import numpy as np
 import warp as wp
 
@@ -48,7 +50,7 @@ class CollisionSurface:
         self.points = points
         self.triangles = t.astype(np.int32)
         self.device = resolve_device(device)
-        self._vertices = wp.array(points.positions(), dtype=wp.vec3, device=self.device)
+        self._vertices: wp.array = wp.array(points.positions(), dtype=wp.vec3, device=self.device)
         self._mesh = wp.Mesh(points=self._vertices, indices=wp.array(self.triangles.ravel(), dtype=wp.int32,
                                                                       device=self.device))
         self.edge_set = EdgeSet(self.triangles, points.positions(), self.device)
@@ -60,7 +62,7 @@ class CollisionSurface:
         # A closed surface touches only with its outside; an open one (a cloth, a lone face) has
         # no inside, and either of its sides can touch.
         self.two_sided = bool((self.edge_set.adjacent[:, 1] < 0).any())
-        self._query_buffers = {}  # this surface's vertex queries reuse their output arrays
+        self._query_buffers: dict[int, tuple] = {}  # this surface's vertex queries reuse their outputs
         self._update_areas(points.positions())
 
     def refit(self) -> None:
@@ -180,6 +182,7 @@ def _locate(surface: CollisionSurface, at: np.ndarray) -> tuple[np.ndarray, np.n
 
 
 @wp.kernel
+@no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _closest_face(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32),
                   uv: wp.array(dtype=wp.vec2)):
     i = wp.tid()
