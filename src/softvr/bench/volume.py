@@ -45,6 +45,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -149,7 +150,7 @@ def phantom(n: int):
     blob = np.sqrt((X - 0.3) ** 2 + (Y + 0.2) ** 2 + Z**2) < 0.2
     data[blob & (r < 0.85)] = 80
     data[(np.abs(X) < 0.03) & (r < 0.85)] = 10  # falx
-    return Volume(data, (1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
+    return Volume(data, np.ones(3), np.zeros(3))
 
 
 def _contiguous(volume):
@@ -250,7 +251,7 @@ def _compare(ref_out, ref_counts, peer_out, peer_valid_xyz, inner_xyz) -> dict:
     """|softvr - peer| over voxels both write (all, and >= 1 voxel inside the input), coverage."""
     mine = ref_counts > 0
     both = mine & peer_valid_xyz
-    rec = {
+    rec: dict[str, float | None] = {
         "compared_voxels": int(both.sum()),
         "only_softvr_voxels": int((mine & ~peer_valid_xyz).sum()),
         "only_peer_voxels": int((~mine & peer_valid_xyz).sum()),
@@ -457,7 +458,7 @@ def run_volume_bench(
     from softvr.device import resolve_device
     from softvr.volume import grid_tet_mesh
 
-    cfg = dict(QUICK if quick else FULL)
+    cfg: dict[str, Any] = dict(QUICK if quick else FULL)
     if repeat is not None:
         cfg["repeat"] = int(repeat)
     if fig35_sizes is not None:

@@ -49,6 +49,7 @@ import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zmq
@@ -246,7 +247,7 @@ class Master:
         self.session = random.SystemRandom().getrandbits(62)
         self.frames = FrameBuilder(source, navigation=navigation, tracker=tracker, quantum=quantum)
         self.members: dict[str, float] = {}  # node -> when it last reported [monotonic s]
-        self.log = {"joins": [], "evictions": [], "mismatches": 0, "resyncs": 0, "frames": [],
+        self.log: dict[str, Any] = {"joins": [], "evictions": [], "mismatches": 0, "resyncs": 0, "frames": [],
                     "refused": {"malformed": 0, "unknown": 0, "name": 0, "join_rate": 0}}
         self.unauthorized: list[str] = []
         self._digests: OrderedDict[int, bytes] = OrderedDict()
@@ -259,7 +260,7 @@ class Master:
         self.sync = _Stats()  # publish -> every member ready
         self._own_context = context is None
         self._ctx = context or zmq.Context()
-        self._auth = None
+        self._auth: _NameAuthenticator | None = None
         self.pub = self._ctx.socket(zmq.PUB)
         self.router = self._ctx.socket(zmq.ROUTER)
         try:
@@ -395,7 +396,7 @@ class Master:
                 raise JoinTimeout(f"render nodes {missing} did not join within {timeout_s:g} s (are they running "
                                   f"with --publish {self.config.publish} --control {self.config.control}{hint})")
             self._beat(self.config.heartbeat_s)  # a node whose first ready was lost sends it again
-            if self.poller.poll(min(left, self.config.heartbeat_s) * 1e3):
+            if self.poller.poll(int(min(left, self.config.heartbeat_s) * 1e3)):  # pyzmq int()s a float too
                 self._handle_control(self.state.n, pending)
 
     # ------------------------------------------------------------------- frames
@@ -440,7 +441,7 @@ class Master:
                     self._evict(node, n, now)
                 return None
             wait = min(next_beat, start + self.config.node_timeout_s) - now
-            if self.poller.poll(max(wait, 0.0) * 1e3):
+            if self.poller.poll(int(max(wait, 0.0) * 1e3)):
                 self._handle_control(n, pending)
             if time.monotonic() >= next_beat and pending:
                 self._publish(beat)
@@ -475,7 +476,7 @@ class Master:
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0:
             self._beat(self.config.beat_s)
-            if self.poller.poll(min(left, self.config.beat_s) * 1e3):
+            if self.poller.poll(int(min(left, self.config.beat_s) * 1e3)):
                 self._handle_control(None, None)
 
     def summary(self) -> dict:
@@ -566,28 +567,29 @@ class Node:
             folder = self.config.key_folder()
             server = cave_keys.master_public(folder)
             self._curve = (*cave_keys.node_pair(folder, name), server)
-        self.sub = self.dealer = None
+        self.sub: zmq.Socket | None = None
+        self.dealer: zmq.Socket | None = None
         self._connect()
 
     def _connect(self) -> None:
         """(Re)create and connect both sockets."""
         if self.sub is not None:
             self.close()
-        self.sub = self._ctx.socket(zmq.SUB)
-        self.dealer = self._ctx.socket(zmq.DEALER)
-        self.dealer.setsockopt(zmq.SNDHWM, NODE_SNDHWM)
-        for s in (self.sub, self.dealer):
+        sub = self.sub = self._ctx.socket(zmq.SUB)
+        dealer = self.dealer = self._ctx.socket(zmq.DEALER)
+        dealer.setsockopt(zmq.SNDHWM, NODE_SNDHWM)
+        for s in (sub, dealer):
             s.setsockopt(zmq.LINGER, 0)
             s.setsockopt(zmq.MAXMSGSIZE, self.config.max_packet_bytes)
             s.setsockopt(zmq.RCVHWM, NODE_RCVHWM)
             if self._curve is not None:
                 s.curve_publickey, s.curve_secretkey, s.curve_serverkey = self._curve
-        self.sub.setsockopt(zmq.SUBSCRIBE, b"")
-        self.sub.connect(self.config.publish)
-        self.dealer.connect(self.config.control)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.connect(self.config.publish)
+        dealer.connect(self.config.control)
         self.poller = zmq.Poller()
-        self.poller.register(self.sub, zmq.POLLIN)
-        self.poller.register(self.dealer, zmq.POLLIN)
+        self.poller.register(sub, zmq.POLLIN)
+        self.poller.register(dealer, zmq.POLLIN)
         self._connected_at = time.monotonic()
 
     # ---------------------------------------------------------------- protocol
@@ -602,6 +604,7 @@ class Node:
             return
         # With NODE_SNDHWM messages queued for a master not connected (not up yet, gone, or
         # refusing our CURVE key) drop the message: joins are retried, readies re-sent.
+        assert self.dealer is not None  # connected from __init__ on
         try:
             self.dealer.send(data, zmq.NOBLOCK)
         except zmq.Again:
@@ -614,10 +617,16 @@ class Node:
         self.log.joins.append(self._join_sent)
         self._send(encode("join", 0, {"node": self.name, "nonce": self.nonce}))
 
+    @property
+    def _held(self) -> ClusterState:
+        """The state, in the methods that run only once a snapshot put one here (not awaiting one)."""
+        assert self.state is not None
+        return self.state
+
     def _resync(self) -> None:
         if not self._awaiting:
             self._gap_at = time.monotonic()
-            self.log.resyncs.append({"gap_at": self._gap_at, "from": self.state.n})
+            self.log.resyncs.append({"gap_at": self._gap_at, "from": self._held.n})
             self.nonce = random.SystemRandom().getrandbits(62)
             self._join()
 
@@ -631,15 +640,16 @@ class Node:
         except PacketError as exc:
             self.log.counters[exc.reason] += 1
             return
-        kind, n = packet.kind, packet.payload.get("n")
+        kind = packet.kind
+        n: Any = packet.payload.get("n")  # an int in every kind compared below (decode checks the payloads)
         if kind not in ("frame", "beat", "go", "bye"):
             self.log.counters["malformed"] += 1  # node-to-master kinds, or a snapshot not on the control socket
             return
         if self.session is not None and self.state is not None:
-            if n > self.state.n + MAX_AHEAD:
+            if n > self._held.n + MAX_AHEAD:
                 self.log.counters["ahead"] += 1  # implausible: no resync for it (module protocol)
                 return
-            if n >= self.state.n:
+            if n >= self._held.n:
                 self._heard_at = time.monotonic()
         if kind == "bye":
             self._present()
@@ -653,9 +663,9 @@ class Node:
             return
         if kind == "frame":
             self._frame(packet)
-        elif kind == "beat" and n > self.state.n:
+        elif kind == "beat" and n > self._held.n:
             self._resync()
-        elif kind == "beat" and n == self.state.n:
+        elif kind == "beat" and n == self._held.n:
             self._resend_ready(self.config.resend_s)  # the master may wait for it: ours may be lost
         elif kind == "go" and self._pending == n:
             self.barrier_wait.add(time.monotonic() - self._ready_sent)
@@ -665,10 +675,10 @@ class Node:
 
     def _frame(self, packet) -> None:
         n = packet.payload["n"]
-        if n <= self.state.n:
+        if n <= self._held.n:
             self.log.counters["stale"] += 1
             return
-        if n > self.state.n + 1:
+        if n > self._held.n + 1:
             self._resync()
             self._buffer.append(packet)
             return
@@ -680,7 +690,7 @@ class Node:
         """Apply a frame; one that does not fit the state (a mesh update of the wrong size)
         is counted and starts a resync."""
         try:
-            self.state.apply_frame(packet.payload)
+            self._held.apply_frame(packet.payload)
         except ValueError:
             self.log.counters["inconsistent"] += 1
             self._resync()
@@ -692,15 +702,16 @@ class Node:
         if self.render_state is not None:
             self.render_state(self.state)
         self._rendered_at = time.monotonic()
-        if self.state.n >= 0:  # (the state before the first frame has nothing to present)
-            self._pending = self.state.n
+        if self._held.n >= 0:  # (the state before the first frame has nothing to present)
+            self._pending = self._held.n
             self._ready_sent = self._rendered_at
             if not self.config.barrier:
                 self._present()
         # Before the first frame too: the master waits for every node's renderer to be up;
         # without the barrier the report is the node's heartbeat and digest check.
-        self._last_ready = encode("ready", self.session, {"node": self.name, "n": self.state.n,
-                                                          "hash": self.state.digest()})
+        assert self.session is not None  # set with the state, by the snapshot
+        self._last_ready = encode("ready", self.session, {"node": self.name, "n": self._held.n,
+                                                          "hash": self._held.digest()})
         self._resend_ready(0.0)
 
     def _resend_ready(self, after_s: float) -> None:
@@ -827,6 +838,7 @@ class Node:
 
     def close(self) -> None:
         for s in (self.sub, self.dealer):
+            assert s is not None  # connected from __init__ on
             s.close(0)
 
     def __enter__(self):
