@@ -47,12 +47,10 @@ TIERS = (
 TOP_LEVEL_ONLY = TIERS[: TIERS.index(("softvr.scene",))]
 
 #: (importer, imported) -> why it is still there. Each is a violation in a file being rewritten.
-_RENDER = "render's private window / backend helpers, used until this file uses render's public API (issue 19)"
 ALLOWED = {
     ("softvr.model.build", "softvr.scene.gltf"):
         "load_mesh checks a glTF's buffers with check_gltf, whose home is scene/gltf.py; it moves to "
         "softvr.files when the glTF reader is rewritten (issue 19)",
-    ("softvr.app._window", "softvr.render._live"): _RENDER,
 }
 
 

@@ -204,6 +204,44 @@ def test_view_volume_opens_and_closes(display, make_sphere):
     assert np.array_equal(final, nodes)
 
 
+def test_the_one_window_loop_advances_pauses_steps_and_runs_its_keys(display):
+    """LiveWindow, the loop of softvr view SCENE and softvr view volume: frames advance on its
+    timer until space pauses them (none after, though the timer keeps ticking), n advances
+    exactly one while paused, a key's callable runs and the window is redrawn after it, and
+    on_exit runs while the loop is still up."""
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    from softvr.render import LiveWindow
+    from softvr.render._backend import new_onscreen_window
+
+    window = new_onscreen_window(64, 48)
+    window.AddRenderer(vtkRenderer())
+    pressed, draws, frames, ticks_paused = [], [], [], []
+    live = LiveWindow(window, keys={"x": lambda: pressed.append(len(draws))}, render=lambda: draws.append(1))
+
+    def key(k: str) -> None:
+        live.interactor.SetKeyCode(k)
+        live.interactor.InvokeEvent("CharEvent")
+
+    def advance() -> None:
+        frames.append(1)
+        if len(frames) == 3:
+            key(" ")
+
+    def at_exit() -> None:
+        ticks_paused.append(len(frames))
+        key("n")
+
+    try:
+        live.run(advance, period_ms=5, timeout_s=0.5, on_exit=at_exit)
+        assert live.paused and ticks_paused == [3] and len(frames) == 4
+        key("x")
+        assert pressed == [0] and draws == [1]  # the callable first, then the redraw
+    finally:
+        live.close()
+        window.Finalize()
+
+
 def test_main_wires_load_mesh_and_rasterizer(display, tmp_path, monkeypatch):
     from softvr.volume import save
 

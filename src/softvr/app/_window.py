@@ -8,8 +8,7 @@ import numpy as np
 
 from softvr.app._drag_tool import DragTool
 from softvr.errors import InputError
-from softvr.render._live import play
-from softvr.render.contact_sheet import save_png
+from softvr.render import LiveWindow, save_png
 from softvr.render.overlays import ContactOverlay, LineOverlay, TextOverlay
 from softvr.render.surfaces import SurfaceRenderer
 from softvr.volume import tet_edges
@@ -147,10 +146,12 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
     player.update_render(renderer)
     draw_overlays()
     renderer.render()
+    live = LiveWindow(window, keys={key: toggle(name) for name, key in VIEW_LAYERS.items()})
+    mouse(live.interactor, live.style)
     try:
-        play(window, advance, period_ms=int(1000 / player.fps), timeout_s=timeout_s,
-             keys={key: toggle(name) for name, key in VIEW_LAYERS.items()},
-             on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot), setup=mouse)
+        live.run(advance, period_ms=int(1000 / player.fps), timeout_s=timeout_s,
+                 on_exit=None if screenshot is None else lambda: save_png(renderer.grab(), screenshot))
     finally:
+        live.close()
         renderer.close()
     return player.frame

@@ -16,6 +16,8 @@
 * :func:`view_volume` / :class:`VolumeViewer`: drag mesh nodes with the mouse and watch the
   volume deform (needs a display); :class:`NodeDragger`, :func:`pick_node`,
   :func:`move_in_view_plane` and :class:`ViewTransform` are its display-free logic.
+* :class:`LiveWindow`: the one on-screen event loop (trackball camera, pause / step keys, a
+  timer that advances a frame), shared by the volume viewer and :func:`softvr.app.play_window`.
 
 System libraries (Debian/Ubuntu): ``libegl1 libegl-mesa0 libgl1-mesa-dri`` for EGL,
 ``libosmesa6`` for the OSMesa fallback, ``libgl1 libglx-mesa0`` plus X for the viewer
@@ -36,6 +38,7 @@ Examples
 """
 
 from softvr.render._backend import APT_PACKAGES, RenderBackendError, has_display, offscreen_backend, require_display
+from softvr.render._live import LiveWindow
 from softvr.render.camera import VIEWS, Camera
 from softvr.render.contact_sheet import contact_sheet, save_png
 from softvr.render.presets import PRESETS, Preset, label_colors
@@ -57,6 +60,7 @@ __all__ = [
     "PRESETS",
     "VIEWS",
     "Camera",
+    "LiveWindow",
     "NodeDragger",
     "Preset",
     "RayCaster",

@@ -1,62 +1,99 @@
-"""Playing a simulation live in an on-screen window: one frame per timer tick."""
+"""softvr's one on-screen event loop: ``softvr view SCENE`` plays a player in it
+(:func:`softvr.app.play_window`), ``softvr view volume`` drags mesh nodes in it
+(:class:`~softvr.render.VolumeViewer`)."""
 
 from __future__ import annotations
 
 import time
 
-__all__ = ["play"]
+__all__ = ["LiveWindow"]
 
 
-def play(window, advance, *, period_ms: int, timeout_s: float | None = None, keys: dict | None = None,
-         on_exit=None, setup=None) -> None:
-    """Run ``window``'s event loop, calling ``advance()`` (step and draw one frame) every
-    ``period_ms`` until the window closes or ``timeout_s`` pass. Mouse: trackball camera;
-    space pauses and resumes, ``n`` advances one frame while paused, ``q`` quits; ``keys``
-    maps more characters to callables (overlay toggles); ``on_exit()`` runs when ``timeout_s``
-    ends the loop, the window still up (a screenshot); ``setup(interactor, style)`` adds
-    observers of its own (mouse tools) before the loop starts. The observers and the window are released on the
-    way out."""
-    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
-    from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
+class LiveWindow:
+    """The event loop of an on-screen VTK render window: the trackball camera (left rotates,
+    right zooms, middle pans) and softvr's keys.
 
-    interactor = vtkRenderWindowInteractor()
-    interactor.SetRenderWindow(window)
-    style = vtkInteractorStyleTrackballCamera()
-    interactor.SetInteractorStyle(style)
-    state = {"paused": False}
-    deadline = None if timeout_s is None else time.perf_counter() + timeout_s
+    The interactor and its style are made here, before the loop runs, so that a caller adds its
+    own mouse observers to :attr:`interactor` / :attr:`style` and a test drives them with
+    synthetic events (``interactor.SetEventInformation`` + ``InvokeEvent``) without a loop.
+    Keys: while :meth:`run` plays an ``advance``, space pauses and resumes it and ``n`` advances
+    one frame while paused; ``keys`` maps more characters to callables (overlay toggles, a
+    reset), each followed by ``render()``; any other key is the trackball style's (``q`` / ``e``
+    quit, ``r`` resets the view). :meth:`close` releases the observers.
 
-    def on_timer(*_) -> None:
-        if deadline is not None and time.perf_counter() >= deadline:
-            if on_exit is not None:  # while the window is still up and drawn
-                on_exit()
-            interactor.TerminateApp()
-        elif not state["paused"]:
-            advance()
+    Parameters
+    ----------
+    window : vtkRenderWindow
+        An on-screen window (:func:`~softvr.render.require_display` first).
+    keys : dict of str -> callable, optional
+    render : callable, optional
+        Draws the window after a key (default ``window.Render``).
+    """
 
-    def on_char(*_) -> None:
-        key = interactor.GetKeyCode()
-        if key == " ":
-            state["paused"] = not state["paused"]
-        elif key == "n" and state["paused"]:
-            advance()
-        elif keys and key in keys:
-            keys[key]()
-            window.Render()
+    def __init__(self, window, keys: dict | None = None, *, render=None):
+        from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
+        from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
+
+        self.window = window
+        self.keys = dict(keys or {})
+        self.render = render if render is not None else window.Render
+        self.interactor = vtkRenderWindowInteractor()
+        self.interactor.SetRenderWindow(window)
+        self.style = vtkInteractorStyleTrackballCamera()
+        self.interactor.SetInteractorStyle(self.style)
+        self.paused = False
+        self._advance = None
+        self.style.AddObserver("CharEvent", self._on_char)
+
+    def _on_char(self, *_) -> None:
+        key = self.interactor.GetKeyCode()
+        if key == " " and self._advance is not None:
+            self.paused = not self.paused
+        elif key == "n" and self.paused and self._advance is not None:
+            self._advance()
+        elif key in self.keys:
+            self.keys[key]()
+            self.render()
         else:
-            style.OnChar()
+            self.style.OnChar()
 
-    interactor.Initialize()
-    if setup is not None:
-        setup(interactor, style)
-    interactor.AddObserver("TimerEvent", on_timer)
-    style.AddObserver("CharEvent", on_char)
-    interactor.CreateRepeatingTimer(max(1, int(period_ms)))
-    try:
-        interactor.Start()
-    finally:
-        # VTK holds the observers (closures over the interactor): break the cycle now so the
-        # window and its X connection are freed before the X server may be gone.
-        style.RemoveAllObservers()
-        interactor.RemoveAllObservers()
-        interactor.SetRenderWindow(None)
+    def run(self, advance=None, *, period_ms: int = 50, timeout_s: float | None = None, on_exit=None) -> None:
+        """Run the loop until the window closes or ``timeout_s`` pass, calling ``advance()`` (step
+        and draw one frame) every ``period_ms`` unless paused; ``on_exit()`` runs when
+        ``timeout_s`` ends the loop, the window still up and drawn (a screenshot)."""
+        deadline = None if timeout_s is None else time.perf_counter() + timeout_s
+
+        def on_timer(*_) -> None:
+            if deadline is not None and time.perf_counter() >= deadline:
+                if on_exit is not None:
+                    on_exit()
+                self.interactor.TerminateApp()
+            elif advance is not None and not self.paused:
+                advance()
+
+        self._advance = advance
+        self.interactor.Initialize()
+        timer = None
+        if advance is not None or deadline is not None:
+            timer = (self.interactor.AddObserver("TimerEvent", on_timer),
+                     self.interactor.CreateRepeatingTimer(max(1, int(period_ms))))
+        try:
+            self.interactor.Start()
+        finally:
+            self._advance = None
+            if timer is not None:  # a later run starts with none of this run's ticks
+                self.interactor.RemoveObserver(timer[0])
+                self.interactor.DestroyTimer(timer[1])
+
+    def close(self) -> None:
+        """Release the observers and the window: VTK holds them (bound methods and closures over
+        the interactor), a cycle Python cannot collect; broken now, the window and its X
+        connection are freed before the X server may be gone. The callables go too: one that is
+        a bound method of the window's owner is a cycle the garbage collector would free later,
+        inside whichever VTK event loop runs then (a segfault in the next window's loop)."""
+        self.keys.clear()
+        self.render = None
+        self.style.RemoveAllObservers()
+        self.interactor.RemoveAllObservers()
+        self.interactor.SetRenderWindow(None)
+        self.interactor.SetInteractorStyle(None)

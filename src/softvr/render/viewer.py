@@ -8,7 +8,8 @@ The interaction logic is display-free and testable on its own:
 * :class:`NodeDragger` holds the deformed nodes and calls ``deform_fn`` on every move.
 
 :class:`VolumeViewer` wires them to a VTK window (volume rendering plus the nodes drawn
-as small spheres on top) and :func:`view_volume` runs it. :func:`main` is the
+as small spheres on top) and :func:`view_volume` runs it in softvr's one window loop
+(:class:`~softvr.render.LiveWindow`, also :func:`softvr.app.play_window`'s). :func:`main` is the
 ``softvr view volume`` command.
 
 Mouse: left-drag on a node moves it (in the plane through the node parallel to the
@@ -30,6 +31,7 @@ from softvr import datasets
 from softvr import volume as sv
 from softvr.errors import InputError, SoftvrError
 from softvr.render._backend import new_onscreen_window, require_display
+from softvr.render._live import LiveWindow
 from softvr.render._scene import VolumeScene, check_volume
 from softvr.render.camera import Camera
 from softvr.render.presets import Preset
@@ -340,12 +342,10 @@ class VolumeViewer:
         from vtkmodules.vtkCommonDataModel import vtkPolyData  # noqa: PLC0415
         from vtkmodules.vtkFiltersCore import vtkGlyph3D  # noqa: PLC0415
         from vtkmodules.vtkFiltersSources import vtkSphereSource  # noqa: PLC0415
-        from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera  # noqa: PLC0415
         from vtkmodules.vtkRenderingCore import (  # noqa: PLC0415
             vtkActor,
             vtkPolyDataMapper,
             vtkRenderer,
-            vtkRenderWindowInteractor,
             vtkWindowToImageFilter,
         )
 
@@ -411,15 +411,13 @@ class VolumeViewer:
         Camera.coerce(camera).apply(self.renderer.GetActiveCamera(), bounds.ravel(), width / height)
         self.renderer.ResetCameraClippingRange()
 
-        self.interactor = vtkRenderWindowInteractor()
-        self.interactor.SetRenderWindow(self.window)
-        self.style = vtkInteractorStyleTrackballCamera()
-        self.interactor.SetInteractorStyle(self.style)
+        # softvr's one window loop; its key u resets the nodes.
+        self.live = LiveWindow(self.window, keys={"u": self.reset_nodes}, render=self.render)
+        self.interactor, self.style = self.live.interactor, self.live.style
         # Observers on the style replace its own handlers; ours forward when not dragging.
         self.style.AddObserver("LeftButtonPressEvent", self.on_left_press)
         self.style.AddObserver("MouseMoveEvent", self.on_mouse_move)
         self.style.AddObserver("LeftButtonReleaseEvent", self.on_left_release)
-        self.style.AddObserver("CharEvent", self.on_char)
         self._grabber = vtkWindowToImageFilter()
         self._grabber.SetInput(self.window)
         self._grabber.SetInputBufferTypeToRGB()
@@ -505,14 +503,11 @@ class VolumeViewer:
         self._update_nodes()
         self.render()
 
-    def on_char(self, obj=None, event=None) -> None:
-        """``u``: reset the nodes; other keys: the trackball style's (``q``/``e`` quit, ``r`` reset view...)."""
-        if self.interactor.GetKeyCode() == "u":
-            self.scene.update(self.dragger.reset())
-            self._update_nodes()
-            self.render()
-            return
-        self.style.OnChar()
+    def reset_nodes(self) -> None:
+        """Key ``u``: every node back at rest, the volume with them (the window redraws after a
+        key); other keys are the trackball style's (``q``/``e`` quit, ``r`` resets the view)."""
+        self.scene.update(self.dragger.reset())
+        self._update_nodes()
 
     # ---------------------------------------------------------------- lifecycle
     def start(self, timeout_s: float | None = None) -> np.ndarray:
@@ -525,10 +520,7 @@ class VolumeViewer:
         """
         self.interactor.Initialize()
         self.render()
-        if timeout_s is not None:
-            self.interactor.AddObserver("TimerEvent", lambda *a: self.interactor.TerminateApp())
-            self.interactor.CreateOneShotTimer(max(1, int(timeout_s * 1000)))
-        self.interactor.Start()
+        self.live.run(timeout_s=timeout_s)  # nothing advances on a timer: the mouse deforms
         return self.dragger.nodes.copy()
 
     def close(self) -> None:
@@ -536,15 +528,8 @@ class VolumeViewer:
         if self._closed:
             return
         self._closed = True
-        # The observers are bound methods of self held by VTK (C++), a reference cycle
-        # Python cannot collect; break it so the window and its X connection are freed
-        # now rather than at interpreter exit (when the X server may be gone).
-        self.style.RemoveAllObservers()
-        self.interactor.RemoveAllObservers()
-        self.interactor.TerminateApp()
+        self.live.close()  # the observers (bound methods of self) held by VTK: the cycle broken
         self.window.Finalize()
-        self.interactor.SetRenderWindow(None)
-        self.interactor.SetInteractorStyle(None)
         self._grabber.SetInput(None)
 
     def __enter__(self) -> "VolumeViewer":
