@@ -51,6 +51,9 @@ class HapticTool:
         The tool's index in ``scene.bodies``.
     """
 
+    #: Whether its loop runs in a process of its own; set by the scene builder, from the scene file.
+    haptics: bool
+
     def __init__(self, scene, tool, loop: HapticLoop, *, stiffness: float, damping: float = 0.0, tip=(0.0, 0.0, 0.0)):
         if not isinstance(loop, HapticLoop):
             raise InputError("loop", "a softvr.haptics.HapticLoop", type(loop).__name__)

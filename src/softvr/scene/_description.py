@@ -55,7 +55,7 @@ LIMITS = {"frames": 1_000_000, "steps_per_frame": 10_000, "pgs_iterations": 100_
           "quads": 1024,                # cloth: quads per side
           "collision_triangles": 200_000, "skin_triangles": 1_000_000, "render_step": 64}
 #: The contact settings a scene file leaves out are softvr.Scene's own.
-_SCENE = {f.name: f.default for f in dataclasses.fields(Scene)}
+_SCENE: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(Scene)}
 
 
 # --- field types: each checks its value with softvr's wording ------------------------------------------------------
@@ -202,7 +202,7 @@ def file_field(suffixes: tuple, what: str) -> BeforeValidator:
         if value is None:
             return None
         try:
-            return existing_file((info.context or {}).get("folder", Path(".")), value, info.field_name, suffixes,
+            return existing_file((info.context or {}).get("folder", Path(".")), value, str(info.field_name), suffixes,
                                  what)
         except InputError as exc:
             raise _problem(exc.expected, exc.found) from None
@@ -474,9 +474,11 @@ def _read_body_names(p: Problems, t: dict):
     return tuple(names)
 
 
-#: A body's shape keys (exactly one) and the shapes each body type takes.
-SHAPES = {"rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
-          "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
+#: A body's shape keys (exactly one) and the shapes each body type takes (looked up with the
+#: type as given, None when it is missing).
+SHAPES: dict[str | None, tuple[str, ...]] = {
+    "rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
+    "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
 SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
 #: Defaults of a cloth body's and a tool's own fields (``damping`` and ``alpha`` are both's).
 CLOTH = {"quads": (16, 16), "area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05,
@@ -546,7 +548,8 @@ class Body(_Table):
 
     def problems(self) -> list:
         """The rules between a body's fields (module docstring of :mod:`softvr.scene.schema`)."""
-        given, kind, out = self.given, self.type, []
+        given, kind = self.given, self.type
+        out: list[tuple[str, str, Any]] = []  # (field, expected, found)
         allowed = SHAPES.get(kind, ("box", "sphere", "mesh", "cloth"))
         shapes = [s for s in SHAPE_KEYS if s in given]
         shape = self.shape()
@@ -689,7 +692,7 @@ def _problems(exc: ValidationError, model: type[BaseModel], where: str) -> list:
     for e in exc.errors(include_url=False):
         loc = e["loc"]
         if e["type"] == "extra_forbidden":
-            owner = model
+            owner: Any = model  # a model at each step of an extra key's path (pydantic forbids extras only there)
             for step in loc[:-1]:
                 owner = _model_of(owner.model_fields[step].annotation) if isinstance(step, str) else owner
             out.append((f"{where}{_path(loc)}".lstrip("."), known_key(owner.model_fields, loc[-1]), repr(loc[-1])))
@@ -732,10 +735,13 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
     if not isinstance(table, dict):
         errors.add(where, model.WHAT, table if isinstance(table, (int, float, str)) else type(table).__name__)
         return None, True
-    found, data, context = [], copy.deepcopy(table), {"folder": folder or Path(".")}
+    found: list = []
+    data = copy.deepcopy(table)
+    context: dict[str, Any] = {"folder": folder or Path(".")}
+    out: _Table | None = None
     while True:  # ends: every round drops a bad value or turns partial (once), else stops
         try:
-            out = model.model_validate(data, context=context)
+            valid = model.model_validate(data, context=context)
         except ValidationError as exc:
             new = [p for p in _problems(exc, model, where) if p not in found]
             found += new
@@ -746,9 +752,10 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
             # Again without the bad fields: they take their defaults, the rest is judged on.
             context = {**context, "partial": True}
             continue
-        out._given = set(table)
+        valid._given = set(table)
         found += [(f"{where}.{f}" if f else where, e, v if isinstance(v, str) else repr(v))
-                  for f, e, v in (out.problems() if rules else [])]
+                  for f, e, v in (valid.problems() if rules else [])]
+        out = valid
         break
     errors.items.extend(found)
     return out, bool(found)

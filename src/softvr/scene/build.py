@@ -31,12 +31,17 @@ from __future__ import annotations
 import numpy as np
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from softvr.app import Player
 from softvr.errors import InputError
 from softvr.files import native_read
 from softvr.scene.schema import BodySpec, SceneFile, read_scene
 from softvr.scene.start import collision_free_start, start_pairs, start_problems
+
+if TYPE_CHECKING:  # the physics layers load with the first scene built, not with this module
+    from softvr.dynamics.body import ContactObject
+    from softvr.haptics import HapticTool
 
 __all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems", "scene_path"]
 
@@ -203,10 +208,15 @@ class SceneExample(Player):
             sphere = Sphere(center=s["center"], radius=s["radius"], friction=s["friction"])
             scene.add_sphere(sphere, adhesion=self.adhesions.get(s["adhesion"]))
             self.spheres.append(sphere)
-        self.bodies, self.drawn, self.index, self._drawn_by_name = {}, [], {}, {}
-        self._obstacles = {}  # name -> the collision surface of a fixed mesh (a static obstacle, not a body)
-        self.tools, self._driven = [], []
-        self.volume = None
+        self.bodies: dict[str, Any] = {}
+        self.drawn: list[_Drawn] = []
+        self.index: dict[str, int] = {}
+        self._drawn_by_name: dict[str, _Drawn] = {}
+        # name -> the collision surface of a fixed mesh (a static obstacle, not a body)
+        self._obstacles: dict[str, _Drawn] = {}
+        self.tools: list[HapticTool] = []
+        self._driven: list[tuple] = []  # (body, drive)
+        self.volume: _DeformedVolume | None = None
         if scene_file.volume is not None:
             self._add_volume(scene, scene_file.volume)
         for model in scene_file.models:
@@ -291,7 +301,8 @@ class SceneExample(Player):
         rotation, quaternion = _rotation(spec.rotation)
         centre = np.asarray(spec.position, float)
         adhesion = self.adhesions.get(spec.adhesion)
-        material = self.file.materials.get(spec.material)
+        material: Any = self.file.materials.get(spec.material)  # None only for types that take none (validated)
+        body: ContactObject
         if spec.type in ("rigid", "kinematic", "tool") and spec.shape == "mesh":
             from softvr.dynamics import RigidPoints
             from softvr.model import rigid_properties
@@ -378,23 +389,24 @@ class SceneExample(Player):
             springs = dict(density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
                            damping=c["damping"], alpha=c["alpha"], name=spec.name)
             if spec.mesh_data is not None:
-                body = ClothBody(*self._surface(spec, rotation, centre), **springs)
+                cloth = ClothBody(*self._surface(spec, rotation, centre), **springs)
             else:
                 w, h = spec.size
                 origin = centre - rotation @ np.array([w / 2, h / 2, 0.0])
-                body = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0],
-                                      v_axis=rotation[:, 1], **springs)
-            body.fixed[:] = self._clamped(spec, body.q)
-            self._set_velocity(body, spec, centre)
+                cloth = ClothBody.grid(w, h, *c["quads"], origin=origin, u_axis=rotation[:, 0],
+                                       v_axis=rotation[:, 1], **springs)
+            body = cloth
+            cloth.fixed[:] = self._clamped(spec, cloth.q)
+            self._set_velocity(cloth, spec, centre)
             if spec.drive:
-                self._driven.append((body, _drive(spec.drive)))
-            n = len(body.q)
-            points = EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1)))
+                self._driven.append((cloth, _drive(spec.drive)))
+            n = len(cloth.q)
+            points = EmbeddedPoints(cloth, np.arange(n)[:, None], np.ones((n, 1)))
             # The triangles give the contacts their areas (adhesion works on tractions) and
             # meet other bodies' surfaces.
-            index = scene.add_body(body, collision_points=points, collision_triangles=body.triangles,
+            index = scene.add_body(cloth, collision_points=points, collision_triangles=cloth.triangles,
                                    adhesion=adhesion)
-            self.drawn.append(_Drawn(lambda b=body: b.q, body.triangles, spec.color))
+            self.drawn.append(_Drawn(lambda b=cloth: b.q, cloth.triangles, spec.color))
         if spec.render_mesh is not None or (spec.type == "fem" and spec.collision_triangles is not None):
             # Drawn: the render mesh, or the full shape when only the collision surface is simplified.
             self.drawn[-1] = self._render_surface(spec, body, rotation, centre, spec.render_mesh)
@@ -418,6 +430,7 @@ class SceneExample(Player):
         from softvr.dynamics import EmbeddedPoints, RigidPoints, embed_in_tets
 
         v, t = self._surface(spec, rotation, centre, file)
+        points: EmbeddedPoints | RigidPoints
         if hasattr(body, "tets"):
             ti, w = embed_in_tets(body.q, body.tets, v, tolerance=np.inf)
             points = EmbeddedPoints(body, body.tets[ti], w)
@@ -490,6 +503,7 @@ class SceneExample(Player):
                 from softvr.volume import load_tet_mesh
 
                 # meshio exits the process on some unreadable files: native_read turns that into an error.
+                assert spec.mesh is not None  # a tets body names its file (validated)
                 nodes, tets = native_read(load_tet_mesh, spec.mesh, f"body {spec.name!r}.tets",
                                           "a tet mesh file meshio can read")
                 nodes = nodes * np.asarray(spec.scale)

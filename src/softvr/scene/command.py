@@ -47,7 +47,7 @@ def check_main(argv: list[str] | None = None) -> int:
             other = f" (in {exc.source})" if exc.source and exc.source != str(scene.path) else ""
             problems = problems + [(what, expected, f"{found}{other}") for what, expected, found in exc.problems]
     raise_all(problems, str(scene.path), "scene file")
-    kinds = {}
+    kinds: dict[str, int] = {}
     for b in scene.bodies:
         kinds[b.type] = kinds.get(b.type, 0) + 1
     parts = scene.model_parts()

@@ -262,8 +262,9 @@ def _check_structure(doc, path: Path, binary: bytes | None) -> None:
         length = integer(v, "byteLength", w, 1, MAX_FILE_BYTES)
         if "byteStride" in v:
             integer(v, "byteStride", w, 4, 252)
-        if None not in (b, offset, length) and sizes[b] is not None and offset + length > sizes[b]:
-            bad(w, f"bytes within buffers[{b}] ({sizes[b]} bytes)", f"bytes {offset} .. {offset + length}")
+        size = sizes[b] if b is not None else None
+        if offset is not None and length is not None and size is not None and offset + length > size:
+            bad(w, f"bytes within buffers[{b}] ({size} bytes)", f"bytes {offset} .. {offset + length}")
     for i, a in enumerate(arrays["accessors"]):
         w = f"accessors[{i}]"
         component = a.get("componentType")
@@ -297,11 +298,11 @@ def _check_structure(doc, path: Path, binary: bytes | None) -> None:
                     sv = index(part, "bufferView", pw, "bufferViews", required=True)
                     so = integer(part, "byteOffset", pw, 0, MAX_FILE_BYTES, default=0)
                     length = arrays["bufferViews"][sv].get("byteLength") if sv is not None else None
-                    if None not in (n, so) and type(length) is int and so + n * size > length:
+                    if n is not None and so is not None and type(length) is int and so + n * size > length:
                         bad(pw, f"{n} entries within bufferViews[{sv}] ({length} bytes)",
                             f"bytes {so} .. {so + n * size}")
         v = index(a, "bufferView", w, "bufferViews")
-        if None in (count, offset) or not isinstance(kind, str) or kind not in _COMPONENTS or \
+        if count is None or offset is None or not isinstance(kind, str) or kind not in _COMPONENTS or \
                 type(component) is not int or component not in _COMPONENT_BYTES:
             continue
         element = _COMPONENT_BYTES[component] * _COMPONENTS[kind]
@@ -471,7 +472,8 @@ class _Buffers:
     float accessors read from them."""
 
     def __init__(self, path: Path, doc: dict, binary: bytes | None):
-        self.path, self.doc, self.binary, self._cache = path, doc, binary, {}
+        self.path, self.doc, self.binary = path, doc, binary
+        self._cache: dict[int, bytes] = {}  # buffer index -> its bytes
 
     def buffer(self, i) -> bytes:
         buffers = self.doc.get("buffers", [])
@@ -933,7 +935,9 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     parent = {child: i for i, node in enumerate(nodes) for child in node.get("children", [])}
     loaded = native_read(lambda file: trimesh.load(file, force="scene"), path, "glTF meshes",
                          "meshes trimesh can read")
-    materials, adhesions, bodies, couplings, moving, named, volumes, models = {}, {}, [], [], [], {}, [], []
+    materials, adhesions, bodies, couplings, moving, named = {}, {}, [], [], [], {}
+    volumes: list[dict | None] = []  # one at most (more are a problem); None: one with a problem
+    models: list[dict] = []
     model_nodes = []
     for i, node in enumerate(nodes):
         props = _booleans(_properties(node.get("extras")))
@@ -968,7 +972,8 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             moving.append((spec, keys))
         bodies.append(spec)
     if len(volumes) > 1:
-        errors.add("nodes", "one volume node (a scene has one volume)", ", ".join(repr(v["name"]) for v in volumes))
+        errors.add("nodes", "one volume node (a scene has one volume)",
+                   ", ".join(repr(v["name"]) for v in volumes if v is not None))  # (None: reported already)
     volume = volumes[0] if volumes else None
     parts = {name: kind for m in models for name, kind in m["parts"].items()}
     for name in sorted(set(parts) & set(named)):
@@ -1067,6 +1072,6 @@ def _display(scene_props: dict, folder: Path, errors: Problems) -> str | None:
     return None
 
 
-def _linear_at(times, values, t: float) -> np.ndarray:
+def _linear_at(times, values, t: float | np.ndarray) -> np.ndarray:
     """Keys ``values`` [k, 3] at ``times`` [k], linear in between, held outside, at ``t``."""
     return np.array([np.interp(t, times, values[:, j]) for j in range(values.shape[1])])

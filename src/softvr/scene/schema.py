@@ -156,6 +156,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import file_name, read_toml
@@ -182,9 +183,9 @@ class BodySpec:
     name: str
     type: str
     shape: str
-    size: tuple | float | None = None
+    size: Any = None  # by shape (validated): box (x, y, z), sphere radius, cloth (w, h); None for meshes
     mesh: Path | None = None
-    cells: float | tuple = BOX_CELLS
+    cells: Any = BOX_CELLS  # by shape (validated): one number, or three (one per axis)
     scale: tuple = _BODY["scale"].default
     surface_quads: int = _BODY["surface_quads"].default
     subdivisions: int = _BODY["subdivisions"].default
@@ -488,7 +489,7 @@ def _model(i: int, t: dict, scene_dir: Path, errors: Problems, where: str | None
     """A ``[[model]]``: its file and part name -> kind (a parts file is validated now);
     problems named under ``where`` (a glTF model node: ``node 'NAME'``), else ``model[i]``."""
     w = where or f"model[{i}]"
-    empty = {"parts": {}, "colors": {}, "opacity": {}}
+    empty: dict[str, dict] = {"parts": {}, "colors": {}, "opacity": {}}
     read_table(ModelTable, t, w, errors)  # its unknown keys
     if "file" not in t:
         errors.add(f"{w}.file", "a parts file (.toml) or a built model (.npz)", "nothing")

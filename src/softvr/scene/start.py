@@ -66,9 +66,10 @@ def collision_free_start(bodies: dict, surfaces: dict, pairs: list, rounds: int 
     """
     def soft(name) -> bool:
         body = bodies.get(name)
-        return hasattr(body, "tets") and not body.fixed.all()
+        return body is not None and hasattr(body, "tets") and not body.fixed.all()
 
-    start, pushed = {}, []
+    start: dict[str, np.ndarray] = {}  # moved body -> its nodes before
+    pushed = []
     for _ in range(rounds):
         changed = False
         for a, b in pairs:
