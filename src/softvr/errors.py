@@ -53,7 +53,8 @@ def raise_all(problems: list, source: str | None, kind: str) -> None:
     if not problems:
         return
     if len(problems) == 1:
-        error = InputError(*problems[0], source=source)
+        what, expected, found = problems[0]
+        error = InputError(what, expected, found, source=source)
     else:
         lines = "".join(f"\n  - {w}: expected {e}, found {f}" for w, e, f in problems)
         error = InputError(f"{len(problems)} problems", f"a valid {kind}", lines, source=source)
@@ -126,7 +127,8 @@ class Problems:
     """
 
     def __init__(self, source: str | None, kind: str):
-        self.source, self.kind, self.items = source, kind, []
+        self.source, self.kind = source, kind
+        self.items: list[tuple] = []  # (what, expected, found)
 
     def add(self, what: str, expected: str, found) -> None:
         self.items.append((what, expected, found if isinstance(found, str) else repr(found)))

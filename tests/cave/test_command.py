@@ -1,7 +1,9 @@
 """``softvr cave``: the local cluster ends with every node on the master's state and writes its
 unfolded preview; the amphitheatre's preview is three screens wide; keys are made for every
-node of a display; bad input is named (the layout itself is checked in test_preview.py)."""
+node of a display; bad input is named (the layout itself is checked in test_preview.py); a
+simulated scene streams what its player draws."""
 
+import numpy as np
 import pytest
 
 from softvr.cli import main
@@ -106,3 +108,73 @@ def test_a_gltf_scene_is_shown_z_up_with_its_colours(tmp_path):
     assert mesh["color"] == pytest.approx([200 / 255, 30 / 255, 30 / 255])
     assert main(["cave", "preview", "single-wall", str(path), "--frames", "1", "--scale", "0.05",
                  "--out", str(tmp_path)]) == 0
+
+
+_DROP = """format = "softvr-scene 1"
+
+[simulation]
+dt = 0.005
+steps_per_frame = 4
+
+[[light]]
+position = [1.0, -1.0, 2.0]
+
+[material.pine]
+density = 500.0
+
+[[plane]]
+size = 2.0
+
+[[sphere]]
+center = [0.6, 0.0, 0.1]
+radius = 0.1
+
+[[body]]
+name = "box"
+type = "rigid"
+box = [0.2, 0.2, 0.1]
+material = "pine"
+position = [0.0, 0.0, 1.0]
+color = [0.85, 0.33, 0.25]
+"""
+
+
+def test_a_simulated_scene_streams_what_its_player_draws(tmp_path):
+    """A scene file played on the cluster: the master's state, decoded as a node decodes it,
+    holds the file's ground plane, its sphere and its box in the file's colour, and after 10
+    frames (0.2 s) the box has fallen g t^2 / 2 = 0.196 m in free fall (within g dt t, a
+    first-order integrator's lag). The file's [[light]] (a window's, not a drawable) does not
+    stop it; ``softvr cave preview`` draws it."""
+    from softvr.cave.app import FrameBuilder
+    from softvr.cave.command import make_source
+
+    path = tmp_path / "drop.toml"
+    path.write_text(_DROP)
+    source = make_source(str(path), frames=10)
+    frames = FrameBuilder(source)
+    plane, sphere, box = frames.state.items
+    assert (plane["kind"], plane["point"], plane["normal"], plane["size"]) == ("plane", [0, 0, 0], [0, 0, 1], 2.0)
+    assert (sphere["kind"], sphere["center"], sphere["radius"]) == ("sphere", [0.6, 0.0, 0.1], 0.1)
+    assert box["kind"] == "mesh" and box["color"] == pytest.approx([0.85, 0.33, 0.25])
+    assert np.ptp(box["rest"], axis=0) == pytest.approx([0.2, 0.2, 0.1])
+    assert box["rest"].mean(axis=0) == pytest.approx([0.0, 0.0, 1.0], abs=1e-9)
+    for _ in range(10):
+        frames.next_packet(0)
+    source.close()
+    g, dt, t = 9.81, 0.005, 10 * 4 * 0.005
+    fallen = 1.0 - frames.state.mesh_vertices(2).mean(axis=0)[2]
+    assert fallen == pytest.approx(g * t**2 / 2, abs=g * dt * t)
+    assert np.ptp(frames.state.mesh_vertices(2), axis=0) == pytest.approx([0.2, 0.2, 0.1], abs=1e-4)  # rigid
+    assert main(["cave", "preview", "single-wall", str(path), "--frames", "2", "--scale", "0.05",
+                 "--out", str(tmp_path / "preview")]) == 0
+
+
+def test_items_without_a_colour_take_the_viewers():
+    """The cluster draws a plane or sphere without a colour of its own as softvr view does."""
+    import inspect
+
+    from softvr.cave.app import PLANE_COLOR, SPHERE_COLOR
+    from softvr.render import SurfaceRenderer
+
+    assert PLANE_COLOR == inspect.signature(SurfaceRenderer.add_plane).parameters["color"].default
+    assert SPHERE_COLOR == inspect.signature(SurfaceRenderer.add_sphere).parameters["color"].default

@@ -20,8 +20,8 @@ class DragTool:
 
     def __init__(self, scene, vtk_renderer, *, stiffness: float = 400.0):
         self.scene, self.renderer, self.stiffness = scene, vtk_renderer, float(stiffness)
-        self.grab = None  # (body index, node index or local point [3], depth in display z)
-        self.target = None
+        self.grab: tuple | None = None  # (body index, node index or local point [3], depth in display z)
+        self.target: np.ndarray | None = None
 
     # ------------------------------------------------------------------ picking
     def _world(self, x: float, y: float, depth: float) -> np.ndarray:
@@ -84,6 +84,7 @@ class DragTool:
         if self.grab is None:
             return
         index, grip, _ = self.grab
+        assert self.target is not None  # set with grab
         body = self.scene.bodies[index]
         mass = float(np.sum(body.mass))
         force = self.stiffness * mass * (self.target - self.point())

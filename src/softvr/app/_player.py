@@ -36,7 +36,7 @@ def gravity_potential(body, gravity) -> float:
     gravity : array_like, shape [3] [m/s^2]
     """
     g = np.asarray(gravity, float)
-    if hasattr(body, "position") and np.ndim(getattr(body, "mass", None)) == 0:
+    if hasattr(body, "position") and np.ndim(getattr(body, "mass", 0.0)) == 0:  # (no mass: 0-d too)
         return -float(body.mass) * float(np.asarray(body.position) @ g)
     return -float(np.sum(np.asarray(body.mass) * (np.asarray(body.q) @ g)))
 
@@ -100,7 +100,7 @@ class Player:
         if camera is not None:
             self.camera = camera
         self.metrics: list[dict] = []
-        self._renderer = None
+        self._renderer: SurfaceRenderer | None = None
         self._started = False
 
     # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
@@ -158,6 +158,7 @@ class Player:
             sweeps = max(sweeps, int(solution.iterations))
             residual = max(residual, float(solution.residual))
         step_ms = (time.perf_counter() - t0) * 1e3
+        assert solution is not None  # steps_per_frame >= 1
         kinetic, energy = self.energies()
         impulses = [i for i in solution.impulses if len(i)]
         volume = self.update_volume()

@@ -73,10 +73,10 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
                     forces.append(impulse[:, 0] / player.dt)
                     beta.append([intensity.get(int(i), 0.0) for i in c.ids])
         cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
-        forces = cat(forces, (0,))
+        magnitudes = cat(forces, (0,))
         # The largest force is drawn a tenth of the view across; the others in proportion.
-        contacts.scale = 0.1 * reach / max(float(forces.max(initial=0.0)), 1e-9)
-        contacts.update(cat(points, (0, 3)), cat(normals, (0, 3)), forces,
+        contacts.scale = 0.1 * reach / max(float(magnitudes.max(initial=0.0)), 1e-9)
+        contacts.update(cat(points, (0, 3)), cat(normals, (0, 3)), magnitudes,
                         cat(beta, (0,)) if shown["adhesion"] else None)
         contacts.show(shown["contacts"])
         for overlay, body in zip(tets, soft):

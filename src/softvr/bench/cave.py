@@ -53,11 +53,9 @@ class _StaticScene:
     fps = 60.0
 
     def __init__(self):
-        from softvr.cave.app import RecordingRenderer
+        from softvr.cave.app import plane_item
 
-        self.recorder = RecordingRenderer()
-        self.recorder.add_plane(size=3.0)
-        self.items = self.recorder.items
+        self.items = [plane_item(size=3.0)]
 
     def advance(self) -> dict:
         return {}

@@ -5,11 +5,12 @@
   events, static items (planes, spheres) and surface meshes with their streamed vertices.
   Nodes apply frames to it deterministically; :meth:`ClusterState.digest` hashes it so that
   copies can be compared frame by frame.
-* :class:`RecordingRenderer` — stands in for a :class:`~softvr.render.SurfaceRenderer` so that
-  any physics demo (``softvr run`` scenes) describes its surfaces to the cluster unchanged.
-* Frame sources for the master: :class:`ExampleSource` (a simulated demo),
-  :class:`SceneFileSource` (a static glTF / mesh-file scene) and :class:`WavingSheet` (an
-  analytic deforming sheet for tests and the benchmark).
+* Items, the drawables as plain data: :func:`mesh_item`, :func:`plane_item`, :func:`sphere_item`
+  (one dict each, its index in the list the handle), :func:`scene_bounds`.
+* Frame sources for the master: :class:`PlayerSource` (a scene file simulated by its
+  :class:`softvr.app.Player`, its drawables read from the player), :class:`SceneFileSource` (a
+  static glTF / mesh-file scene) and :class:`WavingSheet` (an analytic deforming sheet for tests
+  and the benchmark).
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, 
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
 from softvr.files import native_read
 
-__all__ = ["ClusterState", "ExampleSource", "FrameBuilder", "RecordingRenderer", "SceneFileSource", "WavingSheet",
-           "user_pose_facing"]
+__all__ = ["PLANE_COLOR", "SPHERE_COLOR", "ClusterState", "FrameBuilder", "PlayerSource", "SceneFileSource",
+           "WavingSheet", "mesh_item", "plane_item", "scene_bounds", "sphere_item", "user_pose_facing"]
 
 _IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
 #: Largest mesh a snapshot may carry [vertices] (its rest shape: 24 bytes each).
@@ -33,44 +34,39 @@ MAX_VERTICES = 1 << 22
 _MAX_FLAGS = 1024
 
 
-class RecordingRenderer:
-    """The calls a demo makes on its renderer (``add_mesh``, ``add_plane``, ``add_sphere``,
-    ``update``), kept as data: ``items`` (one dict per call, its index the handle) and the
-    meshes' current ``vertices``."""
+#: Colours of a plane and a sphere drawn without one of their own: SurfaceRenderer's, so that the
+#: cluster shows a scene as ``softvr view`` does (tests/cave/test_command.py holds them equal).
+PLANE_COLOR = (0.55, 0.57, 0.6)
+SPHERE_COLOR = (0.75, 0.75, 0.78)
 
-    def __init__(self):
-        self.items: list[dict] = []
-        self.vertices: dict[int, np.ndarray] = {}
 
-    def add_mesh(self, vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0, *,
-                 feature_angle: float | None = 60.0) -> int:
-        v = np.array(vertices, float)
-        self.items.append({"kind": "mesh", "rest": v.copy(), "faces": np.asarray(triangles, np.int32),
-                           "color": [float(c) for c in color], "opacity": float(opacity)})
-        self.vertices[len(self.items) - 1] = v
-        return len(self.items) - 1
+def mesh_item(vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0) -> dict:
+    """A triangle mesh item: its ``rest`` vertices [v, 3] [m] (the stream's first state),
+    ``faces`` [t, 3] int32, ``color`` (r, g, b) and ``opacity``."""
+    return {"kind": "mesh", "rest": np.array(vertices, float), "faces": np.asarray(triangles, np.int32),
+            "color": [float(c) for c in color], "opacity": float(opacity)}
 
-    def add_plane(self, point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), size: float = 4.0,
-                  color=(0.55, 0.57, 0.6), *, tiles: int = 8) -> int:
-        self.items.append({"kind": "plane", "point": [float(x) for x in point], "normal": [float(x) for x in normal],
-                           "size": float(size), "color": [float(c) for c in color], "tiles": int(tiles)})
-        return len(self.items) - 1
 
-    def add_sphere(self, center, radius: float, color=(0.75, 0.75, 0.78), opacity: float = 1.0) -> int:
-        self.items.append({"kind": "sphere", "center": [float(x) for x in center], "radius": float(radius),
-                           "color": [float(c) for c in color], "opacity": float(opacity)})
-        return len(self.items) - 1
+def plane_item(point=(0.0, 0.0, 0.0), normal=(0.0, 0.0, 1.0), size: float = 4.0, color=PLANE_COLOR, *,
+               tiles: int = 8) -> dict:
+    """A static plane item: a square of ``size`` [m] through ``point`` [3] [m], drawn in ``tiles``."""
+    return {"kind": "plane", "point": [float(x) for x in point], "normal": [float(x) for x in normal],
+            "size": float(size), "color": [float(c) for c in color], "tiles": int(tiles)}
 
-    def update(self, handle: int, vertices) -> None:
-        self.vertices[handle] = np.array(vertices, float)
 
-    def bounds(self) -> np.ndarray:
-        """(xmin, xmax, ymin, ymax, zmin, zmax) [m] of the meshes and spheres."""
-        points = [v for v in self.vertices.values()]
-        points += [np.asarray(i["center"]) + s * i["radius"] for i in self.items if i["kind"] == "sphere"
-                   for s in (-1, 1)]
-        p = np.vstack([np.atleast_2d(x) for x in points]) if points else np.zeros((1, 3))
-        return np.stack([p.min(axis=0), p.max(axis=0)], axis=1).ravel()
+def sphere_item(center, radius: float, color=SPHERE_COLOR, opacity: float = 1.0) -> dict:
+    """A static sphere item of ``radius`` [m] at ``center`` [3] [m]."""
+    return {"kind": "sphere", "center": [float(x) for x in center], "radius": float(radius),
+            "color": [float(c) for c in color], "opacity": float(opacity)}
+
+
+def scene_bounds(items: list, vertices: dict) -> np.ndarray:
+    """(xmin, xmax, ymin, ymax, zmin, zmax) [m] of the meshes' ``vertices`` (handle -> [v, 3]) and
+    the spheres of ``items`` (planes are unbounded: left out)."""
+    points = list(vertices.values())
+    points += [np.asarray(i["center"]) + s * i["radius"] for i in items if i["kind"] == "sphere" for s in (-1, 1)]
+    p = np.vstack([np.atleast_2d(x) for x in points]) if points else np.zeros((1, 3))
+    return np.stack([p.min(axis=0), p.max(axis=0)], axis=1).ravel()
 
 
 def user_pose_facing(center, yaw: float = 0.0, *, anchor=(0.0, 1.2, 1.0)) -> np.ndarray:
@@ -119,8 +115,8 @@ class ClusterState:
     flags : dict of str -> bool
         Application switches flipped by ``toggle`` events.
     items : list of dict
-        Static items (``plane``, ``sphere``) and meshes as :class:`RecordingRenderer` records
-        them; a handle is an index into this list.
+        Static items (``plane``, ``sphere``) and meshes (:func:`plane_item`, :func:`sphere_item`,
+        :func:`mesh_item`); a handle is an index into this list.
     meshes : dict of int -> MeshDecoder
         The streamed vertex state of every mesh item.
     quantum : float [m]
@@ -135,7 +131,7 @@ class ClusterState:
         self.user = np.eye(4)
         self.head = np.array(_IDENTITY_HEAD)
         self.flags: dict[str, bool] = {}
-        self._geometry = None
+        self._geometry: bytes | None = None
 
     # ----------------------------------------------------------------- frames
     def apply_frame(self, frame: dict) -> None:
@@ -266,8 +262,8 @@ class FrameBuilder:
     Parameters
     ----------
     source
-        ``items`` (:class:`RecordingRenderer` records), ``advance()`` -> mesh handle ->
-        vertices [v, 3] [m] of the next frame, ``fps`` [1/s].
+        ``items`` (:func:`mesh_item`, :func:`plane_item`, :func:`sphere_item`), ``advance()`` -> mesh
+        handle -> vertices [v, 3] [m] of the next frame, ``fps`` [1/s].
     navigation : callable, optional
         ``navigation(n, t)`` -> (user pose [4, 4] world <- tracker, head pose [7] or None,
         events [(name, args)]); None: the user stands still.
@@ -304,28 +300,45 @@ class FrameBuilder:
         return packet
 
 
-class ExampleSource:
-    """Frames from a physics demo (a :class:`~softvr.examples.run.PhysicsExample`): every
-    frame advances it one frame and reads its surfaces through a :class:`RecordingRenderer`."""
+class PlayerSource:
+    """Frames from a scene file played by its :class:`softvr.app.Player`
+    (:class:`softvr.scene.SceneExample`): every frame steps the player one frame and reads its
+    drawn surfaces' vertices, plain arrays, from the player itself (no renderer in between).
 
-    def __init__(self, example):
-        self.example = example
-        self.recorder = RecordingRenderer()
-        example.setup_render(self.recorder)
-        self.fps = float(example.fps)
+    The items are the player's drawables as data: its static planes (``planes``: (plane, drawn
+    size)) and spheres (``spheres``), then every shown surface of ``drawn`` (``vertices()`` [v, 3]
+    [m] now, ``triangles``, ``color``, ``opacity``, ``visible``). A hidden surface (a volume's
+    skin, drawn as the volume) is left out. What only a window draws (lights, the volume) is not
+    streamed.
+    """
 
-    @property
-    def items(self) -> list:
-        return self.recorder.items
+    def __init__(self, player):
+        self.player = player
+        self.fps = float(player.fps)
+        # Planes in 12 tiles, as the scene's own view draws them (SceneExample.setup_render).
+        self.items = [plane_item(plane.point, plane.normal, size, tiles=12) for plane, size in player.planes]
+        self.items += [sphere_item(s.center, s.radius) for s in player.spheres]
+        self._surfaces = {}
+        for drawn in player.drawn:
+            if drawn.visible:
+                self._surfaces[len(self.items)] = drawn
+                self.items.append(mesh_item(drawn.vertices(), drawn.triangles, drawn.color, drawn.opacity))
+
+    def vertices(self) -> dict:
+        """Mesh handle -> the surface's vertices [v, 3] [m] now."""
+        return {h: np.asarray(d.vertices(), float) for h, d in self._surfaces.items()}
 
     def advance(self) -> dict:
-        """Step the demo one frame; mesh handle -> vertices [v, 3] [m]."""
-        self.example.step()
-        self.example.update_render(self.recorder)
-        return self.recorder.vertices
+        """Step the player one frame (its sub-steps and hooks); mesh handle -> vertices [v, 3] [m]."""
+        self.player.step()
+        return self.vertices()
 
     def bounds(self) -> np.ndarray:
-        return self.recorder.bounds()
+        return scene_bounds(self.items, self.vertices())
+
+    def close(self) -> None:
+        """Stop what the player started (haptic processes)."""
+        self.player.close()
 
 
 class SceneFileSource:
@@ -347,7 +360,6 @@ class SceneFileSource:
         scene = native_read(lambda p: trimesh.load(p, force="scene"), path, "scene file",
                             "a readable glTF / GLB / OBJ / STL / PLY file")
         y_up = path.suffix.lower() in (".gltf", ".glb")
-        self.recorder = RecordingRenderer()
         meshes = []
         for node in scene.graph.nodes_geometry:
             transform, name = scene.graph[node]
@@ -363,19 +375,15 @@ class SceneFileSource:
             raise InputError("scene file", "at least one triangle mesh", "none", source=str(path))
         low = min(v[:, 2].min() for v, _, _ in meshes)
         span = max(np.ptp(np.vstack([v for v, _, _ in meshes]), axis=0).max(), 1e-3)
-        self.recorder.add_plane(point=(0.0, 0.0, low), size=3.0 * span, tiles=12)
-        for v, f, color in meshes:
-            self.recorder.add_mesh(v, f, color=tuple(color))
-
-    @property
-    def items(self) -> list:
-        return self.recorder.items
+        self.items = [plane_item(point=(0.0, 0.0, low), size=3.0 * span, tiles=12)]
+        self.items += [mesh_item(v, f, color=color) for v, f, color in meshes]
+        self.vertices = {h: i["rest"] for h, i in enumerate(self.items) if i["kind"] == "mesh"}
 
     def advance(self) -> dict:
-        return self.recorder.vertices
+        return self.vertices
 
     def bounds(self) -> np.ndarray:
-        return self.recorder.bounds()
+        return scene_bounds(self.items, self.vertices)
 
 
 class WavingSheet:
@@ -390,13 +398,14 @@ class WavingSheet:
         quads = np.arange(k * k).reshape(k, k)[:-1, :-1].ravel()
         faces = np.concatenate([np.c_[quads, quads + k, quads + k + 1], np.c_[quads, quads + k + 1, quads + 1]])
         self.amplitude, self.fps, self.frame = float(amplitude), float(fps), 0
-        self.recorder = RecordingRenderer()
-        self.recorder.add_plane(point=(0.0, 0.0, 0.0), size=3.0, tiles=12)
-        self.sheet = self.recorder.add_mesh(self._sheet(0.0), faces, color=(0.85, 0.45, 0.35))
         from softvr.model.shapes import BOX_TRIANGLES, box_corners  # noqa: PLC0415
 
         self._box = box_corners((0.08, 0.08, 0.08))
-        self.box = self.recorder.add_mesh(self._box_at(0.0), BOX_TRIANGLES, color=(0.3, 0.55, 0.85))
+        self.sheet, self.box = 1, 2  # the handles of the sheet and the box
+        self.items = [plane_item(point=(0.0, 0.0, 0.0), size=3.0, tiles=12),
+                      mesh_item(self._sheet(0.0), faces, color=(0.85, 0.45, 0.35)),
+                      mesh_item(self._box_at(0.0), BOX_TRIANGLES, color=(0.3, 0.55, 0.85))]
+        self.vertices = {self.sheet: self.items[1]["rest"], self.box: self.items[2]["rest"]}
 
     def _sheet(self, t: float) -> np.ndarray:
         x, y = self.grid[:, 0], self.grid[:, 1]
@@ -408,16 +417,11 @@ class WavingSheet:
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return self._box @ rotation.T + (0.0, 0.0, 0.8)
 
-    @property
-    def items(self) -> list:
-        return self.recorder.items
-
     def advance(self) -> dict:
         self.frame += 1
         t = self.frame / self.fps
-        self.recorder.update(self.sheet, self._sheet(t))
-        self.recorder.update(self.box, self._box_at(t))
-        return self.recorder.vertices
+        self.vertices = {self.sheet: self._sheet(t), self.box: self._box_at(t)}
+        return self.vertices
 
     def bounds(self) -> np.ndarray:
-        return self.recorder.bounds()
+        return scene_bounds(self.items, self.vertices)

@@ -116,7 +116,9 @@ def _pair(folder: Path, stem: str, name: str) -> tuple[bytes, bytes]:
         public, secret = zmq.curve_keypair()
         _write(secret_path, _certificate(name, public, secret), 0o600)
         _write(folder / f"{stem}.key", _certificate(name, public), 0o644)
-    return _load(secret_path, f"{name} secret key", secret=True)
+    public_key, secret_key = _load(secret_path, f"{name} secret key", secret=True)
+    assert secret_key is not None  # read with secret=True
+    return public_key, secret_key
 
 
 def master_pair(folder=None) -> tuple[bytes, bytes]:

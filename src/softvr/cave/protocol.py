@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NoReturn
 
 import msgpack
 
@@ -82,7 +83,7 @@ def encode(kind: str, session: int, payload: dict) -> bytes:
     return msgpack.packb([MAGIC, VERSION, kind, int(session), payload], use_bin_type=True)
 
 
-def _fail(detail: str):
+def _fail(detail: str) -> NoReturn:
     raise PacketError("malformed", detail)
 
 

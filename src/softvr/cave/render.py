@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from softvr.cave.display import Screen
+
+if TYPE_CHECKING:  # vtk loads with the first renderer
+    from softvr.render.surfaces import SurfaceRenderer
 
 __all__ = ["StateRenderer", "render_screen"]
 
@@ -41,7 +46,7 @@ class StateRenderer:
     def __init__(self, screen: Screen, separation: float = 0.065, *, scale: float = 1.0, onscreen: bool = False):
         self.screen, self.separation, self.scale, self.onscreen = screen, float(separation), float(scale), onscreen
         self.image: np.ndarray | None = None
-        self._renderer = None
+        self._renderer: SurfaceRenderer | None = None
         self._items = None
         self._handles: dict[int, int] = {}
 
@@ -72,6 +77,7 @@ class StateRenderer:
 
         if self._items != state.geometry_digest():  # the first frame, or a snapshot of another scene
             self._build(state)
+        assert self._renderer is not None  # built for the first state
         for handle, h in self._handles.items():
             self._renderer.update(h, state.mesh_vertices(handle))
         head = HeadPose(tuple(state.head[:3]), tuple(state.head[3:]))

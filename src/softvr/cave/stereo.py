@@ -87,8 +87,9 @@ def render_stereo(renderer, screen: Screen, head: HeadPose, separation: float = 
     views = [world_view(screen, eye, user, near=near, far=far) for eye in head.eyes(float(separation))]
     if mode == "quad-buffer":
         _require_stereo_window(renderer)
-        return _render_into_stereo_buffers(renderer, *views, "CrystalEyes")
-    left, right = [], []
+        return _render_into_stereo_buffers(renderer, views[0], views[1], "CrystalEyes")  # (left, right)
+    left: list[np.ndarray] = []
+    right: list[np.ndarray] = []
     for view, out in zip(views, (left, right)):
         _show(renderer, view)
         out.append(renderer.render())

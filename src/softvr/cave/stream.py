@@ -31,7 +31,7 @@ DEFAULT_QUANTUM = 1e-5
 _WIDTH_DTYPE = {1: np.int8, 2: np.int16, 4: np.int32}
 
 
-def pose_matrix(pose) -> np.ndarray:
+def pose_matrix(pose) -> tuple[np.ndarray, np.ndarray]:
     """Rotation [3, 3] and translation [3] of a pose [7] (position [m], quaternion w x y z)."""
     p = np.asarray(pose, float)
     w, x, y, z = p[3:]
@@ -78,8 +78,8 @@ class MeshEncoder:
         self.rest = np.array(rest, float)
         self.quantum = float(quantum)
         self.rigid = rigid
-        self._ints = None  # the integers the nodes hold after the last key / delta
-        self._pose = None
+        self._ints: np.ndarray | None = None  # the integers the nodes hold after the last key / delta
+        self._pose: np.ndarray | None = None
 
     def encode(self, vertices) -> list | None:
         """The update [kind, data...] that brings a node to ``vertices`` [v, 3] [m] (module
@@ -116,8 +116,8 @@ class MeshDecoder:
     def __init__(self, rest, quantum: float = DEFAULT_QUANTUM):
         self.rest = np.array(rest, float)
         self.quantum = float(quantum)
-        self.pose = None
-        self.ints = None
+        self.pose: np.ndarray | None = None
+        self.ints: np.ndarray | None = None
 
     def apply(self, update) -> None:
         """Apply a validated update (:func:`softvr.cave.protocol.decode`'s ``meshes`` entry

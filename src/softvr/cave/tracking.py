@@ -39,7 +39,9 @@ from __future__ import annotations
 
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from pythonosc import osc_bundle, osc_message
@@ -244,6 +246,7 @@ class ScriptedTracker(Tracker):
         i = int(np.searchsorted(times, t, side="right")) - 1
         s = (t - times[i]) / (times[i + 1] - times[i])
         position = (1 - s) * self.positions[i] + s * self.positions[i + 1]
+        assert self._slerp is not None  # two keys at least: one is held before and after (above)
         x, y, z, w = self._slerp(t).as_quat()
         return HeadPose(position, (w, x, y, z))
 
@@ -257,7 +260,7 @@ class ScriptedTracker(Tracker):
 # bundles without bound, pads a missing last float with zeros (a truncated pose would decode as a
 # pose) and ignores trailing bytes. _check_frames (before it parses) and _canonical (after) refuse those.
 _TAGS = "fidsTF"  # the argument types softvr reads; python-osc logs a warning per unknown tag
-_WRITERS = {"f": osc_types.write_float, "i": osc_types.write_int, "d": osc_types.write_double,
+_WRITERS: dict[str, Callable[[Any], bytes]] = {"f": osc_types.write_float, "i": osc_types.write_int, "d": osc_types.write_double,
             "s": osc_types.write_string}  # T and F carry no bytes
 
 
@@ -284,7 +287,7 @@ def encode_osc(address: str, values) -> bytes:
 def encode_osc_bundle(elements, timestamp: float = IMMEDIATELY) -> bytes:
     """An OSC bundle (python-osc's ``OscBundleBuilder``) of encoded messages or bundles
     (``bytes``); ``timestamp`` [s since the Unix epoch, UTC], default: immediately."""
-    builder = OscBundleBuilder(timestamp)
+    builder = OscBundleBuilder(timestamp)  # type: ignore[arg-type]  # python-osc writes float times (annotated int)
     for i, element in enumerate(elements):
         if not isinstance(element, (bytes, bytearray)) or len(element) % 4:
             raise InputError(f"bundle element [{i}]", "an encoded OSC message or bundle (bytes, 4-byte aligned)",
@@ -415,7 +418,7 @@ class OscTracker(Tracker):
             raise InputError("initial", "a HeadPose", type(initial).__name__)
         self.address, self.received, self.dropped = address, 0, 0
         self._pose = initial
-        self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._socket: socket.socket | None = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             # Room for a burst of a 1 kHz tracker between two frames, so the newest is not lost.
             self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)

@@ -83,9 +83,9 @@ def contact_keys(kind, body_a, feature_a, body_b, feature_b) -> np.ndarray:
         arrays.append((value.astype(np.uint64), np.uint64(shift)))
     if not arrays:
         return np.array(base, np.uint64).view(np.int64)
-    key = np.left_shift(*arrays[0])
-    for value, shift in arrays[1:]:
-        key |= value << shift
+    key: np.ndarray = np.left_shift(*arrays[0])
+    for part, part_shift in arrays[1:]:
+        key |= part << part_shift
     key |= np.uint64(base)
     return key.view(np.int64)
 
@@ -159,7 +159,7 @@ class Contacts:
     point_b: np.ndarray
     ids: np.ndarray
     friction: np.ndarray
-    area: np.ndarray = field(default=None)
+    area: np.ndarray = field(default=None)  # type: ignore[arg-type]  # None: zeros, set in __post_init__
 
     def __post_init__(self) -> None:
         if self.area is None:
@@ -170,8 +170,10 @@ class Contacts:
 
     def select(self, keep: np.ndarray) -> Contacts:
         """The contacts where ``keep`` [contact_count] (bool or indices) selects."""
-        sides = [None if s is None else ContactSide(s.body, s.blocks[keep], s.jac[keep]) for s in (self.a, self.b)]
-        return Contacts(*sides, self.normal[keep], self.gap[keep], self.point_a[keep], self.point_b[keep],
+        def side(s: ContactSide) -> ContactSide:
+            return ContactSide(s.body, s.blocks[keep], s.jac[keep])
+
+        return Contacts(side(self.a), None if self.b is None else side(self.b), self.normal[keep], self.gap[keep], self.point_a[keep], self.point_b[keep],
                         self.ids[keep], self.friction[keep], self.area[keep])
 
 

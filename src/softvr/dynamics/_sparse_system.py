@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.linalg import solve_triangular
 
 from softvr.dynamics.body import StepSystem
-from softvr.errors import InputError
+from softvr.errors import InputError, SimulationError
 
 __all__ = ["SparseNodeSystem"]
 
@@ -27,6 +29,28 @@ class SparseNodeSystem:
     which no force or contact impulse changes; the free nodes feel that motion through the
     off-diagonal blocks of ``A`` (a jaw, a hand or a clamp driving the body).
     """
+
+    if TYPE_CHECKING:  # what the bodies (FemBody, ClothBody, CouplingIsland) and ContactObject provide
+        fixed: np.ndarray
+        fixed_velocity: np.ndarray
+        rest: np.ndarray
+        q: np.ndarray
+        v: np.ndarray
+        cg_tolerance: float
+        cg_max_iterations: int
+        step_count: int
+
+        def _step_matrices(self, dt: float, gravity, external) -> tuple: ...
+
+        @staticmethod
+        def _check_dt(dt: float) -> float: ...
+
+        def _diverged(self, what: str) -> SimulationError: ...
+
+    # Kept between steps (see _factor): the LU, its fill order, where the last velocities sit in it.
+    _lu: Any
+    _fill_order: np.ndarray
+    _corner_position: np.ndarray | None  # None: the corner inverse belongs to an older order
 
     _node_word = "node"
     #: Solve by sparse LU until a factorization exists, then by CG preconditioned with the last
@@ -200,6 +224,7 @@ class SparseNodeSystem:
             self._corner_last = last_all
             self._corner_position = np.full(n, -1)
             self._corner_position[last_all] = np.arange(k)
+        assert self._corner_position is not None  # reusable, or made just now
         at = self._corner_position[last]
         inv = self._corner_inv if np.array_equal(at, np.arange(len(self._corner_inv))) \
             else self._corner_inv[np.ix_(at, at)]

@@ -206,11 +206,11 @@ def _build_springs(x: np.ndarray, t: np.ndarray, stiffness: dict[str, float]):
         cross, cross_kind = cross[fresh & unique], cross_kind[fresh & unique]
     pairs.append(cross)
     kinds.append(cross_kind)
-    pairs = np.concatenate(pairs).astype(np.int64)
-    kinds = np.concatenate(kinds)
-    k = np.array([stiffness[name] for name in _KINDS])[kinds]
+    all_pairs = np.concatenate(pairs).astype(np.int64)
+    all_kinds = np.concatenate(kinds)
+    k = np.array([stiffness[name] for name in _KINDS])[all_kinds]
     keep = k > 0  # a family with zero stiffness is left out
-    return pairs[keep], kinds[keep], k[keep]
+    return all_pairs[keep], all_kinds[keep], k[keep]
 
 
 class ClothBody(SparseNodeSystem, ContactObject):

@@ -73,8 +73,8 @@ class Coupling:
                                  f"[{'N/m' if positive else 'N s/m'}]", repr(value))
         self.a, self.b = a, b
         self.stiffness, self.damping = float(stiffness), float(damping)
-        self._embedded = {}
-        self._normal_key = None
+        self._embedded: dict = {}
+        self._normal_key: tuple | None = None
 
     @property
     def bodies(self) -> tuple:

@@ -146,7 +146,7 @@ class CouplingIsland(SparseNodeSystem, ContactObject):
 
     # -- state ---------------------------------------------------------------------------
     @property
-    def v(self) -> np.ndarray:
+    def v(self) -> np.ndarray:  # type: ignore[override]  # an island's v is read from its bodies' (none of its own)
         bodies = [*self.members, *self.guests]
         return np.concatenate([np.asarray(m.v, float).ravel() for m in bodies]).reshape(-1, 3)
 

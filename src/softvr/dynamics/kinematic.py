@@ -149,7 +149,7 @@ class KinematicBody(_InfiniteMass):
         self.position, self.orientation = self._evaluate(self._t)
         self.v = np.zeros(6)
         self.step_count = 0
-        self._target = None
+        self._target: tuple | None = None  # (t1, position, orientation, velocity) of the next key
 
     @property
     def time(self) -> float:

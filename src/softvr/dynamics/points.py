@@ -186,8 +186,8 @@ def embed_in_tets(nodes, tets, points, *, tolerance: float = 1e-6, candidates: i
         tet_index[i], weights[i] = j, all_b[j]
     outside = weights.min(axis=1) < -tolerance
     if outside.any():
-        i = int(np.argmax(outside))
-        raise InputError(f"points[{i}]", "a point inside the tetrahedral mesh",
-                         f"{p[i].tolist()}, outside by barycentric {weights[i].min():.3g} "
+        bad = int(np.argmax(outside))
+        raise InputError(f"points[{bad}]", "a point inside the tetrahedral mesh",
+                         f"{p[bad].tolist()}, outside by barycentric {weights[bad].min():.3g} "
                          f"({int(outside.sum())} such points)")
     return tet_index, weights

@@ -360,7 +360,7 @@ class RigidBody(RigidFrame):
         self.max_rate = 1e3
         self.max_speed = 100.0
         self.step_count = 0
-        self._a_rot = None
+        self._a_rot: np.ndarray | None = None
 
     # ------------------------------------------------------------- constructors
     @classmethod

@@ -49,7 +49,7 @@ def orange_mesh(radius: float, voxels: int = 12, cells: int = 4):
     c = (voxels - 1) / 2
     x, y, z = np.mgrid[:voxels, :voxels, :voxels] - c
     mask = x**2 + y**2 + z**2 <= (voxels / 2) ** 2
-    grid = Volume(mask.astype(np.uint8), spacing=(h, h, h), origin=(-c * h,) * 3)
+    grid = Volume(mask.astype(np.uint8), spacing=np.full(3, h), origin=np.full(3, -c * h))
     nodes, tets = grid_tet_mesh(grid, cells, mask=mask)
     verts, tris = icosphere(2)
     fraction = 4 / 3 * np.pi * radius**3 / float(tet_signed_volumes(nodes, tets).sum())

@@ -70,7 +70,7 @@ class ScriptedDevice(HapticDevice):
             raise InputError("clock", "a callable () -> time [s]", type(clock).__name__)
         self.path = path
         self.clock = clock
-        self._t0 = None
+        self._t0: float | None = None
 
     def start(self) -> None:
         """Start the path's wall clock now."""
@@ -82,6 +82,7 @@ class ScriptedDevice(HapticDevice):
             return float(self.clock())
         if self._t0 is None:
             self.start()
+        assert self._t0 is not None  # set by start()
         return time.perf_counter() - self._t0
 
     def position(self) -> np.ndarray:

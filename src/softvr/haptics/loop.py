@@ -27,6 +27,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -140,9 +141,9 @@ class HapticLoop:
         self._shared = multiprocessing.RawArray("d", _RING_START + _RING)
         self._data = np.frombuffer(self._shared, dtype=np.float64)
         self._data[_POS] = np.asarray(device.position(), float)
-        self._runner = None
-        self._stop = None
-        self._switch_interval = None
+        self._runner: Any = None  # while running: a multiprocessing Process or a threading Thread
+        self._stop: Any = None  # and its Event (of multiprocessing or threading)
+        self._switch_interval: float | None = None
 
     # -- the simulation's side -------------------------------------------------------------
     def publish(self, model: HandleModel, time: float | None = None) -> None:

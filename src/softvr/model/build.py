@@ -18,6 +18,7 @@ import argparse
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -103,6 +104,7 @@ class PartModel:
         """Collision vertices at the start state [k, 3] [m]."""
         if not self.soft:
             return self.collision_vertices
+        assert self.collision_embedding is not None and self.start_nodes is not None and self.tets is not None
         index, weights = self.collision_embedding
         return np.einsum("pk,pkc->pc", weights, self.start_nodes[self.tets[index]])
 
@@ -178,7 +180,8 @@ class Model:
     # -- files -----------------------------------------------------------------------------
     def save(self, path) -> Path:
         """Write the model to ``path`` (``.npz``) atomically; returns the path."""
-        arrays, manifest = {}, {"format": MODEL_FORMAT, "parts": [], "couplings": [], "crossings": self.crossings}
+        arrays: dict[str, Any] = {}  # name -> array (np.savez's keywords)
+        manifest: dict[str, Any] = {"format": MODEL_FORMAT, "parts": [], "couplings": [], "crossings": self.crossings}
         for i, p in enumerate(self.parts):
             entry = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(p.spec).items()}
             manifest["parts"].append({"spec": entry, "mass": p.mass})
@@ -272,10 +275,10 @@ def _loaded_part(data, i: int, entry: dict, source: str) -> PartModel:
         raise InputError(f"manifest.parts[{i}].spec", "finite material numbers and an integer triangle budget",
                          repr(raw)[:200], source=source)
     spec = PartSpec(**{**raw, "mesh": Path(raw["mesh"])})
-    mass = entry.get("mass")
+    mass: Any = entry.get("mass")  # checked next
     if not (type(mass) in (int, float) and np.isfinite(mass) and mass >= 0):
         raise InputError(f"manifest.parts[{i}].mass", "a mass >= 0 [kg]", repr(mass), source=source)
-    kw = {}
+    kw: dict[str, Any] = {}
     for surface in ("render", "collision"):
         v = kw[f"{surface}_vertices"] = _array(data, f"p{i}_{surface}_vertices", (None, 3), source)
         kw[f"{surface}_triangles"] = _array(data, f"p{i}_{surface}_triangles", (None, 3), source, below=len(v))
@@ -343,9 +346,10 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
     for c in spec.couplings:
         a, b = by_name[c.a], by_name[c.b]
         candidates = a.start_nodes if a.soft else a.collision_vertices
+        assert candidates is not None  # a soft part has its nodes
         chosen = set(int(n) for n in c.nodes)
         if any(n >= len(candidates) for n in chosen):
-            raise InputError(f"coupling {c.a} - {c.b}.nodes", f"indices below {len(candidates)}", sorted(chosen)[-1],
+            raise InputError(f"coupling {c.a} - {c.b}.nodes", f"indices below {len(candidates)}", str(max(chosen)),
                              source=str(spec.path))
         if c.radius is not None:
             chosen |= set(nodes_near_surface(candidates, b.collision_vertices, b.collision_triangles, c.radius).tolist())
@@ -369,7 +373,8 @@ def build_model(parts, *, progress: bool = True, separation_iterations: int = 30
         for a, b in pairs:
             if not (a.soft or b.soft) or not crossing(a, b):
                 continue
-            moving, obstacle = (a, b) if a.soft and (not b.soft or len(a.tets) <= len(b.tets)) else (b, a)
+            smaller = a.soft and (not b.soft or len(a.tets) <= len(b.tets))  # type: ignore[arg-type]  # soft: tets
+            moving, obstacle = (a, b) if smaller else (b, a)
             moving.start_nodes, _ = push_apart(moving.start_nodes, moving.tets, moving.collision_embedding,
                                                moving.collision_triangles, obstacle.collision_now(),
                                                obstacle.collision_triangles, iterations=separation_iterations)

@@ -135,7 +135,8 @@ def read_parts(path) -> PartsFile:
         if not isinstance(kind, str) or kind not in KINDS:
             errors.add(f"{where}.kind", " | ".join(KINDS), kind if kind is not None else "nothing")
         mesh_path = _mesh(table.get("mesh"), path.parent, f"{where}.mesh", errors)
-        spec = PartSpec(name=name, mesh=mesh_path, kind=kind)
+        # A part with a bad mesh or kind is kept for its other checks; the file's problems raise below.
+        spec = PartSpec(name=name, mesh=mesh_path, kind=kind)  # type: ignore[arg-type]
         for key, kw in (("density", dict(positive=True, unit="kg/m^3")), ("young", dict(positive=True, unit="Pa")),
                         ("poisson", dict(minimum=-0.99, maximum=0.5)), ("alpha", dict(minimum=0.0, unit="1/s")),
                         ("beta", dict(minimum=0.0, unit="s")),

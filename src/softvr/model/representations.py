@@ -77,7 +77,7 @@ def dynamics_mesh(vertices, triangles, cell_size: float) -> tuple[np.ndarray, np
     cells = per_axis.astype(int)
     pad = (cells * cell_size - (hi - lo)) / 2  # centre the part in the grid
     origin = lo - pad + cell_size / 2
-    nodes, tets = grid_tet_mesh(Volume(np.zeros(tuple(cells), np.uint8), spacing=(cell_size,) * 3, origin=origin),
+    nodes, tets = grid_tet_mesh(Volume(np.zeros(tuple(cells), np.uint8), spacing=np.full(3, cell_size), origin=origin),
                                 tuple(cells))
     corners = nodes[tets]
     centroid = corners.mean(axis=1)

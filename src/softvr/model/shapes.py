@@ -32,7 +32,9 @@ def box_surface(size, quads: int) -> tuple[np.ndarray, np.ndarray]:
     triangles [t, 3]."""
     size = np.asarray(size, float)
     counts = np.maximum(1, np.round(size / size.max() * quads).astype(int))
-    verts, tris, index = [], [], {}
+    verts: list[np.ndarray] = []
+    tris: list[tuple[int, int, int]] = []
+    index: dict[tuple, int] = {}
 
     def vertex(p):
         key = tuple(np.round(p / size * 2 * counts.max()).astype(int))
@@ -83,7 +85,7 @@ def icosphere(subdivisions: int = 2) -> tuple[np.ndarray, np.ndarray]:
                 cache[key] = len(verts) - 1
             return cache[key]
 
-        new = []
+        new: list[tuple[int, ...]] = []
         for a, b, c in faces:
             ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
             new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]

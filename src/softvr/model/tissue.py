@@ -75,8 +75,9 @@ class TissueTable:
         """(E [Pa], nu, rho [kg/m^3]) of ``values`` (any shape; float32 arrays of that shape)."""
         v = np.asarray(values, np.float32)
         k = np.asarray(self.intensity, np.float32)
-        return tuple(np.interp(v, k, np.asarray(getattr(self, f), np.float32)).astype(np.float32)
-                     for f in ("young", "poisson", "density"))
+        young, poisson, density = (np.interp(v, k, np.asarray(getattr(self, f), np.float32)).astype(np.float32)
+                                   for f in ("young", "poisson", "density"))
+        return young, poisson, density
 
 
 #: Default CT table (HU). Air and lung are kept soft but not void (the mesh stays solvable);

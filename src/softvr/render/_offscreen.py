@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 __all__ = ["OffscreenView"]
@@ -14,7 +16,7 @@ class OffscreenView:
     ``self._camera``, and call :meth:`_init_grabber` once the window exists.
     """
 
-    _window = None
+    _window: Any = None  # the subclass's vtkRenderWindow (vtk is imported with the first renderer)
     _closed = True
 
     def _init_grabber(self) -> None:

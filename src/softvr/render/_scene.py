@@ -137,6 +137,7 @@ class VolumeScene:
     def _apply_preset(self, volume, flat: np.ndarray) -> None:
         preset = resolve_preset(self._preset_arg, volume)
         labels = None
+        key: tuple
         if preset.categorical:
             labels = _label_values(flat)
             key = (preset, tuple(labels.tolist()))
@@ -147,6 +148,7 @@ class VolumeScene:
         prop = self.property
         ctf, pwf = self._vtk_ctf(), self._vtk_pwf()
         if preset.categorical:
+            assert labels is not None  # found above for a categorical preset
             colors = label_colors(labels)
             for value, rgb in zip(labels.tolist(), colors):
                 ctf.AddRGBPoint(value, *rgb)

@@ -61,7 +61,7 @@ def contact_sheet(
         raise InputError("gap", "an integer >= 0", repr(gap))
     if labels is not None and len(labels) != len(frames):
         raise InputError("labels", f"{len(frames)} labels (one per frame)", f"{len(labels)}")
-    tiles = []
+    tiles: list[np.ndarray] = []
     for i, f in enumerate(frames):
         if f.dtype != np.uint8:
             raise InputError(f"frames[{i}]", "dtype uint8", f"dtype {f.dtype}")

@@ -35,7 +35,7 @@ def _rgb(color, what: str) -> tuple[float, float, float]:
     c = np.asarray(color, float).reshape(-1)
     if c.shape != (3,) or not np.isfinite(c).all() or (c < 0).any() or (c > 1).any():
         raise InputError(what, "an RGB triple in [0, 1]", repr(color))
-    return tuple(float(x) for x in c)
+    return float(c[0]), float(c[1]), float(c[2])
 
 
 def _vec3(value, what: str, unit: str) -> np.ndarray:
@@ -248,8 +248,7 @@ class SurfaceRenderer(OffscreenView):
         s = np.linspace(-size / 2, size / 2, tiles + 1)
         a, b = np.meshgrid(s, s, indexing="ij")
         xyz = p + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
-        i, j = np.meshgrid(np.arange(tiles), np.arange(tiles), indexing="ij")
-        i, j = i.ravel(), j.ravel()
+        i, j = (g.ravel() for g in np.meshgrid(np.arange(tiles), np.arange(tiles), indexing="ij"))
         k = tiles + 1
         quads = np.stack([i * k + j, (i + 1) * k + j, (i + 1) * k + j + 1, i * k + j + 1], axis=1)
         shade = np.where(((i + j) % 2 == 0)[:, None], rgb, 0.8 * rgb)

@@ -102,6 +102,7 @@ def write_mp4(frames: Iterable[np.ndarray], path: "str | os.PathLike", fps: floa
                     )
                 elif frame.shape != size:
                     raise InputError(f"frames[{count - 1}]", f"the size of frame 0, {size}", f"{frame.shape}")
+                assert writer is not None  # opened with the first frame
                 writer.append_data(_even(frame))
             if count == 0:
                 raise InputError("frames", "at least one frame", "none")
@@ -112,5 +113,6 @@ def write_mp4(frames: Iterable[np.ndarray], path: "str | os.PathLike", fps: floa
                 except Exception:
                     pass
             raise
+        assert writer is not None  # there was a frame
         writer.close()  # flushes ffmpeg; raises if encoding failed
     return path
