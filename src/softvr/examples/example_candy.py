@@ -152,6 +152,8 @@ class Example(Player):
             centre = np.array([(slot % grid - (grid - 1) / 2) * pitch, (slot // grid - (grid - 1) / 2) * pitch,
                                size[2] + 0.06 + 0.05 * k])
             turn = quat_from_rotvec(rng.normal(0.0, 0.6, 3))
+            body: FemBody | RigidBody
+            points: EmbeddedPoints | RigidPoints
             if k % 2 == 0:  # soft: a ball, or a bean (the same mesh stretched)
                 stretch = np.array([1.0, 1.0, 1.0]) if k % 4 == 0 else np.array([1.35, 0.9, 0.8])
                 rot = quat_to_matrix(turn)

@@ -113,7 +113,7 @@ class Example(Player):
         self.gap, self.thickness = gap, thickness
         self.press, self.press_time, self.hold_time, self.open_speed = press, press_time, hold_time, open_speed
         self.material, self.adhesion = material, adhesion
-        self._force = []
+        self._force: list[float] = []  # the z force on lip 0 [N] at each step of this frame
         span = length / 2 + 0.01
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
                          bounds=(-span, span, -depth, depth, -0.03, 0.03),

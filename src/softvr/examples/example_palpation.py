@@ -14,11 +14,15 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softvr.app import DEFAULT_OUT, add_device_option, out_folder, record
 from softvr.volume import load
+
+if TYPE_CHECKING:  # vtk loads with the first frame drawn
+    from softvr.render import VolumeRenderer
 
 __all__ = ["Example", "main", "press_point"]
 
@@ -149,7 +153,7 @@ class Example:
         self._changed = True  # what the rasterizer rewrote since the last render: everything at first
         self.frame = 0
         self.metrics: list[dict] = []
-        self._renderer = None
+        self._renderer: VolumeRenderer | None = None
 
     def pose(self, t: float):
         """Probe centre [m] and orientation at time ``t`` [s]: from 2 mm off the skin along -y

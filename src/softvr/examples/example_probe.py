@@ -103,7 +103,7 @@ class Example(Player):
         self.probe_index = scene.add_body(self.probe, collision_points=RigidPoints(self.probe, self.probe_local),
                                           collision_triangles=self.probe_triangles, adhesion=sticky)
         self.adhesion = adhesion
-        self._force = []
+        self._force: list[float] = []  # the z force on the probe [N] at each step of this frame
         span = size[0] / 2
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
                          bounds=(-span, span, -span, span, -size[2], 0.02),

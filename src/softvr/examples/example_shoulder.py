@@ -133,7 +133,7 @@ class Example(Player):
         self.device.clock = self.loop.simulation_clock
         self.tool = HapticTool(scene, tool, self.loop, stiffness=coupling_stiffness, damping=2.0)
         self.haptics = haptics
-        self._forces = []
+        self._forces: list[np.ndarray] = []  # the force on the hand [3] [N] at each step of this frame
         self._gap = 0.0
         super().__init__(scene, dt, steps_per_frame, frames, width, height,
                          bounds=(-0.05, 0.1, -0.07, 0.07, -0.12, 0.08),

@@ -11,11 +11,15 @@ contact sheet. Run ``softvr demo``.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softvr.app import DEFAULT_OUT, add_device_option, out_folder, record
 from softvr.volume import Rasterizer, Volume, grid_tet_mesh, load
+
+if TYPE_CHECKING:  # vtk loads with the first frame drawn
+    from softvr.render import VolumeRenderer
 
 __all__ = ["Example", "press_and_twist", "main"]
 
@@ -120,13 +124,14 @@ class Example:
         #: One record per frame: ``frame``, ``s`` (animation time), ``deform_ms`` and the
         #: rasterizer's statistics (:attr:`softvr.volume.Rasterizer.stats`).
         self.metrics: list[dict] = []
-        self._renderer = None
+        self._renderer: VolumeRenderer | None = None
 
     def step(self) -> Volume:
         """Deform the volume for the current frame, record its metrics and advance the frame counter."""
         s = self.frame / (self.frames - 1)
         moved = press_and_twist(self.nodes, self.bounds, s, self.press_point)
         self.deformed = self.rasterizer.deform(moved)
+        assert self.rasterizer.stats is not None  # deform() measured itself
         stats = self.rasterizer.stats.as_dict()
         self.metrics.append({"frame": self.frame, "s": s, "deform_ms": stats["time_total_s"] * 1e3, **stats})
         self.frame += 1

@@ -108,11 +108,11 @@ class RayCaster:
         self.sample_distance = float(sample_distance)
         self.jitter = bool(jitter)
         self.preset = preset
-        self._tables_key = None
-        self._grid_key = None
-        self._vol = None
+        self._tables_key: tuple | None = None
+        self._grid_key: tuple | None = None
+        self._vol: wp.array | None = None
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
-        self._prefix_key = None
+        self._prefix_key: tuple | None = None
         load_kernels(K.raycast, self.device)
 
     # --------------------------------------------------------------- data
@@ -160,7 +160,7 @@ class RayCaster:
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
-            flipped = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
+            flipped: wp.array = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
             self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
                                                         float(self._lut_scale), REACH], [self._seed, flipped])
             box = flipped.numpy()
@@ -192,8 +192,8 @@ class RayCaster:
             return False
         t = transfer_tables(self.preset, self.sample_distance)
         dev = self.device
-        self._lut = wp.array(t["rgba"], dtype=wp.vec4, device=dev)
-        self._visible = wp.array(t["visible"], dtype=wp.int32, device=dev)
+        self._lut: wp.array = wp.array(t["rgba"], dtype=wp.vec4, device=dev)
+        self._visible: wp.array = wp.array(t["visible"], dtype=wp.int32, device=dev)
         self._lut_lo, self._lut_scale = t["lo"], (LUT_SIZE - 1) / (t["hi"] - t["lo"])
         if t["gradient"] is None:
             self._gradient = wp.zeros(2, dtype=float, device=dev)

@@ -96,7 +96,7 @@ class VolumeRenderer(OffscreenView):
         if mapper == "auto":
             mapper = "cpu" if self.is_software_gl else "gpu"
         self.mapper = mapper
-        self._caster = None
+        self._caster: RayCaster | None = None  # the Warp mapper's
         if mapper == "warp":
             resolve_preset(preset)  # reject unknown names now, not at the first render
             self._preset_arg = preset
@@ -197,6 +197,7 @@ class VolumeRenderer(OffscreenView):
         from vtkmodules.vtkCommonCore import vtkFloatArray  # noqa: PLC0415
         from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
 
+        assert self._caster is not None  # made with the Warp mapper
         bounds = volume_bounds(volume)
         if self._camera_pending:
             self._camera.apply(self.vtk_camera, bounds, self.width / self.height)

@@ -69,6 +69,7 @@ import warnings
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
+from typing import Any
 
 import numpy as np
 
@@ -198,6 +199,7 @@ def load(path, *, is_label: bool | None = None, frame: int | None = None, series
         raise InputError("series", "None, an index >= 0 or a SeriesInstanceUID", repr(series), source=source)
     if not p.exists():
         raise InputError("path", "an existing file or DICOM series folder", "no such file or folder", source)
+    fmt: str | None
     if p.is_dir():
         fmt = "dicom"
     else:
@@ -272,6 +274,7 @@ def save(volume: Volume, path) -> Path:
         raise InputError("volume", "a softvr.volume.Volume", type(volume).__name__)
     p = Path(os.fspath(path))
     source = str(p)
+    fmt: str | None
     if p.is_dir() or (_suffix_text(p) == "" and not p.exists()):
         fmt = "dicom"
     else:
@@ -281,7 +284,7 @@ def save(volume: Volume, path) -> Path:
                 "file name suffix",
                 "one of " + ", ".join(SAVE_SUFFIXES) + " or a folder name (DICOM series)",
                 repr(_suffix_text(p)) + {"inv3": " (InVesalius projects are read-only)",
-                                         "dicom": " (a DICOM volume is saved as a folder of slices)"}.get(fmt, ""),
+                                         "dicom": " (a DICOM volume is saved as a folder of slices)"}.get(fmt or "", ""),
                 source,
             )
     parent = p.parent if str(p.parent) else Path(".")
@@ -404,6 +407,7 @@ def _deformable(data: np.ndarray, source: str) -> np.ndarray:
     if data.dtype in SUPPORTED_DTYPES:
         return data
     kind, before = data.dtype.kind, data.dtype.name
+    target: np.dtype
     if kind == "b":
         target, why = np.dtype(np.uint8), "exact: 0 / 1"
     elif kind in "iu" and data.dtype.itemsize == 1:
@@ -500,7 +504,7 @@ def _read_voxels(f, start: int, count: int, dtype: np.dtype, encoding: str, what
         if values.size != count:
             raise InputError(what, f"{count} numbers as text", f"{values.size} numbers", source)
         return values.astype(dtype)
-    stream = {"gzip": lambda: gzip.GzipFile(fileobj=f, mode="rb"), "bzip2": lambda: bz2.BZ2File(f, mode="rb"),
+    stream: Any = {"gzip": lambda: gzip.GzipFile(fileobj=f, mode="rb"), "bzip2": lambda: bz2.BZ2File(f, mode="rb"),
               "zlib": lambda: _Inflated(f)}[encoding]()
     try:
         if skip > 0:
@@ -824,7 +828,7 @@ def _read_nifti(p: Path) -> dict:
     extra = [i for i in range(3, len(full)) if full[i] != 1]
     if len(full) < 3 or len(extra) > 1:
         raise InputError("dim", "a 3-D volume [nx, ny, nz], or 4-D with frame=", f"shape {full}", source)
-    proxy = img.dataobj  # nibabel moves scl_slope/scl_inter from img.header into the proxy
+    proxy: Any = img.dataobj  # an ArrayProxy (offset, slope, ...); nibabel moves scl_slope/scl_inter from img.header into the proxy
     dtype = np.dtype(img.get_data_dtype())
     count = math.prod(full)
     encoding = "gzip" if _suffix_text(p) == ".nii.gz" else "raw"

@@ -239,7 +239,7 @@ class Rasterizer:
         self._rest_index = volume.world_to_index(self.nodes)
         data = np.ascontiguousarray(volume.data)
         # Kernels only read the input: on the CPU Warp shares numpy's memory.
-        self._vol = wp.array(data.reshape(-1), device=self.device, copy=self.device != "cpu")
+        self._vol: wp.array = wp.array(data.reshape(-1), device=self.device, copy=self.device != "cpu")
         # The vectorized CPU rows gather from a float32 copy (AVX gathers are 32-bit).
         self._out_code = _OUT_CODES[data.dtype] if self.device == "cpu" and vectorized_rows else 0
         if self._out_code == 0:
@@ -250,8 +250,8 @@ class Rasterizer:
             self._volf = wp.array(data.reshape(-1).astype(np.float32), device=self.device)
         self._dims = wp.vec3i(*data.shape)
         self._strides = wp.vec3i(*[0 if n == 1 else s // data.itemsize for n, s in zip(data.shape, data.strides)])
-        self._rest_w = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
-        self._tets_w = wp.array(self.tets, dtype=wp.int32, device=self.device)
+        self._rest_w: wp.array = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
+        self._tets_w: wp.array = wp.array(self.tets, dtype=wp.int32, device=self.device)
         self.stats: RasterStats | None = None
         # Compile (first use only, then cached on disk) now rather than inside the first frame.
         load_kernels(K.raster_slabs, self.device)
@@ -502,7 +502,7 @@ class Rasterizer:
         face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
         affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
         box = wp.empty((m, 6), dtype=wp.int32, device=dev)
-        moved = wp.array(u1, dtype=wp.vec3d, device=dev)
+        moved: wp.array = wp.array(u1, dtype=wp.vec3d, device=dev)
         launch(
             K.tet_setup,
             m,
@@ -523,8 +523,8 @@ class Rasterizer:
         point_offsets = _exclusive_cumsum(points)
         cell_offsets = _exclusive_cumsum(np.prod(cell_dims, axis=1))
         m = len(box)
-        dims_w = wp.array(cell_dims, dtype=wp.int32, device=dev)
-        poff_w = wp.array(point_offsets, dtype=wp.int32, device=dev)
+        dims_w: wp.array = wp.array(cell_dims, dtype=wp.int32, device=dev)
+        poff_w: wp.array = wp.array(point_offsets, dtype=wp.int32, device=dev)
         masks = wp.zeros(max(int(point_offsets[-1]), 1), dtype=wp.uint8, device=dev)
         launch(K.point_masks, int(point_offsets[-1]), [face_w, box_w, dims_w, poff_w, m, n, masks], dev)
         n_cells = int(cell_offsets[-1])
