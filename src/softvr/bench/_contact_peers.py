@@ -37,6 +37,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -189,7 +190,7 @@ def _newton(scene: dict, steps: int) -> tuple[_Trace, dict]:
     import newton
     import warp as wp
 
-    wp.config.quiet = True
+    wp.config.quiet = True  # type: ignore[attr-defined]  # a runtime setting Warp's stubs do not list
     h = scene["size"] / scene["cells"]
     lam = scene["young"] * scene["poisson"] / ((1 + scene["poisson"]) * (1 - 2 * scene["poisson"]))
     mu = scene["young"] / (2 * (1 + scene["poisson"]))
@@ -198,12 +199,15 @@ def _newton(scene: dict, steps: int) -> tuple[_Trace, dict]:
         b = newton.ModelBuilder(gravity=(0.0, 0.0, -scene["gravity"]))
         b.default_shape_cfg.mu = scene["friction"]
         b.add_ground_plane()
-        b.add_soft_grid(pos=wp.vec3(-scene["size"] / 2, -scene["size"] / 2, scene["drop"]), rot=wp.quat_identity(),
+        # (Newton annotates rot with warp's internal quatf class, not the public one it is.)
+        b.add_soft_grid(pos=wp.vec3(-scene["size"] / 2, -scene["size"] / 2, scene["drop"]),
+                        rot=wp.quat_identity(),  # type: ignore[arg-type]
                         vel=wp.vec3(0.0, 0.0, 0.0), dim_x=scene["cells"], dim_y=scene["cells"], dim_z=scene["cells"],
                         cell_x=h, cell_y=h, cell_z=h, density=scene["density"], k_mu=mu, k_lambda=lam, k_damp=10.0,
                         particle_radius=0.005)
         b.color()  # VBD needs a graph colouring
-        model = b.finalize()
+        # Newton types the model's arrays Optional (each exists only for the features a model uses).
+        model: Any = b.finalize()
         # Lumped masses from the density (a quarter of each incident tet), as softvr has them.
         q = model.particle_q.numpy()
         tt = model.tet_indices.numpy()
@@ -253,11 +257,13 @@ def run_peer(name: str, scene: dict, repeat: int = 1) -> dict:
     t = time.perf_counter()
     run(scene, WARMUP_STEPS)  # compiles / loads JIT kernels; warms caches
     warmup_s = time.perf_counter() - t
-    rates, first = [], None
+    rates: list[float] = []
+    first: tuple[_Trace, dict] | None = None
     for _ in range(max(1, repeat)):
         trace, info = run(scene, steps)
         rates.append(steps / sum(trace.step_s))
         first = first or (trace, info)
+    assert first is not None  # one round at least
     trace, info = first
     return {**info, "steps": steps, "warmup_s": warmup_s, "steps_per_s": statistics.median(rates),
             "steps_per_s_runs": rates, "trace": trace.as_dict()}

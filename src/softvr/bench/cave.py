@@ -117,7 +117,7 @@ def echo_node(publish: str, control: str, name: str) -> None:
     """The ZeroMQ-alone peer's node: answer every published message at once, decode nothing."""
     import zmq
 
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context = zmq.Context.instance()
     sub, dealer = ctx.socket(zmq.SUB), ctx.socket(zmq.DEALER)
     sub.setsockopt(zmq.SUBSCRIBE, b"")
     dealer.setsockopt(zmq.ROUTING_ID, name.encode())
@@ -137,7 +137,7 @@ def _zmq_floor(nodes: int, frames: int) -> dict:
     """PUB an 8-byte frame number to ``nodes`` echo processes, wait for every reply; 60 fps."""
     import zmq
 
-    ctx = zmq.Context.instance()
+    ctx: zmq.Context = zmq.Context.instance()
     pub, router = ctx.socket(zmq.PUB), ctx.socket(zmq.ROUTER)
     pub.bind("tcp://127.0.0.1:0")
     router.bind("tcp://127.0.0.1:0")

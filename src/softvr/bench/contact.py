@@ -37,6 +37,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -144,8 +145,8 @@ def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
     t = time.perf_counter()
     sim, body = softvr_scene(scene)
     setup = time.perf_counter() - t
-    trace = {k: [] for k in ("step_s", "cpu_s", "min_z", "mean_z", "contacts", "active_contacts", "pgs_iterations",
-                             "residual", "cg_iterations")}
+    trace: dict[str, list] = {k: [] for k in ("step_s", "cpu_s", "min_z", "mean_z", "contacts", "active_contacts",
+                                              "pgs_iterations", "residual", "cg_iterations")}
     for _ in range(steps):
         t, c = time.perf_counter(), time.process_time()
         sol = sim.step(scene.dt)
@@ -171,11 +172,13 @@ def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
     t = time.perf_counter()
     _softvr_once(replace(scene, drop=0.0), P.WARMUP_STEPS)  # imports, first sparse LU and PGS call
     warmup_s = time.perf_counter() - t
-    rates, first = [], None
+    rates: list[float] = []
+    first: tuple[dict, dict] | None = None
     for _ in range(max(1, repeat)):
         trace, info = _softvr_once(scene, scene.steps)
         rates.append(scene.steps / sum(trace["step_s"]))
         first = first or (trace, info)
+    assert first is not None  # one round at least
     trace, info = first
     return {**info, "steps": scene.steps, "warmup_s": warmup_s, "steps_per_s": statistics.median(rates),
             "steps_per_s_runs": rates, "version": softvr.__version__, "trace": trace}
@@ -203,7 +206,7 @@ def run_candy(*, quick: bool = False, progress: bool = True, adhesion: bool = Fa
 
     ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, adhesion=adhesion)
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
-    trace = {k: [] for k in ("step_s", "contacts", "pulling_contacts", "pgs_iterations", "residual")}
+    trace: dict[str, list] = {k: [] for k in ("step_s", "contacts", "pulling_contacts", "pgs_iterations", "residual")}
     label = "candy + adhesion" if adhesion else "candy"
     for _ in tqdm(range(steps), desc=label, unit="step", disable=not progress, leave=False):
         t = time.perf_counter()
@@ -321,19 +324,19 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
                     rec["steps_per_s"] = statistics.median(rec["steps_per_s_runs"])
             bar.update()
     bar.close()
-    records = list(records.values())
-    for rec in records:
+    engine_records = list(records.values())
+    for rec in engine_records:
         if rec["status"] == "ok":
             _summarize(rec, scene)
-    peers_ok = [r for r in records if r["status"] == "ok" and r["engine"] != "softvr"]
+    peers_ok = [r for r in engine_records if r["status"] == "ok" and r["engine"] != "softvr"]
     fastest = max(peers_ok, key=lambda r: r["steps_per_s"], default=None)
-    for r in records:
+    for r in engine_records:
         if r["status"] == "ok":
             r["vs_fastest_peer"] = r["steps_per_s"] / fastest["steps_per_s"] if fastest else None
     machine = _machine_info("cpu")
     machine["versions"] |= {name: P.peer_version(name) for name in P.PEERS}
     machine["softvr_commit"] = _git_commit()
-    result = {
+    result: dict[str, Any] = {
         "schema": "softvr-bench-contact/1",
         "machine": machine,
         "config": {"quick": quick, "repeat": rep, "scene": asdict(scene), "steps": scene.steps,
@@ -342,7 +345,7 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
                    "steps_per_s": "steps / summed wall time of the stepping calls; median over repeat rounds, "
                                   "engines run round robin (one simulation each per round)",
                    "penetration": "max over steps of the deepest node centre below z = 0"},
-        "engines": records,
+        "engines": engine_records,
         "candy": run_candy(quick=quick, progress=progress) if candy else None,
         "wall_s": None,
         "loadavg_start": load_start,

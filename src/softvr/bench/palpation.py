@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -48,10 +49,10 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     load_start = _loadavg()
     frames = 6 if quick else 40
     size = 128 if quick else size
-    trace = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms", "render_cpu_ms",
-                             "raster_voxels", "indentation_m")}
+    trace: dict[str, list] = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms",
+                                              "render_cpu_ms", "raster_voxels", "indentation_m")}
     trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms")})
-    step_option = {} if sample_distance is None else {"sample_distance": sample_distance}
+    step_option: dict[str, Any] = {} if sample_distance is None else {"sample_distance": sample_distance}
     with Example(frames=frames, width=size, height=size, device=device, renderer=renderer, render_step=render_step,
                  **step_option) as ex:
         full = Volume(np.empty(ex.volume.shape, ex.volume.dtype), ex.volume.spacing.copy(), ex.volume.origin.copy(),

@@ -50,6 +50,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -58,6 +59,9 @@ from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
 from softvr.sim import STAGES as STEP_STAGES
+
+if TYPE_CHECKING:  # the scene layer loads with the first scene timed
+    from softvr.scene import SceneExample
 
 __all__ = ["IMAGE", "QUICK_SCENES", "box_stack_mjcf", "format_table", "main", "run_mujoco", "run_scene",
            "run_scene_bench", "soft_cube_twins", "time_load", "write_plot"]
@@ -78,7 +82,7 @@ def _ms(since: float) -> float:
     return 1e3 * (time.perf_counter() - since)
 
 
-def time_load(path, repeat: int) -> tuple[list[float], list[float], object]:
+def time_load(path, repeat: int) -> tuple[list[float], list[float], SceneExample]:
     """Read ``path`` and build its :class:`~softvr.scene.SceneExample` ``repeat`` times.
 
     Returns
@@ -90,7 +94,9 @@ def time_load(path, repeat: int) -> tuple[list[float], list[float], object]:
     """
     from softvr.scene import SceneExample, read_any
 
-    read, build, example = [], [], None
+    read: list[float] = []
+    build: list[float] = []
+    example: SceneExample | None = None
     for _ in range(repeat):
         if example is not None:
             example.close()
@@ -100,6 +106,7 @@ def time_load(path, repeat: int) -> tuple[list[float], list[float], object]:
         t = time.perf_counter()
         example = SceneExample(scene, width=IMAGE[0], height=IMAGE[1])
         build.append(_ms(t))
+    assert example is not None  # repeat >= 1
     return read, build, example
 
 
@@ -123,7 +130,7 @@ def run_scene(path, *, frames: int, repeat: int) -> dict:
         t = time.perf_counter()
         problems = example.start_problems()
         check = _ms(t)
-        trace = {"step_ms": [], "render_ms": [], "frame_ms": []}
+        trace: dict[str, list] = {"step_ms": [], "render_ms": [], "frame_ms": []}
         stages = []
         for _ in range(frames):
             t = time.perf_counter()

@@ -38,7 +38,7 @@ def run_variant(variant: str, *, seconds: float, dt: float, progress: bool) -> d
 
     steps = max(1, int(round(seconds / dt)))
     ex = Example(frames=steps, width=64, height=48, variant=variant, dt=dt, steps_per_frame=1, haptics=True)
-    trace = {"step_s": [], "contacts": [], "pgs_iterations": [], "overlap_m": [], "hand_force_n": []}
+    trace: dict[str, list] = {"step_s": [], "contacts": [], "pgs_iterations": [], "overlap_m": [], "hand_force_n": []}
     try:
         with tqdm(total=steps, desc=f"shoulder {variant}", unit="step", disable=not progress, leave=False) as bar:
             while ex.frame < ex.frames:
