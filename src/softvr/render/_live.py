@@ -43,7 +43,8 @@ class LiveWindow:
         self.interactor.SetInteractorStyle(self.style)
         self.paused = False
         self._advance = None
-        self.style.AddObserver("CharEvent", self._on_char)
+        # (VTK takes event names as well as ids; its stubs list the ids only.)
+        self.style.AddObserver("CharEvent", self._on_char)  # type: ignore[arg-type]
 
     def _on_char(self, *_) -> None:
         key = self.interactor.GetKeyCode()
@@ -75,7 +76,7 @@ class LiveWindow:
         self.interactor.Initialize()
         timer = None
         if advance is not None or deadline is not None:
-            timer = (self.interactor.AddObserver("TimerEvent", on_timer),
+            timer = (self.interactor.AddObserver("TimerEvent", on_timer),  # type: ignore[arg-type]  # (an event name)
                      self.interactor.CreateRepeatingTimer(max(1, int(period_ms))))
         try:
             self.interactor.Start()
@@ -95,5 +96,6 @@ class LiveWindow:
         self.render = None
         self.style.RemoveAllObservers()
         self.interactor.RemoveAllObservers()
-        self.interactor.SetRenderWindow(None)
-        self.interactor.SetInteractorStyle(None)
+        # (None lets go of them; VTK's stubs do not say None is accepted.)
+        self.interactor.SetRenderWindow(None)  # type: ignore[arg-type]
+        self.interactor.SetInteractorStyle(None)  # type: ignore[arg-type]

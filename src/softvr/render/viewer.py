@@ -235,7 +235,7 @@ class NodeDragger:
         self.deform_fn = deform_fn
         self.pick_radius_px = float(pick_radius_px)
         self.active: int | None = None
-        self.volume = None
+        self.volume: object = None  # what deform_fn returned last (a Volume)
         self.calls = 0
         self._grab_offset = np.zeros(2)
 
@@ -414,10 +414,11 @@ class VolumeViewer:
         # softvr's one window loop; its key u resets the nodes.
         self.live = LiveWindow(self.window, keys={"u": self.reset_nodes}, render=self.render)
         self.interactor, self.style = self.live.interactor, self.live.style
-        # Observers on the style replace its own handlers; ours forward when not dragging.
-        self.style.AddObserver("LeftButtonPressEvent", self.on_left_press)
-        self.style.AddObserver("MouseMoveEvent", self.on_mouse_move)
-        self.style.AddObserver("LeftButtonReleaseEvent", self.on_left_release)
+        # Observers on the style replace its own handlers; ours forward when not dragging. (VTK takes event
+        # names as well as ids; its stubs list the ids only.)
+        self.style.AddObserver("LeftButtonPressEvent", self.on_left_press)  # type: ignore[arg-type]
+        self.style.AddObserver("MouseMoveEvent", self.on_mouse_move)  # type: ignore[arg-type]
+        self.style.AddObserver("LeftButtonReleaseEvent", self.on_left_release)  # type: ignore[arg-type]
         self._grabber = vtkWindowToImageFilter()
         self._grabber.SetInput(self.window)
         self._grabber.SetInputBufferTypeToRGB()
