@@ -28,6 +28,7 @@ whichever master answers next and ends (exit status 3) when none does within
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import json
 import math
@@ -65,7 +66,7 @@ def make_source(scene: str, frames: int, device: str | None = None):
     """The master's frame source for a scene name (module docstring): ``sheet``, a scene file
     or bundled scene by name (:func:`softvr.scene.build.scene_path`: ``box-stack``,
     ``box-stack.toml``), or a glTF / mesh file without softvr bodies, shown static."""
-    from softvr.cave.app import ExampleSource, SceneFileSource, WavingSheet  # noqa: PLC0415
+    from softvr.cave.app import PlayerSource, SceneFileSource, WavingSheet  # noqa: PLC0415
     from softvr.scene import has_softvr_bodies, load_scene  # noqa: PLC0415
     from softvr.device import resolve_device  # noqa: PLC0415
     from softvr.scene.build import scene_path  # noqa: PLC0415
@@ -82,12 +83,24 @@ def make_source(scene: str, frames: int, device: str | None = None):
         if not path.is_file():
             raise InputError("SCENE", "an existing scene file", f"{scene!r} (no such file)")
         return SceneFileSource(scene)
-    example = load_scene(scene_path(scene), frames=frames, width=64, height=48, device=device)
-    if example.volume is not None:
-        example.close()
+    player = load_scene(scene_path(scene), frames=frames, width=64, height=48, device=device)
+    if player.volume is not None:
+        player.close()
         raise InputError("SCENE", "a scene of surfaces (a [volume] is not streamed to render nodes yet)",
                          f"{scene!r} with a volume")
-    return ExampleSource(example)
+    return PlayerSource(player)
+
+
+@contextlib.contextmanager
+def _released(source):
+    """A simulated scene's player stopped (its haptic processes) when the run ends, however it ends."""
+    from softvr.cave.app import PlayerSource  # noqa: PLC0415
+
+    try:
+        yield source
+    finally:
+        if isinstance(source, PlayerSource):
+            source.close()
 
 
 def resolve_places(args) -> None:
@@ -165,8 +178,9 @@ def _preview(args) -> int:
     display = load_display_arg(args.display)
     source = make_source(args.scene, args.frames, args.device)
     frames = FrameBuilder(source, navigation=scripted_navigation(source))
-    for _ in range(args.frames):
-        frames.next_packet(0)
+    with _released(source):
+        for _ in range(args.frames):
+            frames.next_packet(0)
     state = frames.state
     images = {}
     for screen in display.screens:
@@ -207,7 +221,7 @@ def _master(args, on_bound=None) -> dict:
 
         navigation = KeyboardNavigation(navigation(0, 0.0)[0])
         window = _MasterWindow(display.screen(CameraRig(display).master), display.eye_separation, navigation)
-    with Master(source, nodes, _config(args), navigation=navigation, tracker=tracker) as master:
+    with _released(source), Master(source, nodes, _config(args), navigation=navigation, tracker=tracker) as master:
         if on_bound is not None:
             on_bound(master.config)
         if not args.quiet:
