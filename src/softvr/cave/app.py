@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import hashlib
 import math
+from pathlib import Path
 
 import numpy as np
 
 from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, check_head, check_mesh_update,
                                   check_user, decode, encode)
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
+from softvr.errors import InputError
 from softvr.files import native_read
 
 __all__ = ["PLANE_COLOR", "SPHERE_COLOR", "ClusterState", "FrameBuilder", "PlayerSource", "SceneFileSource",
@@ -349,11 +351,7 @@ class SceneFileSource:
     fps = 60.0
 
     def __init__(self, path):
-        from pathlib import Path  # noqa: PLC0415
-
-        import trimesh  # noqa: PLC0415
-
-        from softvr.errors import InputError  # noqa: PLC0415
+        import trimesh  # noqa: PLC0415 - heavy, and only a walk-through scene needs it
 
         path = Path(path)
         # A regular file of bounded size; trimesh's errors (every type) wrapped, naming the file.
