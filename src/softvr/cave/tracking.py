@@ -260,8 +260,9 @@ class ScriptedTracker(Tracker):
 # bundles without bound, pads a missing last float with zeros (a truncated pose would decode as a
 # pose) and ignores trailing bytes. _check_frames (before it parses) and _canonical (after) refuse those.
 _TAGS = "fidsTF"  # the argument types softvr reads; python-osc logs a warning per unknown tag
-_WRITERS: dict[str, Callable[[Any], bytes]] = {"f": osc_types.write_float, "i": osc_types.write_int, "d": osc_types.write_double,
-            "s": osc_types.write_string}  # T and F carry no bytes
+_WRITERS: dict[str, Callable[[Any], bytes]] = {
+    "f": osc_types.write_float, "i": osc_types.write_int, "d": osc_types.write_double,
+    "s": osc_types.write_string}  # T and F carry no bytes
 
 
 def encode_osc(address: str, values) -> bytes:

@@ -173,8 +173,8 @@ class Contacts:
         def side(s: ContactSide) -> ContactSide:
             return ContactSide(s.body, s.blocks[keep], s.jac[keep])
 
-        return Contacts(side(self.a), None if self.b is None else side(self.b), self.normal[keep], self.gap[keep], self.point_a[keep], self.point_b[keep],
-                        self.ids[keep], self.friction[keep], self.area[keep])
+        return Contacts(side(self.a), None if self.b is None else side(self.b), self.normal[keep], self.gap[keep],
+                        self.point_a[keep], self.point_b[keep], self.ids[keep], self.friction[keep], self.area[keep])
 
 
 def point_jacobian_blocks(points, which: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -283,8 +283,9 @@ def save(volume: Volume, path) -> Path:
             raise InputError(
                 "file name suffix",
                 "one of " + ", ".join(SAVE_SUFFIXES) + " or a folder name (DICOM series)",
-                repr(_suffix_text(p)) + {"inv3": " (InVesalius projects are read-only)",
-                                         "dicom": " (a DICOM volume is saved as a folder of slices)"}.get(fmt or "", ""),
+                repr(_suffix_text(p)) + {
+                    "inv3": " (InVesalius projects are read-only)",
+                    "dicom": " (a DICOM volume is saved as a folder of slices)"}.get(fmt or "", ""),
                 source,
             )
     parent = p.parent if str(p.parent) else Path(".")
@@ -828,7 +829,8 @@ def _read_nifti(p: Path) -> dict:
     extra = [i for i in range(3, len(full)) if full[i] != 1]
     if len(full) < 3 or len(extra) > 1:
         raise InputError("dim", "a 3-D volume [nx, ny, nz], or 4-D with frame=", f"shape {full}", source)
-    proxy: Any = img.dataobj  # an ArrayProxy (offset, slope, ...); nibabel moves scl_slope/scl_inter from img.header into the proxy
+    # An ArrayProxy (offset, slope, ...): nibabel moves scl_slope/scl_inter from img.header into it.
+    proxy: Any = img.dataobj
     dtype = np.dtype(img.get_data_dtype())
     count = math.prod(full)
     encoding = "gzip" if _suffix_text(p) == ".nii.gz" else "raw"
