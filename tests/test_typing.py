@@ -23,7 +23,6 @@ pytestmark = [pytest.mark.slow,
 PENDING = {
     "src/softvr/sim/_scene.py", "src/softvr/sim/_rigid_step.py", "src/softvr/sim/_node_step.py",
     "src/softvr/sim/model.py", "src/softvr/device.py", "src/softvr/contact/node_jacobi.py",
-    "src/softvr/cave/command.py",
 }
 
 _ERROR = re.compile(r"^(?P<file>[^:\s]+\.py):\d+: error: ", re.MULTILINE)

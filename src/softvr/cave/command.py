@@ -38,11 +38,15 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from softvr.app import add_device_option
 from softvr.errors import InputError
+
+if TYPE_CHECKING:  # vtk loads with the first window
+    from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor
 
 __all__ = ["main"]
 
@@ -251,7 +255,8 @@ class _MasterWindow:
         from softvr.cave.render import StateRenderer  # noqa: PLC0415
 
         self.view = StateRenderer(screen, separation, scale=min(1.0, 800 / screen.pixels[0]), onscreen=True)
-        self.navigation, self.interactor = navigation, None
+        self.navigation = navigation
+        self.interactor: vtkRenderWindowInteractor | None = None  # made when first shown
 
     def show(self, state) -> None:
         from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor  # noqa: PLC0415
@@ -266,7 +271,7 @@ class _MasterWindow:
 
     def close(self) -> None:
         if self.interactor is not None:
-            self.interactor.SetRenderWindow(None)
+            self.interactor.SetRenderWindow(None)  # type: ignore[arg-type]  # lets go (VTK's stubs omit None)
         self.view.close()
 
 
@@ -286,6 +291,7 @@ def _node(args) -> int:
 
     def present(state) -> None:
         if out and renderer is not None and args.save_every and state.n % args.save_every == 0:
+            assert renderer.image is not None  # a state is rendered before it is presented
             save_png(renderer.image, out / f"{args.node}_{state.n:06d}.png")
 
     node = Node(args.node, _config(args), render=renderer, present=present, drop_rate=args.drop_rate,
