@@ -68,7 +68,7 @@ def _init() -> None:
     # Warp logs every module load at INFO; softvr's progress output is its own.
     if wp.config.log_level == wp.LOG_INFO:
         wp.config.log_level = wp.LOG_WARNING
-    wp.config.quiet = True
+    wp.config.quiet = True  # type: ignore[attr-defined]  # a Warp setting its type stubs omit
     if cuda_driver_present():
         wp.init()
         return
@@ -204,7 +204,7 @@ def replayer(recorded) -> Callable[[], None]:
     def replay() -> None:
         forward(bounds, packed)
 
-    replay.keep = (recorded, args)  # the struct points into the launch's arrays
+    replay.keep = (recorded, args)  # type: ignore[attr-defined]  # the struct points into the launch's arrays
     return replay
 
 

@@ -52,7 +52,7 @@ class NodeSolve:
         d = model.device
         for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual):
             load_kernels(kernel, d)
-        self.weights = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
+        self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)

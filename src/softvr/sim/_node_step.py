@@ -69,10 +69,11 @@ class _NodeSnapshot:
 
     def __init__(self, stepper, contacts: dict, q0: np.ndarray, velocities: list, sweeps: int, residual: float):
         self._stepper = stepper
-        self.contacts, self._q0, self.velocities, self.sweeps, self.residual = contacts, q0, velocities, sweeps, residual
-        self._sets = None
-        self._per_set = {}
-        self._solution = None
+        self.contacts, self._q0, self.velocities = contacts, q0, velocities
+        self.sweeps, self.residual = sweeps, residual
+        self._sets: list[np.ndarray] | None = None
+        self._per_set: dict[str, list[np.ndarray]] = {}
+        self._solution: ContactSolution | None = None
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, one per (body, plane) in the per-object path's order (body,
@@ -109,7 +110,8 @@ class _NodeSnapshot:
             local = point - s.model.body_point_start[body]
             points = s.colliders[body].points
             blocks, jac = point_jacobian_blocks(points, local)
-            x = np.einsum("pk,pkx->px", points.weights[local], self._q0[points.nodes[local] + s.model.body_node_start[body]])
+            nodes = points.nodes[local] + s.model.body_node_start[body]
+            x = np.einsum("pk,pkx->px", points.weights[local], self._q0[nodes])
             normal = c["frame"][rows, 0]
             gap = c["gap"][rows]
             plane = int(c["plane"][rows[0]])
@@ -171,7 +173,8 @@ class NodeStepper:
                 if value is not view:
                     value = np.asarray(value, float)
                     if value.shape != view.shape:
-                        raise InputError(f"{body.name}.{name}", f"an array of shape {view.shape}", f"shape {value.shape}")
+                        raise InputError(f"{body.name}.{name}", f"an array of shape {view.shape}",
+                                         f"shape {value.shape}")
                     view[:] = value
                     setattr(body, name, view)
                     self._v_before = None  # a new state: last step's change says nothing
@@ -232,9 +235,10 @@ class NodeStepper:
         for i, force in s.external.items():
             if 0 <= i < len(s.bodies):
                 f = np.asarray(force, float)
-                if f.size != 3 * (start[i + 1] - start[i]) or not np.isfinite(f).all():
-                    raise InputError(f"external[{i}]", f"finite node forces of shape ({start[i + 1] - start[i]}, 3) [N]",
-                                     f"shape {f.shape}" if f.size != 3 * (start[i + 1] - start[i]) else "NaN/inf")
+                nodes = int(start[i + 1] - start[i])
+                if f.size != 3 * nodes or not np.isfinite(f).all():
+                    raise InputError(f"external[{i}]", f"finite node forces of shape ({nodes}, 3) [N]",
+                                     f"shape {f.shape}" if f.size != 3 * nodes else "NaN/inf")
                 self._external[start[i]:start[i + 1]] = f.reshape(-1, 3)
         self._pushed = bool(s.external)
 

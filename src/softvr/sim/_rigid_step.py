@@ -12,6 +12,7 @@ arrays when asked.
 from __future__ import annotations
 
 import time
+from typing import Protocol
 
 import numpy as np
 
@@ -35,9 +36,9 @@ class _Snapshot:
     def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, inv_mass: np.ndarray):
         self.contacts, self.velocities, self.sweeps, self.residual = contacts, velocities, sweeps, residual
         self._inv_mass = inv_mass  # [n] [1/kg], to leave out contacts no impulse can act on
-        self._sets = None
-        self._per_set = {}
-        self._solution = None
+        self._sets: list[np.ndarray] | None = None
+        self._per_set: dict[str, list[np.ndarray]] = {}
+        self._solution: ContactSolution | None = None
 
     def sets(self) -> list[np.ndarray]:
         """Row indices of each contact set: one per (kind, body a, body b or static), in the
@@ -85,13 +86,25 @@ class _Snapshot:
                                gaps_after=self.per_set("gap_after"))
 
 
+class SolutionSource(Protocol):
+    """What :class:`LazySolution` reads: a step's snapshot (rigid or node arrays)."""
+
+    sweeps: int
+    residual: float
+    velocities: list
+
+    def per_set(self, name: str) -> list[np.ndarray]: ...
+
+    def solution(self) -> ContactSolution: ...
+
+
 class LazySolution:
     """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
     of an interactive loop never read it); ``iterations`` (PGS sweeps), ``residual`` [m/s],
     ``velocities``, ``impulses``, ``frames`` and ``gaps_after`` without building its contact
     sets' Jacobians."""
 
-    def __init__(self, snapshot: _Snapshot):
+    def __init__(self, snapshot: SolutionSource):
         self._snapshot = snapshot
         self.iterations, self.residual = snapshot.sweeps, snapshot.residual
         self.velocities = snapshot.velocities
@@ -120,7 +133,7 @@ class ArrayAdhesionState(AdhesionState):
         self._snapshot = snapshot
 
     @property
-    def intensity(self) -> dict:
+    def intensity(self) -> dict:  # type: ignore[override]  # read from the arrays; the per-object state assigns it
         if self._snapshot is None:
             return {}
         c = self._snapshot.contacts
@@ -128,7 +141,7 @@ class ArrayAdhesionState(AdhesionState):
         return dict(zip(c["key"][tracked].tolist(), c["intensity"][tracked].tolist()))
 
     @property
-    def slip(self) -> dict:
+    def slip(self) -> dict:  # type: ignore[override]  # read from the arrays; the per-object state assigns it
         if self._snapshot is None:
             return {}
         c = self._snapshot.contacts

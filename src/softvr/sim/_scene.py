@@ -36,7 +36,7 @@ from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
 from softvr.sim._node_step import NodeStepper
-from softvr.sim._rigid_step import RigidStepper
+from softvr.sim._rigid_step import LazySolution, RigidStepper
 from softvr.sim.model import rigid_model_supported
 from softvr.sim.node_model import node_model_supported
 
@@ -136,7 +136,7 @@ class Scene:
     friction: float = 0.5
     pgs_iterations: int = 500
     contact_margin: float = 0.005
-    last_solution: ContactSolution | None = None
+    last_solution: ContactSolution | LazySolution | None = None
     time: float = 0.0
     stage_ms: dict = field(default_factory=dict)
     _colliders: list = field(default_factory=list)
@@ -152,8 +152,8 @@ class Scene:
     parallel_islands: bool = False
     rigid_arrays: bool = True
     node_arrays: bool = True
-    _units: list | None = None
-    _pool: object = None
+    _units: tuple[list, list] | None = None
+    _pool: ThreadPoolExecutor | None = None
     _stepper: RigidStepper | NodeStepper | None = None
     _layout: int = 0
 
@@ -218,7 +218,7 @@ class Scene:
         self._layout += 1
         self._units = None
         if not collide:
-            self.disable_collision(*ends)
+            self.disable_collision(*(int(e) for e in ends if e is not None))
 
     @property
     def collision_surfaces(self) -> tuple:
@@ -303,9 +303,9 @@ class Scene:
             if surface is not None:
                 # Points that are vertices of a collision surface stand for its area around them
                 # facing the contact (thesis 4.3.1, projected); a contact's point is its feature a.
-                for contacts, _ in found:
-                    contacts.area = surface.facing_vertex_area(unpack_keys(contacts.ids)["feature_a"],
-                                                               contacts.normal)
+                for found_set, _ in found:
+                    found_set.area = surface.facing_vertex_area(unpack_keys(found_set.ids)["feature_a"],
+                                                                found_set.normal)
             out += found
         # Broad phase: each surface's box, grown by the margin and its vertices' motion.
         moving = [s.points.velocities(v_free[s.body_index]) for s in self._surfaces]
@@ -350,7 +350,8 @@ class Scene:
                                            velocity_b=v_free[j], dt=dt), None))
         contacts = [self._movable(c) for c, _ in out]
         adhesions = [combine(self._adhesion[("body", c.a.body)],
-                             self._adhesion[("body", c.b.body)] if static is None else self._adhesion.get(("static", id(static))))
+                             self._adhesion[("body", c.b.body)] if static is None
+                             else self._adhesion.get(("static", id(static))))
                      for c, static in zip(contacts, (s for _, s in out))]
         return contacts, adhesions
 
@@ -365,7 +366,7 @@ class Scene:
                 stuck &= (self.bodies[side.body].immovable(side.blocks) | unused).all(axis=1)
         return contacts.select(~stuck) if stuck.any() else contacts
 
-    def step(self, dt: float) -> ContactSolution:
+    def step(self, dt: float) -> ContactSolution | LazySolution:
         """Advance every body by ``dt`` [s] with contact; returns the contact solution.
 
         Runs with OpenBLAS on one thread (:func:`softvr.device.single_threaded_blas`): the
@@ -386,7 +387,8 @@ class Scene:
         coupled bodies, the others alone (thesis 5.3.2). Returns the units and, per body, its
         ``(unit index, first velocity block in the unit)``."""
         if self._units is None:
-            units, where = [], [None] * len(self.bodies)
+            units: list = []
+            where: list[tuple[int, int] | None] = [None] * len(self.bodies)
             for group in coupling_islands(self.bodies, self.couplings):
                 body = self.bodies[group[0]]
                 coupled = any(b is body for c in self.couplings for b in c.bodies)
@@ -409,13 +411,13 @@ class Scene:
     def _to_units(self, contacts: Contacts, where: list) -> Contacts:
         """The contacts with each side on its unit's velocity blocks (a rigid member's 6-velocity
         block becomes a linear and an angular block of 3 inside a coupling island)."""
-        sides = []
+        sides: list[ContactSide | None] = []
         for side in (contacts.a, contacts.b):
             if side is None:
                 sides.append(None)
                 continue
             unit, first = where[side.body]
-            if self._units[0][unit] is self.bodies[side.body]:
+            if self.solve_units()[0][unit] is self.bodies[side.body]:
                 sides.append(ContactSide(unit, side.blocks, side.jac))
             elif side.jac.shape[-1] == 3:
                 sides.append(ContactSide(unit, side.blocks + first, side.jac))
@@ -424,6 +426,7 @@ class Scene:
                 blocks = (first + 2 * side.blocks[:, :, None] + np.arange(2)).reshape(c, 2 * k)
                 jac = side.jac.reshape(c, k, 3, 2, 3).transpose(0, 1, 3, 2, 4).reshape(c, 2 * k, 3, 3)
                 sides.append(ContactSide(unit, blocks, jac))
+        assert sides[0] is not None  # side a is always a body
         return Contacts(sides[0], sides[1], contacts.normal, contacts.gap, contacts.point_a, contacts.point_b,
                         contacts.ids, contacts.friction, contacts.area)
 
@@ -502,7 +505,7 @@ class Scene:
         """Body ``body``'s share of its unit's velocity (its ``v`` shape)."""
         unit, first = where[body]
         v = unit_velocities[unit]
-        units = self._units[0]
+        units = self.solve_units()[0]
         if units[unit] is self.bodies[body]:
             return v
         b = self.bodies[body]

@@ -183,7 +183,7 @@ def rigid_model_supported(scene) -> bool:
 def _materials(scene) -> tuple[dict, np.ndarray]:
     """Row of each distinct Adhesion of the scene and the table [m, 7] of their parameters."""
     rows: dict[int, int] = {}
-    table = []
+    table: list[list[float]] = []
     for adhesion in scene._adhesion.values():
         if adhesion is not None and id(adhesion) not in rows:
             rows[id(adhesion)] = len(table)
@@ -231,7 +231,7 @@ def build_rigid_model(scene, device: str = "cpu") -> tuple[RigidModel, RigidStat
             size = np.linalg.norm(cross, axis=1)
             tri_normal = cross / np.maximum(size, 1e-300)[:, None]
             tri_area = 0.5 * size
-            incident = [[] for _ in range(len(local))]
+            incident: list[list[int]] = [[] for _ in range(len(local))]
             for f, tri in enumerate(t):
                 for vtx in tri:
                     incident[vtx].append(f)
