@@ -82,7 +82,7 @@ class NodeSolve:
                                    for r in range(3)]
         self._buffers = buf
 
-    def solve(self, tolerance: float, check_every: int = 4) -> tuple[int, wp.array]:
+    def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is about ``rate / (1 - rate)`` times the last sweep's

@@ -55,7 +55,8 @@ def spectrum(model, state) -> tuple[float, float]:
     a = a[free][:, free]
     diag = blocks[np.flatnonzero(model.block_row.numpy() == model.block_col.numpy())]  # rows sorted: node order
     l_inv = np.linalg.inv(np.linalg.cholesky(diag))[model.fixed.numpy() == 0]
-    l_inv = sp.block_diag(list(l_inv), format="csr")
+    k = len(l_inv)
+    l_inv = sp.bsr_matrix((l_inv, np.arange(k), np.arange(k + 1)), shape=(3 * k, 3 * k)).tocsr()
     s = (l_inv @ a @ l_inv.T).tocsr()
     hi = float(spla.eigsh(s, k=1, which="LA", return_eigenvectors=False, tol=1e-3)[0])
     shifted = (hi * sp.identity(s.shape[0]) - s).tocsr()
