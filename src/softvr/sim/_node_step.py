@@ -30,7 +30,7 @@ from softvr.device import replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.errors import InputError
-from softvr.sim._rigid_step import LazySolution
+from softvr.sim._rigid_step import LazySolution, StepSnapshot
 from softvr.sim.node_model import build_node_model
 
 __all__ = ["NodeStepper"]
@@ -64,17 +64,13 @@ def spectrum(model, state) -> tuple[float, float]:
     return max(lo, 1e-6 * hi) * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]
 
 
-class _NodeSnapshot:
-    """One step's contacts and velocities, copied out of the arrays; the :class:`ContactSolution`
-    (and its contact sets) only when read. Same interface as the rigid path's snapshot."""
+class _NodeSnapshot(StepSnapshot):
+    """A node step's snapshot (:class:`StepSnapshot`), with the step's start positions for the
+    contact points."""
 
     def __init__(self, stepper, contacts: dict, q0: np.ndarray, velocities: list, sweeps: int, residual: float):
-        self._stepper = stepper
-        self.contacts, self._q0, self.velocities = contacts, q0, velocities
-        self.sweeps, self.residual = sweeps, residual
-        self._sets: list[np.ndarray] | None = None
-        self._per_set: dict[str, list[np.ndarray]] = {}
-        self._solution: ContactSolution | None = None
+        super().__init__(contacts, velocities, sweeps, residual)
+        self._stepper, self._q0 = stepper, q0
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, one per (body, plane) in the per-object path's order (body,
@@ -90,16 +86,6 @@ class _NodeSnapshot:
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
-
-    def per_set(self, name: str) -> list[np.ndarray]:
-        if name not in self._per_set:
-            self._per_set[name] = [self.contacts[name][rows] for rows in self.sets()]
-        return self._per_set[name]
-
-    def solution(self) -> ContactSolution:
-        if self._solution is None:
-            self._solution = self._build()
-        return self._solution
 
     def _build(self) -> ContactSolution:
         s = self._stepper

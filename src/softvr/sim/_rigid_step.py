@@ -12,7 +12,6 @@ arrays when asked.
 from __future__ import annotations
 
 import time
-from typing import Protocol
 
 import numpy as np
 
@@ -26,19 +25,46 @@ from softvr.device import replayer
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
 from softvr.sim.model import build_rigid_model
 
-__all__ = ["RigidStepper"]
+__all__ = ["LazySolution", "RigidStepper", "StepSnapshot"]
 
 
-class _Snapshot:
-    """One step's contacts and velocities, copied out of the arrays, turned into a
-    :class:`ContactSolution` and adhesion dictionaries only when read."""
+class StepSnapshot:
+    """One step's contacts (``contacts``: field name -> array over the step's contacts) and
+    ``velocities``, copied out of the arrays; the :class:`ContactSolution` built only when read.
+    A path's snapshot says how its contacts group into sets (:meth:`sets`) and builds the sets'
+    :class:`Contacts` (:meth:`_build`)."""
 
-    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, inv_mass: np.ndarray):
+    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float):
         self.contacts, self.velocities, self.sweeps, self.residual = contacts, velocities, sweeps, residual
-        self._inv_mass = inv_mass  # [n] [1/kg], to leave out contacts no impulse can act on
         self._sets: list[np.ndarray] | None = None
         self._per_set: dict[str, list[np.ndarray]] = {}
         self._solution: ContactSolution | None = None
+
+    def sets(self) -> list[np.ndarray]:
+        raise NotImplementedError
+
+    def _build(self) -> ContactSolution:
+        raise NotImplementedError
+
+    def per_set(self, name: str) -> list[np.ndarray]:
+        """The contact field ``name`` split by :meth:`sets` (the solution's ``impulses``,
+        ``frames``, ``gaps_after`` need no Jacobians: an interactive loop reads only them)."""
+        if name not in self._per_set:
+            self._per_set[name] = [self.contacts[name][rows] for rows in self.sets()]
+        return self._per_set[name]
+
+    def solution(self) -> ContactSolution:
+        if self._solution is None:
+            self._solution = self._build()
+        return self._solution
+
+
+class _Snapshot(StepSnapshot):
+    """A rigid step's snapshot; also what :class:`ArrayAdhesionState` reads."""
+
+    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, inv_mass: np.ndarray):
+        super().__init__(contacts, velocities, sweeps, residual)
+        self._inv_mass = inv_mass  # [n] [1/kg], to leave out contacts no impulse can act on
 
     def sets(self) -> list[np.ndarray]:
         """Row indices of each contact set: one per (kind, body a, body b or static), in the
@@ -58,18 +84,6 @@ class _Snapshot:
             self._sets = [np.array(r) for r in rows.values()]
         return self._sets
 
-    def per_set(self, name: str) -> list[np.ndarray]:
-        """The contact field ``name`` split by :meth:`sets` (the solution's ``impulses``,
-        ``frames``, ``gaps_after`` need no Jacobians: an interactive loop reads only them)."""
-        if name not in self._per_set:
-            self._per_set[name] = [self.contacts[name][rows] for rows in self.sets()]
-        return self._per_set[name]
-
-    def solution(self) -> ContactSolution:
-        if self._solution is None:
-            self._solution = self._build()
-        return self._solution
-
     def _build(self) -> ContactSolution:
         c = self.contacts
         sets = []
@@ -86,25 +100,13 @@ class _Snapshot:
                                gaps_after=self.per_set("gap_after"))
 
 
-class SolutionSource(Protocol):
-    """What :class:`LazySolution` reads: a step's snapshot (rigid or node arrays)."""
-
-    sweeps: int
-    residual: float
-    velocities: list
-
-    def per_set(self, name: str) -> list[np.ndarray]: ...
-
-    def solution(self) -> ContactSolution: ...
-
-
 class LazySolution:
     """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
     of an interactive loop never read it); ``iterations`` (PGS sweeps), ``residual`` [m/s],
     ``velocities``, ``impulses``, ``frames`` and ``gaps_after`` without building its contact
     sets' Jacobians."""
 
-    def __init__(self, snapshot: SolutionSource):
+    def __init__(self, snapshot: StepSnapshot):
         self._snapshot = snapshot
         self.iterations, self.residual = snapshot.sweeps, snapshot.residual
         self.velocities = snapshot.velocities
