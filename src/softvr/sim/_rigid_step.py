@@ -101,7 +101,7 @@ class _Snapshot(StepSnapshot):
 
 
 class LazySolution:
-    """The :class:`ContactSolution` of a step of a rigid scene, built on first use (most steps
+    """The :class:`ContactSolution` of a step on arrays (rigid or node), built on first use (most steps
     of an interactive loop never read it); ``iterations`` (PGS sweeps), ``residual`` [m/s],
     ``velocities``, ``impulses``, ``frames`` and ``gaps_after`` without building its contact
     sets' Jacobians."""
