@@ -65,6 +65,14 @@ def element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int3
     return r
 
 
+@wp.func
+def element_local(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
+                  e: int, rt: wp.mat33d):
+    """R^T x - X [m] of tet ``e``'s four nodes, in the element's rotated frame (``rt`` = R_e^T)."""
+    return (rt * q[tets[e, 0]] - rest[tets[e, 0]], rt * q[tets[e, 1]] - rest[tets[e, 1]],
+            rt * q[tets[e, 2]] - rest[tets[e, 2]], rt * q[tets[e, 3]] - rest[tets[e, 3]])
+
+
 @wp.kernel
 def _corotated_kernel(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                       dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array3d(dtype=wp.float64), corotational: int,
@@ -74,11 +82,7 @@ def _corotated_kernel(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d
     r = element_rotation(q, tets, dm_inv, e, corotational)
     rotations[e] = r
     rt = wp.transpose(r)
-    # R^T x - X per node, in the element's rotated frame.
-    local0 = rt * q[tets[e, 0]] - rest[tets[e, 0]]
-    local1 = rt * q[tets[e, 1]] - rest[tets[e, 1]]
-    local2 = rt * q[tets[e, 2]] - rest[tets[e, 2]]
-    local3 = rt * q[tets[e, 3]] - rest[tets[e, 3]]
+    local0, local1, local2, local3 = element_local(q, rest, tets, e, rt)
     for a in range(4):
         fa = wp.vec3d()
         for b in range(4):

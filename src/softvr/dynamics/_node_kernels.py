@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.dynamics._fem_kernels import element_rotation
+from softvr.dynamics._fem_kernels import element_local, element_rotation
 
 #: ``NodeState.diverged`` codes.
 NAN_VELOCITY = wp.constant(1)
@@ -30,11 +30,7 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
     e = wp.tid() + offset
     r = element_rotation(q, tets, dm_inv, e, corotational)
     rotations[e] = r
-    rt = wp.transpose(r)
-    local0 = rt * q[tets[e, 0]] - rest[tets[e, 0]]
-    local1 = rt * q[tets[e, 1]] - rest[tets[e, 1]]
-    local2 = rt * q[tets[e, 2]] - rest[tets[e, 2]]
-    local3 = rt * q[tets[e, 3]] - rest[tets[e, 3]]
+    local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     for a in range(4):
         fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + ke[e, 4 * a + 3] * local3
         forces[e, a] = -(r * fa)
