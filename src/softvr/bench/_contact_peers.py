@@ -201,7 +201,7 @@ def _newton(scene: dict, steps: int) -> tuple[_Trace, dict]:
         b.add_ground_plane()
         # (Newton annotates rot with warp's internal quatf class, not the public one it is.)
         b.add_soft_grid(pos=wp.vec3(-scene["size"] / 2, -scene["size"] / 2, scene["drop"]),
-                        rot=wp.quat_identity(),  # type: ignore[arg-type]
+                        rot=wp.quat_identity(),  # type: ignore[arg-type, unused-ignore]  # only with newton installed
                         vel=wp.vec3(0.0, 0.0, 0.0), dim_x=scene["cells"], dim_y=scene["cells"], dim_z=scene["cells"],
                         cell_x=h, cell_y=h, cell_z=h, density=scene["density"], k_mu=mu, k_lambda=lam, k_damp=10.0,
                         particle_radius=0.005)
