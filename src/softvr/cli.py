@@ -1,15 +1,15 @@
 """The ``softvr`` command: one entry point, one subcommand per job.
 
-``softvr demo [volume]``   the bundled volume-deformation demo, offscreen to MP4 + PNG
-``softvr demo shoulder``    the procedural shoulder palpated through a 1 kHz haptic loop
+``softvr demo [volume]``   the bundled volume-deformation scene (volume.toml), offscreen to MP4 + PNG
+``softvr demo shoulder``    the procedural shoulder palpated through a 1 kHz haptic loop (shoulder.toml)
 ``softvr demo palpation``   the head CT pressed by a probe: FEM from the voxels, deformed CT volume-rendered
+                            (palpation.toml)
 ``softvr build-model P``    part meshes + a parts file (TOML) -> a simulation model (thesis 5.2)
 ``softvr tetmesh SURFACE``  the tet mesh a scene builds for a FEM body of a surface (.vtu or .npz)
-``softvr run SCENE``        a physics demo (soft-cube, box-stack, cloth-sphere, oranges, candy, cloth-wall, lips,
-                            probe, shoulder) or a scene file to MP4, metrics and plots
+``softvr run SCENE``        a demo, i.e. a bundled scene file by name (soft-cube, box-stack, cloth-sphere, oranges,
+                            candy, cloth-wall, lips, probe, shoulder, ...), or a scene file to MP4, metrics, plots
 ``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
-``softvr view SCENE``       a physics demo or scene file played live in a window (space pauses, n steps)
-``softvr view palpation``   the palpated head CT (palpation.toml) live in a window
+``softvr view SCENE``       a demo or scene file played live in a window (space pauses, n steps)
 ``softvr bench AREA``       measurements against peers (softvr bench --help lists the areas)
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr check SCENE``      validate a scene file (every error at once, the start checked too)
@@ -50,9 +50,6 @@ _DEMOS = {"volume": "the head CT pressed and twisted through its tet mesh, volum
           "palpation": "the head CT pressed by a probe, re-rasterized where the mesh moved, volume-rendered"}
 
 
-_DEMO_MODULES = {"volume": "volume_deform", "shoulder": "shoulder", "palpation": "palpation"}
-
-
 def _demo(argv: list[str]) -> int:
     if argv and argv[0] in ("-h", "--help"):
         p = argparse.ArgumentParser(prog="softvr demo", description="Run a bundled demo offscreen: MP4, PNG contact "
@@ -66,8 +63,10 @@ def _demo(argv: list[str]) -> int:
         raise InputError("DEMO", f"one of {', '.join(_DEMOS)}", repr(argv[0]))
     name = argv[0] if argv and argv[0] in _DEMOS else "volume"
     rest = argv[1:] if argv and argv[0] in _DEMOS else argv
-    module = importlib.import_module(f"softvr.examples.example_{_DEMO_MODULES[name]}")
-    return module.main(rest)
+    # Each demo is its bundled scene file (volume.toml, shoulder.toml, palpation.toml).
+    from softvr.examples import run
+
+    return run.main([name, *rest], prog=f"softvr demo {name}")
 
 
 #: Folder of the bundled scene and parts files (``softvr.scene.BUNDLED``, without importing it).
@@ -101,14 +100,15 @@ def _tetmesh(argv: list[str]) -> int:
 
 
 def _demo_named(argv: list[str]) -> bool:
-    """Whether ``argv`` names a Python demo (``softvr run candy``), or names nothing (help)."""
+    """Whether ``argv`` names a demo: a bundled scene file by its name (``softvr run candy``),
+    unless a file of that name is here."""
     from softvr.examples.run import SCENES
 
-    return any(a in SCENES for a in argv) or all(a.startswith("-") for a in argv)
+    return any(a in SCENES and not Path(a).exists() for a in argv)
 
 
 def _run(argv: list[str]) -> int:
-    # A demo by name, else a scene: a file's path or a bundled scene's name (candy-adhesive).
+    # A demo (a bundled scene by name), else a scene file's path (or nothing: the scene command's help).
     if _demo_named(argv):
         from softvr.examples import run
 
@@ -123,10 +123,6 @@ def _view(argv: list[str]) -> int:
         from softvr.render import viewer
 
         return viewer.main(argv[1:])
-    if argv and argv[0] == "palpation":
-        from softvr.scene import command
-
-        return command.view_main(["palpation.toml", *argv[1:]])
     if _demo_named(argv):
         from softvr.examples import run
 

@@ -1,101 +1,115 @@
-"""``softvr run SCENE``: the physics demos, headless, to an MP4, a PNG contact sheet and JSON metrics.
+"""``softvr run NAME`` and ``softvr view NAME``: a bundled scene file played by its name.
 
-Scenes (each an ``example_<topic>.py`` with an ``Example`` class and its own ``main``):
+Every demo is one bundled scene file (``softvr/scenes/NAME.toml``, :data:`softvr.scene.BUNDLED`);
+:data:`SCENES` lists them, each with the first line of its comment:
 
-=============  ==============================================================================
-soft-cube      a soft co-rotational FEM cube dropped on the ground (friction 0.5, dt 5 ms)
-box-stack      five rigid boxes stacked on the ground (box-box contacts, dt 10 ms)
-cloth-sphere   a mass-spring cloth draped over a static sphere and the ground
-oranges        soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
-candy          soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale: 10 K tets, 25 K tris)
-cloth-wall     a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
-lips           two soft lips pressed together stick briefly as they open (thesis Fig. 4.3)
-probe          a probe pressed into soft tissue and pulled back: force against displacement
-shoulder       coupled anatomy palpated through a 1 kHz haptic loop (thesis ch. 5; also ``softvr demo shoulder``)
-=============  ==============================================================================
+======================  ==============================================================================
+soft-cube               a soft co-rotational FEM cube dropped, tilted, on the ground
+box-stack               five rigid boxes stacked on the ground
+cloth-sphere            a mass-spring cloth draped over a static sphere and the ground
+oranges                 soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
+candy                   soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale)
+candy-adhesive          the same with adhesive surfaces (thesis 4.4)
+cloth-wall              a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
+lips                    two soft lips pressed together stick briefly as they open (thesis Fig. 4.3)
+probe                   a probe pressed into adhesive soft tissue and pulled back
+shoulder                coupled anatomy palpated through a 1 kHz haptic loop (thesis ch. 5)
+shoulder-arthroscopy    the same anatomy probed under the acromion
+palpation               the head CT pressed by a probe, re-rasterized where the mesh moved
+volume                  the head CT pressed and twisted through its tet mesh
+======================  ==============================================================================
 
-Every demo writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
+Every run writes ``<out>/<name>.mp4``, ``<out>/<name>_sheet.png`` and
 ``<out>/<name>_metrics.json`` (default ``<out>``: ``softvr-out/<name>``) through
 :func:`softvr.app.record`; ``softvr view NAME`` plays it through :func:`softvr.app.play_window`.
-This module is a leaf: the demos' names (:data:`SCENES`) and the two commands.
+This module is a leaf: the demos' names and the two commands; the scene files are the demos.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
-from pathlib import Path
 
-from softvr.app import add_view_options, check_run_args, play_window, shown_layers
+from softvr.app import add_view_options, check_run_args, play_window, record_from_args, run_parser, shown_layers
 from softvr.render import require_display
+from softvr.scene import BUNDLED, load_scene
 
-__all__ = ["SCENES", "main", "module", "view_main"]
+__all__ = ["SCENES", "VARIANTS", "main", "scene_file", "view_main"]
 
-#: ``softvr run`` scene name -> example module (``softvr.examples.example_<module>``).
-SCENES = {
-    "soft-cube": "soft_cube",
-    "box-stack": "box_stack",
-    "cloth-sphere": "cloth_sphere",
-    "oranges": "oranges",
-    "candy": "candy",
-    "cloth-wall": "cloth_wall",
-    "lips": "lips",
-    "probe": "probe",
-    "shoulder": "shoulder",
-}
+#: The demos: the bundled scene files by name (``soft-cube`` -> ``.../scenes/soft-cube.toml``).
+SCENES = {p.stem: p for p in sorted(BUNDLED.glob("*.toml"))}
+
+#: ``--variant`` of a demo: the other scene files it names (``softvr demo shoulder --variant arthroscopy``).
+VARIANTS = {"shoulder": {"palpation": "shoulder", "arthroscopy": "shoulder-arthroscopy"}}
 
 
-def module(name: str):
-    """The example module of demo ``name`` (a key of :data:`SCENES`)."""
-    return importlib.import_module(f"softvr.examples.example_{SCENES[name]}")
+def scene_file(name: str):
+    """The bundled scene file of demo ``name`` (a key of :data:`SCENES`)."""
+    return SCENES[name]
 
 
-def view_main(argv: list[str] | None = None) -> int:
-    """``softvr view NAME [--frames N] [--size W H] [--seconds S] [--screenshot PNG] [--show ...]``:
-    a demo played live in a window."""
-    names = ", ".join(SCENES)
-    p = argparse.ArgumentParser(prog="softvr view", description="Play a physics demo live in a window.")
-    p.add_argument("scene", metavar="NAME", help=f"one of: {names}")
-    p.add_argument("--frames", type=int, default=None, help="frames to simulate (default per scene)")
-    p.add_argument("--size", type=int, nargs=2, default=(900, 700), metavar=("W", "H"))
-    add_view_options(p)
-    args = p.parse_args(argv)
-    if args.scene not in SCENES:
-        p.error(f"unknown scene {args.scene!r}; choose one of: {names}")
-    demo = module(args.scene)
-    args.frames = demo.DEFAULT_FRAMES if args.frames is None else args.frames
-    check_run_args(p, args)
-    require_display()  # before building a large scene
-    with demo.Example(frames=args.frames, width=args.size[0], height=args.size[1]) as example:
-        play_window(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))
+def _about(name: str) -> str:
+    """The first comment line of the scene file: what the demo shows."""
+    for line in scene_file(name).read_text(encoding="utf-8").splitlines():
+        if line.startswith("#"):
+            return line.lstrip("# ").strip()
+    return f"the bundled scene {name}"
+
+
+def _parse(parser: argparse.ArgumentParser, name: str, argv: list[str]) -> tuple[argparse.Namespace, str]:
+    """Options of demo ``name`` (``--variant`` where it has some, ``--no-haptics``); returns
+    them and the scene the variant names."""
+    if name in VARIANTS:
+        parser.add_argument("--variant", choices=list(VARIANTS[name]), default=next(iter(VARIANTS[name])),
+                            help="which scene file of the demo (default %(default)s)")
+    parser.add_argument("--no-haptics", action="store_true",
+                        help="tools read their handle once per step instead of in a 1 kHz haptic process")
+    args = parser.parse_args(argv)
+    chosen = VARIANTS[name][args.variant] if name in VARIANTS else name
+    return args, chosen
+
+
+def _split(argv: list[str], command: str) -> tuple[str, list[str]]:
+    """The demo's name (the first word that is one) and the other words."""
+    named = [a for a in argv if a in SCENES]
+    if not named:
+        raise SystemExit(f"softvr {command}: error: expected one of: {', '.join(SCENES)}")
+    rest = list(argv)
+    rest.remove(named[0])
+    return named[0], rest
+
+
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """``softvr run NAME [--frames N] [--out DIR] [--size W H] [--quiet] [--png-every K]
+    [--device D] [--no-haptics]``: the bundled scene file NAME headless to files; returns the
+    exit code."""
+    name, rest = _split(list(sys.argv[1:] if argv is None else argv), "run")
+    parser = run_parser(prog or f"softvr run {name}", f"Run a bundled scene headless: {_about(name)}", None, size=None)
+    args, chosen = _parse(parser, name, rest)
+    check_run_args(parser, args)
+    size = args.size or (None, None)
+    with load_scene(scene_file(chosen), frames=args.frames, width=size[0], height=size[1], device=args.device,
+                    haptics=False if args.no_haptics else None) as player:
+        record_from_args(player, args)
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``softvr run NAME [--frames N] [--out DIR] [--size W H] [scene options]``; returns the
-    exit code. Everything but NAME goes to the demo's own ``main`` (``softvr run candy
-    --adhesion``; ``softvr run NAME --help`` lists the demo's options)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    names = ", ".join(SCENES)
-    named = [a for a in argv if a in SCENES]
-    if named:
-        rest = list(argv)
-        rest.remove(named[0])
-        return module(named[0]).main(rest, prog=f"softvr run {named[0]}")
-    p = argparse.ArgumentParser(prog="softvr run", description="Run a physics demo or a scene file headless: MP4, "
-                                "PNG contact sheet and JSON metrics.",
-                                epilog=f"Demos: {names}; each has its own options (softvr run NAME --help). "
-                                       "Scene files: TOML or glTF / GLB, bundled by name (soft-cube.toml) or a path.")
-    p.add_argument("scene", metavar="SCENE", nargs="?", help=f"a scene file or one of: {names}")
-    args, _ = p.parse_known_args(argv)
-    if args.scene is None:
-        p.error("expected a SCENE: a scene file or one of " + names)
-    looks_like_file = any(c in args.scene for c in "/\\") or Path(args.scene).suffix != ""
-    if looks_like_file:
-        p.error(f"{args.scene!r}: scene files are TOML (.toml) or glTF (.gltf, .glb). Demos: {names}")
-    p.error(f"unknown scene {args.scene!r}; choose a scene file or one of: {names}")
-    return 2
+def view_main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """``softvr view NAME [--frames N] [--size W H] [--seconds S] [--screenshot PNG] [--show ...]``:
+    the bundled scene file NAME played live in a window."""
+    name, rest = _split(list(sys.argv[1:] if argv is None else argv), "view")
+    parser = argparse.ArgumentParser(prog=prog or f"softvr view {name}", description=f"Play live: {_about(name)}")
+    parser.add_argument("--frames", type=int, default=None, help="frames to simulate (default the scene's)")
+    parser.add_argument("--size", type=int, nargs=2, default=None, metavar=("W", "H"))
+    add_view_options(parser)
+    args, chosen = _parse(parser, name, rest)
+    check_run_args(parser, args)
+    require_display()  # before building a large scene
+    size = args.size or (None, None)
+    with load_scene(scene_file(chosen), frames=args.frames, width=size[0], height=size[1], device=args.device,
+                    haptics=False if args.no_haptics else None) as player:
+        play_window(player, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))
+    return 0
 
 
 if __name__ == "__main__":

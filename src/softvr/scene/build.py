@@ -181,10 +181,13 @@ class SceneExample(Player):
         Override the file's ``render.size``.
     device : {"cpu", "cuda", None}
         Warp device of the volume's rasterizer (None: CUDA when present).
+    haptics : bool, optional
+        False: no tool runs its 1 kHz haptic process, whatever its ``haptics`` says (each
+        reads its handle once per step instead); None or True: as the file says.
     """
 
     def __init__(self, scene_file: SceneFile, frames: int | None = None, width: int | None = None,
-                 height: int | None = None, device: str | None = None):
+                 height: int | None = None, device: str | None = None, haptics: bool | None = None):
         from softvr import Scene
         from softvr.collision import Plane, Sphere
         from softvr.contact import Adhesion
@@ -193,6 +196,7 @@ class SceneExample(Player):
         self.file = scene_file
         self.name = scene_file.path.stem
         self.device = device
+        self._haptics = haptics
         sim, ren = scene_file.simulation, scene_file.render
         self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
@@ -467,10 +471,11 @@ class SceneExample(Player):
 
         path = self._keyframes(spec, np.asarray(spec.position, float), None)
         device = ScriptedDevice(lambda t: path(t)[0])
-        loop = HapticLoop(device, max_force=spec.tool["max_force"], process=spec.tool["haptics"])
+        process = bool(spec.tool["haptics"]) and self._haptics is not False
+        loop = HapticLoop(device, max_force=spec.tool["max_force"], process=process)
         device.clock = loop.simulation_clock
         tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"], tip=tip)
-        tool.haptics = spec.tool["haptics"]
+        tool.haptics = process
         return tool
 
     def _surfaces(self) -> dict:
@@ -695,7 +700,7 @@ def read_any_with_problems(path) -> tuple[SceneFile, list]:
 
 def load_scene(path, **overrides) -> SceneExample:
     """Read, validate and build a scene (TOML scene file, or glTF / GLB with softvr extras);
-    ``overrides`` (frames, width, height, device) go to :class:`SceneExample`."""
+    ``overrides`` (frames, width, height, device, haptics) go to :class:`SceneExample`."""
     return SceneExample(read_any(path), **overrides)
 
 
