@@ -28,12 +28,12 @@ from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, Kinem
 from softvr.errors import InputError
 from softvr.files import atomic_output, check_npz, load_json, native_read
 from softvr.geometry import tet_signed_volumes
+from softvr.gltf import check_gltf
 from softvr.model.couplings import nodes_near_surface
 from softvr.model.intersections import intersecting_triangle_pairs
 from softvr.model.parts import CouplingSpec, PartSpec, PartsFile, read_parts
 from softvr.model.representations import collision_mesh, dynamics_mesh, embed_surface
 from softvr.model.separation import push_apart
-from softvr.scene.gltf import check_gltf
 from softvr.sim import Scene
 
 __all__ = ["Model", "PartModel", "build_model", "load_mesh", "load_model", "main"]
