@@ -60,6 +60,7 @@ import scipy.sparse as sp
 from softvr.dynamics._sparse_system import SparseNodeSystem
 from softvr.dynamics.body import ContactObject
 from softvr.errors import InputError
+from softvr.geometry import check_triangles
 
 __all__ = ["ClothBody", "check_triangles", "grid_triangle_mesh"]
 
@@ -117,57 +118,6 @@ def grid_triangle_mesh(width: float, height: float, nx: int, ny: int, *, origin=
     b, c, d = a + 1, a + nx + 2, a + nx + 1
     triangles = np.stack([np.stack([a, b, c], 1), np.stack([a, c, d], 1)], 1).reshape(-1, 3)
     return vertices, triangles.astype(np.int32)
-
-
-def check_triangles(vertices, triangles, *, source: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate a triangle mesh; return (float64 vertices, int32 triangles, areas [m^2]).
-
-    Rejects, with an :class:`~softvr.errors.InputError` naming the first bad element: wrong
-    shapes, non-finite positions, indices out of range, degenerate triangles (area at most
-    ``1e-12`` of the square of their longest edge, repeated vertices included), triangles listed
-    twice, and vertices used by no triangle (they would have no mass).
-    """
-    x = np.asarray(vertices)
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] < 3:
-        raise InputError("vertices", "an array [vertex_count >= 3, 3] [m]", f"shape {x.shape}", source)
-    x = x.astype(np.float64)
-    bad = ~np.isfinite(x).all(axis=1)
-    if bad.any():
-        n = int(np.argmax(bad))
-        raise InputError(f"vertices[{n}]", "finite coordinates", f"{x[n].tolist()} ({int(bad.sum())} such vertices)", source)
-    t = np.asarray(triangles)
-    if t.ndim != 2 or t.shape[1] != 3 or t.shape[0] == 0:
-        raise InputError("triangles", "an array [triangle_count >= 1, 3] of vertex indices", f"shape {t.shape}", source)
-    if not np.issubdtype(t.dtype, np.integer):
-        raise InputError("triangles", "integer vertex indices", f"dtype {t.dtype}", source)
-    out = (t < 0) | (t >= x.shape[0])
-    if out.any():
-        e = int(np.argmax(out.any(axis=1)))
-        raise InputError(f"triangles[{e}]", f"vertex indices in [0, {x.shape[0] - 1}]", str(t[e].tolist()), source)
-    t = t.astype(np.int32)
-    p = x[t]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
-    longest = np.max(np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2), axis=1)
-    degenerate = area <= 1e-12 * longest**2
-    if degenerate.any():
-        e = int(np.argmax(degenerate))
-        raise InputError(f"triangles[{e}] = {t[e].tolist()}", "a triangle with non-zero area",
-                         f"a degenerate one, area {area[e]:.3g} m^2 ({int(degenerate.sum())} of {len(t)} triangles are)",
-                         source)
-    keys = np.sort(t, axis=1)
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
-    dup = first[inverse] != np.arange(len(t))
-    if dup.any():
-        e = int(np.argmax(dup))
-        raise InputError(f"triangles[{e}] = {t[e].tolist()}", "each triangle listed once",
-                         f"a repeat of triangles[{int(first[inverse[e]])}]", source)
-    used = np.zeros(len(x), bool)
-    used[t.ravel()] = True
-    if not used.all():
-        n = int(np.argmax(~used))
-        raise InputError(f"vertices[{n}]", "a vertex used by at least one triangle (mass > 0)", "an unused vertex", source)
-    return x, t, area
 
 
 def _build_springs(x: np.ndarray, t: np.ndarray, stiffness: dict[str, float]):
