@@ -1,25 +1,13 @@
 """Display files: the screens of a CAVE, a PowerWall or a tiled wall (thesis 6.2, 6.4), with
 their off-axis cameras.
 
-The file format, its validation and the presets are the scene layer's
-(:mod:`softvr.scene.display`, what a scene file's ``[display]`` names); here a
+The file format (TOML, versioned: ``format = "softvr-display 1"``, an ``eye_separation`` and one
+``[[screen]]`` table per screen), its validation and the presets (a single wall, a 4-wall cube,
+the thesis' RAVE as wall / cube / amphitheatre, a 2 x 2 PowerWall) are the scene layer's:
+:mod:`softvr.scene.display`, what a scene file's ``[display]`` names, documents them. Here a
 :class:`Screen` gets its off-axis camera (:meth:`Screen.view`) and the screens of one
-installation make a :class:`Display`. TOML, versioned::
-
-    format = "softvr-display 1"
-    eye_separation = 0.065            # [m], for stereo
-
-    [[screen]]
-    name = "front"
-    lower_left = [-1.875, 1.875, 0.0]
-    lower_right = [1.875, 1.875, 0.0]
-    upper_left = [-1.875, 1.875, 3.12]
-    pixels = [1400, 1050]
-    node = "front"                    # the render process that draws it
-    stereo = "none"                   # none | side-by-side | anaglyph | quad-buffer
-
-Presets: a single wall, a 4-wall cube, the thesis' RAVE (3.75 x 3.12 m screens) as wall / cube /
-amphitheatre, a 2 x 2 PowerWall.
+installation make a :class:`Display`, which :func:`save_display` writes and
+:func:`load_display` reads back.
 """
 
 from __future__ import annotations
@@ -33,14 +21,11 @@ import numpy as np
 from softvr.cave.projection import ScreenView, screen_view
 from softvr.errors import InputError, raise_all
 from softvr.files import atomic_output
-from softvr.scene.display import FORMAT, MAX_PIXELS, MAX_SCREENS, STEREO_MODES, display_problems, read_display, tile
+from softvr.scene.display import FORMAT, STEREO_MODES, display_problems, read_display, tile
 from softvr.scene.display import PRESETS as _SCREENS
 from softvr.scene.display import Screen as _Screen
 
 __all__ = ["PRESETS", "STEREO_MODES", "Display", "Screen", "eye_pair", "load_display", "preset", "save_display", "tile"]
-
-#: The format and bounds of a display file (softvr.scene.display's), importable here as before.
-_FILE = (FORMAT, MAX_PIXELS, MAX_SCREENS)
 
 
 @dataclass(frozen=True)
@@ -106,7 +91,7 @@ def preset(name: str) -> Display:
 
 
 def save_display(display: Display, path) -> Path:
-    """Write ``display`` as a display file (module docstring) that :func:`load_display` reads
+    """Write ``display`` as a display file (:mod:`softvr.scene.display`) that :func:`load_display` reads
     back to the same screens; atomically (an existing file survives a failed write)."""
     def vec(v) -> str:
         return "[" + ", ".join(repr(float(x)) for x in v) + "]"
@@ -124,6 +109,6 @@ def save_display(display: Display, path) -> Path:
 
 
 def load_display(path) -> Display:
-    """Read and validate a display file (module docstring, :func:`softvr.scene.display.read_display`)."""
+    """Read and validate a display file (:func:`softvr.scene.display.read_display`)."""
     screens, separation = read_display(Path(path), Screen)
     return Display(screens, separation, name=str(path))
