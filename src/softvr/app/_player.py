@@ -9,6 +9,7 @@ import numpy as np
 
 from softvr.render.surfaces import SurfaceRenderer
 from softvr.sim import STAGES
+from softvr.sim.frame_metrics import RigidFrameMetrics, rigid_stepper
 
 __all__ = ["FRAME_ORDER", "STEP_ORDER", "Player", "gravity_potential"]
 
@@ -102,6 +103,7 @@ class Player:
         self.metrics: list[dict] = []
         self._renderer: SurfaceRenderer | None = None
         self._started = False
+        self._on_arrays: tuple | None = None  # (stepper, its RigidFrameMetrics)
 
     # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
     def start(self) -> None:
@@ -130,8 +132,30 @@ class Player:
         """Deepest current overlap [m] of any collision geometry (0 when nothing overlaps)."""
         raise NotImplementedError
 
+    def penetration_geometry(self) -> tuple[list, list] | None:
+        """What :meth:`penetration` measures, where the scene's rigid arrays can measure it:
+        (body index, body-frame points [m, 3]) pairs and (unit normal, offset [m]) planes of
+        :class:`~softvr.sim.frame_metrics.RigidFrameMetrics`; None (this default) where it is
+        something else."""
+        return None
+
+    def array_metrics(self) -> RigidFrameMetrics | None:
+        """The frame's metrics read off the scene's rigid arrays while it steps on them (one
+        recorded launch, built once per stepper with :meth:`penetration_geometry`), else None."""
+        stepper = rigid_stepper(self.scene)
+        if stepper is None:
+            return None
+        if self._on_arrays is None or self._on_arrays[0] is not stepper:
+            points, planes = self.penetration_geometry() or ((), ())
+            self._on_arrays = (stepper, RigidFrameMetrics(stepper, points, planes))
+        return self._on_arrays[1]
+
     def energies(self) -> tuple[float, float]:
-        """(kinetic, kinetic + gravitational) energy [J] of all bodies."""
+        """(kinetic, kinetic + gravitational) energy [J] of all bodies (off the rigid arrays
+        when the scene steps on them: :meth:`array_metrics`)."""
+        metrics = self.array_metrics()
+        if metrics is not None:
+            return metrics.energies(self.scene.gravity)
         # Bodies of infinite mass move on a script (or not at all): no energy of their own.
         moving = [b for b in self.scene.bodies if not b.infinite_mass]
         kinetic = sum(float(b.kinetic_energy()) for b in moving)
@@ -160,7 +184,12 @@ class Player:
         step_ms = (time.perf_counter() - t0) * 1e3
         assert solution is not None  # steps_per_frame >= 1
         kinetic, energy = self.energies()
-        impulses = [i for i in solution.impulses if len(i)]
+        counts = getattr(solution, "contact_counts", None)  # a step on arrays counts without splitting sets
+        if counts is not None:
+            contacts, active = counts()
+        else:
+            impulses = [i for i in solution.impulses if len(i)]
+            contacts, active = sum(len(i) for i in impulses), sum(int((i[:, 0] > 0).sum()) for i in impulses)
         volume = self.update_volume()
         record = {
             "frame": self.frame,
@@ -170,8 +199,8 @@ class Player:
             "render_ms": 0.0,
             "wall_ms": step_ms,
             "max_penetration_m": float(deepest),
-            "contacts": int(sum(len(i) for i in impulses)),
-            "active_contacts": int(sum(int((i[:, 0] > 0).sum()) for i in impulses)),
+            "contacts": int(contacts),
+            "active_contacts": int(active),
             "pgs_iterations": sweeps,
             "pgs_residual_m_per_s": residual,
             "kinetic_energy_j": kinetic,

@@ -114,3 +114,40 @@ def integrate(new_velocity: wp.array(dtype=wp.spatial_vectord), inv_mass: wp.arr
     orientation[i] = q1 / wp.length(q1)
     position[i] = position[i] + dt * lin
     velocity[i] = v
+
+
+@wp.kernel
+def frame_metrics(position: wp.array(dtype=wp.vec3d), orientation: wp.array(dtype=wp.vec4d),
+                  velocity: wp.array(dtype=wp.spatial_vectord), mass: wp.array(dtype=wp.float64),
+                  inertia: wp.array(dtype=wp.mat33d), gravity: wp.array(dtype=wp.vec3d),
+                  point_start: wp.array(dtype=wp.int32), point_local: wp.array(dtype=wp.vec3d),
+                  plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
+                  deepest: wp.array(dtype=wp.float64), kinetic: wp.array(dtype=wp.float64),
+                  potential: wp.array(dtype=wp.float64)):
+    """Thread per body: ``deepest[0]`` [m] raised to the deepest of its points ``c + R p`` below
+    any plane ``n . x = offset`` (``offset - n . x``; the caller zeroes it); ``kinetic`` = ``1/2 m |v_lin|^2 +
+    1/2 omega . I_w omega`` and ``potential`` = ``-m g . c`` [J] (RigidBody.kinetic_energy,
+    softvr.app.gravity_potential); 0 where ``mass`` is 0 (a fixed body)."""
+    i = wp.tid()
+    zero = wp.float64(0.0)
+    rot = _rotation(orientation[i])
+    c = position[i]
+    d = zero
+    for p in range(point_start[i], point_start[i + 1]):
+        x = c + rot * point_local[p]
+        for k in range(plane_normal.shape[0]):
+            d = wp.max(d, plane_offset[k] - wp.dot(x, plane_normal[k]))
+    wp.atomic_max(deepest, 0, d)
+    m = mass[i]
+    if m == zero:
+        kinetic[i] = zero
+        potential[i] = zero
+        return
+    v = velocity[i]
+    lin = wp.vec3d(v[0], v[1], v[2])
+    w = wp.vec3d(v[3], v[4], v[5])
+    iw = rot * inertia[i] * wp.transpose(rot)
+    iw = wp.float64(0.5) * (iw + wp.transpose(iw))
+    half = wp.float64(0.5)
+    kinetic[i] = half * m * wp.dot(lin, lin) + half * wp.dot(w, iw * w)
+    potential[i] = -m * wp.dot(c, gravity[0])

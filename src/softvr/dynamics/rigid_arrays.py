@@ -14,7 +14,7 @@ import warp as wp
 from softvr.device import load_kernels
 from softvr.dynamics import _rigid_kernels as _k
 
-__all__ = ["DIVERGENCE_REASONS", "record_integrate", "record_unconstrained"]
+__all__ = ["DIVERGENCE_REASONS", "record_frame_metrics", "record_integrate", "record_unconstrained"]
 
 #: What a nonzero ``RigidState.diverged`` entry means (the divergence report names it).
 DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "velocity NaN/inf", _k.TOO_FAST: "speed above max(max_rate * extent, max_speed)",
@@ -42,3 +42,19 @@ def record_integrate(model, state, dt: float) -> wp.Launch:
                      inputs=[state.free_velocity, model.body_inv_mass, model.body_speed_limit, model.body_spin_limit,
                              float(dt), state.body_position, state.body_orientation, state.body_velocity,
                              state.diverged])
+
+
+def record_frame_metrics(model, state, mass, gravity, point_start, point_local, plane_normal, plane_offset,
+                         deepest, kinetic, potential) -> wp.Launch:
+    """The launch raising ``deepest`` [1] [m] to the deepest of every body's points
+    ``point_local[point_start[i]:point_start[i + 1]]`` [body frame, m] below the planes
+    ``plane_normal . x = plane_offset`` (zero it before: it stays at 0 when none is below) and
+    writing, per body, ``kinetic`` and ``potential`` [n] [J] (of
+    ``mass`` [n] [kg], 0 for a fixed body, under ``gravity[0]`` [m/s^2]) from the state's poses
+    and velocities: the frame metrics of :class:`softvr.sim.frame_metrics.RigidFrameMetrics`. Every argument
+    after ``state`` is a Warp array on the model's device."""
+    load_kernels(_k.frame_metrics, model.device)
+    return wp.launch(_k.frame_metrics, dim=model.body_count, device=model.device, record_cmd=True,
+                     inputs=[state.body_position, state.body_orientation, state.body_velocity, mass,
+                             model.body_inertia, gravity, point_start, point_local, plane_normal, plane_offset,
+                             deepest, kinetic, potential])

@@ -117,11 +117,19 @@ _BUNDLED = Path(__file__).resolve().parent.parent / "scenes"
 
 
 class _Drawn:
-    """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]."""
+    """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]; ``rigid``:
+    (body, points [n, 3] [m] in its frame) where the vertices are ``position + R points`` (given,
+    or a :class:`~softvr.dynamics.RigidPoints`' ``positions``), else None."""
 
-    def __init__(self, vertices, triangles, color, opacity: float = 1.0, visible: bool = True):
+    def __init__(self, vertices, triangles, color, opacity: float = 1.0, visible: bool = True, rigid=None):
+        from softvr.dynamics import RigidPoints
+
         self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
         self.opacity, self.visible = opacity, visible
+        points = getattr(vertices, "__self__", None)
+        if rigid is None and type(points) is RigidPoints and vertices.__func__ is RigidPoints.positions:
+            rigid = (points.body, points.local)
+        self.rigid = rigid
 
 
 def _read_volume(source, scene_path: str):
@@ -324,7 +332,8 @@ class SceneExample(Player):
             cv, ct = self._collision_surface(spec, v, t)
             index = scene.add_body(body, collision_points=RigidPoints(body, cv - origin), collision_triangles=ct,
                                    adhesion=adhesion)
-            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color))
+            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color,
+                                     rigid=(body, local)))
             if spec.type == "tool":  # the handle holds the body's position, not its centre of mass
                 self.tools.append(self._tool(scene, spec, body, tip=centre - origin))
         elif spec.type in ("rigid", "fixed", "kinematic", "tool") and spec.shape in ("box", "sphere"):
@@ -355,7 +364,8 @@ class SceneExample(Player):
                                    collision_triangles=triangles, **collider)
             if spec.type == "tool":
                 self.tools.append(self._tool(scene, spec, body))
-            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color))
+            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color,
+                                     rigid=(body, local)))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
             from softvr.collision import TriangleMesh
 
@@ -630,8 +640,25 @@ class SceneExample(Player):
         super().close()
 
     # -- the demo interface ---------------------------------------------------------------
+    def penetration_geometry(self) -> tuple[list, list] | None:
+        """The drawn vertices (body index, body-frame points) and the planes, when every drawn
+        surface is carried rigidly by a body of the scene and there is no static sphere (the
+        scenes the rigid arrays can hold), else None."""
+        if not hasattr(self, "_geometry"):
+            index = {id(b): i for i, b in enumerate(self.scene.bodies)}
+            rigid = [d.rigid for d in self.drawn]
+            ok = not self.spheres and all(r is not None and id(r[0]) in index for r in rigid)
+            self._geometry = ([(index[id(body)], local) for body, local in rigid],
+                              [(n, float(np.asarray(plane.point, float) @ n)) for plane, _ in self.planes
+                               for n in (plane.unit_normal(),)]) if ok else None
+        return self._geometry
+
     def penetration(self) -> float:
-        """Deepest drawn vertex below any plane or inside any static sphere [m]."""
+        """Deepest drawn vertex below any plane or inside any static sphere [m] (off the rigid
+        arrays when the scene steps on them: :meth:`~softvr.app.Player.array_metrics`)."""
+        metrics = self.array_metrics() if self.penetration_geometry() is not None else None
+        if metrics is not None:
+            return metrics.penetration()
         deepest = 0.0
         # The planes' offsets n . point once per call: this runs after every step of a frame.
         planes = [(n, float(np.asarray(plane.point, float) @ n)) for plane, _ in self.planes
