@@ -23,9 +23,11 @@ import numpy as np
 
 from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, check_head, check_mesh_update,
                                   check_user, decode, encode)
+from softvr.cave.rig import UserPose, turn
 from softvr.cave.stream import DEFAULT_QUANTUM, MeshDecoder, MeshEncoder
 from softvr.errors import InputError
 from softvr.files import native_read
+from softvr.model.shapes import BOX_TRIANGLES, box_corners
 
 __all__ = ["PLANE_COLOR", "SPHERE_COLOR", "ClusterState", "FrameBuilder", "PlayerSource", "SceneFileSource",
            "WavingSheet", "mesh_item", "plane_item", "scene_bounds", "sphere_item", "user_pose_facing"]
@@ -75,8 +77,6 @@ def user_pose_facing(center, yaw: float = 0.0, *, anchor=(0.0, 1.2, 1.0)) -> np.
     """The user pose [4, 4] (world <- tracker) that shows world point ``center`` [3] [m] at
     tracker point ``anchor`` [3] [m] (in front of the viewer, at table height), the CAVE
     turned by ``yaw`` [rad] about the vertical through it."""
-    from softvr.cave.rig import UserPose, turn  # noqa: PLC0415
-
     anchor = np.asarray(anchor, float)
     return np.array(turn(UserPose(np.asarray(center, float) - anchor), yaw, about=anchor).matrix)
 
@@ -396,8 +396,6 @@ class WavingSheet:
         quads = np.arange(k * k).reshape(k, k)[:-1, :-1].ravel()
         faces = np.concatenate([np.c_[quads, quads + k, quads + k + 1], np.c_[quads, quads + k + 1, quads + 1]])
         self.amplitude, self.fps, self.frame = float(amplitude), float(fps), 0
-        from softvr.model.shapes import BOX_TRIANGLES, box_corners  # noqa: PLC0415
-
         self._box = box_corners((0.08, 0.08, 0.08))
         self.sheet, self.box = 1, 2  # the handles of the sheet and the box
         self.items = [plane_item(point=(0.0, 0.0, 0.0), size=3.0, tiles=12),

@@ -43,7 +43,22 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from softvr.app import add_device_option
+from softvr.cave.app import FrameBuilder, PlayerSource, SceneFileSource, WavingSheet, user_pose_facing
+from softvr.cave.cluster import ClusterConfig, Master, Node
+from softvr.cave.display import PRESETS, load_display, preset
+from softvr.cave.keys import default_folder, make_keys
+from softvr.cave.navigation import KeyboardNavigation
+from softvr.cave.preview import preview_image
+from softvr.cave.render import StateRenderer
+from softvr.cave.rig import CameraRig
+from softvr.cave.tracking import FixedTracker, OscTracker
+from softvr.device import resolve_device
 from softvr.errors import InputError
+from softvr.files import write_json
+from softvr.render.contact_sheet import save_png
+from softvr.render.video import write_mp4
+from softvr.scene import has_softvr_bodies, load_scene, read_any
+from softvr.scene.build import scene_path
 
 if TYPE_CHECKING:  # vtk loads with the first window
     from vtkmodules.vtkRenderingCore import vtkRenderWindowInteractor
@@ -56,8 +71,6 @@ _DEFAULT_CONTROL = "tcp://127.0.0.1:5561"
 
 def load_display_arg(text: str):
     """A display from a preset name or a display file path."""
-    from softvr.cave.display import PRESETS, load_display, preset  # noqa: PLC0415
-
     if text in PRESETS:
         return preset(text)
     if not Path(text).exists():
@@ -70,11 +83,6 @@ def make_source(scene: str, frames: int, device: str | None = None):
     """The master's frame source for a scene name (module docstring): ``sheet``, a scene file
     or bundled scene by name (:func:`softvr.scene.build.scene_path`: ``box-stack``,
     ``box-stack.toml``), or a glTF / mesh file without softvr bodies, shown static."""
-    from softvr.cave.app import PlayerSource, SceneFileSource, WavingSheet  # noqa: PLC0415
-    from softvr.scene import has_softvr_bodies, load_scene  # noqa: PLC0415
-    from softvr.device import resolve_device  # noqa: PLC0415
-    from softvr.scene.build import scene_path  # noqa: PLC0415
-
     if device is not None:
         resolve_device(device)  # cuda where none is present: an InputError naming the device
     if scene == "sheet":
@@ -98,8 +106,6 @@ def make_source(scene: str, frames: int, device: str | None = None):
 @contextlib.contextmanager
 def _released(source):
     """A simulated scene's player stopped (its haptic processes) when the run ends, however it ends."""
-    from softvr.cave.app import PlayerSource  # noqa: PLC0415
-
     try:
         yield source
     finally:
@@ -119,9 +125,6 @@ def resolve_places(args) -> None:
                          " ".join(places))
     args.scene = places[0]
     display = None
-    from softvr.scene import has_softvr_bodies, read_any  # noqa: PLC0415
-    from softvr.scene.build import scene_path  # noqa: PLC0415
-
     try:
         path = scene_path(args.scene)
     except InputError:  # sheet, or no scene file: no display of its own
@@ -139,8 +142,6 @@ def scripted_navigation(source):
     """The master's default input: the user entity slowly swings around the scene's centre
     (which it shows 1.2 m in front of the viewer at table height) and the head sways 15 cm
     side to side; a ``toggle highlight`` event every 5 s."""
-    from softvr.cave.app import user_pose_facing  # noqa: PLC0415
-
     bounds = np.asarray(source.bounds()).reshape(3, 2)
     center = bounds.mean(axis=1)
 
@@ -157,8 +158,6 @@ def scripted_navigation(source):
 def _tracker(spec: str | None):
     if not spec or spec == "scripted":
         return None
-    from softvr.cave.tracking import FixedTracker, OscTracker  # noqa: PLC0415
-
     if spec == "fixed":
         return FixedTracker()
     if spec.startswith("osc:") and spec[4:].isdigit():
@@ -166,19 +165,8 @@ def _tracker(spec: str | None):
     raise InputError("--tracker", "scripted | fixed | osc:PORT", repr(spec))
 
 
-def _write_json(data: dict, path: Path) -> None:
-    from softvr.files import write_json  # noqa: PLC0415
-
-    write_json(data, path)
-
-
 # ------------------------------------------------------------------------------- subcommands
 def _preview(args) -> int:
-    from softvr.cave.app import FrameBuilder  # noqa: PLC0415
-    from softvr.cave.preview import preview_image  # noqa: PLC0415
-    from softvr.cave.render import StateRenderer  # noqa: PLC0415
-    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
-
     display = load_display_arg(args.display)
     source = make_source(args.scene, args.frames, args.device)
     frames = FrameBuilder(source, navigation=scripted_navigation(source))
@@ -199,8 +187,6 @@ def _preview(args) -> int:
 
 
 def _config(args):
-    from softvr.cave.cluster import ClusterConfig  # noqa: PLC0415
-
     extra = {}
     if getattr(args, "master_timeout", None) is not None:
         extra["master_timeout_s"] = args.master_timeout
@@ -211,8 +197,6 @@ def _config(args):
 
 
 def _master(args, on_bound=None) -> dict:
-    from softvr.cave.cluster import Master  # noqa: PLC0415
-
     display = load_display_arg(args.display)
     source = make_source(args.scene, args.frames, args.device)
     nodes = [s.node or s.name for s in display.screens]
@@ -220,9 +204,6 @@ def _master(args, on_bound=None) -> dict:
     navigation = scripted_navigation(source)
     window = None
     if getattr(args, "window", False):
-        from softvr.cave.navigation import KeyboardNavigation  # noqa: PLC0415
-        from softvr.cave.rig import CameraRig  # noqa: PLC0415
-
         navigation = KeyboardNavigation(navigation(0, 0.0)[0])
         window = _MasterWindow(display.screen(CameraRig(display).master), display.eye_separation, navigation)
     with _released(source), Master(source, nodes, _config(args), navigation=navigation, tracker=tracker) as master:
@@ -240,7 +221,7 @@ def _master(args, on_bound=None) -> dict:
         if args.out:
             out = Path(args.out)
             out.mkdir(parents=True, exist_ok=True)
-            _write_json({"summary": summary, **master.log}, out / "master.json")
+            write_json({"summary": summary, **master.log}, out / "master.json")
     for closing in (tracker, window):
         if closing is not None:
             closing.close()
@@ -252,8 +233,6 @@ class _MasterWindow:
     (:class:`~softvr.cave.navigation.KeyboardNavigation`)."""
 
     def __init__(self, screen, separation: float, navigation):
-        from softvr.cave.render import StateRenderer  # noqa: PLC0415
-
         self.view = StateRenderer(screen, separation, scale=min(1.0, 800 / screen.pixels[0]), onscreen=True)
         self.navigation = navigation
         self.interactor: vtkRenderWindowInteractor | None = None  # made when first shown
@@ -276,10 +255,6 @@ class _MasterWindow:
 
 
 def _node(args) -> int:
-    from softvr.cave.cluster import Node  # noqa: PLC0415
-    from softvr.cave.render import StateRenderer  # noqa: PLC0415
-    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
-
     display = load_display_arg(args.display)
     screens = [s for s in display.screens if (s.node or s.name) == args.node]
     if not screens:
@@ -304,7 +279,7 @@ def _node(args) -> int:
     if out:
         if renderer is not None and renderer.image is not None:
             save_png(renderer.image, out / f"{args.node}_last.png")
-        _write_json({**summary, "presented_frames": node.log.presented}, out / f"{args.node}.json")
+        write_json({**summary, "presented_frames": node.log.presented}, out / f"{args.node}.json")
     if renderer is not None:
         renderer.close()
     if not args.quiet:
@@ -387,9 +362,6 @@ def _compose_previews(display, out: Path) -> None:
     frames every node saved."""
     import imageio.v3 as iio  # noqa: PLC0415
 
-    from softvr.cave.preview import preview_image  # noqa: PLC0415
-    from softvr.render.contact_sheet import save_png  # noqa: PLC0415
-    from softvr.render.video import write_mp4  # noqa: PLC0415
 
     def images(suffix: str) -> dict | None:
         found = {s.name: out / f"{s.node or s.name}_{suffix}.png" for s in display.screens}
@@ -409,8 +381,6 @@ def _compose_previews(display, out: Path) -> None:
 
 
 def _keys(args) -> int:
-    from softvr.cave.keys import default_folder, make_keys  # noqa: PLC0415
-
     folder = Path(args.folder or default_folder())
     if args.node:
         if args.display or args.nodes:

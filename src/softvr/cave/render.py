@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from softvr.cave.display import Screen
-
-if TYPE_CHECKING:  # vtk loads with the first renderer
-    from softvr.render.surfaces import SurfaceRenderer
+from softvr.cave.rig import UserPose
+from softvr.cave.stereo import render_stereo
+from softvr.cave.tracking import HeadPose
+from softvr.render.surfaces import SurfaceRenderer  # vtk loads with the first renderer
 
 __all__ = ["StateRenderer", "render_screen"]
 
@@ -51,8 +50,6 @@ class StateRenderer:
         self._handles: dict[int, int] = {}
 
     def _build(self, state) -> None:
-        from softvr.render.surfaces import SurfaceRenderer  # noqa: PLC0415
-
         if self._renderer is not None:
             self._renderer.close()
         w, h = (max(int(round(p * self.scale)), 8) for p in self.screen.pixels)
@@ -71,10 +68,6 @@ class StateRenderer:
 
     def __call__(self, state) -> np.ndarray:
         """Draw ``state``; returns the RGB image (uint8, [h, w, 3], or [h, 2 w, 3] side-by-side)."""
-        from softvr.cave.rig import UserPose  # noqa: PLC0415
-        from softvr.cave.stereo import render_stereo  # noqa: PLC0415
-        from softvr.cave.tracking import HeadPose  # noqa: PLC0415
-
         if self._items != state.geometry_digest():  # the first frame, or a snapshot of another scene
             self._build(state)
         assert self._renderer is not None  # built for the first state
