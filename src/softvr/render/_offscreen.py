@@ -17,6 +17,11 @@ class OffscreenView:
     """
 
     _window: Any = None  # the subclass's vtkRenderWindow (vtk is imported with the first renderer)
+    _renderer: Any  # its vtkRenderer
+    _camera: Any  # the softvr.render.Camera in use
+    _camera_pending: bool  # whether _camera is still to be applied (at the next frame)
+    width: int  # [pixels]
+    height: int
     _closed = True
 
     def _init_grabber(self) -> None:
@@ -54,6 +59,22 @@ class OffscreenView:
         w, h, _ = out.GetDimensions()
         pixels = vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, -1)
         return np.ascontiguousarray(pixels[::-1, :, :3])
+
+    def _draw(self, bounds) -> np.ndarray:
+        """Draw the window and return its image (:meth:`grab`). A camera set since the last
+        frame is applied first, fitted to ``bounds()`` (a function: the bounds are only worked
+        out then) and replacing an explicit projection (:meth:`SurfaceRenderer.set_view`). No
+        context is left current: an on-screen GLX context (the viewer) cannot be made while an
+        EGL one is current (BadAccess on Mesa; :mod:`softvr.render._backend`)."""
+        if self._camera_pending:
+            self.vtk_camera.UseExplicitProjectionTransformMatrixOff()
+            self._camera.apply(self.vtk_camera, bounds(), self.width / self.height)
+            self._camera_pending = False
+        self._renderer.ResetCameraClippingRange()
+        self._window.Render()
+        image = self.grab()
+        self._window.ReleaseCurrent()
+        return image
 
     def close(self) -> None:
         """Release the OpenGL context. The renderer cannot be used afterwards."""

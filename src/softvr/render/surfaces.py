@@ -449,16 +449,7 @@ class SurfaceRenderer(OffscreenView):
     def render(self) -> np.ndarray:
         """Draw the scene; returns RGB uint8 [height, width, 3], row 0 at the top."""
         self._check_open()
-        if self._camera_pending:
-            self.vtk_camera.UseExplicitProjectionTransformMatrixOff()
-            self._camera.apply(self.vtk_camera, self.scene_bounds(), self.width / self.height)
-            self._camera_pending = False
-        self._renderer.ResetCameraClippingRange()
-        self._window.Render()
-        image = self.grab()
-        # An on-screen GLX context cannot be made while an EGL one is current (see _backend).
-        self._window.ReleaseCurrent()
-        return image
+        return self._draw(self.scene_bounds)
 
     # --------------------------------------------------------------- helpers
     def _add(self, item: _Item) -> int:

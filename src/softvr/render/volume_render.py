@@ -180,16 +180,7 @@ class VolumeRenderer(OffscreenView):
         if self._caster is not None:
             return self._render_warp(volume, changed)
         self._scene.update(volume)
-        if self._camera_pending:
-            self._camera.apply(self.vtk_camera, self._scene.bounds(), self.width / self.height)
-            self._camera_pending = False
-        self._renderer.ResetCameraClippingRange()
-        self._window.Render()
-        image = self.grab()
-        # Leave no off-screen context current: creating an on-screen GLX context (the
-        # viewer) while an EGL context is current fails with BadAccess on Mesa.
-        self._window.ReleaseCurrent()
-        return image
+        return self._draw(self._scene.bounds)
 
     def _render_warp(self, volume, changed) -> np.ndarray:
         """VTK draws the surfaces (if any), then the Warp ray caster composites the volume
