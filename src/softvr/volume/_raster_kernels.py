@@ -137,6 +137,16 @@ _CPP_INPUT = r"""
     const float lo_v = params[2], hi_v = params[3];
     const bool nearest = params[0] != 0.0f, rounding = params[1] != 0.0f;
     auto clampf_ = [](float x, float h) { return x < 0.0f ? 0.0f : (x > h ? h : x); };
+    // z-neighbour pairs (v[p], v[p + 1]) in one load (see _cpp_trilinear's ``source``).
+    auto pair_i16 = [](const short* s, int p, float& a, float& b) {
+        unsigned int w; __builtin_memcpy(&w, s + p, 4);
+        a = (float)(short)(w & 0xffffu); b = (float)(short)(w >> 16);
+    };
+    auto pair_u16 = [](const short* s, int p, float& a, float& b) {
+        unsigned int w; __builtin_memcpy(&w, s + p, 4);
+        a = (float)(w & 0xffffu); b = (float)(w >> 16);
+    };
+    (void)pair_i16; (void)pair_u16;
 """
 
 
@@ -149,9 +159,17 @@ def _cpp_nearest(ux: str, uy: str, uz: str) -> str:
                 const float val = v[ix * sx + iy * sy + iz * sz];"""
 
 
-def _cpp_trilinear(ux: str, uy: str, uz: str) -> str:
-    """C++ statements declaring ``val``, the trilinear input value at (ux, uy, uz), rounded if asked."""
-    return f"""
+def _cpp_trilinear(ux: str, uy: str, uz: str, rounding: str = "rounding", source: str = "float") -> str:
+    """C++ statements declaring ``val``, the trilinear input value at (ux, uy, uz), rounded if asked.
+
+    ``rounding`` is a C++ boolean expression (a literal ``true`` / ``false`` lets clang drop the
+    branch and vectorize the loop). ``source`` says where the 8 corner values come from:
+    ``"float"`` the float32 array ``v`` (any strides), or, where the z stride is 1, the int16 /
+    uint16 input itself (pointer ``s16``) read as z-neighbour pairs, one 32-bit load per pair,
+    which halves the gathers. Both give the same floats (16-bit -> float32 is exact), so every
+    variant rounds alike.
+    """
+    head = f"""
                 const float ux = clampf_({ux}, fx1);
                 const float uy = clampf_({uy}, fy1);
                 const float uz = clampf_({uz}, fz1);
@@ -159,18 +177,31 @@ def _cpp_trilinear(ux: str, uy: str, uz: str) -> str:
                 int iy = (int)uy; iy = iy < my ? iy : my;
                 int iz = (int)uz; iz = iz < mz ? iz : mz;
                 const float wx = ux - (float)ix, wy = uy - (float)iy, wz = uz - (float)iz;
-                const int p = ix * sx + iy * sy + iz * sz;
+                const int p = ix * sx + iy * sy + iz * sz;"""
+    if source == "float":
+        corners = """
                 const float c00 = (1.0f - wz) * v[p] + wz * v[p + sz];
                 const float c01 = (1.0f - wz) * v[p + sy] + wz * v[p + sy + sz];
                 const float c10 = (1.0f - wz) * v[p + sx] + wz * v[p + sx + sz];
-                const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];
+                const float c11 = (1.0f - wz) * v[p + sx + sy] + wz * v[p + sx + sy + sz];"""
+    else:
+        load = {"int16": "pair_i16(s16, ", "uint16": "pair_u16(s16, "}[source]
+        corners = "".join(
+            f"""
+                float a{n}, b{n}; {load}{off}, a{n}, b{n});
+                const float c{n} = (1.0f - wz) * a{n} + wz * b{n};"""
+            for n, off in (("00", "p"), ("01", "p + sy"), ("10", "p + sx"), ("11", "p + sx + sy"))
+        )
+    tail = f"""
                 const float c0 = (1.0f - wy) * c00 + wy * c01;
                 const float c1 = (1.0f - wy) * c10 + wy * c11;
                 float val = (1.0f - wx) * c0 + wx * c1;
-                if (rounding) {{
+                if ({rounding}) {{
                     val = __builtin_floorf(val + 0.5f);
-                    val = val < lo_v ? lo_v : (val > hi_v ? hi_v : val);
+                    val = val < lo_v ? lo_v : val;
+                    val = val > hi_v ? hi_v : val;
                 }}"""
+    return head + corners + tail
 
 
 # The CPU fast path: one output row written by a plain C++ loop that clang vectorizes
@@ -196,12 +227,22 @@ _ROW_SNIPPET = (
             }
             return;
         }
-        #pragma clang loop vectorize(enable) interleave(enable)
-        for (int k = klo; k <= khi; ++k) {
-            const float fk = (float)k;"""
-    + _cpp_trilinear("bx + ax * fk", "by + ay * fk", "bz + az * fk")
+        if (rounding) {
+            #pragma clang loop vectorize(enable) interleave(enable)
+            for (int k = klo; k <= khi; ++k) {
+                const float fk = (float)k;"""
+    + _cpp_trilinear("bx + ax * fk", "by + ay * fk", "bz + az * fk", "true")
     + r"""
-            o[k] = (T)val;
+                o[k] = (T)val;
+            }
+        } else {
+            #pragma clang loop vectorize(enable) interleave(enable)
+            for (int k = klo; k <= khi; ++k) {
+                const float fk = (float)k;"""
+    + _cpp_trilinear("bx + ax * fk", "by + ay * fk", "bz + az * fk", "false")
+    + r"""
+                o[k] = (T)val;
+            }
         }
     };
     switch (out_code) {
@@ -256,6 +297,8 @@ _TET_SNIPPET = (
 """
     + _CPP_INPUT
     + r"""
+    const short* __restrict__ s16 = (const short*)src_ptr;
+    (void)s16;
     const bool clip = A[15] == 0.0;
     const float ax = (float)A[2], ay = (float)A[5], az = (float)A[8];
     double px = 0.0, py = 0.0, pz = 0.0;
@@ -290,18 +333,99 @@ _TET_SNIPPET = (
         den[f] = d; szs[f] = Ff[2];
     }
     const int QUEUE = 512;
-    int kq[QUEUE];
-    i64 oq[QUEUE];
-    float bxq[QUEUE], byq[QUEUE], bzq[QUEUE], vq[QUEUE];
+    int kq[QUEUE + 8];
+    i64 oq[QUEUE + 8];
+    float bxq[QUEUE + 8], byq[QUEUE + 8], bzq[QUEUE + 8], vq[QUEUE + 8];
     int queued = 0, written = 0;
-    auto flush = [&](auto* __restrict__ o, auto zero) {
-        using T = decltype(zero);
-        const int* __restrict__ K = kq;
-        const float* __restrict__ BX = bxq;
-        const float* __restrict__ BY = byq;
-        const float* __restrict__ BZ = bzq;
-        float* __restrict__ V = vq;
-        const int cnt = queued;
+    // Sample the queued voxels into vq: one vectorized loop per (source, rounding), chosen
+    // outside the loop so that clang vectorizes each (a branch inside kept it scalar). Not
+    // inlined: the copy inlined where the queue is full (trip count 512) stayed scalar.
+    // Everything the loops read is captured by value: through references (stack slots that
+    // V might alias) clang kept a runtime alias check that sent every voxel down the scalar loop.
+    const int* const kqp = kq;
+    const float* const bxp = bxq;
+    const float* const byp = byq;
+    const float* const bzp = bzq;
+    float* const vqp = vq;
+    auto sample_queue = [kqp, bxp, byp, bzp, vqp, v, s16, mx, my, mz, sx, sy, sz, fx1, fy1, fz1,
+                         lo_v, hi_v, nearest, rounding, src_code, ax, ay, az, clampf_, pair_i16, pair_u16](
+                            const int cnt) __attribute__((noinline)) {
+        const int* __restrict__ K = kqp;
+        const float* __restrict__ BX = bxp;
+        const float* __restrict__ BY = byp;
+        const float* __restrict__ BZ = bzp;
+        float* __restrict__ V = vqp;
+        int n0 = 0;  // voxels [0, n0) done by the explicit 8-lane code, the rest by the loops below
+#if defined(__AVX2__)
+        // 8 voxels at a time with AVX2 gathers: the expressions of _cpp_trilinear lane by lane
+        // (clang left the loops below scalar). Same IEEE operations in the same order, no
+        // contraction: bit-identical to the scalar loops and the Warp reference.
+        if (!nearest && (src_code == 2 || src_code == 3 || src_code == 0)) {
+            typedef float f8 __attribute__((ext_vector_type(8)));
+            typedef int i8 __attribute__((ext_vector_type(8)));
+            auto splat = [](float x) { return (f8)x; };
+            auto isplat = [](int x) { return (i8)x; };
+            auto sel = [](i8 m, f8 a, f8 b) { return (f8)((m & (i8)a) | (~m & (i8)b)); };
+            auto isel = [](i8 m, i8 a, i8 b) { return (m & a) | (~m & b); };
+            auto clampv = [&](f8 x, f8 h) { return sel(x < splat(0.0f), splat(0.0f), sel(x > h, h, x)); };
+            const f8 vax = splat(ax), vay = splat(ay), vaz = splat(az), one = splat(1.0f);
+            const f8 hx = splat(fx1), hy = splat(fy1), hz = splat(fz1), vlo = splat(lo_v), vhi = splat(hi_v);
+            const i8 imx = isplat(mx), imy = isplat(my), imz = isplat(mz), all = isplat(-1);
+            const i8 vsx = isplat(sx), vsy = isplat(sy), vsz = isplat(sz);
+            for (; n0 + 8 <= cnt; n0 += 8) {
+                i8 kk; f8 bx8, by8, bz8;
+                __builtin_memcpy(&kk, K + n0, 32); __builtin_memcpy(&bx8, BX + n0, 32);
+                __builtin_memcpy(&by8, BY + n0, 32); __builtin_memcpy(&bz8, BZ + n0, 32);
+                const f8 fk = __builtin_convertvector(kk, f8);
+                const f8 ux = clampv(bx8 + vax * fk, hx);
+                const f8 uy = clampv(by8 + vay * fk, hy);
+                const f8 uz = clampv(bz8 + vaz * fk, hz);
+                i8 ix = __builtin_convertvector(ux, i8); ix = isel(ix < imx, ix, imx);
+                i8 iy = __builtin_convertvector(uy, i8); iy = isel(iy < imy, iy, imy);
+                i8 iz = __builtin_convertvector(uz, i8); iz = isel(iz < imz, iz, imz);
+                const f8 wx = ux - __builtin_convertvector(ix, f8);
+                const f8 wy = uy - __builtin_convertvector(iy, f8);
+                const f8 wz = uz - __builtin_convertvector(iz, f8);
+                const i8 p = ix * vsx + iy * vsy + iz * vsz;
+                f8 a00, b00, a01, b01, a10, b10, a11, b11;
+                if (src_code == 0) {
+                    auto g = [&](i8 idx) {
+                        return (f8)__builtin_ia32_gatherd_ps256(splat(0.0f), v, idx, (f8)all, 4);
+                    };
+                    a00 = g(p); b00 = g(p + vsz); a01 = g(p + vsy); b01 = g(p + vsy + vsz);
+                    a10 = g(p + vsx); b10 = g(p + vsx + vsz); a11 = g(p + vsx + vsy); b11 = g(p + vsx + vsy + vsz);
+                } else {
+                    const bool sgn = src_code == 2;
+                    auto g2 = [&](i8 idx, f8& a, f8& b) {
+                        const i8 w = (i8)__builtin_ia32_gatherd_d256(isplat(0), (const int*)s16, idx, all, 2);
+                        typedef unsigned int u8v __attribute__((ext_vector_type(8)));
+                        const u8v uw = (u8v)w;
+                        if (sgn) {
+                            a = __builtin_convertvector((w << 16) >> 16, f8);
+                            b = __builtin_convertvector(w >> 16, f8);
+                        } else {
+                            a = __builtin_convertvector((i8)(uw & 0xffffu), f8);
+                            b = __builtin_convertvector((i8)(uw >> 16), f8);
+                        }
+                    };
+                    g2(p, a00, b00); g2(p + vsy, a01, b01); g2(p + vsx, a10, b10); g2(p + vsx + vsy, a11, b11);
+                }
+                const f8 c00 = (one - wz) * a00 + wz * b00;
+                const f8 c01 = (one - wz) * a01 + wz * b01;
+                const f8 c10 = (one - wz) * a10 + wz * b10;
+                const f8 c11 = (one - wz) * a11 + wz * b11;
+                const f8 c0 = (one - wy) * c00 + wy * c01;
+                const f8 c1 = (one - wy) * c10 + wy * c11;
+                f8 val = (one - wx) * c0 + wx * c1;
+                if (rounding) {
+                    val = (f8)__builtin_ia32_roundps256(val + splat(0.5f), 9);  // floor
+                    val = sel(val < vlo, vlo, val);
+                    val = sel(val > vhi, vhi, val);
+                }
+                __builtin_memcpy(V + n0, &val, 32);
+            }
+        }
+#endif
         if (nearest) {
             for (int n = 0; n < cnt; ++n) {
                 const float fk = (float)K[n];"""
@@ -309,70 +433,107 @@ _TET_SNIPPET = (
     + r"""
                 V[n] = val;
             }
-        } else {
-            #pragma clang loop vectorize(enable) interleave(enable)
-            for (int n = 0; n < cnt; ++n) {
+            return;
+        }"""
+    + "".join(
+        f"""
+        if ({cond}) {{
+            for (int n = n0; n < cnt; ++n) {{
                 const float fk = (float)K[n];"""
-    + _cpp_trilinear("BX[n] + ax * fk", "BY[n] + ay * fk", "BZ[n] + az * fk")
-    + r"""
+        + _cpp_trilinear("BX[n] + ax * fk", "BY[n] + ay * fk", "BZ[n] + az * fk", rnd, src)
+        + """
                 V[n] = val;
             }
-        }
-        for (int n = 0; n < cnt; ++n) o[oq[n]] = (T)V[n];
-        queued = 0;
+            return;
+        }"""
+        for cond, rnd, src in (
+            ("src_code == 2 && rounding", "true", "int16"),
+            ("src_code == 3 && rounding", "true", "uint16"),
+            ("rounding", "true", "float"),
+            ("true", "false", "float"),
+        )
+    )
+    + r"""
+    };
+    auto flush = [&](auto* __restrict__ o, auto zero) {
+        using T = decltype(zero);
+        const float* __restrict__ V = vq;
+        const i64* __restrict__ O = oq;
+        const int cnt = queued;
+        for (int n = 0; n < cnt; ++n) o[O[n]] = (T)V[n];
     };
     auto flush_any = [&]() {
+        sample_queue(queued);
         switch (out_code) {
             case 1: flush((unsigned char*)out_ptr, (unsigned char)0); break;
             case 2: flush((short*)out_ptr, (short)0); break;
             case 3: flush((unsigned short*)out_ptr, (unsigned short)0); break;
             case 4: flush((float*)out_ptr, 0.0f); break;
-            default: queued = 0; break;
+            default: break;
         }
+        queued = 0;
     };
+    // Row loop without data-dependent branches in the DDA (they mispredicted on every other
+    // row): the carry of each face's remainder is a select, a face with Sz = 0 gets a divisor
+    // its remainder never reaches, and each face's part in the span is a select on its sign.
+    const i64 NOCARRY = (i64)1 << 62, LO_NONE = -((i64)1 << 62), HI_NONE = (i64)1 << 62;
+    i64 dn[4];
+    bool pos[4], neg[4], flat[4];
+    for (int f = 0; f < 4; ++f) {
+        dn[f] = den[f] > 0 ? den[f] : NOCARRY;
+        pos[f] = szs[f] > 0; neg[f] = szs[f] < 0; flat[f] = szs[f] == 0;
+    }
+    const i64 box_klo = B[4], box_khi = B[5];
     for (int i = i_first; i <= i_last; ++i) {
         const double fi = (double)i;
         px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
         i64 q[4], r[4];
+        #pragma unroll
         for (int f = 0; f < 4; ++f) { q[f] = qi[f]; r[f] = ri[f]; }
         for (int j = B[2]; j <= B[3]; ++j) {
-            i64 klo = B[4], khi = B[5];
+            i64 klo = box_klo, khi = box_khi;
+            #pragma unroll
             for (int f = 0; f < 4; ++f) {
-                if (szs[f] > 0) { const i64 c = -q[f]; klo = klo > c ? klo : c; }
-                else if (szs[f] < 0) { khi = khi < q[f] ? khi : q[f]; }
-                else if (q[f] < 0) { khi = klo - 1; }
+                const i64 c = pos[f] ? -q[f] : LO_NONE;
+                const i64 h = neg[f] ? q[f] : ((flat[f] && q[f] < 0) ? -HI_NONE : HI_NONE);
+                klo = klo > c ? klo : c;
+                khi = khi < h ? khi : h;
             }
             if (khi >= klo) {
                 written += (int)(khi - klo) + 1;
                 int lo = (int)klo, hi = (int)khi;
+                const double fj = (double)j;
                 if (clip) {
-                    const double fj = (double)j;
                     axis_range((float)(px + A[1] * fj + A[9]), (float)A[12], dims[0], lo, hi);
                     axis_range((float)(py + A[4] * fj + A[10]), (float)A[13], dims[1], lo, hi);
                     axis_range((float)(pz + A[7] * fj + A[11]), (float)A[14], dims[2], lo, hi);
                 }
-                const double fj = (double)j;
                 const float bx = (float)(px + A[1] * fj + A[9]);
                 const float by = (float)(py + A[4] * fj + A[10]);
                 const float bz = (float)(pz + A[7] * fj + A[11]);
                 const i64 row = ((i64)i * out_ny + j) * out_nz;
                 while (lo <= hi) {
                     const int take = (hi - lo + 1) < (QUEUE - queued) ? (hi - lo + 1) : (QUEUE - queued);
-                    for (int e = 0; e < take; ++e) {
-                        kq[queued + e] = lo + e; oq[queued + e] = row + lo + e;
-                        bxq[queued + e] = bx; byq[queued + e] = by; bzq[queued + e] = bz;
+                    // 8 entries at a time (the queue has 8 spare slots): short rows take one step.
+                    for (int e0 = 0; e0 < take; e0 += 8) {
+                        #pragma unroll
+                        for (int e = 0; e < 8; ++e) {
+                            const int at = queued + e0 + e;
+                            kq[at] = lo + e0 + e; oq[at] = row + lo + e0 + e;
+                            bxq[at] = bx; byq[at] = by; bzq[at] = bz;
+                        }
                     }
                     queued += take;
                     lo += take;
                     if (queued == QUEUE) flush_any();
                 }
             }
+            #pragma unroll
             for (int f = 0; f < 4; ++f) {
-                q[f] += dq[f];
-                if (den[f] > 0) {
-                    r[f] += dr[f];
-                    if (r[f] >= den[f]) { r[f] -= den[f]; q[f] += 1; }
-                }
+                r[f] += dr[f];
+                const bool carry = r[f] >= dn[f];
+                r[f] -= carry ? dn[f] : 0;
+                q[f] += dq[f] + (carry ? 1 : 0);
             }
         }
         for (int f = 0; f < 4; ++f) {
@@ -396,6 +557,8 @@ _TET_SNIPPET = (
 @wp.func_native(_TET_SNIPPET)
 def write_tet_native(
     volf: wp.array(dtype=wp.float32),
+    src_ptr: wp.uint64,
+    src_code: int,
     dims: wp.vec3i,
     strides: wp.vec3i,
     out_ptr: wp.uint64,
@@ -481,6 +644,8 @@ def inside(face: wp.array2d(dtype=wp.int64), t: int, i: int, j: int, k: int) -> 
 @wp.kernel
 def raster_tets_cpu(
     volf: wp.array(dtype=wp.float32),
+    src_ptr: wp.uint64,
+    src_code: int,
     dims: wp.vec3i,
     strides: wp.vec3i,
     out_ptr: wp.uint64,
@@ -503,7 +668,7 @@ def raster_tets_cpu(
     i_first = box[t, 0] + (s - item_offsets[t]) * slabs_per_item
     i_last = wp.min(i_first + slabs_per_item - 1, box[t, 1])
     written[s] = write_tet_native(
-        volf, dims, strides, out_ptr, out_code, wp.int64(out_shape[1]), wp.int64(out_shape[2]),
+        volf, src_ptr, src_code, dims, strides, out_ptr, out_code, wp.int64(out_shape[1]), wp.int64(out_shape[2]),
         face, affine, box, t, i_first, i_last, params,
     )
 

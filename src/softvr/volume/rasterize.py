@@ -43,6 +43,8 @@ _MAX_SUBVOXEL = 256
 _SLABS_PER_ITEM = 16
 # Output type codes of the vectorized CPU row writer (see _raster_kernels._ROW_SNIPPET).
 _OUT_CODES = {np.dtype(np.uint8): 1, np.dtype(np.int16): 2, np.dtype(np.uint16): 3, np.dtype(np.float32): 4}
+# Inputs the CPU exact spans read directly, as z-neighbour pairs (see _raster_kernels._cpp_trilinear).
+_SRC_CODES = {np.dtype(np.int16): 2, np.dtype(np.uint16): 3}
 
 
 @dataclass
@@ -240,21 +242,37 @@ class Rasterizer:
         data = np.ascontiguousarray(volume.data)
         # Kernels only read the input: on the CPU Warp shares numpy's memory.
         self._vol: wp.array = wp.array(data.reshape(-1), device=self.device, copy=self.device != "cpu")
-        # The vectorized CPU rows gather from a float32 copy (AVX gathers are 32-bit).
         self._out_code = _OUT_CODES[data.dtype] if self.device == "cpu" and vectorized_rows else 0
-        if self._out_code == 0:
-            self._volf = wp.empty(0, dtype=wp.float32, device=self.device)
-        elif data.dtype == np.float32:
-            self._volf = self._vol
-        else:
-            self._volf = wp.array(data.reshape(-1).astype(np.float32), device=self.device)
         self._dims = wp.vec3i(*data.shape)
         self._strides = wp.vec3i(*[0 if n == 1 else s // data.itemsize for n, s in zip(data.shape, data.strides)])
+        # The CPU exact spans read trilinear corners straight from the input as z-neighbour
+        # pairs (one 32- or 64-bit gather per pair) where rows are contiguous; the other CPU
+        # paths gather from a float32 copy (AVX gathers are 32-bit), made on first use.
+        self._src_code = (
+            _SRC_CODES.get(data.dtype, 0)
+            if self._out_code and self._strides[2] == 1 and interp == "linear" and self.method == "spans"
+            else 0
+        )
+        self._volf_w: wp.array | None = None
+        self._no_volf = wp.empty(0, dtype=wp.float32, device=self.device)
         self._rest_w: wp.array = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
         self._tets_w: wp.array = wp.array(self.tets, dtype=wp.int32, device=self.device)
         self.stats: RasterStats | None = None
         # Compile (first use only, then cached on disk) now rather than inside the first frame.
         load_kernels(K.raster_slabs, self.device)
+
+    @property
+    def _volf(self) -> wp.array:
+        """The input as float32 for the vectorized CPU rows (empty when they are off)."""
+        if self._volf_w is None:
+            if self._out_code == 0:
+                self._volf_w = wp.empty(0, dtype=wp.float32, device=self.device)
+            elif self._vol.dtype == wp.float32:
+                self._volf_w = self._vol
+            else:
+                data = np.ascontiguousarray(self.volume.data).reshape(-1)
+                self._volf_w = wp.array(data.astype(np.float32), device=self.device)
+        return self._volf_w
 
     # ------------------------------------------------------------------ public
     def deform(self, deformed_nodes, out_grid: Volume | None = None, *, out: Volume | None = None) -> Volume:
@@ -428,7 +446,8 @@ class Rasterizer:
                 K.raster_tets_cpu,
                 items,
                 [
-                    self._volf, self._dims, self._strides, wp.uint64(out.ptr), self._out_code,
+                    self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
+                    self._dims, self._strides, wp.uint64(out.ptr), self._out_code,
                     wp.vec3i(*shape), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
                     m, _SLABS_PER_ITEM, self._params, written,
                 ],
