@@ -66,8 +66,8 @@ def test_palpating_a_synthetic_ct(ball_ct):
         diff = np.abs(pressed_image.astype(int) - rest_image.astype(int)).max(axis=2) > 24
         rows, cols = np.nonzero(diff)
         assert len(rows) > 0
-        x, y = _project(ex._renderer, press)
-        side = _project(ex._renderer, press + (18.0, 0.0, 0.0))  # the volume bound, seen head on
+        x, y = _project(ex.volume_renderer, press)
+        side = _project(ex.volume_renderer, press + (18.0, 0.0, 0.0))  # the volume bound, seen head on
         assert np.hypot(cols - x, rows - y).max() < np.hypot(side[0] - x, side[1] - y)
         skin = ex.label_surface(1)[0]
         near = np.linalg.norm(rest_skin - press, axis=1) < 2.0

@@ -1,5 +1,20 @@
-"""The Python demos as scene files: each bundled scene builds the bodies its demo builds (an
-independent construction of the same scene, in code) and plays."""
+"""The bundled demo scenes without a leaf example of their own (candy, candy-adhesive, palpation,
+volume, shoulder-arthroscopy; the shoulder in tests/examples/test_shoulder.py) checked, each for
+a few frames, against physics and the scene file's own numbers, never against another softvr path.
+
+Truths:
+
+* Free fall. A rigid body in the air falls by 1/2 g t^2 plus the semi-implicit Euler lag
+  1/2 g dt t (velocity first, then position: x_N = x_0 + v_0 t - g dt^2 N (N + 1) / 2), and its
+  velocity changes by exactly -g t; its horizontal velocity does not change.
+* Newton's third law: bodies that touch only each other feel equal and opposite contact forces.
+* A dry contact only pushes (normal impulse >= 0): a pulling contact is adhesion; adhesion
+  intensities lie in [0, 1].
+* Clamped nodes stay where they are; keyed nodes are where their keys put them.
+* A tet map is valid while no tet inverts (its signed volume stays > 0).
+"""
+
+from __future__ import annotations
 
 import numpy as np
 import pytest
@@ -7,103 +22,70 @@ import pytest
 from softvr.cli import main
 from softvr.scene import BUNDLED, load_scene
 
+G = 9.81  # [m/s^2]
+
+
+def test_every_demo_is_a_bundled_scene_file():
+    """One definition per demo: ``softvr run NAME`` plays the bundled scene file NAME, and every
+    leaf example plays a bundled scene file."""
+    import importlib
+    import pkgutil
+
+    import softvr.examples
+    from softvr.examples.run import SCENES
+
+    assert SCENES == {p.stem: p for p in BUNDLED.glob("*.toml")}
+    leaves = [m.name for m in pkgutil.iter_modules(softvr.examples.__path__) if m.name.startswith("example_")]
+    played = {}
+    for name in leaves:
+        module = importlib.import_module(f"softvr.examples.{name}")
+        if hasattr(module, "SCENE"):
+            played[name] = module.SCENE
+            assert module.SCENE.parent == BUNDLED and module.SCENE.is_file(), name
+    assert len(played) >= 8, played
+
 
 @pytest.mark.parametrize("name", ["candy.toml", "candy-adhesive.toml"])
-def test_candy_scene_places_the_demos_candies(name, capsys):
-    from softvr.examples.example_candy import FULL_SCALE, Example
-
+def test_candy_hard_pieces_fall_freely_then_land_on_the_jello(name, capsys):
+    """Two frames (0.08 s of 8 ms steps): the hard candies are still in the air, so each falls
+    exactly as semi-implicit Euler integrates gravity; nothing sinks into the Jell-O."""
     assert main(["check", name]) == 0
-    adhesive = name == "candy-adhesive.toml"
-    with load_scene(BUNDLED / name, frames=2, width=64, height=48) as scene, \
-            Example(frames=2, scale=FULL_SCALE, adhesion=adhesive) as demo:
-        # The drawn candy surfaces: the same icosphere / box surface, stretched, turned and placed
-        # (the file holds the demo's seeded turns in degrees to 1e-6: ~1e-9 m at 3 cm).
-        for k, (points, _) in enumerate(demo.candy_surfaces):
-            kind = "soft" if k % 2 == 0 else "hard"
-            np.testing.assert_allclose(scene._drawn_by_name[f"{kind} candy {k}"].vertices(), points.positions(), atol=1e-7)
-            body, twin = scene.bodies[f"{kind} candy {k}"], demo.candies[k]
-            if kind == "hard":
-                np.testing.assert_allclose(body.v, twin.v, atol=1e-5)
-                assert body.mass == pytest.approx(twin.mass, rel=1e-12)
-            else:  # both weigh rho x the candy's volume, spread over their own tets
-                assert body.mass.sum() == pytest.approx(twin.mass.sum(), rel=0.015)
-        np.testing.assert_allclose(scene.bodies["jello"].q, demo.block.q, atol=1e-12)
-        np.testing.assert_array_equal(scene.bodies["jello"].fixed, demo.block.fixed)
-        np.testing.assert_allclose(scene._drawn_by_name["jello"].vertices(), demo.block_surface.positions(), atol=1e-12)
-        if adhesive:  # the demo's adhesion of each body (softvr.contact.Adhesion fields)
-            for i, body in enumerate([demo.block] + demo.candies):
-                ours = scene.scene._adhesion[("body", scene.index[body.name])]
-                assert vars(ours) == vars(demo.scene._adhesion[("body", i)])
+    with load_scene(BUNDLED / name, frames=2, width=48, height=32) as scene:
+        hard = {n: b for n, b in scene.bodies.items() if n.startswith("hard candy")}
+        assert len(hard) >= 4
+        x0 = {n: b.position.copy() for n, b in hard.items()}
+        v0 = {n: b.velocity.copy() for n, b in hard.items()}
         for _ in range(2):
             record = scene.step()
-        assert record["max_penetration_m"] < 1e-3
+        t, dt = scene.scene.time, scene.dt
+        for n, body in hard.items():
+            np.testing.assert_allclose(body.velocity - v0[n], [0.0, 0.0, -G * t], atol=1e-12)
+            fall = body.position[2] - x0[n][2] - v0[n][2] * t
+            assert fall == pytest.approx(-0.5 * G * t**2 - 0.5 * G * dt * t, abs=1e-12)
+        assert record["max_penetration_m"] < G * dt**2
 
 
-def test_lips_scene_moves_as_the_demo(capsys):
-    """Same tet mesh (the file holds the demo's lip), held jaws and jaw path. While pressed and
-    held the nodes follow the demo's within 10 um (1 % of the 1 mm bulge; the file's 180-degree
-    turn differs from the demo's exact flip by ~1e-16 m, and the contact solve, at its sweep
-    limit, carries that to ~2e-6 m). Peeling is a threshold process, so from then on the test
-    compares when the lips let go: within one frame (20 ms) of the demo."""
-    from softvr.examples.example_lips import Example
-
-    assert main(["check", "lips.toml"]) == 0
-    frames = 30  # press (10 frames), hold (10), open
-    with load_scene(BUNDLED / "lips.toml", frames=frames, width=64, height=48) as scene, Example(frames=frames) as demo:
-        lips = [scene.bodies["upper lip"], scene.bodies["lower lip"]]
-        for body, twin in zip(lips, demo.lips):
-            np.testing.assert_allclose(body.q, twin.q, atol=1e-12)
-            np.testing.assert_array_equal(body.fixed, twin.fixed)
-            assert body.fixed.sum() == np.isclose(body.q[:, 2], body.q[body.fixed, 2][0]).sum()  # the outer face only
-        parted = {}
-        for frame in range(frames):
-            ours, theirs = scene.step(), demo.step()
-            if frame < 22:
-                for body, twin in zip(lips, demo.lips):
-                    np.testing.assert_allclose(body.q, twin.q, atol=1e-5)
-            if frame == 10:  # pressed, holding: the wet lips bond
-                assert max(scene.scene.adhesion_state.intensity.values()) > 0.9
-            for who, record in (("scene", ours), ("demo", theirs)):
-                if record["contacts"] == 0 and frame > 10:
-                    parted.setdefault(who, frame)
-        # Both let go while opening (the jaws 0.5 mm past their start at 0.5 s, 2.5 mm at 0.6 s).
-        assert set(parted) == {"scene", "demo"} and abs(parted["scene"] - parted["demo"]) <= 1
-        assert parted["demo"] > 22
-        jaw = lips[0].q[lips[0].fixed, 2].mean() - lips[1].q[lips[1].fixed, 2].mean()
-        assert jaw == pytest.approx(0.026 + 2 * 0.0025, abs=1e-9)  # 0.6 s: each jaw 2.5 mm out
-
-
-def test_shoulder_scene_is_the_demos_model_tools_and_path(capsys):
-    """The parts file the scene names holds the demo's procedural anatomy, so the model pipeline
-    builds the same bodies and springs; the handle's 50 ms keyframes of the demo's path differ
-    from it by < 0.02 mm (chord error of its 2 s press), so over 0.8 s the tool moves with the
-    demo's within 0.1 mm (the two haptic processes read their handles at their own instants)."""
-    from softvr.examples.example_shoulder import Example
-
-    assert main(["check", "shoulder.toml"]) == 0
-    assert "12 model parts (8 soft)" in capsys.readouterr().out
-    frames = 20
-    with load_scene(BUNDLED / "shoulder.toml", frames=frames, width=64, height=48) as scene, \
-            Example(frames=frames) as demo:
-        assert sorted(scene.bodies) == sorted([*demo.bodies, "finger", "inner finger"])
-        assert [len(c) for c in scene.scene.couplings] == [len(c) for c in demo.scene.couplings]
-        for name, body in demo.bodies.items():
-            if hasattr(body, "q"):
-                np.testing.assert_array_equal(scene.bodies[name].q, body.q)
-        finger = scene.bodies["finger"]
-        for _ in range(frames):
-            record = scene.step()
-            demo.step()
-            np.testing.assert_allclose(finger.position, demo.tools[0][0].position, atol=1e-4)
-            np.testing.assert_allclose(scene.bodies["inner finger"].position, demo.tools[1][0].position, atol=1e-4)
-        assert record["max_penetration_m"] < 1e-3
-        assert scene.tools[0].loop.period_stats()["p50_ms"] == pytest.approx(1.0, abs=0.1)  # the 1 kHz loop ran
-        np.testing.assert_allclose(scene.bodies["deltoid"].q, demo.bodies["deltoid"].q, atol=1e-4)
+def test_adhesive_candies_pull_on_the_jello_once_they_bond():
+    """The same drop with adhesive surfaces: once the candies have landed and bonded, some
+    contacts pull (normal impulse < 0, which a dry contact never does), every intensity in
+    [0, 1]; the plain candy scene never pulls."""
+    pulled = {}
+    for name in ("candy.toml", "candy-adhesive.toml"):
+        with load_scene(BUNDLED / name, frames=6, width=48, height=32) as scene:
+            pulls = 0
+            for _ in range(6):
+                scene.step()
+                impulses = [i for i in scene.scene.last_solution.impulses if len(i)]
+                pulls = max(pulls, sum(int((i[:, 0] < 0).sum()) for i in impulses))
+                beta = np.array(list(scene.scene.adhesion_state.intensity.values()))
+                assert ((beta >= 0) & (beta <= 1)).all()
+            pulled[name] = pulls
+    assert pulled["candy.toml"] == 0 and pulled["candy-adhesive.toml"] > 0, pulled
 
 
 def test_shoulder_arthroscopy_scene_checks_and_plays(capsys):
     assert main(["check", "shoulder-arthroscopy.toml"]) == 0
-    with load_scene(BUNDLED / "shoulder-arthroscopy.toml", frames=3, width=64, height=48) as scene:
+    with load_scene(BUNDLED / "shoulder-arthroscopy.toml", frames=3, width=64, height=48, haptics=False) as scene:
         probe = scene.index["probe"]
         for name in ("scapula", "humerus"):  # the portal: the probe passes the bones
             assert not scene.scene.collision_enabled(probe, scene.index[name])
@@ -111,33 +93,34 @@ def test_shoulder_arthroscopy_scene_checks_and_plays(capsys):
         for _ in range(3):
             record = scene.step()
         assert record["max_penetration_m"] < 1e-3
-        assert scene.bodies["probe"].position[0] < 0.075  # on its way in under the acromion
+        assert scene.bodies["probe"].position[0] < 0.075  # on its way in under the acromion (from x = 75 mm)
 
 
-def test_palpation_scene_deforms_and_draws_the_ct_as_the_demo(capsys):
-    """The [volume] builds the demo's tissue FEM (same cubes, per-tet materials, clamped bone,
-    skin) and the probe's keyframes are the demo's path at every step time, so the nodes move
-    exactly as the demo's; the rasterized CT equals the demo's but for voxels of nodes that
-    moved by the redraw tolerance (10 um) within float round-off of it: < 0.01 % of them."""
-    from softvr.examples.example_palpation import Example
-
+def test_palpation_presses_the_cheek_and_holds_the_skull(capsys):
+    """palpation.toml: the probe (kinematic) starts 2 mm off the cheek's skin and goes 5 mm past
+    it at 0.2 s (its front travels 7 mm). Clamped
+    (bone) nodes never move; the probe touches only the head, so their contact forces are equal
+    and opposite; the contact is dry, so the cheek only pushes the probe back out (+y, the way it
+    came: never a pull), and it does push once the probe is in; the CT is drawn through the tets."""
     assert main(["check", "palpation.toml"]) == 0
     assert "a volume body 'head'" in capsys.readouterr().out
-    frames = 40
-    with load_scene(BUNDLED / "palpation.toml", frames=frames, width=96, height=96) as scene, \
-            Example(frames=frames, width=96, height=96) as demo:
-        head = scene.bodies["head"]
-        np.testing.assert_array_equal(head.q, demo.body.q)
-        np.testing.assert_array_equal(head.fixed, demo.body.fixed)
-        np.testing.assert_array_equal(head.mass, demo.body.mass)
-        deepest = 0.0
-        for frame in range(frames):
+    with load_scene(BUNDLED / "palpation.toml", frames=20, width=96, height=96) as scene:
+        head, probe = scene.bodies["head"], scene.bodies["probe"]
+        rest = head.q.copy()
+        front = probe.position[1] - 0.012  # [m] the probe's front (radius 12 mm) at the start
+        held = head.fixed.copy()
+        assert held.any()
+        deepest, push = 0.0, []
+        for _ in range(20):
             record = scene.step()
-            demo.step()
-            np.testing.assert_allclose(head.q, demo.body.q, atol=1e-12)
-            assert (scene.volume.deformed.data != demo.deformed.data).mean() < 1e-4
-            deepest = max(deepest, demo.indentation())
-        assert deepest > 0.004  # the probe went ~5 mm into the cheek
+            np.testing.assert_array_equal(head.q[held], rest[held])
+            s = scene.scene.last_solution
+            fp, fh = s.force_on(scene.index["probe"], scene.dt), s.force_on(scene.index["head"], scene.dt)
+            np.testing.assert_allclose(fp, -fh, atol=1e-9 * max(1.0, np.abs(fp).max()))
+            push.append(float(fp[1]))
+            deepest = max(deepest, front - (probe.position[1] - 0.012) - 0.002)  # past the skin
+        assert deepest == pytest.approx(0.005, abs=1e-6)  # the keys' 5 mm
+        assert max(push) > 0.1 and min(push) >= -1e-9 * max(push)  # [N]
         assert record["raster_voxels"] >= 0 and "raster_ms" in record
         image = scene.render()
     # The CT is drawn (skin colours in the middle of the image), not just the probe.
@@ -145,22 +128,31 @@ def test_palpation_scene_deforms_and_draws_the_ct_as_the_demo(capsys):
     assert (middle[:, 0] - middle[:, 2] > 40).mean() > 0.3
 
 
-def test_volume_scene_follows_the_demos_press_and_twist(capsys):
-    """The node animation holds the demo's press_and_twist at every frame's time (float32 in
-    metres: < 1e-7 m off), on the demo's mesh (the whole 16 x 16 x 8 grid)."""
-    from softvr.examples.example_volume_deform import Example, press_and_twist
-
+def test_volume_follows_its_animation_which_inverts_no_tet(capsys):
+    """volume.toml: the head's nodes are keyed (volume/press-and-twist.npz), so at every frame
+    they are the keys linearly interpolated at its time; no key inverts a tet (signed volumes
+    stay > 0: the rasterization through them is a valid map), and the CT is drawn through them."""
     assert main(["check", "volume.toml"]) == 0
-    frames = 36
-    demo = Example(frames=frames)
+    frames = 4
+    with np.load(BUNDLED / "volume" / "press-and-twist.npz") as f:
+        times, keys = np.asarray(f["times"]), np.asarray(f["nodes"], float)
     with load_scene(BUNDLED / "volume.toml", frames=frames, width=96, height=72) as scene:
-        head = scene.bodies["head"]
-        np.testing.assert_array_equal(head.tets, demo.tets)
-        np.testing.assert_allclose(head.q, demo.nodes * 1e-3, atol=1e-12)
-        for frame in range(frames):
+        head = scene.bodies["head"]  # the keys are in metres, float32 (0.1 um at 0.3 m)
+        tets = head.tets
+
+        def signed_volumes(x):
+            a, b, c, d = (x[tets[:, k]] for k in range(4))
+            return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6.0
+
+        rest_volumes = signed_volumes(keys[0])
+        for k in range(len(keys)):
+            assert (signed_volumes(keys[k]) / rest_volumes).min() > 0.3, k
+        for _ in range(frames):
             record = scene.step()
-            want = press_and_twist(demo.nodes, demo.bounds, frame / (frames - 1), demo.press_point) * 1e-3
-            np.testing.assert_allclose(head.q, want, atol=1e-7)
+            t = scene.scene.time
+            j = np.searchsorted(times, t) - 1
+            w = (t - times[j]) / (times[j + 1] - times[j])
+            np.testing.assert_allclose(head.q, (1 - w) * keys[j] + w * keys[j + 1], atol=1e-7)
         assert record["raster_voxels"] > 0
         image = scene.render()
     middle = image[24:48, 32:64].reshape(-1, 3).astype(int)
@@ -186,10 +178,3 @@ def test_volume_section_errors_are_named_at_once(tmp_path):
                     'animation = "short.npz"\n')
     with pytest.raises(InputError, match=r"short.npz: nodes: expected \[2, 75, 3\]"):
         load_scene(good, frames=1)
-
-
-def test_every_demo_has_its_scene_file():
-    from softvr.examples.run import SCENES
-
-    demos = set(SCENES) | {"volume", "palpation", "shoulder-arthroscopy", "candy-adhesive"}
-    assert demos == {p.stem for p in BUNDLED.glob("*.toml")}

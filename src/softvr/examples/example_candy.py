@@ -9,11 +9,15 @@ are soft (FEM balls and beans with embedded icosphere surfaces), half rigid (box
 balls); they rain down in a shuffled grid, bounce, squash the block and pile up on it. Every
 pair of collision surfaces meets vertex-triangle and edge-edge.
 
-With ``adhesion=True`` (``--adhesion``) the Jell-O is adhesive (C = 4e7 N/m^3, the thesis'
+With ``adhesion=True`` the Jell-O is adhesive (C = 4e7 N/m^3, the thesis'
 value) and every candy has its own adhesion stiffness (1e6 to 4e7 N/m^3), so the pieces bond
 to the block, and debond as it wobbles, at different rates (thesis 4.4). Without it this is
 the plain contact scene of the candy-scale benchmark (``softvr bench contact``); both run in
-``softvr bench adhesion``. Run ``softvr run candy``.
+``softvr bench adhesion``.
+
+The demo is the bundled scene file ``candy.toml`` (``candy-adhesive.toml`` with adhesion), which
+``softvr run candy`` plays. This Python construction remains for the benches alone: they build the
+scene at two scales (:data:`SMALL_SCALE` for ``--quick``), and a scene file holds one.
 """
 
 from __future__ import annotations
@@ -22,12 +26,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.examples.example_oranges import orange_mesh
 from softvr.model.shapes import box_surface, icosphere
-from softvr.app import Player, check_run_args, record_from_args, run_parser
+from softvr.app import Player
 
 __all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",
-           "main"]
+           "orange_mesh"]
 
 #: 4 s at 25 frames per second.
 DEFAULT_FRAMES = 100
@@ -41,6 +44,33 @@ CANDY_STIFFNESS = (4e7, 1e6, 1e7, 4e6)
 _JELLO = (0.95, 0.25, 0.3)
 _CANDY_COLORS = [(0.98, 0.8, 0.2), (0.3, 0.7, 0.95), (0.55, 0.9, 0.35), (0.95, 0.5, 0.85), (1.0, 0.6, 0.2),
                  (0.6, 0.45, 0.95), (0.95, 0.95, 0.95), (0.2, 0.85, 0.75)]
+
+
+def orange_mesh(radius: float, voxels: int = 12, cells: int = 4):
+    """Tet mesh around a sphere of ``radius`` [m] centred at the origin, and the sphere's surface.
+
+    A ``voxels``^3 grid spanning 2.4 radii holds the sphere mask; :func:`grid_tet_mesh`
+    keeps the ``cells``^3 cubes touching it (5 tets each; 280 tets for the defaults). The
+    rendered surface (an icosphere) has the given radius, which at most ``5 / 6`` of the mask
+    radius in voxel units keeps every surface point inside a kept cube.
+
+    Returns
+    -------
+    nodes [n, 3] [m], tets [m, 4], surface vertices [k, 3] [m], surface triangles [t, 3],
+    mask volume fraction (sphere volume / tet mesh volume)
+    """
+    from softvr.volume import Volume, grid_tet_mesh
+    from softvr.volume.tetmesh import tet_signed_volumes
+
+    h = 2.4 * radius / voxels
+    c = (voxels - 1) / 2
+    x, y, z = np.mgrid[:voxels, :voxels, :voxels] - c
+    mask = x**2 + y**2 + z**2 <= (voxels / 2) ** 2
+    grid = Volume(mask.astype(np.uint8), spacing=np.full(3, h), origin=np.full(3, -c * h))
+    nodes, tets = grid_tet_mesh(grid, cells, mask=mask)
+    verts, tris = icosphere(2)
+    fraction = 4 / 3 * np.pi * radius**3 / float(tet_signed_volumes(nodes, tets).sum())
+    return nodes, tets, radius * verts, tris, fraction
 
 
 @dataclass(frozen=True)
@@ -222,20 +252,3 @@ class Example(Player):
         return {**super().describe(), "tets": self.tet_count, "collision_triangles": self.triangle_count,
                 "candies": len(self.candies), "friction": self.plane.friction, "adhesion": self.adhesion}
 
-
-def main(argv: list[str] | None = None, prog: str | None = None) -> int:
-    """Run the candy demo to ``<out>/candy.mp4``, ``_sheet.png`` and ``_metrics.json``."""
-    parser = run_parser(prog or "softvr run candy", __doc__.splitlines()[0], DEFAULT_FRAMES)
-    parser.add_argument("--small", action="store_true", help="a ~1 K-tet version instead of the thesis' scale")
-    parser.add_argument("--adhesion", action="store_true", help="adhesive Jell-O and candies (thesis Fig. 4.1)")
-    args = parser.parse_args(argv)
-    check_run_args(parser, args)
-    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
-                      scale=SMALL_SCALE if args.small else FULL_SCALE, adhesion=args.adhesion)
-    with example:
-        record_from_args(example, args)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -6,25 +6,27 @@ units (:mod:`softvr.model.tissue`), and the nodes of bone-dense tets are clamped
 holds the soft tissue. A round probe presses into the cheek and withdraws; the co-rotational
 FEM deforms under it through frictional contact. Every frame the CT is rasterized from the
 deformed mesh — only the box around the tets that moved (:meth:`softvr.volume.Rasterizer.update`)
-— and volume-rendered. Run ``softvr demo palpation`` (``--input FILE`` for another CT);
-``softvr view palpation`` plays the same scene as a scene file (``palpation.toml``) in a window.
+— and volume-rendered.
+
+The demo is the bundled scene file ``palpation.toml`` (``softvr demo palpation``, ``softvr view
+palpation``). This :class:`~softvr.app.Player` remains for what a scene file does not hold: a
+segmentation deformed with the CT (``labels``, :meth:`Example.label_surface`), the choice of volume
+renderer and its ray step, which ``softvr bench palpation`` measures.
 """
 
 from __future__ import annotations
 
-import argparse
 import time
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from softvr.app import DEFAULT_OUT, add_device_option, out_folder, record
-from softvr.volume import load
+from softvr.app import Player
 
 if TYPE_CHECKING:  # vtk loads with the first frame drawn
     from softvr.render import VolumeRenderer
 
-__all__ = ["Example", "main", "press_point"]
+__all__ = ["Example", "press_point"]
 
 _UNIT = 1e-3  # metres per millimetre: CT geometry is in mm, the FEM in m
 _SKIN_HU = -300.0  # between air (-1000) and fat (-100)
@@ -44,8 +46,11 @@ def press_point(volume, *, threshold: float = -300.0, lateral: float = 0.15) -> 
     return volume.index_to_world(np.array([x, y, nose[2]]))
 
 
-class Example:
-    """A CT palpated by a probe (module docstring).
+class Example(Player):
+    """A CT palpated by a probe (module docstring), played as a :class:`~softvr.app.Player`:
+    per step the FEM and the contacts, per frame the CT rasterized where the mesh moved
+    (:meth:`update_volume`), its metrics (``fem_ms``, ``raster_ms``, ``raster_voxels``,
+    ``indentation_m``, ``max_displacement_m`` besides the player's), and volume rendering.
 
     Parameters
     ----------
@@ -116,16 +121,16 @@ class Example:
         skin, skin_triangles = collision_mesh(skin * _UNIT, skin_triangles, skin_triangles_budget)
         tet_index, weights = embed_surface(self.nodes * _UNIT, self.tets, skin)
         self.skin_triangles = skin_triangles
-        scene.add_body(self.body, collision_points=EmbeddedPoints(self.body, self.tets[tet_index], weights),
-                       collision_triangles=skin_triangles)
+        self.skin = EmbeddedPoints(self.body, self.tets[tet_index], weights)
+        scene.add_body(self.body, collision_points=self.skin, collision_triangles=skin_triangles)
         self.target = press_point(volume) * _UNIT
         self.radius, self.depth = float(radius), float(depth)
+        # (Player.__init__ sets them again; the probe's path reads them as it is made.)
         self.frames, self.dt, self.steps_per_frame = max(int(frames), 2), float(dt), int(steps_per_frame)
         self.probe = KinematicBody(self.pose, name="probe")
         unit_sphere, faces = icosphere(2)
         scene.add_body(self.probe, collision_points=RigidPoints(self.probe, unit_sphere * radius),
                        collision_triangles=faces)
-        self.scene = scene
         # Embedding tets in the air in front of the skin fold as the skin is pressed: skip them.
         # Node motion under 0.01 mm is drawn once it adds up.
         self.drawing = DeformedVolume(volume, self.nodes, self.tets, tolerance=0.01, incremental=incremental,
@@ -139,7 +144,6 @@ class Example:
             self.label_drawing = DeformedVolume(labels, self.nodes, self.tets, tolerance=0.01,
                                                 incremental=incremental, device=device, inverted="skip",
                                                 interpolation="nearest", background=0)
-        self.width, self.height = width, height
         self.preset, self.azimuth = "ct-skin", -40.0
         if not (isinstance(render_step, int) and render_step >= 1):
             from softvr.errors import InputError
@@ -150,10 +154,12 @@ class Example:
 
             raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
         self.render_step, self.renderer, self.sample_distance = render_step, renderer, float(sample_distance)
-        self._changed = True  # what the rasterizer rewrote since the last render: everything at first
-        self.frame = 0
-        self.metrics: list[dict] = []
-        self._renderer: VolumeRenderer | None = None
+        self._changed: bool | tuple = True  # what the rasterizer rewrote since the last render: everything at first
+        super().__init__(scene, self.dt, self.steps_per_frame, self.frames, width, height)
+        #: The volume renderer (made with the first frame drawn; the player's surface renderer is not used).
+        self.volume_renderer: VolumeRenderer | None = None
+        # The video shows the 0.4 s press slowed down: 12 frames per second, not 1 / (dt * steps).
+        self.fps = 12.0
 
     def pose(self, t: float):
         """Probe centre [m] and orientation at time ``t`` [s]: from 2 mm off the skin along -y
@@ -168,22 +174,30 @@ class Example:
         """How far [m] the probe's front is past the rest skin point (negative: not touching)."""
         return float(self.target[1] - (self.probe.position[1] - self.radius))
 
-    def step(self):
-        """One frame: the FEM steps, then the volume is rasterized where the mesh moved."""
+    # -- the player's hooks -----------------------------------------------------------------
+    def penetration(self) -> float:
+        """Deepest skin point inside the probe sphere [m]."""
+        inside = self.radius - np.linalg.norm(self.skin.positions() - self.probe.position, axis=1)
+        return max(0.0, float(inside.max()))
+
+    def update_volume(self) -> dict:
+        """Rasterize the CT (and the labels) where the mesh moved; the frame's raster metrics."""
         t0 = time.perf_counter()
-        for _ in range(self.steps_per_frame):
-            self.scene.step(self.dt)
-        t1 = time.perf_counter()
         drawn = self.drawing.update(self.body.q / _UNIT)
         self._note_changed(drawn["box"])
         if self.labels is not None:
             self.label_drawing.update(self.body.q / _UNIT)
-        t2 = time.perf_counter()
-        self.metrics.append({"frame": self.frame, "fem_ms": 1e3 * (t1 - t0), "raster_ms": 1e3 * (t2 - t1),
-                             "raster_voxels": drawn["raster_voxels"], "indentation_m": self.indentation(),
-                             "max_displacement_m": float(np.linalg.norm(self.body.q - self.body.rest, axis=1).max())})
-        self.frame += 1
-        return self.deformed
+        return {"raster_ms": 1e3 * (time.perf_counter() - t0), "raster_voxels": drawn["raster_voxels"]}
+
+    def frame_metrics(self) -> dict:
+        return {"indentation_m": self.indentation(),
+                "max_displacement_m": float(np.linalg.norm(self.body.q - self.body.rest, axis=1).max())}
+
+    def step(self) -> dict:
+        """One frame (:meth:`softvr.app.Player.step`); ``fem_ms`` is its physics (``step_ms``)."""
+        record = super().step()
+        record["fem_ms"] = record["step_ms"]
+        return record
 
     def _note_changed(self, box) -> None:
         """Grow the region the renderer must re-derive by ``box`` (None: nothing new)."""
@@ -222,25 +236,26 @@ class Example:
         from softvr.render import Camera, VolumeRenderer
 
         t0 = time.perf_counter()
-        if self._renderer is None:
-            self._renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
+        if self.volume_renderer is None:
+            self.volume_renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
                                             camera=Camera("front", azimuth=self.azimuth, elevation=5, zoom=1.3),
                                             mapper="warp" if self.renderer == "warp" else "cpu",
                                             sample_distance=self.sample_distance)
             self._probe_actor = _probe_actor(self.radius / _UNIT)
-            self._renderer.vtk_renderer.AddActor(self._probe_actor)
+            self.volume_renderer.vtk_renderer.AddActor(self._probe_actor)
         # The probe as a surface in the same frame: in front of the skin it hides it, pressed
         # in it is hidden by the skin around it.
         self._probe_actor.SetPosition(*(np.asarray(self.probe.position) / _UNIT))
         if self.renderer == "warp":
             # The rewritten box is in full-resolution voxels: a subsampled volume is redone whole.
             changed = self._changed if self.render_step == 1 else True
-            image = self._renderer.render(self.shown_volume(), changed=changed)
+            image = self.volume_renderer.render(self.shown_volume(), changed=changed)
         else:
-            image = self._renderer.render(self.shown_volume())
+            image = self.volume_renderer.render(self.shown_volume())
         self._changed = False
         if self.metrics:
             self.metrics[-1]["render_ms"] = 1e3 * (time.perf_counter() - t0)
+            self.metrics[-1]["wall_ms"] = self.metrics[-1]["step_ms"] + self.metrics[-1]["render_ms"]
         return image
 
     def label_surface(self, label: int) -> tuple[np.ndarray, np.ndarray]:
@@ -257,7 +272,7 @@ class Example:
         return iso_surface(mask, 0.5)
 
     def describe(self) -> dict:
-        return {"volume": repr(self.volume), "tets": len(self.tets), "nodes": len(self.nodes),
+        return {**super().describe(), "volume": repr(self.volume), "tets": len(self.tets), "nodes": len(self.nodes),
                 "clamped_nodes": int(self.body.fixed.sum()), "press_point_m": self.target.tolist(),
                 "young_pa_min_median_max": [float(np.min(self.tissue.young)), float(np.median(self.tissue.young)),
                                             float(np.max(self.tissue.young))],
@@ -266,32 +281,23 @@ class Example:
 
     # -- what softvr.app.record reads ---------------------------------------------------
     name = "palpation"
-    fps = 12.0
 
     def summary(self) -> dict:
-        """Median ms per frame of the FEM step, the rasterization and the rendering; the deepest indentation [m]."""
+        """The player's summary, and median ms per frame of the FEM step, the rasterization and
+        the rendering; the deepest indentation [m]."""
         med = {f"{k}_median": float(np.median([m.get(k, 0.0) for m in self.metrics]))
                for k in ("fem_ms", "raster_ms", "render_ms")}
-        return {"frames": len(self.metrics), **med,
-                "max_indentation_m": max(m["indentation_m"] for m in self.metrics)}
+        return {**super().summary(), **med, "max_indentation_m": max(m["indentation_m"] for m in self.metrics)}
 
     def status(self) -> str:
         m = self.metrics[-1]
         return f"indentation {m['indentation_m'] * 1e3:.2f} mm, raster {m['raster_ms']:.0f} ms"
 
-    def write_plots(self, doc: dict, out) -> list:
-        return []
-
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        if self.volume_renderer is not None:
+            self.volume_renderer.close()
+            self.volume_renderer = None
+        super().close()
 
 
 def _probe_actor(radius_mm: float):
@@ -311,33 +317,3 @@ def _probe_actor(radius_mm: float):
     actor.GetProperty().SetSpecular(0.4)
     return actor
 
-
-def main(argv: list[str] | None = None) -> int:
-    """``softvr demo palpation``: MP4, PNG contact sheet and JSON metrics of a palpated CT."""
-    p = argparse.ArgumentParser(prog="softvr demo palpation", description=__doc__.splitlines()[0])
-    p.add_argument("--input", help="CT volume file (Hounsfield units) instead of the bundled head CT")
-    p.add_argument("--out", default=None, metavar="DIR", help=f"output folder (default ./{DEFAULT_OUT}/palpation)")
-    p.add_argument("--frames", type=int, default=40)
-    p.add_argument("--cells", type=int, nargs=3, default=(16, 16, 8), metavar=("CX", "CY", "CZ"))
-    p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"))
-    p.add_argument("--full", action="store_true", help="rasterize the whole volume every frame")
-    p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
-    p.add_argument("--renderer", choices=("warp", "vtk"), default="warp",
-                   help="volume renderer: softvr's Warp ray caster (default) or VTK's CPU ray caster")
-    add_device_option(p)
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    args = p.parse_args(argv)
-    if args.frames < 2:
-        p.error(f"--frames: expected an integer >= 2, got {args.frames}")
-    volume = load(args.input) if args.input else None
-    with Example(volume, tuple(args.cells), args.frames, *args.size, incremental=not args.full,
-                 render_step=args.render_step, renderer=args.renderer, device=args.device) as ex:
-        if not args.quiet:
-            print(f"softvr demo palpation: {ex.volume!r}; {len(ex.tets)} tets, {int(ex.body.fixed.sum())} clamped "
-                  f"nodes (bone), mass {ex.body.mass.sum():.2f} kg", flush=True)
-        record(ex, out_folder(args.out, ex.name), progress=not args.quiet)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -13,9 +13,14 @@ soft part (or per chain of coupled parts), contacts join them into contact islan
 The tool is a rigid sphere on a virtual coupling to the handle of a haptic device
 (:class:`softvr.haptics.HapticTool`); the device follows a scripted palpation path in
 simulated time, and a :class:`softvr.haptics.HapticLoop` thread renders its force at 1 kHz
-(``--no-haptics`` drives the handle without the thread). Per frame the metrics hold the force
+(``haptics=False`` drives the handle without the thread). Per frame the metrics hold the force
 on the hand, the deepest contact gap and the haptic loop's period; ``shoulder_force.png``
-plots them. Run ``softvr demo shoulder`` (or ``softvr run shoulder``).
+plots them.
+
+The demo is the bundled scene file ``shoulder.toml`` (``shoulder-arthroscopy.toml``), which
+``softvr demo shoulder`` plays; its handle's keyframes sample :func:`palpation_path` every 50 ms.
+This Python construction remains for ``softvr bench shoulder`` alone, which reads what a scene
+file's player does not report (the hand's force per frame, the coupling islands) at its own steps.
 """
 
 from __future__ import annotations
@@ -25,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from softvr.app import Player, check_run_args, record_from_args, run_parser
+from softvr.app import Player
 
-__all__ = ["DEFAULT_FRAMES", "Example", "main", "palpation_path"]
+__all__ = ["DEFAULT_FRAMES", "Example", "palpation_path"]
 
 #: 12 s at 25 frames per second (the test runs 60 s of it).
 DEFAULT_FRAMES = 300
@@ -218,21 +223,3 @@ class Example(Player):
                 "coupling_islands": sum(1 for u in self.scene.solve_units()[0] if hasattr(u, "members")),
                 "haptic_loop": self.haptics, "model_crossings": self.model.crossings}
 
-
-def main(argv: list[str] | None = None, prog: str | None = None) -> int:
-    """Run the shoulder demo to ``<out>/shoulder.mp4``, ``_sheet.png``, ``_metrics.json``, ``_force.png``."""
-    parser = run_parser(prog or "softvr demo shoulder", __doc__.splitlines()[0], DEFAULT_FRAMES)
-    parser.add_argument("--variant", choices=("palpation", "arthroscopy"), default="palpation",
-                        help="palpation (two fingers, deltoid) or arthroscopy (a probe), default palpation")
-    parser.add_argument("--no-haptics", action="store_true", help="no 1 kHz haptic thread")
-    args = parser.parse_args(argv)
-    check_run_args(parser, args)
-    example = Example(frames=args.frames, width=args.size[0], height=args.size[1],
-                      variant=args.variant, haptics=not args.no_haptics)
-    with example:
-        record_from_args(example, args)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,261 @@
+"""Every leaf example (``softvr/examples/example_<topic>.py``) played headless for a few frames,
+and what its scene did checked against physics, never against another softvr path.
+
+The truths, each stated where it is checked:
+
+* Free fall. Before a body touches anything only gravity acts, so its centre of mass falls by
+  1/2 g t^2 and its velocity changes by -g t; the integrators (velocity first, then position:
+  semi-implicit / backward Euler) put the position after N steps of dt at
+  -g dt^2 N (N + 1) / 2 = -1/2 g t^2 - 1/2 g dt t, a lag of exactly 1/2 g dt t, which is the
+  tolerance. Mass-proportional (Rayleigh) damping alpha turns the fall into
+  z(t) = (g / alpha) (t - (1 - exp(-alpha t)) / alpha).
+* Momentum. Without horizontal forces (in the air) the horizontal momentum of every body stays
+  what it was; between two bodies that touch only each other the contact forces are equal and
+  opposite (Newton's third law).
+* Energy. Backward Euler, inelastic contact and adhesion only dissipate, so kinetic plus
+  gravitational energy never exceeds its start value (elastic energy, >= 0, is zero at the start
+  of every scene here); float round-off over a few hundred steps stays below 1e-9 of it.
+* Contact. A resting or landing contact is solved at the velocity level with speculative gaps:
+  what one step's gravity carries past the surface, g dt^2, bounds the overlap after the solve;
+  a kinematic body moving at v carries at most v dt into a surface.
+* Rest. A stack of boxes of height h rests with box i's centre at (2 i + 1) h / 2, each of the
+  i + 1 contacts below it overlapping by at most g dt^2, and never above where it started.
+"""
+
+from __future__ import annotations
+
+import json
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
+                             example_oranges, example_probe, example_soft_cube)
+from softvr.scene import load_scene
+
+G = 9.81  # [m/s^2], every scene with gravity here has gravity = (0, 0, -9.81)
+
+
+def play(module, frames: int, tmp_path):
+    """The example's own command, headless: ``--headless --frames N`` into ``tmp_path``; returns the
+    played player (its bodies at the last frame, its metrics)."""
+    return module.main(["--headless", "--frames", str(frames), "--size", "48", "32", "--out", str(tmp_path)])
+
+
+def start_of(module):
+    """The example's scene as it starts (built, not played): the initial state to compare with."""
+    return load_scene(module.SCENE, frames=1, width=48, height=32)
+
+
+def check_energy_never_grows(player, e0: float) -> None:
+    energy = np.array([r["energy_j"] for r in player.metrics])
+    assert energy.max() <= e0 + 1e-9 * max(abs(e0), 1.0), (e0, energy.max())
+
+
+def centre_of_mass(body) -> np.ndarray:
+    m = np.asarray(body.mass, float)
+    return (m[:, None] * body.q).sum(axis=0) / m.sum()
+
+
+def test_the_leaf_writes_video_sheet_and_metrics(tmp_path):
+    player = play(example_box_stack, 3, tmp_path)
+    name = player.name
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"{name}.mp4", f"{name}_metrics.json", f"{name}_sheet.png"]
+    assert len(list(iio.imiter(tmp_path / f"{name}.mp4"))) == 3
+    doc = json.loads((tmp_path / f"{name}_metrics.json").read_text())
+    # fps = 1 / (dt steps_per_frame) of the file: 1 / (0.01 s x 4).
+    assert len(doc["frames"]) == 3 and doc["fps"] == pytest.approx(1 / (0.01 * 4))
+
+
+def test_box_stack_rests_at_the_height_its_boxes_stack_to(tmp_path):
+    start = start_of(example_box_stack)
+    e0 = start.energies()[1]
+    z0 = np.array([start.bodies[f"box {i}"].position[2] for i in range(5)])
+    player = play(example_box_stack, 8, tmp_path)
+    h, dt = 0.1, player.dt  # the boxes' height [m] (box = [0.2, 0.2, 0.1]) and the step
+    boxes = [player.bodies[f"box {i}"] for i in range(5)]
+    z = np.array([b.position[2] for b in boxes])
+    rest = (2 * np.arange(5) + 1) * h / 2
+    assert (z >= rest - (np.arange(5) + 1) * G * dt**2).all(), z - rest
+    assert (z <= z0 + 1e-12).all()  # settled down onto each other, never lifted
+    # At rest: no horizontal drift but what the solver's velocity error (at most its residual,
+    # m/s, every step) carries over the time played, and less kinetic energy than one step of
+    # free fall would give the whole stack, 1/2 M (g dt)^2.
+    mass = sum(b.mass for b in boxes)
+    residual = max(r["pgs_residual_m_per_s"] for r in player.metrics)
+    assert np.abs([b.position[:2] for b in boxes]).max() <= residual * player.scene.time
+    assert player.metrics[-1]["kinetic_energy_j"] < 0.5 * mass * (G * dt) ** 2
+    assert max(r["max_penetration_m"] for r in player.metrics) < G * dt**2
+    check_energy_never_grows(player, e0)
+
+
+def test_soft_cube_falls_as_gravity_and_its_damping_say(tmp_path):
+    """3 frames (0.12 s) of the fall: the lowest node, 0.177 m up, needs sqrt(2 x 0.177 / g) =
+    0.19 s to reach the ground, so only gravity and the mass damping (alpha = 1 /s) act.
+    Rigid translation strains nothing: the elastic and stiffness-damping forces vanish."""
+    start = start_of(example_soft_cube)
+    c0 = centre_of_mass(start.bodies["soft cube"])
+    assert np.sqrt(2 * start.bodies["soft cube"].q[:, 2].min() / G) > 0.12
+    player = play(example_soft_cube, 3, tmp_path)
+    cube, t, dt, alpha = player.bodies["soft cube"], player.scene.time, player.dt, 1.0
+    c, v = centre_of_mass(cube), (np.asarray(cube.mass)[:, None] * cube.v).sum(axis=0) / np.sum(cube.mass)
+    fall = G / alpha * (t - (1 - np.exp(-alpha * t)) / alpha)  # 0.0679 m (1/2 g t^2: 0.0706 m)
+    assert c0[2] - c[2] == pytest.approx(fall, abs=0.5 * G * dt * t)  # the integrator's lag, 2.9 mm
+    # Backward Euler's velocity on v' = -g - alpha v errs by at most alpha g dt t (5.9 mm/s here);
+    # without the damping v would be -g t, 70 mm/s further.
+    assert v[2] == pytest.approx(-G / alpha * (1 - np.exp(-alpha * t)), abs=alpha * G * dt * t)
+    np.testing.assert_allclose(c[:2], c0[:2], atol=1e-12)  # no horizontal force
+    assert player.metrics[-1]["contacts"] == 0
+
+
+def test_soft_cube_lands_without_sinking_and_dissipates(tmp_path):
+    start = start_of(example_soft_cube)
+    e0 = start.energies()[1]
+    drop = start.bodies["soft cube"].q[:, 2].min()  # [m] its lowest node above the ground
+    player = play(example_soft_cube, 12, tmp_path)
+    cube, dt = player.bodies["soft cube"], player.dt
+    assert player.metrics[-1]["contacts"] > 0
+    assert -cube.q[:, 2].min() < G * dt**2
+    assert max(r["max_penetration_m"] for r in player.metrics) < G * dt**2
+    # Landing on an edge is inelastic: at least the 1/2 m v^2 = m g drop it had at impact is gone
+    # within 0.3 s of it (the bounce of a damped soft body keeps less than its impact energy).
+    assert player.metrics[-1]["energy_j"] < e0 - 0.5 * np.sum(cube.mass) * G * drop
+    check_energy_never_grows(player, e0)
+
+
+def test_cloth_drapes_over_the_sphere_without_entering_it(tmp_path):
+    start = start_of(example_cloth_sphere)
+    e0 = start.energies()[1]
+    player = play(example_cloth_sphere, 10, tmp_path)
+    cloth, sphere, dt = player.bodies["cloth"], player.spheres[0], player.dt
+    gap = np.linalg.norm(cloth.q - np.asarray(sphere.center), axis=1) - sphere.radius
+    assert -gap.min() < G * dt**2  # 2.7 mm at dt = 1/60 s
+    assert -cloth.q[:, 2].min() < G * dt**2
+    # Fallen 0.1 m (0.14 s < the 0.33 s played), the cloth's middle rests on the sphere's top.
+    middle = cloth.q[len(cloth.q) // 2]
+    assert middle[2] == pytest.approx(2 * sphere.radius, abs=G * dt**2)
+    check_energy_never_grows(player, e0)
+
+
+def test_oranges_keep_their_momentum_in_the_air(tmp_path):
+    """0.16 s (4 frames): the lowest orange (0.25 m, r 0.08 m) needs sqrt(2 x 0.17 / g) = 0.186 s
+    to land, so each one's horizontal momentum is its start momentum."""
+    start = start_of(example_oranges)
+    names = [f"orange {i}" for i in range(4)]
+    momentum0 = [np.sum(np.asarray(start.bodies[n].mass)[:, None] * start.bodies[n].v, axis=0) for n in names]
+    player = play(example_oranges, 4, tmp_path)
+    for name, p0 in zip(names, momentum0):
+        body = player.bodies[name]
+        p = np.sum(np.asarray(body.mass)[:, None] * body.v, axis=0)
+        mass = np.sum(body.mass)
+        np.testing.assert_allclose(p[:2], p0[:2], atol=1e-9 * mass)
+        # Vertically: gravity's impulse -M g t (the oranges' material has no mass damping, alpha = 0).
+        assert p[2] - p0[2] == pytest.approx(-mass * G * player.scene.time, rel=1e-9)
+    assert player.metrics[-1]["contacts"] == 0
+
+
+def test_oranges_land_roll_on_and_lose_energy(tmp_path):
+    start = start_of(example_oranges)
+    e0 = start.energies()[1]
+    x0 = np.array([centre_of_mass(start.bodies[f"orange {i}"]) for i in range(4)])
+    player = play(example_oranges, 8, tmp_path)
+    x = np.array([centre_of_mass(player.bodies[f"orange {i}"]) for i in range(4)])
+    assert max(r["contacts"] for r in player.metrics) > 0  # landed (and bounced)
+    assert (x[:, 0] > x0[:, 0] + 0.1).all()  # thrown forward at 0.5 - 0.9 m/s: >= 0.16 m in 0.32 s
+    assert max(r["max_penetration_m"] for r in player.metrics) < G * player.dt**2
+    check_energy_never_grows(player, e0)
+
+
+def test_cloth_sticks_to_the_wall_then_peels_off(tmp_path):
+    """The swung cloth bonds where it hits the wall (intensities in [0, 1]), never passes it,
+    and debonds again under its weight: the bonded contacts rise, then fall to none."""
+    start = start_of(example_cloth_wall)
+    e0 = start.energies()[1]
+    start.close()
+    player = load_scene(example_cloth_wall.SCENE, frames=36, width=48, height=32)
+    bonded, deepest = [], 0.0
+    with player:
+        for _ in range(36):
+            player.step()
+            beta = np.array(list(player.scene.adhesion_state.intensity.values()))
+            assert ((beta >= 0) & (beta <= 1)).all()
+            bonded.append(int((beta > 0).sum()))
+            deepest = max(deepest, -float(player.bodies["cloth"].q[:, 0].min()))
+    assert max(bonded) > 20 and bonded[-1] < max(bonded) / 4
+    assert deepest < G * player.dt**2
+    check_energy_never_grows(player, e0)
+    example_cloth_wall.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
+
+
+def _jaws_apart(t: float) -> float:
+    """Distance [m] between the jaws at time t [s], from lips.toml's story: 26 mm at the start
+    (a 2 mm gap between two 12 mm lips), each jaw pressed in 1.5 mm over 0.2 s, held 0.2 s,
+    then opened at 2 cm/s."""
+    each = -0.0015 * min(t, 0.2) / 0.2 + 0.02 * max(t - 0.4, 0.0)
+    return 0.026 + 2 * each
+
+
+def test_lips_follow_their_jaws_and_stick_as_they_open(tmp_path):
+    """The jaws are driven, so they are where the script puts them at every frame; the lips touch
+    only each other, so the contact forces on them are equal and opposite; a dry contact only
+    pushes (the force on the upper lip >= 0), so a pull while the jaws open is the adhesion."""
+    player = load_scene(example_lips.SCENE, frames=30, width=48, height=32)
+    upper, lower = player.bodies["upper lip"], player.bodies["lower lip"]
+    iu, il = player.index["upper lip"], player.index["lower lip"]
+    force = []
+    with player:
+        for _ in range(30):
+            record = player.step()
+            t = player.scene.time
+            jaws = upper.q[upper.fixed, 2].mean() - lower.q[lower.fixed, 2].mean()
+            assert jaws == pytest.approx(_jaws_apart(t), abs=1e-9)
+            solution = player.scene.last_solution
+            fu, fl = solution.force_on(iu, player.dt), solution.force_on(il, player.dt)
+            np.testing.assert_allclose(fu, -fl, atol=1e-9 * max(1.0, np.abs(fu).max()))
+            force.append((t, float(fu[2]), record["contacts"]))
+    pressing = [f for t, f, _ in force if t <= 0.4]
+    opening = [f for t, f, _ in force if t > 0.4]
+    assert min(pressing) > 0  # pressed together: they push each other apart
+    assert min(opening) < -0.5  # opening: the wet lips pull on each other (N)
+    # and they do let go: no contact once the jaws are 5 mm past their start (t = 0.6 s)
+    apart = [c for t, _, c in force if t >= 0.6 - 1e-9]
+    assert apart and all(c == 0 for c in apart)
+    example_lips.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
+
+
+def _hertz(depth: float, radius: float = 0.01, young: float = 2e4, poisson: float = 0.4) -> float:
+    """Hertz's force [N] of a rigid sphere pressed ``depth`` [m] into an elastic half-space:
+    F = 4/3 E / (1 - nu^2) sqrt(R) d^1.5 (probe.toml: R 1 cm, E 20 kPa, nu 0.4)."""
+    return 4.0 / 3.0 * young / (1.0 - poisson**2) * np.sqrt(radius) * max(depth, 0.0) ** 1.5
+
+
+def test_probe_pushes_at_least_as_hard_as_hertz_and_pulls_only_by_adhesion(tmp_path):
+    """The probe (kinematic, R 1 cm) goes 1 mm above the surface down to 4 mm into it over 0.5 s,
+    holds 0.1 s and withdraws to 4 mm above it by 1.4 s.
+
+    * Newton's third law: it touches only the tissue: equal and opposite contact forces.
+    * Hertz is a lower bound of the loading force: a displacement FEM is stiffer than the
+      continuum it discretizes, and a 3 cm block on a clamped base stiffer than a half-space.
+    * The dry part of a contact only pushes: a pull (force < 0) is the tacky tissue's adhesion,
+      and it lifts the tissue above its rest surface z = 0.
+    * The probe moves at 1 cm/s: it carries at most v dt = 40 um into the tissue in a step."""
+    player = load_scene(example_probe.SCENE, frames=64, width=48, height=32)
+    probe, tissue = player.bodies["probe"], player.bodies["tissue"]
+    ip, it = player.index["probe"], player.index["tissue"]
+    rows = []
+    with player:
+        for _ in range(64):
+            record = player.step()
+            solution = player.scene.last_solution
+            fp, ft = solution.force_on(ip, player.dt), solution.force_on(it, player.dt)
+            np.testing.assert_allclose(fp, -ft, atol=1e-9 * max(1.0, np.abs(fp).max()))
+            rows.append((player.scene.time, 0.01 - probe.position[2], fp[2], tissue.q[:, 2].max(),
+                         record["max_penetration_m"]))
+    loading = [(d, f) for t, d, f, _, _ in rows if t <= 0.5 + 1e-9 and d > 0]
+    assert len(loading) > 10 and all(f >= _hertz(d) for d, f in loading)
+    pulls = [(d, lift) for t, d, f, lift, _ in rows if f < -0.01]
+    assert pulls and all(d < 0 for d, _ in pulls)  # it pulls only once above the rest surface
+    assert max(lift for _, lift in pulls) > 1e-4  # and the tissue follows it up (> 0.1 mm)
+    assert max(r[4] for r in rows) < 0.01 * player.dt
+    example_probe.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
