@@ -113,14 +113,7 @@ def read_parts(path) -> PartsFile:
         errors.add("defaults", "a table", type(defaults).__name__)
         defaults = {}
     parts, names = [], set()
-    raw_parts = doc.get("part", [])
-    if not (isinstance(raw_parts, list) and raw_parts and all(isinstance(raw, dict) for raw in raw_parts)):
-        errors.add("part", "one or more [[part]] tables", type(raw_parts).__name__ if raw_parts else "none")
-        raw_parts = []
-    elif len(raw_parts) > MAX_PARTS:
-        errors.add("part", f"at most {MAX_PARTS} [[part]] tables", len(raw_parts))
-        raw_parts = []
-    for i, raw in enumerate(raw_parts):
+    for i, raw in enumerate(_tables(doc, "part", errors, required=True)):
         where = f"part[{i}]"
         table = {**defaults, **raw}
         name = table.get("name")
@@ -152,14 +145,7 @@ def read_parts(path) -> PartsFile:
             spec.collision_triangles = budget
         parts.append(spec)
     couplings = []
-    raw_couplings = doc.get("coupling", [])
-    if not isinstance(raw_couplings, list) or not all(isinstance(raw, dict) for raw in raw_couplings):
-        errors.add("coupling", "[[coupling]] tables", type(raw_couplings).__name__)
-        raw_couplings = []
-    elif len(raw_couplings) > MAX_PARTS:
-        errors.add("coupling", f"at most {MAX_PARTS} [[coupling]] tables", len(raw_couplings))
-        raw_couplings = []
-    for i, raw in enumerate(raw_couplings):
+    for i, raw in enumerate(_tables(doc, "coupling", errors, required=False)):
         where = f"coupling[{i}]"
         ends = []
         for side in ("a", "b"):
@@ -189,6 +175,20 @@ def read_parts(path) -> PartsFile:
                                       damping=damping or 0.0, collide=bool(collide)))
     errors.raise_if_any()
     return PartsFile(path=path, parts=parts, couplings=couplings)
+
+
+def _tables(doc: dict, key: str, errors: Problems, *, required: bool) -> list:
+    """The ``[[key]]`` tables of a parts file: at most :data:`MAX_PARTS`, at least one when
+    ``required``; none (and a problem) when they are not that."""
+    raw = doc.get(key, [])
+    if not (isinstance(raw, list) and (raw or not required) and all(isinstance(table, dict) for table in raw)):
+        errors.add(key, f"one or more [[{key}]] tables" if required else f"[[{key}]] tables",
+                   type(raw).__name__ if raw or not required else "none")
+        return []
+    if len(raw) > MAX_PARTS:
+        errors.add(key, f"at most {MAX_PARTS} [[{key}]] tables", len(raw))
+        return []
+    return raw
 
 
 def _mesh(name, folder: Path, where: str, errors: Problems) -> Path | None:
