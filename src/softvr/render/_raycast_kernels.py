@@ -35,17 +35,30 @@ def fetch(vol: wp.array(dtype=Any), s: wp.vec3i, i: int, j: int, k: int) -> floa
 
 
 @wp.func
+def clamped(n: wp.vec3i, p: wp.vec3) -> wp.vec3:
+    """Index-space point ``p`` clamped to a grid of ``n`` voxels (VTK's edge behaviour)."""
+    return wp.vec3(wp.clamp(p[0], 0.0, float(n[0] - 1)), wp.clamp(p[1], 0.0, float(n[1] - 1)),
+                   wp.clamp(p[2], 0.0, float(n[2] - 1)))
+
+
+@wp.func
+def cell(n: wp.vec3i, q: wp.vec3) -> wp.vec3i:
+    """The lower corner voxel of the cell holding the clamped point ``q``: the last cell on the
+    far faces, so that its upper corners are voxels too."""
+    return wp.vec3i(wp.min(int(q[0]), n[0] - 2), wp.min(int(q[1]), n[1] - 2), wp.min(int(q[2]), n[2] - 2))
+
+
+@wp.func
 def trilinear(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> float:
     """The volume at index-space point ``p``, clamped to the grid (VTK's edge behaviour)."""
-    x = wp.clamp(p[0], 0.0, float(n[0] - 1))
-    y = wp.clamp(p[1], 0.0, float(n[1] - 1))
-    z = wp.clamp(p[2], 0.0, float(n[2] - 1))
-    i = wp.min(int(x), n[0] - 2)
-    j = wp.min(int(y), n[1] - 2)
-    k = wp.min(int(z), n[2] - 2)
-    fx = x - float(i)
-    fy = y - float(j)
-    fz = z - float(k)
+    q = clamped(n, p)
+    corner = cell(n, q)
+    i = corner[0]
+    j = corner[1]
+    k = corner[2]
+    fx = q[0] - float(i)
+    fy = q[1] - float(j)
+    fz = q[2] - float(k)
     # One address, then the 8 corners at fixed offsets from it.
     a = i * s[0] + j * s[1] + k * s[2]
     c00 = wp.lerp(float(vol[a]), float(vol[a + s[0]]), fx)
@@ -61,13 +74,12 @@ def gradient(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> 
     index axis [value units per voxel]. A shift by a whole voxel keeps the trilinear
     weights, so ``(f(p + e) - f(p - e)) / 2`` is the trilinear interpolation of the voxels'
     own central differences: one set of weights for all three axes (edges clamped)."""
-    x = wp.clamp(p[0], 0.0, float(n[0] - 1))
-    y = wp.clamp(p[1], 0.0, float(n[1] - 1))
-    z = wp.clamp(p[2], 0.0, float(n[2] - 1))
-    i = wp.min(int(x), n[0] - 2)
-    j = wp.min(int(y), n[1] - 2)
-    k = wp.min(int(z), n[2] - 2)
-    f = wp.vec3(x - float(i), y - float(j), z - float(k))
+    q = clamped(n, p)
+    corner = cell(n, q)
+    i = corner[0]
+    j = corner[1]
+    k = corner[2]
+    f = q - wp.vec3(float(i), float(j), float(k))
     g = wp.vec3(0.0)
     for c in range(8):
         di = c & 1
