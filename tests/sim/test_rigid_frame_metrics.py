@@ -78,3 +78,26 @@ def test_a_box_resting_flat_counts_its_four_bottom_corners_all_pushing():
     normal = sum(i[:, 0].sum() for i in solution.impulses)
     assert normal == pytest.approx(DENSITY * SIZE.prod() * G * 0.01, rel=1e-4)
     assert solution.contact_counts() == (4, 4)  # the same once the sets are split
+
+
+def test_a_held_solution_keeps_its_contacts_after_later_steps_write_its_buffer_again():
+    # A step's solution views the contact buffer that the step after next writes again: held,
+    # it is copied out first. Later steps stand the box on an edge (two contacts, other
+    # impulses) in the rows the held solution's four corners used.
+    box = RigidBody.box(SIZE, DENSITY, position=(0.0, 0.0, SIZE[2] / 2))
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    scene.add_body(box, collision_box=SIZE / 2)
+    scene.add_plane(Plane())
+    for _ in range(3):
+        held = scene.step(0.01)
+    hy, hz = SIZE[1:] / 2
+    box.orientation = _quat_x(30.0)
+    box.position = np.array([0.0, 0.0, hy * np.sin(np.radians(30.0)) + hz * np.cos(np.radians(30.0))])
+    box.v = np.zeros(6)
+    for _ in range(4):
+        edge = scene.step(0.01)
+    assert edge.contact_counts()[0] == 2
+    assert held.contact_counts() == (4, 4)
+    normal = sum(i[:, 0].sum() for i in held.impulses)
+    assert normal == pytest.approx(DENSITY * SIZE.prod() * G * 0.01, rel=1e-4)
+    assert len(scene.adhesion_state.intensity) == 0  # no adhesion: nothing tracked

@@ -6,16 +6,21 @@
 The scene's body objects keep working as the user-facing API: their ``position``,
 ``orientation`` and ``v`` are views of the state arrays (a value the user assigns is copied
 in before the next step), ``Scene.last_solution`` and ``Scene.adhesion_state`` read the
-arrays when asked. :mod:`softvr.sim.frame_metrics` reads a frame's metrics (penetration of
+arrays when asked. Steps write their contacts into two buffers in turn (sharing what the
+contacts carry over), so a step's solution can view its contacts until the step after next, and
+copies them out only if it is still held then. :mod:`softvr.sim.frame_metrics` reads a frame's metrics (penetration of
 drawn points below planes, energies) off the same arrays in one recorded launch.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
+import weakref
 
 import numpy as np
 
+from softvr.collision.contact_buffer import ContactBuffer
 from softvr.collision.contacts import Contacts, rigid_side
 from softvr.collision.rigid_detection import record_detection
 from softvr.contact import ContactSolution
@@ -31,7 +36,8 @@ __all__ = ["LazySolution", "RigidStepper", "StepSnapshot"]
 
 class StepSnapshot:
     """One step's contacts (``contacts``: field name -> array over the step's contacts) and
-    ``velocities``, copied out of the arrays; the :class:`ContactSolution` built only when read.
+    ``velocities``, copied out of the arrays (the rigid step's contacts: viewed in its buffer until
+    a later step writes it again); the :class:`ContactSolution` built only when read.
     A path's snapshot says how its contacts group into sets (:meth:`sets`) and builds the sets'
     :class:`Contacts` (:meth:`_build`)."""
 
@@ -66,13 +72,41 @@ class StepSnapshot:
 
 
 class _Snapshot(StepSnapshot):
-    """A rigid step's snapshot; also what :class:`ArrayAdhesionState` reads."""
+    """A rigid step's snapshot; also what :class:`ArrayAdhesionState` reads. Its ``contacts`` are
+    views of the step's contact buffer (:meth:`ContactBuffer.views`, ``count`` rows) until
+    :meth:`detach` copies them out, before a later step writes that buffer again."""
 
-    def __init__(self, contacts: dict, velocities: list, sweeps: int, residual: float, moves: np.ndarray):
-        super().__init__(contacts, velocities, sweeps, residual)
+    def __init__(self, views: dict, count: int, velocities: list, sweeps: int, residual: float, moves: np.ndarray):
+        self._views: dict | None = views
+        self._count = count
+        self._own: dict | None = None
+        super().__init__(None, velocities, sweeps, residual)  # type: ignore[arg-type]  # contacts: read from views
         # [n + 1] bool: which bodies move (inverse mass > 0), False last for body -1 (a static):
         # to leave out contacts no impulse can act on.
         self._moves = moves
+
+    @property
+    def contacts(self) -> dict:
+        if self._own is None:
+            assert self._views is not None
+            self._own = {name: view[:self._count] for name, view in self._views.items()}
+        return self._own
+
+    @contacts.setter
+    def contacts(self, value) -> None:
+        self._own = value
+
+    def _field(self, name: str) -> np.ndarray:
+        """``contacts[name]`` without making the other fields' views."""
+        if self._own is not None or self._views is None:
+            return self.contacts[name]
+        return self._views[name][:self._count]
+
+    def detach(self) -> None:
+        """Copy the contacts out of the buffer, which the step after next writes again."""
+        if self._views is not None:
+            self._own = {name: view[:self._count].copy() for name, view in self._views.items()}
+            self._views = None
 
     def sets(self) -> list[np.ndarray]:
         """Row indices of each contact set: one per (kind, body a, body b or static), in the
@@ -93,15 +127,14 @@ class _Snapshot(StepSnapshot):
 
     def _movable(self) -> np.ndarray:
         """[contacts] bool: the contacts with a movable side (those :meth:`sets` holds)."""
-        c = self.contacts
-        return self._moves[c["body_a"]] | self._moves[c["body_b"]]
+        return self._moves[self._field("body_a")] | self._moves[self._field("body_b")]
 
     def contact_counts(self) -> tuple[int, int]:
         """(contacts, active contacts) of :meth:`sets` from a mask, without splitting them."""
         if self._sets is not None:
             return super().contact_counts()
         movable = self._movable()
-        return int(np.count_nonzero(movable)), int(np.count_nonzero(movable & (self.contacts["impulse"][:, 0] > 0)))
+        return int(np.count_nonzero(movable)), int(np.count_nonzero(movable & (self._field("impulse")[:, 0] > 0)))
 
     def _build(self) -> ContactSolution:
         c = self.contacts
@@ -182,6 +215,14 @@ class RigidStepper:
     def __init__(self, scene):
         self.scene = scene
         self.model, self.state = build_rigid_model(scene)
+        # The steps' two contact buffers in turn: the state's, and one of its own rows sharing
+        # what the contacts carry over (warm starts, intensities, slips).
+        c = self.state.contacts
+        carried = {f.name: getattr(c, f.name) for f in dataclasses.fields(c) if f.name.startswith("carried_")}
+        other = dataclasses.replace(ContactBuffer.allocate(c.capacity, self.model.device), **carried)
+        self._states = (self.state, dataclasses.replace(self.state, contacts=other))
+        self._turn = 0  # the buffer the next step writes
+        self._issued: list = [None, None]  # per buffer: a weak reference to the snapshot viewing it
         self._settings = self._scene_settings()
         self._bind_bodies()
         self._carry_in(scene.adhesion_state, scene._warm)
@@ -204,8 +245,7 @@ class RigidStepper:
         self._free = self.state.free_velocity.numpy()
         self._diverged = self.state.diverged.numpy()
         self._clean = bytes(self._diverged.nbytes)  # no body diverged (a bytes test: 0.2 vs 1.5 us for any())
-        self._contacts = self.state.contacts.views()
-        self._count = self.state.contacts.count.numpy()
+        self._buffers = [(st.contacts.views(), st.contacts.count.numpy()) for st in self._states]
         self._moves = np.append(self.model.body_inv_mass.numpy() > 0, False)  # [n + 1], body -1 static
         self._pushed = True
         # One view per body and field, made once: a user's assignment rebinds the attribute,
@@ -260,11 +300,12 @@ class RigidStepper:
                 and self._recorded[0][2] == s.pgs_iterations:
             return
         key = (dt, s.gravity, s.pgs_iterations)
-        solve = record_rigid_solve(self.model, self.state, dt, max_sweeps=s.pgs_iterations)
-        self._recorded = (key, replayer(record_unconstrained(self.model, self.state, dt, s.gravity)),
-                          record_detection(self.model, self.state, dt), solve, replayer(solve.launch),
-                          replayer(record_integrate(self.model, self.state, dt)))
-        self._stats = solve.stats.numpy()
+        turns = []
+        for state in self._states:  # per contact buffer: its unconstrained (which empties it), detection, solve
+            solve = record_rigid_solve(self.model, state, dt, max_sweeps=s.pgs_iterations)
+            turns.append((replayer(record_unconstrained(self.model, state, dt, s.gravity)),
+                          record_detection(self.model, state, dt), solve, replayer(solve.launch), solve.stats.numpy()))
+        self._recorded = (key, turns, replayer(record_integrate(self.model, self.state, dt)))
 
     def step(self, dt: float) -> tuple[LazySolution, dict]:
         """Advance the scene by ``dt`` [s]; the lazily built solution and the stage times [ms]."""
@@ -272,7 +313,13 @@ class RigidStepper:
         t0 = time.perf_counter()
         self._sync_in()
         self._record(dt)
-        _, unconstrained, detection, _, solve, integrate = self._recorded
+        turn = self._turn
+        held = self._issued[turn]() if self._issued[turn] is not None else None
+        if held is not None:  # the solution of the step before last is still held: it keeps its contacts
+            held.detach()
+        _, turns, integrate = self._recorded
+        unconstrained, detection, _, solve, stats = turns[turn]
+        views, count = self._buffers[turn]
         if s.external or self._pushed:
             self._external[:] = 0.0
             for body, force in s.external.items():
@@ -290,9 +337,10 @@ class RigidStepper:
         self._check()
         for body in s.bodies:
             body.step_count += 1
-        count = min(int(self._count[0]), self.state.contacts.capacity)
-        snapshot = _Snapshot({name: view[:count].copy() for name, view in self._contacts.items()},
-                             list(self._velocity.copy()), int(self._stats[0]), float(self._stats[1]), self._moves)
+        snapshot = _Snapshot(views, min(int(count[0]), self.model.contact_capacity), list(self._velocity.copy()),
+                             int(stats[0]), float(stats[1]), self._moves)
+        self._issued[turn] = weakref.ref(snapshot)
+        self._turn = 1 - turn
         s.adhesion_state = ArrayAdhesionState(snapshot)
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
