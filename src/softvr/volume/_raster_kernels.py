@@ -473,32 +473,46 @@ _TET_SNIPPET = (
         }
         queued = 0;
     };
-    // Row loop without data-dependent branches in the DDA (they mispredicted on every other
-    // row): the carry of each face's remainder is a select, a face with Sz = 0 gets a divisor
-    // its remainder never reaches, and each face's part in the span is a select on its sign.
-    const i64 NOCARRY = (i64)1 << 62, LO_NONE = -((i64)1 << 62), HI_NONE = (i64)1 << 62;
-    i64 dn[4];
-    bool pos[4], neg[4], flat[4];
+    // Row loop without data-dependent branches: the 4 faces' DDA state is one 4-lane int64
+    // vector (q, r per face), the carry of each remainder is a compare mask, a face with Sz = 0
+    // gets a divisor its remainder never reaches, and each face's part in the span is a select
+    // on its sign, reduced over the lanes (the scalar form mispredicted on every other row).
+    typedef long long l4 __attribute__((ext_vector_type(4)));
+    const i64 NOCARRY = (i64)1 << 62, NONE = (i64)1 << 62;
+    auto sel4 = [](l4 m, l4 a, l4 b) { return (a & m) | (b & ~m); };
+    auto max4 = [&](l4 a) {
+        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a > b), a, b);
+        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a > b), a, b);
+        return (i64)a[0];
+    };
+    auto min4 = [&](l4 a) {
+        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a < b), a, b);
+        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a < b), a, b);
+        return (i64)a[0];
+    };
+    l4 qi4, ri4, dqi4, dri4, dq4, dr4, dn4, den4, pos4, neg4, flat4;
     for (int f = 0; f < 4; ++f) {
-        dn[f] = den[f] > 0 ? den[f] : NOCARRY;
-        pos[f] = szs[f] > 0; neg[f] = szs[f] < 0; flat[f] = szs[f] == 0;
+        qi4[f] = qi[f]; ri4[f] = ri[f]; dqi4[f] = dqi[f]; dri4[f] = dri[f]; dq4[f] = dq[f]; dr4[f] = dr[f];
+        den4[f] = den[f] > 0 ? den[f] : NOCARRY;
+        dn4[f] = den4[f];
+        pos4[f] = szs[f] > 0 ? -1 : 0; neg4[f] = szs[f] < 0 ? -1 : 0; flat4[f] = szs[f] == 0 ? -1 : 0;
     }
+    const l4 lo_none = (l4)(-NONE), hi_none = (l4)NONE, zero4 = (l4)0;
     const i64 box_klo = B[4], box_khi = B[5];
     for (int i = i_first; i <= i_last; ++i) {
         const double fi = (double)i;
         px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
-        i64 q[4], r[4];
-        #pragma unroll
-        for (int f = 0; f < 4; ++f) { q[f] = qi[f]; r[f] = ri[f]; }
+        l4 q4 = qi4, r4 = ri4;
         for (int j = B[2]; j <= B[3]; ++j) {
-            i64 klo = box_klo, khi = box_khi;
-            #pragma unroll
-            for (int f = 0; f < 4; ++f) {
-                const i64 c = pos[f] ? -q[f] : LO_NONE;
-                const i64 h = neg[f] ? q[f] : ((flat[f] && q[f] < 0) ? -HI_NONE : HI_NONE);
-                klo = klo > c ? klo : c;
-                khi = khi < h ? khi : h;
-            }
+            const l4 lo_t = sel4(pos4, -q4, lo_none);
+            const l4 hi_t = sel4(neg4, q4, sel4(flat4 & (l4)(q4 < zero4), lo_none, hi_none));
+            i64 klo = max4(lo_t), khi = min4(hi_t);
+            klo = klo > box_klo ? klo : box_klo;
+            khi = khi < box_khi ? khi : box_khi;
+            r4 += dr4;
+            const l4 carry = (l4)(r4 >= dn4);  // -1 where the remainder wraps
+            r4 -= dn4 & carry;
+            q4 += dq4 - carry;
             if (khi >= klo) {
                 written += (int)(khi - klo) + 1;
                 int lo = (int)klo, hi = (int)khi;
@@ -528,21 +542,11 @@ _TET_SNIPPET = (
                     if (queued == QUEUE) flush_any();
                 }
             }
-            #pragma unroll
-            for (int f = 0; f < 4; ++f) {
-                r[f] += dr[f];
-                const bool carry = r[f] >= dn[f];
-                r[f] -= carry ? dn[f] : 0;
-                q[f] += dq[f] + (carry ? 1 : 0);
-            }
         }
-        for (int f = 0; f < 4; ++f) {
-            qi[f] += dqi[f];
-            if (den[f] > 0) {
-                ri[f] += dri[f];
-                if (ri[f] >= den[f]) { ri[f] -= den[f]; qi[f] += 1; }
-            }
-        }
+        ri4 += dri4;
+        const l4 carry = (l4)(ri4 >= den4);
+        ri4 -= den4 & carry;
+        qi4 += dqi4 - carry;
     }
     if (queued > 0) flush_any();
     return written;
