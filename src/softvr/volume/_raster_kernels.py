@@ -966,9 +966,12 @@ def tet_setup(
     face: wp.array2d(dtype=wp.int64),
     affine: wp.array2d(dtype=wp.float64),
     box: wp.array2d(dtype=wp.int32),
+    det: wp.array(dtype=wp.float64),
     offset: int,
 ):
-    """Per tet: exact face planes, clipped voxel box and the output->input affine map.
+    """Per tet: exact face planes, clipped voxel box, the output->input affine map, and
+    ``det[t]``, the determinant of the deformed edge matrix in output voxel indices (the host's
+    inverted / degenerate check).
 
     ``rest``: rest nodes in input voxel indices [node_count]; ``moved``: deformed nodes in
     output voxel indices. ``affine[t] = (A row-major, t, 1 / A[:, 2] or 0, rest tet inside
@@ -1003,6 +1006,7 @@ def tet_setup(
     e0 = wp.matrix_from_cols(rest[i1] - r0, rest[i2] - r0, rest[i3] - r0)
     m0 = moved[i0]
     e1 = wp.matrix_from_cols(moved[i1] - m0, moved[i2] - m0, moved[i3] - m0)
+    det[t] = wp.determinant(e1)
     am = e0 * wp.inverse(e1)
     tv = r0 - am * m0
     for r in range(3):
