@@ -259,3 +259,35 @@ def test_probe_pushes_at_least_as_hard_as_hertz_and_pulls_only_by_adhesion(tmp_p
     assert max(lift for _, lift in pulls) > 1e-4  # and the tissue follows it up (> 0.1 mm)
     assert max(r[4] for r in rows) < 0.01 * player.dt
     example_probe.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
+
+
+# -- the registry of softvr run / view / demo NAME (softvr.examples.run) --------------------------
+def test_view_plays_a_bundled_scene_live_in_a_window(display):
+    """Under Xvfb: ``softvr view soft-cube`` opens the window, plays every frame, closes on time."""
+    from softvr.examples import run
+
+    assert run.view_main(["soft-cube", "--frames", "3", "--size", "160", "120", "--seconds", "3"]) == 0
+
+
+def test_view_without_a_display_says_so(monkeypatch, capsys):
+    from softvr.errors import InputError
+    from softvr.examples import run
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    with pytest.raises(InputError, match="display"):
+        run.view_main(["soft-cube", "--frames", "2"])
+
+
+def test_run_names_the_bad_option_and_the_demos(capsys):
+    from softvr.examples import run
+
+    with pytest.raises(SystemExit):
+        run.main(["oranges", "--frames", "0"])
+    assert "--frames" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        run.main(["teapot"])
+    assert "soft-cube" in str(exc.value) and "candy-adhesive" in str(exc.value)
+    with pytest.raises(SystemExit):
+        run.main(["shoulder", "--variant", "knee"])
+    assert "arthroscopy" in capsys.readouterr().err
