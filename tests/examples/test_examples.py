@@ -31,7 +31,8 @@ import numpy as np
 import pytest
 
 from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
-                             example_oranges, example_probe, example_soft_cube)
+                             example_oranges, example_palpation, example_probe, example_shoulder, example_soft_cube,
+                             example_volume_deform)
 from softvr.scene import load_scene
 
 G = 9.81  # [m/s^2], every scene with gravity here has gravity = (0, 0, -9.81)
@@ -66,6 +67,18 @@ def test_the_leaf_writes_video_sheet_and_metrics(tmp_path):
     doc = json.loads((tmp_path / f"{name}_metrics.json").read_text())
     # fps = 1 / (dt steps_per_frame) of the file: 1 / (0.01 s x 4).
     assert len(doc["frames"]) == 3 and doc["fps"] == pytest.approx(1 / (0.01 * 4))
+
+
+@pytest.mark.parametrize("module", [example_shoulder, example_palpation, example_volume_deform],
+                         ids=lambda m: m.__name__.rsplit(".", 1)[-1])
+def test_the_scene_leaves_play_headless(module, tmp_path):
+    """The leaves whose physics tests/scene/test_demo_scenes.py and test_shoulder.py check on the
+    same scene file: two frames each through the script, its clock the fixed step's
+    (t = frames x steps_per_frame x dt), its three files written."""
+    player = play(module, 2, tmp_path)
+    assert player.scene.time == pytest.approx(2 * player.steps_per_frame * player.dt, rel=1e-12)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(f"{player.name}{s}" for s in
+                                                                 (".mp4", "_metrics.json", "_sheet.png"))
 
 
 def test_box_stack_rests_at_the_height_its_boxes_stack_to(tmp_path):

@@ -38,7 +38,7 @@ def _project(renderer, point_mm):
 
 
 def test_palpating_a_synthetic_ct(ball_ct):
-    from softvr.examples.example_palpation import Example
+    from softvr.examples.ct_palpation import CTPalpation as Example
 
     ct, labels = ball_ct
     with Example(ct, cells=(8, 8, 8), frames=8, width=96, height=96, radius=0.005, depth=0.003, dt=0.01,

@@ -41,7 +41,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     (``None``: the demo's default)."""
     from tqdm import tqdm
 
-    from softvr.examples.example_palpation import Example
+    from softvr.examples.ct_palpation import CTPalpation as Example
     from softvr.render import Camera, VolumeRenderer
     from softvr.volume import Volume
 

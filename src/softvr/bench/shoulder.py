@@ -34,7 +34,7 @@ def run_variant(variant: str, *, seconds: float, dt: float, progress: bool) -> d
     """Simulate ``seconds`` of the scripted palpation of one variant; returns its numbers."""
     from tqdm import tqdm
 
-    from softvr.examples.example_shoulder import Example
+    from softvr.examples.shoulder_player import ShoulderPlayer as Example
 
     steps = max(1, int(round(seconds / dt)))
     ex = Example(frames=steps, width=64, height=48, variant=variant, dt=dt, steps_per_frame=1, haptics=True)
