@@ -1,18 +1,39 @@
-"""Compiled contact generation for the collision points of FEM bodies against static planes:
-the array form of :func:`softvr.collision.points_vs_plane` for :class:`EmbeddedPoints`
-(``p = sum_k w_k q_k``), over every point and plane of a scene in one launch.
+"""Compiled contact generation for the collision points of a whole scene of FEM bodies (and the
+kinematic / fixed bodies they meet): points against static planes, the array form of
+:func:`softvr.collision.points_vs_plane`, and surface vertices against the other bodies'
+triangles and their edges against each other's edges, the array forms of
+:func:`softvr.collision.surface_vs_surface` and :func:`softvr.collision.edges_vs_edges`.
 
-A point makes a contact with a plane when its gap, or the gap its predicted velocity would
-leave after the step, is below its body's margin. The contact starts with last step's impulse
-of the same (point, plane) pair (its key), read from and cleared in the carried table, so a
-pair that is no longer in contact forgets it.
+Every collision point ``p = sum_k w_k q_k`` has a stencil of up to 4 nodes (a kinematic body's
+surface vertex is a driven node of its own). A contact's stencil joins both sides': the point's
+nodes with their weights, and for a vertex-triangle contact the triangle's three vertices'
+nodes with minus their barycentric share (a node met twice is summed once), so that
+``sum_k w_k v_k`` is the velocity of side a relative to side b; an edge-edge contact joins
+the two edges' end points, weighted by where the closest points lie along them.
+
+Detection is speculative: a vertex makes a contact with a triangle of another body when the
+closest point is within the margin plus the vertex's motion relative to that body over the
+step (the explicit prediction ``v + dt g``), at the gap of the step's start; the solve's
+``n . J v >= -gap / dt`` then keeps it from crossing during the step to first order. A contact
+starts with last step's impulse of the same (point, plane) or (vertex, body) pair (its key),
+read from and cleared in the carried table, so a pair that is no longer in contact forgets it.
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from softvr.collision.edges import edge_pair
+from softvr.collision.mesh import NORMAL_FROM_OFFSET
+
+#: Nodes in a collision point's stencil (4: a point embedded in a tet; unused entries -1).
 STENCIL = 4
+#: Nodes in a contact's stencil: a point's 4 and a triangle's 3 x 4.
+CONTACT_STENCIL = 16
+#: ``NodeContacts.kind`` codes.
+PLANE = wp.constant(0)
+VERTEX_TRIANGLE = wp.constant(1)
+EDGE_EDGE = wp.constant(2)
 
 
 @wp.func
@@ -27,52 +48,318 @@ def plane_frame(n: wp.vec3d) -> wp.mat33d:
 
 
 @wp.kernel
-def points_vs_planes(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
-                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
-                     point_margin: wp.array(dtype=wp.float64), plane_normal: wp.array(dtype=wp.vec3d),
-                     plane_offset: wp.array(dtype=wp.float64), plane_friction: wp.array(dtype=wp.float64),
-                     gravity: wp.vec3d, dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
-                     count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
-                     plane: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
-                     gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                     impulse: wp.array(dtype=wp.vec3d)):
-    """One thread: every (point, plane) pair in order, so contacts come out in the per-object
-    path's order (by plane, then point) on every device. The predicted velocity is the
-    explicit one, ``v + dt g`` [m/s] (the implicit step's is not known before the contact
-    solve, which here also solves eq. 5.2)."""
+def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                 fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
+                 point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
+                 point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
+                 point_u: wp.array(dtype=wp.vec3d)):
+    """Position [m] (also in single precision, the surfaces' BVH vertices) and predicted
+    velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
+    nodes, the prescribed velocity of its driven ones."""
+    p = wp.tid()
+    x = wp.vec3d()
+    u = wp.vec3d()
+    for k in range(STENCIL):
+        node = point_nodes[p, k]
+        if node >= 0:
+            w = point_weights[p, k]
+            x = x + w * q[node]
+            if fixed[node] != 0:
+                u = u + w * fixed_velocity[node]
+            else:
+                u = u + w * (v[node] + dt * gravity)
+    point_x[p] = x
+    point_x32[p] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    point_u[p] = u
+
+
+@wp.kernel
+def body_motion(body_point_start: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
+                body_mean_u: wp.array(dtype=wp.vec3d)):
+    """Mean predicted velocity [m/s] of body ``b``'s collision points (the vertex queries
+    sweep a vertex relative to it, as :func:`softvr.collision.surface_vs_surface` does)."""
+    b = wp.tid()
+    u = wp.vec3d()
+    first = body_point_start[b]
+    last = body_point_start[b + 1]
+    for p in range(first, last):
+        u = u + point_u[p]
+    if last > first:
+        u = u / wp.float64(last - first)
+    body_mean_u[b] = u
+
+
+@wp.kernel
+def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
+                    point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+                    pair_enabled: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
+                    margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
+                    hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
+                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64)):
+    """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
+    point within the margin plus the vertex's relative motion [m]; the normal points out of
+    that body (towards the vertex), the gap [m] is negative inside it (by the closest
+    feature's pseudo normal, as :func:`softvr.collision.query_points`)."""
+    p = wp.tid()
+    a = point_body[p]
+    x = point_x[p]
+    xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    for b in range(mesh_ids.shape[0]):
+        hit[p, b] = 0
+        if pair_enabled[a, b] != 0:
+            reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
+            query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
+            if query.result:
+                c = wp.mesh_eval_position(mesh_ids[b], query.face, query.u, query.v)
+                cd = wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))
+                offset = x - cd
+                dist = wp.length(offset)
+                sign = wp.float64(query.sign)
+                fn = wp.mesh_eval_face_normal(mesh_ids[b], query.face)
+                n = wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2]))
+                if dist > wp.float64(NORMAL_FROM_OFFSET):
+                    n = offset / dist * sign
+                hit[p, b] = 1
+                hit_face[p, b] = query.face
+                u = wp.float64(query.u)
+                w = wp.float64(query.v)
+                hit_bary[p, b] = wp.vec3d(u, w, wp.float64(1.0) - u - w)
+                hit_normal[p, b] = n
+                hit_gap[p, b] = dist * sign
+
+
+@wp.func
+def _face_normal(points: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32), t: int) -> wp.vec3:
+    a = points[triangles[t, 0]]
+    n = wp.cross(points[triangles[t, 1]] - a, points[triangles[t, 2]] - a)
+    size = wp.length(n)
+    if size > 0.0:
+        n = n / size
+    return n
+
+
+@wp.kernel
+def edge_geometry(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+                  edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
+                  lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
+                  sharp: wp.array(dtype=wp.int32)):
+    """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles, and
+    whether it is a crease (faces at more than the sharp angle) or a border, as
+    :meth:`softvr.collision.EdgeSet.edge_normals`."""
+    e = wp.tid()
+    p = point_x32[edges[e, 0]]
+    q = point_x32[edges[e, 1]]
+    lower[e] = wp.min(p, q)
+    upper[e] = wp.max(p, q)
+    first = _face_normal(point_x32, triangles, edge_faces[e, 0])
+    n = first
+    crease = int(1)
+    if edge_faces[e, 1] >= 0:
+        second = _face_normal(point_x32, triangles, edge_faces[e, 1])
+        n = first + second
+        if wp.dot(first, second) >= sharp_cosine:
+            crease = 0
+    size = wp.length(n)
+    if size > 0.0:
+        n = n / size
+    normal[e] = n
+    sharp[e] = crease
+
+
+@wp.kernel
+def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+              body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
+              point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+              pair_enabled: wp.array2d(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64),
+              normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
+              min_sine: float, min_alignment: float, pairs_per_edge: int, pair_edge: wp.array2d(dtype=wp.int32),
+              pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+              pair_gap: wp.array2d(dtype=wp.float64)):
+    """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
+    (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
+    vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
+    ``pairs_per_edge * b + k``. Pairs deeper than the margin are seen from the wrong side and
+    dropped."""
+    i = wp.tid()
+    a = edge_body[i]
+    p1 = point_x32[edges[i, 0]]
+    q1 = point_x32[edges[i, 1]]
+    for b in range(bvh_ids.shape[0]):
+        for k in range(pairs_per_edge):
+            pair_edge[i, pairs_per_edge * b + k] = -1
+        if b > a and pair_enabled[a, b] != 0:
+            mean = body_mean_u[b]
+            travel = wp.max(wp.length(point_u[edges[i, 0]] - mean), wp.length(point_u[edges[i, 1]] - mean))
+            reach = margin + dt * float(travel)
+            grow = wp.vec3(reach, reach, reach)
+            query = wp.bvh_query_aabb(bvh_ids[b], wp.min(p1, q1) - grow, wp.max(p1, q1) + grow)
+            j = int(0)
+            found = int(0)
+            while wp.bvh_query_next(query, j):
+                jg = body_edge_start[b] + j
+                if found < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0):
+                    aligned, s, t, n, gap = edge_pair(p1, q1, point_x32[edges[jg, 0]], point_x32[edges[jg, 1]],
+                                                      normal[i], normal[jg], reach, min_sine, min_alignment)
+                    if aligned != 0 and gap >= -margin:
+                        slot = pairs_per_edge * b + found
+                        pair_edge[i, slot] = jg
+                        pair_st[i, slot] = wp.vec3d(wp.float64(s), wp.float64(t), wp.float64(0.0))
+                        pair_normal[i, slot] = wp.vec3d(wp.float64(n[0]), wp.float64(n[1]), wp.float64(n[2]))
+                        pair_gap[i, slot] = wp.float64(gap)
+                        found += 1
+
+
+@wp.func
+def add_node(c: int, node: int, w: wp.float64, count: wp.array(dtype=wp.int32),
+             nodes: wp.array2d(dtype=wp.int32), weights: wp.array2d(dtype=wp.float64)):
+    """Add ``w`` times node ``node`` to contact ``c``'s stencil (summed if already in it)."""
+    n = count[c]
+    for k in range(n):
+        if nodes[c, k] == node:
+            weights[c, k] = weights[c, k] + w
+            return
+    nodes[c, n] = node
+    weights[c, n] = w
+    count[c] = n + 1
+
+
+@wp.func
+def add_point(c: int, p: int, scale: wp.float64, point_nodes: wp.array2d(dtype=wp.int32),
+              point_weights: wp.array2d(dtype=wp.float64), count: wp.array(dtype=wp.int32),
+              nodes: wp.array2d(dtype=wp.int32), weights: wp.array2d(dtype=wp.float64)):
+    for k in range(STENCIL):
+        node = point_nodes[p, k]
+        if node >= 0:
+            add_node(c, node, scale * point_weights[p, k], count, nodes, weights)
+
+
+@wp.kernel
+def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
+                    point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+                    point_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
+                    body_point_start: wp.array(dtype=wp.int32), triangles: wp.array2d(dtype=wp.int32),
+                    body_triangle_start: wp.array(dtype=wp.int32), plane_normal: wp.array(dtype=wp.vec3d),
+                    plane_offset: wp.array(dtype=wp.float64), plane_friction: wp.array(dtype=wp.float64),
+                    surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32),
+                    hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
+                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64),
+                    edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32),
+                    pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+                    pair_gap: wp.array2d(dtype=wp.float64), edge_carried: wp.array2d(dtype=wp.vec3d),
+                    edge_partner: wp.array2d(dtype=wp.int32), dt: wp.float64, capacity: int,
+                    carried: wp.array2d(dtype=wp.vec3d), count: wp.array(dtype=wp.int32),
+                    kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
+                    point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
+                    face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3d), frame: wp.array(dtype=wp.mat33d),
+                    gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
+                    impulse: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+                    stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64)):
+    """One thread, so that contacts come out in the same order on every device: every (point,
+    plane) pair by plane, then point (the per-object path's order), then every (vertex, body)
+    hit by vertex, then body, then every edge pair by edge a, then slot. ``other`` is the
+    plane, or the body whose triangle ``face`` (global) the vertex meets at barycentric
+    ``bary``, or whose edge ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``;
+    ``carried[p, column]`` (planes first, then bodies) and ``edge_carried[e, column]`` (with
+    the edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
+    planes = plane_normal.shape[0]
     n_out = int(0)
-    for s in range(plane_normal.shape[0]):
+    for s in range(planes):
         normal = plane_normal[s]
         for p in range(point_nodes.shape[0]):
-            x = wp.vec3d()
-            u = wp.vec3d()
-            for k in range(STENCIL):
-                node = point_nodes[p, k]
-                if node >= 0:
-                    x = x + point_weights[p, k] * q[node]
-                    u = u + point_weights[p, k] * v[node]
-            g = wp.dot(normal, x) - plane_offset[s]
-            reach = g + dt * wp.min(wp.dot(u + dt * gravity, normal), wp.float64(0.0))
+            g = wp.dot(normal, point_x[p]) - plane_offset[s]
+            reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
             last = carried[p, s]
             carried[p, s] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
                 f = plane_frame(normal)
+                kind[n_out] = PLANE
+                column[n_out] = s
                 point[n_out] = p
-                plane[n_out] = s
+                other[n_out] = s
+                face[n_out] = -1
                 frame[n_out] = f
                 gap[n_out] = g
                 friction[n_out] = plane_friction[s]
                 lam = f * last
                 # A pushing contact only: the normal impulse of a warm start is >= 0.
                 impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
+                stencil_count[n_out] = 0
+                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
+                n_out += 1
+    for p in range(hit.shape[0]):
+        for b in range(hit.shape[1]):
+            last = carried[p, planes + b]
+            carried[p, planes + b] = wp.vec3d()
+            if hit[p, b] != 0 and n_out < capacity:
+                f = plane_frame(hit_normal[p, b])
+                t = body_triangle_start[b] + hit_face[p, b]
+                w = hit_bary[p, b]
+                kind[n_out] = VERTEX_TRIANGLE
+                column[n_out] = planes + b
+                point[n_out] = p
+                other[n_out] = b
+                face[n_out] = t
+                bary[n_out] = w
+                frame[n_out] = f
+                gap[n_out] = hit_gap[p, b]
+                friction[n_out] = surface_friction
+                lam = f * last
+                impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
+                stencil_count[n_out] = 0
+                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
+                for v in range(3):
+                    add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, stencil_count,
+                              stencil_nodes, stencil_weights)
+                n_out += 1
+    for e in range(pair_edge.shape[0]):
+        for k in range(pair_edge.shape[1]):
+            last = edge_carried[e, k]
+            partner = edge_partner[e, k]
+            edge_carried[e, k] = wp.vec3d()
+            edge_partner[e, k] = -1
+            j = pair_edge[e, k]
+            if j >= 0 and n_out < capacity:
+                f = plane_frame(pair_normal[e, k])
+                st = pair_st[e, k]
+                kind[n_out] = EDGE_EDGE
+                column[n_out] = k
+                point[n_out] = e
+                other[n_out] = point_body[edges[j, 0]]
+                face[n_out] = j
+                bary[n_out] = st
+                frame[n_out] = f
+                gap[n_out] = pair_gap[e, k]
+                friction[n_out] = surface_friction
+                lam = wp.vec3d()
+                if partner == j:
+                    lam = f * last
+                impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
+                stencil_count[n_out] = 0
+                one = wp.float64(1.0)
+                add_point(n_out, edges[e, 0], one - st[0], point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
+                add_point(n_out, edges[e, 1], st[0], point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
+                add_point(n_out, edges[j, 0], st[1] - one, point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
+                add_point(n_out, edges[j, 1], -st[1], point_nodes, point_weights, stencil_count, stencil_nodes,
+                          stencil_weights)
                 n_out += 1
     count[0] = n_out
 
 
 @wp.kernel
-def carry_impulses(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
-                   plane: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
-                   impulse: wp.array(dtype=wp.vec3d), carried: wp.array2d(dtype=wp.vec3d)):
-    """The step's impulses (world [N s]) into the carried table for the next step's warm start."""
+def carry_impulses(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
+                   point: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
+                   impulse: wp.array(dtype=wp.vec3d), carried: wp.array2d(dtype=wp.vec3d),
+                   edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32)):
+    """The step's impulses (world [N s]) into the carried tables for the next step's warm start."""
     for c in range(count[0]):
-        carried[point[c], plane[c]] = wp.transpose(frame[c]) * impulse[c]
+        world = wp.transpose(frame[c]) * impulse[c]
+        if kind[c] == EDGE_EDGE:
+            edge_carried[point[c], column[c]] = world
+            edge_partner[point[c], column[c]] = face[c]
+        else:
+            carried[point[c], column[c]] = world

@@ -29,7 +29,7 @@ import warp as wp
 from softvr.collision.contacts import ContactKind, Contacts, contact_keys, stencil_side
 from softvr.device import load_kernels
 
-__all__ = ["EdgeSet", "edges_vs_edges", "surface_edges"]
+__all__ = ["EdgeSet", "edge_pair", "edges_vs_edges", "surface_edges"]
 
 #: Pairs whose edges make less than this angle [rad] are left to vertex-triangle contacts.
 MIN_EDGE_ANGLE = np.radians(10.0)
@@ -130,6 +130,33 @@ class EdgeSet:
         return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300), sharp
 
 
+@wp.func
+@no_type_check  # Warp's vector types are not indexable to mypy
+def edge_pair(p1: wp.vec3, q1: wp.vec3, p2: wp.vec3, q2: wp.vec3, normal_a: wp.vec3, normal_b: wp.vec3,
+              reach: float, min_sine: float, min_alignment: float):
+    """The test of edge a (p1, q1) against edge b (p2, q2) [m] (module docstring): whether they
+    make a contact, the closest points' parameters s, t along them, the normal (out of b) and
+    the gap [m] along it."""
+    st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-9)
+    s = st[0]
+    t = st[1]
+    ea = q1 - p1
+    eb = q2 - p2
+    n = wp.cross(ea, eb)
+    size = wp.length(n)
+    interior = s > 1.0e-3 and s < 1.0 - 1.0e-3 and t > 1.0e-3 and t < 1.0 - 1.0e-3
+    aligned = int(0)
+    gap = float(0.0)
+    if interior and st[2] <= reach and size > min_sine * wp.length(ea) * wp.length(eb):
+        n = n / size
+        if wp.dot(n, normal_b) < 0.0:
+            n = -n
+        if wp.dot(n, normal_b) >= min_alignment and -wp.dot(n, normal_a) >= min_alignment:
+            aligned = 1
+            gap = wp.dot((p1 + s * ea) - (p2 + t * eb), n)
+    return aligned, s, t, n, gap
+
+
 @wp.kernel
 @no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.array2d(dtype=wp.int32),
@@ -149,27 +176,13 @@ def _edge_pairs(bvh: wp.uint64, verts_a: wp.array(dtype=wp.vec3), edges_a: wp.ar
     found = int(0)
     while wp.bvh_query_next(query, j):
         if found < pair_edge.shape[1] and (sharp_a[i] != 0 or sharp_b[j] != 0):
-            p2 = verts_b[edges_b[j, 0]]
-            q2 = verts_b[edges_b[j, 1]]
-            st = wp.closest_point_edge_edge(p1, q1, p2, q2, 1.0e-9)
-            s = st[0]
-            t = st[1]
-            ea = q1 - p1
-            eb = q2 - p2
-            n = wp.cross(ea, eb)
-            size = wp.length(n)
-            interior = s > 1.0e-3 and s < 1.0 - 1.0e-3 and t > 1.0e-3 and t < 1.0 - 1.0e-3
-            aligned = False
-            if interior and st[2] <= reach and size > min_sine * wp.length(ea) * wp.length(eb):
-                n = n / size
-                if wp.dot(n, normals_b[j]) < 0.0:
-                    n = -n
-                aligned = wp.dot(n, normals_b[j]) >= min_alignment and -wp.dot(n, normals_a[i]) >= min_alignment
-            if aligned:
+            aligned, s, t, n, gap = edge_pair(p1, q1, verts_b[edges_b[j, 0]], verts_b[edges_b[j, 1]], normals_a[i],
+                                              normals_b[j], reach, min_sine, min_alignment)
+            if aligned != 0:
                 pair_edge[i, found] = j
                 pair_st[i, found] = wp.vec2(s, t)
                 pair_normal[i, found] = n
-                pair_gap[i, found] = wp.dot((p1 + s * ea) - (p2 + t * eb), n)
+                pair_gap[i, found] = gap
                 found += 1
 
 

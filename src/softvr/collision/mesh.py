@@ -17,7 +17,14 @@ from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contac
 from softvr.device import resolve_device
 from softvr.errors import InputError
 
-__all__ = ["TriangleMesh", "points_vs_mesh", "query_points"]
+__all__ = ["NORMAL_FROM_OFFSET", "TriangleMesh", "points_vs_mesh", "query_points"]
+
+#: Distance [m] below which a contact takes the face's normal rather than the direction from
+#: the closest point: the BVH runs in single precision, so a point resting on a face is some
+#: 1e-8 m off it in a random direction (a pressed block's nodes got normals 80 degrees off
+#: and slid into the plate); a micrometre is far above that rounding within ~10 m of the
+#: origin and far below any contact margin.
+NORMAL_FROM_OFFSET = wp.constant(1.0e-6)
 
 
 @wp.kernel
@@ -40,7 +47,10 @@ def _query_points(
     ``closed`` (watertight, outward) surface a point inside gets the outward normal and a
     negative gap (its penetration depth), and a sweep only counts when it enters the solid:
     a point inside moving out meets the surface from behind, and a contact on that side would
-    pull it back in."""
+    pull it back in. Inside or outside comes from the closest feature's angle-weighted pseudo
+    normal: Warp's default vote of three axis-aligned rays is a coin toss for a point resting
+    on a face, whose rays run along it (a block's nodes under a pressing plate flipped sides and
+    were pushed into it)."""
     i = wp.tid()
     p = points[i]
     hit[i] = 0
@@ -59,13 +69,13 @@ def _query_points(
             surface[i] = p + ray.t * direction
             return
     if closed != 0:
-        q = wp.mesh_query_point(mesh, p, reach + thickness)
+        q = wp.mesh_query_point_sign_normal(mesh, p, reach + thickness)
         if q.result:
             c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
             offset = p - c
             dist = wp.length(offset)
             n = wp.mesh_eval_face_normal(mesh, q.face)
-            if dist > 1.0e-9:
+            if dist > NORMAL_FROM_OFFSET:
                 n = offset / dist * q.sign
             hit[i] = 1
             normal[i] = n
@@ -78,7 +88,7 @@ def _query_points(
         offset = p - c
         dist = wp.length(offset)
         n = wp.mesh_eval_face_normal(mesh, q.face)
-        if dist > 1.0e-9:
+        if dist > NORMAL_FROM_OFFSET:
             n = offset / dist
         hit[i] = 1
         normal[i] = n

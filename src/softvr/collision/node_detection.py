@@ -1,28 +1,88 @@
-"""Contact generation of the FEM bodies of a whole scene against its planes, one recorded
-launch (kernels in :mod:`softvr.collision._node_kernels`; works on :class:`softvr.sim.NodeModel`
-/ :class:`softvr.sim.NodeState` or any objects with those attributes)."""
+"""Contact generation of the collision points of a whole scene of FEM bodies (and the kinematic
+or fixed bodies they meet) against its planes and each other's surfaces, as recorded launches
+(kernels in :mod:`softvr.collision._node_kernels`; works on :class:`softvr.sim.NodeModel` /
+:class:`softvr.sim.NodeState` or any objects with those attributes)."""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 import warp as wp
 
 from softvr.collision import _node_kernels as _k
-from softvr.device import load_kernels
+from softvr.collision.edges import MIN_EDGE_ANGLE, MIN_NORMAL_ALIGNMENT, PAIRS_PER_EDGE, SHARP_EDGE_ANGLE
+from softvr.device import load_kernels, replayer
 
-__all__ = ["record_carry", "record_node_detection"]
+__all__ = ["CONTACT_STENCIL", "record_carry", "record_node_detection"]
+
+#: Nodes a contact's stencil holds (a point's 4 and a triangle's 3 x 4).
+CONTACT_STENCIL = _k.CONTACT_STENCIL
 
 
-def record_node_detection(model, state, dt: float, gravity) -> wp.Launch:
-    """The launch filling ``state.contacts`` (points vs planes, warm-started from
-    ``state.contacts.carried``) from the step's start ``q``, ``v`` and ``gravity`` [m/s^2]."""
-    c = state.contacts
-    load_kernels(_k.points_vs_planes, model.device)
-    return wp.launch(_k.points_vs_planes, dim=1, device=model.device, record_cmd=True,
-                     inputs=[state.q, state.v, model.point_nodes, model.point_weights, model.point_margin,
-                             model.plane_normal, model.plane_offset, model.plane_friction,
-                             wp.vec3d(*np.asarray(gravity, float)), float(dt), c.capacity, c.carried, c.count,
-                             c.point, c.plane, c.frame, c.gap, c.friction, c.impulse])
+def record_node_detection(model, state, dt: float, gravity, margin: float, friction: float) -> Callable[[], None]:
+    """A replay filling ``state.contacts`` (warm-started from ``state.contacts.carried``) from
+    the step's start ``q``, ``v``, ``gravity`` [3] [m/s^2]: points vs planes, and surface
+    vertices vs the other bodies' triangles within ``margin`` [m] (plus their motion over
+    ``dt`` [s]) with Coulomb coefficient ``friction``. The surfaces' BVHs are refitted to the
+    points' positions in between."""
+    c, d = state.contacts, model.device
+    g = wp.vec3d(*np.asarray(gravity, float))
+    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.edge_edge,
+                   _k.gather_contacts):
+        load_kernels(kernel, d)
+    motion = replayer(wp.launch(_k.point_motion, dim=model.point_count, device=d, record_cmd=True,
+                                inputs=[state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
+                                        model.point_weights, g, float(dt), state.point_x, state.point_x32,
+                                        state.point_u]))
+    steps = [motion]
+    if model.meshes:
+        bodies = len(model.body_node_start) - 1
+        steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u])))
+
+        def refit() -> None:
+            for mesh in model.meshes:
+                mesh.refit()
+
+        steps.append(refit)
+        steps.append(replayer(wp.launch(_k.vertex_triangle, dim=model.point_count, device=d, record_cmd=True,
+                                        inputs=[model.point_body, state.point_x, state.point_u, state.body_mean_u,
+                                                model.pair_enabled, model.mesh_ids, float(margin), float(dt),
+                                                c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap])))
+    if model.bvhs:
+        edges = model.edges.shape[0]
+        steps.append(replayer(wp.launch(_k.edge_geometry, dim=edges, device=d, record_cmd=True,
+                                        inputs=[state.point_x32, model.triangles, model.edges, model.edge_faces,
+                                                float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
+                                                state.edge_normal, state.edge_sharp])))
+
+        def refit_edges() -> None:
+            for bvh in model.bvhs:
+                bvh.refit()
+
+        steps.append(refit_edges)
+        steps.append(replayer(wp.launch(_k.edge_edge, dim=edges, device=d, record_cmd=True,
+                                        inputs=[model.edges, model.edge_body, model.body_edge_start, state.point_x32,
+                                                state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
+                                                state.edge_normal, state.edge_sharp, float(margin), float(dt),
+                                                float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT),
+                                                PAIRS_PER_EDGE, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap])))
+    steps.append(replayer(wp.launch(
+        _k.gather_contacts, dim=1, device=d, record_cmd=True,
+        inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
+                model.point_body, model.body_point_start_wp, model.triangles, model.body_triangle_start,
+                model.plane_normal, model.plane_offset, model.plane_friction, float(friction), c.hit, c.hit_face,
+                c.hit_bary, c.hit_normal, c.hit_gap, model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap,
+                c.edge_carried, c.edge_partner, float(dt), c.capacity, c.carried, c.count, c.kind, c.column, c.point,
+                c.other, c.face, c.bary, c.frame, c.gap, c.friction, c.impulse, c.stencil_count, c.stencil_nodes,
+                c.stencil_weights])))
+
+    def detect() -> None:
+        for step in steps:
+            step()
+
+    return detect
 
 
 def record_carry(model, state) -> wp.Launch:
@@ -30,4 +90,5 @@ def record_carry(model, state) -> wp.Launch:
     c = state.contacts
     load_kernels(_k.carry_impulses, model.device)
     return wp.launch(_k.carry_impulses, dim=1, device=model.device, record_cmd=True,
-                     inputs=[c.count, c.point, c.plane, c.frame, c.impulse, c.carried])
+                     inputs=[c.count, c.kind, c.column, c.point, c.face, c.frame, c.impulse, c.carried,
+                             c.edge_carried, c.edge_partner])

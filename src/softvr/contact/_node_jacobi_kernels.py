@@ -12,18 +12,14 @@ Plain Jacobi (omega = gamma = 1) converges on FEM step matrices (spectral radius
 (L_A + U_A) below 1 there: 0.96 on the contact bench's cube) but needs ~190 sweeps for 1e-5 m/s;
 the Chebyshev semi-iteration over the spectrum [lo, hi] of D_A^-1 A (gamma = 2 / (lo + hi),
 rho = (hi - lo) / (hi + lo), omega_k by the recurrence in :func:`chebyshev_weights`) needs 30-40
-(docs/physics-core.md). Each contact here touches the nodes of one point (a stencil of up to 4
-nodes with weights); the per-contact PGS update is local, so the inner loop costs
-O(contacts) per sweep.
+(docs/physics-core.md). Each contact touches the nodes of its stencil (up to 16 nodes with
+weights: a point's, minus a triangle's for a contact between two bodies, each node once); the
+per-contact PGS update is local, so the inner loop costs O(contacts) per sweep.
 """
 
 from __future__ import annotations
 
 import warp as wp
-
-#: Nodes in a point's stencil (4: a point embedded in a tet; unused entries have node -1).
-STENCIL = 4
-
 
 @wp.kernel
 def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
@@ -44,21 +40,19 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
 
 
 @wp.func
-def _apply(c: int, world: wp.vec3d, point: wp.array(dtype=wp.int32), point_nodes: wp.array2d(dtype=wp.int32),
-           point_weights: wp.array2d(dtype=wp.float64), d_inv: wp.array(dtype=wp.mat33d),
-           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
+def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
+           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+           d_inv: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
     """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s]."""
-    p = point[c]
-    for k in range(STENCIL):
-        node = point_nodes[p, k]
-        if node >= 0:
-            if fixed[node] == 0:
-                v_hat[node] = v_hat[node] + point_weights[p, k] * (d_inv[node] * world)
+    for k in range(stencil_count[c]):
+        node = stencil_nodes[c, k]
+        if fixed[node] == 0:
+            v_hat[node] = v_hat[node] + stencil_weights[c, k] * (d_inv[node] * world)
 
 
 @wp.kernel
-def contacts(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
-             point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+             stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
              friction: wp.array(dtype=wp.float64), d_inv: wp.array(dtype=wp.mat33d),
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
@@ -68,20 +62,19 @@ def contacts(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
     then ``passes`` PGS passes; counts the sweep in ``sweep[0]``."""
     n = count[0]
     for c in range(n):
-        _apply(c, wp.transpose(frame[c]) * impulse[c], point, point_nodes, point_weights, d_inv, fixed, v_hat)
+        _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, d_inv, fixed,
+               v_hat)
     for _ in range(passes):
         for c in range(n):
             f = frame[c]
-            p = point[c]
             rel = wp.vec3d()
             w = wp.mat33d()
-            for k in range(STENCIL):
-                node = point_nodes[p, k]
-                if node >= 0:
-                    wk = point_weights[p, k]
-                    rel = rel + wk * v_hat[node]
-                    if fixed[node] == 0:
-                        w = w + (wk * wk) * d_inv[node]
+            for k in range(stencil_count[c]):
+                node = stencil_nodes[c, k]
+                wk = stencil_weights[c, k]
+                rel = rel + wk * v_hat[node]
+                if fixed[node] == 0:
+                    w = w + (wk * wk) * d_inv[node]
             rel_f = f * rel
             w_f = f * w * wp.transpose(f)
             old = impulse[c]
@@ -110,7 +103,7 @@ def contacts(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
                         t2 = t2 * scale
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
-            _apply(c, wp.transpose(f) * (lam - old), point, point_nodes, point_weights, d_inv, fixed, v_hat)
+            _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, d_inv, fixed, v_hat)
     sweep[0] = sweep[0] + 1
 
 
@@ -134,21 +127,24 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
 
 
 @wp.kernel
-def residual(count: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
-             point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+             stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), dt: wp.float64,
-             v: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64), stats: wp.array(dtype=wp.float64)):
+             v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
+             stats: wp.array(dtype=wp.float64)):
     """Per contact the linearized gap after the step [m] (``gap + dt n . J v``); ``stats[1]``
-    the largest normal-velocity violation [m/s] of the final velocities (one thread)."""
+    the largest normal-velocity error [m/s] of the velocities ``v`` (one thread): how far a
+    contact falls short of its target ``-gap / dt``, or for one that pushes (``impulse`` [N s]
+    normal > 0) how far it is from it either way (complementarity)."""
     worst = wp.float64(0.0)
     for c in range(count[0]):
-        p = point[c]
         rel = wp.vec3d()
-        for k in range(STENCIL):
-            node = point_nodes[p, k]
-            if node >= 0:
-                rel = rel + point_weights[p, k] * v[node]
+        for k in range(stencil_count[c]):
+            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
         vn = wp.dot(wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2]), rel)
         gap_after[c] = gap[c] + dt * vn
-        worst = wp.max(worst, -gap[c] / dt - vn)
+        error = -gap[c] / dt - vn
+        if impulse[c][0] > wp.float64(0.0):
+            error = wp.abs(error)
+        worst = wp.max(worst, error)
     stats[1] = worst

@@ -1,6 +1,8 @@
-"""The step of a scene of FEM bodies on planes, on whole-scene arrays (a fixed launch sequence):
+"""The step of a scene of FEM bodies (with the kinematic and fixed bodies and the planes they
+meet) on whole-scene arrays (a fixed launch sequence):
 
-    element terms + A, b of eq. 5.2 (node blocks)  ->  contacts, one launch
+    element terms + A, b of eq. 5.2 (node blocks)  ->  contacts (points vs planes, surface
+        vertices vs the other bodies' triangles)
     ->  sweeps of eq. 5.6 (outer Jacobi with D_A = node blocks, inner PGS, Chebyshev), until
         the velocities stop changing  ->  warm starts carried  ->  integration
 
@@ -9,8 +11,10 @@ with the contacts' complementarity at once. The Chebyshev weights need bounds of
 of D_A^-1 A; they are computed (Lanczos) once per step size from the first step's ``A``, with
 margins, and widened if a step's sweeps stop contracting.
 
-The bodies keep working as the user-facing API: their ``q``, ``v`` and ``fixed_velocity`` are
-views of the state arrays (a value the user assigns is copied in before the next step).
+The bodies keep working as the user-facing API: an FEM body's ``q``, ``v`` and
+``fixed_velocity`` are views of the state arrays (a value the user assigns is copied in before
+the next step); a kinematic or fixed body follows its script, its collision points (driven
+nodes here) set from its pose and velocity before every step.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks
+from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
+                                      stencil_side)
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
@@ -29,17 +34,28 @@ from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
 from softvr.collision.node_detection import record_carry, record_node_detection
+from softvr.dynamics import FemBody
 from softvr.errors import InputError
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
 from softvr.sim.node_model import build_node_model
 
-__all__ = ["NodeStepper"]
+__all__ = ["IllConditioned", "NodeStepper"]
 
 #: Safety factors on the Lanczos estimates of the spectrum of D_A^-1 A: an underestimated
 #: radius makes the Chebyshev iteration diverge, an overestimated one only slows it.
 SPECTRUM_MARGIN = (0.8, 1.02)
 #: Velocity error [m/s] at which the sweeps stop (the per-object path's PGS tolerance).
 SWEEP_TOLERANCE = 1e-5
+#: Chebyshev sweeps per decade of error above which a scene is left to the per-object path
+#: (a sparse LU per body): ~0.3 ms a sweep on the head CT's 1 870 nodes, and some 5 decades
+#: to the tolerance, make the sweeps slower than the factorization there (54 per decade: 150 ms
+#: against 68 ms a step), while the soft cube (3.5) and the oranges (8.5) gain 5-6x.
+MAX_SWEEPS_PER_DECADE = 25.0
+
+
+class IllConditioned(Exception):
+    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`);
+    raised before the step has changed the scene."""
 
 
 def spectrum(model, state) -> tuple[float, float]:
@@ -53,14 +69,19 @@ def spectrum(model, state) -> tuple[float, float]:
     a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
     free = np.repeat(model.fixed.numpy() == 0, 3)
     a = a[free][:, free]
-    diag = blocks[np.flatnonzero(model.block_row.numpy() == model.block_col.numpy())]  # rows sorted: node order
-    l_inv = np.linalg.inv(np.linalg.cholesky(diag))[model.fixed.numpy() == 0]
+    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    diag = np.tile(np.eye(3), (n, 1, 1))  # a kinematic body's nodes have no blocks (and are driven)
+    diag[rows[rows == cols]] = blocks[rows == cols]
+    l_inv = np.linalg.inv(np.linalg.cholesky(diag[model.fixed.numpy() == 0]))
     k = len(l_inv)
     l_inv = sp.bsr_matrix((l_inv, np.arange(k), np.arange(k + 1)), shape=(3 * k, 3 * k)).tocsr()
     s = (l_inv @ a @ l_inv.T).tocsr()
-    hi = float(spla.eigsh(s, k=1, which="LA", return_eigenvectors=False, tol=1e-3)[0])
+    # A fixed start vector (ARPACK's default is random): the same scene steps the same way in
+    # every run (the bounds set the Chebyshev weights, and so the rounding of every sweep).
+    start = np.random.default_rng(0).standard_normal(s.shape[0])
+    hi = float(spla.eigsh(s, k=1, which="LA", return_eigenvectors=False, tol=1e-3, v0=start)[0])
     shifted = (hi * sp.identity(s.shape[0]) - s).tocsr()
-    lo = hi - float(spla.eigsh(shifted, k=1, which="LA", return_eigenvectors=False, tol=1e-6)[0])
+    lo = hi - float(spla.eigsh(shifted, k=1, which="LA", return_eigenvectors=False, tol=1e-6, v0=start)[0])
     return max(lo, 1e-6 * hi) * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]
 
 
@@ -73,16 +94,17 @@ class _NodeSnapshot(StepSnapshot):
         self._stepper, self._q0 = stepper, q0
 
     def sets(self) -> list[np.ndarray]:
-        """Rows of each contact set, one per (body, plane) in the per-object path's order (body,
-        then plane; points ascending); contacts whose stencil is all fixed nodes are left out."""
+        """Rows of each contact set, in body order: one per (body, plane), then per (body, body
+        its vertices meet), then per (body, body its edges meet) (points or edges ascending);
+        contacts whose stencil is all driven nodes are left out."""
         if self._sets is None:
             s = self._stepper
             c = self.contacts
-            body = np.searchsorted(s.model.body_point_start, c["point"], side="right") - 1
-            movable = s.movable_point[c["point"]]
-            order = np.lexsort((c["point"], c["plane"], body))
-            order = order[movable[order]]
-            pair = body[order] * (len(s.scene.planes) + 1) + c["plane"][order]
+            body = s.contact_body(c)
+            order = np.lexsort((c["point"], c["other"], c["kind"], body))
+            order = order[c["movable"][order]]
+            pair = (body[order] * 3 + c["kind"][order]) * (len(s.scene.planes) + len(s.scene.bodies) + 1) \
+                + c["other"][order]
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
@@ -90,22 +112,42 @@ class _NodeSnapshot(StepSnapshot):
     def _build(self) -> ContactSolution:
         s = self._stepper
         c = self.contacts
+        model = s.model
         sets = []
         for rows in self.sets():
+            kind, other = int(c["kind"][rows[0]]), int(c["other"][rows[0]])
+            normal, gap, friction = c["frame"][rows, 0], c["gap"][rows], c["friction"][rows]
+            if kind == 2:  # edge pairs: both sides are two surface vertices
+                edge_a, edge_b = c["point"][rows], c["face"][rows]
+                body = int(s.edge_body[edge_a[0]])
+                st = c["bary"][rows]
+                sides, points = [], []
+                for b, edge, t in ((body, edge_a, st[:, 0]), (other, edge_b, st[:, 1])):
+                    ends = s.edges[edge] - model.body_point_start[b]
+                    weights = np.column_stack([1.0 - t, t])
+                    sides.append(stencil_side(b, model.surfaces[b].points, ends, weights))
+                    points.append(np.einsum("ck,ckx->cx", weights, s.point_positions(self._q0, s.edges[edge])))
+                keys = contact_keys(ContactKind.EDGE_EDGE, body, edge_a - int(s.edge_start[body]), other,
+                                    edge_b - int(s.edge_start[other]))
+                sets.append(Contacts(sides[0], sides[1], normal, gap, points[0], points[1], keys, friction,
+                                     np.zeros(len(rows))))
+                continue
             point = c["point"][rows]
-            body = int(np.searchsorted(s.model.body_point_start, point[0], side="right") - 1)
-            local = point - s.model.body_point_start[body]
-            points = s.colliders[body].points
-            blocks, jac = point_jacobian_blocks(points, local)
-            nodes = points.nodes[local] + s.model.body_node_start[body]
-            x = np.einsum("pk,pkx->px", points.weights[local], self._q0[nodes])
-            normal = c["frame"][rows, 0]
-            gap = c["gap"][rows]
-            plane = int(c["plane"][rows[0]])
-            sets.append(Contacts(ContactSide(body, blocks, jac), None, normal, gap, x, x - gap[:, None] * normal,
-                                 contact_keys(ContactKind.POINT_PLANE, body, local, plane, 0), c["friction"][rows],
+            body = int(s.point_body[point[0]])
+            local = point - model.body_point_start[body]
+            x = s.point_positions(self._q0, point)
+            if kind == 0:
+                side_b, keys = None, contact_keys(ContactKind.POINT_PLANE, body, local, other, 0)
+            else:
+                surface = model.surfaces[other]
+                faces = c["face"][rows] - int(s.triangle_start[other])
+                side_b = stencil_side(other, surface.points, surface.triangles[faces], c["bary"][rows])
+                keys = contact_keys(ContactKind.VERTEX_TRIANGLE, body, local, other, 0)
+            side_a = ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local))
+            sets.append(Contacts(side_a, side_b, normal, gap, x, x - gap[:, None] * normal, keys, friction,
                                  np.zeros(len(rows))))
-        islands = contact_islands(len(self.velocities), [(x.a.body, None) for x in sets])
+        islands = contact_islands(len(self.velocities),
+                                  [(x.a.body, None if x.b is None else x.b.body) for x in sets])
         return ContactSolution(velocities=self.velocities, impulses=self.per_set("impulse"),
                                frames=self.per_set("frame"), iterations=self.sweeps, residual=self.residual,
                                islands=[sorted(i) for i in islands], contacts=sets,
@@ -113,25 +155,44 @@ class _NodeSnapshot(StepSnapshot):
 
 
 class NodeStepper:
-    """Steps a scene of FEM bodies on planes (:func:`~softvr.sim.node_model_supported`) on its
-    arrays; built from the scene's current state and warm starts."""
+    """Steps a scene of FEM bodies with kinematic and fixed bodies and planes
+    (:func:`~softvr.sim.node_model_supported`) on its arrays; built from the scene's current
+    state and warm starts."""
 
     def __init__(self, scene):
         self.scene = scene
         self.model, self.state = build_node_model(scene)
         self._settings = self._scene_settings()
         self.colliders = {c.body: c for c in scene._colliders}
-        fixed = self.model.fixed.numpy()
-        nodes = self.model.point_nodes.numpy()
-        self.movable_point = ((nodes >= 0) & (fixed[np.maximum(nodes, 0)] == 0)).any(axis=1)
+        self.fem = [type(b) is FemBody for b in scene.bodies]
+        self.fixed_nodes = self.model.fixed.numpy() != 0
+        self.point_nodes = self.model.point_nodes.numpy()
+        self.point_weights = self.model.point_weights.numpy()
+        self.point_body = self.model.point_body.numpy()
+        self.triangle_start = self.model.body_triangle_start.numpy()
+        self.edges = self.model.edges.numpy()
+        self.edge_body = self.model.edge_body.numpy()
+        self.edge_start = self.model.body_edge_start.numpy()
         self._bind_bodies()
         self._carry_in(scene._warm)
         self._recorded = None
         self._spectrum = {}
 
+    def contact_body(self, contacts: dict) -> np.ndarray:
+        """Side a's body of each contact of a snapshot's ``contacts``."""
+        feature = contacts["point"]
+        edge = contacts["kind"] == 2
+        return np.where(edge, self.edge_body[np.where(edge, feature, 0)] if len(self.edge_body) else 0,
+                        self.point_body[np.where(edge, 0, feature)] if len(self.point_body) else 0)
+
+    def point_positions(self, q: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Positions [..., 3] [m] of global collision points ``points`` [...] at node positions ``q``."""
+        return np.einsum("...k,...kx->...x", self.point_weights[points], q[np.maximum(self.point_nodes[points], 0)])
+
     def _scene_settings(self) -> tuple:
         s = self.scene
-        return s._layout, float(s.contact_margin), tuple(len(b.q) for b in s.bodies)
+        return (s._layout, float(s.contact_margin), float(s.friction),
+                tuple(len(b.q) if type(b) is FemBody else 0 for b in s.bodies))
 
     def still_valid(self) -> bool:
         """Whether the arrays still describe the scene."""
@@ -144,17 +205,19 @@ class NodeStepper:
         self._diverged = st.diverged.numpy()
         self._count = st.contacts.count.numpy()
         self._mass = self.model.mass.numpy()
-        self._fixed = self.model.fixed.numpy() != 0
         self._v_before = None  # velocities at the start of the last step [n, 3] [m/s]
         start = self.model.body_node_start
-        self._views = [(self._q[a:b], self._v[a:b], self._fixed_v[a:b]) for a, b in zip(start[:-1], start[1:])]
-        for body, (q, v, fv) in zip(self.scene.bodies, self._views):
+        self._views = {i: (self._q[start[i]:start[i + 1]], self._v[start[i]:start[i + 1]],
+                           self._fixed_v[start[i]:start[i + 1]]) for i, f in enumerate(self.fem) if f}
+        for i, (q, v, fv) in self._views.items():
+            body = self.scene.bodies[i]
             body.q, body.v, body.fixed_velocity = q, v, fv
         self._pushed = True
 
     def _sync_in(self) -> None:
         """Copy in any position or velocity the user assigned since the last step."""
-        for body, views in zip(self.scene.bodies, self._views):
+        for i, views in self._views.items():
+            body = self.scene.bodies[i]
             for name, view in zip(("q", "v", "fixed_velocity"), views):
                 value = getattr(body, name)
                 if value is not view:
@@ -166,20 +229,48 @@ class NodeStepper:
                     setattr(body, name, view)
                     self._v_before = None  # a new state: last step's change says nothing
 
-    def _keys(self, points: np.ndarray, planes: np.ndarray) -> np.ndarray:
-        """Contact keys of global points against planes (kind POINT_PLANE, as points_vs_plane)."""
+    def _drive(self, dt: float) -> dict:
+        """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
+        collision points' nodes set to where the points are and how they move."""
+        start = self.model.body_node_start
+        out = {}
+        for i in self.model.kinematic:
+            body = self.scene.bodies[i]
+            v = body.unconstrained_velocity(dt, self.scene.gravity)
+            out[i] = v
+            if i in self.colliders:
+                points = self.colliders[i].points
+                rows = slice(start[i], start[i + 1])
+                self._q[rows] = points.positions()
+                self._fixed_v[rows] = points.velocities(v)
+                self._v[rows] = self._fixed_v[rows]
+        return out
+
+    def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """Contact keys of global points against carried-table columns: planes (kind
+        POINT_PLANE, as points_vs_plane), then bodies (kind VERTEX_TRIANGLE, as
+        surface_vs_surface)."""
         start = self.model.body_point_start
-        body = np.searchsorted(start, points, side="right") - 1
-        return contact_keys(ContactKind.POINT_PLANE, body, points - start[body], planes, 0)
+        body = self.point_body[points]
+        local = points - start[body]
+        planes = len(self.scene.planes)
+        keys = np.empty(len(points), np.int64)
+        plane = columns < planes
+        if plane.any():
+            keys[plane] = contact_keys(ContactKind.POINT_PLANE, body[plane], local[plane], columns[plane], 0)
+        if (~plane).any():
+            keys[~plane] = contact_keys(ContactKind.VERTEX_TRIANGLE, body[~plane], local[~plane],
+                                        columns[~plane] - planes, 0)
+        return keys
 
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table."""
-        p, s = self.model.point_count, len(self.scene.planes)
-        if not warm or not p or not s:
-            return
-        points, planes = np.meshgrid(np.arange(p), np.arange(s), indexing="ij")
-        keys = self._keys(points.ravel(), planes.ravel()).reshape(p, s)
         table = self.state.contacts.carried.numpy()
+        p, columns = self.model.point_count, table.shape[1]
+        if not warm or not p:
+            return
+        points, cols = np.meshgrid(np.arange(p), np.arange(columns), indexing="ij")
+        keys = self._keys(points.ravel(), cols.ravel()).reshape(p, columns)
         for (i, j), key in np.ndenumerate(keys):
             if int(key) in warm:
                 table[i, j] = warm[int(key)]
@@ -188,8 +279,17 @@ class NodeStepper:
         """The adhesion state (empty: these scenes have no adhesion) and the warm starts (world
         impulses by key) for the per-object path."""
         table = self.state.contacts.carried.numpy()
-        i, j = np.nonzero(np.abs(table).sum(axis=2) > 0)
-        return AdhesionState(), {int(k): table[a, b].copy() for k, a, b in zip(self._keys(i, j), i, j)}
+        i, j = np.nonzero(np.abs(table[:self.model.point_count]).sum(axis=2) > 0)
+        warm = {int(k): table[a, b].copy() for k, a, b in zip(self._keys(i, j), i, j)}
+        c = self.state.contacts
+        partner = c.edge_partner.numpy()[:len(self.edges)]
+        e, k = np.nonzero(partner >= 0)
+        if len(e):
+            a, b = self.edge_body[e], self.edge_body[partner[e, k]]
+            keys = contact_keys(ContactKind.EDGE_EDGE, a, e - self.edge_start[a], b, partner[e, k] - self.edge_start[b])
+            table = c.edge_carried.numpy()
+            warm.update({int(key): table[x, y].copy() for key, x, y in zip(keys, e, k)})
+        return AdhesionState(), warm
 
     def _record(self, dt: float) -> None:
         s = self.scene
@@ -199,7 +299,7 @@ class NodeStepper:
         m, st = self.model, self.state
         elements = record_elements(m, st)
         assemble, rhs = record_system(m, st, dt, s.gravity)
-        detect = replayer(record_node_detection(m, st, dt, s.gravity))
+        detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
@@ -209,8 +309,10 @@ class NodeStepper:
         if self._recorded[5] is None:
             if dt not in self._spectrum:
                 self._spectrum[dt] = spectrum(self.model, self.state)
-            self._recorded[5] = NodeSolve(self.model, self.state, dt, self._spectrum[dt],
-                                          max_sweeps=self.scene.pgs_iterations)
+            solve = NodeSolve(self.model, self.state, dt, self._spectrum[dt], max_sweeps=self.scene.pgs_iterations)
+            if solve.rate > 0 and np.log(10.0) / -np.log(solve.rate) > MAX_SWEEPS_PER_DECADE:
+                raise IllConditioned(f"{np.log(10.0) / -np.log(solve.rate):.0f} sweeps per decade")
+            self._recorded[5] = solve
         return self._recorded[5]
 
     def _external_forces(self) -> None:
@@ -220,7 +322,7 @@ class NodeStepper:
         self._external[:] = 0.0
         start = self.model.body_node_start
         for i, force in s.external.items():
-            if 0 <= i < len(s.bodies):
+            if 0 <= i < len(s.bodies) and self.fem[i]:
                 f = np.asarray(force, float)
                 nodes = int(start[i + 1] - start[i])
                 if f.size != 3 * nodes or not np.isfinite(f).all():
@@ -234,6 +336,7 @@ class NodeStepper:
         t0 = time.perf_counter()
         self._sync_in()
         self._external_forces()
+        driven = self._drive(dt)
         self._record(dt)
         _, elements, assemble, rhs, detect, _, carry, integrate = self._recorded
         q0 = self._q.copy()
@@ -253,7 +356,7 @@ class NodeStepper:
         else:
             start = 2.0 * self._v - self._v_before
         self._v_before = self._v.copy()
-        start[self._fixed] = self._fixed_v[self._fixed]
+        start[self.fixed_nodes] = self._fixed_v[self.fixed_nodes]
         buffers[0].numpy()[:] = start
         buffers[2].numpy()[:] = start
         sweeps, solved = solve.solve(SWEEP_TOLERANCE)
@@ -261,18 +364,31 @@ class NodeStepper:
         t3 = time.perf_counter()
         integrate[sweeps % 3]()
         self._check()
-        for body in self.scene.bodies:
-            body.step_count += 1
-            body.last_cg_iterations = 0
-        n = min(int(self._count[0]), self.state.contacts.capacity)
-        c = self.state.contacts
-        contacts = {name: getattr(c, name).numpy()[:n].copy()
-                    for name in ("point", "plane", "frame", "gap", "friction", "impulse", "gap_after")}
-        velocities = [v.copy() for _, v, _ in self._views]
-        snapshot = _NodeSnapshot(self, contacts, q0, velocities, sweeps, float(solve.stats.numpy()[1]))
+        for i, body in enumerate(self.scene.bodies):
+            if self.fem[i]:
+                body.step_count += 1
+                body.last_cg_iterations = 0
+            else:
+                body.integrate(driven[i], dt)
+        snapshot = _NodeSnapshot(self, self._contacts_out(), q0,
+                                 [self._views[i][1].copy() if self.fem[i] else driven[i]
+                                  for i in range(len(self.fem))], sweeps, float(solve.stats.numpy()[1]))
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
+
+    def _contacts_out(self) -> dict:
+        """This step's contacts as host arrays, with ``movable``: whether an impulse can act on
+        any node of the contact's stencil."""
+        n = min(int(self._count[0]), self.state.contacts.capacity)
+        c = self.state.contacts
+        out = {name: getattr(c, name).numpy()[:n].copy()
+               for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
+                            "gap_after")}
+        nodes = c.stencil_nodes.numpy()[:n]
+        used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+        out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
+        return out
 
     def _check(self) -> None:
         """Stop with a report naming the body, node and step (SimulationError) if one diverged."""

@@ -35,7 +35,7 @@ from softvr.dynamics.body import ContactObject
 from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
 from softvr.errors import InputError
-from softvr.sim._node_step import NodeStepper
+from softvr.sim._node_step import IllConditioned, NodeStepper
 from softvr.sim._rigid_step import LazySolution, RigidStepper
 from softvr.sim.model import rigid_model_supported
 from softvr.sim.node_model import node_model_supported
@@ -117,9 +117,12 @@ class Scene:
         compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
         other scene, every body steps as its own object (the reference path).
     node_arrays : bool
-        Step a scene of FEM bodies on planes (:func:`~softvr.sim.node_model_supported`) on
-        whole-scene arrays (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block
-        D_A, Chebyshev accelerated, no factorization; on by default. Off: the per-object path.
+        Step a scene of FEM bodies with the kinematic and fixed bodies and planes they meet
+        (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
+        (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block D_A, Chebyshev
+        accelerated, no factorization; on by default. Off, or for a scene too stiff for the
+        sweeps (its first step measures it: more than 25 sweeps per decade of error), the
+        per-object path.
     parallel_islands : bool
         Solve the coupling islands' unconstrained steps in parallel threads. Off by default:
         the per-island work is still mostly Python (assembly), so on the shoulder the threads
@@ -155,6 +158,7 @@ class Scene:
     _units: tuple[list, list] | None = None
     _pool: ThreadPoolExecutor | None = None
     _stepper: RigidStepper | NodeStepper | None = None
+    _node_declined: int | None = None  # the layout the node sweeps found too stiff
     _layout: int = 0
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
@@ -376,9 +380,13 @@ class Scene:
         arrays = self._arrays()
         if arrays is not None:
             dt = ContactObject._check_dt(dt)
-            self.last_solution, self.stage_ms = arrays.step(dt)
-            self.time += dt
-            return self.last_solution
+            try:
+                self.last_solution, self.stage_ms = arrays.step(dt)
+            except IllConditioned:  # before anything moved: this step goes the per-object way
+                self._node_declined, self._stepper = self._layout, None
+            else:
+                self.time += dt
+                return self.last_solution
         with single_threaded_blas():
             return self._step(dt)
 
@@ -463,7 +471,7 @@ class Scene:
             self._stepper = None
         if self.rigid_arrays and rigid_model_supported(self):
             self._stepper = RigidStepper(self)
-        elif self.node_arrays and node_model_supported(self):
+        elif self.node_arrays and self._node_declined != self._layout and node_model_supported(self):
             self._stepper = NodeStepper(self)
         return self._stepper
 

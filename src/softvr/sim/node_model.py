@@ -1,10 +1,13 @@
-"""Whole-scene arrays of FEM bodies on planes: a static :class:`NodeModel` and a mutable
-:class:`NodeState`, built from a :class:`~softvr.sim.Scene`'s bodies (the user-facing builder).
+"""Whole-scene arrays of FEM bodies, the kinematic and fixed bodies they meet, and static planes:
+a static :class:`NodeModel` and a mutable :class:`NodeState`, built from a
+:class:`~softvr.sim.Scene`'s bodies (the user-facing builder).
 
 Nodes of every body are numbered one after the other (body ``b``'s nodes are
 ``model.body_node_start[b] : model.body_node_start[b + 1]``), tets and collision points too.
-The step matrix ``A`` of thesis eq. 5.2 is kept as 3x3 node blocks in block-CSR order
-(``row_start`` / ``block_col``), each block gathering its element entries through
+A kinematic or fixed body's collision points are driven nodes of their own (no tets, moving at
+the body's scripted velocity), so that every contact, whoever it is with, is a stencil of node
+velocities. The step matrix ``A`` of thesis eq. 5.2 is kept as 3x3 node blocks in block-CSR
+order (``row_start`` / ``block_col``), each block gathering its element entries through
 ``contrib`` (no atomics).
 """
 
@@ -15,7 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from softvr.dynamics import EmbeddedPoints, FemBody
+from softvr.collision.edges import PAIRS_PER_EDGE
+from softvr.collision.node_detection import CONTACT_STENCIL
+from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidPoints
 
 __all__ = ["NodeContacts", "NodeModel", "NodeState", "build_node_model", "node_model_supported"]
 
@@ -78,6 +83,35 @@ class NodeModel:
         ``n . point`` of each plane.
     plane_friction : wp.array(float64) [s]
         Coulomb coefficient of each plane.
+    point_body : wp.array(int32) [p]
+        Body of each collision point.
+    body_point_start_wp : wp.array(int32) [bodies + 1]
+        ``body_point_start`` on the device.
+    triangles : wp.array2d(int32) [t, 3]
+        Every collision surface's triangles over global collision points (body ``b``'s are
+        ``body_triangle_start[b] : body_triangle_start[b + 1]``).
+    body_triangle_start : wp.array(int32) [bodies + 1]
+    surfaces : dict
+        Body index -> its :class:`~softvr.collision.CollisionSurface` (host).
+    meshes : list of wp.Mesh
+        The surfaces' BVHs over ``NodeState.point_x32`` (views of each body's points), refitted
+        every step.
+    mesh_ids : wp.array(uint64) [bodies]
+        Each body's mesh (0: no surface).
+    pair_enabled : wp.array2d(int32) [bodies, bodies]
+        1 where body a's surface vertices meet body b's triangles.
+    kinematic : list of int
+        Kinematic and fixed bodies (host): their collision points are driven nodes.
+    edges : wp.array2d(int32) [e, 2]
+        The surfaces' edges over global collision points (none when ``Scene.edge_contacts`` is
+        off or no two surfaces meet); body ``b``'s are ``body_edge_start[b] : [b + 1]``.
+    edge_faces : wp.array2d(int32) [e, 2]
+        Their one or two triangles (global; -1: an open border).
+    edge_body : wp.array(int32) [e]
+    body_edge_start : wp.array(int32) [bodies + 1]
+    bvhs : list of wp.Bvh
+        Each surface's BVH over its edges' boxes (``NodeState.edge_lower`` / ``edge_upper``).
+    bvh_ids : wp.array(uint64) [bodies]
     """
 
     device: str
@@ -110,22 +144,49 @@ class NodeModel:
     plane_normal: wp.array
     plane_offset: wp.array
     plane_friction: wp.array
+    point_body: wp.array
+    body_point_start_wp: wp.array
+    triangles: wp.array
+    body_triangle_start: wp.array
+    surfaces: dict
+    meshes: list
+    mesh_ids: wp.array
+    pair_enabled: wp.array
+    kinematic: list
+    edges: wp.array
+    edge_faces: wp.array
+    edge_body: wp.array
+    body_edge_start: wp.array
+    bvhs: list
+    bvh_ids: wp.array
 
 
 @dataclass
 class NodeContacts:
-    """Contacts of collision points with planes, fixed capacity ``c`` (every point against
-    every plane); rows ``[:count[0]]`` hold this step's.
+    """Contacts of collision points with planes and of surface vertices with other bodies'
+    triangles, fixed capacity ``c`` (every point against every plane and every other body);
+    rows ``[:count[0]]`` hold this step's (``p`` points, ``s`` planes, ``B`` bodies).
 
     Attributes
     ----------
     capacity : int
     count : wp.array(int32) [1]
-    point, plane : wp.array(int32) [c]
-        The collision point (global) and the plane of each contact; with the point's body they
-        make its key (:func:`softvr.collision.contact_keys`, kind POINT_PLANE).
+    kind : wp.array(int32) [c]
+        0: point vs plane, 1: surface vertex vs a triangle of another body, 2: edge vs edge.
+    column : wp.array(int32) [c]
+        The contact's column in ``carried`` (kinds 0, 1) or ``edge_carried`` (kind 2).
+    point : wp.array(int32) [c]
+        The collision point (global), or edge (global, kind 2); with its body and ``other`` it
+        makes the contact's key (:func:`softvr.collision.contact_keys`, kinds POINT_PLANE,
+        VERTEX_TRIANGLE, EDGE_EDGE).
+    other : wp.array(int32) [c]
+        The plane, or the body met.
+    face : wp.array(int32) [c]; bary : wp.array(vec3d) [c]
+        The triangle met (global, -1 for a plane) and the contact point's barycentric
+        coordinates in it; for an edge pair the edge met (global) and (s, t, 0), where the
+        closest points lie along the two edges.
     frame : wp.array(mat33d) [c]
-        Rows: normal, tangent 1, tangent 2 (world).
+        Rows: normal (out of side b, towards the point), tangent 1, tangent 2 (world).
     gap : wp.array(float64) [c] [m]
         Signed distance at the step's start.
     friction : wp.array(float64) [c]
@@ -133,20 +194,49 @@ class NodeContacts:
         (normal, tangent 1, tangent 2) impulse; the warm start in, the solution out.
     gap_after : wp.array(float64) [c] [m]
         Linearized gap at the step's end.
-    carried : wp.array2d(vec3d) [p, s] [N s]
-        World impulse of each (point, plane) pair at the last step: the next warm start.
+    stencil_count : wp.array(int32) [c]; stencil_nodes : wp.array2d(int32) [c, 16];
+    stencil_weights : wp.array2d(float64) [c, 16]
+        The contact's relative velocity is ``sum_k w_k v[node_k]`` (side a's nodes positive,
+        side b's negative, each node once).
+    carried : wp.array2d(vec3d) [p, s + B] [N s]
+        World impulse of each (point, plane) and (vertex, body) pair at the last step: the
+        next warm start.
+    hit, hit_face, hit_bary, hit_normal, hit_gap : wp.array2d [p, B]
+        The vertex queries' findings, per (point, body).
+    pair_edge, pair_st, pair_normal, pair_gap : wp.array2d [e, 2 B]
+        The edge queries' findings (edge met, or -1), per (edge, slot).
+    edge_carried : wp.array2d(vec3d) [e, 2 B] [N s]; edge_partner : wp.array2d(int32) [e, 2 B]
+        World impulse of each edge pair at the last step, and the edge it was with.
     """
 
     capacity: int
     count: wp.array
+    kind: wp.array
+    column: wp.array
     point: wp.array
-    plane: wp.array
+    other: wp.array
+    face: wp.array
+    bary: wp.array
     frame: wp.array
     gap: wp.array
     friction: wp.array
     impulse: wp.array
     gap_after: wp.array
+    stencil_count: wp.array
+    stencil_nodes: wp.array
+    stencil_weights: wp.array
     carried: wp.array
+    hit: wp.array
+    hit_face: wp.array
+    hit_bary: wp.array
+    hit_normal: wp.array
+    hit_gap: wp.array
+    pair_edge: wp.array
+    pair_st: wp.array
+    pair_normal: wp.array
+    pair_gap: wp.array
+    edge_carried: wp.array
+    edge_partner: wp.array
 
 
 @dataclass
@@ -171,6 +261,14 @@ class NodeState:
         The sweeps' velocities v^k-1, v^k, v^k+1 (rotating).
     diverged : wp.array(int32) [n]
         0, or why the step stopped at the node (``NODE_DIVERGENCE_REASONS``).
+    point_x : wp.array(vec3d) [p] [m]; point_x32 : wp.array(vec3) [p] [m]
+        Collision point positions at the step's start (single precision: the BVHs' vertices).
+    point_u : wp.array(vec3d) [p] [m/s]
+        Their predicted velocities over the step (for the speculative contacts).
+    body_mean_u : wp.array(vec3d) [bodies] [m/s]
+        Mean of each body's ``point_u``.
+    edge_lower, edge_upper, edge_normal : wp.array(vec3) [e]; edge_sharp : wp.array(int32) [e]
+        Each edge's box [m], unit mean normal and crease flag at the step's start.
     contacts : NodeContacts
     """
 
@@ -186,17 +284,36 @@ class NodeState:
     v_hat: wp.array
     sweep_buffers: list
     diverged: wp.array
+    point_x: wp.array
+    point_x32: wp.array
+    point_u: wp.array
+    body_mean_u: wp.array
+    edge_lower: wp.array
+    edge_upper: wp.array
+    edge_normal: wp.array
+    edge_sharp: wp.array
     contacts: NodeContacts
 
 
 def node_model_supported(scene) -> bool:
-    """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies only (all co-rotational or
-    all linear), no couplings, static meshes or spheres, no adhesion, at most one set of
-    collision points per body (:class:`~softvr.collision.EmbeddedPoints` of that body, stencils
-    of at most 4 nodes) and no two collision surfaces that could meet."""
-    if scene.couplings or scene.meshes or scene.spheres or not scene.bodies:
+    """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
+    linear; at least one), kinematic and fixed bodies (with or without a collision sphere or
+    box), static planes; no couplings, static meshes or spheres, rigid bodies or adhesion; at
+    most one set of collision points
+    per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
+    4 nodes, a kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
+    collision surface over its own points."""
+    if scene.couplings or scene.meshes or scene.spheres:
         return False
-    if not all(type(b) is FemBody for b in scene.bodies) or len({b.corotational for b in scene.bodies}) != 1:
+    # A kinematic or fixed body's collision sphere or box meets only planes and other
+    # primitives, which cannot move it or be moved: its contacts would all be dropped.
+    primitives = scene._sphere_bodies + scene._box_bodies
+    if any(type(scene.bodies[i]) not in (KinematicBody, FixedBody) for i, _ in primitives):
+        return False
+    fem = [b for b in scene.bodies if type(b) is FemBody]
+    if not fem or len({b.corotational for b in fem}) != 1:
+        return False
+    if not all(type(b) in (FemBody, KinematicBody, FixedBody) for b in scene.bodies):
         return False
     if any(a is not None for a in scene._adhesion.values()):
         return False
@@ -204,12 +321,14 @@ def node_model_supported(scene) -> bool:
     if len(set(owners)) != len(owners):
         return False
     for c in scene._colliders:
-        if not isinstance(c.points, EmbeddedPoints) or c.points.body is not scene.bodies[c.body] \
-                or c.points.nodes.shape[1] > STENCIL:
+        body = scene.bodies[c.body]
+        kind = EmbeddedPoints if type(body) is FemBody else RigidPoints
+        if not isinstance(c.points, kind) or c.points.body is not body:
             return False
-    surfaces = scene._surfaces
-    return not any(scene.collision_enabled(a.body_index, b.body_index)
-                   for n, a in enumerate(surfaces) for b in surfaces[n + 1:])
+        if isinstance(c.points, EmbeddedPoints) and c.points.nodes.shape[1] > STENCIL:
+            return False
+    points = {c.body: c.points for c in scene._colliders}
+    return all(points.get(s.body_index) is s.points for s in scene._surfaces)
 
 
 def _i32(values, device):
@@ -238,74 +357,167 @@ def _pattern(tets: np.ndarray, n: int) -> tuple:
     return block_row, block_col, row_start, contrib_start, contrib, force_start, force
 
 
+def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
+    """Stencil nodes and weights [p, 4] (global; -1: unused) and margins [p] [m] of every
+    collision point; a kinematic body's points are its own nodes, weight 1."""
+    p = int(point_start[-1])
+    nodes = np.full((p, STENCIL), -1, np.int64)
+    weights = np.zeros((p, STENCIL))
+    margin = np.zeros(p)
+    for c in scene._colliders:
+        rows = slice(point_start[c.body], point_start[c.body + 1])
+        if type(bodies[c.body]) is FemBody:
+            k = c.points.nodes.shape[1]
+            nodes[rows, :k] = c.points.nodes + node_start[c.body]
+            weights[rows, :k] = c.points.weights
+        else:
+            nodes[rows, 0] = node_start[c.body] + np.arange(rows.stop - rows.start)
+            weights[rows, 0] = 1.0
+        margin[rows] = c.margin
+    return nodes, weights, margin
+
+
 def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     """The arrays of a scene :func:`node_model_supported` accepts, at its bodies' current state."""
     bodies = scene.bodies
-    node_start = np.cumsum([0] + [len(b.q) for b in bodies])
-    n = int(node_start[-1])
-    tets = np.concatenate([b.tets + s for b, s in zip(bodies, node_start)]).astype(np.int64)
+    colliders = {c.body: c for c in scene._colliders}
+    point_counts = [len(colliders[i].points.positions()) if i in colliders else 0 for i in range(len(bodies))]
+    fem = [type(b) is FemBody for b in bodies]
+    node_counts = [len(b.q) if f else k for b, f, k in zip(bodies, fem, point_counts)]
+    node_start = np.cumsum([0] + node_counts)
+    point_start = np.cumsum([0] + point_counts)
+    n, p, nbody = int(node_start[-1]), int(point_start[-1]), len(bodies)
+    tets = np.concatenate([b.tets + node_start[i] for i, b in enumerate(bodies) if fem[i]]).astype(np.int64)
     m = len(tets)
     block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n)
+    # A kinematic body's nodes: where its points are, at its velocity; driven, so no mass acts.
+    kinematic = [i for i in range(nbody) if not fem[i]]
+    driven = {i: colliders[i].points if i in colliders else None for i in kinematic}
 
-    def per_node(values):
-        return np.concatenate([np.full(len(b.q), v) for b, v in zip(bodies, values)])
+    def per_node(fem_value, other_value):
+        return np.concatenate([fem_value(b) if f else np.full((k,) + np.shape(other_value), other_value)
+                               for b, f, k in zip(bodies, fem, node_counts)])
 
-    scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) for b in bodies]
-    colliders = {c.body: c for c in scene._colliders}
-    point_start = np.cumsum([0] + [len(colliders[i].points.nodes) if i in colliders else 0
-                                   for i in range(len(bodies))])
-    p = int(point_start[-1])
-    point_nodes = np.full((p, STENCIL), -1, np.int64)
-    point_weights = np.zeros((p, STENCIL))
-    point_margin = np.zeros(p)
-    for i, c in colliders.items():
-        rows = slice(point_start[i], point_start[i + 1])
-        k = c.points.nodes.shape[1]
-        point_nodes[rows, :k] = c.points.nodes + node_start[i]
-        point_weights[rows, :k] = c.points.weights
-        point_margin[rows] = c.margin
+    def positions(b, i):
+        return b.q if fem[i] else (driven[i].positions() if driven[i] is not None else np.zeros((0, 3)))
+
+    scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) if f else np.inf for b, f in zip(bodies, fem)]
+    point_nodes, point_weights, point_margin = _point_stencils(scene, bodies, node_start, point_start)
     planes = scene.planes
     normals = np.array([pl.unit_normal() for pl in planes], float).reshape(-1, 3)
     offsets = np.array([float(np.asarray(pl.point, float) @ nrm) for pl, nrm in zip(planes, normals)])
+    surfaces = {s.body_index: s for s in scene._surfaces}
+    tri_counts = [len(surfaces[i].triangles) if i in surfaces else 0 for i in range(nbody)]
+    tri_start = np.cumsum([0] + tri_counts)
+    triangles = np.concatenate([np.zeros((0, 3), np.int64)] + [surfaces[i].triangles + point_start[i]
+                                                               for i in range(nbody) if i in surfaces])
+    pair = np.zeros((nbody, nbody), np.int32)
+    for a in surfaces:
+        for b in surfaces:
+            pair[a, b] = int(a != b and scene.collision_enabled(a, b))
+    edged = [i for i in surfaces if pair[i].any()] if scene.edge_contacts else []
+    edge_sets = {i: surfaces[i].edge_set for i in edged}
+    edge_counts = [len(edge_sets[i].edges) if i in edge_sets else 0 for i in range(nbody)]
+    edge_start = np.cumsum([0] + edge_counts)
+    edges = np.concatenate([np.zeros((0, 2), np.int64)] + [edge_sets[i].edges + point_start[i] for i in edged])
+    edge_faces = np.concatenate([np.zeros((0, 2), np.int64)] + [np.where(edge_sets[i].adjacent >= 0,
+                                                                         edge_sets[i].adjacent + tri_start[i], -1)
+                                                                for i in edged])
+    e = len(edges)
     d = device
+    point_x32 = wp.zeros(max(p, 1), dtype=wp.vec3, device=d)
+    meshes, mesh_ids = [], np.zeros(nbody, np.uint64)
+    if pair.any():
+        # Each body's BVH over its points' slice of point_x32, built at the current positions.
+        for c in scene._colliders:
+            point_x32[int(point_start[c.body]):int(point_start[c.body + 1])].assign(
+                np.asarray(c.points.positions(), np.float32))
+        for i, surface in surfaces.items():
+            mesh = wp.Mesh(points=point_x32[int(point_start[i]):int(point_start[i + 1])],
+                           indices=wp.array(surface.triangles.ravel().astype(np.int32), dtype=wp.int32, device=d))
+            meshes.append(mesh)
+            mesh_ids[i] = mesh.id
+    x32 = point_x32.numpy()
+    edge_lower: wp.array = wp.array(np.minimum(x32[edges[:, 0]], x32[edges[:, 1]]).reshape(-1, 3), dtype=wp.vec3, device=d)
+    edge_upper: wp.array = wp.array(np.maximum(x32[edges[:, 0]], x32[edges[:, 1]]).reshape(-1, 3), dtype=wp.vec3, device=d)
+    bvhs, bvh_ids = [], np.zeros(nbody, np.uint64)
+    for i in edged:
+        rows = slice(int(edge_start[i]), int(edge_start[i + 1]))
+        bvh = wp.Bvh(edge_lower[rows], edge_upper[rows])
+        bvhs.append(bvh)
+        bvh_ids[i] = bvh.id
+    f64_nodes = [b.mass if f else np.ones(k) for b, f, k in zip(bodies, fem, node_counts)]
     model = NodeModel(
         device=d, node_count=n, tet_count=m, block_count=len(block_row), point_count=p,
         body_node_start=node_start, body_point_start=point_start,
-        rest=_f64(np.concatenate([b.rest for b in bodies]), d, wp.vec3d),
-        mass=_f64(np.concatenate([b.mass for b in bodies]), d),
-        node_alpha=_f64(per_node([b.material.alpha for b in bodies]), d),
-        fixed=_i32(np.concatenate([b.fixed for b in bodies]), d),
-        speed_limit=_f64(per_node(scale), d),
-        tets=_i32(tets, d), dm_inv=_f64(np.concatenate([b._dm_inv for b in bodies]), d, wp.mat33d),
-        ke=_f64(np.concatenate([b._ke for b in bodies]).reshape(m, 4, 3, 4, 3).transpose(0, 1, 3, 2, 4)
-                .reshape(m, 16, 3, 3), d, wp.mat33d),
-        tet_beta=_f64(np.concatenate([np.full(len(b.tets), b.material.beta) for b in bodies]), d),
-        corotational=bool(bodies[0].corotational),
+        rest=_f64(np.concatenate([b.rest if fem[i] else positions(b, i) for i, b in enumerate(bodies)]), d, wp.vec3d),
+        mass=_f64(np.concatenate(f64_nodes), d),
+        node_alpha=_f64(per_node(lambda b: np.full(len(b.q), b.material.alpha), 0.0), d),
+        fixed=_i32(per_node(lambda b: b.fixed, 1), d),
+        speed_limit=_f64(np.concatenate([np.full(k, s) for k, s in zip(node_counts, scale)]), d),
+        tets=_i32(tets, d), dm_inv=_f64(np.concatenate([b._dm_inv for b, f in zip(bodies, fem) if f]), d, wp.mat33d),
+        ke=_f64(np.concatenate([b._ke for b, f in zip(bodies, fem) if f]).reshape(m, 4, 3, 4, 3)
+                .transpose(0, 1, 3, 2, 4).reshape(m, 16, 3, 3), d, wp.mat33d),
+        tet_beta=_f64(np.concatenate([np.full(len(b.tets), b.material.beta) for b, f in zip(bodies, fem) if f]), d),
+        corotational=bool(next(b for b, f in zip(bodies, fem) if f).corotational),
         block_row=_i32(block_row, d), block_col=_i32(block_col, d), row_start=_i32(row_start, d),
         contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d),
         force_start=_i32(force_start, d), force=_i32(force, d),
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
-        plane_friction=_f64([pl.friction for pl in planes], d))
-    capacity = max(p * len(planes), 1)
+        plane_friction=_f64([pl.friction for pl in planes], d),
+        point_body=_i32(np.repeat(np.arange(nbody), point_counts), d), body_point_start_wp=_i32(point_start, d),
+        triangles=_i32(triangles.reshape(-1, 3), d), body_triangle_start=_i32(tri_start, d),
+        surfaces=surfaces, meshes=meshes, mesh_ids=wp.array(mesh_ids, dtype=wp.uint64, device=d),
+        pair_enabled=_i32(pair, d), kinematic=kinematic,
+        edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
+        edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
+        bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d))
+    surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
+    capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e, 1)
+    wide = (max(p, 1), nbody)
+    edge_wide = (max(e, 1), PAIRS_PER_EDGE * nbody)
     contacts = NodeContacts(
         capacity=capacity, count=wp.zeros(1, dtype=wp.int32, device=d),
-        point=wp.zeros(capacity, dtype=wp.int32, device=d), plane=wp.zeros(capacity, dtype=wp.int32, device=d),
+        kind=wp.zeros(capacity, dtype=wp.int32, device=d), column=wp.zeros(capacity, dtype=wp.int32, device=d),
+        point=wp.zeros(capacity, dtype=wp.int32, device=d),
+        other=wp.zeros(capacity, dtype=wp.int32, device=d), face=wp.zeros(capacity, dtype=wp.int32, device=d),
+        bary=wp.zeros(capacity, dtype=wp.vec3d, device=d),
         frame=wp.zeros(capacity, dtype=wp.mat33d, device=d), gap=wp.zeros(capacity, dtype=wp.float64, device=d),
         friction=wp.zeros(capacity, dtype=wp.float64, device=d),
         impulse=wp.zeros(capacity, dtype=wp.vec3d, device=d), gap_after=wp.zeros(capacity, dtype=wp.float64, device=d),
-        carried=wp.zeros((max(p, 1), max(len(planes), 1)), dtype=wp.vec3d, device=d))
+        stencil_count=wp.zeros(capacity, dtype=wp.int32, device=d),
+        stencil_nodes=wp.full((capacity, CONTACT_STENCIL), -1, dtype=wp.int32, device=d),
+        stencil_weights=wp.zeros((capacity, CONTACT_STENCIL), dtype=wp.float64, device=d),
+        carried=wp.zeros((max(p, 1), len(planes) + nbody), dtype=wp.vec3d, device=d),
+        hit=wp.zeros(wide, dtype=wp.int32, device=d), hit_face=wp.zeros(wide, dtype=wp.int32, device=d),
+        hit_bary=wp.zeros(wide, dtype=wp.vec3d, device=d), hit_normal=wp.zeros(wide, dtype=wp.vec3d, device=d),
+        hit_gap=wp.zeros(wide, dtype=wp.float64, device=d),
+        pair_edge=wp.full(edge_wide, -1, dtype=wp.int32, device=d),
+        pair_st=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
+        pair_normal=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
+        pair_gap=wp.zeros(edge_wide, dtype=wp.float64, device=d),
+        edge_carried=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
+        edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d))
 
     def vec():
         return wp.zeros(n, dtype=wp.vec3d, device=d)
 
+    q = np.concatenate([positions(b, i) for i, b in enumerate(bodies)])
     state = NodeState(
-        q=_f64(np.concatenate([b.q for b in bodies]), d, wp.vec3d),
-        v=_f64(np.concatenate([b.v for b in bodies]), d, wp.vec3d),
-        fixed_velocity=_f64(np.concatenate([b.fixed_velocity for b in bodies]), d, wp.vec3d),
+        q=_f64(q, d, wp.vec3d),
+        v=_f64(np.concatenate([b.v if fem[i] else np.zeros((k, 3))
+                               for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
+        fixed_velocity=_f64(np.concatenate([b.fixed_velocity if fem[i] else np.zeros((k, 3))
+                                            for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
         external=vec(), rotations=wp.zeros(m, dtype=wp.mat33d, device=d),
         element_forces=wp.zeros((m, 4), dtype=wp.vec3d, device=d),
         blocks=wp.zeros(len(block_row), dtype=wp.mat33d, device=d), d_inv=wp.zeros(n, dtype=wp.mat33d, device=d),
         b=vec(), v_hat=vec(), sweep_buffers=[vec(), vec(), vec()], diverged=wp.zeros(n, dtype=wp.int32, device=d),
+        point_x=wp.zeros(max(p, 1), dtype=wp.vec3d, device=d), point_x32=point_x32,
+        point_u=wp.zeros(max(p, 1), dtype=wp.vec3d, device=d),
+        body_mean_u=wp.zeros(nbody, dtype=wp.vec3d, device=d), edge_lower=edge_lower, edge_upper=edge_upper,
+        edge_normal=wp.zeros(max(e, 1), dtype=wp.vec3, device=d),
+        edge_sharp=wp.zeros(max(e, 1), dtype=wp.int32, device=d),
         contacts=contacts)
     return model, state
