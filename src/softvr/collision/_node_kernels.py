@@ -52,11 +52,11 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
                  fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
                  point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
                  point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
-                 point_u: wp.array(dtype=wp.vec3d)):
+                 point_u: wp.array(dtype=wp.vec3d), offset: int):
     """Position [m] (also in single precision, the surfaces' BVH vertices) and predicted
     velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
     nodes, the prescribed velocity of its driven ones."""
-    p = wp.tid()
+    p = wp.tid() + offset
     x = wp.vec3d()
     u = wp.vec3d()
     for k in range(STENCIL):
@@ -95,12 +95,12 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                     pair_enabled: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
                     margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
                     hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
-                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64)):
+                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64), offset: int):
     """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
     point within the margin plus the vertex's relative motion [m]; the normal points out of
     that body (towards the vertex), the gap [m] is negative inside it (by the closest
     feature's pseudo normal, as :func:`softvr.collision.query_points`)."""
-    p = wp.tid()
+    p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
@@ -112,13 +112,13 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
             if query.result:
                 c = wp.mesh_eval_position(mesh_ids[b], query.face, query.u, query.v)
                 cd = wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))
-                offset = x - cd
-                dist = wp.length(offset)
+                away = x - cd
+                dist = wp.length(away)
                 sign = wp.float64(query.sign)
                 fn = wp.mesh_eval_face_normal(mesh_ids[b], query.face)
                 n = wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2]))
                 if dist > wp.float64(NORMAL_FROM_OFFSET):
-                    n = offset / dist * sign
+                    n = away / dist * sign
                 hit[p, b] = 1
                 hit_face[p, b] = query.face
                 u = wp.float64(query.u)
@@ -142,11 +142,11 @@ def _face_normal(points: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp
 def edge_geometry(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
                   edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
                   lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
-                  sharp: wp.array(dtype=wp.int32)):
+                  sharp: wp.array(dtype=wp.int32), offset: int):
     """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles, and
     whether it is a crease (faces at more than the sharp angle) or a border, as
     :meth:`softvr.collision.EdgeSet.edge_normals`."""
-    e = wp.tid()
+    e = wp.tid() + offset
     p = point_x32[edges[e, 0]]
     q = point_x32[edges[e, 1]]
     lower[e] = wp.min(p, q)
@@ -174,13 +174,13 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
               normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
-              pair_gap: wp.array2d(dtype=wp.float64)):
+              pair_gap: wp.array2d(dtype=wp.float64), offset: int):
     """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
     (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
     vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
     ``pairs_per_edge * b + k``. Pairs deeper than the margin are seen from the wrong side and
     dropped."""
-    i = wp.tid()
+    i = wp.tid() + offset
     a = edge_body[i]
     p1 = point_x32[edges[i, 0]]
     q1 = point_x32[edges[i, 1]]

@@ -12,7 +12,7 @@ import warp as wp
 
 from softvr.collision import _node_kernels as _k
 from softvr.collision.edges import MIN_EDGE_ANGLE, MIN_NORMAL_ALIGNMENT, PAIRS_PER_EDGE, SHARP_EDGE_ANGLE
-from softvr.device import load_kernels, replayer
+from softvr.device import chunked_replayer, load_kernels, replayer
 
 __all__ = ["CONTACT_STENCIL", "record_carry", "record_node_detection"]
 
@@ -31,10 +31,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.edge_edge,
                    _k.gather_contacts):
         load_kernels(kernel, d)
-    motion = replayer(wp.launch(_k.point_motion, dim=model.point_count, device=d, record_cmd=True,
-                                inputs=[state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
-                                        model.point_weights, g, float(dt), state.point_x, state.point_x32,
-                                        state.point_u]))
+    # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
+    motion = chunked_replayer(_k.point_motion, model.point_count,
+                              [state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
+                               model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
+                              d, min_chunk=1024)
     steps = [motion]
     if model.meshes:
         bodies = len(model.body_node_start) - 1
@@ -46,28 +47,28 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 mesh.refit()
 
         steps.append(refit)
-        steps.append(replayer(wp.launch(_k.vertex_triangle, dim=model.point_count, device=d, record_cmd=True,
-                                        inputs=[model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                                model.pair_enabled, model.mesh_ids, float(margin), float(dt),
-                                                c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap])))
+        steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
+                                      [model.point_body, state.point_x, state.point_u, state.body_mean_u,
+                                       model.pair_enabled, model.mesh_ids, float(margin), float(dt), c.hit,
+                                       c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
     if model.bvhs:
         edges = model.edges.shape[0]
-        steps.append(replayer(wp.launch(_k.edge_geometry, dim=edges, device=d, record_cmd=True,
-                                        inputs=[state.point_x32, model.triangles, model.edges, model.edge_faces,
-                                                float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
-                                                state.edge_normal, state.edge_sharp])))
+        steps.append(chunked_replayer(_k.edge_geometry, edges,
+                                      [state.point_x32, model.triangles, model.edges, model.edge_faces,
+                                       float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
+                                       state.edge_normal, state.edge_sharp], d, min_chunk=1024))
 
         def refit_edges() -> None:
             for bvh in model.bvhs:
                 bvh.refit()
 
         steps.append(refit_edges)
-        steps.append(replayer(wp.launch(_k.edge_edge, dim=edges, device=d, record_cmd=True,
-                                        inputs=[model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                                state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
-                                                state.edge_normal, state.edge_sharp, float(margin), float(dt),
-                                                float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT),
-                                                PAIRS_PER_EDGE, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap])))
+        steps.append(chunked_replayer(_k.edge_edge, edges,
+                                      [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
+                                       state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
+                                       state.edge_normal, state.edge_sharp, float(margin), float(dt),
+                                       float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
+                                       c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
