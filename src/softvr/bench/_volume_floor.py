@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from typing import no_type_check
+
 import numpy as np
 import warp as wp
 
@@ -22,6 +24,7 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
+@no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _trilinear_rows(src: wp.array3d(dtype=wp.int16), out: wp.array3d(dtype=wp.int16), d: wp.vec3f, offset: int):
     r = wp.tid() + offset
     ny = out.shape[1]
@@ -56,7 +59,7 @@ def floor_copy(data: np.ndarray):
 
 def floor_trilinear(data: np.ndarray, device: str = "cpu"):
     """A function resampling int16 ``data`` (3-D, each axis >= 2) at a sub-voxel offset (Warp)."""
-    src = wp.array(np.ascontiguousarray(data, dtype=np.int16), device=device)
+    src: wp.array = wp.array(np.ascontiguousarray(data, dtype=np.int16), device=device)
     out = wp.empty(data.shape, dtype=wp.int16, device=device)
     rows = int(data.shape[0] * data.shape[1])
     load_kernels(_trilinear_rows, device)

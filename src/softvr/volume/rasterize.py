@@ -245,13 +245,14 @@ class Rasterizer:
         self._vol: wp.array = wp.array(data.reshape(-1), device=self.device, copy=self.device != "cpu")
         self._out_code = _OUT_CODES[data.dtype] if self.device == "cpu" and vectorized_rows else 0
         self._dims = wp.vec3i(*data.shape)
-        self._strides = wp.vec3i(*[0 if n == 1 else s // data.itemsize for n, s in zip(data.shape, data.strides)])
+        strides = [0 if n == 1 else s // data.itemsize for n, s in zip(data.shape, data.strides)]
+        self._strides = wp.vec3i(*strides)
         # The CPU exact spans read trilinear corners straight from the input as z-neighbour
         # pairs (one 32- or 64-bit gather per pair) where rows are contiguous; the other CPU
         # paths gather from a float32 copy (AVX gathers are 32-bit), made on first use.
         self._src_code = (
             _SRC_CODES.get(data.dtype, 0)
-            if self._out_code and self._strides[2] == 1 and interp == "linear" and self.method == "spans"
+            if self._out_code and strides[2] == 1 and interp == "linear" and self.method == "spans"
             else 0
         )
         self._volf_w: wp.array | None = None
