@@ -6,6 +6,7 @@ detection, constrained velocities per contact island (eqs. 5.5-5.6), then integr
 
 from __future__ import annotations
 
+import copy
 import time as _clock
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -40,10 +41,39 @@ from softvr.sim._rigid_step import LazySolution, RigidStepper
 from softvr.sim.model import rigid_model_supported
 from softvr.sim.node_model import node_model_supported
 
-__all__ = ["STAGES", "Scene"]
+__all__ = ["STAGES", "Scene", "SceneState"]
 
 #: The stages of a step, in order (:attr:`Scene.stage_ms`).
 STAGES = ("dynamics", "collision", "contact", "integrate")
+#: What a body's state is (:meth:`Scene.save_state`): nodes' ``q``, ``v``, ``fixed_velocity``
+#: [n, 3] [m, m/s]; a rigid body's ``position`` [3] [m], ``orientation`` [4], ``v`` [6]; a
+#: kinematic body's script time; the step count.
+_BODY_STATE = ("q", "v", "fixed_velocity", "position", "orientation", "step_count", "_t", "_target")
+
+
+@dataclass(frozen=True)
+class SceneState:
+    """A copy of everything a :class:`Scene` changes as it steps (:meth:`Scene.save_state`):
+    plain data, independent of the scene afterwards.
+
+    Attributes
+    ----------
+    time : float [s]
+    layout : int
+        The scene's body / static layout it was saved from (a restore into another refuses).
+    bodies : list of dict
+        Per body, its state fields (``_BODY_STATE``) that it has, copied.
+    warm : dict
+        Warm starts: contact key -> world impulse [3] [N s].
+    adhesion : AdhesionState
+        Bond intensities and tangential slips by contact key.
+    """
+
+    time: float
+    layout: int
+    bodies: list
+    warm: dict
+    adhesion: AdhesionState
 
 
 def _check_adhesion(adhesion):
@@ -389,6 +419,56 @@ class Scene:
                 return self.last_solution
         with single_threaded_blas():
             return self._step(dt)
+
+    def save_state(self) -> SceneState:
+        """A copy of the scene's changing state (bodies, time, warm starts, adhesion), to go
+        back to with :meth:`restore_state` (a rewind, a haptic loop's rollback).
+
+        Examples
+        --------
+        >>> from softvr import Scene
+        >>> from softvr.dynamics import RigidBody
+        >>> scene = Scene()
+        >>> ball = RigidBody(mass=1.0, inertia=[0.1, 0.1, 0.1], position=[0.0, 0.0, 1.0])
+        >>> _ = scene.add_body(ball)
+        >>> saved = scene.save_state()
+        >>> _ = scene.step(0.01)
+        >>> scene.restore_state(saved)
+        >>> float(ball.position[2]), scene.time
+        (1.0, 0.0)
+        """
+        if self._stepper is not None:
+            adhesion, warm = self._stepper.carried_out()
+        else:
+            adhesion, warm = self.adhesion_state, self._warm
+        bodies = [{name: copy.deepcopy(getattr(b, name)) for name in _BODY_STATE if hasattr(b, name)}
+                  for b in self.bodies]
+        return SceneState(time=self.time, layout=self._layout, bodies=bodies, warm=copy.deepcopy(dict(warm)),
+                          adhesion=copy.deepcopy(adhesion))
+
+    def restore_state(self, state: SceneState) -> None:
+        """Put the scene back to ``state`` (from :meth:`save_state` on this scene, with the
+        same bodies and statics). The next step rebuilds the array path's launches (the node
+        path also its Chebyshev bounds: some ms to a few hundred on a large body).
+
+        Raises
+        ------
+        InputError
+            If ``state`` is not a :class:`SceneState` of this scene's current layout.
+        """
+        if not isinstance(state, SceneState):
+            raise InputError("state", "a SceneState from Scene.save_state()", type(state).__name__)
+        if state.layout != self._layout or len(state.bodies) != len(self.bodies):
+            raise InputError("state", f"a state saved from this scene's layout ({len(self.bodies)} bodies, "
+                             f"layout {self._layout})", f"{len(state.bodies)} bodies, layout {state.layout}")
+        for body, fields in zip(self.bodies, state.bodies):
+            for name, value in fields.items():
+                setattr(body, name, copy.deepcopy(value))
+        self.time = state.time
+        self._stepper = None  # its carried tables hold the present's warm starts
+        self._warm = copy.deepcopy(state.warm)
+        self.adhesion_state = copy.deepcopy(state.adhesion)
+        self.last_solution = None
 
     def solve_units(self) -> tuple[list, list]:
         """What the solvers step: one :class:`~softvr.dynamics.CouplingIsland` per group of
