@@ -160,7 +160,7 @@ def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
     return {
         "schema": "softvr-bench-adhesion/1",
         "machine": machine,
-        "config": {"quick": quick, "scene": "softvr.examples.example_candy"},
+        "config": {"quick": quick, "scene": "softvr.examples.example_candy.Example"},
         "runs": runs,
         "pull_off": pull_off,
         "targets": {"real_time_ms": runs["adhesion"]["dt_s"] * 1e3,

@@ -1,6 +1,7 @@
 """``softvr bench palpation``: where the time of a palpation frame goes (thesis 3.3.2).
 
-The palpation demo (:mod:`softvr.examples.example_palpation`) on the real head CT (256 x 256
+The palpation demo's scene (``palpation.toml``), through its Python construction
+:class:`softvr.examples.ct_palpation.CTPalpation`, on the real head CT (256 x 256
 x 108 voxels, ~6 K tets over the head, tissue from the voxels, bone clamped): per frame the
 FEM step with the probe's contact, the CT rasterized from the deformed mesh — in full (the
 thesis' way: every voxel, every frame) and incrementally (only the box around the tets that
@@ -37,8 +38,8 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
                         device: str | None = None, renderer: str = "warp", render_step: int = 1,
                         sample_distance: float | None = None) -> dict:
     """The palpation demo's frames, each stage timed; ``quick``: 6 frames at 128 x 128.
-    ``renderer``, ``render_step`` and ``sample_distance`` as for the demo's :class:`Example`
-    (``None``: the demo's default)."""
+    ``renderer``, ``render_step`` and ``sample_distance`` as for
+    :class:`~softvr.examples.ct_palpation.CTPalpation` (``None``: its default)."""
     from tqdm import tqdm
 
     from softvr.examples.ct_palpation import CTPalpation as Example
@@ -176,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
     p.add_argument("--renderer", choices=("warp", "vtk"), default="warp", help="the demo's volume renderer")
     p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
-    p.add_argument("--sample-distance", type=float, default=None, help="ray step [voxels] (default: the demo's)")
+    p.add_argument("--sample-distance", type=float, default=None, help="ray step [voxels] (default: CTPalpation's)")
     a = p.parse_args(argv)
     result = run_palpation_bench(quick=a.quick, progress=not a.no_progress, device=a.device, renderer=a.renderer,
                                  render_step=a.render_step, sample_distance=a.sample_distance)

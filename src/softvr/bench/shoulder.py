@@ -1,7 +1,9 @@
 """``softvr bench shoulder``: the coupled shoulder palpated through the haptic loop (thesis 5.4).
 
-Both variants of :mod:`softvr.examples.example_shoulder` (palpation: two fingers and the
-deltoid; arthroscopy: a probe under the acromion) run a scripted palpation path with the 1 kHz
+Both variants of the shoulder demo (``shoulder.toml`` / ``shoulder-arthroscopy.toml``), through
+their Python construction :class:`softvr.examples.shoulder_player.ShoulderPlayer` (palpation: two
+fingers and the deltoid; arthroscopy: a probe under the acromion), run a scripted palpation path
+(:func:`softvr.examples.shoulder_player.palpation_path`) with the 1 kHz
 :class:`~softvr.haptics.HapticLoop` thread rendering the force. Reported: ms per simulation step
 (mean and p95), contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
@@ -80,7 +82,7 @@ def run_shoulder_bench(*, quick: bool = False, progress: bool = True) -> dict:
     return {
         "schema": "softvr-bench-shoulder/1",
         "machine": machine,
-        "config": {"quick": quick, "seconds": seconds, "scene": "softvr.examples.example_shoulder"},
+        "config": {"quick": quick, "seconds": seconds, "scene": "softvr.examples.shoulder_player.ShoulderPlayer"},
         "runs": runs,
         "thesis": THESIS,
         "targets": {"ms_per_step": TARGET_MS_PER_STEP, "ms_per_step_met": worst_step <= TARGET_MS_PER_STEP,
