@@ -27,7 +27,7 @@ import numpy as np
 import warp as wp
 
 from softvr.collision.contacts import ContactKind, Contacts, contact_keys, stencil_side
-from softvr.device import load_kernels
+from softvr.device import load_kernels, upload
 
 __all__ = ["EdgeSet", "edge_pair", "edges_vs_edges", "surface_edges"]
 
@@ -83,14 +83,18 @@ class EdgeSet:
         self._bvh = wp.Bvh(self._lower, self._upper)
         self.edges_wp: wp.array = wp.array(self.edges.astype(np.int32), dtype=wp.int32, device=device)
         self._pairs = None
+        self.vertices_wp: wp.array = wp.empty(len(vertices), dtype=wp.vec3, device=device)
+        self.normals_wp: wp.array = wp.empty(len(self.edges), dtype=wp.vec3, device=device)
+        self.sharp_wp: wp.array = wp.empty(len(self.edges), dtype=wp.int32, device=device)
+        self.reach_wp: wp.array = wp.empty(len(self.edges), dtype=float, device=device)
         self._upload(vertices)
 
     def _upload(self, vertices: np.ndarray) -> None:
         """Edge normals, crease flags and the vertices, as the kernels read them this step."""
         self.normals, self.sharp = self.edge_normals(vertices)
-        self.vertices_wp: wp.array = wp.array(np.asarray(vertices, float), dtype=wp.vec3, device=self.device)
-        self.normals_wp: wp.array = wp.array(self.normals, dtype=wp.vec3, device=self.device)
-        self.sharp_wp: wp.array = wp.array(self.sharp.astype(np.int32), dtype=wp.int32, device=self.device)
+        upload(self.vertices_wp, vertices)
+        upload(self.normals_wp, self.normals)
+        upload(self.sharp_wp, self.sharp)
 
     def pair_outputs(self):
         """The edge-pair kernel's outputs for this set as side a (kept between calls): pair
@@ -113,8 +117,8 @@ class EdgeSet:
         [vertex_count, 3] [m]."""
         self._upload(vertices)
         lower, upper = self._boxes(vertices)
-        self._lower.assign(wp.array(lower, dtype=wp.vec3, device=self.device))
-        self._upper.assign(wp.array(upper, dtype=wp.vec3, device=self.device))
+        upload(self._lower, lower)
+        upload(self._upper, upper)
         self._bvh.refit()
 
     def edge_normals(self, vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -213,8 +217,9 @@ def edges_vs_edges(a, b, *, margin: float, friction: float = 0.5, dt: float = 0.
     device = b.device
     load_kernels(_edge_pairs, device)
     pair_edge, pair_st, pair_normal, pair_gap = ea.pair_outputs()
+    upload(ea.reach_wp, reach)
     wp.launch(_edge_pairs, dim=len(ea.edges), device=device,
-              inputs=[eb._bvh.id, ea.vertices_wp, ea.edges_wp, wp.array(reach, dtype=float, device=device),
+              inputs=[eb._bvh.id, ea.vertices_wp, ea.edges_wp, ea.reach_wp,
                       ea.normals_wp, ea.sharp_wp, eb.vertices_wp, eb.edges_wp, eb.normals_wp, eb.sharp_wp,
                       float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), pair_edge, pair_st, pair_normal,
                       pair_gap])

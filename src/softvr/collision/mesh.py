@@ -14,7 +14,7 @@ import numpy as np
 import warp as wp
 
 from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks
-from softvr.device import resolve_device
+from softvr.device import resolve_device, upload
 from softvr.errors import InputError
 
 __all__ = ["NORMAL_FROM_OFFSET", "TriangleMesh", "points_vs_mesh", "query_points"]
@@ -97,13 +97,15 @@ def _query_points(
 
 
 def _query_outputs(n: int, device: str, buffers: dict | None):
-    """Output arrays of :func:`query_points` for ``n`` points: new ones, or the ones kept in
-    ``buffers`` for this count (the kernel writes ``hit`` of every point and the rest where it
-    hits, and only those are read, so old contents do no harm)."""
+    """Output arrays of :func:`query_points` for ``n`` points, and its two input arrays (points,
+    motion): new ones, or the ones kept in ``buffers`` for this count (the kernel writes
+    ``hit`` of every point and the rest where it hits, and only those are read, so old
+    contents do no harm)."""
     out = None if buffers is None else buffers.get(n)
     if out is None:
         out = (wp.empty(n, dtype=wp.int32, device=device), wp.empty(n, dtype=wp.vec3, device=device),
-               wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.vec3, device=device))
+               wp.empty(n, dtype=float, device=device), wp.empty(n, dtype=wp.vec3, device=device),
+               wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.vec3, device=device))
         if buffers is not None:
             if len(buffers) > 16:  # many point counts: forget the old ones
                 buffers.clear()
@@ -125,11 +127,12 @@ def query_points(mesh_id, device: str, points: np.ndarray, motion: np.ndarray, r
         The contact point on the mesh.
     """
     n = len(points)
-    hit, normal, gap, surface = _query_outputs(n, device, buffers)
+    hit, normal, gap, surface, points_in, motion_in = _query_outputs(n, device, buffers)
+    upload(points_in, points)
+    upload(motion_in, motion)
     wp.launch(_query_points, dim=n, device=device,
-              inputs=[mesh_id, wp.array(points, dtype=wp.vec3, device=device),
-                      wp.array(motion, dtype=wp.vec3, device=device), float(reach), float(thickness), int(ccd),
-                      int(closed), hit, normal, gap, surface])
+              inputs=[mesh_id, points_in, motion_in, float(reach), float(thickness), int(ccd), int(closed), hit, normal,
+                      gap, surface])
     which = np.flatnonzero(hit.numpy())
     return (which, normal.numpy()[which].astype(float), gap.numpy()[which].astype(float),
             surface.numpy()[which].astype(float))

@@ -19,7 +19,7 @@ import warp as wp
 from softvr.collision.contacts import ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks, stencil_side
 from softvr.collision.edges import EdgeSet
 from softvr.collision.mesh import query_points
-from softvr.device import resolve_device
+from softvr.device import resolve_device, upload
 from softvr.errors import InputError
 
 __all__ = ["CollisionSurface", "surface_vs_surface"]
@@ -63,12 +63,13 @@ class CollisionSurface:
         # no inside, and either of its sides can touch.
         self.two_sided = bool((self.edge_set.adjacent[:, 1] < 0).any())
         self._query_buffers: dict[int, tuple] = {}  # this surface's vertex queries reuse their outputs
+        self._locate_buffers: dict[int, tuple] = {}  # and the closest-face queries on it theirs
         self._update_areas(points.positions())
 
     def refit(self) -> None:
         """Move the triangle and edge BVHs (and the triangle areas and normals) to the current vertex positions."""
         p = self.points.positions()
-        self._vertices.assign(wp.array(p, dtype=wp.vec3, device=self.device))
+        upload(self._vertices, p)
         self._mesh.refit()
         self.edge_set.refit(p)
         self._update_areas(p)
@@ -173,10 +174,16 @@ def _locate(surface: CollisionSurface, at: np.ndarray) -> tuple[np.ndarray, np.n
     """Triangle and barycentric coordinates [c, 3] of surface points (closest-point queries)."""
     if len(at) == 0:
         return np.zeros(0, int), np.zeros((0, 3))
-    out_face = wp.zeros(len(at), dtype=wp.int32, device=surface.device)
-    out_uv = wp.zeros(len(at), dtype=wp.vec2, device=surface.device)
-    wp.launch(_closest_face, dim=len(at), device=surface.device,
-              inputs=[surface._mesh.id, wp.array(at, dtype=wp.vec3, device=surface.device), out_face, out_uv])
+    n = len(at)
+    buffers = surface._locate_buffers
+    if n not in buffers:
+        if len(buffers) > 16:  # many contact counts: forget the old ones
+            buffers.clear()
+        buffers[n] = (wp.empty(n, dtype=wp.vec3, device=surface.device),
+                      wp.empty(n, dtype=wp.int32, device=surface.device), wp.empty(n, dtype=wp.vec2, device=surface.device))
+    points, out_face, out_uv = buffers[n]  # the kernel writes every entry
+    upload(points, at)
+    wp.launch(_closest_face, dim=n, device=surface.device, inputs=[surface._mesh.id, points, out_face, out_uv])
     uv = out_uv.numpy().astype(float)
     return out_face.numpy(), np.column_stack([uv[:, 0], uv[:, 1], 1.0 - uv[:, 0] - uv[:, 1]])
 
