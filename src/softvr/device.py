@@ -181,7 +181,7 @@ def upload(dst: wp.array, src) -> None:
     existing Warp array ``dst``, converted to its dtype. On the CPU it is written straight into
     the array's memory: ``dst.assign(wp.array(src))``, the usual way, allocates and checks a
     temporary array each time (~25 us: over a hundred a step in the per-object shoulder)."""
-    if dst.device.is_cpu:
+    if dst.device is not None and dst.device.is_cpu:
         dst.numpy()[...] = src
     else:
         dst.assign(wp.array(np.asarray(src), dtype=dst.dtype, device=dst.device))
