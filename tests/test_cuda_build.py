@@ -17,7 +17,8 @@ MODULES = {
     "softvr.contact._rigid_pgs_kernels": ("solve_rigid_contacts",),
     "softvr.dynamics._fem_kernels": ("_corotated_kernel",),
     "softvr.dynamics._node_kernels": ("element_terms", "assemble", "right_hand_side", "integrate"),
-    "softvr.collision._node_kernels": ("points_vs_planes", "carry_impulses"),
+    "softvr.collision._node_kernels": ("point_motion", "body_motion", "vertex_triangle", "edge_geometry", "edge_edge",
+                                       "gather_contacts", "carry_impulses"),
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual"),
 }
 
