@@ -24,6 +24,7 @@ from pydantic_core import PydanticCustomError
 
 from softvr.errors import InputError, Problems
 from softvr.files import checked_file, file_name
+from softvr.render import PRESETS, VIEWS
 from softvr.scene._keys import known_key
 from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
@@ -308,8 +309,6 @@ class Simulation(_Table):
 
 
 def _read_views(p: Problems, t: dict):
-    from softvr.render.camera import VIEWS  # noqa: PLC0415 - softvr.render loads VTK: only when a scene is read
-
     camera = t.get("v")
     if not isinstance(camera, str) or camera not in VIEWS:
         p.add("", f"a view name ({', '.join(VIEWS)})", camera)
@@ -614,8 +613,6 @@ def _read_volume_file(p: Problems, t: dict):
 
 
 def _read_preset(p: Problems, t: dict):
-    from softvr.render import PRESETS  # noqa: PLC0415 - softvr.render loads VTK: only when a volume is read
-
     preset = t.get("v")
     if not isinstance(preset, str) or preset not in PRESETS:
         p.add("", f"one of {', '.join(sorted(PRESETS))}", preset)

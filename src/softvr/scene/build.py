@@ -31,17 +31,27 @@ from __future__ import annotations
 import numpy as np
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+import softvr.datasets
+from softvr import Scene
 from softvr.app import Player
+from softvr.collision import Plane, Sphere, TriangleMesh
+from softvr.contact import Adhesion
+from softvr.dynamics import (ClothBody, ContactObject, Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody,
+                             Material, RigidBody, RigidPoints, embed_in_tets)
 from softvr.errors import InputError
 from softvr.files import native_read
-from softvr.scene.schema import BodySpec, SceneFile, read_scene
+from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
+from softvr.model import (CT_TISSUE, build_model, collision_mesh, dynamics_mesh, embed_surface, load_mesh, load_model,
+                          nodes_near_surface, rigid_properties, tissue_fem_body)
+from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
+from softvr.render import Camera
+from softvr.scene.gltf import read_gltf_scene, read_gltf_scene_with_problems
+from softvr.scene.schema import DATASETS, BodySpec, SceneFile, read_scene, read_scene_with_problems
 from softvr.scene.start import collision_free_start, start_pairs, start_problems
-
-if TYPE_CHECKING:  # the physics layers load with the first scene built, not with this module
-    from softvr.dynamics.body import ContactObject
-    from softvr.haptics import HapticTool
+from softvr.volume import DeformedVolume, Volume, boundary_faces, grid_tet_mesh, iso_surface, load_tet_mesh
+from softvr.volume import load as load_volume
 
 __all__ = ["SceneExample", "load_scene", "read_any", "read_any_with_problems", "scene_path"]
 
@@ -96,8 +106,6 @@ def _node_animation(path, nodes) -> tuple[np.ndarray, np.ndarray]:
 def _attached(body, points) -> object:
     """Point entity on ``body`` at world ``points`` [n, 3] [m] as it is now: barycentric in
     its tets (a fem body), its nearest nodes (cloth), or fixed in its frame (rigid)."""
-    from softvr.dynamics import EmbeddedPoints, RigidPoints, embed_in_tets
-
     if hasattr(body, "tets"):
         ti, w = embed_in_tets(body.q, body.tets, points, tolerance=np.inf)
         return EmbeddedPoints(body, body.tets[ti], w)
@@ -122,8 +130,6 @@ class _Drawn:
     or a :class:`~softvr.dynamics.RigidPoints`' ``positions``), else None."""
 
     def __init__(self, vertices, triangles, color, opacity: float = 1.0, visible: bool = True, rigid=None):
-        from softvr.dynamics import RigidPoints
-
         self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
         self.opacity, self.visible = opacity, visible
         points = getattr(vertices, "__self__", None)
@@ -134,15 +140,9 @@ class _Drawn:
 
 def _read_volume(source, scene_path: str):
     """The ``[volume] file``: a dataset of :mod:`softvr.datasets` by name, or a volume file."""
-    from softvr.scene.schema import DATASETS
-
     if isinstance(source, str) and source in DATASETS:
-        import softvr.datasets
-
         return getattr(softvr.datasets, DATASETS[source])()
-    from softvr.volume import load
-
-    return load(source)
+    return load_volume(source)
 
 
 class _DeformedVolume:
@@ -150,8 +150,6 @@ class _DeformedVolume:
     (nodes in metres, the volume in its own units); :meth:`shown` the rendered one in metres."""
 
     def __init__(self, volume, body, nodes, tets, spec: dict, device: str | None = None):
-        from softvr.volume import DeformedVolume
-
         self.unit, self.body, self.spec = spec["unit"], body, spec
         # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted; node
         # motion under 10 um is drawn once it adds up.
@@ -169,8 +167,6 @@ class _DeformedVolume:
 
     def shown(self):
         """The deformed volume as rendered [m]: every ``render_step``-th voxel per axis."""
-        from softvr.volume import Volume
-
         k, d = self.spec["render_step"], self.deformed
         data = d.data if k == 1 else np.ascontiguousarray(d.data[::k, ::k, ::k])
         return Volume(data, d.spacing * k * self.unit, d.origin * self.unit, d.direction.copy())
@@ -196,11 +192,6 @@ class SceneExample(Player):
 
     def __init__(self, scene_file: SceneFile, frames: int | None = None, width: int | None = None,
                  height: int | None = None, device: str | None = None, haptics: bool | None = None):
-        from softvr import Scene
-        from softvr.collision import Plane, Sphere
-        from softvr.contact import Adhesion
-        from softvr.render import Camera
-
         self.file = scene_file
         self.name = scene_file.path.stem
         self.device = device
@@ -264,10 +255,6 @@ class SceneExample(Player):
         the volume through the deformed tets every frame (:class:`_DeformedVolume`)."""
         from scipy.ndimage import binary_dilation
 
-        from softvr.dynamics import EmbeddedPoints
-        from softvr.model import CT_TISSUE, collision_mesh, embed_surface, tissue_fem_body
-        from softvr.volume import grid_tet_mesh, iso_surface
-
         volume = _read_volume(spec["file"], str(self.file.path))
         unit = spec["unit"]
         # Cubes holding tissue, grown by two voxels so that the skin lies inside them.
@@ -292,8 +279,6 @@ class SceneExample(Player):
 
     def _add_model(self, scene, model: dict) -> None:
         """The parts of a parts file (built now) or of a built model, with their couplings."""
-        from softvr.model import build_model, load_model
-
         path = model["file"]
         built = load_model(path) if path.suffix.lower() == ".npz" else build_model(path, progress=False)
         first = len(scene.bodies)
@@ -307,18 +292,12 @@ class SceneExample(Player):
             self._drawn_by_name[name] = self.drawn[-1]
 
     def _add(self, scene, spec: BodySpec) -> None:
-        from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody
-        from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
-
         rotation, quaternion = _rotation(spec.rotation)
         centre = np.asarray(spec.position, float)
         adhesion = self.adhesions.get(spec.adhesion)
         material: Any = self.file.materials.get(spec.material)  # None only for types that take none (validated)
         body: ContactObject
         if spec.type in ("rigid", "kinematic", "tool") and spec.shape == "mesh":
-            from softvr.dynamics import RigidPoints
-            from softvr.model import rigid_properties
-
             v, t = self._surface(spec, rotation, centre)
             if spec.type == "kinematic":
                 # Its frame: the world axes at the body's position, moved through the keyframes.
@@ -357,8 +336,6 @@ class SceneExample(Player):
                 collider = {"collision_sphere": spec.size}
                 unit, triangles = icosphere(spec.subdivisions)
                 local = unit * spec.size
-            from softvr.dynamics import RigidPoints
-
             # The primitive meets planes and its kind exactly, the surface everything else.
             index = scene.add_body(body, adhesion=adhesion, collision_points=RigidPoints(body, local),
                                    collision_triangles=triangles, **collider)
@@ -367,8 +344,6 @@ class SceneExample(Player):
             self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color,
                                      rigid=(body, local)))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
-            from softvr.collision import TriangleMesh
-
             v, t = self._surface(spec, rotation, centre)
             scene.add_mesh(TriangleMesh(v, t), adhesion=adhesion)
             self._obstacles[spec.name] = _Drawn(lambda v=v: v, t, spec.color)
@@ -377,8 +352,6 @@ class SceneExample(Player):
             self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
             return
         elif spec.type == "fem":
-            from softvr.model import rigid_properties
-
             m = Material(material["young"], material["poisson"], material["density"], alpha=material["alpha"],
                          beta=material["beta"])
             nodes, tets, surface, embedding = self._tet_mesh(spec, rotation, centre)
@@ -397,8 +370,6 @@ class SceneExample(Player):
             index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
             self.drawn.append(_Drawn(points.positions, surface, spec.color))
         else:  # cloth
-            from softvr.dynamics import ClothBody
-
             c = spec.cloth
             springs = dict(density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
                            damping=c["damping"], alpha=c["alpha"], name=spec.name)
@@ -433,16 +404,12 @@ class SceneExample(Player):
         """The shape's surface, simplified to ``collision_triangles`` when given."""
         if spec.collision_triangles is None:
             return vertices, triangles
-        from softvr.model import collision_mesh
-
         return collision_mesh(vertices, triangles, spec.collision_triangles)
 
     def _render_surface(self, spec: BodySpec, body, rotation, centre, file=None) -> "_Drawn":
         """A drawn surface (``file``, else the shape's own) placed as the shape and carried by
         the body: barycentric in its tets (extrapolated from the nearest tet where it pokes
         out), or fixed in its frame."""
-        from softvr.dynamics import EmbeddedPoints, RigidPoints, embed_in_tets
-
         v, t = self._surface(spec, rotation, centre, file)
         points: EmbeddedPoints | RigidPoints
         if hasattr(body, "tets"):
@@ -455,10 +422,6 @@ class SceneExample(Player):
     def _couple(self, scene, c: dict) -> None:
         """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface, or at
         the world ``points`` (tied to both bodies where they are at the start)."""
-        from softvr.dynamics import Coupling, EmbeddedPoints
-        from softvr.errors import InputError
-        from softvr.model import nodes_near_surface
-
         a, b = self.bodies[c["a"]], self.bodies[c["b"]]
         if c["points"] is not None:
             springs = np.asarray(c["points"], float)
@@ -477,8 +440,6 @@ class SceneExample(Player):
     def _tool(self, scene, spec: BodySpec, body, tip=(0.0, 0.0, 0.0)):
         """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling, at ``tip`` [3]
         [m] in its frame, to a handle that follows the motion keyframes in simulated time."""
-        from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
-
         path = self._keyframes(spec, np.asarray(spec.position, float), None)
         device = ScriptedDevice(lambda t: path(t)[0])
         process = bool(spec.tool["haptics"]) and self._haptics is not False
@@ -503,10 +464,6 @@ class SceneExample(Player):
     def _tet_mesh(spec: BodySpec, rotation, centre):
         """Nodes [n, 3] [m], tets, the collision / drawn surface over the embedded points and
         the embedding (tet node indices [k, 4] or [k, 1], weights)."""
-        from softvr.volume import Volume, boundary_faces, grid_tet_mesh
-
-        from softvr.model import dynamics_mesh, embed_surface
-
         if spec.shape in ("box", "tets"):
             if spec.shape == "box":
                 size = np.asarray(spec.size, float)
@@ -515,8 +472,6 @@ class SceneExample(Player):
                 grid = Volume(np.zeros(tuple(cells), np.uint8), spacing=spacing, origin=spacing / 2 - size / 2)
                 nodes, tets = grid_tet_mesh(grid, tuple(cells))
             else:
-                from softvr.volume import load_tet_mesh
-
                 # meshio exits the process on some unreadable files: native_read turns that into an error.
                 assert spec.mesh is not None  # a tets body names its file (validated)
                 nodes, tets = native_read(load_tet_mesh, spec.mesh, f"body {spec.name!r}.tets",
@@ -524,8 +479,6 @@ class SceneExample(Player):
                 nodes = nodes * np.asarray(spec.scale)
             nodes = nodes @ rotation.T + centre
             if spec.shape == "box" and spec.surface_quads > 1:
-                from softvr.model.shapes import box_surface
-
                 v, t = box_surface(size, spec.surface_quads)
                 v = (v - size / 2) @ rotation.T + centre
                 tet_index, weights = embed_surface(nodes, tets, v)
@@ -568,8 +521,6 @@ class SceneExample(Player):
     @staticmethod
     def _surface(spec: BodySpec, rotation, centre, file=None) -> tuple[np.ndarray, np.ndarray]:
         """The body's mesh (from its file, or given in memory; or ``file``) placed in the world [m]."""
-        from softvr.model import load_mesh
-
         if isinstance(file, tuple):  # given in memory (a glTF object's mesh)
             v, t = file
         elif file is not None:
@@ -577,8 +528,6 @@ class SceneExample(Player):
         elif spec.mesh_data is not None:
             v, t = spec.mesh_data
         elif spec.shape == "sphere":
-            from softvr.model.shapes import icosphere
-
             v, t = icosphere(spec.subdivisions)
             v = v * spec.size
         else:
@@ -707,8 +656,6 @@ class SceneExample(Player):
 def read_any(path) -> SceneFile:
     """A scene file (TOML) or a glTF / GLB scene with softvr extras, validated."""
     if Path(path).suffix.lower() in (".gltf", ".glb"):
-        from softvr.scene.gltf import read_gltf_scene
-
         return read_gltf_scene(path)
     return read_scene(path)
 
@@ -717,11 +664,7 @@ def read_any_with_problems(path) -> tuple[SceneFile, list]:
     """A scene file (TOML) or glTF / GLB scene without its parts that have a problem, and its
     problems (:func:`~softvr.scene.schema.read_scene_with_problems`)."""
     if Path(path).suffix.lower() in (".gltf", ".glb"):
-        from softvr.scene.gltf import read_gltf_scene_with_problems
-
         return read_gltf_scene_with_problems(path)
-    from softvr.scene.schema import read_scene_with_problems
-
     return read_scene_with_problems(path)
 
 

@@ -160,6 +160,7 @@ from typing import Any
 
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import file_name, read_toml
+from softvr.model import load_model, read_parts
 from softvr.scene._description import (BODY_TYPES, BOX_CELLS, DATASETS, LIMITS, MESH_SUFFIXES, PLAUSIBLE, Adhesion,
                                        Body, Coupling, DisplayTable, Document, Filter, Light, Material, ModelTable,
                                        Plane, Render, Simulation, Sphere, Volume, existing_file, read_table)
@@ -497,8 +498,6 @@ def _model(i: int, t: dict, scene_dir: Path, errors: Problems, where: str | None
     path = _file(t, "file", w, scene_dir, (".toml", ".npz"), "a parts file or a built model", errors)
     if path is None:
         return {"file": path, **empty}
-    from softvr.model import load_model, read_parts  # noqa: PLC0415 - softvr.model imports this module
-
     try:
         specs = read_parts(path).parts if path.suffix.lower() == ".toml" else [p.spec for p in load_model(path).parts]
     except InputError as exc:
