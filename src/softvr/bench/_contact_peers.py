@@ -149,7 +149,7 @@ def _pybullet(scene: dict, steps: int) -> tuple[_Trace, dict]:
     import pybullet as p
     import pybullet_data
 
-    from softvr.bench.contact import CubeScene, cube_mesh
+    from softvr.bench.contact import CubeScene, cube_mesh  # noqa: PLC0415 - softvr.bench.contact imports this module
 
     cube = CubeScene(**scene)
     nodes, tets = cube_mesh(cube, drop=0.0)  # the base position lifts it

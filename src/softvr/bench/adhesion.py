@@ -28,9 +28,15 @@ import time
 
 import numpy as np
 
+from softvr import Scene
 from softvr.bench.contact import _git_commit, run_candy
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.collision import Plane
+from softvr.contact import Adhesion
+from softvr.device import resolve_device
+from softvr.dynamics import RigidBody, RigidPoints
+from softvr.model.shapes import box_surface
 
 __all__ = ["PULL_OFF", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
            "softvr_pull_off", "write_plot"]
@@ -68,12 +74,6 @@ def _pull_off_prediction(case: dict) -> tuple[float, float]:
 def softvr_pull_off(case: dict = PULL_OFF) -> dict:
     """softvr on the pull-off case: the force when the cube has lifted ``lift`` [m], the
     trace of force and lift, and steps/s of the ramp."""
-    from softvr import Scene
-    from softvr.collision import Plane
-    from softvr.contact import Adhesion
-    from softvr.dynamics import RigidBody, RigidPoints
-    from softvr.model.shapes import box_surface
-
     edge, dt = case["edge"], case["dt"]
     verts, tris = box_surface((edge,) * 3, case["quads"])
     cube = RigidBody.box((edge,) * 3, case["density"], position=(0.0, 0.0, edge / 2), name="cube")
@@ -139,8 +139,6 @@ def _ramp(push, step, lift, case: dict) -> dict:
 
 def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
     """Run the candy scene without, then with adhesion; returns the JSON-ready result."""
-    from softvr.device import resolve_device
-
     resolve_device("cpu")
     t0 = time.perf_counter()
     load_start = _loadavg()

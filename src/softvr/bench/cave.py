@@ -39,6 +39,11 @@ import numpy as np
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.cave import Screen, save_display, tile
+from softvr.cave.app import WavingSheet, plane_item, user_pose_facing
+from softvr.cave.cluster import ClusterConfig, Master
+from softvr.cave.command import node_command
+from softvr.cave.display import Display
 
 __all__ = ["TARGET_BYTES_PER_FRAME", "TARGET_SYNC_P99_MS", "format_table", "main", "run_cave_bench", "write_plot"]
 
@@ -53,8 +58,6 @@ class _StaticScene:
     fps = 60.0
 
     def __init__(self):
-        from softvr.cave.app import plane_item
-
         self.items = [plane_item(size=3.0)]
 
     def advance(self) -> dict:
@@ -62,26 +65,17 @@ class _StaticScene:
 
 
 def _navigation(n: int, t: float):
-    from softvr.cave.app import user_pose_facing
-
     return (user_pose_facing((0.0, 0.0, 0.4), 0.3 * np.sin(0.5 * t)), [0.1 * np.sin(t), 0.0, 1.7, 1.0, 0.0, 0.0, 0.0],
             [("toggle", ("grid",))] if n % 60 == 0 else [])
 
 
 def _display_file(nodes: int, folder: Path) -> Path:
-    from softvr.cave import Screen, save_display, tile
-    from softvr.cave.display import Display
-
     wall = Screen("wall", (-2.0, 2.0, 0.5), (2.0, 2.0, 0.5), (-2.0, 2.0, 2.75), (nodes * 64, 64), "wall")
     return save_display(Display(tile(wall, nodes, 1), name=f"{nodes} tiles"), folder / f"wall{nodes}.toml")
 
 
 def _cluster_run(nodes: int, load: str, frames: int, folder: Path, curve: bool = True) -> dict:
     """One master (here) and ``nodes`` node processes (no rendering), ``frames`` frames at 60 fps."""
-    from softvr.cave.command import node_command
-    from softvr.cave.app import WavingSheet
-    from softvr.cave.cluster import ClusterConfig, Master
-
     display = _display_file(nodes, folder)
     names = [f"wall_{i}0" for i in range(nodes)]
     source = WavingSheet(10_000) if load == "streamed" else _StaticScene()
@@ -168,8 +162,6 @@ def _zmq_floor(nodes: int, frames: int) -> dict:
 
 def _pickled_bytes() -> int:
     """The thesis' way: the whole vertex state of the 10 K-vertex sheet pickled (float32)."""
-    from softvr.cave.app import WavingSheet
-
     sheet = WavingSheet(10_000)
     vertices = sheet.advance()
     return len(pickle.dumps({h: v.astype(np.float32) for h, v in vertices.items()}, protocol=pickle.HIGHEST_PROTOCOL))

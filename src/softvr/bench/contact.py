@@ -41,9 +41,17 @@ from typing import Any
 
 import numpy as np
 
+import softvr
+from softvr import Scene
 from softvr.bench import _contact_peers as P
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.collision import Plane
+from softvr.device import resolve_device
+from softvr.dynamics import EmbeddedPoints, FemBody, Material
+from softvr.errors import SoftvrError
+from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
+from softvr.volume import Volume, grid_tet_mesh
 
 __all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
            "run_softvr", "softvr_scene", "write_plot"]
@@ -118,8 +126,6 @@ QUICK_SCENE = CubeScene(size=0.2, cells=3, drop=0.05, duration=0.25)
 
 def cube_mesh(scene: CubeScene, drop: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Nodes [m] and 5-per-cell tets of the cube (:func:`softvr.volume.grid_tet_mesh`)."""
-    from softvr.volume import Volume, grid_tet_mesh
-
     c = scene.cells
     spacing = np.full(3, scene.size / c)
     corner = np.array([-scene.size / 2, -scene.size / 2, scene.drop if drop is None else drop])
@@ -128,10 +134,6 @@ def cube_mesh(scene: CubeScene, drop: float | None = None) -> tuple[np.ndarray, 
 
 def softvr_scene(scene: CubeScene):
     """(Scene, FemBody) of the cube above its plane, every node a collision point."""
-    from softvr import Scene
-    from softvr.collision import Plane
-    from softvr.dynamics import EmbeddedPoints, FemBody, Material
-
     nodes, tets = cube_mesh(scene)
     body = FemBody(nodes, tets, Material(scene.young, scene.poisson, scene.density, alpha=0.0, beta=SOFTVR_BETA),
                    name="cube")
@@ -167,8 +169,6 @@ def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
 
 def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
     """softvr on ``scene``: warm-up, then ``repeat`` simulations (record as :func:`_contact_peers.run_peer`)."""
-    import softvr
-
     t = time.perf_counter()
     _softvr_once(replace(scene, drop=0.0), P.WARMUP_STEPS)  # imports, first sparse LU and PGS call
     warmup_s = time.perf_counter() - t
@@ -201,8 +201,6 @@ def run_candy(*, quick: bool = False, progress: bool = True, adhesion: bool = Fa
     the sizes; peers do not run this scene.
     """
     from tqdm import tqdm
-
-    from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
 
     ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, adhesion=adhesion)
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
@@ -279,8 +277,6 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
     None when ``candy`` is False), ``targets``, ``wall_s``.
     """
     from tqdm import tqdm
-
-    from softvr.device import resolve_device
 
     resolve_device("cpu")  # initializes Warp quietly (the machine info asks it for the device name)
     scene = scene or (QUICK_SCENE if quick else FULL_SCENE)
@@ -534,8 +530,6 @@ def main(argv: list[str] | None = None) -> int:
     bad = set(engines) - set(ENGINES)
     if bad or not engines:
         p.error(f"unknown engines {sorted(bad)}; choose from {', '.join(ENGINES)}")
-    from softvr.errors import SoftvrError
-
     try:
         result = run_contact_bench(quick=a.quick, repeat=a.repeat, engines=engines, progress=not a.no_progress,
                                    candy=not a.no_candy)

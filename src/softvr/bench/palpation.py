@@ -26,6 +26,9 @@ import numpy as np
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.examples.ct_palpation import CTPalpation as Example
+from softvr.render import Camera, VolumeRenderer
+from softvr.volume import Volume
 
 __all__ = ["TARGET_FRAME_MS", "TARGET_RENDER_RATIO", "format_table", "main", "run_palpation_bench", "write_plot"]
 
@@ -41,10 +44,6 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     ``renderer``, ``render_step`` and ``sample_distance`` as for
     :class:`~softvr.examples.ct_palpation.CTPalpation` (``None``: its default)."""
     from tqdm import tqdm
-
-    from softvr.examples.ct_palpation import CTPalpation as Example
-    from softvr.render import Camera, VolumeRenderer
-    from softvr.volume import Volume
 
     t0 = time.perf_counter()
     load_start = _loadavg()

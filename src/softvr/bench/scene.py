@@ -52,7 +52,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -60,10 +59,10 @@ from softvr.bench._contact_peers import NOT_INSTALLED
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.device import resolve_device
+from softvr.errors import SoftvrError
+from softvr.scene import BUNDLED, FORMAT, SceneExample, bundled, read_any, read_scene
 from softvr.sim import STAGES as STEP_STAGES
-
-if TYPE_CHECKING:  # the scene layer loads with the first scene timed
-    from softvr.scene import SceneExample
 
 __all__ = ["IMAGE", "QUICK_SCENES", "box_stack_mjcf", "format_table", "main", "run_mujoco", "run_scene",
            "run_scene_bench", "soft_cube_twins", "time_load", "write_plot"]
@@ -94,8 +93,6 @@ def time_load(path, repeat: int) -> tuple[list[float], list[float], SceneExample
     example : SceneExample
         The last one built (open: the caller closes it); the others are closed.
     """
-    from softvr.scene import SceneExample, read_any
-
     read: list[float] = []
     build: list[float] = []
     example: SceneExample | None = None
@@ -122,8 +119,6 @@ def _size(example) -> dict:
 def run_scene(path, *, frames: int, repeat: int) -> dict:
     """One scene file's row (module docstring): times [ms], per-frame traces, sizes; ``status``
     "ok", or "failed: <why>" when it cannot be built here."""
-    from softvr.errors import SoftvrError
-
     try:
         read, build, example = time_load(path, repeat)
     except SoftvrError as exc:
@@ -167,8 +162,6 @@ def soft_cube_twins(folder) -> tuple[Path, Path]:
 
     import trimesh
     from scipy.spatial.transform import Rotation
-
-    from softvr.scene import FORMAT, bundled, read_scene
 
     folder = Path(folder)
     source = read_scene(bundled("soft-cube.toml"))
@@ -278,9 +271,6 @@ def run_scene_bench(*, quick: bool = False, scenes=None, progress: bool = True) 
     """Every scene's row, glTF vs TOML and the MuJoCo peer (module docstring); the JSON-ready
     result. ``scenes``: bundled scene file names (default: all; ``quick``: :data:`QUICK_SCENES`)."""
     from tqdm import tqdm
-
-    from softvr.device import resolve_device
-    from softvr.scene import BUNDLED, bundled, read_scene
 
     t0 = time.perf_counter()
     load_start = _loadavg()
@@ -404,8 +394,6 @@ def write_plot(result: dict, path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench scene [--quick] [--scenes NAME ...] [--json PATH] [--plot PATH]``."""
-    from softvr.scene import BUNDLED
-
     p = bench_parser("scene", "Scene files: read, build, collision-free start check and frames of every bundled "
                      "scene; glTF vs TOML; box-stack vs MuJoCo.",
                      quick=f"only {', '.join(QUICK_SCENES)}, 3 frames each (seconds; CI)",

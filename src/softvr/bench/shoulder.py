@@ -24,6 +24,7 @@ import numpy as np
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.examples.shoulder_player import ShoulderPlayer as Example
 
 __all__ = ["TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench", "write_plot"]
 
@@ -35,8 +36,6 @@ THESIS = {"ms_per_step": 20.0, "contacts_mean": 65, "contacts_max": 153}
 def run_variant(variant: str, *, seconds: float, dt: float, progress: bool) -> dict:
     """Simulate ``seconds`` of the scripted palpation of one variant; returns its numbers."""
     from tqdm import tqdm
-
-    from softvr.examples.shoulder_player import ShoulderPlayer as Example
 
     steps = max(1, int(round(seconds / dt)))
     ex = Example(frames=steps, width=64, height=48, variant=variant, dt=dt, steps_per_frame=1, haptics=True)

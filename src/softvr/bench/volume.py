@@ -49,6 +49,16 @@ from typing import Any
 
 import numpy as np
 
+import softvr
+from softvr.bench import _volume_floor as F
+from softvr.bench import _volume_peers as P
+from softvr.bench._report import bench_parser, print_and_write, save_figure
+from softvr.bench._volume_peers import default_threads
+from softvr.datasets import head_ct, mri_ch2better
+from softvr.device import resolve_device
+from softvr.errors import SoftvrError
+from softvr.volume import Rasterizer, Volume, deform, grid_tet_mesh
+
 __all__ = ["main", "run_volume_bench", "rotated_nodes"]
 
 #: The issue's targets.
@@ -117,8 +127,6 @@ def sine_nodes(volume, nodes: np.ndarray, amplitude_voxels: float = 3.0) -> np.n
 
 def resample_linear(volume, shape):
     """``volume`` resampled (trilinear, separable) to ``shape`` over the same voxel-centre box."""
-    from softvr.volume import Volume
-
     data = np.asarray(volume.data, dtype=np.float32)
     for axis, n_new in enumerate(shape):
         n = data.shape[axis]
@@ -139,8 +147,6 @@ def resample_linear(volume, shape):
 
 def phantom(n: int):
     """A procedural head-like CT phantom, int16 [HU], cube ``n``^3 of 1 mm voxels."""
-    from softvr.volume import Volume
-
     x = (np.arange(n, dtype=np.float32) - (n - 1) / 2.0) / (n / 2.0)
     X, Y, Z = x[:, None, None], x[None, :, None], x[None, None, :]
     r = np.sqrt((X / 0.85) ** 2 + (Y / 0.95) ** 2 + (Z / 0.8) ** 2)
@@ -154,20 +160,14 @@ def phantom(n: int):
 
 
 def _contiguous(volume):
-    from softvr.volume import Volume
-
     return Volume(np.ascontiguousarray(volume.data), volume.spacing, volume.origin, volume.direction, volume.is_label)
 
 
 def _head_ct():
-    from softvr.datasets import head_ct
-
     return _contiguous(head_ct())
 
 
 def _mri():
-    from softvr.datasets import mri_ch2better
-
     return _contiguous(mri_ch2better())
 
 
@@ -192,8 +192,6 @@ def _timed_runs(fn, repeat: int, max_case_s: float, warmup: bool = True) -> tupl
 
 def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, device, repeat, max_case_s,
                  out_grid=None):
-    from softvr.volume import Rasterizer
-
     t = time.perf_counter()
     r = Rasterizer(volume, nodes, tets, culling=culling, device=device)
     construct_s = time.perf_counter() - t
@@ -240,8 +238,6 @@ def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, de
 
 def _deform_case(section, name, volume, nodes, tets, deformed, out_grid, device, repeat, max_case_s) -> dict:
     """``softvr.volume.deform`` called once per frame (spans), as a script without a Rasterizer would."""
-    from softvr.volume import deform
-
     def frame():
         return deform(volume, nodes, tets, deformed, device=device, out_grid=out_grid)
 
@@ -259,8 +255,6 @@ def _deform_case(section, name, volume, nodes, tets, deformed, out_grid, device,
 
 def _floor_cases(section, name, volume, device, repeat, max_case_s) -> list[dict]:
     """The same voxels without a mesh (:mod:`softvr.bench._volume_floor`): memory and resampling floors."""
-    from softvr.bench import _volume_floor as F
-
     recs = []
     n = int(np.prod(volume.shape))
     for route, fn, dev in (("floor: numpy copy", F.floor_copy(volume.data), "cpu"),
@@ -307,8 +301,6 @@ def _compare(ref_out, ref_counts, peer_out, peer_valid_xyz, inner_xyz) -> dict:
 def _peer_cases(section, name, volume, nodes, tets, deformed, out_grid, ref_out, ref_counts, repeat, max_case_s, *,
                 warmup=True, single_thread_reference=False):
     """VTK + SciPy and SimpleITK on one case; the VTK probe is shared by both."""
-    from softvr.bench import _volume_peers as P
-
     records = []
     grid = P.grid_volume(out_grid.shape, out_grid.spacing, out_grid.origin)
     bg = float(volume.data.min())  # softvr's default background
@@ -387,8 +379,6 @@ def _machine_info(device: str) -> dict:
     import vtk
     import warp as wp
 
-    import softvr
-
     cpu = "unknown"
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -409,8 +399,6 @@ def _machine_info(device: str) -> dict:
         dev_name = f"{device} ({wp.get_device(device).name})"
     except Exception:
         pass
-    from softvr.bench._volume_peers import default_threads
-
     return {
         "cpu_model": cpu,
         "cores": default_threads(),
@@ -440,8 +428,6 @@ def _loadavg() -> list[float] | None:
 
 def _warm_kernels(device: str, dtypes) -> None:
     """Compile (or load from Warp's kernel cache) every kernel for every dtype and mode."""
-    from softvr.volume import Rasterizer, Volume, grid_tet_mesh
-
     for dt in dtypes:
         vol = Volume(np.zeros((12, 12, 12), dtype=dt))
         nodes, tets = grid_tet_mesh(vol, 2)
@@ -493,9 +479,6 @@ def run_volume_bench(
     """
     from tqdm import tqdm
 
-    from softvr.device import resolve_device
-    from softvr.volume import grid_tet_mesh
-
     cfg: dict[str, Any] = dict(QUICK if quick else FULL)
     if repeat is not None:
         cfg["repeat"] = int(repeat)
@@ -511,8 +494,6 @@ def run_volume_bench(
     max_case_s = float(max_case_s if max_case_s is not None else (1.0 if quick else 4.0))
     t_start = time.perf_counter()
     load_start = _loadavg()
-
-    from softvr.bench._volume_peers import default_threads
 
     ram = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") if hasattr(os, "sysconf") else 16e9
 
@@ -885,8 +866,6 @@ def write_plot(result: dict, path) -> None:
     fig.suptitle(f"softvr volume deformation, rotated 45/45 deg - {m['cpu_model']}, {m['cores']} cores, "
                  f"{m['device_name']}, Warp {m['versions']['warp']}, {m['date'][:10]}", fontsize=9)
 
-    from softvr.bench._report import save_figure
-
     save_figure(fig, path)
 
 
@@ -899,8 +878,6 @@ def _legend_or_empty(ax) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``softvr bench volume [--device cpu|cuda] [--quick] [--repeat N] [--json PATH] [--plot PATH]``."""
-    from softvr.bench._report import bench_parser
-
     p = bench_parser("volume", "Volume deformation benchmark: thesis Figs 3.5 / 3.6 and VTK / SimpleITK peers.",
                      quick="small volumes, seconds (CI)", plot="write a PNG with Fig 3.5 / 3.6 style panels")
     p.add_argument("--device", choices=["cpu", "cuda"], default=None, help="Warp device (default: CUDA when present)")
@@ -918,8 +895,6 @@ def main(argv: list[str] | None = None) -> int:
     bad = set(sections) - {"peers", "fig35", "fig36"}
     if bad:
         p.error(f"unknown sections {sorted(bad)}")
-    from softvr.errors import SoftvrError
-
     try:
         result = run_volume_bench(
             device=a.device,
@@ -935,8 +910,6 @@ def main(argv: list[str] | None = None) -> int:
     except SoftvrError as exc:
         print(f"softvr bench volume: {exc}", file=sys.stderr)
         return 2
-    from softvr.bench._report import print_and_write
-
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 
