@@ -18,14 +18,18 @@ plays the scene file.
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from softvr import Scene
 from softvr.app import Player
-
-if TYPE_CHECKING:  # vtk loads with the first frame drawn
-    from softvr.render import VolumeRenderer
+from softvr.datasets import head_ct
+from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
+from softvr.errors import InputError
+from softvr.model import CT_TISSUE, collision_mesh, embed_surface, tissue_fem_body
+from softvr.model.shapes import icosphere
+from softvr.render import Camera, VolumeRenderer
+from softvr.volume import DeformedVolume, Volume, grid_tet_mesh, iso_surface
 
 __all__ = ["CTPalpation", "press_point"]
 
@@ -94,20 +98,9 @@ class CTPalpation(Player):
                  incremental: bool = True, skin_triangles_budget: int = 4000, labels=None,
                  render_step: int = 1, renderer: str = "warp", sample_distance: float = 1.0,
                  device: str | None = None):
-        from softvr import Scene
-        from softvr.dynamics import EmbeddedPoints, KinematicBody, RigidPoints
-        from softvr.model.shapes import icosphere
-        from softvr.model import CT_TISSUE, tissue_fem_body
-        from softvr.volume import DeformedVolume, grid_tet_mesh
-
         if volume is None:
-            from softvr.datasets import head_ct
-
             volume = head_ct()
         from scipy.ndimage import binary_dilation
-
-        from softvr.model import collision_mesh, embed_surface
-        from softvr.volume import iso_surface
 
         self.volume = volume
         # Cubes holding tissue, grown by two voxels so that the skin surface lies inside them.
@@ -139,20 +132,14 @@ class CTPalpation(Player):
         self.labels = labels
         if labels is not None:
             if labels.shape != volume.shape:
-                from softvr.errors import InputError
-
                 raise InputError("labels", f"a label volume of the CT's shape {volume.shape}", f"shape {labels.shape}")
             self.label_drawing = DeformedVolume(labels, self.nodes, self.tets, tolerance=0.01,
                                                 incremental=incremental, device=device, inverted="skip",
                                                 interpolation="nearest", background=0)
         self.preset, self.azimuth = "ct-skin", -40.0
         if not (isinstance(render_step, int) and render_step >= 1):
-            from softvr.errors import InputError
-
             raise InputError("render_step", "an integer >= 1", repr(render_step))
         if renderer not in ("warp", "vtk"):
-            from softvr.errors import InputError
-
             raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
         self.render_step, self.renderer, self.sample_distance = render_step, renderer, float(sample_distance)
         self._changed: bool | tuple = True  # what the rasterizer rewrote since the last render: everything at first
@@ -225,8 +212,6 @@ class CTPalpation(Player):
 
     def shown_volume(self):
         """The deformed CT as rendered: every ``render_step``-th voxel per axis."""
-        from softvr.volume import Volume
-
         k, d = self.render_step, self.deformed
         if k == 1:
             return d
@@ -234,8 +219,6 @@ class CTPalpation(Player):
 
     def render(self) -> np.ndarray:
         """Volume-render the deformed CT; returns RGB uint8 [height, width, 3]."""
-        from softvr.render import Camera, VolumeRenderer
-
         t0 = time.perf_counter()
         if self.volume_renderer is None:
             self.volume_renderer = VolumeRenderer(self.width, self.height, preset=self.preset,
@@ -262,11 +245,7 @@ class CTPalpation(Player):
     def label_surface(self, label: int) -> tuple[np.ndarray, np.ndarray]:
         """The surface [mm] of segmentation ``label`` as deformed now: vertices [n, 3] and
         triangles [t, 3] of the iso-surface of its mask."""
-        from softvr.volume import Volume, iso_surface
-
         if self.labels is None:
-            from softvr.errors import InputError
-
             raise InputError("labels", "a label volume given to CTPalpation(labels=...)", "none")
         d = self.labels_deformed
         mask = Volume((d.data == label).astype(np.float32), d.spacing.copy(), d.origin.copy(), d.direction.copy())

@@ -26,8 +26,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.model.shapes import box_surface, icosphere
+from softvr import Scene
 from softvr.app import Player
+from softvr.collision import Plane
+from softvr.contact import Adhesion
+from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints, embed_in_tets
+from softvr.dynamics.rigid import quat_from_rotvec, quat_to_matrix
+from softvr.model.shapes import box_surface, icosphere
+from softvr.render import Camera
+from softvr.volume import Volume, grid_tet_mesh
+from softvr.volume.tetmesh import tet_signed_volumes
 
 __all__ = ["CANDY_STIFFNESS", "DEFAULT_FRAMES", "JELLO_ADHESION", "CandyScale", "Example", "FULL_SCALE", "SMALL_SCALE",
            "orange_mesh"]
@@ -59,9 +67,6 @@ def orange_mesh(radius: float, voxels: int = 12, cells: int = 4):
     nodes [n, 3] [m], tets [m, 4], surface vertices [k, 3] [m], surface triangles [t, 3],
     mask volume fraction (sphere volume / tet mesh volume)
     """
-    from softvr.volume import Volume, grid_tet_mesh
-    from softvr.volume.tetmesh import tet_signed_volumes
-
     h = 2.4 * radius / voxels
     c = (voxels - 1) / 2
     x, y, z = np.mgrid[:voxels, :voxels, :voxels] - c
@@ -138,14 +143,6 @@ class Example(Player):
                  block_poisson: float = 0.4, block_density: float = 1050.0, candy_radius: float = 0.03,
                  candy_young: float = 2e5, candy_density: float = 1200.0, friction: float = 0.3,
                  dt: float = 0.008, steps_per_frame: int = 5, seed: int = 7, adhesion: bool = False):
-        from softvr import Scene
-        from softvr.collision import Plane
-        from softvr.contact import Adhesion
-        from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints, embed_in_tets
-        from softvr.dynamics.rigid import quat_from_rotvec, quat_to_matrix
-        from softvr.render import Camera
-        from softvr.volume import Volume, grid_tet_mesh
-
         rng = np.random.default_rng(seed)
         self.scale = scale
         self.plane = Plane(friction=friction)

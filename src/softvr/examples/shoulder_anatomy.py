@@ -19,6 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
+from softvr.errors import InputError
+from softvr.model.shapes import box_surface
+
 __all__ = ["VARIANTS", "shoulder_meshes", "write_shoulder_parts"]
 
 VARIANTS = ("palpation", "arthroscopy")
@@ -31,8 +34,6 @@ def _box(lo, hi, edge: float = 0.006):
     """The box [lo, hi] [m] as a closed surface of squares about ``edge`` [m] wide (contacts
     happen at vertices and edges, so a soft part's faces need more than two triangles)."""
     import trimesh  # noqa: PLC0415
-
-    from softvr.model.shapes import box_surface  # noqa: PLC0415
 
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     v, t = box_surface(hi - lo, max(1, int(np.ceil((hi - lo).max() / edge))))
@@ -50,8 +51,6 @@ def shoulder_meshes(variant: str = "palpation") -> dict:
     import trimesh  # noqa: PLC0415
 
     if variant not in VARIANTS:
-        from softvr.errors import InputError  # noqa: PLC0415
-
         raise InputError("variant", " | ".join(VARIANTS), repr(variant))
     head = trimesh.creation.icosphere(subdivisions=3, radius=0.026)
     head.apply_translation((0.019, 0.0, 0.0))

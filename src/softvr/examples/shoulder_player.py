@@ -31,7 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
+from softvr import Scene
 from softvr.app import Player
+from softvr.dynamics import Coupling, RigidBody, RigidPoints
+from softvr.examples.shoulder_anatomy import write_shoulder_parts
+from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
+from softvr.model import build_model
+from softvr.model.shapes import icosphere
+from softvr.render import Camera
+from softvr.render.figure import save_figure
 
 __all__ = ["DEFAULT_FRAMES", "ShoulderPlayer", "palpation_path"]
 
@@ -91,14 +99,6 @@ class ShoulderPlayer(Player):
                  variant: str = "palpation", haptics: bool = True, coupling_stiffness: float = 300.0,
                  skin_stiffness: float = 150.0, dt: float = 0.02, steps_per_frame: int = 2, pgs_iterations: int = 100,
                  model_dir=None):
-        from softvr import Scene
-        from softvr.dynamics import Coupling, RigidBody, RigidPoints
-        from softvr.model.shapes import icosphere
-        from softvr.examples.shoulder_anatomy import write_shoulder_parts
-        from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
-        from softvr.model import build_model
-        from softvr.render import Camera
-
         self._tmp = None
         if model_dir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="softvr-shoulder-")
@@ -201,8 +201,6 @@ class ShoulderPlayer(Player):
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt  # noqa: PLC0415
-
-        from softvr.render.figure import save_figure  # noqa: PLC0415
 
         frames = doc["frames"]
         t = [f["sim_time_s"] for f in frames]
