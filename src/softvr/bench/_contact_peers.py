@@ -1,6 +1,6 @@
 """The soft-cube drop of ``softvr bench contact`` in MuJoCo, PyBullet and NVIDIA Newton.
 
-Every peer gets the scene of :class:`softvr.bench.contact.CubeScene` (cube edge, cells,
+Every peer gets the scene of :class:`softvr.bench.contact.CubeScene` (:mod:`softvr.bench._cube_scene`) (cube edge, cells,
 drop height, density, E / nu or the equal Lamé mu / lambda, friction, dt, duration) and is set up
 with the calls that worked in ``/work/shared/peers.md``, scaled to the scene:
 
@@ -40,6 +40,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from softvr.bench._cube_scene import CubeScene, cube_mesh
 
 __all__ = ["PEERS", "installed", "peer_version", "run_peer", "run_peer_process"]
 
@@ -149,7 +151,6 @@ def _pybullet(scene: dict, steps: int) -> tuple[_Trace, dict]:
     import pybullet as p
     import pybullet_data
 
-    from softvr.bench.contact import CubeScene, cube_mesh  # noqa: PLC0415 - softvr.bench.contact imports this module
 
     cube = CubeScene(**scene)
     nodes, tets = cube_mesh(cube, drop=0.0)  # the base position lifts it
