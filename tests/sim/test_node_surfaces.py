@@ -142,3 +142,15 @@ def test_bundled_scenes_take_the_arrays_where_the_sweeps_converge_fast():
     assert node_model_supported(palpation)
     palpation.step(0.01)
     assert palpation._stepper is None and palpation._node_declined == palpation._layout
+
+
+def test_switching_edge_contacts_rebuilds_the_arrays():
+    # Scene.edge_contacts is read when the arrays are built: turning it on must bring the edge
+    # pairs (kind 4) in on the next step.
+    scene, _ = _stack(False)
+    for _ in range(30):
+        solution = scene.step(1.0 / 60.0)
+    assert {int(c.ids[0]) >> 60 for c in solution.contacts if c.b is not None} == {3}
+    scene.edge_contacts = True
+    solution = scene.step(1.0 / 60.0)
+    assert {int(c.ids[0]) >> 60 for c in solution.contacts if c.b is not None} == {3, 4}

@@ -191,7 +191,7 @@ class NodeStepper:
 
     def _scene_settings(self) -> tuple:
         s = self.scene
-        return (s._layout, float(s.contact_margin), float(s.friction),
+        return (s._layout, float(s.contact_margin), float(s.friction), bool(s.edge_contacts),
                 tuple(len(b.q) if type(b) is FemBody else 0 for b in s.bodies))
 
     def still_valid(self) -> bool:
@@ -264,7 +264,8 @@ class NodeStepper:
         return keys
 
     def _carry_in(self, warm: dict) -> None:
-        """The per-object path's warm starts (world impulses by key) into the carried table."""
+        """The per-object path's warm starts (world impulses by key) into the carried table
+        (points vs planes and vertices vs bodies; edge pairs start cold)."""
         table = self.state.contacts.carried.numpy()
         p, columns = self.model.point_count, table.shape[1]
         if not warm or not p:
