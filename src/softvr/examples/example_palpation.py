@@ -12,10 +12,8 @@ instead (as ``softvr run palpation`` does).
 
 from __future__ import annotations
 
-import argparse
-
-from softvr.app import play_window, record
-from softvr.scene import BUNDLED, load_scene
+from softvr.examples._leaf import play_leaf
+from softvr.scene import BUNDLED
 
 __all__ = ["SCENE", "main"]
 
@@ -25,20 +23,7 @@ SCENE = BUNDLED / "palpation.toml"
 
 def main(argv: list[str] | None = None):
     """Play the scene (a window, or ``--headless`` to files); returns the played player."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--device", choices=("cpu", "cuda"), default=None, help="Warp device (default: cuda if present)")
-    parser.add_argument("--frames", type=int, default=None, help="frames to play (default: the scene's)")
-    parser.add_argument("--size", type=int, nargs=2, default=(None, None), metavar=("W", "H"), help="image size")
-    parser.add_argument("--headless", action="store_true", help="write video, contact sheet and metrics; no window")
-    parser.add_argument("--out", default="softvr-out/palpation", help="folder of the --headless files")
-    args = parser.parse_known_args(argv)[0]
-    player = load_scene(SCENE, frames=args.frames, width=args.size[0], height=args.size[1], device=args.device)
-    with player:
-        if args.headless:
-            record(player, args.out, progress=False)
-        else:
-            play_window(player)
-    return player
+    return play_leaf(SCENE, __doc__, argv)
 
 
 if __name__ == "__main__":
