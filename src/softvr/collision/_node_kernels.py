@@ -233,26 +233,61 @@ def add_point(c: int, p: int, scale: wp.float64, point_nodes: wp.array2d(dtype=w
             add_node(c, node, scale * point_weights[p, k], count, nodes, weights)
 
 
+@wp.struct
+class NodeContactOut:
+    """The arrays of :class:`softvr.sim.NodeContacts` the gather writes a contact to (one
+    argument instead of fourteen)."""
+
+    kind: wp.array(dtype=wp.int32)
+    column: wp.array(dtype=wp.int32)
+    point: wp.array(dtype=wp.int32)
+    other: wp.array(dtype=wp.int32)
+    face: wp.array(dtype=wp.int32)
+    bary: wp.array(dtype=wp.vec3d)
+    frame: wp.array(dtype=wp.mat33d)
+    gap: wp.array(dtype=wp.float64)
+    friction: wp.array(dtype=wp.float64)
+    impulse: wp.array(dtype=wp.vec3d)
+    stencil_count: wp.array(dtype=wp.int32)
+    stencil_nodes: wp.array2d(dtype=wp.int32)
+    stencil_weights: wp.array2d(dtype=wp.float64)
+
+
+@wp.func
+def start_contact(out: NodeContactOut, c: int, kind: int, column: int, point: int, other: int, face: int,
+                  bary: wp.vec3d, normal: wp.vec3d, gap: wp.float64, friction: wp.float64, last: wp.vec3d):
+    """Write contact ``c`` with an empty stencil, warm-started from ``last`` (world [N s]):
+    a pushing contact only, so the warm start's normal impulse is clamped to >= 0."""
+    f = plane_frame(normal)
+    out.kind[c] = kind
+    out.column[c] = column
+    out.point[c] = point
+    out.other[c] = other
+    out.face[c] = face
+    out.bary[c] = bary
+    out.frame[c] = f
+    out.gap[c] = gap
+    out.friction[c] = friction
+    lam = f * last
+    out.impulse[c] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
+    out.stencil_count[c] = 0
+
+
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
                     point_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
-                    triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32), plane_normal: wp.array(dtype=wp.vec3d),
-                    plane_offset: wp.array(dtype=wp.float64), plane_friction: wp.array(dtype=wp.float64),
-                    surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32),
-                    hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
-                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64),
-                    edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32),
-                    pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
-                    pair_gap: wp.array2d(dtype=wp.float64), edge_carried: wp.array2d(dtype=wp.vec3d),
-                    edge_partner: wp.array2d(dtype=wp.int32), dt: wp.float64, capacity: int,
-                    carried: wp.array2d(dtype=wp.vec3d), count: wp.array(dtype=wp.int32),
-                    kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
-                    point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
-                    face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3d), frame: wp.array(dtype=wp.mat33d),
-                    gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                    impulse: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
-                    stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64)):
+                    triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
+                    plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
+                    plane_friction: wp.array(dtype=wp.float64), surface_friction: wp.float64,
+                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
+                    pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
+                    pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
+                    edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
+                    dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
+                    count: wp.array(dtype=wp.int32), out: NodeContactOut):
     """One thread, so that contacts come out in the same order on every device: every (point,
     plane) pair by plane, then point (the per-object path's order), then every (vertex, body)
     hit by vertex, then body, then every edge pair by edge a, then slot. ``other`` is the
@@ -270,47 +305,24 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
             last = carried[p, s]
             carried[p, s] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
-                f = plane_frame(normal)
-                kind[n_out] = PLANE
-                column[n_out] = s
-                point[n_out] = p
-                other[n_out] = s
-                face[n_out] = -1
-                frame[n_out] = f
-                gap[n_out] = g
-                friction[n_out] = plane_friction[s]
-                lam = f * last
-                # A pushing contact only: the normal impulse of a warm start is >= 0.
-                impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
-                stencil_count[n_out] = 0
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
+                start_contact(out, n_out, PLANE, s, p, s, -1, wp.vec3d(), normal, g, plane_friction[s], last)
+                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
+                          out.stencil_nodes, out.stencil_weights)
                 n_out += 1
     for p in range(hit.shape[0]):
         for b in range(hit.shape[1]):
             last = carried[p, planes + b]
             carried[p, planes + b] = wp.vec3d()
             if hit[p, b] != 0 and n_out < capacity:
-                f = plane_frame(hit_normal[p, b])
                 t = body_triangle_start[b] + hit_face[p, b]
                 w = hit_bary[p, b]
-                kind[n_out] = VERTEX_TRIANGLE
-                column[n_out] = planes + b
-                point[n_out] = p
-                other[n_out] = b
-                face[n_out] = t
-                bary[n_out] = w
-                frame[n_out] = f
-                gap[n_out] = hit_gap[p, b]
-                friction[n_out] = surface_friction
-                lam = f * last
-                impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
-                stencil_count[n_out] = 0
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
+                start_contact(out, n_out, VERTEX_TRIANGLE, planes + b, p, b, t, w, hit_normal[p, b], hit_gap[p, b],
+                              surface_friction, last)
+                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
+                          out.stencil_nodes, out.stencil_weights)
                 for v in range(3):
-                    add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, stencil_count,
-                              stencil_nodes, stencil_weights)
+                    add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, out.stencil_count,
+                              out.stencil_nodes, out.stencil_weights)
                 n_out += 1
     for e in range(pair_edge.shape[0]):
         for k in range(pair_edge.shape[1]):
@@ -320,31 +332,18 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
             edge_partner[e, k] = -1
             j = pair_edge[e, k]
             if j >= 0 and n_out < capacity:
-                f = plane_frame(pair_normal[e, k])
                 st = pair_st[e, k]
-                kind[n_out] = EDGE_EDGE
-                column[n_out] = k
-                point[n_out] = e
-                other[n_out] = point_body[edges[j, 0]]
-                face[n_out] = j
-                bary[n_out] = st
-                frame[n_out] = f
-                gap[n_out] = pair_gap[e, k]
-                friction[n_out] = surface_friction
-                lam = wp.vec3d()
-                if partner == j:
-                    lam = f * last
-                impulse[n_out] = wp.vec3d(wp.max(lam[0], wp.float64(0.0)), lam[1], lam[2])
-                stencil_count[n_out] = 0
+                if partner != j:  # the slot held another pair last step: start cold
+                    last = wp.vec3d()
+                start_contact(out, n_out, EDGE_EDGE, k, e, point_body[edges[j, 0]], j, st, pair_normal[e, k],
+                              pair_gap[e, k], surface_friction, last)
                 one = wp.float64(1.0)
-                add_point(n_out, edges[e, 0], one - st[0], point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
-                add_point(n_out, edges[e, 1], st[0], point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
-                add_point(n_out, edges[j, 0], st[1] - one, point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
-                add_point(n_out, edges[j, 1], -st[1], point_nodes, point_weights, stencil_count, stencil_nodes,
-                          stencil_weights)
+                # Side a's ends weighted (1 - s, s), side b's -(1 - t, t).
+                sc, sn, sw = out.stencil_count, out.stencil_nodes, out.stencil_weights
+                add_point(n_out, edges[e, 0], one - st[0], point_nodes, point_weights, sc, sn, sw)
+                add_point(n_out, edges[e, 1], st[0], point_nodes, point_weights, sc, sn, sw)
+                add_point(n_out, edges[j, 0], st[1] - one, point_nodes, point_weights, sc, sn, sw)
+                add_point(n_out, edges[j, 1], -st[1], point_nodes, point_weights, sc, sn, sw)
                 n_out += 1
     count[0] = n_out
 

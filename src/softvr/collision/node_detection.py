@@ -69,15 +69,17 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
+    out = _k.NodeContactOut()
+    for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
+                 "stencil_count", "stencil_nodes", "stencil_weights"):
+        setattr(out, name, getattr(c, name))
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
-                model.point_body, model.triangles, model.body_triangle_start,
-                model.plane_normal, model.plane_offset, model.plane_friction, float(friction), c.hit, c.hit_face,
-                c.hit_bary, c.hit_normal, c.hit_gap, model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap,
-                c.edge_carried, c.edge_partner, float(dt), c.capacity, c.carried, c.count, c.kind, c.column, c.point,
-                c.other, c.face, c.bary, c.frame, c.gap, c.friction, c.impulse, c.stencil_count, c.stencil_nodes,
-                c.stencil_weights])))
+                model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
+                model.plane_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
+                model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
+                float(dt), c.capacity, c.carried, c.count, out])))
 
     def detect() -> None:
         for step in steps:
