@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.device import launch, load_kernels, resolve_device
+from softvr.device import launch, load_kernels, resolve_device, upload
 
 __all__ = ["CorotatedElements"]
 
@@ -132,13 +132,14 @@ class CorotatedElements:
         self._rotations = wp.empty(m, dtype=wp.mat33d, device=d)
         self._forces = wp.empty((m, 12), dtype=wp.float64, device=d)
         self._kr = wp.empty((m, 12, 12), dtype=wp.float64, device=d)
+        self._q = wp.empty(len(rest), dtype=wp.vec3d, device=d)  # the positions of each call
 
     def compute(self, q: np.ndarray, corotational: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rotations R_e [tet_count, 3, 3], element forces f_e [tet_count, 12] [N] and rotated
         stiffness K_e^R [tet_count, 12, 12] [N/m] at node positions ``q`` [node_count, 3] [m]
         (R_e = I when ``corotational`` is False). The arrays are views valid until the next call."""
-        q_w = wp.array(np.ascontiguousarray(q, np.float64), dtype=wp.vec3d, device=self._device)
+        upload(self._q, q)
         launch(_corotated_kernel, self._tets.shape[0],
-               [q_w, self._rest, self._tets, self._dm_inv, self._ke, int(corotational), self._rotations, self._forces,
+               [self._q, self._rest, self._tets, self._dm_inv, self._ke, int(corotational), self._rotations, self._forces,
                 self._kr], self._device, min_chunk=256)
         return self._rotations.numpy(), self._forces.numpy(), self._kr.numpy()
