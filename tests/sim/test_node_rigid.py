@@ -219,6 +219,36 @@ def test_a_rigid_box_on_an_incline_sticks_below_the_friction_angle_and_slides_ab
     assert abs(float(box.v[:3] @ normal)) < VELOCITY_TOL
 
 
+def test_stacked_box_primitives_beside_a_soft_cube_solve_the_mlcp_and_carry_their_weights():
+    """Two rigid box primitives stacked on the plane (box-box contacts: two rigid sides each)
+    beside a soft cube: every step solves the MLCP of eq. 5.5, and at rest the box-box
+    contacts carry the upper box's weight, the plane the lower's too (impulses / dt, within
+    the masses times VELOCITY_TOL / dt)."""
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5)
+    cube = _block(2, 0.1, (0.4, 0.0, 0.0505), Material(5e4, 0.3, 1000.0, alpha=0.0, beta=1e-2))
+    _add_with_surface(scene, cube)
+    scene.add_plane(Plane(friction=0.5))
+    half = np.array([0.05, 0.05, 0.03])
+    lower = _rigid_box(scene, half, 500.0, (0.0, 0.0, half[2] + 0.001), primitive=True, surface=False)
+    upper = _rigid_box(scene, 0.8 * half, 500.0, (0.005, 0.0, 2 * half[2] + 0.8 * half[2] + 0.003),
+                       primitive=True, surface=False)
+    assert node_model_supported(scene)
+    dt = 0.01
+    for _ in range(60):
+        systems = [_system(b, dt, scene.gravity) for b in scene.bodies]
+        solution = scene.step(dt)
+        assert type(scene._stepper).__name__ == "NodeStepper"
+        _check_mlcp(scene, systems, solution, dt, 0.5)
+    force = {}
+    for contacts, lam in zip(solution.contacts, solution.impulses):
+        if contacts.a.body in (1, 2):
+            key = "boxes" if contacts.b is not None else "plane"
+            force[key] = force.get(key, 0.0) + lam[:, 0].sum() / dt
+    tol = (lower.mass + upper.mass) * VELOCITY_TOL / dt
+    assert force["boxes"] == pytest.approx(upper.mass * G, abs=tol)
+    assert force["plane"] == pytest.approx((lower.mass + upper.mass) * G, abs=tol)
+
+
 def test_bundled_scenes_with_rigid_and_fem_bodies_are_held_by_the_node_arrays():
     # The candies (rigid boxes and spheres with surfaces, soft candies, the Jell-O) are held.
     for name in ("candy.toml", "candy-adhesive.toml"):
