@@ -92,8 +92,8 @@ def _check_mlcp(scene, systems, solution, dt, mu):
     return mixed
 
 
-def _box_on_block(mu=0.5):
-    scene = Scene(gravity=(0.0, 0.0, -G), friction=mu)
+def _box_on_block(mu=0.5, edge_contacts=False):
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=mu, edge_contacts=edge_contacts)
     block = _block(3, 0.2, (0.0, 0.0, 0.1005), Material(5e4, 0.3, 1000.0, alpha=0.0, beta=1e-2))
     _add_with_surface(scene, block)
     scene.add_plane(Plane(friction=mu))
@@ -103,16 +103,18 @@ def _box_on_block(mu=0.5):
     return scene, block, box
 
 
-def test_a_contact_step_with_rigid_sides_solves_the_mlcp_of_eq_5_5():
+@pytest.mark.parametrize("edge_contacts", [False, True])
+def test_a_contact_step_with_rigid_sides_solves_the_mlcp_of_eq_5_5(edge_contacts):
     """A rigid box (corners and faces) lands and turns on a soft block: every step whose sweeps
     converge solves both bodies' MLCP together, the box's contacts weighted by their lever
     arms. (The step the box's edge lands on, at 5 rad/s, ends at the sweep cap 3.7e-5 m/s short:
     its linearized vertex-triangle constraints of both sides conflict, as the stacked blocks'
     rim contacts do in test_node_surfaces.py.)"""
-    scene, block, box = _box_on_block()
+    scene, block, box = _box_on_block(edge_contacts=edge_contacts)
     assert node_model_supported(scene)
     dt = 1.0 / 60.0
     mixed = capped = 0
+    kinds = set()
     turned = 0.0
     for _ in range(40):
         systems = [_system(b, dt, scene.gravity) for b in scene.bodies]
@@ -123,6 +125,9 @@ def test_a_contact_step_with_rigid_sides_solves_the_mlcp_of_eq_5_5():
             capped += 1
             continue
         mixed += _check_mlcp(scene, systems, solution, dt, 0.5) > 0
+        kinds |= {int(c.ids[0]) >> 60 for c in solution.contacts if c.b is not None}
+    # Vertex-triangle contacts both ways (kind 3), with edge contacts on also edge pairs (kind 4).
+    assert kinds == ({3, 4} if edge_contacts else {3})
     assert capped <= 1
     assert mixed >= 30
     assert turned > 1.0  # the lever arms acted [rad/s]
