@@ -106,8 +106,9 @@ class _NodeSnapshot(StepSnapshot):
         on = c["rigid_node"][rows] == self._stepper.model.body_node_start[body] + 1
         return rigid_side(body, sign * np.einsum("cs,csx->cx", on, c["rigid_lever"][rows]))
 
-    def _at_start(self, rows: np.ndarray, side: ContactSide | None, sign: float) -> ContactSide | None:
-        rigid = side is not None and type(self._stepper.scene.bodies[side.body]) is RigidBody
+    def _at_start(self, rows: np.ndarray, side: ContactSide, sign: float) -> ContactSide:
+        """``side``, or for a rigid body its side at the step's levers (:meth:`_rigid_side`)."""
+        rigid = type(self._stepper.scene.bodies[side.body]) is RigidBody
         return self._rigid_side(rows, side.body, sign) if rigid else side
 
     def sets(self) -> list[np.ndarray]:
