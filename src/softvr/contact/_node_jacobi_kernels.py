@@ -138,10 +138,11 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
 @wp.kernel
 def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_prev: wp.array(dtype=wp.vec3d),
               weights: wp.array(dtype=wp.float64), gamma: wp.float64, sweep: wp.array(dtype=wp.int32),
-              fixed: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
+              fixed: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
               change: wp.array(dtype=wp.float64)):
     """``v^{k+1}`` [m/s] of node ``i`` and its largest component change [m/s]; ``weights`` [K]
-    the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep)."""
+    the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep). A
+    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^``."""
     i = wp.tid()
     if fixed[i] != 0:
         v_next[i] = v_hat[i]
@@ -149,6 +150,8 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
         return
     omega = weights[sweep[0] - 1]
     out = omega * (gamma * (v_hat[i] - v[i]) + v[i] - v_prev[i]) + v_prev[i]
+    if exact[i] != 0:
+        out = v_hat[i]
     d = out - v[i]
     change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
     v_next[i] = out
