@@ -235,3 +235,18 @@ def test_couplings_the_arrays_do_not_hold_step_per_object():
     scene.add_body(bone)
     scene.add_coupling(Coupling(RigidPoints(bone, [[0.0, 0.0, 0.0]]), _embedded(left, [[-0.07, 0.0, 0.05]]), 500.0))
     assert not node_model_supported(scene)
+
+
+def test_a_coupling_between_two_driven_bodies_moves_nothing():
+    # Both ends prescribed (per object such a coupling joins no island): the block beside them
+    # falls freely, v = -g dt after one step (K f_el = 0 at rest, A v = M v0 + dt M g).
+    block = _block((-0.05, -0.05, 0.2))
+    ground, hand = FixedBody(name="ground"), KinematicBody(lambda t: ((0.1 * t, 0.0, 0.0), (1, 0, 0, 0)), name="hand")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    _add(scene, block)
+    scene.add_body(ground)
+    scene.add_body(hand)
+    scene.add_coupling(Coupling(RigidPoints(ground, [[0.0, 0.0, 0.0]]), RigidPoints(hand, [[0.0, 0.0, 0.0]]), 100.0))
+    scene.step(0.01)
+    assert type(scene._stepper).__name__ == "NodeStepper"
+    np.testing.assert_allclose(block.v, np.tile([0.0, 0.0, -G * 0.01], (len(block.q), 1)), atol=VELOCITY_TOL)

@@ -310,7 +310,7 @@ class NodeStepper:
         m, st = self.model, self.state
         elements = record_elements(m, st)
         assemble, rhs = record_system(m, st, dt, s.gravity)
-        if m.couplings.spring_count:
+        if len(m.couplings.node):  # some FEM node in a spring's stencil (none: driven to driven only)
             # The springs' terms (eq. 5.4) add to what the assembly and right-hand side wrote.
             blocks, forces = record_couplings(m, st, dt)
             assemble, rhs = _chain(assemble, blocks), _chain(rhs, forces)
