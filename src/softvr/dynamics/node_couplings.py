@@ -2,8 +2,9 @@
 of ``A`` and their forces in ``b``, as recorded launches replayed every step after the element
 assembly (:mod:`softvr.dynamics.node_arrays`); kernels in
 :mod:`softvr.dynamics._node_coupling_kernels`. Works on :class:`softvr.sim.NodeModel` /
-:class:`softvr.sim.NodeState` and the model's ``couplings`` (:class:`softvr.sim.NodeCouplings`),
-or any objects with those attributes.
+:class:`softvr.sim.NodeState` and the model's ``couplings`` (``NodeModel.couplings``: the springs'
+stencils, signed weights, stiffness, and the blocks and nodes they add to), or any objects with
+those attributes.
 """
 
 from __future__ import annotations
