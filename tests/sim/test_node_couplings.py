@@ -15,6 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from softvr import Scene
+from softvr.collision import Plane
 from softvr.dynamics import (Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody, Material, RigidBody,
                              RigidPoints, embed_in_tets)
 from softvr.sim import node_model_supported
@@ -174,6 +175,33 @@ def test_two_blocks_hanging_from_a_fixed_body_settle_to_the_static_solution():
     u = spla.spsolve(k.tocsc(), f)
     got = np.concatenate([(b.q - b.rest).ravel() for b in (upper, lower)])
     np.testing.assert_allclose(got, u, atol=2e-3 * np.abs(u).max())
+
+
+def test_a_block_on_the_ground_held_up_by_springs_shares_its_weight_between_them():
+    # Newton's first law at rest (eqs. 5.2, 5.4, 5.5 solved together by the sweeps): the plane's
+    # force plus the springs' (stretched 5 mm up to a fixed body, pulling ~k n 5 mm < m g) carry
+    # m g. The contact impulses and the velocities share the sweeps' tolerance: over a step the
+    # balance is off by at most M VELOCITY_TOL / dt.
+    material = Material(1e5, 0.3, 1000.0, alpha=20.0, beta=1e-3)
+    block = _block((-0.05, -0.05, 0.0), material=material)
+    ceiling = FixedBody(name="ceiling")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    index = _add(scene, block)
+    scene.add_body(ceiling)
+    scene.add_plane(Plane(friction=0.5))
+    hooks = np.array([[x, y, 0.098] for x in (-0.03, 0.03) for y in (-0.03, 0.03)])
+    link = Coupling(_embedded(block, hooks), RigidPoints.from_world(ceiling, hooks + [0.0, 0.0, 0.005]), 300.0,
+                    damping=1.0)
+    scene.add_coupling(link)
+    dt = 0.01
+    for _ in range(150):
+        solution = scene.step(dt)
+    assert type(scene._stepper).__name__ == "NodeStepper"
+    weight = block.mass.sum() * G
+    springs = link.forces().sum(axis=0)  # on side a, the block
+    assert 0.1 * weight < springs[2] < 0.9 * weight
+    np.testing.assert_allclose(solution.force_on(index, dt) + springs, [0.0, 0.0, weight],
+                               atol=block.mass.sum() * VELOCITY_TOL / dt)
 
 
 def test_a_kinematic_body_drags_a_block_at_its_velocity_without_adding_energy():
