@@ -180,23 +180,50 @@ def test_oranges_land_roll_on_and_lose_energy(tmp_path):
     check_energy_never_grows(player, e0)
 
 
+def _stuck_area(cloth, gap: float) -> float:
+    """Area [m^2] of the cloth's triangles whose three nodes lie within ``gap`` [m] of the wall x = 0."""
+    x = cloth.q[cloth.triangles]
+    areas = 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
+    return float(areas[(x[:, :, 0] < gap).all(axis=1)].sum())
+
+
 def test_cloth_sticks_to_the_wall_then_peels_off(tmp_path):
     """The swung cloth bonds where it hits the wall (intensities in [0, 1]), never passes it,
-    and debonds again under its weight: the bonded contacts rise, then fall to none."""
+    and debonds again under its weight: the bonded contacts rise, then fall to none.
+
+    The peel, as the sheet shows it: the area lying on the wall (within the adhesion's debond
+    gap, from the scene file) grows to a sizeable part of the cloth, then only shrinks (a bond
+    re-forming at the peel front may add back at most one triangle) until none is left, and
+    the whole cloth hangs off the wall. Every frame the cloth is inside the camera's
+    ``[render] bounds`` and in front of the drawn part of the wall (its square, ``size``
+    around ``point``), so the sheet shows all of it."""
     start = start_of(example_cloth_wall)
     e0 = start.energies()[1]
     start.close()
     player = load_scene(example_cloth_wall.SCENE, frames=36, width=48, height=32)
-    bonded, deepest = [], 0.0
+    gap = player.file.adhesions["wall"]["debond_gap"]
+    bounds = np.asarray(player.file.render["bounds"], float)
+    wall = player.file.planes[0]
+    cloth = player.bodies["cloth"]
+    w, h = player.file.body("cloth").size
+    triangle = w * h / len(cloth.triangles)  # [m^2] one triangle of the rest grid
+    bonded, stuck, deepest = [], [], 0.0
     with player:
         for _ in range(36):
             player.step()
             beta = np.array(list(player.scene.adhesion_state.intensity.values()))
             assert ((beta >= 0) & (beta <= 1)).all()
             bonded.append(int((beta > 0).sum()))
-            deepest = max(deepest, -float(player.bodies["cloth"].q[:, 0].min()))
+            stuck.append(_stuck_area(cloth, gap))
+            deepest = max(deepest, -float(cloth.q[:, 0].min()))
+            assert ((cloth.q >= bounds[0::2]) & (cloth.q <= bounds[1::2])).all()
+            assert (np.abs(cloth.q[:, 1:] - np.asarray(wall["point"])[1:]) <= wall["size"] / 2).all()
     assert max(bonded) > 20 and bonded[-1] < max(bonded) / 4
     assert deepest < G * player.dt**2
+    peak = int(np.argmax(stuck))
+    assert stuck[peak] > 0.2 * w * h
+    assert (np.diff(stuck[peak:]) <= triangle).all(), np.round(stuck, 4)
+    assert stuck[-1] == 0.0 and cloth.q[:, 0].min() > gap
     check_energy_never_grows(player, e0)
     example_cloth_wall.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
 
