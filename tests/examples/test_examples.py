@@ -33,7 +33,7 @@ import pytest
 from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
                              example_oranges, example_palpation, example_probe, example_shoulder, example_soft_cube,
                              example_volume_deform)
-from softvr.scene import load_scene
+from softvr.scene import BUNDLED, load_scene
 
 G = 9.81  # [m/s^2], every scene with gravity here has gravity = (0, 0, -9.81)
 
@@ -101,6 +101,38 @@ def test_box_stack_rests_at_the_height_its_boxes_stack_to(tmp_path):
     assert player.metrics[-1]["kinetic_energy_j"] < 0.5 * mass * (G * dt) ** 2
     assert max(r["max_penetration_m"] for r in player.metrics) < G * dt**2
     check_energy_never_grows(player, e0)
+
+
+def test_box_knock_topples_the_stack_with_the_ram(tmp_path):
+    """box-knock.toml: box-stack's five boxes and a kinematic ram on a script (held, then driven
+    through the stack's middle). 32 frames (1.28 s): the ram is where its keys put it (linear
+    between them) at every frame; by then it has passed through the stack (its back past the
+    stack's far side) and the top box has had longer than a free fall from its height to land.
+    Knocked over: the top box ends lower than it started by at least a box height and moved
+    sideways off the stack's footprint (more than half a box width); no box is deeper in the
+    ground than one step of gravity carries it (g dt^2), every box centre at least its smallest
+    half-extent above the ground."""
+    player = load_scene(BUNDLED / "box-knock.toml", frames=32, width=48, height=32)
+    spec, ram_spec = player.file.body("box 4"), player.file.body("ram")
+    w, _, h = spec.size  # [m] box width and height
+    times, keys = np.asarray(ram_spec.motion["times"]), np.asarray(ram_spec.motion["positions"])
+    top, ram = player.bodies["box 4"], player.bodies["ram"]
+    x0 = top.position.copy()
+    boxes = [player.bodies[f"box {i}"] for i in range(5)]
+    with player:
+        for _ in range(32):
+            player.step()
+            t = player.scene.time
+            expected = [np.interp(t, times, keys[:, k]) for k in range(3)]
+            np.testing.assert_allclose(ram.position, expected, atol=1e-9)
+            assert all(b.position[2] >= h / 2 - G * player.dt**2 for b in boxes)
+    t = player.scene.time
+    passed = keys[-1, 0] - ram_spec.size[0] / 2 > w / 2  # the ram's back beyond the stack's far side
+    reach = np.interp(w / 2 + ram_spec.size[0] / 2, keys[-2:, 0], times[-2:])  # when (its last keys drive it)
+    assert passed and t > reach + np.sqrt(2 * x0[2] / G)
+    assert top.position[2] <= x0[2] - h
+    assert np.linalg.norm(top.position[:2] - x0[:2]) > w / 2
+    assert max(r["max_penetration_m"] for r in player.metrics) < G * player.dt**2
 
 
 def test_soft_cube_falls_as_gravity_and_its_damping_say(tmp_path):
