@@ -25,6 +25,8 @@ The truths, each stated where it is checked:
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
@@ -258,6 +260,67 @@ def test_cloth_sticks_to_the_wall_then_peels_off(tmp_path):
     assert stuck[-1] == 0.0 and cloth.q[:, 0].min() > gap
     check_energy_never_grows(player, e0)
     example_cloth_wall.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
+
+
+def _held_candy_scene(folder: Path) -> Path:
+    """candy-adhesive.toml with only what the pull-off involves: the Jell-O (in 6 x 6 x 3 cubes, 12
+    quads a side, a quarter of the file's cubes per axis: same material, adhesion and plate), the held
+    candy, the hand and their spring; every number of these is the file's."""
+    text = (BUNDLED / "candy-adhesive.toml").read_text(encoding="utf-8")
+    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\])", text)
+    kept = [t for t in tables if t.startswith("[[coupling]]")
+            or re.search(r'^name = "(jello|pulled candy|hand)"$', t, re.M)]
+    small = "".join([head, *kept]).replace("cells = [12, 12, 5]", "cells = [6, 6, 3]").replace(
+        "surface_quads = 48", "surface_quads = 12")
+    path = folder / "held-candy.toml"
+    path.write_text(small, encoding="utf-8")
+    return path
+
+
+def test_the_held_candy_sticks_then_comes_off_the_jello(tmp_path):
+    """candy-adhesive.toml's hand (kinematic, on its keys) holds a candy resting on the Jell-O by a
+    zero-length spring (stiffness k, damping c; thesis 5.4), presses it, holds, then rises.
+
+    * Held: until the hand rises the candy's underside stays within the adhesion's debond gap
+      of the Jell-O's top beneath it.
+    * Stuck: the pull on it, k s + c (v_hand - v_candy) (s the spring's stretch), grows past
+      its weight m g while the contact still holds it down (a dry contact only pushes: a pull
+      is the adhesion). The pull stays below what the bonds can hold at full intensity,
+      m g + A sqrt(W C) (thesis eq. 4.16 with beta = 1; A its underside, W and C the
+      coating - Jell-O pair's geometric means, thesis 4.4).
+    * Pulled off: then its distance to the Jell-O grows past the debond gap and on to over
+      a centimetre: it follows the hand."""
+    player = load_scene(_held_candy_scene(tmp_path), frames=24, width=48, height=32)
+    spec, hand_spec = player.file.body("pulled candy"), player.file.body("hand")
+    coupling = player.file.couplings[0]
+    k, c = coupling["stiffness"], coupling["damping"]
+    wet, jello_adhesion = player.file.adhesions["coating"], player.file.adhesions["k4e7"]
+    gap = min(wet["debond_gap"], jello_adhesion["debond_gap"])
+    w_c = np.sqrt(wet["max_energy"] * jello_adhesion["max_energy"] * wet["stiffness"] * jello_adhesion["stiffness"])
+    lx, ly, lz = spec.size
+    candy, hand, jello = player.bodies["pulled candy"], player.bodies["hand"], player.bodies["jello"]
+    mg = float(candy.mass) * G
+    limit = mg + lx * ly * np.sqrt(w_c)  # [N]
+    rise = hand_spec.motion["times"][2]  # [s] the hand holds still until here
+    under = (np.abs(jello.q[:, 0] - candy.position[0]) <= lx / 2) & (np.abs(jello.q[:, 1] - candy.position[1]) <= ly / 2)
+    assert under.any()
+    candy0, hand0 = candy.position[2], hand.position[2]
+    rows = []  # (t, gap under the candy [m], pull [N], vertical contact force on it [N])
+    with player:
+        for _ in range(24):
+            player.step()
+            below = candy.position[2] - lz / 2 - jello.q[under, 2].max()
+            stretch = (hand.position[2] - hand0) - (candy.position[2] - candy0)
+            pull = k * stretch + c * (hand.velocity[2] - candy.velocity[2])
+            contact = player.scene.last_solution.force_on(player.index["pulled candy"], player.dt)[2]
+            rows.append((player.scene.time, below, pull, contact))
+    held = [r for r in rows if r[0] <= rise + 1e-9]
+    assert held and all(r[1] < gap for r in held)
+    stuck = [r for r in rows if r[3] < 0]  # the contact pulls it down: adhesion
+    assert stuck and max(r[2] for r in stuck) > mg
+    assert max(r[2] for r in rows) < limit
+    off = [i for i, r in enumerate(rows) if r[1] > gap]
+    assert off and all(r[1] > gap for r in rows[off[0]:]) and rows[-1][1] > 0.01, rows
 
 
 def _jaws_apart(t: float) -> float:
