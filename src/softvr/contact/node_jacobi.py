@@ -61,11 +61,15 @@ class NodeSolve:
         # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
         # their A, so the update is exact for the sweep's impulses, and the Chebyshev step only
         # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate
-        # 3.4x).
+        # 3.4x). A rigid body held by coupling springs has blocks of A off its nodes' diagonal,
+        # so its update is a Jacobi one like an FEM node's and takes the extrapolation (its
+        # nodes are then in the spectrum's bounds too).
         exact = np.zeros(model.node_count, np.int32)
         if model.rigid is not None:
             exact[model.rigid.linear_node.numpy()] = 1
             exact[model.rigid.angular_node.numpy()] = 1
+            row_start = model.row_start.numpy()
+            exact[row_start[1:] > row_start[:-1]] = 0
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
         buf = state.sweep_buffers

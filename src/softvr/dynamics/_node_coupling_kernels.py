@@ -1,33 +1,95 @@
 """Compiled coupling terms of thesis eq. 5.4 on the whole-scene node arrays: each spring ties
-``p_a = sum w q`` over side a's stencil to side b's, ``D = [w_k I]`` over the joined stencil
-(side b's weights negated), and adds
+side a's point to side b's; ``D = [B_0, ..., B_7]`` maps the nodes of the joined stencil to the
+relative point velocity, with ``B_k = w_k I`` for an FEM node (a point embedded with weight
+``w_k``) or a driven node, and for a rigid side (its linear and angular node, a point at the
+world offset ``r`` from the centre: velocity ``v + omega x r``) ``B = w I`` on the linear node
+and ``B = -w [r]x`` on the angular one (side b's ``w`` negated). Eq. 5.4 adds
 
-    A_ij += (dt c + dt^2 k) w_i w_j I,      b_i += -dt k w_i (p_a - p_b)
+    A_ij += (dt c + dt^2 k) B_i^T B_j,      b_i += -dt k B_i^T (p_a - p_b)
 
 (backward Euler about the step's start; the damping is wholly implicit, as on the per-object
-path). Both are gathers through precomputed lists (one thread per block or node, no atomics).
+path). The rigid sides' offsets turn with the bodies, so the blocks are summed every step, each
+block and node through a precomputed gather list (one thread per spring, block or node, no
+atomics).
 """
 
 from __future__ import annotations
 
 import warp as wp
 
+from softvr.dynamics._rigid_kernels import _rotation
+
 #: Nodes in a spring's joined stencil: up to 4 of side a, then up to 4 of side b.
 SPRING_STENCIL = wp.constant(8)
+#: Nodes of one side's stencil; a rigid side holds its linear node in slot 0 and its angular
+#: node in slot 1.
+SIDE = wp.constant(4)
 
 
 @wp.kernel
-def coupling_blocks(block: wp.array(dtype=wp.int32), block_stiffness: wp.array(dtype=wp.float64),
-                    block_damping: wp.array(dtype=wp.float64), block_row: wp.array(dtype=wp.int32),
+def coupling_stretch(nodes: wp.array2d(dtype=wp.int32), weights: wp.array2d(dtype=wp.float64),
+                     rigid: wp.array2d(dtype=wp.int32), local: wp.array2d(dtype=wp.vec3d),
+                     q: wp.array(dtype=wp.vec3d), position: wp.array(dtype=wp.vec3d),
+                     orientation: wp.array(dtype=wp.vec4d), lever: wp.array2d(dtype=wp.vec3d),
+                     stretch: wp.array(dtype=wp.vec3d)):
+    """Spring ``s``'s ``p_a - p_b`` [m] at the step's start, and the world offsets [m] of its
+    rigid sides (``rigid[s, side]``: the side's rigid body, -1 none; ``local`` its body-frame
+    point [m]; ``position`` [m], ``orientation`` (w, x, y, z): the rigid bodies' poses)."""
+    s = wp.tid()
+    d = wp.vec3d()
+    for side in range(2):
+        r = rigid[s, side]
+        if r >= 0:
+            arm = _rotation(orientation[r]) * local[s, side]
+            lever[s, side] = arm
+            d = d + weights[s, side * SIDE] * (position[r] + arm)
+        else:
+            for k in range(side * SIDE, side * SIDE + SIDE):
+                j = nodes[s, k]
+                if j >= 0:
+                    d = d + weights[s, k] * q[j]
+    stretch[s] = d
+
+
+@wp.func
+def _weight(s: int, k: int, weights: wp.array2d(dtype=wp.float64), rigid: wp.array2d(dtype=wp.int32),
+            lever: wp.array2d(dtype=wp.vec3d)) -> wp.mat33d:
+    """``B_k`` of spring ``s``: ``w I``, or ``-w [r]x`` on a rigid side's angular node."""
+    w = weights[s, k]
+    side = k // SIDE
+    if rigid[s, side] >= 0 and k % SIDE == 1:
+        return -w * wp.skew(lever[s, side])
+    zero = wp.float64(0.0)
+    return wp.mat33d(w, zero, zero, zero, w, zero, zero, zero, w)
+
+
+@wp.kernel
+def coupling_blocks(block: wp.array(dtype=wp.int32), block_rigid: wp.array(dtype=wp.int32),
+                    block_entry_start: wp.array(dtype=wp.int32), block_entry: wp.array(dtype=wp.int32),
+                    weights: wp.array2d(dtype=wp.float64), rigid: wp.array2d(dtype=wp.int32),
+                    lever: wp.array2d(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64),
+                    damping: wp.array(dtype=wp.float64), block_row: wp.array(dtype=wp.int32),
                     block_col: wp.array(dtype=wp.int32), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
                     d_inv: wp.array(dtype=wp.mat33d)):
-    """Adds ``(dt sum c w_i w_j + dt^2 sum k w_i w_j) I`` [kg] to block ``block[t]`` of ``A``
-    (written by the element assembly before); a diagonal block also rewrites ``D_A^-1``."""
+    """Adds ``sum (dt c + dt^2 k) B_i^T B_j`` [kg] to block ``block[t]`` of ``A``; entry codes
+    ``SPRING_STENCIL^2 spring + SPRING_STENCIL i + j``. A diagonal block also rewrites
+    ``D_A^-1``; a rigid node's (``block_rigid[t]``) starts from this step's ``D_A`` (``m I``
+    or ``I_w``, written into ``d_inv`` by the rigid bodies' system before) as the element
+    assembly writes no block of it."""
     t = wp.tid()
     k = block[t]
-    s = dt * block_damping[t] + dt * dt * block_stiffness[t]
-    m = blocks[k] + wp.mat33d(s, wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), s, wp.float64(0.0),
-                              wp.float64(0.0), wp.float64(0.0), s)
+    m = blocks[k]
+    if block_rigid[t] != 0:
+        m = wp.mat33d()
+        if block_row[k] == block_col[k]:
+            m = wp.inverse(d_inv[block_row[k]])
+    for e in range(block_entry_start[t], block_entry_start[t + 1]):
+        code = block_entry[e]
+        s = code // (SPRING_STENCIL * SPRING_STENCIL)
+        i = (code // SPRING_STENCIL) % SPRING_STENCIL
+        j = code % SPRING_STENCIL
+        scale = dt * damping[s] + dt * dt * stiffness[s]
+        m = m + scale * (wp.transpose(_weight(s, i, weights, rigid, lever)) * _weight(s, j, weights, rigid, lever))
     blocks[k] = m
     if block_row[k] == block_col[k]:
         d_inv[block_row[k]] = wp.inverse(m)
@@ -35,20 +97,18 @@ def coupling_blocks(block: wp.array(dtype=wp.int32), block_stiffness: wp.array(d
 
 @wp.kernel
 def coupling_forces(node: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=wp.int32),
-                    entry: wp.array(dtype=wp.int32), nodes: wp.array2d(dtype=wp.int32),
-                    weights: wp.array2d(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
-                    q: wp.array(dtype=wp.vec3d), dt: wp.float64, b: wp.array(dtype=wp.vec3d)):
-    """Adds ``-dt sum k w_i (p_a - p_b)`` [kg m/s] to ``b`` of node ``node[t]``; ``entry[e]`` =
-    SPRING_STENCIL spring + slot: the node is that slot of the spring's stencil."""
+                    entry: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.float64),
+                    rigid: wp.array2d(dtype=wp.int32), lever: wp.array2d(dtype=wp.vec3d),
+                    stiffness: wp.array(dtype=wp.float64), stretch: wp.array(dtype=wp.vec3d), dt: wp.float64,
+                    b: wp.array(dtype=wp.vec3d)):
+    """Adds ``-dt sum k B_i^T (p_a - p_b)`` [kg m/s, or kg m^2/s on an angular node: the
+    spring's torque] to ``b`` of node ``node[t]``; ``entry[e]`` = SPRING_STENCIL spring + slot:
+    the node is that slot of the spring's stencil."""
     t = wp.tid()
     f = wp.vec3d()
     for e in range(entry_start[t], entry_start[t + 1]):
         s = entry[e] // SPRING_STENCIL
-        stretch = wp.vec3d()
-        for k in range(SPRING_STENCIL):
-            j = nodes[s, k]
-            if j >= 0:
-                stretch = stretch + weights[s, k] * q[j]
-        f = f - (stiffness[s] * weights[s, entry[e] % SPRING_STENCIL]) * stretch
+        weight = _weight(s, entry[e] % SPRING_STENCIL, weights, rigid, lever)
+        f = f - stiffness[s] * (wp.transpose(weight) * stretch[s])
     i = node[t]
     b[i] = b[i] + dt * f

@@ -1,10 +1,10 @@
 """Couplings (thesis 5.3.2, eq. 5.4) on the whole-scene node arrays: the springs' extra blocks
 of ``A`` and their forces in ``b``, as recorded launches replayed every step after the element
-assembly (:mod:`softvr.dynamics.node_arrays`); kernels in
-:mod:`softvr.dynamics._node_coupling_kernels`. Works on :class:`softvr.sim.NodeModel` /
-:class:`softvr.sim.NodeState` and the model's ``couplings`` (``NodeModel.couplings``: the springs'
-stencils, signed weights, stiffness, and the blocks and nodes they add to), or any objects with
-those attributes.
+assembly and the rigid bodies' system (:mod:`softvr.dynamics.node_arrays`,
+:mod:`softvr.dynamics.node_rigid`); kernels in :mod:`softvr.dynamics._node_coupling_kernels`.
+Works on :class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState` and the model's
+``couplings`` (``NodeModel.couplings``: the springs' stencils, signed weights, rigid sides,
+stiffness, and the blocks and nodes they add to), or any objects with those attributes.
 """
 
 from __future__ import annotations
@@ -22,17 +22,25 @@ __all__ = ["SPRING_STENCIL", "record_couplings"]
 SPRING_STENCIL = int(_k.SPRING_STENCIL)
 
 
-def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], Callable[[], None]]:
-    """Replays adding the couplings' terms of a step of ``dt`` [s]: to ``A`` (``state.blocks``,
-    ``state.d_inv``; replay after the assembly) and to ``b`` (``state.b``, from ``state.q`` at
-    the step's start; replay after the right-hand side)."""
+def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], ...]:
+    """Replays (to run in order) adding the couplings' terms of a step of ``dt`` [s] to ``A`` (``state.blocks``,
+    ``state.d_inv``) and ``b`` (``state.b``), from ``state.q`` and the rigid bodies' poses at the
+    step's start; replay after the assembly, the right-hand side and the rigid bodies' system."""
     c, d = model.couplings, model.device
-    for kernel in (_k.coupling_blocks, _k.coupling_forces):
+    for kernel in (_k.coupling_stretch, _k.coupling_blocks, _k.coupling_forces):
         load_kernels(kernel, d)
+    if model.rigid is not None:
+        position, orientation = model.rigid.state.body_position, model.rigid.state.body_orientation
+    else:
+        position, orientation = wp.zeros(1, dtype=wp.vec3d, device=d), wp.zeros(1, dtype=wp.vec4d, device=d)
+    stretch = wp.launch(_k.coupling_stretch, dim=c.spring_count, device=d, record_cmd=True,
+                        inputs=[c.nodes, c.weights, c.rigid, c.local, state.q, position, orientation, c.lever,
+                                c.stretch])
     blocks = wp.launch(_k.coupling_blocks, dim=c.block.shape[0], device=d, record_cmd=True,
-                       inputs=[c.block, c.block_stiffness, c.block_damping, model.block_row, model.block_col,
-                               float(dt), state.blocks, state.d_inv])
+                       inputs=[c.block, c.block_rigid, c.block_entry_start, c.block_entry, c.weights, c.rigid,
+                               c.lever, c.stiffness, c.damping, model.block_row, model.block_col, float(dt),
+                               state.blocks, state.d_inv])
     forces = wp.launch(_k.coupling_forces, dim=c.node.shape[0], device=d, record_cmd=True,
-                       inputs=[c.node, c.entry_start, c.entry, c.nodes, c.weights, c.stiffness, state.q, float(dt),
-                               state.b])
-    return replayer(blocks), replayer(forces)
+                       inputs=[c.node, c.entry_start, c.entry, c.weights, c.rigid, c.lever, c.stiffness, c.stretch,
+                               float(dt), state.b])
+    return tuple(replayer(launch) for launch in (stretch, blocks, forces))

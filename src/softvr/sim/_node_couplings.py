@@ -4,14 +4,17 @@ extra blocks of ``A`` and their forces as flat arrays (:class:`NodeCouplings`).
 
 A coupling spring ties a point of side a, ``p_a = sum_i w_i q_i`` over a stencil of up to 4
 nodes, to a point of side b; with the sides' stencils joined into one of up to 8 nodes whose
-weights carry the sign (side b's negative), ``D = [w_0 I, ..., w_7 I]`` maps the node velocities
+weights carry the sign (side b's negative), ``D = [B_0, ..., B_7]`` maps the node velocities
 to the relative point velocity, and eq. 5.4 (:mod:`softvr.dynamics.couplings`) adds
 
-    A_ij += (dt c + dt^2 k) w_i w_j I,      b_i += -dt k w_i (p_a - p_b)
+    A_ij += (dt c + dt^2 k) B_i^T B_j,      b_i += -dt k B_i^T (p_a - p_b)
 
-for every pair of stencil nodes ``i``, ``j``. A kinematic or fixed body's coupling points are
-driven nodes (no tets, velocity prescribed): their columns act through the sweeps' known
-velocities, i.e. on the right-hand side, and their rows are not kept.
+for every pair of stencil nodes ``i``, ``j``: ``B = w I`` on an FEM or driven node, and on a
+rigid body's side (a point at the world offset ``r`` from its centre, moving at
+``v + omega x r``) ``w I`` on its linear node and ``-w [r]x`` on its angular node, summed every
+step as ``r`` turns (:mod:`softvr.dynamics._node_coupling_kernels`). A kinematic or fixed
+body's coupling points are driven nodes (no tets, velocity prescribed): their columns act
+through the sweeps' known velocities, i.e. on the right-hand side, and their rows are not kept.
 """
 
 from __future__ import annotations
@@ -21,8 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidPoints
+from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
 from softvr.dynamics.node_couplings import SPRING_STENCIL
+from softvr.sim._node_rigid import rigid_bodies
 
 __all__ = ["NodeCouplings", "build_node_couplings", "coupling_blocks", "coupling_springs", "couplings_supported",
            "driven_points"]
@@ -46,16 +50,28 @@ class NodeCouplings:
     nodes : wp.array2d(int32) [S, SPRING_STENCIL]
         Each spring's stencil: side a's nodes, then side b's (global; -1: unused).
     weights : wp.array2d(float64) [S, SPRING_STENCIL]
-        Their weights, side b's negated: ``sum_k w_k q[nodes_k] = p_a - p_b`` [m].
-    stiffness : wp.array(float64) [S] [N/m]
+        Their weights, side b's negated: ``sum_k w_k q[nodes_k] = p_a - p_b`` [m] (a rigid
+        side: ``w`` in its linear and angular slots, the point is ``x + r``).
+    rigid : wp.array2d(int32) [S, 2]
+        Each side's rigid body (numbered as ``NodeModel.rigid``; -1: not rigid); a rigid side
+        holds its linear node in the side's first slot, its angular node in the second.
+    local : wp.array2d(vec3d) [S, 2] [m]
+        A rigid side's body-frame point.
+    stiffness : wp.array(float64) [S] [N/m]; damping : wp.array(float64) [S] [N s/m]
+    lever : wp.array2d(vec3d) [S, 2] [m]; stretch : wp.array(vec3d) [S] [m]
+        Written every step: the rigid sides' world offsets ``r`` and ``p_a - p_b`` at the
+        step's start.
     block : wp.array(int32) [cb]
         The blocks of ``A`` (in ``NodeModel.block_row`` order) with coupling terms; only rows of
-        FEM nodes.
-    block_stiffness : wp.array(float64) [cb] [N/m]; block_damping : wp.array(float64) [cb] [N s/m]
-        ``sum k w_i w_j`` and ``sum c w_i w_j`` over the springs touching the block's nodes: the
-        block gets ``(dt damping + dt^2 stiffness) I``.
+        FEM and rigid nodes.
+    block_rigid : wp.array(int32) [cb]
+        1 where the block's row is a rigid node (no element terms: the block is the springs'
+        terms, on the diagonal plus ``m I`` or ``I_w``).
+    block_entry_start : wp.array(int32) [cb + 1]; block_entry : wp.array(int32) [.]
+        Block ``t`` sums the pairs ``block_entry[block_entry_start[t] : block_entry_start[t + 1]]``,
+        coded ``SPRING_STENCIL^2 spring + SPRING_STENCIL i + j`` (``B_i^T B_j`` of the spring).
     node : wp.array(int32) [cn]
-        FEM nodes in some spring's stencil.
+        FEM and rigid nodes in some spring's stencil.
     entry_start : wp.array(int32) [cn + 1]; entry : wp.array(int32) [.]
         Node ``node[t]``'s stencil entries ``entry[entry_start[t] : entry_start[t + 1]]``, coded
         SPRING_STENCIL spring + slot.
@@ -65,10 +81,16 @@ class NodeCouplings:
     driven: dict
     nodes: wp.array
     weights: wp.array
+    rigid: wp.array
+    local: wp.array
     stiffness: wp.array
+    damping: wp.array
+    lever: wp.array
+    stretch: wp.array
     block: wp.array
-    block_stiffness: wp.array
-    block_damping: wp.array
+    block_rigid: wp.array
+    block_entry_start: wp.array
+    block_entry: wp.array
     node: wp.array
     entry_start: wp.array
     entry: wp.array
@@ -77,15 +99,14 @@ class NodeCouplings:
 def couplings_supported(scene) -> bool:
     """Whether the node arrays hold every coupling of ``scene``: each side either an FEM body's
     :class:`~softvr.dynamics.EmbeddedPoints` with stencils of at most :data:`SIDE` nodes, or a
-    kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints` (a rigid body's side is
-    not held)."""
+    rigid, kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`."""
     for coupling in scene.couplings:
         for side in (coupling.a, coupling.b):
             kind = type(side.body)
             if kind is FemBody:
                 if not isinstance(side, EmbeddedPoints) or side.nodes.shape[1] > SIDE:
                     return False
-            elif kind not in (KinematicBody, FixedBody) or not isinstance(side, RigidPoints):
+            elif kind not in (RigidBody, KinematicBody, FixedBody) or not isinstance(side, RigidPoints):
                 return False
     return True
 
@@ -101,7 +122,7 @@ def driven_points(scene, colliders: dict) -> dict:
     collider."""
     out = {}
     for i, body in enumerate(scene.bodies):
-        if type(body) is FemBody:
+        if type(body) in (FemBody, RigidBody):
             continue
         local = [colliders[i].points.local] if i in colliders else []
         local += [side.local for side in _driven_sides(scene, body)]
@@ -111,16 +132,21 @@ def driven_points(scene, colliders: dict) -> dict:
 
 def coupling_springs(scene, node_start, colliders: dict) -> tuple:
     """Stencils [S, SPRING_STENCIL] (global nodes, -1 unused), signed weights [S, SPRING_STENCIL],
-    stiffness [S] [N/m] and damping [S] [N s/m] of every coupling spring, over the nodes
-    numbered from ``node_start`` [bodies + 1] (a driven body's: :func:`driven_points`' order)."""
+    rigid sides [S, 2] (rigid body numbered as :func:`~softvr.sim._node_rigid.rigid_bodies`, or
+    -1) with their body-frame points [S, 2, 3] [m], stiffness [S] [N/m] and damping [S]
+    [N s/m] of every coupling spring, over the nodes numbered from ``node_start`` [bodies + 1]
+    (a driven body's: :func:`driven_points`' order; a rigid body's: linear, angular)."""
     index = {id(b): i for i, b in enumerate(scene.bodies)}
+    rigid_index = {i: r for r, i in enumerate(rigid_bodies(scene))}
     next_driven = {i: len(colliders[i].points.local) if i in colliders else 0
                    for i, b in enumerate(scene.bodies) if type(b) is not FemBody}
-    nodes, weights, stiffness, damping = [], [], [], []
+    nodes, weights, rigid, local, stiffness, damping = [], [], [], [], [], []
     for c in scene.couplings:
         count = len(c)
         n = np.full((count, SPRING_STENCIL), -1, np.int64)
         w = np.zeros((count, SPRING_STENCIL))
+        r = np.full((count, 2), -1, np.int64)
+        x = np.zeros((count, 2, 3))
         for s, (side, sign) in enumerate(((c.a, 1.0), (c.b, -1.0))):
             b = index[id(side.body)]
             cols = slice(s * SIDE, (s + 1) * SIDE)
@@ -128,45 +154,56 @@ def coupling_springs(scene, node_start, colliders: dict) -> tuple:
                 k = side.nodes.shape[1]
                 n[:, cols.start:cols.start + k] = side.nodes + node_start[b]
                 w[:, cols.start:cols.start + k] = sign * side.weights
+            elif b in rigid_index:
+                n[:, cols.start:cols.start + 2] = node_start[b] + np.arange(2)
+                w[:, cols.start:cols.start + 2] = sign
+                r[:, s] = rigid_index[b]
+                x[:, s] = side.local
             else:
                 n[:, cols.start] = node_start[b] + next_driven[b] + np.arange(count)
                 w[:, cols.start] = sign
                 next_driven[b] += count
         nodes.append(n)
         weights.append(w)
+        rigid.append(r)
+        local.append(x)
         stiffness.append(np.full(count, c.stiffness))
         damping.append(np.full(count, c.damping))
     empty = np.zeros((0, SPRING_STENCIL))
     return (np.concatenate([empty.astype(np.int64), *nodes]), np.concatenate([empty, *weights]),
+            np.concatenate([np.zeros((0, 2), np.int64), *rigid]), np.concatenate([np.zeros((0, 2, 3)), *local]),
             np.concatenate([np.zeros(0), *stiffness]), np.concatenate([np.zeros(0), *damping]))
 
 
-def coupling_blocks(springs: tuple, fem_rows: np.ndarray) -> tuple:
-    """The springs' terms of ``A`` by block: keys ``row n + col`` (sorted, unique; rows of FEM
-    nodes only, ``fem_rows`` [n] bool), with ``sum k w_i w_j`` [N/m] and ``sum c w_i w_j``
-    [N s/m] of each."""
-    nodes, weights, stiffness, damping = springs
-    n = len(fem_rows)
+def coupling_blocks(springs: tuple, solved_rows: np.ndarray) -> tuple:
+    """The springs' blocks of ``A``: keys ``row n + col`` (sorted, unique; rows of FEM and rigid
+    nodes only, ``solved_rows`` [n] bool), and each block's pairs of stencil entries, coded
+    ``SPRING_STENCIL^2 spring + SPRING_STENCIL i + j``, grouped by block (starts [keys + 1],
+    codes)."""
+    nodes = springs[0]
+    n = len(solved_rows)
     s, i, j = np.nonzero((nodes[:, :, None] >= 0) & (nodes[:, None, :] >= 0))
     rows, cols = nodes[s, i], nodes[s, j]
-    keep = fem_rows[rows]
+    keep = solved_rows[rows]
     s, i, j, rows, cols = s[keep], i[keep], j[keep], rows[keep], cols[keep]
-    ww = weights[s, i] * weights[s, j]
     keys, block = np.unique(rows * n + cols, return_inverse=True)
-    return (keys, np.bincount(block, stiffness[s] * ww, len(keys)), np.bincount(block, damping[s] * ww, len(keys)))
+    order = np.argsort(block, kind="stable")
+    codes = ((s * SPRING_STENCIL + i) * SPRING_STENCIL + j)[order]
+    return keys, np.searchsorted(block[order], np.arange(len(keys) + 1)), codes
 
 
-def build_node_couplings(springs: tuple, terms: tuple, fem_rows: np.ndarray, block_keys: np.ndarray, driven: dict,
-                         device: str) -> NodeCouplings:
+def build_node_couplings(springs: tuple, terms: tuple, solved_rows: np.ndarray, rigid_rows: np.ndarray,
+                         block_keys: np.ndarray, driven: dict, device: str) -> NodeCouplings:
     """The arrays of the :func:`coupling_springs` ``springs`` and their :func:`coupling_blocks`
-    ``terms``; ``block_keys`` [nb] are the keys ``row n + col`` of the model's blocks (sorted),
+    ``terms``; ``solved_rows`` [n] bool the FEM and rigid nodes, ``rigid_rows`` [n] bool the
+    rigid ones; ``block_keys`` [nb] are the keys ``row n + col`` of the model's blocks (sorted),
     a superset of the terms' (the pattern is built with them); ``driven`` from
     :func:`driven_points`."""
-    nodes, weights, stiffness, _ = springs
-    keys, block_k, block_c = terms
+    nodes, weights, rigid, local, stiffness, damping = springs
+    keys, entry_start, entries = terms
     s, slot = np.nonzero(nodes >= 0)
     owner = nodes[s, slot]
-    pulled = fem_rows[owner]
+    pulled = solved_rows[owner]
     s, slot, owner = s[pulled], slot[pulled], owner[pulled]
     order = np.argsort(owner, kind="stable")
     node, first = np.unique(owner[order], return_index=True)
@@ -178,8 +215,12 @@ def build_node_couplings(springs: tuple, terms: tuple, fem_rows: np.ndarray, blo
     def f64(values):
         return wp.array(np.ascontiguousarray(values, np.float64), dtype=wp.float64, device=d)
 
+    count = len(nodes)
     return NodeCouplings(
-        spring_count=len(nodes), driven=driven, nodes=i32(nodes), weights=f64(weights),
-        stiffness=f64(stiffness), block=i32(np.searchsorted(block_keys, keys)), block_stiffness=f64(block_k),
-        block_damping=f64(block_c), node=i32(node), entry_start=i32(np.append(first, len(owner))),
+        spring_count=count, driven=driven, nodes=i32(nodes), weights=f64(weights), rigid=i32(rigid),
+        local=wp.array(local.reshape(count, 2, 3), dtype=wp.vec3d, device=d), stiffness=f64(stiffness),
+        damping=f64(damping), lever=wp.zeros((count, 2), dtype=wp.vec3d, device=d),
+        stretch=wp.zeros(count, dtype=wp.vec3d, device=d), block=i32(np.searchsorted(block_keys, keys)),
+        block_rigid=i32(rigid_rows[keys // len(solved_rows)]), block_entry_start=i32(entry_start),
+        block_entry=i32(entries), node=i32(node), entry_start=i32(np.append(first, len(owner))),
         entry=i32((SPRING_STENCIL * s + slot)[order]))

@@ -69,7 +69,7 @@ def spectrum(model, state) -> tuple[float, float]:
     rows, cols = model.block_row.numpy(), model.block_col.numpy()
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
     # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
-    # trace(D_A^-1 A) / 3n, is 1).
+    # trace(D_A^-1 A) / 3n, is 1), unless coupling springs hold the body: then they are in.
     solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
     if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
@@ -336,16 +336,15 @@ class NodeStepper:
         m, st = self.model, self.state
         elements = record_elements(m, st)
         assemble, rhs = record_system(m, st, dt, s.gravity)
-        if len(m.couplings.node):  # some FEM node in a spring's stencil (none: driven to driven only)
-            # The springs' terms (eq. 5.4) add to what the assembly and right-hand side wrote.
-            blocks, forces = record_couplings(m, st, dt)
-            assemble, rhs = _chain(assemble, blocks), _chain(rhs, forces)
+        # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
+        # rigid bodies' system wrote (none: driven to driven only).
+        couplings = _chain(*record_couplings(m, st, dt)) if len(m.couplings.node) else _chain()
         detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
             self.rigid.record(st, dt, s.gravity)
-        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
+        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings]
 
     def _solver(self, dt: float) -> NodeSolve:
         """The recorded sweeps for ``dt`` (the Chebyshev bounds estimated on the first use)."""
@@ -381,12 +380,13 @@ class NodeStepper:
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
-        _, elements, assemble, rhs, detect, _, carry, integrate = self._recorded
+        _, elements, assemble, rhs, detect, _, carry, integrate, couplings = self._recorded
         elements()
         assemble()
         rhs()
         if self.rigid is not None:
             self.rigid.before_sweeps()
+        couplings()
         solve = self._solver(dt)
         t1 = time.perf_counter()
         detect()

@@ -317,8 +317,8 @@ def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
     and fixed bodies (with or without one, where no rigid body has one), static planes,
-    couplings between them (each side an FEM body's embedded points or a kinematic or fixed
-    body's points); no static meshes or spheres or adhesion; at most one set of collision points
+    couplings between them (each side an FEM body's embedded points or a rigid, kinematic or
+    fixed body's points); no static meshes or spheres or adhesion; at most one set of collision points
     per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
     4 nodes, a rigid, kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
     collision surface over its own points."""
@@ -423,9 +423,10 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     n, p, nbody = int(node_start[-1]), int(point_start[-1]), len(bodies)
     tets = np.concatenate([b.tets + node_start[i] for i, b in enumerate(bodies) if fem[i]]).astype(np.int64)
     m = len(tets)
-    fem_rows = np.repeat(fem, node_counts)
+    rigid_rows = np.repeat(rigid, node_counts)
+    solved_rows = np.repeat(fem, node_counts) | rigid_rows
     springs = coupling_springs(scene, node_start, colliders)
-    terms = coupling_blocks(springs, fem_rows)
+    terms = coupling_blocks(springs, solved_rows)
     block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n, terms[0])
     kinematic = [i for i in range(nbody) if not fem[i] and not rigid[i]]
 
@@ -512,7 +513,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
         edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
         bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
-        couplings=build_node_couplings(springs, terms, fem_rows, block_row.astype(np.int64) * n + block_col, driven, d),
+        couplings=build_node_couplings(springs, terms, solved_rows, rigid_rows,
+                                       block_row.astype(np.int64) * n + block_col, driven, d),
         rigid=build_node_rigid(scene, node_start, point_start, d))
     surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
     capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e
