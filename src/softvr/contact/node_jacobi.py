@@ -12,6 +12,8 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
+from softvr.contact.node_colouring import NodeColouring
+from softvr.contact.node_gauss_seidel import record_gauss_seidel
 from softvr.device import load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights"]
@@ -36,14 +38,18 @@ class NodeSolve:
         :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState`.
     dt : float [s]
     spectrum : tuple of float
-        (lo, hi): bounds of the eigenvalues of D_A^-1 A (lo > 0), for the Chebyshev weights.
+        (lo, hi): bounds of the eigenvalues of the iteration's ``M^-1 A`` (lo > 0; M = D_A for
+        Jacobi), for the Chebyshev weights.
     max_sweeps : int
     passes : int
         PGS passes over the contacts per sweep.
+    colours : NodeColouring, optional
+        Sweep with multicolour symmetric block Gauss-Seidel over these colours
+        (:mod:`softvr.contact.node_gauss_seidel`) instead of Jacobi.
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
-                 passes: int = 2):
+                 passes: int = 2, colours: NodeColouring | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -53,6 +59,12 @@ class NodeSolve:
         for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
+        #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
+        self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
+            0.0 if self.rate == 0 else np.inf)
+        self.colours = colours
+        #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
+        self.plain_sweeps = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
@@ -60,27 +72,42 @@ class NodeSolve:
         self._sweep = self.sweep.numpy()
         c = state.contacts
         buf = state.sweep_buffers
-        jacobi, cheb = [], []
+        jacobi, cheb, plain = [], [], []
+        # Plain sweeps (omega = 1, the same gamma: damped Jacobi / Richardson on M^-1 A, which
+        # contracts on [lo, hi]) for a step whose Chebyshev sweeps stall (_stalled).
+        self._ones = wp.array(np.ones(1), dtype=wp.float64, device=d)
+        self._plain_sweep = wp.ones(1, dtype=wp.int32, device=d)
+        if colours is not None:
+            self._work = [wp.zeros(model.node_count, dtype=wp.vec3d, device=d) for _ in range(2)]
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
-            jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
-                                    inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
-                                            model.fixed, state.fixed_velocity, v, state.v_hat]))
+            if colours is None:
+                jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
+                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
+                                                model.fixed, state.fixed_velocity, v, state.v_hat]))
+            else:
+                jacobi.append(record_gauss_seidel(model, state, colours, v, *self._work))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
                                           model.fixed, v_next, self.change]))
+            plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+                                            inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
+                                                    self._plain_sweep, model.fixed, v_next, self.change])))
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
                                      c.friction, state.d_inv, model.fixed, float(dt), int(passes), c.impulse,
                                      state.v_hat, self.sweep])
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) for r in range(3)]
+        self._sweeps = [(jacobi[r] if colours is not None else replayer(jacobi[r]), replayer(contacts),
+                         replayer(cheb[r])) for r in range(3)]
+        self._plain = plain
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
                                                               c.stencil_weights, c.frame, c.gap, float(dt), buf[r],
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
         self._buffers = buf
+        self._buffers_hat = state.v_hat
 
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
@@ -90,18 +117,23 @@ class NodeSolve:
         ``tolerance (1 - rate) / rate`` (checked every ``check_every``) and no contact's normal
         velocity is more than ``tolerance`` short of its target, nor a pushing one's more than
         that from it (contacts between bodies couple them, and the node change alone
-        understates their error). Returns the sweeps
-        made and the buffer holding the solved velocities; ``stats[1]`` then holds the largest
-        normal-velocity error [m/s]."""
+        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), the rest of
+        the step sweeps plain (``plain_sweeps``). Returns the sweeps made and the buffer holding
+        the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
         self._sweep[0] = 0
         stats = self.stats.numpy()
+        if self.colours is not None:  # no contact term in the first sweep's node update
+            self._buffers_hat.zero_()
+            self._work[1].zero_()
+        history: dict[int, float] = {}
+        plain, switched = False, 0
         k = 0
         while k < self.max_sweeps:
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
             contacts()
-            cheb()
+            (self._plain[k % 3] if plain else cheb)()
             k += 1
             if k % check_every == 0:
                 change = float(self._change.max(initial=0.0))
@@ -111,6 +143,23 @@ class NodeSolve:
                     self._residual_launches[k % 3]()
                     if stats[1] <= tolerance:
                         break
+                history[k] = change
+                if not plain and self._stalled(history, k):
+                    plain, switched = True, k
+                    stop = tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
+        self.plain_sweeps = k - switched if plain else 0
         self._residual_launches[k % 3]()
         stats[0] = k
         return k, self._buffers[k % 3]
+
+    def _window(self) -> int:
+        """Sweeps over which the Chebyshev iteration must at least halve its change: two
+        decades' worth (100x on a linear system), and no fewer than 20."""
+        return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+
+    def _stalled(self, history: dict[int, float], k: int) -> bool:
+        """Whether the Chebyshev sweeps stall or oscillate: the change has not halved over
+        :meth:`_window` sweeps (contacts that keep changing their active set break the
+        polynomial's assumption of a fixed linear iteration; plain sweeps still contract)."""
+        before = history.get(k - self._window())
+        return before is not None and history[k] > 0.5 * before
