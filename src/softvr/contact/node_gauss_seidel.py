@@ -17,34 +17,72 @@ import warp as wp
 
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
-from softvr.device import chunked_replayer
+from softvr.device import chunked_replayer, replayer
 
-__all__ = ["gauss_seidel_spectrum", "record_gauss_seidel"]
+__all__ = ["GaussSeidelSweep", "gauss_seidel_spectrum"]
 
 
-def record_gauss_seidel(model, state, colouring: NodeColouring, v: wp.array, w: wp.array,
-                        v_pre: wp.array) -> Callable[[], None]:
-    """The node update of one symmetric sweep from the velocities ``v`` [n] [m/s] into
-    ``state.v_hat`` (and ``v_pre``; ``w`` [n] [m/s] is its work array): the colours 0 .. C-1,
-    then C-2 .. 0, each launch over the colour's nodes split over the CPU cores. ``model``,
-    ``state``: :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState`."""
-    d = model.device
-    order = wp.array(colouring.order, dtype=wp.int32, device=d)
-    start, count = colouring.start, colouring.count
-    passes = [(c, int(c == count - 1)) for c in range(count)] + [(c, 1) for c in range(count - 2, -1, -1)]
-    replays = [chunked_replayer(_k.start, model.node_count, [v, w], d)]
-    replays += [chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
-                                 [model.row_start, model.block_col, state.blocks, state.d_inv, state.b, model.fixed,
-                                  state.fixed_velocity, order, int(start[c]), last, w, state.v_hat, v_pre], d,
-                                 min_chunk=256)
-                for c, last in passes if start[c + 1] > start[c]]
+class GaussSeidelSweep:
+    """The recorded node update of one symmetric sweep (steps 1-4 of
+    :mod:`softvr.contact._node_gs_kernels`) from the velocities ``v`` [n] [m/s] into
+    ``state.v_hat``, with the contact PGS ``contacts`` (a replay of the shared contact kernel
+    on ``state.v_hat`` with the metric :attr:`metric`) in its middle; each launch split over
+    the CPU cores. :meth:`prepare` marks this step's contact nodes and sets the metric.
 
-    def sweep() -> None:
-        for replay in replays:
+    Parameters
+    ----------
+    model, state
+        :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState`.
+    colouring : NodeColouring
+    omega : float
+        Damping of the contact nodes' Jacobi update, at most 1 / lambda_max(D_A^-1 A).
+    """
+
+    def __init__(self, model, state, colouring: NodeColouring, omega: float):
+        d = model.device
+        n = model.node_count
+        self.omega = float(omega)
+        self._order = wp.array(colouring.order, dtype=wp.int32, device=d)
+        self.contact_node = wp.zeros(n, dtype=wp.int32, device=d)
+        #: omega D_A^-1 [n] [1/kg], the metric the contact PGS projects with.
+        self.metric = wp.zeros(n, dtype=wp.mat33d, device=d)
+        self._work = wp.zeros(n, dtype=wp.vec3d, device=d)
+        self._model, self._state = model, state
+        c = state.contacts
+        self._prepare = [replayer(wp.launch(_k.mark_contact_nodes, dim=c.capacity, device=d, record_cmd=True,
+                                            inputs=[c.count, c.stencil_count, c.stencil_nodes, self.contact_node])),
+                         replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
+                                            inputs=[state.d_inv, self.omega, self.metric]))]
+        self._colouring = colouring
+
+    def prepare(self) -> None:
+        """Mark this step's contact nodes and set the metric (once a step, after detection)."""
+        self.contact_node.zero_()
+        for replay in self._prepare:
             replay()
 
-    sweep.keep = order  # type: ignore[attr-defined]  # the launches point into it
-    return sweep
+    def record(self, v: wp.array, contacts: Callable[[], None]) -> Callable[[], None]:
+        """The node update of a sweep from ``v`` [n] [m/s], ``contacts`` in its middle."""
+        m, st, d = self._model, self._state, self._model.device
+        start, count = self._colouring.start, self._colouring.count
+        n, w = m.node_count, self._work
+        rows = [m.row_start, m.block_col, st.blocks, st.d_inv, st.b, m.fixed, st.fixed_velocity, self.contact_node]
+
+        def colour(c: int, last: int) -> Callable[[], None]:
+            return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
+                                    [*rows, self._order, int(start[c]), last, w, st.v_hat], d, min_chunk=256)
+
+        replays = [chunked_replayer(_k.start, n, [v, w], d)]
+        replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]]
+        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, self.omega, v, w, st.v_hat], d), contacts,
+                    chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
+        replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]]
+
+        def sweep() -> None:
+            for replay in replays:
+                replay()
+
+        return sweep
 
 
 def gauss_seidel_spectrum(a: sp.spmatrix, order: np.ndarray) -> tuple[float, float]:

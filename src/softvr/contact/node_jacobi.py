@@ -13,7 +13,7 @@ import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
-from softvr.contact.node_gauss_seidel import record_gauss_seidel
+from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights"]
@@ -27,6 +27,10 @@ def chebyshev_weights(rho: float, count: int) -> np.ndarray:
     for k in range(1, len(omega)):
         omega[k] = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega[k - 1])
     return omega
+
+
+def _nothing() -> None:
+    """The contact step of a Gauss-Seidel sweep: it runs inside the node update."""
 
 
 class NodeSolve:
@@ -46,10 +50,13 @@ class NodeSolve:
     colours : NodeColouring, optional
         Sweep with multicolour symmetric block Gauss-Seidel over these colours
         (:mod:`softvr.contact.node_gauss_seidel`) instead of Jacobi.
+    omega : float
+        With ``colours``: the damping of the contact nodes' Jacobi update, at most
+        1 / lambda_max(D_A^-1 A).
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
-                 passes: int = 2, colours: NodeColouring | None = None):
+                 passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -63,6 +70,7 @@ class NodeSolve:
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
         self.colours = colours
+        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
@@ -77,29 +85,28 @@ class NodeSolve:
         # contracts on [lo, hi]) for a step whose Chebyshev sweeps stall (_stalled).
         self._ones = wp.array(np.ones(1), dtype=wp.float64, device=d)
         self._plain_sweep = wp.ones(1, dtype=wp.int32, device=d)
-        if colours is not None:
-            self._work = [wp.zeros(model.node_count, dtype=wp.vec3d, device=d) for _ in range(2)]
+        gs = self._gauss_seidel
+        contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
+                             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
+                                     c.friction, state.d_inv if gs is None else gs.metric, model.fixed, float(dt),
+                                     int(passes), c.impulse, state.v_hat, self.sweep])
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
-            if colours is None:
+            if gs is None:
                 jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
                                         inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
                                                 model.fixed, state.fixed_velocity, v, state.v_hat]))
-            else:
-                jacobi.append(record_gauss_seidel(model, state, colours, v, *self._work))
+            else:  # the contact PGS runs inside the Gauss-Seidel sweep
+                jacobi.append(gs.record(v, replayer(contacts)))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
                                           model.fixed, v_next, self.change]))
             plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                             inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
                                                     self._plain_sweep, model.fixed, v_next, self.change])))
-        contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
-                             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
-                                     c.friction, state.d_inv, model.fixed, float(dt), int(passes), c.impulse,
-                                     state.v_hat, self.sweep])
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(jacobi[r] if colours is not None else replayer(jacobi[r]), replayer(contacts),
-                         replayer(cheb[r])) for r in range(3)]
+        self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) if gs is None else
+                        (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
@@ -107,7 +114,6 @@ class NodeSolve:
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
         self._buffers = buf
-        self._buffers_hat = state.v_hat
 
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
@@ -123,9 +129,8 @@ class NodeSolve:
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
         self._sweep[0] = 0
         stats = self.stats.numpy()
-        if self.colours is not None:  # no contact term in the first sweep's node update
-            self._buffers_hat.zero_()
-            self._work[1].zero_()
+        if self._gauss_seidel is not None:
+            self._gauss_seidel.prepare()
         history: dict[int, float] = {}
         plain, switched = False, 0
         k = 0

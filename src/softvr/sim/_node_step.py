@@ -336,7 +336,7 @@ class NodeStepper:
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
             self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
-                                          colours=choice.colours)
+                                          colours=choice.colours, omega=choice.omega)
         return self._recorded[5]
 
     def _external_forces(self) -> None:

@@ -44,6 +44,8 @@ class SweepChoice:
         (lo, hi) of the spectrum of the chosen iteration's ``M^-1 A`` (with margins).
     colours : NodeColouring or None
         The Gauss-Seidel colouring; None for Jacobi.
+    omega : float
+        The Gauss-Seidel sweeps' damping of the contact nodes: 1 / Jacobi's upper bound.
     work : dict
         Work per decade of each kind, in this scene's Jacobi sweeps (contacts included).
     """
@@ -51,6 +53,7 @@ class SweepChoice:
     kind: str | None
     bounds: tuple[float, float]
     colours: NodeColouring | None
+    omega: float
     work: dict
 
 
@@ -100,5 +103,5 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     gs_work = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
     work = {"jacobi": jacobi_work, "gauss-seidel": gs_work}
     if gs_work < jacobi_work and gs_work <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE:
-        return SweepChoice("gauss-seidel", gs_bounds, colours, work)
-    return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, work)
+        return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
+    return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)
