@@ -42,7 +42,7 @@ class GaussSeidelSweep:
         d = model.device
         n = model.node_count
         self.omega = float(omega)
-        self._order = wp.array(colouring.order, dtype=wp.int32, device=d)
+        self._order: wp.array = wp.array(colouring.order, dtype=wp.int32, device=d)
         self.contact_node = wp.zeros(n, dtype=wp.int32, device=d)
         #: omega D_A^-1 [n] [1/kg], the metric the contact PGS projects with.
         self.metric = wp.zeros(n, dtype=wp.mat33d, device=d)
