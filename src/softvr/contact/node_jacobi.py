@@ -123,23 +123,30 @@ class NodeSolve:
         ``tolerance (1 - rate) / rate`` (checked every ``check_every``) and no contact's normal
         velocity is more than ``tolerance`` short of its target, nor a pushing one's more than
         that from it (contacts between bodies couple them, and the node change alone
-        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), the rest of
-        the step sweeps plain (``plain_sweeps``). Returns the sweeps made and the buffer holding
+        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
+        of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
         self._sweep[0] = 0
         stats = self.stats.numpy()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
-        history: dict[int, float] = {}
-        plain, switched = False, 0
+        cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
+        history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
+        restart, plain_until = 0, 0
+        self.plain_sweeps = 0
         k = 0
         while k < self.max_sweeps:
+            if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
+                self._sweep[0] = 0
+                restart, history, stop = k, {}, cheb_stop
+            plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
             contacts()
             (self._plain[k % 3] if plain else cheb)()
             k += 1
+            self.plain_sweeps += plain
             if k % check_every == 0:
                 change = float(self._change.max(initial=0.0))
                 if not np.isfinite(change):  # NaN: the integration reports it
@@ -148,25 +155,29 @@ class NodeSolve:
                     self._residual_launches[k % 3]()
                     if stats[1] <= tolerance:
                         break
-                history[k] = change
-                if not plain and self._stalled(history, k, stop):
-                    plain, switched = True, k
-                    stop = tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
-        self.plain_sweeps = k - switched if plain else 0
+                if not plain:
+                    history[k - restart] = change
+                    if self._stalled(history, k - restart, stop):
+                        plain_until, stop = k + self._window(), plain_stop
         self._residual_launches[k % 3]()
         stats[0] = k
         return k, self._buffers[k % 3]
 
+    def _window(self) -> int:
+        """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
+        return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+
     def _stalled(self, history: dict[int, float], k: int, stop: float) -> bool:
-        """Whether the Chebyshev sweeps stall or cycle far from converged: the largest change
-        of the last two decades' worth of sweeps (100x on a linear system; at least 20) is
-        not half that of the two decades before, and the change is still over 100x ``stop``.
-        Contacts that keep changing their active set break the polynomial's assumption of a
-        fixed linear iteration, and its momentum then cycles; plain sweeps still contract. A
-        plateau close to ``stop`` (soft-on-soft contacts whose PGS does not settle) is left to
-        Chebyshev, which keeps the slow modes, the translations, converged better than plain
-        sweeps would."""
-        window = 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+        """Whether the Chebyshev sweeps stall or cycle far from converged, ``k`` sweeps after
+        they (re)started (``history``: their changes since): the largest change of the last
+        :meth:`_window` sweeps is not half that of the window before, and the change is still
+        over 100x ``stop``. Contacts that keep changing their active set break the
+        polynomial's assumption of a fixed linear iteration, and its momentum then cycles;
+        :meth:`solve` then sweeps plain (no momentum) for a window, which lets the active set
+        settle, and restarts Chebyshev. A plateau close to ``stop`` (soft-on-soft contacts whose
+        PGS does not settle) is left to Chebyshev, which keeps the slow modes, the
+        translations, converged better than plain sweeps would."""
+        window = self._window()
         if k < 2 * window or history[k] <= 100.0 * stop:
             return False
         recent = max(c for j, c in history.items() if j > k - window)
