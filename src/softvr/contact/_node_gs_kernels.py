@@ -96,14 +96,19 @@ def projected(contact_node: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.v
 
 @wp.kernel
 def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
-                       stencil_nodes: wp.array2d(dtype=wp.int32), contact_node: wp.array(dtype=wp.int32)):
-    """``contact_node[i] = 1`` for the nodes in contact ``c``'s stencil (``contact_node`` zeroed
-    before; one thread per contact slot, the first ``count[0]`` used)."""
+                       stencil_nodes: wp.array2d(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+                       contact_node: wp.array(dtype=wp.int32)):
+    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves: its stencil and its
+    rigid sides' angular nodes (-1: none) (``contact_node`` zeroed before; one thread per
+    contact slot, the first ``count[0]`` used)."""
     c = wp.tid()
     if c >= count[0]:
         return
     for k in range(stencil_count[c]):
         contact_node[stencil_nodes[c, k]] = 1
+    for s in range(rigid_node.shape[1]):
+        if rigid_node[c, s] >= 0:
+            contact_node[rigid_node[c, s]] = 1
 
 
 @wp.kernel

@@ -50,7 +50,8 @@ class GaussSeidelSweep:
         self._model, self._state = model, state
         c = state.contacts
         self._prepare = [replayer(wp.launch(_k.mark_contact_nodes, dim=c.capacity, device=d, record_cmd=True,
-                                            inputs=[c.count, c.stencil_count, c.stencil_nodes, self.contact_node])),
+                                            inputs=[c.count, c.stencil_count, c.stencil_nodes, c.rigid_node,
+                                                    self.contact_node])),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
                                             inputs=[state.d_inv, self.omega, self.metric]))]
         self._colouring = colouring
