@@ -186,7 +186,7 @@ def test_a_display_files_screen_keys_are_checked(tmp_path):
 
 def test_the_scene_files_readers_import_nothing_of_the_cave():
     folder = Path(softvr.scene.__file__).parent
-    for name in ("schema.py", "gltf.py", "display.py", "_description.py", "_keys.py"):
+    for name in ("schema.py", "gltf.py", "display.py", "_description.py"):
         tree = ast.parse((folder / name).read_text())
         imported = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module] + \
             [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]

@@ -31,9 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softvr.errors import raise_all
+from softvr.errors import known_key, raise_all
 from softvr.files import read_toml
-from softvr.scene._keys import known_key
 
 __all__ = ["FORMAT", "MAX_PIXELS", "MAX_SCREENS", "PRESETS", "STEREO_MODES", "Screen", "display_problems",
            "read_display", "tile"]

@@ -112,12 +112,11 @@ from urllib.parse import unquote
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from softvr.errors import InputError, Problems, raise_all
+from softvr.errors import InputError, Problems, known_key, raise_all
 from softvr.files import checked_file, file_name, inside_folder, native_read
 from softvr.gltf import COMPONENTS, gltf_json
 from softvr.scene._description import (GLTF_CELLS, Body, Coupling, Drive, Material, Plane, Render, Simulation,
                                        read_table)
-from softvr.scene._keys import known_key
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 from softvr.scene.schema import (BodySpec, SceneFile, _model, _volume, adhesion_parameters, render_settings,
