@@ -151,16 +151,18 @@ class Problems:
     def raise_if_any(self) -> None:
         raise_all(self.items, self.source, self.kind)
 
-    def unknown_keys(self, table: dict, valid, where: str, *, others: dict | None = None,
-                     what: str = "a known key") -> list:
+    def unknown_keys(self, table, valid, where: str, *, others: dict | None = None, what: str = _KNOWN) -> list:
         """Record every key of ``table`` not in ``valid`` under ``where.key``, each named with the
-        nearest valid one (:func:`known_key`); ``others`` (key -> what takes it) says where a key
-        of another kind of table belongs. The keys recorded."""
+        nearest valid one (:func:`known_key`). ``others``: the keys of other kinds of table,
+        each with what takes it, which are expected as ``what`` ("a key of a rigid body") and
+        found with their owner. The keys recorded."""
+        others = others or {}
         bad = sorted((k for k in table if k not in valid), key=str)
         for key in bad:
-            owner = (others or {}).get(key)
-            self.add(f"{where}.{key}".lstrip("."), known_key(valid, key, what),
-                     f"{key!r} ({owner})" if owner else repr(key)[:100])
+            if key in others:
+                self.add(f"{where}.{key}".lstrip("."), known_key(valid, key, what), f"{key!r} ({others[key]})")
+            else:
+                self.add(f"{where}.{key}".lstrip("."), known_key(valid, key), repr(key)[:100])
         return bad
 
     def number(self, table: dict, key: str, where: str, *, default=None, positive=False, minimum=None,

@@ -157,7 +157,7 @@ def test_unknown_gltf_properties_are_named_with_the_property_meant(tmp_path):
     path = _glb(tmp_path / "typos.glb", {
         "gel": {"softvr_type": "fem", "softvr_densty": 900.0, "softvr_couple_to": "post",
                 "softvr_coupling_stifness": 10.0, "softvr_coupling_radius": 0.01},
-        "post": {"softvr_type": "kinematic", "softvr_velocty": [0.0, 0.0, 1.0]}},
+        "post": {"softvr_type": "rigid", "softvr_velocty": [0.0, 0.0, 1.0]}},
         {"softvr_frmes": 10, "softvr_ground": 1})
     with pytest.raises(InputError) as info:
         read_gltf_scene(path)

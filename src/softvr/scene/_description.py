@@ -28,7 +28,7 @@ from softvr.render import PRESETS, VIEWS
 from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE",
+__all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS", "MESH_SUFFIXES", "PLAUSIBLE",
            "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document", "Drive", "Filter", "Light",
            "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere", "Volume", "existing_file",
            "read_table"]
@@ -499,6 +499,10 @@ BODY_KEYS: dict[str, tuple[str, ...]] = {
     "fixed": (*_EVERY_BODY, *_SOLID),
     "kinematic": (*_EVERY_BODY, *_SOLID, *_MOVING),
     "tool": (*_EVERY_BODY, *_SOLID, *_MOVING, "material", "stiffness", "damping", "haptics", "max_force")}
+#: The material fields each body type uses (a glTF object's own properties; a TOML body names a
+#: shared ``[material.NAME]``): a rigid body or a tool weighs its density, a fem body takes all.
+MATERIAL_KEYS: dict[str, tuple[str, ...]] = {"rigid": ("density",), "tool": ("density",),
+                                             "fem": tuple(Material.model_fields)}
 #: Defaults of a cloth body's and a tool's own fields (``damping`` and ``alpha`` are both's).
 CLOTH = {"quads": (16, 16), "area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05,
          "alpha": 0.1}
@@ -765,8 +769,9 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
         return None, True
     keys, what, others = model.keys_of(table)
     # Another type's keys: refused here, named with the nearest of this one's.
-    found: list = [(f"{where}.{key}", known_key(keys, key, what), f"{key!r} ({others[key]})")
-                   for key in table if key in others]
+    misplaced = Problems(errors.source, errors.kind)
+    misplaced.unknown_keys([k for k in table if k in others], keys, where, others=others, what=what)
+    found: list = misplaced.items
     data = copy.deepcopy({k: v for k, v in table.items() if k not in others})
     context: dict[str, Any] = {"folder": folder or Path(".")}
     out: _Table | None = None

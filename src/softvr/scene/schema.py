@@ -501,7 +501,10 @@ def _model(i: int, t: dict, scene_dir: Path, errors: Problems, where: str | None
     try:
         specs = read_parts(path).parts if path.suffix.lower() == ".toml" else [p.spec for p in load_model(path).parts]
     except InputError as exc:
-        errors.add(f"{w}.file", "a valid parts file or model", str(exc))
+        if exc.source == str(path):  # each of the parts file's problems, named below the field that names it
+            errors.items += [(f"{w}.file {what}", expected, found) for what, expected, found in exc.problems]
+        else:
+            errors.add(f"{w}.file", "a valid parts file or model", str(exc))
         return {"file": path, **empty}
     parts = {p.name: p.kind for p in specs}
     looks = {}
