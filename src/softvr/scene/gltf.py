@@ -115,8 +115,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import checked_file, file_name, inside_folder, native_read
 from softvr.gltf import COMPONENTS, gltf_json
-from softvr.scene._description import (BODY_KEYS, GLTF_CELLS, MATERIAL_KEYS, Body, Coupling, Drive, Material, Plane,
-                                       Render, Simulation, read_table)
+from softvr.scene._description import (BODY_KEYS, GLTF_CELLS, MATERIAL_KEYS, Body, Coupling, Drive, Material,
+                                       ModelTable, Plane, Render, Simulation, Volume, read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 from softvr.scene.schema import (BodySpec, SceneFile, _model, _volume, adhesion_parameters, render_settings,
@@ -133,13 +133,17 @@ _COUPLING_KEYS = ("couple_to", *(f"coupling_{k}" for k in Coupling.model_fields 
 _NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_velocity", "spin_centre", "area_density",
                    "stretch", "shear", "bend", "damping", "alpha", "stiffness", "haptics", "max_force",
                    "collision_triangles")
-#: The custom properties of a body node of each type (and ``adhesion_*``, :class:`~softvr.scene._description.
-#: Adhesion`'s): its type's ``[[body]]`` keys (:data:`~softvr.scene._description.BODY_KEYS`) that a node
-#: gives, its material's (:data:`~softvr.scene._description.MATERIAL_KEYS`), a drive's (refused on other
-#: types by a rule of its own) and a coupling's. Another type's are refused, named with the nearest of these.
-_NODE_KEYS = {kind: {"type", "drive_times", "drive_offsets", *_COUPLING_KEYS, *MATERIAL_KEYS.get(kind, ()),
-                     *(k for k in keys if k in (*_NODE_BODY_KEYS, "render_mesh", "collides_with"))}
-              for kind, keys in BODY_KEYS.items()}
+#: The custom properties of a node of each type: a body's (and ``adhesion_*``, :class:`~softvr.scene.
+#: _description.Adhesion`'s) are its type's ``[[body]]`` keys (:data:`~softvr.scene._description.BODY_KEYS`)
+#: that a node gives, its material's (:data:`~softvr.scene._description.MATERIAL_KEYS`), a drive's (refused
+#: on other types by a rule of its own) and a coupling's; a volume's its ``[volume]`` fields (its name is the
+#: node's) and a coupling's; a model's its ``[[model]]`` fields. Another type's are refused, named with the
+#: nearest of these.
+_NODE_KEYS = {**{kind: {"type", "drive_times", "drive_offsets", *_COUPLING_KEYS, *MATERIAL_KEYS.get(kind, ()),
+                        *(k for k in keys if k in (*_NODE_BODY_KEYS, "render_mesh", "collides_with"))}
+                 for kind, keys in BODY_KEYS.items()},
+              "volume": {"type", *_COUPLING_KEYS, *(k for k in Volume.model_fields if k != "name")},
+              "model": {"type", *ModelTable.model_fields}}
 _ANY_NODE_KEY = set().union(*_NODE_KEYS.values())
 #: Every custom property of the scene (and ``ground_adhesion_*``).
 _SCENE_KEYS = {*Simulation.model_fields, *Render.model_fields, "start_time", "ground", "display"}
@@ -448,14 +452,16 @@ def _booleans(table: dict) -> dict:
     return {k: bool(v) if k in _BOOLEANS and type(v) is int and v in (0, 1) else v for k, v in table.items()}
 
 
-def _unknown_node_keys(props: dict, kind, where: str, errors: Problems) -> None:
-    """A body node's custom properties its type does not take (:data:`_NODE_KEYS`), each named
-    with the nearest it takes; another type's with the types that take it."""
+def _node_keys(props: dict, kind, where: str, errors: Problems) -> dict:
+    """A node's custom properties its type takes (:data:`_NODE_KEYS`); the others reported, each
+    named with the nearest it takes, another type's with the types that take it."""
     valid = _NODE_KEYS.get(kind, _ANY_NODE_KEY)
     others = {k: f"a key of {' | '.join(t for t, keys in _NODE_KEYS.items() if k in keys)} objects"
               for k in _ANY_NODE_KEY - valid}
-    errors.unknown_keys([k for k in props if not k.startswith("adhesion_")], valid, where, others=others,
-                        what=f"a key of a {kind} object")
+    sticky = "adhesion_" if kind in BODY_KEYS else None  # a body's adhesion: Adhesion's fields, checked there
+    bad = errors.unknown_keys([k for k in props if not (sticky and k.startswith(sticky))], valid, where,
+                              others=others, what=f"a key of a {kind} object")
+    return {k: v for k, v in props.items() if k not in bad}
 
 
 def read_gltf_scene(path) -> SceneFile:
@@ -471,8 +477,7 @@ def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
     """A body node's extras as a ``[[body]]`` and its ``[material.NAME]`` (the description's
     models, without the shape: the node's mesh is it). The glTF rules between fields are here."""
     material_keys = MATERIAL_KEYS.get(kind, ())
-    valid = _NODE_KEYS.get(kind, _ANY_NODE_KEY)  # another type's keys: reported by _unknown_node_keys
-    table = {k: v for k, v in props.items() if k in _NODE_BODY_KEYS and k in valid and k not in material_keys}
+    table = {k: v for k, v in props.items() if k in _NODE_BODY_KEYS and k not in material_keys}
     if "drive_times" in props or "drive_offsets" in props:
         if kind not in ("fem", "cloth"):
             errors.add(f"{where}.drive_offsets", "a drive only on a fem or cloth object (it moves the held nodes)",
@@ -577,7 +582,7 @@ def _node_spec(doc: dict, loaded, buffers: _Buffers, i: int, where: str, kind: s
                 # Its keys turn the node's own axes: its mesh in them (its rest rotation undone).
                 unturn = _z_up_rotations([node.get("rotation", [0.0, 0.0, 0.0, 1.0])])[0].inv()
                 spec.mesh_data = (unturn.apply(spec.mesh_data[0]), spec.mesh_data[1])
-    if "render_mesh" in props and "render_mesh" in _NODE_KEYS.get(kind, ()):
+    if "render_mesh" in props:
         # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
         other = props["render_mesh"]
         if not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
@@ -629,6 +634,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
         name = node.get("name") or f"node {i}"
         where = f"node {name!r}"
         kind = errors.choice(props, "type", where, _GLTF_TYPES)
+        props = _node_keys(props, kind, where, errors)
         if kind == "model":  # an Empty: a [[model]], whose parts become bodies
             models.append(_model(len(models), {k: v for k, v in props.items() if k != "type"}, path.parent, errors,
                                  where))
@@ -642,7 +648,6 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             table = {k: v for k, v in props.items() if k not in ("type", *_COUPLING_KEYS)}
             volumes.append(_volume({**table, "name": name}, path.parent, errors, where))
             continue
-        _unknown_node_keys(props, kind, where, errors)
         made = _node_spec(doc, loaded, buffers, i, where, kind, props, parent, errors)
         if made is None:
             continue
