@@ -321,8 +321,9 @@ prest = "cube"
 '''
 
 #: Each problem's field path and the key it names as meant (None: none is near, every key the
-#: table takes is listed; for a required key misspelt, what is expected of it), written by hand from the format's docs: the keys of each table, and
-#: of each body type (docs/scenes.md, "A body's keys by type").
+#: table takes is listed; for a required key misspelt, what is expected of it), written by hand
+#: from the format's docs: the keys of each table, and of each body type (docs/scenes.md, "A
+#: body's keys by type").
 _EXPECTED = {
     ("lights", "light"), ("simulation.stpes_per_frame", "steps_per_frame"), ("render.zooom", "zoom"),
     ("light[0].intensty", "intensity"), ("material.jelly.poison", "poisson"),

@@ -28,10 +28,10 @@ from softvr.render import PRESETS, VIEWS
 from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS", "MESH_SUFFIXES", "PLAUSIBLE",
-           "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document", "Drive", "Filter", "Light",
-           "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere", "Volume", "existing_file",
-           "read_table"]
+__all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
+           "MESH_SUFFIXES", "PLAUSIBLE", "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document",
+           "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere",
+           "Volume", "existing_file", "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")

@@ -77,7 +77,10 @@ key of the kinematic bodies' and tools' animations), and the ``[render]`` fields
 ``softvr_size`` [w, h], ``softvr_camera``, ``softvr_azimuth`` [deg], ``softvr_elevation``
 [deg], ``softvr_zoom``, ``softvr_bounds`` [m], ``softvr_background``,
 ``softvr_background_top`` (r, g, b), ``softvr_light_kit``. Booleans may be 0 / 1 (as Blender
-may write them). Every bad property is reported at once, named by the node.
+may write them). Every bad property is reported at once, named by the node; a node takes the
+properties of its type only (a rigid or tool object's material is its ``softvr_density``, so
+its ``softvr_poisson`` is refused as a fem object's), another type's named with the nearest
+its own type takes (:data:`_NODE_KEYS`, from the TOML description's ``BODY_KEYS``).
 
 **Lights**: the ``KHR_lights_punctual`` lights (Blender: Include > Punctual Lights) are the
 scene's lights (``[[light]]``), shining from the light node's world position: a directional
