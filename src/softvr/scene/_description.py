@@ -484,21 +484,24 @@ SHAPES: dict[str | None, tuple[str, ...]] = {
     "rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
     "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
 SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
-#: The keys each body type takes besides its shape's (:data:`SHAPES`): a key of another type is
-#: refused, named with the nearest of its own (a key that would be ignored, as ``material`` on
-#: a cloth or ``spin_centre`` on a rigid body, whose spin is about its centre of mass).
-#: ``drive`` and ``motion`` have rules of their own (:meth:`Body.problems`).
-_EVERY_BODY = ("name", "type", "position", "rotation", "color", "collides_with", "adhesion", "drive", "motion")
+#: The keys each body type takes, its shapes' (:data:`SHAPES`) among them: a key of another type
+#: is refused, named with the nearest of its own (a key that would be ignored, as ``material`` on
+#: a cloth or ``spin_centre`` on a rigid body, whose spin is about its centre of mass), except
+#: those with rules of their own (:data:`_RULED`, :meth:`Body.problems`).
+_EVERY_BODY = ("name", "type", "position", "rotation", "color", "collides_with", "adhesion")
 _SOLID = ("scale", "subdivisions", "render_mesh")  # every type with a sphere, mesh or tets shape
 _MOVING = ("surface_quads", "collision_triangles")  # a moving box's surface, a moving mesh's or sphere's budget
-_DEFORMING = ("velocity", "angular_velocity", "spin_centre", "fixed_below", "fixed_above")
-BODY_KEYS: dict[str, tuple[str, ...]] = {
-    "rigid": (*_EVERY_BODY, *_SOLID, *_MOVING, "material", "velocity", "angular_velocity"),
-    "fem": (*_EVERY_BODY, *_SOLID, *_MOVING, *_DEFORMING, "material", "cells"),
-    "cloth": (*_EVERY_BODY, *_DEFORMING, "quads", "area_density", "stretch", "shear", "bend", "damping", "alpha"),
-    "fixed": (*_EVERY_BODY, *_SOLID),
-    "kinematic": (*_EVERY_BODY, *_SOLID, *_MOVING),
-    "tool": (*_EVERY_BODY, *_SOLID, *_MOVING, "material", "stiffness", "damping", "haptics", "max_force")}
+_DEFORMING = ("velocity", "angular_velocity", "spin_centre", "fixed_below", "fixed_above", "drive")
+BODY_KEYS: dict[str, tuple[str, ...]] = {kind: (*SHAPES[kind], *_EVERY_BODY, *keys) for kind, keys in {
+    "rigid": (*_SOLID, *_MOVING, "material", "velocity", "angular_velocity"),
+    "fem": (*_SOLID, *_MOVING, *_DEFORMING, "material", "cells"),
+    "cloth": (*_DEFORMING, "quads", "area_density", "stretch", "shear", "bend", "damping", "alpha"),
+    "fixed": ("scale", "render_mesh"),  # a box or a mesh: no sphere to subdivide
+    "kinematic": (*_SOLID, *_MOVING, "motion"),
+    "tool": (*_SOLID, *_MOVING, "material", "stiffness", "damping", "haptics", "max_force", "motion")}.items()}
+#: Keys a rule of :meth:`Body.problems` names on a type that does not take them: the shape (which
+#: ones the type takes), the drive (of held nodes), the motion (of kinematic bodies and tools).
+_RULED = (*SHAPE_KEYS, "drive", "motion")
 #: The material fields each body type uses (a glTF object's own properties; a TOML body names a
 #: shared ``[material.NAME]``): a rigid body or a tool weighs its density, a fem body takes all.
 MATERIAL_KEYS: dict[str, tuple[str, ...]] = {"rigid": ("density",), "tool": ("density",),
@@ -566,14 +569,14 @@ class Body(_Table):
 
     @classmethod
     def keys_of(cls, table: dict) -> tuple[set, str, dict]:
-        """A typed body's keys are its type's (:data:`BODY_KEYS`) and the shapes' (checked by
-        :meth:`problems`); the other types' keys are named with the types that take them."""
+        """A typed body's keys are its type's (:data:`BODY_KEYS`); the other types' keys are named
+        with the types that take them (but for :data:`_RULED`, named by :meth:`problems`)."""
         kind = table.get("type")
         if not isinstance(kind, str) or kind not in BODY_KEYS:
             return super().keys_of(table)
-        valid = {*BODY_KEYS[kind], *SHAPE_KEYS}
+        valid = set(BODY_KEYS[kind])
         others = {key: f"a key of {' | '.join(t for t, keys in BODY_KEYS.items() if key in keys)} bodies"
-                  for key in cls.model_fields if key not in valid}
+                  for key in cls.model_fields if key not in valid and key not in _RULED}
         return valid, f"a key of a {kind} body", others
 
     def shape(self) -> str | None:
