@@ -122,9 +122,9 @@ def read_parts(path) -> PartsFile:
     if not isinstance(defaults, dict):
         errors.add("defaults", "a table", type(defaults).__name__)
         defaults = {}
-    for key in errors.unknown_keys(defaults, _DEFAULT_KEYS, "defaults",
-                                   others={k: "a key of each [[part]]" for k in _PART_KEYS}):
-        defaults = {k: v for k, v in defaults.items() if k != key}  # reported once, not on every part
+    bad = errors.unknown_keys(defaults, _DEFAULT_KEYS, "defaults",
+                              others={k: "a key of each [[part]]" for k in _PART_KEYS})
+    defaults = {k: v for k, v in defaults.items() if k not in bad}  # reported once, not on every part
     parts, names = [], set()
     for i, raw in enumerate(_tables(doc, "part", errors, required=True)):
         where = f"part[{i}]"
