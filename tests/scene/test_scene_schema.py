@@ -251,6 +251,7 @@ material = "jelly"
 position = [0.0, 0.0, 0.5]
 angular_velocty = [0.0, 0.0, 1.0]
 cells = 2
+poisson = 0.3
 [[body]]
 name = "gel"
 type = "fem"
@@ -329,6 +330,7 @@ _EXPECTED = {
     ("light[0].intensty", "intensity"), ("material.jelly.poison", "poisson"),
     ("adhesion.tacky.bonding_rat", "bonding_rate"), ("plane[0].normall", "normal"), ("sphere[0].fricton", "friction"),
     ("body[0].angular_velocty", "angular_velocity"), ("body[0].cells", None),                       # rigid
+    ("body[0].poisson", "position"),  # a material's key, not a body's: said so (below)
     ("body[1].celss", "cells"), ("body[1].haptics", None), ("body[1].drive.offset", "offsets"),      # fem
     ("body[1].drive.offsets", "one [x, y, z] [m] per time"),  # misspelt, so it has none
     ("body[2].area_densty", "area_density"), ("body[2].collision_triangles", None),                 # cloth
@@ -370,6 +372,8 @@ def test_a_typo_in_a_key_of_every_table_and_each_types_foreign_keys_are_refused_
         key = what.rsplit(".", 1)[-1]
         assert found[what][0].startswith(f"a key of a {kind} body"), found[what]
         assert found[what][1] == f"{key!r} (a key of {takers} bodies)", found[what]
+    assert found["body[0].poisson"][1] == \
+        "'poisson' (a key of [material.NAME] tables, which a body names with material = NAME)"
     # Listed in full where none is near: the rigid body's own keys, which do not include cells.
     assert "angular_velocity" in found["body[0].cells"][0] and "cells" not in found["body[0].cells"][0]
     assert main(["check", str(path)]) == 2

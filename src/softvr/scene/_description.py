@@ -570,14 +570,18 @@ class Body(_Table):
     @classmethod
     def keys_of(cls, table: dict) -> tuple[set, str, dict]:
         """A typed body's keys are its type's (:data:`BODY_KEYS`); the other types' keys are named
-        with the types that take them (but for :data:`_RULED`, named by :meth:`problems`)."""
+        with the types that take them (but for :data:`_RULED`, named by :meth:`problems`), and a
+        material's (``poisson``) as the ``[material.NAME]`` key it is."""
         kind = table.get("type")
         if not isinstance(kind, str) or kind not in BODY_KEYS:
             return super().keys_of(table)
         valid = set(BODY_KEYS[kind])
-        others = {key: f"a key of {' | '.join(t for t, keys in BODY_KEYS.items() if key in keys)} bodies"
+        owners = {key: [f"{' | '.join(t for t, keys in BODY_KEYS.items() if key in keys)} bodies"]
                   for key in cls.model_fields if key not in valid and key not in _RULED}
-        return valid, f"a key of a {kind} body", others
+        for key in Material.model_fields:
+            if key not in valid:
+                owners.setdefault(key, []).append("[material.NAME] tables, which a body names with material = NAME")
+        return valid, f"a key of a {kind} body", {k: f"a key of {' and of '.join(v)}" for k, v in owners.items()}
 
     def shape(self) -> str | None:
         """The one shape key given, when it is one the body's type takes."""
