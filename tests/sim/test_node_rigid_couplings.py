@@ -152,3 +152,23 @@ def test_a_cube_hanging_by_springs_settles_to_the_minimum_of_its_potential_energ
     np.testing.assert_allclose(cube.position, rest[:3], atol=2e-5, rtol=0)
     np.testing.assert_allclose(cube.rotation, Rotation.from_rotvec(rest[3:]).as_matrix(), atol=2e-4, rtol=0)
     assert np.abs(cube.v).max() < 1e-3
+
+
+def test_a_spring_held_rigid_body_that_collides_steps_per_object():
+    # Rigid sides are held only on bodies without collision (the shoulder's colliding tendons
+    # and finger made the sweeps diverge under contact, src/softvr/sim/_node_couplings.py).
+    block = _block((0.0, 0.0, 0.0))
+    cube = RigidBody.box((0.06, 0.06, 0.06), 800.0, position=(0.05, 0.05, 0.2), name="cube")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    scene.add_body(block)
+    scene.add_body(cube)
+    scene.add_coupling(Coupling(RigidPoints(cube, [[0.0, 0.0, -0.03]]), _embedded(block, [[0.05, 0.05, 0.09]]), 300.0))
+    assert node_model_supported(scene)
+    touching = Scene(gravity=(0.0, 0.0, -G))
+    touching.add_body(block)
+    touching.add_body(cube, collision_points=RigidPoints(cube, [[0.0, 0.0, -0.03]]))
+    touching.add_coupling(Coupling(RigidPoints(cube, [[0.0, 0.0, -0.03]]), _embedded(block, [[0.05, 0.05, 0.09]]),
+                                   300.0))
+    assert not node_model_supported(touching)
+    touching.step(0.01)
+    assert touching._stepper is None
