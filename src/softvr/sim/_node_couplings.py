@@ -101,10 +101,11 @@ def couplings_supported(scene) -> bool:
     :class:`~softvr.dynamics.EmbeddedPoints` with stencils of at most :data:`SIDE` nodes, a
     kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`, or those of a rigid body
     that collides with nothing (no collision points, surface, box or sphere)."""
-    # A spring-held rigid body in contact is left per object: the shoulder's (tendons pressed
-    # by a rigid finger on a skin) made the node sweeps diverge under the palpation's contacts
-    # (Jacobi at a 300-sweep cap and Gauss-Seidel at 100: velocity changes of 1e2 m/s a sweep,
-    # 7-42 mm overlap against 0.2 mm per object) for a reason not found yet.
+    # A spring-held rigid body in contact is left per object: on the shoulder the sweeps
+    # diverged once its finger (a sphere primitive held by two springs) pressed: its angular
+    # node stopped converging (0.066 rad/s a sweep at the 100-sweep cap, step 35), then
+    # everything did (Jacobi at a 300 cap and Gauss-Seidel at 100: changes of 1e2 m/s a sweep,
+    # 7-42 mm overlap against 0.2 mm per object).
     colliding = {c.body for c in scene._colliders} | {i for i, _ in scene._sphere_bodies + scene._box_bodies}
     index = {id(b): i for i, b in enumerate(scene.bodies)}
     for coupling in scene.couplings:
