@@ -20,6 +20,6 @@ from softvr.app._player import FRAME_ORDER, STEP_ORDER, Player, Sensor, gravity_
 from softvr.app._record import output_name, record
 from softvr.app._window import VIEW_LAYERS, play_window
 
-__all__ = ["DEFAULT_OUT", "FRAME_ORDER", "STEP_ORDER", "VIEW_LAYERS", "Player", "Sensor", "add_device_option", "add_view_options",
-           "check_run_args", "gravity_potential", "out_folder", "output_name", "play_window", "record",
-           "record_from_args", "run_parser", "shown_layers"]
+__all__ = ["DEFAULT_OUT", "FRAME_ORDER", "STEP_ORDER", "VIEW_LAYERS", "Player", "Sensor", "add_device_option",
+           "add_view_options", "check_run_args", "gravity_potential", "out_folder", "output_name", "play_window",
+           "record", "record_from_args", "run_parser", "shown_layers"]

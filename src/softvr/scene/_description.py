@@ -29,9 +29,9 @@ from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
 __all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
-           "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document",
-           "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane", "Render", "Sensor", "Simulation", "Sphere",
-           "Volume", "existing_file", "read_table"]
+           "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "Adhesion", "Body", "Coupling",
+           "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
+           "Render", "Sensor", "Simulation", "Sphere", "Volume", "existing_file", "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
