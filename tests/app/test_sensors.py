@@ -38,6 +38,19 @@ frames = 100
 [material.m]
 density = 1000.0
 """
+#: A ball falling from 2 m, its centre sensed.
+FALLING = """
+[[body]]
+name = "ball"
+type = "rigid"
+sphere = 0.05
+material = "m"
+position = [0.0, 0.0, 2.0]
+[[sensor]]
+name = "centre"
+kind = "position"
+body = "ball"
+"""
 
 
 def _scene(tmp_path, text: str):
@@ -98,18 +111,7 @@ body = "upper"
 
 
 def test_falling_body_reads_the_discrete_free_fall(tmp_path):
-    player = _scene(tmp_path, """
-[[body]]
-name = "ball"
-type = "rigid"
-sphere = 0.05
-material = "m"
-position = [0.0, 0.0, 2.0]
-[[sensor]]
-name = "centre"
-kind = "position"
-body = "ball"
-""")
+    player = _scene(tmp_path, FALLING)
     for frame in range(1, 11):
         z = player.step()["sensors"]["centre"]
         n = 4 * frame  # steps so far
@@ -146,18 +148,7 @@ body = "block"
 
 
 def test_record_writes_the_sensors_into_the_metrics_and_one_plot(tmp_path):
-    player = _scene(tmp_path, """
-[[body]]
-name = "ball"
-type = "rigid"
-sphere = 0.05
-material = "m"
-position = [0.0, 0.0, 2.0]
-[[sensor]]
-name = "centre"
-kind = "position"
-body = "ball"
-""")
+    player = _scene(tmp_path, FALLING)
     player.frames = 3
     record(player, tmp_path / "out", progress=False)
     doc = json.loads((tmp_path / "out" / "sensed_metrics.json").read_text())
