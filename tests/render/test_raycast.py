@@ -31,6 +31,13 @@
   renderer: 130-370; the Warp caster without jitter: 70-790).
 * Frame-to-frame state (brick grid updated in the changed box only, each ray's known-empty
   prefix): equal to a fresh renderer's image, bit for bit.
+* Incremental frames (same camera: only the rays through a moved surface or near rewritten
+  voxels are cast, the rest keep last frame's colour): a ball dented deeper frame by frame with
+  a probe following the dent, and a change hidden behind the opaque skin. The kernel is
+  deterministic per pixel (the jitter is a hash of the pixel), so every frame must equal a
+  fresh renderer's full cast bit for bit; and the rays cast must be the few that can see a
+  change (a dent of a few voxels seen by < 15 % of the pixels; the hidden change by none but
+  the probe's).
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -197,6 +204,61 @@ def test_frame_to_frame_updates_match_a_fresh_render():
                 assert np.array_equal(image, fresh.render(vol))
             assert np.abs(image.astype(int) - previous).max() > 40  # each change shows
             previous = image.astype(int)
+
+
+def test_incremental_frames_equal_a_fresh_cast_and_cast_only_what_changed():
+    cam = Camera("front", azimuth=-30.0, elevation=10.0, zoom=1.2)
+    n, size = 48, 96
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+    data = np.where(np.linalg.norm(ijk - 23.5, axis=-1) < 14.0, 40, -1000).astype(np.int16)
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-23.5,) * 3)
+    tip = np.array([23.5, 23.5 + 14.0, 23.5])  # where the ball's front (+y, towards the camera) is pressed
+    probe_radius = 3.0
+
+    def press(depth: float):
+        """Dent the ball by a sphere of the probe's radius reaching ``depth`` voxels in; its box."""
+        centre = tip + (probe_radius - depth) * np.array([0.0, 1.0, 0.0])
+        lo = np.floor(centre - probe_radius).astype(int)
+        hi = np.ceil(centre + probe_radius).astype(int)
+        region = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
+        inside = np.linalg.norm(ijk[region] - centre, axis=-1) < probe_radius
+        data[region][inside] = -1000
+        return centre - 23.5, (lo, hi)  # the probe's centre [world, mm]
+
+    def fresh(centre):
+        with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as renderer:
+            renderer.vtk_renderer.AddActor(_sphere_actor(centre, probe_radius))
+            return renderer.render(vol)
+
+    total = size * size
+    with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as renderer:
+        probe = _sphere_actor(tip + (probe_radius + 1.0) * np.array([0.0, 1.0, 0.0]) - 23.5, probe_radius)
+        renderer.vtk_renderer.AddActor(probe)
+        previous = renderer.render(vol)
+        assert renderer.ray_caster.cast_pixels == total
+        casts = []
+        for depth in (1.0, 2.0, 3.0, 4.0):
+            centre, box = press(depth)
+            probe.SetPosition(*(centre - probe.GetCenter() + probe.GetPosition()))
+            image = renderer.render(vol, changed=box)
+            assert np.array_equal(image, fresh(centre)), depth
+            assert np.abs(image.astype(int) - previous).max() > 40  # the dent shows
+            casts.append(renderer.ray_caster.cast_pixels)
+            previous = image
+        # Behind the skin, under the dent: no ray reaches it.
+        data[20:28, 20:28, 20:28] = 1200
+        image = renderer.render(vol, changed=((20, 20, 20), (27, 27, 27)))
+        hidden = renderer.ray_caster.cast_pixels
+        assert np.array_equal(image, fresh(centre))
+        # The probe withdraws (no voxel changes; it stays inside the volume's bounds, which
+        # fix the clipping range): only the pixels it left or covers now are cast.
+        away = centre + np.array([0.0, 5.0, 0.0])
+        probe.SetPosition(*(away - centre + probe.GetPosition()))
+        image = renderer.render(vol, changed=False)
+        assert np.array_equal(image, fresh(away))
+        casts.append(renderer.ray_caster.cast_pixels)
+    assert all(0 < c < 0.15 * total for c in casts), casts
+    assert hidden == 0, hidden
 
 
 @pytest.fixture(scope="module")

@@ -26,6 +26,11 @@ BRICK_SHIFT = wp.constant(2)
 BRICK = wp.constant(1 << 2)
 #: Stop a ray once its accumulated opacity reaches this (the rest can change a pixel by < 1 %).
 OPAQUE_ENOUGH = wp.constant(0.99)
+#: The sample segment of a ray that missed the volume [index coordinates]: outside any box.
+MISSED = wp.constant(-1.0e9)
+#: How far [voxels] beyond a changed voxel a sample can read it: trilinear weights reach one
+#: voxel, the central differences of the gradient one more; plus a margin for rounding.
+READ_REACH = wp.constant(2.5)
 
 
 @wp.func
@@ -268,7 +273,10 @@ def raycast(
     empty_until: wp.array(dtype=float),
     depth: wp.array2d(dtype=float),
     surface: wp.array3d(dtype=wp.uint8),
+    pixels: wp.array(dtype=wp.int32),
     image: wp.array3d(dtype=wp.uint8),
+    segment_start: wp.array(dtype=wp.vec3),
+    segment_end: wp.array(dtype=wp.vec3),
     offset: int,
 ):
     """One ray per pixel, composited over the surfaces' colour and stopped at their depth.
@@ -283,8 +291,13 @@ def raycast(
     stays valid unless a brick that turned occupied since (inside the index box
     ``flip_lo .. flip_hi`` when ``flips`` != 0) lies on the ray before that sample; then the
     ray starts over from its entry point.
+
+    Only the pixels listed in ``pixels`` [count] (row-major indices, row 0 at the top) are
+    cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
+    ``segment_end`` [index coordinates] bound where its samples lie, up to where the ray
+    stopped (:func:`stale_pixels` reads them next frame); far outside the grid if it missed.
     """
-    tid = wp.tid() + offset
+    tid = pixels[wp.tid() + offset]
     px = tid % width
     row = tid / width
     py = height - 1 - row  # OpenGL rows run up
@@ -383,9 +396,63 @@ def raycast(
                 alpha = alpha + (1.0 - alpha) * a
             k = k + 1.0
         empty_until[tid] = wp.where(first >= 0.0, first, k)
+        # The sample at k was not taken: the samples read lie before it (and before the span's end).
+        segment_start[tid] = o + t0 * d
+        segment_end[tid] = o + wp.min(t0 + (k + shift) * step, span[1]) * d
+    else:
+        segment_start[tid] = wp.vec3(MISSED)
+        segment_end[tid] = wp.vec3(MISSED)
     for ch in range(3):
         value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
         image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
+
+
+@wp.kernel
+def stale_pixels(
+    width: int,
+    height: int,
+    depth: wp.array2d(dtype=float),
+    surface: wp.array3d(dtype=wp.uint8),
+    boxed: int,
+    box_lo: wp.vec3,
+    box_hi: wp.vec3,
+    segment_start: wp.array(dtype=wp.vec3),
+    segment_end: wp.array(dtype=wp.vec3),
+    last_depth: wp.array2d(dtype=float),
+    last_surface: wp.array3d(dtype=wp.uint8),
+    stale: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    """1 in ``stale`` for each pixel whose ray must be cast again, else 0 (same camera,
+    tables and grid as the last frame): its surface colour or depth differs from
+    ``last_surface`` / ``last_depth`` (which take the new values), or its last segment of
+    samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
+    grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed). Any other pixel
+    reads the same voxels with the same weights as last frame, so its colour is the same bit
+    for bit; a ray that stopped (opaque) before the box keeps stopping there."""
+    tid = wp.tid() + offset
+    px = tid % width
+    row = tid / width
+    py = height - 1 - row
+    s = int(0)
+    if depth[py, px] != last_depth[py, px]:
+        s = 1
+    for ch in range(3):
+        if surface[row, px, ch] != last_surface[row, px, ch]:
+            s = 1
+    if s == 1:
+        last_depth[py, px] = depth[py, px]
+        for ch in range(3):
+            last_surface[row, px, ch] = surface[row, px, ch]
+    elif boxed != 0:
+        a = segment_start[tid]
+        d = segment_end[tid] - a
+        u = wp.vec2(0.0, 1.0)
+        for axis in range(3):
+            u = slab(a[axis], d[axis], box_lo[axis] - READ_REACH, box_hi[axis] + READ_REACH, u[0], u[1])
+        if u[0] <= u[1]:
+            s = 1
+    stale[tid] = s
 
 
 #: Voxel dtypes read in place; others are converted to float32 once per upload.

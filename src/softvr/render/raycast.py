@@ -6,7 +6,9 @@
 opacity from central differences computed on the fly (nothing per data change), empty-space
 skipping over a min/max grid of bricks (re-derived only where the data changed), early ray
 termination, and ray starts jittered per pixel (a hash of the pixel) so that a flat
-surface shows fine noise instead of wood-grain bands. Rays stop at the depth of the opaque
+surface shows fine noise instead of wood-grain bands. From frame to frame (same camera) only
+the rays that can see a change are cast again: those through the surfaces' changed pixels and
+those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop at the depth of the opaque
 surfaces VTK drew (OpenGL depth buffer) and the volume is blended over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
@@ -112,7 +114,9 @@ class RayCaster:
         self._grid_key: tuple | None = None
         self._vol: wp.array | None = None
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
-        self._prefix_key: tuple | None = None
+        self._view_key: tuple | None = None  # what the per-pixel state below was cast for
+        #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
+        self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
 
     # --------------------------------------------------------------- data
@@ -225,6 +229,10 @@ class RayCaster:
         changed : True, False or (lo, hi)
             What changed in the voxels since the last call: everything, nothing, or only
             the inclusive index box ``lo`` .. ``hi`` [3] + [3] (bricks elsewhere are kept).
+            Unless everything changed, a frame with the last one's camera, light, grid and
+            table casts only the pixels whose surface colour or depth changed or whose
+            samples may read a voxel in the box (:attr:`cast_pixels`); the others keep their
+            colour, which a full cast would reproduce bit for bit.
 
         Returns
         -------
@@ -241,26 +249,52 @@ class RayCaster:
         gradient_to_world = direction / spacing
         p = self.preset
         dev = self.device
-        # The rays' known-empty prefixes hold for one camera, grid, table and step.
-        key = (width, height, np.asarray(ndc_to_world, float).tobytes(), index_to_world.tobytes(), self._grid_key,
+        ndc_to_world = np.asarray(ndc_to_world, float)
+        light = np.asarray(light, float)
+        # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
+        # one camera, light, grid, table and step.
+        key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter)
-        if key != self._prefix_key:
-            self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
-            self._prefix_key = key
+        depth = wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev)
+        surface = wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev)
+        if key != self._view_key or changed is True:
+            if key != self._view_key:
+                self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+                self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
+                self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+                self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
+                self._view_key = key
+            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
+            pixels = self._every_pixel
+        else:
+            pixels = self._stale_pixels(depth, surface, changed)
+        self.cast_pixels = int(pixels.shape[0])
         flips, self._flips = self._flips, []
         flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
         flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
-            wp.mat33(*gradient_to_world.ravel()), wp.mat44(*np.asarray(ndc_to_world, float).ravel()),
+            wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
-            wp.vec3(*np.asarray(light, float)), int(bool(p.shade)), self._distance,
-            len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi), self._empty_until,
-            wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev),
-            wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev), image,
+            wp.vec3(*light), int(bool(p.shade)), self._distance,
+            len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi), self._empty_until, depth, surface, pixels,
+            self._image, *self._segments,
         ]
-        launch(K.raycast, width * height, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
-        return image.numpy()
+        launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        # A copy: the caster's image is next frame's starting point.
+        return self._image.numpy().copy()
+
+    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
+        in the ``changed`` box (False or None: no voxel changed)."""
+        height, width = depth.shape
+        boxed = not (changed is None or changed is False)
+        lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
+        stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
+        launch(K.stale_pixels, width * height,
+               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), *self._segments,
+                self._last_depth, self._last_surface, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+        return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
