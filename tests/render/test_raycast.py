@@ -261,6 +261,34 @@ def test_incremental_frames_equal_a_fresh_cast_and_cast_only_what_changed():
     assert hidden == 0, hidden
 
 
+def test_a_ray_not_cast_again_still_learns_that_a_brick_on_its_empty_prefix_filled():
+    """Rays next to a changed voxel, but not reading it, are not cast again; yet the empty-space
+    brick they cross fills, so the next change on them (in that brick, which no longer flips)
+    must not be skipped as known-empty air. Some of them are hidden by a surface in front of
+    the volume meanwhile (no samples at all), which then moves away."""
+    n = 40
+    data = np.full((n, n, n), -1000, np.int16)
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-19.5,) * 3)
+    cam = Camera("front", parallel=True, parallel_scale=20.0, focal_point=(0.0, 0.0, 0.0))  # rays along y
+    aside = (-12.0, 0.0, 0.0)  # over rays at x = 1.5 .. 7.5 voxels; moved along x, the clipping range (along y) stays
+    with VolumeRenderer(64, 64, "ct-skin", cam, mapper="warp") as renderer:
+        cover = _sphere_actor((-3.0, 25.0, 0.0), 3.0)  # in front of the volume, over the rays at x = 13.5 .. 19.5
+        renderer.vtk_renderer.AddActor(cover)
+        cover.SetPosition(*aside)
+        renderer.render(vol)  # all air: every ray's whole path is a known-empty prefix
+        # Brick 4 holds voxels 16 .. 20: the first change fills it, the second is on it.
+        for x, offset in ((20, (0.0, 0.0, 0.0)), (17, aside)):
+            cover.SetPosition(*offset)
+            data[x, 8:32, 8:32] = 40
+            image = renderer.render(vol, changed=((x, 8, 8), (x, 31, 31)))
+            with VolumeRenderer(64, 64, "ct-skin", cam, mapper="warp") as fresh:
+                shown = _sphere_actor((-3.0, 25.0, 0.0), 3.0)
+                shown.SetPosition(*offset)
+                fresh.vtk_renderer.AddActor(shown)
+                assert np.array_equal(image, fresh.render(vol)), x
+            assert renderer.ray_caster.cast_pixels < 64 * 64 / 2
+
+
 @pytest.fixture(scope="module")
 def ball() -> Volume:
     """Soft tissue (40 HU) of radius 14 mm in air, 1 mm voxels, centred at the origin."""

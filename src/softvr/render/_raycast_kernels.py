@@ -147,6 +147,15 @@ def slab(o: float, d: float, lo: float, hi: float, t0: float, t1: float) -> wp.v
 
 
 @wp.func
+def segment_meets(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
+    """Whether the segment ``a`` .. ``a + d`` meets the box ``lo`` .. ``hi``."""
+    u = wp.vec2(0.0, 1.0)
+    for axis in range(3):
+        u = slab(a[axis], d[axis], lo[axis], hi[axis], u[0], u[1])
+    return u[0] <= u[1]
+
+
+@wp.func
 def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
     """Brick ``tid`` of the block of bricks ``first .. first + count`` (last index fastest)."""
     return wp.vec3i(first[0] + tid / (count[1] * count[2]), first[1] + (tid / count[2]) % count[1],
@@ -402,6 +411,7 @@ def raycast(
     else:
         segment_start[tid] = wp.vec3(MISSED)
         segment_end[tid] = wp.vec3(MISSED)
+        empty_until[tid] = 0.0  # no segment is kept to check the prefix against later flips
     for ch in range(3):
         value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
         image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
@@ -418,8 +428,12 @@ def stale_pixels(
     box_hi: wp.vec3,
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
+    flips: int,
+    flip_lo: wp.vec3,
+    flip_hi: wp.vec3,
     last_depth: wp.array2d(dtype=float),
     last_surface: wp.array3d(dtype=wp.uint8),
+    empty_until: wp.array(dtype=float),
     stale: wp.array(dtype=wp.int32),
     offset: int,
 ):
@@ -429,7 +443,11 @@ def stale_pixels(
     samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
     grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed). Any other pixel
     reads the same voxels with the same weights as last frame, so its colour is the same bit
-    for bit; a ray that stopped (opaque) before the box keeps stopping there."""
+    for bit; a ray that stopped (opaque) before the box keeps stopping there.
+
+    A ray not cast again whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
+    bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
+    through a voxel it does not read, and a later change there flips no brick."""
     tid = wp.tid() + offset
     px = tid % width
     row = tid / width
@@ -444,14 +462,16 @@ def stale_pixels(
         last_depth[py, px] = depth[py, px]
         for ch in range(3):
             last_surface[row, px, ch] = surface[row, px, ch]
-    elif boxed != 0:
+    else:
         a = segment_start[tid]
         d = segment_end[tid] - a
-        u = wp.vec2(0.0, 1.0)
-        for axis in range(3):
-            u = slab(a[axis], d[axis], box_lo[axis] - READ_REACH, box_hi[axis] + READ_REACH, u[0], u[1])
-        if u[0] <= u[1]:
-            s = 1
+        if boxed != 0:
+            grown = wp.vec3(READ_REACH)
+            if segment_meets(a, d, box_lo - grown, box_hi + grown):
+                s = 1
+        if s == 0 and flips != 0:
+            if segment_meets(a, d, flip_lo, flip_hi):
+                empty_until[tid] = 0.0
     stale[tid] = s
 
 

@@ -257,6 +257,10 @@ class RayCaster:
                self._tables_key, self.jitter)
         depth = wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev)
         surface = wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev)
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
+        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
         if key != self._view_key or changed is True:
             if key != self._view_key:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
@@ -267,11 +271,8 @@ class RayCaster:
             self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
             pixels = self._every_pixel
         else:
-            pixels = self._stale_pixels(depth, surface, changed)
+            pixels = self._stale_pixels(depth, surface, changed, flipped)
         self.cast_pixels = int(pixels.shape[0])
-        flips, self._flips = self._flips, []
-        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
-        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
@@ -279,22 +280,23 @@ class RayCaster:
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
             wp.vec3(*light), int(bool(p.shade)), self._distance,
-            len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi), self._empty_until, depth, surface, pixels,
+            *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments,
         ]
         launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed) -> wp.array:
+    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
         surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
-        in the ``changed`` box (False or None: no voxel changed)."""
+        in the ``changed`` box (False or None: no voxel changed). The others forget their
+        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi)."""
         height, width = depth.shape
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
         launch(K.stale_pixels, width * height,
                [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), *self._segments,
-                self._last_depth, self._last_surface, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+                *flipped, self._last_depth, self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
