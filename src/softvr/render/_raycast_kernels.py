@@ -147,12 +147,54 @@ def slab(o: float, d: float, lo: float, hi: float, t0: float, t1: float) -> wp.v
 
 
 @wp.func
-def segment_meets(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> bool:
-    """Whether the segment ``a`` .. ``a + d`` meets the box ``lo`` .. ``hi``."""
+def segment_in_box(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> wp.vec2:
+    """The part [u0, u1] of the segment ``a + u d``, u in [0, 1], inside the box ``lo`` ..
+    ``hi`` (empty: u0 > u1)."""
     u = wp.vec2(0.0, 1.0)
     for axis in range(3):
         u = slab(a[axis], d[axis], lo[axis], hi[axis], u[0], u[1])
-    return u[0] <= u[1]
+    return u
+
+
+@wp.func
+def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, mark: wp.array3d(dtype=wp.uint8)) -> bool:
+    """Whether the segment ``a + u d``, u in [u0, u1], inside the grid [index coordinates],
+    passes through a brick (``BRICK`` voxels a side, as the ray loop's) with ``mark`` != 0:
+    a walk from brick to brick along it (Amanatides and Woo 1987)."""
+    nb = wp.vec3i(mark.shape[0], mark.shape[1], mark.shape[2])
+    p = a + u0 * d
+    bs = float(BRICK)
+    c = wp.vec3i(0)
+    step = wp.vec3i(0)
+    u_next = wp.vec3(2.0)  # where the walk enters the next brick along each axis (> 1: never)
+    u_delta = wp.vec3(0.0)
+    for axis in range(3):
+        c[axis] = wp.clamp(int(wp.floor(p[axis] / bs)), 0, nb[axis] - 1)
+        if d[axis] > 1.0e-12:
+            step[axis] = 1
+            u_next[axis] = u0 + (float(c[axis] + 1) * bs - p[axis]) / d[axis]
+            u_delta[axis] = bs / d[axis]
+        elif d[axis] < -1.0e-12:
+            step[axis] = -1
+            u_next[axis] = u0 + (float(c[axis]) * bs - p[axis]) / d[axis]
+            u_delta[axis] = -bs / d[axis]
+    found = bool(False)
+    for _ in range(nb[0] + nb[1] + nb[2]):
+        if mark[c[0], c[1], c[2]] != wp.uint8(0):
+            found = True
+            break
+        axis = int(0)
+        if u_next[1] < u_next[axis]:
+            axis = 1
+        if u_next[2] < u_next[axis]:
+            axis = 2
+        if u_next[axis] > u1:
+            break
+        c[axis] = c[axis] + step[axis]
+        if c[axis] < 0 or c[axis] >= nb[axis]:
+            break
+        u_next[axis] = u_next[axis] + u_delta[axis]
+    return found
 
 
 @wp.func
@@ -173,6 +215,8 @@ def brick_minmax(
     vol: wp.array(dtype=Any),
     n: wp.vec3i,
     strides: wp.vec3i,
+    changed: wp.array3d(dtype=wp.uint8),
+    every: int,
     first: wp.vec3i,
     count: wp.vec3i,
     lo_out: wp.array3d(dtype=float),
@@ -181,11 +225,23 @@ def brick_minmax(
 ):
     """Value range of the voxels a sample inside each brick can read: brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
-    voxels b * BRICK .. (b + 1) * BRICK inclusive. Updates bricks ``first .. first + count``."""
+    voxels b * BRICK .. (b + 1) * BRICK inclusive. Updates bricks ``first .. first + count``:
+    all if ``every`` != 0, else those holding a voxel of a ``changed`` brick
+    (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
     b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
     by = b[1]
     bz = b[2]
+    if every == 0:
+        nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
+        touched = int(0)
+        for c in range(8):
+            i = wp.min(bx + (c & 1), nb[0] - 1)
+            j = wp.min(by + ((c >> 1) & 1), nb[1] - 1)
+            k = wp.min(bz + ((c >> 2) & 1), nb[2] - 1)
+            touched = touched + int(changed[i, j, k])
+        if touched == 0:
+            return
     vmin = float(3.0e38)
     vmax = float(-3.0e38)
     for i in range(bx * BRICK, wp.min((bx + 1) * BRICK, n[0] - 1) + 1):
@@ -196,6 +252,60 @@ def brick_minmax(
                 vmax = wp.max(vmax, v)
     lo_out[bx, by, bz] = vmin
     hi_out[bx, by, bz] = vmax
+
+
+@wp.kernel
+def brick_changes(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    known: wp.array(dtype=Any),
+    changed: wp.array3d(dtype=wp.uint8),
+    offset: int,
+):
+    """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
+    the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
+    cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
+    threads write one voxel of ``known``."""
+    b = brick_of(wp.tid() + offset, first, count)
+    nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
+    end = wp.vec3i(0)
+    for axis in range(3):
+        end[axis] = wp.where(b[axis] == nb[axis] - 1, n[axis], (b[axis] + 1) * BRICK)
+    flag = wp.uint8(0)
+    for i in range(b[0] * BRICK, end[0]):
+        for j in range(b[1] * BRICK, end[1]):
+            for k in range(b[2] * BRICK, end[2]):
+                a = i * strides[0] + j * strides[1] + k * strides[2]
+                if vol[a] != known[a]:
+                    known[a] = vol[a]
+                    flag = wp.uint8(1)
+    changed[b[0], b[1], b[2]] = flag
+
+
+@wp.kernel
+def brick_read_changes(
+    changed: wp.array3d(dtype=wp.uint8),
+    first: wp.vec3i,
+    count: wp.vec3i,
+    read: wp.array3d(dtype=wp.uint8),
+    offset: int,
+):
+    """1 in ``read`` for each brick where a ray sample may read a voxel of a ``changed``
+    brick, else 0: a sample at p reads voxels floor(p) - 1 .. floor(p) + 2 (trilinear weights
+    and central differences), so in brick c (p in [c, c + 1) * BRICK) it reads voxels of the
+    bricks c - 1 .. c + 1 per axis only."""
+    b = brick_of(wp.tid() + offset, first, count)
+    nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
+    flag = wp.uint8(0)
+    for i in range(wp.max(b[0] - 1, 0), wp.min(b[0] + 2, nb[0])):
+        for j in range(wp.max(b[1] - 1, 0), wp.min(b[1] + 2, nb[1])):
+            for k in range(wp.max(b[2] - 1, 0), wp.min(b[2] + 2, nb[2])):
+                if changed[i, j, k] != wp.uint8(0):
+                    flag = wp.uint8(1)
+    read[b[0], b[1], b[2]] = flag
 
 
 @wp.kernel
@@ -426,6 +536,7 @@ def stale_pixels(
     boxed: int,
     box_lo: wp.vec3,
     box_hi: wp.vec3,
+    read: wp.array3d(dtype=wp.uint8),
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
     flips: int,
@@ -441,9 +552,10 @@ def stale_pixels(
     tables and grid as the last frame): its surface colour or depth differs from
     ``last_surface`` / ``last_depth`` (which take the new values), or its last segment of
     samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
-    grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed). Any other pixel
-    reads the same voxels with the same weights as last frame, so its colour is the same bit
-    for bit; a ray that stopped (opaque) before the box keeps stopping there.
+    grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed) and, in it, a brick
+    whose samples may read a changed voxel (``read`` != 0, :func:`brick_read_changes`).
+    Any other pixel reads the same voxels with the same weights as last frame, so its colour
+    is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
     A ray not cast again whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
     bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
@@ -467,10 +579,15 @@ def stale_pixels(
         d = segment_end[tid] - a
         if boxed != 0:
             grown = wp.vec3(READ_REACH)
-            if segment_meets(a, d, box_lo - grown, box_hi + grown):
-                s = 1
+            u = segment_in_box(a, d, box_lo - grown, box_hi + grown)
+            # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+            # ray to cast again is found in a brick or two.
+            if u[0] <= u[1]:
+                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read):
+                    s = 1
         if s == 0 and flips != 0:
-            if segment_meets(a, d, flip_lo, flip_hi):
+            u = segment_in_box(a, d, flip_lo, flip_hi)
+            if u[0] <= u[1]:
                 empty_until[tid] = 0.0
     stale[tid] = s
 
@@ -481,3 +598,4 @@ VOXEL_TYPES = {"int16": wp.int16, "uint8": wp.uint8, "uint16": wp.uint16, "float
 for _t in VOXEL_TYPES.values():
     wp.overload(raycast, {"vol": wp.array(dtype=_t)})
     wp.overload(brick_minmax, {"vol": wp.array(dtype=_t)})
+    wp.overload(brick_changes, {"vol": wp.array(dtype=_t), "known": wp.array(dtype=_t)})

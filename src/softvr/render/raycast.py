@@ -113,6 +113,7 @@ class RayCaster:
         self._tables_key: tuple | None = None
         self._grid_key: tuple | None = None
         self._vol: wp.array | None = None
+        self._known: wp.array | None = None  # the voxels as last uploaded, to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
@@ -150,17 +151,26 @@ class RayCaster:
             self._seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device=dev)  # no seed value: all written
             self._grid_key = (shape, name)
             changed = True
+        # Bricks whose own voxels changed since the last upload (all written in the changed box).
+        self._changed_bricks = wp.zeros(tuple(nb), dtype=wp.uint8, device=dev)
+        self._changed_box: tuple | None = None
         if changed is True:
             first, last = np.zeros(3, int), nb - 1
+            self._known = wp.clone(self._vol)
         elif changed is None or changed is False:
             first, last = np.zeros(3, int), -np.ones(3, int)
         else:
             lo, hi = (np.asarray(c, int) for c in changed)
+            # Voxel v is owned by brick min(v // BRICK, nb - 1) (brick_changes).
+            owners = np.clip(lo // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
+            self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
+                      [self._known, self._changed_bricks])
+            self._changed_box = owners
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if np.all(last >= first):
-            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides],
-                      [self._bmin, self._bmax])
+            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks,
+                                                     int(changed is True)], [self._bmin, self._bmax])
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
@@ -295,8 +305,13 @@ class RayCaster:
         height, width = depth.shape
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
+        read = wp.zeros_like(self._changed_bricks)
+        if self._changed_box is not None:
+            nb = np.asarray(read.shape)
+            first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
+            self._run(K.brick_read_changes, first, last, [self._changed_bricks], [read])
         stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
         launch(K.stale_pixels, width * height,
-               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), *self._segments,
+               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read, *self._segments,
                 *flipped, self._last_depth, self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
