@@ -120,6 +120,12 @@ class RayCaster:
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
 
+    def reset(self) -> None:
+        """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
+        next :meth:`cast` starts from scratch, as a new caster's would."""
+        self._tables_key = self._grid_key = self._view_key = None
+        self._flips = []
+
     # --------------------------------------------------------------- data
     def _upload(self, volume, changed) -> None:
         """Take ``volume``'s voxels and bring the brick grid up to date: ranges and occupancy
