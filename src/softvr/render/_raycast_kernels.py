@@ -157,43 +157,41 @@ def segment_in_box(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> wp.vec2:
 
 
 @wp.func
-def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, mark: wp.array3d(dtype=wp.uint8)) -> bool:
+def exit_along(o: float, inv_d: float, lo: float, hi: float) -> float:
+    """Ray parameter where ``o + t / inv_d`` leaves [lo, hi] on one axis (going forwards)."""
+    return (wp.where(inv_d > 0.0, hi, lo) - o) * inv_d
+
+
+@wp.func
+def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.array3d(dtype=wp.uint8)) -> bool:
     """Whether the segment ``a + u d``, u in [u0, u1], inside the grid [index coordinates],
-    passes through a brick (``BRICK`` voxels a side, as the ray loop's) with ``mark`` != 0:
-    a walk from brick to brick along it (Amanatides and Woo 1987)."""
-    nb = wp.vec3i(mark.shape[0], mark.shape[1], mark.shape[2])
-    p = a + u0 * d
+    passes through a marked brick (``BRICK`` voxels a side, as the ray loop's): ``distance``
+    holds each brick's Chebyshev distance [bricks] to the nearest marked one (0: marked),
+    so the walk jumps out of the unmarked cube of bricks around each point it reaches (as
+    the ray loop skips empty space), a hundredth of a voxel past its face."""
+    nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
     bs = float(BRICK)
-    c = wp.vec3i(0)
-    step = wp.vec3i(0)
-    u_next = wp.vec3(2.0)  # where the walk enters the next brick along each axis (> 1: never)
-    u_delta = wp.vec3(0.0)
-    for axis in range(3):
-        c[axis] = wp.clamp(int(wp.floor(p[axis] / bs)), 0, nb[axis] - 1)
-        if d[axis] > 1.0e-12:
-            step[axis] = 1
-            u_next[axis] = u0 + (float(c[axis] + 1) * bs - p[axis]) / d[axis]
-            u_delta[axis] = bs / d[axis]
-        elif d[axis] < -1.0e-12:
-            step[axis] = -1
-            u_next[axis] = u0 + (float(c[axis]) * bs - p[axis]) / d[axis]
-            u_delta[axis] = -bs / d[axis]
+    inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
+                    wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
+                    wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
+    past = 0.01 / wp.max(wp.length(d), 1.0e-6)
+    u = u0
     found = bool(False)
+    # Each jump crosses at least one brick face: at most the bricks a line can cross.
     for _ in range(nb[0] + nb[1] + nb[2]):
-        if mark[c[0], c[1], c[2]] != wp.uint8(0):
+        if u > u1:
+            break
+        p = a + u * d
+        c = wp.vec3i(wp.clamp(int(wp.floor(p[0] / bs)), 0, nb[0] - 1),
+                     wp.clamp(int(wp.floor(p[1] / bs)), 0, nb[1] - 1),
+                     wp.clamp(int(wp.floor(p[2] / bs)), 0, nb[2] - 1))
+        r = int(distance[c[0], c[1], c[2]])
+        if r == 0:
             found = True
             break
-        axis = int(0)
-        if u_next[1] < u_next[axis]:
-            axis = 1
-        if u_next[2] < u_next[axis]:
-            axis = 2
-        if u_next[axis] > u1:
-            break
-        c[axis] = c[axis] + step[axis]
-        if c[axis] < 0 or c[axis] >= nb[axis]:
-            break
-        u_next[axis] = u_next[axis] + u_delta[axis]
+        u = u + past + wp.min(wp.min(exit_along(p[0], inv_d[0], float(c[0] - r + 1) * bs, float(c[0] + r) * bs),
+                                     exit_along(p[1], inv_d[1], float(c[1] - r + 1) * bs, float(c[1] + r) * bs)),
+                              exit_along(p[2], inv_d[2], float(c[2] - r + 1) * bs, float(c[2] + r) * bs))
     return found
 
 
@@ -202,12 +200,6 @@ def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
     """Brick ``tid`` of the block of bricks ``first .. first + count`` (last index fastest)."""
     return wp.vec3i(first[0] + tid / (count[1] * count[2]), first[1] + (tid / count[2]) % count[1],
                     first[2] + tid % count[2])
-
-
-@wp.func
-def exit_along(o: float, inv_d: float, lo: float, hi: float) -> float:
-    """Ray parameter where ``o + t / inv_d`` leaves [lo, hi] on one axis (going forwards)."""
-    return (wp.where(inv_d > 0.0, hi, lo) - o) * inv_d
 
 
 @wp.kernel
@@ -288,23 +280,25 @@ def brick_changes(
 @wp.kernel
 def brick_read_changes(
     changed: wp.array3d(dtype=wp.uint8),
+    reach: int,
     first: wp.vec3i,
     count: wp.vec3i,
     read: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
-    """1 in ``read`` for each brick where a ray sample may read a voxel of a ``changed``
-    brick, else 0: a sample at p reads voxels floor(p) - 1 .. floor(p) + 2 (trilinear weights
-    and central differences), so in brick c (p in [c, c + 1) * BRICK) it reads voxels of the
-    bricks c - 1 .. c + 1 per axis only."""
+    """0 in ``read`` for each brick where a ray sample may read a voxel of a ``changed``
+    brick, else ``reach`` (the seed of a distance field, as :func:`brick_occupancy`'s): a
+    sample at p reads voxels floor(p) - 1 .. floor(p) + 2 (trilinear weights and central
+    differences), so in brick c (p in [c, c + 1) * BRICK) it reads voxels of the bricks
+    c - 1 .. c + 1 per axis only."""
     b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
-    flag = wp.uint8(0)
+    flag = wp.uint8(reach)
     for i in range(wp.max(b[0] - 1, 0), wp.min(b[0] + 2, nb[0])):
         for j in range(wp.max(b[1] - 1, 0), wp.min(b[1] + 2, nb[1])):
             for k in range(wp.max(b[2] - 1, 0), wp.min(b[2] + 2, nb[2])):
                 if changed[i, j, k] != wp.uint8(0):
-                    flag = wp.uint8(1)
+                    flag = wp.uint8(0)
     read[b[0], b[1], b[2]] = flag
 
 
@@ -536,7 +530,8 @@ def stale_pixels(
     boxed: int,
     box_lo: wp.vec3,
     box_hi: wp.vec3,
-    read: wp.array3d(dtype=wp.uint8),
+    read_distance: wp.array3d(dtype=wp.uint8),
+    rect: wp.vec4i,
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
     flips: int,
@@ -553,13 +548,17 @@ def stale_pixels(
     ``last_surface`` / ``last_depth`` (which take the new values), or its last segment of
     samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
     grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed) and, in it, a brick
-    whose samples may read a changed voxel (``read`` != 0, :func:`brick_read_changes`).
+    whose samples may read a changed voxel (``read_distance``: the bricks' distance to one,
+    :func:`brick_read_changes`).
     Any other pixel reads the same voxels with the same weights as last frame, so its colour
     is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
     A ray not cast again whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
     bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
-    through a voxel it does not read, and a later change there flips no brick."""
+    through a voxel it does not read, and a later change there flips no brick.
+
+    Only the pixels in ``rect`` (first column, last column, first row, last row) can have a
+    segment that meets either box (every point of a ray is seen in its pixel)."""
     tid = wp.tid() + offset
     px = tid % width
     row = tid / width
@@ -574,7 +573,7 @@ def stale_pixels(
         last_depth[py, px] = depth[py, px]
         for ch in range(3):
             last_surface[row, px, ch] = surface[row, px, ch]
-    else:
+    elif px >= rect[0] and px <= rect[1] and row >= rect[2] and row <= rect[3]:
         a = segment_start[tid]
         d = segment_end[tid] - a
         if boxed != 0:
@@ -583,7 +582,7 @@ def stale_pixels(
             # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
             # ray to cast again is found in a brick or two.
             if u[0] <= u[1]:
-                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read):
+                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
                     s = 1
         if s == 0 and flips != 0:
             u = segment_in_box(a, d, flip_lo, flip_hi)

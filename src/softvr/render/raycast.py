@@ -32,6 +32,8 @@ BRICK = int(K.BRICK)
 REACH = 16
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
+#: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
+_READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
 
@@ -191,12 +193,18 @@ class RayCaster:
             self._flips.append((box[:3] * BRICK, (box[3:] + 1) * BRICK))
             if not fresh:  # redo the distances only around the bricks that turned empty or occupied
                 first, last = box[:3].astype(int), box[3:].astype(int)
-            # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
-            # that axis and the axes before it.
-            for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
-                                   (2, self._pass2, self._distance)):
-                first[axis], last[axis] = max(first[axis] - REACH + 1, 0), min(last[axis] + REACH - 1, nb[axis] - 1)
-                self._run(K.brick_distance_pass, first, last, [src, axis, REACH], [dst])
+            self._distance_passes(first, last, [self._seed, self._pass1, self._pass2, self._distance], REACH)
+
+    def _distance_passes(self, first, last, fields: list, reach: int) -> None:
+        """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
+        up to date after its seed ``fields[0]`` changed in the bricks ``first .. last`` [3]."""
+        first, last = np.array(first), np.array(last)
+        nb = np.asarray(fields[0].shape)
+        # A changed seed moves the values of pass ``axis`` up to reach - 1 bricks away along
+        # that axis and the axes before it.
+        for axis in range(3):
+            first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
+            self._run(K.brick_distance_pass, first, last, [fields[axis], axis, reach], [fields[axis + 1]])
 
     def _run(self, kernel, first, last, inputs, outputs) -> None:
         """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
@@ -287,7 +295,7 @@ class RayCaster:
             self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
             pixels = self._every_pixel
         else:
-            pixels = self._stale_pixels(depth, surface, changed, flipped)
+            pixels = self._stale_pixels(depth, surface, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -303,21 +311,48 @@ class RayCaster:
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list) -> wp.array:
+    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list,
+                      index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
         surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
         in the ``changed`` box (False or None: no voxel changed). The others forget their
-        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi)."""
+        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi).
+        ``index_to_ndc`` [4, 4] projects the volume's index space to the screen."""
         height, width = depth.shape
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        read = wp.zeros_like(self._changed_bricks)
+        # Each brick's distance to the nearest one where samples may read a changed voxel.
+        nb = np.asarray(self._changed_bricks.shape)
+        read = [wp.full(tuple(nb), _READ_REACH, dtype=wp.uint8, device=self.device) for _ in range(4)]
         if self._changed_box is not None:
-            nb = np.asarray(read.shape)
             first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
-            self._run(K.brick_read_changes, first, last, [self._changed_bricks], [read])
+            self._run(K.brick_read_changes, first, last, [self._changed_bricks, _READ_REACH], [read[0]])
+            self._distance_passes(first, last, read, _READ_REACH)
+        boxes = [(lo - float(K.READ_REACH), hi + float(K.READ_REACH))] if boxed else []
+        if flipped[0]:
+            boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
         stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
         launch(K.stale_pixels, width * height,
-               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read, *self._segments,
-                *flipped, self._last_depth, self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3],
+                _screen_rect(boxes, index_to_ndc, width, height), *self._segments, *flipped, self._last_depth,
+                self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
+
+
+def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> wp.vec4i:
+    """The pixels (first column, last column, first row, last row; row 0 at the top) whose
+    rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
+    projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
+    if not boxes:
+        return wp.vec4i(0, -1, 0, -1)
+    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0] for box in boxes for c in range(8)])
+    clip = corners @ index_to_ndc.T
+    if np.any(clip[:, 3] <= 0.0):
+        return wp.vec4i(0, width - 1, 0, height - 1)
+    ndc = clip[:, :2] / clip[:, 3:]
+    # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
+    px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
+    py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
+    x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
+    y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
+    return wp.vec4i(x0, x1, height - 1 - y1, height - 1 - y0)
