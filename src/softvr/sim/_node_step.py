@@ -20,6 +20,7 @@ nodes here) set from its pose and velocity before every step.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,6 +34,7 @@ from softvr.contact.islands import contact_islands
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
+from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody
 from softvr.errors import InputError
@@ -154,6 +156,14 @@ class _NodeSnapshot(StepSnapshot):
                                gaps_after=self.per_set("gap_after"))
 
 
+def _chain(*replays) -> Callable[[], None]:
+    """One replay running ``replays`` in order."""
+    def run() -> None:
+        for replay in replays:
+            replay()
+    return run
+
+
 class NodeStepper:
     """Steps a scene of FEM bodies with kinematic and fixed bodies and planes
     (:func:`~softvr.sim.node_model_supported`) on its arrays; built from the scene's current
@@ -231,15 +241,15 @@ class NodeStepper:
 
     def _drive(self, dt: float) -> dict:
         """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
-        collision points' nodes set to where the points are and how they move."""
+        collision and coupling points' nodes set to where the points are and how they move."""
         start = self.model.body_node_start
         out = {}
         for i in self.model.kinematic:
             body = self.scene.bodies[i]
             v = body.unconstrained_velocity(dt, self.scene.gravity)
             out[i] = v
-            if i in self.colliders:
-                points = self.colliders[i].points
+            points = self.model.couplings.driven[i]
+            if points is not None:
                 rows = slice(start[i], start[i + 1])
                 self._q[rows] = points.positions()
                 self._fixed_v[rows] = points.velocities(v)
@@ -300,6 +310,10 @@ class NodeStepper:
         m, st = self.model, self.state
         elements = record_elements(m, st)
         assemble, rhs = record_system(m, st, dt, s.gravity)
+        if len(m.couplings.node):  # some FEM node in a spring's stencil (none: driven to driven only)
+            # The springs' terms (eq. 5.4) add to what the assembly and right-hand side wrote.
+            blocks, forces = record_couplings(m, st, dt)
+            assemble, rhs = _chain(assemble, blocks), _chain(rhs, forces)
         detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]

@@ -21,6 +21,8 @@ import warp as wp
 from softvr.collision.edges import PAIRS_PER_EDGE
 from softvr.collision.node_detection import CONTACT_STENCIL
 from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidPoints
+from softvr.sim._node_couplings import (NodeCouplings, build_node_couplings, coupling_blocks, coupling_springs,
+                                       couplings_supported, driven_points)
 
 __all__ = ["NodeContacts", "NodeModel", "NodeState", "build_node_model", "node_model_supported"]
 
@@ -112,6 +114,9 @@ class NodeModel:
     bvhs : list of wp.Bvh
         Each surface's BVH over its edges' boxes (``NodeState.edge_lower`` / ``edge_upper``).
     bvh_ids : wp.array(uint64) [bodies]
+    couplings : NodeCouplings
+        The coupling springs (thesis eq. 5.4): their blocks of ``A``, forces and the kinematic
+        and fixed bodies' driven nodes (collision points, then coupling points).
     """
 
     device: str
@@ -159,6 +164,7 @@ class NodeModel:
     body_edge_start: wp.array
     bvhs: list
     bvh_ids: wp.array
+    couplings: NodeCouplings
 
 
 @dataclass
@@ -298,12 +304,13 @@ class NodeState:
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), kinematic and fixed bodies (with or without a collision sphere or
-    box), static planes; no couplings, static meshes or spheres, rigid bodies or adhesion; at
-    most one set of collision points
+    box), static planes, couplings between them (each side an FEM body's embedded points or a
+    kinematic or fixed body's points); no static meshes or spheres, rigid bodies or adhesion; at most one
+    set of collision points
     per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
     4 nodes, a kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
     collision surface over its own points."""
-    if scene.couplings or scene.meshes or scene.spheres:
+    if scene.meshes or scene.spheres or not couplings_supported(scene):
         return False
     # A kinematic or fixed body's collision sphere or box meets only planes and other
     # primitives, which cannot move it or be moved: its contacts would all be dropped.
@@ -339,12 +346,15 @@ def _f64(values, device, dtype=wp.float64):
     return wp.array(np.ascontiguousarray(values, np.float64), dtype=dtype, device=device)
 
 
-def _pattern(tets: np.ndarray, n: int) -> tuple:
-    """Block-CSR pattern of ``A`` and the gather lists of its blocks and of the node forces."""
+def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
+    """Block-CSR pattern of ``A`` (the tets' blocks and the ``extra`` keys ``row n + col``: the
+    couplings') and the gather lists of its blocks and of the node forces."""
     m = len(tets)
     e, a, b = np.meshgrid(np.arange(m), np.arange(4), np.arange(4), indexing="ij")
     rows, cols = tets[e, a].ravel(), tets[e, b].ravel()
-    keys, block = np.unique(rows.astype(np.int64) * n + cols, return_inverse=True)
+    tet_keys = rows.astype(np.int64) * n + cols
+    keys = np.union1d(tet_keys, extra)
+    block = np.searchsorted(keys, tet_keys)
     order = np.argsort(block, kind="stable")
     contrib = (16 * e + 4 * a + b).ravel()[order]
     contrib_start = np.searchsorted(block[order], np.arange(len(keys) + 1))
@@ -383,16 +393,21 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     colliders = {c.body: c for c in scene._colliders}
     point_counts = [len(colliders[i].points.positions()) if i in colliders else 0 for i in range(len(bodies))]
     fem = [type(b) is FemBody for b in bodies]
-    node_counts = [len(b.q) if f else k for b, f, k in zip(bodies, fem, point_counts)]
+    # A kinematic body's nodes: where its points (collision, then coupling) are, at its
+    # velocity; driven, so no mass acts.
+    driven = driven_points(scene, colliders)
+    node_counts = [len(b.q) if f else (0 if driven[i] is None else len(driven[i].local))
+                   for i, (b, f) in enumerate(zip(bodies, fem))]
     node_start = np.cumsum([0] + node_counts)
     point_start = np.cumsum([0] + point_counts)
     n, p, nbody = int(node_start[-1]), int(point_start[-1]), len(bodies)
     tets = np.concatenate([b.tets + node_start[i] for i, b in enumerate(bodies) if fem[i]]).astype(np.int64)
     m = len(tets)
-    block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n)
-    # A kinematic body's nodes: where its points are, at its velocity; driven, so no mass acts.
+    fem_rows = np.repeat(fem, node_counts)
+    springs = coupling_springs(scene, node_start, colliders)
+    terms = coupling_blocks(springs, fem_rows)
+    block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n, terms[0])
     kinematic = [i for i in range(nbody) if not fem[i]]
-    driven = {i: colliders[i].points if i in colliders else None for i in kinematic}
 
     def per_node(fem_value, other_value):
         return np.concatenate([fem_value(b) if f else np.full((k,) + np.shape(other_value), other_value)
@@ -472,7 +487,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         pair_enabled=_i32(pair, d), kinematic=kinematic,
         edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
         edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
-        bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d))
+        bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
+        couplings=build_node_couplings(springs, terms, fem_rows, block_row.astype(np.int64) * n + block_col, driven, d))
     surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
     capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e, 1)
     wide = (max(p, 1), nbody)
