@@ -376,7 +376,7 @@ def raycast(
     lut_scale: float,
     gradient_lut: wp.array(dtype=float),
     gradient_scale: float,
-    shading: wp.vec4,
+    shading: wp.vec3,
     light: wp.vec3,
     shade: int,
     distance: wp.array3d(dtype=wp.uint8),
@@ -396,7 +396,7 @@ def raycast(
 
     ``depth`` [height, width] is the OpenGL depth buffer in [0, 1] (row 0 at the bottom);
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
-    is (ambient, diffuse, specular, specular power); ``light`` the unit direction towards
+    is (ambient, diffuse, specular), with the specular power 20 (as VTK's mappers here); ``light`` the unit direction towards
     the (head) light. ``gradient_scale`` < 0 disables gradient opacity.
 
     ``empty_until`` [height * width] carries from frame to frame, per pixel, the index of the
@@ -501,8 +501,11 @@ def raycast(
                             if wp.dot(nrm, view) < 0.0:  # two-sided lighting
                                 nrm = -nrm
                             lit = lit + shading[1] * wp.max(wp.dot(nrm, light), 0.0)
-                            color = color * lit + wp.vec3(shading[2] * wp.pow(wp.max(wp.dot(nrm, half), 0.0),
-                                                                               shading[3]))
+                            # cos ** 20 by squaring: 5 products instead of an exp and a log (pow).
+                            h1 = wp.max(wp.dot(nrm, half), 0.0)
+                            h4 = (h1 * h1) * (h1 * h1)
+                            h16 = (h4 * h4) * (h4 * h4)
+                            color = color * lit + wp.vec3(shading[2] * h16 * h4)
                         else:
                             color = color * lit
                 rgb = rgb + (1.0 - alpha) * a * color

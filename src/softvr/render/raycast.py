@@ -302,7 +302,7 @@ class RayCaster:
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
-            float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
+            float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
             wp.vec3(*light), int(bool(p.shade)), self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments,
