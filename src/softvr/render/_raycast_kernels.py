@@ -396,8 +396,9 @@ def raycast(
 
     ``depth`` [height, width] is the OpenGL depth buffer in [0, 1] (row 0 at the bottom);
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
-    is (ambient, diffuse, specular), with the specular power 20 (as VTK's mappers here); ``light`` the unit direction towards
-    the (head) light. ``gradient_scale`` < 0 disables gradient opacity.
+    is (ambient, diffuse, specular), with the specular power 20 (as VTK's mappers here);
+    ``light`` the unit direction towards the (head) light. ``gradient_scale`` < 0 disables
+    gradient opacity.
 
     ``empty_until`` [height * width] carries from frame to frame, per pixel, the index of the
     first ray sample not known to lie in an empty brick (same camera, grid and table). It
