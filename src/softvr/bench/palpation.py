@@ -140,7 +140,8 @@ def format_table(result: dict) -> str:
     th, t = result["thesis"], result["targets"]
     lines += ["", f"incremental voxels per frame (median): {m['raster_voxels'] / 1e6:.2f} M of {voxels / 1e6:.2f} M; "
                   f"incremental == full at the end: {100 * result['incremental_equals_full']:.3f} % of voxels",
-              f"rays cast per frame (median): {m['rays_cast'] / 1e3:.1f} K of {c['image'][0] * c['image'][1] / 1e3:.1f} K "
+              f"rays cast per frame (median): {m['rays_cast'] / 1e3:.1f} K of "
+              f"{c['image'][0] * c['image'][1] / 1e3:.1f} K "
               f"pixels (the rest keep last frame's colour); last frame == a cast from scratch: "
               f"{100 * result['render_equals_fresh_cast']:.3f} % of pixels",
               f"thesis: torso {th['voxels'] / 1e6:.2f} M voxels, {th['tets']} tets rasterized in {th['raster_ms']} ms "

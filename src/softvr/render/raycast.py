@@ -8,8 +8,9 @@ skipping over a min/max grid of bricks (re-derived only where the data changed),
 termination, and ray starts jittered per pixel (a hash of the pixel) so that a flat
 surface shows fine noise instead of wood-grain bands. From frame to frame (same camera) only
 the rays that can see a change are cast again: those through the surfaces' changed pixels and
-those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop at the depth of the opaque
-surfaces VTK drew (OpenGL depth buffer) and the volume is blended over their colour.
+those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
+at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
+over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
 
@@ -345,7 +346,8 @@ def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int)
     projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
     if not boxes:
         return wp.vec4i(0, -1, 0, -1)
-    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0] for box in boxes for c in range(8)])
+    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
+                        for box in boxes for c in range(8)])
     clip = corners @ index_to_ndc.T
     if np.any(clip[:, 3] <= 0.0):
         return wp.vec4i(0, width - 1, 0, height - 1)
