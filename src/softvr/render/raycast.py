@@ -116,7 +116,7 @@ class RayCaster:
         self._tables_key: tuple | None = None
         self._grid_key: tuple | None = None
         self._vol: wp.array | None = None
-        self._known: wp.array | None = None  # the voxels as last uploaded, to find the bricks that changed
+        self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
@@ -165,15 +165,19 @@ class RayCaster:
         self._changed_box: tuple | None = None
         if changed is True:
             first, last = np.zeros(3, int), nb - 1
-            self._known = wp.clone(self._vol)
+            self._known = None  # copied at the next partial change only: a caller that changes all pays nothing
         elif changed is None or changed is False:
             first, last = np.zeros(3, int), -np.ones(3, int)
         else:
             lo, hi = (np.asarray(c, int) for c in changed)
             # Voxel v is owned by brick min(v // BRICK, nb - 1) (brick_changes).
             owners = np.clip(lo // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
-            self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                      [self._known, self._changed_bricks])
+            if self._known is None:  # the voxels before this change are gone: all in the box count as changed
+                self._known = wp.clone(self._vol)
+                self._changed_bricks.fill_(1)
+            else:
+                self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
+                          [self._known, self._changed_bricks])
             self._changed_box = owners
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
