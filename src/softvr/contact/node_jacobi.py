@@ -72,7 +72,7 @@ class NodeSolve:
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
                                      c.friction, state.d_inv, model.fixed, float(dt), int(passes), c.impulse,
-                                     state.v_hat, self.sweep])
+                                     state.v_hat, self.sweep, c.stiffness, c.slip])
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) for r in range(3)]
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,

@@ -207,6 +207,13 @@ class NodeContacts:
         The edge queries' findings (edge met, or -1), per (edge, slot).
     edge_carried : wp.array2d(vec3d) [e, 2 B] [N s]; edge_partner : wp.array2d(int32) [e, 2 B]
         World impulse of each edge pair at the last step, and the edge it was with.
+    area : wp.array(float64) [c] [m^2]
+        Contact area (set only in scenes with adhesion: :class:`softvr.contact.NodeAdhesion`).
+    stiffness : wp.array(float64) [c] [N/m]
+        Implicit adhesive stiffness ``A C beta^2`` (eq. 4.16: ``k = dt^2 A C beta^2``; 0: none).
+    slip : wp.array(vec3d) [c] [m]
+        Tangential slip of a bonded contact since it bonded (world): its tangent rows' targets
+        are ``-t . slip / dt``.
     """
 
     capacity: int
@@ -237,6 +244,9 @@ class NodeContacts:
     pair_gap: wp.array
     edge_carried: wp.array
     edge_partner: wp.array
+    area: wp.array
+    stiffness: wp.array
+    slip: wp.array
 
 
 @dataclass
@@ -298,8 +308,8 @@ class NodeState:
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), kinematic and fixed bodies (with or without a collision sphere or
-    box), static planes; no couplings, static meshes or spheres, rigid bodies or adhesion; at
-    most one set of collision points
+    box), static planes, with or without adhesion; no couplings, static meshes or spheres,
+    rigid bodies; at most one set of collision points
     per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
     4 nodes, a kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
     collision surface over its own points."""
@@ -314,8 +324,6 @@ def node_model_supported(scene) -> bool:
     if not fem or len({b.corotational for b in fem}) != 1:
         return False
     if not all(type(b) in (FemBody, KinematicBody, FixedBody) for b in scene.bodies):
-        return False
-    if any(a is not None for a in scene._adhesion.values()):
         return False
     owners = [c.body for c in scene._colliders]
     if len(set(owners)) != len(owners):
@@ -498,7 +506,9 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         pair_normal=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
         pair_gap=wp.zeros(edge_wide, dtype=wp.float64, device=d),
         edge_carried=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
-        edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d))
+        edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d),
+        area=wp.zeros(capacity, dtype=wp.float64, device=d), stiffness=wp.zeros(capacity, dtype=wp.float64, device=d),
+        slip=wp.zeros(capacity, dtype=wp.vec3d, device=d))
 
     def vec():
         return wp.zeros(n, dtype=wp.vec3d, device=d)
