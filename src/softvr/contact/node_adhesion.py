@@ -43,7 +43,7 @@ class _CarriedAdhesionState(AdhesionState):
             self._slip = {k: s.copy() for k, s, b in zip(keys, slip, beta) if b >= 0 and np.any(s != 0)}
 
     @property
-    def intensity(self) -> dict:  # type: ignore[override]  # read on demand; the per-object path assigns it
+    def intensity(self) -> dict:
         self._read()
         return self._intensity
 
@@ -53,7 +53,7 @@ class _CarriedAdhesionState(AdhesionState):
         self._intensity = value
 
     @property
-    def slip(self) -> dict:  # type: ignore[override]  # read on demand; the per-object path assigns it
+    def slip(self) -> dict:
         self._read()
         return self._slip
 
