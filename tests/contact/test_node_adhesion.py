@@ -18,6 +18,8 @@ from softvr.collision import Plane
 from softvr.collision.contacts import unpack_keys
 from softvr.contact import Adhesion
 from softvr.dynamics import EmbeddedPoints, FemBody, Material
+from softvr.scene import bundled, load_scene
+from softvr.sim import node_model_supported
 from softvr.sim._node_step import NodeStepper
 from softvr.volume import Volume, grid_tet_mesh
 from softvr.volume.tetmesh import boundary_faces
@@ -190,3 +192,15 @@ def test_adhesion_moves_between_the_arrays_and_the_per_object_path_by_key():
     gap = (hold - block.mass.sum() * G) / (EDGE**2 * glue.stiffness)
     assert block.q[bottom, 2].mean() == pytest.approx(gap, rel=0.1)
     assert _bonds(scene, 0) == bonded
+
+
+@pytest.mark.parametrize("name", ["probe.toml", "lips.toml"])
+def test_bundled_adhesive_fem_scenes_step_on_the_arrays(name):
+    """probe.toml (a kinematic probe on tacky tissue) and lips.toml (two FEM lips of mucosa)
+    are FEM scenes with adhesion: held by the node arrays, and not declined by their sweep
+    count (their physics: tests/examples/test_examples.py)."""
+    player = load_scene(bundled(name), frames=1, width=16, height=16)
+    assert node_model_supported(player.scene)
+    with player:
+        player.step()
+    assert isinstance(player.scene._stepper, NodeStepper)
