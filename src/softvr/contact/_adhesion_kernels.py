@@ -114,3 +114,23 @@ def find_key(keys: wp.array(dtype=wp.uint64), count: int, key: wp.uint64) -> int
         else:
             high = mid - 1
     return -1
+
+
+@wp.func
+def carry_sorted(i: int, key: wp.uint64, impulse: wp.vec3d, beta: wp.float64, u: wp.vec3d,
+                 carried_key: wp.array(dtype=wp.uint64), carried_impulse: wp.array(dtype=wp.vec3d),
+                 carried_intensity: wp.array(dtype=wp.float64), carried_slip: wp.array(dtype=wp.vec3d)):
+    """Insert the step's contact ``i`` (its key, world impulse [N s], intensity, slip [m]) into
+    the carried table whose rows ``[:i]`` hold the step's contacts before it, ascending by key
+    (insertion sort: the detection order changes little from step to step)."""
+    j = i - 1
+    while j >= 0 and carried_key[j] > key:
+        carried_key[j + 1] = carried_key[j]
+        carried_impulse[j + 1] = carried_impulse[j]
+        carried_intensity[j + 1] = carried_intensity[j]
+        carried_slip[j + 1] = carried_slip[j]
+        j -= 1
+    carried_key[j + 1] = key
+    carried_impulse[j + 1] = impulse
+    carried_intensity[j + 1] = beta
+    carried_slip[j + 1] = u

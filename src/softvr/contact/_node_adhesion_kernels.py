@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.contact._adhesion_kernels import bond_stiffness, evolve_bond, find_key
+from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
 
 # softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
 # (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
@@ -164,8 +164,7 @@ def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.ar
     """One thread, after the sweeps (solved velocities ``v`` [n] [m/s], ``gap_after`` [m]): each
     bonded contact's slip at the end of the step ``u + dt v_t`` [m], bonding / debonding
     (4.3.3; a contact no impulse can move is not tracked, as the per-object path drops it),
-    then the step's contacts into the carried table, ascending by key (insertion sort: the
-    detection order changes little)."""
+    then the step's contacts into the carried table, ascending by key."""
     total = count[0]
     for c in range(total):
         n = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
@@ -190,16 +189,6 @@ def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.ar
         ad.intensity[c] = beta_out
         slip[c] = u_out
     for c in range(total):
-        key = ad.key[c]
-        j = c - 1
-        while j >= 0 and ad.carried_key[j] > key:
-            ad.carried_key[j + 1] = ad.carried_key[j]
-            ad.carried_impulse[j + 1] = ad.carried_impulse[j]
-            ad.carried_intensity[j + 1] = ad.carried_intensity[j]
-            ad.carried_slip[j + 1] = ad.carried_slip[j]
-            j -= 1
-        ad.carried_key[j + 1] = key
-        ad.carried_impulse[j + 1] = wp.transpose(frame[c]) * impulse[c]
-        ad.carried_intensity[j + 1] = ad.intensity[c]
-        ad.carried_slip[j + 1] = slip[c]
+        carry_sorted(c, ad.key[c], wp.transpose(frame[c]) * impulse[c], ad.intensity[c], slip[c], ad.carried_key,
+                     ad.carried_impulse, ad.carried_intensity, ad.carried_slip)
     ad.carried_count[0] = total

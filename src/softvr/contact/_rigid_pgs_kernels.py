@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.contact._adhesion_kernels import adhesive_bound, bond_stiffness, evolve_bond, find_key
+from softvr.contact._adhesion_kernels import adhesive_bound, bond_stiffness, carry_sorted, evolve_bond, find_key
 
 
 @wp.func
@@ -258,20 +258,10 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
             beta_out, u_out = evolve_bond(materials, ma, mb, beta_in, lam[0], gap_after[i], area[i], u, dt)
         intensity[i] = beta_out
         slip[i] = u_out
-    # Carry over, sorted by key (insertion sort: the detection order changes little).
+    # Carry over, sorted by key.
     for i in range(c):
-        world = wp.transpose(frame[i]) * impulse[i]
-        j = i - 1
-        while j >= 0 and carried_key[j] > key[i]:
-            carried_key[j + 1] = carried_key[j]
-            carried_impulse[j + 1] = carried_impulse[j]
-            carried_intensity[j + 1] = carried_intensity[j]
-            carried_slip[j + 1] = carried_slip[j]
-            j -= 1
-        carried_key[j + 1] = key[i]
-        carried_impulse[j + 1] = world
-        carried_intensity[j + 1] = intensity[i]
-        carried_slip[j + 1] = slip[i]
+        carry_sorted(i, key[i], wp.transpose(frame[i]) * impulse[i], intensity[i], slip[i], carried_key,
+                     carried_impulse, carried_intensity, carried_slip)
     carried_count[0] = c
     stats[0] = wp.float64(sweeps)
     stats[1] = residual
