@@ -204,3 +204,47 @@ def test_bundled_adhesive_fem_scenes_step_on_the_arrays(name):
     with player:
         player.step()
     assert isinstance(player.scene._stepper, NodeStepper)
+
+
+def test_bonds_between_bodies_stay_detected_until_the_debond_gap():
+    """A bond stretches by the traction law's gap g = p / (C beta^2) (eq. 4.10) and is forgotten
+    only past ``debond_gap`` (4.3.3), so detection between two surfaces must reach that far,
+    not just the scene's contact margin (1 mm). A 2 cm FEM block bonded on top of a clamped
+    4 cm one (no gravity; C = 1e5 N/m^3, so that the gap is millimetres), pulled up by a force
+    ramped to F = 0.16 N: its 9 bottom vertices' areas sum to its face, 4 cm^2, and the lower
+    block's top centre vertex under it counts the smaller of its 4 cm^2 and the upper triangle's
+    0.5 cm^2, so A' = 4.5 cm^2, a traction of 356 Pa (below p* = sqrt(W C) = 1 kPa) and a gap of
+    F / (A' C) = 3.6 mm, inside the debond gap of 1 cm. Were the bonds dropped at 1 mm, nothing
+    would hold the block: it would fly off. Tolerance 10 %: the mean over the last 84 ms, one
+    period 2 pi sqrt(m / (A' C)) of the ringing the ramp leaves (undamped: the block's Rayleigh
+    damping does not act on its motion on the bonds), and the uneven traction."""
+    glue = Adhesion(stiffness=1e5, max_energy=10.0, viscosity=1e-3, debond_gap=0.01)
+    scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.5, contact_margin=0.001)
+    bodies = []
+    for size, z, fixed in ((EDGE, 0.0, True), (EDGE / 2, EDGE, False)):
+        spacing = np.full(3, size / 2)
+        nodes, tets = grid_tet_mesh(Volume(np.zeros((2,) * 3, np.uint8), spacing=spacing,
+                                           origin=spacing / 2 + np.array([-size / 2, -size / 2, z])), 2)
+        body = FemBody(nodes, tets, TISSUE, fixed=nodes[:, 2] < 1e-9 if fixed else None)
+        faces = boundary_faces(body.tets)
+        used = np.unique(faces)
+        local = np.full(len(body.q), -1)
+        local[used] = np.arange(len(used))
+        scene.add_body(body, collision_points=EmbeddedPoints(body, used[:, None], np.ones((len(used), 1))),
+                       collision_triangles=local[faces], adhesion=glue)
+        bodies.append(body)
+    upper = bodies[1]
+    bottom = upper.q[:, 2] < EDGE + 1e-9
+    for _ in range(10):
+        scene.step(DT)
+    bonded = dict(scene.adhesion_state.intensity)
+    assert len(bonded) == 10 and all(b == 1.0 for b in bonded.values())
+    force, area = 0.16, 4.5e-4
+    gaps = []
+    for n in range(300):
+        _pull(scene, 1, upper, (0.0, 0.0, force * min(n / 200, 1.0)))
+        scene.step(DT)
+        gaps.append(upper.q[bottom, 2].mean() - EDGE)
+    assert isinstance(scene._stepper, NodeStepper)
+    assert np.mean(gaps[-84:]) == pytest.approx(force / (area * glue.stiffness), rel=0.1)
+    assert scene.adhesion_state.intensity.keys() == bonded.keys()

@@ -296,6 +296,15 @@ class NodeStepper:
         return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))],
                             [row(("static", id(p))) for p in s.planes])
 
+    def _surface_margin(self) -> float:
+        """Detection margin [m] between surfaces: the largest of the surface pairs' (the scene's,
+        or an adhesive pair's debond gap, so that bonds stay detected while they stretch, as per
+        object; a non-adhesive pair in the same scene then gets speculative contacts that far
+        out, which only act if they would close)."""
+        a, b = np.nonzero(self.model.pair_enabled.numpy())
+        return max([self.scene._pair_margin(("body", int(i)), ("body", int(j))) for i, j in zip(a, b)],
+                   default=float(self.scene.contact_margin))
+
     def carried_out(self) -> tuple[AdhesionState, dict]:
         """The adhesion state (intensities and slips by key) and the warm starts (world impulses
         by key) for the per-object path."""
@@ -320,7 +329,7 @@ class NodeStepper:
         m, st = self.model, self.state
         elements = record_elements(m, st)
         assemble, rhs = record_system(m, st, dt, s.gravity)
-        detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
+        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
