@@ -232,6 +232,8 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
     replays = [replayer(wp.launch(kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]], device=device,
                                   record_cmd=True))
                for c in range(chunks) if bounds[c + 1] > bounds[c]]
+    if not replays:  # no threads (a scene without collision points): nothing to replay
+        return lambda: None
     if len(replays) == 1:
         return replays[0]
     first, rest = replays[0], replays[1:]

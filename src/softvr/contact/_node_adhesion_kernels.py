@@ -18,6 +18,9 @@ from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolv
 # softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
 # (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
 POINT_PLANE, VERTEX_TRIANGLE, EDGE_EDGE = 0, 3, 4
+#: The key of a contact that does not adhere: above every real one (kinds < 15), so that it
+#: never shadows one in the carried table's search.
+NO_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))
 
 
 @wp.func
@@ -118,7 +121,9 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
     ar = wp.float64(0.0)
     ma = int(-1)
     mb = int(-1)
-    if k == 2:
+    if k > 2:  # a rigid primitive's (the rigid path's detection): no adhesion on the arrays yet
+        key = NO_KEY
+    elif k == 2:
         a = edge_body[p]
         key = pack_key(EDGE_EDGE, a, p - body_edge_start[a], o, face[c] - body_edge_start[o])
         ma = ad.body_material[a]
