@@ -31,24 +31,29 @@ GLUE = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3)  # p* = sqrt(W C)
 TISSUE = Material(2e5, 0.3, 1000.0, alpha=0.0, beta=1e-2)
 
 
+def _add_block(scene, size: float, cells: int, corner, glue: Adhesion, clamped: bool = False) -> FemBody:
+    """An FEM cube of edge ``size`` [m] (``cells`` grid cells a side) with its lowest corner at
+    ``corner`` [3] [m], its boundary nodes as collision points and boundary faces as its
+    surface; ``clamped``: its bottom nodes fixed."""
+    spacing = np.full(3, size / cells)
+    nodes, tets = grid_tet_mesh(Volume(np.zeros((cells,) * 3, np.uint8), spacing=spacing,
+                                       origin=spacing / 2 + np.asarray(corner, float)), cells)
+    body = FemBody(nodes, tets, TISSUE, fixed=nodes[:, 2] < corner[2] + 1e-9 if clamped else None,
+                   name=f"block at {tuple(corner)}")
+    faces = boundary_faces(body.tets)
+    used = np.unique(faces)
+    local = np.full(len(body.q), -1)
+    local[used] = np.arange(len(used))
+    scene.add_body(body, collision_points=EmbeddedPoints(body, used[:, None], np.ones((len(used), 1))),
+                   collision_triangles=local[faces], adhesion=glue)
+    return body
+
+
 def _glued_blocks(cells: int, centres_x=(0.0,), glue: Adhesion = GLUE, steps: int = 20) -> tuple[Scene, list]:
     """FEM cubes (``cells`` grid cells a side) resting on an adhesive plane z = 0, their
     boundary nodes as collision points and boundary faces as surfaces, bonded over ``steps``."""
     scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5, contact_margin=0.002)
-    blocks = []
-    for x in centres_x:
-        spacing = np.full(3, EDGE / cells)
-        corner = np.array([x - EDGE / 2, -EDGE / 2, 0.0])
-        nodes, tets = grid_tet_mesh(Volume(np.zeros((cells,) * 3, np.uint8), spacing=spacing,
-                                           origin=spacing / 2 + corner), cells)
-        body = FemBody(nodes, tets, TISSUE, name=f"block at x = {x}")
-        faces = boundary_faces(body.tets)
-        used = np.unique(faces)
-        local = np.full(len(body.q), -1)
-        local[used] = np.arange(len(used))
-        scene.add_body(body, collision_points=EmbeddedPoints(body, used[:, None], np.ones((len(used), 1))),
-                       collision_triangles=local[faces], adhesion=glue)
-        blocks.append(body)
+    blocks = [_add_block(scene, EDGE, cells, (x - EDGE / 2, -EDGE / 2, 0.0), glue) for x in centres_x]
     scene.add_plane(Plane(friction=0.5), adhesion=glue)
     for _ in range(steps):
         scene.step(DT)
@@ -220,20 +225,8 @@ def test_bonds_between_bodies_stay_detected_until_the_debond_gap():
     damping does not act on its motion on the bonds), and the uneven traction."""
     glue = Adhesion(stiffness=1e5, max_energy=10.0, viscosity=1e-3, debond_gap=0.01)
     scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.5, contact_margin=0.001)
-    bodies = []
-    for size, z, fixed in ((EDGE, 0.0, True), (EDGE / 2, EDGE, False)):
-        spacing = np.full(3, size / 2)
-        nodes, tets = grid_tet_mesh(Volume(np.zeros((2,) * 3, np.uint8), spacing=spacing,
-                                           origin=spacing / 2 + np.array([-size / 2, -size / 2, z])), 2)
-        body = FemBody(nodes, tets, TISSUE, fixed=nodes[:, 2] < 1e-9 if fixed else None)
-        faces = boundary_faces(body.tets)
-        used = np.unique(faces)
-        local = np.full(len(body.q), -1)
-        local[used] = np.arange(len(used))
-        scene.add_body(body, collision_points=EmbeddedPoints(body, used[:, None], np.ones((len(used), 1))),
-                       collision_triangles=local[faces], adhesion=glue)
-        bodies.append(body)
-    upper = bodies[1]
+    _add_block(scene, EDGE, 2, (-EDGE / 2, -EDGE / 2, 0.0), glue, clamped=True)
+    upper = _add_block(scene, EDGE / 2, 2, (-EDGE / 4, -EDGE / 4, EDGE), glue)
     bottom = upper.q[:, 2] < EDGE + 1e-9
     for _ in range(10):
         scene.step(DT)
