@@ -39,6 +39,7 @@ from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
 from softvr.errors import InputError
+from softvr.sim._node_sweeps import choose_sweeps
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
 from softvr.sim._node_rigid import RigidNodes
 from softvr.sim.model import _materials
@@ -56,11 +57,27 @@ SWEEP_TOLERANCE = 1e-5
 #: to the tolerance, make the sweeps slower than the factorization there (54 per decade: 150 ms
 #: against 68 ms a step), while the soft cube (3.5) and the oranges (8.5) gain 5-6x.
 MAX_SWEEPS_PER_DECADE = 25.0
+#: PGS passes over the contacts per sweep.
+SWEEP_PASSES = 2
 
 
 class IllConditioned(Exception):
-    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`);
-    raised before the step has changed the scene."""
+    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`
+    for Jacobi; :func:`softvr.sim._node_sweeps.choose_sweeps` for Gauss-Seidel); raised before
+    the step has changed the scene."""
+
+
+def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
+    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
+    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
+    and are driven; a rigid body's have none either: their D_A is all of their A)."""
+    n = model.node_count
+    rows = model.block_row.numpy()
+    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    blocks = state.blocks.numpy()
+    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
+    free = np.repeat(solved, 3)
+    return a[free][:, free], solved
 
 
 def spectrum(model, state) -> tuple[float, float]:
@@ -72,13 +89,10 @@ def spectrum(model, state) -> tuple[float, float]:
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
     # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
     # trace(D_A^-1 A) / 3n, is 1).
-    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    a, solved = _free_matrix(model, state)
     if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
     blocks = state.blocks.numpy()
-    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
-    free = np.repeat(solved, 3)
-    a = a[free][:, free]
     diag = np.tile(np.eye(3), (n, 1, 1))
     diag[rows[rows == cols]] = blocks[rows == cols]
     l_inv = np.linalg.inv(np.linalg.cholesky(diag[solved]))
@@ -377,14 +391,24 @@ class NodeStepper:
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
 
     def _solver(self, dt: float) -> NodeSolve:
-        """The recorded sweeps for ``dt`` (the Chebyshev bounds estimated on the first use)."""
+        """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
+        decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
+        bounds on the first use."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
-                self._spectrum[dt] = spectrum(self.model, self.state)
-            solve = NodeSolve(self.model, self.state, dt, self._spectrum[dt], max_sweeps=self.scene.pgs_iterations)
-            if solve.rate > 0 and np.log(10.0) / -np.log(solve.rate) > MAX_SWEEPS_PER_DECADE:
-                raise IllConditioned(f"{np.log(10.0) / -np.log(solve.rate):.0f} sweeps per decade")
-            self._recorded[5] = solve
+                bounds = spectrum(self.model, self.state)
+                a, free = _free_matrix(self.model, self.state)
+                m = self.model
+                self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
+                                                   MAX_SWEEPS_PER_DECADE, int(self.state.contacts.count.numpy()[0]),
+                                                   SWEEP_PASSES, SPECTRUM_MARGIN)
+            choice = self._spectrum[dt]
+            if choice.kind is None:
+                raise IllConditioned("node sweeps too slow: " + ", ".join(
+                    f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
+            self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
+                                          max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
+                                          colours=choice.colours, omega=choice.omega)
         return self._recorded[5]
 
     def _external_forces(self) -> None:
@@ -416,7 +440,6 @@ class NodeStepper:
         rhs()
         if self.rigid is not None:
             self.rigid.before_sweeps()
-        solve = self._solver(dt)
         t1 = time.perf_counter()
         detect()
         if self.adhesion is not None:
@@ -425,6 +448,7 @@ class NodeStepper:
             prepare, evolve = self._adhesion_replays[1]
             prepare()
         t2 = time.perf_counter()
+        solve = self._solver(dt)  # after the detection: the choice counts the contacts
         # The sweeps start from last step's velocity change carried on (v + (v - v_before)), or
         # on a first step the explicit one (v + dt (g + f_ext / m)): a uniform change (gravity,
         # a push, a resting body's none) is Jacobi's slowest mode, and these guesses have it.
