@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from softvr import Scene, SimulationError
-from softvr.collision import Plane
+from softvr.collision import Plane, Sphere
 from softvr.contact import Adhesion
 from softvr.contact.node_jacobi import chebyshev_weights
 from softvr.dynamics import EmbeddedPoints, FemBody, Material
@@ -90,8 +90,15 @@ def test_a_contact_step_solves_the_mlcp_of_eq_5_5():
     body = _cube()
     scene = _scene(body)
     dt = 1.0 / 60.0
+    assert check_mlcp_steps(body, scene, dt, 40, friction=0.5) >= 10
+
+
+def check_mlcp_steps(body, scene, dt, steps, friction):
+    """Step ``scene`` ``steps`` times, holding each step with contacts (points of ``body``, one
+    node each, vs planes of friction coefficient ``friction``) to the MLCP of eq. 5.5; returns
+    how many steps had contacts."""
     checked = 0
-    for step in range(40):
+    for step in range(steps):
         system, _ = _solve_step(body, scene, dt)
         solution = scene.step(dt)
         if not solution.contacts:
@@ -107,13 +114,13 @@ def test_a_contact_step_solves_the_mlcp_of_eq_5_5():
             pushing = lam[:, 0] > 1e-6 * body.mass.sum() * G * dt
             np.testing.assert_allclose(vn[pushing], -contacts.gap[pushing] / dt, atol=VELOCITY_TOL)
             # Friction inside the disc.
-            assert (np.hypot(lam[:, 1], lam[:, 2]) <= 0.5 * lam[:, 0] * (1 + 1e-9) + 1e-12).all()
+            assert (np.hypot(lam[:, 1], lam[:, 2]) <= friction * lam[:, 0] * (1 + 1e-9) + 1e-12).all()
         # A v - b - J^T lambda: the sweeps' velocity error times A's largest row norm.
         residual = system.matrix @ body.v.ravel() - system.rhs - impulse.ravel()
         bound = VELOCITY_TOL * np.abs(system.matrix).sum(axis=1).max()
         assert np.abs(residual).max() <= bound
         checked += 1
-    assert checked >= 10
+    return checked
 
 
 def test_a_resting_cube_carries_its_weight_without_sinking():
@@ -196,6 +203,8 @@ def test_scenes_the_arrays_do_not_hold_step_per_object():
     scene.add_plane(Plane(point=(0.0, 0.0, -1.0)), adhesion=None)
     assert node_model_supported(scene)
     scene.add_plane(Plane(point=(0.0, 0.0, -2.0)), adhesion=Adhesion(stiffness=1e6, max_energy=1.0, viscosity=1e-3))
+    assert node_model_supported(scene)  # adhesion is held (tests/contact/test_node_adhesion.py)
+    scene.add_sphere(Sphere(center=(0.0, 0.0, -5.0)))
     assert not node_model_supported(scene)
     scene.step(0.01)
     assert scene._stepper is None

@@ -31,6 +31,7 @@ from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, conta
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
+from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
@@ -38,8 +39,10 @@ from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
 from softvr.errors import InputError
+from softvr.sim._node_sweeps import choose_sweeps
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
 from softvr.sim._node_rigid import RigidNodes
+from softvr.sim.model import _materials
 from softvr.sim.node_model import build_node_model
 
 __all__ = ["IllConditioned", "NodeStepper"]
@@ -54,11 +57,27 @@ SWEEP_TOLERANCE = 1e-5
 #: to the tolerance, make the sweeps slower than the factorization there (54 per decade: 150 ms
 #: against 68 ms a step), while the soft cube (3.5) and the oranges (8.5) gain 5-6x.
 MAX_SWEEPS_PER_DECADE = 25.0
+#: PGS passes over the contacts per sweep.
+SWEEP_PASSES = 2
 
 
 class IllConditioned(Exception):
-    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`);
-    raised before the step has changed the scene."""
+    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`
+    for Jacobi; :func:`softvr.sim._node_sweeps.choose_sweeps` for Gauss-Seidel); raised before
+    the step has changed the scene."""
+
+
+def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
+    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
+    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
+    and are driven; a rigid body's have none either: their D_A is all of their A)."""
+    n = model.node_count
+    rows = model.block_row.numpy()
+    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    blocks = state.blocks.numpy()
+    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
+    free = np.repeat(solved, 3)
+    return a[free][:, free], solved
 
 
 def spectrum(model, state) -> tuple[float, float]:
@@ -70,13 +89,10 @@ def spectrum(model, state) -> tuple[float, float]:
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
     # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
     # trace(D_A^-1 A) / 3n, is 1).
-    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    a, solved = _free_matrix(model, state)
     if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
     blocks = state.blocks.numpy()
-    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
-    free = np.repeat(solved, 3)
-    a = a[free][:, free]
     diag = np.tile(np.eye(3), (n, 1, 1))
     diag[rows[rows == cols]] = blocks[rows == cols]
     l_inv = np.linalg.inv(np.linalg.cholesky(diag[solved]))
@@ -158,7 +174,7 @@ class _NodeSnapshot(StepSnapshot):
                 keys = contact_keys(ContactKind.EDGE_EDGE, body, edge_a - int(s.edge_start[body]), other,
                                     edge_b - int(s.edge_start[other]))
                 sets.append(Contacts(sides[0], sides[1], normal, gap, points[0], points[1], keys, friction,
-                                     np.zeros(len(rows))))
+                                     c["area"][rows]))
                 continue
             point = c["point"][rows]
             body = int(s.point_body[point[0]])
@@ -174,7 +190,7 @@ class _NodeSnapshot(StepSnapshot):
                 keys = contact_keys(ContactKind.VERTEX_TRIANGLE, body, local, other, 0)
             side_a = self._at_start(rows, ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local)), 1.0)
             sets.append(Contacts(side_a, side_b, normal, gap, x, x - gap[:, None] * normal, keys, friction,
-                                 np.zeros(len(rows))))
+                                 c["area"][rows]))
         islands = contact_islands(len(self.velocities),
                                   [(x.a.body, None if x.b is None else x.b.body) for x in sets])
         return ContactSolution(velocities=self.velocities, impulses=self.per_set("impulse"),
@@ -211,6 +227,10 @@ class NodeStepper:
         self._bind_bodies()
         self.rigid = RigidNodes(scene, self.model.rigid) if self.model.rigid is not None else None
         self._carry_in(scene._warm)
+        self.adhesion = self._adhesion()
+        if self.adhesion is not None:
+            self.adhesion.carry_in(scene.adhesion_state, scene._warm)
+        self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
         self._recorded = None
         self._spectrum = {}
 
@@ -312,9 +332,32 @@ class NodeStepper:
             if int(key) in warm:
                 table[i, j] = warm[int(key)]
 
+    def _adhesion(self) -> NodeAdhesion | None:
+        """The scene's adhesion on the arrays; None in a scene without any."""
+        s = self.scene
+        if all(a is None for a in s._adhesion.values()):
+            return None
+        rows, table = _materials(s)
+
+        def row(key) -> int:
+            adhesion = s._adhesion.get(key)
+            return -1 if adhesion is None else rows[id(adhesion)]
+
+        return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))],
+                            [row(("static", id(p))) for p in s.planes])
+
+    def _surface_margin(self) -> float:
+        """Detection margin [m] between surfaces: the largest of the surface pairs' (the scene's,
+        or an adhesive pair's debond gap, so that bonds stay detected while they stretch, as per
+        object; a non-adhesive pair in the same scene then gets speculative contacts that far
+        out, which only act if they would close)."""
+        a, b = np.nonzero(self.model.pair_enabled.numpy())
+        return max([self.scene._pair_margin(("body", int(i)), ("body", int(j))) for i, j in zip(a, b)],
+                   default=float(self.scene.contact_margin))
+
     def carried_out(self) -> tuple[AdhesionState, dict]:
-        """The adhesion state (empty: these scenes have no adhesion) and the warm starts (world
-        impulses by key) for the per-object path."""
+        """The adhesion state (intensities and slips by key) and the warm starts (world impulses
+        by key) for the per-object path."""
         table = self.state.contacts.carried.numpy()
         i, j = np.nonzero(np.abs(table[:self.model.point_count]).sum(axis=2) > 0)
         warm = {int(k): table[a, b].copy() for k, a, b in zip(self._keys(i, j), i, j)}
@@ -326,7 +369,7 @@ class NodeStepper:
             keys = contact_keys(ContactKind.EDGE_EDGE, a, e - self.edge_start[a], b, partner[e, k] - self.edge_start[b])
             table = c.edge_carried.numpy()
             warm.update({int(key): table[x, y].copy() for key, x, y in zip(keys, e, k)})
-        return AdhesionState(), warm
+        return (AdhesionState() if self.adhesion is None else self.adhesion.carried_out()), warm
 
     def _record(self, dt: float) -> None:
         s = self.scene
@@ -340,7 +383,7 @@ class NodeStepper:
             # The springs' terms (eq. 5.4) add to what the assembly and right-hand side wrote.
             blocks, forces = record_couplings(m, st, dt)
             assemble, rhs = _chain(assemble, blocks), _chain(rhs, forces)
-        detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
+        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
@@ -348,14 +391,24 @@ class NodeStepper:
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
 
     def _solver(self, dt: float) -> NodeSolve:
-        """The recorded sweeps for ``dt`` (the Chebyshev bounds estimated on the first use)."""
+        """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
+        decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
+        bounds on the first use."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
-                self._spectrum[dt] = spectrum(self.model, self.state)
-            solve = NodeSolve(self.model, self.state, dt, self._spectrum[dt], max_sweeps=self.scene.pgs_iterations)
-            if solve.rate > 0 and np.log(10.0) / -np.log(solve.rate) > MAX_SWEEPS_PER_DECADE:
-                raise IllConditioned(f"{np.log(10.0) / -np.log(solve.rate):.0f} sweeps per decade")
-            self._recorded[5] = solve
+                bounds = spectrum(self.model, self.state)
+                a, free = _free_matrix(self.model, self.state)
+                m = self.model
+                self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
+                                                   MAX_SWEEPS_PER_DECADE, int(self.state.contacts.count.numpy()[0]),
+                                                   SWEEP_PASSES, SPECTRUM_MARGIN)
+            choice = self._spectrum[dt]
+            if choice.kind is None:
+                raise IllConditioned("node sweeps too slow: " + ", ".join(
+                    f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
+            self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
+                                          max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
+                                          colours=choice.colours, omega=choice.omega)
         return self._recorded[5]
 
     def _external_forces(self) -> None:
@@ -387,10 +440,15 @@ class NodeStepper:
         rhs()
         if self.rigid is not None:
             self.rigid.before_sweeps()
-        solve = self._solver(dt)
         t1 = time.perf_counter()
         detect()
+        if self.adhesion is not None:
+            if self._adhesion_replays[0] != dt:
+                self._adhesion_replays = (dt, self.adhesion.record(dt))
+            prepare, evolve = self._adhesion_replays[1]
+            prepare()
         t2 = time.perf_counter()
+        solve = self._solver(dt)  # after the detection: the choice counts the contacts
         # The sweeps start from last step's velocity change carried on (v + (v - v_before)), or
         # on a first step the explicit one (v + dt (g + f_ext / m)): a uniform change (gravity,
         # a push, a resting body's none) is Jacobi's slowest mode, and these guesses have it.
@@ -406,6 +464,9 @@ class NodeStepper:
         buffers[0].numpy()[:] = start
         buffers[2].numpy()[:] = start
         sweeps, solved = solve.solve(SWEEP_TOLERANCE)
+        if self.adhesion is not None:
+            evolve[sweeps % 3]()
+            self.scene.adhesion_state = self.adhesion.state()
         carry()
         t3 = time.perf_counter()
         integrate[sweeps % 3]()
@@ -433,7 +494,7 @@ class NodeStepper:
         c = self.state.contacts
         out = {name: getattr(c, name).numpy()[:n].copy()
                for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
-                            "gap_after", "rigid_node", "rigid_lever")}
+                            "gap_after", "rigid_node", "rigid_lever", "area")}
         if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
             rows = np.where(out["kind"] == 3, out["point"], 0)
             out.update({name: getattr(self.model.rigid.state.contacts, name).numpy()[rows]
