@@ -3,10 +3,12 @@
 
 Each entry runs ``softvr run SCENE.toml --frames N --out TMP --size W H --quiet`` (the user's own
 command, in a subprocess), then copies the contact sheet it wrote to ``docs/gallery/img/NAME.png``
-and its MP4 to ``docs/gallery/clips/NAME.mp4``. ``docs/gallery/manifest.json`` records for each
-image the command that made it, the softvr version and commit, and the SHA-256 of every file:
-the docs build (docs/conf.py) refuses an image whose hash is not the manifest's, so every image
-on the site is one this script produced.
+(at most :data:`MAX_IMAGE_BYTES`: the repository keeps no large binaries). Videos are not kept: a
+scene's old clip (``docs/gallery/clips/NAME.mp4``) is removed with its manifest entry when the
+scene is run again. ``docs/gallery/manifest.json`` records for each image the command that made
+it, the softvr version and commit, and the SHA-256 of every file: the docs build (docs/conf.py)
+refuses an image whose hash is not the manifest's, so every image on the site is one this script
+produced.
 
     .venv/bin/python scripts/gallery.py                 # all scenes (several minutes on 2 cores)
     .venv/bin/python scripts/gallery.py soft-cube lips  # only these; the rest of the manifest is kept
@@ -31,15 +33,18 @@ SCENES = ROOT / "src" / "softvr" / "scenes"
 
 # name -> frames. A few frames each: enough for the sheet to show the motion (the probe's press, the head's
 # twist), short enough that the whole gallery runs in minutes on a CPU (the scenes' own defaults run 36-300
-# frames; about 8 minutes for all of these on 2 busy cores).
+# frames; about 8 minutes for all of these on 2 idle cores). box-knock needs 1.6 s for the ram to pass and
+# the boxes to land, candy-adhesive 1.3 s for the held candy to come off (most of an hour on 2 busy cores),
+# cloth-wall 2 s for the peel and the swing back.
 GALLERY = {
     "soft-cube": 24,
     "box-stack": 30,
+    "box-knock": 40,
     "cloth-sphere": 30,
     "oranges": 30,
     "candy": 16,
-    "candy-adhesive": 16,
-    "cloth-wall": 40,
+    "candy-adhesive": 32,
+    "cloth-wall": 50,
     "lips": 30,
     "probe": 30,
     "shoulder": 30,
@@ -73,6 +78,10 @@ def git_commit() -> str:
     return out.stdout.strip() or "unknown"
 
 
+#: Largest contact sheet kept [bytes].
+MAX_IMAGE_BYTES = 300_000
+
+
 def run_one(name: str, frames: int, size: tuple[int, int], device: str | None) -> dict:
     scene = SCENES / f"{name}.toml"
     with tempfile.TemporaryDirectory(prefix=f"softvr-gallery-{name}-") as tmp:
@@ -90,12 +99,15 @@ def run_one(name: str, frames: int, size: tuple[int, int], device: str | None) -
         if proc.returncode != 0:
             raise SystemExit(f"gallery: {' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
         sheets = sorted(Path(tmp).glob("*_sheet.png"))
-        clips = sorted(Path(tmp).glob("*.mp4"))
         if len(sheets) != 1:
             raise SystemExit(f"gallery: {' '.join(cmd)} wrote {len(sheets)} contact sheets, expected one")
+        if sheets[0].stat().st_size > MAX_IMAGE_BYTES:
+            raise SystemExit(f"gallery: {name}'s contact sheet is {sheets[0].stat().st_size} bytes, over "
+                             f"{MAX_IMAGE_BYTES}: run it smaller (--size)")
         (OUT / "img").mkdir(parents=True, exist_ok=True)
         image = OUT / "img" / f"{name}.png"
         shutil.copyfile(sheets[0], image)
+        (OUT / "clips" / f"{name}.mp4").unlink(missing_ok=True)
         entry = {
             "title": name,
             "scene": scene.name,
@@ -106,12 +118,6 @@ def run_one(name: str, frames: int, size: tuple[int, int], device: str | None) -
             "image": f"img/{name}.png",
             "image_sha256": sha256(image),
         }
-        if clips:
-            (OUT / "clips").mkdir(parents=True, exist_ok=True)
-            clip = OUT / "clips" / f"{name}.mp4"
-            shutil.copyfile(clips[0], clip)
-            entry["clip"] = f"clips/{name}.mp4"
-            entry["clip_sha256"] = sha256(clip)
         return entry
 
 

@@ -25,6 +25,8 @@ The truths, each stated where it is checked:
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
@@ -33,7 +35,7 @@ import pytest
 from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
                              example_oranges, example_palpation, example_probe, example_shoulder, example_soft_cube,
                              example_volume_deform)
-from softvr.scene import load_scene
+from softvr.scene import BUNDLED, load_scene
 
 G = 9.81  # [m/s^2], every scene with gravity here has gravity = (0, 0, -9.81)
 
@@ -101,6 +103,38 @@ def test_box_stack_rests_at_the_height_its_boxes_stack_to(tmp_path):
     assert player.metrics[-1]["kinetic_energy_j"] < 0.5 * mass * (G * dt) ** 2
     assert max(r["max_penetration_m"] for r in player.metrics) < G * dt**2
     check_energy_never_grows(player, e0)
+
+
+def test_box_knock_topples_the_stack_with_the_ram(tmp_path):
+    """box-knock.toml: box-stack's five boxes and a kinematic ram on a script (held, then driven
+    through the stack's middle). 32 frames (1.28 s): the ram is where its keys put it (linear
+    between them) at every frame; by then it has passed through the stack (its back past the
+    stack's far side) and the top box has had longer than a free fall from its height to land.
+    Knocked over: the top box ends lower than it started by at least a box height and moved
+    sideways off the stack's footprint (more than half a box width); no box is deeper in the
+    ground than one step of gravity carries it (g dt^2), every box centre at least its smallest
+    half-extent above the ground."""
+    player = load_scene(BUNDLED / "box-knock.toml", frames=32, width=48, height=32)
+    spec, ram_spec = player.file.body("box 4"), player.file.body("ram")
+    w, _, h = spec.size  # [m] box width and height
+    times, keys = np.asarray(ram_spec.motion["times"]), np.asarray(ram_spec.motion["positions"])
+    top, ram = player.bodies["box 4"], player.bodies["ram"]
+    x0 = top.position.copy()
+    boxes = [player.bodies[f"box {i}"] for i in range(5)]
+    with player:
+        for _ in range(32):
+            player.step()
+            t = player.scene.time
+            expected = [np.interp(t, times, keys[:, k]) for k in range(3)]
+            np.testing.assert_allclose(ram.position, expected, atol=1e-9)
+            assert all(b.position[2] >= h / 2 - G * player.dt**2 for b in boxes)
+    t = player.scene.time
+    passed = keys[-1, 0] - ram_spec.size[0] / 2 > w / 2  # the ram's back beyond the stack's far side
+    reach = np.interp(w / 2 + ram_spec.size[0] / 2, keys[-2:, 0], times[-2:])  # when (its last keys drive it)
+    assert passed and t > reach + np.sqrt(2 * x0[2] / G)
+    assert top.position[2] <= x0[2] - h
+    assert np.linalg.norm(top.position[:2] - x0[:2]) > w / 2
+    assert max(r["max_penetration_m"] for r in player.metrics) < G * player.dt**2
 
 
 def test_soft_cube_falls_as_gravity_and_its_damping_say(tmp_path):
@@ -180,25 +214,113 @@ def test_oranges_land_roll_on_and_lose_energy(tmp_path):
     check_energy_never_grows(player, e0)
 
 
+def _stuck_area(cloth, gap: float) -> float:
+    """Area [m^2] of the cloth's triangles whose three nodes lie within ``gap`` [m] of the wall x = 0."""
+    x = cloth.q[cloth.triangles]
+    areas = 0.5 * np.linalg.norm(np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), axis=1)
+    return float(areas[(x[:, :, 0] < gap).all(axis=1)].sum())
+
+
 def test_cloth_sticks_to_the_wall_then_peels_off(tmp_path):
     """The swung cloth bonds where it hits the wall (intensities in [0, 1]), never passes it,
-    and debonds again under its weight: the bonded contacts rise, then fall to none."""
+    and debonds again under its weight: the bonded contacts rise, then fall to none.
+
+    The peel, as the sheet shows it: the area lying on the wall (within the adhesion's debond
+    gap, from the scene file) grows to a sizeable part of the cloth, then only shrinks (a bond
+    re-forming at the peel front may add back at most one triangle) until none is left, and
+    the whole cloth hangs off the wall. Every frame the cloth is inside the camera's
+    ``[render] bounds`` and in front of the drawn part of the wall (its square, ``size``
+    around ``point``), so the sheet shows all of it."""
     start = start_of(example_cloth_wall)
     e0 = start.energies()[1]
     start.close()
     player = load_scene(example_cloth_wall.SCENE, frames=36, width=48, height=32)
-    bonded, deepest = [], 0.0
+    gap = player.file.adhesions["wall"]["debond_gap"]
+    bounds = np.asarray(player.file.render["bounds"], float)
+    wall = player.file.planes[0]
+    cloth = player.bodies["cloth"]
+    w, h = player.file.body("cloth").size
+    triangle = w * h / len(cloth.triangles)  # [m^2] one triangle of the rest grid
+    bonded, stuck, deepest = [], [], 0.0
     with player:
         for _ in range(36):
             player.step()
             beta = np.array(list(player.scene.adhesion_state.intensity.values()))
             assert ((beta >= 0) & (beta <= 1)).all()
             bonded.append(int((beta > 0).sum()))
-            deepest = max(deepest, -float(player.bodies["cloth"].q[:, 0].min()))
+            stuck.append(_stuck_area(cloth, gap))
+            deepest = max(deepest, -float(cloth.q[:, 0].min()))
+            assert ((cloth.q >= bounds[0::2]) & (cloth.q <= bounds[1::2])).all()
+            assert (np.abs(cloth.q[:, 1:] - np.asarray(wall["point"])[1:]) <= wall["size"] / 2).all()
     assert max(bonded) > 20 and bonded[-1] < max(bonded) / 4
     assert deepest < G * player.dt**2
+    peak = int(np.argmax(stuck))
+    assert stuck[peak] > 0.2 * w * h
+    assert (np.diff(stuck[peak:]) <= triangle).all(), np.round(stuck, 4)
+    assert stuck[-1] == 0.0 and cloth.q[:, 0].min() > gap
     check_energy_never_grows(player, e0)
     example_cloth_wall.main(["--headless", "--frames", "1", "--size", "48", "32", "--out", str(tmp_path)])
+
+
+def _held_candy_scene(folder: Path) -> Path:
+    """candy-adhesive.toml with only what the pull-off involves: the Jell-O (in 6 x 6 x 3 cubes, 12
+    quads a side, a quarter of the file's cubes per axis: same material, adhesion and plate), the held
+    candy, the hand and their spring; every number of these is the file's."""
+    text = (BUNDLED / "candy-adhesive.toml").read_text(encoding="utf-8")
+    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\])", text)
+    kept = [t for t in tables if t.startswith("[[coupling]]")
+            or re.search(r'^name = "(jello|pulled candy|hand)"$', t, re.M)]
+    small = "".join([head, *kept]).replace("cells = [12, 12, 5]", "cells = [6, 6, 3]").replace(
+        "surface_quads = 48", "surface_quads = 12")
+    path = folder / "held-candy.toml"
+    path.write_text(small, encoding="utf-8")
+    return path
+
+
+def test_the_held_candy_sticks_then_comes_off_the_jello(tmp_path):
+    """candy-adhesive.toml's hand (kinematic, on its keys) holds a candy resting on the Jell-O by a
+    zero-length spring (stiffness k, damping c; thesis 5.4), presses it, holds, then rises.
+
+    * Held: until the hand rises the candy's underside stays within the adhesion's debond gap
+      of the Jell-O's top beneath it.
+    * Stuck: the pull on it, k s + c (v_hand - v_candy) (s the spring's stretch), grows past
+      its weight m g while the contact still holds it down (a dry contact only pushes: a pull
+      is the adhesion). The pull stays below what the bonds can hold at full intensity,
+      m g + A sqrt(W C) (thesis eq. 4.16 with beta = 1; A its underside, W and C the
+      coating - Jell-O pair's geometric means, thesis 4.4).
+    * Pulled off: then its distance to the Jell-O grows past the debond gap and on to over
+      a centimetre: it follows the hand."""
+    player = load_scene(_held_candy_scene(tmp_path), frames=24, width=48, height=32)
+    spec, hand_spec = player.file.body("pulled candy"), player.file.body("hand")
+    coupling = player.file.couplings[0]
+    k, c = coupling["stiffness"], coupling["damping"]
+    wet, jello_adhesion = player.file.adhesions["coating"], player.file.adhesions["k4e7"]
+    gap = min(wet["debond_gap"], jello_adhesion["debond_gap"])
+    w_c = np.sqrt(wet["max_energy"] * jello_adhesion["max_energy"] * wet["stiffness"] * jello_adhesion["stiffness"])
+    lx, ly, lz = spec.size
+    candy, hand, jello = player.bodies["pulled candy"], player.bodies["hand"], player.bodies["jello"]
+    mg = float(candy.mass) * G
+    limit = mg + lx * ly * np.sqrt(w_c)  # [N]
+    rise = hand_spec.motion["times"][2]  # [s] the hand holds still until here
+    under = (np.abs(jello.q[:, 0] - candy.position[0]) <= lx / 2) & (np.abs(jello.q[:, 1] - candy.position[1]) <= ly / 2)
+    assert under.any()
+    candy0, hand0 = candy.position[2], hand.position[2]
+    rows = []  # (t, gap under the candy [m], pull [N], vertical contact force on it [N])
+    with player:
+        for _ in range(24):
+            player.step()
+            below = candy.position[2] - lz / 2 - jello.q[under, 2].max()
+            stretch = (hand.position[2] - hand0) - (candy.position[2] - candy0)
+            pull = k * stretch + c * (hand.velocity[2] - candy.velocity[2])
+            contact = player.scene.last_solution.force_on(player.index["pulled candy"], player.dt)[2]
+            rows.append((player.scene.time, below, pull, contact))
+    held = [r for r in rows if r[0] <= rise + 1e-9]
+    assert held and all(r[1] < gap for r in held)
+    stuck = [r for r in rows if r[3] < 0]  # the contact pulls it down: adhesion
+    assert stuck and max(r[2] for r in stuck) > mg
+    assert max(r[2] for r in rows) < limit
+    off = [i for i, r in enumerate(rows) if r[1] > gap]
+    assert off and all(r[1] > gap for r in rows[off[0]:]) and rows[-1][1] > 0.01, rows
 
 
 def _jaws_apart(t: float) -> float:

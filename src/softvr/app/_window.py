@@ -144,8 +144,11 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
         return flip
 
     player.update_render(renderer)
-    draw_overlays()
+    # The camera is fitted at the first render to what is shown: render before draw_overlays
+    # hides any layer, so that a start with the render surfaces hidden (--hide render --show
+    # collision) frames the bodies, not the default box of an empty scene.
     renderer.render()
+    draw_overlays()
     live = LiveWindow(window, keys={key: toggle(name) for name, key in VIEW_LAYERS.items()})
     mouse(live.interactor, live.style)
     try:

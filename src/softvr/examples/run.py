@@ -6,10 +6,11 @@ Every demo is one bundled scene file (``softvr/scenes/NAME.toml``, :data:`softvr
 ======================  ==============================================================================
 soft-cube               a soft co-rotational FEM cube dropped, tilted, on the ground
 box-stack               five rigid boxes stacked on the ground
+box-knock               the same stack knocked over by a kinematic ram
 cloth-sphere            a mass-spring cloth draped over a static sphere and the ground
 oranges                 soft FEM spheres bouncing and rolling on the ground (thesis Fig. 3.7 flavour)
 candy                   soft and hard candies fall on a Jell-O block (thesis Fig. 4.1 scale)
-candy-adhesive          the same with adhesive surfaces (thesis 4.4)
+candy-adhesive          the same with adhesive surfaces (thesis 4.4); a hand pulls one candy off
 cloth-wall              a swinging cloth sticks to an adhesive wall and peels off (thesis Fig. 4.2)
 lips                    two soft lips pressed together stick briefly as they open (thesis Fig. 4.3)
 probe                   a probe pressed into adhesive soft tissue and pulled back
