@@ -2,7 +2,7 @@
 
 * :class:`Player`: a :class:`softvr.Scene` advanced ``steps_per_frame`` sub-steps per frame,
   its per-step hooks in one declared order (:data:`STEP_ORDER`, :data:`FRAME_ORDER`), metrics
-  per frame, its surfaces drawn offscreen.
+  per frame, its surfaces drawn offscreen; :class:`Sensor`: a vector it reads every frame.
 * :func:`record`: the one frames-to-files loop (MP4, PNG frames, contact sheet, metrics JSON,
   plots) of ``softvr run`` and ``softvr demo``; :func:`output_name` and :func:`out_folder` the
   one naming rule (``softvr-out/NAME/NAME.mp4``).
@@ -16,10 +16,10 @@ It sits above :mod:`softvr.sim` and :mod:`softvr.render` and imports neither
 
 from softvr.app._options import (DEFAULT_OUT, add_device_option, add_view_options, check_run_args, out_folder,
                                  record_from_args, run_parser, shown_layers)
-from softvr.app._player import FRAME_ORDER, STEP_ORDER, Player, gravity_potential
+from softvr.app._player import FRAME_ORDER, STEP_ORDER, Player, Sensor, gravity_potential
 from softvr.app._record import output_name, record
 from softvr.app._window import VIEW_LAYERS, play_window
 
-__all__ = ["DEFAULT_OUT", "FRAME_ORDER", "STEP_ORDER", "VIEW_LAYERS", "Player", "add_device_option", "add_view_options",
-           "check_run_args", "gravity_potential", "out_folder", "output_name", "play_window", "record",
-           "record_from_args", "run_parser", "shown_layers"]
+__all__ = ["DEFAULT_OUT", "FRAME_ORDER", "STEP_ORDER", "VIEW_LAYERS", "Player", "Sensor", "add_device_option",
+           "add_view_options", "check_run_args", "gravity_potential", "out_folder", "output_name", "play_window",
+           "record", "record_from_args", "run_parser", "shown_layers"]
