@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from softvr.app._drawables import Drawable, SurfaceDrawing
 from softvr.render.surfaces import SurfaceRenderer
 from softvr.sim import STAGES
 from softvr.sim.frame_metrics import RigidFrameMetrics, rigid_stepper
@@ -46,9 +47,11 @@ class Player:
     """A :class:`softvr.Scene` played ``steps_per_frame`` sub-steps of ``dt`` per frame, drawn
     with a :class:`~softvr.render.SurfaceRenderer`.
 
-    A scene to play subclasses it: it builds ``scene``, defines :meth:`penetration`,
-    :meth:`setup_render` (add surfaces, keep handles) and :meth:`update_render` (move them), and
-    overrides the hooks it needs (:data:`STEP_ORDER`, :data:`FRAME_ORDER`).
+    A scene to play subclasses it: it builds ``scene``, defines :meth:`penetration` and
+    :meth:`drawables` (what it shows, as plain data: the window, the offscreen render and the
+    cave cluster all read them), and overrides the hooks it needs (:data:`STEP_ORDER`,
+    :data:`FRAME_ORDER`). A player that draws what drawables cannot say (lights, a volume)
+    extends :meth:`setup_render` and :meth:`update_render`.
     :func:`~softvr.app.record` writes its frames to files, :func:`~softvr.app.play_window`
     plays it in a window.
 
@@ -82,11 +85,17 @@ class Player:
         ``active_contacts`` (normal impulse > 0) of the frame's last step, ``pgs_iterations``
         (most sweeps in one step of the frame), ``pgs_residual_m_per_s``, ``kinetic_energy_j``,
         ``energy_j`` (kinetic + gravitational, zero at z = 0; elastic energy not included, so
-        for dissipative physics it never exceeds the initial value).
+        for dissipative physics it never exceeds the initial value; both None where
+        :attr:`measure_energy` is False).
     """
 
     name = "physics"
     camera = "iso"
+    #: False: the frame records leave out the energies (``kinetic_energy_j``, ``energy_j``: None).
+    #: A headless bench that takes its own measures sets it; reading every body's velocities
+    #: costs ~0.5 ms a frame on the contact bench's 729-node cube stepping on the node arrays, 8 %
+    #: of its step.
+    measure_energy = True
 
     def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
                  bounds=None, camera=None):
@@ -102,6 +111,7 @@ class Player:
             self.camera = camera
         self.metrics: list[dict] = []
         self._renderer: SurfaceRenderer | None = None
+        self._drawing: SurfaceDrawing | None = None
         self._started = False
         self._on_arrays: tuple | None = None  # (stepper, its RigidFrameMetrics)
 
@@ -183,7 +193,7 @@ class Player:
             residual = max(residual, float(solution.residual))
         step_ms = (time.perf_counter() - t0) * 1e3
         assert solution is not None  # steps_per_frame >= 1
-        kinetic, energy = self.energies()
+        kinetic, energy = self.energies() if self.measure_energy else (None, None)
         counts = getattr(solution, "contact_counts", None)  # a step on arrays counts without splitting sets
         if counts is not None:
             contacts, active = counts()
@@ -213,13 +223,19 @@ class Player:
         return record
 
     # -- rendering ----------------------------------------------------------------------
+    def drawables(self) -> list[Drawable]:
+        """What the scene shows now, as plain data (:class:`~softvr.app.Drawable`: vertices [m]
+        in the world, triangles, colour, pose, layer), in the same order every call."""
+        raise NotImplementedError(f"{type(self).__name__} does not list its drawables")
+
     def setup_render(self, renderer) -> None:
-        """Add this scene's surfaces to ``renderer`` (called once)."""
-        raise NotImplementedError
+        """Add this scene's surfaces to ``renderer`` (called once): its :meth:`drawables`."""
+        self._drawing = SurfaceDrawing(renderer, self.drawables())
 
     def update_render(self, renderer) -> None:
         """Move the surfaces to the current state (called before every render)."""
-        raise NotImplementedError
+        assert self._drawing is not None, "setup_render first"
+        self._drawing.update(self.drawables())
 
     def renderer_options(self) -> dict:
         """Extra :class:`~softvr.render.SurfaceRenderer` arguments (background, light kit)."""
