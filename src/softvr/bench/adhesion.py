@@ -37,7 +37,7 @@ from softvr.collision import Plane
 from softvr.contact import Adhesion
 from softvr.device import resolve_device
 from softvr.dynamics import RigidBody, RigidPoints
-from softvr.model.shapes import box_corners, box_surface
+from softvr.model.shapes import box_surface
 
 __all__ = ["PULL_OFF", "PullOffPlayer", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
            "softvr_pull_off", "write_plot"]
@@ -74,10 +74,11 @@ def _pull_off_prediction(case: dict) -> tuple[float, float]:
 
 class PullOffPlayer(Player):
     """The pull-off case (:data:`PULL_OFF`) played headless by the one player, one step a frame
-    (nothing drawn, no energies): its :meth:`drive` hook pulls the cube up with ``pull`` [N]."""
+    (nothing drawn, no frame measures: :attr:`~softvr.app.Player.frame_measures`): its
+    :meth:`drive` hook pulls the cube up with ``pull`` [N]."""
 
     name = "pull-off"
-    measure_energy = False
+    frame_measures = False
 
     def __init__(self, case: dict = PULL_OFF):
         edge = case["edge"]
@@ -89,15 +90,10 @@ class PullOffPlayer(Player):
                        adhesion=adhesion)
         scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
         self.pull = 0.0
-        self._corners = box_corners(np.full(3, edge / 2))
         super().__init__(scene, case["dt"], 1, 1, 64, 48)
 
     def drive(self) -> None:
         self.scene.external[0] = np.array([0.0, 0.0, self.pull, 0.0, 0.0, 0.0])
-
-    def penetration(self) -> float:
-        """Deepest cube corner below the plane z = 0 [m]."""
-        return max(0.0, -float((self.cube.position[2] + self._corners @ self.cube.rotation[2]).min()))
 
 
 def softvr_pull_off(case: dict = PULL_OFF) -> dict:
