@@ -9,10 +9,11 @@ Reading the files is :mod:`softvr.files`'s.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 
-__all__ = ["InputError", "Problems", "SimulationError", "SoftvrError", "raise_all", "with_unit"]
+__all__ = ["InputError", "Problems", "SimulationError", "SoftvrError", "known_key", "raise_all", "with_unit"]
 
 
 class SoftvrError(Exception):
@@ -44,6 +45,20 @@ class InputError(SoftvrError, ValueError):
 
 class SimulationError(SoftvrError, RuntimeError):
     """A simulation diverged; the message names the body and the step."""
+
+
+_KNOWN = "a known key"
+
+
+def known_key(valid, key, what: str = _KNOWN) -> str:
+    """What was expected instead of the unknown ``key``: ``what``, naming the nearest of the
+    ``valid`` keys when one is near (difflib's ratio >= 0.6), else all of them; the one wording
+    of every file softvr reads tables from (scene, glTF extras, parts, display)."""
+    valid = sorted(valid)
+    near = difflib.get_close_matches(str(key), valid, n=1, cutoff=0.6)
+    if near:
+        return f"{what} (did you mean {near[0]!r}?)"
+    return f"one of {', '.join(valid)}" if what == _KNOWN else f"{what}: one of {', '.join(valid)}"
 
 
 def raise_all(problems: list, source: str | None, kind: str) -> None:
@@ -135,6 +150,20 @@ class Problems:
 
     def raise_if_any(self) -> None:
         raise_all(self.items, self.source, self.kind)
+
+    def unknown_keys(self, table, valid, where: str, *, others: dict | None = None, what: str = _KNOWN) -> list:
+        """Record every key of ``table`` not in ``valid`` under ``where.key``, each named with the
+        nearest valid one (:func:`known_key`). ``others``: the keys of other kinds of table,
+        each with what takes it, which are expected as ``what`` ("a key of a rigid body") and
+        found with their owner. The keys recorded."""
+        others = others or {}
+        bad = sorted((k for k in table if k not in valid), key=str)
+        for key in bad:
+            if key in others:
+                self.add(f"{where}.{key}".lstrip("."), known_key(valid, key, what), f"{key!r} ({others[key]})")
+            else:
+                self.add(f"{where}.{key}".lstrip("."), known_key(valid, key), repr(key)[:100])
+        return bad
 
     def number(self, table: dict, key: str, where: str, *, default=None, positive=False, minimum=None,
                maximum=None, unit: str = "", plausible: tuple | None = None) -> float | None:

@@ -60,3 +60,23 @@ def test_a_cell_size_that_would_need_millions_of_tets_is_refused_naming_the_part
         build_model(path, progress=False)
     assert caught.value.source == str(path)
     assert "part[0] (ball).cell_size" in str(caught.value) and "tets" in str(caught.value)
+
+
+def test_a_typo_in_a_key_of_every_table_of_a_parts_file_is_refused_at_once(folder):
+    """Every table of the format (softvr.model.parts' docstring: the top, [defaults], [[part]],
+    [[coupling]]) with a misspelt key: one error naming each by its field path and the key
+    meant (written here by hand from the docstring); a part's own key under [defaults] (its
+    name) is refused there, once, not on every part."""
+    path = _parts(folder, 'fromat = 1\n[defaults]\ncel_size = 0.01\nname = "all"\n' + _PART + "densty = 900.0\n"
+                  + _PART.replace('"ball"', '"cap"', 1) + "fricton = 0.3\n"
+                  + '[[coupling]]\na = "ball"\nb = "cap"\nradius = 0.01\nstiffness = 1.0\ncolide = true\n')
+    with pytest.raises(InputError) as caught:
+        read_parts(path)
+    assert caught.value.problems == [
+        ("fromat", "a known key (did you mean 'format'?)", "'fromat'"),
+        ("defaults.cel_size", "a known key (did you mean 'cell_size'?)", "'cel_size'"),
+        ("defaults.name", "one of alpha, beta, cell_size, collision_triangles, density, friction, kind, poisson, "
+         "young", "'name' (a key of each [[part]])"),
+        ("part[0].densty", "a known key (did you mean 'density'?)", "'densty'"),
+        ("part[1].fricton", "a known key (did you mean 'friction'?)", "'fricton'"),
+        ("coupling[0].colide", "a known key (did you mean 'collide'?)", "'colide'")]

@@ -104,6 +104,7 @@ bpy.ops.softvr.mark(kind="fem")
 bpy.context.active_object["softvr_young"] = 5.0e4
 bpy.ops.mesh.primitive_cube_add(size=0.04, location=(0.3, 0.0, 0.3))
 bpy.context.active_object.name = "die"
+bpy.ops.softvr.mark(kind="fem")  # marked soft first, then re-marked: the fem properties must go
 bpy.ops.softvr.mark(kind="rigid")
 bpy.ops.softvr.adhesive()
 bpy.ops.softvr.export(filepath=glb)

@@ -9,6 +9,7 @@ modules import nothing of softvr.cave (scene is below the cave: DESIGN.md).
 """
 
 import ast
+import re
 import json
 import struct
 from pathlib import Path
@@ -157,7 +158,7 @@ def test_unknown_gltf_properties_are_named_with_the_property_meant(tmp_path):
     path = _glb(tmp_path / "typos.glb", {
         "gel": {"softvr_type": "fem", "softvr_densty": 900.0, "softvr_couple_to": "post",
                 "softvr_coupling_stifness": 10.0, "softvr_coupling_radius": 0.01},
-        "post": {"softvr_type": "kinematic", "softvr_velocty": [0.0, 0.0, 1.0]}},
+        "post": {"softvr_type": "rigid", "softvr_velocty": [0.0, 0.0, 1.0]}},
         {"softvr_frmes": 10, "softvr_ground": 1})
     with pytest.raises(InputError) as info:
         read_gltf_scene(path)
@@ -186,8 +187,237 @@ def test_a_display_files_screen_keys_are_checked(tmp_path):
 
 def test_the_scene_files_readers_import_nothing_of_the_cave():
     folder = Path(softvr.scene.__file__).parent
-    for name in ("schema.py", "gltf.py", "display.py", "_description.py", "_keys.py"):
+    for name in ("schema.py", "gltf.py", "display.py", "_description.py"):
         tree = ast.parse((folder / name).read_text())
         imported = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module] + \
             [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
         assert not [m for m in imported if m.startswith("softvr.cave")], (name, imported)
+
+
+# --- a typo in a key of every table, and each body type given a key of another (issue 19) ---------------------------
+
+#: A parts file with a typo in each of its tables (softvr.model.parts' docstring: format, [defaults],
+#: [[part]], [[coupling]]).
+_PARTS = '''format = "softvr-parts 1"
+couplings = []
+[defaults]
+cel_size = 0.01
+[[part]]
+name = "bone"
+mesh = "ball.ply"
+kind = "fixed"
+densty = 1900.0
+[[part]]
+name = "cap"
+mesh = "ball.ply"
+kind = "fixed"
+[[coupling]]
+a = "bone"
+b = "cap"
+radius = 0.004
+stiffness = 10.0
+colide = false
+'''
+
+#: One scene file with a typo in a key of every table of the format (softvr.scene.schema's
+#: docstring, docs/scenes.md) and, on each of the six body types, a key only other types take.
+_EVERY_TABLE = '''format = "softvr-scene 1"
+lights = 1
+[simulation]
+stpes_per_frame = 4
+[render]
+zooom = 1.0
+[[light]]
+position = [1.0, 1.0, 1.0]
+intensty = 0.5
+[material.jelly]
+poison = 0.35
+[adhesion.tacky]
+stiffness = 1e7
+max_energy = 5.0
+viscosity = 1.0
+bonding_rat = 1.0
+[[plane]]
+normall = [0.0, 0.0, 1.0]
+[[sphere]]
+center = [2.0, 0.0, 0.0]
+radius = 0.1
+fricton = 0.2
+[[body]]
+name = "brick"
+type = "rigid"
+box = [0.1, 0.1, 0.1]
+material = "jelly"
+position = [0.0, 0.0, 0.5]
+angular_velocty = [0.0, 0.0, 1.0]
+cells = 2
+poisson = 0.3
+[[body]]
+name = "gel"
+type = "fem"
+box = [0.1, 0.1, 0.1]
+material = "jelly"
+position = [0.3, 0.0, 0.5]
+fixed_below = 0.46
+celss = 2
+haptics = true
+[body.drive]
+times = [0.0]
+offset = [[0.0, 0.0, 0.0]]
+[[body]]
+name = "sheet"
+type = "cloth"
+cloth = [0.2, 0.2]
+position = [0.6, 0.0, 0.5]
+area_densty = 0.2
+collision_triangles = 100
+[[body]]
+name = "post"
+type = "fixed"
+box = [0.1, 0.1, 0.1]
+position = [0.9, 0.0, 0.05]
+rotaton = [0.0, 0.0, 10.0]
+velocity = [0.0, 0.0, 1.0]
+[[body]]
+name = "probe"
+type = "kinematic"
+sphere = 0.01
+position = [1.2, 0.0, 0.5]
+collides_wth = ["gel"]
+quads = [2, 2]
+[body.motion]
+times = [0.0]
+positions = [[1.2, 0.0, 0.5]]
+rotatons = [[0.0, 0.0, 0.0]]
+[[body]]
+name = "hand"
+type = "tool"
+sphere = 0.01
+material = "jelly"
+stiffness = 100.0
+position = [1.5, 0.0, 0.5]
+max_forse = 5.0
+fixed_below = 0.0
+[body.motion]
+times = [0.0]
+positions = [[1.5, 0.0, 0.5]]
+[[filter]]
+a = "brick"
+b = "probe"
+bb = "gel"
+[[coupling]]
+a = "gel"
+b = "post"
+points = [[0.6, 0.0, 0.3]]
+stiffness = 10.0
+dampng = 1.0
+[[model]]
+file = "parts.toml"
+colours = { bone = [0.9, 0.9, 0.8] }
+[volume]
+file = "head-ct"
+treshold = 100.0
+[display]
+prest = "cube"
+'''
+
+#: Each problem's field path and the key it names as meant (None: none is near, every key the
+#: table takes is listed; for a required key misspelt, what is expected of it), written by hand
+#: from the format's docs: the keys of each table, and of each body type (docs/scenes.md, "A
+#: body's keys by type").
+_EXPECTED = {
+    ("lights", "light"), ("simulation.stpes_per_frame", "steps_per_frame"), ("render.zooom", "zoom"),
+    ("light[0].intensty", "intensity"), ("material.jelly.poison", "poisson"),
+    ("adhesion.tacky.bonding_rat", "bonding_rate"), ("plane[0].normall", "normal"), ("sphere[0].fricton", "friction"),
+    ("body[0].angular_velocty", "angular_velocity"), ("body[0].cells", None),                       # rigid
+    ("body[0].poisson", "position"),  # a material's key, not a body's: said so (below)
+    ("body[1].celss", "cells"), ("body[1].haptics", None), ("body[1].drive.offset", "offsets"),      # fem
+    ("body[1].drive.offsets", "one [x, y, z] [m] per time"),  # misspelt, so it has none
+    ("body[2].area_densty", "area_density"), ("body[2].collision_triangles", None),                 # cloth
+    ("body[3].rotaton", "rotation"), ("body[3].velocity", None),                                    # fixed
+    ("body[4].collides_wth", "collides_with"), ("body[4].quads", None),                             # kinematic
+    ("body[4].motion.rotatons", "rotations"),
+    ("body[5].max_forse", "max_force"), ("body[5].fixed_below", None),                              # tool
+    ("filter[0].bb", "b"), ("coupling[0].dampng", "damping"), ("model[0].colours", "colors"),
+    ("model[0].file couplings", "coupling"), ("model[0].file defaults.cel_size", "cell_size"),       # the parts file
+    ("model[0].file part[0].densty", "density"), ("model[0].file coupling[0].colide", "collide"),
+    ("volume.treshold", "threshold"), ("display.prest", "preset"),
+}
+#: The keys of another type, and the types that take them (docs/scenes.md).
+_OTHER_TYPES = {"body[0].cells": ("rigid", "fem"), "body[1].haptics": ("fem", "tool"),
+                "body[2].collision_triangles": ("cloth", "rigid | fem | kinematic | tool"),
+                "body[3].velocity": ("fixed", "rigid | fem | cloth"), "body[4].quads": ("kinematic", "cloth"),
+                "body[5].fixed_below": ("tool", "fem | cloth")}
+
+
+def _meant(expected: str):
+    """The key a problem names as meant (``did you mean 'x'?``), None when it lists them all;
+    what was expected when it is no key's problem."""
+    match = re.search(r"did you mean '([^']+)'\?", expected)
+    return match.group(1) if match else None if "one of " in expected else expected
+
+
+def test_a_typo_in_a_key_of_every_table_and_each_types_foreign_keys_are_refused_at_once(tmp_path, capsys):
+    trimesh.creation.icosphere(1, radius=0.02).export(tmp_path / "ball.ply")
+    (tmp_path / "parts.toml").write_text(_PARTS)
+    path = tmp_path / "every.toml"
+    path.write_text(_EVERY_TABLE)
+    with pytest.raises(InputError) as info:
+        read_scene(path)
+    problems = info.value.problems
+    assert {(what, _meant(expected)) for what, expected, _ in problems} == _EXPECTED
+    assert len(problems) == len(_EXPECTED)  # each once, nothing else wrong with the file
+    found = {what: (expected, found) for what, expected, found in problems}
+    for what, (kind, takers) in _OTHER_TYPES.items():
+        key = what.rsplit(".", 1)[-1]
+        assert found[what][0].startswith(f"a key of a {kind} body"), found[what]
+        assert found[what][1] == f"{key!r} (a key of {takers} bodies)", found[what]
+    assert found["body[0].poisson"][1] == \
+        "'poisson' (a key of [material.NAME] tables, which a body names with material = NAME)"
+    # Listed in full where none is near: the rigid body's own keys, which do not include cells.
+    assert "angular_velocity" in found["body[0].cells"][0] and "cells" not in found["body[0].cells"][0]
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{len(_EXPECTED)} problems" in err and "Traceback" not in err
+    assert "body[1].haptics: expected a key of a fem body: one of " in err
+    assert "model[0].file part[0].densty: expected a known key (did you mean 'density'?), found 'densty'" in err
+
+
+def test_each_gltf_object_type_refuses_the_properties_of_other_types_and_typos_at_once(tmp_path):
+    """The same keys as a TOML body's, per type (docs/scenes.md): a rigid object's material is its
+    density only, so ``softvr_poisson`` (a fem object's) is refused, as a cloth object's
+    ``softvr_collision_triangles``, each named with the nearest key its type takes."""
+    trimesh.creation.icosphere(1, radius=0.02).export(tmp_path / "ball.ply")
+    (tmp_path / "parts.toml").write_text(_PARTS.replace("densty", "density").replace("cel_size", "cell_size")
+                                         .replace("colide", "collide").replace("couplings = []\n", ""))
+    path = _glb(tmp_path / "every.glb", {
+        "brick": {"softvr_type": "rigid", "softvr_densty": 500.0, "softvr_poisson": 0.3},
+        "gel": {"softvr_type": "fem", "softvr_youngs": 2e4, "softvr_haptics": 1},
+        "sheet": {"softvr_type": "cloth", "softvr_strech": 100.0, "softvr_collision_triangles": 100},
+        "post": {"softvr_type": "fixed", "softvr_collides_wth": "gel", "softvr_density": 500.0},
+        "probe": {"softvr_type": "kinematic", "softvr_render_msh": "post", "softvr_velocity": [0.0, 0.0, 1.0]},
+        "hand": {"softvr_type": "tool", "softvr_stiffness": 100.0, "softvr_max_forse": 5.0, "softvr_cells": 0.02,
+                 "softvr_couple_to": "gel", "softvr_coupling_stiffnes": 1.0, "softvr_coupling_points": [0, 0, 0]},
+        "ct": {"softvr_type": "volume", "softvr_file": "head-ct", "softvr_treshold": 100.0},
+        "arm": {"softvr_type": "model", "softvr_file": "parts.toml", "softvr_colours": {}}},
+        {"softvr_frmes": 10, "softvr_zooom": 1.0})
+    with pytest.raises(InputError) as info:
+        read_gltf_scene(path)
+    problems = info.value.problems
+    assert {(what, _meant(expected)) for what, expected, _ in problems} == {
+        ("scene.frmes", "frames"), ("scene.zooom", "zoom"),
+        ("node 'brick'.densty", "density"), ("node 'brick'.poisson", None),
+        ("node 'gel'.youngs", "young"), ("node 'gel'.haptics", None),
+        ("node 'sheet'.strech", "stretch"), ("node 'sheet'.collision_triangles", None),
+        ("node 'post'.collides_wth", "collides_with"), ("node 'post'.density", None),
+        ("node 'probe'.render_msh", "render_mesh"), ("node 'probe'.velocity", None),
+        ("node 'hand'.max_forse", "max_force"), ("node 'hand'.cells", None),
+        ("node 'hand'.coupling_stiffnes", "coupling_stiffness"),
+        ("node 'hand'.coupling_stiffness", "a number [N/m]"),  # misspelt, so it has none
+        ("node 'ct'.treshold", "threshold"), ("node 'arm'.colours", "colors")}, problems
+    found = {what: (expected, found) for what, expected, found in problems}
+    assert found["node 'hand'.coupling_stiffness"][1] == "nothing"
+    assert found["node 'brick'.poisson"][0].startswith("a key of a rigid object: one of ")
+    assert found["node 'brick'.poisson"][1] == "'poisson' (a key of fem objects)"
+    assert found["node 'sheet'.collision_triangles"][1] == \
+        "'collision_triangles' (a key of rigid | fem | kinematic | tool objects)"

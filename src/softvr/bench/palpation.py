@@ -51,7 +51,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     size = 128 if quick else size
     trace: dict[str, list] = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms",
                                               "render_cpu_ms", "raster_voxels", "indentation_m")}
-    trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms")})
+    trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms", "rays_cast")})
     step_option: dict[str, Any] = {} if sample_distance is None else {"sample_distance": sample_distance}
     with Example(frames=frames, width=size, height=size, device=device, renderer=renderer, render_step=render_step,
                  **step_option) as ex:
@@ -70,8 +70,10 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
             ex.drawing.rasterizer.deform(ex.body.q / 1e-3, out=full)
             trace["raster_full_ms"].append(1e3 * (time.perf_counter() - s))
             cpu = time.process_time()
-            ex.render()
+            image = ex.render()
             trace["render_cpu_ms"].append(1e3 * (time.process_time() - cpu))
+            caster = ex.volume_renderer.ray_caster
+            trace["rays_cast"].append(caster.cast_pixels if caster is not None else size * size)
             if i % 8 == 4 or (quick and i % 3 == 1):
                 s, cpu = time.perf_counter(), time.process_time()
                 vtk.render(ex.shown_volume())
@@ -83,8 +85,13 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
             trace["render_ms"].append(ex.metrics[-1]["render_ms"])
             trace["raster_voxels"].append(m["raster_voxels"])
             trace["indentation_m"].append(m["indentation_m"])
-        # The incremental volume must equal the full one at the end (the benchmark's own check).
+        # The incremental volume must equal the full one at the end (the benchmark's own check),
+        # and the last incrementally cast frame a cast from scratch.
         agree = float(np.mean(ex.deformed.data == full.data))
+        caster = ex.volume_renderer.ray_caster
+        if caster is not None:
+            caster.reset()
+        same_image = float(np.mean(np.all(image == ex.volume_renderer.render(ex.shown_volume()), axis=2)))
         vtk.close()
         scene = ex.describe()
         rasterizer_device = ex.drawing.rasterizer.device
@@ -103,6 +110,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         "median": med,
         "frame_ms": frame_ms,
         "incremental_equals_full": agree,
+        "render_equals_fresh_cast": same_image,
         "trace": trace,
         "thesis": THESIS,
         "render_vs_vtk": render_ratio,
@@ -132,6 +140,10 @@ def format_table(result: dict) -> str:
     th, t = result["thesis"], result["targets"]
     lines += ["", f"incremental voxels per frame (median): {m['raster_voxels'] / 1e6:.2f} M of {voxels / 1e6:.2f} M; "
                   f"incremental == full at the end: {100 * result['incremental_equals_full']:.3f} % of voxels",
+              f"rays cast per frame (median): {m['rays_cast'] / 1e3:.1f} K of "
+              f"{c['image'][0] * c['image'][1] / 1e3:.1f} K "
+              f"pixels (the rest keep last frame's colour); last frame == a cast from scratch: "
+              f"{100 * result['render_equals_fresh_cast']:.3f} % of pixels",
               f"thesis: torso {th['voxels'] / 1e6:.2f} M voxels, {th['tets']} tets rasterized in {th['raster_ms']} ms "
               f"({th['gpu']})",
               f"target: full frame <= {t['frame_ms']:g} ms: {result['frame_ms']:.1f} -> "

@@ -34,6 +34,9 @@ CONTACT_STENCIL = 16
 PLANE = wp.constant(0)
 VERTEX_TRIANGLE = wp.constant(1)
 EDGE_EDGE = wp.constant(2)
+#: A rigid body's box or sphere primitive against a plane or another primitive (the rigid path's
+#: detection, :mod:`softvr.collision._node_rigid_kernels`).
+PRIMITIVE = wp.constant(3)
 
 
 @wp.func
@@ -253,6 +256,15 @@ class NodeContactOut:
     stencil_weights: wp.array2d(dtype=wp.float64)
 
 
+def contact_out(contacts) -> NodeContactOut:
+    """The :class:`NodeContactOut` of ``contacts`` (a :class:`softvr.sim.NodeContacts`)."""
+    out = NodeContactOut()
+    for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
+                 "stencil_count", "stencil_nodes", "stencil_weights"):
+        setattr(out, name, getattr(contacts, name))
+    return out
+
+
 @wp.func
 def start_contact(out: NodeContactOut, c: int, kind: int, column: int, point: int, other: int, face: int,
                   bary: wp.vec3d, normal: wp.vec3d, gap: wp.float64, friction: wp.float64, last: wp.vec3d):
@@ -359,5 +371,5 @@ def carry_impulses(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int3
         if kind[c] == EDGE_EDGE:
             edge_carried[point[c], column[c]] = world
             edge_partner[point[c], column[c]] = face[c]
-        else:
+        elif kind[c] != PRIMITIVE:  # primitive contacts start cold
             carried[point[c], column[c]] = world

@@ -12,6 +12,7 @@ import warp as wp
 
 from softvr.collision import _node_kernels as _k
 from softvr.collision.edges import MIN_EDGE_ANGLE, MIN_NORMAL_ALIGNMENT, PAIRS_PER_EDGE, SHARP_EDGE_ANGLE
+from softvr.collision.node_rigid_detection import record_rigid_contacts, record_rigid_points
 from softvr.device import chunked_replayer, load_kernels, replayer
 
 __all__ = ["CONTACT_STENCIL", "record_carry", "record_node_detection"]
@@ -37,6 +38,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
                               d, min_chunk=1024)
     steps = [motion]
+    if model.rigid is not None and model.rigid.point_index.shape[0]:
+        steps.append(record_rigid_points(model, state))
     if model.meshes:
         bodies = len(model.body_node_start) - 1
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
@@ -69,10 +72,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
-    out = _k.NodeContactOut()
-    for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
-                 "stencil_count", "stencil_nodes", "stencil_weights"):
-        setattr(out, name, getattr(c, name))
+    out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
@@ -80,6 +80,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 model.plane_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
                 model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
                 float(dt), c.capacity, c.carried, c.count, out])))
+    if model.rigid is not None:
+        steps.append(record_rigid_contacts(model, state, dt))
 
     def detect() -> None:
         for step in steps:

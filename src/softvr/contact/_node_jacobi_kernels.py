@@ -42,19 +42,39 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
 @wp.func
 def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
            stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+           rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
            d_inv: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
-    """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s]."""
+    """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
+    side's angular node takes the torque ``lever x world``)."""
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         if fixed[node] == 0:
             v_hat[node] = v_hat[node] + stencil_weights[c, k] * (d_inv[node] * world)
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            v_hat[node] = v_hat[node] + d_inv[node] * wp.cross(rigid_lever[c, s], world)
+
+
+@wp.func
+def _rigid_velocity(c: int, v: wp.array(dtype=wp.vec3d), rigid_node: wp.array2d(dtype=wp.int32),
+                    rigid_lever: wp.array2d(dtype=wp.vec3d)) -> wp.vec3d:
+    """Contact ``c``'s rigid sides' share of its relative velocity [m/s]: ``omega x lever``
+    of each (:mod:`softvr.collision._node_rigid_kernels`)."""
+    rel = wp.vec3d()
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            rel = rel + wp.cross(v[node], rigid_lever[c, s])
+    return rel
 
 
 @wp.kernel
 def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
-             friction: wp.array(dtype=wp.float64), d_inv: wp.array(dtype=wp.mat33d),
+             friction: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+             rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32)):
     """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
@@ -62,8 +82,8 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
     then ``passes`` PGS passes; counts the sweep in ``sweep[0]``."""
     n = count[0]
     for c in range(n):
-        _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, d_inv, fixed,
-               v_hat)
+        _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
+               rigid_lever, d_inv, fixed, v_hat)
     for _ in range(passes):
         for c in range(n):
             f = frame[c]
@@ -75,6 +95,13 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                 rel = rel + wk * v_hat[node]
                 if fixed[node] == 0:
                     w = w + (wk * wk) * d_inv[node]
+            rel = rel + _rigid_velocity(c, v_hat, rigid_node, rigid_lever)
+            for s in range(rigid_node.shape[1]):
+                node = rigid_node[c, s]
+                if node >= 0:
+                    # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
+                    arm = wp.skew(rigid_lever[c, s])
+                    w = w + arm * d_inv[node] * wp.transpose(arm)
             rel_f = f * rel
             w_f = f * w * wp.transpose(f)
             old = impulse[c]
@@ -103,17 +130,19 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                         t2 = t2 * scale
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
-            _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, d_inv, fixed, v_hat)
+            _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
+                   d_inv, fixed, v_hat)
     sweep[0] = sweep[0] + 1
 
 
 @wp.kernel
 def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_prev: wp.array(dtype=wp.vec3d),
               weights: wp.array(dtype=wp.float64), gamma: wp.float64, sweep: wp.array(dtype=wp.int32),
-              fixed: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
+              fixed: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
               change: wp.array(dtype=wp.float64)):
     """``v^{k+1}`` [m/s] of node ``i`` and its largest component change [m/s]; ``weights`` [K]
-    the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep)."""
+    the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep). A
+    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^``."""
     i = wp.tid()
     if fixed[i] != 0:
         v_next[i] = v_hat[i]
@@ -121,6 +150,8 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
         return
     omega = weights[sweep[0] - 1]
     out = omega * (gamma * (v_hat[i] - v[i]) + v[i] - v_prev[i]) + v_prev[i]
+    if exact[i] != 0:
+        out = v_hat[i]
     d = out - v[i]
     change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
     v_next[i] = out
@@ -129,8 +160,9 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
 @wp.kernel
 def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
-             frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), dt: wp.float64,
-             v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
+             frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+             rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64, v: wp.array(dtype=wp.vec3d),
+             impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
              stats: wp.array(dtype=wp.float64)):
     """Per contact the linearized gap after the step [m] (``gap + dt n . J v``); ``stats[1]``
     the largest normal-velocity error [m/s] of the velocities ``v`` (one thread): how far a
@@ -141,6 +173,7 @@ def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
         rel = wp.vec3d()
         for k in range(stencil_count[c]):
             rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+        rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
         vn = wp.dot(wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2]), rel)
         gap_after[c] = gap[c] + dt * vn
         error = -gap[c] / dt - vn

@@ -12,6 +12,8 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
+from softvr.contact.node_colouring import NodeColouring
+from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights"]
@@ -27,6 +29,10 @@ def chebyshev_weights(rho: float, count: int) -> np.ndarray:
     return omega
 
 
+def _nothing() -> None:
+    """The contact step of a Gauss-Seidel sweep: it runs inside the node update."""
+
+
 class NodeSolve:
     """The recorded sweeps of one step size, and the loop that runs them.
 
@@ -36,14 +42,21 @@ class NodeSolve:
         :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState`.
     dt : float [s]
     spectrum : tuple of float
-        (lo, hi): bounds of the eigenvalues of D_A^-1 A (lo > 0), for the Chebyshev weights.
+        (lo, hi): bounds of the eigenvalues of the iteration's ``M^-1 A`` (lo > 0; M = D_A for
+        Jacobi), for the Chebyshev weights.
     max_sweeps : int
     passes : int
         PGS passes over the contacts per sweep.
+    colours : NodeColouring, optional
+        Sweep with multicolour symmetric block Gauss-Seidel over these colours
+        (:mod:`softvr.contact.node_gauss_seidel`) instead of Jacobi.
+    omega : float
+        With ``colours``: the damping of the contact nodes' Jacobi update, at most
+        1 / lambda_max(D_A^-1 A).
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
-                 passes: int = 2):
+                 passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -53,31 +66,62 @@ class NodeSolve:
         for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
+        #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
+        self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
+            0.0 if self.rate == 0 else np.inf)
+        self.colours = colours
+        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
+        #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
+        self.plain_sweeps = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
         self._change = self.change.numpy()
         self._sweep = self.sweep.numpy()
+        # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
+        # their A, so the update is exact for the sweep's impulses, and the Chebyshev step only
+        # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate
+        # 3.4x).
+        exact = np.zeros(model.node_count, np.int32)
+        if model.rigid is not None:
+            exact[model.rigid.linear_node.numpy()] = 1
+            exact[model.rigid.angular_node.numpy()] = 1
+        self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
         buf = state.sweep_buffers
-        jacobi, cheb = [], []
-        for r in range(3):
-            v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
-            jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
-                                    inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
-                                            model.fixed, state.fixed_velocity, v, state.v_hat]))
-            cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
-                                  inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
-                                          model.fixed, v_next, self.change]))
+        jacobi, cheb, plain = [], [], []
+        # Plain sweeps (omega = 1, the same gamma: damped Jacobi / Richardson on M^-1 A, which
+        # contracts on [lo, hi]) for a step whose Chebyshev sweeps stall (_stalled).
+        self._ones: wp.array = wp.array(np.ones(1), dtype=wp.float64, device=d)
+        self._plain_sweep = wp.ones(1, dtype=wp.int32, device=d)
+        gs = self._gauss_seidel
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
-                                     c.friction, state.d_inv, model.fixed, float(dt), int(passes), c.impulse,
-                                     state.v_hat, self.sweep])
+                                     c.friction, c.rigid_node, c.rigid_lever, state.d_inv if gs is None else gs.metric,
+                                     model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep])
+        for r in range(3):
+            v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
+            if gs is None:
+                jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
+                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
+                                                model.fixed, state.fixed_velocity, v, state.v_hat]))
+            else:  # the contact PGS runs inside the Gauss-Seidel sweep
+                jacobi.append(gs.record(v, replayer(contacts)))
+            cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+                                  inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
+                                          model.fixed, self.exact, v_next, self.change]))
+            plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+                                            inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
+                                                    self._plain_sweep, model.fixed, self.exact, v_next,
+                                                    self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) for r in range(3)]
+        self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) if gs is None else
+                        (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
+        self._plain = plain
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
-                                                              c.stencil_weights, c.frame, c.gap, float(dt), buf[r],
+                                                              c.stencil_weights, c.frame, c.gap, c.rigid_node,
+                                                              c.rigid_lever, float(dt), buf[r],
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
         self._buffers = buf
@@ -90,19 +134,30 @@ class NodeSolve:
         ``tolerance (1 - rate) / rate`` (checked every ``check_every``) and no contact's normal
         velocity is more than ``tolerance`` short of its target, nor a pushing one's more than
         that from it (contacts between bodies couple them, and the node change alone
-        understates their error). Returns the sweeps
-        made and the buffer holding the solved velocities; ``stats[1]`` then holds the largest
-        normal-velocity error [m/s]."""
+        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
+        of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
+        the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
         self._sweep[0] = 0
         stats = self.stats.numpy()
+        if self._gauss_seidel is not None:
+            self._gauss_seidel.prepare()
+        cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
+        history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
+        restart, plain_until = 0, 0
+        self.plain_sweeps = 0
         k = 0
         while k < self.max_sweeps:
+            if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
+                self._sweep[0] = 0
+                restart, history, stop = k, {}, cheb_stop
+            plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
             contacts()
-            cheb()
+            (self._plain[k % 3] if plain else cheb)()
             k += 1
+            self.plain_sweeps += plain
             if k % check_every == 0:
                 change = float(self._change.max(initial=0.0))
                 if not np.isfinite(change):  # NaN: the integration reports it
@@ -111,6 +166,31 @@ class NodeSolve:
                     self._residual_launches[k % 3]()
                     if stats[1] <= tolerance:
                         break
+                if not plain:
+                    history[k - restart] = change
+                    if self._stalled(history, k - restart, stop):
+                        plain_until, stop = k + self._window(), plain_stop
         self._residual_launches[k % 3]()
         stats[0] = k
         return k, self._buffers[k % 3]
+
+    def _window(self) -> int:
+        """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
+        return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+
+    def _stalled(self, history: dict[int, float], k: int, stop: float) -> bool:
+        """Whether the Chebyshev sweeps stall or cycle far from converged, ``k`` sweeps after
+        they (re)started (``history``: their changes since): the largest change of the last
+        :meth:`_window` sweeps is not half that of the window before, and the change is still
+        over 100x ``stop``. Contacts that keep changing their active set break the
+        polynomial's assumption of a fixed linear iteration, and its momentum then cycles;
+        :meth:`solve` then sweeps plain (no momentum) for a window, which lets the active set
+        settle, and restarts Chebyshev. A plateau close to ``stop`` (soft-on-soft contacts whose
+        PGS does not settle) is left to Chebyshev, which keeps the slow modes, the
+        translations, converged better than plain sweeps would."""
+        window = self._window()
+        if k < 2 * window or history[k] <= 100.0 * stop:
+            return False
+        recent = max(c for j, c in history.items() if j > k - window)
+        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        return recent > 0.5 * before

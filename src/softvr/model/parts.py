@@ -33,12 +33,13 @@ are coupled. TOML, versioned::
     collide = false             # collision between a and b (off by default)
 
 Every error names the file, the field path (``part[2].young``), what was expected and what
-was found; all of a file's errors are reported at once.
+was found; all of a file's errors are reported at once, keys no table has too, at every level
+(``part[2].densty``: named with the nearest known key, ``did you mean 'density'?``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from softvr.errors import InputError, Problems
@@ -99,6 +100,14 @@ class PartsFile:
         return next(p for p in self.parts if p.name == name)
 
 
+#: The keys of each table of a parts file (module docstring): a part's are its spec's fields,
+#: ``[defaults]`` the ones every part may share (not its name nor its mesh).
+_PART_KEYS = tuple(f.name for f in fields(PartSpec))
+_DEFAULT_KEYS = tuple(k for k in _PART_KEYS if k not in ("name", "mesh"))
+_COUPLING_KEYS = tuple(f.name for f in fields(CouplingSpec))
+_TOP_KEYS = ("format", "defaults", "part", "coupling")
+
+
 def read_parts(path) -> PartsFile:
     """Read and validate a parts file (module docstring); mesh paths are resolved against its
     folder and must exist."""
@@ -108,13 +117,18 @@ def read_parts(path) -> PartsFile:
     errors = Problems(source, "parts file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
+    errors.unknown_keys(doc, _TOP_KEYS, "")
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):
         errors.add("defaults", "a table", type(defaults).__name__)
         defaults = {}
+    bad = errors.unknown_keys(defaults, _DEFAULT_KEYS, "defaults",
+                              others={k: "a key of each [[part]]" for k in _PART_KEYS})
+    defaults = {k: v for k, v in defaults.items() if k not in bad}  # reported once, not on every part
     parts, names = [], set()
     for i, raw in enumerate(_tables(doc, "part", errors, required=True)):
         where = f"part[{i}]"
+        errors.unknown_keys(raw, _PART_KEYS, where)
         table = {**defaults, **raw}
         name = table.get("name")
         if not (isinstance(name, str) and name and len(name) <= _MAX_NAME and name.isprintable()):
@@ -147,6 +161,7 @@ def read_parts(path) -> PartsFile:
     couplings = []
     for i, raw in enumerate(_tables(doc, "coupling", errors, required=False)):
         where = f"coupling[{i}]"
+        errors.unknown_keys(raw, _COUPLING_KEYS, where)
         ends = []
         for side in ("a", "b"):
             ref = raw.get(side)

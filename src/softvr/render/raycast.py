@@ -6,8 +6,11 @@
 opacity from central differences computed on the fly (nothing per data change), empty-space
 skipping over a min/max grid of bricks (re-derived only where the data changed), early ray
 termination, and ray starts jittered per pixel (a hash of the pixel) so that a flat
-surface shows fine noise instead of wood-grain bands. Rays stop at the depth of the opaque
-surfaces VTK drew (OpenGL depth buffer) and the volume is blended over their colour.
+surface shows fine noise instead of wood-grain bands. From frame to frame (same camera) only
+the rays that can see a change are cast again: those through the surfaces' changed pixels and
+those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
+at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
+over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
 
@@ -30,6 +33,8 @@ BRICK = int(K.BRICK)
 REACH = 16
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
+#: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
+_READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
 
@@ -111,9 +116,18 @@ class RayCaster:
         self._tables_key: tuple | None = None
         self._grid_key: tuple | None = None
         self._vol: wp.array | None = None
+        self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
-        self._prefix_key: tuple | None = None
+        self._view_key: tuple | None = None  # what the per-pixel state below was cast for
+        #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
+        self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
+
+    def reset(self) -> None:
+        """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
+        next :meth:`cast` starts from scratch, as a new caster's would."""
+        self._tables_key = self._grid_key = self._view_key = None
+        self._flips = []
 
     # --------------------------------------------------------------- data
     def _upload(self, volume, changed) -> None:
@@ -146,17 +160,30 @@ class RayCaster:
             self._seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device=dev)  # no seed value: all written
             self._grid_key = (shape, name)
             changed = True
+        # Bricks whose own voxels changed since the last upload (all written in the changed box).
+        self._changed_bricks = wp.zeros(tuple(nb), dtype=wp.uint8, device=dev)
+        self._changed_box: tuple | None = None
         if changed is True:
             first, last = np.zeros(3, int), nb - 1
+            self._known = None  # copied at the next partial change only: a caller that changes all pays nothing
         elif changed is None or changed is False:
             first, last = np.zeros(3, int), -np.ones(3, int)
         else:
             lo, hi = (np.asarray(c, int) for c in changed)
+            # Voxel v is owned by brick min(v // BRICK, nb - 1) (brick_changes).
+            owners = np.clip(lo // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
+            if self._known is None:  # the voxels before this change are gone: all in the box count as changed
+                self._known = wp.clone(self._vol)
+                self._changed_bricks.fill_(1)
+            else:
+                self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
+                          [self._known, self._changed_bricks])
+            self._changed_box = owners
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if np.all(last >= first):
-            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides],
-                      [self._bmin, self._bmax])
+            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks,
+                                                     int(changed is True)], [self._bmin, self._bmax])
         if retabled:
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
@@ -171,12 +198,18 @@ class RayCaster:
             self._flips.append((box[:3] * BRICK, (box[3:] + 1) * BRICK))
             if not fresh:  # redo the distances only around the bricks that turned empty or occupied
                 first, last = box[:3].astype(int), box[3:].astype(int)
-            # A changed seed moves the values of pass ``axis`` up to REACH - 1 bricks away along
-            # that axis and the axes before it.
-            for axis, src, dst in ((0, self._seed, self._pass1), (1, self._pass1, self._pass2),
-                                   (2, self._pass2, self._distance)):
-                first[axis], last[axis] = max(first[axis] - REACH + 1, 0), min(last[axis] + REACH - 1, nb[axis] - 1)
-                self._run(K.brick_distance_pass, first, last, [src, axis, REACH], [dst])
+            self._distance_passes(first, last, [self._seed, self._pass1, self._pass2, self._distance], REACH)
+
+    def _distance_passes(self, first, last, fields: list, reach: int) -> None:
+        """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
+        up to date after its seed ``fields[0]`` changed in the bricks ``first .. last`` [3]."""
+        first, last = np.array(first), np.array(last)
+        nb = np.asarray(fields[0].shape)
+        # A changed seed moves the values of pass ``axis`` up to reach - 1 bricks away along
+        # that axis and the axes before it.
+        for axis in range(3):
+            first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
+            self._run(K.brick_distance_pass, first, last, [fields[axis], axis, reach], [fields[axis + 1]])
 
     def _run(self, kernel, first, last, inputs, outputs) -> None:
         """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
@@ -225,6 +258,10 @@ class RayCaster:
         changed : True, False or (lo, hi)
             What changed in the voxels since the last call: everything, nothing, or only
             the inclusive index box ``lo`` .. ``hi`` [3] + [3] (bricks elsewhere are kept).
+            Unless everything changed, a frame with the last one's camera, light, grid and
+            table casts only the pixels whose surface colour or depth changed or whose
+            samples may read a voxel in the box (:attr:`cast_pixels`); the others keep their
+            colour, which a full cast would reproduce bit for bit.
 
         Returns
         -------
@@ -241,26 +278,87 @@ class RayCaster:
         gradient_to_world = direction / spacing
         p = self.preset
         dev = self.device
-        # The rays' known-empty prefixes hold for one camera, grid, table and step.
-        key = (width, height, np.asarray(ndc_to_world, float).tobytes(), index_to_world.tobytes(), self._grid_key,
+        ndc_to_world = np.asarray(ndc_to_world, float)
+        light = np.asarray(light, float)
+        # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
+        # one camera, light, grid, table and step.
+        key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter)
-        if key != self._prefix_key:
-            self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
-            self._prefix_key = key
+        depth = wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev)
+        surface = wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev)
         flips, self._flips = self._flips, []
         flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
         flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
+        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
+        if key != self._view_key or changed is True:
+            if key != self._view_key:
+                self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+                self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
+                self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+                self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
+                self._view_key = key
+            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
+            pixels = self._every_pixel
+        else:
+            pixels = self._stale_pixels(depth, surface, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
+        self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
-            wp.mat33(*gradient_to_world.ravel()), wp.mat44(*np.asarray(ndc_to_world, float).ravel()),
+            wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
-            float(self._gradient_scale), wp.vec4(p.ambient, p.diffuse, p.specular, 20.0),
-            wp.vec3(*np.asarray(light, float)), int(bool(p.shade)), self._distance,
-            len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi), self._empty_until,
-            wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev),
-            wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev), image,
+            float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
+            wp.vec3(*light), int(bool(p.shade)), self._distance,
+            *flipped, self._empty_until, depth, surface, pixels,
+            self._image, *self._segments,
         ]
-        launch(K.raycast, width * height, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
-        return image.numpy()
+        launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        # A copy: the caster's image is next frame's starting point.
+        return self._image.numpy().copy()
+
+    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list,
+                      index_to_ndc: np.ndarray) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
+        in the ``changed`` box (False or None: no voxel changed). The others forget their
+        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi).
+        ``index_to_ndc`` [4, 4] projects the volume's index space to the screen."""
+        height, width = depth.shape
+        boxed = not (changed is None or changed is False)
+        lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
+        # Each brick's distance to the nearest one where samples may read a changed voxel.
+        nb = np.asarray(self._changed_bricks.shape)
+        read = [wp.full(tuple(nb), _READ_REACH, dtype=wp.uint8, device=self.device) for _ in range(4)]
+        if self._changed_box is not None:
+            first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
+            self._run(K.brick_read_changes, first, last, [self._changed_bricks, _READ_REACH], [read[0]])
+            self._distance_passes(first, last, read, _READ_REACH)
+        boxes = [(lo - float(K.READ_REACH), hi + float(K.READ_REACH))] if boxed else []
+        if flipped[0]:
+            boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
+        stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
+        launch(K.stale_pixels, width * height,
+               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3],
+                _screen_rect(boxes, index_to_ndc, width, height), *self._segments, *flipped, self._last_depth,
+                self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+        return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
+
+
+def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> wp.vec4i:
+    """The pixels (first column, last column, first row, last row; row 0 at the top) whose
+    rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
+    projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
+    if not boxes:
+        return wp.vec4i(0, -1, 0, -1)
+    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
+                        for box in boxes for c in range(8)])
+    clip = corners @ index_to_ndc.T
+    if np.any(clip[:, 3] <= 0.0):
+        return wp.vec4i(0, width - 1, 0, height - 1)
+    ndc = clip[:, :2] / clip[:, 3:]
+    # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
+    px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
+    py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
+    x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
+    y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
+    return wp.vec4i(x0, x1, height - 1 - y1, height - 1 - y0)

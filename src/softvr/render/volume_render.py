@@ -120,6 +120,12 @@ class VolumeRenderer(OffscreenView):
         return self._gl_renderer
 
     @property
+    def ray_caster(self) -> RayCaster | None:
+        """The Warp mapper's :class:`~softvr.render.RayCaster` (None with VTK's mappers), e.g.
+        for :attr:`~softvr.render.RayCaster.cast_pixels`."""
+        return self._caster
+
+    @property
     def is_software_gl(self) -> bool:
         """True on a software OpenGL (llvmpipe, softpipe, swrast)."""
         name = self.gl_renderer.lower()
@@ -168,7 +174,9 @@ class VolumeRenderer(OffscreenView):
         changed : True, False or (lo, hi)
             ``mapper="warp"`` only: which voxels changed since the last call (all, none, or
             the inclusive index box ``lo`` .. ``hi``), so that only those bricks of the
-            empty-space grid are re-derived. VTK's mappers always take the whole volume.
+            empty-space grid are re-derived and, with the same camera and clipping range, only
+            the rays that can see the change or a moved surface are cast again
+            (:meth:`~softvr.render.RayCaster.cast`). VTK's mappers always take the whole volume.
 
         Returns
         -------

@@ -22,17 +22,16 @@ from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, PrivateAttr
                       model_validator)
 from pydantic_core import PydanticCustomError
 
-from softvr.errors import InputError, Problems
+from softvr.errors import InputError, Problems, known_key
 from softvr.files import checked_file, file_name
 from softvr.render import PRESETS, VIEWS
-from softvr.scene._keys import known_key
 from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
-__all__ = ["BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE",
-           "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document", "Drive", "Filter", "Light",
-           "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere", "Volume", "existing_file",
-           "read_table"]
+__all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
+           "MESH_SUFFIXES", "PLAUSIBLE", "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document",
+           "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere",
+           "Volume", "existing_file", "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
@@ -228,6 +227,12 @@ class _Table(BaseModel):
     def problems(self) -> list:
         """(field, expected, found) of what its fields get wrong together (none by default)."""
         return []
+
+    @classmethod
+    def keys_of(cls, table: dict) -> tuple[set, str, dict]:
+        """The keys ``table`` may have, how its own keys are named, and what takes each known key
+        it may not have: every field here (a body's keys depend on its type)."""
+        return set(cls.model_fields), "a known key", {}
 
 
 # --- keyframes ----------------------------------------------------------------------------------------------------
@@ -479,6 +484,28 @@ SHAPES: dict[str | None, tuple[str, ...]] = {
     "rigid": ("box", "sphere", "mesh"), "fem": ("box", "sphere", "mesh", "tets"), "cloth": ("cloth",),
     "fixed": ("box", "mesh"), "kinematic": ("box", "sphere", "mesh"), "tool": ("box", "sphere", "mesh")}
 SHAPE_KEYS = ("box", "sphere", "mesh", "tets", "cloth")
+#: The keys each body type takes, its shapes' (:data:`SHAPES`) among them: a key of another type
+#: is refused, named with the nearest of its own (a key that would be ignored, as ``material`` on
+#: a cloth or ``spin_centre`` on a rigid body, whose spin is about its centre of mass), except
+#: those with rules of their own (:data:`_RULED`, :meth:`Body.problems`).
+_EVERY_BODY = ("name", "type", "position", "rotation", "color", "collides_with", "adhesion")
+_SOLID = ("scale", "subdivisions", "render_mesh")  # every type with a sphere, mesh or tets shape
+_MOVING = ("surface_quads", "collision_triangles")  # a moving box's surface, a moving mesh's or sphere's budget
+_DEFORMING = ("velocity", "angular_velocity", "spin_centre", "fixed_below", "fixed_above", "drive")
+BODY_KEYS: dict[str, tuple[str, ...]] = {kind: (*SHAPES[kind], *_EVERY_BODY, *keys) for kind, keys in {
+    "rigid": (*_SOLID, *_MOVING, "material", "velocity", "angular_velocity"),
+    "fem": (*_SOLID, *_MOVING, *_DEFORMING, "material", "cells"),
+    "cloth": (*_DEFORMING, "quads", "area_density", "stretch", "shear", "bend", "damping", "alpha"),
+    "fixed": ("scale", "render_mesh"),  # a box or a mesh: no sphere to subdivide
+    "kinematic": (*_SOLID, *_MOVING, "motion"),
+    "tool": (*_SOLID, *_MOVING, "material", "stiffness", "damping", "haptics", "max_force", "motion")}.items()}
+#: Keys a rule of :meth:`Body.problems` names on a type that does not take them: the shape (which
+#: ones the type takes), the drive (of held nodes), the motion (of kinematic bodies and tools).
+_RULED = (*SHAPE_KEYS, "drive", "motion")
+#: The material fields each body type uses (a glTF object's own properties; a TOML body names a
+#: shared ``[material.NAME]``): a rigid body or a tool weighs its density, a fem body takes all.
+MATERIAL_KEYS: dict[str, tuple[str, ...]] = {"rigid": ("density",), "tool": ("density",),
+                                             "fem": tuple(Material.model_fields)}
 #: Defaults of a cloth body's and a tool's own fields (``damping`` and ``alpha`` are both's).
 CLOTH = {"quads": (16, 16), "area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05,
          "alpha": 0.1}
@@ -540,6 +567,22 @@ class Body(_Table):
     haptics: Boolean = None
     max_force: Annotated[float | None, number("N", positive=True)] = None                  # [N]
 
+    @classmethod
+    def keys_of(cls, table: dict) -> tuple[set, str, dict]:
+        """A typed body's keys are its type's (:data:`BODY_KEYS`); the other types' keys are named
+        with the types that take them (but for :data:`_RULED`, named by :meth:`problems`), and a
+        material's (``poisson``) as the ``[material.NAME]`` key it is."""
+        kind = table.get("type")
+        if not isinstance(kind, str) or kind not in BODY_KEYS:
+            return super().keys_of(table)
+        valid = set(BODY_KEYS[kind])
+        owners = {key: [f"{' | '.join(t for t, keys in BODY_KEYS.items() if key in keys)} bodies"]
+                  for key in cls.model_fields if key not in valid and key not in _RULED}
+        for key in Material.model_fields:
+            if key not in valid:
+                owners.setdefault(key, []).append("[material.NAME] tables, which a body names with material = NAME")
+        return valid, f"a key of a {kind} body", {k: f"a key of {' and of '.join(v)}" for k, v in owners.items()}
+
     def shape(self) -> str | None:
         """The one shape key given, when it is one the body's type takes."""
         given = [s for s in SHAPE_KEYS if s in self.given]
@@ -557,14 +600,11 @@ class Body(_Table):
                         ", ".join(shapes) if shapes else "no shape"))
         if "scale" in given and shape not in ("sphere", "mesh", "tets"):
             out.append(("scale", "a scale only on a sphere, mesh or tets shape", f"a {shape} shape"))
-        if "surface_quads" in given and (shape != "box" or kind == "fixed"):
+        if "surface_quads" in given and shape != "box":
             out.append(("surface_quads", "surface quads only on a moving box", f"a {kind} {shape}"))
         if "subdivisions" in given and shape != "sphere":
             out.append(("subdivisions", "subdivisions only on a sphere", f"a {shape} shape"))
-        if "render_mesh" in given and kind not in ("rigid", "fem", "kinematic", "tool", "fixed"):
-            out.append(("render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed body",
-                        f"a {kind} body"))
-        if "collision_triangles" in given and (shape not in ("mesh", "sphere") or kind == "fixed"):
+        if "collision_triangles" in given and shape not in ("mesh", "sphere"):
             out.append(("collision_triangles", "a triangle budget only on a moving mesh or sphere",
                         f"a {kind} {shape}"))
         top = LIMITS["cells"]
@@ -683,8 +723,9 @@ def _path(loc) -> str:
     return "".join(f"[{x}]" if isinstance(x, int) else f".{x}" for x in loc)
 
 
-def _problems(exc: ValidationError, model: type[BaseModel], where: str) -> list:
-    """softvr's ``(field path, expected, found)`` of each of pydantic's errors."""
+def _problems(exc: ValidationError, model: type[BaseModel], where: str, keys: set) -> list:
+    """softvr's ``(field path, expected, found)`` of each of pydantic's errors; ``keys``: those
+    the table itself may have (:meth:`_Table.keys_of`)."""
     out = []
     for e in exc.errors(include_url=False):
         loc = e["loc"]
@@ -692,7 +733,8 @@ def _problems(exc: ValidationError, model: type[BaseModel], where: str) -> list:
             owner: Any = model  # a model at each step of an extra key's path (pydantic forbids extras only there)
             for step in loc[:-1]:
                 owner = _model_of(owner.model_fields[step].annotation) if isinstance(step, str) else owner
-            out.append((f"{where}{_path(loc)}".lstrip("."), known_key(owner.model_fields, loc[-1]), repr(loc[-1])))
+            valid = keys if len(loc) == 1 else owner.model_fields
+            out.append((f"{where}{_path(loc)}".lstrip("."), known_key(valid, loc[-1]), repr(loc[-1])))
         elif e["type"] == "softvr":
             field = e["ctx"].get("field")
             out.append((f"{where}{_path(loc)}{'.' + field if field else ''}".lstrip("."), e["ctx"]["expected"],
@@ -732,15 +774,19 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
     if not isinstance(table, dict):
         errors.add(where, model.WHAT, table if isinstance(table, (int, float, str)) else type(table).__name__)
         return None, True
-    found: list = []
-    data = copy.deepcopy(table)
+    keys, what, others = model.keys_of(table)
+    # Another type's keys: refused here, named with the nearest of this one's.
+    misplaced = Problems(errors.source, errors.kind)
+    misplaced.unknown_keys([k for k in table if k in others], keys, where, others=others, what=what)
+    found: list = misplaced.items
+    data = copy.deepcopy({k: v for k, v in table.items() if k not in others})
     context: dict[str, Any] = {"folder": folder or Path(".")}
     out: _Table | None = None
     while True:  # ends: every round drops a bad value or turns partial (once), else stops
         try:
             valid = model.model_validate(data, context=context)
         except ValidationError as exc:
-            new = [p for p in _problems(exc, model, where) if p not in found]
+            new = [p for p in _problems(exc, model, where, keys) if p not in found]
             found += new
             dropped = [_drop(data, e["loc"]) for e in exc.errors()]  # every one, not the first only
             if not new or not any(dropped) and context.get("partial"):
@@ -749,7 +795,7 @@ def read_table(model: type[_Table], table, where: str, errors: Problems, *, fold
             # Again without the bad fields: they take their defaults, the rest is judged on.
             context = {**context, "partial": True}
             continue
-        valid._given = set(table)
+        valid._given = set(table) - set(others)
         found += [(f"{where}.{f}" if f else where, e, v if isinstance(v, str) else repr(v))
                   for f, e, v in (valid.problems() if rules else [])]
         out = valid

@@ -31,9 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softvr.errors import raise_all
+from softvr.errors import Problems, raise_all
 from softvr.files import read_toml
-from softvr.scene._keys import known_key
 
 __all__ = ["FORMAT", "MAX_PIXELS", "MAX_SCREENS", "PRESETS", "STEREO_MODES", "Screen", "display_problems",
            "read_display", "tile"]
@@ -171,11 +170,11 @@ def read_display(path, screen=Screen) -> tuple[list, float]:
     docstring), validated; one :class:`~softvr.errors.InputError` listing every problem."""
     source = str(path)
     doc = read_toml(path, "display file")
-    problems = []
+    keys = Problems(source, "display")
+    problems = keys.items  # (what, expected, found), keys no table has first
     if doc.get("format") != FORMAT:
         problems.append(("format", f'"{FORMAT}"', repr(doc.get("format"))[:200]))
-    known = {"format", "eye_separation", "screen"}
-    problems += [(key, known_key(known, key), repr(key)[:100]) for key in sorted(set(doc) - known)]
+    keys.unknown_keys(doc, {"format", "eye_separation", "screen"}, "")
     raw_screens = doc.get("screen", [])
     if not isinstance(raw_screens, list) or not all(isinstance(raw, dict) for raw in raw_screens):
         problems.append(("screen", "[[screen]] tables", type(raw_screens).__name__))
@@ -185,8 +184,7 @@ def read_display(path, screen=Screen) -> tuple[list, float]:
         raw_screens = []
     screens, unread = [], set()
     for i, raw in enumerate(raw_screens):
-        problems += [(f"screen[{i}].{key}", known_key(_SCREEN_KEYS, key), repr(key)[:100])
-                     for key in sorted(set(raw) - set(_SCREEN_KEYS))]
+        keys.unknown_keys(raw, _SCREEN_KEYS, f"screen[{i}]")
         corners = {}
         for key in ("lower_left", "lower_right", "upper_left"):
             value = raw.get(key)

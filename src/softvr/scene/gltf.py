@@ -77,7 +77,10 @@ key of the kinematic bodies' and tools' animations), and the ``[render]`` fields
 ``softvr_size`` [w, h], ``softvr_camera``, ``softvr_azimuth`` [deg], ``softvr_elevation``
 [deg], ``softvr_zoom``, ``softvr_bounds`` [m], ``softvr_background``,
 ``softvr_background_top`` (r, g, b), ``softvr_light_kit``. Booleans may be 0 / 1 (as Blender
-may write them). Every bad property is reported at once, named by the node.
+may write them). Every bad property is reported at once, named by the node; a node takes the
+properties of its type only (a rigid or tool object's material is its ``softvr_density``, so
+its ``softvr_poisson`` is refused as a fem object's), another type's named with the nearest
+its own type takes (:data:`_NODE_KEYS`, from the TOML description's ``BODY_KEYS``).
 
 **Lights**: the ``KHR_lights_punctual`` lights (Blender: Include > Punctual Lights) are the
 scene's lights (``[[light]]``), shining from the light node's world position: a directional
@@ -115,9 +118,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import checked_file, file_name, inside_folder, native_read
 from softvr.gltf import COMPONENTS, gltf_json
-from softvr.scene._description import (GLTF_CELLS, Body, Coupling, Drive, Material, Plane, Render, Simulation,
-                                       read_table)
-from softvr.scene._keys import known_key
+from softvr.scene._description import (BODY_KEYS, GLTF_CELLS, MATERIAL_KEYS, Body, Coupling, Drive, Material,
+                                       ModelTable, Plane, Render, Simulation, Volume, read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 from softvr.scene.schema import (BodySpec, SceneFile, _model, _volume, adhesion_parameters, render_settings,
@@ -128,16 +130,24 @@ __all__ = ["has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problem
 _PREFIX = "softvr_"
 _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", "model")
 _FLOAT = 5126  # accessor componentType of 32-bit floats
-_COUPLING_KEYS = ("couple_to", "coupling_stiffness", "coupling_damping", "coupling_radius", "coupling_points",
-                  "coupling_collide")
-_MATERIAL_KEYS = tuple(Material.model_fields)
+#: A coupling written on a node: its other body and a ``[[coupling]]``'s fields, prefixed.
+_COUPLING_KEYS = ("couple_to", *(f"coupling_{k}" for k in Coupling.model_fields if k not in ("a", "b")))
 #: A body node's own custom properties: the ``[[body]]`` fields its mesh and transform do not give.
 _NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_velocity", "spin_centre", "area_density",
                    "stretch", "shear", "bend", "damping", "alpha", "stiffness", "haptics", "max_force",
                    "collision_triangles")
-#: Every custom property of a body node (and ``adhesion_*``, :class:`~softvr.scene._description.Adhesion`'s).
-_NODE_KEYS = {"type", "render_mesh", "collides_with", "drive_times", "drive_offsets", *_NODE_BODY_KEYS, *_MATERIAL_KEYS,
-              *_COUPLING_KEYS}
+#: The custom properties of a node of each type: a body's (and ``adhesion_*``, :class:`~softvr.scene.
+#: _description.Adhesion`'s) are its type's ``[[body]]`` keys (:data:`~softvr.scene._description.BODY_KEYS`)
+#: that a node gives, its material's (:data:`~softvr.scene._description.MATERIAL_KEYS`), a drive's (refused
+#: on other types by a rule of its own) and a coupling's; a volume's its ``[volume]`` fields (its name is the
+#: node's) and a coupling's; a model's its ``[[model]]`` fields. Another type's are refused, named with the
+#: nearest of these.
+_NODE_KEYS = {**{kind: {"type", "drive_times", "drive_offsets", *_COUPLING_KEYS, *MATERIAL_KEYS.get(kind, ()),
+                        *(k for k in keys if k in (*_NODE_BODY_KEYS, "render_mesh", "collides_with"))}
+                 for kind, keys in BODY_KEYS.items()},
+              "volume": {"type", *_COUPLING_KEYS, *(k for k in Volume.model_fields if k != "name")},
+              "model": {"type", *ModelTable.model_fields}}
+_ANY_NODE_KEY = set().union(*_NODE_KEYS.values())
 #: Every custom property of the scene (and ``ground_adhesion_*``).
 _SCENE_KEYS = {*Simulation.model_fields, *Render.model_fields, "start_time", "ground", "display"}
 #: Properties that are booleans, which Blender may write as 0 / 1.
@@ -445,10 +455,16 @@ def _booleans(table: dict) -> dict:
     return {k: bool(v) if k in _BOOLEANS and type(v) is int and v in (0, 1) else v for k, v in table.items()}
 
 
-def _unknown(props: dict, known: set, prefixes: tuple, where: str, errors: Problems) -> None:
-    """The custom properties no softvr field has, each named with the nearest known one."""
-    for key in sorted(k for k in props if k not in known and not k.startswith(prefixes)):
-        errors.add(f"{where}.{key}", known_key(known, key), repr(key))
+def _node_keys(props: dict, kind, where: str, errors: Problems) -> dict:
+    """A node's custom properties its type takes (:data:`_NODE_KEYS`); the others reported, each
+    named with the nearest it takes, another type's with the types that take it."""
+    valid = _NODE_KEYS.get(kind, _ANY_NODE_KEY)
+    others = {k: f"a key of {' | '.join(t for t, keys in _NODE_KEYS.items() if k in keys)} objects"
+              for k in _ANY_NODE_KEY - valid}
+    sticky = "adhesion_" if kind in BODY_KEYS else None  # a body's adhesion: Adhesion's fields, checked there
+    bad = errors.unknown_keys([k for k in props if not (sticky and k.startswith(sticky))], valid, where,
+                              others=others, what=f"a key of a {kind} object")
+    return {k: v for k, v in props.items() if k not in bad}
 
 
 def read_gltf_scene(path) -> SceneFile:
@@ -463,7 +479,7 @@ def read_gltf_scene(path) -> SceneFile:
 def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
     """A body node's extras as a ``[[body]]`` and its ``[material.NAME]`` (the description's
     models, without the shape: the node's mesh is it). The glTF rules between fields are here."""
-    material_keys = _MATERIAL_KEYS if kind in ("rigid", "fem", "tool") else ()
+    material_keys = MATERIAL_KEYS.get(kind, ())
     table = {k: v for k, v in props.items() if k in _NODE_BODY_KEYS and k not in material_keys}
     if "drive_times" in props or "drive_offsets" in props:
         if kind not in ("fem", "cloth"):
@@ -479,9 +495,6 @@ def _node_body(name: str, where: str, kind: str, props: dict, errors: Problems):
         table["drive"] = None if drive is None or drive.offsets is None or drive.times is None else drive.model_dump()
     if kind == "tool" and "stiffness" not in props:
         errors.add(f"{where}.stiffness", "a number [N/m]", "nothing")
-    if "collision_triangles" in props and kind in ("fixed", "cloth"):
-        errors.add(f"{where}.collision_triangles", "a triangle budget on a rigid, fem, kinematic or tool object",
-                   f"a {kind} object")
     if kind == "fem" and isinstance(props.get("cells"), list):
         errors.add(f"{where}.cells", "a number > 0 [m]", props["cells"])
         table.pop("cells")
@@ -575,10 +588,7 @@ def _node_spec(doc: dict, loaded, buffers: _Buffers, i: int, where: str, kind: s
     if "render_mesh" in props:
         # Another object's mesh drawn instead (thesis 5.1), placed as it is and carried by the body.
         other = props["render_mesh"]
-        if kind == "cloth":
-            errors.add(f"{where}.render_mesh", "a render mesh on a rigid, fem, kinematic, tool or fixed object",
-                       "a cloth object")
-        elif not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
+        if not isinstance(other, str) or other not in loaded.graph.nodes_geometry or not isinstance(
                 loaded.geometry[loaded.graph[other][1]], trimesh.Trimesh):
             errors.add(f"{where}.render_mesh", "the name of an object with a triangle mesh", repr(other))
         else:
@@ -606,7 +616,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     errors = Problems(str(path), "glTF scene")
     scenes = doc.get("scenes") or [{}]
     scene_props = _booleans(_properties(scenes[doc.get("scene", 0)].get("extras")))
-    _unknown(scene_props, _SCENE_KEYS, ("ground_adhesion_",), "scene", errors)
+    errors.unknown_keys([k for k in scene_props if not k.startswith("ground_adhesion_")], _SCENE_KEYS, "scene")
     simulation = simulation_settings({k: v for k, v in scene_props.items() if k in Simulation.model_fields}, "scene",
                                      errors)
     render = render_settings({k: v for k, v in scene_props.items() if k in Render.model_fields}, [], "scene", errors)
@@ -627,6 +637,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
         name = node.get("name") or f"node {i}"
         where = f"node {name!r}"
         kind = errors.choice(props, "type", where, _GLTF_TYPES)
+        props = _node_keys(props, kind, where, errors)
         if kind == "model":  # an Empty: a [[model]], whose parts become bodies
             models.append(_model(len(models), {k: v for k, v in props.items() if k != "type"}, path.parent, errors,
                                  where))
@@ -640,7 +651,6 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             table = {k: v for k, v in props.items() if k not in ("type", *_COUPLING_KEYS)}
             volumes.append(_volume({**table, "name": name}, path.parent, errors, where))
             continue
-        _unknown(props, _NODE_KEYS, ("adhesion_",), where, errors)
         made = _node_spec(doc, loaded, buffers, i, where, kind, props, parent, errors)
         if made is None:
             continue

@@ -139,7 +139,10 @@ Every error names the file, the field path (``body[2].material``), what was expe
 was found, all of a file's errors at once: missing mesh files, unknown body types, numbers out
 of range or of the wrong kind, references to materials, adhesions or bodies that do not exist,
 and keys no table has (``poison = 0.35`` in ``[material.jelly]``: named with the nearest known
-key, ``did you mean 'poisson'?``). Each table is one pydantic model of
+key, ``did you mean 'poisson'?``; a ``[[body]]``'s keys are its type's,
+:data:`~softvr.scene._description.BODY_KEYS`, another type's named with the nearest of its
+own; a ``[[model]]``'s parts file's problems are named below it, ``model[0].file part[2].densty``).
+Each table is one pydantic model of
 :mod:`softvr.scene._description`, where its defaults are written, the glTF reader's too.
 Numbers are SI, bare: one written with a unit (``box = [0.2, 0.2, "20 cm"]``) is reported with
 the SI number to write, and a time step, density, Young's modulus or body size outside what it
@@ -501,7 +504,10 @@ def _model(i: int, t: dict, scene_dir: Path, errors: Problems, where: str | None
     try:
         specs = read_parts(path).parts if path.suffix.lower() == ".toml" else [p.spec for p in load_model(path).parts]
     except InputError as exc:
-        errors.add(f"{w}.file", "a valid parts file or model", str(exc))
+        if exc.source == str(path):  # each of the parts file's problems, named below the field that names it
+            errors.items += [(f"{w}.file {what}", expected, found) for what, expected, found in exc.problems]
+        else:
+            errors.add(f"{w}.file", "a valid parts file or model", str(exc))
         return {"file": path, **empty}
     parts = {p.name: p.kind for p in specs}
     looks = {}

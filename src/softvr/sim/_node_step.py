@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
-                                      stencil_side)
+                                      rigid_side, stencil_side)
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
@@ -36,9 +36,11 @@ from softvr.device import replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
-from softvr.dynamics import FemBody
+from softvr.dynamics import FemBody, RigidBody
 from softvr.errors import InputError
+from softvr.sim._node_sweeps import choose_sweeps
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
+from softvr.sim._node_rigid import RigidNodes
 from softvr.sim.node_model import build_node_model
 
 __all__ = ["IllConditioned", "NodeStepper"]
@@ -53,28 +55,45 @@ SWEEP_TOLERANCE = 1e-5
 #: to the tolerance, make the sweeps slower than the factorization there (54 per decade: 150 ms
 #: against 68 ms a step), while the soft cube (3.5) and the oranges (8.5) gain 5-6x.
 MAX_SWEEPS_PER_DECADE = 25.0
+#: PGS passes over the contacts per sweep.
+SWEEP_PASSES = 2
 
 
 class IllConditioned(Exception):
-    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`);
-    raised before the step has changed the scene."""
+    """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`
+    for Jacobi; :func:`softvr.sim._node_sweeps.choose_sweeps` for Gauss-Seidel); raised before
+    the step has changed the scene."""
+
+
+def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
+    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
+    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
+    and are driven; a rigid body's have none either: their D_A is all of their A)."""
+    n = model.node_count
+    rows = model.block_row.numpy()
+    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    blocks = state.blocks.numpy()
+    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
+    free = np.repeat(solved, 3)
+    return a[free][:, free], solved
 
 
 def spectrum(model, state) -> tuple[float, float]:
     """Bounds (lo, hi) of the eigenvalues of D_A^-1 A over the free nodes, from this step's
-    ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A),
-    with :data:`SPECTRUM_MARGIN`."""
+    ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A), the
+    smallest in shift-invert mode, with :data:`SPECTRUM_MARGIN`."""
     n = model.node_count
-    if not (model.fixed.numpy() == 0).any():
+    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
+    # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
+    # trace(D_A^-1 A) / 3n, is 1).
+    a, solved = _free_matrix(model, state)
+    if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
     blocks = state.blocks.numpy()
-    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
-    free = np.repeat(model.fixed.numpy() == 0, 3)
-    a = a[free][:, free]
-    rows, cols = model.block_row.numpy(), model.block_col.numpy()
-    diag = np.tile(np.eye(3), (n, 1, 1))  # a kinematic body's nodes have no blocks (and are driven)
+    diag = np.tile(np.eye(3), (n, 1, 1))
     diag[rows[rows == cols]] = blocks[rows == cols]
-    l_inv = np.linalg.inv(np.linalg.cholesky(diag[model.fixed.numpy() == 0]))
+    l_inv = np.linalg.inv(np.linalg.cholesky(diag[solved]))
     k = len(l_inv)
     l_inv = sp.bsr_matrix((l_inv, np.arange(k), np.arange(k + 1)), shape=(3 * k, 3 * k)).tocsr()
     s = (l_inv @ a @ l_inv.T).tocsr()
@@ -82,18 +101,32 @@ def spectrum(model, state) -> tuple[float, float]:
     # every run (the bounds set the Chebyshev weights, and so the rounding of every sweep).
     start = np.random.default_rng(0).standard_normal(s.shape[0])
     hi = float(spla.eigsh(s, k=1, which="LA", return_eigenvectors=False, tol=1e-3, v0=start)[0])
-    shifted = (hi * sp.identity(s.shape[0]) - s).tocsr()
-    lo = hi - float(spla.eigsh(shifted, k=1, which="LA", return_eigenvectors=False, tol=1e-6, v0=start)[0])
+    # The smallest by shift-invert about 0 (one sparse LU of the SPD matrix): Lanczos on
+    # hi - s converged slowly where lo << hi (candy: 14.7 s against 0.8 s, the same lo).
+    lo = float(spla.eigsh(s.tocsc(), k=1, sigma=0.0, which="LM", return_eigenvectors=False, tol=1e-6, v0=start)[0])
     return max(lo, 1e-6 * hi) * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]
 
 
 class _NodeSnapshot(StepSnapshot):
-    """A node step's snapshot (:class:`StepSnapshot`), with the step's start positions for the
-    contact points."""
+    """A node step's snapshot (:class:`StepSnapshot`), with the collision points' positions
+    ``x0`` [p, 3] [m] at the step's start."""
 
-    def __init__(self, stepper, contacts: dict, q0: np.ndarray, velocities: list, sweeps: int, residual: float):
+    def __init__(self, stepper, contacts: dict, x0: np.ndarray, velocities: list, sweeps: int, residual: float):
         super().__init__(contacts, velocities, sweeps, residual)
-        self._stepper, self._q0 = stepper, q0
+        self._stepper, self._x0 = stepper, x0
+
+    def _rigid_side(self, rows: np.ndarray, body: int, sign: float) -> ContactSide:
+        """Side ``body`` (a rigid body) of contacts ``rows``, at the levers the step used: the
+        contacts' rigid side on its angular node, ``sign`` -1 for side b (its lever is stored
+        negated, as the triangle's weights are)."""
+        c = self.contacts
+        on = c["rigid_node"][rows] == self._stepper.model.body_node_start[body] + 1
+        return rigid_side(body, sign * np.einsum("cs,csx->cx", on, c["rigid_lever"][rows]))
+
+    def _at_start(self, rows: np.ndarray, side: ContactSide, sign: float) -> ContactSide:
+        """``side``, or for a rigid body its side at the step's levers (:meth:`_rigid_side`)."""
+        rigid = type(self._stepper.scene.bodies[side.body]) is RigidBody
+        return self._rigid_side(rows, side.body, sign) if rigid else side
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, in body order: one per (body, plane), then per (body, body
@@ -105,7 +138,7 @@ class _NodeSnapshot(StepSnapshot):
             body = s.contact_body(c)
             order = np.lexsort((c["point"], c["other"], c["kind"], body))
             order = order[c["movable"][order]]
-            pair = (body[order] * 3 + c["kind"][order]) * (len(s.scene.planes) + len(s.scene.bodies) + 1) \
+            pair = (body[order] * 4 + c["kind"][order]) * (len(s.scene.planes) + len(s.scene.bodies) + 1) \
                 + c["other"][order]
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
@@ -119,6 +152,12 @@ class _NodeSnapshot(StepSnapshot):
         for rows in self.sets():
             kind, other = int(c["kind"][rows[0]]), int(c["other"][rows[0]])
             normal, gap, friction = c["frame"][rows, 0], c["gap"][rows], c["friction"][rows]
+            if kind == 3:  # primitives of rigid bodies (the rigid path's contacts and keys)
+                body = int(c["column"][rows[0]])
+                side_b = None if other < 0 else self._rigid_side(rows, other, -1.0)
+                sets.append(Contacts(self._rigid_side(rows, body, 1.0), side_b, normal, gap, c["point_a"][rows],
+                                     c["point_b"][rows], c["key"][rows], friction, np.zeros(len(rows))))
+                continue
             if kind == 2:  # edge pairs: both sides are two surface vertices
                 edge_a, edge_b = c["point"][rows], c["face"][rows]
                 body = int(s.edge_body[edge_a[0]])
@@ -127,8 +166,9 @@ class _NodeSnapshot(StepSnapshot):
                 for b, edge, t in ((body, edge_a, st[:, 0]), (other, edge_b, st[:, 1])):
                     ends = s.edges[edge] - model.body_point_start[b]
                     weights = np.column_stack([1.0 - t, t])
-                    sides.append(stencil_side(b, model.surfaces[b].points, ends, weights))
-                    points.append(np.einsum("ck,ckx->cx", weights, s.point_positions(self._q0, s.edges[edge])))
+                    sides.append(self._at_start(rows, stencil_side(b, model.surfaces[b].points, ends, weights),
+                                                1.0 if b == body else -1.0))
+                    points.append(np.einsum("ck,ckx->cx", weights, self._x0[s.edges[edge]]))
                 keys = contact_keys(ContactKind.EDGE_EDGE, body, edge_a - int(s.edge_start[body]), other,
                                     edge_b - int(s.edge_start[other]))
                 sets.append(Contacts(sides[0], sides[1], normal, gap, points[0], points[1], keys, friction,
@@ -137,15 +177,16 @@ class _NodeSnapshot(StepSnapshot):
             point = c["point"][rows]
             body = int(s.point_body[point[0]])
             local = point - model.body_point_start[body]
-            x = s.point_positions(self._q0, point)
+            x = self._x0[point]
             if kind == 0:
                 side_b, keys = None, contact_keys(ContactKind.POINT_PLANE, body, local, other, 0)
             else:
                 surface = model.surfaces[other]
                 faces = c["face"][rows] - int(s.triangle_start[other])
-                side_b = stencil_side(other, surface.points, surface.triangles[faces], c["bary"][rows])
+                side_b = self._at_start(rows, stencil_side(other, surface.points, surface.triangles[faces],
+                                                           c["bary"][rows]), -1.0)
                 keys = contact_keys(ContactKind.VERTEX_TRIANGLE, body, local, other, 0)
-            side_a = ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local))
+            side_a = self._at_start(rows, ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local)), 1.0)
             sets.append(Contacts(side_a, side_b, normal, gap, x, x - gap[:, None] * normal, keys, friction,
                                  np.zeros(len(rows))))
         islands = contact_islands(len(self.velocities),
@@ -176,14 +217,13 @@ class NodeStepper:
         self.colliders = {c.body: c for c in scene._colliders}
         self.fem = [type(b) is FemBody for b in scene.bodies]
         self.fixed_nodes = self.model.fixed.numpy() != 0
-        self.point_nodes = self.model.point_nodes.numpy()
-        self.point_weights = self.model.point_weights.numpy()
         self.point_body = self.model.point_body.numpy()
         self.triangle_start = self.model.body_triangle_start.numpy()
         self.edges = self.model.edges.numpy()
         self.edge_body = self.model.edge_body.numpy()
         self.edge_start = self.model.body_edge_start.numpy()
         self._bind_bodies()
+        self.rigid = RigidNodes(scene, self.model.rigid) if self.model.rigid is not None else None
         self._carry_in(scene._warm)
         self._recorded = None
         self._spectrum = {}
@@ -192,12 +232,10 @@ class NodeStepper:
         """Side a's body of each contact of a snapshot's ``contacts``."""
         feature = contacts["point"]
         edge = contacts["kind"] == 2
-        return np.where(edge, self.edge_body[np.where(edge, feature, 0)] if len(self.edge_body) else 0,
-                        self.point_body[np.where(edge, 0, feature)] if len(self.point_body) else 0)
-
-    def point_positions(self, q: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Positions [..., 3] [m] of global collision points ``points`` [...] at node positions ``q``."""
-        return np.einsum("...k,...kx->...x", self.point_weights[points], q[np.maximum(self.point_nodes[points], 0)])
+        primitive = contacts["kind"] == 3  # side a's body is the column
+        point = self.point_body[np.where(edge | primitive, 0, feature)] if len(self.point_body) else 0
+        return np.where(primitive, contacts["column"],
+                        np.where(edge, self.edge_body[np.where(edge, feature, 0)] if len(self.edge_body) else 0, point))
 
     def _scene_settings(self) -> tuple:
         s = self.scene
@@ -226,6 +264,8 @@ class NodeStepper:
 
     def _sync_in(self) -> None:
         """Copy in any position or velocity the user assigned since the last step."""
+        if self.rigid is not None:
+            self.rigid.sync_in()
         for i, views in self._views.items():
             body = self.scene.bodies[i]
             for name, view in zip(("q", "v", "fixed_velocity"), views):
@@ -317,17 +357,29 @@ class NodeStepper:
         detect = record_node_detection(m, st, dt, s.gravity, s.contact_margin, s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
+        if self.rigid is not None:
+            self.rigid.record(st, dt, s.gravity)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate]
 
     def _solver(self, dt: float) -> NodeSolve:
-        """The recorded sweeps for ``dt`` (the Chebyshev bounds estimated on the first use)."""
+        """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
+        decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
+        bounds on the first use."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
-                self._spectrum[dt] = spectrum(self.model, self.state)
-            solve = NodeSolve(self.model, self.state, dt, self._spectrum[dt], max_sweeps=self.scene.pgs_iterations)
-            if solve.rate > 0 and np.log(10.0) / -np.log(solve.rate) > MAX_SWEEPS_PER_DECADE:
-                raise IllConditioned(f"{np.log(10.0) / -np.log(solve.rate):.0f} sweeps per decade")
-            self._recorded[5] = solve
+                bounds = spectrum(self.model, self.state)
+                a, free = _free_matrix(self.model, self.state)
+                m = self.model
+                self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
+                                                   MAX_SWEEPS_PER_DECADE, int(self.state.contacts.count.numpy()[0]),
+                                                   SWEEP_PASSES, SPECTRUM_MARGIN)
+            choice = self._spectrum[dt]
+            if choice.kind is None:
+                raise IllConditioned("node sweeps too slow: " + ", ".join(
+                    f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
+            self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
+                                          max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
+                                          colours=choice.colours, omega=choice.omega)
         return self._recorded[5]
 
     def _external_forces(self) -> None:
@@ -354,14 +406,15 @@ class NodeStepper:
         driven = self._drive(dt)
         self._record(dt)
         _, elements, assemble, rhs, detect, _, carry, integrate = self._recorded
-        q0 = self._q.copy()
         elements()
         assemble()
         rhs()
-        solve = self._solver(dt)
+        if self.rigid is not None:
+            self.rigid.before_sweeps()
         t1 = time.perf_counter()
         detect()
         t2 = time.perf_counter()
+        solve = self._solver(dt)  # after the detection: the choice counts the contacts
         # The sweeps start from last step's velocity change carried on (v + (v - v_before)), or
         # on a first step the explicit one (v + dt (g + f_ext / m)): a uniform change (gravity,
         # a push, a resting body's none) is Jacobi's slowest mode, and these guesses have it.
@@ -372,6 +425,8 @@ class NodeStepper:
             start = 2.0 * self._v - self._v_before
         self._v_before = self._v.copy()
         start[self.fixed_nodes] = self._fixed_v[self.fixed_nodes]
+        if self.rigid is not None:
+            self.rigid.start(start)
         buffers[0].numpy()[:] = start
         buffers[2].numpy()[:] = start
         sweeps, solved = solve.solve(SWEEP_TOLERANCE)
@@ -379,15 +434,18 @@ class NodeStepper:
         t3 = time.perf_counter()
         integrate[sweeps % 3]()
         self._check()
+        if self.rigid is not None:
+            self.rigid.integrate(sweeps % 3)
         for i, body in enumerate(self.scene.bodies):
             if self.fem[i]:
                 body.step_count += 1
                 body.last_cg_iterations = 0
-            else:
+            elif i in driven:
                 body.integrate(driven[i], dt)
-        snapshot = _NodeSnapshot(self, self._contacts_out(), q0,
-                                 [self._views[i][1].copy() if self.fem[i] else driven[i]
-                                  for i in range(len(self.fem))], sweeps, float(solve.stats.numpy()[1]))
+        snapshot = _NodeSnapshot(self, self._contacts_out(), self.state.point_x.numpy()[:self.model.point_count].copy(),
+                                 [self._views[i][1].copy() if self.fem[i] else driven[i] if i in driven
+                                  else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
+                                 float(solve.stats.numpy()[1]))
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
@@ -399,7 +457,11 @@ class NodeStepper:
         c = self.state.contacts
         out = {name: getattr(c, name).numpy()[:n].copy()
                for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
-                            "gap_after")}
+                            "gap_after", "rigid_node", "rigid_lever")}
+        if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
+            rows = np.where(out["kind"] == 3, out["point"], 0)
+            out.update({name: getattr(self.model.rigid.state.contacts, name).numpy()[rows]
+                        for name in ("key", "point_a", "point_b")})
         nodes = c.stencil_nodes.numpy()[:n]
         used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)

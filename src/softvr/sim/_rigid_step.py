@@ -31,7 +31,34 @@ from softvr.device import replayer
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
 from softvr.sim.model import build_rigid_model
 
-__all__ = ["LazySolution", "RigidStepper", "StepSnapshot"]
+__all__ = ["LazySolution", "RigidStepper", "StepSnapshot", "bind_views", "sync_views"]
+
+
+def bind_views(bodies: list, state) -> list[tuple]:
+    """Make each body's ``position``, ``orientation`` and ``v`` a view of its row of ``state``
+    (a :class:`~softvr.sim.RigidState` over ``bodies``, in order); returns the views."""
+    # One view per body and field, made once: a user's assignment rebinds the attribute,
+    # which an identity test against these finds (``store[i]`` makes a new view each time).
+    position, orientation = state.body_position.numpy(), state.body_orientation.numpy()
+    velocity = state.body_velocity.numpy()
+    views = [(position[i], orientation[i], velocity[i]) for i in range(len(bodies))]
+    for body, view in zip(bodies, views):
+        body.position, body.orientation, body.v = view
+    return views
+
+
+def sync_views(bodies: list, views: list[tuple]) -> None:
+    """Copy in any pose or velocity the user assigned to ``bodies`` since :func:`bind_views`."""
+    for body, (position, orientation, v) in zip(bodies, views):
+        if body.position is not position:
+            position[:] = body.position
+            body.position = position
+        if body.orientation is not orientation:
+            orientation[:] = body.orientation
+            body.orientation = orientation
+        if body.v is not v:
+            v[:] = body.v
+            body.v = v
 
 
 class StepSnapshot:
@@ -248,25 +275,11 @@ class RigidStepper:
         self._buffers = [(st.contacts.views(), st.contacts.count.numpy()) for st in self._states]
         self._moves = np.append(self.model.body_inv_mass.numpy() > 0, False)  # [n + 1], body -1 static
         self._pushed = True
-        # One view per body and field, made once: a user's assignment rebinds the attribute,
-        # which an identity test against these finds (``store[i]`` makes a new view each time).
-        self._views = [(self._position[i], self._orientation[i], self._velocity[i])
-                       for i in range(len(self.scene.bodies))]
-        for body, views in zip(self.scene.bodies, self._views):
-            body.position, body.orientation, body.v = views
+        self._views = bind_views(self.scene.bodies, self.state)
 
     def _sync_in(self) -> None:
         """Copy in any pose or velocity the user assigned since the last step."""
-        for body, (position, orientation, v) in zip(self.scene.bodies, self._views):
-            if body.position is not position:
-                position[:] = body.position
-                body.position = position
-            if body.orientation is not orientation:
-                orientation[:] = body.orientation
-                body.orientation = orientation
-            if body.v is not v:
-                v[:] = body.v
-                body.v = v
+        sync_views(self.scene.bodies, self._views)
 
     def _carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """What the per-object path left (warm starts, intensities, slips), as the carried arrays."""

@@ -20,9 +20,10 @@ import warp as wp
 
 from softvr.collision.edges import PAIRS_PER_EDGE
 from softvr.collision.node_detection import CONTACT_STENCIL
-from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidPoints
+from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
 from softvr.sim._node_couplings import (NodeCouplings, build_node_couplings, coupling_blocks, coupling_springs,
                                        couplings_supported, driven_points)
+from softvr.sim._node_rigid import NodeRigid, build_node_rigid
 
 __all__ = ["NodeContacts", "NodeModel", "NodeState", "build_node_model", "node_model_supported"]
 
@@ -117,6 +118,9 @@ class NodeModel:
     couplings : NodeCouplings
         The coupling springs (thesis eq. 5.4): their blocks of ``A``, forces and the kinematic
         and fixed bodies' driven nodes (collision points, then coupling points).
+    rigid : NodeRigid or None
+        The rigid bodies (each two nodes: linear and angular velocity), their primitives and
+        collision points' body frame (None: no rigid body).
     """
 
     device: str
@@ -165,6 +169,7 @@ class NodeModel:
     bvhs: list
     bvh_ids: wp.array
     couplings: NodeCouplings
+    rigid: NodeRigid | None
 
 
 @dataclass
@@ -178,7 +183,9 @@ class NodeContacts:
     capacity : int
     count : wp.array(int32) [1]
     kind : wp.array(int32) [c]
-        0: point vs plane, 1: surface vertex vs a triangle of another body, 2: edge vs edge.
+        0: point vs plane, 1: surface vertex vs a triangle of another body, 2: edge vs edge,
+        3: a rigid body's box or sphere primitive vs a plane or another primitive (``column``
+        side a's body, ``point`` the rigid path's contact row, ``other`` side b's body or -1).
     column : wp.array(int32) [c]
         The contact's column in ``carried`` (kinds 0, 1) or ``edge_carried`` (kind 2).
     point : wp.array(int32) [c]
@@ -213,6 +220,9 @@ class NodeContacts:
         The edge queries' findings (edge met, or -1), per (edge, slot).
     edge_carried : wp.array2d(vec3d) [e, 2 B] [N s]; edge_partner : wp.array2d(int32) [e, 2 B]
         World impulse of each edge pair at the last step, and the edge it was with.
+    rigid_node : wp.array2d(int32) [c, 2]; rigid_lever : wp.array2d(vec3d) [c, 2] [m]
+        The contact's rigid sides: angular node (-1: none) and lever arm, adding
+        ``omega x lever`` to the relative velocity (:mod:`softvr.collision.node_rigid_detection`).
     """
 
     capacity: int
@@ -243,6 +253,8 @@ class NodeContacts:
     pair_gap: wp.array
     edge_carried: wp.array
     edge_partner: wp.array
+    rigid_node: wp.array
+    rigid_lever: wp.array
 
 
 @dataclass
@@ -303,24 +315,25 @@ class NodeState:
 
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
-    linear; at least one), kinematic and fixed bodies (with or without a collision sphere or
-    box), static planes, couplings between them (each side an FEM body's embedded points or a
-    kinematic or fixed body's points); no static meshes or spheres, rigid bodies or adhesion; at most one
-    set of collision points
+    linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
+    and fixed bodies (with or without one, where no rigid body has one), static planes,
+    couplings between them (each side an FEM body's embedded points or a kinematic or fixed
+    body's points); no static meshes or spheres or adhesion; at most one set of collision points
     per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
-    4 nodes, a kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
+    4 nodes, a rigid, kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
     collision surface over its own points."""
     if scene.meshes or scene.spheres or not couplings_supported(scene):
         return False
     # A kinematic or fixed body's collision sphere or box meets only planes and other
-    # primitives, which cannot move it or be moved: its contacts would all be dropped.
-    primitives = scene._sphere_bodies + scene._box_bodies
-    if any(type(scene.bodies[i]) not in (KinematicBody, FixedBody) for i, _ in primitives):
+    # primitives, which cannot move it: its contacts would all be dropped, so none may meet a
+    # rigid body's primitive.
+    driven = [type(scene.bodies[i]) in (KinematicBody, FixedBody) for i, _ in scene._sphere_bodies + scene._box_bodies]
+    if any(driven) and not all(driven):
         return False
     fem = [b for b in scene.bodies if type(b) is FemBody]
     if not fem or len({b.corotational for b in fem}) != 1:
         return False
-    if not all(type(b) in (FemBody, KinematicBody, FixedBody) for b in scene.bodies):
+    if not all(type(b) in (FemBody, RigidBody, KinematicBody, FixedBody) for b in scene.bodies):
         return False
     if any(a is not None for a in scene._adhesion.values()):
         return False
@@ -369,7 +382,10 @@ def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
 
 def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
     """Stencil nodes and weights [p, 4] (global; -1: unused) and margins [p] [m] of every
-    collision point; a kinematic body's points are its own nodes, weight 1."""
+    collision point; a kinematic body's points are its own nodes, weight 1, a rigid body's its
+    linear node (the angular one is a rigid side); -inf for a point that meets no plane (a
+    rigid body's with a primitive: the primitive meets them exactly)."""
+    primitive = {i for i, _ in scene._sphere_bodies + scene._box_bodies}
     p = int(point_start[-1])
     nodes = np.full((p, STENCIL), -1, np.int64)
     weights = np.zeros((p, STENCIL))
@@ -380,10 +396,13 @@ def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
             k = c.points.nodes.shape[1]
             nodes[rows, :k] = c.points.nodes + node_start[c.body]
             weights[rows, :k] = c.points.weights
+        elif type(bodies[c.body]) is RigidBody:
+            nodes[rows, 0] = node_start[c.body]
+            weights[rows, 0] = 1.0
         else:
             nodes[rows, 0] = node_start[c.body] + np.arange(rows.stop - rows.start)
             weights[rows, 0] = 1.0
-        margin[rows] = c.margin
+        margin[rows] = -np.inf if type(bodies[c.body]) is RigidBody and c.body in primitive else c.margin
     return nodes, weights, margin
 
 
@@ -393,10 +412,11 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     colliders = {c.body: c for c in scene._colliders}
     point_counts = [len(colliders[i].points.positions()) if i in colliders else 0 for i in range(len(bodies))]
     fem = [type(b) is FemBody for b in bodies]
+    rigid = [type(b) is RigidBody for b in bodies]
     # A kinematic body's nodes: where its points (collision, then coupling) are, at its
-    # velocity; driven, so no mass acts.
+    # velocity; driven, so no mass acts. A rigid body's: its linear and its angular velocity.
     driven = driven_points(scene, colliders)
-    node_counts = [len(b.q) if f else (0 if driven[i] is None else len(driven[i].local))
+    node_counts = [len(b.q) if f else 2 if rigid[i] else (0 if driven[i] is None else len(driven[i].local))
                    for i, (b, f) in enumerate(zip(bodies, fem))]
     node_start = np.cumsum([0] + node_counts)
     point_start = np.cumsum([0] + point_counts)
@@ -407,13 +427,15 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     springs = coupling_springs(scene, node_start, colliders)
     terms = coupling_blocks(springs, fem_rows)
     block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n, terms[0])
-    kinematic = [i for i in range(nbody) if not fem[i]]
+    kinematic = [i for i in range(nbody) if not fem[i] and not rigid[i]]
 
     def per_node(fem_value, other_value):
         return np.concatenate([fem_value(b) if f else np.full((k,) + np.shape(other_value), other_value)
                                for b, f, k in zip(bodies, fem, node_counts)])
 
     def positions(b, i):
+        if rigid[i]:
+            return np.array([b.position, np.zeros(3)])  # the angular node has no position
         return b.q if fem[i] else (driven[i].positions() if driven[i] is not None else np.zeros((0, 3)))
 
     scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) if f else np.inf for b, f in zip(bodies, fem)]
@@ -427,9 +449,11 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     triangles = np.concatenate([np.zeros((0, 3), np.int64)] + [surfaces[i].triangles + point_start[i]
                                                                for i in range(nbody) if i in surfaces])
     pair = np.zeros((nbody, nbody), np.int32)
+    primitive = {i: "sphere" for i, _ in scene._sphere_bodies} | {i: "box" for i, _ in scene._box_bodies}
     for a in surfaces:
         for b in surfaces:
-            pair[a, b] = int(a != b and scene.collision_enabled(a, b))
+            # Two boxes or two spheres meet by their primitives, exactly (as per object).
+            pair[a, b] = int(a != b and scene.collision_enabled(a, b) and primitive.get(a, "a") != primitive.get(b, "b"))
     edged = [i for i in surfaces if pair[i].any()] if scene.edge_contacts else []
     edge_sets = {i: surfaces[i].edge_set for i in edged}
     edge_counts = [len(edge_sets[i].edges) if i in edge_sets else 0 for i in range(nbody)]
@@ -468,7 +492,7 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         rest=_f64(np.concatenate([b.rest if fem[i] else positions(b, i) for i, b in enumerate(bodies)]), d, wp.vec3d),
         mass=_f64(np.concatenate(f64_nodes), d),
         node_alpha=_f64(per_node(lambda b: np.full(len(b.q), b.material.alpha), 0.0), d),
-        fixed=_i32(per_node(lambda b: b.fixed, 1), d),
+        fixed=_i32(per_node(lambda b: b.fixed, 1) * ~np.repeat(rigid, node_counts), d),
         speed_limit=_f64(np.concatenate([np.full(k, s) for k, s in zip(node_counts, scale)]), d),
         tets=_i32(tets, d), dm_inv=_f64(np.concatenate([b._dm_inv for b, f in zip(bodies, fem) if f]), d, wp.mat33d),
         ke=_f64(np.concatenate([b._ke for b, f in zip(bodies, fem) if f]).reshape(m, 4, 3, 4, 3)
@@ -488,9 +512,11 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
         edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
         bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
-        couplings=build_node_couplings(springs, terms, fem_rows, block_row.astype(np.int64) * n + block_col, driven, d))
+        couplings=build_node_couplings(springs, terms, fem_rows, block_row.astype(np.int64) * n + block_col, driven, d),
+        rigid=build_node_rigid(scene, node_start, point_start, d))
     surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
-    capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e, 1)
+    capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e
+                   + (model.rigid.model.contact_capacity if model.rigid is not None else 0), 1)
     wide = (max(p, 1), nbody)
     edge_wide = (max(e, 1), PAIRS_PER_EDGE * nbody)
     contacts = NodeContacts(
@@ -514,7 +540,9 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         pair_normal=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
         pair_gap=wp.zeros(edge_wide, dtype=wp.float64, device=d),
         edge_carried=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
-        edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d))
+        edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d),
+        rigid_node=wp.full((capacity, 2), -1, dtype=wp.int32, device=d),
+        rigid_lever=wp.zeros((capacity, 2), dtype=wp.vec3d, device=d))
 
     def vec():
         return wp.zeros(n, dtype=wp.vec3d, device=d)
@@ -522,7 +550,7 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     q = np.concatenate([positions(b, i) for i, b in enumerate(bodies)])
     state = NodeState(
         q=_f64(q, d, wp.vec3d),
-        v=_f64(np.concatenate([b.v if fem[i] else np.zeros((k, 3))
+        v=_f64(np.concatenate([b.v if fem[i] else np.reshape(b.v, (2, 3)) if rigid[i] else np.zeros((k, 3))
                                for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
         fixed_velocity=_f64(np.concatenate([b.fixed_velocity if fem[i] else np.zeros((k, 3))
                                             for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),

@@ -111,6 +111,11 @@ class SOFTVR_OT_mark(bpy.types.Operator):
                     del obj[key]
                 continue
             obj["softvr_type"] = self.kind
+            # A re-marked object drops the other kinds' properties: softvr refuses an object that
+            # carries keys of another type (a rigid body with softvr_young), so they cannot linger.
+            foreign = {k for kind in DEFAULTS for k in DEFAULTS[kind]} - set(DEFAULTS[self.kind])
+            for key in foreign & set(obj.keys()):
+                del obj[key]
             for key, value in DEFAULTS[self.kind].items():
                 if key not in obj:
                     obj[key] = value

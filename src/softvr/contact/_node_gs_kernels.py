@@ -1,0 +1,118 @@
+"""The node update of a multicolour symmetric block Gauss-Seidel sweep of thesis eq. 5.6 (in
+place of its outer Jacobi; :mod:`softvr.contact._node_jacobi_kernels` has the contact PGS and
+the Chebyshev step, which are shared). One source for CPU and CUDA.
+
+A sweep from ``v^k`` on the work array ``w`` (set to ``v^k`` first), with the nodes in some
+contact's stencil ("contact nodes") set apart:
+
+    1. colours 0 .. C-1, the free nodes i of each that are not contact nodes (no block couples
+       two nodes of one colour):  w_i = D_i^-1 (b_i - sum_{j != i} A_ij w_j)
+    2. the contact nodes, damped Jacobi on the swept neighbours:
+       v^_i = (1 - omega) v^k_i + omega D_i^-1 (b_i - sum_{j != i} A_ij w_j)
+    3. the contact PGS (shared kernel, metric omega D_A^-1) projects v^ of the contact nodes;
+       w_i = v^_i there
+    4. colours C-1 .. 0 again (backward), v^_i = w_i
+
+Its fixed point solves ``A v = b + J^T lambda`` with lambda complementary, and the update that
+the PGS projects does not depend on last sweep's impulses (only on ``v^k``), so the Chebyshev
+step over ``v`` alone is sound, as with Jacobi. Without contacts the sweep is symmetric block
+Gauss-Seidel: error operator ``I - M^-1 A`` with ``M = (D + L) D^-1 (D + U)`` (L, U the block
+triangles in colour order; M^-1 A has its spectrum in (0, 1]). With contacts it is
+``F^* S F`` (F the forward half, ``F^*`` its A-adjoint the backward half, S the damped Jacobi
+step of the contact nodes): with ``omega <= 1 / lambda_max(D_A^-1 A)``, S has its spectrum in
+[0, 1), so M^-1 A still has none above 1, which the Chebyshev weights need.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+
+@wp.kernel
+def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int):
+    """``w = v`` [m/s]: the sweep's work array starts at its velocities."""
+    i = wp.tid() + offset
+    w[i] = v[i]
+
+
+@wp.func
+def _gather(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+            blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+            w: wp.array(dtype=wp.vec3d)):
+    """``D_i^-1 (b_i - sum_{j != i} A_ij w_j)`` [m/s]."""
+    r = b[i]
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if j != i:
+            r = r - blocks[k] * w[j]
+    return d_inv[i] * r
+
+
+@wp.kernel
+def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), first: int, last: int,
+                 w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
+    """Steps 1 and 4: update ``w`` [m/s] of the nodes ``order[first + t]`` of one colour that
+    are not contact nodes (neighbours not yet updated hold the sweep's start); on their
+    ``last`` update of the sweep, ``v_hat`` [m/s] too."""
+    i = order[first + wp.tid() + offset]
+    if contact_node[i] != 0:
+        return
+    value = fixed_velocity[i]
+    if fixed[i] == 0:
+        value = _gather(i, row_start, block_col, blocks, d_inv, b, w)
+    w[i] = value
+    if last != 0:
+        v_hat[i] = value
+
+
+@wp.kernel
+def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
+    """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes from the
+    sweep's start ``v`` and the swept ``w`` [m/s]."""
+    i = wp.tid() + offset
+    if contact_node[i] == 0:
+        return
+    if fixed[i] != 0:
+        v_hat[i] = fixed_velocity[i]
+        return
+    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * _gather(i, row_start, block_col, blocks, d_inv, b, w)
+
+
+@wp.kernel
+def projected(contact_node: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+              offset: int):
+    """Step 3's ``w_i = v^_i`` [m/s] at the contact nodes."""
+    i = wp.tid() + offset
+    if contact_node[i] != 0:
+        w[i] = v_hat[i]
+
+
+@wp.kernel
+def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                       stencil_nodes: wp.array2d(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+                       contact_node: wp.array(dtype=wp.int32)):
+    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves: its stencil and its
+    rigid sides' angular nodes (-1: none) (``contact_node`` zeroed before; one thread per
+    contact slot, the first ``count[0]`` used)."""
+    c = wp.tid()
+    if c >= count[0]:
+        return
+    for k in range(stencil_count[c]):
+        contact_node[stencil_nodes[c, k]] = 1
+    for s in range(rigid_node.shape[1]):
+        if rigid_node[c, s] >= 0:
+            contact_node[rigid_node[c, s]] = 1
+
+
+@wp.kernel
+def scale(d_inv: wp.array(dtype=wp.mat33d), omega: wp.float64, out: wp.array(dtype=wp.mat33d)):
+    """``out = omega D_A^-1`` [1/kg]: the contact PGS's metric for damped contact nodes."""
+    i = wp.tid()
+    out[i] = omega * d_inv[i]

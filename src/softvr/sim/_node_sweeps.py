@@ -1,0 +1,107 @@
+"""Which sweeps a scene on the node arrays takes (thesis eq. 5.6): node-block Jacobi or
+multicolour symmetric block Gauss-Seidel (:mod:`softvr.contact.node_gauss_seidel`), whichever
+needs less work per decade of error, counting the contact PGS that every sweep of either kind
+runs; neither when both are slower than the per-object sparse LU.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softvr.contact.node_colouring import NodeColouring, colour_nodes
+from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
+
+__all__ = ["SweepChoice", "choose_sweeps", "sweep_costs", "sweeps_per_decade"]
+
+#: Work per decade, in this scene's Jacobi sweeps, above which the Gauss-Seidel sweeps too are
+#: left to the per-object path. Higher than Jacobi's limit: with Gauss-Seidel the steps of the
+#: head CT need fewer decades than the estimate (the warm start carries the slow modes),
+#: measured 1.0-2.4x faster than its LU at ~37 (docs: node-gs measurements).
+MAX_GAUSS_SEIDEL_WORK_PER_DECADE = 40.0
+#: Cost of the parts of a sweep, in the time of one 3x3 block product of the Jacobi kernel
+#: (~8 ns on the CPU, Warp 1.19; measured on the head CT: a Jacobi node update 160 us, a
+#: Gauss-Seidel one 450 us over its 7 colours, 13 launches and the start copy, 2.7x): a
+#: Gauss-Seidel block product (the nodes in colour order gather from farther apart), a launch
+#: (a CPU replay's fixed cost, ~8 us), a node's Chebyshev update, and one contact's PGS pass
+#: (stencil gathers and scatters, the friction disc).
+GAUSS_SEIDEL_BLOCK = 1.15
+LAUNCH = 1000.0
+CHEBYSHEV_NODE = 1.0
+CONTACT_PASS = 12.0
+
+
+@dataclass(frozen=True)
+class SweepChoice:
+    """The sweeps a scene takes.
+
+    Attributes
+    ----------
+    kind : str or None
+        "jacobi", "gauss-seidel", or None: both too slow (the scene steps per object).
+    bounds : tuple of float
+        (lo, hi) of the spectrum of the chosen iteration's ``M^-1 A`` (with margins).
+    colours : NodeColouring or None
+        The Gauss-Seidel colouring; None for Jacobi.
+    omega : float
+        The Gauss-Seidel sweeps' damping of the contact nodes: 1 / Jacobi's upper bound.
+    work : dict
+        Work per decade of each kind, in this scene's Jacobi sweeps (contacts included).
+    """
+
+    kind: str | None
+    bounds: tuple[float, float]
+    colours: NodeColouring | None
+    omega: float
+    work: dict
+
+
+def sweeps_per_decade(bounds: tuple[float, float]) -> float:
+    """Chebyshev sweeps per decade of error on the spectrum ``bounds`` (lo, hi) (the
+    asymptotic rate of :class:`softvr.contact.node_jacobi.NodeSolve`)."""
+    lo, hi = bounds
+    rho = (hi - lo) / (hi + lo)
+    if rho <= 0:
+        return 0.0
+    rate = (1.0 - np.sqrt(1.0 - rho * rho)) / rho
+    return float(np.log(10.0) / -np.log(rate))
+
+
+def sweep_costs(row_start: np.ndarray, colours: NodeColouring, contacts: int, passes: int) -> tuple[float, float]:
+    """Cost of one Jacobi and one Gauss-Seidel sweep (node update, contact PGS, Chebyshev) in
+    block products, for the block pattern ``row_start`` [n + 1], ``contacts`` contacts and
+    ``passes`` PGS passes a sweep."""
+    n = len(row_start) - 1
+    blocks = float(row_start[-1])
+    last = colours.order[colours.start[-2]:] if colours.count else np.zeros(0, int)
+    last_blocks = float((row_start[last + 1] - row_start[last]).sum())
+    shared = CHEBYSHEV_NODE * n + LAUNCH * 2 + CONTACT_PASS * contacts * passes
+    jacobi = blocks + LAUNCH + shared
+    gauss_seidel = GAUSS_SEIDEL_BLOCK * (2 * blocks - last_blocks) + LAUNCH * 2 * colours.count + CHEBYSHEV_NODE * n \
+        + shared  # the colours forward and back (the last once) and the start copy
+    return jacobi, gauss_seidel
+
+
+def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndarray,
+                  jacobi_bounds: tuple[float, float], jacobi_limit: float, contacts: int, passes: int,
+                  margin: tuple[float, float]) -> SweepChoice:
+    """The sweeps of least work per decade, or none (kind None) when both are too slow (Jacobi over
+    ``jacobi_limit`` sweeps per decade, Gauss-Seidel over
+    :data:`MAX_GAUSS_SEIDEL_WORK_PER_DECADE`). ``row_start``, ``block_col``: ``A``'s block
+    pattern (host, [n + 1], [nb]); ``a`` [3 k, 3 k] ``A`` over the free nodes, ``free`` [n]
+    which nodes those are; ``jacobi_bounds`` Jacobi's spectrum (with margins); ``contacts`` the
+    contacts of this step, ``passes`` their PGS passes a sweep; ``margin`` the factors on the
+    Gauss-Seidel bounds (as on Jacobi's)."""
+    colours = colour_nodes(row_start, block_col)
+    jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
+    index = np.cumsum(free) - 1
+    order = index[colours.order[free[colours.order]]]
+    lo, hi = gauss_seidel_spectrum(a, order) if len(order) else (1.0, 1.0)
+    gs_bounds = (lo * margin[0], hi * margin[1])
+    jacobi_work = sweeps_per_decade(jacobi_bounds)
+    gs_work = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
+    work = {"jacobi": jacobi_work, "gauss-seidel": gs_work}
+    if gs_work < jacobi_work and gs_work <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE:
+        return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
+    return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)

@@ -1,0 +1,165 @@
+"""Multicolour symmetric block Gauss-Seidel sweeps of eq. 5.6 on the node arrays
+(softvr.contact.node_colouring, node_gauss_seidel; NodeSolve(colours=...)), held to the block
+pattern of A, to SciPy's direct solve of eq. 5.2, to the MLCP of eq. 5.5 and to the spectral
+radius of the symmetric Gauss-Seidel iteration matrix computed densely by NumPy.
+
+Tolerances: the sweeps stop at an estimated velocity error of SWEEP_TOLERANCE (1e-5 m/s) from
+a geometric tail, so velocities are held to 3x that (as in tests/sim/test_node_arrays.py).
+"""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from softvr.contact.node_colouring import colour_nodes
+from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
+from softvr.contact.node_jacobi import NodeSolve
+from softvr.dynamics import Material
+from softvr.sim import _node_step, _node_sweeps
+from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, _free_matrix, spectrum
+from softvr.sim._node_sweeps import sweeps_per_decade
+
+from tests.sim.test_node_arrays import VELOCITY_TOL, _cube, _scene, _solve_step, check_mlcp_steps
+
+
+def _stiff_block(lift=0.5, cells=4):
+    """A clamped block (bottom face fixed) whose tets alternate between 1e5 and 1e9 Pa: stiff
+    and heterogeneous, as the head CT's bone and tissue."""
+    body = _cube(cells=cells, lift=lift, material=Material(1e5, 0.3, 1000.0, alpha=0.0, beta=1e-3),
+                 fixed=lambda nodes: nodes[:, 2] < nodes[:, 2].min() + 1e-9)
+    young = np.where(np.arange(len(body.tets)) % 3 == 0, 1e9, 1e5)
+    return type(body)(body.rest, body.tets, body.material, per_tet_young=young, fixed=body.fixed, name="block")
+
+
+def _prepared(body, dt, plane=False):
+    """A stepper with this step's A, b assembled (and contacts detected)."""
+    scene = _scene(body, plane=plane)
+    stepper = NodeStepper(scene)
+    stepper._record(dt)
+    for replay in stepper._recorded[1:5]:
+        replay()
+    return scene, stepper
+
+
+def _gauss_seidel(stepper, dt, max_sweeps=500):
+    m = stepper.model
+    colours = colour_nodes(m.row_start.numpy(), m.block_col.numpy())
+    a, free = _free_matrix(m, stepper.state)
+    index = np.cumsum(free) - 1
+    lo, hi = gauss_seidel_spectrum(a, index[colours.order[free[colours.order]]])
+    bounds = (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1])
+    omega = 1.0 / spectrum(m, stepper.state)[1]
+    return NodeSolve(m, stepper.state, dt, bounds, max_sweeps=max_sweeps, colours=colours, omega=omega), colours, bounds
+
+
+def _start(stepper, v):
+    for buffer in (stepper.state.sweep_buffers[0], stepper.state.sweep_buffers[2]):
+        buffer.numpy()[:] = v
+
+
+def test_no_block_of_a_couples_two_nodes_of_one_colour():
+    # Checked on A as SciPy assembles it from the body (eq. 5.2), not on the arrays' pattern.
+    body = _stiff_block()
+    scene, stepper = _prepared(body, 0.01)
+    colours = colour_nodes(stepper.model.row_start.numpy(), stepper.model.block_col.numpy())
+    coo = sp.coo_matrix(body.step_system(0.01, scene.gravity).matrix)
+    rows, cols = coo.row // 3, coo.col // 3
+    coupled = (rows != cols) & (coo.data != 0)
+    assert coupled.sum() > 10 * len(body.q)  # the check has blocks to look at
+    assert not (colours.colour[rows[coupled]] == colours.colour[cols[coupled]]).any()
+    assert sorted(colours.order) == list(range(len(body.q)))
+    assert 2 <= colours.count <= 27  # a grid tet mesh: at most its 27-node stencil
+
+
+def test_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2():
+    body = _stiff_block()
+    rng = np.random.default_rng(1)
+    body.v = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    dt = 0.01
+    scene, stepper = _prepared(body, dt)
+    _, expected = _solve_step(body, scene, dt)
+    solve, _, _ = _gauss_seidel(stepper, dt)
+    _start(stepper, body.v)
+    sweeps, solved = solve.solve(SWEEP_TOLERANCE)
+    assert sweeps < solve.max_sweeps
+    np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+
+
+def test_gauss_seidel_spectrum_encloses_the_dense_eigenvalues_and_sets_the_measured_rate():
+    """M^-1 A of symmetric block Gauss-Seidel (M = (D + L) D^-1 (D + U) in colour order), dense
+    in NumPy: the Lanczos bounds enclose its spectrum, and the sweeps' measured error decay per
+    decade is the Chebyshev rate of those bounds, below node-block Jacobi's measured one."""
+    body = _stiff_block()
+    dt = 0.01
+    scene, stepper = _prepared(body, dt)
+    system, expected = _solve_step(body, scene, dt)
+    solve, colours, bounds = _gauss_seidel(stepper, dt, max_sweeps=60)
+    a, free = _free_matrix(stepper.model, stepper.state)
+    index = np.cumsum(free) - 1
+    order = index[colours.order[free[colours.order]]]
+    dofs = (3 * order[:, None] + np.arange(3)).ravel()
+    dense = a.toarray()[np.ix_(dofs, dofs)]
+    node = np.arange(len(dense)) // 3
+    d = np.where(node[:, None] == node[None, :], dense, 0.0)
+    lower = d + np.tril(dense - d)
+    m = lower @ np.linalg.solve(d, lower.T)
+    eig = np.sort(np.linalg.eigvals(np.linalg.solve(m, dense)).real)
+    assert bounds[0] <= eig[0] <= bounds[0] / SPECTRUM_MARGIN[0] * 1.001 and eig[-1] <= bounds[1]
+    rho_gs = np.abs(1.0 - eig).max()  # spectral radius of the plain iteration matrix I - M^-1 A
+    assert rho_gs < 1.0
+
+    def measured(solve):
+        errors = []
+        for k in (20, 60):
+            solve.max_sweeps = k
+            _start(stepper, np.zeros_like(expected))
+            _, solved = solve.solve(0.0)
+            errors.append(np.abs(solved.numpy() - expected).max())
+        return 40 / np.log10(errors[0] / errors[1])
+
+    gs = measured(solve)
+    jacobi = measured(NodeSolve(stepper.model, stepper.state, dt, spectrum(stepper.model, stepper.state),
+                                max_sweeps=60))
+    # The Chebyshev rate on [lo, hi] ~ (1 - sqrt(kappa^-1))...: within 30 % of the measured
+    # decay (the error's polynomial prefactor and the 0.8 margin on lo).
+    expected_gs = sweeps_per_decade((eig[0] * SPECTRUM_MARGIN[0], eig[-1] * SPECTRUM_MARGIN[1]))
+    assert gs == pytest.approx(expected_gs, rel=0.3)
+    assert gs < 0.6 * jacobi
+
+
+def test_a_gauss_seidel_contact_step_solves_the_mlcp_of_eq_5_5(monkeypatch):
+    """A cube dropped on a plane, stepped with Gauss-Seidel sweeps (forced), held to eq. 5.5 by
+    the checker of tests/sim/test_node_arrays.py."""
+    chosen = []
+
+    def gauss_seidel(*args, **kwargs):
+        monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
+        choice = _node_sweeps.choose_sweeps(*args, **kwargs)
+        chosen.append(choice.kind)
+        return choice
+
+    monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
+    body = _cube()
+    scene = _scene(body)
+    assert check_mlcp_steps(body, scene, 1.0 / 60.0, 40, friction=0.5) >= 10
+    assert chosen == ["gauss-seidel"]
+
+
+def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps():
+    # The rule (choose_sweeps): each kind's work per decade counts its sweeps' node updates,
+    # launches and contact passes; on a soft cube Jacobi's 3-4 sweeps per decade leave
+    # Gauss-Seidel nothing to gain at 2-3x the node work of a sweep. Contacts cost the same per
+    # sweep of either kind, so many of them make the kind with fewer sweeps per decade cheaper.
+    body = _cube()
+    _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
+    a, free = _free_matrix(stepper.model, stepper.state)
+    m = stepper.model
+    choice = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free,
+                                        spectrum(m, stepper.state), 25.0, 0, 2, SPECTRUM_MARGIN)
+    assert choice.kind == "jacobi" and choice.work["jacobi"] < choice.work["gauss-seidel"]
+    crowded = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free,
+                                         spectrum(m, stepper.state), 25.0, 10 ** 6, 2, SPECTRUM_MARGIN)
+    assert crowded.work["gauss-seidel"] / crowded.work["jacobi"] < choice.work["gauss-seidel"] / choice.work["jacobi"]
+    assert crowded.kind == "gauss-seidel"  # its fewer sweeps (the spectrum test) now win
