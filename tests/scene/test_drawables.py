@@ -72,3 +72,49 @@ def test_a_tilted_fem_cube_draws_its_surface_nodes_on_the_cube_of_the_file():
         half = np.asarray(spec.size, float) / 2
         assert (np.abs(local) <= half + 1e-9).all()
         assert np.abs(np.abs(local) - half).min(axis=1).max() < 1e-9  # every node on a face
+
+
+_TOOL = """format = "softvr-scene 1"
+
+[simulation]
+dt = 0.005
+steps_per_frame = 4
+gravity = [0.0, 0.0, 0.0]
+
+[material.m]
+density = 1000.0
+
+[[body]]
+name = "finger"
+type = "tool"
+sphere = 0.01
+material = "m"
+position = [0.0, 0.0, 0.1]
+stiffness = 100.0
+haptics = false
+[body.motion]
+times = [0.0, 1.0]
+positions = [[0.0, 0.0, 0.1], [0.0, 0.2, 0.1]]
+"""
+
+
+def test_a_tools_haptic_handle_is_drawn_where_its_motion_puts_the_hand(tmp_path):
+    """A tool whose handle follows keyframes (0, 0, 0.1) -> (0, 0.2, 0.1) m over 1 s, read once a
+    step: after 10 frames (0.2 s) the drawn handle, a ball of 8 mm, is centred on the keyframes'
+    linear path (numpy.interp) at the time of the last step's reading (0.2 s - dt), within 1e-9 m,
+    and it is the last drawable, after the tool's own surface."""
+    from softvr.scene import load_scene
+
+    path = tmp_path / "tool.toml"
+    path.write_text(_TOOL)
+    with load_scene(path, frames=10, haptics=False) as player:
+        for _ in range(10):
+            player.step()
+        *_, tool, handle = player.drawables()
+        assert (tool.name, handle.name, handle.kind, handle.layer) == ("finger", "finger handle", "mesh", "render")
+        t = player.scene.time - player.dt
+        expected = np.array([0.0, np.interp(t, [0.0, 1.0], [0.0, 0.2]), 0.1])
+        centre = handle.vertices.mean(axis=0)
+        assert np.abs(handle.pose[:3, 3] - expected).max() < 1e-9
+        assert np.abs(np.linalg.norm(handle.vertices - handle.pose[:3, 3], axis=1) - 0.008).max() < 1e-9
+        assert np.abs(centre - expected).max() < 1e-9

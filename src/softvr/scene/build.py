@@ -120,6 +120,11 @@ _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rig
                 "soft": (0.72, 0.3, 0.3)}
 
 
+#: A tool's haptic handle (where the hand is; the tool follows it on its virtual coupling) is
+#: drawn as a translucent ball of this radius [m], a fingertip's, so that the lag shows.
+_HANDLE_RADIUS = 0.008
+_HANDLE_COLOR = (0.95, 0.8, 0.2)
+
 #: Folder of the bundled scene files (:data:`softvr.scene.BUNDLED`).
 _BUNDLED = Path(__file__).resolve().parent.parent / "scenes"
 
@@ -628,9 +633,10 @@ class SceneExample(Player):
         return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"]}
 
     def drawables(self) -> list[Drawable]:
-        """The planes (``plane 0``, ...), the static spheres (``sphere 0``, ...), then every body's
+        """The planes (``plane 0``, ...), the static spheres (``sphere 0``, ...), every body's
         drawn surface in the order of the file (a volume's skin on layer ``hidden``: the volume
-        draws it), the vertices read now."""
+        draws it), then each tool's haptic handle (``<tool> handle``: a ball of
+        :data:`_HANDLE_RADIUS`), the vertices read now."""
         items = [plane_drawable(f"plane {k}", plane.point, plane.normal, size)
                  for k, (plane, size) in enumerate(self.planes)]
         items += [sphere_drawable(f"sphere {k}", s.center, s.radius) for k, s in enumerate(self.spheres)]
@@ -639,6 +645,11 @@ class SceneExample(Player):
             items.append(Drawable(d.name, "mesh", np.asarray(d.vertices(), float), d.triangles,
                                   tuple(float(c) for c in d.color), float(d.opacity), pose,
                                   "render" if d.visible else "hidden"))
+        ball, triangles = icosphere(2)
+        for tool in self.tools:
+            handle = tool.handle
+            items.append(Drawable(f"{tool.tool.name} handle", "mesh", handle.position + _HANDLE_RADIUS * ball,
+                                  triangles, _HANDLE_COLOR, 0.5, pose_matrix(handle.rotation, handle.position)))
         return items
 
     def setup_render(self, renderer) -> None:
