@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse.linalg as spla
 
 from softvr import Scene, SimulationError
-from softvr.collision import Plane
+from softvr.collision import Plane, Sphere
 from softvr.contact import Adhesion
 from softvr.contact.node_jacobi import chebyshev_weights
 from softvr.dynamics import EmbeddedPoints, FemBody, Material
@@ -203,6 +203,8 @@ def test_scenes_the_arrays_do_not_hold_step_per_object():
     scene.add_plane(Plane(point=(0.0, 0.0, -1.0)), adhesion=None)
     assert node_model_supported(scene)
     scene.add_plane(Plane(point=(0.0, 0.0, -2.0)), adhesion=Adhesion(stiffness=1e6, max_energy=1.0, viscosity=1e-3))
+    assert node_model_supported(scene)  # adhesion is held (tests/contact/test_node_adhesion.py)
+    scene.add_sphere(Sphere(center=(0.0, 0.0, -5.0)))
     assert not node_model_supported(scene)
     scene.step(0.01)
     assert scene._stepper is None

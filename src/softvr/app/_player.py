@@ -4,6 +4,8 @@ declared order (:data:`STEP_ORDER`), its metrics recorded per frame, its state d
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -12,7 +14,7 @@ from softvr.render.surfaces import SurfaceRenderer
 from softvr.sim import STAGES
 from softvr.sim.frame_metrics import RigidFrameMetrics, rigid_stepper
 
-__all__ = ["FRAME_ORDER", "STEP_ORDER", "Player", "gravity_potential"]
+__all__ = ["FRAME_ORDER", "STEP_ORDER", "Player", "Sensor", "gravity_potential"]
 
 #: What one sub-step does (after :meth:`Player.start`, once before the first frame), in this
 #: order: the scripted boundaries move (driven nodes, keyframed events: :meth:`Player.drive`),
@@ -25,6 +27,29 @@ STEP_ORDER = ("drive", "haptics", "physics", "sense")
 #: What follows a frame's last sub-step, in this order: the volume follows its body
 #: (:meth:`Player.update_volume`), then the frame's metrics are taken (:meth:`Player.frame_metrics`).
 FRAME_ORDER = ("volume", "metrics")
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A vector read after each frame's last step into the frame's metrics (``sensors``) and
+    plotted against time by :func:`~softvr.app.record`.
+
+    Attributes
+    ----------
+    name : str
+    kind : str
+        What it reads (``contact_force``, ...), for the metrics file.
+    unit : str
+        Its SI unit ("N", "m").
+    read : callable
+        ``read(solution)`` -> [3] in ``unit``, ``solution`` the last step's contact solution
+        (:class:`softvr.contact.ContactSolution`).
+    """
+
+    name: str
+    kind: str
+    unit: str
+    read: Callable[..., np.ndarray]
 
 
 def gravity_potential(body, gravity) -> float:
@@ -85,14 +110,17 @@ class Player:
         ``active_contacts`` (normal impulse > 0) of the frame's last step, ``pgs_iterations``
         (most sweeps in one step of the frame), ``pgs_residual_m_per_s``, ``kinetic_energy_j``,
         ``energy_j`` (kinetic + gravitational, zero at z = 0; elastic energy not included, so
-        for dissipative physics it never exceeds the initial value); the timings only where
-        :attr:`frame_measures` is False.
+        for dissipative physics it never exceeds the initial value), and with :attr:`sensors`
+        ``sensors`` (name -> [3] in the sensor's unit, after the frame's last step); the timings
+        (and sensors) only where :attr:`frame_measures` is False.
+    sensors : list of Sensor
+        What is read every frame (none by default).
     """
 
     name = "physics"
     camera = "iso"
     #: False: the frame records hold the timings only (``frame``, ``sim_time_s``, ``step_ms``,
-    #: ``stage_ms``, ``render_ms``, ``wall_ms``, and the scene's own :meth:`frame_metrics`):
+    #: ``stage_ms``, ``render_ms``, ``wall_ms``, the scene's own :meth:`frame_metrics` and sensors):
     #: :meth:`penetration`, the contacts, sweeps and energies are not read. A headless bench that
     #: reads its own measures sets it: the energies cost ~0.5 ms a frame on the contact bench's
     #: 729-node cube (8 % of its step), the contact counts ~20 us on a 35 us rigid step.
@@ -111,6 +139,7 @@ class Player:
         if camera is not None:
             self.camera = camera
         self.metrics: list[dict] = []
+        self.sensors: list[Sensor] = []
         self._renderer: SurfaceRenderer | None = None
         self._drawing: SurfaceDrawing | None = None
         self._started = False
@@ -210,6 +239,8 @@ class Player:
                            "pgs_residual_m_per_s": residual, "kinetic_energy_j": kinetic, "energy_j": energy})
         record.update(self.update_volume())
         record.update(self.frame_metrics())
+        if self.sensors:
+            record["sensors"] = {s.name: [float(x) for x in s.read(solution)] for s in self.sensors}
         self.metrics.append(record)
         self.frame += 1
         return record
@@ -251,8 +282,11 @@ class Player:
     # -- what a run reports --------------------------------------------------------------
     def describe(self) -> dict:
         """Scene facts for the metrics file (subclasses add theirs)."""
-        return {"dt_s": self.dt, "steps_per_frame": self.steps_per_frame, "fps": self.fps,
-                "bodies": [getattr(b, "name", type(b).__name__) for b in self.scene.bodies]}
+        facts = {"dt_s": self.dt, "steps_per_frame": self.steps_per_frame, "fps": self.fps,
+                 "bodies": [getattr(b, "name", type(b).__name__) for b in self.scene.bodies]}
+        if self.sensors:
+            facts["sensors"] = {s.name: {"kind": s.kind, "unit": s.unit} for s in self.sensors}
+        return facts
 
     def summary(self) -> dict:
         """The run's summary for the metrics file: frames, simulated time, median and worst

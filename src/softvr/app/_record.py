@@ -10,9 +10,10 @@ import numpy as np
 from tqdm import tqdm
 
 from softvr.render import contact_sheet, save_png, write_mp4
+from softvr.render.figure import save_figure
 from softvr.files import write_json
 
-__all__ = ["output_name", "record"]
+__all__ = ["output_name", "record", "sensor_plot"]
 
 
 def output_name(name: str) -> str:
@@ -28,7 +29,8 @@ def record(player, out, *, progress: bool = True, sheet_frames: int = 8, png_eve
     ``NAME_sheet.png`` (``sheet_frames`` frames evenly over the run, labelled with their
     simulated time), ``NAME_metrics.json`` (``{"scene", **describe(), "summary", "frames"}``),
     the player's plots (``player.write_plots``) and, with ``png_every`` = k > 0, every k-th
-    frame as ``NAME_frames/frame_NNNNN.png``. All are written atomically; ``out`` is created if
+    frame as ``NAME_frames/frame_NNNNN.png``, and with sensors (``player.sensors``) their plot
+    ``NAME_sensors.png`` (:func:`sensor_plot`). All are written atomically; ``out`` is created if
     missing.
 
     Parameters
@@ -98,6 +100,8 @@ def record(player, out, *, progress: bool = True, sheet_frames: int = 8, png_eve
     doc = {"scene": name, **player.describe(), "summary": summary, "frames": metrics}
     path = write_json(doc, out / f"{name}_metrics.json")
     written = [mp4, sheet, path, *player.write_plots(doc, out)]
+    if doc.get("sensors"):
+        written.append(sensor_plot(doc, out / f"{name}_sensors.png"))
     if png_every > 0:
         written.append(frames_dir)
     if progress:
@@ -105,3 +109,29 @@ def record(player, out, *, progress: bool = True, sheet_frames: int = 8, png_eve
         for file in written:
             print(f"wrote {file}")
     return doc
+
+
+def sensor_plot(doc: dict, path) -> Path:
+    """One panel per sensor of a metrics document (``doc["sensors"]``: name -> kind and unit;
+    each frame's ``sensors``: name -> [x, y, z]) against simulated time [s], its x, y and z
+    components, written atomically to ``path`` (PNG)."""
+    import matplotlib  # noqa: PLC0415  (optional heavy dependency, only when there are sensors)
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    sensors, frames = doc["sensors"], doc["frames"]
+    t = [f["sim_time_s"] for f in frames]
+    fig, axes = plt.subplots(len(sensors), 1, figsize=(6.4, 1.2 + 1.8 * len(sensors)), sharex=True, squeeze=False)
+    for ax, (name, about) in zip(axes[:, 0], sensors.items()):
+        values = np.array([f["sensors"][name] for f in frames])
+        for k, axis in enumerate("xyz"):
+            ax.plot(t, values[:, k], label=axis, lw=1.2)
+        ax.set_ylabel(f"{name} [{about['unit']}]")
+        ax.set_title(about["kind"], fontsize=8, loc="right")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=3, loc="best")
+    axes[-1, 0].set_xlabel("simulated time [s]")
+    fig.suptitle(doc.get("scene", ""))
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=90)

@@ -21,6 +21,9 @@ from __future__ import annotations
 
 import warp as wp
 
+from softvr.contact._adhesion_kernels import adhesive_bound
+
+
 @wp.kernel
 def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
            blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
@@ -76,10 +79,14 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              friction: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
              rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
-             v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32)):
+             v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
+             slip: wp.array(dtype=wp.vec3d)):
     """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
     ``impulse`` [c] (normal, tangent 1, tangent 2) [N s] of the last sweep applied to ``v^``,
-    then ``passes`` PGS passes; counts the sweep in ``sweep[0]``."""
+    then ``passes`` PGS passes; counts the sweep in ``sweep[0]``. A bonded contact (adhesive
+    ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to the bound
+    of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within the larger
+    of the Coulomb disc and the implicit spring's bound (docs/adhesion.md)."""
     n = count[0]
     for c in range(n):
         _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
@@ -107,8 +114,13 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
             old = impulse[c]
             lam = old
             # Normal row (target -gap / dt: a speculative contact may close its gap, not cross it).
+            k_ad = dt * dt * stiffness[c]
             if w_f[0, 0] > wp.float64(0.0):
                 lam_n = wp.max(old[0] + (-gap[c] / dt - rel_f[0]) / w_f[0, 0], wp.float64(0.0))
+                if k_ad > wp.float64(0.0):
+                    d_bar = w_f[0, 0] * old[0] - gap[c] / dt - rel_f[0]
+                    lam_n = wp.max(old[0] + (-gap[c] / dt - rel_f[0]) / w_f[0, 0],
+                                   wp.min(adhesive_bound(k_ad, d_bar, w_f[0, 0]), wp.float64(0.0)))
                 rel_f = rel_f + w_f * wp.vec3d(lam_n - old[0], wp.float64(0.0), wp.float64(0.0))
                 lam = wp.vec3d(lam_n, old[1], old[2])
                 # Tangent rows together, then onto the friction disc |lam_t| <= mu lam_n. The step
@@ -124,6 +136,15 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                     t2 = lam[2] - rel_f[2] / w_t
                     limit = friction[c] * lam_n
                     norm = wp.sqrt(t1 * t1 + t2 * t2)
+                    if k_ad > wp.float64(0.0):
+                        # The spring's targets -t . u / dt; its bound is eq. 4.16 with d_bar =
+                        # w_t |lam_t + (target - rel_t) / w_t| (the unprojected update).
+                        u = f * slip[c]
+                        t1 = lam[1] + (-u[1] / dt - rel_f[1]) / w_t
+                        t2 = lam[2] + (-u[2] / dt - rel_f[2]) / w_t
+                        norm = wp.sqrt(t1 * t1 + t2 * t2)
+                        limit = wp.max(friction[c] * wp.max(lam_n, wp.float64(0.0)),
+                                       adhesive_bound(k_ad, w_t * norm, w_t))
                     if norm > limit:
                         scale = limit / norm
                         t1 = t1 * scale

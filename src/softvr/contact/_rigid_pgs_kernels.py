@@ -14,8 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-# Columns of the material table (softvr.sim.model.ADHESION_COLUMNS).
-_C, _W, _ETA, _RATE, _P0, _BETA0, _DEBOND = 0, 1, 2, 3, 4, 5, 6
+from softvr.contact._adhesion_kernels import adhesive_bound, bond_stiffness, carry_sorted, evolve_bond, find_key
 
 
 @wp.func
@@ -37,32 +36,6 @@ def _push(v: wp.spatial_vectord, inv_mass: wp.float64, inv_inertia: wp.mat33d, r
     dv = inv_mass * amount * d
     dw = inv_inertia * (amount * wp.cross(r, d))
     return wp.spatial_vectord(v[0] + dv[0], v[1] + dv[1], v[2] + dv[2], v[3] + dw[0], v[4] + dw[1], v[5] + dw[2])
-
-
-@wp.func
-def _combined(materials: wp.array2d(dtype=wp.float64), a: int, b: int, column: int) -> wp.float64:
-    """A parameter of the pair's adhesion (:func:`softvr.contact.combine`): geometric mean, or
-    the smaller of the two for beta0 and the debond gap."""
-    if column == _BETA0 or column == _DEBOND:
-        return wp.min(materials[a, column], materials[b, column])
-    return wp.sqrt(materials[a, column] * materials[b, column])
-
-
-@wp.func
-def _find(keys: wp.array(dtype=wp.uint64), count: int, key: wp.uint64) -> int:
-    """Index of ``key`` in ascending ``keys[:count]``, -1 if absent."""
-    low = int(0)
-    high = count - 1
-    while low <= high:
-        mid = (low + high) // 2
-        k = keys[mid]
-        if k == key:
-            return mid
-        if k < key:
-            low = mid + 1
-        else:
-            high = mid - 1
-    return -1
 
 
 @wp.func
@@ -154,7 +127,7 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
             resp[row] = value
         response[i] = resp
         # The previous step's record of this contact: intensity, slip, warm start.
-        m = _find(carried_key, carried, key[i])
+        m = find_key(carried_key, carried, key[i])
         beta = wp.float64(-1.0)  # not tracked
         u = wp.vec3d()
         warm = wp.vec3d()
@@ -163,9 +136,7 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
             u = carried_slip[m]
             warm = carried_impulse[m]
         u = u - wp.dot(u, n) * n
-        k_ad = zero
-        if material_a[i] >= 0 and material_b[i] >= 0 and beta >= zero:
-            k_ad = area[i] * _combined(materials, material_a[i], material_b[i], _C) * beta * beta
+        k_ad = bond_stiffness(materials, material_a[i], material_b[i], area[i], beta)
         stiffness[i] = k_ad
         intensity[i] = beta
         slip[i] = u
@@ -212,11 +183,11 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
                 row_rel = _side_row(a, velocity, ra, d) - _side_row(b, velocity, rb, d)
                 diag = resp[row]
                 d_bar = diag * lam[row] + tgt[row] - row_rel
-                adhesive_bound = k * d_bar / (one + k * diag)
-                lower = wp.min(adhesive_bound, zero)
+                bound = adhesive_bound(k, d_bar, diag)
+                lower = wp.min(bound, zero)
                 upper = big
                 if row > 0:
-                    upper = wp.max(friction[i] * wp.max(lam[0], zero), wp.abs(adhesive_bound))
+                    upper = wp.max(friction[i] * wp.max(lam[0], zero), wp.abs(bound))
                     lower = -upper
                 if diag > wp.float64(1e-300):
                     value = wp.clamp(lam[row] + (tgt[row] - row_rel) / diag, lower, upper)
@@ -275,8 +246,6 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
             slip[i] = u - wp.dot(u, n) * n
     # Adhesion's evolution (AdhesionState.evolve) and what the next step finds.
     for i in range(c):
-        n = normal[i]
-        f = frame[i]
         lam = impulse[i]
         beta_in = intensity[i]
         u = slip[i]
@@ -286,59 +255,13 @@ def solve_rigid_contacts(count: wp.array(dtype=wp.int32), key: wp.array(dtype=wp
         mb = material_b[i]
         resp = response[i]
         if ma >= 0 and mb >= 0 and resp[0] + resp[1] + resp[2] > zero:
-            stiff = _combined(materials, ma, mb, _C)
-            energy_max = _combined(materials, ma, mb, _W)
-            tracked = beta_in >= zero
-            touched = tracked or lam[0] > zero or gap_after[i] <= zero
-            beta = _combined(materials, ma, mb, _BETA0)
-            if tracked:
-                beta = beta_in
-            ar = area[i]
-            per_area = zero
-            if ar > zero:
-                per_area = one / (dt * ar)
-            p_n = -lam[0] * per_area
-            tangential = stiff * beta * beta * wp.length(u)
-            debond_p = tangential
-            if p_n > zero:
-                debond_p = wp.sqrt(p_n * p_n + tangential * tangential)
-            held = stiff * beta * beta * beta
-            energy = zero
-            if held > zero:
-                energy = debond_p * debond_p / held
-            rate = wp.min(energy_max - energy, zero) / _combined(materials, ma, mb, _ETA)
-            compression = zero
-            if p_n <= zero:
-                compression = -p_n
-            rate += _combined(materials, ma, mb, _RATE) * wp.max(
-                compression - beta * _combined(materials, ma, mb, _P0), zero)
-            beta = beta + dt * rate
-            if not wp.isfinite(beta):
-                beta = zero
-            beta = wp.clamp(beta, zero, one)
-            if touched and ar > zero and gap_after[i] <= _combined(materials, ma, mb, _DEBOND):
-                beta_out = beta
-                if beta > zero and wp.length(u) > zero:
-                    scale = one
-                    if lam[0] > zero:
-                        scale = wp.min(one, wp.sqrt(energy_max / (stiff * beta)) / wp.length(u))
-                    u_out = u * scale
+            beta_out, u_out = evolve_bond(materials, ma, mb, beta_in, lam[0], gap_after[i], area[i], u, dt)
         intensity[i] = beta_out
         slip[i] = u_out
-    # Carry over, sorted by key (insertion sort: the detection order changes little).
+    # Carry over, sorted by key.
     for i in range(c):
-        world = wp.transpose(frame[i]) * impulse[i]
-        j = i - 1
-        while j >= 0 and carried_key[j] > key[i]:
-            carried_key[j + 1] = carried_key[j]
-            carried_impulse[j + 1] = carried_impulse[j]
-            carried_intensity[j + 1] = carried_intensity[j]
-            carried_slip[j + 1] = carried_slip[j]
-            j -= 1
-        carried_key[j + 1] = key[i]
-        carried_impulse[j + 1] = world
-        carried_intensity[j + 1] = intensity[i]
-        carried_slip[j + 1] = slip[i]
+        carry_sorted(i, key[i], wp.transpose(frame[i]) * impulse[i], intensity[i], slip[i], carried_key,
+                     carried_impulse, carried_intensity, carried_slip)
     carried_count[0] = c
     stats[0] = wp.float64(sweeps)
     stats[1] = residual

@@ -98,7 +98,8 @@ class NodeSolve:
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
                                      c.friction, c.rigid_node, c.rigid_lever, state.d_inv if gs is None else gs.metric,
-                                     model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep])
+                                     model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep,
+                                     c.stiffness, c.slip])
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:

@@ -29,9 +29,9 @@ from softvr.sim import Scene
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
 __all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
-           "MESH_SUFFIXES", "PLAUSIBLE", "SHAPES", "TOOL", "Adhesion", "Body", "Coupling", "DisplayTable", "Document",
-           "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane", "Render", "Simulation", "Sphere",
-           "Volume", "existing_file", "read_table"]
+           "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "Adhesion", "Body", "Coupling",
+           "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
+           "Render", "Sensor", "Simulation", "Sphere", "Volume", "existing_file", "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
@@ -684,6 +684,30 @@ class Volume(_Table):
     animation: Annotated[Path | None, file_field((".npz",), "a node animation")] = None
 
 
+#: What a ``[[sensor]]`` reads every frame, and its unit: the contact force on its body (the last
+#: step's contact impulses / dt, thesis eq. 5.5), the force of the couplings on it (thesis eq.
+#: 5.4: spring and damper), and its centre (a rigid body's centre of mass, a node body's
+#: mass-weighted mean node), each an [x, y, z] vector.
+SENSOR_KINDS = {"contact_force": "N", "coupling_force": "N", "position": "m"}
+#: A contact sensor's ``other`` naming every static geometry (planes, static spheres, fixed meshes).
+STATIC = "static"
+
+
+class Sensor(_Table):
+    """``[[sensor]]``: a quantity sampled every frame into the metrics and plotted against time
+    (:data:`SENSOR_KINDS`); ``body`` and ``other`` are checked by the reader, which knows the bodies."""
+
+    name: RequiredName = _required()
+    kind: Annotated[str | None, choice(tuple(SENSOR_KINDS), required=True)] = _required()
+    body: RequiredName = _required()
+    other: Name = None  # contact_force: only the contacts with this body, or STATIC (None: all)
+
+    def problems(self) -> list:
+        if "other" in self.given and self.kind in SENSOR_KINDS and self.kind != "contact_force":
+            return [("other", "other only on a contact_force sensor", f"a {self.kind} sensor")]
+        return []
+
+
 class DisplayTable(_Table):
     """``[display]``: a display preset or a display file (checked by the reader)."""
 
@@ -708,6 +732,7 @@ class Document(_Table):
     volume: Any = None
     display: Any = None
     light: Any = None
+    sensor: Any = None
 
 
 # --- validation -----------------------------------------------------------------------------------------------------

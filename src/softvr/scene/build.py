@@ -35,7 +35,7 @@ from typing import Any
 
 import softvr.datasets
 from softvr import Scene
-from softvr.app import Drawable, Player, plane_drawable, pose_matrix, sphere_drawable
+from softvr.app import Drawable, Player, Sensor, plane_drawable, pose_matrix, sphere_drawable
 from softvr.collision import Plane, Sphere, TriangleMesh
 from softvr.contact import Adhesion
 from softvr.dynamics import (ClothBody, ContactObject, Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody,
@@ -48,6 +48,7 @@ from softvr.model import (CT_TISSUE, build_model, collision_mesh, dynamics_mesh,
 from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
 from softvr.render import Camera
 from softvr.scene.gltf import read_gltf_scene, read_gltf_scene_with_problems
+from softvr.scene._description import SENSOR_KINDS, STATIC
 from softvr.scene.schema import DATASETS, BodySpec, SceneFile, read_scene, read_scene_with_problems
 from softvr.scene.start import collision_free_start, start_pairs, start_problems
 from softvr.volume import DeformedVolume, Volume, boundary_faces, grid_tet_mesh, iso_surface, load_tet_mesh
@@ -113,6 +114,51 @@ def _attached(body, points) -> object:
         nearest = np.linalg.norm(body.q[None, :, :] - points[:, None, :], axis=2).argmin(axis=1)
         return EmbeddedPoints(body, nearest[:, None], np.ones((len(points), 1)))
     return RigidPoints.from_world(body, points)
+
+
+def _contact_force(index: int, other: int | str | None, dt: float):
+    """Sensor read: the contact force [3] [N] on scene body ``index`` over the last step, its
+    contact impulses / ``dt`` (thesis eq. 5.5; + on side a, - on side b), from every contact
+    (``other`` None), from body ``other``'s only, or from the static geometry's (:data:`STATIC`)."""
+    if other is None:
+        return lambda solution: solution.force_on(index, dt)
+
+    def read(solution) -> np.ndarray:
+        total = np.zeros(3)
+        for contacts, impulses, frames in zip(solution.contacts, solution.impulses, solution.frames):
+            a, b = contacts.a.body, (STATIC if contacts.b is None else contacts.b.body)
+            world = np.einsum("ci,cij->j", impulses, frames)
+            if (a, b) == (index, other):
+                total += world
+            elif (a, b) == (other, index):
+                total -= world
+        return total / float(dt)
+
+    return read
+
+
+def _coupling_force(scene, body):
+    """Sensor read: the force [3] [N] of the couplings on ``body`` (thesis eq. 5.4: spring and
+    damper of every coupling with a side on it)."""
+
+    def read(_solution) -> np.ndarray:
+        total = np.zeros(3)
+        for c in scene.couplings:
+            sign = (c.a.body is body) - (c.b.body is body)
+            if sign:
+                total += sign * c.forces().sum(axis=0)
+        return total
+
+    return read
+
+
+def _centre(body):
+    """Sensor read: ``body``'s centre [3] [m]: a node body's mass-weighted mean node, else its
+    position (a rigid body's centre of mass)."""
+    if hasattr(body, "q"):
+        mass = np.broadcast_to(np.asarray(body.mass, float), (len(body.q),))
+        return lambda _solution: mass @ np.asarray(body.q) / mass.sum()
+    return lambda _solution: np.array(body.position, float)
 
 
 #: Model parts' colours by kind.
@@ -254,6 +300,7 @@ class SceneExample(Player):
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
         super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
                          bounds=ren["bounds"], camera=camera)
+        self.sensors = [self._sensor(s) for s in scene_file.sensors]
 
     # -- building ----------------------------------------------------------------------
     def _add_volume(self, scene, spec: dict) -> None:
@@ -444,6 +491,18 @@ class SceneExample(Player):
             side_a = EmbeddedPoints(a, near[:, None], np.ones((len(near), 1)))
         scene.add_coupling(Coupling(side_a, _attached(b, springs), c["stiffness"], damping=c["damping"],
                                     name=f"{c['a']} - {c['b']}"), collide=c["collide"])
+
+    def _sensor(self, s: dict) -> Sensor:
+        """A ``[[sensor]]`` (validated: its bodies exist) read off the scene's bodies."""
+        body, kind = self.bodies[s["body"]], s["kind"]
+        if kind == "contact_force":
+            other = s["other"] if s["other"] in (None, STATIC) else self.index[s["other"]]
+            read = _contact_force(self.index[s["body"]], other, self.dt)
+        elif kind == "coupling_force":
+            read = _coupling_force(self.scene, body)
+        else:
+            read = _centre(body)
+        return Sensor(s["name"], kind, SENSOR_KINDS[kind], read)
 
     def _tool(self, scene, spec: BodySpec, body, tip=(0.0, 0.0, 0.0)):
         """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling, at ``tip`` [3]

@@ -126,6 +126,14 @@
     # Every frame the volume is rasterized through the deformed tets (thesis ch. 3) and drawn
     # with the bodies' surfaces; E, nu, rho of each tet come from the voxels (softvr.model.CT_TISSUE).
 
+    [[sensor]]                  # a quantity sampled every frame into the metrics and plotted
+    name = "press"              # against time (NAME_sensors.png); each an [x, y, z] vector
+    kind = "contact_force"      # contact_force [N] (the step's contact impulses / dt on body) |
+                                # coupling_force [N] (its couplings' springs) | position [m] (its centre)
+    body = "cube"
+    other = "floor box"         # contact_force only: the contacts with this body, or "static"
+                                # (planes, static spheres, fixed meshes); default: all of them
+
     [display]                   # the screens it is shown on (softvr cave preview|master|local SCENE)
     preset = "cube"             # a softvr.cave preset, or file = "my-cave.toml" (softvr-display 1)
 
@@ -164,9 +172,10 @@ from typing import Any
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import file_name, read_toml
 from softvr.model import load_model, read_parts
-from softvr.scene._description import (BODY_TYPES, BOX_CELLS, DATASETS, LIMITS, MESH_SUFFIXES, PLAUSIBLE, Adhesion,
-                                       Body, Coupling, DisplayTable, Document, Filter, Light, Material, ModelTable,
-                                       Plane, Render, Simulation, Sphere, Volume, existing_file, read_table)
+from softvr.scene._description import (BODY_TYPES, BOX_CELLS, DATASETS, LIMITS, MESH_SUFFIXES, PLAUSIBLE, STATIC,
+                                       Adhesion, Body, Coupling, DisplayTable, Document, Filter, Light, Material,
+                                       ModelTable, Plane, Render, Sensor, Simulation, Sphere, Volume, existing_file,
+                                       read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 
@@ -230,6 +239,7 @@ class SceneFile:
     models: list = field(default_factory=list)
     volume: dict | None = None
     display: str | None = None  # a display preset name or a display file's path
+    sensors: list = field(default_factory=list)  # [[sensor]] tables: name, kind, body, other
 
     def body(self, name: str) -> BodySpec | None:
         """The ``[[body]]`` of this name (None for a model's part)."""
@@ -435,12 +445,47 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     if volume is not None and not bad_volume:
         present.add(volume["name"])
     filters += [(c["a"], c["b"]) for c, bad in couplings if bad and not c["collide"]]
+    # A fixed mesh is an obstacle, not a body: its contacts are the static geometry's.
+    bodies_named = names - {b.name for b in bodies if b.type == "fixed" and b.shape == "mesh"}
+    coupled = {c[side] for c, _ in couplings for side in "ab"} | {name for m in models for name in m["parts"]}
+    sensors = _sensors(_list(doc, "sensor", errors), bodies_named, coupled, errors)
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=spheres, bodies=kept,
                       filters=[f for f in filters if set(f) <= present],
                       couplings=[c for c, bad in couplings if not bad and {c["a"], c["b"]} <= present],
-                      models=models, volume=None if bad_volume else volume, display=display)
+                      models=models, volume=None if bad_volume else volume, display=display,
+                      sensors=[s for s in sensors if {s["body"], s["other"]} - {None, STATIC} <= present])
     return scene, errors.items
+
+
+def _sensors(tables: list, names: set, coupled: set, errors: Problems) -> list:
+    """The ``[[sensor]]`` tables without a problem: each names a body of the scene (``names``),
+    a coupling_force sensor one with couplings (``coupled``), a contact sensor's ``other``
+    another body or :data:`~softvr.scene._description.STATIC`; no two share a name."""
+    out, seen = [], set()
+    for i, t in enumerate(tables):
+        w = f"sensor[{i}]"
+        sensor, bad = read_table(Sensor, t, w, errors)
+        if sensor is None:
+            continue
+        bodies = ", ".join(sorted(names)) or "none"
+        if sensor.body is not None and sensor.body not in names:
+            errors.add(f"{w}.body", f"the name of a body ({bodies})", repr(sensor.body))
+            bad = True
+        elif sensor.kind == "coupling_force" and sensor.body is not None and sensor.body not in coupled:
+            errors.add(f"{w}.body", f"a body with couplings ({', '.join(sorted(coupled)) or 'none in this scene'})",
+                       repr(sensor.body))
+            bad = True
+        if sensor.other is not None and (sensor.other not in names | {STATIC} or sensor.other == sensor.body):
+            errors.add(f"{w}.other", f'the name of another body ({bodies}) or "{STATIC}"', repr(sensor.other))
+            bad = True
+        if sensor.name in seen:
+            errors.add(f"{w}.name", "a name no other sensor has", repr(sensor.name))
+            bad = True
+        seen.add(sensor.name)
+        if not bad:
+            out.append(sensor.model_dump())
+    return out
 
 
 def _display(t, scene_dir: Path, errors: Problems) -> str | None:

@@ -223,6 +223,13 @@ class NodeContacts:
     rigid_node : wp.array2d(int32) [c, 2]; rigid_lever : wp.array2d(vec3d) [c, 2] [m]
         The contact's rigid sides: angular node (-1: none) and lever arm, adding
         ``omega x lever`` to the relative velocity (:mod:`softvr.collision.node_rigid_detection`).
+    area : wp.array(float64) [c] [m^2]
+        Contact area (set only in scenes with adhesion: :class:`softvr.contact.NodeAdhesion`).
+    stiffness : wp.array(float64) [c] [N/m]
+        Implicit adhesive stiffness ``A C beta^2`` (eq. 4.16: ``k = dt^2 A C beta^2``; 0: none).
+    slip : wp.array(vec3d) [c] [m]
+        Tangential slip of a bonded contact since it bonded (world): its tangent rows' targets
+        are ``-t . slip / dt``.
     """
 
     capacity: int
@@ -255,6 +262,9 @@ class NodeContacts:
     edge_partner: wp.array
     rigid_node: wp.array
     rigid_lever: wp.array
+    area: wp.array
+    stiffness: wp.array
+    slip: wp.array
 
 
 @dataclass
@@ -318,7 +328,8 @@ def node_model_supported(scene) -> bool:
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
     and fixed bodies (with or without one, where no rigid body has one), static planes,
     couplings between them (each side an FEM body's embedded points or a kinematic or fixed
-    body's points); no static meshes or spheres or adhesion; at most one set of collision points
+    body's points); adhesion where the scene has no rigid body; no static meshes or spheres;
+    at most one set of collision points
     per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
     4 nodes, a rigid, kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
     collision surface over its own points."""
@@ -335,7 +346,8 @@ def node_model_supported(scene) -> bool:
         return False
     if not all(type(b) in (FemBody, RigidBody, KinematicBody, FixedBody) for b in scene.bodies):
         return False
-    if any(a is not None for a in scene._adhesion.values()):
+    # The node arrays' adhesion has no rigid sides yet (their areas and materials).
+    if any(type(b) is RigidBody for b in scene.bodies) and any(a is not None for a in scene._adhesion.values()):
         return False
     owners = [c.body for c in scene._colliders]
     if len(set(owners)) != len(owners):
@@ -542,7 +554,9 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         edge_carried=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
         edge_partner=wp.full(edge_wide, -1, dtype=wp.int32, device=d),
         rigid_node=wp.full((capacity, 2), -1, dtype=wp.int32, device=d),
-        rigid_lever=wp.zeros((capacity, 2), dtype=wp.vec3d, device=d))
+        rigid_lever=wp.zeros((capacity, 2), dtype=wp.vec3d, device=d),
+        area=wp.zeros(capacity, dtype=wp.float64, device=d), stiffness=wp.zeros(capacity, dtype=wp.float64, device=d),
+        slip=wp.zeros(capacity, dtype=wp.vec3d, device=d))
 
     def vec():
         return wp.zeros(n, dtype=wp.vec3d, device=d)

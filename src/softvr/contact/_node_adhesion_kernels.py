@@ -1,0 +1,199 @@
+"""Compiled implicit adhesion of the node arrays' contacts (thesis ch. 4): before the sweeps,
+each contact's key, materials, area, intensity and slip (:func:`prepare`); after them,
+bonding / debonding (4.3.3) and what carries over to the next step, sorted by key
+(:func:`evolve`). The bounds of eq. 4.16 act inside the sweeps
+(:func:`softvr.contact._node_jacobi_kernels.contacts`); the shared math is in
+:mod:`softvr.contact._adhesion_kernels`, as the rigid arrays use it.
+
+Contact kinds of the node arrays (:class:`softvr.sim.NodeContacts`): 0 point vs plane, 1
+surface vertex vs another body's triangle, 2 edge vs edge.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
+
+# softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
+# (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
+POINT_PLANE, VERTEX_TRIANGLE, EDGE_EDGE = 0, 3, 4
+#: The key of a contact that does not adhere: above every real one (kinds < 15), so that it
+#: never shadows one in the carried table's search.
+NO_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))
+
+
+@wp.func
+def pack_key(kind: int, body_a: int, feature_a: int, body_b: int, feature_b: int) -> wp.uint64:
+    """The contact's key, as :func:`softvr.collision.contact_keys` packs it."""
+    return ((wp.uint64(kind) << wp.uint64(60)) | (wp.uint64(body_a) << wp.uint64(50))
+            | (wp.uint64(body_b) << wp.uint64(40)) | (wp.uint64(feature_a) << wp.uint64(20)) | wp.uint64(feature_b))
+
+
+@wp.func
+def facing(t: int, n: wp.vec3d, point_x: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
+           two_sided: int) -> wp.float64:
+    """Area [m^2] of triangle ``t`` projected on the plane of unit normal ``n`` (pointing into
+    the triangle's body): ``A |n_t . n|`` on an open surface, ``A max(-n_t . n, 0)`` on a
+    closed one (:meth:`softvr.collision.CollisionSurface._facing`)."""
+    x0 = point_x[triangles[t, 0]]
+    cross = wp.cross(point_x[triangles[t, 1]] - x0, point_x[triangles[t, 2]] - x0)
+    size = wp.length(cross)
+    if size <= wp.float64(0.0):
+        return wp.float64(0.0)
+    cosine = wp.dot(cross, n) / size
+    if two_sided != 0:
+        return wp.float64(0.5) * size * wp.abs(cosine)
+    return wp.float64(0.5) * size * wp.max(-cosine, wp.float64(0.0))
+
+
+@wp.func
+def vertex_area(p: int, n: wp.vec3d, point_x: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
+                vertex_start: wp.array(dtype=wp.int32), vertex_triangles: wp.array(dtype=wp.int32),
+                two_sided: int) -> wp.float64:
+    """A third of every incident triangle's facing area (:meth:`CollisionSurface.facing_vertex_area`)."""
+    area = wp.float64(0.0)
+    for k in range(vertex_start[p], vertex_start[p + 1]):
+        area += facing(vertex_triangles[k], n, point_x, triangles, two_sided) / wp.float64(3.0)
+    return area
+
+
+@wp.func
+def edge_area(e: int, n: wp.vec3d, point_x: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
+              edge_faces: wp.array2d(dtype=wp.int32), two_sided: int) -> wp.float64:
+    """A third of the edge's one or two triangles' facing areas (:meth:`CollisionSurface.facing_edge_area`)."""
+    area = facing(edge_faces[e, 0], n, point_x, triangles, two_sided)
+    if edge_faces[e, 1] >= 0:
+        area += facing(edge_faces[e, 1], n, point_x, triangles, two_sided)
+    return area / wp.float64(3.0)
+
+
+@wp.struct
+class NodeAdhesionArrays:
+    """The node arrays' adhesion (``c`` contacts' capacity, ``m`` materials): per contact its
+    ``key`` (uint64), ``material_a`` / ``material_b`` (int32, -1: none), ``intensity`` beta
+    (float64, -1: not tracked); the carried table of the last step's contacts, ascending by
+    key: ``carried_count`` [1], ``carried_key``, ``carried_impulse`` (world [N s]),
+    ``carried_intensity``, ``carried_slip`` [m]; ``materials`` [m, 7]
+    (:data:`softvr.sim.model.ADHESION_COLUMNS`), ``body_material`` [bodies],
+    ``plane_material`` [planes], ``body_two_sided`` [bodies] (1: an open surface),
+    ``vertex_start`` [p + 1] / ``vertex_triangles``: each collision point's incident
+    triangles (global; none for a point that is no surface vertex)."""
+
+    key: wp.array(dtype=wp.uint64)
+    material_a: wp.array(dtype=wp.int32)
+    material_b: wp.array(dtype=wp.int32)
+    intensity: wp.array(dtype=wp.float64)
+    carried_count: wp.array(dtype=wp.int32)
+    carried_key: wp.array(dtype=wp.uint64)
+    carried_impulse: wp.array(dtype=wp.vec3d)
+    carried_intensity: wp.array(dtype=wp.float64)
+    carried_slip: wp.array(dtype=wp.vec3d)
+    materials: wp.array2d(dtype=wp.float64)
+    body_material: wp.array(dtype=wp.int32)
+    plane_material: wp.array(dtype=wp.int32)
+    body_two_sided: wp.array(dtype=wp.int32)
+    vertex_start: wp.array(dtype=wp.int32)
+    vertex_triangles: wp.array(dtype=wp.int32)
+
+
+@wp.kernel
+def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
+            point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32),
+            frame: wp.array(dtype=wp.mat33d), point_x: wp.array(dtype=wp.vec3d),
+            point_body: wp.array(dtype=wp.int32), body_point_start: wp.array(dtype=wp.int32),
+            triangles: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+            body_edge_start: wp.array(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32),
+            area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+            slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d)):
+    """Thread c: contact c's key, materials, area [m^2] (its feature's surface projected on the
+    contact plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md),
+    intensity and slip [m] carried by key, stiffness ``A C beta^2`` [N/m]; a bonded contact's
+    warm start ``impulse`` [N s] is the last step's unclamped (it may pull)."""
+    c = wp.tid()
+    if c >= count[0]:
+        return
+    n = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+    k = kind[c]
+    p = point[c]
+    o = other[c]
+    key = wp.uint64(0)
+    ar = wp.float64(0.0)
+    ma = int(-1)
+    mb = int(-1)
+    if k > 2:  # a rigid primitive's (the rigid path's detection): no adhesion on the arrays yet
+        key = NO_KEY
+    elif k == 2:
+        a = edge_body[p]
+        key = pack_key(EDGE_EDGE, a, p - body_edge_start[a], o, face[c] - body_edge_start[o])
+        ma = ad.body_material[a]
+        mb = ad.body_material[o]
+        ar = wp.min(edge_area(p, n, point_x, triangles, edge_faces, ad.body_two_sided[a]),
+                    edge_area(face[c], -n, point_x, triangles, edge_faces, ad.body_two_sided[o]))
+    else:
+        a = point_body[p]
+        ma = ad.body_material[a]
+        ar = vertex_area(p, n, point_x, triangles, ad.vertex_start, ad.vertex_triangles, ad.body_two_sided[a])
+        if k == 0:
+            key = pack_key(POINT_PLANE, a, p - body_point_start[a], o, 0)
+            mb = ad.plane_material[o]
+        else:
+            key = pack_key(VERTEX_TRIANGLE, a, p - body_point_start[a], o, 0)
+            mb = ad.body_material[o]
+            ar = wp.min(ar, facing(face[c], -n, point_x, triangles, ad.body_two_sided[o]))
+    ad.key[c] = key
+    ad.material_a[c] = ma
+    ad.material_b[c] = mb
+    area[c] = ar
+    m = find_key(ad.carried_key, ad.carried_count[0], key)
+    beta = wp.float64(-1.0)
+    u = wp.vec3d()
+    if m >= 0:
+        beta = ad.carried_intensity[m]
+        u = ad.carried_slip[m]
+    ad.intensity[c] = beta
+    slip[c] = u - wp.dot(u, n) * n
+    s = bond_stiffness(ad.materials, ma, mb, ar, beta)
+    stiffness[c] = s
+    if s > wp.float64(0.0):
+        impulse[c] = frame[c] * ad.carried_impulse[m]
+
+
+@wp.kernel
+def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
+           impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
+           stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+           stencil_weights: wp.array2d(dtype=wp.float64), fixed: wp.array(dtype=wp.int32),
+           v: wp.array(dtype=wp.vec3d), area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+           slip: wp.array(dtype=wp.vec3d), dt: wp.float64):
+    """One thread, after the sweeps (solved velocities ``v`` [n] [m/s], ``gap_after`` [m]): each
+    bonded contact's slip at the end of the step ``u + dt v_t`` [m], bonding / debonding
+    (4.3.3; a contact no impulse can move is not tracked, as the per-object path drops it),
+    then the step's contacts into the carried table, ascending by key."""
+    total = count[0]
+    for c in range(total):
+        n = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+        rel = wp.vec3d()
+        movable = int(0)
+        for k in range(stencil_count[c]):
+            node = stencil_nodes[c, k]
+            rel = rel + stencil_weights[c, k] * v[node]
+            if fixed[node] == 0:
+                movable = 1
+        u = slip[c]
+        if stiffness[c] > wp.float64(0.0):
+            u = u + dt * rel
+            u = u - wp.dot(u, n) * n
+        beta_out = wp.float64(-1.0)
+        u_out = wp.vec3d()
+        ma = ad.material_a[c]
+        mb = ad.material_b[c]
+        if ma >= 0 and mb >= 0 and movable != 0:
+            beta_out, u_out = evolve_bond(ad.materials, ma, mb, ad.intensity[c], impulse[c][0], gap_after[c], area[c],
+                                          u, dt)
+        ad.intensity[c] = beta_out
+        slip[c] = u_out
+    for c in range(total):
+        carry_sorted(c, ad.key[c], wp.transpose(frame[c]) * impulse[c], ad.intensity[c], slip[c], ad.carried_key,
+                     ad.carried_impulse, ad.carried_intensity, ad.carried_slip)
+    ad.carried_count[0] = total

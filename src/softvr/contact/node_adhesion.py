@@ -1,0 +1,159 @@
+"""Implicit adhesion (thesis ch. 4) on the whole-scene node arrays: the contacts' areas,
+intensities and tangential slips, carried from step to step by contact key and handed to and
+from the per-object path's :class:`~softvr.contact.AdhesionState` by key (kernels in
+:mod:`softvr.contact._node_adhesion_kernels`; the bounds of eq. 4.16 act in the sweeps of
+:class:`~softvr.contact.NodeSolve`). Works on :class:`softvr.sim.NodeModel` /
+:class:`softvr.sim.NodeState` or any objects with those attributes.
+
+A contact's area is its feature's surface projected on the contact plane, as on the
+per-object path (docs/adhesion.md, "Contact areas"): a third of every incident triangle's for
+a vertex, the smaller of the two sides' where both are surfaces; a collision point that is no
+surface vertex has none and does not adhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import warp as wp
+
+from softvr.contact import _node_adhesion_kernels as _k
+from softvr.contact.adhesion import AdhesionState
+from softvr.device import load_kernels, replayer
+
+__all__ = ["NodeAdhesion"]
+
+
+class _CarriedAdhesionState(AdhesionState):
+    """An :class:`AdhesionState` read from a copy of the node arrays' carried table, its
+    dictionaries made on first use (most steps nobody reads them)."""
+
+    def __init__(self, keys: np.ndarray, beta: np.ndarray, slip: np.ndarray):
+        self._rows: tuple | None = (keys, beta, slip)
+        self._intensity: dict = {}
+        self._slip: dict = {}
+
+    def _read(self) -> None:
+        if self._rows is not None:
+            keys, beta, slip = self._rows
+            self._rows = None
+            keys = keys.view(np.int64).tolist()
+            self._intensity = {k: float(b) for k, b in zip(keys, beta) if b >= 0}
+            self._slip = {k: s.copy() for k, s, b in zip(keys, slip, beta) if b >= 0 and np.any(s != 0)}
+
+    @property
+    def intensity(self) -> dict:
+        self._read()
+        return self._intensity
+
+    @intensity.setter
+    def intensity(self, value: dict) -> None:
+        self._read()
+        self._intensity = value
+
+    @property
+    def slip(self) -> dict:
+        self._read()
+        return self._slip
+
+    @slip.setter
+    def slip(self, value: dict) -> None:
+        self._read()
+        self._slip = value
+
+
+class NodeAdhesion:
+    """The adhesion of a scene on node arrays: per contact its key, materials, intensity, and a
+    table of the last step's contacts by key (``c`` = the contacts' capacity).
+
+    Parameters
+    ----------
+    model, state
+        :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState`.
+    materials : ndarray [m, 7]
+        Adhesion parameters per material, columns :data:`softvr.sim.model.ADHESION_COLUMNS` (SI).
+    body_material : ndarray of int [bodies]
+        Row of each body's adhesion in ``materials`` (-1: none).
+    plane_material : ndarray of int [planes]
+        Row of each plane's adhesion (-1: none).
+    """
+
+    def __init__(self, model, state, materials: np.ndarray, body_material, plane_material):
+        d = model.device
+        cap = state.contacts.capacity
+        p = model.point_count
+        triangles = model.triangles.numpy()
+        corners = triangles.ravel()
+        order = np.argsort(corners, kind="stable")
+        ad = _k.NodeAdhesionArrays()
+        ad.key = wp.zeros(cap, dtype=wp.uint64, device=d)
+        ad.material_a = wp.full(cap, -1, dtype=wp.int32, device=d)
+        ad.material_b = wp.full(cap, -1, dtype=wp.int32, device=d)
+        ad.intensity = wp.full(cap, -1.0, dtype=wp.float64, device=d)
+        ad.carried_count = wp.zeros(1, dtype=wp.int32, device=d)
+        ad.carried_key = wp.zeros(cap, dtype=wp.uint64, device=d)
+        ad.carried_impulse = wp.zeros(cap, dtype=wp.vec3d, device=d)
+        ad.carried_intensity = wp.full(cap, -1.0, dtype=wp.float64, device=d)
+        ad.carried_slip = wp.zeros(cap, dtype=wp.vec3d, device=d)
+        ad.materials = wp.array(np.asarray(materials, float).reshape(-1, 7), dtype=wp.float64, device=d)
+        ad.body_material = wp.array(np.asarray(body_material, np.int32), dtype=wp.int32, device=d)
+        ad.plane_material = wp.array(np.asarray(plane_material, np.int32).reshape(-1), dtype=wp.int32, device=d)
+        two_sided = [int(model.surfaces[b].two_sided) if b in model.surfaces else 0
+                     for b in range(len(model.body_node_start) - 1)]
+        ad.body_two_sided = wp.array(np.asarray(two_sided, np.int32), dtype=wp.int32, device=d)
+        ad.vertex_start = wp.array(np.searchsorted(corners[order], np.arange(p + 1)).astype(np.int32),
+                                   dtype=wp.int32, device=d)
+        ad.vertex_triangles = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
+        self.arrays = ad
+        self._model, self._state = model, state
+        self._count = ad.carried_count.numpy()
+
+    def record(self, dt: float) -> tuple[Callable[[], None], list]:
+        """Replays for a step of ``dt`` [s]: the one before the sweeps (after detection) and,
+        per sweep buffer of ``state.sweep_buffers``, the one after them (after the residual
+        has set ``gap_after``)."""
+        m, st = self._model, self._state
+        c, d = st.contacts, m.device
+        for kernel in (_k.prepare, _k.evolve):
+            load_kernels(kernel, d)
+        prepare = replayer(wp.launch(_k.prepare, dim=c.capacity, device=d, record_cmd=True,
+                                     inputs=[self.arrays, c.count, c.kind, c.point, c.other, c.face, c.frame,
+                                             st.point_x, m.point_body, m.body_point_start_wp, m.triangles,
+                                             m.edge_body, m.body_edge_start, m.edge_faces, c.area, c.stiffness,
+                                             c.slip, c.impulse]))
+        evolve = [replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
+                                     inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after, c.stencil_count,
+                                             c.stencil_nodes, c.stencil_weights, m.fixed, buf, c.area, c.stiffness,
+                                             c.slip, float(dt)]))
+                  for buf in st.sweep_buffers]
+        return prepare, evolve
+
+    def carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
+        """The per-object path's intensities and slips (and the warm starts of those contacts,
+        which may pull), by key, as the carried table."""
+        ad = self.arrays
+        keys = np.array(sorted(adhesion.intensity), np.int64)
+        bits = np.sort(keys.view(np.uint64))[: ad.carried_key.shape[0]]  # the kernels compare keys as uint64
+        keys = bits.view(np.int64).tolist()
+        n = len(keys)
+        self._count[0] = n
+        ad.carried_key.numpy()[:n] = bits
+        ad.carried_intensity.numpy()[:n] = [adhesion.intensity[k] for k in keys]
+        ad.carried_slip.numpy()[:n] = np.array([adhesion.slip.get(k, (0.0, 0.0, 0.0)) for k in keys],
+                                               float).reshape(-1, 3)
+        ad.carried_impulse.numpy()[:n] = np.array([warm.get(k, (0.0, 0.0, 0.0)) for k in keys], float).reshape(-1, 3)
+
+    def state(self) -> AdhesionState:
+        """The intensities and slips of the last step's contacts (a copy, by key)."""
+        ad = self.arrays
+        n = int(self._count[0])
+        return _CarriedAdhesionState(ad.carried_key.numpy()[:n].copy(), ad.carried_intensity.numpy()[:n].copy(),
+                                     ad.carried_slip.numpy()[:n].copy())
+
+    def carried_out(self) -> AdhesionState:
+        """:meth:`state` as a plain :class:`AdhesionState` for the per-object path."""
+        view = self.state()
+        out = AdhesionState()
+        out.intensity, out.slip = view.intensity, view.slip
+        return out
