@@ -106,3 +106,26 @@ def test_record_writes_the_video_sheet_and_metrics_named_by_the_rule(tmp_path):
 def test_the_default_output_folder_is_one_per_scene(tmp_path):
     assert out_folder(None, "soft_cube").as_posix() == "softvr-out/soft-cube"
     assert out_folder(tmp_path, "soft_cube") == tmp_path
+
+
+class Headless(Falling):
+    """Falling played without frame measures: asking for the penetration is an error."""
+
+    frame_measures = False
+
+    def penetration(self):
+        raise AssertionError("a player without frame measures reads no penetration")
+
+
+def test_a_headless_player_without_frame_measures_steps_the_same_physics_and_records_timings():
+    """``frame_measures = False`` (the benches): the same Euler free fall x_n = x_0 + g h^2 n (n + 1) / 2,
+    the hooks still in their order, and the records hold the timings and the scene's own metrics only."""
+    h, k, frames = 0.01, 3, 4
+    with Headless(frames=frames, steps_per_frame=k, dt=h) as player:
+        for _ in range(frames):
+            player.step()
+        n = np.arange(1, frames + 1) * k
+        m = player.metrics
+        np.testing.assert_allclose([r["height_m"] for r in m], 1.0 + G * h * h * n * (n + 1) / 2, rtol=1e-9)
+        assert player.calls[: 4 * k + 2] == list(STEP_ORDER) * k + ["volume", "metrics"]
+        assert set(m[0]) == {"frame", "sim_time_s", "step_ms", "stage_ms", "render_ms", "wall_ms", "height_m"}

@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from softvr import Scene
+from softvr.app import Player
 from softvr.bench.contact import _git_commit, run_candy
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.volume import _loadavg, _machine_info
@@ -38,7 +39,7 @@ from softvr.device import resolve_device
 from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 
-__all__ = ["PULL_OFF", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
+__all__ = ["PULL_OFF", "PullOffPlayer", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
            "softvr_pull_off", "write_plot"]
 
 #: Adhesion's cost at equal contact count, x plain contact.
@@ -71,21 +72,38 @@ def _pull_off_prediction(case: dict) -> tuple[float, float]:
     return limit, case["density"] * case["edge"] ** 3 * 9.81 + limit
 
 
+class PullOffPlayer(Player):
+    """The pull-off case (:data:`PULL_OFF`) played headless by the one player, one step a frame
+    (nothing drawn, no frame measures: :attr:`~softvr.app.Player.frame_measures`): its
+    :meth:`drive` hook pulls the cube up with ``pull`` [N]."""
+
+    name = "pull-off"
+    frame_measures = False
+
+    def __init__(self, case: dict = PULL_OFF):
+        edge = case["edge"]
+        verts, tris = box_surface((edge,) * 3, case["quads"])
+        self.cube = RigidBody.box((edge,) * 3, case["density"], position=(0.0, 0.0, edge / 2), name="cube")
+        adhesion = Adhesion(stiffness=case["stiffness"], max_energy=case["max_energy"], viscosity=case["viscosity"])
+        scene = Scene(contact_margin=0.002)
+        scene.add_body(self.cube, collision_points=RigidPoints(self.cube, verts - edge / 2), collision_triangles=tris,
+                       adhesion=adhesion)
+        scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
+        self.pull = 0.0
+        super().__init__(scene, case["dt"], 1, 1, 64, 48)
+
+    def drive(self) -> None:
+        self.scene.external[0] = np.array([0.0, 0.0, self.pull, 0.0, 0.0, 0.0])
+
+
 def softvr_pull_off(case: dict = PULL_OFF) -> dict:
-    """softvr on the pull-off case: the force when the cube has lifted ``lift`` [m], the
-    trace of force and lift, and steps/s of the ramp."""
-    edge, dt = case["edge"], case["dt"]
-    verts, tris = box_surface((edge,) * 3, case["quads"])
-    cube = RigidBody.box((edge,) * 3, case["density"], position=(0.0, 0.0, edge / 2), name="cube")
-    adhesion = Adhesion(stiffness=case["stiffness"], max_energy=case["max_energy"], viscosity=case["viscosity"])
-    scene = Scene(contact_margin=0.002)
-    scene.add_body(cube, collision_points=RigidPoints(cube, verts - edge / 2), collision_triangles=tris,
-                   adhesion=adhesion)
-    scene.add_plane(Plane(friction=0.5), adhesion=adhesion)
+    """softvr on the pull-off case, played by :class:`PullOffPlayer`: the force when the cube
+    has lifted ``lift`` [m], the trace of force and lift, and steps/s of the ramp."""
+    player = PullOffPlayer(case)
     for _ in range(20):
-        scene.step(dt)
-    return _ramp(lambda force: scene.external.update({0: np.array([0.0, 0.0, force, 0.0, 0.0, 0.0])}),
-                 lambda: scene.step(dt), lambda: float(cube.position[2]) - edge / 2, case)
+        player.step()
+    return _ramp(lambda force: setattr(player, "pull", force), player.step,
+                 lambda: float(player.cube.position[2]) - case["edge"] / 2, case)
 
 
 def mujoco_pull_off(case: dict = PULL_OFF) -> dict:

@@ -43,6 +43,7 @@ import numpy as np
 
 import softvr
 from softvr import Scene
+from softvr.app import Player
 from softvr.bench import _contact_peers as P
 from softvr.bench._cube_scene import FULL_SCENE, QUICK_SCENE, CubeScene, cube_mesh
 from softvr.bench._report import bench_parser, print_and_write, save_figure
@@ -54,7 +55,7 @@ from softvr.errors import SoftvrError
 from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
 from softvr.volume import Volume, grid_tet_mesh
 
-__all__ = ["CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
+__all__ = ["CubePlayer", "CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
            "run_softvr", "softvr_scene", "write_plot"]
 
 #: The issue's targets on this cube.
@@ -76,17 +77,38 @@ def softvr_scene(scene: CubeScene):
     return sim, body
 
 
+class CubePlayer(Player):
+    """The bench's cube played headless by the one player, one physics step a frame: nothing
+    drawn, the measures read by the bench itself (:attr:`~softvr.app.Player.frame_measures`).
+
+    Parameters
+    ----------
+    scene : CubeScene
+    steps : int
+        Frames (= steps) to play.
+    """
+
+    name = "contact-cube"
+    frame_measures = False
+
+    def __init__(self, scene: CubeScene, steps: int):
+        sim, self.body = softvr_scene(scene)
+        super().__init__(sim, scene.dt, 1, steps, 64, 48)
+
+
 def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
     t = time.perf_counter()
-    sim, body = softvr_scene(scene)
+    player = CubePlayer(scene, steps)
+    body = player.body
     setup = time.perf_counter() - t
     trace: dict[str, list] = {k: [] for k in ("step_s", "cpu_s", "min_z", "mean_z", "contacts", "active_contacts",
                                               "pgs_iterations", "residual", "cg_iterations")}
     for _ in range(steps):
         t, c = time.perf_counter(), time.process_time()
-        sol = sim.step(scene.dt)
+        player.step()
         trace["step_s"].append(time.perf_counter() - t)
         trace["cpu_s"].append(time.process_time() - c)
+        sol = player.scene.last_solution
         z = body.q[:, 2]
         trace["min_z"].append(float(z.min()))
         trace["mean_z"].append(float(z.mean()))
@@ -135,14 +157,18 @@ def run_candy(*, quick: bool = False, progress: bool = True, adhesion: bool = Fa
     """
     from tqdm import tqdm
 
-    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, adhesion=adhesion)
+    # Played headless by the one player, one step a frame: nothing drawn, the measures read here.
+    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, steps_per_frame=1,
+                 adhesion=adhesion)
+    ex.frame_measures = False
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
     trace: dict[str, list] = {k: [] for k in ("step_s", "contacts", "pulling_contacts", "pgs_iterations", "residual")}
     label = "candy + adhesion" if adhesion else "candy"
     for _ in tqdm(range(steps), desc=label, unit="step", disable=not progress, leave=False):
         t = time.perf_counter()
-        sol = ex.scene.step(ex.dt)
+        ex.step()
         trace["step_s"].append(time.perf_counter() - t)
+        sol = ex.scene.last_solution
         trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
         trace["pulling_contacts"].append(int(sum(int((i[:, 0] < 0).sum()) for i in sol.impulses)))
         trace["pgs_iterations"].append(int(sol.iterations))

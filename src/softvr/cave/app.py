@@ -7,8 +7,8 @@
   copies can be compared frame by frame.
 * Items, the drawables as plain data: :func:`mesh_item`, :func:`plane_item`, :func:`sphere_item`
   (one dict each, its index in the list the handle), :func:`scene_bounds`.
-* Frame sources for the master: :class:`PlayerSource` (a scene file simulated by its
-  :class:`softvr.app.Player`, its drawables read from the player), :class:`SceneFileSource` (a
+* Frame sources for the master: :class:`PlayerSource` (a scene played by its
+  :class:`softvr.app.Player`, its :meth:`~softvr.app.Player.drawables` streamed), :class:`SceneFileSource` (a
   static glTF / mesh-file scene) and :class:`WavingSheet` (an analytic deforming sheet for tests
   and the benchmark).
 """
@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softvr.app import PLANE_COLOR, PLANE_TILES, SPHERE_COLOR
 from softvr.cave.protocol import (MAX_FRAME, MAX_MESHES, MAX_NAME, PacketError, check_head, check_mesh_update,
                                   check_user, decode, encode)
 from softvr.cave.rig import UserPose, turn
@@ -36,12 +37,6 @@ _IDENTITY_HEAD = (0.0, 0.0, 1.7, 1.0, 0.0, 0.0, 0.0)
 #: Largest mesh a snapshot may carry [vertices] (its rest shape: 24 bytes each).
 MAX_VERTICES = 1 << 22
 _MAX_FLAGS = 1024
-
-
-#: Colours of a plane and a sphere drawn without one of their own: SurfaceRenderer's, so that the
-#: cluster shows a scene as ``softvr view`` does (tests/cave/test_command.py holds them equal).
-PLANE_COLOR = (0.55, 0.57, 0.6)
-SPHERE_COLOR = (0.75, 0.75, 0.78)
 
 
 def mesh_item(vertices, triangles, color=(0.8, 0.8, 0.8), opacity: float = 1.0) -> dict:
@@ -303,32 +298,37 @@ class FrameBuilder:
 
 
 class PlayerSource:
-    """Frames from a scene file played by its :class:`softvr.app.Player`
-    (:class:`softvr.scene.SceneExample`): every frame steps the player one frame and reads its
-    drawn surfaces' vertices, plain arrays, from the player itself (no renderer in between).
+    """Frames from a scene played by its :class:`softvr.app.Player`: every frame steps the player
+    one frame and streams its :meth:`~softvr.app.Player.drawables` (plain arrays read from the
+    player, no renderer in between).
 
-    The items are the player's drawables as data: its static planes (``planes``: (plane, drawn
-    size)) and spheres (``spheres``), then every shown surface of ``drawn`` (``vertices()`` [v, 3]
-    [m] now, ``triangles``, ``color``, ``opacity``, ``visible``). A hidden surface (a volume's
-    skin, drawn as the volume) is left out. What only a window draws (lights, the volume) is not
-    streamed.
+    The items are the drawables in their order: planes (:func:`plane_item`, in
+    :data:`~softvr.app.PLANE_TILES` tiles as every view draws them), static spheres
+    (:func:`sphere_item`) and meshes (:func:`mesh_item`). A drawable on layer ``hidden`` (a
+    volume's skin, drawn as the volume) is left out; what only a window draws (lights, the
+    volume) is not streamed.
     """
 
     def __init__(self, player):
         self.player = player
         self.fps = float(player.fps)
-        # Planes in 12 tiles, as the scene's own view draws them (SceneExample.setup_render).
-        self.items = [plane_item(plane.point, plane.normal, size, tiles=12) for plane, size in player.planes]
-        self.items += [sphere_item(s.center, s.radius) for s in player.spheres]
-        self._surfaces = {}
-        for drawn in player.drawn:
-            if drawn.visible:
-                self._surfaces[len(self.items)] = drawn
-                self.items.append(mesh_item(drawn.vertices(), drawn.triangles, drawn.color, drawn.opacity))
+        self.items: list[dict] = []
+        self._meshes: dict[int, int] = {}  # mesh handle -> index in the player's drawables
+        for k, d in enumerate(player.drawables()):
+            if d.layer == "hidden":
+                continue
+            if d.kind == "plane":
+                self.items.append(plane_item(d.point, d.normal, d.size, d.color, tiles=PLANE_TILES))
+            elif d.kind == "sphere":
+                self.items.append(sphere_item(d.point, d.size, d.color, d.opacity))
+            else:
+                self._meshes[len(self.items)] = k
+                self.items.append(mesh_item(d.vertices, d.triangles, d.color, d.opacity))
 
     def vertices(self) -> dict:
-        """Mesh handle -> the surface's vertices [v, 3] [m] now."""
-        return {h: np.asarray(d.vertices(), float) for h, d in self._surfaces.items()}
+        """Mesh handle -> the drawable's vertices [v, 3] [m] now."""
+        drawables = self.player.drawables()
+        return {h: drawables[k].vertices for h, k in self._meshes.items()}
 
     def advance(self) -> dict:
         """Step the player one frame (its sub-steps and hooks); mesh handle -> vertices [v, 3] [m]."""

@@ -35,7 +35,7 @@ from typing import Any
 
 import softvr.datasets
 from softvr import Scene
-from softvr.app import Player, Sensor
+from softvr.app import Drawable, Player, Sensor, plane_drawable, pose_matrix, sphere_drawable
 from softvr.collision import Plane, Sphere, TriangleMesh
 from softvr.contact import Adhesion
 from softvr.dynamics import (ClothBody, ContactObject, Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody,
@@ -166,17 +166,24 @@ _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rig
                 "soft": (0.72, 0.3, 0.3)}
 
 
+#: A tool's haptic handle (where the hand is; the tool follows it on its virtual coupling) is
+#: drawn as a translucent ball of this radius [m], a fingertip's, so that the lag shows.
+_HANDLE_RADIUS = 0.008
+_HANDLE_COLOR = (0.95, 0.8, 0.2)
+
 #: Folder of the bundled scene files (:data:`softvr.scene.BUNDLED`).
 _BUNDLED = Path(__file__).resolve().parent.parent / "scenes"
 
 
 class _Drawn:
-    """A body's drawn surface: ``vertices()`` [n, 3] [m] now, ``triangles`` [t, 3]; ``rigid``:
-    (body, points [n, 3] [m] in its frame) where the vertices are ``position + R points`` (given,
-    or a :class:`~softvr.dynamics.RigidPoints`' ``positions``), else None."""
+    """A body's drawn surface: ``name`` (the body's), ``vertices()`` [n, 3] [m] now, ``triangles``
+    [t, 3]; ``rigid``: (body, points [n, 3] [m] in its frame) where the vertices are
+    ``position + R points`` (given, or a :class:`~softvr.dynamics.RigidPoints`' ``positions``),
+    else None."""
 
-    def __init__(self, vertices, triangles, color, opacity: float = 1.0, visible: bool = True, rigid=None):
-        self.vertices, self.triangles, self.color = vertices, np.asarray(triangles, np.int32), color
+    def __init__(self, name: str, vertices, triangles, color, opacity: float = 1.0, visible: bool = True,
+                 rigid=None):
+        self.name, self.vertices, self.triangles, self.color = name, vertices, np.asarray(triangles, np.int32), color
         self.opacity, self.visible = opacity, visible
         points = getattr(vertices, "__self__", None)
         if rigid is None and type(points) is RigidPoints and vertices.__func__ is RigidPoints.positions:
@@ -316,7 +323,8 @@ class SceneExample(Player):
         self.index[spec["name"]] = scene.add_body(body, collision_points=points, collision_triangles=triangles)
         self.bodies[spec["name"]] = body
         # The skin is drawn by the volume itself.
-        self._drawn_by_name[spec["name"]] = _Drawn(points.positions, triangles, (0.9, 0.7, 0.6), visible=False)
+        self._drawn_by_name[spec["name"]] = _Drawn(spec["name"], points.positions, triangles, (0.9, 0.7, 0.6),
+                                                    visible=False)
         self.drawn.append(self._drawn_by_name[spec["name"]])
         self.volume = _DeformedVolume(volume, body, nodes, tets, spec, self.device)
         if spec["animation"] is not None:
@@ -334,7 +342,7 @@ class SceneExample(Player):
             part = built.part(name)
             color = model["colors"].get(name, _PART_COLORS.get(part.spec.kind, _PART_COLORS["soft"]))
             self.bodies[name], self.index[name] = body, first + k
-            self.drawn.append(_Drawn(render_points[name].positions, part.render_triangles, color,
+            self.drawn.append(_Drawn(name, render_points[name].positions, part.render_triangles, color,
                                      model["opacity"].get(name, 1.0)))
             self._drawn_by_name[name] = self.drawn[-1]
 
@@ -358,7 +366,7 @@ class SceneExample(Player):
             cv, ct = self._collision_surface(spec, v, t)
             index = scene.add_body(body, collision_points=RigidPoints(body, cv - origin), collision_triangles=ct,
                                    adhesion=adhesion)
-            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color,
+            self.drawn.append(_Drawn(spec.name, lambda b=body, p=local: b.position + p @ b.rotation.T, t, spec.color,
                                      rigid=(body, local)))
             if spec.type == "tool":  # the handle holds the body's position, not its centre of mass
                 self.tools.append(self._tool(scene, spec, body, tip=centre - origin))
@@ -388,15 +396,15 @@ class SceneExample(Player):
                                    collision_triangles=triangles, **collider)
             if spec.type == "tool":
                 self.tools.append(self._tool(scene, spec, body))
-            self.drawn.append(_Drawn(lambda b=body, p=local: b.position + p @ b.rotation.T, triangles, spec.color,
-                                     rigid=(body, local)))
+            self.drawn.append(_Drawn(spec.name, lambda b=body, p=local: b.position + p @ b.rotation.T, triangles,
+                                     spec.color, rigid=(body, local)))
         elif spec.type == "fixed":  # a mesh: a static obstacle, not a body
             v, t = self._surface(spec, rotation, centre)
             scene.add_mesh(TriangleMesh(v, t), adhesion=adhesion)
-            self._obstacles[spec.name] = _Drawn(lambda v=v: v, t, spec.color)
+            self._obstacles[spec.name] = _Drawn(spec.name, lambda v=v: v, t, spec.color)
             if spec.render_mesh is not None:
                 v, t = self._surface(spec, rotation, centre, spec.render_mesh)
-            self.drawn.append(_Drawn(lambda v=v: v, t, spec.color))
+            self.drawn.append(_Drawn(spec.name, lambda v=v: v, t, spec.color))
             return
         elif spec.type == "fem":
             m = Material(material["young"], material["poisson"], material["density"], alpha=material["alpha"],
@@ -415,7 +423,7 @@ class SceneExample(Player):
             tet_nodes, weights = embedding
             points = EmbeddedPoints(body, tet_nodes, weights)
             index = scene.add_body(body, collision_points=points, collision_triangles=surface, adhesion=adhesion)
-            self.drawn.append(_Drawn(points.positions, surface, spec.color))
+            self.drawn.append(_Drawn(spec.name, points.positions, surface, spec.color))
         else:  # cloth
             c = spec.cloth
             springs = dict(density=c["area_density"], stretch=c["stretch"], shear=c["shear"], bend=c["bend"],
@@ -438,7 +446,7 @@ class SceneExample(Player):
             # meet other bodies' surfaces.
             index = scene.add_body(cloth, collision_points=points, collision_triangles=cloth.triangles,
                                    adhesion=adhesion)
-            self.drawn.append(_Drawn(lambda b=cloth: b.q, cloth.triangles, spec.color))
+            self.drawn.append(_Drawn(spec.name, lambda b=cloth: b.q, cloth.triangles, spec.color))
         if spec.render_mesh is not None or (spec.type == "fem" and spec.collision_triangles is not None):
             # Drawn: the render mesh, or the full shape when only the collision surface is simplified.
             self.drawn[-1] = self._render_surface(spec, body, rotation, centre, spec.render_mesh)
@@ -464,7 +472,7 @@ class SceneExample(Player):
             points = EmbeddedPoints(body, body.tets[ti], w)
         else:
             points = RigidPoints.from_world(body, v)
-        return _Drawn(points.positions, t, spec.color)
+        return _Drawn(spec.name, points.positions, t, spec.color)
 
     def _couple(self, scene, c: dict) -> None:
         """Springs from the nodes of body ``a`` within ``radius`` of body ``b``'s surface, or at
@@ -683,24 +691,35 @@ class SceneExample(Player):
         r = self.file.render
         return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"]}
 
+    def drawables(self) -> list[Drawable]:
+        """The planes (``plane 0``, ...), the static spheres (``sphere 0``, ...), every body's
+        drawn surface in the order of the file (a volume's skin on layer ``hidden``: the volume
+        draws it), then each tool's haptic handle (``<tool> handle``: a ball of
+        :data:`_HANDLE_RADIUS`), the vertices read now."""
+        items = [plane_drawable(f"plane {k}", plane.point, plane.normal, size)
+                 for k, (plane, size) in enumerate(self.planes)]
+        items += [sphere_drawable(f"sphere {k}", s.center, s.radius) for k, s in enumerate(self.spheres)]
+        for d in self.drawn:
+            pose = None if d.rigid is None else pose_matrix(d.rigid[0].rotation, d.rigid[0].position)
+            items.append(Drawable(d.name, "mesh", np.asarray(d.vertices(), float), d.triangles,
+                                  tuple(float(c) for c in d.color), float(d.opacity), pose,
+                                  "render" if d.visible else "hidden"))
+        ball, triangles = icosphere(2)
+        for tool in self.tools:
+            handle = tool.handle
+            items.append(Drawable(f"{tool.tool.name} handle", "mesh", handle.position + _HANDLE_RADIUS * ball,
+                                  triangles, _HANDLE_COLOR, 0.5, pose_matrix(handle.rotation, handle.position)))
+        return items
+
     def setup_render(self, renderer) -> None:
         for light in self.file.render["lights"]:
             renderer.add_light(light["position"], light["focal_point"], light["color"], light["intensity"])
-        for plane, size in self.planes:
-            renderer.add_plane(point=plane.point, normal=plane.normal, size=size, tiles=12)
-        for s in self.spheres:
-            renderer.add_sphere(s.center, s.radius)
-        self._handles = [renderer.add_mesh(d.vertices(), d.triangles, color=d.color, opacity=d.opacity)
-                         for d in self.drawn]
-        for handle, d in zip(self._handles, self.drawn):
-            if not d.visible:
-                renderer.set_visible(handle, False)
+        super().setup_render(renderer)
         if self.volume is not None:
             self._volume_handle = renderer.add_volume(self.volume.shown(), preset=self.volume.spec["preset"])
 
     def update_render(self, renderer) -> None:
-        for handle, d in zip(self._handles, self.drawn):
-            renderer.update(handle, d.vertices())
+        super().update_render(renderer)
         if self.volume is not None:
             renderer.update_volume(self._volume_handle, self.volume.shown())
 
