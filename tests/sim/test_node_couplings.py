@@ -44,6 +44,23 @@ def _add(scene, body):
                                                                 np.ones((len(body.q), 1))))
 
 
+def sprung_block_scene():
+    """A 10 cm block (E 100 kPa) standing on a plane and hanging by four springs (k 300 N/m,
+    stretched 5 mm) from a fixed ceiling: ``(scene, block, block index, coupling)``."""
+    material = Material(1e5, 0.3, 1000.0, alpha=20.0, beta=1e-3)
+    block = _block((-0.05, -0.05, 0.0), material=material)
+    ceiling = FixedBody(name="ceiling")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    index = _add(scene, block)
+    scene.add_body(ceiling)
+    scene.add_plane(Plane(friction=0.5))
+    hooks = np.array([[x, y, 0.098] for x in (-0.03, 0.03) for y in (-0.03, 0.03)])
+    link = Coupling(_embedded(block, hooks), RigidPoints.from_world(ceiling, hooks + [0.0, 0.0, 0.005]), 300.0,
+                    damping=1.0)
+    scene.add_coupling(link)
+    return scene, block, index, link
+
+
 def _relative_jacobian(coupling, offsets, size):
     """D [3 springs, size] of eq. 5.4 written out here: side a's point velocity minus side b's,
     over velocities laid out by ``offsets`` (first index of an FEM body's nodes by the body's id;
@@ -182,17 +199,7 @@ def test_a_block_on_the_ground_held_up_by_springs_shares_its_weight_between_them
     # force plus the springs' (stretched 5 mm up to a fixed body, pulling ~k n 5 mm < m g) carry
     # m g. The contact impulses and the velocities share the sweeps' tolerance: over a step the
     # balance is off by at most M VELOCITY_TOL / dt.
-    material = Material(1e5, 0.3, 1000.0, alpha=20.0, beta=1e-3)
-    block = _block((-0.05, -0.05, 0.0), material=material)
-    ceiling = FixedBody(name="ceiling")
-    scene = Scene(gravity=(0.0, 0.0, -G))
-    index = _add(scene, block)
-    scene.add_body(ceiling)
-    scene.add_plane(Plane(friction=0.5))
-    hooks = np.array([[x, y, 0.098] for x in (-0.03, 0.03) for y in (-0.03, 0.03)])
-    link = Coupling(_embedded(block, hooks), RigidPoints.from_world(ceiling, hooks + [0.0, 0.0, 0.005]), 300.0,
-                    damping=1.0)
-    scene.add_coupling(link)
+    scene, block, index, link = sprung_block_scene()
     dt = 0.01
     for _ in range(150):
         solution = scene.step(dt)

@@ -13,12 +13,12 @@ import pytest
 
 from softvr import Scene
 from softvr.collision import Plane
-from softvr.dynamics import Coupling, FemBody, FixedBody, Material, RigidBody, RigidPoints
+from softvr.dynamics import FemBody, Material, RigidBody, RigidPoints
 from softvr.scene import bundled, load_scene
 from softvr.sim import node_model_supported
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
-from test_node_couplings import _add as _add_coupled, _block as _coupled_block, _embedded
+from test_node_couplings import sprung_block_scene
 from test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
@@ -261,17 +261,7 @@ def test_a_rigid_box_on_a_sprung_block_is_carried_by_the_plane_and_the_springs()
     (test_node_couplings.py's scene). The box's contacts carry m_box g; the block's contacts
     (the plane's up, the box's down) plus the springs carry m_block g; each within the
     masses times VELOCITY_TOL / dt."""
-    material = Material(1e5, 0.3, 1000.0, alpha=20.0, beta=1e-3)
-    block = _coupled_block((-0.05, -0.05, 0.0), material=material)
-    ceiling = FixedBody(name="ceiling")
-    scene = Scene(gravity=(0.0, 0.0, -G))
-    index = _add_coupled(scene, block)
-    scene.add_body(ceiling)
-    scene.add_plane(Plane(friction=0.5))
-    hooks = np.array([[x, y, 0.098] for x in (-0.03, 0.03) for y in (-0.03, 0.03)])
-    link = Coupling(_embedded(block, hooks), RigidPoints.from_world(ceiling, hooks + [0.0, 0.0, 0.005]), 300.0,
-                    damping=1.0)
-    scene.add_coupling(link)
+    scene, block, index, link = sprung_block_scene()
     box = _rigid_box(scene, (0.03, 0.03, 0.01), 2000.0, (0.0, 0.0, 0.1 + 0.0105))
     assert node_model_supported(scene)
     dt = 0.01
