@@ -25,8 +25,8 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "chunked_replayer", "cpu_workers", "cuda_driver_present", "launch", "load_kernels", "replayer", "resolve_device",
-    "single_threaded_blas", "upload",
+    "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order", "launch", "load_kernels", "replayer",
+    "resolve_device", "single_threaded_blas", "upload",
 ]
 
 
@@ -218,6 +218,15 @@ def replayer(recorded) -> Callable[[], None]:
 
     replay.keep = (recorded, args)  # type: ignore[attr-defined]  # the struct points into the launch's arrays
     return replay
+
+
+def in_order(*replays: Callable[[], None]) -> Callable[[], None]:
+    """One replay running ``replays`` (recorded launches, or other replays) one after the other."""
+    def run() -> None:
+        for replay in replays:
+            replay()
+
+    return run
 
 
 def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> Callable[[], None]:

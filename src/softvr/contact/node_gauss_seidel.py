@@ -17,7 +17,7 @@ import warp as wp
 
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
-from softvr.device import chunked_replayer, replayer
+from softvr.device import chunked_replayer, in_order, replayer
 
 __all__ = ["GaussSeidelSweep", "gauss_seidel_spectrum"]
 
@@ -78,12 +78,7 @@ class GaussSeidelSweep:
         replays += [chunked_replayer(_k.contact_nodes, n, [*rows, self.omega, v, w, st.v_hat], d), contacts,
                     chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
         replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]]
-
-        def sweep() -> None:
-            for replay in replays:
-                replay()
-
-        return sweep
+        return in_order(*replays)
 
 
 def gauss_seidel_spectrum(a: sp.spmatrix, order: np.ndarray) -> tuple[float, float]:

@@ -20,7 +20,6 @@ nodes here) set from its pose and velocity before every step.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,7 +32,7 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_jacobi import NodeSolve
-from softvr.device import replayer
+from softvr.device import in_order, replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
@@ -212,14 +211,6 @@ class _NodeSnapshot(StepSnapshot):
                                gaps_after=self.per_set("gap_after"))
 
 
-def _chain(*replays) -> Callable[[], None]:
-    """One replay running ``replays`` in order."""
-    def run() -> None:
-        for replay in replays:
-            replay()
-    return run
-
-
 class NodeStepper:
     """Steps a scene of FEM bodies with kinematic and fixed bodies and planes
     (:func:`~softvr.sim.node_model_supported`) on its arrays; built from the scene's current
@@ -394,7 +385,7 @@ class NodeStepper:
         assemble, rhs = record_system(m, st, dt, s.gravity)
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
-        couplings = _chain(*record_couplings(m, st, dt)) if len(m.couplings.node) else _chain()
+        couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
         detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
