@@ -24,6 +24,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import warp as wp
 
 from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
                                       rigid_side, stencil_side)
@@ -33,7 +34,8 @@ from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import in_order, replayer
-from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
+from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_start,
+                                         record_system)
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
@@ -262,8 +264,8 @@ class NodeStepper:
         self._external = st.external.numpy()
         self._diverged = st.diverged.numpy()
         self._count = st.contacts.count.numpy()
-        self._mass = self.model.mass.numpy()
-        self._v_before = None  # velocities at the start of the last step [n, 3] [m/s]
+        self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
+        self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
         start = self.model.body_node_start
         self._views = {i: (self._q[start[i]:start[i + 1]], self._v[start[i]:start[i + 1]],
                            self._fixed_v[start[i]:start[i + 1]]) for i, f in enumerate(self.fem) if f}
@@ -287,7 +289,7 @@ class NodeStepper:
                                          f"shape {value.shape}")
                     view[:] = value
                     setattr(body, name, view)
-                    self._v_before = None  # a new state: last step's change says nothing
+                    self._carried = False  # a new state: last step's change says nothing
 
     def _drive(self, dt: float) -> dict:
         """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
@@ -391,7 +393,8 @@ class NodeStepper:
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
             self.rigid.record(st, dt, s.gravity)
-        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings]
+        start = record_start(m, st, dt, s.gravity, self._v_before)
+        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
     def _solver(self, dt: float) -> NodeSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
@@ -437,7 +440,7 @@ class NodeStepper:
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
-        _, elements, assemble, rhs, detect, _, carry, integrate, couplings = self._recorded
+        _, elements, assemble, rhs, detect, _, carry, integrate, couplings, start = self._recorded
         elements()
         assemble()
         rhs()
@@ -453,20 +456,8 @@ class NodeStepper:
             prepare()
         t2 = time.perf_counter()
         solve = self._solver(dt)  # after the detection: the choice counts the contacts
-        # The sweeps start from last step's velocity change carried on (v + (v - v_before)), or
-        # on a first step the explicit one (v + dt (g + f_ext / m)): a uniform change (gravity,
-        # a push, a resting body's none) is Jacobi's slowest mode, and these guesses have it.
-        buffers = self.state.sweep_buffers
-        if self._v_before is None:
-            start = self._v + dt * (np.asarray(self.scene.gravity, float) + self._external / self._mass[:, None])
-        else:
-            start = 2.0 * self._v - self._v_before
-        self._v_before = self._v.copy()
-        start[self.fixed_nodes] = self._fixed_v[self.fixed_nodes]
-        if self.rigid is not None:
-            self.rigid.start(start)
-        buffers[0].numpy()[:] = start
-        buffers[2].numpy()[:] = start
+        start[self._carried]()
+        self._carried = True
         sweeps, solved = solve.solve(SWEEP_TOLERANCE)
         if self.adhesion is not None:
             evolve[sweeps % 3]()

@@ -71,6 +71,12 @@ class NodeModel:
     contrib_start : wp.array(int32) [nb + 1]; contrib : wp.array(int32) [16 m]
         Block ``k`` sums the element blocks ``contrib[contrib_start[k] : contrib_start[k + 1]]``,
         each coded 16 tet + 4 a + b (rows of node a, columns of node b of the tet).
+    assembled : wp.array(int32) [na]
+        The blocks the assembly sums: one of each transposed pair (``A`` is symmetric: the
+        other is written as its transpose) and every block without one.
+    block_mirror : wp.array(int32) [nb]
+        The block at the transposed position (column, row) (itself on the diagonal; -1: none,
+        a coupling's block from a driven node).
     force_start : wp.array(int32) [n + 1]; force : wp.array(int32) [4 m]
         Node ``i`` sums the element forces ``force[force_start[i] : force_start[i + 1]]``, coded
         4 tet + a.
@@ -145,6 +151,8 @@ class NodeModel:
     row_start: wp.array
     contrib_start: wp.array
     contrib: wp.array
+    assembled: wp.array
+    block_mirror: wp.array
     force_start: wp.array
     force: wp.array
     point_nodes: wp.array
@@ -373,7 +381,8 @@ def _f64(values, device, dtype=wp.float64):
 
 def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
     """Block-CSR pattern of ``A`` (the tets' blocks and the ``extra`` keys ``row n + col``: the
-    couplings') and the gather lists of its blocks and of the node forces."""
+    couplings'), the gather lists of its blocks and of the node forces, and the blocks the
+    assembly sums with their transposed partners."""
     m = len(tets)
     e, a, b = np.meshgrid(np.arange(m), np.arange(4), np.arange(4), indexing="ij")
     rows, cols = tets[e, a].ravel(), tets[e, b].ravel()
@@ -385,11 +394,15 @@ def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
     contrib_start = np.searchsorted(block[order], np.arange(len(keys) + 1))
     block_row, block_col = keys // n, keys % n
     row_start = np.searchsorted(block_row, np.arange(n + 1))
+    mirror_keys = block_col * n + block_row
+    mirror = np.minimum(np.searchsorted(keys, mirror_keys), len(keys) - 1)
+    mirror = np.where(keys[mirror] == mirror_keys, mirror, -1)
+    assembled = np.flatnonzero((block_col >= block_row) | (mirror < 0))
     nodes = tets.ravel()
     by_node = np.argsort(nodes, kind="stable")
     force = (4 * np.arange(m)[:, None] + np.arange(4)).ravel()[by_node]
     force_start = np.searchsorted(nodes[by_node], np.arange(n + 1))
-    return block_row, block_col, row_start, contrib_start, contrib, force_start, force
+    return block_row, block_col, row_start, contrib_start, contrib, force_start, force, assembled, mirror
 
 
 def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
@@ -439,7 +452,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     solved_rows = np.repeat(fem, node_counts) | rigid_rows
     springs = coupling_springs(scene, node_start, colliders)
     terms = coupling_blocks(springs, solved_rows)
-    block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n, terms[0])
+    block_row, block_col, row_start, contrib_start, contrib, force_start, force, assembled, mirror = \
+        _pattern(tets, n, terms[0])
     kinematic = [i for i in range(nbody) if not fem[i] and not rigid[i]]
 
     def per_node(fem_value, other_value):
@@ -513,7 +527,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         tet_beta=_f64(np.concatenate([np.full(len(b.tets), b.material.beta) for b, f in zip(bodies, fem) if f]), d),
         corotational=bool(next(b for b, f in zip(bodies, fem) if f).corotational),
         block_row=_i32(block_row, d), block_col=_i32(block_col, d), row_start=_i32(row_start, d),
-        contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d),
+        contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d), assembled=_i32(assembled, d),
+        block_mirror=_i32(mirror, d),
         force_start=_i32(force_start, d), force=_i32(force, d),
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
