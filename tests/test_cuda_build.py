@@ -18,7 +18,7 @@ MODULES = {
     "softvr.contact._rigid_pgs_kernels": ("solve_rigid_contacts",),
     "softvr.dynamics._fem_kernels": ("_corotated_kernel",),
     "softvr.dynamics._node_kernels": ("element_terms", "assemble", "right_hand_side", "integrate", "start_guess",
-                                      "rigid_start_guess"),
+                                      "rigid_start_guess", "drive"),
     "softvr.collision._node_kernels": ("point_motion", "body_motion", "vertex_triangle", "edge_geometry", "edge_edge",
                                        "gather_contacts", "carry_impulses"),
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual", "largest_change"),

@@ -132,3 +132,21 @@ def rigid_start_guess(linear_node: wp.array(dtype=wp.int32), angular_node: wp.ar
     guess_prev[linear_node[r]] = wp.spatial_top(f)
     guess[angular_node[r]] = wp.spatial_bottom(f)
     guess_prev[angular_node[r]] = wp.spatial_bottom(f)
+
+
+@wp.kernel
+def drive(drive_node: wp.array(dtype=wp.int32), drive_body: wp.array(dtype=wp.int32),
+          drive_local: wp.array(dtype=wp.vec3d), position: wp.array(dtype=wp.vec3d),
+          rotation: wp.array(dtype=wp.mat33d), velocity: wp.array(dtype=wp.spatial_vectord),
+          q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed_velocity: wp.array(dtype=wp.vec3d)):
+    """Driven node ``drive_node[k]`` where its point of a kinematic or fixed body is, ``c + R r``
+    [m], and how it moves over the step, ``v + w x R r`` [m/s] (its fixed velocity)."""
+    k = wp.tid()
+    i = drive_node[k]
+    b = drive_body[k]
+    r = rotation[b] * drive_local[k]
+    u = velocity[b]
+    w = wp.spatial_top(u) + wp.cross(wp.spatial_bottom(u), r)
+    q[i] = position[b] + r
+    fixed_velocity[i] = w
+    v[i] = w

@@ -1,7 +1,6 @@
 """The FEM bodies of a whole scene on arrays: element terms, the step matrix ``A`` of thesis
-eq. 5.2 in 3x3 node blocks with its right-hand side, the sweeps' first guess and the
-integration, as recorded launches
-replayed every step
+eq. 5.2 in 3x3 node blocks with its right-hand side, the kinematic bodies' driven nodes, the
+sweeps' first guess and the integration, as recorded launches replayed every step
 (:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or any objects with those
 attributes; kernels in :mod:`softvr.dynamics._node_kernels`).
 """
@@ -16,7 +15,8 @@ import warp as wp
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_kernels as _k
 
-__all__ = ["NODE_DIVERGENCE_REASONS", "record_elements", "record_integrate", "record_start", "record_system"]
+__all__ = ["NODE_DIVERGENCE_REASONS", "record_drive", "record_elements", "record_integrate", "record_start",
+           "record_system"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -42,6 +42,19 @@ def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None],
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
                             wp.vec3d(*np.asarray(gravity, float)), float(dt), state.b])
     return assemble, replayer(rhs)
+
+
+def record_drive(model, state) -> Callable[[], None]:
+    """A replay setting the kinematic and fixed bodies' driven nodes (``state.q``, ``v``,
+    ``fixed_velocity``) from their poses and velocities (``state.kinematic_*``)."""
+    count = model.drive_node.shape[0]
+    if not count:
+        return in_order()
+    load_kernels(_k.drive, model.device)
+    return replayer(wp.launch(_k.drive, dim=count, device=model.device, record_cmd=True,
+                              inputs=[model.drive_node, model.drive_body, model.drive_local, state.kinematic_position,
+                                      state.kinematic_rotation, state.kinematic_velocity, state.q, state.v,
+                                      state.fixed_velocity]))
 
 
 def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:

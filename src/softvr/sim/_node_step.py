@@ -33,9 +33,9 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_jacobi import NodeSolve
-from softvr.device import in_order, replayer
-from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_start,
-                                         record_system)
+from softvr.device import in_order, replayer, upload
+from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
+                                         record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
@@ -64,6 +64,11 @@ MAX_SWEEPS_PER_DECADE = 25.0
 PLAIN_LANCZOS_RESTARTS = 30
 #: PGS passes over the contacts per sweep.
 SWEEP_PASSES = 2
+#: The contact arrays a step's snapshot copies (NodeContacts), and those of the rigid path's
+#: contact rows its primitives' contacts point to.
+_CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
+                   "gap_after", "rigid_node", "rigid_lever", "area")
+_RIGID_CONTACT_FIELDS = ("key", "point_a", "point_b")
 
 
 class IllConditioned(Exception):
@@ -263,7 +268,17 @@ class NodeStepper:
         self._q, self._v, self._fixed_v = st.q.numpy(), st.v.numpy(), st.fixed_velocity.numpy()
         self._external = st.external.numpy()
         self._diverged = st.diverged.numpy()
-        self._count = st.contacts.count.numpy()
+        c = st.contacts
+        self._host_arrays = {name: getattr(c, name) for name in _CONTACT_FIELDS + ("count", "stencil_nodes",
+                                                                                   "stencil_count")}
+        self._host_arrays["point_x"] = st.point_x
+        if self.model.rigid is not None:
+            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
+                                      for name in _RIGID_CONTACT_FIELDS})
+        self._host_views: dict | None = None
+        k = len(self.model.kinematic)
+        self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
+        self._drive_nodes = record_drive(self.model, st)
         self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
         self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
         start = self.model.body_node_start
@@ -293,19 +308,20 @@ class NodeStepper:
 
     def _drive(self, dt: float) -> dict:
         """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
-        collision and coupling points' nodes set to where the points are and how they move."""
-        start = self.model.body_node_start
+        collision and coupling points' nodes set to where the points are and how they move
+        (:func:`record_drive`, from the poses and velocities uploaded here)."""
         out = {}
-        for i in self.model.kinematic:
+        if not self.model.kinematic:
+            return out
+        position, rotation, velocity = self._poses
+        for j, i in enumerate(self.model.kinematic):
             body = self.scene.bodies[i]
-            v = body.unconstrained_velocity(dt, self.scene.gravity)
-            out[i] = v
-            points = self.model.couplings.driven[i]
-            if points is not None:
-                rows = slice(start[i], start[i + 1])
-                self._q[rows] = points.positions()
-                self._fixed_v[rows] = points.velocities(v)
-                self._v[rows] = self._fixed_v[rows]
+            out[i] = v = body.unconstrained_velocity(dt, self.scene.gravity)
+            position[j], rotation[j], velocity[j] = body.position, body.rotation, v
+        st = self.state
+        for dst, src in zip((st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity), self._poses):
+            upload(dst, src)
+        self._drive_nodes()
         return out
 
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
@@ -474,7 +490,7 @@ class NodeStepper:
                 body.last_cg_iterations = 0
             elif i in driven:
                 body.integrate(driven[i], dt)
-        snapshot = _NodeSnapshot(self, self._contacts_out(), self.state.point_x.numpy()[:self.model.point_count].copy(),
+        snapshot = _NodeSnapshot(self, self._contacts_out(), self._host()["point_x"][:self.model.point_count].copy(),
                                  [self._views[i][1].copy() if self.fem[i] else driven[i] if i in driven
                                   else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
                                  float(solve.stats.numpy()[1]))
@@ -482,20 +498,28 @@ class NodeStepper:
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
 
+    def _host(self) -> dict:
+        """The arrays a step's snapshot copies (:meth:`_contacts_out`, ``point_x``) on the host:
+        on the CPU views made once (Warp's ``numpy()`` costs a few us a call, and a step makes
+        20), else copies."""
+        if self._host_views is not None:
+            return self._host_views
+        out = {name: array.numpy() for name, array in self._host_arrays.items()}
+        if self.state.q.device.is_cpu:
+            self._host_views = out
+        return out
+
     def _contacts_out(self) -> dict:
         """This step's contacts as host arrays, with ``movable``: whether an impulse can act on
         any node of the contact's stencil."""
-        n = min(int(self._count[0]), self.state.contacts.capacity)
-        c = self.state.contacts
-        out = {name: getattr(c, name).numpy()[:n].copy()
-               for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
-                            "gap_after", "rigid_node", "rigid_lever", "area")}
+        host = self._host()
+        n = min(int(host["count"][0]), self.state.contacts.capacity)
+        out = {name: host[name][:n].copy() for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
             rows = np.where(out["kind"] == 3, out["point"], 0)
-            out.update({name: getattr(self.model.rigid.state.contacts, name).numpy()[rows]
-                        for name in ("key", "point_a", "point_b")})
-        nodes = c.stencil_nodes.numpy()[:n]
-        used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+            out.update({name: host[name][rows] for name in _RIGID_CONTACT_FIELDS})
+        nodes = host["stencil_nodes"][:n]
+        used = np.arange(nodes.shape[1]) < host["stencil_count"][:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
         return out
 
