@@ -306,15 +306,15 @@ class NodeStepper:
         st = self.state
         self._q, self._v, self._fixed_v = st.q.numpy(), st.v.numpy(), st.fixed_velocity.numpy()
         self._external = st.external.numpy()
-        self._diverged = st.diverged.numpy()
         c = st.contacts
         self._host_arrays = {name: getattr(c, name) for name in _CONTACT_FIELDS + ("count", "stencil_nodes",
                                                                                    "stencil_count")}
-        self._host_arrays["point_x"] = st.point_x
+        self._host_arrays.update(point_x=st.point_x, diverged=st.diverged)
         if self.model.rigid is not None:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
                                       for name in _RIGID_CONTACT_FIELDS})
-        self._host_views: dict | None = None
+        self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
+            if st.q.device.is_cpu else None
         k = len(self.model.kinematic)
         self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
         self._drive_nodes = record_drive(self.model, st)
@@ -529,7 +529,7 @@ class NodeStepper:
                 body.last_cg_iterations = 0
             elif i in driven:
                 body.integrate(driven[i], dt)
-        snapshot = _NodeSnapshot(self, self._contacts_out(), self._host()["point_x"][:self.model.point_count].copy(),
+        snapshot = _NodeSnapshot(self, self._contacts_out(), self._host("point_x")[:self.model.point_count].copy(),
                                  [self._views[i][1].copy() if self.fem[i] else driven[i] if i in driven
                                   else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
                                  float(solve.stats.numpy()[1]))
@@ -537,36 +537,33 @@ class NodeStepper:
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
 
-    def _host(self) -> dict:
-        """The arrays a step's snapshot copies (:meth:`_contacts_out`, ``point_x``) on the host:
-        on the CPU views made once (Warp's ``numpy()`` costs a few us a call, and a step makes
-        20), else copies."""
+    def _host(self, name: str) -> np.ndarray:
+        """Array ``name`` of those a step reads back (:meth:`_contacts_out`, ``point_x``,
+        ``diverged``) on the host: on the CPU a view made once (Warp's ``numpy()`` costs a few
+        us a call, and a step makes 20), else a copy."""
         if self._host_views is not None:
-            return self._host_views
-        out = {name: array.numpy() for name, array in self._host_arrays.items()}
-        if self.state.q.device.is_cpu:
-            self._host_views = out
-        return out
+            return self._host_views[name]
+        return self._host_arrays[name].numpy()
 
     def _contacts_out(self) -> dict:
         """This step's contacts as host arrays, with ``movable``: whether an impulse can act on
         any node of the contact's stencil."""
-        host = self._host()
-        n = min(int(host["count"][0]), self.state.contacts.capacity)
-        out = {name: host[name][:n].copy() for name in _CONTACT_FIELDS}
+        n = min(int(self._host("count")[0]), self.state.contacts.capacity)
+        out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
             rows = np.where(out["kind"] == 3, out["point"], 0)
-            out.update({name: host[name][rows] for name in _RIGID_CONTACT_FIELDS})
-        nodes = host["stencil_nodes"][:n]
-        used = np.arange(nodes.shape[1]) < host["stencil_count"][:n, None]
+            out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+        nodes = self._host("stencil_nodes")[:n]
+        used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
         return out
 
     def _check(self) -> None:
         """Stop with a report naming the body, node and step (SimulationError) if one diverged."""
-        if self._diverged.any():
-            i = int(np.flatnonzero(self._diverged)[0])
+        diverged = self._host("diverged")
+        if diverged.any():
+            i = int(np.flatnonzero(diverged)[0])
             b = int(np.searchsorted(self.model.body_node_start, i, side="right") - 1)
             body = self.scene.bodies[b]
-            reason = NODE_DIVERGENCE_REASONS[int(self._diverged[i])]
+            reason = NODE_DIVERGENCE_REASONS[int(diverged[i])]
             raise body._diverged(f"node {i - self.model.body_node_start[b]}: {reason}")
