@@ -22,7 +22,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
@@ -63,12 +62,6 @@ MAX_SWEEPS_PER_DECADE = 25.0
 #: before :func:`spectrum` takes the shift-invert LU instead (a narrow spectrum converges in a
 #: few; candy's wide one would take hundreds).
 PLAIN_LANCZOS_RESTARTS = 30
-#: Lanczos steps :func:`spectrum` takes for both ends of the spectrum at once before it leaves
-#: them to ARPACK (the soft cube's ends converge in ~65; candy's smallest does not in hundreds).
-LANCZOS_STEPS = 120
-#: Largest error of the Lanczos ends, (smallest, largest), relative to each (their residual
-#: bounds): an order below SPECTRUM_MARGIN's slack.
-LANCZOS_ACCURACY = (1e-2, 2e-3)
 #: PGS passes over the contacts per sweep.
 SWEEP_PASSES = 2
 #: The contact arrays a step's snapshot copies (NodeContacts), and those of the rigid path's
@@ -98,39 +91,10 @@ def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
     return a[free][:, free], solved
 
 
-def _lanczos_ends(s: sp.csr_matrix, start: np.ndarray, steps: int) -> tuple[float, float] | None:
-    """The smallest and largest eigenvalue of the symmetric ``s`` [k, k] by Lanczos from
-    ``start`` [k] with full reorthogonalization (both ends come out of one Krylov space: about
-    half the products of two restarted ARPACK runs on the soft cube), once the residual bound
-    ``beta_j |y_j|`` of each end's Ritz value is within :data:`LANCZOS_ACCURACY` of it (Golub
-    and Van Loan, Matrix Computations, 10.1.4); None if that takes more than ``steps``."""
-    steps = min(steps, s.shape[0])
-    basis = np.empty((steps + 1, s.shape[0]))
-    alpha, beta = np.empty(steps), np.empty(steps)
-    basis[0] = start / np.linalg.norm(start)
-    for j in range(steps):
-        w = s @ basis[j]
-        alpha[j] = basis[j] @ w
-        for _ in range(2):  # classical Gram-Schmidt twice keeps the basis orthogonal to round-off
-            w -= basis[:j + 1].T @ (basis[:j + 1] @ w)
-        beta[j] = np.linalg.norm(w)
-        exhausted = beta[j] <= 1e-12 * np.abs(alpha[:j + 1]).max() or j == steps - 1
-        if j % 5 == 4 or exhausted:
-            theta, y = sla.eigh_tridiagonal(alpha[:j + 1], beta[:j])
-            bound = beta[j] * np.abs(y[-1, [0, -1]])
-            if bound[0] <= LANCZOS_ACCURACY[0] * theta[0] and bound[1] <= LANCZOS_ACCURACY[1] * theta[-1]:
-                return float(theta[0]), float(theta[-1])
-        if exhausted:
-            return None
-        basis[j + 1] = w / beta[j]
-    return None
-
-
 def spectrum(model, state) -> tuple[float, float]:
     """Bounds (lo, hi) of the eigenvalues of D_A^-1 A over the free nodes, from this step's
-    ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A), both
-    ends at once (:func:`_lanczos_ends`), or where they converge slower one ARPACK run per end
-    (the smallest by shift-invert where even that is slow), with :data:`SPECTRUM_MARGIN`."""
+    ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A), the
+    smallest in shift-invert mode, with :data:`SPECTRUM_MARGIN`."""
     n = model.node_count
     rows, cols = model.block_row.numpy(), model.block_col.numpy()
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
@@ -149,9 +113,6 @@ def spectrum(model, state) -> tuple[float, float]:
     # A fixed start vector (ARPACK's default is random): the same scene steps the same way in
     # every run (the bounds set the Chebyshev weights, and so the rounding of every sweep).
     start = np.random.default_rng(0).standard_normal(s.shape[0])
-    ends = _lanczos_ends(s, start, LANCZOS_STEPS)
-    if ends is not None:
-        return max(ends[0], 1e-6 * ends[1]) * SPECTRUM_MARGIN[0], ends[1] * SPECTRUM_MARGIN[1]
     hi = float(spla.eigsh(s, k=1, which="LA", return_eigenvectors=False, tol=1e-3, v0=start)[0])
     # The smallest by Lanczos on hi - s, which is cheap where the spectrum is narrow (the soft
     # cube: ~20 ms); where lo << hi it converges slowly (candy: 14.7 s), so past
