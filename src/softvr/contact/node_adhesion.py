@@ -34,7 +34,7 @@ class _CarriedAdhesionState(AdhesionState):
 
     def __init__(self, adhesion: NodeAdhesion):
         self._source: NodeAdhesion | None = adhesion
-        self._rows: tuple | None = None
+        self._rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._intensity: dict | None = None
         self._slip: dict = {}
 
@@ -46,7 +46,9 @@ class _CarriedAdhesionState(AdhesionState):
 
     def _read(self) -> None:
         if self._intensity is None:
-            keys, beta, slip = self._rows if self._source is None else self._source.rows()
+            rows = self._rows if self._source is None else self._source.rows()
+            assert rows is not None  # detach copied them
+            keys, beta, slip = rows
             self._source = self._rows = None
             keys = keys.view(np.int64).tolist()
             self._intensity = {k: float(b) for k, b in zip(keys, beta) if b >= 0}

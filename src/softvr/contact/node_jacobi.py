@@ -78,7 +78,7 @@ class NodeSolve:
         #: error [m/s] (:meth:`solve`): all the loop reads back, one number per check.
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
-        self._stats_view = self.stats.numpy() if self.stats.device.is_cpu else None
+        self._stats_view = self.stats.numpy() if wp.get_device(d).is_cpu else None
         # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
         # their A, so the update is exact for the sweep's impulses, and the Chebyshev step only
         # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate

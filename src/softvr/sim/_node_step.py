@@ -275,7 +275,7 @@ class NodeStepper:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
                                       for name in _RIGID_CONTACT_FIELDS})
         self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
-            if st.q.device.is_cpu else None
+            if wp.get_device(self.model.device).is_cpu else None
         k = len(self.model.kinematic)
         self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
         self._drive_nodes = record_drive(self.model, st)
@@ -310,7 +310,7 @@ class NodeStepper:
         """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
         collision and coupling points' nodes set to where the points are and how they move
         (:func:`record_drive`, from the poses and velocities uploaded here)."""
-        out = {}
+        out: dict[int, np.ndarray] = {}
         if not self.model.kinematic:
             return out
         position, rotation, velocity = self._poses
