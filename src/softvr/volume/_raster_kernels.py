@@ -393,6 +393,9 @@ _TET_SNIPPET = (
             const f8 hx = splat(fx1), hy = splat(fy1), hz = splat(fz1), vlo = splat(lo_v), vhi = splat(hi_v);
             const i8 imx = isplat(mx), imy = isplat(my), imz = isplat(mz), all = isplat(-1);
             const i8 vsx = isplat(sx), vsy = isplat(sy), vsz = isplat(sz);
+            // One copy of the loop per source (src a constant at each call below): the source's
+            // tests leave the loop, and the z stride, 1 for the 16-bit sources, its multiply.
+            auto loop8 = [&](const int src) __attribute__((always_inline)) {
             for (; n0 + 8 <= cnt; n0 += 8) {
                 i8 kk; f8 bx8, by8, bz8;
                 __builtin_memcpy(&kk, K + n0, 32); __builtin_memcpy(&bx8, BX + n0, 32);
@@ -413,9 +416,9 @@ _TET_SNIPPET = (
                 const f8 wx = ux - __builtin_convertvector(ix, f8);
                 const f8 wy = uy - __builtin_convertvector(iy, f8);
                 const f8 wz = uz - __builtin_convertvector(iz, f8);
-                const i8 p = ix * vsx + iy * vsy + iz * vsz;
+                const i8 p = ix * vsx + iy * vsy + (src == 0 ? iz * vsz : iz);
                 f8 a00, b00, a01, b01, a10, b10, a11, b11;
-                if (src_code == 0) {
+                if (src == 0) {
                     auto g = [&](i8 idx) {
                         return (f8)__builtin_ia32_gatherd_ps256(splat(0.0f), v, idx, (f8)all, 4);
                     };
@@ -426,7 +429,7 @@ _TET_SNIPPET = (
                     // on this Zen 3 VM that cut the frame's CPU time by ~8 % (a gather is
                     // microcoded there and blocks dispatch); the 8 indices are extracted once
                     // for the 4 corner lines.
-                    const bool sgn = src_code == 2;
+                    const bool sgn = src == 2;
                     int at[8];
                     __builtin_memcpy(at, &p, 32);
                     auto pairs = [&](const short* base, f8& a, f8& b) {
@@ -460,6 +463,8 @@ _TET_SNIPPET = (
                 }
                 __builtin_memcpy(V + n0, &val, 32);
             }
+            };
+            if (src_code == 2) loop8(2); else if (src_code == 3) loop8(3); else loop8(0);
         }
 #endif
         if (nearest) {
