@@ -521,19 +521,9 @@ _TET_SNIPPET = (
     typedef long long l4 __attribute__((ext_vector_type(4)));
     const i64 NOCARRY = (i64)1 << 62, NONE = (i64)1 << 62;
     auto sel4 = [](l4 m, l4 a, l4 b) { return (a & m) | (b & ~m); };
-    auto max4 = [&](l4 a) {
-        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a > b), a, b);
-        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a > b), a, b);
-        return (i64)a[0];
-    };
-    auto min4 = [&](l4 a) {
-        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a < b), a, b);
-        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a < b), a, b);
-        return (i64)a[0];
-    };
     // Whole-vector loads: lane by lane, each insert went through the stack and stalled the
     // reload (a failed store forward), 44 per work item (~5 % of a frame).
-    const l4 lo_none = (l4)(-NONE), hi_none = (l4)NONE, zero4 = (l4)0;
+    const l4 inf4 = (l4)NONE, zero4 = (l4)0;
     l4 qi4, ri4, dqi4, dri4, dq4, dr4, den_f, sz4;
     __builtin_memcpy(&qi4, qi, 32); __builtin_memcpy(&ri4, ri, 32);
     __builtin_memcpy(&dqi4, dqi, 32); __builtin_memcpy(&dri4, dri, 32);
@@ -541,7 +531,7 @@ _TET_SNIPPET = (
     __builtin_memcpy(&den_f, den, 32); __builtin_memcpy(&sz4, szs, 32);
     const l4 den4 = sel4((l4)(den_f > zero4), den_f, (l4)NOCARRY), dn4 = den4;
     const l4 pos4 = (l4)(sz4 > zero4), neg4 = (l4)(sz4 < zero4), flat4 = (l4)(sz4 == zero4);
-    const l4 box_lo4 = (l4)(i64)B[4], box_hi4 = (l4)(i64)B[5];
+    const l4 box_lo4 = (l4)(i64)B[4], box_nhi4 = (l4)(-(i64)B[5]);
     typedef int i8q __attribute__((ext_vector_type(8)));
     typedef float f8q __attribute__((ext_vector_type(8)));
     const i8q iota8 = {0, 1, 2, 3, 4, 5, 6, 7};
@@ -561,13 +551,19 @@ _TET_SNIPPET = (
             const int j1 = B[3] - j0 < ROWS ? B[3] : j0 + ROWS - 1;
             int rows = 0;
             for (int j = j0; j <= j1; ++j) {
-                // The box clamps lane-wise, before the reductions: as scalar selects after them
-                // clang made them branches, mispredicted on about every other row.
-                l4 lo_t = sel4(pos4, -q4, lo_none);
-                l4 hi_t = sel4(neg4, q4, sel4(flat4 & (l4)(q4 < zero4), lo_none, hi_none));
-                lo_t = sel4((l4)(lo_t > box_lo4), lo_t, box_lo4);
-                hi_t = sel4((l4)(hi_t < box_hi4), hi_t, box_hi4);
-                const i64 klo = max4(lo_t), khi = min4(hi_t);
+                // Both ends by one max reduction over 2 x 4 lanes: klo = max(box, -q on faces with
+                // Sz > 0), -khi = max(-box, -q on Sz < 0, +inf on Sz = 0 where q < 0). A tet's
+                // Sz sum to 0 and are not all 0, so each half has a lane for the box bound. (As
+                // scalar selects after the reductions, clang made the box clamps branches,
+                // mispredicted on about every other row.)
+                const l4 w = -q4;
+                const l4 a = sel4(pos4, w, box_lo4);
+                const l4 b = sel4(neg4, w, sel4(flat4 & (l4)(q4 < zero4), inf4, box_nhi4));
+                l4 x = __builtin_shufflevector(a, b, 0, 1, 4, 5), y = __builtin_shufflevector(a, b, 2, 3, 6, 7);
+                x = sel4((l4)(x > y), x, y);
+                y = __builtin_shufflevector(x, x, 1, 0, 3, 2);
+                x = sel4((l4)(x > y), x, y);
+                const i64 klo = x[0], khi = -x[2];
                 r4 += dr4;
                 const l4 carry = (l4)(r4 >= dn4);  // -1 where the remainder wraps
                 r4 -= dn4 & carry;
