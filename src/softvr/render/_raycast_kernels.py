@@ -528,9 +528,6 @@ def raycast(
 @wp.kernel
 def stale_pixels(
     width: int,
-    height: int,
-    depth: wp.array2d(dtype=float),
-    surface: wp.array3d(dtype=wp.uint8),
     boxed: int,
     box_lo: wp.vec3,
     box_hi: wp.vec3,
@@ -541,19 +538,17 @@ def stale_pixels(
     flips: int,
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
-    last_depth: wp.array2d(dtype=float),
-    last_surface: wp.array3d(dtype=wp.uint8),
     empty_until: wp.array(dtype=float),
     stale: wp.array(dtype=wp.int32),
     offset: int,
 ):
-    """1 in ``stale`` for each pixel whose ray must be cast again, else 0 (same camera,
-    tables and grid as the last frame): its surface colour or depth differs from
-    ``last_surface`` / ``last_depth`` (which take the new values), or its last segment of
-    samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
-    grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed) and, in it, a brick
-    whose samples may read a changed voxel (``read_distance``: the bricks' distance to one,
-    :func:`brick_read_changes`).
+    """Set 1 in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
+    colour or depth changed) for each pixel of ``rect`` (first column, last column, first
+    row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
+    tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
+    the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``READ_REACH`` (if
+    ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
+    changed voxel (``read_distance``: the bricks' distance to one, :func:`brick_read_changes`).
     Any other pixel reads the same voxels with the same weights as last frame, so its colour
     is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
@@ -561,38 +556,28 @@ def stale_pixels(
     bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
     through a voxel it does not read, and a later change there flips no brick.
 
-    Only the pixels in ``rect`` (first column, last column, first row, last row) can have a
-    segment that meets either box (every point of a ray is seen in its pixel)."""
-    tid = wp.tid() + offset
-    px = tid % width
-    row = tid / width
-    py = height - 1 - row
-    s = int(0)
-    if depth[py, px] != last_depth[py, px]:
-        s = 1
-    for ch in range(3):
-        if surface[row, px, ch] != last_surface[row, px, ch]:
-            s = 1
-    if s == 1:
-        last_depth[py, px] = depth[py, px]
-        for ch in range(3):
-            last_surface[row, px, ch] = surface[row, px, ch]
-    elif px >= rect[0] and px <= rect[1] and row >= rect[2] and row <= rect[3]:
-        a = segment_start[tid]
-        d = segment_end[tid] - a
-        if boxed != 0:
-            grown = wp.vec3(READ_REACH)
-            u = segment_in_box(a, d, box_lo - grown, box_hi + grown)
-            # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
-            # ray to cast again is found in a brick or two.
-            if u[0] <= u[1]:
-                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                    s = 1
-        if s == 0 and flips != 0:
-            u = segment_in_box(a, d, flip_lo, flip_hi)
-            if u[0] <= u[1]:
-                empty_until[tid] = 0.0
-    stale[tid] = s
+    Only the pixels in ``rect`` can have a segment that meets either box (every point of a
+    ray is seen in its pixel)."""
+    t = wp.tid() + offset
+    columns = rect[1] - rect[0] + 1
+    tid = (rect[2] + t / columns) * width + rect[0] + t % columns
+    if stale[tid] != 0:
+        return
+    a = segment_start[tid]
+    d = segment_end[tid] - a
+    if boxed != 0:
+        grown = wp.vec3(READ_REACH)
+        u = segment_in_box(a, d, box_lo - grown, box_hi + grown)
+        # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+        # ray to cast again is found in a brick or two.
+        if u[0] <= u[1]:
+            if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
+                stale[tid] = 1
+                return
+    if flips != 0:
+        u = segment_in_box(a, d, flip_lo, flip_hi)
+        if u[0] <= u[1]:
+            empty_until[tid] = 0.0
 
 
 #: Voxel dtypes read in place; others are converted to float32 once per upload.

@@ -37,6 +37,10 @@ LUT_SIZE = 4096
 _READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
+#: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
+_STALE_CHUNK = 4096
+#: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
+_BRICK_CHUNK = 4096
 
 
 def volume_bounds(volume) -> tuple[float, ...]:
@@ -215,7 +219,7 @@ class RayCaster:
         """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
         count = last - first + 1
         launch(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
-               min_chunk=32)
+               min_chunk=_BRICK_CHUNK)
 
     def _tables(self, volume) -> bool:
         """Build the transfer tables if the preset, step or unit changed; True if rebuilt."""
@@ -284,8 +288,10 @@ class RayCaster:
         # one camera, light, grid, table and step.
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter)
-        depth = wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev)
-        surface = wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev)
+        depth_host = np.ascontiguousarray(depth, np.float32)
+        surface_host = np.ascontiguousarray(surface, np.uint8)
+        depth = wp.array(depth_host, dtype=float, device=dev)
+        surface = wp.array(surface_host, dtype=wp.uint8, device=dev)
         flips, self._flips = self._flips, []
         flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
         flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
@@ -297,10 +303,11 @@ class RayCaster:
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
-            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
+            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
         else:
-            pixels = self._stale_pixels(depth, surface, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
+            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
+                                        np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -316,14 +323,22 @@ class RayCaster:
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list,
+    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
-        in the ``changed`` box (False or None: no voxel changed). The others forget their
-        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi).
-        ``index_to_ndc`` [4, 4] projects the volume's index space to the screen."""
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
+        changed). The others forget their known-empty prefix if it may cross a brick in the
+        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
+        space to the screen."""
         height, width = depth.shape
+        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
+        # costs more on the CPU than the comparison itself.
+        moved = surface != self._last_surface
+        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
+        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        stale = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         # Each brick's distance to the nearest one where samples may read a changed voxel.
@@ -336,11 +351,10 @@ class RayCaster:
         boxes = [(lo - float(K.READ_REACH), hi + float(K.READ_REACH))] if boxed else []
         if flipped[0]:
             boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
-        stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
-        launch(K.stale_pixels, width * height,
-               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3],
-                _screen_rect(boxes, index_to_ndc, width, height), *self._segments, *flipped, self._last_depth,
-                self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+        rect = _screen_rect(boxes, index_to_ndc, width, height)
+        launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3], rect, *self._segments, *flipped,
+                self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
 
