@@ -25,12 +25,15 @@ from softvr.render import _raycast_kernels as K
 from softvr.render._scene import check_volume
 from softvr.render.presets import Preset
 
-__all__ = ["BRICK", "LUT_SIZE", "REACH", "RayCaster", "transfer_tables", "volume_bounds"]
+__all__ = ["BRICK", "LUT_SIZE", "REACH", "THICK_SLICES", "RayCaster", "transfer_tables", "volume_bounds"]
 
 #: Voxels per brick edge of the empty-space-skipping grid.
 BRICK = int(K.BRICK)
 #: Bricks a ray may skip at once along each axis (the cap of the brick distance field, < 255).
 REACH = 16
+#: Spacing ratio (largest / smallest) from which ``smooth_slices="auto"`` smooths the shading
+#: across slices: the head CT's 1.5 mm slices over 0.96 mm pixels (1.57) show a band per slice.
+THICK_SLICES = 1.25
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
 #: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
@@ -105,17 +108,26 @@ class RayCaster:
         Ray step in units of the smallest voxel spacing (also the opacity unit length).
     jitter : bool
         Offset each pixel's samples by a per-pixel fraction of a step (no banding).
+    smooth_slices : {"auto", True, False}
+        Shade with the gradient smoothed across slices (weights 1, 2, 1 over neighbouring
+        slices, along the axis of the largest spacing): a surface almost parallel to thick
+        slices (a skull's top on a CT of 1.5 mm slices) is otherwise drawn in bands, one per
+        slice. ``"auto"``: where that spacing is at least ``THICK_SLICES`` times the smallest.
+        Shaded samples then take three gradients instead of one.
     device : str, optional
         Warp device (default: CUDA when present, else CPU).
     """
 
     def __init__(self, preset: Preset, sample_distance: float = 0.5, *, jitter: bool = True,
-                 device: str | None = None):
+                 smooth_slices: "str | bool" = "auto", device: str | None = None):
         if not sample_distance > 0:
             raise InputError("sample_distance", "a number > 0 [voxels]", repr(sample_distance))
+        if smooth_slices not in ("auto", True, False):
+            raise InputError("smooth_slices", "'auto', True or False", repr(smooth_slices))
         self.device = resolve_device(device)
         self.sample_distance = float(sample_distance)
         self.jitter = bool(jitter)
+        self.smooth_slices = smooth_slices
         self.preset = preset
         self._tables_key: tuple | None = None
         self._grid_key: tuple | None = None
@@ -287,11 +299,13 @@ class RayCaster:
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
         # one camera, light, grid, table and step.
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
-               self._tables_key, self.jitter)
+               self._tables_key, self.jitter, self.smooth_slices)
         depth_host = np.ascontiguousarray(depth, np.float32)
         surface_host = np.ascontiguousarray(surface, np.uint8)
         depth = wp.array(depth_host, dtype=float, device=dev)
         surface = wp.array(surface_host, dtype=wp.uint8, device=dev)
+        # The same for every frame of one view (the spacing and option are in its key).
+        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
         flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
         flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
@@ -315,13 +329,20 @@ class RayCaster:
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
-            wp.vec3(*light), int(bool(p.shade)), self._distance,
+            wp.vec3(*light), int(bool(p.shade)), self._smoothed, self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments,
         ]
         launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
+
+    def _smooth_axis(self, spacing: np.ndarray) -> int:
+        """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
+        thick = int(np.argmax(spacing))
+        if self.smooth_slices == "auto":
+            return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
+        return thick if self.smooth_slices else -1
 
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
@@ -348,12 +369,16 @@ class RayCaster:
             first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
             self._run(K.brick_read_changes, first, last, [self._changed_bricks, _READ_REACH], [read[0]])
             self._distance_passes(first, last, read, _READ_REACH)
-        boxes = [(lo - float(K.READ_REACH), hi + float(K.READ_REACH))] if boxed else []
+        # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
+        reach = np.full(3, float(K.READ_REACH))
+        if self._smoothed >= 0:
+            reach[self._smoothed] += 1.0
+        boxes = [(lo - reach, hi + reach)] if boxed else []
         if flipped[0]:
             boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
         rect = _screen_rect(boxes, index_to_ndc, width, height)
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3], rect, *self._segments, *flipped,
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read[3], rect, *self._segments, *flipped,
                 self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
