@@ -105,16 +105,55 @@ def gradient(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> 
 
 
 @wp.func
-def slice_smoothed(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3, g: wp.vec3, axis: int) -> wp.vec3:
-    """The gradient ``g`` (:func:`gradient` at ``p``) smoothed along index ``axis`` by the
-    weights (1, 2, 1) / 4 at -1, 0, +1 voxel: the trilinear interpolation of the voxels'
-    central differences smoothed along that axis (whole-voxel shifts keep the weights).
-    Across thick slices the gradient of the trilinear field turns at every slice, which a
-    shaded surface almost parallel to them shows as bands (terraces), one per slice; this
-    spreads each turn over three slices, as a Gaussian prefilter of 0.7 slice would."""
-    e = wp.vec3(0.0)
-    e[axis] = 1.0
-    return 0.5 * g + 0.25 * (gradient(vol, n, s, p - e) + gradient(vol, n, s, p + e))
+def corner_weight(bit: int, f: float) -> float:
+    return wp.where(bit == 1, f, 1.0 - f)
+
+
+@wp.func
+def slice_smoothed(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3, axis: int):
+    """The gradient at ``p`` (as :func:`gradient`) and the same smoothed along index ``axis``
+    by the weights (1, 2, 1) / 4 at -1, 0, +1 voxel: the trilinear interpolation of the
+    voxels' central differences, and of those smoothed along that axis (rows past the grid's
+    ends clamped to it). Across thick slices the gradient of the trilinear field turns at
+    every slice, which a shaded surface almost parallel to them shows as bands (terraces),
+    one per slice; smoothing spreads each turn over three slices, as a Gaussian prefilter of
+    0.7 slice would. Each of the cell's four columns along ``axis`` reads its central
+    differences at four rows once, for both results."""
+    q = clamped(n, p)
+    corner = cell(n, q)
+    f = q - wp.vec3(float(corner[0]), float(corner[1]), float(corner[2]))
+    u = (axis + 1) % 3
+    v = (axis + 2) % 3
+    g = wp.vec3(0.0)
+    smooth = wp.vec3(0.0)
+    for c in range(4):
+        iu = corner[u] + (c & 1)
+        iv = corner[v] + ((c >> 1) & 1)
+        w = corner_weight(c & 1, f[u]) * corner_weight((c >> 1) & 1, f[v])
+        base = iu * s[u] + iv * s[v]
+        u_up = (wp.min(iu + 1, n[u] - 1) - iu) * s[u]
+        u_down = (iu - wp.max(iu - 1, 0)) * s[u]
+        v_up = (wp.min(iv + 1, n[v] - 1) - iv) * s[v]
+        v_down = (iv - wp.max(iv - 1, 0)) * s[v]
+        du = wp.vec4(0.0)
+        dv = wp.vec4(0.0)
+        da = wp.vec4(0.0)
+        for r in range(4):  # rows corner - 1 .. corner + 2 along the axis
+            row = wp.clamp(corner[axis] - 1 + r, 0, n[axis] - 1)
+            a = base + row * s[axis]
+            du[r] = float(vol[a + u_up]) - float(vol[a - u_down])
+            dv[r] = float(vol[a + v_up]) - float(vol[a - v_down])
+            da[r] = float(vol[base + wp.min(row + 1, n[axis] - 1) * s[axis]]) - float(
+                vol[base + wp.max(row - 1, 0) * s[axis]])
+        w0 = w * (1.0 - f[axis])
+        w1 = w * f[axis]
+        g[u] = g[u] + w0 * du[1] + w1 * du[2]
+        g[v] = g[v] + w0 * dv[1] + w1 * dv[2]
+        g[axis] = g[axis] + w0 * da[1] + w1 * da[2]
+        smooth[u] = smooth[u] + w0 * (du[0] + 2.0 * du[1] + du[2]) + w1 * (du[1] + 2.0 * du[2] + du[3])
+        smooth[v] = smooth[v] + w0 * (dv[0] + 2.0 * dv[1] + dv[2]) + w1 * (dv[1] + 2.0 * dv[2] + dv[3])
+        smooth[axis] = smooth[axis] + w0 * (da[0] + 2.0 * da[1] + da[2]) + w1 * (da[1] + 2.0 * da[2] + da[3])
+    return 0.5 * g, 0.125 * smooth
 
 
 @wp.func
@@ -507,16 +546,21 @@ def raycast(
             if a > 0.0:
                 color = wp.vec3(c[0], c[1], c[2])
                 if shade != 0 or gradient_scale >= 0.0:
-                    gi = gradient(vol, n, strides, p)
+                    gi = wp.vec3(0.0)
+                    gs = wp.vec3(0.0)
+                    if smooth_axis >= 0:
+                        gi, gs = slice_smoothed(vol, n, strides, p, smooth_axis)
+                    else:
+                        gi = gradient(vol, n, strides, p)
+                        gs = gi
                     gw = index_gradient_to_world @ gi
                     gl = wp.length(gw)
                     if gradient_scale >= 0.0:
                         a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,
                                                                   float(gradient_lut.shape[0] - 1)))
                     if shade != 0:
-                        if smooth_axis >= 0:
-                            gw = index_gradient_to_world @ slice_smoothed(vol, n, strides, p, gi, smooth_axis)
-                            gl = wp.length(gw)
+                        gw = index_gradient_to_world @ gs
+                        gl = wp.length(gw)
                         lit = shading[0]
                         if gl > 1.0e-6:
                             nrm = gw / gl
