@@ -26,6 +26,12 @@ BRICK_SHIFT = wp.constant(2)
 BRICK = wp.constant(1 << 2)
 #: Stop a ray once its accumulated opacity reaches this (the rest can change a pixel by < 1 %).
 OPAQUE_ENOUGH = wp.constant(0.99)
+#: Share of the gradient across the slices (cosine of the angle between surface and slices)
+#: from which the shading normal is smoothed across them, and from which in full: terraces
+#: lie Δ / tan(angle) apart for slices Δ thick, so at 60 degrees they are finer than a slice
+#: and at 37 degrees and below 1.3 slices and more apart.
+SMOOTH_FROM = wp.constant(0.5)
+SMOOTH_FULL = wp.constant(0.8)
 #: The sample segment of a ray that missed the volume [index coordinates]: outside any box.
 MISSED = wp.constant(-1.0e9)
 #: How far [voxels] beyond a changed voxel a sample can read it: trilinear weights reach one
@@ -433,6 +439,7 @@ def raycast(
     light: wp.vec3,
     shade: int,
     smooth_axis: int,
+    slice_normal: wp.vec3,
     distance: wp.array3d(dtype=wp.uint8),
     flips: int,
     flip_lo: wp.vec3,
@@ -452,9 +459,12 @@ def raycast(
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
     is (ambient, diffuse, specular), with the specular power 20 (as VTK's mappers here);
     ``light`` the unit direction towards the (head) light. ``gradient_scale`` < 0 disables
-    gradient opacity. ``smooth_axis`` >= 0: the shading normal is the gradient smoothed
-    along that index axis by (1, 2, 1) / 4 over neighbouring voxels (:func:`slice_smoothed`);
-    -1: the gradient itself. Gradient opacity always takes the gradient itself.
+    gradient opacity. ``smooth_axis`` >= 0: where the surface lies at a shallow angle to the
+    slices across that index axis (world unit normal ``slice_normal``), the shading normal
+    is the gradient smoothed along it by (1, 2, 1) / 4 over neighbouring voxels
+    (:func:`slice_smoothed`), blended in as the gradient's component across the slices
+    rises from ``SMOOTH_FROM`` to ``SMOOTH_FULL`` of its length; -1: the gradient itself.
+    Gradient opacity always takes the gradient itself.
 
     ``empty_until`` [height * width] carries from frame to frame, per pixel, the index of the
     first ray sample not known to lie in an empty brick (same camera, grid and table). It
@@ -546,21 +556,22 @@ def raycast(
             if a > 0.0:
                 color = wp.vec3(c[0], c[1], c[2])
                 if shade != 0 or gradient_scale >= 0.0:
-                    gi = wp.vec3(0.0)
-                    gs = wp.vec3(0.0)
-                    if smooth_axis >= 0:
-                        gi, gs = slice_smoothed(vol, n, strides, p, smooth_axis)
-                    else:
-                        gi = gradient(vol, n, strides, p)
-                        gs = gi
+                    gi = gradient(vol, n, strides, p)
                     gw = index_gradient_to_world @ gi
                     gl = wp.length(gw)
                     if gradient_scale >= 0.0:
                         a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,
                                                                   float(gradient_lut.shape[0] - 1)))
                     if shade != 0:
-                        gw = index_gradient_to_world @ gs
-                        gl = wp.length(gw)
+                        if smooth_axis >= 0 and gl > 1.0e-6:
+                            # Only a surface at a shallow angle to the slices shows their terraces:
+                            # smoothed in full from 37 degrees down, not at all from 60 up.
+                            across = wp.abs(wp.dot(gw, slice_normal)) / gl
+                            blend = wp.clamp((across - SMOOTH_FROM) / (SMOOTH_FULL - SMOOTH_FROM), 0.0, 1.0)
+                            if blend > 0.0:
+                                plain, smooth = slice_smoothed(vol, n, strides, p, smooth_axis)
+                                gw = index_gradient_to_world @ (plain + blend * (smooth - plain))
+                                gl = wp.length(gw)
                         lit = shading[0]
                         if gl > 1.0e-6:
                             nrm = gw / gl

@@ -329,7 +329,8 @@ class RayCaster:
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
-            wp.vec3(*light), int(bool(p.shade)), self._smoothed, self._distance,
+            wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
+            self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments,
         ]
