@@ -337,31 +337,6 @@ def brick_changes(
 
 
 @wp.kernel
-def brick_read_changes(
-    changed: wp.array3d(dtype=wp.uint8),
-    reach: int,
-    first: wp.vec3i,
-    count: wp.vec3i,
-    read: wp.array3d(dtype=wp.uint8),
-    offset: int,
-):
-    """0 in ``read`` for each brick where a ray sample may read a voxel of a ``changed``
-    brick, else ``reach`` (the seed of a distance field, as :func:`brick_occupancy`'s): a
-    sample at p reads voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central
-    differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK, BRICK >= 3)
-    it reads voxels of the bricks c - 1 .. c + 1 per axis only."""
-    b = brick_of(wp.tid() + offset, first, count)
-    nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
-    flag = wp.uint8(reach)
-    for i in range(wp.max(b[0] - 1, 0), wp.min(b[0] + 2, nb[0])):
-        for j in range(wp.max(b[1] - 1, 0), wp.min(b[1] + 2, nb[1])):
-            for k in range(wp.max(b[2] - 1, 0), wp.min(b[2] + 2, nb[2])):
-                if changed[i, j, k] != wp.uint8(0):
-                    flag = wp.uint8(0)
-    read[b[0], b[1], b[2]] = flag
-
-
-@wp.kernel
 def brick_occupancy(
     bmin: wp.array3d(dtype=float),
     bmax: wp.array3d(dtype=float),
@@ -625,7 +600,7 @@ def stale_pixels(
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
     the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
     ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
-    changed voxel (``read_distance``: the bricks' distance to one, :func:`brick_read_changes`).
+    changed voxel (``read_distance``: the bricks' distance to one, :meth:`RayCaster._read_distance`).
     Any other pixel reads the same voxels with the same weights as last frame, so its colour
     is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from scipy import ndimage
 
 from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
@@ -348,6 +349,28 @@ class RayCaster:
             return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
         return thick if self.smooth_slices else -1
 
+    def _read_distance(self) -> np.ndarray:
+        """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
+        read a voxel that changed, capped at ``_READ_REACH`` [nb] uint8. A sample at p reads
+        voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central differences,
+        smoothing across slices), so in brick c (p in [c, c + 1) * BRICK, BRICK >= 3) it reads
+        voxels of the bricks c - 1 .. c + 1 per axis only: the bricks within 1 of a changed
+        brick, so the distance is the one to the changed bricks less 1. SciPy's transform on
+        the changed bricks' box grown by the cap: a few thousand bricks, where Warp launches
+        over them cost more to hand out than to run."""
+        nb = np.asarray(self._changed_bricks.shape)
+        read = np.full(tuple(nb), _READ_REACH, np.uint8)
+        if self._changed_box is None:
+            return read
+        first = np.maximum(self._changed_box[0] - _READ_REACH - 1, 0)
+        last = np.minimum(self._changed_box[1] + _READ_REACH + 1, nb - 1)
+        box = tuple(slice(a, b + 1) for a, b in zip(first, last))
+        changed = self._changed_bricks.numpy()[box] != 0
+        if changed.any():
+            to_changed = ndimage.distance_transform_cdt(~changed, metric="chessboard")
+            read[box] = np.clip(to_changed - 1, 0, _READ_REACH)
+        return read
+
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
@@ -366,13 +389,7 @@ class RayCaster:
         stale = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        # Each brick's distance to the nearest one where samples may read a changed voxel.
-        nb = np.asarray(self._changed_bricks.shape)
-        read = [wp.full(tuple(nb), _READ_REACH, dtype=wp.uint8, device=self.device) for _ in range(4)]
-        if self._changed_box is not None:
-            first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
-            self._run(K.brick_read_changes, first, last, [self._changed_bricks, _READ_REACH], [read[0]])
-            self._distance_passes(first, last, read, _READ_REACH)
+        read = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
         if self._smoothed >= 0:
@@ -382,7 +399,7 @@ class RayCaster:
             boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
         rect = _screen_rect(boxes, index_to_ndc, width, height)
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read[3], rect, *self._segments, *flipped,
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, rect, *self._segments, *flipped,
                 self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
