@@ -386,10 +386,10 @@ class RayCaster:
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
+        stale: wp.array = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        read = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
+        read: wp.array = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
         if self._smoothed >= 0:
@@ -399,26 +399,27 @@ class RayCaster:
             boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
         rect = _screen_rect(boxes, index_to_ndc, width, height)
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, rect, *self._segments, *flipped,
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, wp.vec4i(*rect),
+                *self._segments, *flipped,
                 self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
 
-def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> wp.vec4i:
+def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
     """The pixels (first column, last column, first row, last row; row 0 at the top) whose
     rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
     projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
     if not boxes:
-        return wp.vec4i(0, -1, 0, -1)
+        return 0, -1, 0, -1
     corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
                         for box in boxes for c in range(8)])
     clip = corners @ index_to_ndc.T
     if np.any(clip[:, 3] <= 0.0):
-        return wp.vec4i(0, width - 1, 0, height - 1)
+        return 0, width - 1, 0, height - 1
     ndc = clip[:, :2] / clip[:, 3:]
     # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
     px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
     py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
     x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
     y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
-    return wp.vec4i(x0, x1, height - 1 - y1, height - 1 - y0)
+    return x0, x1, height - 1 - y1, height - 1 - y0
