@@ -86,7 +86,8 @@ class NodeSolve:
         # nodes are then in the spectrum's bounds too) until a contact presses it: then its
         # update is the contacts' as a free body's is, and extrapolating it overshot them (the
         # shoulder's finger: its spin, held by nothing but the contacts' friction, cycled at the
-        # 100-sweep cap and diverged at step 39; unextrapolated it stays within 0.03 rad/s).
+        # 100-sweep cap and diverged at step 39; unextrapolated its last change stays under 1
+        # rad/s a sweep, mostly 1e-3 to 1e-1, and the palpation ends with 0.09 mm overlap).
         exact = np.zeros(model.node_count, np.int32)
         if model.rigid is not None:
             exact[model.rigid.linear_node.numpy()] = 1
