@@ -39,9 +39,10 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
 
 @wp.kernel
 def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                 cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-                 fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), first: int, last: int,
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), first: int, last: int,
                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
     """Steps 1 and 4: update ``w`` [m/s] of the nodes ``order[first + t]`` of one colour that
     are not contact nodes (neighbours not yet updated hold the sweep's start); on their
@@ -59,9 +60,10 @@ def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=
 
 @wp.kernel
 def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                  cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-                  fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
     """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes from the
     sweep's start ``v`` and the swept ``w`` [m/s]."""
