@@ -11,7 +11,7 @@ import warp as wp
 MODULES = {
     "softvr.volume._raster_kernels": ("raster_slabs", "raster_cells", "point_masks", "cell_masks", "tet_setup"),
     "softvr.render._raycast_kernels": ("raycast", "brick_minmax", "brick_occupancy", "brick_distance_pass", "brick_changes",
-                                       "brick_read_changes", "stale_pixels"),
+                                       "stale_pixels"),
     "softvr.dynamics._rigid_kernels": ("unconstrained", "integrate"),
     "softvr.collision._primitive_kernels": ("points_plane", "boxes_plane", "spheres_plane", "sphere_pairs",
                                             "box_pairs"),
@@ -21,10 +21,12 @@ MODULES = {
                                       "rigid_start_guess", "drive"),
     "softvr.collision._node_kernels": ("point_motion", "body_motion", "vertex_triangle", "edge_geometry", "edge_edge",
                                        "gather_contacts", "carry_impulses"),
-    "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual", "largest_change"),
+    "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual", "rigid_contact_exact",
+                                            "largest_change"),
     "softvr.contact._node_gs_kernels": ("gauss_seidel", "contact_nodes", "projected", "mark_contact_nodes"),
     "softvr.contact._node_adhesion_kernels": ("prepare", "evolve"),
-    "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces"),
+    "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces",
+                                               "pair_inverse"),
     "softvr.dynamics._node_rigid_kernels": ("rigid_system", "rigid_velocity"),
     "softvr.collision._node_rigid_kernels": ("rigid_points", "rigid_sides", "primitive_contacts"),
 }
