@@ -17,7 +17,7 @@ from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import in_order, load_kernels, replayer
 
-__all__ = ["NodeSolve", "chebyshev_weights"]
+__all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -28,6 +28,18 @@ def chebyshev_weights(rho: float, count: int) -> np.ndarray:
     for k in range(1, len(omega)):
         omega[k] = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega[k - 1])
     return omega
+
+
+def movable_contacts(model, state) -> int:
+    """How many of this step's contacts can move a node (a free node of nonzero weight in the
+    stencil, or a rigid side): the ones the PGS passes work on (:func:`_node_jacobi_kernels.contact_metric`)."""
+    c = state.contacts
+    n = min(int(c.count.numpy()[0]), c.capacity)
+    nodes, weights = c.stencil_nodes.numpy()[:n], c.stencil_weights.numpy()[:n]
+    used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+    free = model.fixed.numpy()[np.maximum(nodes, 0)] == 0
+    moves = (used & free & (weights != 0.0)).any(axis=1) | (c.rigid_node.numpy()[:n] >= 0).any(axis=1)
+    return int(moves.sum())
 
 
 def _nothing() -> None:

@@ -32,7 +32,7 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_bodies
-from softvr.contact.node_jacobi import NodeSolve
+from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer
 from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
 from softvr.dynamics.node_couplings import record_couplings
@@ -404,7 +404,7 @@ class NodeStepper:
                 a, free = _free_matrix(self.model, self.state)
                 m = self.model
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
-                                                   MAX_SWEEPS_PER_DECADE, int(self.state.contacts.count.numpy()[0]),
+                                                   MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
                                                    (coarse_bodies(m), self.state.q.numpy(), m.mass.numpy()))
             choice = self._spectrum[dt]
@@ -412,7 +412,7 @@ class NodeStepper:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
             self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
-                                          max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
+                                          max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
 
