@@ -96,3 +96,19 @@ def test_a_stiff_block_landing_with_the_coarse_correction_solves_the_mlcp_of_eq_
     assert [c.coarse is not None for c in chosen] == [True]
     assert chosen[0].work["jacobi"] > MAX_SWEEPS_PER_DECADE >= chosen[0].work["coarse"]
     assert type(scene._stepper).__name__ == "NodeStepper"
+
+
+def test_the_rule_takes_the_coarse_correction_however_many_contacts_the_first_step_has():
+    # Its 12 PGS passes a sweep pay for themselves in sweeps (COARSE_PASSES), so the choice made
+    # on a scene's first step must not turn on how many contacts that step has: the candy
+    # restored in the middle of its pile (~700 contacts) was once declined while the same scene
+    # stepped there from its start (none) was held.
+    body = _candy()
+    _, stepper = _prepared(body, DT)
+    m, st = stepper.model, stepper.state
+    a, free = _free_matrix(m, st)
+    coarse = (coarse_bodies(m), st.q.numpy(), m.mass.numpy())
+    kinds = [_node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, spectrum(m, st),
+                                        MAX_SWEEPS_PER_DECADE, contacts, 2, SPECTRUM_MARGIN, coarse)
+             for contacts in (0, 10 * len(body.q))]
+    assert [(c.kind, c.coarse is not None, c.passes) for c in kinds] == [("jacobi", True, 12)] * 2
