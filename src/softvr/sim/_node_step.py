@@ -32,7 +32,8 @@ from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
-from softvr.contact.node_jacobi import NodeSolve
+from softvr.contact.node_coarse import coarse_bodies
+from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
                                          record_start, record_system)
@@ -417,15 +418,16 @@ class NodeStepper:
                 a, free = _free_matrix(self.model, self.state)
                 m = self.model
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
-                                                   MAX_SWEEPS_PER_DECADE, int(self.state.contacts.count.numpy()[0]),
-                                                   SWEEP_PASSES, SPECTRUM_MARGIN)
+                                                   MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
+                                                   SWEEP_PASSES, SPECTRUM_MARGIN,
+                                                   (coarse_bodies(m), self.state.q.numpy(), m.mass.numpy()))
             choice = self._spectrum[dt]
             if choice.kind is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
             self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
-                                          max_sweeps=self.scene.pgs_iterations, passes=SWEEP_PASSES,
-                                          colours=choice.colours, omega=choice.omega)
+                                          max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
+                                          colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
 
     def _external_forces(self) -> None:
