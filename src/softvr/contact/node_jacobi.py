@@ -96,6 +96,8 @@ class NodeSolve:
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
+        #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
+        self.plateaued = False
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
         #: error [m/s] (:meth:`solve`): all the loop reads back, one number per check.
@@ -119,6 +121,19 @@ class NodeSolve:
             row_start = model.row_start.numpy()
             exact[row_start[1:] > row_start[:-1]] = 0
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
+        # A rigid body's angular node changes in rad/s: its change counts as the speed it gives
+        # the body's farthest point, |d omega| r, r = sqrt(1.5 tr(I) / m) [m] the half diagonal of
+        # the uniform box of the body's mass and inertia (1.34 R for a ball of radius R), so the
+        # stop holds the spin to the tolerance's velocity at the body's surface, not to 1 rad/s
+        # a metre: the candy's 1-2 cm hard candies, whose spin held by friction alone changed
+        # 2e-5 to 1e-4 rad/s a sweep, kept 4 of 16 steps of the pile going to the 500 cap.
+        scale = np.ones(model.node_count)
+        if model.rigid is not None:
+            inertia = np.trace(model.rigid.model.body_inertia.numpy(), axis1=1, axis2=2)
+            scale[model.rigid.angular_node.numpy()] = np.sqrt(1.5 * inertia * model.rigid.model.body_inv_mass.numpy())
+        #: [node_count] [1 or m]: what :meth:`solve` multiplies each node's change by (1; a rigid
+        #: body's angular node: its reach).
+        self.change_scale: wp.array = wp.array(scale, dtype=wp.float64, device=d)
         self._exact_base: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
         buf = state.sweep_buffers
@@ -176,7 +191,7 @@ class NodeSolve:
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
         self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
-                                           inputs=[self.change, model.node_count, self.stats]))
+                                           inputs=[self.change, self.change_scale, model.node_count, self.stats]))
         self._buffers = buf
 
     def _read_stats(self) -> np.ndarray:
@@ -206,6 +221,7 @@ class NodeSolve:
         history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
         restart, plain_until = 0, 0
         self.plain_sweeps = 0
+        self.plateaued = False
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
@@ -229,6 +245,11 @@ class NodeSolve:
                         break
                 if not plain:
                     history[k - restart] = change
+                    if self._plateau(history, k - restart, tolerance):
+                        self._residual_launches[k % 3]()
+                        if self._read_stats()[1] <= tolerance:
+                            self.plateaued = True
+                            break
                     if self._stalled(history, k - restart, stop):
                         plain_until, stop = k + self._window(), plain_stop
         self._residual_launches[k % 3]()
@@ -237,6 +258,22 @@ class NodeSolve:
     def _window(self) -> int:
         """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
         return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+
+    def _plateau(self, history: dict[int, float], k: int, tolerance: float) -> bool:
+        """Whether the Chebyshev sweeps, ``k`` sweeps after they (re)started, hover under
+        ``tolerance`` [m/s] without converging: every largest change of the last :meth:`_window`
+        sweeps is under ``tolerance``, and their largest is over half that of the window before
+        (a contracting iteration would have fallen 100x). The geometric tail of :meth:`solve`'s
+        stop then does not hold (the change no longer falls at ``rate`` a sweep): it is soft-on-soft
+        contacts whose PGS does not settle (the candy pile: ~3e-6 m/s changes from about sweep 150
+        to the cap of 500 against a stop of 1.3e-6), and the change itself is the size of what
+        more sweeps would still move."""
+        window = self._window()
+        if k < 2 * window:
+            return False
+        recent = max(c for j, c in history.items() if j > k - window)
+        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        return recent <= tolerance and recent > 0.5 * before
 
     def _stalled(self, history: dict[int, float], k: int, stop: float) -> bool:
         """Whether the Chebyshev sweeps stall or cycle far from converged, ``k`` sweeps after
