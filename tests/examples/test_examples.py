@@ -32,7 +32,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
+from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_lips,
                              example_oranges, example_palpation, example_probe, example_shoulder, example_soft_cube,
                              example_volume_deform)
 from softvr.scene import BUNDLED, load_scene
@@ -267,7 +267,8 @@ def _held_candy_scene(folder: Path) -> Path:
     quads a side, a quarter of the file's cubes per axis: same material, adhesion and plate), the held
     candy, the hand and their spring; every number of these is the file's."""
     text = (BUNDLED / "candy-adhesive.toml").read_text(encoding="utf-8")
-    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\])", text)
+    # (The file's [variant.*] tables are left out with the bodies they name.)
+    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\]|\[variant\.)", text)
     kept = [t for t in tables if t.startswith("[[coupling]]")
             or re.search(r'^name = "(jello|pulled candy|hand)"$', t, re.M)]
     small = "".join([head, *kept]).replace("cells = [12, 12, 5]", "cells = [6, 6, 3]").replace(
@@ -275,6 +276,35 @@ def _held_candy_scene(folder: Path) -> Path:
     path = folder / "held-candy.toml"
     path.write_text(small, encoding="utf-8")
     return path
+
+
+def test_candy_quick_variant_drops_its_hard_candies_freely_onto_a_held_jello(tmp_path):
+    """example_candy with ``--variant quick`` (candy.toml's small scale): the Jell-O is the
+    variant's 6 x 6 x 3 cubes of 5 tets (540), four candies are left of eight; for two frames
+    (0.08 s) the hard candies are in the air, so each falls as semi-implicit Euler integrates
+    gravity (the free-fall truth above, to round-off), and the ball's spin stays what it was
+    (isotropic inertia: the gyroscopic torque omega x I omega of Euler's equations is zero; the
+    box's is not, and precesses); the Jell-O's bottom nodes (fixed_below) never move; energy
+    never grows."""
+    start = load_scene(example_candy.SCENE, ["quick"], frames=1, width=48, height=32)
+    hard = [n for n in start.bodies if n.startswith("hard candy")]
+    x0 = {n: start.bodies[n].position.copy() for n in hard}
+    w0 = {n: start.bodies[n].angular_velocity.copy() for n in hard}
+    e0 = start.energies()[1]
+    player = example_candy.main(["--headless", "--variant", "quick", "--frames", "2", "--size", "48", "32", "--out",
+                                 str(tmp_path)])
+    jello = player.bodies["jello"]
+    assert len(jello.tets) == 5 * 6 * 6 * 3 and len(player.bodies) == 5 and len(hard) == 2
+    held = jello.fixed
+    assert held.sum() == 7 * 7  # the bottom layer of the 6 x 6 grid's nodes
+    np.testing.assert_array_equal(jello.q[held][:, 2], 0.0)
+    t, dt = player.scene.time, player.dt
+    assert t == pytest.approx(2 * 5 * 0.008, rel=1e-12)
+    for n in hard:
+        body = player.bodies[n]
+        np.testing.assert_allclose(body.position - x0[n], [0.0, 0.0, -0.5 * G * t**2 - 0.5 * G * dt * t], atol=1e-12)
+    np.testing.assert_allclose(player.bodies["hard candy 3"].angular_velocity, w0["hard candy 3"], atol=1e-12)
+    check_energy_never_grows(player, e0)
 
 
 def test_the_held_candy_sticks_then_comes_off_the_jello(tmp_path):

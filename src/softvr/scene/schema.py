@@ -14,6 +14,7 @@
     contact_margin = 0.005      # [m]
     collision_free_start = false    # true: soft bodies that start crossing another body are
                                 # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)
+    adhesion = true             # false: every adhesion of the file off (the same scene dry)
 
     [render]
     size = [640, 480]           # [pixels]
@@ -137,6 +138,17 @@
     [display]                   # the screens it is shown on (softvr cave preview|master|local SCENE)
     preset = "cube"             # a softvr.cave preset, or file = "my-cave.toml" (softvr-display 1)
 
+    [variant.quick]             # the scene changed, played on request (softvr run SCENE --variant
+    remove = ["candy 7"]        # quick; load_scene(path, ["quick"])): these bodies left out, ...
+    [variant.quick.simulation]  # ... these [simulation] / [render] keys replaced, ...
+    frames = 20
+    [variant.quick.body."jello"]    # ... and these keys of a body (not its name or type)
+    cells = [6, 6, 3]
+    # Variants apply in the order asked, a later one's keys winning. Each is checked with the
+    # file: its keys, the bodies it names, and the file with it applied (a problem named where
+    # the variant writes it, variant.quick.body.jello.cells, or below it, variant.quick
+    # coupling[0].a, where it breaks what it does not write).
+
     [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
     file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
                                     # (built when the scene loads) or a built model (.npz)
@@ -169,13 +181,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from softvr.errors import InputError, Problems, raise_all
+from softvr.errors import InputError, Problems, known_key, raise_all
 from softvr.files import file_name, read_toml
 from softvr.model import load_model, read_parts
 from softvr.scene._description import (BODY_TYPES, BOX_CELLS, DATASETS, LIMITS, MESH_SUFFIXES, PLAUSIBLE, STATIC,
                                        Adhesion, Body, Coupling, DisplayTable, Document, Filter, Light, Material,
-                                       ModelTable, Plane, Render, Sensor, Simulation, Sphere, Volume, existing_file,
-                                       read_table)
+                                       ModelTable, Plane, Render, Sensor, Simulation, Sphere, Variant, Volume,
+                                       existing_file, read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 
@@ -240,6 +252,7 @@ class SceneFile:
     volume: dict | None = None
     display: str | None = None  # a display preset name or a display file's path
     sensors: list = field(default_factory=list)  # [[sensor]] tables: name, kind, body, other
+    variants: tuple = ()  # the names of the [variant.NAME] tables applied, in order
 
     def body(self, name: str) -> BodySpec | None:
         """The ``[[body]]`` of this name (None for a model's part)."""
@@ -348,15 +361,16 @@ def _file(t: dict, key: str, w: str, scene_dir: Path, suffixes: tuple, what: str
         return None
 
 
-def read_scene(path) -> SceneFile:
-    """Read and validate a scene file (module docstring); mesh paths are resolved against its
-    folder and must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
-    scene, problems = read_scene_with_problems(path)
+def read_scene(path, variants=()) -> SceneFile:
+    """Read and validate a scene file (module docstring) with its ``variants`` applied in turn
+    (names of its ``[variant.NAME]`` tables); mesh paths are resolved against its folder and
+    must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
+    scene, problems = read_scene_with_problems(path, variants)
     raise_all(problems, str(path), "scene file")
     return scene
 
 
-def read_scene_with_problems(path) -> tuple[SceneFile, list]:
+def read_scene_with_problems(path, variants=()) -> tuple[SceneFile, list]:
     """A scene file's problems, and the scene without the parts that have one.
 
     Returns the :class:`SceneFile` with every body, plane, sphere, model, volume, filter and
@@ -366,9 +380,96 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     bodies that start crossing, together with everything else. A coupling with a problem
     still excuses its two bodies from colliding (as a filter), as it would when mended.
     A missing file or bad TOML raises :class:`~softvr.errors.InputError` (nothing to check).
+
+    Every ``[variant.NAME]`` is checked, applied to the file (:func:`_variant_problems`); the
+    scene returned has ``variants`` (their names, applied in this order) applied.
     """
     path = Path(path)
     doc = read_toml(path, "scene file")
+    scene, problems = _read_document(path, doc)
+    errors = Problems(str(path), "scene file")
+    tables = _named_tables(doc, "variant", errors)
+    for name in variants:
+        if name not in tables:
+            errors.add("variant", known_key(tables, name, "the name of one of its [variant.NAME] tables") if tables
+                       else "a [variant.NAME] table of this name (the file has none)", repr(name))
+    chosen = {}
+    for name, table in tables.items():
+        variant, bad = _variant_problems(path, doc, name, table, problems, errors)
+        if not bad:
+            chosen[name] = variant
+    if variants and all(name in chosen for name in variants):
+        scene, _ = _read_document(path, _patched(doc, [chosen[name] for name in variants]))
+        scene.variants = tuple(variants)
+    return scene, problems + errors.items
+
+
+def _patched(doc: dict, variants: list) -> dict:
+    """The document ``doc`` with each :class:`~softvr.scene._description.Variant` applied in turn:
+    its bodies removed, its ``[simulation]``, ``[render]`` and body keys replacing the file's."""
+    out = {k: v for k, v in doc.items() if k != "variant"}
+    for v in variants:
+        for key in ("simulation", "render"):
+            if getattr(v, key) and isinstance(out.get(key, {}), dict):
+                out[key] = {**out.get(key, {}), **getattr(v, key)}
+        if isinstance(out.get("body"), list):
+            out["body"] = [{**b, **(v.body or {}).get(b.get("name"), {})} if isinstance(b, dict) else b
+                           for b in out["body"] if not (isinstance(b, dict) and b.get("name") in v.remove)]
+    return out
+
+
+def _variant_problems(path: Path, doc: dict, name: str, table, base: list, errors: Problems):
+    """``[variant.NAME]`` checked: its keys, the bodies it names, and the file with it applied.
+    A problem of a key the variant writes is named where it writes it
+    (``variant.quick.body.jello.cells``); another that only the applied file has (a coupling to
+    a removed body) is named below the variant (``variant.quick coupling[0].a``). Returns the
+    :class:`~softvr.scene._description.Variant` (None when it is no table) and whether it had a
+    problem."""
+    w = f"variant.{name}"
+    before = len(errors.items)
+    variant, _ = read_table(Variant, table, w, errors)
+    if variant is None:
+        return None, True
+    bodies = [b for b in doc.get("body", []) if isinstance(b, dict)] if isinstance(doc.get("body"), list) else []
+    names = {b.get("name") for b in bodies} - {None}
+    for k, gone in enumerate(variant.remove or ()):
+        if gone not in names:
+            errors.add(f"{w}.remove[{k}]", known_key(names, gone, "the name of a [[body]]"), repr(gone))
+    patches = {}
+    for body, patch in (variant.body or {}).items():
+        if body not in names:
+            errors.add(f"{w}.body.{body}", known_key(names, body, "the name of a [[body]]"), repr(body))
+        elif not isinstance(patch, dict):
+            errors.add(f"{w}.body.{body}", "a table of the body's keys", patch)
+        else:
+            for key in sorted({"name", "type"} & set(patch)):
+                errors.add(f"{w}.body.{body}.{key}", "another key of the body (a variant keeps its name and type)",
+                           repr(patch[key]))
+            patches[body] = {k: v for k, v in patch.items() if k not in ("name", "type")}
+    # The rest judged on as the file with it applied: what it names that is not there left out.
+    variant = variant.model_copy(update={"remove": tuple(n for n in variant.remove or () if n in names),
+                                         "body": patches})
+    applied = _patched(doc, [variant])
+    kept = [b for b in bodies if b.get("name") not in variant.remove]
+    index = {f"body[{j}]": (f"body[{bodies.index(b)}]", b.get("name")) for j, b in enumerate(kept)}
+    _, problems = _read_document(path, applied)
+    for what, expected, found in problems:
+        head, dot, rest = what.partition(".")
+        key = rest.split(".")[0].split("[")[0]
+        original, body = index.get(head, (head, None))
+        written = ((variant.body or {}).get(body, {}) if body is not None else
+                   (getattr(variant, head, None) or {}) if head in ("simulation", "render") else {})
+        if key in written or (body is not None and not dot and set(written) & {"box", "sphere", "mesh", "tets",
+                                                                                  "cloth", "cells"}):
+            where = f"{w}.body.{body}" if body is not None else f"{w}.{head}"
+            errors.add(f"{where}{dot}{rest}", expected, found)
+        elif (f"{original}{dot}{rest}", expected, found) not in base:
+            errors.add(f"{w} {original}{dot}{rest}", expected, found)
+    return variant, len(errors.items) > before
+
+
+def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
+    """The scene of a scene file's TOML document ``doc`` (:func:`read_scene_with_problems`)."""
     errors = Problems(str(path), "scene file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
