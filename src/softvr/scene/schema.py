@@ -192,7 +192,8 @@ from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 
 __all__ = ["BODY_TYPES", "DATASETS", "FORMAT", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE", "BodySpec", "SceneFile",
-           "adhesion_parameters", "read_scene", "read_scene_with_problems", "render_settings", "simulation_settings"]
+           "adhesion_parameters", "read_scene", "read_scene_with_problems", "render_settings", "sensor_tables",
+           "simulation_settings"]
 
 FORMAT = "softvr-scene 1"
 _BODY = Body.model_fields  # the defaults of a [[body]]'s fields
@@ -549,7 +550,8 @@ def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
     # A fixed mesh is an obstacle, not a body: its contacts are the static geometry's.
     bodies_named = names - {b.name for b in bodies if b.type == "fixed" and b.shape == "mesh"}
     coupled = {c[side] for c, _ in couplings for side in "ab"} | {name for m in models for name in m["parts"]}
-    sensors = _sensors(_list(doc, "sensor", errors), bodies_named, coupled, errors)
+    sensors = sensor_tables([(f"sensor[{i}]", t) for i, t in enumerate(_list(doc, "sensor", errors))], bodies_named,
+                            coupled, errors)
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=spheres, bodies=kept,
                       filters=[f for f in filters if set(f) <= present],
@@ -559,13 +561,13 @@ def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
     return scene, errors.items
 
 
-def _sensors(tables: list, names: set, coupled: set, errors: Problems) -> list:
-    """The ``[[sensor]]`` tables without a problem: each names a body of the scene (``names``),
-    a coupling_force sensor one with couplings (``coupled``), a contact sensor's ``other``
+def sensor_tables(tables: list, names: set, coupled: set, errors: Problems) -> list:
+    """The ``[[sensor]]`` tables (``(where, table)`` pairs: a TOML file's ``sensor[i]``, a glTF
+    node's properties) without a problem: each names a body of the scene (``names``), a
+    coupling_force sensor one with couplings (``coupled``), a contact sensor's ``other``
     another body or :data:`~softvr.scene._description.STATIC`; no two share a name."""
     out, seen = [], set()
-    for i, t in enumerate(tables):
-        w = f"sensor[{i}]"
+    for w, t in tables:
         sensor, bad = read_table(Sensor, t, w, errors)
         if sensor is None:
             continue
