@@ -740,7 +740,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     # A sensor with a problem is left out, not its node (as a [[sensor]] is: after what is kept).
     coupled = {c[side] for _, c in couplings for side in "ab"} | set(parts)
     found = Problems(errors.source, errors.kind)
-    sensors = sensor_tables(sensors, names - {n for n, k in named.items() if k == "fixed"}, coupled, found)
+    sensed = sensor_tables(sensors, names - {n for n, k in named.items() if k == "fixed"}, coupled, found)
     _name_sensor_problems(found, errors)
     if ground_adhesion is not None:
         adhesions["ground"] = ground_adhesion
@@ -750,7 +750,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=[], bodies=bodies, filters=filters, couplings=kept, models=models,
                       volume=volume, display=display,
-                      sensors=[t for t in sensors if {t["body"], t["other"]} - {None, STATIC} <= present])
+                      sensors=[t for t in sensed if {t["body"], t["other"]} - {None, STATIC} <= present])
     return scene, errors.items
 
 
