@@ -436,8 +436,8 @@ def test_view_plays_a_bundled_scene_live_in_a_window(display):
 
 
 def test_view_volume_plays_the_bundled_volume_scene_and_a_volume_file_opens_the_drag_viewer(monkeypatch, tmp_path):
-    """``softvr view volume`` is the demo named volume, the bundled volume.toml (its variants
-    too), played in the window; ``softvr view FILE`` of a volume file (not a scene file) is the
+    """``softvr view volume`` is the demo named volume, the bundled volume.toml, played in the
+    window (a demo's ``--variant`` its file's); ``softvr view FILE`` of a volume file (not a scene file) is the
     drag viewer, given the words as typed. (The window and the viewer are stood in for: what is
     checked is what they are handed.)"""
     from softvr import cli
@@ -446,15 +446,17 @@ def test_view_volume_plays_the_bundled_volume_scene_and_a_volume_file_opens_the_
 
     played, dragged = [], []
     monkeypatch.setattr(run, "require_display", lambda: None)
-    monkeypatch.setattr(run, "load_scene", lambda path, variants, **kw: contextlib.nullcontext((path, kw["frames"])))
+    monkeypatch.setattr(run, "load_scene", lambda path, variants, **kw: contextlib.nullcontext(
+        (path, list(variants), kw["frames"])))
     monkeypatch.setattr(run, "play_window", lambda player, **kw: played.append(player))
     monkeypatch.setattr(viewer, "main", lambda argv: dragged.append(list(argv)) or 0)
     assert cli.main(["view", "volume", "--frames", "2", "--size", "32", "24"]) == 0
-    assert played == [(BUNDLED / "volume.toml", 2)] and dragged == []
+    assert cli.main(["view", "candy", "--variant", "quick"]) == 0
+    assert played == [(BUNDLED / "volume.toml", [], 2), (BUNDLED / "candy.toml", ["quick"], None)] and dragged == []
     volume = tmp_path / "ct.nrrd"
     volume.write_bytes(b"")
     assert cli.main(["view", str(volume), "--cells", "3"]) == 0
-    assert dragged == [[str(volume), "--cells", "3"]] and len(played) == 1
+    assert dragged == [[str(volume), "--cells", "3"]] and len(played) == 2
 
 
 def test_view_without_a_display_says_so(monkeypatch, capsys):
