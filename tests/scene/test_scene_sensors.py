@@ -46,7 +46,7 @@ body = "ball"
 [[sensr]]
 name = "x"
 """) == [("sensr", "a known key (did you mean 'sensor'?)", "'sensr'"),
-         ("sensor[0].kind", "contact_force | coupling_force | position", "nothing"),
+         ("sensor[0].kind", "contact_force | coupling_force | position | hand_force", "nothing"),
          ("sensor[0].knd", "a known key (did you mean 'kind'?)", "'knd'")]
 
 
@@ -76,7 +76,7 @@ name = "p"
 kind = "position"
 body = "ball"
 other = "static"
-""") == [("sensor[0].kind", "contact_force | coupling_force | position", "torque"),
+""") == [("sensor[0].kind", "contact_force | coupling_force | position | hand_force", "torque"),
          ("sensor[1].body", "a body with couplings (none in this scene)", "'ball'"),
          ("sensor[1].name", "a name no other sensor has", "'f'"),
          ("sensor[2].other", "other only on a contact_force sensor", "a position sensor")]

@@ -687,9 +687,10 @@ class Volume(_Table):
 
 #: What a ``[[sensor]]`` reads every frame, and its unit: the contact force on its body (the last
 #: step's contact impulses / dt, thesis eq. 5.5), the force of the couplings on it (thesis eq.
-#: 5.4: spring and damper), and its centre (a rigid body's centre of mass, a node body's
-#: mass-weighted mean node), each an [x, y, z] vector.
-SENSOR_KINDS = {"contact_force": "N", "coupling_force": "N", "position": "m"}
+#: 5.4: spring and damper), its centre (a rigid body's centre of mass, a node body's
+#: mass-weighted mean node), and on a tool the force its haptic device renders on the hand (the
+#: virtual coupling's spring k (x_tool - x_handle), thesis 5.4), each an [x, y, z] vector.
+SENSOR_KINDS = {"contact_force": "N", "coupling_force": "N", "position": "m", "hand_force": "N"}
 #: A contact sensor's ``other`` naming every static geometry (planes, static spheres, fixed meshes).
 STATIC = "static"
 

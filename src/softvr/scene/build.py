@@ -161,6 +161,12 @@ def _centre(body):
     return lambda _solution: np.array(body.position, float)
 
 
+def _hand_force(tool):
+    """Sensor read: the force [3] [N] a tool's haptic device renders on the hand now
+    (:meth:`softvr.haptics.HapticTool.force`: its virtual coupling's spring, thesis 5.4)."""
+    return lambda _solution: tool.force()
+
+
 #: Model parts' colours by kind.
 _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rigid": (0.95, 0.95, 0.9),
                 "soft": (0.72, 0.3, 0.3)}
@@ -504,6 +510,8 @@ class SceneExample(Player):
             read = _contact_force(self.index[s["body"]], other, self.dt)
         elif kind == "coupling_force":
             read = _coupling_force(self.scene, body)
+        elif kind == "hand_force":
+            read = _hand_force(next(t for t in self.tools if t.tool is body))
         else:
             read = _centre(body)
         return Sensor(s["name"], kind, SENSOR_KINDS[kind], read)

@@ -43,7 +43,8 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
 ``softvr_coupling_points``    ... or at these world points: x0, y0, z0, x1, ... [m] (any body)
 ``softvr_sensor_position``    a sensor's name: the object's centre sampled every frame (a
                               ``[[sensor]]`` on this body; also ``softvr_sensor_coupling_force``,
-                              ``softvr_sensor_contact_force``, one of each kind per object)
+                              ``softvr_sensor_contact_force``, ``softvr_sensor_hand_force`` (a
+                              tool), one of each kind per object)
 ``softvr_sensor_contact_force_other`` the contact sensor's ``other``: an object's name or "static"
 ``softvr_adhesion_stiffness`` [N/m^3]: the surface is adhesive (thesis ch. 4); with
                               ``softvr_adhesion_max_energy`` [J/m^2], ``..._viscosity`` (all
@@ -740,7 +741,8 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     # A sensor with a problem is left out, not its node (as a [[sensor]] is: after what is kept).
     coupled = {c[side] for _, c in couplings for side in "ab"} | set(parts)
     found = Problems(errors.source, errors.kind)
-    sensed = sensor_tables(sensors, names - {n for n, k in named.items() if k == "fixed"}, coupled, found)
+    sensed = sensor_tables(sensors, names - {n for n, k in named.items() if k == "fixed"}, coupled,
+                           {n for n, k in named.items() if k == "tool"}, found)
     _name_sensor_problems(found, errors)
     if ground_adhesion is not None:
         adhesions["ground"] = ground_adhesion

@@ -131,6 +131,7 @@
     name = "press"              # against time (NAME_sensors.png); each an [x, y, z] vector
     kind = "contact_force"      # contact_force [N] (the step's contact impulses / dt on body) |
                                 # coupling_force [N] (its couplings' springs) | position [m] (its centre)
+                                # | hand_force [N] (a tool: the force its haptic device renders)
     body = "cube"
     other = "floor box"         # contact_force only: the contacts with this body, or "static"
                                 # (planes, static spheres, fixed meshes); default: all of them
@@ -551,7 +552,7 @@ def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
     bodies_named = names - {b.name for b in bodies if b.type == "fixed" and b.shape == "mesh"}
     coupled = {c[side] for c, _ in couplings for side in "ab"} | {name for m in models for name in m["parts"]}
     sensors = sensor_tables([(f"sensor[{i}]", t) for i, t in enumerate(_list(doc, "sensor", errors))], bodies_named,
-                            coupled, errors)
+                            coupled, {b.name for b in bodies if b.type == "tool"}, errors)
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=spheres, bodies=kept,
                       filters=[f for f in filters if set(f) <= present],
@@ -561,11 +562,12 @@ def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
     return scene, errors.items
 
 
-def sensor_tables(tables: list, names: set, coupled: set, errors: Problems) -> list:
+def sensor_tables(tables: list, names: set, coupled: set, tools: set, errors: Problems) -> list:
     """The ``[[sensor]]`` tables (``(where, table)`` pairs: a TOML file's ``sensor[i]``, a glTF
     node's properties) without a problem: each names a body of the scene (``names``), a
-    coupling_force sensor one with couplings (``coupled``), a contact sensor's ``other``
-    another body or :data:`~softvr.scene._description.STATIC`; no two share a name."""
+    coupling_force sensor one with couplings (``coupled``), a hand_force sensor a tool
+    (``tools``), a contact sensor's ``other`` another body or
+    :data:`~softvr.scene._description.STATIC`; no two share a name."""
     out, seen = [], set()
     for w, t in tables:
         sensor, bad = read_table(Sensor, t, w, errors)
@@ -577,6 +579,10 @@ def sensor_tables(tables: list, names: set, coupled: set, errors: Problems) -> l
             bad = True
         elif sensor.kind == "coupling_force" and sensor.body is not None and sensor.body not in coupled:
             errors.add(f"{w}.body", f"a body with couplings ({', '.join(sorted(coupled)) or 'none in this scene'})",
+                       repr(sensor.body))
+            bad = True
+        elif sensor.kind == "hand_force" and sensor.body is not None and sensor.body not in tools:
+            errors.add(f"{w}.body", f"a tool (its handle's force) ({', '.join(sorted(tools)) or 'none in this scene'})",
                        repr(sensor.body))
             bad = True
         if sensor.other is not None and (sensor.other not in names | {STATIC} or sensor.other == sensor.body):
