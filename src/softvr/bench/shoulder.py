@@ -3,7 +3,7 @@
 Both variants of the shoulder demo, the bundled scene files ``shoulder.toml`` (palpation: two
 fingers and the deltoid) and ``shoulder-arthroscopy.toml`` (a probe under the acromion), played
 one step a frame: the tool's handle follows the file's scripted palpation path with the 1 kHz
-:class:`~softvr.haptics.HapticLoop` process rendering the force (the file's ``hand`` sensor). Reported: ms per simulation step
+:class:`~softvr.haptics.HapticLoop` process rendering the force (:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step
 (mean and p95), contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
 
@@ -43,15 +43,16 @@ def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
     from tqdm import tqdm
 
     # Played headless by the one player, one step a frame, the haptic process on (the file's);
-    # the measures are read here off the step's solution and the file's hand sensor.
+    # the measures are read here off the step's solution and the tool (the force on the hand).
     player = load_scene(BUNDLED / SCENES[variant], frames=1, width=64, height=48, steps_per_frame=1)
     player.frame_measures = False
+    tool = player.tools[0]
     steps = max(1, int(round(seconds / player.dt)))
     trace: dict[str, list] = {"step_s": [], "contacts": [], "pgs_iterations": [], "overlap_m": [], "hand_force_n": []}
     try:
         for _ in tqdm(range(steps), desc=f"shoulder {variant}", unit="step", disable=not progress, leave=False):
             t0 = time.perf_counter()
-            record = player.step()
+            player.step()
             trace["step_s"].append(time.perf_counter() - t0)
             solution = player.scene.last_solution
             trace["contacts"].append(int(sum(len(i) for i in solution.impulses)))
@@ -59,8 +60,8 @@ def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
             # The deepest overlap after the solve: the contacts' end gaps.
             trace["overlap_m"].append(max(0.0, -min((float(g.min()) for g in solution.gaps_after if len(g)),
                                                     default=0.0)))
-            trace["hand_force_n"].append(float(np.linalg.norm(record["sensors"]["hand"])))
-        haptic = player.tools[0].loop.period_stats()
+            trace["hand_force_n"].append(float(np.linalg.norm(tool.force())))
+        haptic = tool.loop.period_stats()
     finally:
         player.close()
     soft = [b for b in player.scene.bodies if isinstance(b, FemBody)]
