@@ -464,8 +464,7 @@ frames = 9
 
 def test_a_variants_typos_and_bad_values_are_named_where_it_writes_them_all_at_once(tmp_path, capsys):
     """Every problem of every variant, each under the variant's own path with the key or body
-    meant (written by hand), and a reference the variant breaks (a sensor on a body it
-    removes) named below the variant; asking for a variant the file has not is named too."""
+    meant (written by hand); asking for a variant the file has not is named too."""
     path = _candy_with(tmp_path, """
 [[sensor]]
 name = "block"
@@ -484,9 +483,6 @@ cells = 3
 celss = 3
 surface_quads = -2
 type = "rigid"
-
-[variant.nojello]
-remove = ["jello"]
 """)
     with pytest.raises(InputError) as info:
         read_scene(path, ["qiuck"])
@@ -500,9 +496,32 @@ remove = ["jello"]
         "variant.bad.body.jelo": ("the name of a [[body]] (did you mean 'jello'?)", "'jelo'"),
         "variant.bad.body.jello.celss": ("a known key (did you mean 'cells'?)", "'celss'"),
         "variant.bad.body.jello.surface_quads": ("an integer >= 1", "-2"),
-        "variant.bad.body.jello.type": ("another key of the body (a variant keeps its name and type)", "'rigid'"),
-        "variant.nojello sensor[0].body": (
-            "the name of a body (hard candy 1, hard candy 3, hard candy 5, hard candy 7, soft candy 0, soft candy 2, "
-            "soft candy 4, soft candy 6)", "'jello'")}, problems
+        "variant.bad.body.jello.type": ("another key of the body (a variant keeps its name and type)", "'rigid'")
+    }, problems
     assert main(["check", str(path)]) == 2  # the file's variants are checked without asking for one
     assert "variant.bad.body.jello.celss: expected a known key (did you mean 'cells'?)" in capsys.readouterr().err
+
+
+def test_a_variant_removes_what_names_the_bodies_it_removes_and_what_it_breaks_is_named_below_it(tmp_path):
+    """Removing bodies removes the couplings, filters and sensors naming them, and their names
+    from collides_with; a variant that leaves a file no body (and no plane) is named below the
+    variant with what the file then lacks."""
+    path = tmp_path / "pair.toml"
+    path.write_text('format = "softvr-scene 1"\n[material.m]\ndensity = 1000.0\n'
+                    '[[body]]\nname = "a"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\ncollides_with = ["b", "c"]\n'
+                    '[[body]]\nname = "b"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\nposition = [1.0, 0.0, 0.0]\n'
+                    '[[body]]\nname = "c"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\nposition = [2.0, 0.0, 0.0]\n'
+                    '[[coupling]]\na = "a"\nb = "b"\npoints = [[0.5, 0.0, 0.0]]\nstiffness = 10.0\n'
+                    '[[filter]]\na = "b"\nb = "c"\n'
+                    '[[sensor]]\nname = "f"\nkind = "contact_force"\nbody = "a"\nother = "b"\n'
+                    '[[sensor]]\nname = "x"\nkind = "position"\nbody = "a"\n'
+                    '[variant.alone]\nremove = ["b"]\n[variant.empty]\nremove = ["a", "b", "c"]\n')
+    with pytest.raises(InputError) as info:
+        read_scene(path)  # every variant checked, none asked for
+    assert info.value.problems == [("variant.empty body", "at least one [[body]]", "none")]
+    path.write_text(path.read_text().replace('[variant.empty]\nremove = ["a", "b", "c"]\n', ""))
+    whole = read_scene(path)
+    assert len(whole.couplings) == 1 and len(whole.filters) == 1 and len(whole.sensors) == 2
+    alone = read_scene(path, ["alone"])
+    assert [b.name for b in alone.bodies] == ["a", "c"] and alone.body("a").collides_with == ("c",)
+    assert alone.couplings == [] and alone.filters == [] and [s["name"] for s in alone.sensors] == ["x"]

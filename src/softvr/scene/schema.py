@@ -140,7 +140,8 @@
     preset = "cube"             # a softvr.cave preset, or file = "my-cave.toml" (softvr-display 1)
 
     [variant.quick]             # the scene changed, played on request (softvr run SCENE --variant
-    remove = ["candy 7"]        # quick; load_scene(path, ["quick"])): these bodies left out, ...
+    remove = ["candy 7"]        # quick; load_scene(path, ["quick"])): these bodies left out (and
+                                # the couplings, filters and sensors that name them), ...
     [variant.quick.simulation]  # ... these [simulation] / [render] keys replaced, ...
     frames = 20
     [variant.quick.body."jello"]    # ... and these keys of a body (not its name or type)
@@ -406,17 +407,31 @@ def read_scene_with_problems(path, variants=()) -> tuple[SceneFile, list]:
     return scene, problems + errors.items
 
 
+#: The tables that name bodies, and the keys they name them with: a variant that removes a body
+#: removes those of them that name it.
+_NAMING = {"coupling": ("a", "b"), "filter": ("a", "b"), "sensor": ("body", "other")}
+
+
 def _patched(doc: dict, variants: list) -> dict:
     """The document ``doc`` with each :class:`~softvr.scene._description.Variant` applied in turn:
-    its bodies removed, its ``[simulation]``, ``[render]`` and body keys replacing the file's."""
+    its bodies removed (with the couplings, filters and sensors that name one, and their names in
+    other bodies' ``collides_with``), its ``[simulation]``, ``[render]`` and body keys replacing
+    the file's."""
     out = {k: v for k, v in doc.items() if k != "variant"}
     for v in variants:
+        gone = set(v.remove or ())
         for key in ("simulation", "render"):
             if getattr(v, key) and isinstance(out.get(key, {}), dict):
                 out[key] = {**out.get(key, {}), **getattr(v, key)}
         if isinstance(out.get("body"), list):
             out["body"] = [{**b, **(v.body or {}).get(b.get("name"), {})} if isinstance(b, dict) else b
-                           for b in out["body"] if not (isinstance(b, dict) and b.get("name") in v.remove)]
+                           for b in out["body"] if not (isinstance(b, dict) and b.get("name") in gone)]
+            for b in out["body"]:
+                if isinstance(b, dict) and isinstance(b.get("collides_with"), list):
+                    b["collides_with"] = [n for n in b["collides_with"] if n not in gone]
+        for table, keys in _NAMING.items():
+            if isinstance(out.get(table), list):
+                out[table] = [t for t in out[table] if not (isinstance(t, dict) and {t.get(k) for k in keys} & gone)]
     return out
 
 
