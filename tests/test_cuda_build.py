@@ -20,10 +20,11 @@ MODULES = {
     "softvr.dynamics._node_kernels": ("element_terms", "assemble", "right_hand_side", "integrate"),
     "softvr.collision._node_kernels": ("point_motion", "body_motion", "vertex_triangle", "edge_geometry", "edge_edge",
                                        "gather_contacts", "carry_impulses"),
-    "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual"),
+    "softvr.contact._node_jacobi_kernels": ("jacobi", "contacts", "chebyshev", "residual", "rigid_contact_exact"),
     "softvr.contact._node_gs_kernels": ("gauss_seidel", "contact_nodes", "projected", "mark_contact_nodes"),
     "softvr.contact._node_adhesion_kernels": ("prepare", "evolve"),
-    "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces"),
+    "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces",
+                                               "pair_inverse"),
     "softvr.dynamics._node_rigid_kernels": ("rigid_system", "rigid_velocity"),
     "softvr.collision._node_rigid_kernels": ("rigid_points", "rigid_sides", "primitive_contacts"),
 }

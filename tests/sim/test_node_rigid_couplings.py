@@ -17,6 +17,7 @@ import scipy.sparse.linalg as spla
 from scipy.spatial.transform import Rotation
 
 from softvr import Scene
+from softvr.collision import Plane
 from softvr.dynamics import Coupling, EmbeddedPoints, FemBody, FixedBody, Material, RigidBody, RigidPoints, embed_in_tets
 from softvr.sim import node_model_supported
 from softvr.sim._node_step import SWEEP_TOLERANCE
@@ -154,21 +155,89 @@ def test_a_cube_hanging_by_springs_settles_to_the_minimum_of_its_potential_energ
     assert np.abs(cube.v).max() < 1e-3
 
 
-def test_a_spring_held_rigid_body_that_collides_steps_per_object():
-    # Rigid sides are held only on bodies without collision (the shoulder's colliding tendons
-    # and finger made the sweeps diverge under contact, src/softvr/sim/_node_couplings.py).
-    block = _block((0.0, 0.0, 0.0))
-    cube = RigidBody.box((0.06, 0.06, 0.06), 800.0, position=(0.05, 0.05, 0.2), name="cube")
-    scene = Scene(gravity=(0.0, 0.0, -G))
+def _held_box(*, collide: bool):
+    """A light box tied by two springs at levers of 2-3 cm to a fixed body, its corners
+    colliding with a frictionless plane 1 mm under them (a clamped block: the arrays need an FEM
+    body), moving down: the springs couple its translation and rotation strongly."""
+    block = _block((0.3, 0.0, 0.0))
+    block.fixed[:] = True
+    half = 0.02
+    box = RigidBody.box((2 * half,) * 3, 300.0, position=(0.0, 0.0, half + 0.001), name="box",
+                        orientation=Rotation.from_rotvec([0.02, -0.03, 0.01]).as_quat(scalar_first=True),
+                        velocity=(0.01, -0.02, -0.08), angular_velocity=(0.5, -0.3, 0.2))
+    anchor = FixedBody(position=(0.0, 0.0, 0.0), name="anchor")
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.0, pgs_iterations=2000)
     scene.add_body(block)
-    scene.add_body(cube)
-    scene.add_coupling(Coupling(RigidPoints(cube, [[0.0, 0.0, -0.03]]), _embedded(block, [[0.05, 0.05, 0.09]]), 300.0))
+    corners = half * np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    if collide:
+        scene.add_plane(Plane(friction=0.0))
+        scene.add_body(box, collision_points=RigidPoints(box, corners))
+    else:
+        scene.add_body(box)
+    scene.add_body(anchor)
+    ties = [Coupling(RigidPoints(box, [[0.03, 0.0, 0.0], [0.0, -0.025, 0.01]]),
+                     RigidPoints(anchor, [[0.05, 0.01, 0.03], [-0.01, -0.04, 0.0]]), 200.0, damping=0.5)]
+    scene.add_coupling(ties[0])
+    return scene, box, corners, ties
+
+
+def _box_system(box, ties, dt):
+    """The box's 6x6 ``A`` of eq. 5.2 + 5.4 and ``b``, written out: blockdiag(m I, I_w)
+    (+ the springs' (dt c + dt^2 k) D^T D, D = [I, -[R r]x]) and M v_free - dt k D^T (p_a - p_b);
+    v_free = v + dt g (a cube: no gyroscopic torque)."""
+    a = np.zeros((6, 6))
+    a[:3, :3] = box.mass * np.eye(3)
+    a[3:, 3:] = box.rotation @ box.inertia_body @ box.rotation.T
+    b = a @ np.r_[box.v[:3] + dt * np.array([0.0, 0.0, -G]), box.v[3:]]
+    for c in ties:
+        stretch = c.a.positions() - c.b.positions()
+        for p in range(len(c)):
+            d = np.hstack([np.eye(3), -_cross_matrix(box.rotation @ c.a.local[p])])
+            a += (dt * c.damping + dt * dt * c.stiffness) * d.T @ d
+            b -= dt * c.stiffness * d.T @ stretch[p]
+    return a, b
+
+
+def test_a_spring_held_rigid_bodys_two_nodes_are_one_6x6_block_of_d_a():
+    # D_A^-1 of the sweeps on the body's nodes is the inverse of its whole 6x6 block of A
+    # (numpy.linalg.inv of the block written out in _box_system), cross terms included.
+    dt = 0.01
+    scene, box, _, ties = _held_box(collide=False)
+    a, _ = _box_system(box, ties, dt)
+    scene.step(dt)
+    model, state = scene._stepper.model, scene._stepper.state
+    lin, ang = (int(x) for x in model.couplings.pair_node.numpy()[0])
+    d_inv, cross = state.d_inv.numpy(), model.couplings.cross.numpy()
+    got = np.block([[d_inv[lin], cross[lin]], [cross[ang], d_inv[ang]]])
+    truth = np.linalg.inv(a)
+    # The levers matter: the 3x3 blocks' own inverse is far from the 6x6 one's diagonal block.
+    assert np.abs(truth[:3, :3] - np.linalg.inv(a[:3, :3])).max() > 0.5 * np.abs(truth[:3, :3]).max()
+    np.testing.assert_allclose(got, truth, rtol=1e-10, atol=1e-12 * np.abs(truth).max())
+
+
+def test_a_spring_held_box_landing_on_a_plane_solves_scipys_mlcp_of_eq_5_5():
+    # Eq. 5.5 with the box's A and b written out (_box_system) and one row n . (v + omega x r)
+    # >= -gap / dt per corner (speculative contacts, frictionless): SciPy's SLSQP minimizes
+    # 1/2 v A v - b v under them, the same LCP's primal. Three steps, each from the arrays' state.
+    dt = 0.01
+    scene, box, corners, ties = _held_box(collide=True)
     assert node_model_supported(scene)
-    touching = Scene(gravity=(0.0, 0.0, -G))
-    touching.add_body(block)
-    touching.add_body(cube, collision_points=RigidPoints(cube, [[0.0, 0.0, -0.03]]))
-    touching.add_coupling(Coupling(RigidPoints(cube, [[0.0, 0.0, -0.03]]), _embedded(block, [[0.05, 0.05, 0.09]]),
-                                   300.0))
-    assert not node_model_supported(touching)
-    touching.step(0.01)
-    assert touching._stepper is None
+    normal = np.array([0.0, 0.0, 1.0])
+    pressed = 0
+    for _ in range(3):
+        a, b = _box_system(box, ties, dt)
+        levers = corners @ box.rotation.T
+        jac = np.hstack([np.tile(normal, (8, 1)), np.cross(levers, normal)])
+        gap = box.position[2] + levers[:, 2]
+        near = gap < 0.002 + 0.1 * dt  # within the margin plus the motion over the step
+        rows, floor = jac[near], -gap[near] / dt
+        truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
+                            constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
+                            method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
+        pressed += int((rows @ np.linalg.solve(a, b) < floor).sum())  # rows the contact must push
+        scene.step(dt)
+        assert scene._stepper is not None
+        np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)
+        # omega's error: a corner's lever of 0.035 m turns 3e-5 m/s into 8.6e-4 rad/s.
+        np.testing.assert_allclose(box.v[3:], truth[3:], atol=VELOCITY_TOL / 0.035, rtol=0)
+    assert pressed > 0

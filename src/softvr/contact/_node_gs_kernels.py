@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from softvr.contact._node_jacobi_kernels import block_update
+
 
 @wp.kernel
 def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int):
@@ -35,22 +37,10 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
     w[i] = v[i]
 
 
-@wp.func
-def _gather(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-            blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
-            w: wp.array(dtype=wp.vec3d)):
-    """``D_i^-1 (b_i - sum_{j != i} A_ij w_j)`` [m/s]."""
-    r = b[i]
-    for k in range(row_start[i], row_start[i + 1]):
-        j = block_col[k]
-        if j != i:
-            r = r - blocks[k] * w[j]
-    return d_inv[i] * r
-
-
 @wp.kernel
 def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
                  contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), first: int, last: int,
                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
@@ -62,7 +52,7 @@ def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=
         return
     value = fixed_velocity[i]
     if fixed[i] == 0:
-        value = _gather(i, row_start, block_col, blocks, d_inv, b, w)
+        value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
     w[i] = value
     if last != 0:
         v_hat[i] = value
@@ -70,7 +60,8 @@ def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=
 
 @wp.kernel
 def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
                   fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
                   contact_node: wp.array(dtype=wp.int32), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
@@ -82,7 +73,8 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
     if fixed[i] != 0:
         v_hat[i] = fixed_velocity[i]
         return
-    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * _gather(i, row_start, block_col, blocks, d_inv, b, w)
+    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * block_update(i, row_start, block_col, blocks, d_inv, partner,
+                                                                        cross, b, w)
 
 
 @wp.kernel
@@ -112,7 +104,11 @@ def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(
 
 
 @wp.kernel
-def scale(d_inv: wp.array(dtype=wp.mat33d), omega: wp.float64, out: wp.array(dtype=wp.mat33d)):
-    """``out = omega D_A^-1`` [1/kg]: the contact PGS's metric for damped contact nodes."""
+def scale(d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d), omega: wp.float64,
+          out: wp.array(dtype=wp.mat33d), out_cross: wp.array(dtype=wp.mat33d)):
+    """``out = omega D_A^-1`` [1/kg]: the contact PGS's metric for damped contact nodes (its
+    diagonal blocks ``d_inv``, and ``cross`` the off-diagonal ones of spring-held rigid bodies'
+    6x6 blocks)."""
     i = wp.tid()
     out[i] = omega * d_inv[i]
+    out_cross[i] = omega * cross[i]

@@ -24,39 +24,97 @@ import warp as wp
 from softvr.contact._adhesion_kernels import adhesive_bound
 
 
+@wp.func
+def _off_block(i: int, p: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+               blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d)):
+    """``b_i - sum A_ij v_j`` [kg m/s] over the nodes ``j`` outside node ``i``'s block of
+    ``D_A`` (``i`` itself and its pair partner ``p``, -1: none)."""
+    r = b[i]
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if j != i and j != p:
+            r = r - blocks[k] * v[j]
+    return r
+
+
+@wp.func
+def block_update(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                 cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d)):
+    """Node ``i``'s share of ``D_A^-1 (b - (L_A + U_A) v)`` [m/s]: ``D_i^-1 r_i``, and on a
+    spring-held rigid body's node, whose block of ``D_A`` is the body's 6x6 one with its
+    ``partner``, ``+ (D^-1)_{i, partner} r_partner`` (``cross``)."""
+    p = partner[i]
+    out = d_inv[i] * _off_block(i, p, row_start, block_col, blocks, b, v)
+    if p >= 0:
+        out = out + cross[i] * _off_block(p, i, row_start, block_col, blocks, b, v)
+    return out
+
+
 @wp.kernel
 def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-           blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
-           fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
-           v_hat: wp.array(dtype=wp.vec3d)):
-    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` from the sweep's ``v``."""
+           blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+           cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+           fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` from the sweep's ``v``
+    (:func:`block_update`)."""
     i = wp.tid()
     if fixed[i] != 0:
         v_hat[i] = fixed_velocity[i]
         return
-    r = b[i]
-    for k in range(row_start[i], row_start[i + 1]):
-        j = block_col[k]
-        if j != i:
-            r = r - blocks[k] * v[j]
-    v_hat[i] = d_inv[i] * r
+    v_hat[i] = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, v)
+
+
+@wp.func
+def _push(node: int, g: wp.vec3d, d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+          cross: wp.array(dtype=wp.mat33d), v_hat: wp.array(dtype=wp.vec3d)):
+    """``v^ += D_A^-1 e_node g`` for a generalized impulse ``g`` [N s, or N m s] on ``node``:
+    a spring-held rigid body's partner node moves too, by ``(D^-1)_{partner, node} g``."""
+    v_hat[node] = v_hat[node] + d_inv[node] * g
+    p = partner[node]
+    if p >= 0:
+        v_hat[p] = v_hat[p] + cross[p] * g
 
 
 @wp.func
 def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
            stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
            rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-           d_inv: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
+           d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
     """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
     side's angular node takes the torque ``lever x world``)."""
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         if fixed[node] == 0:
-            v_hat[node] = v_hat[node] + stencil_weights[c, k] * (d_inv[node] * world)
+            _push(node, stencil_weights[c, k] * world, d_inv, partner, cross, v_hat)
     for s in range(rigid_node.shape[1]):
         node = rigid_node[c, s]
         if node >= 0:
-            v_hat[node] = v_hat[node] + d_inv[node] * wp.cross(rigid_lever[c, s], world)
+            _push(node, wp.cross(rigid_lever[c, s], world), d_inv, partner, cross, v_hat)
+
+
+@wp.func
+def _pair_delassus(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                   stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+                   rigid_lever: wp.array2d(dtype=wp.vec3d), partner: wp.array(dtype=wp.int32),
+                   cross: wp.array(dtype=wp.mat33d)) -> wp.mat33d:
+    """The cross terms of contact ``c``'s ``J D_A^-1 J^T`` [1/kg] on its spring-held rigid
+    sides: ``J_l P_la J_a^T + J_a P_al J_l^T = w_l (X + X^T)``, ``X = P_la [lever]x``, with
+    ``J_l = w_l I`` on the linear node and ``J_a = -[lever]x`` on the angular one."""
+    out = wp.mat33d()
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            lin = partner[node]
+            if lin >= 0:
+                w_l = wp.float64(0.0)
+                for k in range(stencil_count[c]):
+                    if stencil_nodes[c, k] == lin:
+                        w_l = w_l + stencil_weights[c, k]
+                x = cross[lin] * wp.skew(rigid_lever[c, s])
+                out = out + w_l * (x + wp.transpose(x))
+    return out
 
 
 @wp.func
@@ -78,6 +136,7 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
              friction: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
              rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+             partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
              slip: wp.array(dtype=wp.vec3d)):
@@ -90,7 +149,7 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
     n = count[0]
     for c in range(n):
         _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
-               rigid_lever, d_inv, fixed, v_hat)
+               rigid_lever, d_inv, partner, cross, fixed, v_hat)
     for _ in range(passes):
         for c in range(n):
             f = frame[c]
@@ -109,6 +168,8 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                     # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
                     arm = wp.skew(rigid_lever[c, s])
                     w = w + arm * d_inv[node] * wp.transpose(arm)
+            w = w + _pair_delassus(c, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, partner,
+                                   cross)
             rel_f = f * rel
             w_f = f * w * wp.transpose(f)
             old = impulse[c]
@@ -152,7 +213,7 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
             _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
-                   d_inv, fixed, v_hat)
+                   d_inv, partner, cross, fixed, v_hat)
     sweep[0] = sweep[0] + 1
 
 
@@ -176,6 +237,23 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
     d = out - v[i]
     change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
     v_next[i] = out
+
+
+@wp.kernel
+def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+                        partner: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32)):
+    """Marks ``exact`` (1: the Chebyshev step takes the node's update as it is) both nodes of
+    every spring-held rigid body (``partner`` >= 0) that is a side of contact ``c`` (one
+    thread per contact slot, the first ``count[0]`` used)."""
+    c = wp.tid()
+    if c >= count[0]:
+        return
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            if partner[node] >= 0:
+                exact[node] = 1
+                exact[partner[node]] = 1
 
 
 @wp.kernel

@@ -46,6 +46,8 @@ class GaussSeidelSweep:
         self.contact_node = wp.zeros(n, dtype=wp.int32, device=d)
         #: omega D_A^-1 [n] [1/kg], the metric the contact PGS projects with.
         self.metric = wp.zeros(n, dtype=wp.mat33d, device=d)
+        #: omega times the off-diagonal blocks of spring-held rigid bodies' 6x6 D_A^-1 [n].
+        self.cross_metric = wp.zeros(n, dtype=wp.mat33d, device=d)
         self._work = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._model, self._state = model, state
         c = state.contacts
@@ -53,7 +55,8 @@ class GaussSeidelSweep:
                                             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.rigid_node,
                                                     self.contact_node])),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
-                                            inputs=[state.d_inv, self.omega, self.metric]))]
+                                            inputs=[state.d_inv, model.couplings.cross, self.omega, self.metric,
+                                                    self.cross_metric]))]
         self._colouring = colouring
 
     def prepare(self) -> None:
@@ -67,7 +70,8 @@ class GaussSeidelSweep:
         m, st, d = self._model, self._state, self._model.device
         start, count = self._colouring.start, self._colouring.count
         n, w = m.node_count, self._work
-        rows = [m.row_start, m.block_col, st.blocks, st.d_inv, st.b, m.fixed, st.fixed_velocity, self.contact_node]
+        rows = [m.row_start, m.block_col, st.blocks, st.d_inv, m.couplings.partner, m.couplings.cross, st.b, m.fixed,
+                st.fixed_velocity, self.contact_node]
 
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),

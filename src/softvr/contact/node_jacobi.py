@@ -63,7 +63,7 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual):
+        for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
@@ -83,7 +83,11 @@ class NodeSolve:
         # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate
         # 3.4x). A rigid body held by coupling springs has blocks of A off its nodes' diagonal,
         # so its update is a Jacobi one like an FEM node's and takes the extrapolation (its
-        # nodes are then in the spectrum's bounds too).
+        # nodes are then in the spectrum's bounds too) until a contact presses it: then its
+        # update is the contacts' as a free body's is, and extrapolating it overshot them (the
+        # shoulder's finger: its spin, held by nothing but the contacts' friction, cycled at the
+        # 100-sweep cap and diverged at step 39; unextrapolated its last change stays under 1
+        # rad/s a sweep, mostly 1e-3 to 1e-1, and the palpation ends with 0.09 mm overlap).
         exact = np.zeros(model.node_count, np.int32)
         if model.rigid is not None:
             exact[model.rigid.linear_node.numpy()] = 1
@@ -91,6 +95,7 @@ class NodeSolve:
             row_start = model.row_start.numpy()
             exact[row_start[1:] > row_start[:-1]] = 0
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
+        self._exact_base: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
         buf = state.sweep_buffers
         jacobi, cheb, plain = [], [], []
@@ -102,14 +107,16 @@ class NodeSolve:
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
                                      c.friction, c.rigid_node, c.rigid_lever, state.d_inv if gs is None else gs.metric,
+                                     model.couplings.partner, model.couplings.cross if gs is None else gs.cross_metric,
                                      model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep,
                                      c.stiffness, c.slip])
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
                 jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
-                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv, state.b,
-                                                model.fixed, state.fixed_velocity, v, state.v_hat]))
+                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv,
+                                                model.couplings.partner, model.couplings.cross, state.b, model.fixed,
+                                                state.fixed_velocity, v, state.v_hat]))
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, replayer(contacts)))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
@@ -123,6 +130,9 @@ class NodeSolve:
         self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) if gs is None else
                         (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
+        # A spring-held rigid body's nodes in some contact this step are marked exact too.
+        self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=c.capacity, device=d, record_cmd=True,
+                                                  inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact]))
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
                                                               c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -147,6 +157,8 @@ class NodeSolve:
         stats = self.stats.numpy()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
+        wp.copy(self.exact, self._exact_base)
+        self._rigid_contacts()
         cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
         history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
         restart, plain_until = 0, 0

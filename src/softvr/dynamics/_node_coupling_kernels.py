@@ -112,3 +112,30 @@ def coupling_forces(node: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=
         f = f - stiffness[s] * (wp.transpose(weight) * stretch[s])
     i = node[t]
     b[i] = b[i] + dt * f
+
+
+@wp.kernel
+def pair_inverse(pair_node: wp.array2d(dtype=wp.int32), pair_block: wp.array2d(dtype=wp.int32),
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d)):
+    """Spring-held rigid body ``p``'s two nodes as one 6x6 block ``[[A_ll, A_la], [A_al, A_aa]]``
+    of ``D_A``, inverted by its Schur complement ``S = A_aa - A_al A_ll^-1 A_la``:
+
+        (D^-1)_aa = S^-1,  (D^-1)_la = -A_ll^-1 A_la S^-1 = (D^-1)_al^T,
+        (D^-1)_ll = A_ll^-1 - (D^-1)_la A_al A_ll^-1
+
+    into ``d_inv`` [1/kg, 1/(kg m^2)] (the diagonal blocks) and ``cross`` [1/(kg m)] (the
+    off-diagonal ones, ``cross[i] = (D^-1)_{i, partner}``). The springs' levers couple the
+    body's translation and rotation strongly (a light body held off its centre), which the 3x3
+    node blocks split: on the shoulder the finger's angular node then stopped converging."""
+    p = wp.tid()
+    lin = pair_node[p, 0]
+    ang = pair_node[p, 1]
+    a_ll_inv = wp.inverse(blocks[pair_block[p, 0]])
+    a_la = blocks[pair_block[p, 1]]
+    a_al = blocks[pair_block[p, 2]]
+    s_inv = wp.inverse(blocks[pair_block[p, 3]] - a_al * a_ll_inv * a_la)
+    p_la = -(a_ll_inv * a_la * s_inv)
+    d_inv[ang] = s_inv
+    d_inv[lin] = a_ll_inv - p_la * a_al * a_ll_inv
+    cross[lin] = p_la
+    cross[ang] = wp.transpose(p_la)

@@ -25,9 +25,10 @@ SPRING_STENCIL = int(_k.SPRING_STENCIL)
 def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], ...]:
     """Replays (to run in order) adding the couplings' terms of a step of ``dt`` [s] to ``A`` (``state.blocks``,
     ``state.d_inv``) and ``b`` (``state.b``), from ``state.q`` and the rigid bodies' poses at the
-    step's start; replay after the assembly, the right-hand side and the rigid bodies' system."""
+    step's start, and inverting each spring-held rigid body's 6x6 block of ``D_A`` (``state.d_inv``,
+    ``couplings.cross``); replay after the assembly, the right-hand side and the rigid bodies' system."""
     c, d = model.couplings, model.device
-    for kernel in (_k.coupling_stretch, _k.coupling_blocks, _k.coupling_forces):
+    for kernel in (_k.coupling_stretch, _k.coupling_blocks, _k.coupling_forces, _k.pair_inverse):
         load_kernels(kernel, d)
     if model.rigid is not None:
         position, orientation = model.rigid.state.body_position, model.rigid.state.body_orientation
@@ -43,4 +44,8 @@ def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], ...]:
     forces = wp.launch(_k.coupling_forces, dim=c.node.shape[0], device=d, record_cmd=True,
                        inputs=[c.node, c.entry_start, c.entry, c.weights, c.rigid, c.lever, c.stiffness, c.stretch,
                                float(dt), state.b])
-    return tuple(replayer(launch) for launch in (stretch, blocks, forces))
+    launches = [stretch, blocks, forces]
+    if c.pair_node.shape[0]:  # spring-held rigid bodies (Warp records no launch of 0 threads)
+        launches.append(wp.launch(_k.pair_inverse, dim=c.pair_node.shape[0], device=d, record_cmd=True,
+                                  inputs=[c.pair_node, c.pair_block, state.blocks, state.d_inv, c.cross]))
+    return tuple(replayer(launch) for launch in launches)

@@ -22,14 +22,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 import warp as wp
 
 from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
 from softvr.dynamics.node_couplings import SPRING_STENCIL
 from softvr.sim._node_rigid import rigid_bodies
 
-__all__ = ["NodeCouplings", "build_node_couplings", "coupling_blocks", "coupling_springs", "couplings_supported",
-           "driven_points"]
+__all__ = ["NodeCouplings", "block_jacobi_factor", "build_node_couplings", "coupling_blocks", "coupling_springs",
+           "couplings_supported", "driven_points"]
 
 #: Nodes of one side's stencil (a point embedded in a tet).
 SIDE = SPRING_STENCIL // 2
@@ -75,6 +76,17 @@ class NodeCouplings:
     entry_start : wp.array(int32) [cn + 1]; entry : wp.array(int32) [.]
         Node ``node[t]``'s stencil entries ``entry[entry_start[t] : entry_start[t + 1]]``, coded
         SPRING_STENCIL spring + slot.
+    partner : wp.array(int32) [n]
+        The other node of a spring-held rigid body's pair (its angular node for its linear one
+        and back; -1: none): the pair is one 6x6 block of ``D_A``.
+    pair_node : wp.array2d(int32) [P, 2]
+        Each spring-held rigid body's (linear, angular) node.
+    pair_block : wp.array2d(int32) [P, 4]
+        The blocks (linear, linear), (linear, angular), (angular, linear), (angular, angular) of
+        ``A`` of each pair (in ``NodeModel.block_row`` order).
+    cross : wp.array(mat33d) [n] [1/(kg m), the mixed unit of the 6x6 inverse]
+        Written every step: ``(D^-1)_{i, partner(i)}``, the off-diagonal 3x3 block of a pair's
+        6x6 inverse (``D_A^-1`` holds its diagonal blocks); zero off pairs.
     """
 
     spring_count: int
@@ -94,20 +106,16 @@ class NodeCouplings:
     node: wp.array
     entry_start: wp.array
     entry: wp.array
+    partner: wp.array
+    pair_node: wp.array
+    pair_block: wp.array
+    cross: wp.array
 
 
 def couplings_supported(scene) -> bool:
     """Whether the node arrays hold every coupling of ``scene``: each side either an FEM body's
     :class:`~softvr.dynamics.EmbeddedPoints` with stencils of at most :data:`SIDE` nodes, a
-    kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`, or those of a rigid body
-    that collides with nothing (no collision points, surface, box or sphere)."""
-    # A spring-held rigid body in contact is left per object: on the shoulder the sweeps
-    # diverged once its finger (a sphere primitive held by two springs) pressed: its angular
-    # node stopped converging (0.066 rad/s a sweep at the 100-sweep cap, step 35), then
-    # everything did (Jacobi at a 300 cap and Gauss-Seidel at 100: changes of 1e2 m/s a sweep,
-    # 7-42 mm overlap against 0.2 mm per object).
-    colliding = {c.body for c in scene._colliders} | {i for i, _ in scene._sphere_bodies + scene._box_bodies}
-    index = {id(b): i for i, b in enumerate(scene.bodies)}
+    kinematic, fixed or rigid body's :class:`~softvr.dynamics.RigidPoints`."""
     for coupling in scene.couplings:
         for side in (coupling.a, coupling.b):
             kind = type(side.body)
@@ -116,9 +124,43 @@ def couplings_supported(scene) -> bool:
                     return False
             elif kind not in (RigidBody, KinematicBody, FixedBody) or not isinstance(side, RigidPoints):
                 return False
-            elif kind is RigidBody and index[id(side.body)] in colliding:
-                return False
     return True
+
+
+def block_jacobi_factor(model, state, solved: np.ndarray) -> sp.csr_matrix:
+    """``L^-1`` [3 k, 3 k] with ``L L^T = D_A`` over the ``k`` nodes ``solved`` [n] bool, ``D_A``
+    the block diagonal of this step's ``A`` (``state.blocks``) the sweeps invert: 3x3 node
+    blocks, and each spring-held rigid body's two nodes as one 6x6 block
+    (``model.couplings.pair_node``)."""
+    n = model.node_count
+    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    blocks = state.blocks.numpy()
+    diag = np.tile(np.eye(3), (n, 1, 1))
+    diag[rows[rows == cols]] = blocks[rows == cols]
+    l_inv = np.linalg.inv(np.linalg.cholesky(diag))
+    index = np.cumsum(solved) - 1
+    block_rows, block_cols, values = [index[solved]], [index[solved]], [l_inv[solved]]
+    pairs = model.couplings.pair_node.numpy()
+    if len(pairs):
+        full = np.zeros((len(pairs), 2, 3, 2, 3))
+        for x, nodes_x in enumerate(pairs.T):
+            for y, nodes_y in enumerate(pairs.T):
+                key = np.searchsorted(rows * n + cols, nodes_x * n + nodes_y)
+                full[:, x, :, y, :] = blocks[key]
+        pair_inv = np.linalg.inv(np.linalg.cholesky(full.reshape(-1, 6, 6))).reshape(-1, 2, 3, 2, 3)
+        # The pairs' own 3x3 factors are replaced by the 6x6 one's blocks (lower triangular).
+        keep = ~np.isin(np.arange(n)[solved], pairs.ravel())
+        block_rows, block_cols, values = [block_rows[0][keep]], [block_cols[0][keep]], [values[0][keep]]
+        for x, y in ((0, 0), (1, 0), (1, 1)):
+            block_rows.append(index[pairs[:, x]])
+            block_cols.append(index[pairs[:, y]])
+            values.append(pair_inv[:, x, :, y, :])
+    r, c, v = np.concatenate(block_rows), np.concatenate(block_cols), np.concatenate(values)
+    k = int(solved.sum())
+    dof = np.arange(3)
+    at = (np.broadcast_to(3 * r[:, None, None] + dof[None, :, None], v.shape).ravel(),
+          np.broadcast_to(3 * c[:, None, None] + dof[None, None, :], v.shape).ravel())
+    return sp.csr_matrix((v.ravel(), at), shape=(3 * k, 3 * k))
 
 
 def _driven_sides(scene, body) -> list:
@@ -225,6 +267,13 @@ def build_node_couplings(springs: tuple, terms: tuple, solved_rows: np.ndarray, 
     def f64(values):
         return wp.array(np.ascontiguousarray(values, np.float64), dtype=wp.float64, device=d)
 
+    n = len(solved_rows)
+    sides = rigid >= 0
+    pairs = np.unique(np.stack([nodes[:, ::SIDE][sides], nodes[:, 1::SIDE][sides]], axis=1).reshape(-1, 2), axis=0)
+    partner = np.full(n, -1)
+    partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+    lin, ang = pairs[:, :1], pairs[:, 1:]
+    pair_block = np.searchsorted(block_keys, np.hstack([lin * n + lin, lin * n + ang, ang * n + lin, ang * n + ang]))
     count = len(nodes)
     return NodeCouplings(
         spring_count=count, driven=driven, nodes=i32(nodes), weights=f64(weights), rigid=i32(rigid),
@@ -233,4 +282,5 @@ def build_node_couplings(springs: tuple, terms: tuple, solved_rows: np.ndarray, 
         stretch=wp.zeros(count, dtype=wp.vec3d, device=d), block=i32(np.searchsorted(block_keys, keys)),
         block_rigid=i32(rigid_rows[keys // len(solved_rows)]), block_entry_start=i32(entry_start),
         block_entry=i32(entries), node=i32(node), entry_start=i32(np.append(first, len(owner))),
-        entry=i32((SPRING_STENCIL * s + slot)[order]))
+        entry=i32((SPRING_STENCIL * s + slot)[order]), partner=i32(partner), pair_node=i32(pairs.reshape(-1, 2)),
+        pair_block=i32(pair_block.reshape(-1, 4)), cross=wp.zeros(n, dtype=wp.mat33d, device=d))

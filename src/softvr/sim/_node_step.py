@@ -38,6 +38,7 @@ from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
 from softvr.errors import InputError
+from softvr.sim._node_couplings import block_jacobi_factor
 from softvr.sim._node_sweeps import choose_sweeps
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
 from softvr.sim._node_rigid import RigidNodes
@@ -87,21 +88,15 @@ def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
 def spectrum(model, state) -> tuple[float, float]:
     """Bounds (lo, hi) of the eigenvalues of D_A^-1 A over the free nodes, from this step's
     ``A`` (``state.blocks``): Lanczos on the similar symmetric L^-1 A L^-T (L L^T = D_A), the
-    smallest in shift-invert mode, with :data:`SPECTRUM_MARGIN`."""
-    n = model.node_count
-    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    smallest in shift-invert mode, with :data:`SPECTRUM_MARGIN`. ``D_A`` holds a spring-held
+    rigid body's two nodes as one 6x6 block, as the sweeps do."""
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
     # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
     # trace(D_A^-1 A) / 3n, is 1), unless coupling springs hold the body: then they are in.
     a, solved = _free_matrix(model, state)
     if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
-    blocks = state.blocks.numpy()
-    diag = np.tile(np.eye(3), (n, 1, 1))
-    diag[rows[rows == cols]] = blocks[rows == cols]
-    l_inv = np.linalg.inv(np.linalg.cholesky(diag[solved]))
-    k = len(l_inv)
-    l_inv = sp.bsr_matrix((l_inv, np.arange(k), np.arange(k + 1)), shape=(3 * k, 3 * k)).tocsr()
+    l_inv = block_jacobi_factor(model, state, solved)
     s = (l_inv @ a @ l_inv.T).tocsr()
     # A fixed start vector (ARPACK's default is random): the same scene steps the same way in
     # every run (the bounds set the Chebyshev weights, and so the rounding of every sweep).
