@@ -148,8 +148,8 @@
     cells = [6, 6, 3]
     # Variants apply in the order asked, a later one's keys winning. Each is checked with the
     # file: its keys, the bodies it names, and the file with it applied (a problem named where
-    # the variant writes it, variant.quick.body.jello.cells, or below it, variant.quick
-    # coupling[0].a, where it breaks what it does not write).
+    # the variant writes it, variant.quick.body.jello.cells, or below it, variant.empty body,
+    # where it breaks what it does not write: no body left).
 
     [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
     file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
@@ -438,8 +438,8 @@ def _patched(doc: dict, variants: list) -> dict:
 def _variant_problems(path: Path, doc: dict, name: str, table, base: list, errors: Problems):
     """``[variant.NAME]`` checked: its keys, the bodies it names, and the file with it applied.
     A problem of a key the variant writes is named where it writes it
-    (``variant.quick.body.jello.cells``); another that only the applied file has (a coupling to
-    a removed body) is named below the variant (``variant.quick coupling[0].a``). Returns the
+    (``variant.quick.body.jello.cells``); another that only the applied file has (no body left)
+    is named below the variant (``variant.empty body``). Returns the
     :class:`~softvr.scene._description.Variant` (None when it is no table) and whether it had a
     problem."""
     w = f"variant.{name}"
