@@ -41,8 +41,8 @@ from softvr.device import resolve_device
 from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 
-__all__ = ["PULL_OFF", "PullOffPlayer", "SCENE", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
-           "softvr_pull_off", "write_plot"]
+__all__ = ["PULL_OFF", "PullOffPlayer", "SCENE", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off",
+           "run_adhesion_bench", "softvr_pull_off", "write_plot"]
 
 #: The bundled scene both runs play (its ``candies`` variant), the plain one with its ``dry``
 #: variant too (adhesion off).

@@ -3,8 +3,9 @@
 Both variants of the shoulder demo, the bundled scene files ``shoulder.toml`` (palpation: two
 fingers and the deltoid) and ``shoulder-arthroscopy.toml`` (a probe under the acromion), played
 one step a frame: the tool's handle follows the file's scripted palpation path with the 1 kHz
-:class:`~softvr.haptics.HapticLoop` process rendering the force (:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step
-(mean and p95), contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
+:class:`~softvr.haptics.HapticLoop` process rendering the force
+(:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step (mean and p95),
+contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
 
 Thesis 5.4: 20 ms per step with 65 average / 153 maximum contacts on two cores of a 2008 PC
@@ -26,7 +27,8 @@ from softvr.bench.volume import _loadavg, _machine_info
 from softvr.dynamics import FemBody
 from softvr.scene import BUNDLED, load_scene
 
-__all__ = ["SCENES", "TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench", "write_plot"]
+__all__ = ["SCENES", "TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench",
+           "write_plot"]
 
 TARGET_MS_PER_STEP = 2.0
 TARGET_HAPTIC_P99_MS = 1.5
