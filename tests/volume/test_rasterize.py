@@ -79,21 +79,45 @@ def test_affine_deformation_matches_scipy(device, name):
     c = np.array([2.0, -1.0, 0.5])
     out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, culling=True, background=-1.0)
 
-    s0, s1 = np.diag(vol.spacing), np.diag(out.spacing)
-    m = np.linalg.inv(s0) @ np.linalg.inv(lin) @ s1
-    off = np.linalg.inv(s0) @ (np.linalg.inv(lin) @ (out.origin - c) - vol.origin)
-    truth = ndimage.affine_transform(vol.data, m, off, output_shape=out.shape, order=1, mode="nearest")
-
-    u1 = np.stack(np.meshgrid(*map(np.arange, out.shape), indexing="ij"), -1).reshape(-1, 3)
-    u0 = u1 @ m.T + off
-    inner = np.all((u0 >= 0) & (u0 <= np.array(vol.shape) - 1), axis=1).reshape(out.shape)
+    truth, inner, lo = _affine_truth(vol, out, lin, c)
     assert inner.mean() > 0.1
     # Rest positions are carried in float32 per row: |du0| <= ~4 ulp(64) = 3e-5 voxel, and
     # random data has |grad c0| <= 1 per voxel, so values agree to 1e-4 (plus float32 lerp).
     np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
     # Outside the deformed footprint the background is kept.
-    lo = np.all((u0 < -0.6) | (u0 > np.array(vol.shape) - 0.4), axis=1).reshape(out.shape)
     assert (out.data[lo] == -1.0).all()
+
+
+def _affine_truth(vol, out, lin, c):
+    """SciPy's trilinear value of ``vol`` at each voxel of ``out`` moved back by x1 = L x0 + c;
+    masks of the voxels whose rest position lies inside the input (``inner``) and outside its
+    footprint by a margin (``outside``)."""
+    s0, s1 = np.diag(vol.spacing), np.diag(out.spacing)
+    m = np.linalg.inv(s0) @ np.linalg.inv(lin) @ s1
+    off = np.linalg.inv(s0) @ (np.linalg.inv(lin) @ (out.origin - c) - vol.origin)
+    truth = ndimage.affine_transform(vol.data, m, off, output_shape=out.shape, order=1, mode="nearest")
+    u1 = np.stack(np.meshgrid(*map(np.arange, out.shape), indexing="ij"), -1).reshape(-1, 3)
+    u0 = u1 @ m.T + off
+    inner = np.all((u0 >= 0) & (u0 <= np.array(vol.shape) - 1), axis=1).reshape(out.shape)
+    outside = np.all((u0 < -0.6) | (u0 > np.array(vol.shape) - 0.4), axis=1).reshape(out.shape)
+    return truth, inner, outside
+
+
+def test_tets_taller_than_a_row_chunk_match_scipy(device):
+    """Tets spanning ~150 rows: the CPU spans walk a slab's rows in chunks of 64, so these cross
+    chunk boundaries (the other tests' tets span < 64 rows). Affine deformation, truth and
+    tolerance as in test_affine_deformation_matches_scipy."""
+    lin = Rotation.from_euler("x", 4, degrees=True).as_matrix() @ np.array(
+        [[1.0, 0.1, 0.0], [0.0, 1.05, 0.0], [0.0, 0.0, 1.0]])
+    vol = _volume(np.float32, shape=(14, 150, 12), spacing=(1.0, 0.8, 1.2))
+    nodes, tets = grid_tet_mesh(vol, (2, 1, 2))
+    c = np.array([0.5, 3.0, -1.0])
+    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    assert out.shape[1] > 140
+    truth, inner, outside = _affine_truth(vol, out, lin, c)
+    assert inner.mean() > 0.2
+    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
+    assert (out.data[outside] == -1.0).all()
 
 
 def test_all_methods_write_identical_voxels(device):

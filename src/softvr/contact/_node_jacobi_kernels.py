@@ -22,6 +22,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._adhesion_kernels import adhesive_bound
+from softvr.contact._node_coarse_kernels import Coarse, coarse_apply, coarse_node, coarse_velocity, coarse_w
 
 
 @wp.func
@@ -81,9 +82,10 @@ def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
            stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
            rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
            d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
-           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d)):
-    """``v^ += D_A^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
-    side's angular node takes the torque ``lever x world``)."""
+           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
+    """``v^ += M^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
+    side's angular node takes the torque ``lever x world``; the coarse bodies' velocities
+    their share, :mod:`softvr.contact._node_coarse_kernels`)."""
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         if fixed[node] == 0:
@@ -92,6 +94,7 @@ def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
         node = rigid_node[c, s]
         if node >= 0:
             _push(node, wp.cross(rigid_lever[c, s], world), d_inv, partner, cross, v_hat)
+    coarse_apply(c, world, co)
 
 
 @wp.func
@@ -131,6 +134,45 @@ def _rigid_velocity(c: int, v: wp.array(dtype=wp.vec3d), rigid_node: wp.array2d(
 
 
 @wp.kernel
+def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                   frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                   rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                   partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+                   fixed: wp.array(dtype=wp.int32), co: Coarse, metric: wp.array(dtype=wp.mat33d),
+                   movable: wp.array(dtype=wp.int32)):
+    """Contact ``c``'s block of ``J M^-1 J^T`` [1/kg] in its frame (normal, tangents), and
+    whether an impulse can move anything (a free node of nonzero weight or a rigid side): both
+    fixed over a step's sweeps, so the PGS passes read them instead of summing the stencil's
+    blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom)."""
+    c = wp.tid()
+    movable[c] = 0
+    if c >= count[0]:
+        return
+    w = wp.mat33d()
+    moves = int(0)
+    for k in range(stencil_count[c]):
+        node = stencil_nodes[c, k]
+        wk = stencil_weights[c, k]
+        if fixed[node] == 0:
+            w = w + (wk * wk) * d_inv[node]
+            if wk != wp.float64(0.0):
+                moves = 1
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
+            arm = wp.skew(rigid_lever[c, s])
+            w = w + arm * d_inv[node] * wp.transpose(arm)
+            moves = 1
+    w = w + _pair_delassus(c, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, partner, cross)
+    w = w + coarse_w(c, co)
+    f = frame[c]
+    metric[c] = f * w * wp.transpose(f)
+    movable[c] = moves
+
+
+@wp.kernel
 def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
@@ -139,39 +181,33 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
-             slip: wp.array(dtype=wp.vec3d)):
+             slip: wp.array(dtype=wp.vec3d), co: Coarse, metric: wp.array(dtype=wp.mat33d),
+             movable: wp.array(dtype=wp.int32)):
     """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
     ``impulse`` [c] (normal, tangent 1, tangent 2) [N s] of the last sweep applied to ``v^``,
     then ``passes`` PGS passes; counts the sweep in ``sweep[0]``. A bonded contact (adhesive
     ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to the bound
     of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within the larger
-    of the Coulomb disc and the implicit spring's bound (docs/adhesion.md)."""
+    of the Coulomb disc and the implicit spring's bound (docs/adhesion.md). With coarse bodies
+    (``co``) the metric is the two-level ``M^-1`` (:mod:`softvr.contact._node_coarse_kernels`).
+    ``metric`` and ``movable`` are :func:`contact_metric`'s; a contact that moves nothing is
+    skipped (its impulse stays its warm start, as the update with a zero block left it)."""
     n = count[0]
     for c in range(n):
-        _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
-               rigid_lever, d_inv, partner, cross, fixed, v_hat)
+        if movable[c] != 0:
+            _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
+                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
     for _ in range(passes):
         for c in range(n):
+            if movable[c] == 0:
+                continue
             f = frame[c]
             rel = wp.vec3d()
-            w = wp.mat33d()
             for k in range(stencil_count[c]):
-                node = stencil_nodes[c, k]
-                wk = stencil_weights[c, k]
-                rel = rel + wk * v_hat[node]
-                if fixed[node] == 0:
-                    w = w + (wk * wk) * d_inv[node]
-            rel = rel + _rigid_velocity(c, v_hat, rigid_node, rigid_lever)
-            for s in range(rigid_node.shape[1]):
-                node = rigid_node[c, s]
-                if node >= 0:
-                    # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
-                    arm = wp.skew(rigid_lever[c, s])
-                    w = w + arm * d_inv[node] * wp.transpose(arm)
-            w = w + _pair_delassus(c, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, partner,
-                                   cross)
+                rel = rel + stencil_weights[c, k] * v_hat[stencil_nodes[c, k]]
+            rel = rel + _rigid_velocity(c, v_hat, rigid_node, rigid_lever) + coarse_velocity(c, co)
             rel_f = f * rel
-            w_f = f * w * wp.transpose(f)
+            w_f = metric[c]
             old = impulse[c]
             lam = old
             # Normal row (target -gap / dt: a speculative contact may close its gap, not cross it).
@@ -213,27 +249,31 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
             _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
-                   d_inv, partner, cross, fixed, v_hat)
+                   d_inv, partner, cross, fixed, v_hat, co)
     sweep[0] = sweep[0] + 1
 
 
 @wp.kernel
 def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_prev: wp.array(dtype=wp.vec3d),
               weights: wp.array(dtype=wp.float64), gamma: wp.float64, sweep: wp.array(dtype=wp.int32),
-              fixed: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), v_next: wp.array(dtype=wp.vec3d),
-              change: wp.array(dtype=wp.float64)):
+              fixed: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+              co: Coarse, v_next: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.float64)):
     """``v^{k+1}`` [m/s] of node ``i`` and its largest component change [m/s]; ``weights`` [K]
     the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep). A
-    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^``."""
+    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^``. A
+    node of a coarse body adds its body's coarse velocity to ``v^`` (positions ``q`` [m])."""
     i = wp.tid()
     if fixed[i] != 0:
         v_next[i] = v_hat[i]
         change[i] = wp.float64(0.0)
         return
     omega = weights[sweep[0] - 1]
-    out = omega * (gamma * (v_hat[i] - v[i]) + v[i] - v_prev[i]) + v_prev[i]
+    vh = v_hat[i]
+    if co.node_body[i] >= 0:
+        vh = vh + coarse_node(i, q, co)
+    out = omega * (gamma * (vh - v[i]) + v[i] - v_prev[i]) + v_prev[i]
     if exact[i] != 0:
-        out = v_hat[i]
+        out = vh
     d = out - v[i]
     change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
     v_next[i] = out
@@ -254,6 +294,20 @@ def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(
             if partner[node] >= 0:
                 exact[node] = 1
                 exact[partner[node]] = 1
+
+
+@wp.kernel
+def largest_change(change: wp.array(dtype=wp.float64), count: int, stats: wp.array(dtype=wp.float64)):
+    """``stats[0]``: the largest of the sweep's ``change`` [count] [m/s] (one thread), NaN if
+    any is: the one number the sweep loop reads back to decide whether to go on."""
+    worst = wp.float64(0.0)
+    for i in range(count):
+        c = change[i]
+        if c > worst or wp.isnan(c):
+            worst = c
+        if wp.isnan(worst):
+            break
+    stats[0] = worst
 
 
 @wp.kernel

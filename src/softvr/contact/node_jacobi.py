@@ -12,11 +12,12 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
+from softvr.contact.node_coarse import CoarseSpace
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import load_kernels, replayer
+from softvr.device import in_order, load_kernels, replayer
 
-__all__ = ["NodeSolve", "chebyshev_weights"]
+__all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -27,6 +28,18 @@ def chebyshev_weights(rho: float, count: int) -> np.ndarray:
     for k in range(1, len(omega)):
         omega[k] = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega[k - 1])
     return omega
+
+
+def movable_contacts(model, state) -> int:
+    """How many of this step's contacts can move a node (a free node of nonzero weight in the
+    stencil, or a rigid side): the ones the PGS passes work on (:func:`_node_jacobi_kernels.contact_metric`)."""
+    c = state.contacts
+    n = min(int(c.count.numpy()[0]), c.capacity)
+    nodes, weights = c.stencil_nodes.numpy()[:n], c.stencil_weights.numpy()[:n]
+    used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+    free = model.fixed.numpy()[np.maximum(nodes, 0)] == 0
+    moves = (used & free & (weights != 0.0)).any(axis=1) | (c.rigid_node.numpy()[:n] >= 0).any(axis=1)
+    return int(moves.sum())
 
 
 def _nothing() -> None:
@@ -53,31 +66,42 @@ class NodeSolve:
     omega : float
         With ``colours``: the damping of the contact nodes' Jacobi update, at most
         1 / lambda_max(D_A^-1 A).
+    coarse : ndarray, optional
+        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
+        exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the two-level
+        ``M^-1 A``). Not with ``colours``.
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
-                 passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0):
+                 passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
+                 coarse: np.ndarray | None = None):
+        if coarse is not None and len(coarse) and colours is not None:
+            raise ValueError("the coarse correction goes with the Jacobi sweeps, not with colours")
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact,
+                       _k.largest_change):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
         self.colours = colours
+        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse)
+        co = self.coarse.arrays
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
+        #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
+        #: error [m/s] (:meth:`solve`): all the loop reads back, one number per check.
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
-        self._change = self.change.numpy()
-        self._sweep = self.sweep.numpy()
+        self._stats_view = self.stats.numpy() if wp.get_device(d).is_cpu else None
         # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
         # their A, so the update is exact for the sweep's impulses, and the Chebyshev step only
         # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate
@@ -104,12 +128,21 @@ class NodeSolve:
         self._ones: wp.array = wp.array(np.ones(1), dtype=wp.float64, device=d)
         self._plain_sweep = wp.ones(1, dtype=wp.int32, device=d)
         gs = self._gauss_seidel
+        d_inv = state.d_inv if gs is None else gs.metric
+        cross = model.couplings.cross if gs is None else gs.cross_metric
+        metric = wp.zeros(c.capacity, dtype=wp.mat33d, device=d)
+        movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
+        # metric and the coarse inverses are set).
+        self._metric = replayer(wp.launch(_k.contact_metric, dim=c.capacity, device=d, record_cmd=True,
+                                          inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                                  c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
+                                                  cross, model.fixed, co, metric, movable]))
         contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
                              inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
-                                     c.friction, c.rigid_node, c.rigid_lever, state.d_inv if gs is None else gs.metric,
-                                     model.couplings.partner, model.couplings.cross if gs is None else gs.cross_metric,
+                                     c.friction, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
                                      model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep,
-                                     c.stiffness, c.slip])
+                                     c.stiffness, c.slip, co, metric, movable])
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
@@ -117,17 +150,20 @@ class NodeSolve:
                                         inputs=[model.row_start, model.block_col, state.blocks, state.d_inv,
                                                 model.couplings.partner, model.couplings.cross, state.b, model.fixed,
                                                 state.fixed_velocity, v, state.v_hat]))
+                if self.coarse.count:  # the coarse velocities from the sweep's residual
+                    jacobi[-1] = in_order(replayer(jacobi[-1]), self.coarse.residual[r])
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, replayer(contacts)))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
-                                          model.fixed, self.exact, v_next, self.change]))
+                                          model.fixed, self.exact, state.q, co, v_next, self.change]))
             plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                             inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
-                                                    self._plain_sweep, model.fixed, self.exact, v_next,
-                                                    self.change])))
+                                                    self._plain_sweep, model.fixed, self.exact, state.q, co,
+                                                    v_next, self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(replayer(jacobi[r]), replayer(contacts), replayer(cheb[r])) if gs is None else
+        self._sweeps = [(jacobi[r] if self.coarse.count else replayer(jacobi[r]), replayer(contacts),
+                         replayer(cheb[r])) if gs is None else
                         (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
@@ -139,7 +175,13 @@ class NodeSolve:
                                                               c.rigid_lever, float(dt), buf[r],
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
+        self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
+                                           inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+
+    def _read_stats(self) -> np.ndarray:
+        """``stats`` on the host: a view on the CPU, a copy of its two numbers on CUDA."""
+        return self._stats_view if self._stats_view is not None else self.stats.numpy()
 
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
@@ -153,12 +195,13 @@ class NodeSolve:
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
-        self._sweep[0] = 0
-        stats = self.stats.numpy()
+        self.sweep.zero_()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
         wp.copy(self.exact, self._exact_base)
         self._rigid_contacts()
+        self.coarse.prepare()
+        self._metric()
         cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
         history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
         restart, plain_until = 0, 0
@@ -166,7 +209,7 @@ class NodeSolve:
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
-                self._sweep[0] = 0
+                self.sweep.zero_()
                 restart, history, stop = k, {}, cheb_stop
             plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
@@ -176,19 +219,19 @@ class NodeSolve:
             k += 1
             self.plain_sweeps += plain
             if k % check_every == 0:
-                change = float(self._change.max(initial=0.0))
+                self._largest()
+                change = float(self._read_stats()[0])
                 if not np.isfinite(change):  # NaN: the integration reports it
                     break
                 if change <= stop:
                     self._residual_launches[k % 3]()
-                    if stats[1] <= tolerance:
+                    if self._read_stats()[1] <= tolerance:
                         break
                 if not plain:
                     history[k - restart] = change
                     if self._stalled(history, k - restart, stop):
                         plain_until, stop = k + self._window(), plain_stop
         self._residual_launches[k % 3]()
-        stats[0] = k
         return k, self._buffers[k % 3]
 
     def _window(self) -> int:

@@ -6,6 +6,8 @@ from typing import Any
 
 import numpy as np
 
+from softvr.render.raycast import volume_bounds
+
 __all__ = ["OffscreenView"]
 
 
@@ -66,14 +68,56 @@ class OffscreenView:
         out then) and replacing an explicit projection (:meth:`SurfaceRenderer.set_view`). No
         context is left current: an on-screen GLX context (the viewer) cannot be made while an
         EGL one is current (BadAccess on Mesa; :mod:`softvr.render._backend`)."""
-        if self._camera_pending:
-            self.vtk_camera.UseExplicitProjectionTransformMatrixOff()
-            self._camera.apply(self.vtk_camera, bounds(), self.width / self.height)
-            self._camera_pending = False
+        self._apply_camera(bounds)
         self._renderer.ResetCameraClippingRange()
         self._window.Render()
         image = self.grab()
         self._window.ReleaseCurrent()
+        return image
+
+    def _apply_camera(self, bounds) -> None:
+        """Apply a camera set since the last frame, fitted to ``bounds()`` (a function: the
+        bounds are only worked out then), replacing an explicit projection
+        (:meth:`SurfaceRenderer.set_view`)."""
+        if self._camera_pending:
+            self.vtk_camera.UseExplicitProjectionTransformMatrixOff()
+            self._camera.apply(self.vtk_camera, bounds(), self.width / self.height)
+            self._camera_pending = False
+
+    def _cast_over_surfaces(self, volumes: list, *, surfaces: bool = True, background=None) -> np.ndarray:
+        """Draw the surfaces with VTK, then ray cast each of ``volumes`` [(RayCaster, Volume,
+        changed), ...] over their colour with the Warp caster, each ray stopped at their depth
+        (later volumes over earlier ones). The clipping range covers the volumes and the
+        surfaces. ``surfaces=False``: nothing opaque is drawn, OpenGL is skipped and the flat
+        ``background`` RGB [0, 1] lies everywhere at the far plane."""
+        from vtkmodules.vtkCommonCore import vtkFloatArray  # noqa: PLC0415
+        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
+
+        both = np.array([volume_bounds(v) for _, v, _ in volumes]).reshape(-1, 3, 2)
+        both = np.column_stack([both[:, :, 0].min(axis=0), both[:, :, 1].max(axis=0)])
+        if surfaces:
+            props = np.asarray(self._renderer.ComputeVisiblePropBounds()).reshape(3, 2)
+            if np.all(props[:, 1] >= props[:, 0]):
+                both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
+        self._renderer.ResetCameraClippingRange(*both.ravel())
+        if surfaces:
+            self._window.Render()
+            image = self.grab()
+            z = vtkFloatArray()
+            self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
+            depth = vtk_to_numpy(z).reshape(self.height, self.width)
+            self._window.ReleaseCurrent()
+        else:
+            image = np.empty((self.height, self.width, 3), np.uint8)
+            image[:] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
+            depth = np.ones((self.height, self.width), np.float32)
+        cam = self.vtk_camera
+        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
+        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
+        light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())  # a head light
+        for caster, volume, changed in volumes:
+            image = caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), image, depth,
+                                changed=changed)
         return image
 
     def close(self) -> None:

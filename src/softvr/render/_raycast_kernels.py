@@ -26,10 +26,17 @@ BRICK_SHIFT = wp.constant(2)
 BRICK = wp.constant(1 << 2)
 #: Stop a ray once its accumulated opacity reaches this (the rest can change a pixel by < 1 %).
 OPAQUE_ENOUGH = wp.constant(0.99)
+#: Share of the gradient across the slices (cosine of the angle between surface and slices)
+#: from which the shading normal is smoothed across them, and from which in full: terraces
+#: lie Δ / tan(angle) apart for slices Δ thick, so at 60 degrees they are finer than a slice
+#: and at 37 degrees and below 1.3 slices and more apart.
+SMOOTH_FROM = wp.constant(0.5)
+SMOOTH_FULL = wp.constant(0.8)
 #: The sample segment of a ray that missed the volume [index coordinates]: outside any box.
 MISSED = wp.constant(-1.0e9)
 #: How far [voxels] beyond a changed voxel a sample can read it: trilinear weights reach one
-#: voxel, the central differences of the gradient one more; plus a margin for rounding.
+#: voxel, the central differences of the gradient one more; plus a margin for rounding (one
+#: more along the axis of the smoothing across slices, :func:`slice_smoothed`).
 READ_REACH = wp.constant(2.5)
 
 
@@ -101,6 +108,58 @@ def gradient(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> 
         gz = float(vol[a + (wp.min(kk + 1, n[2] - 1) - kk) * s[2]]) - float(vol[a - (kk - wp.max(kk - 1, 0)) * s[2]])
         g = g + w * wp.vec3(gx, gy, gz)
     return 0.5 * g
+
+
+@wp.func
+def corner_weight(bit: int, f: float) -> float:
+    return wp.where(bit == 1, f, 1.0 - f)
+
+
+@wp.func
+def slice_smoothed(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3, axis: int):
+    """The gradient at ``p`` (as :func:`gradient`) and the same smoothed along index ``axis``
+    by the weights (1, 2, 1) / 4 at -1, 0, +1 voxel: the trilinear interpolation of the
+    voxels' central differences, and of those smoothed along that axis (rows past the grid's
+    ends clamped to it). Across thick slices the gradient of the trilinear field turns at
+    every slice, which a shaded surface almost parallel to them shows as bands (terraces),
+    one per slice; smoothing spreads each turn over three slices, as a Gaussian prefilter of
+    0.7 slice would. Each of the cell's four columns along ``axis`` reads its central
+    differences at four rows once, for both results."""
+    q = clamped(n, p)
+    corner = cell(n, q)
+    f = q - wp.vec3(float(corner[0]), float(corner[1]), float(corner[2]))
+    u = (axis + 1) % 3
+    v = (axis + 2) % 3
+    g = wp.vec3(0.0)
+    smooth = wp.vec3(0.0)
+    for c in range(4):
+        iu = corner[u] + (c & 1)
+        iv = corner[v] + ((c >> 1) & 1)
+        w = corner_weight(c & 1, f[u]) * corner_weight((c >> 1) & 1, f[v])
+        base = iu * s[u] + iv * s[v]
+        u_up = (wp.min(iu + 1, n[u] - 1) - iu) * s[u]
+        u_down = (iu - wp.max(iu - 1, 0)) * s[u]
+        v_up = (wp.min(iv + 1, n[v] - 1) - iv) * s[v]
+        v_down = (iv - wp.max(iv - 1, 0)) * s[v]
+        du = wp.vec4(0.0)
+        dv = wp.vec4(0.0)
+        da = wp.vec4(0.0)
+        for r in range(4):  # rows corner - 1 .. corner + 2 along the axis
+            row = wp.clamp(corner[axis] - 1 + r, 0, n[axis] - 1)
+            a = base + row * s[axis]
+            du[r] = float(vol[a + u_up]) - float(vol[a - u_down])
+            dv[r] = float(vol[a + v_up]) - float(vol[a - v_down])
+            da[r] = float(vol[base + wp.min(row + 1, n[axis] - 1) * s[axis]]) - float(
+                vol[base + wp.max(row - 1, 0) * s[axis]])
+        w0 = w * (1.0 - f[axis])
+        w1 = w * f[axis]
+        g[u] = g[u] + w0 * du[1] + w1 * du[2]
+        g[v] = g[v] + w0 * dv[1] + w1 * dv[2]
+        g[axis] = g[axis] + w0 * da[1] + w1 * da[2]
+        smooth[u] = smooth[u] + w0 * (du[0] + 2.0 * du[1] + du[2]) + w1 * (du[1] + 2.0 * du[2] + du[3])
+        smooth[v] = smooth[v] + w0 * (dv[0] + 2.0 * dv[1] + dv[2]) + w1 * (dv[1] + 2.0 * dv[2] + dv[3])
+        smooth[axis] = smooth[axis] + w0 * (da[0] + 2.0 * da[1] + da[2]) + w1 * (da[1] + 2.0 * da[2] + da[3])
+    return 0.5 * g, 0.125 * smooth
 
 
 @wp.func
@@ -278,31 +337,6 @@ def brick_changes(
 
 
 @wp.kernel
-def brick_read_changes(
-    changed: wp.array3d(dtype=wp.uint8),
-    reach: int,
-    first: wp.vec3i,
-    count: wp.vec3i,
-    read: wp.array3d(dtype=wp.uint8),
-    offset: int,
-):
-    """0 in ``read`` for each brick where a ray sample may read a voxel of a ``changed``
-    brick, else ``reach`` (the seed of a distance field, as :func:`brick_occupancy`'s): a
-    sample at p reads voxels floor(p) - 1 .. floor(p) + 2 (trilinear weights and central
-    differences), so in brick c (p in [c, c + 1) * BRICK) it reads voxels of the bricks
-    c - 1 .. c + 1 per axis only."""
-    b = brick_of(wp.tid() + offset, first, count)
-    nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
-    flag = wp.uint8(reach)
-    for i in range(wp.max(b[0] - 1, 0), wp.min(b[0] + 2, nb[0])):
-        for j in range(wp.max(b[1] - 1, 0), wp.min(b[1] + 2, nb[1])):
-            for k in range(wp.max(b[2] - 1, 0), wp.min(b[2] + 2, nb[2])):
-                if changed[i, j, k] != wp.uint8(0):
-                    flag = wp.uint8(0)
-    read[b[0], b[1], b[2]] = flag
-
-
-@wp.kernel
 def brick_occupancy(
     bmin: wp.array3d(dtype=float),
     bmax: wp.array3d(dtype=float),
@@ -379,6 +413,8 @@ def raycast(
     shading: wp.vec3,
     light: wp.vec3,
     shade: int,
+    smooth_axis: int,
+    slice_normal: wp.vec3,
     distance: wp.array3d(dtype=wp.uint8),
     flips: int,
     flip_lo: wp.vec3,
@@ -398,7 +434,12 @@ def raycast(
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
     is (ambient, diffuse, specular), with the specular power 20 (as VTK's mappers here);
     ``light`` the unit direction towards the (head) light. ``gradient_scale`` < 0 disables
-    gradient opacity.
+    gradient opacity. ``smooth_axis`` >= 0: where the surface lies at a shallow angle to the
+    slices across that index axis (world unit normal ``slice_normal``), the shading normal
+    is the gradient smoothed along it by (1, 2, 1) / 4 over neighbouring voxels
+    (:func:`slice_smoothed`), blended in as the gradient's component across the slices
+    rises from ``SMOOTH_FROM`` to ``SMOOTH_FULL`` of its length; -1: the gradient itself.
+    Gradient opacity always takes the gradient itself.
 
     ``empty_until`` [height * width] carries from frame to frame, per pixel, the index of the
     first ray sample not known to lie in an empty brick (same camera, grid and table). It
@@ -490,12 +531,22 @@ def raycast(
             if a > 0.0:
                 color = wp.vec3(c[0], c[1], c[2])
                 if shade != 0 or gradient_scale >= 0.0:
-                    gw = index_gradient_to_world @ gradient(vol, n, strides, p)
+                    gi = gradient(vol, n, strides, p)
+                    gw = index_gradient_to_world @ gi
                     gl = wp.length(gw)
                     if gradient_scale >= 0.0:
                         a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,
                                                                   float(gradient_lut.shape[0] - 1)))
                     if shade != 0:
+                        if smooth_axis >= 0 and gl > 1.0e-6:
+                            # Only a surface at a shallow angle to the slices shows their terraces:
+                            # smoothed in full from 37 degrees down, not at all from 60 up.
+                            across = wp.abs(wp.dot(gw, slice_normal)) / gl
+                            blend = wp.clamp((across - SMOOTH_FROM) / (SMOOTH_FULL - SMOOTH_FROM), 0.0, 1.0)
+                            if blend > 0.0:
+                                plain, smooth = slice_smoothed(vol, n, strides, p, smooth_axis)
+                                gw = index_gradient_to_world @ (plain + blend * (smooth - plain))
+                                gl = wp.length(gw)
                         lit = shading[0]
                         if gl > 1.0e-6:
                             nrm = gw / gl
@@ -528,12 +579,10 @@ def raycast(
 @wp.kernel
 def stale_pixels(
     width: int,
-    height: int,
-    depth: wp.array2d(dtype=float),
-    surface: wp.array3d(dtype=wp.uint8),
     boxed: int,
     box_lo: wp.vec3,
     box_hi: wp.vec3,
+    reach: wp.vec3,
     read_distance: wp.array3d(dtype=wp.uint8),
     rect: wp.vec4i,
     segment_start: wp.array(dtype=wp.vec3),
@@ -541,19 +590,17 @@ def stale_pixels(
     flips: int,
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
-    last_depth: wp.array2d(dtype=float),
-    last_surface: wp.array3d(dtype=wp.uint8),
     empty_until: wp.array(dtype=float),
     stale: wp.array(dtype=wp.int32),
     offset: int,
 ):
-    """1 in ``stale`` for each pixel whose ray must be cast again, else 0 (same camera,
-    tables and grid as the last frame): its surface colour or depth differs from
-    ``last_surface`` / ``last_depth`` (which take the new values), or its last segment of
-    samples (:func:`raycast`) meets the index box ``box_lo .. box_hi`` of rewritten voxels
-    grown by ``READ_REACH`` (if ``boxed`` != 0; else no voxel changed) and, in it, a brick
-    whose samples may read a changed voxel (``read_distance``: the bricks' distance to one,
-    :func:`brick_read_changes`).
+    """Set 1 in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
+    colour or depth changed) for each pixel of ``rect`` (first column, last column, first
+    row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
+    tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
+    the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
+    ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
+    changed voxel (``read_distance``: the bricks' distance to one, :meth:`RayCaster._read_distance`).
     Any other pixel reads the same voxels with the same weights as last frame, so its colour
     is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
@@ -561,38 +608,27 @@ def stale_pixels(
     bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
     through a voxel it does not read, and a later change there flips no brick.
 
-    Only the pixels in ``rect`` (first column, last column, first row, last row) can have a
-    segment that meets either box (every point of a ray is seen in its pixel)."""
-    tid = wp.tid() + offset
-    px = tid % width
-    row = tid / width
-    py = height - 1 - row
-    s = int(0)
-    if depth[py, px] != last_depth[py, px]:
-        s = 1
-    for ch in range(3):
-        if surface[row, px, ch] != last_surface[row, px, ch]:
-            s = 1
-    if s == 1:
-        last_depth[py, px] = depth[py, px]
-        for ch in range(3):
-            last_surface[row, px, ch] = surface[row, px, ch]
-    elif px >= rect[0] and px <= rect[1] and row >= rect[2] and row <= rect[3]:
-        a = segment_start[tid]
-        d = segment_end[tid] - a
-        if boxed != 0:
-            grown = wp.vec3(READ_REACH)
-            u = segment_in_box(a, d, box_lo - grown, box_hi + grown)
-            # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
-            # ray to cast again is found in a brick or two.
-            if u[0] <= u[1]:
-                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                    s = 1
-        if s == 0 and flips != 0:
-            u = segment_in_box(a, d, flip_lo, flip_hi)
-            if u[0] <= u[1]:
-                empty_until[tid] = 0.0
-    stale[tid] = s
+    Only the pixels in ``rect`` can have a segment that meets either box (every point of a
+    ray is seen in its pixel)."""
+    t = wp.tid() + offset
+    columns = rect[1] - rect[0] + 1
+    tid = (rect[2] + t / columns) * width + rect[0] + t % columns
+    if stale[tid] != 0:
+        return
+    a = segment_start[tid]
+    d = segment_end[tid] - a
+    if boxed != 0:
+        u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
+        # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+        # ray to cast again is found in a brick or two.
+        if u[0] <= u[1]:
+            if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
+                stale[tid] = 1
+                return
+    if flips != 0:
+        u = segment_in_box(a, d, flip_lo, flip_hi)
+        if u[0] <= u[1]:
+            empty_until[tid] = 0.0
 
 
 #: Voxel dtypes read in place; others are converted to float32 once per upload.

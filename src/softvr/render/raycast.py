@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from scipy import ndimage
 
 from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
@@ -25,18 +26,28 @@ from softvr.render import _raycast_kernels as K
 from softvr.render._scene import check_volume
 from softvr.render.presets import Preset
 
-__all__ = ["BRICK", "LUT_SIZE", "REACH", "RayCaster", "transfer_tables", "volume_bounds"]
+__all__ = ["BRICK", "LUT_SIZE", "REACH", "THICK_SLICES", "RayCaster", "transfer_tables", "volume_bounds"]
 
 #: Voxels per brick edge of the empty-space-skipping grid.
 BRICK = int(K.BRICK)
 #: Bricks a ray may skip at once along each axis (the cap of the brick distance field, < 255).
-REACH = 16
+#: Each flip of a brick's occupancy redoes the field up to REACH - 1 bricks around it: 16 cost
+#: the palpation frame ~7 ms CPU in distance passes, 8 ~4 ms, and the rays no more (the head
+#: CT's air in front of the face is a few jumps of 8 bricks either way).
+REACH = 8
+#: Spacing ratio (largest / smallest) from which ``smooth_slices="auto"`` smooths the shading
+#: across slices: the head CT's 1.5 mm slices over 0.96 mm pixels (1.57) show a band per slice.
+THICK_SLICES = 1.25
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
 #: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
 _READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
+#: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
+_STALE_CHUNK = 4096
+#: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
+_BRICK_CHUNK = 4096
 
 
 def volume_bounds(volume) -> tuple[float, ...]:
@@ -101,17 +112,26 @@ class RayCaster:
         Ray step in units of the smallest voxel spacing (also the opacity unit length).
     jitter : bool
         Offset each pixel's samples by a per-pixel fraction of a step (no banding).
+    smooth_slices : {"auto", True, False}
+        Shade with the gradient smoothed across slices (weights 1, 2, 1 over neighbouring
+        slices, along the axis of the largest spacing): a surface almost parallel to thick
+        slices (a skull's top on a CT of 1.5 mm slices) is otherwise drawn in bands, one per
+        slice. ``"auto"``: where that spacing is at least ``THICK_SLICES`` times the smallest.
+        Shaded samples then take three gradients instead of one.
     device : str, optional
         Warp device (default: CUDA when present, else CPU).
     """
 
     def __init__(self, preset: Preset, sample_distance: float = 0.5, *, jitter: bool = True,
-                 device: str | None = None):
+                 smooth_slices: "str | bool" = "auto", device: str | None = None):
         if not sample_distance > 0:
             raise InputError("sample_distance", "a number > 0 [voxels]", repr(sample_distance))
+        if smooth_slices not in ("auto", True, False):
+            raise InputError("smooth_slices", "'auto', True or False", repr(smooth_slices))
         self.device = resolve_device(device)
         self.sample_distance = float(sample_distance)
         self.jitter = bool(jitter)
+        self.smooth_slices = smooth_slices
         self.preset = preset
         self._tables_key: tuple | None = None
         self._grid_key: tuple | None = None
@@ -215,7 +235,7 @@ class RayCaster:
         """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
         count = last - first + 1
         launch(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
-               min_chunk=32)
+               min_chunk=_BRICK_CHUNK)
 
     def _tables(self, volume) -> bool:
         """Build the transfer tables if the preset, step or unit changed; True if rebuilt."""
@@ -283,9 +303,13 @@ class RayCaster:
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
         # one camera, light, grid, table and step.
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
-               self._tables_key, self.jitter)
-        depth = wp.array(np.ascontiguousarray(depth, np.float32), dtype=float, device=dev)
-        surface = wp.array(np.ascontiguousarray(surface, np.uint8), dtype=wp.uint8, device=dev)
+               self._tables_key, self.jitter, self.smooth_slices)
+        depth_host = np.ascontiguousarray(depth, np.float32)
+        surface_host = np.ascontiguousarray(surface, np.uint8)
+        depth = wp.array(depth_host, dtype=float, device=dev)
+        surface = wp.array(surface_host, dtype=wp.uint8, device=dev)
+        # The same for every frame of one view (the spacing and option are in its key).
+        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
         flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
         flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
@@ -297,10 +321,11 @@ class RayCaster:
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
-            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
+            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
         else:
-            pixels = self._stale_pixels(depth, surface, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
+            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
+                                        np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -308,7 +333,8 @@ class RayCaster:
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
-            wp.vec3(*light), int(bool(p.shade)), self._distance,
+            wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
+            self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments,
         ]
@@ -316,49 +342,84 @@ class RayCaster:
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list,
+    def _smooth_axis(self, spacing: np.ndarray) -> int:
+        """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
+        thick = int(np.argmax(spacing))
+        if self.smooth_slices == "auto":
+            return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
+        return thick if self.smooth_slices else -1
+
+    def _read_distance(self) -> np.ndarray:
+        """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
+        read a voxel that changed, capped at ``_READ_REACH`` [nb] uint8. A sample at p reads
+        voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central differences,
+        smoothing across slices), so in brick c (p in [c, c + 1) * BRICK, BRICK >= 3) it reads
+        voxels of the bricks c - 1 .. c + 1 per axis only: the bricks within 1 of a changed
+        brick, so the distance is the one to the changed bricks less 1. SciPy's transform on
+        the changed bricks' box grown by the cap: a few thousand bricks, where Warp launches
+        over them cost more to hand out than to run."""
+        nb = np.asarray(self._changed_bricks.shape)
+        read = np.full(tuple(nb), _READ_REACH, np.uint8)
+        if self._changed_box is None:
+            return read
+        first = np.maximum(self._changed_box[0] - _READ_REACH - 1, 0)
+        last = np.minimum(self._changed_box[1] + _READ_REACH + 1, nb - 1)
+        box = tuple(slice(a, b + 1) for a, b in zip(first, last))
+        changed = self._changed_bricks.numpy()[box] != 0
+        if changed.any():
+            to_changed = ndimage.distance_transform_cdt(~changed, metric="chessboard")
+            read[box] = np.clip(to_changed - 1, 0, _READ_REACH)
+        return read
+
+    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` or ``surface`` colour changed or the ray's samples may read a voxel
-        in the ``changed`` box (False or None: no voxel changed). The others forget their
-        known-empty prefix if it may cross a brick in the ``flipped`` box (count, lo, hi).
-        ``index_to_ndc`` [4, 4] projects the volume's index space to the screen."""
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
+        changed). The others forget their known-empty prefix if it may cross a brick in the
+        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
+        space to the screen."""
         height, width = depth.shape
+        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
+        # costs more on the CPU than the comparison itself.
+        moved = surface != self._last_surface
+        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
+        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        stale: wp.array = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        # Each brick's distance to the nearest one where samples may read a changed voxel.
-        nb = np.asarray(self._changed_bricks.shape)
-        read = [wp.full(tuple(nb), _READ_REACH, dtype=wp.uint8, device=self.device) for _ in range(4)]
-        if self._changed_box is not None:
-            first, last = np.maximum(self._changed_box[0] - 1, 0), np.minimum(self._changed_box[1] + 1, nb - 1)
-            self._run(K.brick_read_changes, first, last, [self._changed_bricks, _READ_REACH], [read[0]])
-            self._distance_passes(first, last, read, _READ_REACH)
-        boxes = [(lo - float(K.READ_REACH), hi + float(K.READ_REACH))] if boxed else []
+        read: wp.array = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
+        # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
+        reach = np.full(3, float(K.READ_REACH))
+        if self._smoothed >= 0:
+            reach[self._smoothed] += 1.0
+        boxes = [(lo - reach, hi + reach)] if boxed else []
         if flipped[0]:
             boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
-        stale = wp.empty(width * height, dtype=wp.int32, device=self.device)
-        launch(K.stale_pixels, width * height,
-               [int(width), int(height), depth, surface, int(boxed), wp.vec3(*lo), wp.vec3(*hi), read[3],
-                _screen_rect(boxes, index_to_ndc, width, height), *self._segments, *flipped, self._last_depth,
-                self._last_surface, self._empty_until, stale], self.device, min_chunk=_ROWS_PER_CHUNK * width)
+        rect = _screen_rect(boxes, index_to_ndc, width, height)
+        launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, wp.vec4i(*rect),
+                *self._segments, *flipped,
+                self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
 
-def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> wp.vec4i:
+def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
     """The pixels (first column, last column, first row, last row; row 0 at the top) whose
     rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
     projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
     if not boxes:
-        return wp.vec4i(0, -1, 0, -1)
+        return 0, -1, 0, -1
     corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
                         for box in boxes for c in range(8)])
     clip = corners @ index_to_ndc.T
     if np.any(clip[:, 3] <= 0.0):
-        return wp.vec4i(0, width - 1, 0, height - 1)
+        return 0, width - 1, 0, height - 1
     ndc = clip[:, :2] / clip[:, 3:]
     # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
     px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
     py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
     x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
     y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
-    return wp.vec4i(x0, x1, height - 1 - y1, height - 1 - y0)
+    return x0, x1, height - 1 - y1, height - 1 - y0

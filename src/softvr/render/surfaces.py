@@ -24,10 +24,12 @@ from __future__ import annotations
 import numpy as np
 
 from softvr.render._offscreen import OffscreenView
-from softvr.render._scene import VolumeScene
+from softvr.render._scene import VolumeScene, check_volume
 from softvr.errors import InputError
 from softvr.render._backend import new_offscreen_window, new_onscreen_window, offscreen_backend, require_display
 from softvr.render.camera import Camera
+from softvr.render.presets import resolve_preset
+from softvr.render.raycast import RayCaster, volume_bounds
 
 __all__ = ["PLANE_DEPTH_OFFSET", "SurfaceRenderer"]
 
@@ -78,6 +80,34 @@ class _Item:
             x = self.array if self.used is None else self.array[self.used]
             return np.stack([x.min(axis=0), x.max(axis=0)], axis=1).ravel()
         return np.asarray(self.actor.GetBounds(), float)
+
+
+class _CastVolume:
+    """A volume drawn by the Warp ray caster over the surfaces (:meth:`SurfaceRenderer.add_volume`):
+    its :class:`~softvr.render.RayCaster` and current volume; ``prop`` is a ``vtkVolume`` without a
+    mapper, never drawn, that carries the item's visibility."""
+
+    def __init__(self, preset, sample_distance: float):
+        from vtkmodules.vtkRenderingCore import vtkVolume  # noqa: PLC0415
+
+        resolve_preset(preset)  # reject unknown names now, not at the first render
+        self._preset_arg = preset
+        self.caster: RayCaster | None = None
+        self.sample_distance = sample_distance
+        self.prop = vtkVolume()
+        self.volume = None
+
+    def update(self, volume) -> None:
+        """Show ``volume`` from the next render on (its transfer function resolved for it)."""
+        check_volume(volume)
+        preset = resolve_preset(self._preset_arg, volume)
+        if self.caster is None:
+            self.caster = RayCaster(preset, self.sample_distance)
+        self.caster.preset = preset
+        self.volume = volume
+
+    def bounds(self) -> tuple[float, ...]:
+        return volume_bounds(self.volume)
 
 
 class SurfaceRenderer(OffscreenView):
@@ -315,12 +345,12 @@ class SurfaceRenderer(OffscreenView):
         self._style(actor, _rgb(color, "color"), opacity)
         return self._add(_Item("sphere", actor))
 
-    def add_volume(self, volume, preset="ct", sample_distance: float = 1.0) -> int:
+    def add_volume(self, volume, preset="ct", sample_distance: float | None = None, mapper: str = "auto") -> int:
         """Add a volume (a CT), drawn with the surfaces; returns its handle for :meth:`update_volume`.
 
-        The volume is ray cast on the CPU (``vtkFixedPointVolumeRayCastMapper``) and
-        composited by depth with the surfaces: rays stop at the opaque surfaces, so a surface
-        in front of the volume hides it and the volume hides what lies behind it.
+        The volume is ray cast in software and composited by depth with the surfaces: rays
+        stop at the opaque surfaces, so a surface in front of the volume hides it and the
+        volume hides what lies behind it.
 
         Parameters
         ----------
@@ -332,8 +362,17 @@ class SurfaceRenderer(OffscreenView):
             Transfer function: a name from :data:`softvr.render.PRESETS` (``"ct"``: soft
             tissue faint, bone opaque; ``"ct-skin"``: the skin as an opaque surface; ``"mri"``,
             ``"labels"``, ``"auto"``) or a :class:`~softvr.render.Preset`.
-        sample_distance : float [voxels]
-            Ray step in units of the smallest voxel spacing.
+        sample_distance : float [voxels], optional
+            Ray step in units of the smallest voxel spacing; default 0.5 with ``"warp"`` (a
+            structure a voxel thin, such as a CT's headrest, is then met by every ray, not by
+            one in two), 1.0 with ``"cpu"`` (VTK's caster takes ~1 s a frame at that already).
+        mapper : {"auto", "warp", "cpu"}
+            ``"warp"``: softvr's :class:`~softvr.render.RayCaster` (jittered ray starts: a
+            thin or flat structure shows fine noise, not the moire and wood grain of rays
+            sampled in step; lit by a head light), over the surfaces' colour and depth.
+            ``"cpu"``: VTK's ``vtkFixedPointVolumeRayCastMapper`` (lit by the scene's lights;
+            labels need it). ``"auto"``: ``"warp"`` off-screen for a continuous transfer
+            function, else ``"cpu"`` (an on-screen window shows what VTK draws).
 
         Returns
         -------
@@ -341,8 +380,18 @@ class SurfaceRenderer(OffscreenView):
             Handle of the volume. Its bounds count for the camera fit like a mesh's.
         """
         self._check_open()
-        sample_distance = _positive(sample_distance, "sample_distance", "voxels")
-        scene = VolumeScene(preset, "cpu", sample_distance)
+        if mapper not in ("auto", "warp", "cpu"):
+            raise InputError("mapper", "'auto', 'warp' or 'cpu'", repr(mapper))
+        if mapper == "auto":
+            continuous = not resolve_preset(preset, volume).categorical
+            mapper = "warp" if continuous and self.backend != "onscreen" else "cpu"
+        if mapper == "warp" and self.backend == "onscreen":
+            raise InputError("mapper", "'cpu' or 'auto' in an on-screen window (it shows what VTK draws)", "'warp'")
+        default = 0.5 if mapper == "warp" else 1.0
+        sample_distance = _positive(default if sample_distance is None else sample_distance, "sample_distance",
+                                    "voxels")
+        scene = _CastVolume(preset, sample_distance) if mapper == "warp" else VolumeScene(preset, "cpu",
+                                                                                          sample_distance)
         scene.update(volume)
         return self._add(_Item("volume", scene.prop, scene=scene))
 
@@ -465,11 +514,15 @@ class SurfaceRenderer(OffscreenView):
     def render(self) -> np.ndarray:
         """Draw the scene; returns RGB uint8 [height, width, 3], row 0 at the top."""
         self._check_open()
-        return self._draw(self.scene_bounds)
+        cast = [it.scene for it in self._items if isinstance(it.scene, _CastVolume) and it.actor.GetVisibility()]
+        if not cast:
+            return self._draw(self.scene_bounds)
+        self._apply_camera(self.scene_bounds)
+        return self._cast_over_surfaces([(c.caster, c.volume, True) for c in cast])
 
     # --------------------------------------------------------------- helpers
     def _add(self, item: _Item) -> int:
-        if item.kind == "volume":
+        if isinstance(item.scene, VolumeScene):
             self._renderer.AddVolume(item.actor)
         else:
             self._renderer.AddActor(item.actor)

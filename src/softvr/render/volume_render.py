@@ -193,39 +193,12 @@ class VolumeRenderer(OffscreenView):
     def _render_warp(self, volume, changed) -> np.ndarray:
         """VTK draws the surfaces (if any), then the Warp ray caster composites the volume
         over their colour, each ray stopped at their depth."""
-        from vtkmodules.vtkCommonCore import vtkFloatArray  # noqa: PLC0415
-        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
-
         assert self._caster is not None  # made with the Warp mapper
-        bounds = volume_bounds(volume)
-        if self._camera_pending:
-            self._camera.apply(self.vtk_camera, bounds, self.width / self.height)
-            self._camera_pending = False
-        both = np.asarray(bounds).reshape(3, 2)
-        if self._renderer.VisibleActorCount():
-            props = np.asarray(self._renderer.ComputeVisiblePropBounds()).reshape(3, 2)
-            if np.all(props[:, 1] >= props[:, 0]):
-                both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
-        self._renderer.ResetCameraClippingRange(*both.ravel())
-        if self._renderer.VisibleActorCount():
-            self._window.Render()
-            surface = self.grab()
-            z = vtkFloatArray()
-            self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
-            depth = vtk_to_numpy(z).reshape(self.height, self.width)
-            self._window.ReleaseCurrent()
-        else:  # nothing opaque: skip OpenGL, the background is everywhere at the far plane
-            surface = np.empty((self.height, self.width, 3), np.uint8)
-            surface[:] = np.round(255 * self._background).astype(np.uint8)
-            depth = np.ones((self.height, self.width), np.float32)
-        cam = self.vtk_camera
-        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
-        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
-        light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())
+        self._apply_camera(lambda: volume_bounds(volume))
         self._caster.preset = resolve_preset(self._preset_arg, volume)
-        return self._caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), surface, depth,
-                                 changed=changed)
-
+        return self._cast_over_surfaces([(self._caster, volume, changed)],
+                                        surfaces=bool(self._renderer.VisibleActorCount()),
+                                        background=self._background)
 
 
 def render_volume(

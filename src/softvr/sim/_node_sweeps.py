@@ -1,7 +1,8 @@
-"""Which sweeps a scene on the node arrays takes (thesis eq. 5.6): node-block Jacobi or
+"""Which sweeps a scene on the node arrays takes (thesis eq. 5.6): node-block Jacobi, Jacobi with
+the bodies' rigid motions corrected exactly (:mod:`softvr.contact.node_coarse`), or
 multicolour symmetric block Gauss-Seidel (:mod:`softvr.contact.node_gauss_seidel`), whichever
 needs less work per decade of error, counting the contact PGS that every sweep of either kind
-runs; neither when both are slower than the per-object sparse LU.
+runs; none when all are slower than the per-object sparse LU.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from softvr.contact.node_coarse import coarse_spectrum
 from softvr.contact.node_colouring import NodeColouring, colour_nodes
 from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
 
@@ -39,6 +41,18 @@ CONTACT_PASS = 12.0
 #: cube's 235 ms.
 GAUSS_SEIDEL_FROM = 15.0
 GAUSS_SEIDEL_COST_FLOOR = 2.0
+#: Cost of the coarse correction per node of a coarse body and sweep, in block products: its
+#: residual (a 3x3 product, a cross product) and its share of the Chebyshev update.
+COARSE_NODE = 3.0
+#: PGS passes over the contacts per sweep with the coarse correction. Every contact of a body
+#: then moves the body's six coarse velocities, which couples them as a rigid body's contacts
+#: are coupled, and two passes a sweep leave them unconverged: on the candy pile (steps 24-31)
+#: 2 / 6 / 8 / 12 / 20 passes took 446 / 377 / 328 / 233 / 270 sweeps a step, the first four at
+#: about the same time a step, and the largest contact velocity error fell from 6.1e-5 to
+#: 1.1e-5 m/s. So the work per decade does not charge them (a scene restored in the middle of
+#: the pile, 700 contacts, would otherwise be declined while the same scene stepped there from
+#: its start is held).
+COARSE_PASSES = 12
 
 
 @dataclass(frozen=True)
@@ -57,7 +71,13 @@ class SweepChoice:
         The Gauss-Seidel sweeps' damping of the contact nodes: 1 / Jacobi's upper bound.
     work : dict
         Work per decade of each kind estimated, in this scene's Jacobi sweeps (contacts
-        included); Jacobi's alone where Gauss-Seidel was not worth estimating.
+        included); Jacobi's alone where nothing else was worth estimating.
+    coarse : ndarray or None
+        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
+        (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
+    passes : int or None
+        PGS passes over the contacts per sweep (:data:`COARSE_PASSES` with ``coarse``); None:
+        the caller's.
     """
 
     kind: str | None
@@ -65,6 +85,8 @@ class SweepChoice:
     colours: NodeColouring | None
     omega: float
     work: dict
+    coarse: np.ndarray | None = None
+    passes: int | None = None
 
 
 def sweeps_per_decade(bounds: tuple[float, float]) -> float:
@@ -95,20 +117,33 @@ def sweep_costs(row_start: np.ndarray, colours: NodeColouring, contacts: int, pa
 
 def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndarray,
                   jacobi_bounds: tuple[float, float], jacobi_limit: float, contacts: int, passes: int,
-                  margin: tuple[float, float]) -> SweepChoice:
-    """The sweeps of least work per decade, or none (kind None) when both are too slow (Jacobi over
-    ``jacobi_limit`` sweeps per decade, Gauss-Seidel over
+                  margin: tuple[float, float], coarse: tuple | None = None) -> SweepChoice:
+    """The sweeps of least work per decade, or none (kind None) when all are too slow (Jacobi, with
+    or without the coarse correction, over ``jacobi_limit`` sweeps per decade, Gauss-Seidel over
     :data:`MAX_GAUSS_SEIDEL_WORK_PER_DECADE`). ``row_start``, ``block_col``: ``A``'s block
     pattern (host, [n + 1], [nb]); ``a`` [3 k, 3 k] ``A`` over the free nodes, ``free`` [n]
     which nodes those are; ``jacobi_bounds`` Jacobi's spectrum (with margins); ``contacts`` the
     contacts of this step, ``passes`` their PGS passes a sweep; ``margin`` the factors on the
-    Gauss-Seidel bounds (as on Jacobi's). Jacobi is taken without estimating Gauss-Seidel where
-    that cannot pay (:data:`GAUSS_SEIDEL_FROM`)."""
+    other kinds' bounds (as on Jacobi's); ``coarse`` (bodies [B, 2], q [n, 3] [m], mass [n]
+    [kg]) the bodies the coarse correction may take (:func:`softvr.contact.node_coarse.coarse_bodies`).
+    Jacobi is taken without estimating the others where they cannot pay
+    (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
+    limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the candy)."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
     if jacobi_work <= min(GAUSS_SEIDEL_FROM, jacobi_limit) and gs_cost >= GAUSS_SEIDEL_COST_FLOOR * jacobi_cost:
         return SweepChoice("jacobi", jacobi_bounds, None, 1.0, {"jacobi": jacobi_work})
+    if jacobi_work > jacobi_limit and coarse is not None and len(coarse[0]):
+        bodies = coarse[0]
+        lo, hi = coarse_spectrum(a, free, *coarse)
+        coarse_bounds = (lo * margin[0], hi * margin[1])
+        nodes = float((bodies[:, 1] - bodies[:, 0]).sum())
+        # Its extra PGS passes are not charged: they save as many sweeps as they cost (COARSE_PASSES).
+        coarse_work = sweeps_per_decade(coarse_bounds) * (1.0 + (COARSE_NODE * nodes + LAUNCH) / jacobi_cost)
+        if coarse_work <= jacobi_limit:
+            return SweepChoice("jacobi", coarse_bounds, None, 1.0, {"jacobi": jacobi_work, "coarse": coarse_work},
+                               bodies, COARSE_PASSES)
     index = np.cumsum(free) - 1
     order = index[colours.order[free[colours.order]]]
     lo, hi = gauss_seidel_spectrum(a, order) if len(order) else (1.0, 1.0)

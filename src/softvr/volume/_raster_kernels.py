@@ -393,6 +393,9 @@ _TET_SNIPPET = (
             const f8 hx = splat(fx1), hy = splat(fy1), hz = splat(fz1), vlo = splat(lo_v), vhi = splat(hi_v);
             const i8 imx = isplat(mx), imy = isplat(my), imz = isplat(mz), all = isplat(-1);
             const i8 vsx = isplat(sx), vsy = isplat(sy), vsz = isplat(sz);
+            // One copy of the loop per source (src a constant at each call below): the source's
+            // tests leave the loop, and the z stride, 1 for the 16-bit sources, its multiply.
+            auto loop8 = [&](const int src) __attribute__((always_inline)) {
             for (; n0 + 8 <= cnt; n0 += 8) {
                 i8 kk; f8 bx8, by8, bz8;
                 __builtin_memcpy(&kk, K + n0, 32); __builtin_memcpy(&bx8, BX + n0, 32);
@@ -413,9 +416,9 @@ _TET_SNIPPET = (
                 const f8 wx = ux - __builtin_convertvector(ix, f8);
                 const f8 wy = uy - __builtin_convertvector(iy, f8);
                 const f8 wz = uz - __builtin_convertvector(iz, f8);
-                const i8 p = ix * vsx + iy * vsy + iz * vsz;
+                const i8 p = ix * vsx + iy * vsy + (src == 0 ? iz * vsz : iz);
                 f8 a00, b00, a01, b01, a10, b10, a11, b11;
-                if (src_code == 0) {
+                if (src == 0) {
                     auto g = [&](i8 idx) {
                         return (f8)__builtin_ia32_gatherd_ps256(splat(0.0f), v, idx, (f8)all, 4);
                     };
@@ -426,7 +429,7 @@ _TET_SNIPPET = (
                     // on this Zen 3 VM that cut the frame's CPU time by ~8 % (a gather is
                     // microcoded there and blocks dispatch); the 8 indices are extracted once
                     // for the 4 corner lines.
-                    const bool sgn = src_code == 2;
+                    const bool sgn = src == 2;
                     int at[8];
                     __builtin_memcpy(at, &p, 32);
                     auto pairs = [&](const short* base, f8& a, f8& b) {
@@ -460,6 +463,8 @@ _TET_SNIPPET = (
                 }
                 __builtin_memcpy(V + n0, &val, 32);
             }
+            };
+            if (src_code == 2) loop8(2); else if (src_code == 3) loop8(3); else loop8(0);
         }
 #endif
         if (nearest) {
@@ -516,40 +521,59 @@ _TET_SNIPPET = (
     typedef long long l4 __attribute__((ext_vector_type(4)));
     const i64 NOCARRY = (i64)1 << 62, NONE = (i64)1 << 62;
     auto sel4 = [](l4 m, l4 a, l4 b) { return (a & m) | (b & ~m); };
-    auto max4 = [&](l4 a) {
-        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a > b), a, b);
-        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a > b), a, b);
-        return (i64)a[0];
-    };
-    auto min4 = [&](l4 a) {
-        l4 b = __builtin_shufflevector(a, a, 2, 3, 0, 1); a = sel4((l4)(a < b), a, b);
-        b = __builtin_shufflevector(a, a, 1, 0, 3, 2); a = sel4((l4)(a < b), a, b);
-        return (i64)a[0];
-    };
-    l4 qi4, ri4, dqi4, dri4, dq4, dr4, dn4, den4, pos4, neg4, flat4;
-    for (int f = 0; f < 4; ++f) {
-        qi4[f] = qi[f]; ri4[f] = ri[f]; dqi4[f] = dqi[f]; dri4[f] = dri[f]; dq4[f] = dq[f]; dr4[f] = dr[f];
-        den4[f] = den[f] > 0 ? den[f] : NOCARRY;
-        dn4[f] = den4[f];
-        pos4[f] = szs[f] > 0 ? -1 : 0; neg4[f] = szs[f] < 0 ? -1 : 0; flat4[f] = szs[f] == 0 ? -1 : 0;
-    }
-    const l4 lo_none = (l4)(-NONE), hi_none = (l4)NONE, zero4 = (l4)0;
-    const i64 box_klo = B[4], box_khi = B[5];
+    // Whole-vector loads: lane by lane, each insert went through the stack and stalled the
+    // reload (a failed store forward), 44 per work item (~5 % of a frame).
+    const l4 inf4 = (l4)NONE, zero4 = (l4)0;
+    l4 qi4, ri4, dqi4, dri4, dq4, dr4, den_f, sz4;
+    __builtin_memcpy(&qi4, qi, 32); __builtin_memcpy(&ri4, ri, 32);
+    __builtin_memcpy(&dqi4, dqi, 32); __builtin_memcpy(&dri4, dri, 32);
+    __builtin_memcpy(&dq4, dq, 32); __builtin_memcpy(&dr4, dr, 32);
+    __builtin_memcpy(&den_f, den, 32); __builtin_memcpy(&sz4, szs, 32);
+    const l4 den4 = sel4((l4)(den_f > zero4), den_f, (l4)NOCARRY), dn4 = den4;
+    const l4 pos4 = (l4)(sz4 > zero4), neg4 = (l4)(sz4 < zero4), flat4 = (l4)(sz4 == zero4);
+    const l4 box_lo4 = (l4)(i64)B[4], box_nhi4 = (l4)(-(i64)B[5]);
+    typedef int i8q __attribute__((ext_vector_type(8)));
+    typedef float f8q __attribute__((ext_vector_type(8)));
+    const i8q iota8 = {0, 1, 2, 3, 4, 5, 6, 7};
+    const l4 iota_lo = {0, 1, 2, 3}, iota_hi = {4, 5, 6, 7};
+    // Rows are walked in two passes of up to ROWS rows: the first steps the DDA and keeps the
+    // non-empty spans, the second queues them. With the queue's flush (a call) inside the DDA
+    // loop, clang kept the DDA state in stack slots, and every row waited on a store-to-load
+    // round trip; this loop has no call, and no branch on whether a row is empty.
+    const int ROWS = 64;
+    i64 span_lo[ROWS], span_hi[ROWS];
+    int span_j[ROWS];
     for (int i = i_first; i <= i_last; ++i) {
         const double fi = (double)i;
         px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
         l4 q4 = qi4, r4 = ri4;
-        for (int j = B[2]; j <= B[3]; ++j) {
-            const l4 lo_t = sel4(pos4, -q4, lo_none);
-            const l4 hi_t = sel4(neg4, q4, sel4(flat4 & (l4)(q4 < zero4), lo_none, hi_none));
-            i64 klo = max4(lo_t), khi = min4(hi_t);
-            klo = klo > box_klo ? klo : box_klo;
-            khi = khi < box_khi ? khi : box_khi;
-            r4 += dr4;
-            const l4 carry = (l4)(r4 >= dn4);  // -1 where the remainder wraps
-            r4 -= dn4 & carry;
-            q4 += dq4 - carry;
-            if (khi >= klo) {
+        for (int j0 = B[2]; j0 <= B[3]; j0 += ROWS) {
+            const int j1 = B[3] - j0 < ROWS ? B[3] : j0 + ROWS - 1;
+            int rows = 0;
+            for (int j = j0; j <= j1; ++j) {
+                // Both ends by one max reduction over 2 x 4 lanes: klo = max(box, -q on faces with
+                // Sz > 0), -khi = max(-box, -q on Sz < 0, +inf on Sz = 0 where q < 0). A tet's
+                // Sz sum to 0 and are not all 0, so each half has a lane for the box bound. (As
+                // scalar selects after the reductions, clang made the box clamps branches,
+                // mispredicted on about every other row.)
+                const l4 w = -q4;
+                const l4 a = sel4(pos4, w, box_lo4);
+                const l4 b = sel4(neg4, w, sel4(flat4 & (l4)(q4 < zero4), inf4, box_nhi4));
+                l4 x = __builtin_shufflevector(a, b, 0, 1, 4, 5), y = __builtin_shufflevector(a, b, 2, 3, 6, 7);
+                x = sel4((l4)(x > y), x, y);
+                y = __builtin_shufflevector(x, x, 1, 0, 3, 2);
+                x = sel4((l4)(x > y), x, y);
+                const i64 klo = x[0], khi = -x[2];
+                r4 += dr4;
+                const l4 carry = (l4)(r4 >= dn4);  // -1 where the remainder wraps
+                r4 -= dn4 & carry;
+                q4 += dq4 - carry;
+                span_lo[rows] = klo; span_hi[rows] = khi; span_j[rows] = j;
+                rows += khi >= klo ? 1 : 0;
+            }
+            for (int r = 0; r < rows; ++r) {
+                const i64 klo = span_lo[r], khi = span_hi[r];
+                const int j = span_j[r];
                 written += (int)(khi - klo) + 1;
                 int lo = (int)klo, hi = (int)khi;
                 const double fj = (double)j;
@@ -562,21 +586,27 @@ _TET_SNIPPET = (
                 const float by = (float)(py + A[4] * fj + A[10]);
                 const float bz = (float)(pz + A[7] * fj + A[11]);
                 const i64 row = ((i64)i * out_ny + j) * out_nz;
-                while (lo <= hi) {
-                    const int take = (hi - lo + 1) < (QUEUE - queued) ? (hi - lo + 1) : (QUEUE - queued);
-                    // 8 entries at a time (the queue has 8 spare slots): short rows take one step.
-                    for (int e0 = 0; e0 < take; e0 += 8) {
-                        #pragma unroll
-                        for (int e = 0; e < 8; ++e) {
-                            const int at = queued + e0 + e;
-                            kq[at] = lo + e0 + e; oq[at] = row + lo + e0 + e;
-                            bxq[at] = bx; byq[at] = by; bzq[at] = bz;
-                        }
-                    }
-                    queued += take;
-                    lo += take;
-                    if (queued == QUEUE) flush_any();
-                }
+                // 8 entries at a time, six 32-byte stores (clang kept most of the plain loop's 40
+                // stores scalar), with no branch on the row's length below 9 voxels. A block may
+                // run past the row into spare slots, overwritten next; queued <= QUEUE - 8 at each
+                // block keeps its stores inside the queue.
+                const f8q bx8 = (f8q)bx, by8 = (f8q)by, bz8 = (f8q)bz;
+                const int n = hi - lo + 1;  // < 1 where clipping emptied the row
+                int e0 = 0;
+                do {
+                    const i8q k8 = (i8q)(lo + e0) + iota8;
+                    const l4 o_lo = (l4)(row + lo + e0) + iota_lo, o_hi = (l4)(row + lo + e0) + iota_hi;
+                    __builtin_memcpy(kq + queued, &k8, 32);
+                    __builtin_memcpy(oq + queued, &o_lo, 32);
+                    __builtin_memcpy(oq + queued + 4, &o_hi, 32);
+                    __builtin_memcpy(bxq + queued, &bx8, 32);
+                    __builtin_memcpy(byq + queued, &by8, 32);
+                    __builtin_memcpy(bzq + queued, &bz8, 32);
+                    const int m = n - e0 < 8 ? n - e0 : 8;
+                    queued += m > 0 ? m : 0;
+                    e0 += 8;
+                    if (queued > QUEUE - 8) flush_any();
+                } while (e0 < n);
             }
         }
         ri4 += dri4;
