@@ -297,14 +297,12 @@ def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(
 
 
 @wp.kernel
-def largest_change(change: wp.array(dtype=wp.float64), scale: wp.array(dtype=wp.float64), count: int,
-                   stats: wp.array(dtype=wp.float64)):
-    """``stats[0]``: the largest of the sweep's ``change`` [count] [m/s, rad/s] times ``scale``
-    [count] [1, m] (m/s, one thread), NaN if any is: the one number the sweep loop reads back to
-    decide whether to go on."""
+def largest_change(change: wp.array(dtype=wp.float64), count: int, stats: wp.array(dtype=wp.float64)):
+    """``stats[0]``: the largest of the sweep's ``change`` [count] [m/s] (one thread), NaN if
+    any is: the one number the sweep loop reads back to decide whether to go on."""
     worst = wp.float64(0.0)
     for i in range(count):
-        c = change[i] * scale[i]
+        c = change[i]
         if c > worst or wp.isnan(c):
             worst = c
         if wp.isnan(worst):

@@ -121,19 +121,6 @@ class NodeSolve:
             row_start = model.row_start.numpy()
             exact[row_start[1:] > row_start[:-1]] = 0
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
-        # A rigid body's angular node changes in rad/s: its change counts as the speed it gives
-        # the body's farthest point, |d omega| r, r = sqrt(1.5 tr(I) / m) [m] the half diagonal of
-        # the uniform box of the body's mass and inertia (1.34 R for a ball of radius R), so the
-        # stop holds the spin to the tolerance's velocity at the body's surface, not to 1 rad/s
-        # a metre: the candy's 1-2 cm hard candies, whose spin held by friction alone changed
-        # 2e-5 to 1e-4 rad/s a sweep, kept 4 of 16 steps of the pile going to the 500 cap.
-        scale = np.ones(model.node_count)
-        if model.rigid is not None:
-            inertia = np.trace(model.rigid.model.body_inertia.numpy(), axis1=1, axis2=2)
-            scale[model.rigid.angular_node.numpy()] = np.sqrt(1.5 * inertia * model.rigid.model.body_inv_mass.numpy())
-        #: [node_count] [1 or m]: what :meth:`solve` multiplies each node's change by (1; a rigid
-        #: body's angular node: its reach).
-        self.change_scale: wp.array = wp.array(scale, dtype=wp.float64, device=d)
         self._exact_base: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
         buf = state.sweep_buffers
@@ -191,7 +178,7 @@ class NodeSolve:
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
         self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
-                                           inputs=[self.change, self.change_scale, model.node_count, self.stats]))
+                                           inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
 
     def _read_stats(self) -> np.ndarray:
