@@ -16,6 +16,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
+from softvr.contact._node_jacobi_kernels import _rigid_velocity
 
 # softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
 # (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
@@ -207,9 +208,7 @@ def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.ar
             rel = rel + stencil_weights[c, k] * v[node]
             if fixed[node] == 0:
                 movable = 1
-        for r in range(2):
-            if rigid_node[c, r] >= 0:
-                rel = rel + wp.cross(v[rigid_node[c, r]], rigid_lever[c, r])
+        rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
         u = slip[c]
         if stiffness[c] > wp.float64(0.0):
             u = u + dt * rel
