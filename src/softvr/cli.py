@@ -8,8 +8,9 @@
 ``softvr tetmesh SURFACE``  the tet mesh a scene builds for a FEM body of a surface (.vtu or .npz)
 ``softvr run SCENE``        a demo, i.e. a bundled scene file by name (soft-cube, box-stack, cloth-sphere, oranges,
                             candy, cloth-wall, lips, probe, shoulder, ...), or a scene file to MP4, metrics, plots
-``softvr view volume``      interactive window: drag mesh nodes, the volume deforms live
-``softvr view SCENE``       a demo or scene file played live in a window (space pauses, n steps)
+``softvr view SCENE``       a demo or scene file played live in a window (space pauses, n steps;
+                            ``softvr view volume``: the bundled volume scene)
+``softvr view VOLUME``      a volume file or DICOM folder in a window: drag its mesh nodes, it deforms live
 ``softvr bench AREA``       measurements against peers (softvr bench --help lists the areas)
 ``softvr cave ...``         multi-screen VR: preview, master, node, local cluster, keys (softvr cave -h)
 ``softvr check SCENE``      validate a scene file (every error at once, the start checked too)
@@ -119,10 +120,16 @@ def _run(argv: list[str]) -> int:
 
 
 def _view(argv: list[str]) -> int:
-    if argv and argv[0] == "volume":
+    # A demo (a bundled scene by name: ``softvr view volume`` plays volume.toml), a volume file or
+    # DICOM folder (the drag viewer: its embedding mesh's nodes dragged with the mouse), else a
+    # scene file's path (or nothing: the scene command's help).
+    from softvr.scene.command import is_scene_file
+
+    path = next((a for a in argv if not a.startswith("-")), None)
+    if path is not None and not _demo_named([path]) and Path(path).exists() and not is_scene_file(path):
         from softvr.render import viewer
 
-        return viewer.main(argv[1:])
+        return viewer.main(argv)
     if _demo_named(argv):
         from softvr.examples import run
 

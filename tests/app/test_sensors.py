@@ -118,6 +118,62 @@ def test_falling_body_reads_the_discrete_free_fall(tmp_path):
         np.testing.assert_allclose(z, [0.0, 0.0, 2.0 - G * DT ** 2 * n * (n + 1) / 2], rtol=1e-12, atol=1e-12)
 
 
+def test_a_gltf_objects_position_sensor_reads_the_discrete_free_fall(tmp_path):
+    """The same truth through a glTF scene: a rigid 0.1 m box whose node carries
+    ``softvr_sensor_position``, its origin 0.1 m above the ground (5 cm to fall before it
+    touches: 3 frames of 4 default 5 ms steps fall 1.8 cm)."""
+    from tests.scene.test_scene_schema import _glb
+
+    path = _glb(tmp_path / "fall.glb", {"box": {"softvr_type": "rigid", "softvr_density": 500.0,
+                                                "softvr_sensor_position": "centre"}})
+    with load_scene(path, frames=3, width=32, height=24) as player:
+        h = player.dt
+        z0 = player.bodies["box"].position.copy()
+        assert z0[2] == pytest.approx(0.1, abs=1e-6)
+        for frame in range(1, 4):
+            z = player.step()["sensors"]["centre"]
+            n = player.steps_per_frame * frame
+            np.testing.assert_allclose(z, z0 - [0.0, 0.0, G * h**2 * n * (n + 1) / 2], rtol=1e-12, atol=1e-12)
+
+
+def test_a_tool_pressed_onto_the_ground_reads_its_hand_force_as_the_contact_minus_its_weight(tmp_path):
+    """A tool (a 2 cm ball, its haptic handle held 5 mm below where it rests on the plane, read
+    once a step) settles on the plane: at rest Newton's second law on the ball, contact N +
+    weight -m g + the coupling's pull (the spring's -F_hand, its damper idle) = 0, so the hand
+    feels F_hand = N - m g, upward (the ball pulls the hand towards it); the spring's k d
+    (300 N/m x 5 mm = 1.5 N) bounds it. Tolerance: the contact's as above (one sphere contact)
+    plus the spring's residual motion, none at rest."""
+    player = _scene(tmp_path, """
+[[plane]]
+[[body]]
+name = "tip"
+type = "tool"
+sphere = 0.01
+material = "m"
+position = [0.0, 0.0, 0.01]
+stiffness = 300.0
+damping = 5.0
+[body.motion]
+times = [0.0]
+positions = [[0.0, 0.0, 0.005]]
+[[sensor]]
+name = "hand"
+kind = "hand_force"
+body = "tip"
+[[sensor]]
+name = "ground"
+kind = "contact_force"
+body = "tip"
+other = "static"
+""")
+    with player:
+        s = _play(player, 40)
+    m = float(player.bodies["tip"].mass)
+    np.testing.assert_allclose(s["hand"], np.asarray(s["ground"]) - [0.0, 0.0, m * G], atol=4 * m * TOL / DT)
+    assert 0.0 < s["hand"][2] <= 300.0 * 0.005 + 1e-9
+    assert player.describe()["sensors"]["hand"] == {"kind": "hand_force", "unit": "N"}
+
+
 def test_hanging_block_reads_its_weight_in_its_coupling(tmp_path):
     player = _scene(tmp_path, """
 [[body]]

@@ -131,6 +131,20 @@ def test_tearing_one_block_off_leaves_the_others_bond_intact():
     assert np.abs(kept.q[bottom] - q0[bottom]).max() < 1e-6  # held where they bonded
 
 
+def test_an_adhesion_state_held_across_steps_keeps_its_steps_bonds():
+    """``Scene.adhesion_state`` is read from the arrays' carried table when first used; one
+    held unread while later steps tear the block off (1.5 times its F* = m g + A sqrt(W C))
+    is still its own step's: the 3 x 3 bottom vertices bonded at exactly 1 (eqs. 4.11-4.12
+    under a compression), not the torn block's none."""
+    scene, (block,) = _glued_blocks(2)
+    held = scene.adhesion_state
+    _pull(scene, 0, block, (0.0, 0.0, 1.5 * (block.mass.sum() * G + EDGE**2 * GLUE.traction_limit())))
+    for _ in range(100):
+        scene.step(DT)
+    assert block.q[:, 2].min() > 0.005 and not scene.adhesion_state.intensity  # torn off, bonds forgotten
+    assert len(held.intensity) == 9 and all(b == 1.0 for b in held.intensity.values())
+
+
 def _shear(scene, block: FemBody, force: float) -> float:
     """Push the block sideways along x by ``force`` [N], shared by its bottom nodes (the
     interface's plane: no moment that would tip it), for 0.2 s; its largest mean x shift [m]."""

@@ -24,6 +24,7 @@ The truths, each stated where it is checked:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 from pathlib import Path
@@ -32,7 +33,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from softvr.examples import (example_box_stack, example_cloth_sphere, example_cloth_wall, example_lips,
+from softvr.examples import (example_box_stack, example_candy, example_cloth_sphere, example_cloth_wall, example_lips,
                              example_oranges, example_palpation, example_probe, example_shoulder, example_soft_cube,
                              example_volume_deform)
 from softvr.scene import BUNDLED, load_scene
@@ -267,7 +268,8 @@ def _held_candy_scene(folder: Path) -> Path:
     quads a side, a quarter of the file's cubes per axis: same material, adhesion and plate), the held
     candy, the hand and their spring; every number of these is the file's."""
     text = (BUNDLED / "candy-adhesive.toml").read_text(encoding="utf-8")
-    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\])", text)
+    # (The file's [variant.*] tables are left out with the bodies they name.)
+    head, *tables = re.split(r"(?m)^(?=\[\[body\]\]|\[\[coupling\]\]|\[variant\.)", text)
     kept = [t for t in tables if t.startswith("[[coupling]]")
             or re.search(r'^name = "(jello|pulled candy|hand)"$', t, re.M)]
     small = "".join([head, *kept]).replace("cells = [12, 12, 5]", "cells = [6, 6, 3]").replace(
@@ -275,6 +277,35 @@ def _held_candy_scene(folder: Path) -> Path:
     path = folder / "held-candy.toml"
     path.write_text(small, encoding="utf-8")
     return path
+
+
+def test_candy_quick_variant_drops_its_hard_candies_freely_onto_a_held_jello(tmp_path):
+    """example_candy with ``--variant quick`` (candy.toml's small scale): the Jell-O is the
+    variant's 6 x 6 x 3 cubes of 5 tets (540), four candies are left of eight; for two frames
+    (0.08 s) the hard candies are in the air, so each falls as semi-implicit Euler integrates
+    gravity (the free-fall truth above, to round-off), and the ball's spin stays what it was
+    (isotropic inertia: the gyroscopic torque omega x I omega of Euler's equations is zero; the
+    box's is not, and precesses); the Jell-O's bottom nodes (fixed_below) never move; energy
+    never grows."""
+    start = load_scene(example_candy.SCENE, ["quick"], frames=1, width=48, height=32)
+    hard = [n for n in start.bodies if n.startswith("hard candy")]
+    x0 = {n: start.bodies[n].position.copy() for n in hard}
+    w0 = {n: start.bodies[n].angular_velocity.copy() for n in hard}
+    e0 = start.energies()[1]
+    player = example_candy.main(["--headless", "--variant", "quick", "--frames", "2", "--size", "48", "32", "--out",
+                                 str(tmp_path)])
+    jello = player.bodies["jello"]
+    assert len(jello.tets) == 5 * 6 * 6 * 3 and len(player.bodies) == 5 and len(hard) == 2
+    held = jello.fixed
+    assert held.sum() == 7 * 7  # the bottom layer of the 6 x 6 grid's nodes
+    np.testing.assert_array_equal(jello.q[held][:, 2], 0.0)
+    t, dt = player.scene.time, player.dt
+    assert t == pytest.approx(2 * 5 * 0.008, rel=1e-12)
+    for n in hard:
+        body = player.bodies[n]
+        np.testing.assert_allclose(body.position - x0[n], [0.0, 0.0, -0.5 * G * t**2 - 0.5 * G * dt * t], atol=1e-12)
+    np.testing.assert_allclose(player.bodies["hard candy 3"].angular_velocity, w0["hard candy 3"], atol=1e-12)
+    check_energy_never_grows(player, e0)
 
 
 def test_the_held_candy_sticks_then_comes_off_the_jello(tmp_path):
@@ -402,6 +433,30 @@ def test_view_plays_a_bundled_scene_live_in_a_window(display):
     from softvr.examples import run
 
     assert run.view_main(["soft-cube", "--frames", "3", "--size", "160", "120", "--seconds", "3"]) == 0
+
+
+def test_view_volume_plays_the_bundled_volume_scene_and_a_volume_file_opens_the_drag_viewer(monkeypatch, tmp_path):
+    """``softvr view volume`` is the demo named volume, the bundled volume.toml, played in the
+    window (a demo's ``--variant`` its file's); ``softvr view FILE`` of a volume file (not a scene file) is the
+    drag viewer, given the words as typed. (The window and the viewer are stood in for: what is
+    checked is what they are handed.)"""
+    from softvr import cli
+    from softvr.examples import run
+    from softvr.render import viewer
+
+    played, dragged = [], []
+    monkeypatch.setattr(run, "require_display", lambda: None)
+    monkeypatch.setattr(run, "load_scene", lambda path, variants, **kw: contextlib.nullcontext(
+        (path, list(variants), kw["frames"])))
+    monkeypatch.setattr(run, "play_window", lambda player, **kw: played.append(player))
+    monkeypatch.setattr(viewer, "main", lambda argv: dragged.append(list(argv)) or 0)
+    assert cli.main(["view", "volume", "--frames", "2", "--size", "32", "24"]) == 0
+    assert cli.main(["view", "candy", "--variant", "quick"]) == 0
+    assert played == [(BUNDLED / "volume.toml", [], 2), (BUNDLED / "candy.toml", ["quick"], None)] and dragged == []
+    volume = tmp_path / "ct.nrrd"
+    volume.write_bytes(b"")
+    assert cli.main(["view", str(volume), "--cells", "3"]) == 0
+    assert dragged == [[str(volume), "--cells", "3"]] and len(played) == 2
 
 
 def test_view_without_a_display_says_so(monkeypatch, capsys):

@@ -42,7 +42,7 @@ def test_every_demo_is_a_bundled_scene_file():
         if hasattr(module, "SCENE"):
             played[name] = module.SCENE
             assert module.SCENE.parent == BUNDLED and module.SCENE.is_file(), name
-    assert len(played) == 10, played  # all but candy (its construction serves the benches)
+    assert len(played) == 11, played  # every leaf: the candy's too
 
 
 @pytest.mark.parametrize("name", ["candy.toml", "candy-adhesive.toml"])
@@ -81,6 +81,22 @@ def test_adhesive_candies_pull_on_the_jello_once_they_bond():
                 assert ((beta >= 0) & (beta <= 1)).all()
             pulled[name] = pulls
     assert pulled["candy.toml"] == 0 and pulled["candy-adhesive.toml"] > 0, pulled
+
+
+def test_the_dry_variant_is_the_same_scene_without_a_pull():
+    """candy-adhesive.toml's ``dry`` variant (simulation.adhesion = false): the same bodies, and
+    no contact ever pulls (a dry contact only pushes), where the adhesive file's held candy, pressed
+    into the Jell-O by its hand, bonds and pulls within 0.2 s."""
+    pulls = {}
+    for variants in (("quick",), ("quick", "dry")):
+        with load_scene(BUNDLED / "candy-adhesive.toml", variants, frames=5, width=48, height=32) as scene:
+            assert len(scene.bodies) == 7
+            most = 0
+            for _ in range(5):
+                scene.step()
+                most = max(most, sum(int((i[:, 0] < 0).sum()) for i in scene.scene.last_solution.impulses if len(i)))
+            pulls[variants[-1]] = most
+    assert pulls["dry"] == 0 and pulls["quick"] > 0, pulls
 
 
 def test_shoulder_arthroscopy_scene_checks_and_plays(capsys):

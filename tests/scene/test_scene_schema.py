@@ -47,6 +47,8 @@ TYPOS = [
      "coupling[0].stifness", "stiffness"),
     ('[volume]\nfile = "head-ct"\ntreshold = 100.0', "volume.treshold", "threshold"),
     ('[display]\nprest = "cube"', "display.prest", "preset"),
+    ('[variant.small]\nremuve = ["hand"]', "variant.small.remuve", "remove"),
+    ('[variant.small.body."probe"]\npositon = [0.0, 0.0, 0.4]', "variant.small.body.probe.positon", "position"),
 ]
 
 
@@ -101,7 +103,8 @@ def test_a_scene_without_settings_takes_the_described_and_the_simulations_defaul
     sim = Scene()
     assert scene.simulation == {"dt": 0.005, "steps_per_frame": 4, "frames": 100, "gravity": sim.gravity,
                                 "friction": sim.friction, "pgs_iterations": sim.pgs_iterations,
-                                "contact_margin": sim.contact_margin, "collision_free_start": False}
+                                "contact_margin": sim.contact_margin, "collision_free_start": False,
+                                "adhesion": True}
     assert scene.planes == [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": sim.friction,
                              "size": 3.0, "adhesion": None}]
     gltf = read_gltf_scene(_glb(tmp_path / "bare.glb", {"cube": {"softvr_type": "fixed"}}))
@@ -421,3 +424,104 @@ def test_each_gltf_object_type_refuses_the_properties_of_other_types_and_typos_a
     assert found["node 'brick'.poisson"][1] == "'poisson' (a key of fem objects)"
     assert found["node 'sheet'.collision_triangles"][1] == \
         "'collision_triangles' (a key of rigid | fem | kinematic | tool objects)"
+
+
+def _candy_with(tmp_path, text: str) -> Path:
+    """The bundled candy.toml (bodies jello, soft candy 0 .. hard candy 7) with ``text`` appended."""
+    path = tmp_path / "candy.toml"
+    path.write_text((softvr.scene.BUNDLED / "candy.toml").read_text(encoding="utf-8") + text, encoding="utf-8")
+    return path
+
+
+def test_a_variant_replaces_the_keys_it_writes_and_removes_bodies(tmp_path):
+    """``[variant.NAME]``: the file read with it is the file with its keys written in (by hand
+    here: jello's cells and quads, frames, the dry switch) and its bodies left out; without it,
+    the file as written; two variants apply in turn, the later one's keys winning."""
+    path = _candy_with(tmp_path, """
+[variant.coarse]
+remove = ["hard candy 7", "soft candy 6"]
+[variant.coarse.simulation]
+frames = 7
+[variant.coarse.body."jello"]
+cells = [3, 3, 2]
+surface_quads = 5
+[variant.dry.simulation]
+adhesion = false
+frames = 9
+""")
+    plain = read_scene(path)
+    assert plain.variants == () and len(plain.bodies) == 9 and plain.simulation["frames"] == 100
+    assert plain.body("jello").cells == (12, 12, 5) and plain.simulation["adhesion"] is True
+    coarse = read_scene(path, ["coarse"])
+    assert coarse.variants == ("coarse",)
+    assert [b.name for b in coarse.bodies] == [b.name for b in plain.bodies][:7]
+    assert coarse.body("jello").cells == (3, 3, 2) and coarse.body("jello").surface_quads == 5
+    assert coarse.body("jello").size == (0.3, 0.3, 0.12) and coarse.simulation["frames"] == 7
+    both = read_scene(path, ["coarse", "dry"])
+    assert both.simulation["frames"] == 9 and both.simulation["adhesion"] is False
+    assert len(both.bodies) == 7
+
+
+def test_a_variants_typos_and_bad_values_are_named_where_it_writes_them_all_at_once(tmp_path, capsys):
+    """Every problem of every variant, each under the variant's own path with the key or body
+    meant (written by hand); asking for a variant the file has not is named too."""
+    path = _candy_with(tmp_path, """
+[[sensor]]
+name = "block"
+kind = "position"
+body = "jello"
+
+[variant.bad]
+remov = ["x"]
+remove = ["soft candy 9"]
+[variant.bad.simulation]
+frame = 3
+dt = -1.0
+[variant.bad.body."jelo"]
+cells = 3
+[variant.bad.body."jello"]
+celss = 3
+surface_quads = -2
+type = "rigid"
+""")
+    with pytest.raises(InputError) as info:
+        read_scene(path, ["qiuck"])
+    problems = {what: (expected, found) for what, expected, found in info.value.problems}
+    assert problems == {
+        "variant": ("the name of one of its [variant.NAME] tables (did you mean 'quick'?)", "'qiuck'"),
+        "variant.bad.remov": ("a known key (did you mean 'remove'?)", "'remov'"),
+        "variant.bad.remove[0]": ("the name of a [[body]] (did you mean 'soft candy 6'?)", "'soft candy 9'"),
+        "variant.bad.simulation.frame": ("a known key (did you mean 'frames'?)", "'frame'"),
+        "variant.bad.simulation.dt": ("a number > 0 [s]", "-1.0"),
+        "variant.bad.body.jelo": ("the name of a [[body]] (did you mean 'jello'?)", "'jelo'"),
+        "variant.bad.body.jello.celss": ("a known key (did you mean 'cells'?)", "'celss'"),
+        "variant.bad.body.jello.surface_quads": ("an integer >= 1", "-2"),
+        "variant.bad.body.jello.type": ("another key of the body (a variant keeps its name and type)", "'rigid'")
+    }, problems
+    assert main(["check", str(path)]) == 2  # the file's variants are checked without asking for one
+    assert "variant.bad.body.jello.celss: expected a known key (did you mean 'cells'?)" in capsys.readouterr().err
+
+
+def test_a_variant_removes_what_names_the_bodies_it_removes_and_what_it_breaks_is_named_below_it(tmp_path):
+    """Removing bodies removes the couplings, filters and sensors naming them, and their names
+    from collides_with; a variant that leaves a file no body (and no plane) is named below the
+    variant with what the file then lacks."""
+    path = tmp_path / "pair.toml"
+    path.write_text('format = "softvr-scene 1"\n[material.m]\ndensity = 1000.0\n'
+                    '[[body]]\nname = "a"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\ncollides_with = ["b", "c"]\n'
+                    '[[body]]\nname = "b"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\nposition = [1.0, 0.0, 0.0]\n'
+                    '[[body]]\nname = "c"\ntype = "rigid"\nsphere = 0.1\nmaterial = "m"\nposition = [2.0, 0.0, 0.0]\n'
+                    '[[coupling]]\na = "a"\nb = "b"\npoints = [[0.5, 0.0, 0.0]]\nstiffness = 10.0\n'
+                    '[[filter]]\na = "b"\nb = "c"\n'
+                    '[[sensor]]\nname = "f"\nkind = "contact_force"\nbody = "a"\nother = "b"\n'
+                    '[[sensor]]\nname = "x"\nkind = "position"\nbody = "a"\n'
+                    '[variant.alone]\nremove = ["b"]\n[variant.empty]\nremove = ["a", "b", "c"]\n')
+    with pytest.raises(InputError) as info:
+        read_scene(path)  # every variant checked, none asked for
+    assert info.value.problems == [("variant.empty body", "at least one [[body]]", "none")]
+    path.write_text(path.read_text().replace('[variant.empty]\nremove = ["a", "b", "c"]\n', ""))
+    whole = read_scene(path)
+    assert len(whole.couplings) == 1 and len(whole.filters) == 1 and len(whole.sensors) == 2
+    alone = read_scene(path, ["alone"])
+    assert [b.name for b in alone.bodies] == ["a", "c"] and alone.body("a").collides_with == ("c",)
+    assert alone.couplings == [] and alone.filters == [] and [s["name"] for s in alone.sensors] == ["x"]

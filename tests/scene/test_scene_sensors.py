@@ -9,7 +9,7 @@ with what was expected; every problem of the file is reported at once.
 import pytest
 
 from softvr.errors import InputError
-from softvr.scene import read_scene
+from softvr.scene import read_gltf_scene, read_scene
 
 SCENE = """format = "softvr-scene 1"
 [material.m]
@@ -46,7 +46,7 @@ body = "ball"
 [[sensr]]
 name = "x"
 """) == [("sensr", "a known key (did you mean 'sensor'?)", "'sensr'"),
-         ("sensor[0].kind", "contact_force | coupling_force | position", "nothing"),
+         ("sensor[0].kind", "contact_force | coupling_force | position | hand_force", "nothing"),
          ("sensor[0].knd", "a known key (did you mean 'kind'?)", "'knd'")]
 
 
@@ -76,7 +76,7 @@ name = "p"
 kind = "position"
 body = "ball"
 other = "static"
-""") == [("sensor[0].kind", "contact_force | coupling_force | position", "torque"),
+""") == [("sensor[0].kind", "contact_force | coupling_force | position | hand_force", "torque"),
          ("sensor[1].body", "a body with couplings (none in this scene)", "'ball'"),
          ("sensor[1].name", "a name no other sensor has", "'f'"),
          ("sensor[2].other", "other only on a contact_force sensor", "a position sensor")]
@@ -98,3 +98,45 @@ other = "static"
     assert read_scene(path).sensors == [
         {"name": "press", "kind": "contact_force", "body": "ball", "other": None},
         {"name": "on floor", "kind": "contact_force", "body": "ball", "other": "static"}]
+
+
+def test_gltf_sensor_properties_are_the_same_sensors(tmp_path):
+    """A node's ``softvr_sensor_<kind>`` (its value the sensor's name, the node its body) and
+    ``softvr_sensor_contact_force_other`` are the description's ``[[sensor]]`` tables: those
+    written here by hand, as the TOML file above would give them."""
+    from tests.scene.test_scene_schema import _glb
+
+    path = _glb(tmp_path / "s.glb", {
+        "ball": {"softvr_type": "rigid", "softvr_density": 1000.0, "softvr_sensor_position": "height",
+                 "softvr_sensor_contact_force": "on floor", "softvr_sensor_contact_force_other": "static"},
+        "gel": {"softvr_type": "fem", "softvr_young": 1e5, "softvr_sensor_coupling_force": "pull",
+                "softvr_couple_to": "ball", "softvr_coupling_stiffness": 10.0, "softvr_coupling_radius": 0.2}})
+    assert read_gltf_scene(path).sensors == [  # node by node, each node's in the order of the kinds
+        {"name": "on floor", "kind": "contact_force", "body": "ball", "other": "static"},
+        {"name": "height", "kind": "position", "body": "ball", "other": None},
+        {"name": "pull", "kind": "coupling_force", "body": "gel", "other": None}]
+
+
+def test_gltf_sensor_problems_are_named_by_the_property_all_at_once(tmp_path):
+    """What a [[sensor]] is refused for, named as the node property it came from: an ``other``
+    the scene does not have, a coupling_force sensor on a body without couplings, a name two
+    sensors share, a misspelt kind (with the property meant), a sensor on a fixed object (an
+    obstacle, not a body: refused as a key of the other types)."""
+    from tests.scene.test_scene_schema import _glb
+
+    path = _glb(tmp_path / "s.glb", {
+        "ball": {"softvr_type": "rigid", "softvr_density": 1000.0, "softvr_sensor_contact_force": "f",
+                 "softvr_sensor_contact_force_other": "wal", "softvr_sensor_coupling_force": "f",
+                 "softvr_sensor_postion": "h"},
+        "wall": {"softvr_type": "fixed", "softvr_sensor_position": "w"}})
+    with pytest.raises(InputError) as info:
+        read_gltf_scene(path)
+    problems = sorted(info.value.problems)
+    fixed = [p for p in problems if p[0] == "node 'wall'.sensor_position"]
+    assert len(fixed) == 1 and fixed[0][1].startswith("a key of a fixed object") and fixed[0][2] == (
+        "'sensor_position' (a key of rigid | fem | cloth | kinematic | tool | volume objects)")
+    assert [p for p in problems if p not in fixed] == sorted([
+        ("node 'ball'.sensor_postion", "a known key (did you mean 'sensor_position'?)", "'sensor_postion'"),
+        ("node 'ball'.sensor_contact_force_other", 'the name of another body (ball) or "static"', "'wal'"),
+        ("node 'ball'.sensor_coupling_force", "a body with couplings (none in this scene)", "'ball'"),
+        ("node 'ball'.sensor_coupling_force", "a name no other sensor has", "'f'")])

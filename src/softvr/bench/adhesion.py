@@ -1,8 +1,10 @@
 """``softvr bench adhesion``: the candy scene (thesis Fig. 4.1) with and without adhesion.
 
 Both runs use :func:`softvr.bench.contact.run_candy` on the same scene, one after the other in
-this process: the Jell-O block and eight candies, 8 ms steps, 0.8 s simulated (``--quick``:
-the small scale, 0.16 s). Reported per run: ms per step (mean over all steps and over the
+this process: the bundled ``candy-adhesive.toml`` with its ``candies`` variant (the Jell-O block
+and eight candies, every surface adhesive; the held candy and its hand left out), 8 ms steps,
+0.8 s simulated (``--quick``: its ``quick`` variant too, 0.16 s), the plain run with its ``dry``
+variant too (the same scene, every adhesion off). Reported per run: ms per step (mean over all steps and over the
 steps with contacts), contacts (mean / max), contacts pulling (negative normal impulse:
 adhesion at work), PGS sweeps (mean / max) and the largest normal-velocity residual. The cost
 of adhesion at equal contact count is the ratio of the mean ms per contact-step of the steps
@@ -39,9 +41,12 @@ from softvr.device import resolve_device
 from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 
-__all__ = ["PULL_OFF", "PullOffPlayer", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off", "run_adhesion_bench",
-           "softvr_pull_off", "write_plot"]
+__all__ = ["PULL_OFF", "PullOffPlayer", "SCENE", "TARGET_COST_RATIO", "format_table", "main", "mujoco_pull_off",
+           "run_adhesion_bench", "softvr_pull_off", "write_plot"]
 
+#: The bundled scene both runs play (its ``candies`` variant), the plain one with its ``dry``
+#: variant too (adhesion off).
+SCENE = "candy-adhesive.toml"
 #: Adhesion's cost at equal contact count, x plain contact.
 TARGET_COST_RATIO = 1.2
 
@@ -160,8 +165,8 @@ def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
     resolve_device("cpu")
     t0 = time.perf_counter()
     load_start = _loadavg()
-    runs = {"plain": run_candy(quick=quick, progress=progress, adhesion=False),
-            "adhesion": run_candy(quick=quick, progress=progress, adhesion=True)}
+    runs = {"plain": run_candy(quick=quick, progress=progress, scene=SCENE, variants=("candies", "dry")),
+            "adhesion": run_candy(quick=quick, progress=progress, scene=SCENE, variants=("candies",))}
     for name, run in runs.items():
         run["ms_per_contact"] = _cost_per_contact(run)
         run["pulling_contacts_max"] = int(max(run["trace"]["pulling_contacts"]))
@@ -176,7 +181,7 @@ def run_adhesion_bench(*, quick: bool = False, progress: bool = True) -> dict:
     return {
         "schema": "softvr-bench-adhesion/1",
         "machine": machine,
-        "config": {"quick": quick, "scene": "softvr.examples.example_candy.Example"},
+        "config": {"quick": quick, "scene": SCENE},
         "runs": runs,
         "pull_off": pull_off,
         "targets": {"real_time_ms": runs["adhesion"]["dt_s"] * 1e3,

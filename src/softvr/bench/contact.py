@@ -52,8 +52,7 @@ from softvr.collision import Plane
 from softvr.device import resolve_device
 from softvr.dynamics import EmbeddedPoints, FemBody, Material
 from softvr.errors import SoftvrError
-from softvr.examples.example_candy import FULL_SCALE, SMALL_SCALE, Example
-from softvr.volume import Volume, grid_tet_mesh
+from softvr.scene import BUNDLED, load_scene
 
 __all__ = ["CubePlayer", "CubeScene", "FULL_SCENE", "QUICK_SCENE", "cube_mesh", "format_table", "main", "run_contact_bench",
            "run_softvr", "softvr_scene", "write_plot"]
@@ -146,42 +145,47 @@ CANDY_QUICK_DURATION_S = 0.16
 THESIS_CANDY_S_PER_STEP = 0.25
 
 
-def run_candy(*, quick: bool = False, progress: bool = True, adhesion: bool = False) -> dict:
-    """softvr on the thesis' candy scene (:mod:`softvr.examples.example_candy`; with or without
-    adhesion): candies fall on a Jell-O block, 8 ms steps. Full: ~10 K tets, ~25 K collision
-    triangles, 0.8 s simulated (the candies land and start to pile); quick: the small scale, 0.16 s.
+def run_candy(*, quick: bool = False, progress: bool = True, scene: str = "candy.toml", variants=()) -> dict:
+    """softvr on the thesis' candy scene, the bundled scene file ``scene`` (``candy.toml``;
+    ``candy-adhesive.toml`` with adhesion) with ``variants`` (its ``[variant.NAME]`` tables,
+    ``"quick"`` added for the small scale): candies fall on a Jell-O block, 8 ms steps. Full: ~10 K
+    tets, ~25 K collision triangles, 0.8 s simulated (the candies land and start to pile);
+    quick: the small scale, 0.16 s.
 
     Returns ms per step (mean over the steps with contacts between bodies, and overall),
-    contacts (mean / max), PGS sweeps (mean / max), the largest normal-velocity residual and
-    the sizes; peers do not run this scene.
+    contacts (mean / max), PGS sweeps (mean / max), the largest normal-velocity residual,
+    whether adhesion was on and the sizes; peers do not run this scene.
     """
     from tqdm import tqdm
 
+    variants = (*variants, "quick") if quick else tuple(variants)
     # Played headless by the one player, one step a frame: nothing drawn, the measures read here.
-    ex = Example(frames=1, width=64, height=48, scale=SMALL_SCALE if quick else FULL_SCALE, steps_per_frame=1,
-                 adhesion=adhesion)
-    ex.frame_measures = False
-    steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / ex.dt))
+    player = load_scene(BUNDLED / scene, variants, frames=1, width=64, height=48, steps_per_frame=1)
+    player.frame_measures = False
+    adhesion = bool(player.adhesions)
+    steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / player.dt))
     trace: dict[str, list] = {k: [] for k in ("step_s", "contacts", "pulling_contacts", "pgs_iterations", "residual")}
     label = "candy + adhesion" if adhesion else "candy"
     for _ in tqdm(range(steps), desc=label, unit="step", disable=not progress, leave=False):
         t = time.perf_counter()
-        ex.step()
+        player.step()
         trace["step_s"].append(time.perf_counter() - t)
-        sol = ex.scene.last_solution
+        sol = player.scene.last_solution
         trace["contacts"].append(int(sum(len(i) for i in sol.impulses)))
         trace["pulling_contacts"].append(int(sum(int((i[:, 0] < 0).sum()) for i in sol.impulses)))
         trace["pgs_iterations"].append(int(sol.iterations))
         trace["residual"].append(float(sol.residual))
     ms = 1e3 * np.asarray(trace["step_s"])
     busy = np.asarray(trace["contacts"]) > 0
-    return {"tets": ex.tet_count, "collision_triangles": ex.triangle_count, "bodies": len(ex.scene.bodies),
-            "dt_s": ex.dt, "steps": steps, "ms_per_step": float(ms.mean()),
+    tets = sum(len(b.tets) for b in player.scene.bodies if isinstance(b, FemBody))
+    triangles = sum(len(s.triangles) for s in player.scene.collision_surfaces)
+    return {"scene": scene, "variants": list(variants), "tets": tets, "collision_triangles": triangles,
+            "bodies": len(player.scene.bodies), "dt_s": player.dt, "steps": steps, "ms_per_step": float(ms.mean()),
             "ms_per_step_in_contact": float(ms[busy].mean()) if busy.any() else None,
             "ms_per_step_max": float(ms.max()), "contacts_mean": float(np.mean(trace["contacts"])),
             "contacts_max": int(max(trace["contacts"])), "pgs_iterations_mean": float(np.mean(trace["pgs_iterations"])),
             "pgs_iterations_max": int(max(trace["pgs_iterations"])), "residual_max_m_s": float(max(trace["residual"])),
-            "real_time_factor": ex.dt * 1e3 / float(ms.mean()), "thesis_s_per_step": THESIS_CANDY_S_PER_STEP,
+            "real_time_factor": player.dt * 1e3 / float(ms.mean()), "thesis_s_per_step": THESIS_CANDY_S_PER_STEP,
             "quick": quick, "adhesion": adhesion, "trace": trace}
 
 

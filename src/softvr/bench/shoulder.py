@@ -1,11 +1,11 @@
 """``softvr bench shoulder``: the coupled shoulder palpated through the haptic loop (thesis 5.4).
 
-Both variants of the shoulder demo (``shoulder.toml`` / ``shoulder-arthroscopy.toml``), through
-their Python construction :class:`softvr.examples.shoulder_player.ShoulderPlayer` (palpation: two
-fingers and the deltoid; arthroscopy: a probe under the acromion), run a scripted palpation path
-(:func:`softvr.examples.shoulder_player.palpation_path`) with the 1 kHz
-:class:`~softvr.haptics.HapticLoop` thread rendering the force. Reported: ms per simulation step
-(mean and p95), contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
+Both variants of the shoulder demo, the bundled scene files ``shoulder.toml`` (palpation: two
+fingers and the deltoid) and ``shoulder-arthroscopy.toml`` (a probe under the acromion), played
+one step a frame: the tool's handle follows the file's scripted palpation path with the 1 kHz
+:class:`~softvr.haptics.HapticLoop` process rendering the force
+(:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step (mean and p95),
+contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
 
 Thesis 5.4: 20 ms per step with 65 average / 153 maximum contacts on two cores of a 2008 PC
@@ -24,42 +24,57 @@ import numpy as np
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
-from softvr.examples.shoulder_player import ShoulderPlayer as Example
+from softvr.dynamics import FemBody
+from softvr.scene import BUNDLED, load_scene
 
-__all__ = ["TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench", "write_plot"]
+__all__ = ["SCENES", "TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench",
+           "write_plot"]
 
 TARGET_MS_PER_STEP = 2.0
 TARGET_HAPTIC_P99_MS = 1.5
 THESIS = {"ms_per_step": 20.0, "contacts_mean": 65, "contacts_max": 153}
 
 
-def run_variant(variant: str, *, seconds: float, dt: float, progress: bool) -> dict:
-    """Simulate ``seconds`` of the scripted palpation of one variant; returns its numbers."""
+#: The bundled scene file of each variant.
+SCENES = {"palpation": "shoulder.toml", "arthroscopy": "shoulder-arthroscopy.toml"}
+
+
+def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
+    """Simulate ``seconds`` of the scripted palpation of one variant (its scene file's step);
+    returns its numbers."""
     from tqdm import tqdm
 
-    steps = max(1, int(round(seconds / dt)))
-    ex = Example(frames=steps, width=64, height=48, variant=variant, dt=dt, steps_per_frame=1, haptics=True)
+    # Played headless by the one player, one step a frame, the haptic process on (the file's);
+    # the measures are read here off the step's solution and the tool (the force on the hand).
+    player = load_scene(BUNDLED / SCENES[variant], frames=1, width=64, height=48, steps_per_frame=1)
+    player.frame_measures = False
+    tool = player.tools[0]
+    steps = max(1, int(round(seconds / player.dt)))
     trace: dict[str, list] = {"step_s": [], "contacts": [], "pgs_iterations": [], "overlap_m": [], "hand_force_n": []}
     try:
-        with tqdm(total=steps, desc=f"shoulder {variant}", unit="step", disable=not progress, leave=False) as bar:
-            while ex.frame < ex.frames:
-                t0 = time.perf_counter()
-                m = ex.step()
-                trace["step_s"].append(time.perf_counter() - t0)
-                trace["contacts"].append(m["contacts"])
-                trace["pgs_iterations"].append(m["pgs_iterations"])
-                trace["overlap_m"].append(m["max_penetration_m"])
-                trace["hand_force_n"].append(m["hand_force_n"])
-                bar.update()
-        haptic = ex.loop.period_stats()
-        info = ex.describe()
+        for _ in tqdm(range(steps), desc=f"shoulder {variant}", unit="step", disable=not progress, leave=False):
+            t0 = time.perf_counter()
+            player.step()
+            trace["step_s"].append(time.perf_counter() - t0)
+            solution = player.scene.last_solution
+            trace["contacts"].append(int(sum(len(i) for i in solution.impulses)))
+            trace["pgs_iterations"].append(int(solution.iterations))
+            # The deepest overlap after the solve: the contacts' end gaps.
+            trace["overlap_m"].append(max(0.0, -min((float(g.min()) for g in solution.gaps_after if len(g)),
+                                                    default=0.0)))
+            trace["hand_force_n"].append(float(np.linalg.norm(tool.force())))
+        haptic = tool.loop.period_stats()
     finally:
-        ex.close()
+        player.close()
+    soft = [b for b in player.scene.bodies if isinstance(b, FemBody)]
+    couplings = player.scene.couplings
     step_ms = 1e3 * np.asarray(trace["step_s"])
     contacts = np.asarray(trace["contacts"])
-    return {"variant": variant, "dt_s": dt, "steps": steps, "soft_parts": info["soft_parts"], "tets": info["tets"],
-            "couplings": info["couplings"], "coupling_springs": info["coupling_springs"],
-            "coupling_islands": info["coupling_islands"], "bodies": len(info["bodies"]),
+    return {"variant": variant, "scene": SCENES[variant], "dt_s": player.dt, "steps": steps,
+            "soft_parts": len(soft), "tets": int(sum(len(b.tets) for b in soft)), "couplings": len(couplings),
+            "coupling_springs": int(sum(len(c) for c in couplings)),
+            "coupling_islands": sum(1 for u in player.scene.solve_units()[0] if hasattr(u, "members")),
+            "bodies": len(player.scene.bodies),
             "ms_per_step": float(step_ms.mean()), "ms_per_step_p95": float(np.percentile(step_ms, 95)),
             "contacts_mean": float(contacts.mean()), "contacts_max": int(contacts.max()),
             "pgs_iterations_mean": float(np.mean(trace["pgs_iterations"])),
@@ -73,7 +88,7 @@ def run_shoulder_bench(*, quick: bool = False, progress: bool = True) -> dict:
     t0 = time.perf_counter()
     load_start = _loadavg()
     seconds = 0.2 if quick else 6.0
-    runs = {v: run_variant(v, seconds=seconds, dt=0.02, progress=progress) for v in ("palpation", "arthroscopy")}
+    runs = {v: run_variant(v, seconds=seconds, progress=progress) for v in SCENES}
     machine = _machine_info("cpu")
     machine["softvr_commit"] = _git_commit()
     worst_step = max(r["ms_per_step"] for r in runs.values())
@@ -81,7 +96,7 @@ def run_shoulder_bench(*, quick: bool = False, progress: bool = True) -> dict:
     return {
         "schema": "softvr-bench-shoulder/1",
         "machine": machine,
-        "config": {"quick": quick, "seconds": seconds, "scene": "softvr.examples.shoulder_player.ShoulderPlayer"},
+        "config": {"quick": quick, "seconds": seconds, "scenes": SCENES},
         "runs": runs,
         "thesis": THESIS,
         "targets": {"ms_per_step": TARGET_MS_PER_STEP, "ms_per_step_met": worst_step <= TARGET_MS_PER_STEP,

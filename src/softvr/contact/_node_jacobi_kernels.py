@@ -297,6 +297,20 @@ def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(
 
 
 @wp.kernel
+def largest_change(change: wp.array(dtype=wp.float64), count: int, stats: wp.array(dtype=wp.float64)):
+    """``stats[0]``: the largest of the sweep's ``change`` [count] [m/s] (one thread), NaN if
+    any is: the one number the sweep loop reads back to decide whether to go on."""
+    worst = wp.float64(0.0)
+    for i in range(count):
+        c = change[i]
+        if c > worst or wp.isnan(c):
+            worst = c
+        if wp.isnan(worst):
+            break
+    stats[0] = worst
+
+
+@wp.kernel
 def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),

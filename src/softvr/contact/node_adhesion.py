@@ -17,36 +17,55 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import weakref
+
 import numpy as np
 import warp as wp
 
 from softvr.contact import _node_adhesion_kernels as _k
 from softvr.contact.adhesion import AdhesionState
-from softvr.device import load_kernels, replayer
+from softvr.device import in_order, load_kernels, replayer, upload
 
 __all__ = ["NodeAdhesion"]
 
 
 class _CarriedAdhesionState(AdhesionState):
-    """An :class:`AdhesionState` read from a copy of the node arrays' carried table, its
-    dictionaries made on first use (most steps nobody reads them)."""
+    """An :class:`AdhesionState` read from the node arrays' carried table when first used (most
+    steps nobody reads it: the table stays on the device and nothing is copied), or from the
+    copy :meth:`detach` took before a later step wrote the table again."""
 
-    def __init__(self, keys: np.ndarray, beta: np.ndarray, slip: np.ndarray):
-        self._rows: tuple | None = (keys, beta, slip)
-        self._intensity: dict = {}
+    def __init__(self, adhesion: NodeAdhesion):
+        self._source: NodeAdhesion | None = adhesion
+        self._rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._intensity: dict | None = None
         self._slip: dict = {}
 
+    def detach(self) -> None:
+        """Copy the table's rows out, unless they were read already."""
+        if self._source is not None and self._intensity is None:
+            self._rows = self._source.rows()
+        self._source = None
+
     def _read(self) -> None:
-        if self._rows is not None:
-            keys, beta, slip = self._rows
-            self._rows = None
+        if self._intensity is None:
+            rows = self._rows if self._source is None else self._source.rows()
+            assert rows is not None  # detach copied them
+            keys, beta, slip = rows
+            self._source = self._rows = None
             keys = keys.view(np.int64).tolist()
             self._intensity = {k: float(b) for k, b in zip(keys, beta) if b >= 0}
             self._slip = {k: s.copy() for k, s, b in zip(keys, slip, beta) if b >= 0 and np.any(s != 0)}
 
+    def __deepcopy__(self, memo) -> AdhesionState:
+        # A saved scene state keeps the dictionaries, not the stepper the table belongs to.
+        out = AdhesionState()
+        out.intensity, out.slip = dict(self.intensity), {k: s.copy() for k, s in self.slip.items()}
+        return out
+
     @property
     def intensity(self) -> dict:
         self._read()
+        assert self._intensity is not None  # _read sets it
         return self._intensity
 
     @intensity.setter
@@ -109,7 +128,7 @@ class NodeAdhesion:
         ad.vertex_triangles = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
         self.arrays = ad
         self._model, self._state = model, state
-        self._count = ad.carried_count.numpy()
+        self._issued: weakref.ref | None = None  # the last state handed out, while someone holds it
 
     def record(self, dt: float) -> tuple[Callable[[], None], list]:
         """Replays for a step of ``dt`` [s]: the one before the sweeps (after detection) and,
@@ -128,38 +147,64 @@ class NodeAdhesion:
                                              c.frame, rigid_key, rigid_area, st.point_x, m.point_body,
                                              m.body_point_start_wp, m.triangles, m.edge_body, m.body_edge_start,
                                              m.edge_faces, c.area, c.stiffness, c.slip, c.impulse]))
-        evolve = [replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
-                                     inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after, c.stencil_count,
-                                             c.stencil_nodes, c.stencil_weights, c.rigid_node, c.rigid_lever,
-                                             m.fixed, buf, c.area, c.stiffness, c.slip, float(dt)]))
+        # The evolve kernel rewrites the carried table: a state handed out before and still
+        # held copies its rows out first.
+        evolve = [in_order(self._detach_issued,
+                           replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
+                                              inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after,
+                                                      c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                                      c.rigid_node, c.rigid_lever, m.fixed, buf, c.area, c.stiffness,
+                                                      c.slip, float(dt)])))
                   for buf in st.sweep_buffers]
         return prepare, evolve
 
     def carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """The per-object path's intensities and slips (and the warm starts of those contacts,
         which may pull), by key, as the carried table."""
+        self._detach_issued()
         ad = self.arrays
+        cap = ad.carried_key.shape[0]
         keys = np.array(sorted(adhesion.intensity), np.int64)
-        bits = np.sort(keys.view(np.uint64))[: ad.carried_key.shape[0]]  # the kernels compare keys as uint64
+        bits = np.sort(keys.view(np.uint64))[:cap]  # the kernels compare keys as uint64
         keys = bits.view(np.int64).tolist()
         n = len(keys)
-        self._count[0] = n
-        ad.carried_key.numpy()[:n] = bits
-        ad.carried_intensity.numpy()[:n] = [adhesion.intensity[k] for k in keys]
-        ad.carried_slip.numpy()[:n] = np.array([adhesion.slip.get(k, (0.0, 0.0, 0.0)) for k in keys],
-                                               float).reshape(-1, 3)
-        ad.carried_impulse.numpy()[:n] = np.array([warm.get(k, (0.0, 0.0, 0.0)) for k in keys], float).reshape(-1, 3)
+        intensity = np.full(cap, -1.0)
+        intensity[:n] = [adhesion.intensity[k] for k in keys]
+        slip, impulse = np.zeros((cap, 3)), np.zeros((cap, 3))
+        slip[:n] = np.array([adhesion.slip.get(k, (0.0, 0.0, 0.0)) for k in keys], float).reshape(-1, 3)
+        impulse[:n] = np.array([warm.get(k, (0.0, 0.0, 0.0)) for k in keys], float).reshape(-1, 3)
+        padded = np.zeros(cap, np.uint64)
+        padded[:n] = bits
+        for dst, src in ((ad.carried_count, [n]), (ad.carried_key, padded), (ad.carried_intensity, intensity),
+                         (ad.carried_slip, slip), (ad.carried_impulse, impulse)):
+            upload(dst, src)
+
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Host copies of the carried table's rows: keys (uint64) [k], intensities [k], slips
+        [k, 3] [m]."""
+        ad = self.arrays
+        n = int(ad.carried_count.numpy()[0])
+        return (ad.carried_key.numpy()[:n].copy(), ad.carried_intensity.numpy()[:n].copy(),
+                ad.carried_slip.numpy()[:n].copy())
 
     def state(self) -> AdhesionState:
-        """The intensities and slips of the last step's contacts (a copy, by key)."""
-        ad = self.arrays
-        n = int(self._count[0])
-        return _CarriedAdhesionState(ad.carried_key.numpy()[:n].copy(), ad.carried_intensity.numpy()[:n].copy(),
-                                     ad.carried_slip.numpy()[:n].copy())
+        """The intensities and slips of the last step's contacts, by key, read from the arrays
+        when first used (copied out first if a later step is about to write them)."""
+        self._detach_issued()
+        view = _CarriedAdhesionState(self)
+        self._issued = weakref.ref(view)
+        return view
+
+    def _detach_issued(self) -> None:
+        """Let the state handed out last, if still held, copy the table before it changes."""
+        held = self._issued() if self._issued is not None else None
+        if held is not None:
+            held.detach()
+        self._issued = None
 
     def carried_out(self) -> AdhesionState:
         """:meth:`state` as a plain :class:`AdhesionState` for the per-object path."""
-        view = self.state()
+        view = _CarriedAdhesionState(self)  # read at once: no need to track it
         out = AdhesionState()
         out.intensity, out.slip = view.intensity, view.slip
         return out

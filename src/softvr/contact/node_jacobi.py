@@ -83,7 +83,8 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact,
+                       _k.largest_change):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
@@ -96,10 +97,11 @@ class NodeSolve:
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
+        #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
+        #: error [m/s] (:meth:`solve`): all the loop reads back, one number per check.
         self.stats = wp.zeros(2, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
-        self._change = self.change.numpy()
-        self._sweep = self.sweep.numpy()
+        self._stats_view = self.stats.numpy() if wp.get_device(d).is_cpu else None
         # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
         # their A, so the update is exact for the sweep's impulses, and the Chebyshev step only
         # made them overshoot their contacts (a box resting on a block: 2.4x the sweeps, a plate
@@ -173,7 +175,13 @@ class NodeSolve:
                                                               c.rigid_lever, float(dt), buf[r],
                                                               c.impulse, c.gap_after, self.stats]))
                                    for r in range(3)]
+        self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
+                                           inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+
+    def _read_stats(self) -> np.ndarray:
+        """``stats`` on the host: a view on the CPU, a copy of its two numbers on CUDA."""
+        return self._stats_view if self._stats_view is not None else self.stats.numpy()
 
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
@@ -187,8 +195,7 @@ class NodeSolve:
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
-        self._sweep[0] = 0
-        stats = self.stats.numpy()
+        self.sweep.zero_()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
         wp.copy(self.exact, self._exact_base)
@@ -202,7 +209,7 @@ class NodeSolve:
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
-                self._sweep[0] = 0
+                self.sweep.zero_()
                 restart, history, stop = k, {}, cheb_stop
             plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
@@ -212,19 +219,19 @@ class NodeSolve:
             k += 1
             self.plain_sweeps += plain
             if k % check_every == 0:
-                change = float(self._change.max(initial=0.0))
+                self._largest()
+                change = float(self._read_stats()[0])
                 if not np.isfinite(change):  # NaN: the integration reports it
                     break
                 if change <= stop:
                     self._residual_launches[k % 3]()
-                    if stats[1] <= tolerance:
+                    if self._read_stats()[1] <= tolerance:
                         break
                 if not plain:
                     history[k - restart] = change
                     if self._stalled(history, k - restart, stop):
                         plain_until, stop = k + self._window(), plain_stop
         self._residual_launches[k % 3]()
-        stats[0] = k
         return k, self._buffers[k % 3]
 
     def _window(self) -> int:

@@ -37,15 +37,18 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 
 
 @wp.kernel
-def assemble(block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
+             block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
              contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
              rotations: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d),
              tet_beta: wp.array(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
              node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
              d_inv: wp.array(dtype=wp.mat33d), offset: int):
-    """Block ``k`` of ``A`` [kg]; a diagonal block also writes its inverse ``D_A^-1`` [1/kg].
+    """Block ``k = assembled[tid]`` of ``A`` [kg] and its transpose at ``block_mirror[k]``
+    (K_e is symmetric, so block (b, a) is block (a, b) transposed: the off-diagonal half is not
+    summed twice); a diagonal block also writes its inverse ``D_A^-1`` [1/kg].
     ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that tet adds to block ``k``."""
-    k = wp.tid() + offset
+    k = assembled[wp.tid() + offset]
     m = wp.mat33d()
     for c in range(contrib_start[k], contrib_start[k + 1]):
         code = contrib[c]
@@ -59,6 +62,9 @@ def assemble(block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.i
                           wp.float64(0.0), wp.float64(0.0), md)
         d_inv[i] = wp.inverse(m)
     blocks[k] = m
+    t = block_mirror[k]
+    if t >= 0 and t != k:
+        blocks[t] = wp.transpose(m)
 
 
 @wp.kernel
@@ -90,3 +96,57 @@ def integrate(v_new: wp.array(dtype=wp.vec3d), speed_limit: wp.array(dtype=wp.fl
         return
     v[i] = vi
     q[i] = q[i] + dt * vi
+
+
+@wp.kernel
+def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
+                gravity: wp.vec3d, dt: wp.float64, carried: int, fixed: wp.array(dtype=wp.int32),
+                fixed_velocity: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
+                guess: wp.array(dtype=wp.vec3d), guess_prev: wp.array(dtype=wp.vec3d)):
+    """The sweeps' first velocity [m/s] of node ``i``, in both buffers the first sweep reads:
+    with ``carried`` last step's change carried on, ``2 v - v_before``, else the explicit step
+    ``v + dt (g + f_ext / m)``; a fixed node's fixed velocity. ``v_before`` then takes ``v``.
+    A uniform change (gravity, a push, a resting body's none) is Jacobi's slowest mode, and
+    these guesses have it."""
+    i = wp.tid()
+    vi = v[i]
+    g = vi + dt * (gravity + external[i] / mass[i])
+    if carried != 0:
+        g = wp.float64(2.0) * vi - v_before[i]
+    if fixed[i] != 0:
+        g = fixed_velocity[i]
+    guess[i] = g
+    guess_prev[i] = g
+    v_before[i] = vi
+
+
+@wp.kernel
+def rigid_start_guess(linear_node: wp.array(dtype=wp.int32), angular_node: wp.array(dtype=wp.int32),
+                      free_velocity: wp.array(dtype=wp.spatial_vectord), guess: wp.array(dtype=wp.vec3d),
+                      guess_prev: wp.array(dtype=wp.vec3d)):
+    """The sweeps' first velocity at rigid body ``r``'s two nodes: its unconstrained velocity
+    [m/s, rad/s] (eq. 5.2), which a sweep without contacts returns."""
+    r = wp.tid()
+    f = free_velocity[r]
+    guess[linear_node[r]] = wp.spatial_top(f)
+    guess_prev[linear_node[r]] = wp.spatial_top(f)
+    guess[angular_node[r]] = wp.spatial_bottom(f)
+    guess_prev[angular_node[r]] = wp.spatial_bottom(f)
+
+
+@wp.kernel
+def drive(drive_node: wp.array(dtype=wp.int32), drive_body: wp.array(dtype=wp.int32),
+          drive_local: wp.array(dtype=wp.vec3d), position: wp.array(dtype=wp.vec3d),
+          rotation: wp.array(dtype=wp.mat33d), velocity: wp.array(dtype=wp.spatial_vectord),
+          q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed_velocity: wp.array(dtype=wp.vec3d)):
+    """Driven node ``drive_node[k]`` where its point of a kinematic or fixed body is, ``c + R r``
+    [m], and how it moves over the step, ``v + w x R r`` [m/s] (its fixed velocity)."""
+    k = wp.tid()
+    i = drive_node[k]
+    b = drive_body[k]
+    r = rotation[b] * drive_local[k]
+    u = velocity[b]
+    w = wp.spatial_top(u) + wp.cross(wp.spatial_bottom(u), r)
+    q[i] = position[b] + r
+    fixed_velocity[i] = w
+    v[i] = w

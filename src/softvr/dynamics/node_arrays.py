@@ -1,6 +1,6 @@
 """The FEM bodies of a whole scene on arrays: element terms, the step matrix ``A`` of thesis
-eq. 5.2 in 3x3 node blocks with its right-hand side, and the integration, as recorded launches
-replayed every step
+eq. 5.2 in 3x3 node blocks with its right-hand side, the kinematic bodies' driven nodes, the
+sweeps' first guess and the integration, as recorded launches replayed every step
 (:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or any objects with those
 attributes; kernels in :mod:`softvr.dynamics._node_kernels`).
 """
@@ -12,10 +12,11 @@ from collections.abc import Callable
 import numpy as np
 import warp as wp
 
-from softvr.device import chunked_replayer, load_kernels, replayer
+from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_kernels as _k
 
-__all__ = ["NODE_DIVERGENCE_REASONS", "record_elements", "record_integrate", "record_system"]
+__all__ = ["NODE_DIVERGENCE_REASONS", "record_drive", "record_elements", "record_integrate", "record_start",
+           "record_system"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -32,8 +33,8 @@ def record_elements(model, state) -> Callable[[], None]:
 def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing ``A`` (``state.blocks``, ``state.d_inv``) and ``b`` (``state.b``) of a
     step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms."""
-    assemble = chunked_replayer(_k.assemble, model.block_count,
-                                [model.block_row, model.block_col, model.contrib_start, model.contrib,
+    assemble = chunked_replayer(_k.assemble, model.assembled.shape[0],
+                                [model.assembled, model.block_mirror, model.block_row, model.block_col, model.contrib_start, model.contrib,
                                  state.rotations, model.ke, model.tet_beta, model.mass, model.node_alpha, float(dt),
                                  state.blocks, state.d_inv], model.device, min_chunk=1024)
     load_kernels(_k.right_hand_side, model.device)
@@ -41,6 +42,44 @@ def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None],
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
                             wp.vec3d(*np.asarray(gravity, float)), float(dt), state.b])
     return assemble, replayer(rhs)
+
+
+def record_drive(model, state) -> Callable[[], None]:
+    """A replay setting the kinematic and fixed bodies' driven nodes (``state.q``, ``v``,
+    ``fixed_velocity``) from their poses and velocities (``state.kinematic_*``)."""
+    count = model.drive_node.shape[0]
+    if not count:
+        return in_order()
+    load_kernels(_k.drive, model.device)
+    return replayer(wp.launch(_k.drive, dim=count, device=model.device, record_cmd=True,
+                              inputs=[model.drive_node, model.drive_body, model.drive_local, state.kinematic_position,
+                                      state.kinematic_rotation, state.kinematic_velocity, state.q, state.v,
+                                      state.fixed_velocity]))
+
+
+def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:
+    """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
+    ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
+    [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
+    ``v_before`` [n] [m/s]). Both then copy ``state.v`` into ``v_before``; a rigid body's nodes
+    (``model.rigid``) start at its unconstrained velocity."""
+    d = model.device
+    load_kernels(_k.start_guess, d)
+    buf = state.sweep_buffers
+    replays = []
+    for carried in (0, 1):
+        launches = [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
+                                       inputs=[state.v, state.external, model.mass,
+                                               wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
+                                               model.fixed, state.fixed_velocity, v_before, buf[0], buf[2]]))]
+        r = model.rigid
+        if r is not None:
+            load_kernels(_k.rigid_start_guess, d)
+            launches.append(replayer(wp.launch(_k.rigid_start_guess, dim=len(r.bodies), device=d, record_cmd=True,
+                                               inputs=[r.linear_node, r.angular_node, r.state.free_velocity, buf[0],
+                                                       buf[2]])))
+        replays.append(in_order(*launches))
+    return replays[0], replays[1]
 
 
 def record_integrate(model, state, dt: float, solved: wp.array) -> wp.Launch:

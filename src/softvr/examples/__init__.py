@@ -2,6 +2,6 @@
 demo's one definition, :data:`softvr.scene.BUNDLED`) through the public API and playing it: a
 window, or ``--headless`` to files (``--frames``, ``--size``, ``--device``: the flags they share,
 ``_leaf.play_leaf``). ``run`` is the
-registry of ``softvr run / view / demo NAME``. ``example_candy`` (the candy scene at two scales),
-``shoulder_player`` and ``ct_palpation`` are the Python constructions the benches measure;
+registry of ``softvr run / view / demo NAME``. ``ct_palpation`` is the Python construction the
+palpation bench measures;
 ``shoulder_anatomy`` makes the bundled shoulder meshes and parts files."""

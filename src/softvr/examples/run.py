@@ -34,13 +34,15 @@ import sys
 from softvr.app import add_view_options, check_run_args, play_window, record_from_args, run_parser, shown_layers
 from softvr.render import require_display
 from softvr.scene import BUNDLED, load_scene
+from softvr.scene.command import add_variant_option
 
 __all__ = ["SCENES", "VARIANTS", "main", "scene_file", "view_main"]
 
 #: The demos: the bundled scene files by name (``soft-cube`` -> ``.../scenes/soft-cube.toml``).
 SCENES = {p.stem: p for p in sorted(BUNDLED.glob("*.toml"))}
 
-#: ``--variant`` of a demo: the other scene files it names (``softvr demo shoulder --variant arthroscopy``).
+#: ``--variant`` of a demo of several scene files: the file it names (``softvr demo shoulder --variant
+#: arthroscopy``); another demo's ``--variant NAME`` applies its file's ``[variant.NAME]``.
 VARIANTS = {"shoulder": {"palpation": "shoulder", "arthroscopy": "shoulder-arthroscopy"}}
 
 
@@ -57,17 +59,21 @@ def _about(name: str) -> str:
     return f"the bundled scene {name}"
 
 
-def _parse(parser: argparse.ArgumentParser, name: str, argv: list[str]) -> tuple[argparse.Namespace, str]:
-    """Options of demo ``name`` (``--variant`` where it has some, ``--no-haptics``); returns
-    them and the scene the variant names."""
+def _parse(parser: argparse.ArgumentParser, name: str, argv: list[str]) -> tuple[argparse.Namespace, str, list]:
+    """Options of demo ``name`` (``--variant``: the scene file it names where the demo has
+    several, else its file's ``[variant.NAME]`` tables; ``--no-haptics``); returns them, the
+    scene the variant names and the file's variants to apply."""
     if name in VARIANTS:
         parser.add_argument("--variant", choices=list(VARIANTS[name]), default=next(iter(VARIANTS[name])),
                             help="which scene file of the demo (default %(default)s)")
+    else:
+        add_variant_option(parser)
     parser.add_argument("--no-haptics", action="store_true",
                         help="tools read their handle once per step instead of in a 1 kHz haptic process")
     args = parser.parse_args(argv)
-    chosen = VARIANTS[name][args.variant] if name in VARIANTS else name
-    return args, chosen
+    if name in VARIANTS:
+        return args, VARIANTS[name][args.variant], []
+    return args, name, args.variant
 
 
 def _split(argv: list[str], command: str) -> tuple[str, list[str]]:
@@ -86,11 +92,11 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     exit code."""
     name, rest = _split(list(sys.argv[1:] if argv is None else argv), "run")
     parser = run_parser(prog or f"softvr run {name}", f"Run a bundled scene headless: {_about(name)}", None, size=None)
-    args, chosen = _parse(parser, name, rest)
+    args, chosen, variants = _parse(parser, name, rest)
     check_run_args(parser, args)
     size = args.size or (None, None)
-    with load_scene(scene_file(chosen), frames=args.frames, width=size[0], height=size[1], device=args.device,
-                    haptics=False if args.no_haptics else None) as player:
+    with load_scene(scene_file(chosen), variants, frames=args.frames, width=size[0], height=size[1],
+                    device=args.device, haptics=False if args.no_haptics else None) as player:
         record_from_args(player, args)
     return 0
 
@@ -103,12 +109,12 @@ def view_main(argv: list[str] | None = None, prog: str | None = None) -> int:
     parser.add_argument("--frames", type=int, default=None, help="frames to simulate (default the scene's)")
     parser.add_argument("--size", type=int, nargs=2, default=None, metavar=("W", "H"))
     add_view_options(parser)
-    args, chosen = _parse(parser, name, rest)
+    args, chosen, variants = _parse(parser, name, rest)
     check_run_args(parser, args)
     require_display()  # before building a large scene
     size = args.size or (None, None)
-    with load_scene(scene_file(chosen), frames=args.frames, width=size[0], height=size[1], device=args.device,
-                    haptics=False if args.no_haptics else None) as player:
+    with load_scene(scene_file(chosen), variants, frames=args.frames, width=size[0], height=size[1],
+                    device=args.device, haptics=False if args.no_haptics else None) as player:
         play_window(player, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))
     return 0
 

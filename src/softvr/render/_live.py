@@ -1,5 +1,5 @@
 """softvr's one on-screen event loop: ``softvr view SCENE`` plays a player in it
-(:func:`softvr.app.play_window`), ``softvr view volume`` drags mesh nodes in it
+(:func:`softvr.app.play_window`), ``softvr view VOLUME`` drags mesh nodes in it
 (:class:`~softvr.render.VolumeViewer`)."""
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ The interaction logic is display-free and testable on its own:
 :class:`VolumeViewer` wires them to a VTK window (volume rendering plus the nodes drawn
 as small spheres on top) and :func:`view_volume` runs it in softvr's one window loop
 (:class:`~softvr.render.LiveWindow`, also :func:`softvr.app.play_window`'s). :func:`main` is the
-``softvr view volume`` command.
+``softvr view VOLUME`` command (a volume file or DICOM folder).
 
 Mouse: left-drag on a node moves it (in the plane through the node parallel to the
 screen); left-drag elsewhere rotates, right-drag or wheel zooms, middle-drag pans.
@@ -605,16 +605,16 @@ def view_volume(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``softvr view volume [PATH] [--cells N] [--preset P] [--view V]``: the interactive viewer.
+    """``softvr view PATH [--cells N] [--preset P] [--view V]``: the interactive viewer.
 
-    ``argv`` holds the arguments after ``softvr view volume``. Loads ``PATH`` with
+    ``argv`` holds the arguments after ``softvr view``. Loads ``PATH`` with
     :func:`softvr.volume.load` (default: :func:`softvr.datasets.head_ct`), embeds it in a
     ``grid_tet_mesh`` of ``N`` cubes per axis and deforms it with
     :class:`softvr.volume.Rasterizer`. Returns the exit status: 0, or 2 after printing
     an input error (such as no display) to stderr.
     """
     parser = argparse.ArgumentParser(
-        prog="softvr view volume",
+        prog="softvr view VOLUME",
         description="Drag the nodes of an embedding tetrahedral mesh to deform a CT/MRI volume interactively.",
     )
     parser.add_argument("path", nargs="?", help="volume file or DICOM folder (default: the head CT of softvr.datasets)")
@@ -640,6 +640,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         rasterizer = sv.Rasterizer(vol, nodes, tets, device=args.device)
         view_volume(vol, nodes, tets, rasterizer.deform, preset=args.preset, camera=args.view, width=width, height=height)
     except InputError as exc:
-        print(f"softvr view volume: {exc}", file=sys.stderr)
+        print(f"softvr view: {exc}", file=sys.stderr)
         return 2
     return 0

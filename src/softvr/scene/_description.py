@@ -31,7 +31,7 @@ from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 __all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
            "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "Adhesion", "Body", "Coupling",
            "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
-           "Render", "Sensor", "Simulation", "Sphere", "Volume", "existing_file", "read_table"]
+           "Render", "Sensor", "Simulation", "Sphere", "Variant", "Volume", "existing_file", "read_table"]
 
 BODY_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool")
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".gltf", ".glb", ".off")
@@ -311,6 +311,7 @@ class Simulation(_Table):
     pgs_iterations: Annotated[int | None, count("pgs_iterations", 1)] = _SCENE["pgs_iterations"]
     contact_margin: Annotated[float | None, number("m", minimum=0.0)] = _SCENE["contact_margin"]            # [m]
     collision_free_start: Boolean = False
+    adhesion: Boolean = True  # false: every adhesion of the file off, the same scene dry (thesis Fig. 4.4)
 
 
 def _read_views(p: Problems, t: dict):
@@ -686,9 +687,10 @@ class Volume(_Table):
 
 #: What a ``[[sensor]]`` reads every frame, and its unit: the contact force on its body (the last
 #: step's contact impulses / dt, thesis eq. 5.5), the force of the couplings on it (thesis eq.
-#: 5.4: spring and damper), and its centre (a rigid body's centre of mass, a node body's
-#: mass-weighted mean node), each an [x, y, z] vector.
-SENSOR_KINDS = {"contact_force": "N", "coupling_force": "N", "position": "m"}
+#: 5.4: spring and damper), its centre (a rigid body's centre of mass, a node body's
+#: mass-weighted mean node), and on a tool the force its haptic device renders on the hand (the
+#: virtual coupling's spring k (x_tool - x_handle), thesis 5.4), each an [x, y, z] vector.
+SENSOR_KINDS = {"contact_force": "N", "coupling_force": "N", "position": "m", "hand_force": "N"}
 #: A contact sensor's ``other`` naming every static geometry (planes, static spheres, fixed meshes).
 STATIC = "static"
 
@@ -715,6 +717,27 @@ class DisplayTable(_Table):
     file: Any = None
 
 
+def _read_strings(p: Problems, t: dict):
+    names = t.get("v")
+    if not (isinstance(names, list) and all(isinstance(n, str) and n for n in names)):
+        p.add("", "a list of body names", names)
+        return None
+    return tuple(names)
+
+
+class Variant(_Table):
+    """``[variant.NAME]``: the scene changed (a coarser resolution, fewer bodies, adhesion off):
+    ``remove`` these bodies, replace keys of ``[simulation]``, ``[render]`` and of bodies by
+    name (``[variant.NAME.body."jello"]``); what it names is checked by the reader, which
+    applies it to the file and validates the result."""
+
+    WHAT: ClassVar[str] = "a [variant.NAME] table"
+    remove: Annotated[tuple | None, _check(_read_strings)] = ()
+    simulation: Annotated[dict | None, _table_of("a table: [simulation] keys")] = None
+    render: Annotated[dict | None, _table_of("a table: [render] keys")] = None
+    body: Annotated[dict | None, _table_of('a table of body name = table of its keys')] = None
+
+
 class Document(_Table):
     """A scene file's top-level keys (each table validated by its own model)."""
 
@@ -733,6 +756,7 @@ class Document(_Table):
     display: Any = None
     light: Any = None
     sensor: Any = None
+    variant: Any = None
 
 
 # --- validation -----------------------------------------------------------------------------------------------------

@@ -161,6 +161,12 @@ def _centre(body):
     return lambda _solution: np.array(body.position, float)
 
 
+def _hand_force(tool):
+    """Sensor read: the force [3] [N] a tool's haptic device renders on the hand now
+    (:meth:`softvr.haptics.HapticTool.force`: its virtual coupling's spring, thesis 5.4)."""
+    return lambda _solution: tool.force()
+
+
 #: Model parts' colours by kind.
 _PART_COLORS = {"fixed": (0.92, 0.9, 0.82), "kinematic": (0.92, 0.9, 0.82), "rigid": (0.95, 0.95, 0.9),
                 "soft": (0.72, 0.3, 0.3)}
@@ -236,6 +242,8 @@ class SceneExample(Player):
         Override the file's ``simulation.frames``.
     width, height : int, optional
         Override the file's ``render.size``.
+    steps_per_frame : int, optional
+        Override the file's ``simulation.steps_per_frame`` (a bench times every step: 1).
     device : {"cpu", "cuda", None}
         Warp device of the volume's rasterizer (None: CUDA when present).
     haptics : bool, optional
@@ -244,13 +252,15 @@ class SceneExample(Player):
     """
 
     def __init__(self, scene_file: SceneFile, frames: int | None = None, width: int | None = None,
-                 height: int | None = None, device: str | None = None, haptics: bool | None = None):
+                 height: int | None = None, device: str | None = None, haptics: bool | None = None,
+                 steps_per_frame: int | None = None):
         self.file = scene_file
         self.name = scene_file.path.stem
         self.device = device
         self._haptics = haptics
         sim, ren = scene_file.simulation, scene_file.render
-        self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()}
+        # simulation.adhesion false: the same scene dry (every adhesion name finds none).
+        self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()} if sim["adhesion"] else {}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
                       contact_margin=sim["contact_margin"])
         self.scene = scene  # (again in Player.__init__) the collision-free start needs it
@@ -298,8 +308,8 @@ class SceneExample(Player):
             self._couple(scene, c)
         w, h = ren["size"]
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
-        super().__init__(scene, sim["dt"], sim["steps_per_frame"], frames or sim["frames"], width or w, height or h,
-                         bounds=ren["bounds"], camera=camera)
+        super().__init__(scene, sim["dt"], steps_per_frame or sim["steps_per_frame"], frames or sim["frames"],
+                         width or w, height or h, bounds=ren["bounds"], camera=camera)
         self.sensors = [self._sensor(s) for s in scene_file.sensors]
 
     # -- building ----------------------------------------------------------------------
@@ -500,6 +510,8 @@ class SceneExample(Player):
             read = _contact_force(self.index[s["body"]], other, self.dt)
         elif kind == "coupling_force":
             read = _coupling_force(self.scene, body)
+        elif kind == "hand_force":
+            read = _hand_force(next(t for t in self.tools if t.tool is body))
         else:
             read = _centre(body)
         return Sensor(s["name"], kind, SENSOR_KINDS[kind], read)
@@ -731,25 +743,35 @@ class SceneExample(Player):
                 "body_types": {b.name: b.type for b in self.file.bodies}}
 
 
-def read_any(path) -> SceneFile:
-    """A scene file (TOML) or a glTF / GLB scene with softvr extras, validated."""
+def _gltf_variants(variants) -> tuple:
+    """The problem of variants asked of a glTF scene, which has none."""
+    return "variant", "a TOML scene file (a glTF scene has no [variant.NAME] tables)", repr(list(variants))
+
+
+def read_any(path, variants=()) -> SceneFile:
+    """A scene file (TOML; with ``variants``, names of its ``[variant.NAME]`` tables, applied)
+    or a glTF / GLB scene with softvr extras (which has no variants), validated."""
     if Path(path).suffix.lower() in (".gltf", ".glb"):
+        if variants:
+            raise InputError(*_gltf_variants(variants))
         return read_gltf_scene(path)
-    return read_scene(path)
+    return read_scene(path, variants)
 
 
-def read_any_with_problems(path) -> tuple[SceneFile, list]:
-    """A scene file (TOML) or glTF / GLB scene without its parts that have a problem, and its
-    problems (:func:`~softvr.scene.schema.read_scene_with_problems`)."""
+def read_any_with_problems(path, variants=()) -> tuple[SceneFile, list]:
+    """A scene file (TOML, ``variants`` applied) or glTF / GLB scene without its parts that have
+    a problem, and its problems (:func:`~softvr.scene.schema.read_scene_with_problems`)."""
     if Path(path).suffix.lower() in (".gltf", ".glb"):
-        return read_gltf_scene_with_problems(path)
-    return read_scene_with_problems(path)
+        scene, problems = read_gltf_scene_with_problems(path)
+        return scene, problems + [_gltf_variants(variants)] if variants else problems
+    return read_scene_with_problems(path, variants)
 
 
-def load_scene(path, **overrides) -> SceneExample:
-    """Read, validate and build a scene (TOML scene file, or glTF / GLB with softvr extras);
-    ``overrides`` (frames, width, height, device, haptics) go to :class:`SceneExample`."""
-    return SceneExample(read_any(path), **overrides)
+def load_scene(path, variants=(), **overrides) -> SceneExample:
+    """Read, validate and build a scene (TOML scene file, or glTF / GLB with softvr extras),
+    ``variants`` applied (:func:`read_any`); ``overrides`` (frames, width, height,
+    steps_per_frame, device, haptics) go to :class:`SceneExample`."""
+    return SceneExample(read_any(path, variants), **overrides)
 
 
 def scene_path(text: str) -> Path:

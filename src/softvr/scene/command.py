@@ -15,7 +15,7 @@ from softvr.render import require_display
 from softvr.scene import SceneExample, load_scene
 from softvr.scene.build import read_any_with_problems, scene_path
 
-__all__ = ["SCENE_SUFFIXES", "check_main", "is_scene_file", "run_main", "view_main"]
+__all__ = ["SCENE_SUFFIXES", "add_variant_option", "check_main", "is_scene_file", "run_main", "view_main"]
 
 #: Suffixes of scene files: TOML, glTF, GLB.
 SCENE_SUFFIXES = (".toml", ".gltf", ".glb")
@@ -26,13 +26,20 @@ def is_scene_file(text: str) -> bool:
     return text.lower().endswith(SCENE_SUFFIXES)
 
 
+def add_variant_option(parser: argparse.ArgumentParser) -> None:
+    """``--variant NAME``: apply the scene file's ``[variant.NAME]`` (repeatable, applied in order)."""
+    parser.add_argument("--variant", action="append", default=[], metavar="NAME",
+                        help="apply the scene file's [variant.NAME] table (repeat for more, applied in order)")
+
+
 def check_main(argv: list[str] | None = None) -> int:
     """Validate a scene file: a summary, or every problem (exit status 2)."""
     p = argparse.ArgumentParser(prog="softvr check", description="Validate a scene file; all its errors at once.")
     p.add_argument("scene", metavar="SCENE",
                    help="scene file (TOML, softvr-scene 1; or glTF / GLB with softvr extras), or a bundled one's name")
+    add_variant_option(p)
     args = p.parse_args(argv)
-    scene, problems = read_any_with_problems(scene_path(args.scene))
+    scene, problems = read_any_with_problems(scene_path(args.scene), args.variant)
     # The geometry too, of what is valid: bodies that start inside each other or below the
     # ground, reported with the file's other problems.
     if scene.bodies or scene.models or scene.volume is not None:
@@ -65,14 +72,15 @@ def check_main(argv: list[str] | None = None) -> int:
 
 
 def run_main(argv: list[str] | None = None) -> int:
-    """``softvr run SCENE.toml [--frames N] [--out DIR] [--size W H] [--quiet] [--device D]``."""
+    """``softvr run SCENE.toml [--variant NAME] [--frames N] [--out DIR] [--size W H] [--quiet] [--device D]``."""
     p = run_parser("softvr run", "Run a scene file headless: MP4, PNG contact sheet and JSON metrics.", None,
                    size=None)
     p.add_argument("scene", metavar="SCENE.toml", help="scene file (TOML, glTF / GLB) or a bundled one's name")
+    add_variant_option(p)
     args = p.parse_args(argv)
     check_run_args(p, args)
     size = args.size or (None, None)
-    with load_scene(scene_path(args.scene), frames=args.frames, width=size[0], height=size[1],
+    with load_scene(scene_path(args.scene), args.variant, frames=args.frames, width=size[0], height=size[1],
                     device=args.device) as example:
         record_from_args(example, args)
     return 0
@@ -82,12 +90,13 @@ def view_main(argv: list[str] | None = None) -> int:
     """``softvr view SCENE.toml [--seconds S] [--screenshot PNG] [--show ...] [--hide ...]``."""
     p = argparse.ArgumentParser(prog="softvr view", description="Play a scene file live in a window.")
     p.add_argument("scene", metavar="SCENE.toml", help="scene file (TOML, glTF / GLB) or a bundled one's name")
+    add_variant_option(p)
     add_view_options(p)
     args = p.parse_args(argv)
     path = scene_path(args.scene)
     if args.device is not None:
         resolve_device(args.device)  # cuda where none is present: named before a window opens
     require_display()
-    with load_scene(path, device=args.device) as example:
+    with load_scene(path, args.variant, device=args.device) as example:
         play_window(example, timeout_s=args.seconds, screenshot=args.screenshot, overlays=shown_layers(args))
     return 0

@@ -41,6 +41,11 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
 ``softvr_coupling_radius``    [m] springs at this body's nodes within it of the other's surface
                               (fem, cloth, volume) ...
 ``softvr_coupling_points``    ... or at these world points: x0, y0, z0, x1, ... [m] (any body)
+``softvr_sensor_position``    a sensor's name: the object's centre sampled every frame (a
+                              ``[[sensor]]`` on this body; also ``softvr_sensor_coupling_force``,
+                              ``softvr_sensor_contact_force``, ``softvr_sensor_hand_force`` (a
+                              tool), one of each kind per object)
+``softvr_sensor_contact_force_other`` the contact sensor's ``other``: an object's name or "static"
 ``softvr_adhesion_stiffness`` [N/m^3]: the surface is adhesive (thesis ch. 4); with
                               ``softvr_adhesion_max_energy`` [J/m^2], ``..._viscosity`` (all
                               three required) and optional ``..._bonding_rate``,
@@ -60,7 +65,7 @@ to glTF's y-up like the meshes (the add-on's *Pick coupling vertices* writes the
 folder, or a dataset; ``softvr_unit``, ``softvr_cells`` (3 integers), ``softvr_threshold``,
 ``softvr_skin_triangles``, ``softvr_fix_denser_than``, ``softvr_alpha``, ``softvr_beta``,
 ``softvr_preset``, ``softvr_render_step``, ``softvr_incremental``, ``softvr_mask``,
-``softvr_animation``); it may carry coupling properties. ``softvr_type = "model"`` is a
+``softvr_animation``); it may carry coupling and sensor properties. ``softvr_type = "model"`` is a
 ``[[model]]``: ``softvr_file`` (a parts file .toml, or a built model .npz, relative to the
 glTF's folder), optional ``softvr_colors`` / ``softvr_opacity`` (part name -> value). Its parts
 are bodies named as the parts, for couplings and ``softvr_collides_with``.
@@ -118,12 +123,12 @@ from scipy.spatial.transform import Rotation, Slerp
 from softvr.errors import InputError, Problems, raise_all
 from softvr.files import checked_file, file_name, inside_folder, native_read
 from softvr.gltf import COMPONENTS, gltf_json
-from softvr.scene._description import (BODY_KEYS, GLTF_CELLS, MATERIAL_KEYS, Body, Coupling, Drive, Material,
-                                       ModelTable, Plane, Render, Simulation, Volume, read_table)
+from softvr.scene._description import (BODY_KEYS, GLTF_CELLS, MATERIAL_KEYS, SENSOR_KINDS, STATIC, Body, Coupling,
+                                       Drive, Material, ModelTable, Plane, Render, Simulation, Volume, read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 from softvr.scene.schema import (BodySpec, SceneFile, _model, _volume, adhesion_parameters, render_settings,
-                                 simulation_settings)
+                                 sensor_tables, simulation_settings)
 
 __all__ = ["has_softvr_bodies", "read_gltf_scene", "read_gltf_scene_with_problems"]
 
@@ -132,6 +137,9 @@ _GLTF_TYPES = ("rigid", "fem", "cloth", "fixed", "kinematic", "tool", "volume", 
 _FLOAT = 5126  # accessor componentType of 32-bit floats
 #: A coupling written on a node: its other body and a ``[[coupling]]``'s fields, prefixed.
 _COUPLING_KEYS = ("couple_to", *(f"coupling_{k}" for k in Coupling.model_fields if k not in ("a", "b")))
+#: The sensors written on a node (the sensor's body): ``sensor_<kind>`` = its name, one of each
+#: kind of :data:`~softvr.scene._description.SENSOR_KINDS`, and the contact sensor's ``other``.
+_SENSOR_KEYS = (*(f"sensor_{kind}" for kind in SENSOR_KINDS), "sensor_contact_force_other")
 #: A body node's own custom properties: the ``[[body]]`` fields its mesh and transform do not give.
 _NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_velocity", "spin_centre", "area_density",
                    "stretch", "shear", "bend", "damping", "alpha", "stiffness", "haptics", "max_force",
@@ -143,9 +151,11 @@ _NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_v
 #: node's) and a coupling's; a model's its ``[[model]]`` fields. Another type's are refused, named with the
 #: nearest of these.
 _NODE_KEYS = {**{kind: {"type", "drive_times", "drive_offsets", *_COUPLING_KEYS, *MATERIAL_KEYS.get(kind, ()),
-                        *(k for k in keys if k in (*_NODE_BODY_KEYS, "render_mesh", "collides_with"))}
+                        *(k for k in keys if k in (*_NODE_BODY_KEYS, "render_mesh", "collides_with")),
+                        # A fixed object is an obstacle, not a body: nothing to sense.
+                        *(_SENSOR_KEYS if kind != "fixed" else ())}
                  for kind, keys in BODY_KEYS.items()},
-              "volume": {"type", *_COUPLING_KEYS, *(k for k in Volume.model_fields if k != "name")},
+              "volume": {"type", *_COUPLING_KEYS, *_SENSOR_KEYS, *(k for k in Volume.model_fields if k != "name")},
               "model": {"type", *ModelTable.model_fields}}
 _ANY_NODE_KEY = set().union(*_NODE_KEYS.values())
 #: Every custom property of the scene (and ``ground_adhesion_*``).
@@ -627,6 +637,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     loaded = native_read(lambda file: trimesh.load(file, force="scene"), path, "glTF meshes",
                          "meshes trimesh can read")
     materials, adhesions, bodies, couplings, moving, named = {}, {}, [], [], [], {}
+    sensors: list[tuple[str, dict]] = []  # (where, a [[sensor]] table) of the nodes' sensor_* properties
     volumes: list[dict | None] = []  # one at most (more are a problem); None: one with a problem
     models: list[dict] = []
     model_nodes = []
@@ -644,6 +655,7 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
             model_nodes.append(where)
             continue
         named[name] = kind
+        sensors += _node_sensors(name, where, props)
         coupling = _coupling(name, where, props, "fem" if kind == "volume" else kind, errors)
         if coupling is not None:
             couplings.append((where, coupling))
@@ -726,6 +738,12 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
     kept = [c for where, c in couplings if not flawed(where, couplings_too=True) and {c["a"], c["b"]} <= present]
     filters = [(c["a"], c["b"]) for where, c in couplings
                if flawed(where, couplings_too=True) and not c["collide"] and {c["a"], c["b"]} <= present]
+    # A sensor with a problem is left out, not its node (as a [[sensor]] is: after what is kept).
+    coupled = {c[side] for _, c in couplings for side in "ab"} | set(parts)
+    found = Problems(errors.source, errors.kind)
+    sensed = sensor_tables(sensors, names - {n for n, k in named.items() if k == "fixed"}, coupled,
+                           {n for n, k in named.items() if k == "tool"}, found)
+    _name_sensor_problems(found, errors)
     if ground_adhesion is not None:
         adhesions["ground"] = ground_adhesion
     plane = Plane().model_dump()  # the ground: a [[plane]] of the description's defaults
@@ -733,8 +751,40 @@ def read_gltf_scene_with_problems(path) -> tuple[SceneFile, list]:
               ] if ground else []
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=[], bodies=bodies, filters=filters, couplings=kept, models=models,
-                      volume=volume, display=display)
+                      volume=volume, display=display,
+                      sensors=[t for t in sensed if {t["body"], t["other"]} - {None, STATIC} <= present])
     return scene, errors.items
+
+
+def _node_sensors(name: str, where: str, props: dict) -> list:
+    """The sensors written on a node (module docstring) as ``(where, [[sensor]] table)`` pairs,
+    each named by the property that holds its name (``node 'probe'.sensor_position``)."""
+    out = []
+    for kind in SENSOR_KINDS:
+        if f"sensor_{kind}" in props:
+            table = {"name": props[f"sensor_{kind}"], "kind": kind, "body": name}
+            if kind == "contact_force" and "sensor_contact_force_other" in props:
+                table["other"] = props["sensor_contact_force_other"]
+            out.append((f"{where}.sensor_{kind}", table))
+    if "sensor_contact_force_other" in props and "sensor_contact_force" not in props:
+        out.append((f"{where}.sensor_contact_force", {"kind": "contact_force", "body": name,
+                                                      "other": props["sensor_contact_force_other"]}))
+    return out
+
+
+def _name_sensor_problems(found: Problems, errors: Problems) -> None:
+    """The sensors' problems in ``found`` (:func:`~softvr.scene.schema.sensor_tables`, each
+    below ``node 'NAME'.sensor_<kind>``) added to ``errors`` as the node properties they came
+    from: a sensor's ``name`` is ``sensor_<kind>`` itself, its ``other``
+    ``sensor_contact_force_other``, its ``body`` the node's (whose couplings a coupling_force
+    sensor needs)."""
+    for what, expected, value in found.items:
+        head, _, field = what.rpartition(".")
+        if field == "other":
+            what = head.rsplit(".", 1)[0] + ".sensor_contact_force_other"
+        elif field in ("name", "body"):
+            what = head
+        errors.add(what, expected, value)
 
 
 def _adhesion(props: dict, prefix: str, where: str, errors: Problems) -> dict | None:

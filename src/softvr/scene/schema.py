@@ -14,6 +14,7 @@
     contact_margin = 0.005      # [m]
     collision_free_start = false    # true: soft bodies that start crossing another body are
                                 # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)
+    adhesion = true             # false: every adhesion of the file off (the same scene dry)
 
     [render]
     size = [640, 480]           # [pixels]
@@ -130,12 +131,25 @@
     name = "press"              # against time (NAME_sensors.png); each an [x, y, z] vector
     kind = "contact_force"      # contact_force [N] (the step's contact impulses / dt on body) |
                                 # coupling_force [N] (its couplings' springs) | position [m] (its centre)
+                                # | hand_force [N] (a tool: the force its haptic device renders)
     body = "cube"
     other = "floor box"         # contact_force only: the contacts with this body, or "static"
                                 # (planes, static spheres, fixed meshes); default: all of them
 
     [display]                   # the screens it is shown on (softvr cave preview|master|local SCENE)
     preset = "cube"             # a softvr.cave preset, or file = "my-cave.toml" (softvr-display 1)
+
+    [variant.quick]             # the scene changed, played on request (softvr run SCENE --variant
+    remove = ["candy 7"]        # quick; load_scene(path, ["quick"])): these bodies left out (and
+                                # the couplings, filters and sensors that name them), ...
+    [variant.quick.simulation]  # ... these [simulation] / [render] keys replaced, ...
+    frames = 20
+    [variant.quick.body."jello"]    # ... and these keys of a body (not its name or type)
+    cells = [6, 6, 3]
+    # Variants apply in the order asked, a later one's keys winning. Each is checked with the
+    # file: its keys, the bodies it names, and the file with it applied (a problem named where
+    # the variant writes it, variant.quick.body.jello.cells, or below it, variant.empty body,
+    # where it breaks what it does not write: no body left).
 
     [[model]]                   # a model of coupled parts (thesis 5.2): its parts become bodies
     file = "shoulder/parts.toml"    # named as the parts, its couplings springs; a parts file
@@ -169,18 +183,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from softvr.errors import InputError, Problems, raise_all
+from softvr.errors import InputError, Problems, known_key, raise_all
 from softvr.files import file_name, read_toml
 from softvr.model import load_model, read_parts
 from softvr.scene._description import (BODY_TYPES, BOX_CELLS, DATASETS, LIMITS, MESH_SUFFIXES, PLAUSIBLE, STATIC,
                                        Adhesion, Body, Coupling, DisplayTable, Document, Filter, Light, Material,
-                                       ModelTable, Plane, Render, Sensor, Simulation, Sphere, Volume, existing_file,
-                                       read_table)
+                                       ModelTable, Plane, Render, Sensor, Simulation, Sphere, Variant, Volume,
+                                       existing_file, read_table)
 from softvr.scene.display import PRESETS as DISPLAY_PRESETS
 from softvr.scene.display import read_display
 
 __all__ = ["BODY_TYPES", "DATASETS", "FORMAT", "LIMITS", "MESH_SUFFIXES", "PLAUSIBLE", "BodySpec", "SceneFile",
-           "adhesion_parameters", "read_scene", "read_scene_with_problems", "render_settings", "simulation_settings"]
+           "adhesion_parameters", "read_scene", "read_scene_with_problems", "render_settings", "sensor_tables",
+           "simulation_settings"]
 
 FORMAT = "softvr-scene 1"
 _BODY = Body.model_fields  # the defaults of a [[body]]'s fields
@@ -240,6 +255,7 @@ class SceneFile:
     volume: dict | None = None
     display: str | None = None  # a display preset name or a display file's path
     sensors: list = field(default_factory=list)  # [[sensor]] tables: name, kind, body, other
+    variants: tuple = ()  # the names of the [variant.NAME] tables applied, in order
 
     def body(self, name: str) -> BodySpec | None:
         """The ``[[body]]`` of this name (None for a model's part)."""
@@ -348,15 +364,16 @@ def _file(t: dict, key: str, w: str, scene_dir: Path, suffixes: tuple, what: str
         return None
 
 
-def read_scene(path) -> SceneFile:
-    """Read and validate a scene file (module docstring); mesh paths are resolved against its
-    folder and must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
-    scene, problems = read_scene_with_problems(path)
+def read_scene(path, variants=()) -> SceneFile:
+    """Read and validate a scene file (module docstring) with its ``variants`` applied in turn
+    (names of its ``[variant.NAME]`` tables); mesh paths are resolved against its folder and
+    must exist. Raises one :class:`~softvr.errors.InputError` listing every problem."""
+    scene, problems = read_scene_with_problems(path, variants)
     raise_all(problems, str(path), "scene file")
     return scene
 
 
-def read_scene_with_problems(path) -> tuple[SceneFile, list]:
+def read_scene_with_problems(path, variants=()) -> tuple[SceneFile, list]:
     """A scene file's problems, and the scene without the parts that have one.
 
     Returns the :class:`SceneFile` with every body, plane, sphere, model, volume, filter and
@@ -366,9 +383,110 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     bodies that start crossing, together with everything else. A coupling with a problem
     still excuses its two bodies from colliding (as a filter), as it would when mended.
     A missing file or bad TOML raises :class:`~softvr.errors.InputError` (nothing to check).
+
+    Every ``[variant.NAME]`` is checked, applied to the file (:func:`_variant_problems`); the
+    scene returned has ``variants`` (their names, applied in this order) applied.
     """
     path = Path(path)
     doc = read_toml(path, "scene file")
+    scene, problems = _read_document(path, doc)
+    errors = Problems(str(path), "scene file")
+    tables = _named_tables(doc, "variant", errors)
+    for name in variants:
+        if name not in tables:
+            errors.add("variant", known_key(tables, name, "the name of one of its [variant.NAME] tables") if tables
+                       else "a [variant.NAME] table of this name (the file has none)", repr(name))
+    chosen = {}
+    for name, table in tables.items():
+        variant, bad = _variant_problems(path, doc, name, table, problems, errors)
+        if not bad:
+            chosen[name] = variant
+    if variants and all(name in chosen for name in variants):
+        scene, _ = _read_document(path, _patched(doc, [chosen[name] for name in variants]))
+        scene.variants = tuple(variants)
+    return scene, problems + errors.items
+
+
+#: The tables that name bodies, and the keys they name them with: a variant that removes a body
+#: removes those of them that name it.
+_NAMING = {"coupling": ("a", "b"), "filter": ("a", "b"), "sensor": ("body", "other")}
+
+
+def _patched(doc: dict, variants: list) -> dict:
+    """The document ``doc`` with each :class:`~softvr.scene._description.Variant` applied in turn:
+    its bodies removed (with the couplings, filters and sensors that name one, and their names in
+    other bodies' ``collides_with``), its ``[simulation]``, ``[render]`` and body keys replacing
+    the file's."""
+    out = {k: v for k, v in doc.items() if k != "variant"}
+    for v in variants:
+        gone = set(v.remove or ())
+        for key in ("simulation", "render"):
+            if getattr(v, key) and isinstance(out.get(key, {}), dict):
+                out[key] = {**out.get(key, {}), **getattr(v, key)}
+        if isinstance(out.get("body"), list):
+            out["body"] = [{**b, **(v.body or {}).get(b.get("name"), {})} if isinstance(b, dict) else b
+                           for b in out["body"] if not (isinstance(b, dict) and b.get("name") in gone)]
+            for b in out["body"]:
+                if isinstance(b, dict) and isinstance(b.get("collides_with"), list):
+                    b["collides_with"] = [n for n in b["collides_with"] if n not in gone]
+        for table, keys in _NAMING.items():
+            if isinstance(out.get(table), list):
+                out[table] = [t for t in out[table] if not (isinstance(t, dict) and {t.get(k) for k in keys} & gone)]
+    return out
+
+
+def _variant_problems(path: Path, doc: dict, name: str, table, base: list, errors: Problems):
+    """``[variant.NAME]`` checked: its keys, the bodies it names, and the file with it applied.
+    A problem of a key the variant writes is named where it writes it
+    (``variant.quick.body.jello.cells``); another that only the applied file has (no body left)
+    is named below the variant (``variant.empty body``). Returns the
+    :class:`~softvr.scene._description.Variant` (None when it is no table) and whether it had a
+    problem."""
+    w = f"variant.{name}"
+    before = len(errors.items)
+    variant, _ = read_table(Variant, table, w, errors)
+    if variant is None:
+        return None, True
+    bodies = [b for b in doc.get("body", []) if isinstance(b, dict)] if isinstance(doc.get("body"), list) else []
+    names = {b.get("name") for b in bodies} - {None}
+    for k, gone in enumerate(variant.remove or ()):
+        if gone not in names:
+            errors.add(f"{w}.remove[{k}]", known_key(names, gone, "the name of a [[body]]"), repr(gone))
+    patches = {}
+    for body, patch in (variant.body or {}).items():
+        if body not in names:
+            errors.add(f"{w}.body.{body}", known_key(names, body, "the name of a [[body]]"), repr(body))
+        elif not isinstance(patch, dict):
+            errors.add(f"{w}.body.{body}", "a table of the body's keys", patch)
+        else:
+            for key in sorted({"name", "type"} & set(patch)):
+                errors.add(f"{w}.body.{body}.{key}", "another key of the body (a variant keeps its name and type)",
+                           repr(patch[key]))
+            patches[body] = {k: v for k, v in patch.items() if k not in ("name", "type")}
+    # The rest judged on as the file with it applied: what it names that is not there left out.
+    variant = variant.model_copy(update={"remove": tuple(n for n in variant.remove or () if n in names),
+                                         "body": patches})
+    applied = _patched(doc, [variant])
+    kept = [b for b in bodies if b.get("name") not in variant.remove]
+    index = {f"body[{j}]": (f"body[{bodies.index(b)}]", b.get("name")) for j, b in enumerate(kept)}
+    _, problems = _read_document(path, applied)
+    for what, expected, found in problems:
+        head, dot, rest = what.partition(".")
+        key = rest.split(".")[0].split("[")[0]
+        original, body = index.get(head, (head, None))
+        written = ((variant.body or {}).get(body, {}) if body is not None else
+                   (getattr(variant, head, None) or {}) if head in ("simulation", "render") else {})
+        if key in written or (body is not None and not dot and set(written) & {"box", "sphere", "mesh", "tets",
+                                                                                  "cloth", "cells"}):
+            where = f"{w}.body.{body}" if body is not None else f"{w}.{head}"
+            errors.add(f"{where}{dot}{rest}", expected, found)
+        elif (f"{original}{dot}{rest}", expected, found) not in base:
+            errors.add(f"{w} {original}{dot}{rest}", expected, found)
+    return variant, len(errors.items) > before
+
+
+def _read_document(path: Path, doc: dict) -> tuple[SceneFile, list]:
+    """The scene of a scene file's TOML document ``doc`` (:func:`read_scene_with_problems`)."""
     errors = Problems(str(path), "scene file")
     if doc.get("format") != FORMAT:
         errors.add("format", f'"{FORMAT}"', doc.get("format", "nothing"))
@@ -448,7 +566,8 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     # A fixed mesh is an obstacle, not a body: its contacts are the static geometry's.
     bodies_named = names - {b.name for b in bodies if b.type == "fixed" and b.shape == "mesh"}
     coupled = {c[side] for c, _ in couplings for side in "ab"} | {name for m in models for name in m["parts"]}
-    sensors = _sensors(_list(doc, "sensor", errors), bodies_named, coupled, errors)
+    sensors = sensor_tables([(f"sensor[{i}]", t) for i, t in enumerate(_list(doc, "sensor", errors))], bodies_named,
+                            coupled, {b.name for b in bodies if b.type == "tool"}, errors)
     scene = SceneFile(path=path, simulation=simulation, render=render, materials=materials, adhesions=adhesions,
                       planes=planes, spheres=spheres, bodies=kept,
                       filters=[f for f in filters if set(f) <= present],
@@ -458,13 +577,14 @@ def read_scene_with_problems(path) -> tuple[SceneFile, list]:
     return scene, errors.items
 
 
-def _sensors(tables: list, names: set, coupled: set, errors: Problems) -> list:
-    """The ``[[sensor]]`` tables without a problem: each names a body of the scene (``names``),
-    a coupling_force sensor one with couplings (``coupled``), a contact sensor's ``other``
-    another body or :data:`~softvr.scene._description.STATIC`; no two share a name."""
+def sensor_tables(tables: list, names: set, coupled: set, tools: set, errors: Problems) -> list:
+    """The ``[[sensor]]`` tables (``(where, table)`` pairs: a TOML file's ``sensor[i]``, a glTF
+    node's properties) without a problem: each names a body of the scene (``names``), a
+    coupling_force sensor one with couplings (``coupled``), a hand_force sensor a tool
+    (``tools``), a contact sensor's ``other`` another body or
+    :data:`~softvr.scene._description.STATIC`; no two share a name."""
     out, seen = [], set()
-    for i, t in enumerate(tables):
-        w = f"sensor[{i}]"
+    for w, t in tables:
         sensor, bad = read_table(Sensor, t, w, errors)
         if sensor is None:
             continue
@@ -474,6 +594,10 @@ def _sensors(tables: list, names: set, coupled: set, errors: Problems) -> list:
             bad = True
         elif sensor.kind == "coupling_force" and sensor.body is not None and sensor.body not in coupled:
             errors.add(f"{w}.body", f"a body with couplings ({', '.join(sorted(coupled)) or 'none in this scene'})",
+                       repr(sensor.body))
+            bad = True
+        elif sensor.kind == "hand_force" and sensor.body is not None and sensor.body not in tools:
+            errors.add(f"{w}.body", f"a tool (its handle's force) ({', '.join(sorted(tools)) or 'none in this scene'})",
                        repr(sensor.body))
             bad = True
         if sensor.other is not None and (sensor.other not in names | {STATIC} or sensor.other == sensor.body):

@@ -143,11 +143,8 @@ class RigidNodes:
         self.scene, self.rigid = scene, rigid
         self.bodies = [scene.bodies[b] for b in rigid.bodies]
         self._views = bind_views(self.bodies, rigid.state)
-        self._free = rigid.state.free_velocity.numpy()
         self._external = rigid.state.external.numpy()
         self._diverged = rigid.state.diverged.numpy()
-        self._linear = rigid.linear_node.numpy()
-        self._angular = rigid.angular_node.numpy()
         self._recorded: tuple = ()
 
     def sync_in(self) -> None:
@@ -173,12 +170,6 @@ class RigidNodes:
         unconstrained()
         self.check()
         system()
-
-    def start(self, guess: np.ndarray) -> None:
-        """The sweeps' first guess [n, 3] at the rigid nodes: the unconstrained velocity, which
-        a sweep without contacts returns."""
-        guess[self._linear] = self._free[:, :3]
-        guess[self._angular] = self._free[:, 3:]
 
     def integrate(self, buffer: int) -> None:
         """Move the bodies by the velocities the sweeps solved (``state.sweep_buffers[buffer]``)."""

@@ -24,6 +24,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import warp as wp
 
 from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
                                       rigid_side, stencil_side)
@@ -33,8 +34,9 @@ from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_bodies
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
-from softvr.device import in_order, replayer
-from softvr.dynamics.node_arrays import NODE_DIVERGENCE_REASONS, record_elements, record_integrate, record_system
+from softvr.device import in_order, replayer, upload
+from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
+                                         record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import FemBody, RigidBody
@@ -64,6 +66,11 @@ MAX_SWEEPS_PER_DECADE = 25.0
 PLAIN_LANCZOS_RESTARTS = 30
 #: PGS passes over the contacts per sweep.
 SWEEP_PASSES = 2
+#: The contact arrays a step's snapshot copies (NodeContacts), and those of the rigid path's
+#: contact rows its primitives' contacts point to.
+_CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
+                   "gap_after", "rigid_node", "rigid_lever", "area")
+_RIGID_CONTACT_FIELDS = ("key", "point_a", "point_b")
 
 
 class IllConditioned(Exception):
@@ -256,10 +263,20 @@ class NodeStepper:
         st = self.state
         self._q, self._v, self._fixed_v = st.q.numpy(), st.v.numpy(), st.fixed_velocity.numpy()
         self._external = st.external.numpy()
-        self._diverged = st.diverged.numpy()
-        self._count = st.contacts.count.numpy()
-        self._mass = self.model.mass.numpy()
-        self._v_before = None  # velocities at the start of the last step [n, 3] [m/s]
+        c = st.contacts
+        self._host_arrays = {name: getattr(c, name) for name in _CONTACT_FIELDS + ("count", "stencil_nodes",
+                                                                                   "stencil_count")}
+        self._host_arrays.update(point_x=st.point_x, diverged=st.diverged)
+        if self.model.rigid is not None:
+            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
+                                      for name in _RIGID_CONTACT_FIELDS})
+        self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
+            if wp.get_device(self.model.device).is_cpu else None
+        k = len(self.model.kinematic)
+        self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
+        self._drive_nodes = record_drive(self.model, st)
+        self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
+        self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
         start = self.model.body_node_start
         self._views = {i: (self._q[start[i]:start[i + 1]], self._v[start[i]:start[i + 1]],
                            self._fixed_v[start[i]:start[i + 1]]) for i, f in enumerate(self.fem) if f}
@@ -283,23 +300,24 @@ class NodeStepper:
                                          f"shape {value.shape}")
                     view[:] = value
                     setattr(body, name, view)
-                    self._v_before = None  # a new state: last step's change says nothing
+                    self._carried = False  # a new state: last step's change says nothing
 
     def _drive(self, dt: float) -> dict:
         """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
-        collision and coupling points' nodes set to where the points are and how they move."""
-        start = self.model.body_node_start
-        out = {}
-        for i in self.model.kinematic:
+        collision and coupling points' nodes set to where the points are and how they move
+        (:func:`record_drive`, from the poses and velocities uploaded here)."""
+        out: dict[int, np.ndarray] = {}
+        if not self.model.kinematic:
+            return out
+        position, rotation, velocity = self._poses
+        for j, i in enumerate(self.model.kinematic):
             body = self.scene.bodies[i]
-            v = body.unconstrained_velocity(dt, self.scene.gravity)
-            out[i] = v
-            points = self.model.couplings.driven[i]
-            if points is not None:
-                rows = slice(start[i], start[i + 1])
-                self._q[rows] = points.positions()
-                self._fixed_v[rows] = points.velocities(v)
-                self._v[rows] = self._fixed_v[rows]
+            out[i] = v = body.unconstrained_velocity(dt, self.scene.gravity)
+            position[j], rotation[j], velocity[j] = body.position, body.rotation, v
+        st = self.state
+        for dst, src in zip((st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity), self._poses):
+            upload(dst, src)
+        self._drive_nodes()
         return out
 
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
@@ -387,7 +405,8 @@ class NodeStepper:
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
             self.rigid.record(st, dt, s.gravity)
-        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings]
+        start = record_start(m, st, dt, s.gravity, self._v_before)
+        self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
     def _solver(self, dt: float) -> NodeSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
@@ -434,7 +453,7 @@ class NodeStepper:
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
-        _, elements, assemble, rhs, detect, _, carry, integrate, couplings = self._recorded
+        _, elements, assemble, rhs, detect, _, carry, integrate, couplings, start = self._recorded
         elements()
         assemble()
         rhs()
@@ -450,20 +469,8 @@ class NodeStepper:
             prepare()
         t2 = time.perf_counter()
         solve = self._solver(dt)  # after the detection: the choice counts the contacts
-        # The sweeps start from last step's velocity change carried on (v + (v - v_before)), or
-        # on a first step the explicit one (v + dt (g + f_ext / m)): a uniform change (gravity,
-        # a push, a resting body's none) is Jacobi's slowest mode, and these guesses have it.
-        buffers = self.state.sweep_buffers
-        if self._v_before is None:
-            start = self._v + dt * (np.asarray(self.scene.gravity, float) + self._external / self._mass[:, None])
-        else:
-            start = 2.0 * self._v - self._v_before
-        self._v_before = self._v.copy()
-        start[self.fixed_nodes] = self._fixed_v[self.fixed_nodes]
-        if self.rigid is not None:
-            self.rigid.start(start)
-        buffers[0].numpy()[:] = start
-        buffers[2].numpy()[:] = start
+        start[self._carried]()
+        self._carried = True
         sweeps, solved = solve.solve(SWEEP_TOLERANCE)
         if self.adhesion is not None:
             evolve[sweeps % 3]()
@@ -480,7 +487,7 @@ class NodeStepper:
                 body.last_cg_iterations = 0
             elif i in driven:
                 body.integrate(driven[i], dt)
-        snapshot = _NodeSnapshot(self, self._contacts_out(), self.state.point_x.numpy()[:self.model.point_count].copy(),
+        snapshot = _NodeSnapshot(self, self._contacts_out(), self._host("point_x")[:self.model.point_count].copy(),
                                  [self._views[i][1].copy() if self.fem[i] else driven[i] if i in driven
                                   else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
                                  float(solve.stats.numpy()[1]))
@@ -488,28 +495,33 @@ class NodeStepper:
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
 
+    def _host(self, name: str) -> np.ndarray:
+        """Array ``name`` of those a step reads back (:meth:`_contacts_out`, ``point_x``,
+        ``diverged``) on the host: on the CPU a view made once (Warp's ``numpy()`` costs a few
+        us a call, and a step makes 20), else a copy."""
+        if self._host_views is not None:
+            return self._host_views[name]
+        return self._host_arrays[name].numpy()
+
     def _contacts_out(self) -> dict:
         """This step's contacts as host arrays, with ``movable``: whether an impulse can act on
         any node of the contact's stencil."""
-        n = min(int(self._count[0]), self.state.contacts.capacity)
-        c = self.state.contacts
-        out = {name: getattr(c, name).numpy()[:n].copy()
-               for name in ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
-                            "gap_after", "rigid_node", "rigid_lever", "area")}
+        n = min(int(self._host("count")[0]), self.state.contacts.capacity)
+        out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
             rows = np.where(out["kind"] == 3, out["point"], 0)
-            out.update({name: getattr(self.model.rigid.state.contacts, name).numpy()[rows]
-                        for name in ("key", "point_a", "point_b")})
-        nodes = c.stencil_nodes.numpy()[:n]
-        used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+            out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+        nodes = self._host("stencil_nodes")[:n]
+        used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
         return out
 
     def _check(self) -> None:
         """Stop with a report naming the body, node and step (SimulationError) if one diverged."""
-        if self._diverged.any():
-            i = int(np.flatnonzero(self._diverged)[0])
+        diverged = self._host("diverged")
+        if diverged.any():
+            i = int(np.flatnonzero(diverged)[0])
             b = int(np.searchsorted(self.model.body_node_start, i, side="right") - 1)
             body = self.scene.bodies[b]
-            reason = NODE_DIVERGENCE_REASONS[int(self._diverged[i])]
+            reason = NODE_DIVERGENCE_REASONS[int(diverged[i])]
             raise body._diverged(f"node {i - self.model.body_node_start[b]}: {reason}")

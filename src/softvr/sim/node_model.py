@@ -71,6 +71,12 @@ class NodeModel:
     contrib_start : wp.array(int32) [nb + 1]; contrib : wp.array(int32) [16 m]
         Block ``k`` sums the element blocks ``contrib[contrib_start[k] : contrib_start[k + 1]]``,
         each coded 16 tet + 4 a + b (rows of node a, columns of node b of the tet).
+    assembled : wp.array(int32) [na]
+        The blocks the assembly sums: one of each transposed pair (``A`` is symmetric: the
+        other is written as its transpose) and every block without one.
+    block_mirror : wp.array(int32) [nb]
+        The block at the transposed position (column, row) (itself on the diagonal; -1: none,
+        a coupling's block from a driven node).
     force_start : wp.array(int32) [n + 1]; force : wp.array(int32) [4 m]
         Node ``i`` sums the element forces ``force[force_start[i] : force_start[i + 1]]``, coded
         4 tet + a.
@@ -105,6 +111,9 @@ class NodeModel:
         1 where body a's surface vertices meet body b's triangles.
     kinematic : list of int
         Kinematic and fixed bodies (host): their collision points are driven nodes.
+    drive_node, drive_body : wp.array(int32) [nd]; drive_local : wp.array(vec3d) [nd] [m]
+        Each driven node, its body's row in ``kinematic`` and its point in that body's frame
+        (relative to the centre of mass).
     edges : wp.array2d(int32) [e, 2]
         The surfaces' edges over global collision points (none when ``Scene.edge_contacts`` is
         off or no two surfaces meet); body ``b``'s are ``body_edge_start[b] : [b + 1]``.
@@ -145,6 +154,8 @@ class NodeModel:
     row_start: wp.array
     contrib_start: wp.array
     contrib: wp.array
+    assembled: wp.array
+    block_mirror: wp.array
     force_start: wp.array
     force: wp.array
     point_nodes: wp.array
@@ -162,6 +173,9 @@ class NodeModel:
     mesh_ids: wp.array
     pair_enabled: wp.array
     kinematic: list
+    drive_node: wp.array
+    drive_body: wp.array
+    drive_local: wp.array
     edges: wp.array
     edge_faces: wp.array
     edge_body: wp.array
@@ -277,6 +291,10 @@ class NodeState:
     v : wp.array(vec3d) [n] [m/s]
     fixed_velocity : wp.array(vec3d) [n] [m/s]
         Velocity of the fixed nodes over the next step (Control).
+    kinematic_position : wp.array(vec3d) [k] [m]; kinematic_rotation : wp.array(mat33d) [k]
+        Pose of each of ``NodeModel.kinematic`` at the step's start (Control: its script's).
+    kinematic_velocity : wp.array(spatial_vectord) [k] [m/s, rad/s]
+        Its velocity over the step (linear, world angular; Control).
     external : wp.array(vec3d) [n] [N]
         External node forces of the step (``Scene.external``; Control).
     rotations : wp.array(mat33d) [m]; element_forces : wp.array2d(vec3d) [m, 4] [N]
@@ -303,6 +321,9 @@ class NodeState:
     q: wp.array
     v: wp.array
     fixed_velocity: wp.array
+    kinematic_position: wp.array
+    kinematic_rotation: wp.array
+    kinematic_velocity: wp.array
     external: wp.array
     rotations: wp.array
     element_forces: wp.array
@@ -370,23 +391,30 @@ def _f64(values, device, dtype=wp.float64):
 
 def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
     """Block-CSR pattern of ``A`` (the tets' blocks and the ``extra`` keys ``row n + col``: the
-    couplings') and the gather lists of its blocks and of the node forces."""
-    m = len(tets)
-    e, a, b = np.meshgrid(np.arange(m), np.arange(4), np.arange(4), indexing="ij")
-    rows, cols = tets[e, a].ravel(), tets[e, b].ravel()
-    tet_keys = rows.astype(np.int64) * n + cols
-    keys = np.union1d(tet_keys, extra)
-    block = np.searchsorted(keys, tet_keys)
-    order = np.argsort(block, kind="stable")
-    contrib = (16 * e + 4 * a + b).ravel()[order]
-    contrib_start = np.searchsorted(block[order], np.arange(len(keys) + 1))
+    couplings'), the gather lists of its blocks and of the node forces, and the blocks the
+    assembly sums with their transposed partners."""
+    # Element block 16 e + 4 a + b (rows of the tet's node a, columns of its node b) is entry
+    # 16 e + 4 a + b of these; one stable sort of the keys groups the entries by block, each
+    # block's in element order.
+    tet_keys = (np.repeat(tets, 4, axis=1).astype(np.int64) * n + np.tile(tets, (1, 4))).ravel()
+    every = np.concatenate([tet_keys, np.asarray(extra, np.int64)])
+    order = np.argsort(every, kind="stable")
+    ordered = every[order]
+    first = np.concatenate([[True], ordered[1:] != ordered[:-1]])
+    keys = ordered[first]
+    from_tets = order < len(tet_keys)
+    contrib = order[from_tets]
+    contrib_start = np.searchsorted((np.cumsum(first) - 1)[from_tets], np.arange(len(keys) + 1))
     block_row, block_col = keys // n, keys % n
     row_start = np.searchsorted(block_row, np.arange(n + 1))
+    mirror_keys = block_col * n + block_row
+    mirror = np.minimum(np.searchsorted(keys, mirror_keys), len(keys) - 1)
+    mirror = np.where(keys[mirror] == mirror_keys, mirror, -1)
+    assembled = np.flatnonzero((block_col >= block_row) | (mirror < 0))
     nodes = tets.ravel()
-    by_node = np.argsort(nodes, kind="stable")
-    force = (4 * np.arange(m)[:, None] + np.arange(4)).ravel()[by_node]
-    force_start = np.searchsorted(nodes[by_node], np.arange(n + 1))
-    return block_row, block_col, row_start, contrib_start, contrib, force_start, force
+    force = np.argsort(nodes, kind="stable")  # element force 4 e + a is entry 4 e + a of the tets
+    force_start = np.searchsorted(nodes[force], np.arange(n + 1))
+    return block_row, block_col, row_start, contrib_start, contrib, force_start, force, assembled, mirror
 
 
 def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
@@ -436,7 +464,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     solved_rows = np.repeat(fem, node_counts) | rigid_rows
     springs = coupling_springs(scene, node_start, colliders)
     terms = coupling_blocks(springs, solved_rows)
-    block_row, block_col, row_start, contrib_start, contrib, force_start, force = _pattern(tets, n, terms[0])
+    block_row, block_col, row_start, contrib_start, contrib, force_start, force, assembled, mirror = \
+        _pattern(tets, n, terms[0])
     kinematic = [i for i in range(nbody) if not fem[i] and not rigid[i]]
 
     def per_node(fem_value, other_value):
@@ -510,7 +539,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         tet_beta=_f64(np.concatenate([np.full(len(b.tets), b.material.beta) for b, f in zip(bodies, fem) if f]), d),
         corotational=bool(next(b for b, f in zip(bodies, fem) if f).corotational),
         block_row=_i32(block_row, d), block_col=_i32(block_col, d), row_start=_i32(row_start, d),
-        contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d),
+        contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d), assembled=_i32(assembled, d),
+        block_mirror=_i32(mirror, d),
         force_start=_i32(force_start, d), force=_i32(force, d),
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
@@ -519,6 +549,10 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         triangles=_i32(triangles.reshape(-1, 3), d), body_triangle_start=_i32(tri_start, d),
         surfaces=surfaces, meshes=meshes, mesh_ids=wp.array(mesh_ids, dtype=wp.uint64, device=d),
         pair_enabled=_i32(pair, d), kinematic=kinematic,
+        drive_node=_i32(np.concatenate([np.arange(node_start[i], node_start[i + 1]) for i in kinematic] + [[]]), d),
+        drive_body=_i32(np.concatenate([np.full(node_counts[i], j) for j, i in enumerate(kinematic)] + [[]]), d),
+        drive_local=_f64(np.concatenate([np.zeros((0, 3))] + [driven[i].local for i in kinematic
+                                                               if driven[i] is not None]), d, wp.vec3d),
         edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
         edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
         bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
@@ -567,6 +601,9 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
                                for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
         fixed_velocity=_f64(np.concatenate([b.fixed_velocity if fem[i] else np.zeros((k, 3))
                                             for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
+        kinematic_position=wp.zeros(len(kinematic), dtype=wp.vec3d, device=d),
+        kinematic_rotation=wp.zeros(len(kinematic), dtype=wp.mat33d, device=d),
+        kinematic_velocity=wp.zeros(len(kinematic), dtype=wp.spatial_vectord, device=d),
         external=vec(), rotations=wp.zeros(m, dtype=wp.mat33d, device=d),
         element_forces=wp.zeros((m, 4), dtype=wp.vec3d, device=d),
         blocks=wp.zeros(len(block_row), dtype=wp.mat33d, device=d), d_inv=wp.zeros(n, dtype=wp.mat33d, device=d),
