@@ -21,31 +21,15 @@ from softvr import Scene
 from softvr.collision import Plane
 from softvr.collision.contacts import unpack_keys
 from softvr.contact import Adhesion
-from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints
+from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 from softvr.sim._node_step import NodeStepper
-from softvr.volume import Volume, grid_tet_mesh
-from softvr.volume.tetmesh import boundary_faces
+from tests.contact.test_node_adhesion import _add_block
 
 G = 9.81  # [m/s^2]
 EDGE, DENSITY = 0.1, 800.0  # rigid cube [m], [kg/m^3]
 DT, RATE = 0.002, 40.0  # [s], force ramp [N/s]
 GLUE = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3)  # p* = sqrt(W C) = 3162 Pa
-
-
-def _fem_block(scene) -> None:
-    """A 4 cm FEM cube (not adhesive) resting on the plane away from the rigid ones: the node
-    arrays need an FEM body."""
-    spacing = np.full(3, 0.02)
-    nodes, tets = grid_tet_mesh(Volume(np.zeros((2,) * 3, np.uint8), spacing=spacing,
-                                       origin=spacing / 2 + np.array([0.3, -0.02, 0.0])), 2)
-    body = FemBody(nodes, tets, Material(2e5, 0.3, 1000.0, alpha=0.0, beta=1e-2), name="block")
-    faces = boundary_faces(body.tets)
-    used = np.unique(faces)
-    local = np.full(len(body.q), -1)
-    local[used] = np.arange(len(used))
-    scene.add_body(body, collision_points=EmbeddedPoints(body, used[:, None], np.ones((len(used), 1))),
-                   collision_triangles=local[faces])
 
 
 def _add_cube(scene, kind: str, x: float, y: float = 0.0) -> RigidBody:
@@ -65,7 +49,7 @@ def _glued(kinds, positions) -> tuple[Scene, list]:
     """An FEM block (body 0) and rigid cubes (bodies 1, 2, ...) on an adhesive plane z = 0,
     settled and bonded over 20 steps, on the node arrays."""
     scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5, contact_margin=0.002)
-    _fem_block(scene)
+    _add_block(scene, 0.04, 2, (0.3, -0.02, 0.0), None)  # the arrays need an FEM body: one beside, not glued
     cubes = [_add_cube(scene, kind, *at) for kind, at in zip(kinds, positions)]
     scene.add_plane(Plane(friction=0.5), adhesion=GLUE)
     for _ in range(20):
