@@ -6,7 +6,9 @@ bonding / debonding (4.3.3) and what carries over to the next step, sorted by ke
 :mod:`softvr.contact._adhesion_kernels`, as the rigid arrays use it.
 
 Contact kinds of the node arrays (:class:`softvr.sim.NodeContacts`): 0 point vs plane, 1
-surface vertex vs another body's triangle, 2 edge vs edge.
+surface vertex vs another body's triangle, 2 edge vs edge, 3 a rigid body's box or sphere
+primitive (its key, area and side b's plane from the rigid path's detection, which numbers the
+bodies among the rigid ones: the key is re-packed with the scene's).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
+from softvr.contact._node_jacobi_kernels import _rigid_velocity
 
 # softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
 # (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
@@ -21,6 +24,9 @@ POINT_PLANE, VERTEX_TRIANGLE, EDGE_EDGE = 0, 3, 4
 #: The key of a contact that does not adhere: above every real one (kinds < 15), so that it
 #: never shadows one in the carried table's search.
 NO_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))
+#: The key's 10-bit body field and its low 40 bits (features a and b).
+BODY_BITS = wp.constant(wp.uint64(0x3FF))
+FEATURE_BITS = wp.constant(wp.uint64(0xFFFFFFFFFF))
 
 
 @wp.func
@@ -68,6 +74,18 @@ def edge_area(e: int, n: wp.vec3d, point_x: wp.array(dtype=wp.vec3d), triangles:
     return area / wp.float64(3.0)
 
 
+@wp.func
+def primitive_key(rigid_key: wp.uint64, body_a: int, body_b: int) -> wp.uint64:
+    """The scene key of a primitive contact whose rigid-path key is ``rigid_key`` (bodies
+    numbered among the rigid bodies): bodies ``body_a`` and ``body_b`` (scene indices; -1: side b
+    is a plane, whose index the key keeps), kind and features as they are."""
+    b = wp.uint64(body_b)
+    if body_b < 0:
+        b = (rigid_key >> wp.uint64(40)) & BODY_BITS
+    return ((rigid_key >> wp.uint64(60)) << wp.uint64(60)) | (wp.uint64(body_a) << wp.uint64(50)) \
+        | (b << wp.uint64(40)) | (rigid_key & FEATURE_BITS)
+
+
 @wp.struct
 class NodeAdhesionArrays:
     """The node arrays' adhesion (``c`` contacts' capacity, ``m`` materials): per contact its
@@ -99,15 +117,17 @@ class NodeAdhesionArrays:
 
 @wp.kernel
 def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
-            point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32),
-            frame: wp.array(dtype=wp.mat33d), point_x: wp.array(dtype=wp.vec3d),
+            column: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
+            face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d), rigid_key: wp.array(dtype=wp.uint64),
+            rigid_area: wp.array(dtype=wp.float64), point_x: wp.array(dtype=wp.vec3d),
             point_body: wp.array(dtype=wp.int32), body_point_start: wp.array(dtype=wp.int32),
             triangles: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
             body_edge_start: wp.array(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32),
             area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
             slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d)):
     """Thread c: contact c's key, materials, area [m^2] (its feature's surface projected on the
-    contact plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md),
+    contact plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md; a
+    primitive contact's (kind 3) the rigid path's ``rigid_key`` and ``rigid_area`` of its row),
     intensity and slip [m] carried by key, stiffness ``A C beta^2`` [N/m]; a bonded contact's
     warm start ``impulse`` [N s] is the last step's unclamped (it may pull)."""
     c = wp.tid()
@@ -121,8 +141,14 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
     ar = wp.float64(0.0)
     ma = int(-1)
     mb = int(-1)
-    if k > 2:  # a rigid primitive's (the rigid path's detection): no adhesion on the arrays yet
-        key = NO_KEY
+    if k > 2:
+        key = primitive_key(rigid_key[p], column[c], o)
+        ar = rigid_area[p]
+        ma = ad.body_material[column[c]]
+        if o >= 0:
+            mb = ad.body_material[o]
+        else:
+            mb = ad.plane_material[int((rigid_key[p] >> wp.uint64(40)) & BODY_BITS)]
     elif k == 2:
         a = edge_body[p]
         key = pack_key(EDGE_EDGE, a, p - body_edge_start[a], o, face[c] - body_edge_start[o])
@@ -163,11 +189,13 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
 def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
            impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
            stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-           stencil_weights: wp.array2d(dtype=wp.float64), fixed: wp.array(dtype=wp.int32),
+           stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+           rigid_lever: wp.array2d(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
            v: wp.array(dtype=wp.vec3d), area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
            slip: wp.array(dtype=wp.vec3d), dt: wp.float64):
     """One thread, after the sweeps (solved velocities ``v`` [n] [m/s], ``gap_after`` [m]): each
-    bonded contact's slip at the end of the step ``u + dt v_t`` [m], bonding / debonding
+    bonded contact's slip at the end of the step ``u + dt v_t`` [m] (``v_t`` with its rigid
+    sides' ``omega x lever``), bonding / debonding
     (4.3.3; a contact no impulse can move is not tracked, as the per-object path drops it),
     then the step's contacts into the carried table, ascending by key."""
     total = count[0]
@@ -180,6 +208,7 @@ def evolve(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), frame: wp.ar
             rel = rel + stencil_weights[c, k] * v[node]
             if fixed[node] == 0:
                 movable = 1
+        rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
         u = slip[c]
         if stiffness[c] > wp.float64(0.0):
             u = u + dt * rel

@@ -8,7 +8,9 @@ from the per-object path's :class:`~softvr.contact.AdhesionState` by key (kernel
 A contact's area is its feature's surface projected on the contact plane, as on the
 per-object path (docs/adhesion.md, "Contact areas"): a third of every incident triangle's for
 a vertex, the smaller of the two sides' where both are surfaces; a collision point that is no
-surface vertex has none and does not adhere.
+surface vertex has none and does not adhere. A rigid body's box or sphere primitive's contact
+has the rigid path's area (a box corner its share of the face turned to the plane, a sphere
+its cap within the margin), and every side its body's or plane's adhesion.
 """
 
 from __future__ import annotations
@@ -136,18 +138,23 @@ class NodeAdhesion:
         c, d = st.contacts, m.device
         for kernel in (_k.prepare, _k.evolve):
             load_kernels(kernel, d)
+        if m.rigid is not None:
+            rigid_key, rigid_area = m.rigid.state.contacts.key, m.rigid.state.contacts.area
+        else:  # no primitive contacts to read
+            rigid_key, rigid_area = wp.zeros(0, dtype=wp.uint64, device=d), wp.zeros(0, dtype=wp.float64, device=d)
         prepare = replayer(wp.launch(_k.prepare, dim=c.capacity, device=d, record_cmd=True,
-                                     inputs=[self.arrays, c.count, c.kind, c.point, c.other, c.face, c.frame,
-                                             st.point_x, m.point_body, m.body_point_start_wp, m.triangles,
-                                             m.edge_body, m.body_edge_start, m.edge_faces, c.area, c.stiffness,
-                                             c.slip, c.impulse]))
+                                     inputs=[self.arrays, c.count, c.kind, c.column, c.point, c.other, c.face,
+                                             c.frame, rigid_key, rigid_area, st.point_x, m.point_body,
+                                             m.body_point_start_wp, m.triangles, m.edge_body, m.body_edge_start,
+                                             m.edge_faces, c.area, c.stiffness, c.slip, c.impulse]))
         # The evolve kernel rewrites the carried table: a state handed out before and still
         # held copies its rows out first.
         evolve = [in_order(self._detach_issued,
                            replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
                                               inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after,
-                                                      c.stencil_count, c.stencil_nodes, c.stencil_weights, m.fixed,
-                                                      buf, c.area, c.stiffness, c.slip, float(dt)])))
+                                                      c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                                      c.rigid_node, c.rigid_lever, m.fixed, buf, c.area, c.stiffness,
+                                                      c.slip, float(dt)])))
                   for buf in st.sweep_buffers]
         return prepare, evolve
 

@@ -349,11 +349,11 @@ def node_model_supported(scene) -> bool:
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
     and fixed bodies (with or without one, where no rigid body has one), static planes,
     couplings between them (each side an FEM body's embedded points or a kinematic or fixed
-    body's points, or a rigid body's where it collides with nothing); adhesion where the scene
-    has no rigid body; no static meshes or spheres; at most one set of collision points
-    per body (an FEM body's :class:`~softvr.collision.EmbeddedPoints` with stencils of at most
-    4 nodes, a rigid, kinematic or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's
-    collision surface over its own points."""
+    body's points, or a rigid body's where it collides with nothing); adhesion; no static meshes
+    or spheres; at most one set of collision points per body (an FEM body's
+    :class:`~softvr.collision.EmbeddedPoints` with stencils of at most 4 nodes, a rigid, kinematic
+    or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's collision surface over
+    its own points."""
     if scene.meshes or scene.spheres or not couplings_supported(scene):
         return False
     # A kinematic or fixed body's collision sphere or box meets only planes and other
@@ -366,9 +366,6 @@ def node_model_supported(scene) -> bool:
     if not fem or len({b.corotational for b in fem}) != 1:
         return False
     if not all(type(b) in (FemBody, RigidBody, KinematicBody, FixedBody) for b in scene.bodies):
-        return False
-    # The node arrays' adhesion has no rigid sides yet (their areas and materials).
-    if any(type(b) is RigidBody for b in scene.bodies) and any(a is not None for a in scene._adhesion.values()):
         return False
     owners = [c.body for c in scene._colliders]
     if len(set(owners)) != len(owners):
