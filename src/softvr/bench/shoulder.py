@@ -9,7 +9,7 @@ contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
 
 Thesis 5.4: 20 ms per step with 65 average / 153 maximum contacts on two cores of a 2008 PC
-(arthroscopy), haptics at 1 kHz through multi-rate rendering. Targets on this 2-core CPU: ≤ 2 ms
+(arthroscopy), haptics at 1 kHz through multi-rate rendering. Targets on this 2-core CPU (issue 16): ≤ 5 ms
 per step at those contact counts; haptic period p99 ≤ 1.5 ms. No peer engine has coupled
 anatomy with a haptic loop to run side by side; the thesis' numbers are the reference.
 """
@@ -30,7 +30,7 @@ from softvr.scene import BUNDLED, load_scene
 __all__ = ["SCENES", "TARGET_HAPTIC_P99_MS", "TARGET_MS_PER_STEP", "format_table", "main", "run_shoulder_bench",
            "write_plot"]
 
-TARGET_MS_PER_STEP = 2.0
+TARGET_MS_PER_STEP = 5.0
 TARGET_HAPTIC_P99_MS = 1.5
 THESIS = {"ms_per_step": 20.0, "contacts_mean": 65, "contacts_max": 153}
 
