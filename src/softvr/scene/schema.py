@@ -424,15 +424,22 @@ def _patched(doc: dict, variants: list) -> dict:
             if getattr(v, key) and isinstance(out.get(key, {}), dict):
                 out[key] = {**out.get(key, {}), **getattr(v, key)}
         if isinstance(out.get("body"), list):
-            out["body"] = [{**b, **(v.body or {}).get(b.get("name"), {})} if isinstance(b, dict) else b
-                           for b in out["body"] if not (isinstance(b, dict) and b.get("name") in gone)]
+            out["body"] = [{**b, **(v.body or {}).get(_name(b.get("name")), {})} if isinstance(b, dict) else b
+                           for b in out["body"] if not (isinstance(b, dict) and _name(b.get("name")) in gone)]
             for b in out["body"]:
                 if isinstance(b, dict) and isinstance(b.get("collides_with"), list):
-                    b["collides_with"] = [n for n in b["collides_with"] if n not in gone]
+                    b["collides_with"] = [n for n in b["collides_with"] if _name(n) not in gone]
         for table, keys in _NAMING.items():
             if isinstance(out.get(table), list):
-                out[table] = [t for t in out[table] if not (isinstance(t, dict) and {t.get(k) for k in keys} & gone)]
+                out[table] = [t for t in out[table]
+                              if not (isinstance(t, dict) and {_name(t.get(k)) for k in keys} & gone)]
     return out
+
+
+def _name(value) -> str | None:
+    """A body's name as a variant matches it: the string, or None for a value of another type
+    (the file's own check reports that body's name)."""
+    return value if isinstance(value, str) else None
 
 
 def _variant_problems(path: Path, doc: dict, name: str, table, base: list, errors: Problems):
@@ -448,7 +455,7 @@ def _variant_problems(path: Path, doc: dict, name: str, table, base: list, error
     if variant is None:
         return None, True
     bodies = [b for b in doc.get("body", []) if isinstance(b, dict)] if isinstance(doc.get("body"), list) else []
-    names = {b.get("name") for b in bodies} - {None}
+    names = {_name(b.get("name")) for b in bodies} - {None}
     for k, gone in enumerate(variant.remove or ()):
         if gone not in names:
             errors.add(f"{w}.remove[{k}]", known_key(names, gone, "the name of a [[body]]"), repr(gone))
@@ -467,8 +474,8 @@ def _variant_problems(path: Path, doc: dict, name: str, table, base: list, error
     variant = variant.model_copy(update={"remove": tuple(n for n in variant.remove or () if n in names),
                                          "body": patches})
     applied = _patched(doc, [variant])
-    kept = [b for b in bodies if b.get("name") not in variant.remove]
-    index = {f"body[{j}]": (f"body[{bodies.index(b)}]", b.get("name")) for j, b in enumerate(kept)}
+    kept = [b for b in bodies if _name(b.get("name")) not in variant.remove]
+    index = {f"body[{j}]": (f"body[{bodies.index(b)}]", _name(b.get("name"))) for j, b in enumerate(kept)}
     _, problems = _read_document(path, applied)
     for what, expected, found in problems:
         head, dot, rest = what.partition(".")
