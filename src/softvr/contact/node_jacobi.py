@@ -226,21 +226,24 @@ class NodeSolve:
                 change = float(self._read_stats()[0])
                 if not np.isfinite(change):  # NaN: the integration reports it
                     break
-                if change <= stop:
-                    self._residual_launches[k % 3]()
-                    if self._read_stats()[1] <= tolerance:
-                        break
+                if change <= stop and self._contacts_met(k, tolerance):
+                    return k, self._buffers[k % 3]
                 if not plain:
                     history[k - restart] = change
-                    if self._plateau(history, k - restart, tolerance):
-                        self._residual_launches[k % 3]()
-                        if self._read_stats()[1] <= tolerance:
-                            self.plateaued = True
-                            break
+                    if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
+                        self.plateaued = True
+                        return k, self._buffers[k % 3]
                     if self._stalled(history, k - restart, stop):
                         plain_until, stop = k + self._window(), plain_stop
-        self._residual_launches[k % 3]()
+        self._contacts_met(k, tolerance)
         return k, self._buffers[k % 3]
+
+    def _contacts_met(self, k: int, tolerance: float) -> bool:
+        """Whether, in the velocities of sweep ``k``, no contact's normal velocity is more than
+        ``tolerance`` [m/s] off its target (the residual kernel, which leaves that error in
+        ``stats[1]``)."""
+        self._residual_launches[k % 3]()
+        return bool(self._read_stats()[1] <= tolerance)
 
     def _window(self) -> int:
         """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
