@@ -82,13 +82,16 @@ def test_loop_keeps_its_rate_while_the_simulation_steps(process):
         clipped = np.linalg.norm(loop.last_force())
     ran_ms = 1e3 * (time.perf_counter() - started)
     stats = loop.period_stats()
-    # Ticks are scheduled on absolute times (t0 + n T), so late ones catch up: one tick per
-    # millisecond the loop ran, never more (+2: the tick at t0 and the one stop() may meet),
-    # and at least 80 % of them (the runner starts a few ms after start(), more under load).
-    # A thread shares the interpreter lock with the stepping, so only the process keeps every
-    # period at 1 ms; the thread's median merely stays near it.
-    assert 0.8 * ran_ms <= stats["count"] <= ran_ms + 2, (ran_ms, stats)
+    # Ticks are scheduled on absolute times (t0 + n T), so late ones catch up: never more than
+    # one tick per millisecond the test ran (+2: the tick at t0 and the one stop() may meet), and
+    # over the loop's own span (first tick to last) a mean rate of 1 kHz. Only the last tick can
+    # stay late: up to 40 ms over >= 400 periods moves the mean by 10 %. The span is the loop's,
+    # not the test's, because a forked runner starts 30-150 ms after start() on a loaded 2-core
+    # machine (CI). A thread shares the interpreter lock with the stepping, so only the process
+    # keeps every period at 1 ms; the thread's median merely stays near it.
+    assert stats["count"] <= ran_ms + 2, (ran_ms, stats)
     assert stats["count"] >= 400, stats
+    assert stats["rate_hz"] == pytest.approx(1000.0, rel=0.1), stats
     if process:
         assert stats["p50_ms"] == pytest.approx(1.0, abs=0.1), stats
     else:
