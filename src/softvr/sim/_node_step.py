@@ -32,7 +32,7 @@ from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
-from softvr.contact.node_coarse import coarse_bodies
+from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -416,11 +416,11 @@ class NodeStepper:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
                 a, free = _free_matrix(self.model, self.state)
-                m = self.model
+                m, q = self.model, self.state.q.numpy()
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
                                                    MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
-                                                   (coarse_bodies(m), self.state.q.numpy(), m.mass.numpy()))
+                                                   (coarse_aggregates(m, q), q, m.mass.numpy()))
             choice = self._spectrum[dt]
             if choice.kind is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
