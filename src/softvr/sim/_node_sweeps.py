@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.contact.node_coarse import aggregates_of, coarse_spectrum
+from softvr.contact.node_coarse import Aggregates, aggregates_of, coarse_spectrum
 from softvr.contact.node_colouring import NodeColouring, colour_nodes
 from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
 
@@ -80,9 +80,9 @@ class SweepChoice:
     work : dict
         Work per decade of each kind estimated, in this scene's Jacobi sweeps (contacts
         included); Jacobi's alone where nothing else was worth estimating.
-    coarse : ndarray or None
-        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
-        (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
+    coarse : Aggregates or ndarray or None
+        The aggregates (or [B, 2] node ranges of bodies) whose rigid motions the Jacobi sweeps
+        correct (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
     passes : int or None
         PGS passes over the contacts per sweep (:data:`COARSE_PASSES` with ``coarse``); None:
         the caller's.
@@ -93,7 +93,7 @@ class SweepChoice:
     colours: NodeColouring | None
     omega: float
     work: dict
-    coarse: np.ndarray | None = None
+    coarse: Aggregates | np.ndarray | None = None
     passes: int | None = None
 
 
@@ -135,15 +135,14 @@ def _coarse_choice(a, free: np.ndarray, coarse: tuple, jacobi_cost: float, margi
     candidates = [aggregates]
     if 0 < aggregates.whole < len(aggregates):
         candidates.append(aggregates.head(aggregates.whole))
-    best = None
+    choices = []
     for bodies in candidates:
         lo, hi = coarse_spectrum(a, free, bodies, *coarse[1:])
         bounds = (lo * margin[0], hi * margin[1])
         # Its extra PGS passes are not charged: they save as many sweeps as they cost (COARSE_PASSES).
         cost = sweeps_per_decade(bounds) * (1.0 + (COARSE_NODE * len(bodies.nodes) + LAUNCH) / jacobi_cost)
-        if best is None or cost < work["coarse"]:
-            work["coarse"] = cost
-            best = SweepChoice("jacobi", bounds, None, 1.0, work, bodies, COARSE_PASSES)
+        choices.append((cost, SweepChoice("jacobi", bounds, None, 1.0, work, bodies, COARSE_PASSES)))
+    work["coarse"], best = min(choices, key=lambda choice: choice[0])
     return best
 
 
