@@ -60,7 +60,8 @@ class Aggregates:
 
     def head(self, count: int) -> Aggregates:
         """The first ``count`` aggregates."""
-        return Aggregates(self.start[:count + 1], self.nodes[:self.start[count]], self.pairs, min(self.whole, count))
+        return Aggregates(self.start[:count + 1], self.nodes[:self.start[count]], self.pairs,
+                          min(self.whole, count))
 
 
 def aggregates_of(coarse) -> Aggregates:
@@ -68,24 +69,32 @@ def aggregates_of(coarse) -> Aggregates:
     one aggregate each."""
     if isinstance(coarse, Aggregates):
         return coarse
-    ranges = np.asarray(coarse, dtype=np.int64).reshape(-1, 2)
-    sizes = ranges[:, 1] - ranges[:, 0]
-    nodes = np.concatenate([np.arange(a, b) for a, b in ranges]) if len(ranges) else np.zeros(0, np.int64)
-    return Aggregates(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), nodes.astype(np.int64))
+    return _grouped([np.arange(a, b) for a, b in np.asarray(coarse, dtype=np.int64).reshape(-1, 2)])
+
+
+def _grouped(groups: list[np.ndarray], pairs: np.ndarray | None = None, whole: int = 0) -> Aggregates:
+    """:class:`Aggregates` of the node lists ``groups``, in that order."""
+    sizes = [len(g) for g in groups]
+    nodes = np.concatenate(groups).astype(np.int64) if groups else np.zeros(0, np.int64)
+    return Aggregates(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), nodes, pairs, whole)
+
+
+def _node_kinds(model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each body's first node [bodies + 1], and per node [n]: whether it has blocks of ``A``,
+    is fixed, is a rigid body's."""
+    row_start = model.row_start.numpy()
+    rigid = np.zeros(model.node_count, bool)
+    if model.rigid is not None:
+        rigid[model.rigid.linear_node.numpy()] = True
+        rigid[model.rigid.angular_node.numpy()] = True
+    return np.asarray(model.body_node_start), row_start[1:] > row_start[:-1], model.fixed.numpy() != 0, rigid
 
 
 def coarse_bodies(model) -> np.ndarray:
     """[B, 2] first and last (exclusive) node of each body the coarse space takes: FEM bodies
     whose nodes all have blocks of ``A`` and none is fixed (a held body's rigid motions are
     not slow modes of the sweeps), with at least :data:`MIN_NODES` nodes."""
-    start = np.asarray(model.body_node_start)
-    row_start = model.row_start.numpy()
-    has_blocks = row_start[1:] > row_start[:-1]
-    fixed = model.fixed.numpy() != 0
-    rigid = np.zeros(model.node_count, bool)
-    if model.rigid is not None:
-        rigid[model.rigid.linear_node.numpy()] = True
-        rigid[model.rigid.angular_node.numpy()] = True
+    start, has_blocks, fixed, rigid = _node_kinds(model)
     keep = [(a, b) for a, b in zip(start[:-1], start[1:])
             if b - a >= MIN_NODES and has_blocks[a:b].all() and not fixed[a:b].any() and not rigid[a:b].any()]
     return np.asarray(keep, dtype=np.int64).reshape(-1, 2)
@@ -112,18 +121,11 @@ def _spans_rotations(x: np.ndarray) -> bool:
 
 def coarse_aggregates(model, q: np.ndarray, size: int = AGGREGATE_NODES) -> Aggregates:
     """The coarse space's aggregates: each body of :func:`coarse_bodies` that no coupling spring
-    holds, whole (these first); the free nodes of every other FEM body (held by fixed nodes or by a coupling
-    spring's stencil) in spatial groups of at most ``size`` (:func:`_split`); ``q`` [n, 3] [m]
-    the node positions. A rigid body's nodes are in none (their ``D_A`` block is their whole
-    body)."""
-    start = np.asarray(model.body_node_start)
-    row_start = model.row_start.numpy()
-    has_blocks = row_start[1:] > row_start[:-1]
-    fixed = model.fixed.numpy() != 0
-    rigid = np.zeros(model.node_count, bool)
-    if model.rigid is not None:
-        rigid[model.rigid.linear_node.numpy()] = True
-        rigid[model.rigid.angular_node.numpy()] = True
+    holds, whole (these first); the free nodes of every other FEM body (held by fixed nodes or
+    by a coupling spring's stencil) in spatial groups of at most ``size`` (:func:`_split`);
+    ``q`` [n, 3] [m] the node positions. A rigid body's nodes are in none (their ``D_A`` block
+    is their whole body)."""
+    start, has_blocks, fixed, rigid = _node_kinds(model)
     coupled = np.zeros(model.node_count, bool)
     coupled[model.couplings.node.numpy()] = True
     whole = [np.arange(a, b) for a, b in coarse_bodies(model) if not coupled[a:b].any()]
@@ -133,10 +135,7 @@ def coarse_aggregates(model, q: np.ndarray, size: int = AGGREGATE_NODES) -> Aggr
         if a not in taken and has_blocks[a:b].any() and not rigid[a:b].any():
             free = np.arange(a, b)[has_blocks[a:b] & ~fixed[a:b]]
             groups += [g for g in _split(free, q, size) if _spans_rotations(q[g])]
-    sizes = [len(g) for g in groups]
-    nodes = np.concatenate(groups).astype(np.int64) if groups else np.zeros(0, np.int64)
-    return Aggregates(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), nodes,
-                      model.couplings.pair_node.numpy().astype(np.int64).reshape(-1, 2), len(whole))
+    return _grouped(groups, model.couplings.pair_node.numpy().astype(np.int64).reshape(-1, 2), len(whole))
 
 
 def _basis(aggregates: Aggregates, q: np.ndarray, mass: np.ndarray, solved: np.ndarray) -> sp.csr_matrix:
