@@ -177,7 +177,8 @@ class Rasterizer:
         What a deformed tet turned inside out (or flat) does: raise an
         :class:`~softvr.errors.InputError` naming it (default), or write nothing this frame
         (interactive simulations, where an embedding tet in air may fold for a moment;
-        ``skipped_tets`` counts them).
+        ``skipped_tets`` counts them; after :meth:`update`, those among the tets that reach
+        its box).
 
     Examples
     --------
@@ -398,10 +399,10 @@ class Rasterizer:
 
     # ---------------------------------------------------------------- internals
     def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None,
-             window: tuple | None = None) -> Volume | None:
+             window: tuple | None = None) -> Volume:
         """Rasterize onto ``out_grid`` (or ``into``'s grid), or, with ``window = (data, lo)``, onto
         the box of the C-order array ``data`` [nx, ny, nz] from index ``lo`` [3] whose grid
-        ``out_grid`` is (CPU exact spans only; returns None)."""
+        ``out_grid`` is (CPU exact spans only; returns a view of that box)."""
         t_start = time.perf_counter()
         x1 = np.asarray(deformed_nodes)
         if x1.shape != self.nodes.shape:
@@ -462,7 +463,8 @@ class Rasterizer:
             out = wp.empty((1, 1, 1), dtype=self._vol.dtype, device=dev)
         elif window is not None:
             target, lo = window
-            target[tuple(slice(a, a + n) for a, n in zip(lo, shape))].fill(self.background)
+            box_view = target[tuple(slice(a, a + n) for a, n in zip(lo, shape))]
+            box_view.fill(self.background)
         else:
             counts = wp.empty((0, 0, 0), dtype=wp.int32, device=dev)
             out = _background(shape, self.background, self.volume.dtype, dev, None if into is None else into.data)
@@ -538,7 +540,7 @@ class Rasterizer:
         n_tested = int(tested.numpy().sum(dtype=np.int64))
         n_written = int(written.numpy().sum(dtype=np.int64))
         if window is not None:
-            data = None
+            data = box_view
         elif count_writes:
             data = counts.numpy()
         elif into is not None:
@@ -563,8 +565,6 @@ class Rasterizer:
             time_raster_s=t_end - t_cull,
             time_total_s=t_end - t_start,
         )
-        if window is not None:
-            return None
         if into is not None:
             return into
         return Volume(
