@@ -117,10 +117,10 @@ def contact_sides(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
     """Contact ``c``'s coarse sides: per coarse body met by its stencil, ``s`` and ``L``
     (:class:`Coarse`)."""
     c = wp.tid()
+    if c >= count[0]:  # no kernel reads the sides past the count
+        return
     for s in range(SIDES):
         co.side[c, s] = -1
-    if c >= count[0]:
-        return
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         b = co.node_body[node]
