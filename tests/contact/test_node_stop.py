@@ -21,12 +21,11 @@ from softvr.collision import Plane
 from softvr.contact import Adhesion
 from softvr.dynamics import FemBody, RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
-from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.contact.test_node_adhesion import _add_block
+from tests.sim.test_node_rigid import VELOCITY_TOL, _generalized, _system
 
 G = 9.81  # [m/s^2]
-VELOCITY_TOL = 3 * SWEEP_TOLERANCE  # [m/s]
 MU = 0.5
 GLUE = Adhesion(stiffness=1e7, max_energy=1.0, viscosity=1e-3)
 
@@ -38,23 +37,6 @@ def _box(scene, half, position, glue=None, **kwargs) -> RigidBody:
     verts, tris = box_surface(2 * half, 1)
     scene.add_body(box, collision_points=RigidPoints(box, verts - half), collision_triangles=tris, adhesion=glue)
     return box
-
-
-def _system(body, dt, gravity):
-    """(A, b, free rows) of eq. 5.2 for one body: an FEM body's step system; a rigid body's
-    blocks m I and I_w with b = A v_free (its unconstrained velocity), as the arrays hold it."""
-    if type(body) is FemBody:
-        system = body.step_system(dt, gravity)
-        return system.matrix, system.rhs, ~system.prescribed
-    a = np.zeros((6, 6))
-    a[:3, :3] = body.mass * np.eye(3)
-    a[3:, 3:] = body.inertia_world
-    return a, a @ body.unconstrained_velocity(dt, gravity), np.ones(6, bool)
-
-
-def _generalized(body, v):
-    """Velocity blocks [k, bs]: an FEM body's nodes x 3, a rigid body's one block of 6."""
-    return np.asarray(v, float).reshape(len(body.q), 3) if type(body) is FemBody else np.reshape(v, (1, 6))
 
 
 def _landing_box(glue):
