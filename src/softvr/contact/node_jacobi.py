@@ -191,11 +191,11 @@ class NodeSolve:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is about ``rate / (1 - rate)`` times the last sweep's
-        largest change (a geometric tail), so the sweeps stop when the change falls below
-        ``tolerance (1 - rate) / rate`` (checked every ``check_every``) and no contact's normal
-        velocity is more than ``tolerance`` short of its target, nor a pushing one's more than
-        that from it (contacts between bodies couple them, and the node change alone
-        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
+        largest change (a geometric tail; a rigid body's nodes, exact, count none), so the
+        sweeps stop when the change falls below ``tolerance (1 - rate) / rate`` (checked every
+        ``check_every``) and every contact meets eq. 5.5 within ``tolerance``
+        (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
+        understates their error; a rigid body's error is all its contacts'). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
