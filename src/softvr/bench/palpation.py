@@ -64,10 +64,11 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         raise InputError("render_step", "an integer >= 1", repr(render_step))
     if renderer is not None and renderer not in _MAPPERS:
         raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
-    assert scene_file.volume is not None  # palpation.toml has its [volume]
+    probe_spec = scene_file.body("probe")
+    assert scene_file.volume is not None and probe_spec is not None  # palpation.toml has its [volume] and probe
     options = {"mapper": _MAPPERS.get(renderer or ""), "render_step": render_step, "sample_distance": sample_distance}
     scene_file.volume.update({k: v for k, v in options.items() if v is not None})
-    probe_radius = scene_file.body("probe").size  # [m] a sphere's
+    probe_radius = float(probe_spec.size)  # [m] a sphere's
     trace: dict[str, list] = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms",
                                               "render_cpu_ms", "raster_voxels", "indentation_m")}
     trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms", "rays_cast")})
