@@ -738,7 +738,8 @@ class SceneExample(Player):
 
     def renderer_options(self) -> dict:
         r = self.file.render
-        return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"]}
+        return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"],
+                "antialias": r["antialias"]}
 
     def drawables(self) -> list[Drawable]:
         """The planes (``plane 0``, ...), the static spheres (``sphere 0``, ...), every body's
@@ -753,7 +754,8 @@ class SceneExample(Player):
             items.append(Drawable(d.name, "mesh", np.asarray(d.vertices(), float), d.triangles,
                                   tuple(float(c) for c in d.color), float(d.opacity), pose,
                                   "render" if d.visible else "hidden"))
-        ball, triangles = icosphere(2)
+        if self.tools:  # the handles' ball: an icosphere costs ~4 ms a call
+            ball, triangles = icosphere(2)
         for tool in self.tools:
             handle = tool.handle
             items.append(Drawable(f"{tool.tool.name} handle", "mesh", handle.position + _HANDLE_RADIUS * ball,
