@@ -172,6 +172,67 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
     movable[c] = moves
 
 
+@wp.func
+def _relative(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+              rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), co: Coarse) -> wp.vec3d:
+    """Contact ``c``'s relative velocity ``J v`` [m/s] (world) in the sweep's ``v^`` (its
+    stencil, its rigid sides and its coarse bodies' velocities)."""
+    rel = wp.vec3d()
+    for k in range(stencil_count[c]):
+        rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+    return rel + _rigid_velocity(c, v, rigid_node, rigid_lever) + coarse_velocity(c, co)
+
+
+@wp.kernel
+def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                  stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                  frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                  rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse,
+                  movable: wp.array(dtype=wp.int32)):
+    """``v^ += M^-1 J^T lambda`` [m/s] for the impulses ``impulse`` [c] [N s] of the last sweep
+    (one thread: contacts share nodes). A zero impulse moves nothing and is passed over: most
+    of a step's contacts are speculative ones that do not push."""
+    for c in range(count[0]):
+        lam = impulse[c]
+        if movable[c] != 0 and (lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0)):
+            _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
+                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
+
+
+@wp.kernel
+def screen(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+           frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+           rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64, impulse: wp.array(dtype=wp.vec3d),
+           stiffness: wp.array(dtype=wp.float64), v_hat: wp.array(dtype=wp.vec3d), co: Coarse,
+           movable: wp.array(dtype=wp.int32), threads: int, live: wp.array(dtype=wp.int32)):
+    """``live[c]`` (1: the sweep's PGS passes visit contact ``c``): a contact that can move
+    something and pushes or holds (any impulse), may adhere (``stiffness`` > 0), or whose
+    normal velocity in ``v^`` [m/s] is below its target ``-gap / dt``. Any other contact's
+    update would leave its zero impulse at zero (its normal row projects to 0, and friction's
+    disc has radius 0), so the passes skip it: most of a step's contacts are speculative ones
+    that stay apart (candy pile: 24-45 of 700-1 200 push). One that the passes bring below
+    its target is taken up by the next sweep's screen. ``threads`` threads (the launch's)
+    stride over the contacts."""
+    for c in range(wp.tid(), count[0], threads):
+        on = int(0)
+        if movable[c] != 0:
+            lam = impulse[c]
+            if lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0):
+                on = 1
+            elif stiffness[c] > wp.float64(0.0):
+                on = 1
+            else:
+                rel = _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
+                normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+                if wp.dot(normal, rel) < -gap[c] / dt:
+                    on = 1
+        live[c] = on
+
+
 @wp.kernel
 def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
@@ -182,31 +243,30 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
              slip: wp.array(dtype=wp.vec3d), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-             movable: wp.array(dtype=wp.int32)):
-    """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
-    ``impulse`` [c] (normal, tangent 1, tangent 2) [N s] of the last sweep applied to ``v^``,
-    then ``passes`` PGS passes; counts the sweep in ``sweep[0]``. A bonded contact (adhesive
-    ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to the bound
-    of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within the larger
-    of the Coulomb disc and the implicit spring's bound (docs/adhesion.md). With coarse bodies
-    (``co``) the metric is the two-level ``M^-1`` (:mod:`softvr.contact._node_coarse_kernels`).
-    ``metric`` and ``movable`` are :func:`contact_metric`'s; a contact that moves nothing is
-    skipped (its impulse stays its warm start, as the update with a zero block left it)."""
-    n = count[0]
-    for c in range(n):
-        if movable[c] != 0:
-            _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
-                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
+             live: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), settled: wp.array(dtype=wp.float64)):
+    """The inner loop of one sweep (one thread: Gauss-Seidel in contact order), after
+    :func:`warm_impulses` and :func:`screen`: up to ``passes`` PGS passes over the ``live``
+    contacts (listed in ``order`` [c]), stopping after a pass whose largest velocity change
+    at a contact, ``|W (lambda - lambda_old)|`` [m/s], is under ``settled[0]`` [m/s]; counts
+    the sweep in ``sweep[0]``. A bonded contact (adhesive ``stiffness`` A C beta^2 [N/m] > 0,
+    tangential ``slip`` u [m]) may pull down to the bound of eq. 4.16, and its tangent
+    impulse aims at the target ``-t . u / dt`` within the larger of the Coulomb disc and the
+    implicit spring's bound (docs/adhesion.md). With coarse bodies (``co``) the metric is the
+    two-level ``M^-1`` (:mod:`softvr.contact._node_coarse_kernels`). ``metric`` is
+    :func:`contact_metric`'s. The passes' count and the skipped contacts change the path to
+    the fixed point, not the fixed point: at a fixed point of the sweeps every live
+    contact's update leaves it unchanged and every other one is inactive and separating."""
+    n = int(0)
+    for c in range(count[0]):
+        if live[c] != 0:
+            order[n] = c
+            n = n + 1
     for _ in range(passes):
-        for c in range(n):
-            if movable[c] == 0:
-                continue
+        moved = wp.float64(0.0)
+        for i in range(n):
+            c = order[i]
             f = frame[c]
-            rel = wp.vec3d()
-            for k in range(stencil_count[c]):
-                rel = rel + stencil_weights[c, k] * v_hat[stencil_nodes[c, k]]
-            rel = rel + _rigid_velocity(c, v_hat, rigid_node, rigid_lever) + coarse_velocity(c, co)
-            rel_f = f * rel
+            rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
             w_f = metric[c]
             old = impulse[c]
             lam = old
@@ -248,8 +308,12 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                         t2 = t2 * scale
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
+            step = w_f * (lam - old)
+            moved = wp.max(moved, wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2]))))
             _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
                    d_inv, partner, cross, fixed, v_hat, co)
+        if moved < settled[0]:
+            break
     sweep[0] = sweep[0] + 1
 
 

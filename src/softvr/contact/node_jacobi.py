@@ -8,6 +8,8 @@ sweeps also solve eq. 5.2, so there is no separate unconstrained solve.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import warp as wp
 
@@ -18,6 +20,13 @@ from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import in_order, load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
+
+#: A sweep's PGS passes stop once a pass changes no contact's velocity by more than this
+#: fraction of the solve's tolerance.
+SETTLED_FRACTION = 0.1
+#: Threads striding over the contacts in the screen on CUDA (on the CPU one: the screen takes
+#: ~35 us on the candy pile, less than handing half of it to a second core).
+SCREEN_THREADS_CUDA = 4096
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -83,8 +92,8 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact,
-                       _k.largest_change):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.chebyshev,
+                       _k.residual, _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
@@ -133,6 +142,8 @@ class NodeSolve:
         d_inv = state.d_inv if gs is None else gs.metric
         cross = model.couplings.cross if gs is None else gs.cross_metric
         metric = wp.zeros(c.capacity, dtype=wp.mat33d, device=d)
+        #: Which contacts the sweeps' PGS passes visit [c] (:func:`_node_jacobi_kernels.screen`).
+        self.live = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
         # metric and the coarse inverses are set).
@@ -140,11 +151,7 @@ class NodeSolve:
                                           inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
                                                   c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
                                                   cross, model.fixed, co, metric, movable]))
-        contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
-                             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
-                                     c.friction, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
-                                     model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep,
-                                     c.stiffness, c.slip, co, metric, movable])
+        contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
@@ -155,7 +162,7 @@ class NodeSolve:
                 if self.coarse.count:  # the coarse velocities from the sweep's residual
                     jacobi[-1] = in_order(replayer(jacobi[-1]), self.coarse.residual[r])
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
-                jacobi.append(gs.record(v, replayer(contacts)))
+                jacobi.append(gs.record(v, contacts))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
                                           model.fixed, self.exact, state.q, co, v_next, self.change]))
@@ -164,7 +171,7 @@ class NodeSolve:
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
                                                     v_next, self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(jacobi[r] if self.coarse.count else replayer(jacobi[r]), replayer(contacts),
+        self._sweeps = [(jacobi[r] if self.coarse.count else replayer(jacobi[r]), contacts,
                          replayer(cheb[r])) if gs is None else
                         (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
@@ -180,6 +187,30 @@ class NodeSolve:
         self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                                            inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+
+    def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
+                         metric: wp.array, movable: wp.array) -> Callable[[], None]:
+        """The contact step of a sweep: the last impulses applied to ``v^``, the contacts
+        screened (:func:`_node_jacobi_kernels.screen`), then the PGS
+        passes over the live ones (:func:`_node_jacobi_kernels.contacts`)."""
+        c, d, co = state.contacts, model.device, self.coarse.arrays
+        self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        #: [0] the change [m/s] under which a sweep's PGS passes stop (:meth:`solve` sets it).
+        self.settled = wp.zeros(1, dtype=wp.float64, device=d)
+        stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
+        warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
+                         inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
+                                 model.fixed, c.impulse, state.v_hat, co, movable])
+        threads = 1 if wp.get_device(d).is_cpu else SCREEN_THREADS_CUDA
+        screen = wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
+                           inputs=[*stencil, c.gap, c.rigid_node, c.rigid_lever, float(dt), c.impulse, c.stiffness,
+                                   state.v_hat, co, movable, threads, self.live])
+        passes_launch = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
+                                  inputs=[*stencil, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                                          model.couplings.partner, cross, model.fixed, float(dt), int(passes),
+                                          c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
+                                          self.live, self._order, self.settled])
+        return in_order(replayer(warm), replayer(screen), replayer(passes_launch))
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its two numbers on CUDA."""
@@ -197,6 +228,7 @@ class NodeSolve:
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
+        self.settled.fill_(SETTLED_FRACTION * tolerance)
         self.sweep.zero_()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
