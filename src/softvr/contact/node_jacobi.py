@@ -24,9 +24,10 @@ __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 #: A sweep's PGS passes stop once a pass changes no contact's velocity by more than this
 #: fraction of the solve's tolerance.
 SETTLED_FRACTION = 0.1
-#: Threads striding over the contacts in the screen on CUDA (on the CPU one: the screen takes
-#: ~35 us on the candy pile, less than handing half of it to a second core).
-SCREEN_THREADS_CUDA = 4096
+#: Threads striding over a step's contacts in the kernels that take one contact at a time
+#: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
+#: takes ~35 us on the candy pile, less than handing half of it to a second core.
+CONTACT_THREADS_CUDA = 4096
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -49,6 +50,11 @@ def movable_contacts(model, state) -> int:
     free = model.fixed.numpy()[np.maximum(nodes, 0)] == 0
     moves = (used & free & (weights != 0.0)).any(axis=1) | (c.rigid_node.numpy()[:n] >= 0).any(axis=1)
     return int(moves.sum())
+
+
+def _contact_threads(device) -> int:
+    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`)."""
+    return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
 
 
 def _nothing() -> None:
@@ -147,10 +153,11 @@ class NodeSolve:
         movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
         # metric and the coarse inverses are set).
-        self._metric = replayer(wp.launch(_k.contact_metric, dim=c.capacity, device=d, record_cmd=True,
+        threads = _contact_threads(d)
+        self._metric = replayer(wp.launch(_k.contact_metric, dim=threads, device=d, record_cmd=True,
                                           inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
                                                   c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
-                                                  cross, model.fixed, co, metric, movable]))
+                                                  cross, model.fixed, co, metric, movable, threads]))
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
@@ -176,8 +183,9 @@ class NodeSolve:
                         (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
-        self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=c.capacity, device=d, record_cmd=True,
-                                                  inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact]))
+        self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
+                                                  inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
+                                                          threads]))
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
                                                               c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -201,7 +209,7 @@ class NodeSolve:
         warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
                          inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
                                  model.fixed, c.impulse, state.v_hat, co, movable])
-        threads = 1 if wp.get_device(d).is_cpu else SCREEN_THREADS_CUDA
+        threads = _contact_threads(d)
         screen = wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
                            inputs=[*stencil, c.gap, c.rigid_node, c.rigid_lever, float(dt), c.impulse, c.stiffness,
                                    state.v_hat, co, movable, threads, self.live])
