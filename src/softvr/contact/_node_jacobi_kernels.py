@@ -56,10 +56,11 @@ def block_update(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.arra
 def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
            blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
            cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-           fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
-    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` from the sweep's ``v``
-    (:func:`block_update`)."""
-    i = wp.tid()
+           fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+           offset: int):
+    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` (``tid + offset``) from the
+    sweep's ``v`` (:func:`block_update`)."""
+    i = wp.tid() + offset
     if fixed[i] != 0:
         v_hat[i] = fixed_velocity[i]
         return

@@ -17,7 +17,7 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import CoarseSpace
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import in_order, load_kernels, replayer
+from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 
@@ -162,12 +162,12 @@ class NodeSolve:
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
-                jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
-                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv,
+                jacobi.append(chunked_replayer(_k.jacobi, model.node_count,
+                                               [model.row_start, model.block_col, state.blocks, state.d_inv,
                                                 model.couplings.partner, model.couplings.cross, state.b, model.fixed,
-                                                state.fixed_velocity, v, state.v_hat]))
+                                                state.fixed_velocity, v, state.v_hat], d))
                 if self.coarse.count:  # the coarse velocities from the sweep's residual
-                    jacobi[-1] = in_order(replayer(jacobi[-1]), self.coarse.residual[r])
+                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual[r])
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, contacts))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
@@ -178,7 +178,7 @@ class NodeSolve:
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
                                                     v_next, self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(jacobi[r] if self.coarse.count else replayer(jacobi[r]), contacts,
+        self._sweeps = [(jacobi[r], contacts,
                          replayer(cheb[r])) if gs is None else
                         (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
