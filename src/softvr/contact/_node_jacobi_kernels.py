@@ -243,26 +243,24 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
              slip: wp.array(dtype=wp.vec3d), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-             live: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), settled: wp.array(dtype=wp.float64)):
+             live: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32)):
     """The inner loop of one sweep (one thread: Gauss-Seidel in contact order), after
-    :func:`warm_impulses` and :func:`screen`: up to ``passes`` PGS passes over the ``live``
-    contacts (listed in ``order`` [c]), stopping after a pass whose largest velocity change
-    at a contact, ``|W (lambda - lambda_old)|`` [m/s], is under ``settled[0]`` [m/s]; counts
-    the sweep in ``sweep[0]``. A bonded contact (adhesive ``stiffness`` A C beta^2 [N/m] > 0,
-    tangential ``slip`` u [m]) may pull down to the bound of eq. 4.16, and its tangent
-    impulse aims at the target ``-t . u / dt`` within the larger of the Coulomb disc and the
-    implicit spring's bound (docs/adhesion.md). With coarse bodies (``co``) the metric is the
-    two-level ``M^-1`` (:mod:`softvr.contact._node_coarse_kernels`). ``metric`` is
-    :func:`contact_metric`'s. The passes' count and the skipped contacts change the path to
-    the fixed point, not the fixed point: at a fixed point of the sweeps every live
-    contact's update leaves it unchanged and every other one is inactive and separating."""
+    :func:`warm_impulses` and :func:`screen`: ``passes`` PGS passes over the ``live``
+    contacts (listed in ``order`` [c]); counts the sweep in ``sweep[0]``. A bonded contact
+    (adhesive ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to
+    the bound of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within
+    the larger of the Coulomb disc and the implicit spring's bound (docs/adhesion.md). With
+    coarse bodies (``co``) the metric is the two-level ``M^-1``
+    (:mod:`softvr.contact._node_coarse_kernels`). ``metric`` is :func:`contact_metric`'s.
+    Skipping contacts changes the path to the fixed point, not the fixed point: at a fixed
+    point of the sweeps every live contact's update leaves it unchanged and every other one
+    has a zero impulse and a normal velocity at or above its target (eq. 5.5)."""
     n = int(0)
     for c in range(count[0]):
         if live[c] != 0:
             order[n] = c
             n = n + 1
     for _ in range(passes):
-        moved = wp.float64(0.0)
         for i in range(n):
             c = order[i]
             f = frame[c]
@@ -308,12 +306,8 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
                         t2 = t2 * scale
                     lam = wp.vec3d(lam_n, t1, t2)
             impulse[c] = lam
-            step = w_f * (lam - old)
-            moved = wp.max(moved, wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2]))))
             _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
                    d_inv, partner, cross, fixed, v_hat, co)
-        if moved < settled[0]:
-            break
     sweep[0] = sweep[0] + 1
 
 

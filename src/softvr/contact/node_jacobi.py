@@ -21,9 +21,6 @@ from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 
-#: A sweep's PGS passes stop once a pass changes no contact's velocity by more than this
-#: fraction of the solve's tolerance.
-SETTLED_FRACTION = 0.1
 #: Threads striding over a step's contacts in the kernels that take one contact at a time
 #: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
 #: takes ~35 us on the candy pile, less than handing half of it to a second core.
@@ -203,8 +200,6 @@ class NodeSolve:
         passes over the live ones (:func:`_node_jacobi_kernels.contacts`)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
-        #: [0] the change [m/s] under which a sweep's PGS passes stop (:meth:`solve` sets it).
-        self.settled = wp.zeros(1, dtype=wp.float64, device=d)
         stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
         warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
                          inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
@@ -217,7 +212,7 @@ class NodeSolve:
                                   inputs=[*stencil, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
                                           model.couplings.partner, cross, model.fixed, float(dt), int(passes),
                                           c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
-                                          self.live, self._order, self.settled])
+                                          self.live, self._order])
         return in_order(replayer(warm), replayer(screen), replayer(passes_launch))
 
     def _read_stats(self) -> np.ndarray:
@@ -236,7 +231,6 @@ class NodeSolve:
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
-        self.settled.fill_(SETTLED_FRACTION * tolerance)
         self.sweep.zero_()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
