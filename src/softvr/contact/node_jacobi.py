@@ -175,9 +175,7 @@ class NodeSolve:
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
                                                     v_next, self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(jacobi[r], contacts,
-                         replayer(cheb[r])) if gs is None else
-                        (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
+        self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
@@ -196,8 +194,8 @@ class NodeSolve:
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep: the last impulses applied to ``v^``, the contacts
-        screened (:func:`_node_jacobi_kernels.screen`), then the PGS
-        passes over the live ones (:func:`_node_jacobi_kernels.contacts`)."""
+        screened (:func:`_node_jacobi_kernels.screen`), then the PGS passes over the live ones
+        (:func:`_node_jacobi_kernels.contacts`)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
