@@ -14,6 +14,7 @@ below their targets in the middle of a sweep.
 import numpy as np
 import pytest
 
+from softvr.contact import node_jacobi
 from softvr.dynamics import FemBody, Material
 from softvr.sim import _node_step
 
@@ -36,6 +37,17 @@ def _tilted(cube: FemBody, lift: float) -> FemBody:
 def test_a_tilted_block_landing_on_a_corner_solves_eq_5_5_with_the_far_contacts_skipped(monkeypatch, stiff):
     # stiff: a gummy-stiff 6 cm block at the candy's step size, which takes the coarse correction
     # (its contacts then also move the block's six rigid velocities).
+    _land_and_check(monkeypatch, stiff)
+
+
+def test_the_contact_kernels_striding_over_the_contacts_in_several_threads_solve_the_same(monkeypatch):
+    # On CUDA the screen, the contact metric and the rigid marks stride over the contacts in
+    # many threads (one on the CPU): three threads here, so that every contact is someone's.
+    monkeypatch.setattr(node_jacobi, "_contact_threads", lambda device: 3)
+    _land_and_check(monkeypatch, False)
+
+
+def _land_and_check(monkeypatch, stiff):
     dt = 0.008 if stiff else DT
     material = Material(2e6, 0.35, 1000.0, alpha=0.0, beta=2e-3) if stiff else None
     cube = _cube(cells=3, size=0.06, material=material) if stiff else _cube(cells=3, size=0.3)
