@@ -139,8 +139,8 @@ def contact_sides(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
 
 @wp.kernel
 def coarse_residual(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
-                    diagonal: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
-                    co: Coarse):
+                    diagonal: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
+                    v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
     """Coarse body ``b``'s velocity ``y = (P^T A P)^-1 P^T r`` from the sweep's residual
     ``r_i = b_i - (A v)_i = D_i (v^_i - v_i)`` (``diagonal[i]`` the index of node ``i``'s
     diagonal block): the force and the torque about the centre of ``r``, solved."""

@@ -170,19 +170,20 @@ def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies, q: np.ndarray,
     similar to the symmetric ``M^-1/2 A M^-1/2`` but ``M^-1/2`` is not at hand, so the bounds
     come from Arnoldi (ARPACK) on ``M^-1 A``, whose eigenvalues are real."""
     aggregates = aggregates_of(bodies)
-    index = np.cumsum(solved) - 1
-    dofs = np.arange(a.shape[0]).reshape(-1, 3)
-    paired = np.zeros(a.shape[0], bool)
-    groups = []
-    for pair in (aggregates.pairs if aggregates.pairs is not None else np.zeros((0, 2), np.int64)):
-        group = dofs[index[pair]].ravel()
-        paired[group] = True
-        groups.append(group)
-    groups += [row for row in dofs if not paired[row[0]]]
-    d_inv = sp.lil_matrix(a.shape)
-    for group in groups:  # D_A^-1, block by block
-        d_inv[np.ix_(group, group)] = np.linalg.inv(a[group][:, group].toarray())
-    d_inv = d_inv.tocsr()
+    k = a.shape[0] // 3
+    blocks = a.tobsr(blocksize=(3, 3))
+    rows = np.repeat(np.arange(k), np.diff(blocks.indptr))
+    diagonal = np.tile(np.eye(3), (k, 1, 1))
+    diagonal[rows[rows == blocks.indices]] = blocks.data[rows == blocks.indices]
+    pairs = (np.cumsum(solved) - 1)[aggregates.pairs] if aggregates.pairs is not None else np.zeros((0, 2), int)
+    inverse = np.linalg.inv(diagonal)
+    inverse[pairs.ravel()] = 0.0  # a pair's nodes take its 6x6 block's inverse instead
+    d_inv = sp.bsr_matrix((inverse, np.arange(k), np.arange(k + 1)), shape=a.shape).tocsr()
+    if len(pairs):
+        dofs = (3 * pairs[:, :, None] + np.arange(3)).reshape(len(pairs), 6)
+        pair_inv = np.linalg.inv(np.stack([a[d][:, d].toarray() for d in dofs]))
+        entries = (np.repeat(dofs, 6, axis=1).ravel(), np.tile(dofs, 6).ravel())
+        d_inv = d_inv + sp.coo_matrix((pair_inv.ravel(), entries), shape=a.shape).tocsr()
     p = _basis(aggregates, q, mass, solved)
     galerkin = (p.T @ a @ p).toarray()
     # Each aggregate's 6x6 inverted alone, as the sweeps do (one thread per aggregate).
