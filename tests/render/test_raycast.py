@@ -44,7 +44,8 @@
   deterministic per pixel (the jitter is a hash of the pixel), so every frame must equal a
   fresh renderer's full cast bit for bit; and the rays cast must be the few that can see a
   change (a dent of a few voxels seen by < 15 % of the pixels; the hidden change by none but
-  the probe's).
+  the probe's). Air rewritten but transparent in both frames, in front of the ball, casts
+  no ray (its bricks stay empty, so no sample there is seen in either frame).
 * The walk that finds which rays pass a brick whose voxels changed (jumps over a distance
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
@@ -290,6 +291,26 @@ def test_incremental_frames_equal_a_fresh_cast_and_cast_only_what_changed():
         casts.append(renderer.ray_caster.cast_pixels)
     assert all(0 < c < 0.15 * total for c in casts), casts
     assert hidden == 0, hidden
+
+
+def test_rays_through_air_that_changed_but_stayed_transparent_are_not_cast_again():
+    """Rewritten air (-1000 -> -990 HU, transparent in ``ct-skin`` either way) in front of a ball:
+    the rays cross it, but no sample there can be seen in either frame (its bricks stay empty),
+    so none is cast again and the image still equals a fresh cast."""
+    cam = Camera("front", azimuth=-30.0, elevation=10.0, zoom=1.2)
+    n, size = 64, 64
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+    data = np.where(np.linalg.norm(ijk - 31.5, axis=-1) < 14.0, 40, -1000).astype(np.int16)
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-31.5,) * 3)
+    with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as renderer:
+        renderer.render(vol)
+        # The ball's front is at y = 45.5 (brick 11); bricks 13 .. 15 are air.
+        lo, hi = (16, 53, 16), (47, 63, 47)
+        data[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = -990
+        image = renderer.render(vol, changed=(lo, hi))
+        with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as fresh:
+            assert np.array_equal(image, fresh.render(vol))
+        assert renderer.ray_caster.cast_pixels == 0
 
 
 def test_a_ray_not_cast_again_still_learns_that_a_brick_on_its_empty_prefix_filled():
