@@ -50,6 +50,8 @@
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
   marked brick the walk missed.
+* The bricks found changed (``brick_changes``) against NumPy: a brick is flagged iff a voxel
+  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks.
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -419,6 +421,34 @@ def test_slice_smoothed_gradient_is_the_gradient_of_the_volume_smoothed_across_s
                                                                           device="cpu"), axis, out, gradient])
     np.testing.assert_allclose(out.numpy(), truth, atol=1e-4)
     np.testing.assert_allclose(gradient.numpy(), plain, atol=1e-4)  # and the gradient itself
+
+
+def test_changed_bricks_are_those_owning_a_changed_voxel():
+    """``brick_changes`` against NumPy: brick b owns voxels b * BRICK .. b * BRICK + BRICK - 1 per
+    axis (the last brick also the grid's far voxels); it is flagged iff one of them differs from
+    the kept copy, which it then brings up to date. Single-voxel changes at every position within
+    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders)."""
+    rng = np.random.default_rng(11)
+    b = K.BRICK
+    for order in ("C", "F"):
+        shape = (4 * b + 3, 3 * b + 1, 5 * b + 2)
+        known = np.asarray(rng.integers(-1000, 1000, shape), np.int16, order=order)
+        vol = known.copy(order=order)
+        nb = np.array([-(-(s - 1) // b) for s in shape])
+        # One changed voxel in ~ a third of the bricks, each at a random position it owns.
+        truth = np.zeros(nb, np.uint8)
+        for brick in np.argwhere(rng.random(nb) < 0.35):
+            last = np.where(brick == nb - 1, np.array(shape) - 1, brick * b + b - 1)
+            voxel = tuple(rng.integers(brick * b, last + 1))
+            vol[voxel] += 1
+            truth[tuple(brick)] = 1
+        strides = wp.vec3i(*(st // 2 for st in vol.strides))
+        flat = [wp.array(a.ravel(order="K"), dtype=wp.int16, device="cpu") for a in (vol, known)]
+        changed = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
+        wp.launch(K.brick_changes, dim=int(np.prod(nb)), device="cpu",
+                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], changed, 0])
+        np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
+        np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 
 
 @wp.kernel

@@ -338,10 +338,22 @@ def brick_changes(
     threads write one voxel of ``known``."""
     b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
+    flag = wp.uint8(0)
+    if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
+        # An inner brick owns BRICK^3 voxels: fixed loops, unrolled (no bounds per row).
+        base = b[0] * BRICK * strides[0] + b[1] * BRICK * strides[1] + b[2] * BRICK * strides[2]
+        for i in range(BRICK):
+            for j in range(BRICK):
+                for k in range(BRICK):
+                    a = base + i * strides[0] + j * strides[1] + k * strides[2]
+                    if vol[a] != known[a]:
+                        known[a] = vol[a]
+                        flag = wp.uint8(1)
+        changed[b[0], b[1], b[2]] = flag
+        return
     end = wp.vec3i(0)
     for axis in range(3):
         end[axis] = wp.where(b[axis] == nb[axis] - 1, n[axis], (b[axis] + 1) * BRICK)
-    flag = wp.uint8(0)
     for i in range(b[0] * BRICK, end[0]):
         for j in range(b[1] * BRICK, end[1]):
             for k in range(b[2] * BRICK, end[2]):
