@@ -225,6 +225,12 @@ def slab(o: float, d: float, lo: float, hi: float, t0: float, t1: float) -> wp.v
 def segment_in_box(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> wp.vec2:
     """The part [u0, u1] of the segment ``a + u d``, u in [0, 1], inside the box ``lo`` ..
     ``hi`` (empty: u0 > u1)."""
+    # Most segments tested lie wholly to one side of the box: their ends tell it, without
+    # the slabs' six divisions.
+    e = a + d
+    for axis in range(3):
+        if wp.max(a[axis], e[axis]) < lo[axis] or wp.min(a[axis], e[axis]) > hi[axis]:
+            return wp.vec2(1.0, 0.0)
     u = wp.vec2(0.0, 1.0)
     for axis in range(3):
         u = slab(a[axis], d[axis], lo[axis], hi[axis], u[0], u[1])
