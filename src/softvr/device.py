@@ -169,7 +169,7 @@ def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024
     # kernel of 30 arguments, under the GIL) and each chunk replays them with its own size
     # and offset.
     recorded = wp.launch(kernel, dim=bounds[1], inputs=[*inputs, 0], device=device, record_cmd=True)
-    replays = []
+    replays: list[Callable[[], None]] = []
     for c in range(chunks):
         if c:
             recorded.set_dim(bounds[c + 1] - bounds[c])
