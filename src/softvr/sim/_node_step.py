@@ -27,7 +27,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
-                                      rigid_side, stencil_side)
+                                      rigid_side, stencil_side, unpack_keys)
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
@@ -66,11 +66,11 @@ MAX_SWEEPS_PER_DECADE = 25.0
 PLAIN_LANCZOS_RESTARTS = 30
 #: PGS passes over the contacts per sweep.
 SWEEP_PASSES = 2
-#: The contact arrays a step's snapshot copies (NodeContacts), and those of the rigid path's
-#: contact rows its primitives' contacts point to.
+#: The contact arrays a step's snapshot copies (NodeContacts), and (snapshot name: ContactBuffer
+#: field) those of the rigid path's contact rows its primitives' contacts point to.
 _CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
                    "gap_after", "rigid_node", "rigid_lever", "area")
-_RIGID_CONTACT_FIELDS = ("key", "point_a", "point_b")
+_RIGID_CONTACT_FIELDS = {"key": "key", "point_a": "point_a", "point_b": "point_b", "rigid_area": "area"}
 
 
 class IllConditioned(Exception):
@@ -124,6 +124,15 @@ def spectrum(model, state) -> tuple[float, float]:
     return max(lo, 1e-6 * hi) * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]
 
 
+def _primitive_keys(rigid_keys: np.ndarray, body_a: int, body_b: int) -> np.ndarray:
+    """Scene keys [c] of primitive contacts from the rigid path's ``rigid_keys`` [c] (which
+    number the bodies among the rigid ones): bodies ``body_a`` and ``body_b`` (scene indices;
+    -1: side b is a plane, whose index the key keeps), kind and features as they are (what
+    the adhesion's ``primitive_key`` packs on the device)."""
+    f = unpack_keys(rigid_keys)
+    return contact_keys(f["kind"], body_a, f["feature_a"], f["body_b"] if body_b < 0 else body_b, f["feature_b"])
+
+
 class _NodeSnapshot(StepSnapshot):
     """A node step's snapshot (:class:`StepSnapshot`), with the collision points' positions
     ``x0`` [p, 3] [m] at the step's start."""
@@ -169,11 +178,12 @@ class _NodeSnapshot(StepSnapshot):
         for rows in self.sets():
             kind, other = int(c["kind"][rows[0]]), int(c["other"][rows[0]])
             normal, gap, friction = c["frame"][rows, 0], c["gap"][rows], c["friction"][rows]
-            if kind == 3:  # primitives of rigid bodies (the rigid path's contacts and keys)
+            if kind == 3:  # primitives of rigid bodies (the rigid path's contacts)
                 body = int(c["column"][rows[0]])
                 side_b = None if other < 0 else self._rigid_side(rows, other, -1.0)
                 sets.append(Contacts(self._rigid_side(rows, body, 1.0), side_b, normal, gap, c["point_a"][rows],
-                                     c["point_b"][rows], c["key"][rows], friction, np.zeros(len(rows))))
+                                     c["point_b"][rows], _primitive_keys(c["key"][rows], body, other), friction,
+                                     c["area"][rows]))
                 continue
             if kind == 2:  # edge pairs: both sides are two surface vertices
                 edge_a, edge_b = c["point"][rows], c["face"][rows]
@@ -268,8 +278,8 @@ class NodeStepper:
                                                                                    "stencil_count")}
         self._host_arrays.update(point_x=st.point_x, diverged=st.diverged)
         if self.model.rigid is not None:
-            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
-                                      for name in _RIGID_CONTACT_FIELDS})
+            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
+                                      for name, field in _RIGID_CONTACT_FIELDS.items()})
         self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
             if wp.get_device(self.model.device).is_cpu else None
         k = len(self.model.kinematic)
@@ -508,9 +518,13 @@ class NodeStepper:
         any node of the contact's stencil."""
         n = min(int(self._host("count")[0]), self.state.contacts.capacity)
         out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
-        if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
-            rows = np.where(out["kind"] == 3, out["point"], 0)
+        if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
+            primitive = out["kind"] == 3
+            rows = np.where(primitive, out["point"], 0)
             out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+            # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
+            # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
+            out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
         nodes = self._host("stencil_nodes")[:n]
         used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
