@@ -15,7 +15,9 @@ import pytest
 from softvr import Scene
 from softvr.collision import Plane
 from softvr.collision.contacts import ContactKind, unpack_keys
-from softvr.dynamics import Material, RigidBody
+from softvr.dynamics import Coupling, KinematicBody, Material, RigidBody, RigidPoints
+from softvr.model.shapes import icosphere
+from softvr.sim import node_model_supported
 
 from test_node_rigid import _rigid_box
 from test_node_surfaces import _add_with_surface, _block
@@ -100,3 +102,60 @@ def test_primitive_contacts_carry_their_bodies_keys_and_the_areas_of_what_touche
     # A box's four lower corners on the floor: four distinct corner features.
     (contacts,) = sets[(index["small"], None)]
     assert len(np.unique(unpack_keys(contacts.ids)["feature_a"])) == 4
+
+
+def _hand_scene(hand_meets_spheres: bool):
+    """candy-adhesive.toml's hand in small: a kinematic body with a collision sphere and a
+    surface holds a rigid box primitive (with its own surface) by a zero-length spring at the
+    box's top centre (thesis eq. 5.4), beside a soft cube, a rigid box and a rigid ball resting
+    on the floor. The hand meets nothing (the scene file's ``collides_with = []``) unless
+    ``hand_meets_spheres``: then it may meet the ball, sphere to sphere."""
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5)
+    cube = _block(2, 0.1, (0.6, 0.0, 0.05 + GAP), Material(5e4, 0.3, 1000.0, alpha=0.0, beta=1e-2))
+    _add_with_surface(scene, cube)
+    scene.add_plane(Plane(friction=0.5))
+    _rigid_box(scene, np.array([0.05, 0.04, 0.03]), 500.0, (0.0, 0.0, 0.03 + GAP), primitive=True)
+    scene.add_body(RigidBody.sphere(0.03, 500.0, position=(0.0, 0.3, 0.03 + GAP)), collision_sphere=0.03)
+    half = np.array([0.03, 0.02, 0.015])
+    held = _rigid_box(scene, half, 500.0, (0.3, 0.0, 0.2), primitive=True)
+    grip = np.array([[0.3, 0.0, 0.2 + half[2]]])
+    centre = grip[0] + (0.0, 0.0, 0.015)
+    hand = KinematicBody(lambda t: (centre, np.array([1.0, 0.0, 0.0, 0.0])), name="hand")
+    unit, triangles = icosphere(1)
+    scene.add_body(hand, collision_points=RigidPoints(hand, 0.015 * unit), collision_triangles=triangles,
+                   collision_sphere=0.015)
+    h = len(scene.bodies) - 1
+    for other in range(h):
+        if not (hand_meets_spheres and other == 2):
+            scene.disable_collision(h, other)
+    spring = Coupling(RigidPoints.from_world(held, grip), RigidPoints.from_world(hand, grip), SPRING, damping=DAMPING)
+    scene.add_coupling(spring)
+    return scene, held, spring
+
+
+SPRING, DAMPING = 20.0, 1.7  # [N/m], [N s/m]: critical for the held box's 36 g (2 sqrt(k m) = 1.70)
+
+
+def test_a_kinematic_hand_with_a_sphere_holds_a_rigid_box_on_the_arrays_by_hookes_law():
+    """A kinematic body with a collision sphere beside rigid primitives steps on the node
+    arrays when the filters keep its sphere from theirs, and its spring (eq. 5.4) holds the box
+    at rest with the stretch of Hooke's law, k delta = m g. The sweeps stop at a velocity error
+    e = 3e-5 m/s (VELOCITY_TOL); at rest that is a force error m e / dt, a stretch error
+    m e / (dt k) = 5.4e-6 m; the damped settling (critical, omega = sqrt(k / m) = 23.6 rad/s)
+    leaves (1 + omega t) exp(-omega t) ~ 1e-14 of the 17.7 mm stretch after 1.5 s."""
+    scene, held, spring = _hand_scene(hand_meets_spheres=False)
+    assert node_model_supported(scene)
+    dt = 0.01
+    for _ in range(150):
+        scene.step(dt)
+        assert type(scene._stepper).__name__ == "NodeStepper"
+    stretch = spring.stretch()[0]
+    assert -stretch[2] == pytest.approx(held.mass * G / SPRING, abs=1e-5)
+    np.testing.assert_allclose(stretch[:2], 0.0, atol=1e-5)
+
+
+def test_a_kinematic_sphere_that_may_meet_a_rigid_sphere_keeps_the_per_object_path():
+    """Sphere-sphere contacts are the primitives' (the arrays' primitive detection holds the
+    rigid bodies alone): a kinematic sphere the filters let meet a rigid one is declined."""
+    scene, _, _ = _hand_scene(hand_meets_spheres=True)
+    assert not node_model_supported(scene)

@@ -347,7 +347,7 @@ class NodeState:
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
-    and fixed bodies (with or without one, where no rigid body has one), static planes,
+    and fixed bodies (with or without one, where it meets no rigid body's of its kind), static planes,
     couplings between them (each side an FEM body's embedded points or a kinematic or fixed
     body's points, or a rigid body's where it collides with nothing); adhesion; no static meshes
     or spheres; at most one set of collision points per body (an FEM body's
@@ -356,11 +356,7 @@ def node_model_supported(scene) -> bool:
     its own points."""
     if scene.meshes or scene.spheres or not couplings_supported(scene):
         return False
-    # A kinematic or fixed body's collision sphere or box meets only planes and other
-    # primitives, which cannot move it: its contacts would all be dropped, so none may meet a
-    # rigid body's primitive.
-    driven = [type(scene.bodies[i]) in (KinematicBody, FixedBody) for i, _ in scene._sphere_bodies + scene._box_bodies]
-    if any(driven) and not all(driven):
+    if _driven_primitive_meets_rigid(scene):
         return False
     fem = [b for b in scene.bodies if type(b) is FemBody]
     if not fem or len({b.corotational for b in fem}) != 1:
@@ -379,6 +375,22 @@ def node_model_supported(scene) -> bool:
             return False
     points = {c.body: c.points for c in scene._colliders}
     return all(points.get(s.body_index) is s.points for s in scene._surfaces)
+
+
+def _driven_primitive_meets_rigid(scene) -> bool:
+    """Whether a kinematic or fixed body's collision sphere or box would meet a rigid body's of
+    the same kind (two spheres or two boxes meet by their primitives, as per object; a sphere
+    and a box by their surfaces). The arrays' primitive detection holds the rigid bodies alone
+    (it has no driven side), so such a pair would lose its contacts; a driven primitive that the
+    collision filters keep from every rigid one (candy-adhesive's hand) is harmless: against
+    planes it cannot be moved."""
+    for shapes in (scene._sphere_bodies, scene._box_bodies):
+        kinds = [(i, type(scene.bodies[i])) for i, _ in shapes]
+        for i, kind_i in kinds:
+            for j, kind_j in kinds:
+                if kind_i in (KinematicBody, FixedBody) and kind_j is RigidBody and scene.collision_enabled(i, j):
+                    return True
+    return False
 
 
 def _i32(values, device):
