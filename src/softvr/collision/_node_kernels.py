@@ -37,6 +37,8 @@ EDGE_EDGE = wp.constant(2)
 #: A rigid body's box or sphere primitive against a plane or another primitive (the rigid path's
 #: detection, :mod:`softvr.collision._node_rigid_kernels`).
 PRIMITIVE = wp.constant(3)
+#: A collision point against a static sphere.
+SPHERE = wp.constant(4)
 
 
 @wp.func
@@ -291,8 +293,9 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     point_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
                     triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
                     plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
-                    plane_friction: wp.array(dtype=wp.float64), surface_friction: wp.float64,
-                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    plane_friction: wp.array(dtype=wp.float64), sphere_center: wp.array(dtype=wp.vec3d),
+                    sphere_radius: wp.array(dtype=wp.float64), sphere_friction: wp.array(dtype=wp.float64),
+                    surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
                     hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
                     hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
                     pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
@@ -301,12 +304,14 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
                     count: wp.array(dtype=wp.int32), out: NodeContactOut):
     """One thread, so that contacts come out in the same order on every device: every (point,
-    plane) pair by plane, then point (the per-object path's order), then every (vertex, body)
-    hit by vertex, then body, then every edge pair by edge a, then slot. ``other`` is the
-    plane, or the body whose triangle ``face`` (global) the vertex meets at barycentric
-    ``bary``, or whose edge ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``;
-    ``carried[p, column]`` (planes first, then bodies) and ``edge_carried[e, column]`` (with
-    the edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
+    plane) pair by plane, then point (the per-object path's order), then every (point, static
+    sphere) pair the same way (:func:`softvr.collision.points_vs_sphere`: gap and normal along
+    the radius through the point), then every (vertex, body) hit by vertex, then body, then
+    every edge pair by edge a, then slot. ``other`` is the plane or the sphere, or the body
+    whose triangle ``face`` (global) the vertex meets at barycentric ``bary``, or whose edge
+    ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``; ``carried[p, column]``
+    (planes first, then bodies, then spheres) and ``edge_carried[e, column]`` (with the edge
+    met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
     planes = plane_normal.shape[0]
     n_out = int(0)
     for s in range(planes):
@@ -318,6 +323,23 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
             carried[p, s] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
                 start_contact(out, n_out, PLANE, s, p, s, -1, wp.vec3d(), normal, g, plane_friction[s], last)
+                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
+                          out.stencil_nodes, out.stencil_weights)
+                n_out += 1
+    for k in range(sphere_radius.shape[0]):
+        column = planes + hit.shape[1] + k
+        for p in range(point_nodes.shape[0]):
+            d = point_x[p] - sphere_center[k]
+            dist = wp.length(d)
+            normal = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+            if dist > wp.float64(1e-12):
+                normal = d / dist
+            g = dist - sphere_radius[k]
+            reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
+            last = carried[p, column]
+            carried[p, column] = wp.vec3d()
+            if wp.min(g, reach) < point_margin[p] and n_out < capacity:
+                start_contact(out, n_out, SPHERE, column, p, k, -1, wp.vec3d(), normal, g, sphere_friction[k], last)
                 add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
                           out.stencil_nodes, out.stencil_weights)
                 n_out += 1

@@ -1,5 +1,5 @@
 """Contact generation of the collision points of a whole scene of FEM bodies (and the kinematic
-or fixed bodies they meet) against its planes and each other's surfaces, as recorded launches
+or fixed bodies they meet) against its planes, static spheres and each other's surfaces, as recorded launches
 (kernels in :mod:`softvr.collision._node_kernels`; works on :class:`softvr.sim.NodeModel` /
 :class:`softvr.sim.NodeState` or any objects with those attributes)."""
 
@@ -23,7 +23,7 @@ CONTACT_STENCIL = _k.CONTACT_STENCIL
 
 def record_node_detection(model, state, dt: float, gravity, margin: float, friction: float) -> Callable[[], None]:
     """A replay filling ``state.contacts`` (warm-started from ``state.contacts.carried``) from
-    the step's start ``q``, ``v``, ``gravity`` [3] [m/s^2]: points vs planes, and surface
+    the step's start ``q``, ``v``, ``gravity`` [3] [m/s^2]: points vs planes and static spheres, and surface
     vertices vs the other bodies' triangles within ``margin`` [m] (plus their motion over
     ``dt`` [s]) with Coulomb coefficient ``friction``. The surfaces' BVHs are refitted to the
     points' positions in between."""
@@ -77,7 +77,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
                 model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
-                model.plane_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
+                model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
                 model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
                 float(dt), c.capacity, c.carried, c.count, out])))
     if model.rigid is not None:

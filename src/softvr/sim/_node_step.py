@@ -156,16 +156,16 @@ class _NodeSnapshot(StepSnapshot):
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, in body order: one per (body, plane), then per (body, body
-        its vertices meet), then per (body, body its edges meet) (points or edges ascending);
-        contacts whose stencil is all driven nodes are left out."""
+        its vertices meet), then per (body, body its edges meet), then per (body, static sphere)
+        (points or edges ascending); contacts whose stencil is all driven nodes are left out."""
         if self._sets is None:
             s = self._stepper
             c = self.contacts
             body = s.contact_body(c)
             order = np.lexsort((c["point"], c["other"], c["kind"], body))
             order = order[c["movable"][order]]
-            pair = (body[order] * 4 + c["kind"][order]) * (len(s.scene.planes) + len(s.scene.bodies) + 1) \
-                + c["other"][order]
+            statics = len(s.scene.planes) + len(s.scene.spheres)
+            pair = (body[order] * 5 + c["kind"][order]) * (statics + len(s.scene.bodies) + 1) + c["other"][order]
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
@@ -205,8 +205,11 @@ class _NodeSnapshot(StepSnapshot):
             body = int(s.point_body[point[0]])
             local = point - model.body_point_start[body]
             x = self._x0[point]
+            point_b = x - gap[:, None] * normal
             if kind == 0:
                 side_b, keys = None, contact_keys(ContactKind.POINT_PLANE, body, local, other, 0)
+            elif kind == 4:
+                side_b, keys = None, contact_keys(ContactKind.POINT_SPHERE, body, local, other, 0)
             else:
                 surface = model.surfaces[other]
                 faces = c["face"][rows] - int(s.triangle_start[other])
@@ -214,8 +217,7 @@ class _NodeSnapshot(StepSnapshot):
                                                            c["bary"][rows]), -1.0)
                 keys = contact_keys(ContactKind.VERTEX_TRIANGLE, body, local, other, 0)
             side_a = self._at_start(rows, ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local)), 1.0)
-            sets.append(Contacts(side_a, side_b, normal, gap, x, x - gap[:, None] * normal, keys, friction,
-                                 c["area"][rows]))
+            sets.append(Contacts(side_a, side_b, normal, gap, x, point_b, keys, friction, c["area"][rows]))
         islands = contact_islands(len(self.velocities),
                                   [(x.a.body, None if x.b is None else x.b.body) for x in sets])
         return ContactSolution(velocities=self.velocities, impulses=self.per_set("impulse"),
@@ -333,23 +335,23 @@ class NodeStepper:
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """Contact keys of global points against carried-table columns: planes (kind
         POINT_PLANE, as points_vs_plane), then bodies (kind VERTEX_TRIANGLE, as
-        surface_vs_surface)."""
+        surface_vs_surface), then static spheres (kind POINT_SPHERE, as points_vs_sphere)."""
         start = self.model.body_point_start
         body = self.point_body[points]
         local = points - start[body]
         planes = len(self.scene.planes)
+        spheres = planes + len(self.scene.bodies)
         keys = np.empty(len(points), np.int64)
-        plane = columns < planes
-        if plane.any():
-            keys[plane] = contact_keys(ContactKind.POINT_PLANE, body[plane], local[plane], columns[plane], 0)
-        if (~plane).any():
-            keys[~plane] = contact_keys(ContactKind.VERTEX_TRIANGLE, body[~plane], local[~plane],
-                                        columns[~plane] - planes, 0)
+        for kind, rows, first in ((ContactKind.POINT_PLANE, columns < planes, 0),
+                                  (ContactKind.VERTEX_TRIANGLE, (columns >= planes) & (columns < spheres), planes),
+                                  (ContactKind.POINT_SPHERE, columns >= spheres, spheres)):
+            if rows.any():
+                keys[rows] = contact_keys(kind, body[rows], local[rows], columns[rows] - first, 0)
         return keys
 
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table
-        (points vs planes and vertices vs bodies; edge pairs start cold)."""
+        (points vs planes and spheres, vertices vs bodies; edge pairs start cold)."""
         table = self.state.contacts.carried.numpy()
         p, columns = self.model.point_count, table.shape[1]
         if not warm or not p:
