@@ -156,16 +156,17 @@ class _NodeSnapshot(StepSnapshot):
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, in body order: one per (body, plane), then per (body, body
-        its vertices meet), then per (body, body its edges meet), then per (body, static sphere)
-        (points or edges ascending); contacts whose stencil is all driven nodes are left out."""
+        its vertices meet), then per (body, body its edges meet), then per (body, static sphere),
+        then per (body, static mesh) (points or edges ascending); contacts whose stencil is all
+        driven nodes are left out."""
         if self._sets is None:
             s = self._stepper
             c = self.contacts
             body = s.contact_body(c)
             order = np.lexsort((c["point"], c["other"], c["kind"], body))
             order = order[c["movable"][order]]
-            statics = len(s.scene.planes) + len(s.scene.spheres)
-            pair = (body[order] * 5 + c["kind"][order]) * (statics + len(s.scene.bodies) + 1) + c["other"][order]
+            statics = len(s.scene.planes) + len(s.scene.spheres) + len(s.scene.meshes)
+            pair = (body[order] * 6 + c["kind"][order]) * (statics + len(s.scene.bodies) + 1) + c["other"][order]
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
@@ -210,6 +211,9 @@ class _NodeSnapshot(StepSnapshot):
                 side_b, keys = None, contact_keys(ContactKind.POINT_PLANE, body, local, other, 0)
             elif kind == 4:
                 side_b, keys = None, contact_keys(ContactKind.POINT_SPHERE, body, local, other, 0)
+            elif kind == 5:  # the mesh's surface, its half thickness behind the contact's gap
+                point_b = x - (gap + s.scene.meshes[other].thickness)[:, None] * normal
+                side_b, keys = None, contact_keys(ContactKind.POINT_MESH, body, local, other, 0)
             else:
                 surface = model.surfaces[other]
                 faces = c["face"][rows] - int(s.triangle_start[other])
@@ -335,23 +339,26 @@ class NodeStepper:
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """Contact keys of global points against carried-table columns: planes (kind
         POINT_PLANE, as points_vs_plane), then bodies (kind VERTEX_TRIANGLE, as
-        surface_vs_surface), then static spheres (kind POINT_SPHERE, as points_vs_sphere)."""
+        surface_vs_surface), then static spheres (kind POINT_SPHERE, as points_vs_sphere) and
+        meshes (kind POINT_MESH, as points_vs_mesh)."""
         start = self.model.body_point_start
         body = self.point_body[points]
         local = points - start[body]
         planes = len(self.scene.planes)
         spheres = planes + len(self.scene.bodies)
+        meshes = spheres + len(self.scene.spheres)
         keys = np.empty(len(points), np.int64)
         for kind, rows, first in ((ContactKind.POINT_PLANE, columns < planes, 0),
                                   (ContactKind.VERTEX_TRIANGLE, (columns >= planes) & (columns < spheres), planes),
-                                  (ContactKind.POINT_SPHERE, columns >= spheres, spheres)):
+                                  (ContactKind.POINT_SPHERE, (columns >= spheres) & (columns < meshes), spheres),
+                                  (ContactKind.POINT_MESH, columns >= meshes, meshes)):
             if rows.any():
                 keys[rows] = contact_keys(kind, body[rows], local[rows], columns[rows] - first, 0)
         return keys
 
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table
-        (points vs planes and spheres, vertices vs bodies; edge pairs start cold)."""
+        (points vs planes, spheres and meshes, vertices vs bodies; edge pairs start cold)."""
         table = self.state.contacts.carried.numpy()
         p, columns = self.model.point_count, table.shape[1]
         if not warm or not p:
@@ -403,7 +410,7 @@ class NodeStepper:
 
     def _record(self, dt: float) -> None:
         s = self.scene
-        key = (dt, tuple(s.gravity), s.pgs_iterations)
+        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd)
         if self._recorded is not None and self._recorded[0] == key:
             return
         m, st = self.model, self.state
@@ -412,7 +419,7 @@ class NodeStepper:
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
         couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
-        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction)
+        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction, s.ccd)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
