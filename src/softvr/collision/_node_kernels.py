@@ -310,6 +310,17 @@ def start_contact(out: NodeContactOut, c: int, kind: int, column: int, point: in
     out.stencil_count[c] = 0
 
 
+@wp.func
+def point_contact(out: NodeContactOut, c: int, kind: int, column: int, p: int, other: int, normal: wp.vec3d,
+                  gap: wp.float64, friction: wp.float64, carried: wp.array2d(dtype=wp.vec3d),
+                  point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64)):
+    """Contact ``c`` of collision point ``p`` with a static (plane, sphere or mesh ``other``),
+    warm-started from ``carried[p, column]``."""
+    start_contact(out, c, kind, column, p, other, -1, wp.vec3d(), normal, gap, friction, carried[p, column])
+    add_point(c, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count, out.stencil_nodes,
+              out.stencil_weights)
+
+
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
@@ -345,13 +356,11 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
         for p in range(point_nodes.shape[0]):
             g = wp.dot(normal, point_x[p]) - plane_offset[s]
             reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            last = carried[p, s]
-            carried[p, s] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
-                start_contact(out, n_out, PLANE, s, p, s, -1, wp.vec3d(), normal, g, plane_friction[s], last)
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
-                          out.stencil_nodes, out.stencil_weights)
+                point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
+                              point_weights)
                 n_out += 1
+            carried[p, s] = wp.vec3d()  # read: a pair no longer in contact forgets it
     for k in range(sphere_radius.shape[0]):
         column = planes + hit.shape[1] + k
         for p in range(point_nodes.shape[0]):
@@ -362,26 +371,21 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                 normal = d / dist
             g = dist - sphere_radius[k]
             reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            last = carried[p, column]
-            carried[p, column] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
-                start_contact(out, n_out, SPHERE, column, p, k, -1, wp.vec3d(), normal, g, sphere_friction[k], last)
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
-                          out.stencil_nodes, out.stencil_weights)
+                point_contact(out, n_out, SPHERE, column, p, k, normal, g, sphere_friction[k], carried, point_nodes,
+                              point_weights)
                 n_out += 1
+            carried[p, column] = wp.vec3d()
     for k in range(mesh_friction.shape[0]):
         column = planes + hit.shape[1] + sphere_radius.shape[0] + k
         for p in range(point_nodes.shape[0]):
-            last = carried[p, column]
-            carried[p, column] = wp.vec3d()
             if static_hit[p, k] != 0 and n_out < capacity:
                 fn = static_normal[p, k]
                 normal = wp.normalize(wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2])))
-                start_contact(out, n_out, MESH, column, p, k, -1, wp.vec3d(), normal, wp.float64(static_gap[p, k]),
-                              mesh_friction[k], last)
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
-                          out.stencil_nodes, out.stencil_weights)
+                point_contact(out, n_out, MESH, column, p, k, normal, wp.float64(static_gap[p, k]), mesh_friction[k],
+                              carried, point_nodes, point_weights)
                 n_out += 1
+            carried[p, column] = wp.vec3d()
     for p in range(hit.shape[0]):
         for b in range(hit.shape[1]):
             last = carried[p, planes + b]

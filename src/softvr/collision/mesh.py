@@ -28,6 +28,7 @@ NORMAL_FROM_OFFSET = wp.constant(1.0e-6)
 
 
 @wp.func
+@no_type_check  # Warp's builtins (mesh queries, vector types) are not typed for Python
 def query_point(mesh: wp.uint64, p: wp.vec3, d: wp.vec3, reach: float, thickness: float, ccd: int, closed: int):
     """Point ``p`` against a Warp mesh: the closest surface point within ``reach`` or, sweeping
     ``d`` (the displacement over the step), the first crossing. Returns (hit (0 / 1), normal,
