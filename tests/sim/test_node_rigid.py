@@ -215,7 +215,13 @@ def test_a_rigid_box_on_an_incline_sticks_below_the_friction_angle_and_slides_ab
     for _ in range(steps):
         scene.step(dt)
     assert type(scene._stepper).__name__ == "NodeStepper"
-    down = np.array([-np.cos(theta), 0.0, -np.sin(theta)])
+    _check_incline(box, np.array([-np.cos(theta), 0.0, -np.sin(theta)]), normal, theta, mu, dt, steps, slides)
+
+
+def _check_incline(box, down, normal, theta, mu, dt, steps, slides):
+    """Coulomb on an incline of ``theta`` [rad] (unit ``down`` the slope, ``normal`` out of it)
+    after ``steps`` of ``dt`` [s] from rest: the box slides at a = g (sin theta - mu cos theta)
+    or (not ``slides``) stays, and does not move off the slope."""
     speed = float(box.v[:3] @ down)
     if slides:
         # Implicit Euler from rest: v_n = n a dt exactly once every contact slides.

@@ -18,7 +18,7 @@ from softvr.collision.contacts import ContactKind, unpack_keys
 from softvr.dynamics import Material
 from softvr.sim import node_model_supported
 
-from test_node_rigid import VELOCITY_TOL, _rigid_box
+from test_node_rigid import VELOCITY_TOL, _check_incline, _rigid_box
 from test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
@@ -56,13 +56,7 @@ def test_a_rigid_box_on_a_tilted_static_mesh_sticks_below_the_friction_angle_and
     f = unpack_keys(np.concatenate([c.ids for c in solution.contacts]))
     np.testing.assert_array_equal(f["kind"], ContactKind.POINT_MESH)
     np.testing.assert_array_equal(f["body_b"], 1)
-    down = -turn[:, 0] if turn[2, 0] > 0 else turn[:, 0]
-    speed = float(box.v[:3] @ down)
-    if slides:
-        assert speed == pytest.approx(steps * G * (np.sin(theta) - mu * np.cos(theta)) * dt, rel=1e-3)
-    else:
-        assert abs(speed) < 1e-6
-    assert abs(float(box.v[:3] @ normal)) < VELOCITY_TOL
+    _check_incline(box, turn[:, 0], normal, theta, mu, dt, steps, slides)  # turn[:, 0] points down the slope
 
 
 def test_a_soft_block_rests_on_a_static_mesh_its_half_thickness_above_and_is_carried_by_it():
