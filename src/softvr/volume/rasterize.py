@@ -177,7 +177,8 @@ class Rasterizer:
         What a deformed tet turned inside out (or flat) does: raise an
         :class:`~softvr.errors.InputError` naming it (default), or write nothing this frame
         (interactive simulations, where an embedding tet in air may fold for a moment;
-        ``skipped_tets`` counts them).
+        ``skipped_tets`` counts them; after :meth:`update`, those among the tets that reach
+        its box).
 
     Examples
     --------
@@ -364,11 +365,24 @@ class Rasterizer:
         if np.any(corners.max(axis=0) < -1) or np.any(corners.min(axis=0) > shape):
             return None  # moved entirely outside the output grid
         window = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
-        sub = Volume(np.empty(tuple(hi - lo + 1), out.dtype), out.spacing.copy(), out.index_to_world(lo),
-                     out.direction.copy())
-        self.deform(x1, out=sub)
-        out.data[window] = sub.data
+        origin = out.index_to_world(lo)
+        if self._writes_in_place(out):
+            grid = OutputGrid(tuple(int(n) for n in hi - lo + 1), out.spacing.copy(), origin, out.direction.copy())
+            self._run(x1, grid, count_writes=False, window=(out.data, lo))
+        else:
+            sub = Volume(np.empty(tuple(hi - lo + 1), out.dtype), out.spacing.copy(), origin, out.direction.copy())
+            self.deform(x1, out=sub)
+            out.data[window] = sub.data
         return lo, hi
+
+    def _writes_in_place(self, out: Volume) -> bool:
+        """Whether :meth:`update` writes straight into ``out``'s box (the CPU exact spans, which
+        take the output's row pitch): no sub-volume to fill and copy back. Not where ``out``
+        may be the input itself (it would read voxels it has just written)."""
+        data = out.data
+        return (self.method == "spans" and self._out_code != 0 and data.dtype == self.volume.dtype
+                and data.flags.c_contiguous and data.flags.writeable
+                and not np.may_share_memory(data, self.volume.data))
 
     def write_counts(self, deformed_nodes, out_grid: Volume | None = None) -> Volume:
         """How many tets claim each output voxel (0 outside the mesh, 1 inside).
@@ -384,28 +398,23 @@ class Rasterizer:
         return self._run(deformed_nodes, out_grid, count_writes=True)
 
     # ---------------------------------------------------------------- internals
-    def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None) -> Volume:
+    def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None,
+             window: tuple | None = None) -> Volume:
+        """Rasterize onto ``out_grid`` (or ``into``'s grid), or, with ``window = (data, lo)``, onto
+        the box of the C-order array ``data`` [nx, ny, nz] from index ``lo`` [3] whose grid
+        ``out_grid`` is (CPU exact spans only; returns a view of that box)."""
         t_start = time.perf_counter()
         x1 = np.asarray(deformed_nodes)
         if x1.shape != self.nodes.shape:
             raise InputError(
                 "deformed_nodes", f"an array of the rest nodes' shape {self.nodes.shape}", f"shape {x1.shape}"
             )
-        folded = None
-        if self.inverted == "skip":
-            x1 = np.asarray(x1, np.float64)
-            if not np.isfinite(x1).all():
+        x1 = np.asarray(x1, dtype=np.float64)
+        if not np.isfinite(x1).all():
+            if self.inverted == "skip":
                 n = int(np.argmax(~np.isfinite(x1).all(axis=1)))
                 raise InputError(f"deformed_nodes[{n}]", "finite coordinates", str(x1[n].tolist()))
-            volume = tet_signed_volumes(x1, self.tets)
-            folded = volume <= 1e-12 * float(np.prod(np.maximum(np.ptp(x1, axis=0), 1e-300)))
-            self.skipped_tets = int(folded.sum())
-        else:
-            # check_tets' checks, the volumes from the set-up kernel's determinants (below);
-            # check_tets itself runs only where one is in doubt, and names the bad tet.
-            x1 = np.asarray(x1, dtype=np.float64)
-            if not np.isfinite(x1).all():
-                check_tets(x1, self.tets, nodes_name="deformed_nodes")
+            check_tets(x1, self.tets, nodes_name="deformed_nodes")
         if into is not None:
             grid = OutputGrid.of(into)
         elif out_grid is None:
@@ -417,7 +426,24 @@ class Rasterizer:
         else:
             raise InputError("out_grid", "None, a softvr.volume.Volume or an OutputGrid", type(out_grid).__name__)
         shape = grid.shape
-        face_w, affine_w, box_w, det_w = self._setup_det(grid.world_to_index(x1), shape)
+        u1 = grid.world_to_index(x1)
+        tets, tets_w = self.tets, self._tets_w
+        if window is not None and self.inverted == "skip":
+            # Only the tets whose voxel box can meet the window's grid: a box is empty unless
+            # the snapped corners reach [-0.5, n - 0.5] (a voxel of margin here). In "error"
+            # mode every tet is set up, so that a folded one anywhere is still found.
+            c = [u1[tets[:, v]] for v in range(4)]  # (numpy's min / max over a short axis 1 is slow)
+            top = np.maximum(np.maximum(c[0], c[1]), np.maximum(c[2], c[3]))
+            bottom = np.minimum(np.minimum(c[0], c[1]), np.minimum(c[2], c[3]))
+            meets = np.all((top >= -1.0) & (bottom <= np.asarray(shape)), axis=1)
+            tets = tets[meets]
+            tets_w = wp.array(tets, dtype=wp.int32, device=self.device)
+        folded = None
+        if self.inverted == "skip":
+            volume = tet_signed_volumes(x1, tets)
+            folded = volume <= 1e-12 * float(np.prod(np.maximum(np.ptp(x1, axis=0), 1e-300)))
+            self.skipped_tets = int(folded.sum())
+        face_w, affine_w, box_w, det_w = self._setup_det(u1, shape, tets_w)
         if folded is None:
             # World volume = det(index edges) * prod(spacing) / det(direction) / 6; a margin of 2
             # over check_tets' degeneracy bound covers the two ways of rounding the determinant.
@@ -435,9 +461,18 @@ class Rasterizer:
         if count_writes:
             counts = wp.zeros(shape, dtype=wp.int32, device=dev)
             out = wp.empty((1, 1, 1), dtype=self._vol.dtype, device=dev)
+        elif window is not None:
+            target, lo = window
+            box_view = target[tuple(slice(a, a + n) for a, n in zip(lo, shape))]
+            box_view.fill(self.background)
         else:
             counts = wp.empty((0, 0, 0), dtype=wp.int32, device=dev)
             out = _background(shape, self.background, self.volume.dtype, dev, None if into is None else into.data)
+        if window is None:
+            out_ptr, pitch = out.ptr, shape
+        else:
+            out_ptr = target.ctypes.data + target.itemsize * int(np.ravel_multi_index(tuple(lo), target.shape))
+            pitch = (shape[0], *target.shape[1:])
         m = len(box)
         t_setup = time.perf_counter()
 
@@ -475,8 +510,8 @@ class Rasterizer:
                 items,
                 [
                     self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
-                    self._dims, self._strides, wp.uint64(out.ptr), self._out_code,
-                    wp.vec3i(*shape), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                    self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
+                    wp.vec3i(*pitch), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
                     m, _SLABS_PER_ITEM, self._params, written,
                 ],
                 dev,
@@ -504,7 +539,9 @@ class Rasterizer:
             )
         n_tested = int(tested.numpy().sum(dtype=np.int64))
         n_written = int(written.numpy().sum(dtype=np.int64))
-        if count_writes:
+        if window is not None:
+            data = box_view
+        elif count_writes:
             data = counts.numpy()
         elif into is not None:
             data = into.data
@@ -546,11 +583,12 @@ class Rasterizer:
         """
         return self._setup_det(u1, shape)[:3]
 
-    def _setup_det(self, u1: np.ndarray, shape):
+    def _setup_det(self, u1: np.ndarray, shape, tets_w: wp.array | None = None):
         """:meth:`_setup` plus ``det`` [tet_count] float64, each deformed tet's edge-matrix
-        determinant in output voxel indices."""
+        determinant in output voxel indices; of the tets ``tets_w`` [m, 4] (default all)."""
         sub = subvoxel_factor(u1, shape)
-        dev, m = self.device, len(self.tets)
+        tets_w = self._tets_w if tets_w is None else tets_w
+        dev, m = self.device, tets_w.shape[0]
         face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
         affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
         box = wp.empty((m, 6), dtype=wp.int32, device=dev)
@@ -559,7 +597,7 @@ class Rasterizer:
         launch(
             K.tet_setup,
             m,
-            [self._rest_w, moved, self._tets_w, sub, wp.vec3i(*shape), self._dims, face, affine, box, det],
+            [self._rest_w, moved, tets_w, sub, wp.vec3i(*shape), self._dims, face, affine, box, det],
             dev,
             min_chunk=512,
         )
