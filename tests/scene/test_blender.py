@@ -309,3 +309,81 @@ def test_the_addons_check_runs_the_validator_and_the_collision_free_start(tmp_pa
     assert "Info: collision-free start: 'gel' pushed out of 'table'" in out
     assert "CHECK ['FINISHED']" in out
     assert "bodies 'gel' and 'table': expected surfaces apart at the start" in out and "CHECK FAILED" in out
+
+
+SENSOR_SCRIPT = """
+import os
+import sys
+
+import bpy
+
+zip_path, glb = sys.argv[1:3]
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.preferences.addon_install(filepath=zip_path)
+bpy.ops.preferences.addon_enable(module="softvr_blender")
+bpy.ops.mesh.primitive_cube_add(size=0.2, location=(0.0, 0.0, 0.0))
+floor = bpy.context.active_object
+floor.name = "floor"
+bpy.ops.softvr.mark(kind="fixed")
+try:
+    bpy.ops.softvr.add_sensor(kind="position")
+except RuntimeError:  # an operator's error report, in a script: a fixed object is no body
+    print("FIXED REFUSED")
+bpy.ops.mesh.primitive_cube_add(size=0.1, location=(0.0, 0.0, 0.5))
+box = bpy.context.active_object
+box.name = "box"
+bpy.ops.softvr.mark(kind="rigid")
+assert bpy.ops.softvr.add_sensor(kind="position", name="fall") == {"FINISHED"}
+assert bpy.ops.softvr.add_sensor(kind="hand_force") == {"FINISHED"}
+assert bpy.ops.softvr.remove_sensor(kind="hand_force") == {"FINISHED"}
+floor.select_set(True)  # the box active, the floor selected too: the contact sensor's other side
+assert bpy.ops.softvr.add_sensor(kind="contact_force") == {"FINISHED"}
+scene = bpy.context.scene
+scene["softvr_dt"] = 0.01
+scene["softvr_steps_per_frame"] = 1
+bpy.ops.softvr.export(filepath=glb)
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+def test_the_addon_adds_edits_and_exports_sensors_that_read_the_scene(tmp_path):
+    """In Blender with the add-on: a rigid box over a fixed floor gets a position sensor named
+    "fall", a hand force sensor added and removed again, and a contact force sensor with the
+    floor (the other selected object: a fixed mesh is static geometry, "static"); a sensor on
+    the fixed floor is refused. Truths: the
+    export holds exactly the two sensors as the author set them, and played, the box falls
+    freely for 3 steps of h = 0.01 s: semi-implicit Euler's z_n = z_0 - g h^2 n (n + 1) / 2,
+    with no contact force from the floor 0.35 m below."""
+    from softvr.blender import build_addon
+    from softvr.scene.gltf import read_gltf_scene
+
+    glb = tmp_path / "sensors.glb"
+    done = subprocess.run([str(BLENDER_PYTHON), "-c", SENSOR_SCRIPT, str(build_addon(tmp_path)), str(glb)],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and glb.exists(), (done.stdout[-2000:], done.stderr[-2000:])
+    assert "FIXED REFUSED" in done.stdout
+    sensors = sorted(read_gltf_scene(glb).sensors, key=lambda s: s["name"])
+    assert sensors == [{"name": "box contact force", "kind": "contact_force", "body": "box", "other": "static"},
+                       {"name": "fall", "kind": "position", "body": "box", "other": None}]
+    g, h = 9.81, 0.01
+    with load_scene(glb, frames=3, width=64, height=48) as ex:
+        for _ in range(3):
+            record = ex.step()
+    n = 3
+    np.testing.assert_allclose(record["sensors"]["fall"], [0.0, 0.0, 0.5 - g * h**2 * n * (n + 1) / 2], rtol=1e-12,
+                               atol=1e-12)
+    assert record["sensors"]["box contact force"] == [0.0, 0.0, 0.0]
+
+
+def test_the_addons_sensor_kinds_are_softvrs():
+    """The add-on runs inside Blender without softvr, so it lists the sensor kinds itself: the
+    same as the scene format's (read from its source: it imports bpy)."""
+    import ast
+
+    from softvr.scene._description import SENSOR_KINDS
+
+    source = (ROOT / "src" / "softvr" / "blender" / "softvr_blender" / "__init__.py").read_text()
+    listed = next(node.value for node in ast.parse(source).body if isinstance(node, ast.AnnAssign | ast.Assign)
+                  and "SENSOR_KINDS" in ast.unparse(node.targets[0] if isinstance(node, ast.Assign) else node.target))
+    assert [kind.elts[0].value for kind in listed.elts] == list(SENSOR_KINDS)

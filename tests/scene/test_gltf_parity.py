@@ -297,6 +297,64 @@ collide = true
         assert a.scene.collision_enabled(a.index["post"], a.index["ball"])
 
 
+def test_a_volumes_labels_renderer_and_the_video_rate_read_alike_from_toml_and_gltf(tmp_path):
+    """palpation.toml's drawing keys, written by hand in both formats: ``[volume]`` labels (a
+    segmentation file), mapper and sample_distance, and ``[render] fps``; what was written is
+    what both read, the played scene's video rate is the written one (not 1 / (dt
+    steps_per_frame) = 100 / s), and typos and bad values are named alike, all at once."""
+    grid = np.linalg.norm(np.indices((20, 20, 20)).transpose(1, 2, 3, 0) - 9.5, axis=-1)
+    np.save(tmp_path / "ct.npy", np.where(grid < 7.0, 40, -1000).astype(np.int16))
+    np.save(tmp_path / "labels.npy", (grid < 7.0).astype(np.uint8))
+    volume = {"softvr_type": "volume", "softvr_file": "ct.npy", "softvr_unit": 0.002, "softvr_cells": [4, 4, 4],
+              "softvr_labels": "labels.npy", "softvr_mapper": "cpu", "softvr_sample_distance": 0.75}
+    scene = {"softvr_ground": False, "softvr_fps": 12.0, "softvr_dt": 0.01, "softvr_steps_per_frame": 1}
+    scenery = [("lamp", (0.01, 0.01, 0.01), (0.1, 0.1, 0.1), IDENTITY, {})]  # no softvr properties: not simulated
+    path = _glb(tmp_path / "ct.glb", scenery, empties=[("ball", volume)], scene_extras=scene)
+    toml = _toml(tmp_path / "ct.toml", '''
+[simulation]
+dt = 0.01
+steps_per_frame = 1
+[render]
+fps = 12.0
+[volume]
+file = "ct.npy"
+name = "ball"
+unit = 0.002
+cells = [4, 4, 4]
+labels = "labels.npy"
+mapper = "cpu"
+sample_distance = 0.75
+''')
+    g, t = read_gltf_scene(path), read_scene(toml)
+    assert g.volume == t.volume
+    assert (t.volume["labels"], t.volume["mapper"], t.volume["sample_distance"]) == (tmp_path / "labels.npy", "cpu",
+                                                                                      0.75)
+    assert g.render["fps"] == t.render["fps"] == 12.0
+    with load_scene(toml, frames=1) as played:
+        assert played.fps == 12.0
+    bad_volume = {**volume, "softvr_lables": "labels.npy", "softvr_mapper": "gpu", "softvr_sample_distance": 0.0,
+                  "softvr_labels": "none.npy"}
+    with pytest.raises(InputError) as gltf:
+        read_gltf_scene(_glb(tmp_path / "bad.glb", scenery, empties=[("ball", bad_volume)],
+                             scene_extras={**scene, "softvr_fps": -1.0}))
+    (tmp_path / "bad.toml").write_text(toml.read_text().replace("fps = 12.0", "fps = -1.0").replace(
+        'labels = "labels.npy"', 'labels = "none.npy"\nlables = "labels.npy"').replace('"cpu"', '"gpu"').replace(
+        "0.75", "0.0"))
+    with pytest.raises(InputError) as text:
+        read_scene(tmp_path / "bad.toml")
+    expected = {"fps": ("a number > 0 [frames/s]", "-1.0"),
+                "lables": ("a known key (did you mean 'labels'?)", "'lables'"),
+                "mapper": ("auto | warp | cpu", "gpu"),
+                "sample_distance": ("a number > 0 [voxels]", "0.0")}
+    for problems, volume_at, render_at in ((text.value.problems, "volume.", "render."),
+                                           (gltf.value.problems, "node 'ball'.", "scene.")):
+        found = {what: (e, f) for what, e, f in problems}
+        for key, value in expected.items():
+            assert found[(render_at if key == "fps" else volume_at) + key] == value, (key, found)
+        assert found[volume_at + "labels"][1].startswith("no file "), found
+        assert len(problems) == 5, found
+
+
 _PARTS = '''format = "softvr-parts 1"
 [[part]]
 name = "bone"

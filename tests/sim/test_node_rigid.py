@@ -18,8 +18,8 @@ from softvr.scene import bundled, load_scene
 from softvr.sim import node_model_supported
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
-from test_node_couplings import sprung_block_scene
-from test_node_surfaces import _add_with_surface, _block
+from tests.sim.test_node_couplings import sprung_block_scene
+from tests.sim.test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
 VELOCITY_TOL = 3 * SWEEP_TOLERANCE  # [m/s]

@@ -260,6 +260,11 @@ class Player:
         assert self._drawing is not None, "setup_render first"
         self._drawing.update(self.drawables())
 
+    @property
+    def renderer(self) -> SurfaceRenderer | None:
+        """The off-screen renderer of :meth:`render` (None before the first frame drawn)."""
+        return self._renderer
+
     def renderer_options(self) -> dict:
         """Extra :class:`~softvr.render.SurfaceRenderer` arguments (background, light kit)."""
         return {}

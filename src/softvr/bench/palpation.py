@@ -1,15 +1,16 @@
 """``softvr bench palpation``: where the time of a palpation frame goes (thesis 3.3.2).
 
-The palpation demo's scene (``palpation.toml``), through its Python construction
-:class:`softvr.examples.ct_palpation.CTPalpation`, on the real head CT (256 x 256
-x 108 voxels, ~6 K tets over the head, tissue from the voxels, bone clamped): per frame the
-FEM step with the probe's contact, the CT rasterized from the deformed mesh — in full (the
-thesis' way: every voxel, every frame) and incrementally (only the box around the tets that
-moved), both on the same node positions — and the volume rendering at 512 x 512, full
-resolution, by the demo's renderer (softvr's Warp ray caster, its empty-space grid re-derived
-only where the rasterizer wrote). VTK's CPU ray caster renders the same volume with the same
-transfer function, camera and sample distance on a few frames of the same run, for the ratio.
-A full frame is step + incremental rasterization + render.
+The palpation demo's scene file (``palpation.toml``, its ``[variant.quick]`` with ``--quick``)
+played through the one :class:`~softvr.app.Player`, on the real head CT (256 x 256 x 108
+voxels, ~6 K tets over the head, tissue from the voxels, bone clamped): per frame the FEM step
+with the probe's contact, the CT rasterized from the deformed mesh — in full (the thesis' way:
+every voxel, every frame) and incrementally (only the box around the tets that moved), both on
+the same node positions — and the volume rendering at 512 x 512, full resolution, by the
+scene's renderer (softvr's Warp ray caster over the probe's surface, its empty-space grid
+re-derived only where the rasterizer wrote, only the rays that can see a change cast again).
+VTK's CPU ray caster renders the same volume with the same transfer function, camera and
+sample distance on a few frames of the same run, for the ratio. A full frame is step +
+incremental rasterization + render.
 
 Thesis anchor: the torso (4.99 M voxels, 700 tets) rasterized in 14.86 ms on a GTX 680.
 Target on this 2-core CPU: a full frame <= 33 ms on the head CT; on an H100 when lent, <= 5 ms.
@@ -19,82 +20,106 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import Any
 
 import numpy as np
 
 from softvr.bench._report import bench_parser, print_and_write, save_figure
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
-from softvr.examples.ct_palpation import CTPalpation as Example
-from softvr.render import Camera, VolumeRenderer
-from softvr.volume import Volume
+from softvr.errors import InputError
+from softvr.render import VolumeRenderer
+from softvr.scene import BUNDLED, SceneExample, read_scene
+from softvr.volume import Volume, iso_surface
 
-__all__ = ["TARGET_FRAME_MS", "TARGET_RENDER_RATIO", "format_table", "main", "run_palpation_bench", "write_plot"]
+__all__ = ["SCENE", "TARGET_FRAME_MS", "TARGET_RENDER_RATIO", "format_table", "main", "run_palpation_bench",
+           "write_plot"]
 
+#: The benchmarked scene: the palpation demo's one definition.
+SCENE = BUNDLED / "palpation.toml"
 TARGET_FRAME_MS = 33.0
 TARGET_RENDER_RATIO = 5.0
 THESIS = {"voxels": 4.99e6, "tets": 700, "raster_ms": 14.86, "gpu": "GTX 680"}
+#: ``--renderer`` -> the scene's ``[volume] mapper``.
+_MAPPERS = {"warp": "warp", "vtk": "cpu"}
 
 
-def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int = 512,
-                        device: str | None = None, renderer: str = "warp", render_step: int = 1,
+def _indentation(probe, radius: float, skin) -> float:
+    """How far [m] the probe sphere (``radius`` [m]) reaches past the rest ``skin`` vertices
+    [n, 3] [m]: the depth of the deepest one inside it (negative: its gap to the nearest)."""
+    return float(radius - np.linalg.norm(skin - np.asarray(probe.position), axis=1).min())
+
+
+def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int | None = None,
+                        device: str | None = None, renderer: str | None = None, render_step: int | None = None,
                         sample_distance: float | None = None) -> dict:
-    """The palpation demo's frames, each stage timed; ``quick``: 6 frames at 128 x 128.
-    ``renderer``, ``render_step`` and ``sample_distance`` as for
-    :class:`~softvr.examples.ct_palpation.CTPalpation` (``None``: its default)."""
+    """The palpation scene's frames, each stage timed; ``quick``: its ``quick`` variant (6
+    frames at 128 x 128). ``size`` [pixels] (square), ``renderer`` (``"warp"``, ``"vtk"``),
+    ``render_step`` and ``sample_distance`` [voxels] replace the file's (``None``: the file's)."""
     from tqdm import tqdm
 
     t0 = time.perf_counter()
     load_start = _loadavg()
-    frames = 6 if quick else 40
-    size = 128 if quick else size
+    scene_file = read_scene(SCENE, ("quick",) if quick else ())
+    if render_step is not None and not (isinstance(render_step, int) and render_step >= 1):
+        raise InputError("render_step", "an integer >= 1", repr(render_step))
+    if renderer is not None and renderer not in _MAPPERS:
+        raise InputError("renderer", "'warp' or 'vtk'", repr(renderer))
+    probe_spec = scene_file.body("probe")
+    assert scene_file.volume is not None and probe_spec is not None  # palpation.toml has its [volume] and probe
+    options = {"mapper": _MAPPERS.get(renderer or ""), "render_step": render_step, "sample_distance": sample_distance}
+    scene_file.volume.update({k: v for k, v in options.items() if v is not None})
+    probe_radius = float(probe_spec.size)  # [m] a sphere's
     trace: dict[str, list] = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms",
                                               "render_cpu_ms", "raster_voxels", "indentation_m")}
     trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms", "rays_cast")})
-    step_option: dict[str, Any] = {} if sample_distance is None else {"sample_distance": sample_distance}
-    with Example(frames=frames, width=size, height=size, device=device, renderer=renderer, render_step=render_step,
-                 **step_option) as ex:
-        full = Volume(np.empty(ex.volume.shape, ex.volume.dtype), ex.volume.spacing.copy(), ex.volume.origin.copy(),
-                      ex.volume.direction.copy())
-        ex.render()  # the renderer's set-up (window, first upload) is not a frame's cost
+    with SceneExample(scene_file, width=size, height=size, device=device) as player:
+        player.frame_measures = False  # the bench reads its own measures
+        frames, size = player.frames, player.width
+        vol, probe = player.volume, player.bodies["probe"]
+        assert vol is not None
+        skin = iso_surface(vol.rest, vol.spec["threshold"], step=2)[0] * vol.unit  # the rest skin [m]
+        full = Volume(np.empty(vol.rest.shape, vol.rest.dtype), vol.rest.spacing.copy(), vol.rest.origin.copy(),
+                      vol.rest.direction.copy())
+        player.render()  # the renderer's set-up (window, first upload) is not a frame's cost
+        assert player.renderer is not None and player.volume_handle is not None
+        caster = player.renderer.ray_caster(player.volume_handle)
+        step = caster.sample_distance if caster is not None else vol.spec["sample_distance"] or 1.0
         # VTK's CPU ray caster on the same volume, transfer function, camera and step, timed right
         # after softvr's on every 8th frame (paired: both see the same machine load).
-        vtk = VolumeRenderer(size, size, ex.preset, Camera("front", azimuth=ex.azimuth, elevation=5, zoom=1.3),
-                             mapper="cpu", sample_distance=ex.sample_distance)
-        vtk.render(ex.shown_volume())  # its set-up
+        vtk = VolumeRenderer(size, size, vol.spec["preset"], player.camera, mapper="cpu", sample_distance=step)
+        vtk.render(vol.shown())  # its set-up
         for i in tqdm(range(frames), desc="bench palpation", unit="frame", disable=not progress):
-            ex.step()
-            m = ex.metrics[-1]
+            record = player.step()
             s = time.perf_counter()
-            ex.drawing.rasterizer.deform(ex.body.q / 1e-3, out=full)
+            vol.drawing.rasterizer.deform(vol.body.q / vol.unit, out=full)
             trace["raster_full_ms"].append(1e3 * (time.perf_counter() - s))
             cpu = time.process_time()
-            image = ex.render()
+            image = player.render()
             trace["render_cpu_ms"].append(1e3 * (time.process_time() - cpu))
-            caster = ex.volume_renderer.ray_caster
             trace["rays_cast"].append(caster.cast_pixels if caster is not None else size * size)
             if i % 8 == 4 or (quick and i % 3 == 1):
                 s, cpu = time.perf_counter(), time.process_time()
-                vtk.render(ex.shown_volume())
+                vtk.render(vol.shown())
                 trace["render_vtk_ms"].append(1e3 * (time.perf_counter() - s))
                 trace["render_vtk_cpu_ms"].append(1e3 * (time.process_time() - cpu))
-                trace["render_paired_ms"].append(ex.metrics[-1]["render_ms"])
-            trace["fem_ms"].append(m["fem_ms"])
-            trace["raster_incremental_ms"].append(m["raster_ms"])
-            trace["render_ms"].append(ex.metrics[-1]["render_ms"])
-            trace["raster_voxels"].append(m["raster_voxels"])
-            trace["indentation_m"].append(m["indentation_m"])
+                trace["render_paired_ms"].append(record["render_ms"])
+            trace["fem_ms"].append(record["step_ms"])
+            trace["raster_incremental_ms"].append(record["raster_ms"])
+            trace["render_ms"].append(record["render_ms"])
+            trace["raster_voxels"].append(record["raster_voxels"])
+            trace["indentation_m"].append(_indentation(probe, probe_radius, skin))
         # The incremental volume must equal the full one at the end (the benchmark's own check),
         # and the last incrementally cast frame a cast from scratch.
-        agree = float(np.mean(ex.deformed.data == full.data))
-        caster = ex.volume_renderer.ray_caster
+        agree = float(np.mean(vol.deformed.data == full.data))
         if caster is not None:
             caster.reset()
-        same_image = float(np.mean(np.all(image == ex.volume_renderer.render(ex.shown_volume()), axis=2)))
+        same_image = float(np.mean(np.all(image == player.renderer.render(), axis=2)))
         vtk.close()
-        scene = ex.describe()
-        rasterizer_device = ex.drawing.rasterizer.device
+        facts = player.describe()
+        volume_facts = facts.pop("volume")
+        scene = {**facts, **volume_facts, "volume": volume_facts["source"],
+                 "renderer": "warp" if caster is not None else "vtk", "sample_distance": step}
+        rasterizer_device = vol.drawing.rasterizer.device
     med = {k: float(np.median(v)) for k, v in trace.items()}
     frame_ms = med["fem_ms"] + med["raster_incremental_ms"] + med["render_ms"]
     # Per paired frame: VTK's wall time over softvr's, then the median.
@@ -186,9 +211,11 @@ def main(argv: list[str] | None = None) -> int:
     p = bench_parser("palpation", __doc__.splitlines()[0], quick="6 frames at 128 x 128 (CI)",
                      plot="write a PNG of the stages over the press")
     p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
-    p.add_argument("--renderer", choices=("warp", "vtk"), default="warp", help="the demo's volume renderer")
-    p.add_argument("--render-step", type=int, default=1, help="render every k-th voxel per axis (default 1)")
-    p.add_argument("--sample-distance", type=float, default=None, help="ray step [voxels] (default: CTPalpation's)")
+    p.add_argument("--renderer", choices=tuple(_MAPPERS), default=None,
+                   help="volume renderer: softvr's Warp ray caster or VTK's (default: the scene file's)")
+    p.add_argument("--render-step", type=int, default=None,
+                   help="render every k-th voxel per axis (default: the scene file's)")
+    p.add_argument("--sample-distance", type=float, default=None, help="ray step [voxels] (default: the scene file's)")
     a = p.parse_args(argv)
     result = run_palpation_bench(quick=a.quick, progress=not a.no_progress, device=a.device, renderer=a.renderer,
                                  render_step=a.render_step, sample_distance=a.sample_distance)

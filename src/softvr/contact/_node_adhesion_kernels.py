@@ -115,24 +115,17 @@ class NodeAdhesionArrays:
     vertex_triangles: wp.array(dtype=wp.int32)
 
 
-@wp.kernel
-def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
-            column: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
-            face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d), rigid_key: wp.array(dtype=wp.uint64),
-            rigid_area: wp.array(dtype=wp.float64), point_x: wp.array(dtype=wp.vec3d),
-            point_body: wp.array(dtype=wp.int32), body_point_start: wp.array(dtype=wp.int32),
-            triangles: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
-            body_edge_start: wp.array(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32),
-            area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
-            slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d)):
-    """Thread c: contact c's key, materials, area [m^2] (its feature's surface projected on the
-    contact plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md; a
-    primitive contact's (kind 3) the rigid path's ``rigid_key`` and ``rigid_area`` of its row),
-    intensity and slip [m] carried by key, stiffness ``A C beta^2`` [N/m]; a bonded contact's
-    warm start ``impulse`` [N s] is the last step's unclamped (it may pull)."""
-    c = wp.tid()
-    if c >= count[0]:
-        return
+@wp.func
+def _prepare_contact(c: int, ad: NodeAdhesionArrays, kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
+                     point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32),
+                     frame: wp.array(dtype=wp.mat33d), rigid_key: wp.array(dtype=wp.uint64),
+                     rigid_area: wp.array(dtype=wp.float64), point_x: wp.array(dtype=wp.vec3d),
+                     point_body: wp.array(dtype=wp.int32), body_point_start: wp.array(dtype=wp.int32),
+                     triangles: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+                     body_edge_start: wp.array(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32),
+                     area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+                     slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d)):
+    """Contact ``c``'s row of :func:`prepare`."""
     n = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
     k = kind[c]
     p = point[c]
@@ -183,6 +176,30 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
     stiffness[c] = s
     if s > wp.float64(0.0):
         impulse[c] = frame[c] * ad.carried_impulse[m]
+
+
+@wp.kernel
+def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
+            column: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
+            face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d), rigid_key: wp.array(dtype=wp.uint64),
+            rigid_area: wp.array(dtype=wp.float64), point_x: wp.array(dtype=wp.vec3d),
+            point_body: wp.array(dtype=wp.int32), body_point_start: wp.array(dtype=wp.int32),
+            triangles: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+            body_edge_start: wp.array(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32),
+            area: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+            slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), threads: int, offset: int):
+    """Per contact of the step (``threads`` threads striding over ``count[0]``, thread ``tid +
+    offset``): its key, materials, area [m^2] (its feature's surface projected on the contact
+    plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md; a
+    primitive contact's (kind 3) the rigid path's ``rigid_key`` and ``rigid_area`` of its row),
+    intensity and slip [m] carried by key, stiffness ``A C beta^2`` [N/m]; a bonded contact's
+    warm start ``impulse`` [N s] is the last step's unclamped (it may pull). A few threads, not
+    one per slot of the capacity: a CPU thread copies the struct ``ad``, and over the ~190 000
+    slots of the candy that alone took 25 ms a step."""
+    for c in range(wp.tid() + offset, count[0], threads):
+        _prepare_contact(c, ad, kind, column, point, other, face, frame, rigid_key, rigid_area, point_x, point_body,
+                         body_point_start, triangles, edge_body, body_edge_start, edge_faces, area, stiffness, slip,
+                         impulse)
 
 
 @wp.kernel

@@ -172,6 +172,58 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
     movable[c] = moves
 
 
+@wp.func
+def pgs_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: wp.float64, dt: wp.float64,
+               mu: wp.float64, stiffness: wp.float64, slip: wp.vec3d) -> wp.vec3d:
+    """One projected Gauss-Seidel update of a contact's impulse ``old`` [N s] in its frame ``f``
+    (rows: normal, tangent 1, tangent 2) from its relative velocity ``rel_f`` [m/s] and its
+    block ``w_f`` of ``J M^-1 J^T`` [1/kg], both in that frame: the normal row aims at
+    ``-gap / dt`` [m/s] and may pull down to the bound of eq. 4.16 where the adhesive
+    ``stiffness`` A C beta^2 [N/m] > 0; the tangent rows, seeing the normal's change, aim at 0
+    (a bonded contact: at ``-t . slip / dt``, ``slip`` [m] world) and are projected on the disc
+    of radius ``mu lambda_n`` (or the bond spring's bound where larger). A contact whose
+    ``w_f`` is 0 keeps ``old``. Used by the PGS passes (:func:`contacts`) and by the stop's
+    residual (:func:`residual`)."""
+    lam = old
+    # Normal row (target -gap / dt: a speculative contact may close its gap, not cross it).
+    k_ad = dt * dt * stiffness
+    if w_f[0, 0] > wp.float64(0.0):
+        lam_n = wp.max(old[0] + (-gap / dt - rel_f[0]) / w_f[0, 0], wp.float64(0.0))
+        if k_ad > wp.float64(0.0):
+            d_bar = w_f[0, 0] * old[0] - gap / dt - rel_f[0]
+            lam_n = wp.max(old[0] + (-gap / dt - rel_f[0]) / w_f[0, 0],
+                           wp.min(adhesive_bound(k_ad, d_bar, w_f[0, 0]), wp.float64(0.0)))
+        rel = rel_f + w_f * wp.vec3d(lam_n - old[0], wp.float64(0.0), wp.float64(0.0))
+        lam = wp.vec3d(lam_n, old[1], old[2])
+        # Tangent rows together, then onto the friction disc |lam_t| <= mu lam_n. The step is
+        # isotropic (1 / the larger eigenvalue of the 2x2 tangent block): the impulse it aims at
+        # opposes the tangential velocity, so a sliding contact's friction ends up opposite its
+        # slip (maximal dissipation); a W-metric step would tilt it towards the stiffer
+        # direction (a block on a 35 degree incline then slid 0.5 % fast).
+        mean = wp.float64(0.5) * (w_f[1, 1] + w_f[2, 2])
+        half = wp.float64(0.5) * (w_f[1, 1] - w_f[2, 2])
+        w_t = mean + wp.sqrt(half * half + w_f[1, 2] * w_f[2, 1])
+        if w_t > wp.float64(0.0):
+            t1 = lam[1] - rel[1] / w_t
+            t2 = lam[2] - rel[2] / w_t
+            limit = mu * lam_n
+            norm = wp.sqrt(t1 * t1 + t2 * t2)
+            if k_ad > wp.float64(0.0):
+                # The spring's targets -t . u / dt; its bound is eq. 4.16 with d_bar =
+                # w_t |lam_t + (target - rel_t) / w_t| (the unprojected update).
+                u = f * slip
+                t1 = lam[1] + (-u[1] / dt - rel[1]) / w_t
+                t2 = lam[2] + (-u[2] / dt - rel[2]) / w_t
+                norm = wp.sqrt(t1 * t1 + t2 * t2)
+                limit = wp.max(mu * wp.max(lam_n, wp.float64(0.0)), adhesive_bound(k_ad, w_t * norm, w_t))
+            if norm > limit:
+                scale = limit / norm
+                t1 = t1 * scale
+                t2 = t2 * scale
+            lam = wp.vec3d(lam_n, t1, t2)
+    return lam
+
+
 @wp.kernel
 def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
@@ -209,44 +261,7 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
             rel_f = f * rel
             w_f = metric[c]
             old = impulse[c]
-            lam = old
-            # Normal row (target -gap / dt: a speculative contact may close its gap, not cross it).
-            k_ad = dt * dt * stiffness[c]
-            if w_f[0, 0] > wp.float64(0.0):
-                lam_n = wp.max(old[0] + (-gap[c] / dt - rel_f[0]) / w_f[0, 0], wp.float64(0.0))
-                if k_ad > wp.float64(0.0):
-                    d_bar = w_f[0, 0] * old[0] - gap[c] / dt - rel_f[0]
-                    lam_n = wp.max(old[0] + (-gap[c] / dt - rel_f[0]) / w_f[0, 0],
-                                   wp.min(adhesive_bound(k_ad, d_bar, w_f[0, 0]), wp.float64(0.0)))
-                rel_f = rel_f + w_f * wp.vec3d(lam_n - old[0], wp.float64(0.0), wp.float64(0.0))
-                lam = wp.vec3d(lam_n, old[1], old[2])
-                # Tangent rows together, then onto the friction disc |lam_t| <= mu lam_n. The step
-                # is isotropic (1 / the larger eigenvalue of the 2x2 tangent block): the impulse it
-                # aims at opposes the tangential velocity, so a sliding contact's friction ends up
-                # opposite its slip (maximal dissipation); a W-metric step would tilt it towards
-                # the stiffer direction (a block on a 35 degree incline then slid 0.5 % fast).
-                mean = wp.float64(0.5) * (w_f[1, 1] + w_f[2, 2])
-                half = wp.float64(0.5) * (w_f[1, 1] - w_f[2, 2])
-                w_t = mean + wp.sqrt(half * half + w_f[1, 2] * w_f[2, 1])
-                if w_t > wp.float64(0.0):
-                    t1 = lam[1] - rel_f[1] / w_t
-                    t2 = lam[2] - rel_f[2] / w_t
-                    limit = friction[c] * lam_n
-                    norm = wp.sqrt(t1 * t1 + t2 * t2)
-                    if k_ad > wp.float64(0.0):
-                        # The spring's targets -t . u / dt; its bound is eq. 4.16 with d_bar =
-                        # w_t |lam_t + (target - rel_t) / w_t| (the unprojected update).
-                        u = f * slip[c]
-                        t1 = lam[1] + (-u[1] / dt - rel_f[1]) / w_t
-                        t2 = lam[2] + (-u[2] / dt - rel_f[2]) / w_t
-                        norm = wp.sqrt(t1 * t1 + t2 * t2)
-                        limit = wp.max(friction[c] * wp.max(lam_n, wp.float64(0.0)),
-                                       adhesive_bound(k_ad, w_t * norm, w_t))
-                    if norm > limit:
-                        scale = limit / norm
-                        t1 = t1 * scale
-                        t2 = t2 * scale
-                    lam = wp.vec3d(lam_n, t1, t2)
+            lam = pgs_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
             impulse[c] = lam
             _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
                    d_inv, partner, cross, fixed, v_hat, co)
@@ -260,8 +275,11 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
               co: Coarse, v_next: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.float64)):
     """``v^{k+1}`` [m/s] of node ``i`` and its largest component change [m/s]; ``weights`` [K]
     the omega_k, indexed by the sweep the contact kernel counted (1 after the first sweep). A
-    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^``. A
-    node of a coarse body adds its body's coarse velocity to ``v^`` (positions ``q`` [m])."""
+    node marked ``exact`` (a rigid body's: its update needs no acceleration) takes ``v^`` and
+    counts no change (NaN still shows): its update solves its rows of eq. 5.5 for the sweep's
+    impulses, so what error it has is its contacts' (the contacts' residual measures that in
+    m/s, :func:`residual`), and its change, an angular node's in rad/s, is no error estimate.
+    A node of a coarse body adds its body's coarse velocity to ``v^`` (positions ``q`` [m])."""
     i = wp.tid()
     if fixed[i] != 0:
         v_next[i] = v_hat[i]
@@ -275,7 +293,10 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
     if exact[i] != 0:
         out = vh
     d = out - v[i]
-    change[i] = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
+    size = wp.max(wp.abs(d[0]), wp.max(wp.abs(d[1]), wp.abs(d[2])))
+    if exact[i] != 0 and not wp.isnan(size):
+        size = wp.float64(0.0)
+    change[i] = size
     v_next[i] = out
 
 
@@ -315,22 +336,41 @@ def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
              frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
              rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64, v: wp.array(dtype=wp.vec3d),
-             impulse: wp.array(dtype=wp.vec3d), gap_after: wp.array(dtype=wp.float64),
+             impulse: wp.array(dtype=wp.vec3d), friction: wp.array(dtype=wp.float64),
+             stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), metric: wp.array(dtype=wp.mat33d),
+             movable: wp.array(dtype=wp.int32), gap_after: wp.array(dtype=wp.float64),
              stats: wp.array(dtype=wp.float64)):
-    """Per contact the linearized gap after the step [m] (``gap + dt n . J v``); ``stats[1]``
-    the largest normal-velocity error [m/s] of the velocities ``v`` (one thread): how far a
-    contact falls short of its target ``-gap / dt``, or for one that pushes (``impulse`` [N s]
-    normal > 0) how far it is from it either way (complementarity)."""
+    """The contacts' residual of eq. 5.5 in the velocities ``v`` [m/s] and impulses ``impulse``
+    [N s] (one thread). Per contact the linearized gap after the step [m] (``gap + dt n . J
+    v``); ``stats[1]`` the largest normal-velocity error [m/s]: how far a contact falls short of
+    its target ``-gap / dt``, or for one that pushes (normal impulse > 0) how far it is from it
+    either way; ``stats[2]`` the largest natural residual [m/s] of the contacts that can move
+    something (``movable``), ``|W (P(lambda) - lambda)|`` (largest component), ``P`` one update
+    of :func:`pgs_update` with the contact's block ``metric`` of ``J M^-1 J^T``: the velocity
+    change one more projection would make at the contact, 0 exactly where the contact meets
+    its complementarity, friction disc (sticking: no slip; sliding: on the rim against the
+    slip) and adhesive bounds (eq. 4.16) (Erleben 2013, the natural merit function). Every
+    contact's target is then met within ``stats[2]``: the step solves eq. 5.5 with its
+    targets moved by at most that much."""
     worst = wp.float64(0.0)
+    natural = wp.float64(0.0)
     for c in range(count[0]):
         rel = wp.vec3d()
         for k in range(stencil_count[c]):
             rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
         rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
-        vn = wp.dot(wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2]), rel)
+        f = frame[c]
+        rel_f = f * rel
+        vn = rel_f[0]
         gap_after[c] = gap[c] + dt * vn
         error = -gap[c] / dt - vn
         if impulse[c][0] > wp.float64(0.0):
             error = wp.abs(error)
         worst = wp.max(worst, error)
+        if movable[c] != 0:
+            w_f = metric[c]
+            lam = impulse[c]
+            step = w_f * (pgs_update(lam, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c]) - lam)
+            natural = wp.max(natural, wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2]))))
     stats[1] = worst
+    stats[2] = natural

@@ -24,9 +24,13 @@ import warp as wp
 
 from softvr.contact import _node_adhesion_kernels as _k
 from softvr.contact.adhesion import AdhesionState
-from softvr.device import in_order, load_kernels, replayer, upload
+from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, upload
 
 __all__ = ["NodeAdhesion"]
+
+#: Threads striding over a step's contacts in :func:`_node_adhesion_kernels.prepare` on CUDA
+#: (on the CPU: one per core).
+PREPARE_THREADS_CUDA = 4096
 
 
 class _CarriedAdhesionState(AdhesionState):
@@ -142,11 +146,12 @@ class NodeAdhesion:
             rigid_key, rigid_area = m.rigid.state.contacts.key, m.rigid.state.contacts.area
         else:  # no primitive contacts to read
             rigid_key, rigid_area = wp.zeros(0, dtype=wp.uint64, device=d), wp.zeros(0, dtype=wp.float64, device=d)
-        prepare = replayer(wp.launch(_k.prepare, dim=c.capacity, device=d, record_cmd=True,
-                                     inputs=[self.arrays, c.count, c.kind, c.column, c.point, c.other, c.face,
-                                             c.frame, rigid_key, rigid_area, st.point_x, m.point_body,
-                                             m.body_point_start_wp, m.triangles, m.edge_body, m.body_edge_start,
-                                             m.edge_faces, c.area, c.stiffness, c.slip, c.impulse]))
+        threads = cpu_workers() if wp.get_device(d).is_cpu else PREPARE_THREADS_CUDA
+        prepare = chunked_replayer(_k.prepare, threads,
+                                   [self.arrays, c.count, c.kind, c.column, c.point, c.other, c.face, c.frame,
+                                    rigid_key, rigid_area, st.point_x, m.point_body, m.body_point_start_wp,
+                                    m.triangles, m.edge_body, m.body_edge_start, m.edge_faces, c.area, c.stiffness,
+                                    c.slip, c.impulse, threads], d, min_chunk=1)
         # The evolve kernel rewrites the carried table: a state handed out before and still
         # held copies its rows out first.
         evolve = [in_order(self._detach_issued,

@@ -100,8 +100,9 @@ class NodeSolve:
         self.plateaued = False
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
-        #: error [m/s] (:meth:`solve`): all the loop reads back, one number per check.
-        self.stats = wp.zeros(2, dtype=wp.float64, device=d)
+        #: error [m/s], [2] the contacts' largest natural residual [m/s] (:meth:`solve`,
+        #: :func:`_node_jacobi_kernels.residual`): all the loop reads back, one view per check.
+        self.stats = wp.zeros(3, dtype=wp.float64, device=d)
         self.change = wp.zeros(model.node_count, dtype=wp.float64, device=d)
         self._stats_view = self.stats.numpy() if wp.get_device(d).is_cpu else None
         # A rigid body's nodes take their sweep's update unextrapolated: their D_A is all of
@@ -174,26 +175,27 @@ class NodeSolve:
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
                                                               c.stencil_weights, c.frame, c.gap, c.rigid_node,
-                                                              c.rigid_lever, float(dt), buf[r],
-                                                              c.impulse, c.gap_after, self.stats]))
+                                                              c.rigid_lever, float(dt), buf[r], c.impulse,
+                                                              c.friction, c.stiffness, c.slip, metric, movable,
+                                                              c.gap_after, self.stats]))
                                    for r in range(3)]
         self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                                            inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
 
     def _read_stats(self) -> np.ndarray:
-        """``stats`` on the host: a view on the CPU, a copy of its two numbers on CUDA."""
+        """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
         return self._stats_view if self._stats_view is not None else self.stats.numpy()
 
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is about ``rate / (1 - rate)`` times the last sweep's
-        largest change (a geometric tail), so the sweeps stop when the change falls below
-        ``tolerance (1 - rate) / rate`` (checked every ``check_every``) and no contact's normal
-        velocity is more than ``tolerance`` short of its target, nor a pushing one's more than
-        that from it (contacts between bodies couple them, and the node change alone
-        understates their error). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
+        largest change (a geometric tail; a rigid body's nodes, exact, count none), so the
+        sweeps stop when the change falls below ``tolerance (1 - rate) / rate`` (checked every
+        ``check_every``) and every contact meets eq. 5.5 within ``tolerance``
+        (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
+        understates their error; a rigid body's error is all its contacts'). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
         of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
         the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
         stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
@@ -239,11 +241,15 @@ class NodeSolve:
         return k, self._buffers[k % 3]
 
     def _contacts_met(self, k: int, tolerance: float) -> bool:
-        """Whether, in the velocities of sweep ``k``, no contact's normal velocity is more than
-        ``tolerance`` [m/s] off its target (the residual kernel, which leaves that error in
-        ``stats[1]``)."""
+        """Whether, in the velocities and impulses of sweep ``k``, every contact meets eq. 5.5
+        within ``tolerance`` [m/s]: no normal velocity more than that off its target
+        (``stats[1]``), and no contact whose next projection would change its velocity by more
+        (``stats[2]``, the natural residual: friction's stick or slip, adhesion's bounds). This
+        is the whole test of the rigid bodies' nodes, whose change the stop leaves out
+        (:func:`_node_jacobi_kernels.chebyshev`)."""
         self._residual_launches[k % 3]()
-        return bool(self._read_stats()[1] <= tolerance)
+        stats = self._read_stats()
+        return bool(stats[1] <= tolerance and stats[2] <= tolerance)
 
     def _window(self) -> int:
         """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""

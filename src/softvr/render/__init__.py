@@ -43,7 +43,7 @@ from softvr.render.camera import VIEWS, Camera
 from softvr.render.contact_sheet import contact_sheet, save_png
 from softvr.render.presets import PRESETS, Preset, label_colors
 from softvr.render.raycast import RayCaster
-from softvr.render.surfaces import SurfaceRenderer
+from softvr.render.surfaces import SurfaceRenderer, merge_changed
 from softvr.render.video import write_mp4
 from softvr.render.viewer import (
     NodeDragger,
@@ -72,6 +72,7 @@ __all__ = [
     "contact_sheet",
     "has_display",
     "label_colors",
+    "merge_changed",
     "move_in_view_plane",
     "offscreen_backend",
     "pick_node",

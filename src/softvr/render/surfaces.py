@@ -31,7 +31,7 @@ from softvr.render.camera import Camera
 from softvr.render.presets import resolve_preset
 from softvr.render.raycast import RayCaster, volume_bounds
 
-__all__ = ["PLANE_DEPTH_OFFSET", "SurfaceRenderer"]
+__all__ = ["PLANE_DEPTH_OFFSET", "SurfaceRenderer", "merge_changed"]
 
 #: (factor, units) of the polygon offset a plane is drawn with (``glPolygonOffset``): its depths
 #: pushed back by ``factor`` times its depth slope plus ``units`` steps of the depth buffer, so
@@ -82,6 +82,19 @@ class _Item:
         return np.asarray(self.actor.GetBounds(), float)
 
 
+def merge_changed(first, second):
+    """What changed in a volume's voxels over two updates, as :meth:`RayCaster.cast
+    <softvr.render.RayCaster.cast>` takes it: True (everything), False or None (nothing) or an
+    inclusive index box ``(lo [3], hi [3])``; two boxes give the box around both."""
+    if first is True or second is True:
+        return True
+    if first is None or first is False:
+        return second if second is not None else False
+    if second is None or second is False:
+        return first
+    return np.minimum(first[0], second[0]), np.maximum(first[1], second[1])
+
+
 class _CastVolume:
     """A volume drawn by the Warp ray caster over the surfaces (:meth:`SurfaceRenderer.add_volume`):
     its :class:`~softvr.render.RayCaster` and current volume; ``prop`` is a ``vtkVolume`` without a
@@ -96,15 +109,19 @@ class _CastVolume:
         self.sample_distance = sample_distance
         self.prop = vtkVolume()
         self.volume = None
+        #: What changed in the voxels since the last cast (:func:`merge_changed`).
+        self.changed: bool | tuple = True
 
-    def update(self, volume) -> None:
-        """Show ``volume`` from the next render on (its transfer function resolved for it)."""
+    def update(self, volume, changed=True) -> None:
+        """Show ``volume`` from the next render on (its transfer function resolved for it);
+        ``changed``: its voxels that differ from the last update's (:func:`merge_changed`)."""
         check_volume(volume)
         preset = resolve_preset(self._preset_arg, volume)
         if self.caster is None:
             self.caster = RayCaster(preset, self.sample_distance)
         self.caster.preset = preset
         self.volume = volume
+        self.changed = merge_changed(self.changed, changed)
 
     def bounds(self) -> tuple[float, ...]:
         return volume_bounds(self.volume)
@@ -395,15 +412,31 @@ class SurfaceRenderer(OffscreenView):
         scene.update(volume)
         return self._add(_Item("volume", scene.prop, scene=scene))
 
-    def update_volume(self, handle: int, volume) -> None:
+    def update_volume(self, handle: int, volume, *, changed=True) -> None:
         """Show ``volume`` (any shape, spacing, origin, direction; see :meth:`add_volume`) in
         volume ``handle`` from the next render on. The camera stays where it is (see
-        :meth:`reset_camera`)."""
+        :meth:`reset_camera`).
+
+        ``changed`` (the Warp mapper only): which of its voxels differ from the last update's:
+        True (all), False (none) or the inclusive index box ``(lo, hi)``, so that the next
+        render casts again only the rays that can see them or a moved surface
+        (:meth:`~softvr.render.RayCaster.cast`)."""
         self._check_open()
         item = self._item(handle)
         if item.kind != "volume":
             raise InputError("handle", "the handle of a volume (add_volume)", f"a {item.kind}")
-        item.scene.update(volume)
+        if isinstance(item.scene, _CastVolume):
+            item.scene.update(volume, changed)
+        else:
+            item.scene.update(volume)
+
+    def ray_caster(self, handle: int) -> RayCaster | None:
+        """The :class:`~softvr.render.RayCaster` of volume ``handle`` (None with VTK's mapper),
+        e.g. for :attr:`~softvr.render.RayCaster.cast_pixels`."""
+        item = self._item(handle)
+        if item.kind != "volume":
+            raise InputError("handle", "the handle of a volume (add_volume)", f"a {item.kind}")
+        return item.scene.caster if isinstance(item.scene, _CastVolume) else None
 
     def update(self, handle: int, vertices) -> None:
         """New vertex positions [vertex_count, 3] [m] of mesh ``handle`` (same topology)."""
@@ -518,7 +551,10 @@ class SurfaceRenderer(OffscreenView):
         if not cast:
             return self._draw(self.scene_bounds)
         self._apply_camera(self.scene_bounds)
-        return self._cast_over_surfaces([(c.caster, c.volume, True) for c in cast])
+        image = self._cast_over_surfaces([(c.caster, c.volume, c.changed) for c in cast])
+        for c in cast:
+            c.changed = False
+        return image
 
     # --------------------------------------------------------------- helpers
     def _add(self, item: _Item) -> int:

@@ -26,10 +26,11 @@ from softvr.errors import InputError, Problems, known_key
 from softvr.files import checked_file, file_name
 from softvr.render import PRESETS, VIEWS
 from softvr.sim import Scene
+from softvr.volume import LOAD_SUFFIXES
 from softvr.volume.tetmesh import TET_MESH_SUFFIXES
 
 __all__ = ["BODY_KEYS", "BODY_TYPES", "BOX_CELLS", "CLOTH", "DATASETS", "GLTF_CELLS", "LIMITS", "MATERIAL_KEYS",
-           "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "Adhesion", "Body", "Coupling",
+           "MESH_SUFFIXES", "PLAUSIBLE", "SENSOR_KINDS", "SHAPES", "STATIC", "TOOL", "VOLUME_MAPPERS", "Adhesion", "Body", "Coupling",
            "DisplayTable", "Document", "Drive", "Filter", "Light", "Material", "ModelTable", "Motion", "Plane",
            "Render", "Sensor", "Simulation", "Sphere", "Variant", "Volume", "existing_file", "read_table"]
 
@@ -336,6 +337,8 @@ class Render(_Table):
     background: Color = (0.10, 0.11, 0.13)
     background_top: Color = (0.32, 0.36, 0.43)
     light_kit: Boolean = True
+    antialias: Boolean = True  # FXAA on the surfaces (~40 ms a 512 x 512 frame on a software OpenGL)
+    fps: Annotated[float | None, number("frames/s", positive=True)] = None  # [1/s] None: 1 / (dt steps_per_frame)
 
 
 class Light(_Table):
@@ -662,6 +665,10 @@ def _read_preset(p: Problems, t: dict):
 
 
 _VOLUME_CELLS = f"3 integers in 1 .. {LIMITS['cells']} (mesh cubes per axis)"
+#: A label volume's file kinds: those :func:`softvr.volume.load` reads whose name has one suffix.
+_LABEL_SUFFIXES = tuple(s for s in LOAD_SUFFIXES if s.count(".") == 1)
+#: ``[volume] mapper``: how the volume is drawn (:meth:`softvr.render.SurfaceRenderer.add_volume`).
+VOLUME_MAPPERS = ("auto", "warp", "cpu")
 
 
 class Volume(_Table):
@@ -680,9 +687,12 @@ class Volume(_Table):
     beta: Annotated[float | None, number("s", minimum=0.0)] = 0.01                                            # [s]
     preset: Annotated[str | None, _check(_read_preset)] = "ct-skin"
     render_step: Annotated[int | None, count("render_step", 1)] = 2
+    mapper: Annotated[str | None, choice(VOLUME_MAPPERS)] = "auto"
+    sample_distance: Annotated[float | None, number("voxels", positive=True)] = None  # [voxels] None: the mapper's
     incremental: Boolean = True
     mask: Boolean = True
     animation: Annotated[Path | None, file_field((".npz",), "a node animation")] = None
+    labels: Annotated[Path | None, file_field(_LABEL_SUFFIXES, "a label volume")] = None
 
 
 #: What a ``[[sensor]]`` reads every frame, and its unit: the contact force on its body (the last

@@ -46,7 +46,7 @@ from softvr.haptics import HapticLoop, HapticTool, ScriptedDevice
 from softvr.model import (CT_TISSUE, build_model, collision_mesh, dynamics_mesh, embed_surface, load_mesh, load_model,
                           nodes_near_surface, rigid_properties, tissue_fem_body)
 from softvr.model.shapes import BOX_TRIANGLES, box_corners, box_surface, icosphere
-from softvr.render import Camera
+from softvr.render import Camera, merge_changed
 from softvr.scene.gltf import read_gltf_scene, read_gltf_scene_with_problems
 from softvr.scene._description import SENSOR_KINDS, STATIC
 from softvr.scene.schema import DATASETS, BodySpec, SceneFile, read_scene, read_scene_with_problems
@@ -206,14 +206,26 @@ def _read_volume(source, scene_path: str):
 
 class _DeformedVolume:
     """The scene's volume: a :class:`~softvr.volume.DeformedVolume` following its FEM body
-    (nodes in metres, the volume in its own units); :meth:`shown` the rendered one in metres."""
+    (nodes in metres, the volume in its own units), and the ``labels`` segmentation deformed
+    with it (nearest voxel); :meth:`shown` the rendered one in metres."""
 
-    def __init__(self, volume, body, nodes, tets, spec: dict, device: str | None = None):
+    def __init__(self, volume, body, tissue, nodes, tets, spec: dict, device: str | None = None):
         self.unit, self.body, self.spec = spec["unit"], body, spec
+        #: The volume at rest (its own units) and its tets' :class:`~softvr.model.TetTissue`.
+        self.rest, self.tissue = volume, tissue
         # Tets in the air in front of a pressed skin fold: skipped, not drawn inverted; node
         # motion under 10 um is drawn once it adds up.
-        self.drawing = DeformedVolume(volume, nodes, tets, tolerance=1e-5 / self.unit,
-                                      incremental=spec["incremental"], inverted="skip", device=device)
+        options = dict(tolerance=1e-5 / self.unit, incremental=spec["incremental"], inverted="skip", device=device)
+        self.drawing = DeformedVolume(volume, nodes, tets, **options)
+        self.labels: DeformedVolume | None = None
+        if spec["labels"] is not None:
+            labels = load_volume(spec["labels"], is_label=True)
+            if labels.shape != volume.shape:
+                raise InputError("volume.labels", f"a label volume of the volume's shape {volume.shape}",
+                                 f"shape {labels.shape}", source=str(spec["labels"]))
+            self.labels = DeformedVolume(labels, nodes, tets, interpolation="nearest", background=0, **options)
+        #: What the rasterizer rewrote since the last :meth:`take_changed` (everything at first).
+        self._changed: bool | tuple = True
 
     @property
     def deformed(self):
@@ -221,14 +233,35 @@ class _DeformedVolume:
         return self.drawing.deformed
 
     def update(self) -> dict:
-        """Draw the volume for the body's current nodes; returns frame metrics."""
-        return self.drawing.update(self.body.q / self.unit)
+        """Draw the volume (and the labels) for the body's current nodes; returns frame metrics
+        (``raster_ms``, ``raster_voxels`` of the volume)."""
+        drawn = self.drawing.update(self.body.q / self.unit)
+        self._changed = merge_changed(self._changed, drawn.pop("box"))
+        if self.labels is not None:
+            self.labels.update(self.body.q / self.unit)
+        return drawn
+
+    def take_changed(self):
+        """What the volume as :meth:`shown` changed since the last call (:func:`softvr.render.merge_changed`):
+        the rewritten voxel box, or everything when only every ``render_step``-th voxel is shown."""
+        changed, self._changed = self._changed, False
+        return changed if self.spec["render_step"] == 1 or changed is False else True
 
     def shown(self):
         """The deformed volume as rendered [m]: every ``render_step``-th voxel per axis."""
         k, d = self.spec["render_step"], self.deformed
         data = d.data if k == 1 else np.ascontiguousarray(d.data[::k, ::k, ::k])
         return Volume(data, d.spacing * k * self.unit, d.origin * self.unit, d.direction.copy())
+
+    def label_surface(self, label: int) -> tuple[np.ndarray, np.ndarray]:
+        """The surface of segmentation ``label`` as deformed now: vertices [n, 3] [m] in the
+        world and triangles [t, 3], the iso-surface of its mask."""
+        if self.labels is None:
+            raise InputError("volume.labels", "a label volume ([volume] labels = FILE)", "none")
+        d = self.labels.deformed
+        mask = Volume((d.data == label).astype(np.float32), d.spacing.copy(), d.origin.copy(), d.direction.copy())
+        vertices, triangles = iso_surface(mask, 0.5)
+        return vertices * self.unit, triangles
 
 
 class SceneExample(Player):
@@ -283,6 +316,8 @@ class SceneExample(Player):
         self.tools: list[HapticTool] = []
         self._driven: list[tuple] = []  # (body, drive)
         self.volume: _DeformedVolume | None = None
+        #: The volume's handle in the renderer (:meth:`softvr.render.SurfaceRenderer.ray_caster`), once drawn.
+        self.volume_handle: int | None = None
         if scene_file.volume is not None:
             self._add_volume(scene, scene_file.volume)
         for model in scene_file.models:
@@ -310,6 +345,8 @@ class SceneExample(Player):
         camera = Camera(ren["camera"], azimuth=ren["azimuth"], elevation=ren["elevation"], zoom=ren["zoom"])
         super().__init__(scene, sim["dt"], steps_per_frame or sim["steps_per_frame"], frames or sim["frames"],
                          width or w, height or h, bounds=ren["bounds"], camera=camera)
+        if ren["fps"] is not None:
+            self.fps = ren["fps"]
         self.sensors = [self._sensor(s) for s in scene_file.sensors]
 
     # -- building ----------------------------------------------------------------------
@@ -324,7 +361,7 @@ class SceneExample(Player):
         # Cubes holding tissue, grown by two voxels so that the skin lies inside them.
         tissue = binary_dilation(volume.data > spec["threshold"], iterations=2) if spec["mask"] else None
         nodes, tets = grid_tet_mesh(volume, spec["cells"], mask=tissue)
-        body, _ = tissue_fem_body(volume, nodes, tets, CT_TISSUE, unit=unit, alpha=spec["alpha"], beta=spec["beta"],
+        body, tissue = tissue_fem_body(volume, nodes, tets, CT_TISSUE, unit=unit, alpha=spec["alpha"], beta=spec["beta"],
                                   fix_denser_than=spec["fix_denser_than"], name=spec["name"])
         skin, triangles = iso_surface(volume, spec["threshold"], step=2)
         skin, triangles = collision_mesh(skin * unit, triangles, spec["skin_triangles"])
@@ -336,7 +373,7 @@ class SceneExample(Player):
         self._drawn_by_name[spec["name"]] = _Drawn(spec["name"], points.positions, triangles, (0.9, 0.7, 0.6),
                                                     visible=False)
         self.drawn.append(self._drawn_by_name[spec["name"]])
-        self.volume = _DeformedVolume(volume, body, nodes, tets, spec, self.device)
+        self.volume = _DeformedVolume(volume, body, tissue, nodes, tets, spec, self.device)
         if spec["animation"] is not None:
             times, cache = _node_animation(spec["animation"], body.q)
             body.fixed[:] = True
@@ -701,7 +738,8 @@ class SceneExample(Player):
 
     def renderer_options(self) -> dict:
         r = self.file.render
-        return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"]}
+        return {"background": r["background"], "background_top": r["background_top"], "light_kit": r["light_kit"],
+                "antialias": r["antialias"]}
 
     def drawables(self) -> list[Drawable]:
         """The planes (``plane 0``, ...), the static spheres (``sphere 0``, ...), every body's
@@ -716,7 +754,8 @@ class SceneExample(Player):
             items.append(Drawable(d.name, "mesh", np.asarray(d.vertices(), float), d.triangles,
                                   tuple(float(c) for c in d.color), float(d.opacity), pose,
                                   "render" if d.visible else "hidden"))
-        ball, triangles = icosphere(2)
+        if self.tools:  # the handles' ball: an icosphere costs ~4 ms a call
+            ball, triangles = icosphere(2)
         for tool in self.tools:
             handle = tool.handle
             items.append(Drawable(f"{tool.tool.name} handle", "mesh", handle.position + _HANDLE_RADIUS * ball,
@@ -728,19 +767,30 @@ class SceneExample(Player):
             renderer.add_light(light["position"], light["focal_point"], light["color"], light["intensity"])
         super().setup_render(renderer)
         if self.volume is not None:
-            self._volume_handle = renderer.add_volume(self.volume.shown(), preset=self.volume.spec["preset"])
+            spec = self.volume.spec
+            self.volume_handle = renderer.add_volume(self.volume.shown(), preset=spec["preset"], mapper=spec["mapper"],
+                                                     sample_distance=spec["sample_distance"])
+            self.volume.take_changed()  # drawn whole as it is added
 
     def update_render(self, renderer) -> None:
         super().update_render(renderer)
         if self.volume is not None:
-            renderer.update_volume(self._volume_handle, self.volume.shown())
+            renderer.update_volume(self.volume_handle, self.volume.shown(), changed=self.volume.take_changed())
 
     def update_volume(self) -> dict:
         return self.volume.update() if self.volume is not None else {}
 
     def describe(self) -> dict:
-        return {**super().describe(), "scene_file": str(self.file.path),
-                "body_types": {b.name: b.type for b in self.file.bodies}}
+        facts = {**super().describe(), "scene_file": str(self.file.path),
+                 "body_types": {b.name: b.type for b in self.file.bodies}}
+        if self.volume is not None:
+            v, young = self.volume, self.volume.tissue.young
+            facts["volume"] = {"source": repr(v.rest), "tets": len(v.body.tets), "nodes": len(v.body.q),
+                               "clamped_nodes": int(v.body.fixed.sum()), "mass_kg": float(v.body.mass.sum()),
+                               "young_pa_min_median_max": [float(np.min(young)), float(np.median(young)),
+                                                           float(np.max(young))],
+                               **{k: v.spec[k] for k in ("incremental", "render_step", "mapper", "sample_distance")}}
+        return facts
 
 
 def _gltf_variants(variants) -> tuple:

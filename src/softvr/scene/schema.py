@@ -26,6 +26,10 @@
     background = [0.10, 0.11, 0.13]             # r, g, b at the bottom ...
     background_top = [0.32, 0.36, 0.43]         # ... and the top (a vertical gradient)
     light_kit = true            # VTK's key / fill / back / head lights (false: only [[light]]s)
+    antialias = true            # FXAA on the surfaces' edges (a post-process: ~40 ms a 512 x 512
+                                # frame on a software OpenGL; a volume is cast after it)
+    fps = 12.0                  # [frames/s] optional: the video's rate (default 1 / (dt steps_per_frame):
+                                # real time; fewer plays a short event slowed down)
 
     [[light]]                   # directional scene lights
     position = [1.0, -1.0, 2.0] # [m] shining from here ...
@@ -120,10 +124,15 @@
     beta = 0.01                 # [s]
     preset = "ct-skin"          # transfer function (softvr.render.PRESETS)
     render_step = 2             # render every k-th voxel per axis
+    mapper = "auto"             # warp (softvr's ray caster, off-screen) | cpu (VTK's) | auto (warp
+                                # off-screen, cpu in a window: SurfaceRenderer.add_volume)
+    sample_distance = 1.0       # [voxels] optional: the ray step (default: the mapper's, 0.5 warp, 1 cpu)
     incremental = true          # rasterize only around the tets that moved
     mask = true                 # drop the cubes without tissue (false: the whole grid)
     animation = "press.npz"     # optional: every node follows this cache (times [k] [s], nodes
                                 # [k, node_count, 3] [m], linear between): a scripted deformation
+    labels = "labels.nrrd"      # optional: a segmentation on the volume's grid, deformed with it
+                                # (nearest voxel; the player's volume.label_surface(label))
     # Every frame the volume is rasterized through the deformed tets (thesis ch. 3) and drawn
     # with the bodies' surfaces; E, nu, rho of each tet come from the voxels (softvr.model.CT_TISSUE).
 

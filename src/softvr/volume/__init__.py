@@ -16,7 +16,7 @@ Examples
 ([1.0, 0.0, 0.0], True)
 """
 
-from softvr.volume._io import load, save
+from softvr.volume._io import LOAD_SUFFIXES, load, save
 from softvr.volume._volume import SUPPORTED_DTYPES, Volume
 from softvr.volume.incremental import DeformedVolume
 from softvr.volume.isosurface import iso_surface
@@ -26,6 +26,7 @@ from softvr.volume.tetmesh import (TET_MESH_SUFFIXES, boundary_faces, check_tets
 
 __all__ = [
     "DeformedVolume",
+    "LOAD_SUFFIXES",
     "OutputGrid",
     "SUPPORTED_DTYPES",
     "TET_MESH_SUFFIXES",

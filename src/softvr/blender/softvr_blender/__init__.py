@@ -3,7 +3,9 @@
 Objects get softvr custom properties (``softvr_type``, ``softvr_young``, ...), which Blender's
 glTF exporter writes as extras: the exported ``.glb`` is a softvr scene as is (softvr's
 ``softvr.scene.gltf`` reads it). Kinematic bodies and tools move as their location keyframes;
-couplings are properties of one of the two objects (*Pick coupling vertices* writes them). The
+couplings are properties of one of the two objects (*Pick coupling vertices* writes them);
+sensors are properties of the body they read (*Add sensor*: ``softvr_sensor_<kind>`` holds the
+sensor's name, ``softvr_sensor_contact_force_other`` a contact sensor's other body). The
 add-on only edits those properties and runs the exporter and the ``softvr`` command (``softvr
 check``, ``view``, ``tetmesh``, ``cave preview``); nothing else is needed in Blender.
 """
@@ -52,6 +54,15 @@ DEFAULTS = {
 SCENE_DEFAULTS = {"softvr_dt": 0.005, "softvr_steps_per_frame": 4, "softvr_frames": 100, "softvr_friction": 0.5,
                   "softvr_display": "cube", "softvr_collision_free_start": True}
 PREVIEW_IMAGE = "softvr CAVE preview"
+#: What a sensor reads every frame (softvr.scene SENSOR_KINDS; tests/scene/test_blender.py
+#: checks that the two lists agree): one of each kind per body.
+SENSOR_KINDS = [("contact_force", "Contact force", "The contact force on the body [N] (from one other body, "
+                 "\"static\" geometry, or all)"),
+                ("coupling_force", "Coupling force", "The force of the body's couplings on it [N]"),
+                ("position", "Position", "The body's centre [m]"),
+                ("hand_force", "Hand force", "A tool's force on the hand holding its haptic device [N]")]
+#: A contact sensor's other side: every static geometry (planes, static spheres, fixed meshes).
+STATIC = "static"
 #: Adhesion a surface gets with "Make adhesive" (softvr.contact.Adhesion; wet tissue, thesis ch. 4).
 ADHESION_DEFAULTS = {"softvr_adhesion_stiffness": 1.0e7, "softvr_adhesion_max_energy": 0.4,
                      "softvr_adhesion_viscosity": 0.2, "softvr_adhesion_debond_gap": 0.003}
@@ -250,6 +261,77 @@ class SOFTVR_OT_adhesive(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class SOFTVR_OT_add_sensor(bpy.types.Operator):
+    """Add a sensor of one kind to the active body (a contact force sensor reads the contacts
+    with the other selected object only, when there is one)"""
+    bl_idname = "softvr.add_sensor"
+    bl_label = "Add sensor"
+    bl_options = {"REGISTER", "UNDO"}
+    kind: EnumProperty(name="Kind", items=SENSOR_KINDS, default="position")
+    name: StringProperty(name="Name", description="The sensor's name in the metrics and plots (default: "
+                                                  "<object> <kind>)")
+    other: StringProperty(name="Other", description=f"contact force only: the other body's name or {STATIC!r} "
+                                                    f"(default: the other selected object, {STATIC!r} for a fixed one, "
+                                                    "else every contact)")
+
+    def execute(self, context):
+        obj = context.active_object
+        if obj is None or obj.get("softvr_type") in (None, "fixed"):
+            self.report({"ERROR"}, "softvr: the active object must be a body marked for softvr (not fixed: a static "
+                                   "obstacle) to carry a sensor")
+            return {"CANCELLED"}
+        name = self.name or f"{obj.name} {self.kind.replace('_', ' ')}"
+        obj[f"softvr_sensor_{self.kind}"] = name
+        if self.kind == "contact_force":
+            # A fixed object is static geometry (a triangle mesh obstacle), not a body softvr names.
+            others = [STATIC if o.get("softvr_type") == "fixed" else o.name for o in context.selected_objects
+                      if o != obj]
+            other = self.other or (others[0] if len(others) == 1 else "")
+            if other:
+                obj["softvr_sensor_contact_force_other"] = other
+            elif "softvr_sensor_contact_force_other" in obj:
+                del obj["softvr_sensor_contact_force_other"]
+        self.report({"INFO"}, f"softvr: sensor {name!r} ({self.kind}) on {obj.name!r}")
+        return {"FINISHED"}
+
+
+class SOFTVR_OT_remove_sensor(bpy.types.Operator):
+    """Remove the active body's sensor of one kind"""
+    bl_idname = "softvr.remove_sensor"
+    bl_label = "Remove sensor"
+    bl_options = {"REGISTER", "UNDO"}
+    kind: EnumProperty(name="Kind", items=SENSOR_KINDS, default="position")
+
+    def execute(self, context):
+        obj = context.active_object
+        keys = [f"softvr_sensor_{self.kind}"] + (["softvr_sensor_contact_force_other"]
+                                                  if self.kind == "contact_force" else [])
+        if obj is None or keys[0] not in obj:
+            self.report({"WARNING"}, f"softvr: no {self.kind} sensor on the active object")
+            return {"CANCELLED"}
+        for key in keys:
+            if key in obj:
+                del obj[key]
+        return {"FINISHED"}
+
+
+def _draw_sensors(layout, obj):
+    """The body's sensors (name and, for a contact force, its other side; each editable) and
+    the buttons that add or remove one of each kind."""
+    box = layout.box()
+    box.label(text="Sensors")
+    for kind, label, _ in SENSOR_KINDS:
+        row = box.row(align=True)
+        key = f"softvr_sensor_{kind}"
+        if key in obj:
+            row.prop(obj, f'["{key}"]', text=label)
+            if kind == "contact_force" and "softvr_sensor_contact_force_other" in obj:
+                row.prop(obj, '["softvr_sensor_contact_force_other"]', text="with")
+            row.operator("softvr.remove_sensor", text="", icon="X").kind = kind
+        else:
+            row.operator("softvr.add_sensor", text=f"Add {label.lower()} sensor").kind = kind
+
+
 class SOFTVR_OT_export(bpy.types.Operator, ExportHelper):
     """Export the scene as a softvr scene (glTF binary with softvr extras)"""
     bl_idname = "softvr.export"
@@ -337,8 +419,10 @@ class SOFTVR_PT_object(bpy.types.Panel):
         row.operator("softvr.adhesive", text="Not adhesive").on = False
         if obj is None:
             return
-        for key in sorted(k for k in obj.keys() if k.startswith("softvr_")):
+        for key in sorted(k for k in obj.keys() if k.startswith("softvr_") and not k.startswith("softvr_sensor_")):
             layout.prop(obj, f'["{key}"]', text=key[len("softvr_"):])
+        if obj.get("softvr_type") not in (None, "fixed"):
+            _draw_sensors(layout, obj)
 
 
 class SOFTVR_PT_scene(bpy.types.Panel):
@@ -359,7 +443,7 @@ class SOFTVR_PT_scene(bpy.types.Panel):
 
 
 CLASSES = (SOFTVR_AddonPreferences, SOFTVR_OT_mark, SOFTVR_OT_adhesive, SOFTVR_OT_pick_coupling, SOFTVR_OT_preview_tets,
-           SOFTVR_OT_export, SOFTVR_OT_check, SOFTVR_OT_play, SOFTVR_OT_cave_preview, SOFTVR_PT_object, SOFTVR_PT_scene)
+           SOFTVR_OT_add_sensor, SOFTVR_OT_remove_sensor, SOFTVR_OT_export, SOFTVR_OT_check, SOFTVR_OT_play, SOFTVR_OT_cave_preview, SOFTVR_PT_object, SOFTVR_PT_scene)
 
 
 def register():
