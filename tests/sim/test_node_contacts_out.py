@@ -19,8 +19,8 @@ from softvr.dynamics import Coupling, KinematicBody, Material, RigidBody, RigidP
 from softvr.model.shapes import icosphere
 from softvr.sim import node_model_supported
 
-from test_node_rigid import _rigid_box
-from test_node_surfaces import _add_with_surface, _block
+from tests.sim.test_node_rigid import _rigid_box
+from tests.sim.test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
 GAP = 5e-4  # [m] every body starts this far above what it rests on (within the contact margin)

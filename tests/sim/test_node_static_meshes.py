@@ -18,8 +18,8 @@ from softvr.collision.contacts import ContactKind, unpack_keys
 from softvr.dynamics import Material
 from softvr.sim import node_model_supported
 
-from test_node_rigid import VELOCITY_TOL, _check_incline, _rigid_box
-from test_node_surfaces import _add_with_surface, _block
+from tests.sim.test_node_rigid import VELOCITY_TOL, _check_incline, _rigid_box
+from tests.sim.test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
 THICKNESS = 0.001  # [m] the sheets' half thickness

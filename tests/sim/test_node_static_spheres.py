@@ -18,8 +18,8 @@ from softvr.contact import Adhesion
 from softvr.dynamics import Material
 from softvr.sim import node_model_supported
 
-from test_node_rigid import VELOCITY_TOL, _check_mlcp, _system
-from test_node_surfaces import _add_with_surface, _block
+from tests.sim.test_node_rigid import VELOCITY_TOL, _check_mlcp, _system
+from tests.sim.test_node_surfaces import _add_with_surface, _block
 
 G = 9.81
 CENTRE, RADIUS = np.array([0.0, 0.0, 0.0]), 0.5  # [m] the sphere the block rests on (the scene's second)
