@@ -56,10 +56,11 @@ def block_update(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.arra
 def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
            blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
            cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-           fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
-    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` from the sweep's ``v``
-    (:func:`block_update`)."""
-    i = wp.tid()
+           fixed_velocity: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+           offset: int):
+    """The unconstrained Jacobi update ``v^`` [m/s] of node ``i`` (``tid + offset``) from the
+    sweep's ``v`` (:func:`block_update`)."""
+    i = wp.tid() + offset
     if fixed[i] != 0:
         v_hat[i] = fixed_velocity[i]
         return
@@ -140,36 +141,96 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
                    rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
                    partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
                    fixed: wp.array(dtype=wp.int32), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-                   movable: wp.array(dtype=wp.int32)):
+                   movable: wp.array(dtype=wp.int32), threads: int):
     """Contact ``c``'s block of ``J M^-1 J^T`` [1/kg] in its frame (normal, tangents), and
     whether an impulse can move anything (a free node of nonzero weight or a rigid side): both
     fixed over a step's sweeps, so the PGS passes read them instead of summing the stencil's
-    blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom)."""
-    c = wp.tid()
-    movable[c] = 0
-    if c >= count[0]:
-        return
-    w = wp.mat33d()
-    moves = int(0)
-    for k in range(stencil_count[c]):
-        node = stencil_nodes[c, k]
-        wk = stencil_weights[c, k]
-        if fixed[node] == 0:
-            w = w + (wk * wk) * d_inv[node]
-            if wk != wp.float64(0.0):
+    blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom).
+    ``threads`` threads (the launch's) stride over this step's contacts: a thread per slot of
+    the buffer cost 4 ms a step on the candy's 188 181."""
+    for c in range(wp.tid(), count[0], threads):
+        w = wp.mat33d()
+        moves = int(0)
+        for k in range(stencil_count[c]):
+            node = stencil_nodes[c, k]
+            wk = stencil_weights[c, k]
+            if fixed[node] == 0:
+                w = w + (wk * wk) * d_inv[node]
+                if wk != wp.float64(0.0):
+                    moves = 1
+        for s in range(rigid_node.shape[1]):
+            node = rigid_node[c, s]
+            if node >= 0:
+                # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
+                arm = wp.skew(rigid_lever[c, s])
+                w = w + arm * d_inv[node] * wp.transpose(arm)
                 moves = 1
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            # J = -[lever]x on the angular node: J D^-1 J^T = [lever]x D^-1 [lever]x^T.
-            arm = wp.skew(rigid_lever[c, s])
-            w = w + arm * d_inv[node] * wp.transpose(arm)
-            moves = 1
-    w = w + _pair_delassus(c, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, partner, cross)
-    w = w + coarse_w(c, co)
-    f = frame[c]
-    metric[c] = f * w * wp.transpose(f)
-    movable[c] = moves
+        w = w + _pair_delassus(c, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, partner, cross)
+        w = w + coarse_w(c, co)
+        f = frame[c]
+        metric[c] = f * w * wp.transpose(f)
+        movable[c] = moves
+
+
+@wp.func
+def _relative(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+              rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), co: Coarse) -> wp.vec3d:
+    """Contact ``c``'s relative velocity ``J v`` [m/s] (world) in the sweep's ``v^`` (its
+    stencil, its rigid sides and its coarse bodies' velocities)."""
+    rel = wp.vec3d()
+    for k in range(stencil_count[c]):
+        rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+    return rel + _rigid_velocity(c, v, rigid_node, rigid_lever) + coarse_velocity(c, co)
+
+
+@wp.kernel
+def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                  stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                  frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                  rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse,
+                  movable: wp.array(dtype=wp.int32)):
+    """``v^ += M^-1 J^T lambda`` [m/s] for the impulses ``impulse`` [c] [N s] of the last sweep
+    (one thread: contacts share nodes). A zero impulse moves nothing and is passed over: most
+    of a step's contacts are speculative ones that do not push."""
+    for c in range(count[0]):
+        lam = impulse[c]
+        if movable[c] != 0 and (lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0)):
+            _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
+                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
+
+
+@wp.kernel
+def screen(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+           frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+           rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64, impulse: wp.array(dtype=wp.vec3d),
+           stiffness: wp.array(dtype=wp.float64), v_hat: wp.array(dtype=wp.vec3d), co: Coarse,
+           movable: wp.array(dtype=wp.int32), threads: int, live: wp.array(dtype=wp.int32)):
+    """``live[c]`` (1: the sweep's PGS passes visit contact ``c``): a contact that can move
+    something and pushes or holds (any impulse), may adhere (``stiffness`` > 0), or whose
+    normal velocity in ``v^`` [m/s] is below its target ``-gap / dt``. Any other contact's
+    update would leave its zero impulse at zero (its normal row projects to 0, and friction's
+    disc has radius 0), so the passes skip it: most of a step's contacts are speculative ones
+    that stay apart (candy pile: 24-45 of 700-1 200 push). One that the passes bring below
+    its target is taken up by the next sweep's screen. ``threads`` threads (the launch's)
+    stride over the contacts."""
+    for c in range(wp.tid(), count[0], threads):
+        on = int(0)
+        if movable[c] != 0:
+            lam = impulse[c]
+            if lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0):
+                on = 1
+            elif stiffness[c] > wp.float64(0.0):
+                on = 1
+            else:
+                rel = _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
+                normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+                if wp.dot(normal, rel) < -gap[c] / dt:
+                    on = 1
+        live[c] = on
 
 
 @wp.func
@@ -234,31 +295,28 @@ def contacts(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
              fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
              v_hat: wp.array(dtype=wp.vec3d), sweep: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64),
              slip: wp.array(dtype=wp.vec3d), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-             movable: wp.array(dtype=wp.int32)):
-    """The inner loop of one sweep (one thread: Gauss-Seidel in contact order): the impulses
-    ``impulse`` [c] (normal, tangent 1, tangent 2) [N s] of the last sweep applied to ``v^``,
-    then ``passes`` PGS passes; counts the sweep in ``sweep[0]``. A bonded contact (adhesive
-    ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to the bound
-    of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within the larger
-    of the Coulomb disc and the implicit spring's bound (docs/adhesion.md). With coarse bodies
-    (``co``) the metric is the two-level ``M^-1`` (:mod:`softvr.contact._node_coarse_kernels`).
-    ``metric`` and ``movable`` are :func:`contact_metric`'s; a contact that moves nothing is
-    skipped (its impulse stays its warm start, as the update with a zero block left it)."""
-    n = count[0]
-    for c in range(n):
-        if movable[c] != 0:
-            _apply(c, wp.transpose(frame[c]) * impulse[c], stencil_count, stencil_nodes, stencil_weights, rigid_node,
-                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
+             live: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32)):
+    """The inner loop of one sweep (one thread: Gauss-Seidel in contact order), after
+    :func:`warm_impulses` and :func:`screen`: ``passes`` PGS passes over the ``live``
+    contacts (listed in ``order`` [c]); counts the sweep in ``sweep[0]``. A bonded contact
+    (adhesive ``stiffness`` A C beta^2 [N/m] > 0, tangential ``slip`` u [m]) may pull down to
+    the bound of eq. 4.16, and its tangent impulse aims at the target ``-t . u / dt`` within
+    the larger of the Coulomb disc and the implicit spring's bound (docs/adhesion.md). With
+    coarse bodies (``co``) the metric is the two-level ``M^-1``
+    (:mod:`softvr.contact._node_coarse_kernels`). ``metric`` is :func:`contact_metric`'s.
+    Skipping contacts changes the path to the fixed point, not the fixed point: at a fixed
+    point of the sweeps every live contact's update leaves it unchanged and every other one
+    has a zero impulse and a normal velocity at or above its target (eq. 5.5)."""
+    n = int(0)
+    for c in range(count[0]):
+        if live[c] != 0:
+            order[n] = c
+            n = n + 1
     for _ in range(passes):
-        for c in range(n):
-            if movable[c] == 0:
-                continue
+        for i in range(n):
+            c = order[i]
             f = frame[c]
-            rel = wp.vec3d()
-            for k in range(stencil_count[c]):
-                rel = rel + stencil_weights[c, k] * v_hat[stencil_nodes[c, k]]
-            rel = rel + _rigid_velocity(c, v_hat, rigid_node, rigid_lever) + coarse_velocity(c, co)
-            rel_f = f * rel
+            rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
             w_f = metric[c]
             old = impulse[c]
             lam = pgs_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
@@ -302,19 +360,17 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
 
 @wp.kernel
 def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
-                        partner: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32)):
+                        partner: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), threads: int):
     """Marks ``exact`` (1: the Chebyshev step takes the node's update as it is) both nodes of
-    every spring-held rigid body (``partner`` >= 0) that is a side of contact ``c`` (one
-    thread per contact slot, the first ``count[0]`` used)."""
-    c = wp.tid()
-    if c >= count[0]:
-        return
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            if partner[node] >= 0:
-                exact[node] = 1
-                exact[partner[node]] = 1
+    every spring-held rigid body (``partner`` >= 0) that is a side of a contact (``threads``
+    threads, the launch's, striding over this step's contacts)."""
+    for c in range(wp.tid(), count[0], threads):
+        for s in range(rigid_node.shape[1]):
+            node = rigid_node[c, s]
+            if node >= 0:
+                if partner[node] >= 0:
+                    exact[node] = 1
+                    exact[partner[node]] = 1
 
 
 @wp.kernel

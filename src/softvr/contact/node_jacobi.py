@@ -8,6 +8,8 @@ sweeps also solve eq. 5.2, so there is no separate unconstrained solve.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import warp as wp
 
@@ -15,9 +17,14 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import CoarseSpace
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import in_order, load_kernels, replayer
+from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 
 __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
+
+#: Threads striding over a step's contacts in the kernels that take one contact at a time
+#: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
+#: takes ~35 us on the candy pile, less than handing half of it to a second core.
+CONTACT_THREADS_CUDA = 4096
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -40,6 +47,11 @@ def movable_contacts(model, state) -> int:
     free = model.fixed.numpy()[np.maximum(nodes, 0)] == 0
     moves = (used & free & (weights != 0.0)).any(axis=1) | (c.rigid_node.numpy()[:n] >= 0).any(axis=1)
     return int(moves.sum())
+
+
+def _contact_threads(device) -> int:
+    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`)."""
+    return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
 
 
 def _nothing() -> None:
@@ -83,8 +95,8 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.contacts, _k.chebyshev, _k.residual, _k.rigid_contact_exact,
-                       _k.largest_change):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.chebyshev,
+                       _k.residual, _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
@@ -134,29 +146,28 @@ class NodeSolve:
         d_inv = state.d_inv if gs is None else gs.metric
         cross = model.couplings.cross if gs is None else gs.cross_metric
         metric = wp.zeros(c.capacity, dtype=wp.mat33d, device=d)
+        #: Which contacts the sweeps' PGS passes visit [c] (:func:`_node_jacobi_kernels.screen`).
+        self.live = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
         # metric and the coarse inverses are set).
-        self._metric = replayer(wp.launch(_k.contact_metric, dim=c.capacity, device=d, record_cmd=True,
+        threads = _contact_threads(d)
+        self._metric = replayer(wp.launch(_k.contact_metric, dim=threads, device=d, record_cmd=True,
                                           inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
                                                   c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
-                                                  cross, model.fixed, co, metric, movable]))
-        contacts = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
-                             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap,
-                                     c.friction, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
-                                     model.fixed, float(dt), int(passes), c.impulse, state.v_hat, self.sweep,
-                                     c.stiffness, c.slip, co, metric, movable])
+                                                  cross, model.fixed, co, metric, movable, threads]))
+        contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
-                jacobi.append(wp.launch(_k.jacobi, dim=model.node_count, device=d, record_cmd=True,
-                                        inputs=[model.row_start, model.block_col, state.blocks, state.d_inv,
+                jacobi.append(chunked_replayer(_k.jacobi, model.node_count,
+                                               [model.row_start, model.block_col, state.blocks, state.d_inv,
                                                 model.couplings.partner, model.couplings.cross, state.b, model.fixed,
-                                                state.fixed_velocity, v, state.v_hat]))
+                                                state.fixed_velocity, v, state.v_hat], d))
                 if self.coarse.count:  # the coarse velocities from the sweep's residual
-                    jacobi[-1] = in_order(replayer(jacobi[-1]), self.coarse.residual[r])
+                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual[r])
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
-                jacobi.append(gs.record(v, replayer(contacts)))
+                jacobi.append(gs.record(v, contacts))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
                                           model.fixed, self.exact, state.q, co, v_next, self.change]))
@@ -165,13 +176,12 @@ class NodeSolve:
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
                                                     v_next, self.change])))
         self._launches = (jacobi, contacts, cheb)
-        self._sweeps = [(jacobi[r] if self.coarse.count else replayer(jacobi[r]), replayer(contacts),
-                         replayer(cheb[r])) if gs is None else
-                        (jacobi[r], _nothing, replayer(cheb[r])) for r in range(3)]
+        self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
-        self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=c.capacity, device=d, record_cmd=True,
-                                                  inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact]))
+        self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
+                                                  inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
+                                                          threads]))
         self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
                                                       inputs=[c.count, c.stencil_count, c.stencil_nodes,
                                                               c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -182,6 +192,28 @@ class NodeSolve:
         self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                                            inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+
+    def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
+                         metric: wp.array, movable: wp.array) -> Callable[[], None]:
+        """The contact step of a sweep: the last impulses applied to ``v^``, the contacts
+        screened (:func:`_node_jacobi_kernels.screen`), then the PGS passes over the live ones
+        (:func:`_node_jacobi_kernels.contacts`)."""
+        c, d, co = state.contacts, model.device, self.coarse.arrays
+        self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
+        warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
+                         inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
+                                 model.fixed, c.impulse, state.v_hat, co, movable])
+        threads = _contact_threads(d)
+        screen = wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
+                           inputs=[*stencil, c.gap, c.rigid_node, c.rigid_lever, float(dt), c.impulse, c.stiffness,
+                                   state.v_hat, co, movable, threads, self.live])
+        passes_launch = wp.launch(_k.contacts, dim=1, device=d, record_cmd=True,
+                                  inputs=[*stencil, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                                          model.couplings.partner, cross, model.fixed, float(dt), int(passes),
+                                          c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
+                                          self.live, self._order])
+        return in_order(replayer(warm), replayer(screen), replayer(passes_launch))
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
