@@ -115,8 +115,10 @@ def _split(nodes: np.ndarray, q: np.ndarray, size: int) -> list[np.ndarray]:
 def _spans_rotations(x: np.ndarray) -> bool:
     """Whether points ``x`` [k, 3] [m] move independently under the six rigid motions: they do
     not all lie on one line (the rotation about it would move none)."""
+    if len(x) < MIN_NODES:
+        return False
     spread = np.linalg.svd(x - x.mean(0), compute_uv=False)
-    return len(x) >= MIN_NODES and spread[1] > 1e-3 * spread[0] > 0
+    return bool(spread[1] > 1e-3 * spread[0] > 0)
 
 
 def coarse_aggregates(model, q: np.ndarray, size: int = AGGREGATE_NODES) -> Aggregates:
