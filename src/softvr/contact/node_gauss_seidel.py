@@ -66,10 +66,9 @@ class GaussSeidelSweep:
         self._off_col: wp.array = wp.array(off_col, dtype=wp.int32, device=d)
         self._off_blocks = wp.zeros(len(off_source), dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
-            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d, record_cmd=True,
-                                                    inputs=[state.blocks,
-                                                            wp.array(off_source, dtype=wp.int32, device=d),
-                                                            self._off_blocks])))
+            source = wp.array(off_source, dtype=wp.int32, device=d)
+            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
+                                                    record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
 
     def prepare(self) -> None:
         """Mark this step's contact nodes, set the metric and gather the colour-ordered
