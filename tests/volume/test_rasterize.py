@@ -120,6 +120,23 @@ def test_tets_taller_than_a_row_chunk_match_scipy(device):
     assert (out.data[outside] == -1.0).all()
 
 
+def test_tets_with_more_voxels_per_row_chunk_than_the_cpu_queue_match_scipy(device):
+    """Five tets over a 12 x 90 x 60 volume: a 64-row chunk of one slab holds up to ~3800
+    voxels, more than the CPU spans' 512-voxel queue, so the queue is flushed inside the chunk
+    (the other tests' chunks fit in it and are queued with no flush in between). Truth and
+    tolerance as in test_affine_deformation_matches_scipy."""
+    lin = Rotation.from_euler("z", 3, degrees=True).as_matrix() @ np.array(
+        [[1.0, 0.0, 0.0], [0.05, 1.0, 0.0], [0.0, 0.08, 1.02]])
+    vol = _volume(np.float32, shape=(12, 90, 60), spacing=(1.0, 0.8, 0.7))
+    nodes, tets = grid_tet_mesh(vol, (1, 1, 1))
+    c = np.array([0.3, -1.0, 0.6])
+    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    truth, inner, outside = _affine_truth(vol, out, lin, c)
+    assert inner.mean() > 0.3
+    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
+    assert (out.data[outside] == -1.0).all()
+
+
 def test_all_methods_write_identical_voxels(device):
     vol = _volume(np.int16, shape=(40, 36, 30))
     nodes, tets = grid_tet_mesh(vol, (6, 5, 4))

@@ -571,42 +571,55 @@ _TET_SNIPPET = (
                 span_lo[rows] = klo; span_hi[rows] = khi; span_j[rows] = j;
                 rows += khi >= klo ? 1 : 0;
             }
-            for (int r = 0; r < rows; ++r) {
-                const i64 klo = span_lo[r], khi = span_hi[r];
-                const int j = span_j[r];
-                written += (int)(khi - klo) + 1;
-                int lo = (int)klo, hi = (int)khi;
-                const double fj = (double)j;
-                if (clip) {
-                    axis_range((float)(px + A[1] * fj + A[9]), (float)A[12], dims[0], lo, hi);
-                    axis_range((float)(py + A[4] * fj + A[10]), (float)A[13], dims[1], lo, hi);
-                    axis_range((float)(pz + A[7] * fj + A[11]), (float)A[14], dims[2], lo, hi);
+            // Where the chunk's kept voxels fit in the queue (always for tets of a few thousand
+            // voxels), flush once before it and queue its rows with no call inside the loop: the
+            // call made clang keep the loop's state in stack slots, reloaded on every row.
+            auto queue_rows = [&](const bool may_flush) __attribute__((always_inline)) {
+                for (int r = 0; r < rows; ++r) {
+                    const i64 klo = span_lo[r], khi = span_hi[r];
+                    const int j = span_j[r];
+                    written += (int)(khi - klo) + 1;
+                    int lo = (int)klo, hi = (int)khi;
+                    const double fj = (double)j;
+                    if (clip) {
+                        axis_range((float)(px + A[1] * fj + A[9]), (float)A[12], dims[0], lo, hi);
+                        axis_range((float)(py + A[4] * fj + A[10]), (float)A[13], dims[1], lo, hi);
+                        axis_range((float)(pz + A[7] * fj + A[11]), (float)A[14], dims[2], lo, hi);
+                    }
+                    const float bx = (float)(px + A[1] * fj + A[9]);
+                    const float by = (float)(py + A[4] * fj + A[10]);
+                    const float bz = (float)(pz + A[7] * fj + A[11]);
+                    const i64 row = ((i64)i * out_ny + j) * out_nz;
+                    // 8 entries at a time, six 32-byte stores (clang kept most of the plain loop's 40
+                    // stores scalar), with no branch on the row's length below 9 voxels. A block may
+                    // run past the row into spare slots, overwritten next; queued <= QUEUE - 8 at each
+                    // block keeps its stores inside the queue.
+                    const f8q bx8 = (f8q)bx, by8 = (f8q)by, bz8 = (f8q)bz;
+                    const int n = hi - lo + 1;  // < 1 where clipping emptied the row
+                    int e0 = 0;
+                    do {
+                        const i8q k8 = (i8q)(lo + e0) + iota8;
+                        const l4 o_lo = (l4)(row + lo + e0) + iota_lo, o_hi = (l4)(row + lo + e0) + iota_hi;
+                        __builtin_memcpy(kq + queued, &k8, 32);
+                        __builtin_memcpy(oq + queued, &o_lo, 32);
+                        __builtin_memcpy(oq + queued + 4, &o_hi, 32);
+                        __builtin_memcpy(bxq + queued, &bx8, 32);
+                        __builtin_memcpy(byq + queued, &by8, 32);
+                        __builtin_memcpy(bzq + queued, &bz8, 32);
+                        const int m = n - e0 < 8 ? n - e0 : 8;
+                        queued += m > 0 ? m : 0;
+                        e0 += 8;
+                        if (may_flush && queued > QUEUE - 8) flush_any();
+                    } while (e0 < n);
                 }
-                const float bx = (float)(px + A[1] * fj + A[9]);
-                const float by = (float)(py + A[4] * fj + A[10]);
-                const float bz = (float)(pz + A[7] * fj + A[11]);
-                const i64 row = ((i64)i * out_ny + j) * out_nz;
-                // 8 entries at a time, six 32-byte stores (clang kept most of the plain loop's 40
-                // stores scalar), with no branch on the row's length below 9 voxels. A block may
-                // run past the row into spare slots, overwritten next; queued <= QUEUE - 8 at each
-                // block keeps its stores inside the queue.
-                const f8q bx8 = (f8q)bx, by8 = (f8q)by, bz8 = (f8q)bz;
-                const int n = hi - lo + 1;  // < 1 where clipping emptied the row
-                int e0 = 0;
-                do {
-                    const i8q k8 = (i8q)(lo + e0) + iota8;
-                    const l4 o_lo = (l4)(row + lo + e0) + iota_lo, o_hi = (l4)(row + lo + e0) + iota_hi;
-                    __builtin_memcpy(kq + queued, &k8, 32);
-                    __builtin_memcpy(oq + queued, &o_lo, 32);
-                    __builtin_memcpy(oq + queued + 4, &o_hi, 32);
-                    __builtin_memcpy(bxq + queued, &bx8, 32);
-                    __builtin_memcpy(byq + queued, &by8, 32);
-                    __builtin_memcpy(bzq + queued, &bz8, 32);
-                    const int m = n - e0 < 8 ? n - e0 : 8;
-                    queued += m > 0 ? m : 0;
-                    e0 += 8;
-                    if (queued > QUEUE - 8) flush_any();
-                } while (e0 < n);
+            };
+            i64 total = 0;
+            for (int r = 0; r < rows; ++r) total += span_hi[r] - span_lo[r] + 1;
+            if (total <= QUEUE - 8) {
+                if (queued + total > QUEUE - 8) flush_any();
+                queue_rows(false);
+            } else {
+                queue_rows(true);
             }
         }
         ri4 += dri4;
