@@ -89,7 +89,7 @@ class GaussSeidelSweep:
 
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
-                                    [*rows, *off, int(start[c]), last, w, st.v_hat], d, min_chunk=256)
+                                    [*rows, *off, int(start[c]), last, w, st.v_hat], d)
 
         replays = [chunked_replayer(_k.start, n, [v, w], d)]
         replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]]
