@@ -66,7 +66,7 @@ class GaussSeidelSweep:
         self._off_col: wp.array = wp.array(off_col, dtype=wp.int32, device=d)
         self._off_blocks = wp.zeros(len(off_source), dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
-            source = wp.array(off_source, dtype=wp.int32, device=d)
+            source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
             self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
                                                     record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
 
