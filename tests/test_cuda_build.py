@@ -20,7 +20,7 @@ MODULES = {
     "softvr.dynamics._node_kernels": ("element_terms", "assemble", "right_hand_side", "integrate", "start_guess",
                                       "rigid_start_guess", "drive"),
     "softvr.collision._node_kernels": ("point_motion", "body_motion", "vertex_triangle", "edge_geometry", "edge_edge",
-                                       "gather_contacts", "carry_impulses"),
+                                       "point_static_mesh", "gather_contacts", "carry_impulses"),
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contact_metric", "contacts", "chebyshev", "residual",
                                             "rigid_contact_exact", "largest_change"),
     "softvr.contact._node_coarse_kernels": ("prepare_bodies", "contact_sides", "coarse_residual"),

@@ -1,11 +1,12 @@
 """Device helpers: the OpenBLAS thread limit applies inside the block and is undone after; a
-replayed launch does what the launch does."""
+replayed launch does what the launch does; a launch split over the CPU cores runs every thread
+once, with its own index."""
 
 import numpy as np
 import pytest
 import warp as wp
 
-from softvr.device import _openblas_controls, replayer, single_threaded_blas
+from softvr.device import _openblas_controls, launch, replayer, single_threaded_blas
 
 
 @wp.kernel
@@ -22,6 +23,25 @@ def test_a_replayed_launch_runs_the_kernel_with_its_recorded_arguments(device):
         replay()
     # Three replays of values += 0.5 * scale, and nothing at recording time.
     np.testing.assert_array_equal(values.numpy(), 3 * 0.5 * np.array([1.0, 2.0, 3.0, 4.0]))
+
+
+@wp.kernel
+def _count(values: wp.array(dtype=wp.float64), counts: wp.array(dtype=wp.int32), amount: wp.float64, offset: int):
+    i = wp.tid() + offset
+    values[i] = amount * wp.float64(i)
+    wp.atomic_add(counts, i, 1)
+
+
+def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):
+    """Split in 12 chunks of uneven size (3 workers x 4), packed once and replayed per chunk:
+    thread i writes 1.5 i (numpy.arange) and counts itself exactly once."""
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "3")
+    dim = 10_007
+    values = wp.zeros(dim, dtype=wp.float64, device="cpu")
+    counts = wp.zeros(dim, dtype=wp.int32, device="cpu")
+    launch(_count, dim, [values, counts, 1.5], "cpu", min_chunk=100)
+    np.testing.assert_array_equal(counts.numpy(), np.ones(dim, np.int32))
+    np.testing.assert_array_equal(values.numpy(), 1.5 * np.arange(dim))
 
 
 def test_single_threaded_blas_limits_and_restores_every_openblas():

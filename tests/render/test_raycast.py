@@ -44,11 +44,14 @@
   deterministic per pixel (the jitter is a hash of the pixel), so every frame must equal a
   fresh renderer's full cast bit for bit; and the rays cast must be the few that can see a
   change (a dent of a few voxels seen by < 15 % of the pixels; the hidden change by none but
-  the probe's).
+  the probe's). Air rewritten but transparent in both frames, in front of the ball, casts
+  no ray (its bricks stay empty, so no sample there is seen in either frame).
 * The walk that finds which rays pass a brick whose voxels changed (jumps over a distance
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
   marked brick the walk missed.
+* The bricks found changed (``brick_changes``) against NumPy: a brick is flagged iff a voxel
+  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks.
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -292,6 +295,26 @@ def test_incremental_frames_equal_a_fresh_cast_and_cast_only_what_changed():
     assert hidden == 0, hidden
 
 
+def test_rays_through_air_that_changed_but_stayed_transparent_are_not_cast_again():
+    """Rewritten air (-1000 -> -990 HU, transparent in ``ct-skin`` either way) in front of a ball:
+    the rays cross it, but no sample there can be seen in either frame (its bricks stay empty),
+    so none is cast again and the image still equals a fresh cast."""
+    cam = Camera("front", azimuth=-30.0, elevation=10.0, zoom=1.2)
+    n, size = 64, 64
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+    data = np.where(np.linalg.norm(ijk - 31.5, axis=-1) < 14.0, 40, -1000).astype(np.int16)
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-31.5,) * 3)
+    with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as renderer:
+        renderer.render(vol)
+        # The ball's front is at y = 45.5 (brick 11); bricks 13 .. 15 are air.
+        lo, hi = (16, 53, 16), (47, 63, 47)
+        data[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1] = -990
+        image = renderer.render(vol, changed=(lo, hi))
+        with VolumeRenderer(size, size, "ct-skin", cam, mapper="warp") as fresh:
+            assert np.array_equal(image, fresh.render(vol))
+        assert renderer.ray_caster.cast_pixels == 0
+
+
 def test_a_ray_not_cast_again_still_learns_that_a_brick_on_its_empty_prefix_filled():
     """Rays next to a changed voxel, but not reading it, are not cast again; yet the empty-space
     brick they cross fills, so the next change on them (in that brick, which no longer flips)
@@ -398,6 +421,69 @@ def test_slice_smoothed_gradient_is_the_gradient_of_the_volume_smoothed_across_s
                                                                           device="cpu"), axis, out, gradient])
     np.testing.assert_allclose(out.numpy(), truth, atol=1e-4)
     np.testing.assert_allclose(gradient.numpy(), plain, atol=1e-4)  # and the gradient itself
+
+
+def test_changed_bricks_are_those_owning_a_changed_voxel():
+    """``brick_changes`` against NumPy: brick b owns voxels b * BRICK .. b * BRICK + BRICK - 1 per
+    axis (the last brick also the grid's far voxels); it is flagged iff one of them differs from
+    the kept copy, which it then brings up to date. Single-voxel changes at every position within
+    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders)."""
+    rng = np.random.default_rng(11)
+    b = K.BRICK
+    for order in ("C", "F"):
+        shape = (4 * b + 3, 3 * b + 1, 5 * b + 2)
+        known = np.asarray(rng.integers(-1000, 1000, shape), np.int16, order=order)
+        vol = known.copy(order=order)
+        nb = np.array([-(-(s - 1) // b) for s in shape])
+        # One changed voxel in ~ a third of the bricks, each at a random position it owns.
+        truth = np.zeros(nb, np.uint8)
+        for brick in np.argwhere(rng.random(nb) < 0.35):
+            last = np.where(brick == nb - 1, np.array(shape) - 1, brick * b + b - 1)
+            voxel = tuple(rng.integers(brick * b, last + 1))
+            vol[voxel] += 1
+            truth[tuple(brick)] = 1
+        strides = wp.vec3i(*(st // 2 for st in vol.strides))
+        flat = [wp.array(a.ravel(order="K"), dtype=wp.int16, device="cpu") for a in (vol, known)]
+        changed = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
+        wp.launch(K.brick_changes, dim=int(np.prod(nb)), device="cpu",
+                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], changed, 0])
+        np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
+        np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
+
+
+@wp.kernel
+def _plain_gradient(vol: wp.array(dtype=wp.float32), n: wp.vec3i, strides: wp.vec3i, points: wp.array(dtype=wp.vec3),
+                    out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = K.gradient(vol, n, strides, points[i])
+
+
+def test_shading_gradient_is_the_trilinear_interpolation_of_edge_clamped_central_differences():
+    """``gradient`` (the shading and gradient-opacity gradient) against NumPy and SciPy: the
+    voxels' central differences (v[i + 1] - v[i - 1]) / 2 with indices clamped to the grid
+    (an edge-padded copy), interpolated trilinearly (map_coordinates, order 1), at points
+    anywhere in the grid, its faces and corners included. Float32 sums of values ~1: 1e-4."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    n = np.array([7, 8, 9])
+    vol = rng.uniform(-1.0, 1.0, n).astype(np.float32)
+    points = np.concatenate([rng.uniform(0.0, n - 1.0, (300, 3)),
+                             np.array([[0.0, 0.0, 0.0], n - 1.0, [0.0, 3.5, 8.0], [6.0, 0.25, 4.5]])])
+    padded = np.pad(vol.astype(float), 1, mode="edge")
+    centre = (slice(1, -1),) * 3
+    differences = []
+    for axis in range(3):
+        up, down = list(centre), list(centre)
+        up[axis], down[axis] = slice(2, None), slice(None, -2)
+        differences.append((padded[tuple(up)] - padded[tuple(down)]) / 2.0)
+    truth = np.stack([ndimage.map_coordinates(g, points.T, order=1) for g in differences], axis=1)
+    out = wp.zeros(len(points), dtype=wp.vec3, device="cpu")
+    wp.launch(_plain_gradient, dim=len(points), device="cpu",
+              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*n),
+                      wp.vec3i(*(s // 4 for s in vol.strides)),
+                      wp.array(points.astype(np.float32), dtype=wp.vec3, device="cpu"), out])
+    np.testing.assert_allclose(out.numpy(), truth, atol=1e-4)
 
 
 def thick_slices_skull(dz: float) -> Volume:

@@ -24,7 +24,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.collision.edges import edge_pair
-from softvr.collision.mesh import NORMAL_FROM_OFFSET
+from softvr.collision.mesh import NORMAL_FROM_OFFSET, query_point
 
 #: Nodes in a collision point's stencil (4: a point embedded in a tet; unused entries -1).
 STENCIL = 4
@@ -37,6 +37,10 @@ EDGE_EDGE = wp.constant(2)
 #: A rigid body's box or sphere primitive against a plane or another primitive (the rigid path's
 #: detection, :mod:`softvr.collision._node_rigid_kernels`).
 PRIMITIVE = wp.constant(3)
+#: A collision point against a static sphere.
+SPHERE = wp.constant(4)
+#: A collision point against a static triangle mesh.
+MESH = wp.constant(5)
 
 
 @wp.func
@@ -129,6 +133,27 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                 hit_bary[p, b] = wp.vec3d(u, w, wp.float64(1.0) - u - w)
                 hit_normal[p, b] = n
                 hit_gap[p, b] = dist * sign
+
+
+@wp.kernel
+def point_static_mesh(point_x32: wp.array(dtype=wp.vec3), point_u: wp.array(dtype=wp.vec3d),
+                      point_margin: wp.array(dtype=wp.float64), mesh_ids: wp.array(dtype=wp.uint64),
+                      thickness: wp.array(dtype=wp.float32), dt: wp.float64, ccd: int,
+                      static_hit: wp.array2d(dtype=wp.int32), static_normal: wp.array2d(dtype=wp.vec3),
+                      static_gap: wp.array2d(dtype=wp.float32), offset: int):
+    """Collision point ``p`` against every static triangle mesh (open sheets), as
+    :func:`softvr.collision.points_vs_mesh`: the closest point within the point's margin [m]
+    or, with ``ccd``, the first crossing of its predicted motion over ``dt`` [s]; the normal
+    faces the point's side, the gap [m] keeps the mesh's half ``thickness`` [m]."""
+    p = wp.tid() + offset
+    u = point_u[p] * dt
+    motion = wp.vec3(wp.float32(u[0]), wp.float32(u[1]), wp.float32(u[2]))
+    reach = wp.float32(point_margin[p])
+    for k in range(mesh_ids.shape[0]):
+        h, n, g, c = query_point(mesh_ids[k], point_x32[p], motion, reach, thickness[k], ccd, 0)
+        static_hit[p, k] = h
+        static_normal[p, k] = n
+        static_gap[p, k] = g
 
 
 @wp.func
@@ -285,14 +310,28 @@ def start_contact(out: NodeContactOut, c: int, kind: int, column: int, point: in
     out.stencil_count[c] = 0
 
 
+@wp.func
+def point_contact(out: NodeContactOut, c: int, kind: int, column: int, p: int, other: int, normal: wp.vec3d,
+                  gap: wp.float64, friction: wp.float64, carried: wp.array2d(dtype=wp.vec3d),
+                  point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64)):
+    """Contact ``c`` of collision point ``p`` with a static (plane, sphere or mesh ``other``),
+    warm-started from ``carried[p, column]``."""
+    start_contact(out, c, kind, column, p, other, -1, wp.vec3d(), normal, gap, friction, carried[p, column])
+    add_point(c, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count, out.stencil_nodes,
+              out.stencil_weights)
+
+
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
                     point_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
                     triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
                     plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
-                    plane_friction: wp.array(dtype=wp.float64), surface_friction: wp.float64,
-                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    plane_friction: wp.array(dtype=wp.float64), sphere_center: wp.array(dtype=wp.vec3d),
+                    sphere_radius: wp.array(dtype=wp.float64), sphere_friction: wp.array(dtype=wp.float64),
+                    static_hit: wp.array2d(dtype=wp.int32), static_normal: wp.array2d(dtype=wp.vec3),
+                    static_gap: wp.array2d(dtype=wp.float32), mesh_friction: wp.array(dtype=wp.float64),
+                    surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
                     hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
                     hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
                     pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
@@ -301,12 +340,15 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
                     count: wp.array(dtype=wp.int32), out: NodeContactOut):
     """One thread, so that contacts come out in the same order on every device: every (point,
-    plane) pair by plane, then point (the per-object path's order), then every (vertex, body)
-    hit by vertex, then body, then every edge pair by edge a, then slot. ``other`` is the
-    plane, or the body whose triangle ``face`` (global) the vertex meets at barycentric
-    ``bary``, or whose edge ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``;
-    ``carried[p, column]`` (planes first, then bodies) and ``edge_carried[e, column]`` (with
-    the edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
+    plane) pair by plane, then point (the per-object path's order), then every (point, static
+    sphere) pair the same way (:func:`softvr.collision.points_vs_sphere`: gap and normal along
+    the radius through the point), then every (point, static mesh) hit (``static_*``, from
+    :func:`point_static_mesh`), then every (vertex, body) hit by vertex, then body, then every
+    edge pair by edge a, then slot. ``other`` is the plane, sphere or mesh, or the body whose
+    triangle ``face`` (global) the vertex meets at barycentric ``bary``, or whose edge
+    ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``; ``carried[p, column]``
+    (planes first, then bodies, spheres, meshes) and ``edge_carried[e, column]`` (with the
+    edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
     planes = plane_normal.shape[0]
     n_out = int(0)
     for s in range(planes):
@@ -314,13 +356,36 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
         for p in range(point_nodes.shape[0]):
             g = wp.dot(normal, point_x[p]) - plane_offset[s]
             reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            last = carried[p, s]
-            carried[p, s] = wp.vec3d()
             if wp.min(g, reach) < point_margin[p] and n_out < capacity:
-                start_contact(out, n_out, PLANE, s, p, s, -1, wp.vec3d(), normal, g, plane_friction[s], last)
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
-                          out.stencil_nodes, out.stencil_weights)
+                point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
+                              point_weights)
                 n_out += 1
+            carried[p, s] = wp.vec3d()  # read: a pair no longer in contact forgets it
+    for k in range(sphere_radius.shape[0]):
+        column = planes + hit.shape[1] + k
+        for p in range(point_nodes.shape[0]):
+            d = point_x[p] - sphere_center[k]
+            dist = wp.length(d)
+            normal = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+            if dist > wp.float64(1e-12):
+                normal = d / dist
+            g = dist - sphere_radius[k]
+            reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
+            if wp.min(g, reach) < point_margin[p] and n_out < capacity:
+                point_contact(out, n_out, SPHERE, column, p, k, normal, g, sphere_friction[k], carried, point_nodes,
+                              point_weights)
+                n_out += 1
+            carried[p, column] = wp.vec3d()
+    for k in range(mesh_friction.shape[0]):
+        column = planes + hit.shape[1] + sphere_radius.shape[0] + k
+        for p in range(point_nodes.shape[0]):
+            if static_hit[p, k] != 0 and n_out < capacity:
+                fn = static_normal[p, k]
+                normal = wp.normalize(wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2])))
+                point_contact(out, n_out, MESH, column, p, k, normal, wp.float64(static_gap[p, k]), mesh_friction[k],
+                              carried, point_nodes, point_weights)
+                n_out += 1
+            carried[p, column] = wp.vec3d()
     for p in range(hit.shape[0]):
         for b in range(hit.shape[1]):
             last = carried[p, planes + b]

@@ -27,6 +27,50 @@ __all__ = ["NORMAL_FROM_OFFSET", "TriangleMesh", "points_vs_mesh", "query_points
 NORMAL_FROM_OFFSET = wp.constant(1.0e-6)
 
 
+@wp.func
+@no_type_check  # Warp's builtins (mesh queries, vector types) are not typed for Python
+def query_point(mesh: wp.uint64, p: wp.vec3, d: wp.vec3, reach: float, thickness: float, ccd: int, closed: int):
+    """Point ``p`` against a Warp mesh: the closest surface point within ``reach`` or, sweeping
+    ``d`` (the displacement over the step), the first crossing. Returns (hit (0 / 1), normal,
+    gap [m], surface point [m]). Normals face the point's side; for a ``closed`` (watertight,
+    outward) surface a point inside gets the outward normal and a negative gap (its penetration
+    depth), and a sweep only counts when it enters the solid: a point inside moving out meets
+    the surface from behind, and a contact on that side would pull it back in. Inside or
+    outside comes from the closest feature's angle-weighted pseudo normal: Warp's default vote
+    of three axis-aligned rays is a coin toss for a point resting on a face, whose rays run
+    along it (a block's nodes under a pressing plate flipped sides and were pushed into it)."""
+    travel = wp.length(d)
+    if ccd != 0 and travel > 0.0:
+        direction = d / travel
+        ray = wp.mesh_query_ray(mesh, p, direction, travel + reach)
+        if ray.result and (closed == 0 or wp.dot(ray.normal, direction) < 0.0):
+            n = ray.normal
+            if wp.dot(n, direction) > 0.0:
+                n = -n
+            return int(1), n, ray.t * wp.abs(wp.dot(n, direction)) - thickness, p + ray.t * direction
+    if closed != 0:
+        q = wp.mesh_query_point_sign_normal(mesh, p, reach + thickness)
+        if q.result:
+            c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+            offset = p - c
+            dist = wp.length(offset)
+            n = wp.mesh_eval_face_normal(mesh, q.face)
+            if dist > NORMAL_FROM_OFFSET:
+                n = offset / dist * q.sign
+            return int(1), n, dist * q.sign - thickness, c
+        return int(0), wp.vec3(), float(0.0), wp.vec3()
+    q = wp.mesh_query_point_no_sign(mesh, p, reach + thickness)
+    if q.result:
+        c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
+        offset = p - c
+        dist = wp.length(offset)
+        n = wp.mesh_eval_face_normal(mesh, q.face)
+        if dist > NORMAL_FROM_OFFSET:
+            n = offset / dist
+        return int(1), n, dist - thickness, c
+    return int(0), wp.vec3(), float(0.0), wp.vec3()
+
+
 @wp.kernel
 @no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
 def _query_points(
@@ -42,57 +86,13 @@ def _query_points(
     gap: wp.array(dtype=float),
     surface: wp.array(dtype=wp.vec3),
 ):
-    """Per point: the closest surface point within ``reach`` or, sweeping ``motion`` (the
-    displacement over the step), the first crossing. Normals face the point's side; for a
-    ``closed`` (watertight, outward) surface a point inside gets the outward normal and a
-    negative gap (its penetration depth), and a sweep only counts when it enters the solid:
-    a point inside moving out meets the surface from behind, and a contact on that side would
-    pull it back in. Inside or outside comes from the closest feature's angle-weighted pseudo
-    normal: Warp's default vote of three axis-aligned rays is a coin toss for a point resting
-    on a face, whose rays run along it (a block's nodes under a pressing plate flipped sides and
-    were pushed into it)."""
+    """Per point: :func:`query_point`."""
     i = wp.tid()
-    p = points[i]
-    hit[i] = 0
-    d = motion[i]
-    travel = wp.length(d)
-    if ccd != 0 and travel > 0.0:
-        direction = d / travel
-        ray = wp.mesh_query_ray(mesh, p, direction, travel + reach)
-        if ray.result and (closed == 0 or wp.dot(ray.normal, direction) < 0.0):
-            n = ray.normal
-            if wp.dot(n, direction) > 0.0:
-                n = -n
-            hit[i] = 1
-            normal[i] = n
-            gap[i] = ray.t * wp.abs(wp.dot(n, direction)) - thickness
-            surface[i] = p + ray.t * direction
-            return
-    if closed != 0:
-        q = wp.mesh_query_point_sign_normal(mesh, p, reach + thickness)
-        if q.result:
-            c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
-            offset = p - c
-            dist = wp.length(offset)
-            n = wp.mesh_eval_face_normal(mesh, q.face)
-            if dist > NORMAL_FROM_OFFSET:
-                n = offset / dist * q.sign
-            hit[i] = 1
-            normal[i] = n
-            gap[i] = dist * q.sign - thickness
-            surface[i] = c
-        return
-    q = wp.mesh_query_point_no_sign(mesh, p, reach + thickness)
-    if q.result:
-        c = wp.mesh_eval_position(mesh, q.face, q.u, q.v)
-        offset = p - c
-        dist = wp.length(offset)
-        n = wp.mesh_eval_face_normal(mesh, q.face)
-        if dist > NORMAL_FROM_OFFSET:
-            n = offset / dist
-        hit[i] = 1
+    h, n, g, c = query_point(mesh, points[i], motion[i], reach, thickness, ccd, closed)
+    hit[i] = h
+    if h != 0:
         normal[i] = n
-        gap[i] = dist - thickness
+        gap[i] = g
         surface[i] = c
 
 

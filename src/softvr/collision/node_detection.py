@@ -1,5 +1,5 @@
 """Contact generation of the collision points of a whole scene of FEM bodies (and the kinematic
-or fixed bodies they meet) against its planes and each other's surfaces, as recorded launches
+or fixed bodies they meet) against its planes, static spheres and each other's surfaces, as recorded launches
 (kernels in :mod:`softvr.collision._node_kernels`; works on :class:`softvr.sim.NodeModel` /
 :class:`softvr.sim.NodeState` or any objects with those attributes)."""
 
@@ -21,16 +21,18 @@ __all__ = ["CONTACT_STENCIL", "record_carry", "record_node_detection"]
 CONTACT_STENCIL = _k.CONTACT_STENCIL
 
 
-def record_node_detection(model, state, dt: float, gravity, margin: float, friction: float) -> Callable[[], None]:
+def record_node_detection(model, state, dt: float, gravity, margin: float, friction: float,
+                          ccd: bool = True) -> Callable[[], None]:
     """A replay filling ``state.contacts`` (warm-started from ``state.contacts.carried``) from
-    the step's start ``q``, ``v``, ``gravity`` [3] [m/s^2]: points vs planes, and surface
+    the step's start ``q``, ``v``, ``gravity`` [3] [m/s^2]: points vs planes and static spheres, and surface
     vertices vs the other bodies' triangles within ``margin`` [m] (plus their motion over
-    ``dt`` [s]) with Coulomb coefficient ``friction``. The surfaces' BVHs are refitted to the
-    points' positions in between."""
+    ``dt`` [s]) with Coulomb coefficient ``friction``; points vs static meshes within their
+    margins, swept over their motion with ``ccd`` (``Scene.ccd``). The surfaces' BVHs are
+    refitted to the points' positions in between."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
     for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.edge_edge,
-                   _k.gather_contacts):
+                   _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -40,6 +42,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     steps = [motion]
     if model.rigid is not None and model.rigid.point_index.shape[0]:
         steps.append(record_rigid_points(model, state))
+    if model.static_mesh_ids.shape[0]:
+        steps.append(chunked_replayer(_k.point_static_mesh, model.point_count,
+                                      [state.point_x32, state.point_u, model.point_margin, model.static_mesh_ids,
+                                       model.static_mesh_thickness, float(dt), int(ccd), c.static_hit,
+                                       c.static_normal, c.static_gap], d, min_chunk=256))
     if model.meshes:
         bodies = len(model.body_node_start) - 1
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
@@ -77,7 +84,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
                 model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
-                model.plane_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
+                model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, c.static_hit,
+                c.static_normal, c.static_gap, model.static_mesh_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
                 model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
                 float(dt), c.capacity, c.carried, c.count, out])))
     if model.rigid is not None:

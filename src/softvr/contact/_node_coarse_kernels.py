@@ -1,5 +1,6 @@
 """Compiled coarse correction of the node sweeps (thesis eq. 5.6's outer Jacobi made two-level):
-each free FEM body's rigid motions as a coarse space, solved exactly every sweep.
+the rigid motions of aggregates of nodes (each free FEM body whole; a held body's nodes in
+spatial aggregates) as a coarse space, solved every sweep.
 
 Node-block Jacobi removes an error mode by about its eigenvalue of ``D_A^-1 A`` per sweep. On a
 small stiff body at a long step (candy: ``dt^2 E / (rho h^2)`` ~ 130) the body's rigid motions
@@ -10,8 +11,9 @@ Methods, 2005, ch. 2; Nicolaides 1987 for the coarse space of each subdomain's k
 
     M^-1 = D_A^-1 + sum_b P_b (P_b^T A P_b)^-1 P_b^T,    P_b,i = [I, -[rho_i]x]
 
-(``rho_i`` node ``i``'s offset from its body's mass centre at the step's start; ``P_b y``
-moves the body by the linear velocity ``y[:3]`` and the angular ``y[3:]``) is symmetric and
+(``rho_i`` node ``i``'s offset from its aggregate's mass centre at the step's start; ``P_b y``
+moves the aggregate by the linear velocity ``y[:3]`` and the angular ``y[3:]``; the inverse is
+taken per aggregate, block-diagonal: additive Schwarz over the aggregates) is symmetric and
 positive definite, so Chebyshev over the spectrum of ``M^-1 A`` is sound (candy: 18 sweeps per
 decade). A sweep is then, with ``r = b - A v^k = D_A (v^ - v^k)``:
 
@@ -30,6 +32,10 @@ from __future__ import annotations
 
 import warp as wp
 
+#: Coarse sides a contact can have: one per node of its stencil (collision.node_detection's
+#: CONTACT_STENCIL), since a held body's aggregates may split a stencil.
+SIDES = 16
+
 
 @wp.struct
 class Coarse:
@@ -38,7 +44,7 @@ class Coarse:
     Attributes
     ----------
     node_body : array(int32) [n]
-        Coarse body of each node, -1 for none.
+        Coarse body (aggregate) of each node, -1 for none.
     centre : array(vec3d) [m] [B]
         Mass centre of each coarse body at the step's start.
     ll, la, aa : array(mat33d) [B]
@@ -46,11 +52,11 @@ class Coarse:
         angular-angular [1/(kg m^2)]; angular-linear is ``la^T``).
     y_lin, y_ang : array(vec3d) [B]
         The sweep's coarse velocity of each body: linear [m/s], angular [rad/s].
-    side : array2d(int32) [c, 2]
-        Contact ``c``'s coarse bodies (-1: none).
-    weight : array2d(float64) [c, 2]
+    side : array2d(int32) [c, SIDES]
+        Contact ``c``'s coarse bodies, first ones first (-1: none from there on).
+    weight : array2d(float64) [c, SIDES]
         ``s``: the sum of the contact's stencil weights on that body's nodes (+1 side a, -1 b).
-    lever : array2d(vec3d) [c, 2] [m]
+    lever : array2d(vec3d) [c, SIDES] [m]
         ``L``: the stencil weights times the nodes' offsets from the body's centre, summed.
     """
 
@@ -67,16 +73,17 @@ class Coarse:
 
 
 @wp.kernel
-def prepare_bodies(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
                    mass: wp.array(dtype=wp.float64), row_start: wp.array(dtype=wp.int32),
                    block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), co: Coarse):
-    """Coarse body ``b`` (nodes ``first[b]:last[b]``): its mass centre and the blocks of
-    ``(P_b^T A P_b)^-1`` from this step's ``blocks`` (only those between its own nodes), by
-    the Schur complement of the linear block."""
+    """Coarse body ``b`` (nodes ``nodes[start[b]:start[b + 1]]``): its mass centre and the
+    blocks of ``(P_b^T A P_b)^-1`` from this step's ``blocks`` (only those between its own
+    nodes), by the Schur complement of the linear block."""
     b = wp.tid()
     total = wp.float64(0.0)
     c = wp.vec3d()
-    for i in range(first[b], last[b]):
+    for t in range(start[b], start[b + 1]):
+        i = nodes[t]
         total = total + mass[i]
         c = c + mass[i] * q[i]
     c = c / total
@@ -84,7 +91,8 @@ def prepare_bodies(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int3
     ll = wp.mat33d()
     la = wp.mat33d()
     aa = wp.mat33d()
-    for i in range(first[b], last[b]):
+    for t in range(start[b], start[b + 1]):
+        i = nodes[t]
         ri = wp.skew(q[i] - c)
         for k in range(row_start[i], row_start[i + 1]):
             j = block_col[k]
@@ -96,9 +104,9 @@ def prepare_bodies(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int3
                 aa = aa - ri * a * rj
     p_inv = wp.inverse(ll)
     s_inv = wp.inverse(aa - wp.transpose(la) * p_inv * la)
-    t = p_inv * la
-    co.ll[b] = p_inv + t * s_inv * wp.transpose(t)
-    co.la[b] = -(t * s_inv)
+    lever = p_inv * la
+    co.ll[b] = p_inv + lever * s_inv * wp.transpose(lever)
+    co.la[b] = -(lever * s_inv)
     co.aa[b] = s_inv
 
 
@@ -106,20 +114,20 @@ def prepare_bodies(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int3
 def contact_sides(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
                   q: wp.array(dtype=wp.vec3d), co: Coarse):
-    """Contact ``c``'s coarse sides: per coarse body met by its stencil (at most two), ``s``
-    and ``L`` (:class:`Coarse`)."""
+    """Contact ``c``'s coarse sides: per coarse body met by its stencil, ``s`` and ``L``
+    (:class:`Coarse`)."""
     c = wp.tid()
-    co.side[c, 0] = -1
-    co.side[c, 1] = -1
-    if c >= count[0]:
+    if c >= count[0]:  # no kernel reads the sides past the count
         return
+    for s in range(SIDES):
+        co.side[c, s] = -1
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         b = co.node_body[node]
         if b >= 0:
-            s = int(1)
-            if co.side[c, 0] == b or co.side[c, 0] < 0:
-                s = 0
+            s = int(0)
+            while co.side[c, s] >= 0 and co.side[c, s] != b:
+                s = s + 1
             if co.side[c, s] < 0:
                 co.side[c, s] = b
                 co.weight[c, s] = wp.float64(0.0)
@@ -130,10 +138,9 @@ def contact_sides(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
 
 
 @wp.kernel
-def coarse_residual(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
-                    row_start: wp.array(dtype=wp.int32), diagonal: wp.array(dtype=wp.int32),
-                    blocks: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
-                    co: Coarse):
+def coarse_residual(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+                    diagonal: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
+                    v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
     """Coarse body ``b``'s velocity ``y = (P^T A P)^-1 P^T r`` from the sweep's residual
     ``r_i = b_i - (A v)_i = D_i (v^_i - v_i)`` (``diagonal[i]`` the index of node ``i``'s
     diagonal block): the force and the torque about the centre of ``r``, solved."""
@@ -141,7 +148,8 @@ def coarse_residual(first: wp.array(dtype=wp.int32), last: wp.array(dtype=wp.int
     force = wp.vec3d()
     torque = wp.vec3d()
     c = co.centre[b]
-    for i in range(first[b], last[b]):
+    for t in range(start[b], start[b + 1]):
+        i = nodes[t]
         r = blocks[diagonal[i]] * (v_hat[i] - v[i])
         force = force + r
         torque = torque + wp.cross(q[i] - c, r)
@@ -154,10 +162,11 @@ def coarse_velocity(c: int, co: Coarse) -> wp.vec3d:
     """Contact ``c``'s relative velocity [m/s] from its bodies' coarse velocities:
     ``s y_lin + y_ang x L`` per side."""
     rel = wp.vec3d()
-    for s in range(2):
+    for s in range(SIDES):
         b = co.side[c, s]
-        if b >= 0:
-            rel = rel + co.weight[c, s] * co.y_lin[b] + wp.cross(co.y_ang[b], co.lever[c, s])
+        if b < 0:
+            break
+        rel = rel + co.weight[c, s] * co.y_lin[b] + wp.cross(co.y_ang[b], co.lever[c, s])
     return rel
 
 
@@ -166,13 +175,14 @@ def coarse_w(c: int, co: Coarse) -> wp.mat33d:
     """Contact ``c``'s share of ``J M^-1 J^T`` [1/kg] through the coarse space:
     ``[s I, -[L]x] (P^T A P)^-1 [s I, -[L]x]^T`` per side."""
     w = wp.mat33d()
-    for s in range(2):
+    for s in range(SIDES):
         b = co.side[c, s]
-        if b >= 0:
-            sw = co.weight[c, s]
-            arm = wp.skew(co.lever[c, s])
-            la = co.la[b]
-            w = w + (sw * sw) * co.ll[b] + sw * (la * arm + wp.transpose(la * arm)) - arm * co.aa[b] * arm
+        if b < 0:
+            break
+        sw = co.weight[c, s]
+        arm = wp.skew(co.lever[c, s])
+        la = co.la[b]
+        w = w + (sw * sw) * co.ll[b] + sw * (la * arm + wp.transpose(la * arm)) - arm * co.aa[b] * arm
     return w
 
 
@@ -180,13 +190,14 @@ def coarse_w(c: int, co: Coarse) -> wp.mat33d:
 def coarse_apply(c: int, world: wp.vec3d, co: Coarse):
     """Contact ``c``'s impulse ``world`` [N s] on its bodies' coarse velocities:
     ``y += (P^T A P)^-1 (s f, L x f)``."""
-    for s in range(2):
+    for s in range(SIDES):
         b = co.side[c, s]
-        if b >= 0:
-            f = co.weight[c, s] * world
-            t = wp.cross(co.lever[c, s], world)
-            co.y_lin[b] = co.y_lin[b] + co.ll[b] * f + co.la[b] * t
-            co.y_ang[b] = co.y_ang[b] + wp.transpose(co.la[b]) * f + co.aa[b] * t
+        if b < 0:
+            break
+        f = co.weight[c, s] * world
+        t = wp.cross(co.lever[c, s], world)
+        co.y_lin[b] = co.y_lin[b] + co.ll[b] * f + co.la[b] * t
+        co.y_ang[b] = co.y_ang[b] + wp.transpose(co.la[b]) * f + co.aa[b] * t
 
 
 @wp.func

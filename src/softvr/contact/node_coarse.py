@@ -1,13 +1,17 @@
-"""The coarse correction of the node sweeps (thesis eq. 5.6's outer Jacobi made two-level): every
-free FEM body's rigid motions solved exactly each sweep, for scenes whose small stiff bodies
-make plain node-block Jacobi slow (the candies: 75-82 Chebyshev sweeps per decade, 18 with the
-coarse correction). Kernels and the derivation in :mod:`softvr.contact._node_coarse_kernels`.
+"""The coarse correction of the node sweeps (thesis eq. 5.6's outer Jacobi made two-level): the
+rigid motions of aggregates of nodes solved each sweep. Every free FEM body is one aggregate,
+its rigid motions solved exactly, for scenes whose small stiff bodies make plain node-block
+Jacobi slow (the candies: 75-82 Chebyshev sweeps per decade, 18 with the coarse correction);
+a held body (fixed nodes, or coupling springs) is split into spatial aggregates of about
+:data:`AGGREGATE_NODES` nodes, whose rigid motions are its slow deformations (the shoulder's
+sheets and tendons). Kernels and the derivation in :mod:`softvr.contact._node_coarse_kernels`.
 Works on :class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState` or any objects with
 those attributes.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -18,36 +22,132 @@ import warp as wp
 from softvr.contact import _node_coarse_kernels as _k
 from softvr.device import load_kernels, replayer
 
-__all__ = ["CoarseSpace", "coarse_bodies", "coarse_spectrum"]
+__all__ = ["AGGREGATE_NODES", "Aggregates", "CoarseSpace", "aggregates_of", "coarse_aggregates", "coarse_bodies",
+           "coarse_spectrum"]
 
 #: Fewest nodes of a body the coarse space takes (its six rigid motions must be independent).
 MIN_NODES = 4
+#: Most nodes of an aggregate of a held body. Its six rigid motions then stand for the body's
+#: smooth deformations, the modes node-block sweeps remove slowest.
+AGGREGATE_NODES = 40
+
+
+@dataclass(frozen=True)
+class Aggregates:
+    """Groups of nodes whose rigid motions the coarse space takes, as compressed rows.
+
+    Attributes
+    ----------
+    start : ndarray(int64) [G + 1]
+        Aggregate ``g``'s nodes are ``nodes[start[g]:start[g + 1]]``.
+    nodes : ndarray(int64) [N]
+        Global node indices, each in at most one aggregate.
+    pairs : ndarray(int64) [P, 2] or None
+        Node pairs that are one 6x6 block of ``D_A`` (a spring-held rigid body's linear and
+        angular nodes, ``NodeCouplings.pair_node``), for :func:`coarse_spectrum`; None: none.
+    whole : int
+        How many of the aggregates, the first ones, are whole free bodies (the rest are parts
+        of held bodies).
+    """
+
+    start: np.ndarray
+    nodes: np.ndarray
+    pairs: np.ndarray | None = None
+    whole: int = 0
+
+    def __len__(self) -> int:
+        return len(self.start) - 1
+
+    def head(self, count: int) -> Aggregates:
+        """The first ``count`` aggregates."""
+        return Aggregates(self.start[:count + 1], self.nodes[:self.start[count]], self.pairs,
+                          min(self.whole, count))
+
+
+def aggregates_of(coarse) -> Aggregates:
+    """``coarse`` as :class:`Aggregates`: itself, or [B, 2] node ranges (:func:`coarse_bodies`),
+    one aggregate each."""
+    if isinstance(coarse, Aggregates):
+        return coarse
+    return _grouped([np.arange(a, b) for a, b in np.asarray(coarse, dtype=np.int64).reshape(-1, 2)])
+
+
+def _grouped(groups: list[np.ndarray], pairs: np.ndarray | None = None, whole: int = 0) -> Aggregates:
+    """:class:`Aggregates` of the node lists ``groups``, in that order."""
+    sizes = [len(g) for g in groups]
+    nodes = np.concatenate(groups).astype(np.int64) if groups else np.zeros(0, np.int64)
+    return Aggregates(np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64), nodes, pairs, whole)
+
+
+def _node_kinds(model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each body's first node [bodies + 1], and per node [n]: whether it has blocks of ``A``,
+    is fixed, is a rigid body's."""
+    row_start = model.row_start.numpy()
+    rigid = np.zeros(model.node_count, bool)
+    if model.rigid is not None:
+        rigid[model.rigid.linear_node.numpy()] = True
+        rigid[model.rigid.angular_node.numpy()] = True
+    return np.asarray(model.body_node_start), row_start[1:] > row_start[:-1], model.fixed.numpy() != 0, rigid
 
 
 def coarse_bodies(model) -> np.ndarray:
     """[B, 2] first and last (exclusive) node of each body the coarse space takes: FEM bodies
     whose nodes all have blocks of ``A`` and none is fixed (a held body's rigid motions are
     not slow modes of the sweeps), with at least :data:`MIN_NODES` nodes."""
-    start = np.asarray(model.body_node_start)
-    row_start = model.row_start.numpy()
-    has_blocks = row_start[1:] > row_start[:-1]
-    fixed = model.fixed.numpy() != 0
-    rigid = np.zeros(model.node_count, bool)
-    if model.rigid is not None:
-        rigid[model.rigid.linear_node.numpy()] = True
-        rigid[model.rigid.angular_node.numpy()] = True
+    start, has_blocks, fixed, rigid = _node_kinds(model)
     keep = [(a, b) for a, b in zip(start[:-1], start[1:])
             if b - a >= MIN_NODES and has_blocks[a:b].all() and not fixed[a:b].any() and not rigid[a:b].any()]
     return np.asarray(keep, dtype=np.int64).reshape(-1, 2)
 
 
-def _basis(bodies: np.ndarray, q: np.ndarray, mass: np.ndarray, solved: np.ndarray) -> sp.csr_matrix:
-    """``P`` [3 k, 6 B]: each coarse body's rigid motions (linear, then angular about its mass
+def _split(nodes: np.ndarray, q: np.ndarray, size: int) -> list[np.ndarray]:
+    """``nodes`` in spatial groups of at most ``size`` (recursive bisection at the median across
+    the longest side of their bounding box), none under :data:`MIN_NODES`."""
+    if len(nodes) <= size or len(nodes) < 2 * MIN_NODES:
+        return [nodes]
+    x = q[nodes]
+    axis = int(np.argmax(x.max(0) - x.min(0)))
+    order = nodes[np.argsort(x[:, axis], kind="stable")]
+    half = len(order) // 2
+    return _split(order[:half], q, size) + _split(order[half:], q, size)
+
+
+def _spans_rotations(x: np.ndarray) -> bool:
+    """Whether points ``x`` [k, 3] [m] move independently under the six rigid motions: they do
+    not all lie on one line (the rotation about it would move none)."""
+    if len(x) < MIN_NODES:
+        return False
+    spread = np.linalg.svd(x - x.mean(0), compute_uv=False)
+    return bool(spread[1] > 1e-3 * spread[0] > 0)
+
+
+def coarse_aggregates(model, q: np.ndarray, size: int = AGGREGATE_NODES) -> Aggregates:
+    """The coarse space's aggregates: each body of :func:`coarse_bodies` that no coupling spring
+    holds, whole (these first); the free nodes of every other FEM body (held by fixed nodes or
+    by a coupling spring's stencil) in spatial groups of at most ``size`` (:func:`_split`);
+    ``q`` [n, 3] [m] the node positions. A rigid body's nodes are in none (their ``D_A`` block
+    is their whole body)."""
+    start, has_blocks, fixed, rigid = _node_kinds(model)
+    coupled = np.zeros(model.node_count, bool)
+    coupled[model.couplings.node.numpy()] = True
+    whole = [np.arange(a, b) for a, b in coarse_bodies(model) if not coupled[a:b].any()]
+    taken = {int(g[0]) for g in whole}
+    groups = list(whole)
+    for a, b in zip(start[:-1], start[1:]):
+        if a not in taken and has_blocks[a:b].any() and not rigid[a:b].any():
+            free = np.arange(a, b)[has_blocks[a:b] & ~fixed[a:b]]
+            groups += [g for g in _split(free, q, size) if _spans_rotations(q[g])]
+    return _grouped(groups, model.couplings.pair_node.numpy().astype(np.int64).reshape(-1, 2), len(whole))
+
+
+def _basis(aggregates: Aggregates, q: np.ndarray, mass: np.ndarray, solved: np.ndarray) -> sp.csr_matrix:
+    """``P`` [3 k, 6 G]: each aggregate's rigid motions (linear, then angular about its mass
     centre) over the solved nodes' velocities (``solved`` [n] which nodes those are)."""
     index = np.cumsum(solved) - 1
     rows, cols, vals = [], [], []
-    for b, (first, last) in enumerate(bodies):
-        nodes = np.arange(first, last)
+    for b in range(len(aggregates)):
+        part = slice(aggregates.start[b], aggregates.start[b + 1])
+        nodes = aggregates.nodes[part]
         rho = q[nodes] - (mass[nodes, None] * q[nodes]).sum(0) / mass[nodes].sum()
         for k in range(3):
             for d in range(3):  # translation along k; rotation about k: e_k x rho
@@ -59,25 +159,39 @@ def _basis(bodies: np.ndarray, q: np.ndarray, mass: np.ndarray, solved: np.ndarr
                 vals.append(np.cross(np.eye(3)[k], rho)[:, d])
     size = 3 * int(solved.sum())
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(size, 6 * len(bodies)))
+                         shape=(size, 6 * len(aggregates)))
 
 
-def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies: np.ndarray, q: np.ndarray,
+def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies, q: np.ndarray,
                     mass: np.ndarray) -> tuple[float, float]:
     """Bounds (lo, hi) of the eigenvalues of ``M^-1 A`` with the two-level ``M^-1 = D_A^-1 +
-    P (P^T A P)^-1 P^T`` (no margins): ``a`` [3 k, 3 k] ``A`` over the solved nodes
-    (``solved`` [n]), ``bodies`` from :func:`coarse_bodies`, ``q`` [n, 3] [m] and ``mass`` [n]
-    [kg] the nodes'. ``M^-1 A`` is similar to the symmetric ``M^-1/2 A M^-1/2`` but ``M^-1/2``
-    is not at hand, so the bounds come from Arnoldi (ARPACK) on ``M^-1 A``, whose eigenvalues
-    are real."""
+    sum_g P_g (P_g^T A P_g)^-1 P_g^T`` (no margins): ``a`` [3 k, 3 k] ``A`` over the solved
+    nodes (``solved`` [n]), ``bodies`` the aggregates (:func:`coarse_aggregates`, or [B, 2]
+    node ranges from :func:`coarse_bodies`), ``q`` [n, 3] [m] and ``mass`` [n] [kg] the nodes'.
+    ``D_A`` takes the aggregates' ``pairs`` as 6x6 blocks, as the sweeps do. ``M^-1 A`` is
+    similar to the symmetric ``M^-1/2 A M^-1/2`` but ``M^-1/2`` is not at hand, so the bounds
+    come from Arnoldi (ARPACK) on ``M^-1 A``, whose eigenvalues are real."""
+    aggregates = aggregates_of(bodies)
     k = a.shape[0] // 3
     blocks = a.tobsr(blocksize=(3, 3))
     rows = np.repeat(np.arange(k), np.diff(blocks.indptr))
-    diagonal = np.zeros((k, 3, 3))
+    diagonal = np.tile(np.eye(3), (k, 1, 1))
     diagonal[rows[rows == blocks.indices]] = blocks.data[rows == blocks.indices]
-    d_inv = sp.bsr_matrix((np.linalg.inv(diagonal), np.arange(k), np.arange(k + 1)), shape=a.shape).tocsr()
-    p = _basis(bodies, q, mass, solved)
-    coarse = np.linalg.inv((p.T @ a @ p).toarray())
+    pairs = (np.cumsum(solved) - 1)[aggregates.pairs] if aggregates.pairs is not None else np.zeros((0, 2), int)
+    inverse = np.linalg.inv(diagonal)
+    inverse[pairs.ravel()] = 0.0  # a pair's nodes take its 6x6 block's inverse instead
+    d_inv = sp.bsr_matrix((inverse, np.arange(k), np.arange(k + 1)), shape=a.shape).tocsr()
+    if len(pairs):
+        dofs = (3 * pairs[:, :, None] + np.arange(3)).reshape(len(pairs), 6)
+        pair_inv = np.linalg.inv(np.stack([a[d][:, d].toarray() for d in dofs]))
+        entries = (np.repeat(dofs, 6, axis=1).ravel(), np.tile(dofs, 6).ravel())
+        d_inv = d_inv + sp.coo_matrix((pair_inv.ravel(), entries), shape=a.shape).tocsr()
+    p = _basis(aggregates, q, mass, solved)
+    galerkin = (p.T @ a @ p).toarray()
+    # Each aggregate's 6x6 inverted alone, as the sweeps do (one thread per aggregate).
+    coarse = np.zeros_like(galerkin)
+    for g in range(0, len(galerkin), 6):
+        coarse[g:g + 6, g:g + 6] = np.linalg.inv(galerkin[g:g + 6, g:g + 6])
 
     def apply(x: np.ndarray) -> np.ndarray:
         r = a @ x
@@ -94,8 +208,8 @@ def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies: np.ndarray, q:
 
 class CoarseSpace:
     """The recorded coarse launches of the node sweeps (:mod:`softvr.contact._node_coarse_kernels`)
-    over ``bodies`` ([B, 2] node ranges, :func:`coarse_bodies`; none: every contact's coarse
-    sides stay empty and the sweeps are plain node-block Jacobi).
+    over ``bodies`` (:class:`Aggregates`, or [B, 2] node ranges from :func:`coarse_bodies`; none:
+    every contact's coarse sides stay empty and the sweeps are plain node-block Jacobi).
 
     Attributes
     ----------
@@ -103,14 +217,14 @@ class CoarseSpace:
         The struct the sweep kernels take.
     """
 
-    def __init__(self, model, state, bodies: np.ndarray):
+    def __init__(self, model, state, bodies):
         d = model.device
-        n, count = model.node_count, len(bodies)
+        aggregates = aggregates_of(bodies)
+        n, count = model.node_count, len(aggregates)
         for kernel in (_k.prepare_bodies, _k.contact_sides, _k.coarse_residual):
             load_kernels(kernel, d)
         node_body = np.full(n, -1, np.int32)
-        for b, (first, last) in enumerate(bodies):
-            node_body[first:last] = b
+        node_body[aggregates.nodes] = np.repeat(np.arange(count), np.diff(aggregates.start))
         capacity = state.contacts.capacity
         co = _k.Coarse()
         co.node_body = wp.array(node_body, dtype=wp.int32, device=d)
@@ -118,17 +232,17 @@ class CoarseSpace:
             setattr(co, name, wp.zeros(max(count, 1), dtype=wp.vec3d, device=d))
         for name in ("ll", "la", "aa"):
             setattr(co, name, wp.zeros(max(count, 1), dtype=wp.mat33d, device=d))
-        co.side = wp.full((capacity, 2), -1, dtype=wp.int32, device=d)
-        co.weight = wp.zeros((capacity, 2), dtype=wp.float64, device=d)
-        co.lever = wp.zeros((capacity, 2), dtype=wp.vec3d, device=d)
+        co.side = wp.full((capacity, _k.SIDES), -1, dtype=wp.int32, device=d)
+        co.weight = wp.zeros((capacity, _k.SIDES), dtype=wp.float64, device=d)
+        co.lever = wp.zeros((capacity, _k.SIDES), dtype=wp.vec3d, device=d)
         self.arrays = co
         self.count = count
         self._prepare: list[Callable[[], None]] = []
         self.residual: list[Callable[[], None]] = []
         if not count:
             return
-        first = wp.array(bodies[:, 0].astype(np.int32), dtype=wp.int32, device=d)
-        last = wp.array(bodies[:, 1].astype(np.int32), dtype=wp.int32, device=d)
+        start = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
+        nodes = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
         rows, cols = model.block_row.numpy(), model.block_col.numpy()
         diagonal = np.zeros(n, np.int32)  # each node's diagonal block
         diagonal[rows[rows == cols]] = np.flatnonzero(rows == cols)
@@ -136,13 +250,13 @@ class CoarseSpace:
         c = state.contacts
         self._prepare = [
             replayer(wp.launch(_k.prepare_bodies, dim=count, device=d, record_cmd=True,
-                               inputs=[first, last, state.q, model.mass, model.row_start, model.block_col,
+                               inputs=[start, nodes, state.q, model.mass, model.row_start, model.block_col,
                                        state.blocks, co])),
             replayer(wp.launch(_k.contact_sides, dim=capacity, device=d, record_cmd=True,
                                inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, state.q, co]))]
         self.residual = [replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
-                                            inputs=[first, last, state.q, model.row_start, self._diagonal,
-                                                    state.blocks, v, state.v_hat, co]))
+                                            inputs=[start, nodes, state.q, self._diagonal, state.blocks, v,
+                                                    state.v_hat, co]))
                          for v in state.sweep_buffers]
 
     def prepare(self) -> None:

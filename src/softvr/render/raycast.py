@@ -199,6 +199,9 @@ class RayCaster:
                 self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
                           [self._known, self._changed_bricks])
             self._changed_box = owners
+            # Occupancy before this change: a sample in a brick empty before and after it is
+            # transparent in both frames, whatever it reads (:meth:`_read_distance`).
+            self._occupied_before = self._seed.numpy() == 0
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if np.all(last >= first):
@@ -351,13 +354,16 @@ class RayCaster:
 
     def _read_distance(self) -> np.ndarray:
         """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
-        read a voxel that changed, capped at ``_READ_REACH`` [nb] uint8. A sample at p reads
-        voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central differences,
-        smoothing across slices), so in brick c (p in [c, c + 1) * BRICK, BRICK >= 3) it reads
-        voxels of the bricks c - 1 .. c + 1 per axis only: the bricks within 1 of a changed
-        brick, so the distance is the one to the changed bricks less 1. SciPy's transform on
-        the changed bricks' box grown by the cap: a few thousand bricks, where Warp launches
-        over them cost more to hand out than to run."""
+        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8. A sample
+        at p reads voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central
+        differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
+        BRICK >= 3) it reads voxels of the bricks c - 1 .. c + 1 per axis only. Its own
+        corners lie in brick c's range, so where c is empty (no value of non-zero opacity)
+        before and after the change the sample is transparent in both frames and what it
+        reads does not matter: the marked bricks are the occupied ones (before or after)
+        within 1 of a changed brick. SciPy's transform on the changed bricks' box grown by
+        the cap: a few thousand bricks, where Warp launches over them cost more to hand out
+        than to run."""
         nb = np.asarray(self._changed_bricks.shape)
         read = np.full(tuple(nb), _READ_REACH, np.uint8)
         if self._changed_box is None:
@@ -367,8 +373,11 @@ class RayCaster:
         box = tuple(slice(a, b + 1) for a, b in zip(first, last))
         changed = self._changed_bricks.numpy()[box] != 0
         if changed.any():
-            to_changed = ndimage.distance_transform_cdt(~changed, metric="chessboard")
-            read[box] = np.clip(to_changed - 1, 0, _READ_REACH)
+            near = ndimage.maximum_filter(changed, size=3, mode="constant")
+            marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
+            if marked.any():
+                to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
+                read[box] = np.minimum(to_marked, _READ_REACH)
         return read
 
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,

@@ -27,12 +27,12 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from softvr.collision.contacts import (ContactKind, Contacts, ContactSide, contact_keys, point_jacobian_blocks,
-                                      rigid_side, stencil_side)
+                                      rigid_side, stencil_side, unpack_keys)
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
-from softvr.contact.node_coarse import coarse_bodies
+from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -66,11 +66,11 @@ MAX_SWEEPS_PER_DECADE = 25.0
 PLAIN_LANCZOS_RESTARTS = 30
 #: PGS passes over the contacts per sweep.
 SWEEP_PASSES = 2
-#: The contact arrays a step's snapshot copies (NodeContacts), and those of the rigid path's
-#: contact rows its primitives' contacts point to.
+#: The contact arrays a step's snapshot copies (NodeContacts), and (snapshot name: ContactBuffer
+#: field) those of the rigid path's contact rows its primitives' contacts point to.
 _CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
                    "gap_after", "rigid_node", "rigid_lever", "area")
-_RIGID_CONTACT_FIELDS = ("key", "point_a", "point_b")
+_RIGID_CONTACT_FIELDS = {"key": "key", "point_a": "point_a", "point_b": "point_b", "rigid_area": "area"}
 
 
 class IllConditioned(Exception):
@@ -124,6 +124,15 @@ def spectrum(model, state) -> tuple[float, float]:
     return max(lo, 1e-6 * hi) * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]
 
 
+def _primitive_keys(rigid_keys: np.ndarray, body_a: int, body_b: int) -> np.ndarray:
+    """Scene keys [c] of primitive contacts from the rigid path's ``rigid_keys`` [c] (which
+    number the bodies among the rigid ones): bodies ``body_a`` and ``body_b`` (scene indices;
+    -1: side b is a plane, whose index the key keeps), kind and features as they are (what
+    the adhesion's ``primitive_key`` packs on the device)."""
+    f = unpack_keys(rigid_keys)
+    return contact_keys(f["kind"], body_a, f["feature_a"], f["body_b"] if body_b < 0 else body_b, f["feature_b"])
+
+
 class _NodeSnapshot(StepSnapshot):
     """A node step's snapshot (:class:`StepSnapshot`), with the collision points' positions
     ``x0`` [p, 3] [m] at the step's start."""
@@ -147,16 +156,17 @@ class _NodeSnapshot(StepSnapshot):
 
     def sets(self) -> list[np.ndarray]:
         """Rows of each contact set, in body order: one per (body, plane), then per (body, body
-        its vertices meet), then per (body, body its edges meet) (points or edges ascending);
-        contacts whose stencil is all driven nodes are left out."""
+        its vertices meet), then per (body, body its edges meet), then per (body, static sphere),
+        then per (body, static mesh) (points or edges ascending); contacts whose stencil is all
+        driven nodes are left out."""
         if self._sets is None:
             s = self._stepper
             c = self.contacts
             body = s.contact_body(c)
             order = np.lexsort((c["point"], c["other"], c["kind"], body))
             order = order[c["movable"][order]]
-            pair = (body[order] * 4 + c["kind"][order]) * (len(s.scene.planes) + len(s.scene.bodies) + 1) \
-                + c["other"][order]
+            statics = len(s.scene.planes) + len(s.scene.spheres) + len(s.scene.meshes)
+            pair = (body[order] * 6 + c["kind"][order]) * (statics + len(s.scene.bodies) + 1) + c["other"][order]
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
@@ -169,11 +179,12 @@ class _NodeSnapshot(StepSnapshot):
         for rows in self.sets():
             kind, other = int(c["kind"][rows[0]]), int(c["other"][rows[0]])
             normal, gap, friction = c["frame"][rows, 0], c["gap"][rows], c["friction"][rows]
-            if kind == 3:  # primitives of rigid bodies (the rigid path's contacts and keys)
+            if kind == 3:  # primitives of rigid bodies (the rigid path's contacts)
                 body = int(c["column"][rows[0]])
                 side_b = None if other < 0 else self._rigid_side(rows, other, -1.0)
                 sets.append(Contacts(self._rigid_side(rows, body, 1.0), side_b, normal, gap, c["point_a"][rows],
-                                     c["point_b"][rows], c["key"][rows], friction, np.zeros(len(rows))))
+                                     c["point_b"][rows], _primitive_keys(c["key"][rows], body, other), friction,
+                                     c["area"][rows]))
                 continue
             if kind == 2:  # edge pairs: both sides are two surface vertices
                 edge_a, edge_b = c["point"][rows], c["face"][rows]
@@ -195,8 +206,14 @@ class _NodeSnapshot(StepSnapshot):
             body = int(s.point_body[point[0]])
             local = point - model.body_point_start[body]
             x = self._x0[point]
+            point_b = x - gap[:, None] * normal
             if kind == 0:
                 side_b, keys = None, contact_keys(ContactKind.POINT_PLANE, body, local, other, 0)
+            elif kind == 4:
+                side_b, keys = None, contact_keys(ContactKind.POINT_SPHERE, body, local, other, 0)
+            elif kind == 5:  # the mesh's surface, its half thickness behind the contact's gap
+                point_b = x - (gap + s.scene.meshes[other].thickness)[:, None] * normal
+                side_b, keys = None, contact_keys(ContactKind.POINT_MESH, body, local, other, 0)
             else:
                 surface = model.surfaces[other]
                 faces = c["face"][rows] - int(s.triangle_start[other])
@@ -204,8 +221,7 @@ class _NodeSnapshot(StepSnapshot):
                                                            c["bary"][rows]), -1.0)
                 keys = contact_keys(ContactKind.VERTEX_TRIANGLE, body, local, other, 0)
             side_a = self._at_start(rows, ContactSide(body, *point_jacobian_blocks(s.colliders[body].points, local)), 1.0)
-            sets.append(Contacts(side_a, side_b, normal, gap, x, x - gap[:, None] * normal, keys, friction,
-                                 c["area"][rows]))
+            sets.append(Contacts(side_a, side_b, normal, gap, x, point_b, keys, friction, c["area"][rows]))
         islands = contact_islands(len(self.velocities),
                                   [(x.a.body, None if x.b is None else x.b.body) for x in sets])
         return ContactSolution(velocities=self.velocities, impulses=self.per_set("impulse"),
@@ -268,8 +284,8 @@ class NodeStepper:
                                                                                    "stencil_count")}
         self._host_arrays.update(point_x=st.point_x, diverged=st.diverged)
         if self.model.rigid is not None:
-            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, name)
-                                      for name in _RIGID_CONTACT_FIELDS})
+            self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
+                                      for name, field in _RIGID_CONTACT_FIELDS.items()})
         self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
             if wp.get_device(self.model.device).is_cpu else None
         k = len(self.model.kinematic)
@@ -323,23 +339,26 @@ class NodeStepper:
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
         """Contact keys of global points against carried-table columns: planes (kind
         POINT_PLANE, as points_vs_plane), then bodies (kind VERTEX_TRIANGLE, as
-        surface_vs_surface)."""
+        surface_vs_surface), then static spheres (kind POINT_SPHERE, as points_vs_sphere) and
+        meshes (kind POINT_MESH, as points_vs_mesh)."""
         start = self.model.body_point_start
         body = self.point_body[points]
         local = points - start[body]
         planes = len(self.scene.planes)
+        spheres = planes + len(self.scene.bodies)
+        meshes = spheres + len(self.scene.spheres)
         keys = np.empty(len(points), np.int64)
-        plane = columns < planes
-        if plane.any():
-            keys[plane] = contact_keys(ContactKind.POINT_PLANE, body[plane], local[plane], columns[plane], 0)
-        if (~plane).any():
-            keys[~plane] = contact_keys(ContactKind.VERTEX_TRIANGLE, body[~plane], local[~plane],
-                                        columns[~plane] - planes, 0)
+        for kind, rows, first in ((ContactKind.POINT_PLANE, columns < planes, 0),
+                                  (ContactKind.VERTEX_TRIANGLE, (columns >= planes) & (columns < spheres), planes),
+                                  (ContactKind.POINT_SPHERE, (columns >= spheres) & (columns < meshes), spheres),
+                                  (ContactKind.POINT_MESH, columns >= meshes, meshes)):
+            if rows.any():
+                keys[rows] = contact_keys(kind, body[rows], local[rows], columns[rows] - first, 0)
         return keys
 
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table
-        (points vs planes and vertices vs bodies; edge pairs start cold)."""
+        (points vs planes, spheres and meshes, vertices vs bodies; edge pairs start cold)."""
         table = self.state.contacts.carried.numpy()
         p, columns = self.model.point_count, table.shape[1]
         if not warm or not p:
@@ -391,7 +410,7 @@ class NodeStepper:
 
     def _record(self, dt: float) -> None:
         s = self.scene
-        key = (dt, tuple(s.gravity), s.pgs_iterations)
+        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd)
         if self._recorded is not None and self._recorded[0] == key:
             return
         m, st = self.model, self.state
@@ -400,7 +419,7 @@ class NodeStepper:
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
         couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
-        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction)
+        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction, s.ccd)
         carry = replayer(record_carry(m, st))
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
@@ -416,11 +435,11 @@ class NodeStepper:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
                 a, free = _free_matrix(self.model, self.state)
-                m = self.model
+                m, q = self.model, self.state.q.numpy()
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
                                                    MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
-                                                   (coarse_bodies(m), self.state.q.numpy(), m.mass.numpy()))
+                                                   (coarse_aggregates(m, q), q, m.mass.numpy()))
             choice = self._spectrum[dt]
             if choice.kind is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
@@ -508,9 +527,13 @@ class NodeStepper:
         any node of the contact's stencil."""
         n = min(int(self._host("count")[0]), self.state.contacts.capacity)
         out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
-        if self.rigid is not None:  # the primitives' keys and points, from the rigid path's rows
-            rows = np.where(out["kind"] == 3, out["point"], 0)
+        if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
+            primitive = out["kind"] == 3
+            rows = np.where(primitive, out["point"], 0)
             out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+            # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
+            # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
+            out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
         nodes = self._host("stencil_nodes")[:n]
         used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
         out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)

@@ -1,5 +1,6 @@
 """Which sweeps a scene on the node arrays takes (thesis eq. 5.6): node-block Jacobi, Jacobi with
-the bodies' rigid motions corrected exactly (:mod:`softvr.contact.node_coarse`), or
+the rigid motions of the free bodies and of the held bodies' aggregates corrected
+(:mod:`softvr.contact.node_coarse`), or
 multicolour symmetric block Gauss-Seidel (:mod:`softvr.contact.node_gauss_seidel`), whichever
 needs less work per decade of error, counting the contact PGS that every sweep of either kind
 runs; none when all are slower than the per-object sparse LU.
@@ -11,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softvr.contact.node_coarse import coarse_spectrum
+from softvr.contact.node_coarse import Aggregates, aggregates_of, coarse_spectrum
 from softvr.contact.node_colouring import NodeColouring, colour_nodes
 from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
 
@@ -53,6 +54,13 @@ COARSE_NODE = 3.0
 #: the pile, 700 contacts, would otherwise be declined while the same scene stepped there from
 #: its start is held).
 COARSE_PASSES = 12
+#: The coarse correction is taken over Gauss-Seidel, both over Jacobi's limit, only where it
+#: needs at most this share of Gauss-Seidel's estimated work: on the shoulder the two estimates
+#: were equal (36.8 and 36.9 Jacobi sweeps a decade) but the coarse sweeps ended its steps at
+#: the 100-sweep cap with changes of ~1e-2 m/s against Gauss-Seidel's ~3e-5 (its slowest mode
+#: is a spring-held rigid finger's, which the aggregates do not take); the head CT of
+#: palpation.toml (38.3 against 60.0) steps faster with it than per object.
+COARSE_OVER_GAUSS_SEIDEL = 0.8
 
 
 @dataclass(frozen=True)
@@ -72,9 +80,9 @@ class SweepChoice:
     work : dict
         Work per decade of each kind estimated, in this scene's Jacobi sweeps (contacts
         included); Jacobi's alone where nothing else was worth estimating.
-    coarse : ndarray or None
-        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
-        (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
+    coarse : Aggregates or ndarray or None
+        The aggregates (or [B, 2] node ranges of bodies) whose rigid motions the Jacobi sweeps
+        correct (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
     passes : int or None
         PGS passes over the contacts per sweep (:data:`COARSE_PASSES` with ``coarse``); None:
         the caller's.
@@ -85,7 +93,7 @@ class SweepChoice:
     colours: NodeColouring | None
     omega: float
     work: dict
-    coarse: np.ndarray | None = None
+    coarse: Aggregates | np.ndarray | None = None
     passes: int | None = None
 
 
@@ -115,6 +123,29 @@ def sweep_costs(row_start: np.ndarray, colours: NodeColouring, contacts: int, pa
     return jacobi, gauss_seidel
 
 
+def _coarse_choice(a, free: np.ndarray, coarse: tuple, jacobi_cost: float, margin: tuple[float, float],
+                   work: dict) -> SweepChoice:
+    """The coarse-corrected Jacobi sweeps of least work per decade (recorded in ``work["coarse"]``)
+    over the aggregates ``coarse[0]`` (:class:`softvr.contact.node_coarse.Aggregates`, or node
+    ranges) and, where some are whole free bodies and some parts of held ones, over the whole
+    bodies alone: the held bodies' aggregates widen the spectrum at its top, so they pay only
+    where the held bodies hold the slowest modes (the candy: its Jell-O's aggregates took its
+    free-fall steps from 50-60 sweeps to 64-74; the shoulder and the head CT have only held bodies)."""
+    aggregates = aggregates_of(coarse[0])
+    candidates = [aggregates]
+    if 0 < aggregates.whole < len(aggregates):
+        candidates.append(aggregates.head(aggregates.whole))
+    choices = []
+    for bodies in candidates:
+        lo, hi = coarse_spectrum(a, free, bodies, *coarse[1:])
+        bounds = (lo * margin[0], hi * margin[1])
+        # Its extra PGS passes are not charged: they save as many sweeps as they cost (COARSE_PASSES).
+        cost = sweeps_per_decade(bounds) * (1.0 + (COARSE_NODE * len(bodies.nodes) + LAUNCH) / jacobi_cost)
+        choices.append((cost, SweepChoice("jacobi", bounds, None, 1.0, work, bodies, COARSE_PASSES)))
+    work["coarse"], best = min(choices, key=lambda choice: choice[0])
+    return best
+
+
 def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndarray,
                   jacobi_bounds: tuple[float, float], jacobi_limit: float, contacts: int, passes: int,
                   margin: tuple[float, float], coarse: tuple | None = None) -> SweepChoice:
@@ -124,32 +155,32 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     pattern (host, [n + 1], [nb]); ``a`` [3 k, 3 k] ``A`` over the free nodes, ``free`` [n]
     which nodes those are; ``jacobi_bounds`` Jacobi's spectrum (with margins); ``contacts`` the
     contacts of this step, ``passes`` their PGS passes a sweep; ``margin`` the factors on the
-    other kinds' bounds (as on Jacobi's); ``coarse`` (bodies [B, 2], q [n, 3] [m], mass [n]
-    [kg]) the bodies the coarse correction may take (:func:`softvr.contact.node_coarse.coarse_bodies`).
+    other kinds' bounds (as on Jacobi's); ``coarse`` (aggregates, q [n, 3] [m], mass [n] [kg])
+    the aggregates the coarse correction may take (:func:`softvr.contact.node_coarse.coarse_aggregates`,
+    or [B, 2] node ranges of :func:`~softvr.contact.node_coarse.coarse_bodies`).
     Jacobi is taken without estimating the others where they cannot pay
     (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
-    limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the candy)."""
+    limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the
+    candy), and otherwise over Gauss-Seidel where it needs clearly less work
+    (:data:`COARSE_OVER_GAUSS_SEIDEL`)."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
     if jacobi_work <= min(GAUSS_SEIDEL_FROM, jacobi_limit) and gs_cost >= GAUSS_SEIDEL_COST_FLOOR * jacobi_cost:
         return SweepChoice("jacobi", jacobi_bounds, None, 1.0, {"jacobi": jacobi_work})
+    work = {"jacobi": jacobi_work}
     if jacobi_work > jacobi_limit and coarse is not None and len(coarse[0]):
-        bodies = coarse[0]
-        lo, hi = coarse_spectrum(a, free, *coarse)
-        coarse_bounds = (lo * margin[0], hi * margin[1])
-        nodes = float((bodies[:, 1] - bodies[:, 0]).sum())
-        # Its extra PGS passes are not charged: they save as many sweeps as they cost (COARSE_PASSES).
-        coarse_work = sweeps_per_decade(coarse_bounds) * (1.0 + (COARSE_NODE * nodes + LAUNCH) / jacobi_cost)
-        if coarse_work <= jacobi_limit:
-            return SweepChoice("jacobi", coarse_bounds, None, 1.0, {"jacobi": jacobi_work, "coarse": coarse_work},
-                               bodies, COARSE_PASSES)
+        coarse_choice = _coarse_choice(a, free, coarse, jacobi_cost, margin, work)
+        if work["coarse"] <= jacobi_limit:
+            return coarse_choice
     index = np.cumsum(free) - 1
     order = index[colours.order[free[colours.order]]]
     lo, hi = gauss_seidel_spectrum(a, order) if len(order) else (1.0, 1.0)
     gs_bounds = (lo * margin[0], hi * margin[1])
-    gs_work = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
-    work = {"jacobi": jacobi_work, "gauss-seidel": gs_work}
-    if gs_work < jacobi_work and gs_work <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE:
+    work["gauss-seidel"] = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
+    if "coarse" in work and work["coarse"] <= min(COARSE_OVER_GAUSS_SEIDEL * work["gauss-seidel"],
+                                                  MAX_GAUSS_SEIDEL_WORK_PER_DECADE):
+        return coarse_choice
+    if work["gauss-seidel"] < jacobi_work and work["gauss-seidel"] <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE:
         return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
     return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)

@@ -92,6 +92,13 @@ class NodeModel:
         ``n . point`` of each plane.
     plane_friction : wp.array(float64) [s]
         Coulomb coefficient of each plane.
+    sphere_center : wp.array(vec3d) [k] [m]; sphere_radius : wp.array(float64) [k] [m];
+    sphere_friction : wp.array(float64) [k]
+        The static spheres (``Scene.spheres``).
+    static_meshes : list of wp.Mesh; static_mesh_ids : wp.array(uint64) [ms]
+        The static triangle meshes' (``Scene.meshes``) BVHs on the arrays' device.
+    static_mesh_thickness : wp.array(float32) [ms] [m]; static_mesh_friction : wp.array(float64) [ms]
+        Their half thicknesses and Coulomb coefficients.
     point_body : wp.array(int32) [p]
         Body of each collision point.
     body_point_start_wp : wp.array(int32) [bodies + 1]
@@ -164,6 +171,13 @@ class NodeModel:
     plane_normal: wp.array
     plane_offset: wp.array
     plane_friction: wp.array
+    sphere_center: wp.array
+    sphere_radius: wp.array
+    sphere_friction: wp.array
+    static_meshes: list
+    static_mesh_ids: wp.array
+    static_mesh_thickness: wp.array
+    static_mesh_friction: wp.array
     point_body: wp.array
     body_point_start_wp: wp.array
     triangles: wp.array
@@ -188,9 +202,10 @@ class NodeModel:
 
 @dataclass
 class NodeContacts:
-    """Contacts of collision points with planes and of surface vertices with other bodies'
-    triangles, fixed capacity ``c`` (every point against every plane and every other body);
-    rows ``[:count[0]]`` hold this step's (``p`` points, ``s`` planes, ``B`` bodies).
+    """Contacts of collision points with planes, static spheres and meshes and of surface
+    vertices with other bodies' triangles, fixed capacity ``c`` (every point against every
+    plane, sphere, mesh and other body); rows ``[:count[0]]`` hold this step's (``p`` points,
+    ``s`` planes, ``k`` spheres, ``ms`` meshes, ``B`` bodies).
 
     Attributes
     ----------
@@ -199,15 +214,16 @@ class NodeContacts:
     kind : wp.array(int32) [c]
         0: point vs plane, 1: surface vertex vs a triangle of another body, 2: edge vs edge,
         3: a rigid body's box or sphere primitive vs a plane or another primitive (``column``
-        side a's body, ``point`` the rigid path's contact row, ``other`` side b's body or -1).
+        side a's body, ``point`` the rigid path's contact row, ``other`` side b's body or -1),
+        4: point vs static sphere, 5: point vs static mesh.
     column : wp.array(int32) [c]
-        The contact's column in ``carried`` (kinds 0, 1) or ``edge_carried`` (kind 2).
+        The contact's column in ``carried`` (kinds 0, 1, 4, 5) or ``edge_carried`` (kind 2).
     point : wp.array(int32) [c]
         The collision point (global), or edge (global, kind 2); with its body and ``other`` it
         makes the contact's key (:func:`softvr.collision.contact_keys`, kinds POINT_PLANE,
-        VERTEX_TRIANGLE, EDGE_EDGE).
+        VERTEX_TRIANGLE, EDGE_EDGE, POINT_SPHERE, POINT_MESH).
     other : wp.array(int32) [c]
-        The plane, or the body met.
+        The plane, sphere or mesh, or the body met.
     face : wp.array(int32) [c]; bary : wp.array(vec3d) [c]
         The triangle met (global, -1 for a plane) and the contact point's barycentric
         coordinates in it; for an edge pair the edge met (global) and (s, t, 0), where the
@@ -225,11 +241,14 @@ class NodeContacts:
     stencil_weights : wp.array2d(float64) [c, 16]
         The contact's relative velocity is ``sum_k w_k v[node_k]`` (side a's nodes positive,
         side b's negative, each node once).
-    carried : wp.array2d(vec3d) [p, s + B] [N s]
-        World impulse of each (point, plane) and (vertex, body) pair at the last step: the
-        next warm start.
+    carried : wp.array2d(vec3d) [p, s + B + k + ms] [N s]
+        World impulse of each (point, plane), (vertex, body), (point, sphere) and (point, mesh)
+        pair at the last step: the next warm start.
     hit, hit_face, hit_bary, hit_normal, hit_gap : wp.array2d [p, B]
         The vertex queries' findings, per (point, body).
+    static_hit : wp.array2d(int32) [p, ms]; static_normal : wp.array2d(vec3) [p, ms];
+    static_gap : wp.array2d(float32) [p, ms] [m]
+        The static mesh queries' findings, per (point, mesh) (single precision, the BVHs').
     pair_edge, pair_st, pair_normal, pair_gap : wp.array2d [e, 2 B]
         The edge queries' findings (edge met, or -1), per (edge, slot).
     edge_carried : wp.array2d(vec3d) [e, 2 B] [N s]; edge_partner : wp.array2d(int32) [e, 2 B]
@@ -268,6 +287,9 @@ class NodeContacts:
     hit_bary: wp.array
     hit_normal: wp.array
     hit_gap: wp.array
+    static_hit: wp.array
+    static_normal: wp.array
+    static_gap: wp.array
     pair_edge: wp.array
     pair_st: wp.array
     pair_normal: wp.array
@@ -347,20 +369,22 @@ class NodeState:
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
-    and fixed bodies (with or without one, where no rigid body has one), static planes,
-    couplings between them (each side an FEM body's embedded points or a kinematic or fixed
-    body's points, or a rigid body's where it collides with nothing); adhesion; no static meshes
-    or spheres; at most one set of collision points per body (an FEM body's
+    and fixed bodies (with or without one, where it meets no rigid body's of its kind), static planes,
+    static spheres and meshes (in a scene without adhesion or rigid primitives), couplings
+    between them (each side an FEM body's embedded points or a kinematic, fixed or rigid body's
+    points); adhesion; at most one set of collision points per body (an FEM body's
     :class:`~softvr.collision.EmbeddedPoints` with stencils of at most 4 nodes, a rigid, kinematic
     or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's collision surface over
     its own points."""
-    if scene.meshes or scene.spheres or not couplings_supported(scene):
+    if not couplings_supported(scene):
         return False
-    # A kinematic or fixed body's collision sphere or box meets only planes and other
-    # primitives, which cannot move it: its contacts would all be dropped, so none may meet a
-    # rigid body's primitive.
-    driven = [type(scene.bodies[i]) in (KinematicBody, FixedBody) for i, _ in scene._sphere_bodies + scene._box_bodies]
-    if any(driven) and not all(driven):
+    # The adhesion's contact kernel knows planes, not spheres or meshes; a rigid body with a
+    # primitive has its collision points meet no static (its primitive meets the planes instead).
+    adhesive = any(a is not None for a in scene._adhesion.values())
+    rigid_primitive = any(type(scene.bodies[i]) is RigidBody for i, _ in scene._sphere_bodies + scene._box_bodies)
+    if (scene.spheres or scene.meshes) and (adhesive or rigid_primitive):
+        return False
+    if _driven_primitive_meets_rigid(scene):
         return False
     fem = [b for b in scene.bodies if type(b) is FemBody]
     if not fem or len({b.corotational for b in fem}) != 1:
@@ -379,6 +403,22 @@ def node_model_supported(scene) -> bool:
             return False
     points = {c.body: c.points for c in scene._colliders}
     return all(points.get(s.body_index) is s.points for s in scene._surfaces)
+
+
+def _driven_primitive_meets_rigid(scene) -> bool:
+    """Whether a kinematic or fixed body's collision sphere or box would meet a rigid body's of
+    the same kind (two spheres or two boxes meet by their primitives, as per object; a sphere
+    and a box by their surfaces). The arrays' primitive detection holds the rigid bodies alone
+    (it has no driven side), so such a pair would lose its contacts; a driven primitive that the
+    collision filters keep from every rigid one (candy-adhesive's hand) is harmless: against
+    planes it cannot be moved."""
+    for shapes in (scene._sphere_bodies, scene._box_bodies):
+        kinds = [(i, type(scene.bodies[i])) for i, _ in shapes]
+        for i, kind_i in kinds:
+            for j, kind_j in kinds:
+                if kind_i in (KinematicBody, FixedBody) and kind_j is RigidBody and scene.collision_enabled(i, j):
+                    return True
+    return False
 
 
 def _i32(values, device):
@@ -524,6 +564,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         bvh = wp.Bvh(edge_lower[rows], edge_upper[rows])
         bvhs.append(bvh)
         bvh_ids[i] = bvh.id
+    static_meshes = [wp.Mesh(points=wp.array(m.vertices, dtype=wp.vec3, device=d),
+                             indices=wp.array(m.triangles.ravel(), dtype=wp.int32, device=d)) for m in scene.meshes]
     f64_nodes = [b.mass if f else np.ones(k) for b, f, k in zip(bodies, fem, node_counts)]
     model = NodeModel(
         device=d, node_count=n, tet_count=m, block_count=len(block_row), point_count=p,
@@ -545,6 +587,12 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
         plane_friction=_f64([pl.friction for pl in planes], d),
+        sphere_center=_f64(np.array([sp.center for sp in scene.spheres], float).reshape(-1, 3), d, wp.vec3d),
+        sphere_radius=_f64([sp.radius for sp in scene.spheres], d),
+        sphere_friction=_f64([sp.friction for sp in scene.spheres], d),
+        static_meshes=static_meshes, static_mesh_ids=wp.array([m.id for m in static_meshes], dtype=wp.uint64, device=d),
+        static_mesh_thickness=wp.array([m.thickness for m in scene.meshes], dtype=wp.float32, device=d),
+        static_mesh_friction=_f64([m.friction for m in scene.meshes], d),
         point_body=_i32(np.repeat(np.arange(nbody), point_counts), d), body_point_start_wp=_i32(point_start, d),
         triangles=_i32(triangles.reshape(-1, 3), d), body_triangle_start=_i32(tri_start, d),
         surfaces=surfaces, meshes=meshes, mesh_ids=wp.array(mesh_ids, dtype=wp.uint64, device=d),
@@ -560,9 +608,11 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
                                        block_row.astype(np.int64) * n + block_col, driven, d),
         rigid=build_node_rigid(scene, node_start, point_start, d))
     surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
-    capacity = max(p * len(planes) + surface_rows + PAIRS_PER_EDGE * e
+    statics = len(planes) + len(scene.spheres) + len(scene.meshes)
+    capacity = max(p * statics + surface_rows + PAIRS_PER_EDGE * e
                    + (model.rigid.model.contact_capacity if model.rigid is not None else 0), 1)
     wide = (max(p, 1), nbody)
+    static_wide = (max(p, 1), max(len(scene.meshes), 1))
     edge_wide = (max(e, 1), PAIRS_PER_EDGE * nbody)
     contacts = NodeContacts(
         capacity=capacity, count=wp.zeros(1, dtype=wp.int32, device=d),
@@ -576,10 +626,13 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         stencil_count=wp.zeros(capacity, dtype=wp.int32, device=d),
         stencil_nodes=wp.full((capacity, CONTACT_STENCIL), -1, dtype=wp.int32, device=d),
         stencil_weights=wp.zeros((capacity, CONTACT_STENCIL), dtype=wp.float64, device=d),
-        carried=wp.zeros((max(p, 1), len(planes) + nbody), dtype=wp.vec3d, device=d),
+        carried=wp.zeros((max(p, 1), statics + nbody), dtype=wp.vec3d, device=d),
         hit=wp.zeros(wide, dtype=wp.int32, device=d), hit_face=wp.zeros(wide, dtype=wp.int32, device=d),
         hit_bary=wp.zeros(wide, dtype=wp.vec3d, device=d), hit_normal=wp.zeros(wide, dtype=wp.vec3d, device=d),
         hit_gap=wp.zeros(wide, dtype=wp.float64, device=d),
+        static_hit=wp.zeros(static_wide, dtype=wp.int32, device=d),
+        static_normal=wp.zeros(static_wide, dtype=wp.vec3, device=d),
+        static_gap=wp.zeros(static_wide, dtype=wp.float32, device=d),
         pair_edge=wp.full(edge_wide, -1, dtype=wp.int32, device=d),
         pair_st=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
         pair_normal=wp.zeros(edge_wide, dtype=wp.vec3d, device=d),
