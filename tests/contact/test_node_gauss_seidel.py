@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import warp as wp
 
 from softvr.contact.node_colouring import colour_nodes
-from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
+from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Material
 from softvr.sim import _node_step, _node_sweeps
@@ -169,3 +170,54 @@ def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkey
                                          spectrum(m, stepper.state), 25.0, 10 ** 6, 2, SPECTRUM_MARGIN)
     assert crowded.work["gauss-seidel"] / crowded.work["jacobi"] < choice.work["gauss-seidel"] / choice.work["jacobi"]
     assert crowded.kind == "gauss-seidel"  # its fewer sweeps (the spectrum test) now win
+
+
+def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order():
+    """One sweep's node update (kernels of softvr.contact._node_gs_kernels, the rows read from
+    their colour-ordered copy) against the sweep written out in NumPy on A, b of eq. 5.2 as
+    the per-object path assembles them (SciPy): colours forward, x_i = A_ii^-1 (b_i -
+    sum_{j != i} A_ij x_j); the contact nodes (a random fifth, marked by hand) damped Jacobi,
+    (1 - omega) v_i + omega A_ii^-1 (b_i - sum_{j != i} A_ij x_j), from the swept x; colours
+    backward. No contact projects anything. Tolerance: each update is a sum of at most 27
+    block products in f64, so it carries a rounding of ~81 eps times the sum of the magnitudes
+    of its terms (Higham, dot products: gamma_n); 4x that, over both halves, per node."""
+    body = _stiff_block(cells=3)
+    rng = np.random.default_rng(2)
+    body.v = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    dt, omega = 0.01, 0.7
+    scene, stepper = _prepared(body, dt)
+    m, n = stepper.model, len(body.q)
+    colours = colour_nodes(m.row_start.numpy(), m.block_col.numpy())
+    assert colours.count >= 4
+    sweep = GaussSeidelSweep(m, stepper.state, colours, omega)
+    sweep.prepare()
+    contact = rng.random(n) < 0.2
+    contact[body.fixed] = False
+    sweep.contact_node.numpy()[:] = contact
+    v = wp.array(body.v, dtype=wp.vec3d, device=m.device)
+    sweep.record(v, lambda: None)()
+
+    system = body.step_system(dt, scene.gravity)
+    a = system.matrix.toarray().reshape(n, 3, n, 3).transpose(0, 2, 1, 3)
+    b = system.rhs.reshape(n, 3)
+    fixed = system.prescribed.reshape(n, 3).all(axis=1)
+    x, size = body.v.copy(), np.zeros(n)
+
+    def update(i):
+        others = np.arange(n) != i
+        terms = np.einsum("jab,jb->ja", a[i, others], x[others])
+        size[i] += np.abs(np.linalg.inv(a[i, i])).max() * (np.abs(b[i]).max() + np.abs(terms).sum(axis=0).max())
+        return np.linalg.solve(a[i, i], b[i] - terms.sum(axis=0))
+
+    def half(order):
+        for i in order:
+            if not contact[i]:
+                x[i] = system.value.reshape(n, 3)[i] if fixed[i] else update(i)
+
+    half(colours.order)
+    x[contact] = [(1.0 - omega) * body.v[i] + omega * update(i) for i in np.flatnonzero(contact)]
+    half(colours.order[::-1])
+    assert contact.sum() > 5 and not np.allclose(x, body.v)
+    tolerance = 4 * 81 * np.finfo(float).eps * size
+    np.testing.assert_array_less(np.abs(stepper.state.v_hat.numpy() - x).max(axis=1), tolerance + 1e-300)

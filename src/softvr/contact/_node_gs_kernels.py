@@ -37,22 +37,51 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
     w[i] = v[i]
 
 
+@wp.func
+def _off_row(t: int, i: int, off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+             off_blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d)):
+    """``b_i - sum_{j != i} A_ij w_j`` [kg m/s] of node ``i``, the ``t``-th in colour order,
+    from the colour-ordered copy of its off-diagonal blocks: the same terms in the same order
+    as :func:`softvr.contact._node_jacobi_kernels.block_update` takes them from ``A``'s rows,
+    so the same sum to the bit, but read one after the other and with no test per block."""
+    r = b[i]
+    for k in range(off_start[t], off_start[t + 1]):
+        r = r - off_blocks[k] * w[off_col[k]]
+    return r
+
+
+@wp.kernel
+def gather_off_blocks(blocks: wp.array(dtype=wp.mat33d), off_source: wp.array(dtype=wp.int32),
+                      off_blocks: wp.array(dtype=wp.mat33d)):
+    """``off_blocks[k] = blocks[off_source[k]]`` [kg]: this step's off-diagonal blocks of ``A``
+    in colour order (once a step, before the sweeps)."""
+    k = wp.tid()
+    off_blocks[k] = blocks[off_source[k]]
+
+
 @wp.kernel
 def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
-                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32), first: int, last: int,
-                 w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
+                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                 off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                 off_blocks: wp.array(dtype=wp.mat33d), first: int, last: int, w: wp.array(dtype=wp.vec3d),
+                 v_hat: wp.array(dtype=wp.vec3d), offset: int):
     """Steps 1 and 4: update ``w`` [m/s] of the nodes ``order[first + t]`` of one colour that
     are not contact nodes (neighbours not yet updated hold the sweep's start); on their
-    ``last`` update of the sweep, ``v_hat`` [m/s] too."""
-    i = order[first + wp.tid() + offset]
+    ``last`` update of the sweep, ``v_hat`` [m/s] too. A node without a pair partner reads its
+    row from the colour-ordered off-diagonal copy (``off_*``, :func:`gather_off_blocks`)."""
+    t = first + wp.tid() + offset
+    i = order[t]
     if contact_node[i] != 0:
         return
     value = fixed_velocity[i]
     if fixed[i] == 0:
-        value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+        if partner[i] >= 0:
+            value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+        else:
+            value = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
     w[i] = value
     if last != 0:
         v_hat[i] = value
@@ -63,18 +92,25 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
                   blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
                   partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
                   fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
-                  contact_node: wp.array(dtype=wp.int32), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                  off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
-    """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes from the
-    sweep's start ``v`` and the swept ``w`` [m/s]."""
-    i = wp.tid() + offset
+    """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes (``order[t]``,
+    thread t) from the sweep's start ``v`` and the swept ``w`` [m/s]."""
+    t = wp.tid() + offset
+    i = order[t]
     if contact_node[i] == 0:
         return
     if fixed[i] != 0:
         v_hat[i] = fixed_velocity[i]
         return
-    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * block_update(i, row_start, block_col, blocks, d_inv, partner,
-                                                                        cross, b, w)
+    update = wp.vec3d()
+    if partner[i] >= 0:
+        update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+    else:
+        update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
+    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * update
 
 
 @wp.kernel

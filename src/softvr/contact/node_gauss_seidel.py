@@ -19,7 +19,7 @@ from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
 from softvr.device import chunked_replayer, in_order, replayer
 
-__all__ = ["GaussSeidelSweep", "gauss_seidel_spectrum"]
+__all__ = ["GaussSeidelSweep", "gauss_seidel_spectrum", "off_diagonal_rows"]
 
 
 class GaussSeidelSweep:
@@ -58,9 +58,21 @@ class GaussSeidelSweep:
                                             inputs=[state.d_inv, model.couplings.cross, self.omega, self.metric,
                                                     self.cross_metric]))]
         self._colouring = colouring
+        # The colour passes read the rows in colour order: a copy of the off-diagonal blocks
+        # laid out that way (gathered once a step) reads them one after the other.
+        off_start, off_col, off_source = off_diagonal_rows(model.row_start.numpy(), model.block_col.numpy(),
+                                                           model.couplings.partner.numpy(), colouring.order)
+        self._off_start: wp.array = wp.array(off_start, dtype=wp.int32, device=d)
+        self._off_col: wp.array = wp.array(off_col, dtype=wp.int32, device=d)
+        self._off_blocks = wp.zeros(len(off_source), dtype=wp.mat33d, device=d)
+        if len(off_source):  # none where every node is a spring-held rigid body's
+            source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
+            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
+                                                    record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
 
     def prepare(self) -> None:
-        """Mark this step's contact nodes and set the metric (once a step, after detection)."""
+        """Mark this step's contact nodes, set the metric and gather the colour-ordered
+        off-diagonal blocks (once a step, after detection and ``A``)."""
         self.contact_node.zero_()
         for replay in self._prepare:
             replay()
@@ -73,16 +85,40 @@ class GaussSeidelSweep:
         rows = [m.row_start, m.block_col, st.blocks, st.d_inv, m.couplings.partner, m.couplings.cross, st.b, m.fixed,
                 st.fixed_velocity, self.contact_node]
 
+        off = [self._order, self._off_start, self._off_col, self._off_blocks]
+
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
-                                    [*rows, self._order, int(start[c]), last, w, st.v_hat], d, min_chunk=256)
+                                    [*rows, *off, int(start[c]), last, w, st.v_hat], d)
 
         replays = [chunked_replayer(_k.start, n, [v, w], d)]
         replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]]
-        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, self.omega, v, w, st.v_hat], d), contacts,
+        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.omega, v, w, st.v_hat], d), contacts,
                     chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
         replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]]
         return in_order(*replays)
+
+
+def off_diagonal_rows(row_start: np.ndarray, block_col: np.ndarray, partner: np.ndarray,
+                      order: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The block-CSR pattern of ``A``'s off-diagonal blocks with the rows in colour order:
+    ``(start, col, source)``, row ``t`` (node ``order[t]``, [n]) holding the blocks
+    ``source[start[t] : start[t + 1]]`` of ``A``'s ``blocks`` with columns ``col`` (each row's
+    blocks in their order in ``A``, its diagonal block left out). A node with a pair partner
+    (a spring-held rigid body's, whose ``D_A`` block is 6x6) gets an empty row: the sweep
+    takes its update from ``A``'s own rows. ``row_start`` [n + 1], ``block_col`` [nb],
+    ``partner`` [n] (-1: none) as in :class:`softvr.sim.NodeModel`."""
+    row_start = np.asarray(row_start, np.int64)
+    order = np.asarray(order, np.int64)
+    node = np.repeat(np.arange(len(row_start) - 1), np.diff(row_start))
+    keep = (np.asarray(block_col) != node) & (np.asarray(partner)[node] < 0)
+    position = np.empty(len(order), np.int64)
+    position[order] = np.arange(len(order))
+    # A stable sort by the row's colour position keeps each row's blocks in A's order.
+    source = np.flatnonzero(keep)
+    source = source[np.argsort(position[node[source]], kind="stable")]
+    start = np.concatenate([[0], np.cumsum(np.bincount(position[node[source]], minlength=len(order)))])
+    return start.astype(np.int32), np.asarray(block_col)[source].astype(np.int32), source.astype(np.int32)
 
 
 def gauss_seidel_spectrum(a: sp.spmatrix, order: np.ndarray) -> tuple[float, float]:
