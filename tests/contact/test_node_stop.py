@@ -19,11 +19,11 @@ import pytest
 from softvr import Scene
 from softvr.collision import Plane
 from softvr.contact import Adhesion
-from softvr.dynamics import FemBody, RigidBody, RigidPoints
+from softvr.dynamics import RigidBody, RigidPoints
 from softvr.model.shapes import box_surface
 
 from tests.contact.test_node_adhesion import _add_block
-from tests.sim.test_node_rigid import VELOCITY_TOL, _generalized, _system
+from tests.sim.test_node_rigid import VELOCITY_TOL, _generalized, _system, contact_velocities
 
 G = 9.81  # [m/s^2]
 MU = 0.5
@@ -64,16 +64,8 @@ def _check_step(scene, systems, solution, bonded, dt):
     weight = max(b.mass if type(b) is RigidBody else b.mass.sum() for b in bodies) * G * dt
     mixed = pulling = 0
     for contacts, lam, frames in zip(solution.contacts, solution.impulses, solution.frames):
-        world = np.einsum("ci,cij->cj", lam, frames)
-        rel = np.zeros_like(world)
-        for side, sign in ((contacts.a, 1.0), (contacts.b, -1.0)):
-            if side is None:
-                continue
-            rel += sign * np.einsum("ckij,ckj->ci", side.jac, v[side.body][side.blocks])
-            np.add.at(impulse[side.body], side.blocks, sign * np.einsum("ckji,cj->cki", side.jac, world))
-        if contacts.b is not None and {type(bodies[contacts.a.body]), type(bodies[contacts.b.body])} == \
-                {FemBody, RigidBody}:
-            mixed += len(lam)
+        rel, is_mixed = contact_velocities(bodies, v, impulse, contacts, lam, frames)
+        mixed += is_mixed * len(lam)
         glued = np.isin(contacts.ids, list(bonded))
         pulling += int((lam[:, 0] < 0).sum())
         assert (lam[glued, 0] < 0).sum() == (lam[:, 0] < 0).sum()  # only bonds pull

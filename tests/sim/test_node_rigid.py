@@ -59,6 +59,23 @@ def _generalized(body, v):
     return np.asarray(v, float).reshape(len(body.q), 3) if type(body) is FemBody else np.reshape(v, (1, 6))
 
 
+def contact_velocities(bodies, v, impulse, contacts, lam, frames):
+    """One contact set's relative velocities ``J v`` [c, 3] [m/s] (world axes) from the body
+    velocity blocks ``v``, with its impulses ``lam`` [c, 3] [N s] (contact frames ``frames``
+    [c, 3, 3]) added into the bodies' ``impulse`` blocks as ``J^T lambda`` (side a takes
+    +lambda, side b -lambda); also whether its sides are an FEM and a rigid body."""
+    world = np.einsum("ci,cij->cj", lam, frames)
+    rel = np.zeros_like(world)
+    for side, sign in ((contacts.a, 1.0), (contacts.b, -1.0)):
+        if side is None:
+            continue
+        rel += sign * np.einsum("ckij,ckj->ci", side.jac, v[side.body][side.blocks])
+        np.add.at(impulse[side.body], side.blocks, sign * np.einsum("ckji,cj->cki", side.jac, world))
+    mixed = contacts.b is not None and {type(bodies[contacts.a.body]), type(bodies[contacts.b.body])} == \
+        {FemBody, RigidBody}
+    return rel, mixed
+
+
 def _check_mlcp(scene, systems, solution, dt, mu):
     """Eq. 5.5 for every body and contact of a step: A v = b + J^T lambda per body (side a
     takes +lambda, side b -lambda), lambda_n >= 0, n . J v >= -gap / dt with equality where the
@@ -70,16 +87,8 @@ def _check_mlcp(scene, systems, solution, dt, mu):
     mixed = 0
     weight = max(b.mass if type(b) is RigidBody else b.mass.sum() for b in bodies) * G * dt
     for contacts, lam, frames in zip(solution.contacts, solution.impulses, solution.frames):
-        world = np.einsum("ci,cij->cj", lam, frames)
-        rel = np.zeros_like(world)
-        for side, sign in ((contacts.a, 1.0), (contacts.b, -1.0)):
-            if side is None:
-                continue
-            rel += sign * np.einsum("ckij,ckj->ci", side.jac, v[side.body][side.blocks])
-            np.add.at(impulse[side.body], side.blocks, sign * np.einsum("ckji,cj->cki", side.jac, world))
-        if contacts.b is not None and {type(bodies[contacts.a.body]), type(bodies[contacts.b.body])} == \
-                {FemBody, RigidBody}:
-            mixed += len(lam)
+        rel, is_mixed = contact_velocities(bodies, v, impulse, contacts, lam, frames)
+        mixed += is_mixed * len(lam)
         vn = np.einsum("ci,ci->c", rel, contacts.normal)
         assert (lam[:, 0] >= 0).all()
         assert (vn >= -contacts.gap / dt - VELOCITY_TOL).all()
