@@ -324,6 +324,9 @@ class SceneExample(Player):
             self._add_model(scene, model)
         for spec in scene_file.bodies:
             self._add(scene, spec)
+        # The haptic handles' ball (unit vertices, triangles), made once: an icosphere costs ~4 ms,
+        # too much for every frame's drawables().
+        self._handle_ball = icosphere(2) if self.tools else (np.zeros((0, 3)), np.zeros((0, 3), np.int32))
         for a, b in scene_file.filters:
             scene.disable_collision(self.index[a], self.index[b])
         for spec in scene_file.bodies:
@@ -754,8 +757,7 @@ class SceneExample(Player):
             items.append(Drawable(d.name, "mesh", np.asarray(d.vertices(), float), d.triangles,
                                   tuple(float(c) for c in d.color), float(d.opacity), pose,
                                   "render" if d.visible else "hidden"))
-        if self.tools:  # the handles' ball: an icosphere costs ~4 ms a call
-            ball, triangles = icosphere(2)
+        ball, triangles = self._handle_ball
         for tool in self.tools:
             handle = tool.handle
             items.append(Drawable(f"{tool.tool.name} handle", "mesh", handle.position + _HANDLE_RADIUS * ball,
