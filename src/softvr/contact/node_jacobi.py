@@ -54,6 +54,21 @@ def _contact_threads(device) -> int:
     return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
 
 
+def _own_blocks(model) -> wp.array:
+    """[n] 1 where node ``i`` has its diagonal block in ``A``'s rows (every FEM node, and a
+    spring-held rigid body's: the residual form of :func:`_node_jacobi_kernels.jacobi`), 0 where
+    its ``D_A`` is only in ``d_inv`` (a free rigid body's)."""
+    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    own = np.zeros(model.node_count, np.int32)
+    own[rows[rows == cols]] = 1
+    partner = model.couplings.partner.numpy()
+    paired = partner >= 0
+    if not own[paired].all():
+        raise ValueError("a spring-held rigid body's node has no diagonal block in A: its 6x6 block of D_A "
+                         "cannot be taken in residual form")
+    return wp.array(own, dtype=wp.int32, device=model.device)
+
+
 def _nothing() -> None:
     """The contact step of a Gauss-Seidel sweep: it runs inside the node update."""
 
@@ -103,7 +118,10 @@ class NodeSolve:
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
         self.colours = colours
-        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse)
+        #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
+        self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse,
+                                  self.residual_nodes)
         co = self.coarse.arrays
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
@@ -157,15 +175,17 @@ class NodeSolve:
                                                   c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
                                                   cross, model.fixed, co, metric, movable, threads]))
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
+        own_block = _own_blocks(model) if gs is None else None
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
                 jacobi.append(chunked_replayer(_k.jacobi, model.node_count,
                                                [model.row_start, model.block_col, state.blocks, state.d_inv,
                                                 model.couplings.partner, model.couplings.cross, state.b, model.fixed,
-                                                state.fixed_velocity, v, state.v_hat], d))
-                if self.coarse.count:  # the coarse velocities from the sweep's residual
-                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual[r])
+                                                state.fixed_velocity, own_block, v, state.v_hat, self.residual_nodes],
+                                               d))
+                if self.coarse.residual is not None:  # the coarse velocities from the sweep's residual
+                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual)
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, contacts))
             cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
