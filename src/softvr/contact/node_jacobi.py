@@ -70,7 +70,8 @@ def _own_blocks(model) -> wp.array:
 
 
 def _nothing() -> None:
-    """The contact step of a Gauss-Seidel sweep: it runs inside the node update."""
+    """A replay with nothing to do: the contact step of a Gauss-Seidel sweep (it runs inside the
+    node update), the largest change on the CPU (the Chebyshev kernel takes it)."""
 
 
 class NodeSolve:
@@ -129,7 +130,8 @@ class NodeSolve:
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
         self.plateaued = False
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
-        #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
+        #: [0] the last checked sweep's largest change [m/s] (on the CPU the last sweep's: the
+        #: Chebyshev kernel takes it every sweep), [1] the largest normal-velocity
         #: error [m/s], [2] the contacts' largest natural residual [m/s] (:meth:`solve`,
         #: :func:`_node_jacobi_kernels.residual`): all the loop reads back, one view per check.
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
@@ -176,6 +178,8 @@ class NodeSolve:
                                                   cross, model.fixed, co, metric, movable, threads]))
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         own_block = _own_blocks(model) if gs is None else None
+        # One thread on the CPU, which also takes the largest change (no second pass over the nodes).
+        node_threads = 1 if wp.get_device(d).is_cpu else model.node_count
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
@@ -188,13 +192,15 @@ class NodeSolve:
                     jacobi[-1] = in_order(jacobi[-1], self.coarse.residual)
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, contacts))
-            cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+            cheb.append(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
-                                          model.fixed, self.exact, state.q, co, v_next, self.change]))
-            plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+                                          model.fixed, self.exact, state.q, co, v_next, self.change,
+                                          model.node_count, node_threads, self.stats]))
+            plain.append(replayer(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                             inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
-                                                    v_next, self.change])))
+                                                    v_next, self.change, model.node_count, node_threads,
+                                                    self.stats])))
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
@@ -209,8 +215,9 @@ class NodeSolve:
                                                               c.friction, c.stiffness, c.slip, metric, movable,
                                                               c.gap_after, self.stats]))
                                    for r in range(3)]
-        self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
-                                           inputs=[self.change, model.node_count, self.stats]))
+        self._largest = _nothing if node_threads == 1 else replayer(
+            wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
+                      inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
 
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
