@@ -8,6 +8,7 @@ sweeps also solve eq. 5.2, so there is no separate unconstrained solve.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from typing import Callable
 
 import numpy as np
@@ -74,6 +75,23 @@ def _nothing() -> None:
     node update), the largest change on the CPU (the Chebyshev kernel takes it)."""
 
 
+class _Changes:
+    """The largest changes [m/s] of the checked sweeps since the Chebyshev sweeps (re)started,
+    in sweep order (the stop's plateau and stall tests take the largest of a window of them)."""
+
+    def __init__(self):
+        self.sweeps: list[int] = []
+        self.values: list[float] = []
+
+    def add(self, sweep: int, change: float) -> None:
+        self.sweeps.append(sweep)
+        self.values.append(change)
+
+    def largest(self, after: int, upto: int) -> float:
+        """The largest change of the sweeps ``j``, ``after < j <= upto``."""
+        return max(self.values[bisect_right(self.sweeps, after):bisect_right(self.sweeps, upto)])
+
+
 class NodeSolve:
     """The recorded sweeps of one step size, and the loop that runs them.
 
@@ -118,6 +136,8 @@ class NodeSolve:
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
+        # :meth:`_window`; capped at max_sweeps, past which no window test looks (inf: no contraction)
+        self._window_sweeps = 2 * int(np.ceil(max(10.0, min(self.sweeps_per_decade, self.max_sweeps))))
         self.colours = colours
         #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
         self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
@@ -266,7 +286,7 @@ class NodeSolve:
         self.coarse.prepare()
         self._metric()
         cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
-        history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
+        history = _Changes()  # change by sweeps since Chebyshev (re)started
         restart, plain_until = 0, 0
         self.plain_sweeps = 0
         self.plateaued = False
@@ -274,7 +294,7 @@ class NodeSolve:
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
                 self.sweep.zero_()
-                restart, history, stop = k, {}, cheb_stop
+                restart, history, stop = k, _Changes(), cheb_stop
             plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
@@ -290,7 +310,7 @@ class NodeSolve:
                 if change <= stop and self._contacts_met(k, tolerance):
                     return k, self._buffers[k % 3]
                 if not plain:
-                    history[k - restart] = change
+                    history.add(k - restart, change)
                     if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
                         self.plateaued = True
                         return k, self._buffers[k % 3]
@@ -312,9 +332,9 @@ class NodeSolve:
 
     def _window(self) -> int:
         """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
-        return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+        return self._window_sweeps
 
-    def _plateau(self, history: dict[int, float], k: int, tolerance: float) -> bool:
+    def _plateau(self, history: _Changes, k: int, tolerance: float) -> bool:
         """Whether the Chebyshev sweeps, ``k`` sweeps after they (re)started, hover under
         ``tolerance`` [m/s] without converging: every largest change of the last :meth:`_window`
         sweeps is under ``tolerance``, and their largest is over half that of the window before
@@ -326,11 +346,10 @@ class NodeSolve:
         window = self._window()
         if k < 2 * window:
             return False
-        recent = max(c for j, c in history.items() if j > k - window)
-        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        recent, before = history.largest(k - window, k), history.largest(k - 2 * window, k - window)
         return recent <= tolerance and recent > 0.5 * before
 
-    def _stalled(self, history: dict[int, float], k: int, stop: float) -> bool:
+    def _stalled(self, history: _Changes, k: int, stop: float) -> bool:
         """Whether the Chebyshev sweeps stall or cycle far from converged, ``k`` sweeps after
         they (re)started (``history``: their changes since): the largest change of the last
         :meth:`_window` sweeps is not half that of the window before, and the change is still
@@ -341,8 +360,7 @@ class NodeSolve:
         PGS does not settle) is left to Chebyshev, which keeps the slow modes, the
         translations, converged better than plain sweeps would."""
         window = self._window()
-        if k < 2 * window or history[k] <= 100.0 * stop:
+        if k < 2 * window or history.values[-1] <= 100.0 * stop:
             return False
-        recent = max(c for j, c in history.items() if j > k - window)
-        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        recent, before = history.largest(k - window, k), history.largest(k - 2 * window, k - window)
         return recent > 0.5 * before
