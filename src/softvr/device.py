@@ -17,6 +17,7 @@ import queue
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -300,8 +301,9 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
     """Record a 1-D ``kernel`` over ``dim`` threads in chunks (the last parameter an ``int``
     thread offset, as :func:`launch`) and return a function replaying it: on the CPU from
     ``2 * min_chunk`` threads in two chunks per core (of at least ``min_chunk / 2``), which
-    the calling thread and the workers claim as they come free (:class:`_SplitCall`); one
-    replay where one chunk suffices (CUDA, one core, a small ``dim``)."""
+    the calling thread and the workers claim as they come free (:class:`_SplitCall`), or all
+    on the calling thread where that has been faster (:class:`_SplitReplay`); one replay where
+    one chunk suffices (CUDA, one core, a small ``dim``)."""
     load_kernels(kernel, device)
     workers = cpu_workers() if device == "cpu" else 1
     chunks = 1 if workers == 1 or dim < 2 * min_chunk else min(2 * workers, max(1, dim // max(1, min_chunk // 2)))
@@ -313,16 +315,49 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
         return lambda: None
     if len(replays) == 1:
         return replays[0]
-    tasks = _split_workers(workers)
+    return _SplitReplay(replays, workers)
 
-    def replay() -> None:
-        call = _SplitCall(replays)
-        for _ in range(workers - 1):
-            tasks.put(call)
-        call()
-        call.wait()
 
-    return replay
+class _SplitReplay:
+    """The chunks of a split launch, replayed split (:class:`_SplitCall`) or all on the calling
+    thread, whichever has taken less wall time of late: the results are the same either way
+    (each thread writes its own outputs), but on a loaded machine a worker is scheduled late
+    and the split took 1.9x the single thread's wall time (candy's Jacobi at load 6.5), while
+    on an idle one it is about half of it. Each way's time is a moving average (weight
+    :data:`SPLIT_AVERAGE`) and every :data:`SPLIT_PROBE`-th call times the other way."""
+
+    __slots__ = ("replays", "tasks", "workers", "seconds", "calls")
+
+    def __init__(self, replays: list[Callable[[], None]], workers: int):
+        self.replays, self.workers, self.tasks = replays, workers, _split_workers(workers)
+        self.seconds = [0.0, 0.0]  # single, split; each tried once first
+        self.calls = 0
+
+    def __call__(self) -> None:
+        self.calls += 1
+        if self.calls <= 2:
+            way = self.calls - 1
+        else:
+            best = int(self.seconds[1] < self.seconds[0])
+            way = 1 - best if self.calls % SPLIT_PROBE == 0 else best
+        start = time.perf_counter()
+        if way:
+            call = _SplitCall(self.replays)
+            for _ in range(self.workers - 1):
+                self.tasks.put(call)
+            call()
+            call.wait()
+        else:
+            for replay in self.replays:
+                replay()
+        took = time.perf_counter() - start
+        self.seconds[way] = took if self.calls <= 2 else self.seconds[way] + SPLIT_AVERAGE * (took - self.seconds[way])
+
+
+#: Weight of a call's wall time in the moving average of its way (:class:`_SplitReplay`).
+SPLIT_AVERAGE = 0.25
+#: Every this many calls a split replay times the way it does not take.
+SPLIT_PROBE = 16
 
 
 _SET = ("openblas_set_num_threads", "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",
