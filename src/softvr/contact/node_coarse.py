@@ -243,8 +243,8 @@ class CoarseSpace:
         self.residual: Callable[[], None] | None = None
         if not count:
             return
-        start = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
-        nodes = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
+        start: wp.array = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
+        nodes: wp.array = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
         c = state.contacts
         self._prepare = [
             replayer(wp.launch(_k.prepare_bodies, dim=count, device=d, record_cmd=True,
