@@ -13,6 +13,14 @@ contact's stencil ("contact nodes") set apart:
        w_i = v^_i there
     4. colours C-1 .. 0 again (backward), v^_i = w_i
 
+A contact "sleeps" (its nodes are not contact nodes, so they take the Gauss-Seidel update) while
+it has no impulse, a gap, and its normal velocity at the step's start closes at most half the
+gap over the step: most of a step's contacts are speculative ones that stay apart, and the
+damped Jacobi update of their nodes was the slowest part of the sweeps (the shoulder's thin
+labrum tendon, 22 of its 28 nodes in some contact that never pushed: 65 sweeps a decade). If
+the PGS gives a sleeping contact an impulse, every contact is woken, the nodes marked, and the
+Chebyshev iteration restarted (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.wake`).
+
 Its fixed point solves ``A v = b + J^T lambda`` with lambda complementary, and the update that
 the PGS projects does not depend on last sweep's impulses (only on ``v^k``), so the Chebyshev
 step over ``v`` alone is sound, as with Jacobi. Without contacts the sweep is symmetric block
@@ -124,19 +132,55 @@ def projected(contact_node: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.v
 
 @wp.kernel
 def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
-                       stencil_nodes: wp.array2d(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
-                       contact_node: wp.array(dtype=wp.int32)):
-    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves: its stencil and its
-    rigid sides' angular nodes (-1: none) (``contact_node`` zeroed before; one thread per
-    contact slot, the first ``count[0]`` used)."""
+                       stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                       frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
+                       rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                       impulse: wp.array(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64),
+                       v: wp.array(dtype=wp.vec3d), dt: wp.float64, share: wp.float64, wake_all: int,
+                       contact_node: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32)):
+    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves (its stencil and its
+    rigid sides' angular nodes, -1: none) unless the contact sleeps: ``asleep[c] = 1`` where it
+    has no impulse, no adhesion (``stiffness`` 0), a gap > 0 [m], and its normal velocity in the
+    step's start velocities ``v`` [m/s] closes at most ``share`` of that gap in ``dt`` [s]
+    (``wake_all``: none sleeps). One thread per contact slot, the first ``count[0]`` used;
+    ``contact_node`` zeroed before (or left as it is, to mark more)."""
     c = wp.tid()
     if c >= count[0]:
+        return
+    sleeps = int(0)
+    lam = impulse[c]
+    if wake_all == 0 and gap[c] > wp.float64(0.0) and stiffness[c] == wp.float64(0.0) and \
+            lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+        rel = wp.vec3d()
+        for k in range(stencil_count[c]):
+            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+        for s in range(rigid_node.shape[1]):
+            if rigid_node[c, s] >= 0:
+                rel = rel + wp.cross(v[rigid_node[c, s]], rigid_lever[c, s])
+        normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+        if wp.dot(normal, rel) * dt >= -share * gap[c]:
+            sleeps = 1
+    asleep[c] = sleeps
+    if sleeps != 0:
         return
     for k in range(stencil_count[c]):
         contact_node[stencil_nodes[c, k]] = 1
     for s in range(rigid_node.shape[1]):
         if rigid_node[c, s] >= 0:
             contact_node[rigid_node[c, s]] = 1
+
+
+@wp.kernel
+def woken(count: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32), impulse: wp.array(dtype=wp.vec3d),
+          flag: wp.array(dtype=wp.int32)):
+    """``flag[0] = 1`` if a sleeping contact (``asleep``) has taken an impulse [N s] (one thread)."""
+    out = int(0)
+    for c in range(count[0]):
+        lam = impulse[c]
+        if asleep[c] != 0 and (lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0)):
+            out = 1
+            break
+    flag[0] = out
 
 
 @wp.kernel

@@ -9,12 +9,35 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
 import warp as wp
 
 from softvr.device import load_kernels, replayer
 from softvr.dynamics import _node_rigid_kernels as _k
 
-__all__ = ["record_rigid_system", "record_rigid_velocity"]
+__all__ = ["isolated_rigid_nodes", "record_rigid_system", "record_rigid_velocity"]
+
+
+def isolated_rigid_nodes(model) -> np.ndarray:
+    """Which nodes [n] bool are a rigid body's whose rows of ``A`` (eq. 5.2 with the springs'
+    terms of eq. 5.4) have blocks only on the body's own two nodes and on driven (fixed) nodes:
+    a free body's, or one held only by springs to kinematic or fixed bodies (a haptic tool on
+    its handle). ``D_A``'s block of such a body is all of its ``A`` over the nodes solved for,
+    so a sweep's update of it is exact for the sweep's impulses, as a free rigid body's is.
+    ``model`` a :class:`softvr.sim.NodeModel` (block pattern ``row_start``, ``block_col``,
+    ``couplings.partner``, ``fixed``)."""
+    n = model.node_count
+    out = np.zeros(n, bool)
+    if model.rigid is None:
+        return out
+    out[model.rigid.linear_node.numpy()] = True
+    out[model.rigid.angular_node.numpy()] = True
+    row_start, col = model.row_start.numpy(), model.block_col.numpy()
+    row = np.repeat(np.arange(n), np.diff(row_start))
+    partner, fixed = model.couplings.partner.numpy(), model.fixed.numpy() != 0
+    other = (col != row) & (col != partner[row]) & ~fixed[col]
+    out[row[other]] = False
+    return out
 
 
 def record_rigid_system(rigid, state) -> Callable[[], None]:
