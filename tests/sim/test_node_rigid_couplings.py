@@ -241,3 +241,20 @@ def test_a_spring_held_box_landing_on_a_plane_solves_scipys_mlcp_of_eq_5_5():
         # omega's error: a corner's lever of 0.035 m turns 3e-5 m/s into 8.6e-4 rad/s.
         np.testing.assert_allclose(box.v[3:], truth[3:], atol=VELOCITY_TOL / 0.035, rtol=0)
     assert pressed > 0
+
+
+def test_a_rigid_body_held_only_by_springs_to_a_fixed_body_steps_exactly_in_one_sweep():
+    # Its 6x6 block of D_A is all of its A (the springs' other ends are driven), so a sweep's
+    # update is numpy.linalg.solve of eq. 5.2 + 5.4 written out (_box_system), exactly, as a
+    # free rigid body's is: the sweeps stop at their first check (2 sweeps) with the box's
+    # velocity that solve to rounding (its 6x6 inverse: ~cond(A) eps relative; 1e-9 allows it).
+    # Extrapolated like an FEM node's, it took 30-100 sweeps (the shoulder's haptic probe).
+    dt = 0.01
+    scene, box, _, ties = _held_box(collide=False)
+    for _ in range(3):
+        a, b = _box_system(box, ties, dt)
+        truth = np.linalg.solve(a, b)
+        solution = scene.step(dt)
+        assert scene._stepper is not None
+        assert solution.iterations <= 2
+        np.testing.assert_allclose(box.v, truth, rtol=0, atol=1e-9 * np.abs(truth).max())
