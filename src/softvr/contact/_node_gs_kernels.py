@@ -192,3 +192,188 @@ def scale(d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d), om
     i = wp.tid()
     out[i] = omega * d_inv[i]
     out_cross[i] = omega * cross[i]
+
+
+@wp.kernel
+def island_inverse(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                   island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
+                   scratch: wp.array3d(dtype=wp.float64), inverse: wp.array3d(dtype=wp.float64)):
+    """``inverse[t]`` [3 k, 3 k] (mixed units, [1/kg] to [1/(kg m^2)]) = the inverse of island
+    ``t``'s block ``A_II`` of ``A`` over its ``k`` nodes ``island_node[island_start[t]:
+    island_start[t + 1]]`` (``island_local``: a node's place in its island), by Gauss-Jordan
+    elimination on ``scratch[t]`` (A_II is symmetric positive definite: no pivoting)."""
+    t = wp.tid()
+    s = island_start[t]
+    count = island_start[t + 1] - s
+    size = 3 * count
+    for r in range(size):
+        for c in range(size):
+            scratch[t, r, c] = wp.float64(0.0)
+            inverse[t, r, c] = wp.float64(0.0)
+        inverse[t, r, r] = wp.float64(1.0)
+    for li in range(count):
+        i = island_node[s + li]
+        for k in range(row_start[i], row_start[i + 1]):
+            lj = island_local[block_col[k]]
+            if lj >= 0:
+                block = blocks[k]
+                for x in range(3):
+                    for y in range(3):
+                        scratch[t, 3 * li + x, 3 * lj + y] = block[x, y]
+    for p in range(size):
+        pivot = scratch[t, p, p]
+        for c in range(size):
+            scratch[t, p, c] = scratch[t, p, c] / pivot
+            inverse[t, p, c] = inverse[t, p, c] / pivot
+        for r in range(size):
+            if r != p:
+                f = scratch[t, r, p]
+                for c in range(size):
+                    scratch[t, r, c] = scratch[t, r, c] - f * scratch[t, p, c]
+                    inverse[t, r, c] = inverse[t, r, c] - f * inverse[t, p, c]
+
+
+@wp.kernel
+def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                 island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                 block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), inverse: wp.array3d(dtype=wp.float64),
+                 rhs: wp.array2d(dtype=wp.float64), last: int, w: wp.array(dtype=wp.vec3d),
+                 v_hat: wp.array(dtype=wp.vec3d)):
+    """Island ``t``'s velocities [m/s, rad/s] solved exactly from its rows of ``A v = b``,
+    ``w_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j)`` (the j: driven nodes), into ``w`` and,
+    on the sweep's ``last`` pass, ``v_hat``: a block Gauss-Seidel step whose block is the whole
+    island (after the colour passes, which updated its bodies one at a time). An island with a
+    contact node is left to those (its contacts' metric is each body's own 6x6 block)."""
+    t = wp.tid()
+    s = island_start[t]
+    count = island_start[t + 1] - s
+    for li in range(count):
+        if contact_node[island_node[s + li]] != 0:
+            return
+    for li in range(count):
+        i = island_node[s + li]
+        r = b[i]
+        for k in range(row_start[i], row_start[i + 1]):
+            j = block_col[k]
+            if island_local[j] < 0:
+                r = r - blocks[k] * w[j]
+        for x in range(3):
+            rhs[t, 3 * li + x] = r[x]
+    size = 3 * count
+    for li in range(count):
+        out = wp.vec3d()
+        for x in range(3):
+            acc = wp.float64(0.0)
+            for c in range(size):
+                acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
+            out[x] = acc
+        i = island_node[s + li]
+        w[i] = out
+        if last != 0:
+            v_hat[i] = out
+
+
+@wp.kernel
+def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                 contact_node: wp.array(dtype=wp.int32)):
+    """Island ``t``'s nodes all contact nodes if any is (:func:`island_contact` updates them)."""
+    t = wp.tid()
+    touched = int(0)
+    for k in range(island_start[t], island_start[t + 1]):
+        if contact_node[island_node[k]] != 0:
+            touched = 1
+    if touched != 0:
+        for k in range(island_start[t], island_start[t + 1]):
+            contact_node[island_node[k]] = 1
+
+
+@wp.kernel
+def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                   island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                   metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                   cross_metric: wp.array(dtype=wp.mat33d), contact_node: wp.array(dtype=wp.int32),
+                   inverse: wp.array3d(dtype=wp.float64), rhs: wp.array2d(dtype=wp.float64),
+                   count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                   frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                   rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                   force: wp.array(dtype=wp.vec3d), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Step 2 on an island in contact (its nodes all contact nodes, :func:`mark_islands`; one
+    thread for all islands: contacts may share them): with ``f = J_I^T lambda`` [N s, N m s]
+    the generalized impulses of the contacts' last ``impulse`` (world ``frame^T lambda``: a
+    stencil node takes its weight times it, a rigid side's angular node its lever's torque),
+
+        v^_I = (1 - omega) v_I + omega A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - omega P f
+
+    [m/s, rad/s], omega P (``metric``, ``cross_metric``: :func:`island_metric`) the metric with
+    which the contact PGS then applies ``omega P J^T lambda``: the sweep's update is the
+    island's exact response to the last impulses, and the PGS's change of them moves each body
+    by its own block of the island's inverse; the fixed point is the island's rows of
+    ``A v = b + J^T lambda``."""
+    for t in range(island_start.shape[0] - 1):
+        s = island_start[t]
+        n = island_start[t + 1] - s
+        if contact_node[island_node[s]] == 0:
+            continue
+        for li in range(n):
+            force[island_node[s + li]] = wp.vec3d()
+        for c in range(count[0]):
+            world = wp.transpose(frame[c]) * impulse[c]
+            for k in range(stencil_count[c]):
+                node = stencil_nodes[c, k]
+                if island_local[node] >= 0:
+                    force[node] = force[node] + stencil_weights[c, k] * world
+            for side in range(rigid_node.shape[1]):
+                node = rigid_node[c, side]
+                if node >= 0:
+                    if island_local[node] >= 0:
+                        force[node] = force[node] + wp.cross(rigid_lever[c, side], world)
+        for li in range(n):
+            i = island_node[s + li]
+            r = b[i] + force[i]
+            for k in range(row_start[i], row_start[i + 1]):
+                j = block_col[k]
+                if island_local[j] < 0:
+                    r = r - blocks[k] * w[j]
+            for x in range(3):
+                rhs[t, 3 * li + x] = r[x]
+        for li in range(n):
+            i = island_node[s + li]
+            out = wp.vec3d()
+            for x in range(3):
+                acc = wp.float64(0.0)
+                for c in range(3 * n):
+                    acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
+                out[x] = acc
+            pushed = metric[i] * force[i]
+            if partner[i] >= 0:
+                pushed = pushed + cross_metric[i] * force[partner[i]]
+            v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * out - pushed
+
+
+@wp.kernel
+def island_metric(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                  island_local: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32),
+                  inverse: wp.array3d(dtype=wp.float64), omega: wp.float64, metric: wp.array(dtype=wp.mat33d),
+                  cross_metric: wp.array(dtype=wp.mat33d)):
+    """The contact PGS's metric on island ``t``'s nodes [1/kg, mixed]: ``omega`` times each
+    body's own 6x6 block of ``A_II^-1`` (its response to an impulse on it, the island's other
+    bodies moving as its springs make them), in place of the inverse of the body's own block."""
+    t = wp.tid()
+    s = island_start[t]
+    for k in range(s, island_start[t + 1]):
+        i = island_node[k]
+        li = island_local[i]
+        lp = island_local[partner[i]]
+        own = wp.mat33d()
+        other = wp.mat33d()
+        for x in range(3):
+            for y in range(3):
+                own[x, y] = omega * inverse[t, 3 * li + x, 3 * li + y]
+                other[x, y] = omega * inverse[t, 3 * li + x, 3 * lp + y]
+        metric[i] = own
+        cross_metric[i] = other

@@ -131,7 +131,9 @@ class NodeSolve:
         # A body held only by springs to driven nodes (a haptic tool on its handle) is as exact:
         # its 6x6 block of D_A is all of its A (extrapolated, the arthroscopy's probe took its
         # steps to the 100-sweep cap, its change decaying at the Chebyshev rate from ~0.2 m/s).
-        exact = isolated_rigid_nodes(model).astype(np.int32)
+        # The Gauss-Seidel sweeps solve larger rigid islands whole (the shoulder's two fingers).
+        exact = isolated_rigid_nodes(model) | (False if self._gauss_seidel is None else self._gauss_seidel.island_nodes)
+        exact = exact.astype(np.int32)
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         self._exact_base: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
