@@ -87,7 +87,7 @@ class GaussSeidelSweep:
         islands = [i for i in rigid_islands(model) if 2 < len(i) <= ISLAND_NODES]
         #: The nodes [n] bool of the rigid islands each sweep solves whole (:data:`ISLAND_NODES`).
         self.island_nodes = np.zeros(n, bool)
-        self._islands = None
+        self._islands: list | None = None
         if islands:
             local = np.full(n, -1)
             for island in islands:
