@@ -234,6 +234,32 @@ def island_inverse(island_start: wp.array(dtype=wp.int32), island_node: wp.array
                     inverse[t, r, c] = inverse[t, r, c] - f * inverse[t, p, c]
 
 
+@wp.func
+def _island_residual(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                     blocks: wp.array(dtype=wp.mat33d), island_local: wp.array(dtype=wp.int32),
+                     b: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d)) -> wp.vec3d:
+    """``b_i - sum_{j not in I} A_ij w_j`` [kg m/s] of island node ``i`` (the j: driven nodes)."""
+    r = b[i]
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if island_local[j] < 0:
+            r = r - blocks[k] * w[j]
+    return r
+
+
+@wp.func
+def _island_row(t: int, li: int, size: int, inverse: wp.array3d(dtype=wp.float64),
+                rhs: wp.array2d(dtype=wp.float64)) -> wp.vec3d:
+    """Island ``t``'s node ``li``'s three rows of ``A_II^-1 rhs[t]`` [m/s, rad/s]."""
+    out = wp.vec3d()
+    for x in range(3):
+        acc = wp.float64(0.0)
+        for c in range(size):
+            acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
+        out[x] = acc
+    return out
+
+
 @wp.kernel
 def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
                  island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
@@ -253,22 +279,11 @@ def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(d
         if contact_node[island_node[s + li]] != 0:
             return
     for li in range(count):
-        i = island_node[s + li]
-        r = b[i]
-        for k in range(row_start[i], row_start[i + 1]):
-            j = block_col[k]
-            if island_local[j] < 0:
-                r = r - blocks[k] * w[j]
+        r = _island_residual(island_node[s + li], row_start, block_col, blocks, island_local, b, w)
         for x in range(3):
             rhs[t, 3 * li + x] = r[x]
-    size = 3 * count
     for li in range(count):
-        out = wp.vec3d()
-        for x in range(3):
-            acc = wp.float64(0.0)
-            for c in range(size):
-                acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
-            out[x] = acc
+        out = _island_row(t, li, 3 * count, inverse, rhs)
         i = island_node[s + li]
         w[i] = out
         if last != 0:
@@ -334,21 +349,12 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
                         force[node] = force[node] + wp.cross(rigid_lever[c, side], world)
         for li in range(n):
             i = island_node[s + li]
-            r = b[i] + force[i]
-            for k in range(row_start[i], row_start[i + 1]):
-                j = block_col[k]
-                if island_local[j] < 0:
-                    r = r - blocks[k] * w[j]
+            r = _island_residual(i, row_start, block_col, blocks, island_local, b, w) + force[i]
             for x in range(3):
                 rhs[t, 3 * li + x] = r[x]
         for li in range(n):
             i = island_node[s + li]
-            out = wp.vec3d()
-            for x in range(3):
-                acc = wp.float64(0.0)
-                for c in range(3 * n):
-                    acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
-                out[x] = acc
+            out = _island_row(t, li, 3 * n, inverse, rhs)
             pushed = metric[i] * force[i]
             if partner[i] >= 0:
                 pushed = pushed + cross_metric[i] * force[partner[i]]
