@@ -31,8 +31,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     refitted to the points' positions in between."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
-    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.edge_edge,
-                   _k.point_static_mesh, _k.gather_contacts):
+    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.body_edge_bounds,
+                   _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -73,9 +73,16 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 bvh.refit()
 
         steps.append(refit_edges)
+        bodies = model.bvh_ids.shape[0]
+        body_lower, body_upper = (wp.empty(bodies, dtype=wp.vec3, device=d) for _ in range(2))
+        body_speed = wp.empty(bodies, dtype=wp.float64, device=d)
+        steps.append(replayer(wp.launch(_k.body_edge_bounds, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[model.body_edge_start, state.edge_lower, state.edge_upper,
+                                                state.body_mean_u, body_lower, body_upper, body_speed])))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
                                        state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
+                                       body_lower, body_upper, body_speed,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
