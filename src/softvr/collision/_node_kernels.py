@@ -452,10 +452,15 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                 n_out += 1
     for e in range(pair_edge.shape[0]):
         for k in range(pair_edge.shape[1]):
-            last = edge_carried[e, k]
+            # A slot without a partner holds no impulse anyone reads (a new pair there starts
+            # cold, carried_out reads partnered slots only): left as it is, not read and
+            # cleared (24 of the 26 bytes a slot, 2 B slots an edge).
+            last = wp.vec3d()
             partner = edge_partner[e, k]
-            edge_carried[e, k] = wp.vec3d()
-            edge_partner[e, k] = -1
+            if partner >= 0:
+                last = edge_carried[e, k]
+                edge_carried[e, k] = wp.vec3d()
+                edge_partner[e, k] = -1
             j = pair_edge[e, k]
             if j >= 0 and n_out < capacity:
                 st = pair_st[e, k]
