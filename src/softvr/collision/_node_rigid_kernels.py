@@ -73,21 +73,18 @@ def add_rigid_point(c: int, p: int, scale: wp.float64, point_angular: wp.array(d
         add_rigid(c, node, scale * point_lever[p], rigid_node, rigid_lever)
 
 
-@wp.kernel
-def rigid_sides(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
-                face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
-                edges: wp.array2d(dtype=wp.int32), point_angular: wp.array(dtype=wp.int32),
-                point_lever: wp.array(dtype=wp.vec3d), rigid_node: wp.array2d(dtype=wp.int32),
-                rigid_lever: wp.array2d(dtype=wp.vec3d)):
+@wp.func
+def rigid_side_of(c: int, kind: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
+                  face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
+                  edges: wp.array2d(dtype=wp.int32), point_angular: wp.array(dtype=wp.int32),
+                  point_lever: wp.array(dtype=wp.vec3d), rigid_node: wp.array2d(dtype=wp.int32),
+                  rigid_lever: wp.array2d(dtype=wp.vec3d)):
     """Contact ``c``'s rigid sides from its points, weighted as in its stencil (the gather's):
     a point +1, a triangle's vertices minus their barycentric coordinates, an edge pair's ends
     (1 - s, s) and -(1 - t, t); ``point_angular`` [p] is a point's angular node (-1: not rigid),
     ``point_lever`` [p] [m] its world offset from its body's centre."""
-    c = wp.tid()
     for s in range(RIGID_SIDES):
         rigid_node[c, s] = -1
-    if c >= count[0]:
-        return
     one = wp.float64(1.0)
     if kind[c] == EDGE_EDGE:
         st = bary[c]
@@ -103,6 +100,20 @@ def rigid_sides(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
         w = bary[c]
         for v in range(3):
             add_rigid_point(c, triangles[face[c], v], -w[v], point_angular, point_lever, rigid_node, rigid_lever)
+
+
+@wp.kernel
+def rigid_sides(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32), point: wp.array(dtype=wp.int32),
+                face: wp.array(dtype=wp.int32), bary: wp.array(dtype=wp.vec3d), triangles: wp.array2d(dtype=wp.int32),
+                edges: wp.array2d(dtype=wp.int32), point_angular: wp.array(dtype=wp.int32),
+                point_lever: wp.array(dtype=wp.vec3d), rigid_node: wp.array2d(dtype=wp.int32),
+                rigid_lever: wp.array2d(dtype=wp.vec3d), threads: int):
+    """The rigid sides of contacts ``wp.tid() + threads k`` below ``count[0]`` (the rows past it
+    are not read: the primitives' append writes both sides of its rows; one thread per row of
+    the capacity cost ~1.5 ms a step on the candy, 188 181 rows for ~3 000 contacts)."""
+    for c in range(wp.tid(), count[0], threads):
+        rigid_side_of(c, kind, point, face, bary, triangles, edges, point_angular, point_lever, rigid_node,
+                      rigid_lever)
 
 
 @wp.kernel

@@ -19,6 +19,10 @@ from softvr.device import load_kernels, replayer
 
 __all__ = ["record_rigid_contacts", "record_rigid_points"]
 
+#: Threads of the rigid sides' launch, each striding the step's contacts (one per row of the
+#: buffer's capacity was ~60 times the contacts on the candy).
+SIDE_THREADS = 1024
+
 
 def record_rigid_points(model, state) -> Callable[[], None]:
     """A replay placing the rigid bodies' collision points (``state.point_x``, ``point_x32``,
@@ -40,9 +44,11 @@ def record_rigid_contacts(model, state, dt: float) -> Callable[[], None]:
     rigid, c, d = model.rigid, state.contacts, model.device
     for kernel in (_k.rigid_sides, _k.primitive_contacts):
         load_kernels(kernel, d)
-    sides = replayer(wp.launch(_k.rigid_sides, dim=c.capacity, device=d, record_cmd=True,
+    threads = min(c.capacity, SIDE_THREADS)
+    sides = replayer(wp.launch(_k.rigid_sides, dim=threads, device=d, record_cmd=True,
                                inputs=[c.count, c.kind, c.point, c.face, c.bary, model.triangles, model.edges,
-                                       rigid.point_angular, rigid.point_lever, c.rigid_node, c.rigid_lever]))
+                                       rigid.point_angular, rigid.point_lever, c.rigid_node, c.rigid_lever,
+                                       threads]))
     detection = record_detection(rigid.model, rigid.state, dt)
     out = _nk.contact_out(c)
     p = rigid.state.contacts
