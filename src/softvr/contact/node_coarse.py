@@ -19,6 +19,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 
+from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_coarse_kernels as _k
 from softvr.device import load_kernels, replayer
 
@@ -250,8 +251,9 @@ class CoarseSpace:
             replayer(wp.launch(_k.prepare_bodies, dim=count, device=d, record_cmd=True,
                                inputs=[start, nodes, state.q, model.mass, model.row_start, model.block_col,
                                        state.blocks, co])),
-            replayer(wp.launch(_k.contact_sides, dim=capacity, device=d, record_cmd=True,
-                               inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, state.q, co]))]
+            replayer(wp.launch(_k.contact_sides, dim=min(capacity, CONTACT_THREADS), device=d, record_cmd=True,
+                               inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, state.q, co,
+                                       min(capacity, CONTACT_THREADS)]))]
         self.residual = replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
                                            inputs=[start, nodes, state.q, residual, co]))
 
