@@ -97,23 +97,61 @@ def body_motion(body_point_start: wp.array(dtype=wp.int32), point_u: wp.array(dt
 
 
 @wp.kernel
+def body_bounds(body_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3),
+                body_mean_u: wp.array(dtype=wp.vec3d), body_lower: wp.array(dtype=wp.vec3),
+                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64)):
+    """Body ``b``'s box [m]: the union of the boxes (``lower``, ``upper``) of its items
+    ``body_start[b] : [b + 1]`` (its edges: its edge BVH's root box after the refit; or its
+    collision points, as both: a box holding every triangle of its surface mesh); and the speed
+    [m/s] of its mean motion."""
+    b = wp.tid()
+    lo = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+    hi = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
+    for e in range(body_start[b], body_start[b + 1]):
+        lo = wp.min(lo, lower[e])
+        hi = wp.max(hi, upper[e])
+    body_lower[b] = lo
+    body_upper[b] = hi
+    body_speed[b] = wp.length(body_mean_u[b])
+
+
+@wp.func
+def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_upper: wp.vec3) -> bool:
+    """Whether box [lo - grow, hi + grow] misses [box_lower, box_upper] by Warp's (inclusive)
+    box test; monotone in ``grow`` under rounding, so a miss at a larger ``grow`` is one at
+    any smaller."""
+    return (lo[0] - grow > box_upper[0] or lo[1] - grow > box_upper[1] or lo[2] - grow > box_upper[2]
+            or hi[0] + grow < box_lower[0] or hi[1] + grow < box_lower[1] or hi[2] + grow < box_lower[2])
+
+
+@wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
                     pair_enabled: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
+                    body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
+                    body_speed: wp.array(dtype=wp.float64),
                     margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
                     hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
                     hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64), offset: int):
     """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
     point within the margin plus the vertex's relative motion [m]; the normal points out of
     that body (towards the vertex), the gap [m] is negative inside it (by the closest
-    feature's pseudo normal, as :func:`softvr.collision.query_points`)."""
+    feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
+    box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
+    reach, margin + dt (|u| + b's mean speed ``body_speed``), holds no face within it and is
+    not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding)."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    speed = wp.length(point_u[p])
     for b in range(mesh_ids.shape[0]):
         hit[p, b] = 0
+        near = False
         if pair_enabled[a, b] != 0:
+            bound = float((margin + dt * (speed + body_speed[b])) * wp.float64(1.001)) + 1.0e-6
+            near = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
+        if near:
             reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
             query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
             if query.result:
@@ -195,33 +233,6 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtyp
 
 
 @wp.kernel
-def body_edge_bounds(body_edge_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.vec3),
-                     upper: wp.array(dtype=wp.vec3), body_mean_u: wp.array(dtype=wp.vec3d),
-                     body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-                     body_speed: wp.array(dtype=wp.float64)):
-    """Body ``b``'s box [m]: the union of its edges' boxes (``lower``, ``upper``), which is its
-    edge BVH's root box after the refit; and the speed [m/s] of its mean motion."""
-    b = wp.tid()
-    lo = wp.vec3(1.0e30, 1.0e30, 1.0e30)
-    hi = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
-    for e in range(body_edge_start[b], body_edge_start[b + 1]):
-        lo = wp.min(lo, lower[e])
-        hi = wp.max(hi, upper[e])
-    body_lower[b] = lo
-    body_upper[b] = hi
-    body_speed[b] = wp.length(body_mean_u[b])
-
-
-@wp.func
-def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_upper: wp.vec3) -> bool:
-    """Whether box [lo - grow, hi + grow] misses [box_lower, box_upper] by Warp's (inclusive)
-    box test; monotone in ``grow`` under rounding, so a miss at a larger ``grow`` is one at
-    any smaller."""
-    return (lo[0] - grow > box_upper[0] or lo[1] - grow > box_upper[1] or lo[2] - grow > box_upper[2]
-            or hi[0] + grow < box_lower[0] or hi[1] + grow < box_lower[1] or hi[2] + grow < box_lower[2])
-
-
-@wp.kernel
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
@@ -239,7 +250,7 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     Pairs deeper than the margin are seen from the wrong side and dropped.
 
     A query box off body b's box (``body_lower``, ``body_upper``: the union of its edges'
-    boxes, :func:`body_edge_bounds`) finds nothing in b's BVH, so it is not made; and the
+    boxes, :func:`body_bounds`) finds nothing in b's BVH, so it is not made; and the
     reach is first bounded by margin + dt (the ends' largest speed + b's mean speed
     ``body_speed``) (|u - mean| <= |u| + |mean|), so that the far bodies (most pairs on the
     candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and

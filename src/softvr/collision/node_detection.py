@@ -31,7 +31,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     refitted to the points' positions in between."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
-    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.body_edge_bounds,
+    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.body_bounds,
                    _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
@@ -47,8 +47,18 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                       [state.point_x32, state.point_u, model.point_margin, model.static_mesh_ids,
                                        model.static_mesh_thickness, float(dt), int(ccd), c.static_hit,
                                        c.static_normal, c.static_gap], d, min_chunk=256))
+    bodies = len(model.body_node_start) - 1
+
+    def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, wp.array, wp.array]:
+        """Each body's box of items ``lower``, ``upper`` [m] and its mean speed [m/s]
+        (``_k.body_bounds``), filled by a launch appended to the steps."""
+        out = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d),
+               wp.empty(bodies, dtype=wp.float64, device=d))
+        steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[start, lower, upper, state.body_mean_u, *out])))
+        return out
+
     if model.meshes:
-        bodies = len(model.body_node_start) - 1
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u])))
 
@@ -57,9 +67,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 mesh.refit()
 
         steps.append(refit)
+        point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       model.pair_enabled, model.mesh_ids, float(margin), float(dt), c.hit,
+                                       model.pair_enabled, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       c.hit,
                                        c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
     if model.bvhs:
         edges = model.edges.shape[0]
@@ -73,16 +85,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 bvh.refit()
 
         steps.append(refit_edges)
-        bodies = model.bvh_ids.shape[0]
-        body_lower, body_upper = (wp.empty(bodies, dtype=wp.vec3, device=d) for _ in range(2))
-        body_speed = wp.empty(bodies, dtype=wp.float64, device=d)
-        steps.append(replayer(wp.launch(_k.body_edge_bounds, dim=bodies, device=d, record_cmd=True,
-                                        inputs=[model.body_edge_start, state.edge_lower, state.edge_upper,
-                                                state.body_mean_u, body_lower, body_upper, body_speed])))
+        edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
                                        state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
-                                       body_lower, body_upper, body_speed,
+                                       *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
