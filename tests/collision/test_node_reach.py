@@ -1,7 +1,12 @@
-"""The node arrays' edge-edge broad phase reaches as far as thesis 5.1.2's speculative contact:
-an edge pair is a contact candidate when its edges come within margin + dt |u - u_b| (the
-edge's largest vertex motion relative to the other body's mean motion over the step), however
-that motion is shared between the bodies.
+"""The node arrays' broad phases reach as far as thesis 5.1.2's speculative contact: a vertex
+meets a triangle, or an edge another edge, when they come within margin + dt |u - u_b| (the
+vertex's, or the edge's largest vertex's, motion relative to the other body's mean motion over
+the step), whether the motion is the vertex's own or the other body's.
+
+Vertex-triangle truth: two equal axis-aligned cubes, one above the other, g apart: each bottom
+corner of the upper cube is g above a top corner of the lower (its closest surface point), and
+each top corner of the lower g below one of the upper; the upper falls at speed v, so a
+lower corner's reach is all the upper body's mean motion, an upper corner's its own.
 
 Truth (geometry): cube b (at rest) turned 45 degrees about y shows an edge along y on top;
 cube a above it, turned 45 degrees about x, an edge along x at the bottom. A cube of half edge
@@ -35,6 +40,40 @@ def _cube(centre, rotvec, name):
     turn = quat_to_matrix(quat_from_rotvec(rotvec))
     nodes = (nodes - nodes.mean(axis=0)) @ turn.T + np.asarray(centre, float)
     return FemBody(nodes, tets, Material(1e6, 0.3, 1000.0), name=name)
+
+
+def _vertex_gaps(speed):
+    """Gaps [m] of the first step's vertex-triangle contacts by body (side a), the upper cube
+    (body 1) falling at ``speed`` onto the lower (body 0)."""
+    scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.0, edge_contacts=False, contact_margin=MARGIN)
+    lower = _cube((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "lower")
+    upper = _cube((0.0, 0.0, 2 * HALF + GAP), (0.0, 0.0, 0.0), "upper")
+    far = _cube((0.15, 0.15, 0.0), (0.0, 0.0, 0.0), "far")
+    upper.v[:] = (0.0, 0.0, -speed)
+    for body in (lower, upper, far):
+        scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(8)[:, None], np.ones((8, 1))),
+                       collision_triangles=boundary_faces(body.tets))
+    scene.step(DT)
+    gaps: dict[int, list] = {0: [], 1: [], 2: []}
+    for c in scene.last_solution.contacts:
+        if (unpack_keys(c.ids)["kind"] == ContactKind.VERTEX_TRIANGLE).all():
+            gaps[c.a.body].extend(c.gap)
+    return gaps
+
+
+def test_a_vertex_within_the_motion_grown_reach_meets_the_other_surface():
+    # reach MARGIN + DT 1.0 = 0.011 m > GAP: the upper cube's own motion for its corners,
+    # the upper body's mean motion for the lower cube's.
+    gaps = _vertex_gaps(1.0)
+    for body in (0, 1):
+        assert len(gaps[body]) == 4
+        np.testing.assert_allclose(gaps[body], GAP, atol=1e-6)
+    assert not gaps[2]
+
+
+def test_a_vertex_beyond_the_reach_meets_nothing():
+    gaps = _vertex_gaps(0.2)  # MARGIN + DT 0.2 = 0.003 m < GAP
+    assert not any(gaps.values())
 
 
 def _edge_gaps(speed):
