@@ -205,23 +205,32 @@ def _face_normal(points: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp
 
 
 @wp.kernel
-def edge_geometry(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+                 normal: wp.array(dtype=wp.vec3), offset: int):
+    """Triangle ``t``'s unit normal (once a triangle: :func:`edge_geometry` reads it for each of
+    its three edges)."""
+    t = wp.tid() + offset
+    normal[t] = _face_normal(point_x32, triangles, t)
+
+
+@wp.kernel
+def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
                   edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
                   lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
                   sharp: wp.array(dtype=wp.int32), offset: int):
-    """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles, and
-    whether it is a crease (faces at more than the sharp angle) or a border, as
-    :meth:`softvr.collision.EdgeSet.edge_normals`."""
+    """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles
+    (``face_normal``, :func:`face_normals`), and whether it is a crease (faces at more than the
+    sharp angle) or a border, as :meth:`softvr.collision.EdgeSet.edge_normals`."""
     e = wp.tid() + offset
     p = point_x32[edges[e, 0]]
     q = point_x32[edges[e, 1]]
     lower[e] = wp.min(p, q)
     upper[e] = wp.max(p, q)
-    first = _face_normal(point_x32, triangles, edge_faces[e, 0])
+    first = face_normal[edge_faces[e, 0]]
     n = first
     crease = int(1)
     if edge_faces[e, 1] >= 0:
-        second = _face_normal(point_x32, triangles, edge_faces[e, 1])
+        second = face_normal[edge_faces[e, 1]]
         n = first + second
         if wp.dot(first, second) >= sharp_cosine:
             crease = 0

@@ -31,8 +31,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     refitted to the points' positions in between."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
-    for kernel in (_k.point_motion, _k.body_motion, _k.vertex_triangle, _k.edge_geometry, _k.body_bounds,
-                   _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
+    for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.vertex_triangle, _k.face_normals,
+                   _k.edge_geometry, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -75,8 +75,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
     if model.bvhs:
         edges = model.edges.shape[0]
+        normals = wp.empty(model.triangles.shape[0], dtype=wp.vec3, device=d)
+        steps.append(chunked_replayer(_k.face_normals, model.triangles.shape[0],
+                                      [state.point_x32, model.triangles, normals], d, min_chunk=1024))
         steps.append(chunked_replayer(_k.edge_geometry, edges,
-                                      [state.point_x32, model.triangles, model.edges, model.edge_faces,
+                                      [state.point_x32, normals, model.edges, model.edge_faces,
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
 
