@@ -142,8 +142,8 @@ class Scene:
         one :class:`~softvr.dynamics.CouplingIsland` per group (found on the first step after
         a change).
     rigid_arrays : bool
-        Step a scene of rigid and fixed bodies on planes, box and sphere primitives and rigid
-        collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
+        Step a scene of rigid, fixed and kinematic bodies on planes, box and sphere primitives
+        and rigid collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
         compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
         other scene, every body steps as its own object (the reference path).
     node_arrays : bool
