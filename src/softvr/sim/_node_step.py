@@ -381,7 +381,7 @@ class NodeStepper:
             return -1 if adhesion is None else rows[id(adhesion)]
 
         return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))],
-                            [row(("static", id(p))) for p in s.planes])
+                            *([row(("static", id(x))) for x in statics] for statics in (s.planes, s.spheres, s.meshes)))
 
     def _surface_margin(self) -> float:
         """Detection margin [m] between surfaces: the largest of the surface pairs' (the scene's,

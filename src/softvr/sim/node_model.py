@@ -86,6 +86,9 @@ class NodeModel:
         Its weights (sum 1).
     point_margin : wp.array(float64) [p] [m]
         Detection margin of the point's body.
+    plane_margin : wp.array(float64) [p] [m]
+        The point's margin against planes: -inf for a rigid body's point with a primitive (the
+        primitive meets the planes exactly), else ``point_margin``.
     plane_normal : wp.array(vec3d) [s]
         Unit normals.
     plane_offset : wp.array(float64) [s] [m]
@@ -168,6 +171,7 @@ class NodeModel:
     point_nodes: wp.array
     point_weights: wp.array
     point_margin: wp.array
+    plane_margin: wp.array
     plane_normal: wp.array
     plane_offset: wp.array
     plane_friction: wp.array
@@ -370,19 +374,13 @@ def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
     linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
     and fixed bodies (with or without one, where it meets no rigid body's of its kind), static planes,
-    static spheres and meshes (in a scene without adhesion or rigid primitives), couplings
+    static spheres and meshes, couplings
     between them (each side an FEM body's embedded points or a kinematic, fixed or rigid body's
     points); adhesion; at most one set of collision points per body (an FEM body's
     :class:`~softvr.collision.EmbeddedPoints` with stencils of at most 4 nodes, a rigid, kinematic
     or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's collision surface over
     its own points."""
     if not couplings_supported(scene):
-        return False
-    # The adhesion's contact kernel knows planes, not spheres or meshes; a rigid body with a
-    # primitive has its collision points meet no static (its primitive meets the planes instead).
-    adhesive = any(a is not None for a in scene._adhesion.values())
-    rigid_primitive = any(type(scene.bodies[i]) is RigidBody for i, _ in scene._sphere_bodies + scene._box_bodies)
-    if (scene.spheres or scene.meshes) and (adhesive or rigid_primitive):
         return False
     if _driven_primitive_meets_rigid(scene):
         return False
@@ -458,15 +456,17 @@ def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
 
 
 def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
-    """Stencil nodes and weights [p, 4] (global; -1: unused) and margins [p] [m] of every
-    collision point; a kinematic body's points are its own nodes, weight 1, a rigid body's its
-    linear node (the angular one is a rigid side); -inf for a point that meets no plane (a
-    rigid body's with a primitive: the primitive meets them exactly)."""
+    """Stencil nodes and weights [p, 4] (global; -1: unused), margins [p] [m] and margins
+    against planes [p] [m] of every collision point; a kinematic body's points are its own
+    nodes, weight 1, a rigid body's its linear node (the angular one is a rigid side); a plane
+    margin of -inf for a point that meets no plane (a rigid body's with a primitive: the
+    primitive meets them exactly; its points still meet static spheres and meshes)."""
     primitive = {i for i, _ in scene._sphere_bodies + scene._box_bodies}
     p = int(point_start[-1])
     nodes = np.full((p, STENCIL), -1, np.int64)
     weights = np.zeros((p, STENCIL))
     margin = np.zeros(p)
+    plane_margin = np.zeros(p)
     for c in scene._colliders:
         rows = slice(point_start[c.body], point_start[c.body + 1])
         if type(bodies[c.body]) is FemBody:
@@ -479,8 +479,9 @@ def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
         else:
             nodes[rows, 0] = node_start[c.body] + np.arange(rows.stop - rows.start)
             weights[rows, 0] = 1.0
-        margin[rows] = -np.inf if type(bodies[c.body]) is RigidBody and c.body in primitive else c.margin
-    return nodes, weights, margin
+        margin[rows] = c.margin
+        plane_margin[rows] = -np.inf if type(bodies[c.body]) is RigidBody and c.body in primitive else c.margin
+    return nodes, weights, margin, plane_margin
 
 
 def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
@@ -518,7 +519,7 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         return b.q if fem[i] else (driven[i].positions() if driven[i] is not None else np.zeros((0, 3)))
 
     scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) if f else np.inf for b, f in zip(bodies, fem)]
-    point_nodes, point_weights, point_margin = _point_stencils(scene, bodies, node_start, point_start)
+    point_nodes, point_weights, point_margin, plane_margin = _point_stencils(scene, bodies, node_start, point_start)
     planes = scene.planes
     normals = np.array([pl.unit_normal() for pl in planes], float).reshape(-1, 3)
     offsets = np.array([float(np.asarray(pl.point, float) @ nrm) for pl, nrm in zip(planes, normals)])
@@ -585,6 +586,7 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         block_mirror=_i32(mirror, d),
         force_start=_i32(force_start, d), force=_i32(force, d),
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
+        plane_margin=_f64(plane_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
         plane_friction=_f64([pl.friction for pl in planes], d),
         sphere_center=_f64(np.array([sp.center for sp in scene.spheres], float).reshape(-1, 3), d, wp.vec3d),
