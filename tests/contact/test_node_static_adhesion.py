@@ -13,7 +13,7 @@ from softvr.collision import Plane, Sphere, TriangleMesh
 from softvr.collision.contacts import ContactKind, unpack_keys
 from softvr.sim._node_step import NodeStepper
 
-from tests.contact.test_node_adhesion import DT, EDGE, G, GLUE, _add_block, _bonds, _pull
+from tests.contact.test_node_adhesion import DT, EDGE, G, GLUE, _add_block, _bonds, _pull_off
 
 THICKNESS = 0.0005  # [m] the sheet's half thickness
 # A sphere of 50 m: the block's bottom face (half diagonal 28 mm) stands off it by at most
@@ -61,12 +61,6 @@ def test_fem_block_pulls_off_a_static_at_its_weight_plus_area_times_sqrt_w_c(sta
     assert bonds and set(unpack_keys(np.array(list(bonds), np.int64))["kind"]) == {kind}
     assert max(bonds.values()) > 0.5
     predicted = block.mass.sum() * G + EDGE**2 * GLUE.traction_limit()
-    z0 = block.q[:, 2].mean()
-    force = 0.0
-    while block.q[:, 2].mean() < z0 + 0.001:  # lifted 1 mm: off
-        force += 12.0 * DT
-        _pull(scene, 0, block, (0.0, 0.0, force))
-        scene.step(DT)
-        assert force < 2.0 * predicted, "never came off"
+    force = _pull_off(scene, block, predicted)
     assert isinstance(scene._stepper, NodeStepper)
     assert force == pytest.approx(predicted, rel=0.15)

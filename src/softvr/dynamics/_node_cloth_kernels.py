@@ -41,6 +41,12 @@ def spring_terms(springs: wp.array2d(dtype=wp.int32), rest_length: wp.array(dtyp
     force[s] = -k * (length - rest_length[s]) * u
 
 
+@wp.func
+def _sign(code: int) -> wp.float64:
+    """+1 for an entry code 2 spring, -1 for 2 spring + 1."""
+    return wp.float64(1 - 2 * (code % 2))
+
+
 @wp.kernel
 def spring_blocks(target: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=wp.int32),
                   entry: wp.array(dtype=wp.int32), spring_block: wp.array(dtype=wp.mat33d),
@@ -52,11 +58,7 @@ def spring_blocks(target: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=
     k = target[t]
     m = blocks[k]
     for e in range(entry_start[t], entry_start[t + 1]):
-        code = entry[e]
-        if code % 2 == 0:
-            m = m + spring_block[code // 2]
-        else:
-            m = m - spring_block[code // 2]
+        m = m + _sign(entry[e]) * spring_block[entry[e] // 2]
     blocks[k] = m
     if block_row[k] == block_col[k]:
         d_inv[block_row[k]] = wp.inverse(m)
@@ -71,10 +73,6 @@ def spring_forces(node: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=wp
     t = wp.tid()
     f = wp.vec3d()
     for e in range(entry_start[t], entry_start[t + 1]):
-        code = entry[e]
-        if code % 2 == 0:
-            f = f + spring_force[code // 2]
-        else:
-            f = f - spring_force[code // 2]
+        f = f + _sign(entry[e]) * spring_force[entry[e] // 2]
     i = node[t]
     b[i] = b[i] + dt * f
