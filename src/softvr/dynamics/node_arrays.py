@@ -1,8 +1,9 @@
-"""The FEM and cloth bodies of a whole scene on arrays: element terms, the step matrix ``A`` of thesis
-eq. 5.2 in 3x3 node blocks with its right-hand side (the cloths' springs included), the kinematic bodies' driven nodes, the
-sweeps' first guess and the integration, as recorded launches replayed every step
-(:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or any objects with those
-attributes; kernels in :mod:`softvr.dynamics._node_kernels`).
+"""The FEM and cloth bodies of a whole scene on arrays: element terms, the step matrix ``A`` of
+thesis eq. 5.2 in 3x3 node blocks with its right-hand side (the cloths' springs included), the
+kinematic bodies' driven nodes, the sweeps' first guess and the integration, as recorded
+launches replayed every step (:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or
+any objects with those attributes; kernels in :mod:`softvr.dynamics._node_kernels` and
+:mod:`softvr.dynamics._node_cloth_kernels`).
 """
 
 from __future__ import annotations

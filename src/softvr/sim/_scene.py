@@ -147,8 +147,8 @@ class Scene:
         compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
         other scene, every body steps as its own object (the reference path).
     node_arrays : bool
-        Step a scene of FEM bodies with the kinematic and fixed bodies and planes they meet
-        (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
+        Step a scene of FEM and cloth bodies with the kinematic and fixed bodies and planes they
+        meet (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
         (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block D_A, Chebyshev
         accelerated, no factorization; on by default. Off, or for a scene too stiff for the
         sweeps (its first step measures it: more than 25 sweeps per decade of error), the
