@@ -172,6 +172,15 @@ class _NodeSnapshot(StepSnapshot):
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
 
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        c, first = self.contacts, [rows[0] for rows in self.sets()]
+        kind, other = c["kind"][first], c["other"][first]
+        body = self._stepper.contact_body({name: c[name][first] for name in ("point", "kind", "column")})
+        # Vertex-triangle and edge-edge pairs meet a body; primitives a body or (other < 0) a
+        # static; planes, static spheres and meshes are statics.
+        meets = (kind == 1) | (kind == 2) | ((kind == 3) & (other >= 0))
+        return [(a, b if m else None) for a, b, m in zip(body.tolist(), other.tolist(), meets.tolist())]
+
     def _build(self) -> ContactSolution:
         s = self._stepper
         c = self.contacts
