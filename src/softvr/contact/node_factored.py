@@ -1,0 +1,332 @@
+"""The contact solve of a scene of held FEM bodies with a factorization cached once (thesis eq.
+5.2 and 5.5): ``A v = b + J^T lambda`` with the contacts' complementarity, for scenes whose node
+sweeps need hundreds of sweeps a contact step (the head CT of palpation.toml: ~180 sweeps of
+coarse-corrected Jacobi, ~40 ms, against 2 off contact: the probe's push has to travel through a
+stiff clamped body one node ring a sweep).
+
+The step matrix ``A`` of the scene's first step is factored once (SciPy's SuperLU, a symmetric
+fill-reducing ordering) and kept: ``P = A_0``. A co-rotated body's ``A`` changes with its
+elements' rotations, so every step iterates the splitting ``A = P - (P - A)``:
+
+    u^k+1      = v^k + P^-1 (b - A v^k)                                    (eq. 5.2's residual)
+    lambda^k+1 = LCP(W, J u^k+1):  0 <= lambda _|_ J v - c >= 0, friction   (eq. 5.5)
+    v^k+1      = u^k+1 + P^-1 J^T lambda^k+1
+
+with the Delassus operator ``W = J P^-1 J^T`` over the step's contacts (small and dense: the
+probe makes tens), solved by projected Gauss-Seidel with the node sweeps' own projection
+(:func:`softvr.contact._node_jacobi_kernels.pgs_update`). At its fixed point ``A v = b + J^T
+lambda`` and every contact meets eq. 5.5 in ``v``: the same solution as the sweeps'. It contracts
+by about ``|I - P^-1 A|`` an iteration (the head CT under the probe: ``|A - A_0| / |A_0|`` <
+1 %, two to four iterations a step); where the bodies' rotations make it slow
+(:data:`REFACTOR_AFTER` iterations), ``P`` is factored again at that step's ``A``. The columns
+of ``P^-1`` at the contacts' nodes (``J^T`` has a few nonzero node blocks per contact) are
+solved once per node and kept while ``P`` is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import warp as wp
+
+from softvr.contact import _node_factored_kernels as _k
+from softvr.contact import _node_jacobi_kernels as _jk
+from softvr.device import load_kernels, replayer
+
+__all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
+
+#: Fill-reducing ordering of the factorization: SuperLU's minimum degree on ``A + A^T`` with
+#: symmetric pivoting (``A`` is SPD): half COLAMD's fill on the head CT (204 K against 422 K
+#: entries), a solve in 0.4 ms against 0.7.
+ORDERING = "MMD_AT_PLUS_A"
+#: Outer iterations of a step after which ``P`` is factored again at the step's ``A``.
+REFACTOR_AFTER = 12
+#: Iterates the outer iteration's Anderson acceleration remembers.
+ANDERSON_MEMORY = 5
+#: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
+#: for tens of contacts; the warm start from the last iteration's impulses leaves few to do).
+DELASSUS_PASSES = 2000
+#: Share of the step's tolerance to which the PGS on the Delassus matrix converges.
+DELASSUS_TOLERANCE = 0.1
+#: Outer iterations a step is expected to take (the head CT: 1-2 off contact, 2-5 in contact)
+#: and the decades of error the node sweeps remove in a contact step (the head CT: ~180 sweeps
+#: at 38 a decade), for :func:`factored_work`.
+STEP_ITERATIONS = 4.0
+STEP_DECADES = 5.0
+
+
+def free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
+    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
+    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
+    and are driven; a rigid body's have none either, their D_A being all of their A, unless
+    coupling springs hold the body)."""
+    n = model.node_count
+    rows = model.block_row.numpy()
+    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    blocks = state.blocks.numpy()
+    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
+    free = np.repeat(solved, 3)
+    return a[free][:, free], solved
+
+
+def factored_eligible(model) -> bool:
+    """Whether :class:`FactoredSolve` can step the scene: on the CPU (SciPy's factorization
+    works on host arrays), FEM bodies and driven nodes only (no rigid body, no coupling spring:
+    their 6x6 blocks and rigid contact sides are the sweeps')."""
+    return wp.get_device(model.device).is_cpu and model.rigid is None and not len(model.couplings.node)
+
+
+def factored_work(fill: int, blocks: int) -> float:
+    """Work of a factored contact step in Jacobi sweeps over ``blocks`` blocks of ``A``, with a
+    factorization of ``fill`` nonzeros in L and U: per outer iteration a product with ``A`` (a
+    sweep) and two triangular solves (a multiply-add per nonzero, against nine per block of a
+    sweep), :data:`STEP_ITERATIONS` of them."""
+    return STEP_ITERATIONS * (1.0 + fill / (9.0 * blocks))
+
+
+def sweeps_step_work(work_per_decade: float) -> float:
+    """Work of a contact step of the node sweeps in Jacobi sweeps, from their work per decade
+    (:func:`softvr.sim._node_sweeps.choose_sweeps`) and :data:`STEP_DECADES`."""
+    return STEP_DECADES * work_per_decade
+
+
+class _Anderson:
+    """Anderson acceleration (type II; Walker and Ni 2011) of a fixed-point iteration x <- G(x)
+    over the last ``memory`` iterates: the next iterate is G's image of the combination of the
+    remembered iterates whose residuals ``G(x) - x`` combine to the least (normal equations of
+    the small least-squares problem)."""
+
+    def __init__(self, memory: int):
+        self.memory = memory
+        self._f: list[np.ndarray] = []  # residuals G(x) - x
+        self._g: list[np.ndarray] = []  # images G(x)
+
+    def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N]."""
+        self._f.append(g - x)
+        self._g.append(g)
+        if len(self._f) > self.memory + 1:
+            self._f.pop(0)
+            self._g.pop(0)
+        if len(self._f) < 2:
+            return g
+        f = np.asarray(self._f)
+        df, dg = f[1:] - f[:-1], np.asarray(self._g[1:]) - np.asarray(self._g[:-1])
+        gram = df @ df.T
+        gram[np.diag_indices_from(gram)] *= 1.0 + 1e-10  # a repeated residual leaves it singular
+        gamma = np.linalg.lstsq(gram, df @ f[-1], rcond=None)[0]
+        return g - gamma @ dg
+
+
+class FactoredSolve:
+    """The factored contact solve of one step size (module docstring), with the interface of
+    :class:`softvr.contact.node_jacobi.NodeSolve`: :meth:`solve` from ``state.sweep_buffers[0]``,
+    ``stats``.
+
+    Parameters
+    ----------
+    model, state
+        :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState` (this step's ``A`` in
+        ``state.blocks``: it is factored).
+    dt : float [s]
+    max_iterations : int
+        Outer iterations a step, at most.
+
+    Attributes
+    ----------
+    stats : wp.array
+        [3] as ``NodeSolve.stats``: [0] the last iteration's largest velocity change [m/s], [1]
+        the largest normal-velocity error [m/s], [2] the contacts' largest natural residual [m/s].
+    fill : int
+        Nonzeros of the factorization's L and U.
+    factorizations : int
+        Times ``A`` was factored.
+    delassus_passes : int
+        PGS passes on the Delassus matrix in the last solve.
+    """
+
+    def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
+        for kernel in (_k.momentum_residual, _k.dense_pgs, _jk.residual):
+            load_kernels(kernel, model.device)
+        self.model, self.state, self.dt = model, state, float(dt)
+        self.max_iterations = int(max_iterations)
+        n, d = model.node_count, model.device
+        self._fixed = model.fixed.numpy() != 0
+        self._fixed_velocity = state.fixed_velocity.numpy()
+        self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
+        self._r = wp.zeros(n, dtype=wp.vec3d, device=d)
+        # One thread: the product is ~0.1 ms on the head CT, less than handing half to a second core.
+        self._residual = replayer(wp.launch(_k.momentum_residual, dim=n, device=d, record_cmd=True,
+                                            inputs=[model.row_start, model.block_col, state.blocks, state.b,
+                                                    model.fixed, self._v, self._r, 0]))
+        self.stats = wp.zeros(3, dtype=wp.float64, device=d)
+        capacity = state.contacts.capacity
+        self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
+        self._movable = wp.zeros(capacity, dtype=wp.int32, device=d)
+        self._done = wp.zeros(1, dtype=wp.int32, device=d)
+        self.factorizations = 0
+        self.delassus_passes = 0
+        tets, ke = model.tets.numpy(), model.ke.numpy()
+        weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+        # Each node's rotation is the polar part of its tets' rotations summed by stiffness.
+        self._gather = sp.csr_matrix((np.repeat(weight, 4), (tets.ravel(), np.repeat(np.arange(len(tets)), 4))),
+                                     shape=(n, len(tets)))
+        self._factor()
+
+    def _factor(self) -> None:
+        """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
+        a, self._solved = free_matrix(self.model, self.state)
+        self._rotation0 = self._node_rotations()
+        self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
+                             options={"SymmetricMode": True})
+        self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
+        self.factorizations += 1
+        self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
+        self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
+        self._kept = 0  # columns of _columns in use
+
+    def _node_rotations(self) -> np.ndarray:
+        """Each solved node's rotation [k, 3, 3]: the polar rotation of the sum of its tets'
+        co-rotation ``R_e`` (this step's) weighted by their stiffness (trace of K_e's diagonal
+        blocks): Muller and Gross's stiffness warping, per node."""
+        rotations = self.state.rotations.numpy().reshape(-1, 9)
+        summed = (self._gather[self._solved] @ rotations).reshape(-1, 3, 3)
+        u, _, vt = np.linalg.svd(summed)
+        return u @ vt
+
+    def _rotate(self, x: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``R x`` (or ``R^T x``) for node vectors ``x`` [k, 3, ...] with ``R`` the block
+        diagonal of the nodes' rotations since the factorization."""
+        r = self._relative if not transpose else self._relative.transpose(0, 2, 1)
+        return np.einsum("kij,kj...->ki...", r, x)
+
+    def _columns_of(self, nodes: np.ndarray) -> np.ndarray:
+        """``P^-1`` [3 k, 3 len(nodes)] at the solved ``nodes``' three velocity components each,
+        solved for the nodes not yet kept."""
+        missing = nodes[self._slot[nodes] < 0]
+        if len(missing):
+            unit = np.zeros((self._columns.shape[0], 3 * len(missing)), order="F")
+            dofs = (3 * self._index[missing][:, None] + np.arange(3)).ravel()
+            unit[dofs, np.arange(len(dofs))] = 1.0
+            self._slot[missing] = self._kept // 3 + np.arange(len(missing))
+            if self._kept + len(dofs) > self._columns.shape[1]:  # room for twice as many
+                grown = np.zeros((self._columns.shape[0], 2 * (self._kept + len(dofs))), order="F")
+                grown[:, :self._kept] = self._columns[:, :self._kept]
+                self._columns = grown
+            self._columns[:, self._kept:self._kept + len(dofs)] = self._lu.solve(unit)
+            self._kept += len(dofs)
+        cols = (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
+        return self._columns[:, cols]
+
+    def _contacts(self) -> tuple:
+        """This step's contacts the impulses can move (a solved node of nonzero weight in the
+        stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
+        weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
+        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m] and the columns of
+        ``A_0^-1`` there [3 k, 3 u]."""
+        c = self.state.contacts
+        n = min(int(c.count.numpy()[0]), c.capacity)
+        nodes, weights = c.stencil_nodes.numpy()[:n], c.stencil_weights.numpy()[:n]
+        used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+        nodes = np.where(used, nodes, 0)
+        weights = np.where(used, weights, 0.0)
+        moves = used & self._solved[nodes] & (weights != 0.0)
+        movable = moves.any(axis=1)
+        self._movable.numpy()[:n] = movable
+        rows = np.flatnonzero(movable)
+        nodes, weights, moves = nodes[rows], weights[rows], moves[rows]
+        frames = c.frame.numpy()[rows]
+        touched, inverse = np.unique(nodes[moves], return_inverse=True)
+        g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
+        np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
+        columns = self._columns_of(touched)
+        dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
+        jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
+        # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
+        rel = self._relative[self._index[touched]]
+        jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
+        w = jt.T @ columns[dofs] @ jt
+        w = 0.5 * (w + w.T)
+        metric = self._metric.numpy()
+        metric[:n] = 0.0
+        metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        return rows, nodes, weights, w, dofs, jt, columns
+
+    def solve(self, tolerance: float) -> tuple[int, wp.array]:
+        """Outer iterations (module docstring) from the velocities in ``state.sweep_buffers[0]``
+        and the contacts' impulses, until an iteration changes no velocity by more than
+        ``tolerance`` [m/s] and every contact meets eq. 5.5 within it (``stats[1]``,
+        ``stats[2]``), or ``max_iterations``. Returns the iterations made ``k`` and the buffer
+        holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
+        a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
+        st, dt = self.state, self.dt
+        c = st.contacts
+        wp.copy(self._v, st.sweep_buffers[0])
+        v = self._v.numpy()
+        v[self._fixed] = self._fixed_velocity[self._fixed]
+        r = self._r.numpy()
+        self._relative = np.einsum("kij,klj->kil", self._node_rotations(), self._rotation0)
+        rows, nodes, weights, w, dofs, jt, columns = self._contacts()
+        m = len(rows)
+        impulse = c.impulse.numpy()
+        lam_d = wp.array(impulse[rows], dtype=wp.vec3d, device=self.model.device)
+        u_d = wp.zeros(m, dtype=wp.vec3d, device=self.model.device)
+        rel_d = wp.zeros(m, dtype=wp.vec3d, device=self.model.device)
+        w_d = wp.array(w, dtype=wp.float64, device=self.model.device)
+        frames = c.frame.numpy()[rows]
+        per_contact = [wp.array(frames, dtype=wp.mat33d, device=self.model.device)] + [
+            wp.array(x.numpy()[rows], dtype=x.dtype, device=self.model.device)
+            for x in (c.gap, c.friction, c.stiffness, c.slip)]
+        solved = self._solved
+        self.delassus_passes = 0
+        k = restart = 0
+        anderson = _Anderson(ANDERSON_MEMORY)
+        while k < self.max_iterations:
+            if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
+                self._factor()
+                self._relative = np.tile(np.eye(3), (int(solved.sum()), 1, 1))
+                rows, nodes, weights, w, dofs, jt, columns = self._contacts()
+                w_d = wp.array(w, dtype=wp.float64, device=self.model.device)
+                restart, anderson = k, _Anderson(ANDERSON_MEMORY)
+            k += 1
+            self._residual()
+            x = v[solved]
+            rotated = self._rotate(r[solved], True).ravel()  # R^T r
+            if m:
+                rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
+                u_d.numpy()[:] = np.einsum("cij,cj->ci", frames, rel) + (jt.T @ (columns.T @ rotated)).reshape(m, 3)
+                wp.launch(_k.dense_pgs, dim=1, device=self.model.device,
+                          inputs=[m, w_d, u_d, *per_contact, dt, DELASSUS_PASSES,
+                                  DELASSUS_TOLERANCE * tolerance, lam_d, rel_d, self._done])
+                self.delassus_passes += int(self._done.numpy()[0])
+                rotated[dofs] += jt @ lam_d.numpy().ravel()  # + R^T J^T lambda
+            u = x + self._rotate(self._lu.solve(rotated).reshape(-1, 3))
+            x = v[solved]
+            change = float(np.abs(u - x).max(initial=0.0))
+            u = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
+            v[solved] = u
+            self.stats.numpy()[0] = change
+            if change <= tolerance and self._contacts_met(k, rows, lam_d.numpy(), tolerance):
+                break
+        else:
+            self._contacts_met(k, rows, lam_d.numpy(), tolerance)
+        out = st.sweep_buffers[k % 3]
+        wp.copy(out, self._v)
+        return k, out
+
+    def _contacts_met(self, k: int, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
+        """The contacts' impulses ``lam`` [m, 3] [N s] (frames) into ``state.contacts`` at
+        ``rows`` and the residual of eq. 5.5 in this iteration's velocities into ``stats``
+        (:func:`softvr.contact._node_jacobi_kernels.residual`, ``gap_after`` too, with the
+        diagonal blocks of ``W`` as the contacts' metric): whether every contact meets it within
+        ``tolerance`` [m/s]."""
+        c, d = self.state.contacts, self.model.device
+        c.impulse.numpy()[rows] = lam
+        wp.launch(_jk.residual, dim=1, device=d,
+                  inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
+                          c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
+                          self._movable, c.gap_after, self.stats])
+        stats = self.stats.numpy()
+        return bool(stats[1] <= tolerance and stats[2] <= tolerance)
