@@ -431,10 +431,11 @@ class NodeStepper:
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
                                                    (coarse_aggregates(m, q), q, m.mass.numpy()))
             choice = self._spectrum[dt]
-            if choice.kind is None:
+            factored = self._factored(dt, choice)
+            if choice.kind is None and factored is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
-            self._recorded[5] = self._factored(dt, choice) or NodeSolve(self.model, self.state, dt, choice.bounds,
+            self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
@@ -442,8 +443,10 @@ class NodeStepper:
     def _factored(self, dt: float, choice) -> FactoredSolve | None:
         """The factored solve (:mod:`softvr.contact.node_factored`) where the scene allows it
         (:func:`factored_eligible`, no adhesion) and its estimated work a contact step is less
-        than the chosen sweeps' (:func:`factored_work`, :func:`sweeps_step_work`); it is
-        factored only where the sweeps need over :data:`MAX_SWEEPS_PER_DECADE` work a decade."""
+        than the sweeps' (:func:`factored_work`, :func:`sweeps_step_work`); it is factored only
+        where the sweeps need over :data:`MAX_SWEEPS_PER_DECADE` work a decade. A scene all
+        sweeps decline (``choice.kind`` None) takes it rather than stepping per object (a
+        sparse LU every step)."""
         sweeps = min(choice.work.values())
         if self.adhesion is not None or not factored_eligible(self.model) or sweeps <= MAX_SWEEPS_PER_DECADE:
             return None
