@@ -42,8 +42,15 @@ __all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
 ORDERING = "MMD_AT_PLUS_A"
 #: Outer iterations of a step after which ``P`` is factored again at the step's ``A``.
 REFACTOR_AFTER = 12
+#: Largest ratio of successive changes at which the outer iteration's error is estimated from
+#: its geometric tail (:func:`_error`) rather than taken as the last change.
+CONTRACTION = 0.5
 #: Iterates the outer iteration's Anderson acceleration remembers.
 ANDERSON_MEMORY = 5
+#: The local correction (:meth:`FactoredSolve._local`) takes the nodes where ``R^T A R - A_0``
+#: has a block over this share of ``A_0``'s diagonal block, at most :data:`LOCAL_NODES` of them.
+LOCAL_THRESHOLD = 0.05
+LOCAL_NODES = 120
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
 #: for tens of contacts; the warm start from the last iteration's impulses leaves few to do).
 DELASSUS_PASSES = 2000
@@ -91,6 +98,18 @@ def sweeps_step_work(work_per_decade: float) -> float:
     return STEP_DECADES * work_per_decade
 
 
+def _error(changes: list[float]) -> float:
+    """Estimated velocity error [m/s] after the outer iterations whose largest changes were
+    ``changes``: the geometric tail ``change rho / (1 - rho)`` with ``rho`` the larger of the
+    last two ratios of changes where both are under :data:`CONTRACTION` (the iteration then
+    contracts steadily), else the last change itself."""
+    if len(changes) >= 3:
+        rho = max(changes[-1] / max(changes[-2], 1e-300), changes[-2] / max(changes[-3], 1e-300))
+        if rho < CONTRACTION:
+            return changes[-1] * rho / (1.0 - rho)
+    return changes[-1]
+
+
 class _Anderson:
     """Anderson acceleration (type II; Walker and Ni 2011) of a fixed-point iteration x <- G(x)
     over the last ``memory`` iterates: the next iterate is G's image of the combination of the
@@ -114,7 +133,7 @@ class _Anderson:
         f = np.asarray(self._f)
         df, dg = f[1:] - f[:-1], np.asarray(self._g[1:]) - np.asarray(self._g[:-1])
         gram = df @ df.T
-        gram[np.diag_indices_from(gram)] *= 1.0 + 1e-10  # a repeated residual leaves it singular
+        gram.flat[::len(gram) + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
         gamma = np.linalg.lstsq(gram, df @ f[-1], rcond=None)[0]
         return g - gamma @ dg
 
@@ -154,6 +173,7 @@ class FactoredSolve:
         n, d = model.node_count, model.device
         self._fixed = model.fixed.numpy() != 0
         self._fixed_velocity = state.fixed_velocity.numpy()
+        self._fixed_nodes = np.flatnonzero(self._fixed)
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._r = wp.zeros(n, dtype=wp.vec3d, device=d)
         # One thread: the product is ~0.1 ms on the head CT, less than handing half to a second core.
@@ -165,6 +185,15 @@ class FactoredSolve:
         self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
         self._movable = wp.zeros(capacity, dtype=wp.int32, device=d)
         self._done = wp.zeros(1, dtype=wp.int32, device=d)
+        c = state.contacts
+        # Host views of the arrays the solve reads and writes (on the CPU, numpy() is a view; a
+        # call costs ~30 us, and a step would make hundreds).
+        self._host = {name: getattr(c, name).numpy() for name in
+                      ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
+                       "stiffness", "slip", "impulse")}
+        self._host.update(v=self._v.numpy(), r=self._r.numpy(), stats=self.stats.numpy(), done=self._done.numpy(),
+                          metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy(),
+                          rotations=state.rotations.numpy())
         self.factorizations = 0
         self.delassus_passes = 0
         tets, ke = model.tets.numpy(), model.ke.numpy()
@@ -183,6 +212,14 @@ class FactoredSolve:
         self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
         self.factorizations += 1
         self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        self._solved_nodes = np.flatnonzero(self._solved)
+        rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
+        self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
+        self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
+        self._blocks0 = self.state.blocks.numpy()[self._pairs].copy()
+        self._row_first = np.searchsorted(self._bi, np.arange(int(self._solved.sum())))  # blocks are row-sorted
+        diagonal = self._blocks0[self._bi == self._bj]
+        self._diagonal_size = np.sqrt((diagonal * diagonal).sum(axis=(1, 2)))
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
@@ -191,7 +228,7 @@ class FactoredSolve:
         """Each solved node's rotation [k, 3, 3]: the polar rotation of the sum of its tets'
         co-rotation ``R_e`` (this step's) weighted by their stiffness (trace of K_e's diagonal
         blocks): Muller and Gross's stiffness warping, per node."""
-        rotations = self.state.rotations.numpy().reshape(-1, 9)
+        rotations = self._host["rotations"].reshape(-1, 9)
         summed = (self._gather[self._solved] @ rotations).reshape(-1, 3, 3)
         u, _, vt = np.linalg.svd(summed)
         return u @ vt
@@ -200,7 +237,34 @@ class FactoredSolve:
         """``R x`` (or ``R^T x``) for node vectors ``x`` [k, 3, ...] with ``R`` the block
         diagonal of the nodes' rotations since the factorization."""
         r = self._relative if not transpose else self._relative.transpose(0, 2, 1)
-        return np.einsum("kij,kj...->ki...", r, x)
+        if x.ndim == 2:
+            return np.matmul(r, x[:, :, None])[:, :, 0]
+        return np.matmul(r, x)
+
+    def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
+        the tets under a contact, whose rotations differ from their nodes' (a squeezed tet), so
+        its blocks among the nodes ``S`` where it is largest (relative to ``A_0``'s diagonal
+        block, over :data:`LOCAL_THRESHOLD`, at most :data:`LOCAL_NODES`), ``D`` [3 s, 3 s],
+        are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
+        columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
+        the solved velocities [3 s], ``C_S`` [3 k, 3 s] and ``T`` [3 s, 3 s] (s = 0: none)."""
+        r = self._relative
+        a = self._host["blocks"][self._pairs]
+        d = np.matmul(np.matmul(r[self._bi].transpose(0, 2, 1), a), r[self._bj]) - self._blocks0
+        size = np.maximum.reduceat(np.sqrt((d * d).sum(axis=(1, 2))), self._row_first) / self._diagonal_size
+        pick = np.flatnonzero(size > LOCAL_THRESHOLD)
+        pick = pick[np.argsort(-size[pick], kind="stable")[:LOCAL_NODES]]
+        slot = np.full(len(size), -1)
+        slot[pick] = np.arange(len(pick))
+        inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
+        blocks = np.zeros((len(pick), len(pick), 3, 3))
+        blocks[slot[self._bi[inside]], slot[self._bj[inside]]] = d[inside]
+        blocks = blocks.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
+        dofs = (3 * pick[:, None] + np.arange(3)).ravel()
+        columns = self._columns_of(self._solved_nodes[pick])
+        t = np.linalg.solve(np.eye(len(dofs)) + blocks @ columns[dofs], blocks)
+        return dofs, columns, t
 
     def _columns_of(self, nodes: np.ndarray) -> np.ndarray:
         """``P^-1`` [3 k, 3 len(nodes)] at the solved ``nodes``' three velocity components each,
@@ -220,24 +284,24 @@ class FactoredSolve:
         cols = (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
         return self._columns[:, cols]
 
-    def _contacts(self) -> tuple:
+    def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
         stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
         weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
         among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m] and the columns of
         ``A_0^-1`` there [3 k, 3 u]."""
-        c = self.state.contacts
-        n = min(int(c.count.numpy()[0]), c.capacity)
-        nodes, weights = c.stencil_nodes.numpy()[:n], c.stencil_weights.numpy()[:n]
-        used = np.arange(nodes.shape[1]) < c.stencil_count.numpy()[:n, None]
+        h = self._host
+        n = min(int(h["count"][0]), len(h["impulse"]))
+        nodes, weights = h["stencil_nodes"][:n], h["stencil_weights"][:n]
+        used = np.arange(nodes.shape[1]) < h["stencil_count"][:n, None]
         nodes = np.where(used, nodes, 0)
         weights = np.where(used, weights, 0.0)
         moves = used & self._solved[nodes] & (weights != 0.0)
         movable = moves.any(axis=1)
-        self._movable.numpy()[:n] = movable
+        h["movable"][:n] = movable
         rows = np.flatnonzero(movable)
         nodes, weights, moves = nodes[rows], weights[rows], moves[rows]
-        frames = c.frame.numpy()[rows]
+        frames = h["frame"][rows]
         touched, inverse = np.unique(nodes[moves], return_inverse=True)
         g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
         np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
@@ -247,12 +311,13 @@ class FactoredSolve:
         # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
         rel = self._relative[self._index[touched]]
         jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
-        w = jt.T @ columns[dofs] @ jt
+        near = columns[local[0]]  # A_0^-1 between S and the touched nodes
+        w = jt.T @ (columns[dofs] - near.T @ local[2] @ near) @ jt
         w = 0.5 * (w + w.T)
-        metric = self._metric.numpy()
+        metric = h["metric"]
         metric[:n] = 0.0
         metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
-        return rows, nodes, weights, w, dofs, jt, columns
+        return rows, nodes, weights, w, dofs, jt, columns, near
 
     def solve(self, tolerance: float) -> tuple[int, wp.array]:
         """Outer iterations (module docstring) from the velocities in ``state.sweep_buffers[0]``
@@ -261,72 +326,73 @@ class FactoredSolve:
         ``stats[2]``), or ``max_iterations``. Returns the iterations made ``k`` and the buffer
         holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
         a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
-        st, dt = self.state, self.dt
-        c = st.contacts
+        st, dt, d, h = self.state, self.dt, self.model.device, self._host
         wp.copy(self._v, st.sweep_buffers[0])
-        v = self._v.numpy()
-        v[self._fixed] = self._fixed_velocity[self._fixed]
-        r = self._r.numpy()
-        self._relative = np.einsum("kij,klj->kil", self._node_rotations(), self._rotation0)
-        rows, nodes, weights, w, dofs, jt, columns = self._contacts()
+        v, r, solved = h["v"], h["r"], self._solved_nodes
+        v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
+        self._relative = np.matmul(self._node_rotations(), self._rotation0.transpose(0, 2, 1))
+        local = self._local()
+        rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
         m = len(rows)
-        impulse = c.impulse.numpy()
-        lam_d = wp.array(impulse[rows], dtype=wp.vec3d, device=self.model.device)
-        u_d = wp.zeros(m, dtype=wp.vec3d, device=self.model.device)
-        rel_d = wp.zeros(m, dtype=wp.vec3d, device=self.model.device)
-        w_d = wp.array(w, dtype=wp.float64, device=self.model.device)
-        frames = c.frame.numpy()[rows]
-        per_contact = [wp.array(frames, dtype=wp.mat33d, device=self.model.device)] + [
-            wp.array(x.numpy()[rows], dtype=x.dtype, device=self.model.device)
-            for x in (c.gap, c.friction, c.stiffness, c.slip)]
-        solved = self._solved
+        frames = h["frame"][rows]
+        lam_d = wp.array(h["impulse"][rows], dtype=wp.vec3d, device=d)
+        u_d, rel_d = wp.zeros(m, dtype=wp.vec3d, device=d), wp.zeros(m, dtype=wp.vec3d, device=d)
+        lam, u_f = lam_d.numpy(), u_d.numpy()
+        w_d = wp.array(w, dtype=wp.float64, device=d)
+        per_contact = [wp.array(frames, dtype=wp.mat33d, device=d)] + [
+            wp.array(h[name][rows], dtype=getattr(st.contacts, name).dtype, device=d)
+            for name in ("gap", "friction", "stiffness", "slip")]
         self.delassus_passes = 0
         k = restart = 0
         anderson = _Anderson(ANDERSON_MEMORY)
+        changes: list[float] = []
         while k < self.max_iterations:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
                 self._factor()
-                self._relative = np.tile(np.eye(3), (int(solved.sum()), 1, 1))
-                rows, nodes, weights, w, dofs, jt, columns = self._contacts()
-                w_d = wp.array(w, dtype=wp.float64, device=self.model.device)
-                restart, anderson = k, _Anderson(ANDERSON_MEMORY)
+                self._relative = np.tile(np.eye(3), (len(solved), 1, 1))
+                local = self._local()
+                rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
+                w_d = wp.array(w, dtype=wp.float64, device=d)
+                restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
             self._residual()
             x = v[solved]
             rotated = self._rotate(r[solved], True).ravel()  # R^T r
             if m:
                 rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
-                u_d.numpy()[:] = np.einsum("cij,cj->ci", frames, rel) + (jt.T @ (columns.T @ rotated)).reshape(m, 3)
-                wp.launch(_k.dense_pgs, dim=1, device=self.model.device,
+                at = columns.T @ rotated - near.T @ (local[2] @ (local[1].T @ rotated))  # P^-1 R^T r there
+                u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
+                wp.launch(_k.dense_pgs, dim=1, device=d,
                           inputs=[m, w_d, u_d, *per_contact, dt, DELASSUS_PASSES,
                                   DELASSUS_TOLERANCE * tolerance, lam_d, rel_d, self._done])
-                self.delassus_passes += int(self._done.numpy()[0])
-                rotated[dofs] += jt @ lam_d.numpy().ravel()  # + R^T J^T lambda
-            u = x + self._rotate(self._lu.solve(rotated).reshape(-1, 3))
-            x = v[solved]
+                self.delassus_passes += int(h["done"][0])
+                rotated[dofs] += jt @ lam.ravel()  # + R^T J^T lambda
+            y = self._lu.solve(rotated)
+            y -= local[1] @ (local[2] @ y[local[0]])
+            u = x + self._rotate(y.reshape(-1, 3))
             change = float(np.abs(u - x).max(initial=0.0))
-            u = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
-            v[solved] = u
-            self.stats.numpy()[0] = change
-            if change <= tolerance and self._contacts_met(k, rows, lam_d.numpy(), tolerance):
+            v[solved] = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
+            h["stats"][0] = change
+            changes.append(change)
+            if _error(changes) <= tolerance and self._contacts_met(rows, lam, tolerance):
                 break
         else:
-            self._contacts_met(k, rows, lam_d.numpy(), tolerance)
+            self._contacts_met(rows, lam, tolerance)
         out = st.sweep_buffers[k % 3]
         wp.copy(out, self._v)
         return k, out
 
-    def _contacts_met(self, k: int, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
+    def _contacts_met(self, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
         """The contacts' impulses ``lam`` [m, 3] [N s] (frames) into ``state.contacts`` at
         ``rows`` and the residual of eq. 5.5 in this iteration's velocities into ``stats``
         (:func:`softvr.contact._node_jacobi_kernels.residual`, ``gap_after`` too, with the
         diagonal blocks of ``W`` as the contacts' metric): whether every contact meets it within
         ``tolerance`` [m/s]."""
         c, d = self.state.contacts, self.model.device
-        c.impulse.numpy()[rows] = lam
+        self._host["impulse"][rows] = lam
         wp.launch(_jk.residual, dim=1, device=d,
                   inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
                           c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
                           self._movable, c.gap_after, self.stats])
-        stats = self.stats.numpy()
+        stats = self._host["stats"]
         return bool(stats[1] <= tolerance and stats[2] <= tolerance)
