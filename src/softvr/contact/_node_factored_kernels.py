@@ -37,6 +37,33 @@ def momentum_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
     r[i] = acc
 
 
+@wp.kernel
+def warp_change(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                blocks: wp.array(dtype=wp.mat33d), blocks0: wp.array(dtype=wp.mat33d),
+                rotation: wp.array(dtype=wp.mat33d), solved: wp.array(dtype=wp.int32),
+                change: wp.array(dtype=wp.float64)):
+    """How far node ``i``'s row of ``A`` [kg] is from the factored ``A_0`` turned to the nodes'
+    rotations ``R`` (``rotation`` [n], since the factorization): the largest Frobenius norm of
+    ``R_i^T A_ij R_j - A0_ij`` over the solved nodes ``j``, over that of ``A0_ii``; 0 on a node
+    not solved."""
+    i = wp.tid()
+    change[i] = wp.float64(0.0)
+    if solved[i] == 0:
+        return
+    ri = wp.transpose(rotation[i])
+    worst = wp.float64(0.0)
+    own = wp.float64(0.0)
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if j == i:
+            own = wp.ddot(blocks0[k], blocks0[k])
+        if solved[j] != 0:
+            d = ri * blocks[k] * rotation[j] - blocks0[k]
+            worst = wp.max(worst, wp.ddot(d, d))
+    if own > wp.float64(0.0):
+        change[i] = wp.sqrt(worst / own)
+
+
 @wp.func
 def _block(w: wp.array2d(dtype=wp.float64), c: int, d: int) -> wp.mat33d:
     """Block (c, d) [1/kg] of the dense ``w``."""
@@ -46,16 +73,17 @@ def _block(w: wp.array2d(dtype=wp.float64), c: int, d: int) -> wp.mat33d:
 
 
 @wp.kernel
-def dense_pgs(count: int, w: wp.array2d(dtype=wp.float64), u: wp.array(dtype=wp.vec3d),
+def dense_pgs(contacts: wp.array(dtype=wp.int32), w: wp.array2d(dtype=wp.float64), u: wp.array(dtype=wp.vec3d),
               frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
               stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), dt: wp.float64, passes: int,
               tolerance: wp.float64, impulse: wp.array(dtype=wp.vec3d), rel: wp.array(dtype=wp.vec3d),
               done: wp.array(dtype=wp.int32)):
-    """Up to ``passes`` PGS passes (one thread, contacts in order) over ``count`` contacts on the
-    Delassus matrix ``w`` [3 count, 3 count] [1/kg], from the impulses ``impulse`` [count] [N s]
+    """Up to ``passes`` PGS passes (one thread, contacts in order) over ``count = contacts[0]``
+    contacts on the Delassus matrix ``w`` (its first 3 count rows and columns) [1/kg], from the impulses ``impulse`` [count] [N s]
     (frame) and the relative velocities without them ``u`` [count] [m/s] (frame); stops after a
     pass that moved no contact's velocity by more than ``tolerance`` [m/s]. ``rel`` [count]
     [m/s] ends as ``u + W lambda``; ``done[0]`` the passes made."""
+    count = contacts[0]
     for c in range(count):
         acc = u[c]
         for d in range(count):

@@ -5,22 +5,27 @@ coarse-corrected Jacobi, ~40 ms, against 2 off contact: the probe's push has to 
 stiff clamped body one node ring a sweep).
 
 The step matrix ``A`` of the scene's first step is factored once (SciPy's SuperLU, a symmetric
-fill-reducing ordering) and kept: ``P = A_0``. A co-rotated body's ``A`` changes with its
-elements' rotations, so every step iterates the splitting ``A = P - (P - A)``:
+fill-reducing ordering) and kept: ``A_0``. A co-rotated body's ``A`` changes with its elements'
+rotations (eq. 5.2 with ``R_e K_e R_e^T``), so every step iterates the splitting ``A = P - (P -
+A)`` with ``P`` the factored matrix turned to the nodes' rotations since (``R``, block diagonal:
+Muller and Gross's stiffness warping) and corrected where the tets under a contact are squeezed
+(``D``, a few tens of nodes, by Woodbury's identity):
 
+    P = R (A_0 + D) R^T,   D = (R^T A R - A_0) on those nodes
     u^k+1      = v^k + P^-1 (b - A v^k)                                    (eq. 5.2's residual)
     lambda^k+1 = LCP(W, J u^k+1):  0 <= lambda _|_ J v - c >= 0, friction   (eq. 5.5)
     v^k+1      = u^k+1 + P^-1 J^T lambda^k+1
 
 with the Delassus operator ``W = J P^-1 J^T`` over the step's contacts (small and dense: the
 probe makes tens), solved by projected Gauss-Seidel with the node sweeps' own projection
-(:func:`softvr.contact._node_jacobi_kernels.pgs_update`). At its fixed point ``A v = b + J^T
-lambda`` and every contact meets eq. 5.5 in ``v``: the same solution as the sweeps'. It contracts
-by about ``|I - P^-1 A|`` an iteration (the head CT under the probe: ``|A - A_0| / |A_0|`` <
-1 %, two to four iterations a step); where the bodies' rotations make it slow
-(:data:`REFACTOR_AFTER` iterations), ``P`` is factored again at that step's ``A``. The columns
-of ``P^-1`` at the contacts' nodes (``J^T`` has a few nonzero node blocks per contact) are
-solved once per node and kept while ``P`` is.
+(:func:`softvr.contact._node_jacobi_kernels.pgs_update`), and the iterates Anderson-accelerated.
+At its fixed point ``A v = b + J^T lambda`` and every contact meets eq. 5.5 in ``v``: the same
+solution as the sweeps'. The head CT pressed 5 mm by the probe: the eigenvalues of ``A_0^-1 A``
+spread over 0.22-3.3, of ``(R A_0 R^T)^-1 A`` over 0.35-1.8; one to six iterations a step (one
+sparse triangular solve pair each) against the sweeps' ~180. Where the deformation makes it
+slow (:data:`REFACTOR_AFTER` iterations in a step), ``A_0`` is factored again at that step's
+``A``. The columns of ``A_0^-1`` at the contacts' and the correction's nodes are solved once per
+node and kept while the factorization is.
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ ANDERSON_MEMORY = 5
 #: has a block over this share of ``A_0``'s diagonal block, at most :data:`LOCAL_NODES` of them.
 LOCAL_THRESHOLD = 0.05
 LOCAL_NODES = 120
+#: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
+POLAR_ITERATIONS = 3
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
 #: for tens of contacts; the warm start from the last iteration's impulses leaves few to do).
 DELASSUS_PASSES = 2000
@@ -166,7 +173,7 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.momentum_residual, _k.dense_pgs, _jk.residual):
+        for kernel in (_k.momentum_residual, _k.warp_change, _k.dense_pgs, _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
@@ -194,6 +201,21 @@ class FactoredSolve:
         self._host.update(v=self._v.numpy(), r=self._r.numpy(), stats=self.stats.numpy(), done=self._done.numpy(),
                           metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy(),
                           rotations=state.rotations.numpy())
+        self._residual_check = replayer(wp.launch(
+            _jk.residual, dim=1, device=d, record_cmd=True,
+            inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
+                    c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
+                    self._movable, c.gap_after, self.stats]))
+        self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
+        self._rotation = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
+        self._change = wp.zeros(n, dtype=wp.float64, device=d)
+        solved = (model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0)
+        self._solved_d = wp.array(solved.astype(np.int32), dtype=wp.int32, device=d)
+        self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
+                                               inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
+                                                       self._rotation, self._solved_d, self._change]))
+        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
+        self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
         self.delassus_passes = 0
         tets, ke = model.tets.numpy(), model.ke.numpy()
@@ -206,20 +228,17 @@ class FactoredSolve:
     def _factor(self) -> None:
         """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
         a, self._solved = free_matrix(self.model, self.state)
-        self._rotation0 = self._node_rotations()
         self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
         self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
         self.factorizations += 1
         self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
         self._solved_nodes = np.flatnonzero(self._solved)
+        self._rotation0 = self._node_rotations()
         rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
         self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
         self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
-        self._blocks0 = self.state.blocks.numpy()[self._pairs].copy()
-        self._row_first = np.searchsorted(self._bi, np.arange(int(self._solved.sum())))  # blocks are row-sorted
-        diagonal = self._blocks0[self._bi == self._bj]
-        self._diagonal_size = np.sqrt((diagonal * diagonal).sum(axis=(1, 2)))
+        wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
@@ -229,9 +248,16 @@ class FactoredSolve:
         co-rotation ``R_e`` (this step's) weighted by their stiffness (trace of K_e's diagonal
         blocks): Muller and Gross's stiffness warping, per node."""
         rotations = self._host["rotations"].reshape(-1, 9)
-        summed = (self._gather[self._solved] @ rotations).reshape(-1, 3, 3)
-        u, _, vt = np.linalg.svd(summed)
-        return u @ vt
+        x = (self._gather @ rotations)[self._solved_nodes].reshape(-1, 3, 3)
+        # Newton's iteration for the polar factor, X <- (X + X^-T) / 2, from X scaled to unit
+        # determinant: the sums are near rotations, and P only needs R to a few digits.
+        x /= np.cbrt(np.einsum("kj,kj->k", x[:, 0], np.cross(x[:, 1], x[:, 2])))[:, None, None]
+        for _ in range(POLAR_ITERATIONS):
+            # X^-T = cofactors / det: rows b x c, c x a, a x b of X's rows a, b, c.
+            cofactors = np.cross(x[:, [1, 2, 0]], x[:, [2, 0, 1]])
+            det = np.einsum("kj,kj->k", x[:, 0], cofactors[:, 0])
+            x = 0.5 * (x + cofactors / det[:, None, None])
+        return x
 
     def _rotate(self, x: np.ndarray, transpose: bool = False) -> np.ndarray:
         """``R x`` (or ``R^T x``) for node vectors ``x`` [k, 3, ...] with ``R`` the block
@@ -249,17 +275,20 @@ class FactoredSolve:
         are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
         columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
         the solved velocities [3 s], ``C_S`` [3 k, 3 s] and ``T`` [3 s, 3 s] (s = 0: none)."""
-        r = self._relative
-        a = self._host["blocks"][self._pairs]
-        d = np.matmul(np.matmul(r[self._bi].transpose(0, 2, 1), a), r[self._bj]) - self._blocks0
-        size = np.maximum.reduceat(np.sqrt((d * d).sum(axis=(1, 2))), self._row_first) / self._diagonal_size
+        r, h = self._relative, self._host
+        h["rotation"][self._solved_nodes] = r
+        self._warp_change()
+        size = h["change"][self._solved_nodes]
         pick = np.flatnonzero(size > LOCAL_THRESHOLD)
         pick = pick[np.argsort(-size[pick], kind="stable")[:LOCAL_NODES]]
         slot = np.full(len(size), -1)
         slot[pick] = np.arange(len(pick))
         inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
+        bi, bj = self._bi[inside], self._bj[inside]
+        a0 = h["blocks0"][self._pairs[inside]]
+        d = np.matmul(np.matmul(r[bi].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]), r[bj]) - a0
         blocks = np.zeros((len(pick), len(pick), 3, 3))
-        blocks[slot[self._bi[inside]], slot[self._bj[inside]]] = d[inside]
+        blocks[slot[bi], slot[bj]] = d
         blocks = blocks.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
         columns = self._columns_of(self._solved_nodes[pick])
@@ -319,6 +348,26 @@ class FactoredSolve:
         metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
         return rows, nodes, weights, w, dofs, jt, columns, near
 
+    def _delassus(self, m: int, tolerance: float) -> dict:
+        """Host views of the PGS launch's arrays (:func:`_node_factored_kernels.dense_pgs`) for
+        ``m`` contacts, the launch recorded again where they grow or ``tolerance`` [m/s] changes."""
+        if m > self._delassus_capacity or tolerance != self._delassus_tolerance:
+            size, d = max(2 * m, 16, self._delassus_capacity), self.model.device
+            arrays = {"count": wp.zeros(1, dtype=wp.int32, device=d),
+                      "w": wp.zeros((3 * size, 3 * size), dtype=wp.float64, device=d),
+                      **{name: wp.zeros(size, dtype=wp.vec3d, device=d) for name in ("u", "slip", "impulse", "rel")},
+                      "frame": wp.zeros(size, dtype=wp.mat33d, device=d),
+                      **{name: wp.zeros(size, dtype=wp.float64, device=d) for name in ("gap", "friction", "stiffness")}}
+            self._pgs = replayer(wp.launch(
+                _k.dense_pgs, dim=1, device=d, record_cmd=True,
+                inputs=[arrays[name] for name in ("count", "w", "u", "frame", "gap", "friction", "stiffness", "slip")]
+                + [self.dt, DELASSUS_PASSES, DELASSUS_TOLERANCE * tolerance, arrays["impulse"], arrays["rel"],
+                   self._done]))
+            self._delassus_arrays = {name: array.numpy() for name, array in arrays.items()}
+            self._delassus_keep = arrays
+            self._delassus_capacity, self._delassus_tolerance = size, tolerance
+        return self._delassus_arrays
+
     def solve(self, tolerance: float) -> tuple[int, wp.array]:
         """Outer iterations (module docstring) from the velocities in ``state.sweep_buffers[0]``
         and the contacts' impulses, until an iteration changes no velocity by more than
@@ -326,7 +375,7 @@ class FactoredSolve:
         ``stats[2]``), or ``max_iterations``. Returns the iterations made ``k`` and the buffer
         holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
         a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
-        st, dt, d, h = self.state, self.dt, self.model.device, self._host
+        st, h = self.state, self._host
         wp.copy(self._v, st.sweep_buffers[0])
         v, r, solved = h["v"], h["r"], self._solved_nodes
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
@@ -335,13 +384,12 @@ class FactoredSolve:
         rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
         m = len(rows)
         frames = h["frame"][rows]
-        lam_d = wp.array(h["impulse"][rows], dtype=wp.vec3d, device=d)
-        u_d, rel_d = wp.zeros(m, dtype=wp.vec3d, device=d), wp.zeros(m, dtype=wp.vec3d, device=d)
-        lam, u_f = lam_d.numpy(), u_d.numpy()
-        w_d = wp.array(w, dtype=wp.float64, device=d)
-        per_contact = [wp.array(frames, dtype=wp.mat33d, device=d)] + [
-            wp.array(h[name][rows], dtype=getattr(st.contacts, name).dtype, device=d)
-            for name in ("gap", "friction", "stiffness", "slip")]
+        pgs = self._delassus(m, tolerance)
+        pgs["count"][0] = m
+        pgs["w"][:3 * m, :3 * m] = w
+        for name in ("frame", "gap", "friction", "stiffness", "slip", "impulse"):
+            pgs[name][:m] = h[name][rows]
+        lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
         self.delassus_passes = 0
         k = restart = 0
         anderson = _Anderson(ANDERSON_MEMORY)
@@ -352,7 +400,7 @@ class FactoredSolve:
                 self._relative = np.tile(np.eye(3), (len(solved), 1, 1))
                 local = self._local()
                 rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
-                w_d = wp.array(w, dtype=wp.float64, device=d)
+                pgs["w"][:3 * m, :3 * m] = w
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
             self._residual()
@@ -362,9 +410,7 @@ class FactoredSolve:
                 rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
                 at = columns.T @ rotated - near.T @ (local[2] @ (local[1].T @ rotated))  # P^-1 R^T r there
                 u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
-                wp.launch(_k.dense_pgs, dim=1, device=d,
-                          inputs=[m, w_d, u_d, *per_contact, dt, DELASSUS_PASSES,
-                                  DELASSUS_TOLERANCE * tolerance, lam_d, rel_d, self._done])
+                self._pgs()
                 self.delassus_passes += int(h["done"][0])
                 rotated[dofs] += jt @ lam.ravel()  # + R^T J^T lambda
             y = self._lu.solve(rotated)
@@ -388,11 +434,7 @@ class FactoredSolve:
         (:func:`softvr.contact._node_jacobi_kernels.residual`, ``gap_after`` too, with the
         diagonal blocks of ``W`` as the contacts' metric): whether every contact meets it within
         ``tolerance`` [m/s]."""
-        c, d = self.state.contacts, self.model.device
         self._host["impulse"][rows] = lam
-        wp.launch(_jk.residual, dim=1, device=d,
-                  inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
-                          c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
-                          self._movable, c.gap_after, self.stats])
+        self._residual_check()
         stats = self._host["stats"]
         return bool(stats[1] <= tolerance and stats[2] <= tolerance)
