@@ -274,7 +274,8 @@ class FactoredSolve:
         block, over :data:`LOCAL_THRESHOLD`, at most :data:`LOCAL_NODES`), ``D`` [3 s, 3 s],
         are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
         columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
-        the solved velocities [3 s], ``C_S`` [3 k, 3 s] and ``T`` [3 s, 3 s] (s = 0: none)."""
+        the solved velocities [3 s], its columns in the kept ones (:meth:`_slots_of`) [3 s] and
+        ``T`` [3 s, 3 s] (s = 0: none)."""
         r, h = self._relative, self._host
         h["rotation"][self._solved_nodes] = r
         self._warp_change()
@@ -291,13 +292,13 @@ class FactoredSolve:
         blocks[slot[bi], slot[bj]] = d
         blocks = blocks.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
-        columns = self._columns_of(self._solved_nodes[pick])
-        t = np.linalg.solve(np.eye(len(dofs)) + blocks @ columns[dofs], blocks)
-        return dofs, columns, t
+        slots = self._slots_of(self._solved_nodes[pick])
+        t = np.linalg.solve(np.eye(len(dofs)) + blocks @ self._columns[np.ix_(dofs, slots)], blocks)
+        return dofs, slots, t
 
-    def _columns_of(self, nodes: np.ndarray) -> np.ndarray:
-        """``P^-1`` [3 k, 3 len(nodes)] at the solved ``nodes``' three velocity components each,
-        solved for the nodes not yet kept."""
+    def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
+        """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
+        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept."""
         missing = nodes[self._slot[nodes] < 0]
         if len(missing):
             unit = np.zeros((self._columns.shape[0], 3 * len(missing)), order="F")
@@ -310,15 +311,15 @@ class FactoredSolve:
                 self._columns = grown
             self._columns[:, self._kept:self._kept + len(dofs)] = self._lu.solve(unit)
             self._kept += len(dofs)
-        cols = (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
-        return self._columns[:, cols]
+        return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
 
     def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
         stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
         weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
-        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m] and the columns of
-        ``A_0^-1`` there [3 k, 3 u]."""
+        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m], their columns among
+        the kept ones [3 u] and ``A_0^-1`` between ``S`` of ``local`` (:meth:`_local`) and them
+        [3 s, 3 u]."""
         h = self._host
         n = min(int(h["count"][0]), len(h["impulse"]))
         nodes, weights = h["stencil_nodes"][:n], h["stencil_weights"][:n]
@@ -334,19 +335,19 @@ class FactoredSolve:
         touched, inverse = np.unique(nodes[moves], return_inverse=True)
         g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
         np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
-        columns = self._columns_of(touched)
+        slots = self._slots_of(touched)
         dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
         jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
         # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
         rel = self._relative[self._index[touched]]
         jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
-        near = columns[local[0]]  # A_0^-1 between S and the touched nodes
-        w = jt.T @ (columns[dofs] - near.T @ local[2] @ near) @ jt
+        near = self._columns[np.ix_(local[0], slots)]  # A_0^-1 between S and the touched nodes
+        w = jt.T @ (self._columns[np.ix_(dofs, slots)] - near.T @ local[2] @ near) @ jt
         w = 0.5 * (w + w.T)
         metric = h["metric"]
         metric[:n] = 0.0
         metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
-        return rows, nodes, weights, w, dofs, jt, columns, near
+        return rows, nodes, weights, w, dofs, jt, slots, near
 
     def _delassus(self, m: int, tolerance: float) -> dict:
         """Host views of the PGS launch's arrays (:func:`_node_factored_kernels.dense_pgs`) for
@@ -381,7 +382,7 @@ class FactoredSolve:
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
         self._relative = np.matmul(self._node_rotations(), self._rotation0.transpose(0, 2, 1))
         local = self._local()
-        rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
+        rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
         m = len(rows)
         frames = h["frame"][rows]
         pgs = self._delassus(m, tolerance)
@@ -399,22 +400,27 @@ class FactoredSolve:
                 self._factor()
                 self._relative = np.tile(np.eye(3), (len(solved), 1, 1))
                 local = self._local()
-                rows, nodes, weights, w, dofs, jt, columns, near = self._contacts(local)
+                rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
             self._residual()
             x = v[solved]
             rotated = self._rotate(r[solved], True).ravel()  # R^T r
+            kept = self._columns[:, :self._kept]
             if m:
+                at = kept.T @ rotated  # A_0^-1 R^T r at the kept columns' nodes
+                at = at[slots] - near.T @ (local[2] @ at[local[1]])  # P^-1 r there, turned
                 rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
-                at = columns.T @ rotated - near.T @ (local[2] @ (local[1].T @ rotated))  # P^-1 R^T r there
                 u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
                 self._pgs()
                 self.delassus_passes += int(h["done"][0])
                 rotated[dofs] += jt @ lam.ravel()  # + R^T J^T lambda
             y = self._lu.solve(rotated)
-            y -= local[1] @ (local[2] @ y[local[0]])
+            if len(local[0]):
+                spread = np.zeros(self._kept)
+                spread[local[1]] = local[2] @ y[local[0]]
+                y -= kept @ spread
             u = x + self._rotate(y.reshape(-1, 3))
             change = float(np.abs(u - x).max(initial=0.0))
             v[solved] = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
