@@ -207,10 +207,10 @@ class FactoredSolve:
                     c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
                     self._movable, c.gap_after, self.stats]))
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
-        self._rotation = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
+        self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
         solved = (model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0)
-        self._solved_d = wp.array(solved.astype(np.int32), dtype=wp.int32, device=d)
+        self._solved_d: wp.array = wp.array(solved.astype(np.int32), dtype=wp.int32, device=d)
         self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
                                                inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
                                                        self._rotation, self._solved_d, self._change]))
@@ -288,9 +288,9 @@ class FactoredSolve:
         bi, bj = self._bi[inside], self._bj[inside]
         a0 = h["blocks0"][self._pairs[inside]]
         d = np.matmul(np.matmul(r[bi].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]), r[bj]) - a0
-        blocks = np.zeros((len(pick), len(pick), 3, 3))
-        blocks[slot[bi], slot[bj]] = d
-        blocks = blocks.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
+        grid = np.zeros((len(pick), len(pick), 3, 3))
+        grid[slot[bi], slot[bj]] = d
+        blocks = grid.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
         slots = self._slots_of(self._solved_nodes[pick])
         t = np.linalg.solve(np.eye(len(dofs)) + blocks @ self._columns[np.ix_(dofs, slots)], blocks)
