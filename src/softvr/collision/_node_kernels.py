@@ -321,6 +321,23 @@ def point_contact(out: NodeContactOut, c: int, kind: int, column: int, p: int, o
               out.stencil_weights)
 
 
+@wp.func
+def edge_pair_covered(e: int, j: int, edges: wp.array2d(dtype=wp.int32), sharp: wp.array(dtype=wp.int32),
+                      point_body: wp.array(dtype=wp.int32), hit: wp.array2d(dtype=wp.int32)) -> bool:
+    """Whether the pair of edges ``e`` and ``j`` lies on a patch the vertex-triangle contacts
+    already hold: both ends of one edge meet the other edge's body (``hit``,
+    :func:`vertex_triangle`) and the other edge is no crease (``sharp``), so the other surface
+    is flat across it. An edge moves as the interpolation of its ends, so kept off a flat surface
+    at both ends it is kept off it between them: the pair's row is nearly a combination of those
+    contacts' rows, and such nearly dependent rows on one touching patch are what the sweeps
+    converge on slowly (issue 16: one contact per touching feature pair)."""
+    a = point_body[edges[e, 0]]
+    b = point_body[edges[j, 0]]
+    held_a = hit[edges[e, 0], b] != 0 and hit[edges[e, 1], b] != 0 and sharp[j] == 0
+    held_b = hit[edges[j, 0], a] != 0 and hit[edges[j, 1], a] != 0 and sharp[e] == 0
+    return held_a or held_b
+
+
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
@@ -334,7 +351,7 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
                     hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
                     hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
-                    pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
+                    edge_sharp: wp.array(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
                     pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
                     edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
                     dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
@@ -408,7 +425,7 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
             edge_carried[e, k] = wp.vec3d()
             edge_partner[e, k] = -1
             j = pair_edge[e, k]
-            if j >= 0 and n_out < capacity:
+            if j >= 0 and n_out < capacity and not edge_pair_covered(e, j, edges, edge_sharp, point_body, hit):
                 st = pair_st[e, k]
                 if partner != j:  # the slot held another pair last step: start cold
                     last = wp.vec3d()
