@@ -314,7 +314,7 @@ class NodeSolve:
         (soft-on-soft contacts whose PGS does not settle) is left to :meth:`_plateau`.
         Measured on the candy pile (`softvr bench adhesion`'s scene, 100 steps): its contact
         steps' Chebyshev sweeps cycle at 2e-3 to 5e-3 m/s from about sweep 20 while plain sweeps
-        then fall ~10 sweeps a decade; judged over one decade instead of two, 123 -> 89 sweeps a
+        then fall ~10 sweeps a decade; judged over one decade instead of two, 120 -> 89 sweeps a
         step; stalls counted down to the tolerance instead of 100x the stop (1.4e-4 m/s), which
         left Chebyshev growing slowly between the two up to the 500-sweep cap, 89 -> 81."""
         window = max(10, self._window() // 2)
