@@ -78,7 +78,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
-                                       c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
+                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
     out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
@@ -86,7 +86,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
                 model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, c.static_hit,
                 c.static_normal, c.static_gap, model.static_mesh_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
-                model.edges, state.edge_sharp, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
+                model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
                 float(dt), c.capacity, c.carried, c.count, out])))
     if model.rigid is not None:
         steps.append(record_rigid_contacts(model, state, dt))
