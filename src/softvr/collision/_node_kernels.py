@@ -491,8 +491,11 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, out.stencil_count,
                               out.stencil_nodes, out.stencil_weights)
                 n_out += 1
-    for e in range(pair_edge.shape[0]):
-        for k in range(pair_edge.shape[1]):
+    for e in range(edges.shape[0]):  # (pair_edge keeps one row of -1 where there are no edges)
+        # Edge e's body a queries bodies b > a only (edge_edge: 2 B slots, pairs_per_edge a
+        # body): the slots of bodies <= a are never set.
+        first = pair_edge.shape[1] // hit.shape[1] * (point_body[edges[e, 0]] + 1)
+        for k in range(first, pair_edge.shape[1]):
             # A slot without a partner holds no impulse anyone reads (a new pair there starts
             # cold, carried_out reads partnered slots only): left as it is, not read and
             # cleared (24 of the 26 bytes a slot, 2 B slots an edge).
