@@ -611,6 +611,65 @@ def raycast(
 
 
 @wp.kernel
+def mark_pixels(
+    lo: wp.array(dtype=wp.vec3),
+    hi: wp.array(dtype=wp.vec3),
+    index_to_ndc: wp.mat44,
+    width: int,
+    height: int,
+    mark: int,
+    mask: wp.array(dtype=wp.uint8),
+    rect: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    """The pixels whose rays may meet the index-space box ``lo[b] .. hi[b]``: the bounds of
+    its corners projected by ``index_to_ndc`` (to clip space), a pixel wider for rounding
+    (every pixel if a corner lies behind the camera). A ray meets a box only where its pixel
+    centre lies in the box's projection, the convex hull of the projected corners. Set 1 in
+    ``mask`` [height * width] (row-major, row 0 at the top) over them if ``mark`` != 0, and
+    grow ``rect`` (first column, last column, first row, last row; start empty) to hold them."""
+    b = wp.tid() + offset
+    x0 = float(1.0e30)
+    x1 = float(-1.0e30)
+    y0 = float(1.0e30)
+    y1 = float(-1.0e30)
+    behind = bool(False)
+    for c in range(8):
+        p = wp.vec3(wp.where((c & 4) != 0, hi[b][0], lo[b][0]), wp.where((c & 2) != 0, hi[b][1], lo[b][1]),
+                    wp.where((c & 1) != 0, hi[b][2], lo[b][2]))
+        q = index_to_ndc @ wp.vec4(p[0], p[1], p[2], 1.0)
+        if q[3] <= 0.0:
+            behind = True
+        else:
+            # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1).
+            px = (q[0] / q[3] + 1.0) * 0.5 * float(width) - 0.5
+            py = (q[1] / q[3] + 1.0) * 0.5 * float(height) - 0.5
+            x0 = wp.min(x0, px)
+            x1 = wp.max(x1, px)
+            y0 = wp.min(y0, py)
+            y1 = wp.max(y1, py)
+    c0 = int(0)
+    c1 = width - 1
+    r0 = int(0)
+    r1 = height - 1
+    if not behind:
+        c0 = wp.max(int(wp.floor(x0)) - 1, 0)
+        c1 = wp.min(int(wp.ceil(x1)) + 1, width - 1)
+        r0 = wp.max(height - 1 - (int(wp.ceil(y1)) + 1), 0)  # rows run down
+        r1 = wp.min(height - 1 - (int(wp.floor(y0)) - 1), height - 1)
+    if c0 > c1 or r0 > r1:
+        return
+    wp.atomic_min(rect, 0, c0)
+    wp.atomic_max(rect, 1, c1)
+    wp.atomic_min(rect, 2, r0)
+    wp.atomic_max(rect, 3, r1)
+    if mark != 0:
+        for row in range(r0, r1 + 1):
+            for column in range(c0, c1 + 1):
+                mask[row * width + column] = wp.uint8(1)
+
+
+@wp.kernel
 def stale_pixels(
     width: int,
     boxed: int,
@@ -618,6 +677,7 @@ def stale_pixels(
     box_hi: wp.vec3,
     reach: wp.vec3,
     read_distance: wp.array3d(dtype=wp.uint8),
+    candidates: wp.array(dtype=wp.uint8),
     rect: wp.vec4i,
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
@@ -643,15 +703,19 @@ def stale_pixels(
     through a voxel it does not read, and a later change there flips no brick.
 
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
-    ray is seen in its pixel)."""
+    ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
+    brick (:func:`mark_pixels`): the others are not walked."""
     t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
     tid = (rect[2] + t / columns) * width + rect[0] + t % columns
     if stale[tid] != 0:
         return
+    walk = boxed != 0 and candidates[tid] != 0
+    if not walk and flips == 0:
+        return
     a = segment_start[tid]
     d = segment_end[tid] - a
-    if boxed != 0:
+    if walk:
         u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
         # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
         # ray to cast again is found in a brick or two.

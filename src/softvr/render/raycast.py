@@ -48,6 +48,8 @@ _ROWS_PER_CHUNK = 8
 _STALE_CHUNK = 4096
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
 _BRICK_CHUNK = 4096
+#: Fewest marked bricks per chunk of the launch that marks the pixels their rays cross.
+_MARK_CHUNK = 512
 
 
 def volume_bounds(volume) -> tuple[float, ...]:
@@ -398,37 +400,32 @@ class RayCaster:
         stale: wp.array = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        read: wp.array = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
+        read_host = self._read_distance()
+        read: wp.array = wp.array(read_host, dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
         if self._smoothed >= 0:
             reach[self._smoothed] += 1.0
-        boxes = [(lo - reach, hi + reach)] if boxed else []
+        # Only a ray through a marked brick can be stale: the pixels whose rays meet one, from
+        # each brick's projected bounds, are the only ones whose samples are walked; the
+        # others in the flipped box only check it.
+        candidates: wp.array = wp.zeros(width * height, dtype=wp.uint8, device=self.device)
+        bounds: wp.array = wp.array([width, -1, height, -1], dtype=wp.int32, device=self.device)
+        boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
+        if boxed:
+            marked = np.argwhere(read_host == 0).astype(np.float32) * BRICK
+            boxes.append((marked, marked + BRICK, 1))
         if flipped[0]:
-            boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
-        rect = _screen_rect(boxes, index_to_ndc, width, height)
+            boxes.append((np.float32([flipped[1]]), np.float32([flipped[2]]), 0))
+        for corner_lo, corner_hi, mark in boxes:
+            if len(corner_lo):
+                launch(K.mark_pixels, len(corner_lo),
+                       [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
+                        wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
+                        int(width), int(height), mark, candidates, bounds], self.device, min_chunk=_MARK_CHUNK)
+        rect = tuple(int(x) for x in bounds.numpy())
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, wp.vec4i(*rect),
-                *self._segments, *flipped,
-                self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
+                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+               min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
-
-
-def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
-    """The pixels (first column, last column, first row, last row; row 0 at the top) whose
-    rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
-    projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
-    if not boxes:
-        return 0, -1, 0, -1
-    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
-                        for box in boxes for c in range(8)])
-    clip = corners @ index_to_ndc.T
-    if np.any(clip[:, 3] <= 0.0):
-        return 0, width - 1, 0, height - 1
-    ndc = clip[:, :2] / clip[:, 3:]
-    # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
-    px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
-    py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
-    x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
-    y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
-    return x0, x1, height - 1 - y1, height - 1 - y0
