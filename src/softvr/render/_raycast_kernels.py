@@ -685,10 +685,10 @@ def stale_pixels(
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
     empty_until: wp.array(dtype=float),
-    stale: wp.array(dtype=wp.int32),
+    stale: wp.array(dtype=wp.bool),
     offset: int,
 ):
-    """Set 1 in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
+    """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
     row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
@@ -708,7 +708,7 @@ def stale_pixels(
     t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
     tid = (rect[2] + t / columns) * width + rect[0] + t % columns
-    if stale[tid] != 0:
+    if stale[tid]:
         return
     walk = boxed != 0 and candidates[tid] != 0
     if not walk and flips == 0:
@@ -721,7 +721,7 @@ def stale_pixels(
         # ray to cast again is found in a brick or two.
         if u[0] <= u[1]:
             if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                stale[tid] = 1
+                stale[tid] = True
                 return
     if flips != 0:
         u = segment_in_box(a, d, flip_lo, flip_hi)

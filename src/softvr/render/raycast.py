@@ -354,11 +354,11 @@ class RayCaster:
             return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
         return thick if self.smooth_slices else -1
 
-    def _read_distance(self) -> np.ndarray:
+    def _read_distance(self) -> tuple[np.ndarray, np.ndarray]:
         """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
-        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8. A sample
-        at p reads voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central
-        differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
+        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8, and the
+        indices [m, 3] of those marked bricks. A sample at p reads voxels floor(p) - 2 ..
+        floor(p) + 3 (trilinear weights, central differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
         BRICK >= 3) it reads voxels of the bricks c - 1 .. c + 1 per axis only. Its own
         corners lie in brick c's range, so where c is empty (no value of non-zero opacity)
         before and after the change the sample is transparent in both frames and what it
@@ -368,19 +368,22 @@ class RayCaster:
         than to run."""
         nb = np.asarray(self._changed_bricks.shape)
         read = np.full(tuple(nb), _READ_REACH, np.uint8)
+        none = np.zeros((0, 3), int)
         if self._changed_box is None:
-            return read
+            return read, none
         first = np.maximum(self._changed_box[0] - _READ_REACH - 1, 0)
         last = np.minimum(self._changed_box[1] + _READ_REACH + 1, nb - 1)
         box = tuple(slice(a, b + 1) for a, b in zip(first, last))
         changed = self._changed_bricks.numpy()[box] != 0
-        if changed.any():
-            near = ndimage.maximum_filter(changed, size=3, mode="constant")
-            marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
-            if marked.any():
-                to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
-                read[box] = np.minimum(to_marked, _READ_REACH)
-        return read
+        if not changed.any():
+            return read, none
+        near = ndimage.maximum_filter(changed, size=3, mode="constant")
+        marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
+        if not marked.any():
+            return read, none
+        to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
+        read[box] = np.minimum(to_marked, _READ_REACH)
+        return read, np.argwhere(marked) + first
 
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
@@ -397,10 +400,10 @@ class RayCaster:
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        read_host = self._read_distance()
+        read_host, marked = self._read_distance()
         read: wp.array = wp.array(read_host, dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
@@ -413,8 +416,8 @@ class RayCaster:
         bounds: wp.array = wp.array([width, -1, height, -1], dtype=wp.int32, device=self.device)
         boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
         if boxed:
-            marked = np.argwhere(read_host == 0).astype(np.float32) * BRICK
-            boxes.append((marked, marked + BRICK, 1))
+            corner = marked.astype(np.float32) * BRICK
+            boxes.append((corner, corner + BRICK, 1))
         if flipped[0]:
             boxes.append((np.float32([flipped[1]]), np.float32([flipped[2]]), 0))
         for corner_lo, corner_hi, mark in boxes:
