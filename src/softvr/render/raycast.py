@@ -364,15 +364,18 @@ class RayCaster:
         before and after the change the sample is transparent in both frames and what it
         reads does not matter: the marked bricks are the occupied ones (before or after)
         within 1 of a changed brick. SciPy's transform on the changed bricks' box grown by
-        the cap: a few thousand bricks, where Warp launches over them cost more to hand out
+        one: a few thousand bricks, where Warp launches over them cost more to hand out
         than to run."""
         nb = np.asarray(self._changed_bricks.shape)
         read = np.full(tuple(nb), _READ_REACH, np.uint8)
         none = np.zeros((0, 3), int)
         if self._changed_box is None:
             return read, none
-        first = np.maximum(self._changed_box[0] - _READ_REACH - 1, 0)
-        last = np.minimum(self._changed_box[1] + _READ_REACH + 1, nb - 1)
+        # The marked bricks lie within 1 of the changed box, and the stale-ray walk only runs
+        # within 1 of it (the rewritten voxels grown by READ_REACH < BRICK): the distances there
+        # are exact when the transform sees just that box, which holds every marked brick.
+        first = np.maximum(self._changed_box[0] - 1, 0)
+        last = np.minimum(self._changed_box[1] + 1, nb - 1)
         box = tuple(slice(a, b + 1) for a, b in zip(first, last))
         changed = self._changed_bricks.numpy()[box] != 0
         if not changed.any():
