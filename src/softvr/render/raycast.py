@@ -422,7 +422,7 @@ class RayCaster:
             corner = marked.astype(np.float32) * BRICK
             boxes.append((corner, corner + BRICK, 1))
         if flipped[0]:
-            boxes.append((np.float32([flipped[1]]), np.float32([flipped[2]]), 0))
+            boxes.append((np.array([flipped[1]], np.float32), np.array([flipped[2]], np.float32), 0))
         for corner_lo, corner_hi, mark in boxes:
             if len(corner_lo):
                 launch(K.mark_pixels, len(corner_lo),
