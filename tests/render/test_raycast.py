@@ -53,7 +53,8 @@
 * The pixels marked as those whose rays may meet a box (``mark_pixels``: only those are walked
   by the stale-ray test) against NumPy ray-box intersection: every pixel whose ray meets it.
 * The bricks found changed (``brick_changes``) against NumPy: a brick is flagged iff a voxel
-  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks.
+  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks,
+  voxel by voxel and with inner bricks' rows compared as 64-bit words.
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -495,11 +496,12 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
     """``brick_changes`` against NumPy: brick b owns voxels b * BRICK .. b * BRICK + BRICK - 1 per
     axis (the last brick also the grid's far voxels); it is flagged iff one of them differs from
     the kept copy, which it then brings up to date. Single-voxel changes at every position within
-    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders)."""
+    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders), and
+    with inner bricks' rows compared as 64-bit words (a C-order last axis a multiple of BRICK)."""
     rng = np.random.default_rng(11)
     b = K.BRICK
-    for order in ("C", "F"):
-        shape = (4 * b + 3, 3 * b + 1, 5 * b + 2)
+    for order, last_axis in (("C", 5 * b + 2), ("F", 5 * b + 2), ("C", 5 * b)):
+        shape = (4 * b + 3, 3 * b + 1, last_axis)
         known = np.asarray(rng.integers(-1000, 1000, shape), np.int16, order=order)
         vol = known.copy(order=order)
         nb = np.array([-(-(s - 1) // b) for s in shape])
@@ -511,10 +513,15 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
             vol[voxel] += 1
             truth[tuple(brick)] = 1
         strides = wp.vec3i(*(st // 2 for st in vol.strides))
-        flat = [wp.array(a.ravel(order="K"), dtype=wp.int16, device="cpu") for a in (vol, known)]
+        host = [a.ravel(order="K") for a in (vol, known)]
+        flat = [wp.array(a, dtype=wp.int16, device="cpu", copy=False) for a in host]
+        packed = int(last_axis % b == 0)
+        rows = [wp.array(a.view(np.int64) if packed else np.zeros(1, np.int64), dtype=wp.int64, device="cpu",
+                         copy=False) for a in host]
         changed = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
         wp.launch(K.brick_changes, dim=int(np.prod(nb)), device="cpu",
-                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], changed, 0])
+                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], *rows, packed,
+                          changed, 0])
         np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 

@@ -335,19 +335,33 @@ def brick_changes(
     first: wp.vec3i,
     count: wp.vec3i,
     known: wp.array(dtype=Any),
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    packed: int,
     changed: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
     """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
     the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
     cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
-    threads write one voxel of ``known``."""
+    threads write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
+    ``vol`` and ``known`` read as 64-bit words, each an inner brick's row of BRICK voxels
+    along the last axis (2-byte voxels, rows contiguous and aligned), compared a row at once."""
     b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
     flag = wp.uint8(0)
     if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
         # An inner brick owns BRICK^3 voxels: fixed loops, unrolled (no bounds per row).
         base = b[0] * BRICK * strides[0] + b[1] * BRICK * strides[1] + b[2] * BRICK * strides[2]
+        if packed != 0:
+            for i in range(BRICK):
+                for j in range(BRICK):
+                    w = (base + i * strides[0] + j * strides[1]) / BRICK
+                    if rows[w] != known_rows[w]:
+                        known_rows[w] = rows[w]
+                        flag = wp.uint8(1)
+            changed[b[0], b[1], b[2]] = flag
+            return
         for i in range(BRICK):
             for j in range(BRICK):
                 for k in range(BRICK):

@@ -199,7 +199,7 @@ class RayCaster:
                 self._changed_bricks.fill_(1)
             else:
                 self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, self._changed_bricks])
+                          [self._known, *self._packed_rows(flat), self._changed_bricks])
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
             # transparent in both frames, whatever it reads (:meth:`_read_distance`).
@@ -224,6 +224,19 @@ class RayCaster:
             if not fresh:  # redo the distances only around the bricks that turned empty or occupied
                 first, last = box[:3].astype(int), box[3:].astype(int)
             self._distance_passes(first, last, [self._seed, self._pass1, self._pass2, self._distance], REACH)
+
+    def _packed_rows(self, flat: np.ndarray) -> list:
+        """``brick_changes``' 64-bit views of the voxels ``flat`` and of the kept copy, and
+        whether they hold (CPU, 2-byte voxels whose last axis is contiguous and a multiple of
+        BRICK long, both arrays 8-byte aligned): one compare per inner brick row instead of BRICK."""
+        s = self._strides
+        assert self._known is not None  # kept since the last upload
+        if (self.device == "cpu" and flat.itemsize * BRICK == 8 and s[2] == 1 and s[1] % BRICK == 0
+                and s[0] % BRICK == 0 and flat.ctypes.data % 8 == 0 and self._known.ptr % 8 == 0):
+            return [wp.array(a.view(np.int64), dtype=wp.int64, device="cpu", copy=False)
+                    for a in (flat, self._known.numpy())] + [1]
+        none = wp.zeros(1, dtype=wp.int64, device=self.device)
+        return [none, none, 0]
 
     def _distance_passes(self, first, last, fields: list, reach: int) -> None:
         """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
