@@ -165,7 +165,8 @@ class RayCaster:
         if not (data.flags.c_contiguous or data.flags.f_contiguous):
             data = np.ascontiguousarray(data)
         # A flat view in memory order and the element strides of the three axes.
-        self._strides = wp.vec3i(*(st // data.itemsize for st in data.strides))
+        strides = tuple(st // data.itemsize for st in data.strides)
+        self._strides = wp.vec3i(*strides)
         flat = data.ravel(order="K")
         if dev == "cpu":
             self._vol = wp.array(flat, dtype=K.VOXEL_TYPES[name], device=dev, copy=False)
@@ -199,7 +200,7 @@ class RayCaster:
                 self._changed_bricks.fill_(1)
             else:
                 self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, *self._packed_rows(flat), self._changed_bricks])
+                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
             # transparent in both frames, whatever it reads (:meth:`_read_distance`).
@@ -225,11 +226,11 @@ class RayCaster:
                 first, last = box[:3].astype(int), box[3:].astype(int)
             self._distance_passes(first, last, [self._seed, self._pass1, self._pass2, self._distance], REACH)
 
-    def _packed_rows(self, flat: np.ndarray) -> list:
-        """``brick_changes``' 64-bit views of the voxels ``flat`` and of the kept copy, and
-        whether they hold (CPU, 2-byte voxels whose last axis is contiguous and a multiple of
-        BRICK long, both arrays 8-byte aligned): one compare per inner brick row instead of BRICK."""
-        s = self._strides
+    def _packed_rows(self, flat: np.ndarray, s: tuple) -> list:
+        """``brick_changes``' 64-bit views of the voxels ``flat`` (element strides ``s`` [3])
+        and of the kept copy, and whether they hold (CPU, 2-byte voxels whose last axis is
+        contiguous and a multiple of BRICK long, both arrays 8-byte aligned): one compare per
+        inner brick row instead of BRICK."""
         assert self._known is not None  # kept since the last upload
         if (self.device == "cpu" and flat.itemsize * BRICK == 8 and s[2] == 1 and s[1] % BRICK == 0
                 and s[0] % BRICK == 0 and flat.ctypes.data % 8 == 0 and self._known.ptr % 8 == 0):
