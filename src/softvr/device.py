@@ -214,10 +214,10 @@ def replayer(recorded) -> Callable[[], None]:
         # value per kernel argument. Anything else replays the documented way.
         if not callable(forward) or len(params) != 1 + len(args):
             return recorded.launch
-        fields = [(arg.label, type(params[1 + i])) for i, arg in enumerate(args)]
+        fields = tuple((arg.label, type(params[1 + i])) for i, arg in enumerate(args))
     except AttributeError:
         return recorded.launch
-    args = type("ArgsStruct", (ctypes.Structure,), {"_fields_": fields})()
+    args = _args_struct(fields)()
     for i, (name, _) in enumerate(fields):
         setattr(args, name, params[1 + i])
     bounds, packed = ctypes.byref(params[0]), ctypes.byref(args)
@@ -227,6 +227,14 @@ def replayer(recorded) -> Callable[[], None]:
 
     replay.keep = (recorded, args)  # type: ignore[attr-defined]  # the struct points into the launch's arrays
     return replay
+
+
+@lru_cache(maxsize=256)
+def _args_struct(fields: tuple) -> type:
+    """The ctypes struct of a kernel's packed arguments (``fields``: (name, ctypes type) pairs),
+    made once per kernel signature: making the class costs ~40 us, more than filling it
+    (a split launch makes one per chunk, 16 a frame for the rasterizer)."""
+    return type("ArgsStruct", (ctypes.Structure,), {"_fields_": list(fields)})
 
 
 def in_order(*replays: Callable[[], None]) -> Callable[[], None]:

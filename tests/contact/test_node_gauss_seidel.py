@@ -13,10 +13,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 
+from softvr import Scene
+from softvr.collision import Plane
 from softvr.contact.node_colouring import colour_nodes
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
-from softvr.dynamics import Material
+from softvr.dynamics import EmbeddedPoints, Material
 from softvr.sim import _node_step, _node_sweeps
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, _free_matrix, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
@@ -221,3 +223,38 @@ def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order():
     assert contact.sum() > 5 and not np.allclose(x, body.v)
     tolerance = 4 * 81 * np.finfo(float).eps * size
     np.testing.assert_array_less(np.abs(stepper.state.v_hat.numpy() - x).max(axis=1), tolerance + 1e-300)
+
+
+def test_sleeping_contacts_wake_when_the_sweeps_close_their_gap_and_meet_eq_5_5(monkeypatch):
+    """A cube squeezed to 80 % of its height and released 2 mm over a plane, without gravity:
+    the step's first guess (the explicit step: no elastic force) leaves it at rest, so no
+    contact pushes or closes its gap and all sleep (their nodes take the Gauss-Seidel update);
+    the released cube's bottom moves down by far more than 2 mm in the step, so the PGS must
+    push: the contacts are woken, and every step holds to eq. 5.5 (checker of
+    tests/sim/test_node_arrays.py: normal velocity >= -gap / dt, complementarity, the friction
+    disc, A v - b - J^T lambda within the sweeps' tolerance)."""
+    woken = []
+    wake = GaussSeidelSweep.wake
+
+    def counted(self):
+        asleep = int(self.asleep.numpy().sum())
+        out = wake(self)
+        woken.append((asleep, out))
+        return out
+
+    def gauss_seidel(*args, **kwargs):
+        monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
+        return _node_sweeps.choose_sweeps(*args, **kwargs)
+
+    monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
+    monkeypatch.setattr(GaussSeidelSweep, "wake", counted)
+    body = _cube(lift=0.0)
+    bottom = body.q[:, 2].min()
+    body.q = body.q * [1.0, 1.0, 0.8] + [0.0, 0.0, 0.002 - 0.8 * bottom]
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(body.q))[:, None],
+                                                         np.ones((len(body.q), 1))))
+    scene.add_plane(Plane(friction=0.5))
+    assert check_mlcp_steps(body, scene, 1.0 / 60.0, 3, friction=0.5) == 3
+    assert woken[0][0] >= 25 and woken[0][1]  # the 5x5 bottom nodes slept, then woke
+    assert body.q[:, 2].min() > -1e-6

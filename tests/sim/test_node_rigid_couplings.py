@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 from softvr import Scene
 from softvr.collision import Plane
 from softvr.dynamics import Coupling, EmbeddedPoints, FemBody, FixedBody, Material, RigidBody, RigidPoints, embed_in_tets
-from softvr.sim import node_model_supported
+from softvr.sim import _node_step, _node_sweeps, node_model_supported
 from softvr.sim._node_step import SWEEP_TOLERANCE
 from softvr.volume import Volume, grid_tet_mesh
 
@@ -241,3 +241,60 @@ def test_a_spring_held_box_landing_on_a_plane_solves_scipys_mlcp_of_eq_5_5():
         # omega's error: a corner's lever of 0.035 m turns 3e-5 m/s into 8.6e-4 rad/s.
         np.testing.assert_allclose(box.v[3:], truth[3:], atol=VELOCITY_TOL / 0.035, rtol=0)
     assert pressed > 0
+
+
+def test_a_rigid_body_held_only_by_springs_to_a_fixed_body_steps_exactly_in_one_sweep():
+    # Its 6x6 block of D_A is all of its A (the springs' other ends are driven), so a sweep's
+    # update is numpy.linalg.solve of eq. 5.2 + 5.4 written out (_box_system), exactly, as a
+    # free rigid body's is: the sweeps stop at their first check (2 sweeps) with the box's
+    # velocity that solve to rounding (its 6x6 inverse: ~cond(A) eps relative; 1e-9 allows it).
+    # Extrapolated like an FEM node's, it took 30-100 sweeps (the shoulder's haptic probe).
+    dt = 0.01
+    scene, box, _, ties = _held_box(collide=False)
+    for _ in range(3):
+        a, b = _box_system(box, ties, dt)
+        truth = np.linalg.solve(a, b)
+        solution = scene.step(dt)
+        assert scene._stepper is not None
+        assert solution.iterations <= 2
+        np.testing.assert_allclose(box.v, truth, rtol=0, atol=1e-9 * np.abs(truth).max())
+
+
+def test_two_rigid_bodies_held_by_springs_to_each_other_step_as_one_island_solve(monkeypatch):
+    # A box on a fixed anchor's springs and a second box on the first's (the shoulder's finger
+    # on its handle and the inner finger on the skin's spring), Gauss-Seidel sweeps forced: the
+    # two bodies' 12x12 block of A (eq. 5.2 + 5.4, written out here) has no block to any other
+    # node solved for, so each sweep solves it whole (softvr.contact._node_gs_kernels.island_solve)
+    # and the step is numpy.linalg.solve of it at the first check (2 sweeps), to rounding.
+    def gauss_seidel(*args, **kwargs):
+        monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
+        return _node_sweeps.choose_sweeps(*args, **kwargs)
+
+    monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
+    dt = 0.01
+    scene, box, _, ties = _held_box(collide=False)
+    other = RigidBody.box((0.02, 0.02, 0.02), 500.0, position=(0.0, 0.05, 0.03), name="other",
+                          velocity=(0.02, 0.0, -0.03), angular_velocity=(0.0, 1.0, -0.5))
+    scene.add_body(other)
+    skin = Coupling(RigidPoints(other, [[0.0, -0.01, 0.0]]), RigidPoints(box, [[0.0, 0.02, 0.01]]), 150.0, damping=1.0)
+    scene.add_coupling(skin)
+    for _ in range(3):
+        a = np.zeros((12, 12))
+        b = np.zeros(12)
+        a[:6, :6], b[:6] = _box_system(box, ties, dt)
+        for o, body in ((6, other),):
+            m = np.diag(np.r_[np.full(3, body.mass), np.zeros(3)])
+            m[3:, 3:] = body.rotation @ body.inertia_body @ body.rotation.T
+            a[o:o + 6, o:o + 6] += m
+            b[o:o + 6] += m @ np.r_[body.v[:3] + dt * np.array([0.0, 0.0, -G]), body.v[3:]]
+        stretch = skin.a.positions() - skin.b.positions()
+        d = np.hstack([np.zeros((3, 6)), np.eye(3), -_cross_matrix(other.rotation @ skin.a.local[0])])
+        d[:, :6] = -np.hstack([np.eye(3), -_cross_matrix(box.rotation @ skin.b.local[0])])
+        a += (dt * skin.damping + dt * dt * skin.stiffness) * d.T @ d
+        b -= dt * skin.stiffness * d.T @ stretch[0]
+        truth = np.linalg.solve(a, b)
+        solution = scene.step(dt)
+        assert scene._stepper is not None
+        assert solution.iterations <= 2
+        got = np.r_[box.v, other.v]
+        np.testing.assert_allclose(got, truth, rtol=0, atol=1e-9 * np.abs(truth).max())

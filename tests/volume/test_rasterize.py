@@ -158,24 +158,68 @@ def test_all_methods_write_identical_voxels(device):
     assert 0.05 < stats["bbox"].efficiency < 0.4  # thesis: 14.3 % of AABB voxels are inside
 
 
-def _brute_force_owner_counts(shape, origin, spacing, nodes, tets, margin):
-    """Per voxel: tets whose float64 barycentrics are all > margin (surely inside) and
-    whether any tet has all barycentrics > -margin (maybe inside)."""
-    sure = np.zeros(shape, np.int32)
-    maybe = np.zeros(shape, bool)
-    for t in tets:
-        x = nodes[t]
+def _voxel_barycentrics(shape, origin, spacing, nodes, tets):
+    """Per tet t: (t, idx [n, 3], bary [n, 4]), the voxels of its bounding box on the grid and
+    their float64 barycentric coordinates in it (numpy only)."""
+    for t, tet in enumerate(tets):
+        x = nodes[tet]
         lo = np.maximum(np.floor((x.min(0) - origin) / spacing).astype(int), 0)
         hi = np.minimum(np.ceil((x.max(0) - origin) / spacing).astype(int), np.array(shape) - 1)
         if np.any(hi < lo):
             continue
         idx = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
         p = origin + idx * spacing
-        bary = np.linalg.solve(np.vstack([x.T, np.ones(4)]), np.vstack([p.T, np.ones(len(p))])).T
+        yield t, idx, np.linalg.solve(np.vstack([x.T, np.ones(4)]), np.vstack([p.T, np.ones(len(p))])).T
+
+
+def _brute_force_owner_counts(shape, origin, spacing, nodes, tets, margin):
+    """Per voxel: tets whose float64 barycentrics are all > margin (surely inside) and
+    whether any tet has all barycentrics > -margin (maybe inside)."""
+    sure = np.zeros(shape, np.int32)
+    maybe = np.zeros(shape, bool)
+    for _, idx, bary in _voxel_barycentrics(shape, origin, spacing, nodes, tets):
         ii = tuple(idx[bary.min(1) > margin].T)
         np.add.at(sure, ii, 1)
         maybe[tuple(idx[bary.min(1) > -margin].T)] = True
     return sure, maybe
+
+
+@pytest.mark.parametrize("dtype, atol", [(np.float32, 1e-4), (np.int16, 1)])
+def test_twisted_thin_sheet_matches_scipy_trilinear_through_the_tets(device, dtype, atol):
+    """The volume demo's case (volume.toml twists the head CT about its long axis; its
+    one-voxel-thin headrest then shows diagonal stripes): a non-affine, piecewise-linear map.
+    Each voxel surely inside a deformed tet must take SciPy's trilinear value (map_coordinates,
+    order 1) of the rest volume at the rest point with the same float64 barycentrics in the rest
+    tet (thesis eqs. 3.1-3.2); the truth shares no code with softvr. Along the twisted sheet the
+    truth's peak rises and falls as the sheet crosses voxel centres: the stripes are what
+    trilinear resampling does to a one-voxel sheet, and the output must show exactly them.
+    Tolerance: rest positions are float32 per row (<= 3e-5 voxel, the sheet's slope <= 1000 a
+    voxel for int16: 0.03) plus the int16 output's rounding to the nearest integer (0.5)."""
+    shape, spacing = (28, 28, 16), np.array([0.96, 0.96, 1.5])
+    i, j, _ = np.meshgrid(*map(np.arange, shape), indexing="ij")
+    sheet = np.abs(j - (6.0 + 0.03 * (i - 13.5) ** 2)) < 0.5  # a curved sheet one voxel thick, along z
+    vol = Volume((sheet * (1.0 if dtype == np.float32 else 1000.0)).astype(dtype), spacing=spacing)
+    nodes, tets = grid_tet_mesh(vol, (4, 4, 3))
+    centre = nodes.mean(axis=0)
+    angle = np.radians(30.0) * (nodes[:, 2] - nodes[:, 2].min()) / np.ptp(nodes[:, 2])
+    d = nodes - centre
+    moved = centre + np.stack([np.cos(angle) * d[:, 0] - np.sin(angle) * d[:, 1],
+                               np.sin(angle) * d[:, 0] + np.cos(angle) * d[:, 1], d[:, 2]], axis=1)
+    assert (tet_signed_volumes(moved, tets) > 0).all()
+    out = deform(vol, nodes, tets, moved, device=device, out_grid=vol, background=-1)
+
+    truth = np.full(shape, np.nan)
+    rest_index = (nodes - vol.origin) / spacing
+    for t, idx, bary in _voxel_barycentrics(shape, vol.origin, spacing, moved, tets):
+        keep = bary.min(1) > 1e-2  # surely T's: snapping nodes to 1/256 voxel moves faces (see below)
+        u0 = bary[keep] @ rest_index[tets[t]]
+        inner = np.all((u0 >= 0) & (u0 <= np.array(shape) - 1), axis=1)
+        truth[tuple(idx[keep][inner].T)] = ndimage.map_coordinates(vol.data.astype(np.float64), u0[inner].T, order=1)
+    compared = ~np.isnan(truth)
+    assert compared.mean() > 0.6
+    on_sheet = compared & (truth > 0.2 * vol.data.max())
+    assert on_sheet.sum() > 500
+    np.testing.assert_allclose(out.data[compared], truth[compared], atol=atol, rtol=0)
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -13,6 +13,14 @@ contact's stencil ("contact nodes") set apart:
        w_i = v^_i there
     4. colours C-1 .. 0 again (backward), v^_i = w_i
 
+A contact "sleeps" (its nodes are not contact nodes, so they take the Gauss-Seidel update) while
+it has no impulse, a gap, and its normal velocity at the step's start closes at most half the
+gap over the step: most of a step's contacts are speculative ones that stay apart, and the
+damped Jacobi update of their nodes was the slowest part of the sweeps (the shoulder's thin
+labrum tendon, 22 of its 28 nodes in some contact that never pushed: 65 sweeps a decade). If
+the PGS gives a sleeping contact an impulse, every contact is woken, the nodes marked, and the
+Chebyshev iteration restarted (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.wake`).
+
 Its fixed point solves ``A v = b + J^T lambda`` with lambda complementary, and the update that
 the PGS projects does not depend on last sweep's impulses (only on ``v^k``), so the Chebyshev
 step over ``v`` alone is sound, as with Jacobi. Without contacts the sweep is symmetric block
@@ -124,19 +132,55 @@ def projected(contact_node: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.v
 
 @wp.kernel
 def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
-                       stencil_nodes: wp.array2d(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
-                       contact_node: wp.array(dtype=wp.int32)):
-    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves: its stencil and its
-    rigid sides' angular nodes (-1: none) (``contact_node`` zeroed before; one thread per
-    contact slot, the first ``count[0]`` used)."""
+                       stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                       frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
+                       rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                       impulse: wp.array(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64),
+                       v: wp.array(dtype=wp.vec3d), dt: wp.float64, share: wp.float64, wake_all: int,
+                       contact_node: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32)):
+    """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves (its stencil and its
+    rigid sides' angular nodes, -1: none) unless the contact sleeps: ``asleep[c] = 1`` where it
+    has no impulse, no adhesion (``stiffness`` 0), a gap > 0 [m], and its normal velocity in the
+    step's start velocities ``v`` [m/s] closes at most ``share`` of that gap in ``dt`` [s]
+    (``wake_all``: none sleeps). One thread per contact slot, the first ``count[0]`` used;
+    ``contact_node`` zeroed before (or left as it is, to mark more)."""
     c = wp.tid()
     if c >= count[0]:
+        return
+    sleeps = int(0)
+    lam = impulse[c]
+    if wake_all == 0 and gap[c] > wp.float64(0.0) and stiffness[c] == wp.float64(0.0) and \
+            lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+        rel = wp.vec3d()
+        for k in range(stencil_count[c]):
+            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+        for s in range(rigid_node.shape[1]):
+            if rigid_node[c, s] >= 0:
+                rel = rel + wp.cross(v[rigid_node[c, s]], rigid_lever[c, s])
+        normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+        if wp.dot(normal, rel) * dt >= -share * gap[c]:
+            sleeps = 1
+    asleep[c] = sleeps
+    if sleeps != 0:
         return
     for k in range(stencil_count[c]):
         contact_node[stencil_nodes[c, k]] = 1
     for s in range(rigid_node.shape[1]):
         if rigid_node[c, s] >= 0:
             contact_node[rigid_node[c, s]] = 1
+
+
+@wp.kernel
+def woken(count: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32), impulse: wp.array(dtype=wp.vec3d),
+          flag: wp.array(dtype=wp.int32)):
+    """``flag[0] = 1`` if a sleeping contact (``asleep``) has taken an impulse [N s] (one thread)."""
+    out = int(0)
+    for c in range(count[0]):
+        lam = impulse[c]
+        if asleep[c] != 0 and (lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0)):
+            out = 1
+            break
+    flag[0] = out
 
 
 @wp.kernel
@@ -148,3 +192,194 @@ def scale(d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d), om
     i = wp.tid()
     out[i] = omega * d_inv[i]
     out_cross[i] = omega * cross[i]
+
+
+@wp.kernel
+def island_inverse(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                   island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
+                   scratch: wp.array3d(dtype=wp.float64), inverse: wp.array3d(dtype=wp.float64)):
+    """``inverse[t]`` [3 k, 3 k] (mixed units, [1/kg] to [1/(kg m^2)]) = the inverse of island
+    ``t``'s block ``A_II`` of ``A`` over its ``k`` nodes ``island_node[island_start[t]:
+    island_start[t + 1]]`` (``island_local``: a node's place in its island), by Gauss-Jordan
+    elimination on ``scratch[t]`` (A_II is symmetric positive definite: no pivoting)."""
+    t = wp.tid()
+    s = island_start[t]
+    count = island_start[t + 1] - s
+    size = 3 * count
+    for r in range(size):
+        for c in range(size):
+            scratch[t, r, c] = wp.float64(0.0)
+            inverse[t, r, c] = wp.float64(0.0)
+        inverse[t, r, r] = wp.float64(1.0)
+    for li in range(count):
+        i = island_node[s + li]
+        for k in range(row_start[i], row_start[i + 1]):
+            lj = island_local[block_col[k]]
+            if lj >= 0:
+                block = blocks[k]
+                for x in range(3):
+                    for y in range(3):
+                        scratch[t, 3 * li + x, 3 * lj + y] = block[x, y]
+    for p in range(size):
+        pivot = scratch[t, p, p]
+        for c in range(size):
+            scratch[t, p, c] = scratch[t, p, c] / pivot
+            inverse[t, p, c] = inverse[t, p, c] / pivot
+        for r in range(size):
+            if r != p:
+                f = scratch[t, r, p]
+                for c in range(size):
+                    scratch[t, r, c] = scratch[t, r, c] - f * scratch[t, p, c]
+                    inverse[t, r, c] = inverse[t, r, c] - f * inverse[t, p, c]
+
+
+@wp.func
+def _island_residual(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                     blocks: wp.array(dtype=wp.mat33d), island_local: wp.array(dtype=wp.int32),
+                     b: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d)) -> wp.vec3d:
+    """``b_i - sum_{j not in I} A_ij w_j`` [kg m/s] of island node ``i`` (the j: driven nodes)."""
+    r = b[i]
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if island_local[j] < 0:
+            r = r - blocks[k] * w[j]
+    return r
+
+
+@wp.func
+def _island_row(t: int, li: int, size: int, inverse: wp.array3d(dtype=wp.float64),
+                rhs: wp.array2d(dtype=wp.float64)) -> wp.vec3d:
+    """Island ``t``'s node ``li``'s three rows of ``A_II^-1 rhs[t]`` [m/s, rad/s]."""
+    out = wp.vec3d()
+    for x in range(3):
+        acc = wp.float64(0.0)
+        for c in range(size):
+            acc = acc + inverse[t, 3 * li + x, c] * rhs[t, c]
+        out[x] = acc
+    return out
+
+
+@wp.kernel
+def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                 island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                 block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), inverse: wp.array3d(dtype=wp.float64),
+                 rhs: wp.array2d(dtype=wp.float64), last: int, w: wp.array(dtype=wp.vec3d),
+                 v_hat: wp.array(dtype=wp.vec3d)):
+    """Island ``t``'s velocities [m/s, rad/s] solved exactly from its rows of ``A v = b``,
+    ``w_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j)`` (the j: driven nodes), into ``w`` and,
+    on the sweep's ``last`` pass, ``v_hat``: a block Gauss-Seidel step whose block is the whole
+    island (after the colour passes, which updated its bodies one at a time). An island with a
+    contact node is left to those (its contacts' metric is each body's own 6x6 block)."""
+    t = wp.tid()
+    s = island_start[t]
+    count = island_start[t + 1] - s
+    for li in range(count):
+        if contact_node[island_node[s + li]] != 0:
+            return
+    for li in range(count):
+        r = _island_residual(island_node[s + li], row_start, block_col, blocks, island_local, b, w)
+        for x in range(3):
+            rhs[t, 3 * li + x] = r[x]
+    for li in range(count):
+        out = _island_row(t, li, 3 * count, inverse, rhs)
+        i = island_node[s + li]
+        w[i] = out
+        if last != 0:
+            v_hat[i] = out
+
+
+@wp.kernel
+def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                 contact_node: wp.array(dtype=wp.int32)):
+    """Island ``t``'s nodes all contact nodes if any is (:func:`island_contact` updates them)."""
+    t = wp.tid()
+    touched = int(0)
+    for k in range(island_start[t], island_start[t + 1]):
+        if contact_node[island_node[k]] != 0:
+            touched = 1
+    if touched != 0:
+        for k in range(island_start[t], island_start[t + 1]):
+            contact_node[island_node[k]] = 1
+
+
+@wp.kernel
+def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                   island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                   metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                   cross_metric: wp.array(dtype=wp.mat33d), contact_node: wp.array(dtype=wp.int32),
+                   inverse: wp.array3d(dtype=wp.float64), rhs: wp.array2d(dtype=wp.float64),
+                   count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                   frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                   rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                   force: wp.array(dtype=wp.vec3d), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Step 2 on an island in contact (its nodes all contact nodes, :func:`mark_islands`; one
+    thread for all islands: contacts may share them): with ``f = J_I^T lambda`` [N s, N m s]
+    the generalized impulses of the contacts' last ``impulse`` (world ``frame^T lambda``: a
+    stencil node takes its weight times it, a rigid side's angular node its lever's torque),
+
+        v^_I = (1 - omega) v_I + omega A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - omega P f
+
+    [m/s, rad/s], omega P (``metric``, ``cross_metric``: :func:`island_metric`) the metric with
+    which the contact PGS then applies ``omega P J^T lambda``: the sweep's update is the
+    island's exact response to the last impulses, and the PGS's change of them moves each body
+    by its own block of the island's inverse; the fixed point is the island's rows of
+    ``A v = b + J^T lambda``."""
+    for t in range(island_start.shape[0] - 1):
+        s = island_start[t]
+        n = island_start[t + 1] - s
+        if contact_node[island_node[s]] == 0:
+            continue
+        for li in range(n):
+            force[island_node[s + li]] = wp.vec3d()
+        for c in range(count[0]):
+            world = wp.transpose(frame[c]) * impulse[c]
+            for k in range(stencil_count[c]):
+                node = stencil_nodes[c, k]
+                if island_local[node] >= 0:
+                    force[node] = force[node] + stencil_weights[c, k] * world
+            for side in range(rigid_node.shape[1]):
+                node = rigid_node[c, side]
+                if node >= 0:
+                    if island_local[node] >= 0:
+                        force[node] = force[node] + wp.cross(rigid_lever[c, side], world)
+        for li in range(n):
+            i = island_node[s + li]
+            r = _island_residual(i, row_start, block_col, blocks, island_local, b, w) + force[i]
+            for x in range(3):
+                rhs[t, 3 * li + x] = r[x]
+        for li in range(n):
+            i = island_node[s + li]
+            out = _island_row(t, li, 3 * n, inverse, rhs)
+            pushed = metric[i] * force[i]
+            if partner[i] >= 0:
+                pushed = pushed + cross_metric[i] * force[partner[i]]
+            v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * out - pushed
+
+
+@wp.kernel
+def island_metric(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                  island_local: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32),
+                  inverse: wp.array3d(dtype=wp.float64), omega: wp.float64, metric: wp.array(dtype=wp.mat33d),
+                  cross_metric: wp.array(dtype=wp.mat33d)):
+    """The contact PGS's metric on island ``t``'s nodes [1/kg, mixed]: ``omega`` times each
+    body's own 6x6 block of ``A_II^-1`` (its response to an impulse on it, the island's other
+    bodies moving as its springs make them), in place of the inverse of the body's own block."""
+    t = wp.tid()
+    s = island_start[t]
+    for k in range(s, island_start[t + 1]):
+        i = island_node[k]
+        li = island_local[i]
+        lp = island_local[partner[i]]
+        own = wp.mat33d()
+        other = wp.mat33d()
+        for x in range(3):
+            for y in range(3):
+                own[x, y] = omega * inverse[t, 3 * li + x, 3 * li + y]
+                other[x, y] = omega * inverse[t, 3 * li + x, 3 * lp + y]
+        metric[i] = own
+        cross_metric[i] = other

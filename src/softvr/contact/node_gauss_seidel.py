@@ -18,8 +18,18 @@ import warp as wp
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
 from softvr.device import chunked_replayer, in_order, replayer
+from softvr.dynamics.node_rigid import rigid_islands
 
-__all__ = ["GaussSeidelSweep", "gauss_seidel_spectrum", "off_diagonal_rows"]
+__all__ = ["ISLAND_NODES", "SLEEP_GAP_SHARE", "GaussSeidelSweep", "gauss_seidel_spectrum", "off_diagonal_rows"]
+
+#: A contact without impulse or adhesion sleeps through a step's sweeps (its nodes take the
+#: Gauss-Seidel update, not the contact nodes' damped Jacobi one) while its normal velocity at
+#: the step's start closes at most this share of its gap over the step
+#: (:mod:`softvr.contact._node_gs_kernels`).
+SLEEP_GAP_SHARE = 0.5
+#: Nodes of the largest rigid island (two per body) a sweep solves whole, its block of ``A`` a
+#: dense inverse made once a step (:func:`softvr.contact._node_gs_kernels.island_solve`).
+ISLAND_NODES = 8
 
 
 class GaussSeidelSweep:
@@ -27,7 +37,8 @@ class GaussSeidelSweep:
     :mod:`softvr.contact._node_gs_kernels`) from the velocities ``v`` [n] [m/s] into
     ``state.v_hat``, with the contact PGS ``contacts`` (a replay of the shared contact kernel
     on ``state.v_hat`` with the metric :attr:`metric`) in its middle; each launch split over
-    the CPU cores. :meth:`prepare` marks this step's contact nodes and sets the metric.
+    the CPU cores. :meth:`prepare` marks this step's contact nodes (those of the contacts
+    that do not sleep) and sets the metric; :meth:`wake` marks the rest when one is needed.
 
     Parameters
     ----------
@@ -36,9 +47,12 @@ class GaussSeidelSweep:
     colouring : NodeColouring
     omega : float
         Damping of the contact nodes' Jacobi update, at most 1 / lambda_max(D_A^-1 A).
+    dt : float, optional
+        The step [s] (a contact sleeps by how much of its gap it closes in it); None: no
+        contact sleeps.
     """
 
-    def __init__(self, model, state, colouring: NodeColouring, omega: float):
+    def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None):
         d = model.device
         n = model.node_count
         self.omega = float(omega)
@@ -51,12 +65,53 @@ class GaussSeidelSweep:
         self._work = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._model, self._state = model, state
         c = state.contacts
-        self._prepare = [replayer(wp.launch(_k.mark_contact_nodes, dim=c.capacity, device=d, record_cmd=True,
-                                            inputs=[c.count, c.stencil_count, c.stencil_nodes, c.rigid_node,
-                                                    self.contact_node])),
+        #: Which contacts sleep this step [c] (``_node_gs_kernels.mark_contact_nodes``).
+        self.asleep = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        self._flag = wp.zeros(1, dtype=wp.int32, device=d)
+        self._flag_view = self._flag.numpy() if wp.get_device(d).is_cpu else None
+
+        def mark(wake_all: int) -> Callable[[], None]:
+            return replayer(wp.launch(_k.mark_contact_nodes, dim=c.capacity, device=d, record_cmd=True,
+                                      inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
+                                              c.gap, c.rigid_node, c.rigid_lever, c.impulse, c.stiffness,
+                                              state.sweep_buffers[0], float(dt or 0.0), SLEEP_GAP_SHARE, wake_all,
+                                              self.contact_node, self.asleep]))
+
+        self._wake_all = mark(1)
+        self._woken = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
+                                         inputs=[c.count, self.asleep, c.impulse, self._flag]))
+        self._prepare = [mark(int(dt is None)),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
                                             inputs=[state.d_inv, model.couplings.cross, self.omega, self.metric,
                                                     self.cross_metric]))]
+        islands = [i for i in rigid_islands(model) if 2 < len(i) <= ISLAND_NODES]
+        #: The nodes [n] bool of the rigid islands each sweep solves whole (:data:`ISLAND_NODES`).
+        self.island_nodes = np.zeros(n, bool)
+        self._islands: list | None = None
+        if islands:
+            local = np.full(n, -1)
+            for island in islands:
+                local[island] = np.arange(len(island))
+                self.island_nodes[island] = True
+            start = np.concatenate([[0], np.cumsum([len(i) for i in islands])])
+            size = 3 * ISLAND_NODES
+            self._islands = [wp.array(start, dtype=wp.int32, device=d),
+                             wp.array(np.concatenate(islands), dtype=wp.int32, device=d),
+                             wp.array(local, dtype=wp.int32, device=d)]
+            self._island_inverse = wp.zeros((len(islands), size, size), dtype=wp.float64, device=d)
+            self._island_rhs = wp.zeros((len(islands), size), dtype=wp.float64, device=d)
+            self._island_force = wp.zeros(n, dtype=wp.vec3d, device=d)
+            self._prepare.insert(1, replayer(wp.launch(_k.mark_islands, dim=len(islands), device=d, record_cmd=True,
+                                                       inputs=self._islands[:2] + [self.contact_node])))
+            self._wake_all = in_order(self._wake_all, self._prepare[1])
+            self._prepare.append(replayer(wp.launch(
+                _k.island_inverse, dim=len(islands), device=d, record_cmd=True,
+                inputs=[*self._islands, model.row_start, model.block_col, state.blocks,
+                        wp.zeros((len(islands), size, size), dtype=wp.float64, device=d), self._island_inverse])))
+            self._prepare.append(replayer(wp.launch(
+                _k.island_metric, dim=len(islands), device=d, record_cmd=True,
+                inputs=[*self._islands, model.couplings.partner, self._island_inverse, self.omega, self.metric,
+                        self.cross_metric])))
         self._colouring = colouring
         # The colour passes read the rows in colour order: a copy of the off-diagonal blocks
         # laid out that way (gathered once a step) reads them one after the other.
@@ -71,11 +126,25 @@ class GaussSeidelSweep:
                                                     record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
 
     def prepare(self) -> None:
-        """Mark this step's contact nodes, set the metric and gather the colour-ordered
-        off-diagonal blocks (once a step, after detection and ``A``)."""
+        """Mark this step's contact nodes (those of the contacts that do not sleep, from the
+        step's start velocities ``state.sweep_buffers[0]``), set the metric and gather the
+        colour-ordered off-diagonal blocks (once a step, after detection and ``A``)."""
         self.contact_node.zero_()
         for replay in self._prepare:
             replay()
+
+    def wake(self) -> bool:
+        """Whether a sleeping contact has taken an impulse since :meth:`prepare`; if so, every
+        contact's nodes are marked from now on (the sweep's iteration changes: the caller
+        restarts its Chebyshev weights). Until then the impulse did not act (the Gauss-Seidel
+        update of its nodes overwrote the push), and it stays in the contact's impulse, which
+        every later sweep applies in full."""
+        self._woken()
+        flag = self._flag_view if self._flag_view is not None else self._flag.numpy()
+        if flag[0] == 0:
+            return False
+        self._wake_all()
+        return True
 
     def record(self, v: wp.array, contacts: Callable[[], None]) -> Callable[[], None]:
         """The node update of a sweep from ``v`` [n] [m/s], ``contacts`` in its middle."""
@@ -91,11 +160,32 @@ class GaussSeidelSweep:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
                                     [*rows, *off, int(start[c]), last, w, st.v_hat], d)
 
+        def islands(last: int) -> list:
+            if self._islands is None:
+                return []
+            return [replayer(wp.launch(_k.island_solve, dim=self._island_rhs.shape[0], device=d, record_cmd=True,
+                                       inputs=[*self._islands, m.row_start, m.block_col, st.blocks, st.b,
+                                               self.contact_node, self._island_inverse, self._island_rhs, last, w,
+                                               st.v_hat]))]
+
+        def touched() -> list:
+            if self._islands is None:
+                return []
+            c = st.contacts
+            return [replayer(wp.launch(_k.island_contact, dim=1, device=d, record_cmd=True,
+                                       inputs=[*self._islands, m.row_start, m.block_col, st.blocks, st.b, self.metric,
+                                               m.couplings.partner, self.cross_metric, self.contact_node,
+                                               self._island_inverse, self._island_rhs, c.count, c.stencil_count,
+                                               c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
+                                               c.rigid_lever, c.impulse, self._island_force, self.omega, v, w,
+                                               st.v_hat]))]
+
         replays = [chunked_replayer(_k.start, n, [v, w], d)]
-        replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]]
-        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.omega, v, w, st.v_hat], d), contacts,
+        replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]] + islands(0)
+        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.omega, v, w, st.v_hat], d), *touched(),
+                    contacts,
                     chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
-        replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]]
+        replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]] + islands(1)
         return in_order(*replays)
 
 

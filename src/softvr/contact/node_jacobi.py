@@ -18,6 +18,7 @@ from softvr.contact.node_coarse import CoarseSpace
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
+from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
 
@@ -105,7 +106,7 @@ class NodeSolve:
         self.colours = colours
         self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse)
         co = self.coarse.arrays
-        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega)
+        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega, dt)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
@@ -127,12 +128,12 @@ class NodeSolve:
         # shoulder's finger: its spin, held by nothing but the contacts' friction, cycled at the
         # 100-sweep cap and diverged at step 39; unextrapolated its last change stays under 1
         # rad/s a sweep, mostly 1e-3 to 1e-1, and the palpation ends with 0.09 mm overlap).
-        exact = np.zeros(model.node_count, np.int32)
-        if model.rigid is not None:
-            exact[model.rigid.linear_node.numpy()] = 1
-            exact[model.rigid.angular_node.numpy()] = 1
-            row_start = model.row_start.numpy()
-            exact[row_start[1:] > row_start[:-1]] = 0
+        # A body held only by springs to driven nodes (a haptic tool on its handle) is as exact:
+        # its 6x6 block of D_A is all of its A (extrapolated, the arthroscopy's probe took its
+        # steps to the 100-sweep cap, its change decaying at the Chebyshev rate from ~0.2 m/s).
+        # The Gauss-Seidel sweeps solve larger rigid islands whole (the shoulder's two fingers).
+        exact = isolated_rigid_nodes(model) | (False if self._gauss_seidel is None else self._gauss_seidel.island_nodes)
+        exact = exact.astype(np.int32)
         self.exact: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         self._exact_base: wp.array = wp.array(exact, dtype=wp.int32, device=d)
         c = state.contacts
@@ -256,6 +257,9 @@ class NodeSolve:
             k += 1
             self.plain_sweeps += plain
             if k % check_every == 0:
+                if self._gauss_seidel is not None and self._gauss_seidel.wake():
+                    plain_until = k  # a new iteration: Chebyshev from omega_1
+                    continue
                 self._largest()
                 change = float(self._read_stats()[0])
                 if not np.isfinite(change):  # NaN: the integration reports it
