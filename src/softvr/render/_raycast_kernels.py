@@ -474,6 +474,12 @@ def raycast(
     image: wp.array3d(dtype=wp.uint8),
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
+    store_rays: int,
+    ray_origin: wp.array(dtype=wp.vec3),
+    ray_direction: wp.array(dtype=wp.vec3),
+    ray_world: wp.array(dtype=wp.vec3),
+    ray_span: wp.array(dtype=wp.vec2),
+    ray_depth: wp.array(dtype=wp.vec4),
     offset: int,
 ):
     """One ray per pixel, composited over the surfaces' colour and stopped at their depth.
@@ -499,29 +505,58 @@ def raycast(
     cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
     ``segment_end`` [index coordinates] bound where its samples lie, up to where the ray
     stopped (:func:`stale_pixels` reads them next frame); far outside the grid if it missed.
+
+    Each pixel's ray, the same for every frame of one view, is worked out if ``store_rays`` != 0
+    and kept, else read back [per pixel]: ``ray_origin`` and ``ray_direction`` (its start on the
+    near plane and its unit world direction, in index coordinates), ``ray_world`` (that
+    direction in the world), ``ray_span`` (where it lies in the grid [world units from the near
+    plane]) and ``ray_depth`` (a, b, c, e: the surface at OpenGL depth z in [0, 1] lies at
+    t = (a + z' b) / (c + z' ndc_to_world[3, 2]) - e, z' = 2 z - 1).
     """
     tid = pixels[wp.tid() + offset]
     px = tid % width
     row = tid / width
     py = height - 1 - row  # OpenGL rows run up
-    nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
-    ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
-    near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
-    far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
-    hit4 = ndc_to_world @ wp.vec4(nx, ny, 2.0 * depth[py, px] - 1.0, 1.0)
-    near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
-    far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
-    hit = wp.vec3(hit4[0], hit4[1], hit4[2]) / hit4[3]
-    dw = wp.normalize(far - near)
-    t_surface = wp.dot(hit - near, dw)
-    o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
-    o = wp.vec3(o4[0], o4[1], o4[2])
-    d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
-    d = wp.vec3(d4[0], d4[1], d4[2])
-    span = wp.vec2(0.0, t_surface)
-    span = slab(o[0], d[0], 0.0, float(n[0] - 1), span[0], span[1])
-    span = slab(o[1], d[1], 0.0, float(n[1] - 1), span[0], span[1])
-    span = slab(o[2], d[2], 0.0, float(n[2] - 1), span[0], span[1])
+    o = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    dw = wp.vec3(0.0)
+    inside = wp.vec2(0.0)
+    at_depth = wp.vec4(0.0)
+    if store_rays != 0:
+        nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
+        ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
+        near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
+        far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
+        near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
+        far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
+        dw = wp.normalize(far - near)
+        # The surface point at depth z' is ndc_to_world (nx, ny, z', 1) = mid + z' column 2.
+        mid = ndc_to_world @ wp.vec4(nx, ny, 0.0, 1.0)
+        column = ndc_to_world @ wp.vec4(0.0, 0.0, 1.0, 0.0)
+        at_depth = wp.vec4(wp.dot(wp.vec3(mid[0], mid[1], mid[2]), dw),
+                           wp.dot(wp.vec3(column[0], column[1], column[2]), dw), mid[3], wp.dot(near, dw))
+        o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
+        o = wp.vec3(o4[0], o4[1], o4[2])
+        d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
+        d = wp.vec3(d4[0], d4[1], d4[2])
+        inside = wp.vec2(0.0, 3.0e38)
+        inside = slab(o[0], d[0], 0.0, float(n[0] - 1), inside[0], inside[1])
+        inside = slab(o[1], d[1], 0.0, float(n[1] - 1), inside[0], inside[1])
+        inside = slab(o[2], d[2], 0.0, float(n[2] - 1), inside[0], inside[1])
+        ray_origin[tid] = o
+        ray_direction[tid] = d
+        ray_world[tid] = dw
+        ray_span[tid] = inside
+        ray_depth[tid] = at_depth
+    else:
+        o = ray_origin[tid]
+        d = ray_direction[tid]
+        dw = ray_world[tid]
+        inside = ray_span[tid]
+        at_depth = ray_depth[tid]
+    z = 2.0 * depth[py, px] - 1.0
+    t_surface = (at_depth[0] + z * at_depth[1]) / (at_depth[2] + z * ndc_to_world[3, 2]) - at_depth[3]
+    span = wp.vec2(inside[0], wp.min(inside[1], t_surface))
     rgb = wp.vec3(0.0)
     alpha = float(0.0)
     if span[0] < span[1]:

@@ -338,11 +338,15 @@ class RayCaster:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
                 self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+                self._rays = [wp.empty(width * height, dtype=t, device=dev)
+                              for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
             self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
+            store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
         else:
+            store_rays = 0
             pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
                                         np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
@@ -355,7 +359,7 @@ class RayCaster:
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
             self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
-            self._image, *self._segments,
+            self._image, *self._segments, store_rays, *self._rays,
         ]
         launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
