@@ -29,6 +29,7 @@ MODULES = {
     "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces",
                                                "pair_inverse"),
     "softvr.dynamics._node_rigid_kernels": ("rigid_system", "rigid_velocity"),
+    "softvr.dynamics._node_cloth_kernels": ("spring_terms", "spring_blocks", "spring_forces"),
     "softvr.collision._node_rigid_kernels": ("rigid_points", "rigid_sides", "primitive_contacts"),
 }
 

@@ -1,12 +1,17 @@
 """Device helpers: the OpenBLAS thread limit applies inside the block and is undone after; a
-replayed launch does what the launch does; a launch split over the CPU cores runs every thread
-once, with its own index."""
+replayed launch does what the launch does; a launch split over the CPU cores, and a split
+replay, runs every thread once, with its own index (a split replay even when no worker
+comes to take its chunks)."""
+
+import queue
+import time
 
 import numpy as np
 import pytest
 import warp as wp
 
-from softvr.device import _openblas_controls, launch, replayer, single_threaded_blas
+import softvr.device as device_module
+from softvr.device import _openblas_controls, chunked_replayer, launch, replayer, single_threaded_blas
 
 
 @wp.kernel
@@ -42,6 +47,57 @@ def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):
     launch(_count, dim, [values, counts, 1.5], "cpu", min_chunk=100)
     np.testing.assert_array_equal(counts.numpy(), np.ones(dim, np.int32))
     np.testing.assert_array_equal(values.numpy(), 1.5 * np.arange(dim))
+
+
+def test_a_split_replay_runs_each_thread_once_per_call_with_its_own_index(monkeypatch):
+    """3 workers, 6 chunks claimed as the threads come free, replayed 50 times: every thread
+    counts itself 50 times and writes 1.5 i."""
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "3")
+    dim = 10_007
+    values = wp.zeros(dim, dtype=wp.float64, device="cpu")
+    counts = wp.zeros(dim, dtype=wp.int32, device="cpu")
+    replay = chunked_replayer(_count, dim, [values, counts, 1.5], "cpu", min_chunk=100)
+    for _ in range(50):
+        replay()
+    np.testing.assert_array_equal(counts.numpy(), np.full(dim, 50, np.int32))
+    np.testing.assert_array_equal(values.numpy(), 1.5 * np.arange(dim))
+
+
+def test_a_split_replay_that_no_worker_takes_up_is_run_by_its_caller(monkeypatch):
+    """The workers' queue is never served (a loaded machine that does not schedule them): the
+    caller runs every chunk itself and returns, without waiting for them."""
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "2")
+    idle: queue.SimpleQueue = queue.SimpleQueue()
+    monkeypatch.setattr(device_module, "_split_workers", lambda workers: idle)
+    dim = 4_096
+    values = wp.zeros(dim, dtype=wp.float64, device="cpu")
+    counts = wp.zeros(dim, dtype=wp.int32, device="cpu")
+    replay = chunked_replayer(_count, dim, [values, counts, 2.0], "cpu", min_chunk=1024)
+    replay.calls, replay.seconds = 2, [1.0, 0.0]  # the split way timed faster: it is taken
+    for _ in range(3):
+        replay()
+    np.testing.assert_array_equal(counts.numpy(), np.full(dim, 3, np.int32))
+    assert idle.qsize() == 3  # one call a replay offered to the one worker, none taken
+
+
+def test_a_split_replay_whose_split_is_slower_runs_on_its_caller_but_for_probes(monkeypatch):
+    """A split that waits 20 ms for its workers (a loaded machine): after the first call of
+    each way the replay runs on the calling thread, but for one split call every SPLIT_PROBE,
+    and still runs every thread once a call."""
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "2")
+    wait = device_module._SplitCall.wait
+    monkeypatch.setattr(device_module._SplitCall, "wait", lambda call: (time.sleep(0.02), wait(call)))
+    dim = 4_096
+    values = wp.zeros(dim, dtype=wp.float64, device="cpu")
+    counts = wp.zeros(dim, dtype=wp.int32, device="cpu")
+    replay = chunked_replayer(_count, dim, [values, counts, 2.0], "cpu", min_chunk=1024)
+    splits = 0
+    for _ in range(40):
+        before = replay.seconds[1]
+        replay()
+        splits += replay.seconds[1] != before
+    np.testing.assert_array_equal(counts.numpy(), np.full(dim, 40, np.int32))
+    assert splits == 1 + 40 // device_module.SPLIT_PROBE
 
 
 def test_single_threaded_blas_limits_and_restores_every_openblas():

@@ -10,10 +10,14 @@ index of their chunk as their last argument and add it to ``wp.tid()``.
 from __future__ import annotations
 
 import ctypes
+import itertools
 import logging
 import os
+import queue
 import sys
 import tempfile
+import threading
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -246,14 +250,71 @@ def in_order(*replays: Callable[[], None]) -> Callable[[], None]:
     return run
 
 
+class _SplitCall:
+    """One call of a split replay (:func:`chunked_replayer`): its chunks are claimed one at a
+    time by the calling thread and the workers (:func:`_split_workers`), so a worker that a
+    loaded machine has not scheduled yet leaves its chunks to the caller instead of keeping it
+    waiting; the caller waits only for a chunk a worker is running. ``next`` on an
+    ``itertools.count`` is one C call, atomic under the GIL."""
+
+    __slots__ = ("replays", "claim", "done", "finished", "complete", "error")
+
+    def __init__(self, replays: list[Callable[[], None]]):
+        self.replays = replays
+        self.claim, self.done = itertools.count(), itertools.count(1)
+        self.finished = threading.Lock()
+        self.finished.acquire()  # released with the last chunk
+        self.complete = False
+        self.error: BaseException | None = None
+
+    def __call__(self) -> None:
+        count = len(self.replays)
+        for c in self.claim:
+            if c >= count:
+                return
+            try:
+                self.replays[c]()
+            except BaseException as exc:  # raised in the caller; the chunk still counts as done
+                self.error = exc
+            if next(self.done) == count:
+                self.complete = True
+                self.finished.release()
+
+    def wait(self) -> None:
+        """Until every chunk has run (re-raising a chunk's error)."""
+        if not self.complete:
+            self.finished.acquire()
+        if self.error is not None:
+            raise self.error
+
+
+@lru_cache(maxsize=8)
+def _split_workers(workers: int) -> queue.SimpleQueue:
+    """A queue of :class:`_SplitCall` served by ``workers - 1`` daemon threads. Lighter than a
+    thread pool's futures (a C queue and one lock a call, no condition variables): on the
+    candy pile's Jacobi update (2 731 nodes, ~135 us) the pool's hand-off cost ~45 us of CPU
+    a call, this one ~20."""
+    tasks: queue.SimpleQueue = queue.SimpleQueue()
+
+    def serve() -> None:
+        while True:
+            tasks.get()()
+
+    for _ in range(workers - 1):
+        threading.Thread(target=serve, name="softvr-split", daemon=True).start()
+    return tasks
+
+
 def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> Callable[[], None]:
-    """Record a 1-D ``kernel`` over ``dim`` threads as :func:`launch` splits it (the last
-    parameter an ``int`` thread offset) and return a function replaying it: the chunks on the
-    CPU cores (the first on the calling thread), or one replay where one chunk suffices (CUDA,
-    one core, a small ``dim``)."""
+    """Record a 1-D ``kernel`` over ``dim`` threads in chunks (the last parameter an ``int``
+    thread offset, as :func:`launch`) and return a function replaying it: on the CPU from
+    ``2 * min_chunk`` threads in two chunks per core (of at least ``min_chunk / 2``), which
+    the calling thread and the workers claim as they come free (:class:`_SplitCall`), or all
+    on the calling thread where that has been faster (:class:`_SplitReplay`); one replay where
+    one chunk suffices (CUDA, one core, a small ``dim``)."""
     load_kernels(kernel, device)
     workers = cpu_workers() if device == "cpu" else 1
-    chunks = 1 if workers == 1 or dim < 2 * min_chunk else min(workers, max(1, dim // min_chunk))
+    chunks = 1 if workers == 1 or dim < 2 * min_chunk else min(2 * workers, max(1, dim // max(1, min_chunk // 2)))
     bounds = [dim * c // chunks for c in range(chunks + 1)]
     replays = [replayer(wp.launch(kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]], device=device,
                                   record_cmd=True))
@@ -262,15 +323,49 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
         return lambda: None
     if len(replays) == 1:
         return replays[0]
-    first, rest = replays[0], replays[1:]
+    return _SplitReplay(replays, workers)
 
-    def replay() -> None:
-        futures = [_pool(workers).submit(r) for r in rest]
-        first()
-        for f in futures:
-            f.result()
 
-    return replay
+class _SplitReplay:
+    """The chunks of a split launch, replayed split (:class:`_SplitCall`) or all on the calling
+    thread, whichever has taken less wall time of late: the results are the same either way
+    (each thread writes its own outputs), but on a loaded machine a worker is scheduled late
+    and the split took 1.9x the single thread's wall time (candy's Jacobi at load 6.5), while
+    on an idle one it is about half of it. Each way's time is a moving average (weight
+    :data:`SPLIT_AVERAGE`) and every :data:`SPLIT_PROBE`-th call times the other way."""
+
+    __slots__ = ("replays", "tasks", "workers", "seconds", "calls")
+
+    def __init__(self, replays: list[Callable[[], None]], workers: int):
+        self.replays, self.workers, self.tasks = replays, workers, _split_workers(workers)
+        self.seconds = [0.0, 0.0]  # single, split; each tried once first
+        self.calls = 0
+
+    def __call__(self) -> None:
+        self.calls += 1
+        if self.calls <= 2:
+            way = self.calls - 1
+        else:
+            best = int(self.seconds[1] < self.seconds[0])
+            way = 1 - best if self.calls % SPLIT_PROBE == 0 else best
+        start = time.perf_counter()
+        if way:
+            call = _SplitCall(self.replays)
+            for _ in range(self.workers - 1):
+                self.tasks.put(call)
+            call()
+            call.wait()
+        else:
+            for replay in self.replays:
+                replay()
+        took = time.perf_counter() - start
+        self.seconds[way] = took if self.calls <= 2 else self.seconds[way] + SPLIT_AVERAGE * (took - self.seconds[way])
+
+
+#: Weight of a call's wall time in the moving average of its way (:class:`_SplitReplay`).
+SPLIT_AVERAGE = 0.25
+#: Every this many calls a split replay times the way it does not take.
+SPLIT_PROBE = 16
 
 
 _SET = ("openblas_set_num_threads", "scipy_openblas_set_num_threads", "scipy_openblas_set_num_threads64_",

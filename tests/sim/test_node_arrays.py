@@ -205,6 +205,9 @@ def test_scenes_the_arrays_do_not_hold_step_per_object():
     scene.add_plane(Plane(point=(0.0, 0.0, -2.0)), adhesion=Adhesion(stiffness=1e6, max_energy=1.0, viscosity=1e-3))
     assert node_model_supported(scene)  # adhesion is held (tests/contact/test_node_adhesion.py)
     scene.add_sphere(Sphere(center=(0.0, 0.0, -5.0)))
+    assert node_model_supported(scene)  # statics in adhesive scenes too (tests/contact/test_node_static_adhesion.py)
+    # Co-rotational and linear FEM bodies in one scene are not held.
+    scene.add_body(FemBody(body.rest + (2.0, 0.0, 0.0), body.tets, body.material, corotational=False, name="linear"))
     assert not node_model_supported(scene)
     scene.step(0.01)
     assert scene._stepper is None

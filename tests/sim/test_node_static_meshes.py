@@ -31,12 +31,16 @@ def _sheet(rotation=np.eye(3), friction=0.5):
     return TriangleMesh(SQUARE @ rotation.T, [[0, 1, 2], [0, 2, 3]], thickness=THICKNESS, friction=friction)
 
 
+@pytest.mark.parametrize("primitive", [False, True])
 @pytest.mark.parametrize("slope, slides", [(20.0, False), (35.0, True)])
-def test_a_rigid_box_on_a_tilted_static_mesh_sticks_below_the_friction_angle_and_slides_above(slope, slides):
+def test_a_rigid_box_on_a_tilted_static_mesh_sticks_below_the_friction_angle_and_slides_above(slope, slides,
+                                                                                              primitive):
     """Coulomb (mu = 0.5, friction angle 26.6 degrees): the box's corners on a static sheet
     turned by theta about y; at 20 degrees it stays, at 35 it slides from rest with
     v_n = n a dt, a = g (sin theta - mu cos theta) (implicit Euler, every contact sliding).
-    A fixed FEM block stands apart on the same arrays (sheet 0 is elsewhere)."""
+    A fixed FEM block stands apart on the same arrays (sheet 0 is elsewhere). With a box
+    primitive too (which meets planes and other primitives only) its corners still meet the
+    sheet."""
     mu, dt, steps = 0.5, 0.005, 40
     theta = np.radians(slope)
     turn = np.array([[np.cos(theta), 0.0, np.sin(theta)], [0.0, 1.0, 0.0], [-np.sin(theta), 0.0, np.cos(theta)]])
@@ -48,7 +52,7 @@ def test_a_rigid_box_on_a_tilted_static_mesh_sticks_below_the_friction_angle_and
     scene.add_mesh(_sheet(turn, mu))
     half = np.array([0.05, 0.05, 0.02])
     q = (np.cos(theta / 2), 0.0, np.sin(theta / 2), 0.0)  # the same turn about y
-    box = _rigid_box(scene, half, 500.0, tuple((half[2] + THICKNESS) * normal), orientation=q)
+    box = _rigid_box(scene, half, 500.0, tuple((half[2] + THICKNESS) * normal), primitive=primitive, orientation=q)
     assert node_model_supported(scene)
     for _ in range(steps):
         solution = scene.step(dt)

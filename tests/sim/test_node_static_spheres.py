@@ -66,8 +66,9 @@ def test_a_soft_block_on_a_static_sphere_solves_the_mlcp_on_the_spheres_geometry
     np.testing.assert_allclose(block.v, 0.0, atol=1e-4)
 
 
-def test_a_static_sphere_in_an_adhesive_scene_keeps_the_per_object_path():
-    """The node arrays' adhesion knows planes, not spheres: such a scene steps per object."""
+def test_a_static_sphere_in_an_adhesive_scene_takes_the_node_arrays():
+    """The node arrays' adhesion knows static spheres and meshes (kinds 4 and 5; their physics:
+    tests/contact/test_node_static_adhesion.py): such a scene steps on the arrays."""
     scene, _ = _block_on_sphere()
     scene.add_plane(Plane(point=(0.0, 0.0, -3.0)), adhesion=Adhesion(1e6, 0.05, 0.05))
-    assert not node_model_supported(scene)
+    assert node_model_supported(scene)

@@ -324,8 +324,8 @@ def point_contact(out: NodeContactOut, c: int, kind: int, column: int, p: int, o
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
-                    point_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
-                    triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
+                    point_margin: wp.array(dtype=wp.float64), plane_margin: wp.array(dtype=wp.float64),
+                    point_body: wp.array(dtype=wp.int32), triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
                     plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
                     plane_friction: wp.array(dtype=wp.float64), sphere_center: wp.array(dtype=wp.vec3d),
                     sphere_radius: wp.array(dtype=wp.float64), sphere_friction: wp.array(dtype=wp.float64),
@@ -344,7 +344,9 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
     sphere) pair the same way (:func:`softvr.collision.points_vs_sphere`: gap and normal along
     the radius through the point), then every (point, static mesh) hit (``static_*``, from
     :func:`point_static_mesh`), then every (vertex, body) hit by vertex, then body, then every
-    edge pair by edge a, then slot. ``other`` is the plane, sphere or mesh, or the body whose
+    edge pair by edge a, then slot; a point meets the planes within its ``plane_margin`` [m]
+    (-inf: never, a rigid primitive's point), the statics within its ``point_margin`` [m].
+    ``other`` is the plane, sphere or mesh, or the body whose
     triangle ``face`` (global) the vertex meets at barycentric ``bary``, or whose edge
     ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``; ``carried[p, column]``
     (planes first, then bodies, spheres, meshes) and ``edge_carried[e, column]`` (with the
@@ -356,7 +358,7 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
         for p in range(point_nodes.shape[0]):
             g = wp.dot(normal, point_x[p]) - plane_offset[s]
             reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            if wp.min(g, reach) < point_margin[p] and n_out < capacity:
+            if wp.min(g, reach) < plane_margin[p] and n_out < capacity:
                 point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
                               point_weights)
                 n_out += 1

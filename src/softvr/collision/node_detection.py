@@ -83,7 +83,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
         inputs=[state.point_x, state.point_u, model.point_nodes, model.point_weights, model.point_margin,
-                model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
+                model.plane_margin, model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
                 model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, c.static_hit,
                 c.static_normal, c.static_gap, model.static_mesh_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
                 model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,

@@ -8,7 +8,8 @@ bonding / debonding (4.3.3) and what carries over to the next step, sorted by ke
 Contact kinds of the node arrays (:class:`softvr.sim.NodeContacts`): 0 point vs plane, 1
 surface vertex vs another body's triangle, 2 edge vs edge, 3 a rigid body's box or sphere
 primitive (its key, area and side b's plane from the rigid path's detection, which numbers the
-bodies among the rigid ones: the key is re-packed with the scene's).
+bodies among the rigid ones: the key is re-packed with the scene's), 4 point vs static sphere,
+5 point vs static mesh (keyed and measured as a point on a plane, the static's index as side b).
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ import warp as wp
 from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
 from softvr.contact._node_jacobi_kernels import _rigid_velocity
 
-# softvr.collision.ContactKind of the node kinds 0, 1, 2, and the key's bit layout
+# softvr.collision.ContactKind of the node kinds 0, 1, 2, 4, 5, and the key's bit layout
 # (softvr.collision.contact_keys: kind 4 | body a 10 | body b 10 | feature a 20 | feature b 20).
-POINT_PLANE, VERTEX_TRIANGLE, EDGE_EDGE = 0, 3, 4
+POINT_PLANE, POINT_SPHERE, POINT_MESH, VERTEX_TRIANGLE, EDGE_EDGE = 0, 1, 2, 3, 4
 #: The key of a contact that does not adhere: above every real one (kinds < 15), so that it
 #: never shadows one in the carried table's search.
 NO_KEY = wp.constant(wp.uint64(0xFFFFFFFFFFFFFFFF))
@@ -94,7 +95,8 @@ class NodeAdhesionArrays:
     key: ``carried_count`` [1], ``carried_key``, ``carried_impulse`` (world [N s]),
     ``carried_intensity``, ``carried_slip`` [m]; ``materials`` [m, 7]
     (:data:`softvr.sim.model.ADHESION_COLUMNS`), ``body_material`` [bodies],
-    ``plane_material`` [planes], ``body_two_sided`` [bodies] (1: an open surface),
+    ``plane_material`` [planes], ``sphere_material`` [static spheres], ``mesh_material``
+    [static meshes], ``body_two_sided`` [bodies] (1: an open surface),
     ``vertex_start`` [p + 1] / ``vertex_triangles``: each collision point's incident
     triangles (global; none for a point that is no surface vertex)."""
 
@@ -110,6 +112,8 @@ class NodeAdhesionArrays:
     materials: wp.array2d(dtype=wp.float64)
     body_material: wp.array(dtype=wp.int32)
     plane_material: wp.array(dtype=wp.int32)
+    sphere_material: wp.array(dtype=wp.int32)
+    mesh_material: wp.array(dtype=wp.int32)
     body_two_sided: wp.array(dtype=wp.int32)
     vertex_start: wp.array(dtype=wp.int32)
     vertex_triangles: wp.array(dtype=wp.int32)
@@ -134,7 +138,7 @@ def _prepare_contact(c: int, ad: NodeAdhesionArrays, kind: wp.array(dtype=wp.int
     ar = wp.float64(0.0)
     ma = int(-1)
     mb = int(-1)
-    if k > 2:
+    if k == 3:
         key = primitive_key(rigid_key[p], column[c], o)
         ar = rigid_area[p]
         ma = ad.body_material[column[c]]
@@ -156,6 +160,12 @@ def _prepare_contact(c: int, ad: NodeAdhesionArrays, kind: wp.array(dtype=wp.int
         if k == 0:
             key = pack_key(POINT_PLANE, a, p - body_point_start[a], o, 0)
             mb = ad.plane_material[o]
+        elif k == 4:
+            key = pack_key(POINT_SPHERE, a, p - body_point_start[a], o, 0)
+            mb = ad.sphere_material[o]
+        elif k == 5:
+            key = pack_key(POINT_MESH, a, p - body_point_start[a], o, 0)
+            mb = ad.mesh_material[o]
         else:
             key = pack_key(VERTEX_TRIANGLE, a, p - body_point_start[a], o, 0)
             mb = ad.body_material[o]

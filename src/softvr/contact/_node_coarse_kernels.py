@@ -15,9 +15,9 @@ Methods, 2005, ch. 2; Nicolaides 1987 for the coarse space of each subdomain's k
 moves the aggregate by the linear velocity ``y[:3]`` and the angular ``y[3:]``; the inverse is
 taken per aggregate, block-diagonal: additive Schwarz over the aggregates) is symmetric and
 positive definite, so Chebyshev over the spectrum of ``M^-1 A`` is sound (candy: 18 sweeps per
-decade). A sweep is then, with ``r = b - A v^k = D_A (v^ - v^k)``:
+decade). A sweep is then, with ``r = b - A v^k``:
 
-    v^   = D_A^-1 (b - (L_A + U_A) v^k)                  (the Jacobi kernel, unchanged)
+    v^   = v^k + D_A^-1 r                                 (the Jacobi kernel, unchanged)
     y_b  = (P_b^T A P_b)^-1 P_b^T r                       (:func:`coarse_residual`)
     PGS over the contacts with the metric M^-1: a contact's impulse f moves its stencil's nodes
          by D_A^-1 w_k f and its bodies' coarse velocities by (P^T A P)^-1 (s f, L x f), with
@@ -139,18 +139,17 @@ def contact_sides(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
 
 @wp.kernel
 def coarse_residual(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
-                    diagonal: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
-                    v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
+                    residual: wp.array(dtype=wp.vec3d), co: Coarse):
     """Coarse body ``b``'s velocity ``y = (P^T A P)^-1 P^T r`` from the sweep's residual
-    ``r_i = b_i - (A v)_i = D_i (v^_i - v_i)`` (``diagonal[i]`` the index of node ``i``'s
-    diagonal block): the force and the torque about the centre of ``r``, solved."""
+    ``r = b - A v`` [kg m/s] (the Jacobi kernel's, :func:`softvr.contact._node_jacobi_kernels.jacobi`):
+    the force and the torque about the centre of ``r``, solved."""
     b = wp.tid()
     force = wp.vec3d()
     torque = wp.vec3d()
     c = co.centre[b]
     for t in range(start[b], start[b + 1]):
         i = nodes[t]
-        r = blocks[diagonal[i]] * (v_hat[i] - v[i])
+        r = residual[i]
         force = force + r
         torque = torque + wp.cross(q[i] - c, r)
     co.y_lin[b] = co.ll[b] * force + co.la[b] * torque

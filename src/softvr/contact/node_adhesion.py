@@ -100,11 +100,12 @@ class NodeAdhesion:
         Adhesion parameters per material, columns :data:`softvr.sim.model.ADHESION_COLUMNS` (SI).
     body_material : ndarray of int [bodies]
         Row of each body's adhesion in ``materials`` (-1: none).
-    plane_material : ndarray of int [planes]
-        Row of each plane's adhesion (-1: none).
+    plane_material, sphere_material, mesh_material : ndarray of int [planes], [spheres], [meshes]
+        Row of each static plane's, sphere's and triangle mesh's adhesion (-1: none).
     """
 
-    def __init__(self, model, state, materials: np.ndarray, body_material, plane_material):
+    def __init__(self, model, state, materials: np.ndarray, body_material, plane_material, sphere_material,
+                 mesh_material):
         d = model.device
         cap = state.contacts.capacity
         p = model.point_count
@@ -123,7 +124,9 @@ class NodeAdhesion:
         ad.carried_slip = wp.zeros(cap, dtype=wp.vec3d, device=d)
         ad.materials = wp.array(np.asarray(materials, float).reshape(-1, 7), dtype=wp.float64, device=d)
         ad.body_material = wp.array(np.asarray(body_material, np.int32), dtype=wp.int32, device=d)
-        ad.plane_material = wp.array(np.asarray(plane_material, np.int32).reshape(-1), dtype=wp.int32, device=d)
+        ad.plane_material, ad.sphere_material, ad.mesh_material = (
+            wp.array(np.asarray(m, np.int32).reshape(-1), dtype=wp.int32, device=d)
+            for m in (plane_material, sphere_material, mesh_material))
         two_sided = [int(model.surfaces[b].two_sided) if b in model.surfaces else 0
                      for b in range(len(model.body_node_start) - 1)]
         ad.body_two_sided = wp.array(np.asarray(two_sided, np.int32), dtype=wp.int32, device=d)

@@ -209,7 +209,8 @@ def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies, q: np.ndarray,
 class CoarseSpace:
     """The recorded coarse launches of the node sweeps (:mod:`softvr.contact._node_coarse_kernels`)
     over ``bodies`` (:class:`Aggregates`, or [B, 2] node ranges from :func:`coarse_bodies`; none:
-    every contact's coarse sides stay empty and the sweeps are plain node-block Jacobi).
+    every contact's coarse sides stay empty and the sweeps are plain node-block Jacobi), from
+    the sweep's node residual ``residual`` [n] [kg m/s] (``b - A v``, the Jacobi kernel's).
 
     Attributes
     ----------
@@ -217,7 +218,7 @@ class CoarseSpace:
         The struct the sweep kernels take.
     """
 
-    def __init__(self, model, state, bodies):
+    def __init__(self, model, state, bodies, residual: wp.array):
         d = model.device
         aggregates = aggregates_of(bodies)
         n, count = model.node_count, len(aggregates)
@@ -238,15 +239,12 @@ class CoarseSpace:
         self.arrays = co
         self.count = count
         self._prepare: list[Callable[[], None]] = []
-        self.residual: list[Callable[[], None]] = []
+        #: The coarse velocities from the sweep's residual (a replay; none without bodies).
+        self.residual: Callable[[], None] | None = None
         if not count:
             return
-        start = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
-        nodes = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
-        rows, cols = model.block_row.numpy(), model.block_col.numpy()
-        diagonal = np.zeros(n, np.int32)  # each node's diagonal block
-        diagonal[rows[rows == cols]] = np.flatnonzero(rows == cols)
-        self._diagonal: wp.array = wp.array(diagonal, dtype=wp.int32, device=d)
+        start: wp.array = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
+        nodes: wp.array = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
         c = state.contacts
         self._prepare = [
             replayer(wp.launch(_k.prepare_bodies, dim=count, device=d, record_cmd=True,
@@ -254,10 +252,8 @@ class CoarseSpace:
                                        state.blocks, co])),
             replayer(wp.launch(_k.contact_sides, dim=capacity, device=d, record_cmd=True,
                                inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, state.q, co]))]
-        self.residual = [replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
-                                            inputs=[start, nodes, state.q, self._diagonal, state.blocks, v,
-                                                    state.v_hat, co]))
-                         for v in state.sweep_buffers]
+        self.residual = replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
+                                           inputs=[start, nodes, state.q, residual, co]))
 
     def prepare(self) -> None:
         """The bodies' centres and coarse inverses from this step's ``A``, and the contacts'

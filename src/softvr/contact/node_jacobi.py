@@ -8,6 +8,7 @@ sweeps also solve eq. 5.2, so there is no separate unconstrained solve.
 
 from __future__ import annotations
 
+from bisect import bisect_right
 from typing import Callable
 
 import numpy as np
@@ -55,8 +56,41 @@ def _contact_threads(device) -> int:
     return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
 
 
+def _own_blocks(model) -> wp.array:
+    """[n] 1 where node ``i`` has its diagonal block in ``A``'s rows (every FEM node, and a
+    spring-held rigid body's: the residual form of :func:`_node_jacobi_kernels.jacobi`), 0 where
+    its ``D_A`` is only in ``d_inv`` (a free rigid body's)."""
+    rows, cols = model.block_row.numpy(), model.block_col.numpy()
+    own = np.zeros(model.node_count, np.int32)
+    own[rows[rows == cols]] = 1
+    partner = model.couplings.partner.numpy()
+    paired = partner >= 0
+    if not own[paired].all():
+        raise ValueError("a spring-held rigid body's node has no diagonal block in A: its 6x6 block of D_A "
+                         "cannot be taken in residual form")
+    return wp.array(own, dtype=wp.int32, device=model.device)
+
+
 def _nothing() -> None:
-    """The contact step of a Gauss-Seidel sweep: it runs inside the node update."""
+    """A replay with nothing to do: the contact step of a Gauss-Seidel sweep (it runs inside the
+    node update), the largest change on the CPU (the Chebyshev kernel takes it)."""
+
+
+class _Changes:
+    """The largest changes [m/s] of the checked sweeps since the Chebyshev sweeps (re)started,
+    in sweep order (the stop's plateau and stall tests take the largest of a window of them)."""
+
+    def __init__(self):
+        self.sweeps: list[int] = []
+        self.values: list[float] = []
+
+    def add(self, sweep: int, change: float) -> None:
+        self.sweeps.append(sweep)
+        self.values.append(change)
+
+    def largest(self, after: int, upto: int) -> float:
+        """The largest change of the sweeps ``j``, ``after < j <= upto``."""
+        return max(self.values[bisect_right(self.sweeps, after):bisect_right(self.sweeps, upto)])
 
 
 class NodeSolve:
@@ -103,8 +137,13 @@ class NodeSolve:
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
+        # :meth:`_window`; capped at max_sweeps, past which no window test looks (inf: no contraction)
+        self._window_sweeps = 2 * int(np.ceil(max(10.0, min(self.sweeps_per_decade, self.max_sweeps))))
         self.colours = colours
-        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse)
+        #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
+        self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse,
+                                  self.residual_nodes)
         co = self.coarse.arrays
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega, dt)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
@@ -112,7 +151,8 @@ class NodeSolve:
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
         self.plateaued = False
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
-        #: [0] the last checked sweep's largest change [m/s], [1] the largest normal-velocity
+        #: [0] the last checked sweep's largest change [m/s] (on the CPU the last sweep's: the
+        #: Chebyshev kernel takes it every sweep), [1] the largest normal-velocity
         #: error [m/s], [2] the contacts' largest natural residual [m/s] (:meth:`solve`,
         #: :func:`_node_jacobi_kernels.residual`): all the loop reads back, one view per check.
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
@@ -158,24 +198,30 @@ class NodeSolve:
                                                   c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
                                                   cross, model.fixed, co, metric, movable, threads]))
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
+        own_block = _own_blocks(model) if gs is None else None
+        # One thread on the CPU, which also takes the largest change (no second pass over the nodes).
+        node_threads = 1 if wp.get_device(d).is_cpu else model.node_count
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
                 jacobi.append(chunked_replayer(_k.jacobi, model.node_count,
                                                [model.row_start, model.block_col, state.blocks, state.d_inv,
                                                 model.couplings.partner, model.couplings.cross, state.b, model.fixed,
-                                                state.fixed_velocity, v, state.v_hat], d))
-                if self.coarse.count:  # the coarse velocities from the sweep's residual
-                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual[r])
+                                                state.fixed_velocity, own_block, v, state.v_hat, self.residual_nodes],
+                                               d))
+                if self.coarse.residual is not None:  # the coarse velocities from the sweep's residual
+                    jacobi[-1] = in_order(jacobi[-1], self.coarse.residual)
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
                 jacobi.append(gs.record(v, contacts))
-            cheb.append(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+            cheb.append(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
-                                          model.fixed, self.exact, state.q, co, v_next, self.change]))
-            plain.append(replayer(wp.launch(_k.chebyshev, dim=model.node_count, device=d, record_cmd=True,
+                                          model.fixed, self.exact, state.q, co, v_next, self.change,
+                                          model.node_count, node_threads, self.stats]))
+            plain.append(replayer(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                             inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
-                                                    v_next, self.change])))
+                                                    v_next, self.change, model.node_count, node_threads,
+                                                    self.stats])))
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
@@ -190,8 +236,9 @@ class NodeSolve:
                                                               c.friction, c.stiffness, c.slip, metric, movable,
                                                               c.gap_after, self.stats]))
                                    for r in range(3)]
-        self._largest = replayer(wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
-                                           inputs=[self.change, model.node_count, self.stats]))
+        self._largest = _nothing if node_threads == 1 else replayer(
+            wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
+                      inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
 
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
@@ -240,7 +287,7 @@ class NodeSolve:
         self.coarse.prepare()
         self._metric()
         cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
-        history: dict[int, float] = {}  # change by sweeps since Chebyshev (re)started
+        history = _Changes()  # change by sweeps since Chebyshev (re)started
         restart, plain_until = 0, 0
         self.plain_sweeps = 0
         self.plateaued = False
@@ -248,7 +295,7 @@ class NodeSolve:
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
                 self.sweep.zero_()
-                restart, history, stop = k, {}, cheb_stop
+                restart, history, stop = k, _Changes(), cheb_stop
             plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
@@ -267,7 +314,7 @@ class NodeSolve:
                 if change <= stop and self._contacts_met(k, tolerance):
                     return k, self._buffers[k % 3]
                 if not plain:
-                    history[k - restart] = change
+                    history.add(k - restart, change)
                     if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
                         self.plateaued = True
                         return k, self._buffers[k % 3]
@@ -289,9 +336,9 @@ class NodeSolve:
 
     def _window(self) -> int:
         """Two decades' worth of Chebyshev sweeps (100x on a linear system), at least 20."""
-        return 2 * int(np.ceil(max(10.0, self.sweeps_per_decade)))
+        return self._window_sweeps
 
-    def _plateau(self, history: dict[int, float], k: int, tolerance: float) -> bool:
+    def _plateau(self, history: _Changes, k: int, tolerance: float) -> bool:
         """Whether the Chebyshev sweeps, ``k`` sweeps after they (re)started, hover under
         ``tolerance`` [m/s] without converging: every largest change of the last :meth:`_window`
         sweeps is under ``tolerance``, and their largest is over half that of the window before
@@ -303,11 +350,10 @@ class NodeSolve:
         window = self._window()
         if k < 2 * window:
             return False
-        recent = max(c for j, c in history.items() if j > k - window)
-        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        recent, before = history.largest(k - window, k), history.largest(k - 2 * window, k - window)
         return recent <= tolerance and recent > 0.5 * before
 
-    def _stalled(self, history: dict[int, float], k: int, stop: float) -> bool:
+    def _stalled(self, history: _Changes, k: int, stop: float) -> bool:
         """Whether the Chebyshev sweeps stall or cycle far from converged, ``k`` sweeps after
         they (re)started (``history``: their changes since): the largest change of the last
         :meth:`_window` sweeps is not half that of the window before, and the change is still
@@ -318,8 +364,7 @@ class NodeSolve:
         PGS does not settle) is left to Chebyshev, which keeps the slow modes, the
         translations, converged better than plain sweeps would."""
         window = self._window()
-        if k < 2 * window or history[k] <= 100.0 * stop:
+        if k < 2 * window or history.values[-1] <= 100.0 * stop:
             return False
-        recent = max(c for j, c in history.items() if j > k - window)
-        before = max(c for j, c in history.items() if k - 2 * window < j <= k - window)
+        recent, before = history.largest(k - window, k), history.largest(k - 2 * window, k - window)
         return recent > 0.5 * before

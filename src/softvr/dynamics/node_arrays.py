@@ -1,8 +1,9 @@
-"""The FEM bodies of a whole scene on arrays: element terms, the step matrix ``A`` of thesis
-eq. 5.2 in 3x3 node blocks with its right-hand side, the kinematic bodies' driven nodes, the
-sweeps' first guess and the integration, as recorded launches replayed every step
-(:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or any objects with those
-attributes; kernels in :mod:`softvr.dynamics._node_kernels`).
+"""The FEM and cloth bodies of a whole scene on arrays: element terms, the step matrix ``A`` of
+thesis eq. 5.2 in 3x3 node blocks with its right-hand side (the cloths' springs included), the
+kinematic bodies' driven nodes, the sweeps' first guess and the integration, as recorded
+launches replayed every step (:class:`softvr.sim.NodeModel` / :class:`softvr.sim.NodeState`, or
+any objects with those attributes; kernels in :mod:`softvr.dynamics._node_kernels` and
+:mod:`softvr.dynamics._node_cloth_kernels`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 import warp as wp
 
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
+from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
 __all__ = ["NODE_DIVERGENCE_REASONS", "record_drive", "record_elements", "record_integrate", "record_start",
@@ -32,7 +34,9 @@ def record_elements(model, state) -> Callable[[], None]:
 
 def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing ``A`` (``state.blocks``, ``state.d_inv``) and ``b`` (``state.b``) of a
-    step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms."""
+    step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms and the cloth
+    springs (``model.cloth``: :class:`softvr.sim._node_cloth.NodeCloth`) at ``state.q``; the
+    second (``b``) reads the springs' forces the first wrote."""
     assemble = chunked_replayer(_k.assemble, model.assembled.shape[0],
                                 [model.assembled, model.block_mirror, model.block_row, model.block_col, model.contrib_start, model.contrib,
                                  state.rotations, model.ke, model.tet_beta, model.mass, model.node_alpha, float(dt),
@@ -41,7 +45,21 @@ def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None],
     rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
                             wp.vec3d(*np.asarray(gravity, float)), float(dt), state.b])
-    return assemble, replayer(rhs)
+    cloth = model.cloth
+    if not cloth.spring_count:  # Warp records no launch of 0 threads
+        return assemble, replayer(rhs)
+    for kernel in (_c.spring_terms, _c.spring_blocks, _c.spring_forces):
+        load_kernels(kernel, model.device)
+    terms = wp.launch(_c.spring_terms, dim=cloth.spring_count, device=model.device, record_cmd=True,
+                      inputs=[cloth.springs, cloth.rest_length, cloth.stiffness, cloth.damping, state.q, float(dt),
+                              cloth.spring_block, cloth.spring_force])
+    blocks = wp.launch(_c.spring_blocks, dim=cloth.block.shape[0], device=model.device, record_cmd=True,
+                       inputs=[cloth.block, cloth.block_entry_start, cloth.block_entry, cloth.spring_block,
+                               model.block_row, model.block_col, state.blocks, state.d_inv])
+    forces = wp.launch(_c.spring_forces, dim=cloth.node.shape[0], device=model.device, record_cmd=True,
+                       inputs=[cloth.node, cloth.node_entry_start, cloth.node_entry, cloth.spring_force, float(dt),
+                               state.b])
+    return in_order(assemble, replayer(terms), replayer(blocks)), in_order(replayer(rhs), replayer(forces))
 
 
 def record_drive(model, state) -> Callable[[], None]:

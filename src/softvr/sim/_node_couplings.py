@@ -27,6 +27,7 @@ import warp as wp
 
 from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
 from softvr.dynamics.node_couplings import SPRING_STENCIL
+from softvr.sim._node_cloth import NODE_BODIES
 from softvr.sim._node_rigid import rigid_bodies
 
 __all__ = ["NodeCouplings", "block_jacobi_factor", "build_node_couplings", "coupling_blocks", "coupling_springs",
@@ -174,7 +175,7 @@ def driven_points(scene, colliders: dict) -> dict:
     collider."""
     out = {}
     for i, body in enumerate(scene.bodies):
-        if type(body) in (FemBody, RigidBody):
+        if isinstance(body, (*NODE_BODIES, RigidBody)):
             continue
         local = [colliders[i].points.local] if i in colliders else []
         local += [side.local for side in _driven_sides(scene, body)]
@@ -191,7 +192,7 @@ def coupling_springs(scene, node_start, colliders: dict) -> tuple:
     index = {id(b): i for i, b in enumerate(scene.bodies)}
     rigid_index = {i: r for r, i in enumerate(rigid_bodies(scene))}
     next_driven = {i: len(colliders[i].points.local) if i in colliders else 0
-                   for i, b in enumerate(scene.bodies) if type(b) is not FemBody}
+                   for i, b in enumerate(scene.bodies) if not isinstance(b, NODE_BODIES)}
     nodes, weights, rigid, local, stiffness, damping = [], [], [], [], [], []
     for c in scene.couplings:
         count = len(c)

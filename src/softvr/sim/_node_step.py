@@ -39,8 +39,9 @@ from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, 
                                          record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
-from softvr.dynamics import FemBody, RigidBody
+from softvr.dynamics import RigidBody
 from softvr.errors import InputError
+from softvr.sim._node_cloth import NODE_BODIES
 from softvr.sim._node_couplings import block_jacobi_factor
 from softvr.sim._node_sweeps import choose_sweeps
 from softvr.sim._rigid_step import LazySolution, StepSnapshot
@@ -240,7 +241,7 @@ class NodeStepper:
         self.model, self.state = build_node_model(scene)
         self._settings = self._scene_settings()
         self.colliders = {c.body: c for c in scene._colliders}
-        self.fem = [type(b) is FemBody for b in scene.bodies]
+        self.fem = [isinstance(b, NODE_BODIES) for b in scene.bodies]  # free nodes: FEM and cloth
         self.fixed_nodes = self.model.fixed.numpy() != 0
         self.point_body = self.model.point_body.numpy()
         self.triangle_start = self.model.body_triangle_start.numpy()
@@ -269,7 +270,7 @@ class NodeStepper:
     def _scene_settings(self) -> tuple:
         s = self.scene
         return (s._layout, float(s.contact_margin), float(s.friction), bool(s.edge_contacts),
-                tuple(len(b.q) if type(b) is FemBody else 0 for b in s.bodies))
+                tuple(len(b.q) if isinstance(b, NODE_BODIES) else 0 for b in s.bodies))
 
     def still_valid(self) -> bool:
         """Whether the arrays still describe the scene."""
@@ -381,7 +382,7 @@ class NodeStepper:
             return -1 if adhesion is None else rows[id(adhesion)]
 
         return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))],
-                            [row(("static", id(p))) for p in s.planes])
+                            *([row(("static", id(x))) for x in statics] for statics in (s.planes, s.spheres, s.meshes)))
 
     def _surface_margin(self) -> float:
         """Detection margin [m] between surfaces: the largest of the surface pairs' (the scene's,

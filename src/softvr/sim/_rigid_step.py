@@ -28,6 +28,7 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.rigid_pgs import record_rigid_solve
 from softvr.device import replayer
+from softvr.dynamics import KinematicBody
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
 from softvr.sim.model import build_rigid_model
 
@@ -276,6 +277,9 @@ class RigidStepper:
         self._moves = np.append(self.model.body_inv_mass.numpy() > 0, False)  # [n + 1], body -1 static
         self._pushed = True
         self._views = bind_views(self.scene.bodies, self.state)
+        # Kinematic bodies are rows of infinite mass (inverse mass 0, as fixed ones) moving at
+        # their script's velocity: the contact solve reads it as their side's velocity.
+        self._kinematic = {i for i, b in enumerate(self.scene.bodies) if isinstance(b, KinematicBody)}
 
     def _sync_in(self) -> None:
         """Copy in any pose or velocity the user assigned since the last step."""
@@ -340,6 +344,8 @@ class RigidStepper:
                     self._external[body] = s.bodies[body]._check_external(force)
             self._pushed = bool(s.external)
         unconstrained()
+        for i in self._kinematic:
+            self._free[i] = s.bodies[i].unconstrained_velocity(dt, s.gravity, s.external.get(i))
         self._check()
         t1 = time.perf_counter()
         detection.launch()
@@ -348,8 +354,12 @@ class RigidStepper:
         t3 = time.perf_counter()
         integrate()
         self._check()
-        for body in s.bodies:
-            body.step_count += 1
+        for i, body in enumerate(s.bodies):
+            if i in self._kinematic:  # the script's pose at t + dt exactly, copied into the views
+                body.integrate(self._free[i], dt)
+                sync_views([body], [self._views[i]])
+            else:
+                body.step_count += 1
         snapshot = _Snapshot(views, min(int(count[0]), self.model.contact_capacity), list(self._velocity.copy()),
                              int(stats[0]), float(stats[1]), self._moves)
         self._issued[turn] = weakref.ref(snapshot)

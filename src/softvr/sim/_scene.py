@@ -142,13 +142,13 @@ class Scene:
         one :class:`~softvr.dynamics.CouplingIsland` per group (found on the first step after
         a change).
     rigid_arrays : bool
-        Step a scene of rigid and fixed bodies on planes, box and sphere primitives and rigid
-        collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
+        Step a scene of rigid, fixed and kinematic bodies on planes, box and sphere primitives
+        and rigid collision points (:func:`~softvr.sim.rigid_model_supported`) on whole-scene arrays with
         compiled launches (:class:`~softvr.sim.RigidModel`); on by default. Off, or for any
         other scene, every body steps as its own object (the reference path).
     node_arrays : bool
-        Step a scene of FEM bodies with the kinematic and fixed bodies and planes they meet
-        (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
+        Step a scene of FEM and cloth bodies with the kinematic and fixed bodies and planes they
+        meet (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
         (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block D_A, Chebyshev
         accelerated, no factorization; on by default. Off, or for a scene too stiff for the
         sweeps (its first step measures it: more than 25 sweeps per decade of error), the

@@ -2,7 +2,7 @@
 :class:`RigidState` (after NVIDIA Newton's Model / State).
 
 :func:`build_rigid_model` finalizes them from a :class:`~softvr.sim.Scene` built with the
-object API (``RigidBody``, ``FixedBody``, ``Scene.add_body`` / ``add_plane``), so user code
+object API (``RigidBody``, ``FixedBody``, ``KinematicBody``, ``Scene.add_body`` / ``add_plane``), so user code
 and scene files are unchanged; :func:`rigid_model_supported` says whether a scene is one the
 arrays can hold (otherwise the scene steps per object). The arrays are Warp arrays on one
 device; on the CPU their NumPy views share the memory, and the scene's body objects read
@@ -17,7 +17,7 @@ import numpy as np
 import warp as wp
 
 from softvr.collision.contact_buffer import ContactBuffer
-from softvr.dynamics import FixedBody, RigidBody, RigidPoints
+from softvr.dynamics import FixedBody, KinematicBody, RigidBody, RigidPoints
 
 __all__ = ["RigidModel", "RigidState", "build_rigid_model", "rigid_model_supported"]
 
@@ -36,9 +36,9 @@ class RigidModel:
     device : str
     body_count : int
     body_inv_mass : wp.array(float64) [n] [1/kg]
-        0 for a fixed body.
+        0 for a fixed or kinematic body (infinite mass).
     body_inertia : wp.array(mat33d) [n] [kg m^2]
-        Inertia about the centre of mass, body frame (0 for a fixed body).
+        Inertia about the centre of mass, body frame (0 for a fixed or kinematic body).
     body_implicit_gyro : wp.array(int32) [n]
         1 where the gyroscopic torque is implicit (``RigidBody.gyroscopic``).
     body_speed_limit : wp.array(float64) [n] [m/s]
@@ -138,7 +138,9 @@ class RigidState:
     body_velocity : wp.array(spatial_vectord) [n] [m/s, rad/s]
         (linear velocity, world angular velocity).
     free_velocity : wp.array(spatial_vectord) [n] [m/s, rad/s]
-        The step's unconstrained velocity (thesis eq. 5.2), then the constrained one.
+        The step's unconstrained velocity (thesis eq. 5.2), then the constrained one; a
+        kinematic body's is its script's over the step (the stepper writes it after eq. 5.2's
+        launch, which gives infinite masses 0).
     inv_inertia_world : wp.array(mat33d) [n] [1/(kg m^2)]
         ``I_w^-1`` at the step's start (0 for a fixed body).
     external : wp.array(spatial_vectord) [n] [N, N m]
@@ -160,13 +162,13 @@ class RigidState:
 
 
 def rigid_model_supported(scene) -> bool:
-    """Whether ``scene`` is one :class:`RigidModel` holds: rigid and fixed bodies only, no
-    couplings, static meshes or static spheres, rigid collision points only against planes,
-    and no two collision surfaces that would meet each other (their bodies' primitives
+    """Whether ``scene`` is one :class:`RigidModel` holds: rigid, fixed and kinematic bodies
+    only, no couplings, static meshes or static spheres, rigid collision points only against
+    planes, and no two collision surfaces that would meet each other (their bodies' primitives
     meet instead)."""
     if scene.couplings or scene.meshes or scene.spheres or not scene.bodies:
         return False
-    if not all(type(b) in (RigidBody, FixedBody) for b in scene.bodies):
+    if not all(type(b) in (RigidBody, FixedBody, KinematicBody) for b in scene.bodies):
         return False
     if not all(isinstance(c.points, RigidPoints) and c.points.body is scene.bodies[c.body] for c in scene._colliders):
         return False

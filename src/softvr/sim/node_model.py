@@ -1,4 +1,4 @@
-"""Whole-scene arrays of FEM bodies, the kinematic and fixed bodies they meet, and static planes:
+"""Whole-scene arrays of FEM and cloth bodies, the kinematic and fixed bodies they meet, and static planes:
 a static :class:`NodeModel` and a mutable :class:`NodeState`, built from a
 :class:`~softvr.sim.Scene`'s bodies (the user-facing builder).
 
@@ -8,7 +8,8 @@ A kinematic or fixed body's collision points are driven nodes of their own (no t
 the body's scripted velocity), so that every contact, whoever it is with, is a stencil of node
 velocities. The step matrix ``A`` of thesis eq. 5.2 is kept as 3x3 node blocks in block-CSR
 order (``row_start`` / ``block_col``), each block gathering its element entries through
-``contrib`` (no atomics).
+``contrib`` (no atomics); a cloth's vertices are free nodes too, its springs blocks of ``A``
+(:mod:`softvr.sim._node_cloth`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,8 @@ import warp as wp
 
 from softvr.collision.edges import PAIRS_PER_EDGE
 from softvr.collision.node_detection import CONTACT_STENCIL
-from softvr.dynamics import EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
+from softvr.dynamics import ClothBody, EmbeddedPoints, FemBody, FixedBody, KinematicBody, RigidBody, RigidPoints
+from softvr.sim._node_cloth import NODE_BODIES, NodeCloth, build_node_cloth, cloth_block_keys, cloth_springs
 from softvr.sim._node_couplings import (NodeCouplings, build_node_couplings, coupling_blocks, coupling_springs,
                                        couplings_supported, driven_points)
 from softvr.sim._node_rigid import NodeRigid, build_node_rigid
@@ -86,6 +88,9 @@ class NodeModel:
         Its weights (sum 1).
     point_margin : wp.array(float64) [p] [m]
         Detection margin of the point's body.
+    plane_margin : wp.array(float64) [p] [m]
+        The point's margin against planes: -inf for a rigid body's point with a primitive (the
+        primitive meets the planes exactly), else ``point_margin``.
     plane_normal : wp.array(vec3d) [s]
         Unit normals.
     plane_offset : wp.array(float64) [s] [m]
@@ -137,6 +142,8 @@ class NodeModel:
     rigid : NodeRigid or None
         The rigid bodies (each two nodes: linear and angular velocity), their primitives and
         collision points' body frame (None: no rigid body).
+    cloth : NodeCloth
+        The cloth bodies' springs: their blocks of ``A`` and forces (none without cloth).
     """
 
     device: str
@@ -168,6 +175,7 @@ class NodeModel:
     point_nodes: wp.array
     point_weights: wp.array
     point_margin: wp.array
+    plane_margin: wp.array
     plane_normal: wp.array
     plane_offset: wp.array
     plane_friction: wp.array
@@ -198,6 +206,7 @@ class NodeModel:
     bvh_ids: wp.array
     couplings: NodeCouplings
     rigid: NodeRigid | None
+    cloth: NodeCloth
 
 
 @dataclass
@@ -368,35 +377,30 @@ class NodeState:
 
 def node_model_supported(scene) -> bool:
     """Whether ``scene`` is one :class:`NodeModel` holds: FEM bodies (all co-rotational or all
-    linear; at least one), rigid bodies (with or without a collision sphere or box), kinematic
+    linear) and cloth bodies (at least one of them), rigid bodies (with or without a collision sphere or box), kinematic
     and fixed bodies (with or without one, where it meets no rigid body's of its kind), static planes,
-    static spheres and meshes (in a scene without adhesion or rigid primitives), couplings
+    static spheres and meshes, couplings
     between them (each side an FEM body's embedded points or a kinematic, fixed or rigid body's
-    points); adhesion; at most one set of collision points per body (an FEM body's
+    points); adhesion; at most one set of collision points per body (an FEM or cloth body's
     :class:`~softvr.collision.EmbeddedPoints` with stencils of at most 4 nodes, a rigid, kinematic
     or fixed body's :class:`~softvr.dynamics.RigidPoints`) and each body's collision surface over
     its own points."""
     if not couplings_supported(scene):
         return False
-    # The adhesion's contact kernel knows planes, not spheres or meshes; a rigid body with a
-    # primitive has its collision points meet no static (its primitive meets the planes instead).
-    adhesive = any(a is not None for a in scene._adhesion.values())
-    rigid_primitive = any(type(scene.bodies[i]) is RigidBody for i, _ in scene._sphere_bodies + scene._box_bodies)
-    if (scene.spheres or scene.meshes) and (adhesive or rigid_primitive):
-        return False
     if _driven_primitive_meets_rigid(scene):
         return False
-    fem = [b for b in scene.bodies if type(b) is FemBody]
-    if not fem or len({b.corotational for b in fem}) != 1:
+    if not any(isinstance(b, NODE_BODIES) for b in scene.bodies):
         return False
-    if not all(type(b) in (FemBody, RigidBody, KinematicBody, FixedBody) for b in scene.bodies):
+    if len({b.corotational for b in scene.bodies if type(b) is FemBody}) > 1:
+        return False
+    if not all(type(b) in (FemBody, ClothBody, RigidBody, KinematicBody, FixedBody) for b in scene.bodies):
         return False
     owners = [c.body for c in scene._colliders]
     if len(set(owners)) != len(owners):
         return False
     for c in scene._colliders:
         body = scene.bodies[c.body]
-        kind = EmbeddedPoints if type(body) is FemBody else RigidPoints
+        kind = EmbeddedPoints if isinstance(body, NODE_BODIES) else RigidPoints
         if not isinstance(c.points, kind) or c.points.body is not body:
             return False
         if isinstance(c.points, EmbeddedPoints) and c.points.nodes.shape[1] > STENCIL:
@@ -458,18 +462,20 @@ def _pattern(tets: np.ndarray, n: int, extra: np.ndarray) -> tuple:
 
 
 def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
-    """Stencil nodes and weights [p, 4] (global; -1: unused) and margins [p] [m] of every
-    collision point; a kinematic body's points are its own nodes, weight 1, a rigid body's its
-    linear node (the angular one is a rigid side); -inf for a point that meets no plane (a
-    rigid body's with a primitive: the primitive meets them exactly)."""
+    """Stencil nodes and weights [p, 4] (global; -1: unused), margins [p] [m] and margins
+    against planes [p] [m] of every collision point; a kinematic body's points are its own
+    nodes, weight 1, a rigid body's its linear node (the angular one is a rigid side); a plane
+    margin of -inf for a point that meets no plane (a rigid body's with a primitive: the
+    primitive meets them exactly; its points still meet static spheres and meshes)."""
     primitive = {i for i, _ in scene._sphere_bodies + scene._box_bodies}
     p = int(point_start[-1])
     nodes = np.full((p, STENCIL), -1, np.int64)
     weights = np.zeros((p, STENCIL))
     margin = np.zeros(p)
+    plane_margin = np.zeros(p)
     for c in scene._colliders:
         rows = slice(point_start[c.body], point_start[c.body + 1])
-        if type(bodies[c.body]) is FemBody:
+        if isinstance(bodies[c.body], NODE_BODIES):
             k = c.points.nodes.shape[1]
             nodes[rows, :k] = c.points.nodes + node_start[c.body]
             weights[rows, :k] = c.points.weights
@@ -479,8 +485,9 @@ def _point_stencils(scene, bodies, node_start, point_start) -> tuple:
         else:
             nodes[rows, 0] = node_start[c.body] + np.arange(rows.stop - rows.start)
             weights[rows, 0] = 1.0
-        margin[rows] = -np.inf if type(bodies[c.body]) is RigidBody and c.body in primitive else c.margin
-    return nodes, weights, margin
+        margin[rows] = c.margin
+        plane_margin[rows] = -np.inf if type(bodies[c.body]) is RigidBody and c.body in primitive else c.margin
+    return nodes, weights, margin, plane_margin
 
 
 def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
@@ -488,37 +495,40 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     bodies = scene.bodies
     colliders = {c.body: c for c in scene._colliders}
     point_counts = [len(colliders[i].points.positions()) if i in colliders else 0 for i in range(len(bodies))]
-    fem = [type(b) is FemBody for b in bodies]
+    fem = [type(b) is FemBody for b in bodies]  # bodies with tets
+    nodal = [isinstance(b, NODE_BODIES) for b in bodies]  # bodies of free nodes: FEM and cloth
     rigid = [type(b) is RigidBody for b in bodies]
     # A kinematic body's nodes: where its points (collision, then coupling) are, at its
     # velocity; driven, so no mass acts. A rigid body's: its linear and its angular velocity.
     driven = driven_points(scene, colliders)
     node_counts = [len(b.q) if f else 2 if rigid[i] else (0 if driven[i] is None else len(driven[i].local))
-                   for i, (b, f) in enumerate(zip(bodies, fem))]
+                   for i, (b, f) in enumerate(zip(bodies, nodal))]
     node_start = np.cumsum([0] + node_counts)
     point_start = np.cumsum([0] + point_counts)
     n, p, nbody = int(node_start[-1]), int(point_start[-1]), len(bodies)
-    tets = np.concatenate([b.tets + node_start[i] for i, b in enumerate(bodies) if fem[i]]).astype(np.int64)
+    tets = np.concatenate([np.zeros((0, 4), np.int64)]
+                          + [b.tets + node_start[i] for i, b in enumerate(bodies) if fem[i]]).astype(np.int64)
     m = len(tets)
     rigid_rows = np.repeat(rigid, node_counts)
-    solved_rows = np.repeat(fem, node_counts) | rigid_rows
+    solved_rows = np.repeat(nodal, node_counts) | rigid_rows
     springs = coupling_springs(scene, node_start, colliders)
     terms = coupling_blocks(springs, solved_rows)
+    cloth = cloth_springs(scene, node_start)
     block_row, block_col, row_start, contrib_start, contrib, force_start, force, assembled, mirror = \
-        _pattern(tets, n, terms[0])
-    kinematic = [i for i in range(nbody) if not fem[i] and not rigid[i]]
+        _pattern(tets, n, np.concatenate([terms[0], cloth_block_keys(scene, node_start, cloth[0])]))
+    kinematic = [i for i in range(nbody) if not nodal[i] and not rigid[i]]
 
-    def per_node(fem_value, other_value):
-        return np.concatenate([fem_value(b) if f else np.full((k,) + np.shape(other_value), other_value)
-                               for b, f, k in zip(bodies, fem, node_counts)])
+    def per_node(nodal_value, other_value):
+        return np.concatenate([nodal_value(b) if f else np.full((k,) + np.shape(other_value), other_value)
+                               for b, f, k in zip(bodies, nodal, node_counts)])
 
     def positions(b, i):
         if rigid[i]:
             return np.array([b.position, np.zeros(3)])  # the angular node has no position
-        return b.q if fem[i] else (driven[i].positions() if driven[i] is not None else np.zeros((0, 3)))
+        return b.q if nodal[i] else (driven[i].positions() if driven[i] is not None else np.zeros((0, 3)))
 
-    scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) if f else np.inf for b, f in zip(bodies, fem)]
-    point_nodes, point_weights, point_margin = _point_stencils(scene, bodies, node_start, point_start)
+    scale = [1e3 * max(float(np.ptp(b.rest, axis=0).max()), 1e-9) if f else np.inf for b, f in zip(bodies, nodal)]
+    point_nodes, point_weights, point_margin, plane_margin = _point_stencils(scene, bodies, node_start, point_start)
     planes = scene.planes
     normals = np.array([pl.unit_normal() for pl in planes], float).reshape(-1, 3)
     offsets = np.array([float(np.asarray(pl.point, float) @ nrm) for pl, nrm in zip(planes, normals)])
@@ -566,25 +576,29 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         bvh_ids[i] = bvh.id
     static_meshes = [wp.Mesh(points=wp.array(m.vertices, dtype=wp.vec3, device=d),
                              indices=wp.array(m.triangles.ravel(), dtype=wp.int32, device=d)) for m in scene.meshes]
-    f64_nodes = [b.mass if f else np.ones(k) for b, f, k in zip(bodies, fem, node_counts)]
+    f64_nodes = [b.mass if f else np.ones(k) for b, f, k in zip(bodies, nodal, node_counts)]
+    fem_bodies = [b for b, f in zip(bodies, fem) if f]
     model = NodeModel(
         device=d, node_count=n, tet_count=m, block_count=len(block_row), point_count=p,
         body_node_start=node_start, body_point_start=point_start,
-        rest=_f64(np.concatenate([b.rest if fem[i] else positions(b, i) for i, b in enumerate(bodies)]), d, wp.vec3d),
+        rest=_f64(np.concatenate([b.rest if nodal[i] else positions(b, i) for i, b in enumerate(bodies)]), d, wp.vec3d),
         mass=_f64(np.concatenate(f64_nodes), d),
-        node_alpha=_f64(per_node(lambda b: np.full(len(b.q), b.material.alpha), 0.0), d),
+        node_alpha=_f64(per_node(lambda b: np.full(len(b.q), b.alpha if isinstance(b, ClothBody) else b.material.alpha),
+                                 0.0), d),
         fixed=_i32(per_node(lambda b: b.fixed, 1) * ~np.repeat(rigid, node_counts), d),
         speed_limit=_f64(np.concatenate([np.full(k, s) for k, s in zip(node_counts, scale)]), d),
-        tets=_i32(tets, d), dm_inv=_f64(np.concatenate([b._dm_inv for b, f in zip(bodies, fem) if f]), d, wp.mat33d),
-        ke=_f64(np.concatenate([b._ke for b, f in zip(bodies, fem) if f]).reshape(m, 4, 3, 4, 3)
+        tets=_i32(tets, d),
+        dm_inv=_f64(np.concatenate([np.zeros((0, 3, 3))] + [b._dm_inv for b in fem_bodies]), d, wp.mat33d),
+        ke=_f64(np.concatenate([np.zeros((0, 12, 12))] + [b._ke for b in fem_bodies]).reshape(m, 4, 3, 4, 3)
                 .transpose(0, 1, 3, 2, 4).reshape(m, 16, 3, 3), d, wp.mat33d),
-        tet_beta=_f64(np.concatenate([np.full(len(b.tets), b.material.beta) for b, f in zip(bodies, fem) if f]), d),
-        corotational=bool(next(b for b, f in zip(bodies, fem) if f).corotational),
+        tet_beta=_f64(np.concatenate([np.zeros(0)] + [np.full(len(b.tets), b.material.beta) for b in fem_bodies]), d),
+        corotational=bool(fem_bodies[0].corotational) if fem_bodies else True,
         block_row=_i32(block_row, d), block_col=_i32(block_col, d), row_start=_i32(row_start, d),
         contrib_start=_i32(contrib_start, d), contrib=_i32(contrib, d), assembled=_i32(assembled, d),
         block_mirror=_i32(mirror, d),
         force_start=_i32(force_start, d), force=_i32(force, d),
         point_nodes=_i32(point_nodes, d), point_weights=_f64(point_weights, d), point_margin=_f64(point_margin, d),
+        plane_margin=_f64(plane_margin, d),
         plane_normal=_f64(normals, d, wp.vec3d), plane_offset=_f64(offsets, d),
         plane_friction=_f64([pl.friction for pl in planes], d),
         sphere_center=_f64(np.array([sp.center for sp in scene.spheres], float).reshape(-1, 3), d, wp.vec3d),
@@ -606,7 +620,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
         couplings=build_node_couplings(springs, terms, solved_rows, rigid_rows,
                                        block_row.astype(np.int64) * n + block_col, driven, d),
-        rigid=build_node_rigid(scene, node_start, point_start, d))
+        rigid=build_node_rigid(scene, node_start, point_start, d),
+        cloth=build_node_cloth(cloth, n, block_row.astype(np.int64) * n + block_col, d))
     surface_rows = int(sum(point_counts[a] * int(pair[a].sum()) for a in range(nbody)))
     statics = len(planes) + len(scene.spheres) + len(scene.meshes)
     capacity = max(p * statics + surface_rows + PAIRS_PER_EDGE * e
@@ -650,9 +665,9 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     q = np.concatenate([positions(b, i) for i, b in enumerate(bodies)])
     state = NodeState(
         q=_f64(q, d, wp.vec3d),
-        v=_f64(np.concatenate([b.v if fem[i] else np.reshape(b.v, (2, 3)) if rigid[i] else np.zeros((k, 3))
+        v=_f64(np.concatenate([b.v if nodal[i] else np.reshape(b.v, (2, 3)) if rigid[i] else np.zeros((k, 3))
                                for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
-        fixed_velocity=_f64(np.concatenate([b.fixed_velocity if fem[i] else np.zeros((k, 3))
+        fixed_velocity=_f64(np.concatenate([b.fixed_velocity if nodal[i] else np.zeros((k, 3))
                                             for i, (b, k) in enumerate(zip(bodies, node_counts))]), d, wp.vec3d),
         kinematic_position=wp.zeros(len(kinematic), dtype=wp.vec3d, device=d),
         kinematic_rotation=wp.zeros(len(kinematic), dtype=wp.mat33d, device=d),
