@@ -159,3 +159,24 @@ def test_a_kinematic_sphere_that_may_meet_a_rigid_sphere_keeps_the_per_object_pa
     rigid bodies alone): a kinematic sphere the filters let meet a rigid one is declined."""
     scene, _, _ = _hand_scene(hand_meets_spheres=True)
     assert not node_model_supported(scene)
+
+
+def test_resting_bodies_net_contact_force_is_their_weight_read_without_building_the_sets():
+    """Statics: a body at rest carries its weight, so the net contact force on it is m g up
+    (the wide box: the floor's (m_wide + m_top) g less the top box's m_top g). ``force_on``
+    and the haptic tool read the step's bodies, impulses and frames without building the
+    sets' Jacobians (``set_bodies``); they must name the pairs the geometry touches.
+    Tolerance: the sweeps stop at a velocity change of 1e-5 m/s, an impulse error of at most
+    m 1e-5 a contact set, i.e. 1e-5 / (g dt) = 2e-4 of the weight at dt 5 ms; 1e-3 of it."""
+    scene, index, halves, radii = _resting_scene()
+    dt = 0.005
+    for _ in range(60):
+        solution = scene.step(dt)
+    pairs = set(solution.set_bodies())
+    assert {(index[n], None) for n in ("small", "wide", "ball", "bead")} <= pairs
+    assert {(index["top"], index["wide"]), (index["wide"], index["top"])} & pairs
+    assert (0, None) in pairs  # the soft cube on the floor
+    for name in ("small", "wide", "top", "ball", "bead"):
+        body = scene.bodies[index[name]]
+        np.testing.assert_allclose(solution.force_on(index[name], dt), [0.0, 0.0, body.mass * G],
+                                   atol=1e-3 * body.mass * G)

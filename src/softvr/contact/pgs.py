@@ -45,7 +45,7 @@ from softvr.contact._pgs_kernels import pgs_sweeps
 from softvr.contact.islands import contact_islands
 from softvr.errors import InputError
 
-__all__ = ["ContactSolution", "solve_contacts"]
+__all__ = ["ContactSolution", "contact_force_on", "solve_contacts"]
 
 #: Most passes of eq. 5.6's outer loop per island when a body's compliance is a kept
 #: factorization's (:attr:`softvr.dynamics.FemBody.compliance_is_exact`); one pass otherwise.
@@ -87,18 +87,31 @@ class ContactSolution:
     contacts: list
     gaps_after: list
 
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        """(side a's body, side b's body or None for a static) of each contact set, in the order
+        of ``impulses`` and ``frames``."""
+        return [(c.a.body, None if c.b is None else c.b.body) for c in self.contacts]
+
     def force_on(self, body: int, dt: float) -> np.ndarray:
         """Net contact force [3] [N] on body ``body`` over the step, ``sum F^T lambda / dt``
         (F the contact frame; + on side a, - on side b): negative along a contact normal where
         adhesion pulls. A force sensor on a tool or a jaw."""
-        total = np.zeros(3)
-        for contacts, impulses, frames in zip(self.contacts, self.impulses, self.frames):
-            world = np.einsum("ci,cij->j", impulses, frames)
-            if contacts.a.body == body:
-                total += world
-            if contacts.b is not None and contacts.b.body == body:
-                total -= world
-        return total / float(dt)
+        return contact_force_on(self, body, dt)
+
+
+def contact_force_on(solution, body: int, dt: float) -> np.ndarray:
+    """:meth:`ContactSolution.force_on` of any solution with ``set_bodies()``, ``impulses`` and
+    ``frames`` (a step on arrays answers these without building its sets' Jacobians)."""
+    total = np.zeros(3)
+    for (a, b), impulses, frames in zip(solution.set_bodies(), solution.impulses, solution.frames):
+        if body not in (a, b):
+            continue
+        world = np.einsum("ci,cij->j", impulses, frames)
+        if a == body:
+            total += world
+        if b == body:
+            total -= world
+    return total / float(dt)
 
 
 def solve_contacts(bodies, v_free, contact_sets, dt: float, *, iterations: int = 500, tolerance: float = 1e-5,

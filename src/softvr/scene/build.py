@@ -125,8 +125,8 @@ def _contact_force(index: int, other: int | str | None, dt: float):
 
     def read(solution) -> np.ndarray:
         total = np.zeros(3)
-        for contacts, impulses, frames in zip(solution.contacts, solution.impulses, solution.frames):
-            a, b = contacts.a.body, (STATIC if contacts.b is None else contacts.b.body)
+        for (a, b), impulses, frames in zip(solution.set_bodies(), solution.impulses, solution.frames):
+            b = STATIC if b is None else b
             world = np.einsum("ci,cij->j", impulses, frames)
             if (a, b) == (index, other):
                 total += world

@@ -33,6 +33,9 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_aggregates
+from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work,
+                                        sweeps_step_work)
+from softvr.contact.node_factored import free_matrix as _free_matrix
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -78,20 +81,6 @@ class IllConditioned(Exception):
     """The scene's step matrix is too stiff for the node sweeps (:data:`MAX_SWEEPS_PER_DECADE`
     for Jacobi; :func:`softvr.sim._node_sweeps.choose_sweeps` for Gauss-Seidel); raised before
     the step has changed the scene."""
-
-
-def _free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
-    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
-    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
-    and are driven; a rigid body's have none either, their D_A being all of their A, unless
-    coupling springs hold the body)."""
-    n = model.node_count
-    rows = model.block_row.numpy()
-    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
-    blocks = state.blocks.numpy()
-    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
-    free = np.repeat(solved, 3)
-    return a[free][:, free], solved
 
 
 def spectrum(model, state) -> tuple[float, float]:
@@ -171,6 +160,15 @@ class _NodeSnapshot(StepSnapshot):
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
+
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        c, first = self.contacts, [rows[0] for rows in self.sets()]
+        kind, other = c["kind"][first], c["other"][first]
+        body = self._stepper.contact_body({name: c[name][first] for name in ("point", "kind", "column")})
+        # Vertex-triangle and edge-edge pairs meet a body; primitives a body or (other < 0) a
+        # static; planes, static spheres and meshes are statics.
+        meets = (kind == 1) | (kind == 2) | ((kind == 3) & (other >= 0))
+        return [(a, b if m else None) for a, b, m in zip(body.tolist(), other.tolist(), meets.tolist())]
 
     def _build(self) -> ContactSolution:
         s = self._stepper
@@ -428,10 +426,11 @@ class NodeStepper:
         start = record_start(m, st, dt, s.gravity, self._v_before)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
-    def _solver(self, dt: float) -> NodeSolve:
+    def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
-        bounds on the first use."""
+        bounds on the first use; or the factored solve where it needs less work
+        (:meth:`_factored`)."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
@@ -442,13 +441,27 @@ class NodeStepper:
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
                                                    (coarse_aggregates(m, q), q, m.mass.numpy()))
             choice = self._spectrum[dt]
-            if choice.kind is None:
+            factored = self._factored(dt, choice)
+            if choice.kind is None and factored is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
-            self._recorded[5] = NodeSolve(self.model, self.state, dt, choice.bounds,
+            self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
+
+    def _factored(self, dt: float, choice) -> FactoredSolve | None:
+        """The factored solve (:mod:`softvr.contact.node_factored`) where the scene allows it
+        (:func:`factored_eligible`, no adhesion) and its estimated work a contact step is less
+        than the sweeps' (:func:`factored_work`, :func:`sweeps_step_work`); it is factored only
+        where the sweeps need over :data:`MAX_SWEEPS_PER_DECADE` work a decade. A scene all
+        sweeps decline (``choice.kind`` None) takes it rather than stepping per object (a
+        sparse LU every step)."""
+        sweeps = min(choice.work.values())
+        if self.adhesion is not None or not factored_eligible(self.model) or sweeps <= MAX_SWEEPS_PER_DECADE:
+            return None
+        solve = FactoredSolve(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
+        return solve if factored_work(solve.fill, len(self.model.block_col)) < sweeps_step_work(sweeps) else None
 
     def _external_forces(self) -> None:
         s = self.scene

@@ -26,6 +26,7 @@ from softvr.collision.rigid_detection import record_detection
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
+from softvr.contact.pgs import contact_force_on
 from softvr.contact.rigid_pgs import record_rigid_solve
 from softvr.device import replayer
 from softvr.dynamics import KinematicBody
@@ -87,6 +88,11 @@ class StepSnapshot:
         if name not in self._per_set:
             self._per_set[name] = [self.contacts[name][rows] for rows in self.sets()]
         return self._per_set[name]
+
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        """(side a's body, side b's body or None for a static) of each of :meth:`sets`; a path
+        that can read them from its arrays answers without building the sets."""
+        return self.solution().set_bodies()
 
     def contact_counts(self) -> tuple[int, int]:
         """(contacts, active contacts: normal impulse > 0) over the solution's sets."""
@@ -153,6 +159,11 @@ class _Snapshot(StepSnapshot):
             self._sets = [np.array(r) for r in rows.values()]
         return self._sets
 
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        first = [rows[0] for rows in self.sets()]
+        a, b = self._field("body_a")[first].tolist(), self._field("body_b")[first].tolist()
+        return [(x, None if y < 0 else y) for x, y in zip(a, b)]
+
     def _movable(self) -> np.ndarray:
         """[contacts] bool: the contacts with a movable side (those :meth:`sets` holds)."""
         return self._moves[self._field("body_a")] | self._moves[self._field("body_b")]
@@ -207,6 +218,15 @@ class LazySolution:
         """(contacts, active contacts: normal impulse > 0) of :attr:`impulses`, the sets not split
         where the path can count them whole."""
         return self._snapshot.contact_counts()
+
+    def set_bodies(self) -> list[tuple[int, int | None]]:
+        """:meth:`ContactSolution.set_bodies`, read from the step's arrays (a haptic tool and
+        a force sensor need only these, the impulses and the frames: not the sets' Jacobians)."""
+        return self._snapshot.set_bodies()
+
+    def force_on(self, body: int, dt: float) -> np.ndarray:
+        """:meth:`ContactSolution.force_on`, without building the contact sets."""
+        return contact_force_on(self, body, dt)
 
     def __getattr__(self, name):
         return getattr(self._snapshot.solution(), name)

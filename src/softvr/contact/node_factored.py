@@ -1,0 +1,446 @@
+"""The contact solve of a scene of held FEM bodies with a factorization cached once (thesis eq.
+5.2 and 5.5): ``A v = b + J^T lambda`` with the contacts' complementarity, for scenes whose node
+sweeps need hundreds of sweeps a contact step (the head CT of palpation.toml: ~180 sweeps of
+coarse-corrected Jacobi, ~40 ms, against 2 off contact: the probe's push has to travel through a
+stiff clamped body one node ring a sweep).
+
+The step matrix ``A`` of the scene's first step is factored once (SciPy's SuperLU, a symmetric
+fill-reducing ordering) and kept: ``A_0``. A co-rotated body's ``A`` changes with its elements'
+rotations (eq. 5.2 with ``R_e K_e R_e^T``), so every step iterates the splitting ``A = P - (P -
+A)`` with ``P`` the factored matrix turned to the nodes' rotations since (``R``, block diagonal:
+Muller and Gross's stiffness warping) and corrected where the tets under a contact are squeezed
+(``D``, a few tens of nodes, by Woodbury's identity):
+
+    P = R (A_0 + D) R^T,   D = (R^T A R - A_0) on those nodes
+    u^k+1      = v^k + P^-1 (b - A v^k)                                    (eq. 5.2's residual)
+    lambda^k+1 = LCP(W, J u^k+1):  0 <= lambda _|_ J v - c >= 0, friction   (eq. 5.5)
+    v^k+1      = u^k+1 + P^-1 J^T lambda^k+1
+
+with the Delassus operator ``W = J P^-1 J^T`` over the step's contacts (small and dense: the
+probe makes tens), solved by projected Gauss-Seidel with the node sweeps' own projection
+(:func:`softvr.contact._node_jacobi_kernels.pgs_update`), and the iterates Anderson-accelerated.
+At its fixed point ``A v = b + J^T lambda`` and every contact meets eq. 5.5 in ``v``: the same
+solution as the sweeps'. The head CT pressed 5 mm by the probe: the eigenvalues of ``A_0^-1 A``
+spread over 0.22-3.3, of ``(R A_0 R^T)^-1 A`` over 0.35-1.8; one to six iterations a step (one
+sparse triangular solve pair each) against the sweeps' ~180. Where the deformation makes it
+slow (:data:`REFACTOR_AFTER` iterations in a step), ``A_0`` is factored again at that step's
+``A``. The columns of ``A_0^-1`` at the contacts' and the correction's nodes are solved once per
+node and kept while the factorization is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+import warp as wp
+
+from softvr.contact import _node_factored_kernels as _k
+from softvr.contact import _node_jacobi_kernels as _jk
+from softvr.device import load_kernels, replayer
+
+__all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
+
+#: Fill-reducing ordering of the factorization: SuperLU's minimum degree on ``A + A^T`` with
+#: symmetric pivoting (``A`` is SPD): half COLAMD's fill on the head CT (204 K against 422 K
+#: entries), a solve in 0.4 ms against 0.7.
+ORDERING = "MMD_AT_PLUS_A"
+#: Outer iterations of a step after which ``P`` is factored again at the step's ``A``.
+REFACTOR_AFTER = 12
+#: Largest ratio of successive changes at which the outer iteration's error is estimated from
+#: its geometric tail (:func:`_error`) rather than taken as the last change.
+CONTRACTION = 0.5
+#: Iterates the outer iteration's Anderson acceleration remembers.
+ANDERSON_MEMORY = 5
+#: The local correction (:meth:`FactoredSolve._local`) takes the nodes where ``R^T A R - A_0``
+#: has a block over this share of ``A_0``'s diagonal block, at most :data:`LOCAL_NODES` of them.
+LOCAL_THRESHOLD = 0.05
+LOCAL_NODES = 120
+#: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
+POLAR_ITERATIONS = 3
+#: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
+#: for tens of contacts; the warm start from the last iteration's impulses leaves few to do).
+DELASSUS_PASSES = 2000
+#: Share of the step's tolerance to which the PGS on the Delassus matrix converges.
+DELASSUS_TOLERANCE = 0.1
+#: Outer iterations a step is expected to take (the head CT: 1-2 off contact, 2-5 in contact)
+#: and the decades of error the node sweeps remove in a contact step (the head CT: ~180 sweeps
+#: at 38 a decade), for :func:`factored_work`.
+STEP_ITERATIONS = 4.0
+STEP_DECADES = 5.0
+
+
+def free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
+    """This step's ``A`` (``state.blocks``) over the nodes the sweeps solve for [3 k, 3 k], and
+    which nodes those are [n]: the free nodes with blocks (a kinematic body's nodes have none
+    and are driven; a rigid body's have none either, their D_A being all of their A, unless
+    coupling springs hold the body)."""
+    n = model.node_count
+    rows = model.block_row.numpy()
+    solved = (model.fixed.numpy() == 0) & np.isin(np.arange(n), rows)
+    blocks = state.blocks.numpy()
+    a = sp.bsr_matrix((blocks, model.block_col.numpy(), model.row_start.numpy()), shape=(3 * n, 3 * n)).tocsr()
+    free = np.repeat(solved, 3)
+    return a[free][:, free], solved
+
+
+def factored_eligible(model) -> bool:
+    """Whether :class:`FactoredSolve` can step the scene: on the CPU (SciPy's factorization
+    works on host arrays), FEM bodies and driven nodes only (no rigid body, no coupling spring:
+    their 6x6 blocks and rigid contact sides are the sweeps')."""
+    return wp.get_device(model.device).is_cpu and model.rigid is None and not len(model.couplings.node)
+
+
+def factored_work(fill: int, blocks: int) -> float:
+    """Work of a factored contact step in Jacobi sweeps over ``blocks`` blocks of ``A``, with a
+    factorization of ``fill`` nonzeros in L and U: per outer iteration a product with ``A`` (a
+    sweep) and two triangular solves (a multiply-add per nonzero, against nine per block of a
+    sweep), :data:`STEP_ITERATIONS` of them."""
+    return STEP_ITERATIONS * (1.0 + fill / (9.0 * blocks))
+
+
+def sweeps_step_work(work_per_decade: float) -> float:
+    """Work of a contact step of the node sweeps in Jacobi sweeps, from their work per decade
+    (:func:`softvr.sim._node_sweeps.choose_sweeps`) and :data:`STEP_DECADES`."""
+    return STEP_DECADES * work_per_decade
+
+
+def _error(changes: list[float]) -> float:
+    """Estimated velocity error [m/s] after the outer iterations whose largest changes were
+    ``changes``: the geometric tail ``change rho / (1 - rho)`` with ``rho`` the larger of the
+    last two ratios of changes where both are under :data:`CONTRACTION` (the iteration then
+    contracts steadily), else the last change itself."""
+    if len(changes) >= 3:
+        rho = max(changes[-1] / max(changes[-2], 1e-300), changes[-2] / max(changes[-3], 1e-300))
+        if rho < CONTRACTION:
+            return changes[-1] * rho / (1.0 - rho)
+    return changes[-1]
+
+
+class _Anderson:
+    """Anderson acceleration (type II; Walker and Ni 2011) of a fixed-point iteration x <- G(x)
+    over the last ``memory`` iterates: the next iterate is G's image of the combination of the
+    remembered iterates whose residuals ``G(x) - x`` combine to the least (normal equations of
+    the small least-squares problem)."""
+
+    def __init__(self, memory: int):
+        self.memory = memory
+        self._f: list[np.ndarray] = []  # residuals G(x) - x
+        self._g: list[np.ndarray] = []  # images G(x)
+
+    def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N]."""
+        self._f.append(g - x)
+        self._g.append(g)
+        if len(self._f) > self.memory + 1:
+            self._f.pop(0)
+            self._g.pop(0)
+        if len(self._f) < 2:
+            return g
+        f = np.asarray(self._f)
+        df, dg = f[1:] - f[:-1], np.asarray(self._g[1:]) - np.asarray(self._g[:-1])
+        gram = df @ df.T
+        gram.flat[::len(gram) + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
+        gamma = np.linalg.lstsq(gram, df @ f[-1], rcond=None)[0]
+        return g - gamma @ dg
+
+
+class FactoredSolve:
+    """The factored contact solve of one step size (module docstring), with the interface of
+    :class:`softvr.contact.node_jacobi.NodeSolve`: :meth:`solve` from ``state.sweep_buffers[0]``,
+    ``stats``.
+
+    Parameters
+    ----------
+    model, state
+        :class:`softvr.sim.NodeModel`, :class:`softvr.sim.NodeState` (this step's ``A`` in
+        ``state.blocks``: it is factored).
+    dt : float [s]
+    max_iterations : int
+        Outer iterations a step, at most.
+
+    Attributes
+    ----------
+    stats : wp.array
+        [3] as ``NodeSolve.stats``: [0] the last iteration's largest velocity change [m/s], [1]
+        the largest normal-velocity error [m/s], [2] the contacts' largest natural residual [m/s].
+    fill : int
+        Nonzeros of the factorization's L and U.
+    factorizations : int
+        Times ``A`` was factored.
+    delassus_passes : int
+        PGS passes on the Delassus matrix in the last solve.
+    """
+
+    def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
+        for kernel in (_k.momentum_residual, _k.warp_change, _k.dense_pgs, _jk.residual):
+            load_kernels(kernel, model.device)
+        self.model, self.state, self.dt = model, state, float(dt)
+        self.max_iterations = int(max_iterations)
+        n, d = model.node_count, model.device
+        self._fixed = model.fixed.numpy() != 0
+        self._fixed_velocity = state.fixed_velocity.numpy()
+        self._fixed_nodes = np.flatnonzero(self._fixed)
+        self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
+        self._r = wp.zeros(n, dtype=wp.vec3d, device=d)
+        # One thread: the product is ~0.1 ms on the head CT, less than handing half to a second core.
+        self._residual = replayer(wp.launch(_k.momentum_residual, dim=n, device=d, record_cmd=True,
+                                            inputs=[model.row_start, model.block_col, state.blocks, state.b,
+                                                    model.fixed, self._v, self._r, 0]))
+        self.stats = wp.zeros(3, dtype=wp.float64, device=d)
+        capacity = state.contacts.capacity
+        self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
+        self._movable = wp.zeros(capacity, dtype=wp.int32, device=d)
+        self._done = wp.zeros(1, dtype=wp.int32, device=d)
+        c = state.contacts
+        # Host views of the arrays the solve reads and writes (on the CPU, numpy() is a view; a
+        # call costs ~30 us, and a step would make hundreds).
+        self._host = {name: getattr(c, name).numpy() for name in
+                      ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
+                       "stiffness", "slip", "impulse")}
+        self._host.update(v=self._v.numpy(), r=self._r.numpy(), stats=self.stats.numpy(), done=self._done.numpy(),
+                          metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy(),
+                          rotations=state.rotations.numpy())
+        self._residual_check = replayer(wp.launch(
+            _jk.residual, dim=1, device=d, record_cmd=True,
+            inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
+                    c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
+                    self._movable, c.gap_after, self.stats]))
+        self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
+        self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
+        self._change = wp.zeros(n, dtype=wp.float64, device=d)
+        solved = (model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0)
+        self._solved_d: wp.array = wp.array(solved.astype(np.int32), dtype=wp.int32, device=d)
+        self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
+                                               inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
+                                                       self._rotation, self._solved_d, self._change]))
+        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
+        self._delassus_capacity, self._delassus_tolerance = 0, 0.0
+        self.factorizations = 0
+        self.delassus_passes = 0
+        tets, ke = model.tets.numpy(), model.ke.numpy()
+        weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+        # Each node's rotation is the polar part of its tets' rotations summed by stiffness.
+        self._gather = sp.csr_matrix((np.repeat(weight, 4), (tets.ravel(), np.repeat(np.arange(len(tets)), 4))),
+                                     shape=(n, len(tets)))
+        self._factor()
+
+    def _factor(self) -> None:
+        """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
+        a, self._solved = free_matrix(self.model, self.state)
+        self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
+                             options={"SymmetricMode": True})
+        self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
+        self.factorizations += 1
+        self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        self._solved_nodes = np.flatnonzero(self._solved)
+        self._rotation0 = self._node_rotations()
+        rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
+        self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
+        self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
+        wp.copy(self._blocks0, self.state.blocks)
+        self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
+        self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
+        self._kept = 0  # columns of _columns in use
+
+    def _node_rotations(self) -> np.ndarray:
+        """Each solved node's rotation [k, 3, 3]: the polar rotation of the sum of its tets'
+        co-rotation ``R_e`` (this step's) weighted by their stiffness (trace of K_e's diagonal
+        blocks): Muller and Gross's stiffness warping, per node."""
+        rotations = self._host["rotations"].reshape(-1, 9)
+        x = (self._gather @ rotations)[self._solved_nodes].reshape(-1, 3, 3)
+        # Newton's iteration for the polar factor, X <- (X + X^-T) / 2, from X scaled to unit
+        # determinant: the sums are near rotations, and P only needs R to a few digits.
+        x /= np.cbrt(np.einsum("kj,kj->k", x[:, 0], np.cross(x[:, 1], x[:, 2])))[:, None, None]
+        for _ in range(POLAR_ITERATIONS):
+            # X^-T = cofactors / det: rows b x c, c x a, a x b of X's rows a, b, c.
+            cofactors = np.cross(x[:, [1, 2, 0]], x[:, [2, 0, 1]])
+            det = np.einsum("kj,kj->k", x[:, 0], cofactors[:, 0])
+            x = 0.5 * (x + cofactors / det[:, None, None])
+        return x
+
+    def _rotate(self, x: np.ndarray, transpose: bool = False) -> np.ndarray:
+        """``R x`` (or ``R^T x``) for node vectors ``x`` [k, 3, ...] with ``R`` the block
+        diagonal of the nodes' rotations since the factorization."""
+        r = self._relative if not transpose else self._relative.transpose(0, 2, 1)
+        if x.ndim == 2:
+            return np.matmul(r, x[:, :, None])[:, :, 0]
+        return np.matmul(r, x)
+
+    def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
+        the tets under a contact, whose rotations differ from their nodes' (a squeezed tet), so
+        its blocks among the nodes ``S`` where it is largest (relative to ``A_0``'s diagonal
+        block, over :data:`LOCAL_THRESHOLD`, at most :data:`LOCAL_NODES`), ``D`` [3 s, 3 s],
+        are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
+        columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
+        the solved velocities [3 s], its columns in the kept ones (:meth:`_slots_of`) [3 s] and
+        ``T`` [3 s, 3 s] (s = 0: none)."""
+        r, h = self._relative, self._host
+        h["rotation"][self._solved_nodes] = r
+        self._warp_change()
+        size = h["change"][self._solved_nodes]
+        pick = np.flatnonzero(size > LOCAL_THRESHOLD)
+        pick = pick[np.argsort(-size[pick], kind="stable")[:LOCAL_NODES]]
+        slot = np.full(len(size), -1)
+        slot[pick] = np.arange(len(pick))
+        inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
+        bi, bj = self._bi[inside], self._bj[inside]
+        a0 = h["blocks0"][self._pairs[inside]]
+        d = np.matmul(np.matmul(r[bi].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]), r[bj]) - a0
+        grid = np.zeros((len(pick), len(pick), 3, 3))
+        grid[slot[bi], slot[bj]] = d
+        blocks = grid.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
+        dofs = (3 * pick[:, None] + np.arange(3)).ravel()
+        slots = self._slots_of(self._solved_nodes[pick])
+        t = np.linalg.solve(np.eye(len(dofs)) + blocks @ self._columns[np.ix_(dofs, slots)], blocks)
+        return dofs, slots, t
+
+    def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
+        """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
+        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept."""
+        missing = nodes[self._slot[nodes] < 0]
+        if len(missing):
+            unit = np.zeros((self._columns.shape[0], 3 * len(missing)), order="F")
+            dofs = (3 * self._index[missing][:, None] + np.arange(3)).ravel()
+            unit[dofs, np.arange(len(dofs))] = 1.0
+            self._slot[missing] = self._kept // 3 + np.arange(len(missing))
+            if self._kept + len(dofs) > self._columns.shape[1]:  # room for twice as many
+                grown = np.zeros((self._columns.shape[0], 2 * (self._kept + len(dofs))), order="F")
+                grown[:, :self._kept] = self._columns[:, :self._kept]
+                self._columns = grown
+            self._columns[:, self._kept:self._kept + len(dofs)] = self._lu.solve(unit)
+            self._kept += len(dofs)
+        return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
+
+    def _contacts(self, local: tuple) -> tuple:
+        """This step's contacts the impulses can move (a solved node of nonzero weight in the
+        stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
+        weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
+        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m], their columns among
+        the kept ones [3 u] and ``A_0^-1`` between ``S`` of ``local`` (:meth:`_local`) and them
+        [3 s, 3 u]."""
+        h = self._host
+        n = min(int(h["count"][0]), len(h["impulse"]))
+        nodes, weights = h["stencil_nodes"][:n], h["stencil_weights"][:n]
+        used = np.arange(nodes.shape[1]) < h["stencil_count"][:n, None]
+        nodes = np.where(used, nodes, 0)
+        weights = np.where(used, weights, 0.0)
+        moves = used & self._solved[nodes] & (weights != 0.0)
+        movable = moves.any(axis=1)
+        h["movable"][:n] = movable
+        rows = np.flatnonzero(movable)
+        nodes, weights, moves = nodes[rows], weights[rows], moves[rows]
+        frames = h["frame"][rows]
+        touched, inverse = np.unique(nodes[moves], return_inverse=True)
+        g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
+        np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
+        slots = self._slots_of(touched)
+        dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
+        jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
+        # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
+        rel = self._relative[self._index[touched]]
+        jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
+        near = self._columns[np.ix_(local[0], slots)]  # A_0^-1 between S and the touched nodes
+        w = jt.T @ (self._columns[np.ix_(dofs, slots)] - near.T @ local[2] @ near) @ jt
+        w = 0.5 * (w + w.T)
+        metric = h["metric"]
+        metric[:n] = 0.0
+        metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        return rows, nodes, weights, w, dofs, jt, slots, near
+
+    def _delassus(self, m: int, tolerance: float) -> dict:
+        """Host views of the PGS launch's arrays (:func:`_node_factored_kernels.dense_pgs`) for
+        ``m`` contacts, the launch recorded again where they grow or ``tolerance`` [m/s] changes."""
+        if m > self._delassus_capacity or tolerance != self._delassus_tolerance:
+            size, d = max(2 * m, 16, self._delassus_capacity), self.model.device
+            arrays = {"count": wp.zeros(1, dtype=wp.int32, device=d),
+                      "w": wp.zeros((3 * size, 3 * size), dtype=wp.float64, device=d),
+                      **{name: wp.zeros(size, dtype=wp.vec3d, device=d) for name in ("u", "slip", "impulse", "rel")},
+                      "frame": wp.zeros(size, dtype=wp.mat33d, device=d),
+                      **{name: wp.zeros(size, dtype=wp.float64, device=d) for name in ("gap", "friction", "stiffness")}}
+            self._pgs = replayer(wp.launch(
+                _k.dense_pgs, dim=1, device=d, record_cmd=True,
+                inputs=[arrays[name] for name in ("count", "w", "u", "frame", "gap", "friction", "stiffness", "slip")]
+                + [self.dt, DELASSUS_PASSES, DELASSUS_TOLERANCE * tolerance, arrays["impulse"], arrays["rel"],
+                   self._done]))
+            self._delassus_arrays = {name: array.numpy() for name, array in arrays.items()}
+            self._delassus_keep = arrays
+            self._delassus_capacity, self._delassus_tolerance = size, tolerance
+        return self._delassus_arrays
+
+    def solve(self, tolerance: float) -> tuple[int, wp.array]:
+        """Outer iterations (module docstring) from the velocities in ``state.sweep_buffers[0]``
+        and the contacts' impulses, until an iteration changes no velocity by more than
+        ``tolerance`` [m/s] and every contact meets eq. 5.5 within it (``stats[1]``,
+        ``stats[2]``), or ``max_iterations``. Returns the iterations made ``k`` and the buffer
+        holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
+        a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
+        st, h = self.state, self._host
+        wp.copy(self._v, st.sweep_buffers[0])
+        v, r, solved = h["v"], h["r"], self._solved_nodes
+        v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
+        self._relative = np.matmul(self._node_rotations(), self._rotation0.transpose(0, 2, 1))
+        local = self._local()
+        rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+        m = len(rows)
+        frames = h["frame"][rows]
+        pgs = self._delassus(m, tolerance)
+        pgs["count"][0] = m
+        pgs["w"][:3 * m, :3 * m] = w
+        for name in ("frame", "gap", "friction", "stiffness", "slip", "impulse"):
+            pgs[name][:m] = h[name][rows]
+        lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
+        self.delassus_passes = 0
+        k = restart = 0
+        anderson = _Anderson(ANDERSON_MEMORY)
+        changes: list[float] = []
+        while k < self.max_iterations:
+            if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
+                self._factor()
+                self._relative = np.tile(np.eye(3), (len(solved), 1, 1))
+                local = self._local()
+                rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+                pgs["w"][:3 * m, :3 * m] = w
+                restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
+            k += 1
+            self._residual()
+            x = v[solved]
+            rotated = self._rotate(r[solved], True).ravel()  # R^T r
+            kept = self._columns[:, :self._kept]
+            if m:
+                at = kept.T @ rotated  # A_0^-1 R^T r at the kept columns' nodes
+                at = at[slots] - near.T @ (local[2] @ at[local[1]])  # P^-1 r there, turned
+                rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
+                u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
+                self._pgs()
+                self.delassus_passes += int(h["done"][0])
+                rotated[dofs] += jt @ lam.ravel()  # + R^T J^T lambda
+            y = self._lu.solve(rotated)
+            if len(local[0]):
+                spread = np.zeros(self._kept)
+                spread[local[1]] = local[2] @ y[local[0]]
+                y -= kept @ spread
+            u = x + self._rotate(y.reshape(-1, 3))
+            change = float(np.abs(u - x).max(initial=0.0))
+            v[solved] = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
+            h["stats"][0] = change
+            changes.append(change)
+            if _error(changes) <= tolerance and self._contacts_met(rows, lam, tolerance):
+                break
+        else:
+            self._contacts_met(rows, lam, tolerance)
+        out = st.sweep_buffers[k % 3]
+        wp.copy(out, self._v)
+        return k, out
+
+    def _contacts_met(self, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
+        """The contacts' impulses ``lam`` [m, 3] [N s] (frames) into ``state.contacts`` at
+        ``rows`` and the residual of eq. 5.5 in this iteration's velocities into ``stats``
+        (:func:`softvr.contact._node_jacobi_kernels.residual`, ``gap_after`` too, with the
+        diagonal blocks of ``W`` as the contacts' metric): whether every contact meets it within
+        ``tolerance`` [m/s]."""
+        self._host["impulse"][rows] = lam
+        self._residual_check()
+        stats = self._host["stats"]
+        return bool(stats[1] <= tolerance and stats[2] <= tolerance)

@@ -1,0 +1,67 @@
+"""The factored contact solve (softvr.contact.node_factored: A_0 factored once, rotated to the
+nodes' rotations, the contacts' Delassus operator solved by PGS, the outer iteration
+Anderson-accelerated), held to SciPy's direct solve of eq. 5.2 on a bent clamped beam whose A
+differs from the factored one, and to the MLCP of eq. 5.5 (A v = b + J^T lambda over the free
+nodes with SciPy's A and b, complementarity, the friction disc) where a clamped beam, too stiff
+for the node sweeps, swings down onto a plane.
+
+Tolerances: the solve stops when an outer iteration changes no velocity by more than
+SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_arrays.py).
+"""
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from softvr.contact.node_factored import FactoredSolve
+from softvr.sim._node_step import SWEEP_TOLERANCE
+
+from tests.contact.test_node_aggregates import _beam
+from tests.contact.test_node_gauss_seidel import _prepared, _start
+from tests.sim.test_node_arrays import VELOCITY_TOL, _scene, _solve_step
+from tests.sim.test_node_rigid import _check_mlcp, _system
+
+DT = 0.01
+
+
+def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)  # A_0: the straight beam's
+    # Bent up to 0.2 rad at the free end (each node turned about y by 0.2 x / L about the clamp):
+    # the tets co-rotate, so this step's A is far from A_0 (eq. 5.2 with R_e K_e R_e^T).
+    x = body.q[:, 0]
+    turn = Rotation.from_rotvec(np.outer(0.2 * x / x.max(), [0.0, 1.0, 0.0]))
+    body.q[:] = turn.apply(body.q - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    rng = np.random.default_rng(5)
+    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    for replay in stepper._recorded[1:4]:
+        replay()
+    _, expected = _solve_step(body, scene, DT)
+    _start(stepper, body.v)
+    iterations, solved = solve.solve(SWEEP_TOLERANCE)
+    print(f"outer iterations {iterations}")
+    np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+    assert solve.factorizations == 1  # the one factorization, reused on the bent beam
+    np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+
+
+def test_a_stiff_clamped_beam_swinging_onto_a_plane_takes_the_factored_solve_and_meets_eq_5_5():
+    # The node sweeps decline this beam (over their work limits); per object it would take a
+    # sparse LU every step. Its clamped nodes' rows of eq. 5.2 carry the clamp's reaction, so
+    # the momentum balance is held on the free rows (_check_mlcp).
+    body = _beam()
+    body.q[:] = body.q - [0.0, 0.0, 1.0 - 0.0005]  # its underside 0.5 mm above the plane z = 0
+    body.v[:] = 0.0
+    body.v[:, 2] = -0.3 * body.q[:, 0] / body.q[:, 0].max()  # swinging down about the clamp
+    body.v[body.fixed] = 0.0
+    scene = _scene(body)
+    pushing = 0
+    for _ in range(6):
+        systems = [_system(b, DT, scene.gravity) for b in scene.bodies]
+        solution = scene.step(DT)
+        _check_mlcp(scene, systems, solution, DT, 0.5)
+        pushing += sum(int((lam[:, 0] > 0).sum()) for lam in solution.impulses)
+    assert type(scene._stepper._recorded[5]).__name__ == "FactoredSolve"
+    assert scene._stepper._spectrum[DT].kind is None  # what the sweeps made of it
+    assert pushing >= 10
