@@ -174,6 +174,25 @@ def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkey
     assert crowded.kind == "gauss-seidel"  # its fewer sweeps (the spectrum test) now win
 
 
+def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(monkeypatch):
+    # Where Jacobi is over its limit the alternative to Gauss-Seidel is the per-object LU, so
+    # Gauss-Seidel within MAX_GAUSS_SEIDEL_WORK_PER_DECADE is taken even at more work than
+    # Jacobi's (the shoulder, both at ~39.5, was declined by the strict comparison).
+    body = _cube()
+    _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
+    a, free = _free_matrix(stepper.model, stepper.state)
+    m = stepper.model
+    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
+    bounds = spectrum(m, stepper.state)
+    free_choice = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds, 25.0, 0, 2,
+                                             SPECTRUM_MARGIN)
+    jacobi, gauss_seidel = free_choice.work["jacobi"], free_choice.work["gauss-seidel"]
+    assert jacobi < gauss_seidel <= _node_sweeps.MAX_GAUSS_SEIDEL_WORK_PER_DECADE
+    limited = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
+                                         0.5 * jacobi, 0, 2, SPECTRUM_MARGIN)
+    assert limited.kind == "gauss-seidel"
+
+
 def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order():
     """One sweep's node update (kernels of softvr.contact._node_gs_kernels, the rows read from
     their colour-ordered copy) against the sweep written out in NumPy on A, b of eq. 5.2 as

@@ -194,20 +194,37 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtyp
     sharp[e] = crease
 
 
+@wp.func
+def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp.int32),
+                      sharp: wp.array(dtype=wp.int32), hit: wp.array2d(dtype=wp.int32)) -> bool:
+    """Whether the pair of edges ``e`` (of body ``a``) and ``j`` (of body ``b``) lies on a patch
+    the vertex-triangle contacts already hold: both ends of one edge meet the other edge's body
+    (``hit``, :func:`vertex_triangle`) and the other edge is no crease (``sharp``), so the other
+    surface is flat across it. An edge moves as the interpolation of its ends, so kept off a flat surface
+    at both ends it is kept off it between them: the pair's row is nearly a combination of those
+    contacts' rows, and such nearly dependent rows on one touching patch are what the sweeps
+    converge on slowly (issue 16: one contact per touching feature pair)."""
+    held_a = hit[edges[e, 0], b] != 0 and hit[edges[e, 1], b] != 0 and sharp[j] == 0
+    held_b = hit[edges[j, 0], a] != 0 and hit[edges[j, 1], a] != 0 and sharp[e] == 0
+    return held_a or held_b
+
+
 @wp.kernel
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
               pair_enabled: wp.array2d(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64),
               normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
-              min_sine: float, min_alignment: float, pairs_per_edge: int, pair_edge: wp.array2d(dtype=wp.int32),
+              min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
+              pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
               pair_gap: wp.array2d(dtype=wp.float64), offset: int):
     """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
     (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
     vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
     ``pairs_per_edge * b + k``. Pairs deeper than the margin are seen from the wrong side and
-    dropped."""
+    dropped, and so are pairs the vertex-triangle contacts already hold (``hit``, of
+    :func:`vertex_triangle`, which runs first: :func:`edge_pair_covered`), before they take a slot."""
     i = wp.tid() + offset
     a = edge_body[i]
     p1 = point_x32[edges[i, 0]]
@@ -225,7 +242,8 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
             found = int(0)
             while wp.bvh_query_next(query, j):
                 jg = body_edge_start[b] + j
-                if found < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0):
+                if found < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0) and not edge_pair_covered(
+                        i, a, jg, b, edges, sharp, hit):
                     aligned, s, t, n, gap = edge_pair(p1, q1, point_x32[edges[jg, 0]], point_x32[edges[jg, 1]],
                                                       normal[i], normal[jg], reach, min_sine, min_alignment)
                     if aligned != 0 and gap >= -margin:

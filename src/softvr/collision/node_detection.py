@@ -78,7 +78,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
-                                       c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
+                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
     out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,

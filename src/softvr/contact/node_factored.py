@@ -87,8 +87,10 @@ def free_matrix(model, state) -> tuple[sp.csr_matrix, np.ndarray]:
 def factored_eligible(model) -> bool:
     """Whether :class:`FactoredSolve` can step the scene: on the CPU (SciPy's factorization
     works on host arrays), FEM bodies and driven nodes only (no rigid body, no coupling spring:
-    their 6x6 blocks and rigid contact sides are the sweeps')."""
-    return wp.get_device(model.device).is_cpu and model.rigid is None and not len(model.couplings.node)
+    their 6x6 blocks and rigid contact sides are the sweeps'; no cloth: its nodes have no tets
+    to turn the kept factorization by)."""
+    return (wp.get_device(model.device).is_cpu and model.rigid is None and not len(model.couplings.node)
+            and not model.cloth.spring_count)
 
 
 def factored_work(fill: int, blocks: int) -> float:
