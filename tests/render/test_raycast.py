@@ -50,8 +50,11 @@
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
   marked brick the walk missed.
+* The pixels marked as those whose rays may meet a box (``mark_pixels``: only those are walked
+  by the stale-ray test) against NumPy ray-box intersection: every pixel whose ray meets it.
 * The bricks found changed (``brick_changes``) against NumPy: a brick is flagged iff a voxel
-  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks.
+  it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks,
+  voxel by voxel and with inner bricks' rows compared as 64-bit words.
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
@@ -374,6 +377,72 @@ def test_brick_walk_finds_every_marked_brick_a_segment_crosses():
     assert (walked == truth).mean() > 0.99  # and the walk is not merely cautious
 
 
+def _perspective(width: int, height: int) -> np.ndarray:
+    """An index-to-clip-space matrix [4, 4]: OpenGL's perspective (30 degrees, near 10, far 400)
+    of a camera at (-40, -90, 70) looking at (20, 25, 15), over voxels of (0.9, 1.1, 1.5)."""
+    eye, centre, up = np.array([-40.0, -90.0, 70.0]), np.array([20.0, 25.0, 15.0]), np.array([0.0, 0.0, 1.0])
+    f = (centre - eye) / np.linalg.norm(centre - eye)
+    s = np.cross(f, up) / np.linalg.norm(np.cross(f, up))
+    view = np.eye(4)
+    view[:3, :3] = np.stack([s, np.cross(s, f), -f])
+    view[:3, 3] = -view[:3, :3] @ eye
+    near, far, c = 10.0, 400.0, 1.0 / np.tan(np.radians(15.0))
+    projection = np.array([[c * height / width, 0, 0, 0], [0, c, 0, 0],
+                           [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
+    return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
+
+
+def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
+    """``mark_pixels`` against NumPy ray-box intersection (float64): every pixel whose ray
+    through its centre, from the near to the far plane, meets a box must be marked (the stale
+    test walks only those), and within the rectangle it reports; the marks lie within 3 pixels
+    of those rays' pixels: a pixel of margin for rounding, one from rounding the projected
+    corners outwards, one where the projection's tip falls between pixel centres.
+    A box with a corner behind the camera marks every pixel."""
+    width, height = 72, 56
+    to_clip = _perspective(width, height)
+    rng = np.random.default_rng(3)
+    lo = rng.uniform(0.0, 40.0, (40, 3))
+    boxes = [(a, a + rng.uniform(0.5, 12.0, 3)) for a in lo]
+    px, py = np.meshgrid(np.arange(width), np.arange(height))  # py: OpenGL rows, running up
+    ndc = np.stack([(2.0 * px + 1.0) / width - 1.0, (2.0 * py + 1.0) / height - 1.0], -1).reshape(-1, 2)
+    back = np.linalg.inv(to_clip)
+    ends = [np.column_stack([ndc, np.full(len(ndc), z), np.ones(len(ndc))]) @ back.T for z in (-1.0, 1.0)]
+    near, far = (e[:, :3] / e[:, 3:] for e in ends)
+    rows = (height - 1 - py).ravel()  # the mask's rows run down
+    tested = 0
+    for box_lo, box_hi in boxes:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = (box_lo - near) / (far - near), (box_hi - near) / (far - near)
+        enter = np.nanmax(np.minimum(a, b), axis=1).clip(0.0, None)
+        leave = np.nanmin(np.maximum(a, b), axis=1).clip(None, 1.0)
+        truth = (enter <= leave).reshape(height, width)[::-1]
+        mask = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
+        rect = wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu")
+        wp.launch(K.mark_pixels, dim=1, device="cpu",
+                  inputs=[wp.array(box_lo[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
+                          wp.array(box_hi[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
+                          wp.mat44(*to_clip.ravel()), width, height, 1, mask, rect, 0])
+        marked = mask.numpy().reshape(height, width).astype(bool)
+        assert not np.any(truth & ~marked), np.argwhere(truth & ~marked)
+        c0, c1, r0, r1 = rect.numpy()
+        ys, xs = np.nonzero(marked)
+        assert (c0, c1, r0, r1) == ((xs.min(), xs.max(), ys.min(), ys.max()) if len(xs) else (width, -1, height, -1))
+        if truth.any():
+            tested += 1
+            ty, tx = np.nonzero(truth)
+            assert c0 >= tx.min() - 3 and c1 <= tx.max() + 3 and r0 >= ty.min() - 3 and r1 <= ty.max() + 3
+    assert tested > 10
+    behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
+    eye_index = np.linalg.inv(np.diag([0.9, 1.1, 1.5]))  @ np.array([-40.0, -90.0, 70.0])
+    wp.launch(K.mark_pixels, dim=1, device="cpu",
+              inputs=[wp.array(eye_index[None].astype(np.float32) - 5.0, dtype=wp.vec3, device="cpu"),
+                      wp.array(eye_index[None].astype(np.float32) + 5.0, dtype=wp.vec3, device="cpu"),
+                      wp.mat44(*to_clip.ravel()), width, height, 1, behind,
+                      wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu"), 0])
+    assert behind.numpy().all()
+
+
 @pytest.fixture(scope="module")
 def ball() -> Volume:
     """Soft tissue (40 HU) of radius 14 mm in air, 1 mm voxels, centred at the origin."""
@@ -427,11 +496,12 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
     """``brick_changes`` against NumPy: brick b owns voxels b * BRICK .. b * BRICK + BRICK - 1 per
     axis (the last brick also the grid's far voxels); it is flagged iff one of them differs from
     the kept copy, which it then brings up to date. Single-voxel changes at every position within
-    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders)."""
+    a brick (inner and edge bricks, a grid not a multiple of BRICK, C and F memory orders), and
+    with inner bricks' rows compared as 64-bit words (a C-order last axis a multiple of BRICK)."""
     rng = np.random.default_rng(11)
     b = K.BRICK
-    for order in ("C", "F"):
-        shape = (4 * b + 3, 3 * b + 1, 5 * b + 2)
+    for order, last_axis in (("C", 5 * b + 2), ("F", 5 * b + 2), ("C", 5 * b)):
+        shape = (4 * b + 3, 3 * b + 1, last_axis)
         known = np.asarray(rng.integers(-1000, 1000, shape), np.int16, order=order)
         vol = known.copy(order=order)
         nb = np.array([-(-(s - 1) // b) for s in shape])
@@ -443,10 +513,15 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
             vol[voxel] += 1
             truth[tuple(brick)] = 1
         strides = wp.vec3i(*(st // 2 for st in vol.strides))
-        flat = [wp.array(a.ravel(order="K"), dtype=wp.int16, device="cpu") for a in (vol, known)]
+        host = [a.ravel(order="K") for a in (vol, known)]
+        flat = [wp.array(a, dtype=wp.int16, device="cpu", copy=False) for a in host]
+        packed = int(last_axis % b == 0)
+        rows = [wp.array(a.view(np.int64) if packed else np.zeros(1, np.int64), dtype=wp.int64, device="cpu",
+                         copy=False) for a in host]
         changed = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
         wp.launch(K.brick_changes, dim=int(np.prod(nb)), device="cpu",
-                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], changed, 0])
+                  inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], *rows, packed,
+                          changed, 0])
         np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 

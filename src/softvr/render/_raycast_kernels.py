@@ -335,19 +335,33 @@ def brick_changes(
     first: wp.vec3i,
     count: wp.vec3i,
     known: wp.array(dtype=Any),
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    packed: int,
     changed: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
     """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
     the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
     cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
-    threads write one voxel of ``known``."""
+    threads write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
+    ``vol`` and ``known`` read as 64-bit words, each an inner brick's row of BRICK voxels
+    along the last axis (2-byte voxels, rows contiguous and aligned), compared a row at once."""
     b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
     flag = wp.uint8(0)
     if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
         # An inner brick owns BRICK^3 voxels: fixed loops, unrolled (no bounds per row).
         base = b[0] * BRICK * strides[0] + b[1] * BRICK * strides[1] + b[2] * BRICK * strides[2]
+        if packed != 0:
+            for i in range(BRICK):
+                for j in range(BRICK):
+                    w = (base + i * strides[0] + j * strides[1]) / BRICK
+                    if rows[w] != known_rows[w]:
+                        known_rows[w] = rows[w]
+                        flag = wp.uint8(1)
+            changed[b[0], b[1], b[2]] = flag
+            return
         for i in range(BRICK):
             for j in range(BRICK):
                 for k in range(BRICK):
@@ -460,6 +474,12 @@ def raycast(
     image: wp.array3d(dtype=wp.uint8),
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
+    store_rays: int,
+    ray_origin: wp.array(dtype=wp.vec3),
+    ray_direction: wp.array(dtype=wp.vec3),
+    ray_world: wp.array(dtype=wp.vec3),
+    ray_span: wp.array(dtype=wp.vec2),
+    ray_depth: wp.array(dtype=wp.vec4),
     offset: int,
 ):
     """One ray per pixel, composited over the surfaces' colour and stopped at their depth.
@@ -485,29 +505,58 @@ def raycast(
     cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
     ``segment_end`` [index coordinates] bound where its samples lie, up to where the ray
     stopped (:func:`stale_pixels` reads them next frame); far outside the grid if it missed.
+
+    Each pixel's ray, the same for every frame of one view, is worked out if ``store_rays`` != 0
+    and kept, else read back [per pixel]: ``ray_origin`` and ``ray_direction`` (its start on the
+    near plane and its unit world direction, in index coordinates), ``ray_world`` (that
+    direction in the world), ``ray_span`` (where it lies in the grid [world units from the near
+    plane]) and ``ray_depth`` (a, b, c, e: the surface at OpenGL depth z in [0, 1] lies at
+    t = (a + z' b) / (c + z' ndc_to_world[3, 2]) - e, z' = 2 z - 1).
     """
     tid = pixels[wp.tid() + offset]
     px = tid % width
     row = tid / width
     py = height - 1 - row  # OpenGL rows run up
-    nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
-    ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
-    near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
-    far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
-    hit4 = ndc_to_world @ wp.vec4(nx, ny, 2.0 * depth[py, px] - 1.0, 1.0)
-    near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
-    far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
-    hit = wp.vec3(hit4[0], hit4[1], hit4[2]) / hit4[3]
-    dw = wp.normalize(far - near)
-    t_surface = wp.dot(hit - near, dw)
-    o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
-    o = wp.vec3(o4[0], o4[1], o4[2])
-    d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
-    d = wp.vec3(d4[0], d4[1], d4[2])
-    span = wp.vec2(0.0, t_surface)
-    span = slab(o[0], d[0], 0.0, float(n[0] - 1), span[0], span[1])
-    span = slab(o[1], d[1], 0.0, float(n[1] - 1), span[0], span[1])
-    span = slab(o[2], d[2], 0.0, float(n[2] - 1), span[0], span[1])
+    o = wp.vec3(0.0)
+    d = wp.vec3(0.0)
+    dw = wp.vec3(0.0)
+    inside = wp.vec2(0.0)
+    at_depth = wp.vec4(0.0)
+    if store_rays != 0:
+        nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
+        ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
+        near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
+        far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
+        near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
+        far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
+        dw = wp.normalize(far - near)
+        # The surface point at depth z' is ndc_to_world (nx, ny, z', 1) = mid + z' column 2.
+        mid = ndc_to_world @ wp.vec4(nx, ny, 0.0, 1.0)
+        column = ndc_to_world @ wp.vec4(0.0, 0.0, 1.0, 0.0)
+        at_depth = wp.vec4(wp.dot(wp.vec3(mid[0], mid[1], mid[2]), dw),
+                           wp.dot(wp.vec3(column[0], column[1], column[2]), dw), mid[3], wp.dot(near, dw))
+        o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
+        o = wp.vec3(o4[0], o4[1], o4[2])
+        d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
+        d = wp.vec3(d4[0], d4[1], d4[2])
+        inside = wp.vec2(0.0, 3.0e38)
+        inside = slab(o[0], d[0], 0.0, float(n[0] - 1), inside[0], inside[1])
+        inside = slab(o[1], d[1], 0.0, float(n[1] - 1), inside[0], inside[1])
+        inside = slab(o[2], d[2], 0.0, float(n[2] - 1), inside[0], inside[1])
+        ray_origin[tid] = o
+        ray_direction[tid] = d
+        ray_world[tid] = dw
+        ray_span[tid] = inside
+        ray_depth[tid] = at_depth
+    else:
+        o = ray_origin[tid]
+        d = ray_direction[tid]
+        dw = ray_world[tid]
+        inside = ray_span[tid]
+        at_depth = ray_depth[tid]
+    z = 2.0 * depth[py, px] - 1.0
+    t_surface = (at_depth[0] + z * at_depth[1]) / (at_depth[2] + z * ndc_to_world[3, 2]) - at_depth[3]
+    span = wp.vec2(inside[0], wp.min(inside[1], t_surface))
     rgb = wp.vec3(0.0)
     alpha = float(0.0)
     if span[0] < span[1]:
@@ -611,6 +660,65 @@ def raycast(
 
 
 @wp.kernel
+def mark_pixels(
+    lo: wp.array(dtype=wp.vec3),
+    hi: wp.array(dtype=wp.vec3),
+    index_to_ndc: wp.mat44,
+    width: int,
+    height: int,
+    mark: int,
+    mask: wp.array(dtype=wp.uint8),
+    rect: wp.array(dtype=wp.int32),
+    offset: int,
+):
+    """The pixels whose rays may meet the index-space box ``lo[b] .. hi[b]``: the bounds of
+    its corners projected by ``index_to_ndc`` (to clip space), a pixel wider for rounding
+    (every pixel if a corner lies behind the camera). A ray meets a box only where its pixel
+    centre lies in the box's projection, the convex hull of the projected corners. Set 1 in
+    ``mask`` [height * width] (row-major, row 0 at the top) over them if ``mark`` != 0, and
+    grow ``rect`` (first column, last column, first row, last row; start empty) to hold them."""
+    b = wp.tid() + offset
+    x0 = float(1.0e30)
+    x1 = float(-1.0e30)
+    y0 = float(1.0e30)
+    y1 = float(-1.0e30)
+    behind = bool(False)
+    for c in range(8):
+        p = wp.vec3(wp.where((c & 4) != 0, hi[b][0], lo[b][0]), wp.where((c & 2) != 0, hi[b][1], lo[b][1]),
+                    wp.where((c & 1) != 0, hi[b][2], lo[b][2]))
+        q = index_to_ndc @ wp.vec4(p[0], p[1], p[2], 1.0)
+        if q[3] <= 0.0:
+            behind = True
+        else:
+            # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1).
+            px = (q[0] / q[3] + 1.0) * 0.5 * float(width) - 0.5
+            py = (q[1] / q[3] + 1.0) * 0.5 * float(height) - 0.5
+            x0 = wp.min(x0, px)
+            x1 = wp.max(x1, px)
+            y0 = wp.min(y0, py)
+            y1 = wp.max(y1, py)
+    c0 = int(0)
+    c1 = width - 1
+    r0 = int(0)
+    r1 = height - 1
+    if not behind:
+        c0 = wp.max(int(wp.floor(x0)) - 1, 0)
+        c1 = wp.min(int(wp.ceil(x1)) + 1, width - 1)
+        r0 = wp.max(height - 1 - (int(wp.ceil(y1)) + 1), 0)  # rows run down
+        r1 = wp.min(height - 1 - (int(wp.floor(y0)) - 1), height - 1)
+    if c0 > c1 or r0 > r1:
+        return
+    wp.atomic_min(rect, 0, c0)
+    wp.atomic_max(rect, 1, c1)
+    wp.atomic_min(rect, 2, r0)
+    wp.atomic_max(rect, 3, r1)
+    if mark != 0:
+        for row in range(r0, r1 + 1):
+            for column in range(c0, c1 + 1):
+                mask[row * width + column] = wp.uint8(1)
+
+
+@wp.kernel
 def stale_pixels(
     width: int,
     boxed: int,
@@ -618,6 +726,7 @@ def stale_pixels(
     box_hi: wp.vec3,
     reach: wp.vec3,
     read_distance: wp.array3d(dtype=wp.uint8),
+    candidates: wp.array(dtype=wp.uint8),
     rect: wp.vec4i,
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
@@ -625,10 +734,10 @@ def stale_pixels(
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
     empty_until: wp.array(dtype=float),
-    stale: wp.array(dtype=wp.int32),
+    stale: wp.array(dtype=wp.bool),
     offset: int,
 ):
-    """Set 1 in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
+    """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
     row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
@@ -643,21 +752,25 @@ def stale_pixels(
     through a voxel it does not read, and a later change there flips no brick.
 
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
-    ray is seen in its pixel)."""
+    ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
+    brick (:func:`mark_pixels`): the others are not walked."""
     t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
     tid = (rect[2] + t / columns) * width + rect[0] + t % columns
-    if stale[tid] != 0:
+    if stale[tid]:
+        return
+    walk = boxed != 0 and candidates[tid] != 0
+    if not walk and flips == 0:
         return
     a = segment_start[tid]
     d = segment_end[tid] - a
-    if boxed != 0:
+    if walk:
         u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
         # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
         # ray to cast again is found in a brick or two.
         if u[0] <= u[1]:
             if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                stale[tid] = 1
+                stale[tid] = True
                 return
     if flips != 0:
         u = segment_in_box(a, d, flip_lo, flip_hi)

@@ -48,6 +48,8 @@ _ROWS_PER_CHUNK = 8
 _STALE_CHUNK = 4096
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
 _BRICK_CHUNK = 4096
+#: Fewest marked bricks per chunk of the launch that marks the pixels their rays cross.
+_MARK_CHUNK = 512
 
 
 def volume_bounds(volume) -> tuple[float, ...]:
@@ -163,7 +165,8 @@ class RayCaster:
         if not (data.flags.c_contiguous or data.flags.f_contiguous):
             data = np.ascontiguousarray(data)
         # A flat view in memory order and the element strides of the three axes.
-        self._strides = wp.vec3i(*(st // data.itemsize for st in data.strides))
+        strides = tuple(st // data.itemsize for st in data.strides)
+        self._strides = wp.vec3i(*strides)
         flat = data.ravel(order="K")
         if dev == "cpu":
             self._vol = wp.array(flat, dtype=K.VOXEL_TYPES[name], device=dev, copy=False)
@@ -197,7 +200,7 @@ class RayCaster:
                 self._changed_bricks.fill_(1)
             else:
                 self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, self._changed_bricks])
+                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
             # transparent in both frames, whatever it reads (:meth:`_read_distance`).
@@ -222,6 +225,19 @@ class RayCaster:
             if not fresh:  # redo the distances only around the bricks that turned empty or occupied
                 first, last = box[:3].astype(int), box[3:].astype(int)
             self._distance_passes(first, last, [self._seed, self._pass1, self._pass2, self._distance], REACH)
+
+    def _packed_rows(self, flat: np.ndarray, s: tuple) -> list:
+        """``brick_changes``' 64-bit views of the voxels ``flat`` (element strides ``s`` [3])
+        and of the kept copy, and whether they hold (CPU, 2-byte voxels whose last axis is
+        contiguous and a multiple of BRICK long, both arrays 8-byte aligned): one compare per
+        inner brick row instead of BRICK."""
+        assert self._known is not None  # kept since the last upload
+        if (self.device == "cpu" and flat.itemsize * BRICK == 8 and s[2] == 1 and s[1] % BRICK == 0
+                and s[0] % BRICK == 0 and flat.ctypes.data % 8 == 0 and self._known.ptr % 8 == 0):
+            return [wp.array(a.view(np.int64), dtype=wp.int64, device="cpu", copy=False)
+                    for a in (flat, self._known.numpy())] + [1]
+        none = wp.zeros(1, dtype=wp.int64, device=self.device)
+        return [none, none, 0]
 
     def _distance_passes(self, first, last, fields: list, reach: int) -> None:
         """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
@@ -322,11 +338,15 @@ class RayCaster:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
                 self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+                self._rays = [wp.empty(width * height, dtype=t, device=dev)
+                              for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
             self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
+            store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
         else:
+            store_rays = 0
             pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
                                         np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
@@ -339,7 +359,7 @@ class RayCaster:
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
             self._distance,
             *flipped, self._empty_until, depth, surface, pixels,
-            self._image, *self._segments,
+            self._image, *self._segments, store_rays, *self._rays,
         ]
         launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
@@ -352,33 +372,39 @@ class RayCaster:
             return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
         return thick if self.smooth_slices else -1
 
-    def _read_distance(self) -> np.ndarray:
+    def _read_distance(self) -> tuple[np.ndarray, np.ndarray]:
         """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
-        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8. A sample
-        at p reads voxels floor(p) - 2 .. floor(p) + 3 (trilinear weights, central
-        differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
+        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8, and the
+        indices [m, 3] of those marked bricks. A sample at p reads voxels floor(p) - 2 ..
+        floor(p) + 3 (trilinear weights, central differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
         BRICK >= 3) it reads voxels of the bricks c - 1 .. c + 1 per axis only. Its own
         corners lie in brick c's range, so where c is empty (no value of non-zero opacity)
         before and after the change the sample is transparent in both frames and what it
         reads does not matter: the marked bricks are the occupied ones (before or after)
         within 1 of a changed brick. SciPy's transform on the changed bricks' box grown by
-        the cap: a few thousand bricks, where Warp launches over them cost more to hand out
+        one: a few thousand bricks, where Warp launches over them cost more to hand out
         than to run."""
         nb = np.asarray(self._changed_bricks.shape)
         read = np.full(tuple(nb), _READ_REACH, np.uint8)
+        none = np.zeros((0, 3), int)
         if self._changed_box is None:
-            return read
-        first = np.maximum(self._changed_box[0] - _READ_REACH - 1, 0)
-        last = np.minimum(self._changed_box[1] + _READ_REACH + 1, nb - 1)
+            return read, none
+        # The marked bricks lie within 1 of the changed box, and the stale-ray walk only runs
+        # within 1 of it (the rewritten voxels grown by READ_REACH < BRICK): the distances there
+        # are exact when the transform sees just that box, which holds every marked brick.
+        first = np.maximum(self._changed_box[0] - 1, 0)
+        last = np.minimum(self._changed_box[1] + 1, nb - 1)
         box = tuple(slice(a, b + 1) for a, b in zip(first, last))
         changed = self._changed_bricks.numpy()[box] != 0
-        if changed.any():
-            near = ndimage.maximum_filter(changed, size=3, mode="constant")
-            marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
-            if marked.any():
-                to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
-                read[box] = np.minimum(to_marked, _READ_REACH)
-        return read
+        if not changed.any():
+            return read, none
+        near = ndimage.maximum_filter(changed, size=3, mode="constant")
+        marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
+        if not marked.any():
+            return read, none
+        to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
+        read[box] = np.minimum(to_marked, _READ_REACH)
+        return read, np.argwhere(marked) + first
 
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
@@ -395,40 +421,35 @@ class RayCaster:
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.astype(np.int32).ravel(), dtype=wp.int32, device=self.device)
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
-        read: wp.array = wp.array(self._read_distance(), dtype=wp.uint8, device=self.device)
+        read_host, marked = self._read_distance()
+        read: wp.array = wp.array(read_host, dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
         if self._smoothed >= 0:
             reach[self._smoothed] += 1.0
-        boxes = [(lo - reach, hi + reach)] if boxed else []
+        # Only a ray through a marked brick can be stale: the pixels whose rays meet one, from
+        # each brick's projected bounds, are the only ones whose samples are walked; the
+        # others in the flipped box only check it.
+        candidates: wp.array = wp.zeros(width * height, dtype=wp.uint8, device=self.device)
+        bounds: wp.array = wp.array([width, -1, height, -1], dtype=wp.int32, device=self.device)
+        boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
+        if boxed:
+            corner = marked.astype(np.float32) * BRICK
+            boxes.append((corner, corner + BRICK, 1))
         if flipped[0]:
-            boxes.append((np.asarray(flipped[1]), np.asarray(flipped[2])))
-        rect = _screen_rect(boxes, index_to_ndc, width, height)
+            boxes.append((np.array([flipped[1]], np.float32), np.array([flipped[2]], np.float32), 0))
+        for corner_lo, corner_hi, mark in boxes:
+            if len(corner_lo):
+                launch(K.mark_pixels, len(corner_lo),
+                       [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
+                        wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
+                        int(width), int(height), mark, candidates, bounds], self.device, min_chunk=_MARK_CHUNK)
+        rect = tuple(int(x) for x in bounds.numpy())
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, wp.vec4i(*rect),
-                *self._segments, *flipped,
-                self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
+                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+               min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
-
-
-def _screen_rect(boxes: list, index_to_ndc: np.ndarray, width: int, height: int) -> tuple[int, int, int, int]:
-    """The pixels (first column, last column, first row, last row; row 0 at the top) whose
-    rays may meet one of the index-space ``boxes`` [(lo [3], hi [3]), ...]: the bounds of the
-    projected corners, a pixel wider; every pixel if a corner lies behind the camera."""
-    if not boxes:
-        return 0, -1, 0, -1
-    corners = np.array([[box[c >> 2 & 1][0], box[c >> 1 & 1][1], box[c & 1][2], 1.0]
-                        for box in boxes for c in range(8)])
-    clip = corners @ index_to_ndc.T
-    if np.any(clip[:, 3] <= 0.0):
-        return 0, width - 1, 0, height - 1
-    ndc = clip[:, :2] / clip[:, 3:]
-    # Pixel (px, py) looks along NDC ((2 px + 1) / width - 1, (2 py + 1) / height - 1); rows run down.
-    px = (ndc[:, 0] + 1.0) * width / 2.0 - 0.5
-    py = (ndc[:, 1] + 1.0) * height / 2.0 - 0.5
-    x0, x1 = max(int(np.floor(px.min())) - 1, 0), min(int(np.ceil(px.max())) + 1, width - 1)
-    y0, y1 = max(int(np.floor(py.min())) - 1, 0), min(int(np.ceil(py.max())) + 1, height - 1)
-    return x0, x1, height - 1 - y1, height - 1 - y0
