@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 
 from softvr.contact.node_coarse import AGGREGATE_NODES, coarse_aggregates, coarse_spectrum
+from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import FemBody, Material
-from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, _free_matrix, spectrum
+from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
 from softvr.volume import Volume, grid_tet_mesh
 
@@ -57,7 +58,7 @@ def test_aggregates_of_a_clamped_beam_give_the_dense_two_level_spectrum():
     body = _beam()
     _, stepper = _prepared(body, DT)
     m, st = stepper.model, stepper.state
-    a, free = _free_matrix(m, st)
+    a, free = free_matrix(m, st)
     aggregates = coarse_aggregates(m, st.q.numpy())
     groups = [aggregates.nodes[s:e] for s, e in zip(aggregates.start[:-1], aggregates.start[1:])]
     # The free nodes partitioned into spatial groups, the clamped ones in none.
@@ -78,7 +79,7 @@ def test_aggregate_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2_
     scene, stepper = _prepared(body, DT)
     _, expected = _solve_step(body, scene, DT)
     m, st = stepper.model, stepper.state
-    a, free = _free_matrix(m, st)
+    a, free = free_matrix(m, st)
     aggregates = coarse_aggregates(m, st.q.numpy())
     lo, hi = coarse_spectrum(a, free, aggregates, st.q.numpy(), m.mass.numpy())
     solve = NodeSolve(m, st, DT, (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]), max_sweeps=2000,

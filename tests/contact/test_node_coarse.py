@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from softvr.contact.node_coarse import coarse_bodies, coarse_spectrum
+from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Material
 from softvr.sim import _node_step, _node_sweeps
-from softvr.sim._node_step import MAX_SWEEPS_PER_DECADE, SPECTRUM_MARGIN, SWEEP_TOLERANCE, _free_matrix, spectrum
+from softvr.sim._node_step import MAX_SWEEPS_PER_DECADE, SPECTRUM_MARGIN, SWEEP_TOLERANCE, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
 
 from tests.contact.test_node_gauss_seidel import _prepared, _start
@@ -47,7 +48,7 @@ def _two_level(a, dofs_per_node, q):
 def test_coarse_spectrum_is_the_dense_two_level_spectrum_and_narrower_than_jacobi():
     body = _candy()
     _, stepper = _prepared(body, DT)
-    a, free = _free_matrix(stepper.model, stepper.state)
+    a, free = free_matrix(stepper.model, stepper.state)
     lo, hi = coarse_spectrum(a, free, coarse_bodies(stepper.model), stepper.state.q.numpy(),
                              stepper.model.mass.numpy())
     eig, jacobi = _two_level(a, 3, body.q)
@@ -63,7 +64,7 @@ def test_coarse_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2():
     body.v = np.cross([1.0, -2.0, 3.0], body.q - body.q.mean(0)) + 0.05 * rng.standard_normal(body.q.shape)
     scene, stepper = _prepared(body, DT)
     _, expected = _solve_step(body, scene, DT)
-    a, free = _free_matrix(stepper.model, stepper.state)
+    a, free = free_matrix(stepper.model, stepper.state)
     bodies = coarse_bodies(stepper.model)
     lo, hi = coarse_spectrum(a, free, bodies, stepper.state.q.numpy(), stepper.model.mass.numpy())
     solve = NodeSolve(stepper.model, stepper.state, DT, (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]),
@@ -106,7 +107,7 @@ def test_the_rule_takes_the_coarse_correction_however_many_contacts_the_first_st
     body = _candy()
     _, stepper = _prepared(body, DT)
     m, st = stepper.model, stepper.state
-    a, free = _free_matrix(m, st)
+    a, free = free_matrix(m, st)
     coarse = (coarse_bodies(m), st.q.numpy(), m.mass.numpy())
     kinds = [_node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, spectrum(m, st),
                                         MAX_SWEEPS_PER_DECADE, contacts, 2, SPECTRUM_MARGIN, coarse)

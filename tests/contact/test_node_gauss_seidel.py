@@ -16,11 +16,12 @@ import warp as wp
 from softvr import Scene
 from softvr.collision import Plane
 from softvr.contact.node_colouring import colour_nodes
+from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import EmbeddedPoints, Material
 from softvr.sim import _node_step, _node_sweeps
-from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, _free_matrix, spectrum
+from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
 
 from tests.sim.test_node_arrays import VELOCITY_TOL, _cube, _scene, _solve_step, check_mlcp_steps
@@ -48,7 +49,7 @@ def _prepared(body, dt, plane=False):
 def _gauss_seidel(stepper, dt, max_sweeps=500):
     m = stepper.model
     colours = colour_nodes(m.row_start.numpy(), m.block_col.numpy())
-    a, free = _free_matrix(m, stepper.state)
+    a, free = free_matrix(m, stepper.state)
     index = np.cumsum(free) - 1
     lo, hi = gauss_seidel_spectrum(a, index[colours.order[free[colours.order]]])
     bounds = (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1])
@@ -99,7 +100,7 @@ def test_gauss_seidel_spectrum_encloses_the_dense_eigenvalues_and_sets_the_measu
     scene, stepper = _prepared(body, dt)
     system, expected = _solve_step(body, scene, dt)
     solve, colours, bounds = _gauss_seidel(stepper, dt, max_sweeps=60)
-    a, free = _free_matrix(stepper.model, stepper.state)
+    a, free = free_matrix(stepper.model, stepper.state)
     index = np.cumsum(free) - 1
     order = index[colours.order[free[colours.order]]]
     dofs = (3 * order[:, None] + np.arange(3)).ravel()
@@ -157,7 +158,7 @@ def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkey
     # sweep of either kind, so many of them make the kind with fewer sweeps per decade cheaper.
     body = _cube()
     _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
-    a, free = _free_matrix(stepper.model, stepper.state)
+    a, free = free_matrix(stepper.model, stepper.state)
     m = stepper.model
     # By default a cube this soft does not even estimate Gauss-Seidel (GAUSS_SEIDEL_FROM); the
     # cost model is checked with the estimate forced.
@@ -180,7 +181,7 @@ def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(mon
     # Jacobi's (the shoulder, both at ~39.5, was declined by the strict comparison).
     body = _cube()
     _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
-    a, free = _free_matrix(stepper.model, stepper.state)
+    a, free = free_matrix(stepper.model, stepper.state)
     m = stepper.model
     monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
     bounds = spectrum(m, stepper.state)

@@ -33,9 +33,8 @@ from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
 from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_aggregates
-from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work,
+from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
-from softvr.contact.node_factored import free_matrix as _free_matrix
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -91,7 +90,7 @@ def spectrum(model, state) -> tuple[float, float]:
     # A kinematic body's nodes have no blocks and are driven; a rigid body's have none either
     # (their D_A is all of their A: eigenvalue 1, inside [lo, hi] since the mean eigenvalue,
     # trace(D_A^-1 A) / 3n, is 1), unless coupling springs hold the body: then they are in.
-    a, solved = _free_matrix(model, state)
+    a, solved = free_matrix(model, state)
     if not solved.any():
         return 1.0, 1.0  # nothing to solve for: every node is driven
     l_inv = block_jacobi_factor(model, state, solved)
@@ -434,7 +433,7 @@ class NodeStepper:
         if self._recorded[5] is None:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
-                a, free = _free_matrix(self.model, self.state)
+                a, free = free_matrix(self.model, self.state)
                 m, q = self.model, self.state.q.numpy()
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
                                                    MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),

@@ -150,9 +150,10 @@ class Scene:
         Step a scene of FEM and cloth bodies with the kinematic and fixed bodies and planes they
         meet (:func:`~softvr.sim.node_model_supported`) on whole-scene arrays
         (:class:`~softvr.sim.NodeModel`): eq. 5.6's sweeps with node-block D_A, Chebyshev
-        accelerated, no factorization; on by default. Off, or for a scene too stiff for the
-        sweeps (its first step measures it: more than 25 sweeps per decade of error), the
-        per-object path.
+        accelerated, no factorization; on by default. A scene too stiff for the sweeps (its
+        first step measures it: more than 25 sweeps per decade of error) takes a factorization
+        kept from that step where it can (CPU; FEM bodies and driven nodes only) and it is less
+        work, else the per-object path, as does a scene with this off.
     parallel_islands : bool
         Solve the coupling islands' unconstrained steps in parallel threads. Off by default:
         the per-island work is still mostly Python (assembly), so on the shoulder the threads
