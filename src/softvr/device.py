@@ -19,7 +19,6 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from functools import lru_cache, partial
 
@@ -135,11 +134,6 @@ def _load(module, device: str) -> None:
     wp.load_module(module, device=device)
 
 
-@lru_cache(maxsize=8)
-def _pool(workers: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(max_workers=workers, thread_name_prefix="softvr-launch")
-
-
 def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> None:
     """Launch a 1-D ``kernel`` over ``dim`` threads, split across CPU cores.
 
@@ -184,9 +178,7 @@ def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024
                                          device=device) for c in range(chunks)]
             break
         replays.append(replay)
-    futures = [_pool(workers).submit(r) for r in replays]
-    for f in futures:
-        f.result()
+    _run_split(replays, workers)
 
 
 def upload(dst: wp.array, src) -> None:
@@ -305,6 +297,18 @@ def _split_workers(workers: int) -> queue.SimpleQueue:
     return tasks
 
 
+def _run_split(replays: list[Callable[[], None]], workers: int) -> None:
+    """Run ``replays`` (a split launch's chunks) on the calling thread and ``workers - 1``
+    workers (:func:`_split_workers`), each claiming the next chunk as it comes free; return
+    when all have run."""
+    call = _SplitCall(replays)
+    tasks = _split_workers(workers)
+    for _ in range(workers - 1):
+        tasks.put(call)
+    call()
+    call.wait()
+
+
 def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> Callable[[], None]:
     """Record a 1-D ``kernel`` over ``dim`` threads in chunks (the last parameter an ``int``
     thread offset, as :func:`launch`) and return a function replaying it: on the CPU from
@@ -334,10 +338,10 @@ class _SplitReplay:
     on an idle one it is about half of it. Each way's time is a moving average (weight
     :data:`SPLIT_AVERAGE`) and every :data:`SPLIT_PROBE`-th call times the other way."""
 
-    __slots__ = ("replays", "tasks", "workers", "seconds", "calls")
+    __slots__ = ("replays", "workers", "seconds", "calls")
 
     def __init__(self, replays: list[Callable[[], None]], workers: int):
-        self.replays, self.workers, self.tasks = replays, workers, _split_workers(workers)
+        self.replays, self.workers = replays, workers
         self.seconds = [0.0, 0.0]  # single, split; each tried once first
         self.calls = 0
 
@@ -350,11 +354,7 @@ class _SplitReplay:
             way = 1 - best if self.calls % SPLIT_PROBE == 0 else best
         start = time.perf_counter()
         if way:
-            call = _SplitCall(self.replays)
-            for _ in range(self.workers - 1):
-                self.tasks.put(call)
-            call()
-            call.wait()
+            _run_split(self.replays, self.workers)
         else:
             for replay in self.replays:
                 replay()
