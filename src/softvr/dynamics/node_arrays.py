@@ -17,8 +17,8 @@ from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
-__all__ = ["NODE_DIVERGENCE_REASONS", "record_drive", "record_elements", "record_integrate", "record_start",
-           "record_system"]
+__all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "isotropic_terms", "record_drive", "record_elements",
+           "record_integrate", "record_start", "record_system"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -32,15 +32,53 @@ def record_elements(model, state) -> Callable[[], None]:
                              state.rotations, state.element_forces], model.device, min_chunk=512)
 
 
+#: Largest relative misfit |K_e - K_iso|_F / |K_e|_F of an element stiffness to the isotropic
+#: form for :func:`record_system` to assemble it as isotropic (K_e = V B^T C B in float64 fits
+#: to ~1e-15; an anisotropic C misfits by O(1)).
+ISOTROPIC_MISFIT = 1e-12
+
+
+def isotropic_terms(ke: np.ndarray, dm_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The shape functions' rest gradients g_a [m, 4, 3] [1/m] (rows of Dm^-1 for nodes 1..3,
+    minus their sum for node 0) and V (lambda, mu) [m, 2] [N/m] of every tet, such that
+    ``ke[e, 4 a + b]`` [m, 16, 3, 3] [N/m] = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I)
+    (the isotropic linear tet, K_e = V B^T C B) within :data:`ISOTROPIC_MISFIT`; None if any
+    tet's stiffness is not of that form (least squares over its 144 entries)."""
+    grad = np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+    ga = np.repeat(grad, 4, axis=1)  # [m, 16, 3]: g_a of entry 4 a + b
+    gb = np.tile(grad, (1, 4, 1))
+    basis_lam = ga[..., :, None] * gb[..., None, :]
+    basis_mu = gb[..., :, None] * ga[..., None, :] + np.einsum("eki,eki->ek", ga, gb)[..., None, None] * np.eye(3)
+    basis = np.stack([basis_lam, basis_mu], axis=1).reshape(len(ke), 2, -1)  # [m, 2, 144]
+    flat = ke.reshape(len(ke), -1)
+    lame = np.zeros((len(ke), 2))
+    if len(ke):
+        lame = np.linalg.solve(basis @ basis.transpose(0, 2, 1), basis @ flat[:, :, None])[:, :, 0]
+    misfit = np.linalg.norm(flat - np.einsum("ek,ekj->ej", lame, basis), axis=1)
+    if np.any(misfit > ISOTROPIC_MISFIT * np.linalg.norm(flat, axis=1)):
+        return None
+    return grad, lame
+
+
 def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing ``A`` (``state.blocks``, ``state.d_inv``) and ``b`` (``state.b``) of a
     step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms and the cloth
     springs (``model.cloth``: :class:`softvr.sim._node_cloth.NodeCloth`) at ``state.q``; the
     second (``b``) reads the springs' forces the first wrote."""
-    assemble = chunked_replayer(_k.assemble, model.assembled.shape[0],
-                                [model.assembled, model.block_mirror, model.block_row, model.block_col, model.contrib_start, model.contrib,
-                                 state.rotations, model.ke, model.tet_beta, model.mass, model.node_alpha, float(dt),
-                                 state.blocks, state.d_inv], model.device, min_chunk=1024)
+    blocks = [model.assembled, model.block_mirror, model.block_row, model.block_col, model.contrib_start,
+              model.contrib, state.rotations]
+    tail = [model.mass, model.node_alpha, float(dt), state.blocks, state.d_inv]
+    isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
+    if isotropic is None:
+        assemble = chunked_replayer(_k.assemble, model.assembled.shape[0],
+                                    blocks + [model.ke, model.tet_beta] + tail, model.device, min_chunk=1024)
+    else:
+        gradients, lame = isotropic
+        scale = dt * model.tet_beta.numpy() + dt * dt
+        assemble = chunked_replayer(_k.assemble_isotropic, model.assembled.shape[0],
+                                    blocks + [wp.array(gradients, dtype=wp.vec3d, device=model.device),
+                                              wp.array(scale[:, None] * lame, dtype=wp.vec2d, device=model.device)]
+                                    + tail, model.device, min_chunk=1024)
     load_kernels(_k.right_hand_side, model.device)
     rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,

@@ -1,0 +1,129 @@
+"""The step matrix A = M (1 + dt alpha) + (dt beta + dt^2) K of thesis eq. 5.2 as the node arrays
+assemble it (softvr.dynamics.node_arrays.record_system), held to an independent dense NumPy
+assembly of the co-rotated stiffness K = sum_e R_e K_e R_e^T of the linear co-rotational FEM
+the thesis uses (5.1, [MKN+04]): K_e = V B^T C B of the linear tet (textbook, built here from
+the rest positions), R_e the polar rotation of F = Ds Dm^-1 (SciPy's ``polar``).
+
+Tolerance: a block sums at most 24 tets' contributions (a grid tet mesh's node), each within
+(eps_R + 20 u) |s K_e| of the exact R K_e R^T (``assemble_isotropic``'s bound: eps_R ~1e-15,
+u = 1.1e-16; the general kernel's two 3x3 products likewise), so |A - A_ref| <= 24 * 4e-15
+max |s K_e| ~ 1e-13 max |s K_e|; 2e-13 is allowed. A wrong term (lambda and mu swapped, a
+missing transpose) is off by O(1) of that scale.
+"""
+
+import numpy as np
+import scipy.linalg
+
+from softvr import Scene
+from softvr.dynamics import EmbeddedPoints, FemBody, Material
+from softvr.dynamics.node_arrays import isotropic_terms
+from softvr.sim._node_step import NodeStepper
+from softvr.volume import Volume, grid_tet_mesh
+
+DT = 0.008  # [s]
+TOL = 2e-13  # relative to max |(dt beta + dt^2) K_e| (module docstring)
+
+
+def _voigt_b(grad: np.ndarray) -> np.ndarray:
+    """Engineering strain (xx, yy, zz, xy, yz, zx) from the 12 nodal displacements, [6, 12]."""
+    b = np.zeros((6, 12))
+    for a, (gx, gy, gz) in enumerate(grad):
+        c = 3 * a
+        b[0, c], b[1, c + 1], b[2, c + 2] = gx, gy, gz
+        b[3, c], b[3, c + 1] = gy, gx
+        b[4, c + 1], b[4, c + 2] = gz, gy
+        b[5, c], b[5, c + 2] = gz, gx
+    return b
+
+
+def _isotropic_c(lam: float, mu: float) -> np.ndarray:
+    c = np.zeros((6, 6))
+    c[:3, :3] = lam
+    c[range(3), range(3)] += 2 * mu
+    c[range(3, 6), range(3, 6)] = mu
+    return c
+
+
+def _body(anisotropic: bool = False) -> tuple[FemBody, list]:
+    """A deformed, turned 3^3-cell cube with per-tet Young's moduli and Poisson ratios, and its
+    tets' C matrices (one tet's made anisotropic when asked: its K_e set here)."""
+    spacing = np.full(3, 0.1)
+    nodes, tets = grid_tet_mesh(Volume(np.zeros((3, 3, 3), np.uint8), spacing=spacing, origin=spacing / 2), 3)
+    rng = np.random.default_rng(7)
+    young = rng.uniform(1e4, 1e6, len(tets))
+    nu = rng.uniform(0.1, 0.45, len(tets))
+    body = FemBody(nodes, tets, Material(1e5, 0.3, 1000.0, alpha=0.1, beta=0.01), per_tet_young=young,
+                   per_tet_poisson=nu)
+    lam, mu = young * nu / ((1 + nu) * (1 - 2 * nu)), young / (2 * (1 + nu))
+    cs = [_isotropic_c(lam[e], mu[e]) for e in range(len(tets))]
+    if anisotropic:
+        cs[5] = cs[5] + np.diag([3e5, 0, 0, 0, 0, 0])  # stiffer along x: not isotropic
+        grad, volume = _gradients(nodes[tets[5]])
+        b = _voigt_b(grad)
+        body._ke[5] = volume * b.T @ cs[5] @ b
+    turn = scipy.linalg.expm(np.cross(np.eye(3), [0.3, -0.5, 0.8]))
+    body.q = nodes @ turn.T + 0.01 * rng.standard_normal(nodes.shape)
+    return body, cs
+
+
+def _gradients(x: np.ndarray) -> tuple[np.ndarray, float]:
+    """The linear tet's shape-function gradients [4, 3] [1/m] and volume [m^3] at corners ``x``."""
+    dm = (x[1:] - x[0]).T
+    inv = np.linalg.inv(dm)
+    return np.vstack([-inv.sum(axis=0), inv]), np.linalg.det(dm) / 6.0
+
+
+def _reference(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
+    """Dense A [3n, 3n] [kg] of eq. 5.2 and the scale max |(dt beta + dt^2) K_e|."""
+    n = len(body.rest)
+    a = np.zeros((3 * n, 3 * n))
+    s = DT * body.material.beta + DT * DT
+    mass = np.zeros(n)
+    scale = 0.0
+    for e, t in enumerate(body.tets):
+        grad, volume = _gradients(body.rest[t])
+        b = _voigt_b(grad)
+        ke = s * volume * b.T @ cs[e] @ b
+        scale = max(scale, np.abs(ke).max())
+        dm = (body.rest[t][1:] - body.rest[t][0]).T
+        ds = (body.q[t][1:] - body.q[t][0]).T
+        r = scipy.linalg.polar(ds @ np.linalg.inv(dm))[0]
+        big = np.kron(np.eye(4), r)
+        dof = (3 * t[:, None] + np.arange(3)).ravel()
+        a[np.ix_(dof, dof)] += big @ ke @ big.T
+        mass[t] += body.material.density * volume / 4
+    a[range(3 * n), range(3 * n)] += np.repeat(mass * (1 + DT * body.material.alpha), 3)
+    return a, scale
+
+
+def _assembled(body: FemBody) -> tuple[np.ndarray, NodeStepper]:
+    """Dense A [3n, 3n] [kg] from the node arrays' blocks after their elements and assembly."""
+    scene = Scene(gravity=(0.0, 0.0, -9.81))
+    scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(body.q))[:, None],
+                                                         np.ones((len(body.q), 1))))
+    stepper = NodeStepper(scene)
+    stepper._record(DT)
+    stepper._recorded[1]()  # rotations and element forces
+    stepper._recorded[2]()  # A
+    m = stepper.model
+    blocks, rows, cols = stepper.state.blocks.numpy(), m.block_row.numpy(), m.block_col.numpy()
+    n = m.node_count
+    a = np.zeros((n, 3, n, 3))
+    a[rows, :, cols, :] = blocks
+    return a.reshape(3 * n, 3 * n), stepper
+
+
+def test_isotropic_assembly_is_the_corotated_stiffness_of_eq_5_2():
+    body, cs = _body()
+    a, stepper = _assembled(body)
+    assert isotropic_terms(stepper.model.ke.numpy(), stepper.model.dm_inv.numpy()) is not None  # fast path
+    expected, scale = _reference(body, cs)
+    assert np.abs(a - expected).max() <= TOL * scale
+
+
+def test_an_anisotropic_tet_takes_the_general_assembly_and_is_still_exact():
+    body, cs = _body(anisotropic=True)
+    a, stepper = _assembled(body)
+    assert isotropic_terms(stepper.model.ke.numpy(), stepper.model.dm_inv.numpy()) is None  # general path
+    expected, scale = _reference(body, cs)
+    assert np.abs(a - expected).max() <= TOL * scale
