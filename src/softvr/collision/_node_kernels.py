@@ -16,7 +16,8 @@ closest point is within the margin plus the vertex's motion relative to that bod
 step (the explicit prediction ``v + dt g``), at the gap of the step's start; the solve's
 ``n . J v >= -gap / dt`` then keeps it from crossing during the step to first order. A contact
 starts with last step's impulse of the same (point, plane) or (vertex, body) pair (its key),
-read from and cleared in the carried table, so a pair that is no longer in contact forgets it.
+read from the carried table, which holds last step's pairs only, so a pair that is no longer in
+contact forgets it.
 """
 
 from __future__ import annotations
@@ -267,7 +268,8 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
-              pair_gap: wp.array2d(dtype=wp.float64), offset: int):
+              pair_gap: wp.array2d(dtype=wp.float64), found: wp.array(dtype=wp.int32),
+              found_before: wp.array(dtype=wp.int32), offset: int):
     """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
     (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
     vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
@@ -282,7 +284,10 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     ``body_speed``) (|u - mean| <= |u| + |mean|), so that the far bodies (most pairs on the
     candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and
     a query. A body's slots are written only where they may change (its first slot not -1:
-    last step found a pair), not 2 B slots an edge every step."""
+    last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
+    slot) tells whether any may be, and last step's goes to ``found_before[i]`` (for
+    :func:`gather_contacts`), so that the slots of an edge without pairs (most) are not read.
+    Bodies b <= a are not visited (their slots are never set)."""
     i = wp.tid() + offset
     a = edge_body[i]
     p1 = point_x32[edges[i, 0]]
@@ -292,13 +297,16 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     u0 = point_u[edges[i, 0]]
     u1 = point_u[edges[i, 1]]
     speed = wp.max(wp.length(u0), wp.length(u1))
-    for b in range(bvh_ids.shape[0]):
+    before = found[i]
+    found_before[i] = before
+    any_found = int(0)
+    for b in range(a + 1, bvh_ids.shape[0]):
         near = False
-        if b > a and pair_enabled[a, b] != 0:
+        if pair_enabled[a, b] != 0:
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
             bound = (margin + dt * float(speed + body_speed[b])) * 1.001 + 1.0e-6
             near = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
-        if near or pair_edge[i, pairs_per_edge * b] >= 0:
+        if near or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
             for k in range(pairs_per_edge):
                 pair_edge[i, pairs_per_edge * b + k] = -1
         if near:
@@ -309,20 +317,22 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
                 grow = wp.vec3(reach, reach, reach)
                 query = wp.bvh_query_aabb(bvh_ids[b], box_lo - grow, box_hi + grow)
                 j = int(0)
-                found = int(0)
+                taken = int(0)
                 while wp.bvh_query_next(query, j):
                     jg = body_edge_start[b] + j
-                    if found < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0) and not edge_pair_covered(
+                    if taken < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0) and not edge_pair_covered(
                             i, a, jg, b, edges, sharp, hit):
                         aligned, s, t, n, gap = edge_pair(p1, q1, point_x32[edges[jg, 0]], point_x32[edges[jg, 1]],
                                                           normal[i], normal[jg], reach, min_sine, min_alignment)
                         if aligned != 0 and gap >= -margin:
-                            slot = pairs_per_edge * b + found
+                            slot = pairs_per_edge * b + taken
                             pair_edge[i, slot] = jg
                             pair_st[i, slot] = wp.vec3d(wp.float64(s), wp.float64(t), wp.float64(0.0))
                             pair_normal[i, slot] = wp.vec3d(wp.float64(n[0]), wp.float64(n[1]), wp.float64(n[2]))
                             pair_gap[i, slot] = wp.float64(gap)
-                            found += 1
+                            taken += 1
+                any_found = any_found + taken
+    found[i] = wp.min(any_found, 1)
 
 
 @wp.func
@@ -425,6 +435,7 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
                     pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
                     edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
+                    edge_found: wp.array(dtype=wp.int32), edge_found_before: wp.array(dtype=wp.int32),
                     dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d),
                     count: wp.array(dtype=wp.int32), out: NodeContactOut):
     """One thread, so that contacts come out in the same order on every device: every (point,
@@ -438,7 +449,12 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
     triangle ``face`` (global) the vertex meets at barycentric ``bary``, or whose edge
     ``face`` (global) edge ``point`` meets at (s, t, 0) = ``bary``; ``carried[p, column]``
     (planes first, then bodies, spheres, meshes) and ``edge_carried[e, column]`` (with the
-    edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step."""
+    edge met, ``edge_partner``) hold the pair's world impulse [N s] of the last step (an edge's
+    slots only read where :func:`edge_edge` found pairs this step or the last, ``edge_found``,
+    ``edge_found_before``): ``carried``
+    is only read, at the pairs in contact, since it holds last step's pairs only
+    (:func:`carry_impulses` clears the step before's), not read and cleared at every (point,
+    column) (12 674 x 9 on the candy)."""
     planes = plane_normal.shape[0]
     n_out = int(0)
     for s in range(planes):
@@ -450,7 +466,6 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                 point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
                               point_weights)
                 n_out += 1
-            carried[p, s] = wp.vec3d()  # read: a pair no longer in contact forgets it
     for k in range(sphere_radius.shape[0]):
         column = planes + hit.shape[1] + k
         for p in range(point_nodes.shape[0]):
@@ -465,7 +480,6 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                 point_contact(out, n_out, SPHERE, column, p, k, normal, g, sphere_friction[k], carried, point_nodes,
                               point_weights)
                 n_out += 1
-            carried[p, column] = wp.vec3d()
     for k in range(mesh_friction.shape[0]):
         column = planes + hit.shape[1] + sphere_radius.shape[0] + k
         for p in range(point_nodes.shape[0]):
@@ -475,16 +489,13 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                 point_contact(out, n_out, MESH, column, p, k, normal, wp.float64(static_gap[p, k]), mesh_friction[k],
                               carried, point_nodes, point_weights)
                 n_out += 1
-            carried[p, column] = wp.vec3d()
     for p in range(hit.shape[0]):
         for b in range(hit.shape[1]):
-            last = carried[p, planes + b]
-            carried[p, planes + b] = wp.vec3d()
             if hit[p, b] != 0 and n_out < capacity:
                 t = body_triangle_start[b] + hit_face[p, b]
                 w = hit_bary[p, b]
                 start_contact(out, n_out, VERTEX_TRIANGLE, planes + b, p, b, t, w, hit_normal[p, b], hit_gap[p, b],
-                              surface_friction, last)
+                              surface_friction, carried[p, planes + b])
                 add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
                           out.stencil_nodes, out.stencil_weights)
                 for v in range(3):
@@ -492,6 +503,10 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                               out.stencil_nodes, out.stencil_weights)
                 n_out += 1
     for e in range(edges.shape[0]):  # (pair_edge keeps one row of -1 where there are no edges)
+        # A partner (last step's contact) sits in a slot last step's edge_edge set: an edge whose
+        # slots were empty then and now (edge_found, edge_found_before) has nothing to read.
+        if edge_found[e] == 0 and edge_found_before[e] == 0:
+            continue
         # Edge e's body a queries bodies b > a only (edge_edge: 2 B slots, pairs_per_edge a
         # body): the slots of bodies <= a are never set.
         first = pair_edge.shape[1] // hit.shape[1] * (point_body[edges[e, 0]] + 1)
@@ -527,8 +542,21 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
 def carry_impulses(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
                    point: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
                    impulse: wp.array(dtype=wp.vec3d), carried: wp.array2d(dtype=wp.vec3d),
-                   edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32)):
-    """The step's impulses (world [N s]) into the carried tables for the next step's warm start."""
+                   edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
+                   written: wp.array(dtype=wp.int32), written_count: wp.array(dtype=wp.int32)):
+    """The step's impulses (world [N s]) into the carried tables for the next step's warm start.
+    ``carried`` then holds this step's pairs only: the entries the last call wrote (flat
+    indices ``written[:written_count[0]]``) are cleared first, or all of it while
+    ``written_count[0]`` < 0 (the first call: the table may hold warm starts put in from the
+    per-object path), so that a pair no longer in contact forgets its impulse."""
+    columns = carried.shape[1]
+    if written_count[0] < 0:
+        for p in range(carried.shape[0]):
+            for k in range(columns):
+                carried[p, k] = wp.vec3d()
+    for i in range(written_count[0]):
+        carried[written[i] // columns, written[i] % columns] = wp.vec3d()
+    n = int(0)
     for c in range(count[0]):
         world = wp.transpose(frame[c]) * impulse[c]
         if kind[c] == EDGE_EDGE:
@@ -536,3 +564,6 @@ def carry_impulses(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int3
             edge_partner[point[c], column[c]] = face[c]
         elif kind[c] != PRIMITIVE:  # primitive contacts start cold
             carried[point[c], column[c]] = world
+            written[n] = point[c] * columns + column[c]
+            n += 1
+    written_count[0] = n

@@ -73,6 +73,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        model.pair_enabled, model.mesh_ids, *point_box, float(margin), float(dt),
                                        c.hit,
                                        c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
+    # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
+    found = [wp.full(max(model.edges.shape[0], 1), 1, dtype=wp.int32, device=d) for _ in range(2)]
     if model.bvhs:
         edges = model.edges.shape[0]
         normals = wp.empty(model.triangles.shape[0], dtype=wp.vec3, device=d)
@@ -95,7 +97,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
-                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap], d, min_chunk=512))
+                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d,
+                                      min_chunk=512))
     out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
@@ -104,7 +107,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, c.static_hit,
                 c.static_normal, c.static_gap, model.static_mesh_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
                 model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
-                float(dt), c.capacity, c.carried, c.count, out])))
+                *found, float(dt), c.capacity, c.carried, c.count, out])))
     if model.rigid is not None:
         steps.append(record_rigid_contacts(model, state, dt))
 
@@ -119,6 +122,10 @@ def record_carry(model, state) -> wp.Launch:
     """The launch storing the step's impulses as the next step's warm starts."""
     c = state.contacts
     load_kernels(_k.carry_impulses, model.device)
+    # The carried entries the last replay wrote (flat, point * columns + column), for the next to
+    # clear; -1: not known yet (clear all).
+    written = wp.empty(c.capacity, dtype=wp.int32, device=model.device)
+    written_count = wp.full(1, -1, dtype=wp.int32, device=model.device)
     return wp.launch(_k.carry_impulses, dim=1, device=model.device, record_cmd=True,
                      inputs=[c.count, c.kind, c.column, c.point, c.face, c.frame, c.impulse, c.carried,
-                             c.edge_carried, c.edge_partner])
+                             c.edge_carried, c.edge_partner, written, written_count])
