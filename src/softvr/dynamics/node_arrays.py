@@ -45,15 +45,15 @@ def isotropic_terms(ke: np.ndarray, dm_inv: np.ndarray) -> tuple[np.ndarray, np.
     (the isotropic linear tet, K_e = V B^T C B) within :data:`ISOTROPIC_MISFIT`; None if any
     tet's stiffness is not of that form (least squares over its 144 entries)."""
     grad = np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+    if not len(ke):  # a scene of cloths only
+        return grad, np.zeros((0, 2))
     ga = np.repeat(grad, 4, axis=1)  # [m, 16, 3]: g_a of entry 4 a + b
     gb = np.tile(grad, (1, 4, 1))
     basis_lam = ga[..., :, None] * gb[..., None, :]
     basis_mu = gb[..., :, None] * ga[..., None, :] + np.einsum("eki,eki->ek", ga, gb)[..., None, None] * np.eye(3)
     basis = np.stack([basis_lam, basis_mu], axis=1).reshape(len(ke), 2, -1)  # [m, 2, 144]
     flat = ke.reshape(len(ke), -1)
-    lame = np.zeros((len(ke), 2))
-    if len(ke):
-        lame = np.linalg.solve(basis @ basis.transpose(0, 2, 1), basis @ flat[:, :, None])[:, :, 0]
+    lame = np.linalg.solve(basis @ basis.transpose(0, 2, 1), basis @ flat[:, :, None])[:, :, 0]
     misfit = np.linalg.norm(flat - np.einsum("ek,ekj->ej", lame, basis), axis=1)
     if np.any(misfit > ISOTROPIC_MISFIT * np.linalg.norm(flat, axis=1)):
         return None
