@@ -1,14 +1,17 @@
-"""The step matrix A = M (1 + dt alpha) + (dt beta + dt^2) K of thesis eq. 5.2 as the node arrays
-assemble it (softvr.dynamics.node_arrays.record_system), held to an independent dense NumPy
-assembly of the co-rotated stiffness K = sum_e R_e K_e R_e^T of the linear co-rotational FEM
-the thesis uses (5.1, [MKN+04]): K_e = V B^T C B of the linear tet (textbook, built here from
-the rest positions), R_e the polar rotation of F = Ds Dm^-1 (SciPy's ``polar``).
+"""The step matrix A = M (1 + dt alpha) + (dt beta + dt^2) K of thesis eq. 5.2 and the elastic
+forces f_e = -R_e K_e (R_e^T x_e - X_e) as the node arrays compute them
+(softvr.dynamics.node_arrays.record_elements, record_system), held to an independent dense
+NumPy assembly of the linear co-rotational FEM the thesis uses (5.1, [MKN+04]): K_e = V B^T C B
+of the linear tet (textbook, built here from the rest positions), R_e the polar rotation of
+F = Ds Dm^-1 (SciPy's ``polar``).
 
 Tolerance: a block sums at most 24 tets' contributions (a grid tet mesh's node), each within
 (eps_R + 20 u) |s K_e| of the exact R K_e R^T (``assemble_isotropic``'s bound: eps_R ~1e-15,
 u = 1.1e-16; the general kernel's two 3x3 products likewise), so |A - A_ref| <= 24 * 4e-15
 max |s K_e| ~ 1e-13 max |s K_e|; 2e-13 is allowed. A wrong term (lambda and mu swapped, a
 missing transpose) is off by O(1) of that scale.
+Forces: f_e,a sums four K_e,ab (R^T x_b - X_b), each term within ~(eps_R + 20 u) |K_e| |x|
+(R^T x_b carries R's error times the position |x|; ~1e-14 relative), so 1e-13 max |K_e| max |x|.
 """
 
 import numpy as np
@@ -22,6 +25,7 @@ from softvr.volume import Volume, grid_tet_mesh
 
 DT = 0.008  # [s]
 TOL = 2e-13  # relative to max |(dt beta + dt^2) K_e| (module docstring)
+FORCE_TOL = 1e-13  # relative to max |K_e| max |x| (module docstring)
 
 
 def _voigt_b(grad: np.ndarray) -> np.ndarray:
@@ -96,6 +100,21 @@ def _reference(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
     return a, scale
 
 
+def _forces(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
+    """f_e [m, 4, 3] [N] of every tet and the scale max |K_e| max |x| [N]."""
+    out = np.zeros((len(body.tets), 4, 3))
+    scale = 0.0
+    for e, t in enumerate(body.tets):
+        grad, volume = _gradients(body.rest[t])
+        b = _voigt_b(grad)
+        ke = volume * b.T @ cs[e] @ b
+        scale = max(scale, np.abs(ke).max() * np.abs(body.q).max())
+        dm = (body.rest[t][1:] - body.rest[t][0]).T
+        r = scipy.linalg.polar((body.q[t][1:] - body.q[t][0]).T @ np.linalg.inv(dm))[0]
+        out[e] = -(r @ (ke @ (body.q[t] @ r - body.rest[t]).ravel()).reshape(4, 3).T).T
+    return out, scale
+
+
 def _assembled(body: FemBody) -> tuple[np.ndarray, NodeStepper]:
     """Dense A [3n, 3n] [kg] from the node arrays' blocks after their elements and assembly."""
     scene = Scene(gravity=(0.0, 0.0, -9.81))
@@ -113,17 +132,21 @@ def _assembled(body: FemBody) -> tuple[np.ndarray, NodeStepper]:
     return a.reshape(3 * n, 3 * n), stepper
 
 
-def test_isotropic_assembly_is_the_corotated_stiffness_of_eq_5_2():
+def test_isotropic_assembly_and_forces_are_the_corotated_fem_of_eq_5_2():
     body, cs = _body()
     a, stepper = _assembled(body)
     assert isotropic_terms(stepper.model.ke.numpy(), stepper.model.dm_inv.numpy()) is not None  # fast path
     expected, scale = _reference(body, cs)
     assert np.abs(a - expected).max() <= TOL * scale
+    forces, scale = _forces(body, cs)
+    assert np.abs(stepper.state.element_forces.numpy() - forces).max() <= FORCE_TOL * scale
 
 
-def test_an_anisotropic_tet_takes_the_general_assembly_and_is_still_exact():
+def test_an_anisotropic_tet_takes_the_general_kernels_and_they_are_still_exact():
     body, cs = _body(anisotropic=True)
     a, stepper = _assembled(body)
     assert isotropic_terms(stepper.model.ke.numpy(), stepper.model.dm_inv.numpy()) is None  # general path
     expected, scale = _reference(body, cs)
     assert np.abs(a - expected).max() <= TOL * scale
+    forces, scale = _forces(body, cs)
+    assert np.abs(stepper.state.element_forces.numpy() - forces).max() <= FORCE_TOL * scale

@@ -26,9 +26,18 @@ NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above
 
 def record_elements(model, state) -> Callable[[], None]:
     """A replay writing every tet's rotation and elastic forces [N] (``state.rotations``,
-    ``state.element_forces``) at ``state.q``, split over the CPU cores."""
-    return chunked_replayer(_k.element_terms, model.tet_count,
-                            [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
+    ``state.element_forces``) at ``state.q``, split over the CPU cores (from the Lame form
+    where every tet is isotropic linear, :func:`isotropic_terms`)."""
+    isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
+    if isotropic is None:
+        return chunked_replayer(_k.element_terms, model.tet_count,
+                                [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
+                                 state.rotations, state.element_forces], model.device, min_chunk=512)
+    gradients, lame = isotropic
+    return chunked_replayer(_k.element_terms_isotropic, model.tet_count,
+                            [state.q, model.rest, model.tets, model.dm_inv,
+                             wp.array(gradients, dtype=wp.vec3d, device=model.device),
+                             wp.array(lame, dtype=wp.vec2d, device=model.device), int(model.corotational),
                              state.rotations, state.element_forces], model.device, min_chunk=512)
 
 
