@@ -83,18 +83,22 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
 
 @wp.kernel
 def body_motion(body_point_start: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
-                body_mean_u: wp.array(dtype=wp.vec3d)):
+                body_mean_u: wp.array(dtype=wp.vec3d), body_top_speed: wp.array(dtype=wp.float64)):
     """Mean predicted velocity [m/s] of body ``b``'s collision points (the vertex queries
-    sweep a vertex relative to it, as :func:`softvr.collision.surface_vs_surface` does)."""
+    sweep a vertex relative to it, as :func:`softvr.collision.surface_vs_surface` does), and
+    the largest of their speeds [m/s] (:func:`near_bodies`)."""
     b = wp.tid()
     u = wp.vec3d()
+    top = wp.float64(0.0)
     first = body_point_start[b]
     last = body_point_start[b + 1]
     for p in range(first, last):
         u = u + point_u[p]
+        top = wp.max(top, wp.length(point_u[p]))
     if last > first:
         u = u / wp.float64(last - first)
     body_mean_u[b] = u
+    body_top_speed[b] = top
 
 
 @wp.kernel
@@ -126,9 +130,29 @@ def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_uppe
 
 
 @wp.kernel
+def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(dtype=wp.vec3),
+                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64),
+                body_top_speed: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
+                near: wp.array2d(dtype=wp.int32)):
+    """``near[a, b]`` = 1 where bodies a and b make contacts and a's box (``body_lower``,
+    ``body_upper`` [m], :func:`body_bounds`) grown by a bound of any of its items' reach,
+    margin + dt (a's largest point speed ``body_top_speed`` + b's mean speed ``body_speed``),
+    meets b's box; else 0. An item of a lies in a's box and moves no faster, so its own box
+    test (:func:`vertex_triangle`, :func:`edge_edge`: the same bound with its own speed) misses
+    b wherever this one does: those skip b on one read. 1.01 and 2e-6 m (vs their 1.001 and
+    1e-6 m) cover the two formulas' different float32 / float64 rounding."""
+    a, b = wp.tid()
+    near[a, b] = 0
+    if pair_enabled[a, b] != 0:
+        bound = float((margin + dt * (body_top_speed[a] + body_speed[b])) * wp.float64(1.01)) + 2.0e-6
+        if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
+            near[a, b] = 1
+
+
+@wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                    pair_enabled: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
+                    near: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
                     body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
                     body_speed: wp.array(dtype=wp.float64),
                     margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
@@ -140,7 +164,9 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
     box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
     reach, margin + dt (|u| + b's mean speed ``body_speed``), holds no face within it and is
-    not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding)."""
+    not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
+    is one that makes no contacts with the vertex's body or whose box is off its body's box
+    (``near``, :func:`near_bodies`)."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
@@ -148,11 +174,11 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     speed = wp.length(point_u[p])
     for b in range(mesh_ids.shape[0]):
         hit[p, b] = 0
-        near = False
-        if pair_enabled[a, b] != 0:
+        close = False
+        if near[a, b] != 0:
             bound = float((margin + dt * (speed + body_speed[b])) * wp.float64(1.001)) + 1.0e-6
-            near = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
-        if near:
+            close = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
+        if close:
             reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
             query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
             if query.result:
@@ -261,7 +287,7 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-              pair_enabled: wp.array2d(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64),
+              near: wp.array2d(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64),
               body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
               body_speed: wp.array(dtype=wp.float64),
               normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
@@ -287,7 +313,8 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
     slot) tells whether any may be, and last step's goes to ``found_before[i]`` (for
     :func:`gather_contacts`), so that the slots of an edge without pairs (most) are not read.
-    Bodies b <= a are not visited (their slots are never set)."""
+    Bodies b <= a are not visited (their slots are never set), and bodies not ``near`` a
+    (:func:`near_bodies`: no contacts with a, or a's box off theirs) get no box test."""
     i = wp.tid() + offset
     a = edge_body[i]
     p1 = point_x32[edges[i, 0]]
@@ -301,15 +328,15 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     found_before[i] = before
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
-        near = False
-        if pair_enabled[a, b] != 0:
+        close = False
+        if near[a, b] != 0:
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
             bound = (margin + dt * float(speed + body_speed[b])) * 1.001 + 1.0e-6
-            near = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
-        if near or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
+            close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
+        if close or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
             for k in range(pairs_per_edge):
                 pair_edge[i, pairs_per_edge * b + k] = -1
-        if near:
+        if close:
             mean = body_mean_u[b]
             travel = wp.max(wp.length(u0 - mean), wp.length(u1 - mean))
             reach = margin + dt * float(travel)

@@ -31,8 +31,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     refitted to the points' positions in between."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
-    for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.vertex_triangle, _k.face_normals,
-                   _k.edge_geometry, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
+    for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.near_bodies, _k.vertex_triangle,
+                   _k.face_normals, _k.edge_geometry, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -49,28 +49,36 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        c.static_normal, c.static_gap], d, min_chunk=256))
     bodies = len(model.body_node_start) - 1
 
-    def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, wp.array, wp.array]:
-        """Each body's box of items ``lower``, ``upper`` [m] and its mean speed [m/s]
-        (``_k.body_bounds``), filled by a launch appended to the steps."""
+    top_speed = wp.zeros(bodies, dtype=wp.float64, device=d)
+
+    def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, ...]:
+        """Each body's box of items ``lower``, ``upper`` [m], its mean speed [m/s]
+        (``_k.body_bounds``) and which bodies' boxes it may reach (``_k.near_bodies``), filled
+        by launches appended to the steps."""
         out = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d),
                wp.empty(bodies, dtype=wp.float64, device=d))
+        near = wp.empty((bodies, bodies), dtype=wp.int32, device=d)
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
                                         inputs=[start, lower, upper, state.body_mean_u, *out])))
-        return out
+        steps.append(replayer(wp.launch(_k.near_bodies, dim=(bodies, bodies), device=d, record_cmd=True,
+                                        inputs=[model.pair_enabled, *out, top_speed, float(margin), float(dt), near])))
+        return (near, *out)
 
-    if model.meshes:
+    if model.meshes or model.bvhs:  # (the vertex and edge queries read both)
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
-                                        inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u])))
+                                        inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u,
+                                                top_speed])))
+    if model.meshes:
 
         def refit() -> None:
             for mesh in model.meshes:
                 mesh.refit()
 
         steps.append(refit)
-        point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
+        near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       model.pair_enabled, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       near, model.mesh_ids, *point_box, float(margin), float(dt),
                                        c.hit,
                                        c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
@@ -90,10 +98,10 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 bvh.refit()
 
         steps.append(refit_edges)
-        edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
+        near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                       state.point_u, state.body_mean_u, model.pair_enabled, model.bvh_ids,
+                                       state.point_u, state.body_mean_u, near, model.bvh_ids,
                                        *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
