@@ -40,7 +40,8 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d),
                             tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                             gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), corotational: int,
-                            rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.vec3d), offset: int):
+                            rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.vec3d),
+                            rotated_gradients: wp.array2d(dtype=wp.vec3d), offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
     ``lame[e]`` = V (lambda, mu) [N/m], as :func:`assemble_isotropic`): with the rotated
     frame's displacement gradient H = sum_b (R^T x_b - X_b) g_b^T,
@@ -50,7 +51,8 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     (Hooke's stress of the small strain, times the area vector), so f_e,a = -R V sigma g_a [N]:
     four outer products and four matrix-vector products a tet, not sixteen 3x3 blocks read and
     applied. Equal to :func:`element_terms`'s sum in exact arithmetic; both round each term
-    at ~u |K_e| |R^T x - X| (u = 1.1e-16)."""
+    at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
+    :func:`assemble_isotropic`."""
     e = wp.tid() + offset
     r = element_rotation(q, tets, dm_inv, e, corotational)
     rotations[e] = r
@@ -69,6 +71,10 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     forces[e, 1] = -(rs * g1)
     forces[e, 2] = -(rs * g2)
     forces[e, 3] = -(rs * g3)
+    rotated_gradients[e, 0] = r * g0
+    rotated_gradients[e, 1] = r * g1
+    rotated_gradients[e, 2] = r * g2
+    rotated_gradients[e, 3] = r * g3
 
 
 @wp.func
@@ -117,18 +123,17 @@ def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=w
 def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
                        block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                        contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
-                       rotations: wp.array(dtype=wp.mat33d), gradients: wp.array2d(dtype=wp.vec3d),
-                       lame: wp.array(dtype=wp.vec2d), mass: wp.array(dtype=wp.float64),
+                       rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), mass: wp.array(dtype=wp.float64),
                        node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
                        d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """:func:`assemble` for isotropic linear tets, K_e,ab = V (lambda g_a g_b^T + mu g_b g_a^T
-    + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C; ``gradients[e, a]`` = g_a [1/m],
-    the shape functions' rest gradients; ``lame[e]`` = (dt beta + dt^2) V (lambda, mu) [N s^2/m]):
+    + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C, g_a [1/m] the shape functions' rest
+    gradients; ``rotated_gradients[e, a]`` = R g_a, of :func:`element_terms_isotropic`;
+    ``lame[e]`` = (dt beta + dt^2) V (lambda, mu) [N s^2/m]):
 
         R K_e,ab R^T = V (lambda (R g_a)(R g_b)^T + mu (R g_b)(R g_a)^T + mu (R g_a . R g_b) I)
 
-    two matrix-vector products and two outer products a contribution, not two 3x3 products
-    (~3x fewer flops). Exact for an orthogonal R; with |R^T R - I| = eps_R (the polar
+    two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an orthogonal R; with |R^T R - I| = eps_R (the polar
     iteration stops at round-off, ~1e-15) and float64 rounding u, a contribution differs from
     :func:`assemble`'s by at most ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
     k = assembled[wp.tid() + offset]
@@ -137,9 +142,8 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
     for c in range(contrib_start[k], contrib_start[k + 1]):
         code = contrib[c]
         e = code // 16
-        r = rotations[e]
-        ra = r * gradients[e, (code // 4) % 4]
-        rb = r * gradients[e, code % 4]
+        ra = rotated_gradients[e, (code // 4) % 4]
+        rb = rotated_gradients[e, code % 4]
         l = lame[e]
         m = m + l[0] * wp.outer(ra, rb) + l[1] * wp.outer(rb, ra)
         diagonal = diagonal + l[1] * wp.dot(ra, rb)

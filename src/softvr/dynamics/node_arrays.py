@@ -38,7 +38,8 @@ def record_elements(model, state) -> Callable[[], None]:
                             [state.q, model.rest, model.tets, model.dm_inv,
                              wp.array(gradients, dtype=wp.vec3d, device=model.device),
                              wp.array(lame, dtype=wp.vec2d, device=model.device), int(model.corotational),
-                             state.rotations, state.element_forces], model.device, min_chunk=512)
+                             state.rotations, state.element_forces, state.rotated_gradients], model.device,
+                            min_chunk=512)
 
 
 #: Largest relative misfit |K_e - K_iso|_F / |K_e|_F of an element stiffness to the isotropic
@@ -75,18 +76,19 @@ def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None],
     springs (``model.cloth``: :class:`softvr.sim._node_cloth.NodeCloth`) at ``state.q``; the
     second (``b``) reads the springs' forces the first wrote."""
     blocks = [model.assembled, model.block_mirror, model.block_row, model.block_col, model.contrib_start,
-              model.contrib, state.rotations]
+              model.contrib]
     tail = [model.mass, model.node_alpha, float(dt), state.blocks, state.d_inv]
     isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
     if isotropic is None:
         assemble = chunked_replayer(_k.assemble, model.assembled.shape[0],
-                                    blocks + [model.ke, model.tet_beta] + tail, model.device, min_chunk=1024)
-    else:
-        gradients, lame = isotropic
+                                    blocks + [state.rotations, model.ke, model.tet_beta] + tail, model.device,
+                                    min_chunk=1024)
+    else:  # the rotated gradients of record_elements' replay (the same choice)
         scale = dt * model.tet_beta.numpy() + dt * dt
         assemble = chunked_replayer(_k.assemble_isotropic, model.assembled.shape[0],
-                                    blocks + [wp.array(gradients, dtype=wp.vec3d, device=model.device),
-                                              wp.array(scale[:, None] * lame, dtype=wp.vec2d, device=model.device)]
+                                    blocks + [state.rotated_gradients,
+                                              wp.array(scale[:, None] * isotropic[1], dtype=wp.vec2d,
+                                                       device=model.device)]
                                     + tail, model.device, min_chunk=1024)
     load_kernels(_k.right_hand_side, model.device)
     rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,

@@ -330,6 +330,9 @@ class NodeState:
         External node forces of the step (``Scene.external``; Control).
     rotations : wp.array(mat33d) [m]; element_forces : wp.array2d(vec3d) [m, 4] [N]
         The element terms at the step's start (R_e; f_e per tet node).
+    rotated_gradients : wp.array2d(vec3d) [m, 4] [1/m]
+        R_e g_a, each tet node's rotated shape-function gradient (written and read only where
+        every tet is isotropic linear: :func:`softvr.dynamics.node_arrays.isotropic_terms`).
     blocks : wp.array(mat33d) [nb] [kg]; d_inv : wp.array(mat33d) [n] [1/kg]; b : wp.array(vec3d) [n] [kg m/s]
         ``A``, ``D_A^-1`` and ``b`` of eq. 5.2.
     v_hat : wp.array(vec3d) [n] [m/s]
@@ -358,6 +361,7 @@ class NodeState:
     external: wp.array
     rotations: wp.array
     element_forces: wp.array
+    rotated_gradients: wp.array
     blocks: wp.array
     d_inv: wp.array
     b: wp.array
@@ -674,6 +678,7 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         kinematic_velocity=wp.zeros(len(kinematic), dtype=wp.spatial_vectord, device=d),
         external=vec(), rotations=wp.zeros(m, dtype=wp.mat33d, device=d),
         element_forces=wp.zeros((m, 4), dtype=wp.vec3d, device=d),
+        rotated_gradients=wp.zeros((m, 4), dtype=wp.vec3d, device=d),
         blocks=wp.zeros(len(block_row), dtype=wp.mat33d, device=d), d_inv=wp.zeros(n, dtype=wp.mat33d, device=d),
         b=vec(), v_hat=vec(), sweep_buffers=[vec(), vec(), vec()], diverged=wp.zeros(n, dtype=wp.int32, device=d),
         point_x=wp.zeros(max(p, 1), dtype=wp.vec3d, device=d), point_x32=point_x32,
