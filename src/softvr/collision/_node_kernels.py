@@ -133,26 +133,40 @@ def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_uppe
 def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(dtype=wp.vec3),
                 body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64),
                 body_top_speed: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
-                near: wp.array2d(dtype=wp.int32)):
-    """``near[a, b]`` = 1 where bodies a and b make contacts and a's box (``body_lower``,
-    ``body_upper`` [m], :func:`body_bounds`) grown by a bound of any of its items' reach,
-    margin + dt (a's largest point speed ``body_top_speed`` + b's mean speed ``body_speed``),
-    meets b's box; else 0. An item of a lies in a's box and moves no faster, so its own box
-    test (:func:`vertex_triangle`, :func:`edge_edge`: the same bound with its own speed) misses
-    b wherever this one does: those skip b on one read. 1.01 and 2e-6 m (vs their 1.001 and
-    1e-6 m) cover the two formulas' different float32 / float64 rounding."""
+                near: wp.array2d(dtype=wp.float32)):
+    """``near[a, b]`` [m]: a bound of the reach of any item of body a towards body b, margin +
+    dt (a's largest point speed ``body_top_speed`` + b's mean speed ``body_speed``), where a
+    and b make contacts and a's box (``body_lower``, ``body_upper`` [m], :func:`body_bounds`)
+    grown by it meets b's box; else -1. An item of a lies in a's box and moves no faster, so its
+    own box test (:func:`vertex_triangle`, :func:`edge_edge`: the same bound with its own
+    speed) misses b wherever its box grown by ``near[a, b]`` does, and that test needs neither
+    its speed nor b's: an item that no body passes is done on a few reads. 1.01 and 2e-6 m (vs
+    their 1.001 and 1e-6 m) cover the two formulas' different float32 / float64 rounding."""
     a, b = wp.tid()
-    near[a, b] = 0
+    near[a, b] = -1.0
     if pair_enabled[a, b] != 0:
         bound = float((margin + dt * (body_top_speed[a] + body_speed[b])) * wp.float64(1.01)) + 2.0e-6
         if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
-            near[a, b] = 1
+            near[a, b] = bound
+
+
+@wp.func
+def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dtype=wp.float32),
+               body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)) -> int:
+    """How many bodies b >= ``first`` box [lo, hi] (an item of body a) may reach by
+    :func:`near_bodies`' bound."""
+    count = int(0)
+    for b in range(first, near.shape[1]):
+        if near[a, b] >= 0.0:
+            if not _off_box(lo, hi, near[a, b], body_lower[b], body_upper[b]):
+                count += 1
+    return count
 
 
 @wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                    near: wp.array2d(dtype=wp.int32), mesh_ids: wp.array(dtype=wp.uint64),
+                    near: wp.array2d(dtype=wp.float32), mesh_ids: wp.array(dtype=wp.uint64),
                     body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
                     body_speed: wp.array(dtype=wp.float64),
                     margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
@@ -165,17 +179,20 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
     reach, margin + dt (|u| + b's mean speed ``body_speed``), holds no face within it and is
     not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
-    is one that makes no contacts with the vertex's body or whose box is off its body's box
-    (``near``, :func:`near_bodies`)."""
+    is one that makes no contacts with the vertex's body or that its body's bound misses
+    (``near``, :func:`near_bodies`), tested first."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    speed = wp.length(point_u[p])
     for b in range(mesh_ids.shape[0]):
         hit[p, b] = 0
+    if near_count(a, 0, xf, xf, near, body_lower, body_upper) == 0:
+        return
+    speed = wp.length(point_u[p])
+    for b in range(mesh_ids.shape[0]):
         close = False
-        if near[a, b] != 0:
+        if near[a, b] >= 0.0:
             bound = float((margin + dt * (speed + body_speed[b])) * wp.float64(1.001)) + 1.0e-6
             close = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
         if close:
@@ -287,7 +304,7 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-              near: wp.array2d(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64),
+              near: wp.array2d(dtype=wp.float32), bvh_ids: wp.array(dtype=wp.uint64),
               body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
               body_speed: wp.array(dtype=wp.float64),
               normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
@@ -313,23 +330,27 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
     slot) tells whether any may be, and last step's goes to ``found_before[i]`` (for
     :func:`gather_contacts`), so that the slots of an edge without pairs (most) are not read.
-    Bodies b <= a are not visited (their slots are never set), and bodies not ``near`` a
-    (:func:`near_bodies`: no contacts with a, or a's box off theirs) get no box test."""
+    Bodies b <= a are not visited (their slots are never set), and bodies whose ``near`` bound
+    (:func:`near_bodies`: a's box towards b's) the edge's box misses get no box test of their
+    own: an edge without pairs last step that no body passes is done there."""
     i = wp.tid() + offset
     a = edge_body[i]
+    before = found[i]
+    found_before[i] = before
     p1 = point_x32[edges[i, 0]]
     q1 = point_x32[edges[i, 1]]
     box_lo = wp.min(p1, q1)
     box_hi = wp.max(p1, q1)
+    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, body_lower, body_upper) == 0:
+        found[i] = 0  # no slot to clear, no body to query (most edges)
+        return
     u0 = point_u[edges[i, 0]]
     u1 = point_u[edges[i, 1]]
     speed = wp.max(wp.length(u0), wp.length(u1))
-    before = found[i]
-    found_before[i] = before
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
         close = False
-        if near[a, b] != 0:
+        if near[a, b] >= 0.0:
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
             bound = (margin + dt * float(speed + body_speed[b])) * 1.001 + 1.0e-6
             close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])

@@ -57,7 +57,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         by launches appended to the steps."""
         out = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d),
                wp.empty(bodies, dtype=wp.float64, device=d))
-        near = wp.empty((bodies, bodies), dtype=wp.int32, device=d)
+        near = wp.empty((bodies, bodies), dtype=wp.float32, device=d)
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
                                         inputs=[start, lower, upper, state.body_mean_u, *out])))
         steps.append(replayer(wp.launch(_k.near_bodies, dim=(bodies, bodies), device=d, record_cmd=True,
