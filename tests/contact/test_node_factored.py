@@ -10,6 +10,7 @@ SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_
 """
 
 import numpy as np
+from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
 from softvr.contact.node_factored import FactoredSolve
@@ -65,3 +66,37 @@ def test_a_stiff_clamped_beam_swinging_onto_a_plane_takes_the_factored_solve_and
     assert type(scene._stepper._recorded[5]).__name__ == "FactoredSolve"
     assert scene._stepper._spectrum[DT].kind is None  # what the sweeps made of it
     assert pushing >= 10
+
+
+def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffness_weighted_sums():
+    # Each solved node's rotation (stiffness warping) is the polar factor of the sum of its
+    # tets' co-rotations R_e weighted by the trace of K_e's diagonal blocks. Turned rigidly by Q,
+    # every R_e is Q and so is every node's rotation; bent, the sums are near rotations (the
+    # scaled sum is 1.2e-5 from the polar factor: neighbouring tets differ by ~0.2 rad / 24)
+    # and the kernel's three Newton steps X <- (X + X^-T) / 2 converge quadratically from
+    # there (~1e-10, ~1e-20, ...), so 1e-10 holds with room; with no Newton step it fails.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    model = stepper.model
+    tets, ke = model.tets.numpy(), model.ke.numpy()
+    weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+    solved = np.flatnonzero((model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0))
+    rest = body.q.copy()
+    q_turn = Rotation.from_rotvec([0.3, -0.5, 0.7])
+    body.q[:] = q_turn.apply(rest - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    stepper._recorded[1]()  # the tets' co-rotations
+    solve._rotations()
+    np.testing.assert_allclose(solve._absolute.numpy(), np.broadcast_to(q_turn.as_matrix(), (len(solved), 3, 3)),
+                               atol=1e-12, rtol=0)
+    x = rest[:, 0]
+    turn = Rotation.from_rotvec(np.outer(0.2 * x / x.max(), [0.0, 1.0, 0.0]))
+    body.q[:] = turn.apply(rest - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    stepper._recorded[1]()
+    solve._rotations()
+    rotations = stepper.state.rotations.numpy()
+    expected = []
+    for i in solved:
+        mine = np.flatnonzero((tets == i).any(axis=1))
+        expected.append(polar(np.einsum("e,eij->ij", weight[mine], rotations[mine]))[0])
+    np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
