@@ -196,12 +196,12 @@ class FactoredSolve:
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation0 = wp.zeros(k, dtype=wp.mat33d, device=d)
-        solved_d = wp.array(self._solved_nodes.astype(np.int32), dtype=wp.int32, device=d)
-        index_d = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32, device=d)
+        solved_d: wp.array = wp.array(self._solved_nodes.astype(np.int32), dtype=wp.int32, device=d)
+        index_d: wp.array = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32, device=d)
         tets, ke = model.tets.numpy(), model.ke.numpy()
         # A tet's weight in its nodes' rotations: its stiffness (trace of K_e's diagonal blocks).
         weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
-        self._tet_weight = wp.array(weight, dtype=wp.float64, device=d)
+        self._tet_weight: wp.array = wp.array(weight, dtype=wp.float64, device=d)
         # One thread each: the launches are ~0.05-0.1 ms on the head CT, less than handing half
         # to a second core.
         self._rotations = replayer(wp.launch(
@@ -224,8 +224,8 @@ class FactoredSolve:
         self._host = {name: getattr(c, name).numpy() for name in
                       ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
                        "stiffness", "slip", "impulse")}
-        self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(), stats=self.stats.numpy(), done=self._done.numpy(),
-                          metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy())
+        self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
+                          stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy())
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -233,11 +233,10 @@ class FactoredSolve:
                     self._movable, c.gap_after, self.stats]))
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
+        solved_mask: wp.array = wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d)
         self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
                                                inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
-                                                       self._rotation,
-                                                       wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d),
-                                                       self._change]))
+                                                       self._rotation, solved_mask, self._change]))
         self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
