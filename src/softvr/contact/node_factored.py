@@ -225,7 +225,8 @@ class FactoredSolve:
                       ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
                        "stiffness", "slip", "impulse")}
         self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
-                          stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy())
+                          stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
+                          movable=self._movable.numpy(), blocks=state.blocks.numpy())
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
