@@ -13,7 +13,7 @@ import numpy as np
 from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
-from softvr.contact.node_factored import FactoredSolve
+from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, free_matrix
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.contact.test_node_aggregates import _beam
@@ -100,3 +100,39 @@ def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffnes
         mine = np.flatnonzero((tets == i).any(axis=1))
         expected.append(polar(np.einsum("e,eij->ij", weight[mine], rotations[mine]))[0])
     np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
+
+
+def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_columns_of_the_inverse():
+    # The columns of A_0^-1 a step multiplies are kept across steps; over KEPT_NODES nodes'
+    # (a probe moved over the body) a step first drops those the last step did not use. The
+    # ones kept must still be A_0^-1's columns at their nodes (NumPy's dense inverse of the
+    # factored A over the solved rows; the solve is exact to ~1e-13 relative, as SuperLU's
+    # backward error times A's condition, ~1e3 here), and the step still SciPy's direct solve.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    a0, solved = free_matrix(stepper.model, stepper.state)
+    inverse = np.linalg.inv(a0.toarray())
+    nodes = np.flatnonzero(solved)
+    assert len(nodes) > KEPT_NODES
+    solve._slots_of(nodes[::-1])  # every solved node's columns, in an order unlike the nodes'
+    solve._used = solve._slots_of(nodes[:10])  # the last step used these ten
+    rng = np.random.default_rng(7)
+    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    for replay in stepper._recorded[1:4]:
+        replay()
+    _, expected = _solve_step(body, scene, DT)
+    _start(stepper, body.v)
+    _, solved_v = solve.solve(SWEEP_TOLERANCE)
+    np.testing.assert_allclose(solved_v.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+    kept = np.flatnonzero(solve._slot >= 0)
+    # The ten, and any this step's Woodbury set needed (the straight beam: none expected).
+    assert set(nodes[:10]) <= set(kept) and len(kept) < len(nodes) // 2
+    assert solve._kept == 3 * len(kept)
+    rows = np.cumsum(solved) - 1
+    for node in kept:
+        dofs = 3 * rows[node] + np.arange(3)
+        columns = 3 * solve._slot[node] + np.arange(3)
+        np.testing.assert_allclose(solve._columns[:, columns], inverse[:, dofs], rtol=0,
+                                   atol=1e-10 * np.abs(inverse).max())

@@ -56,6 +56,10 @@ ANDERSON_MEMORY = 5
 #: has a block over this share of ``A_0``'s diagonal block, at most :data:`LOCAL_NODES` of them.
 LOCAL_THRESHOLD = 0.05
 LOCAL_NODES = 120
+#: Nodes whose columns of ``A_0^-1`` are kept, above which a step starts by dropping those the
+#: last step did not use (an outer iteration multiplies all kept columns; a probe moved over a
+#: body would otherwise gather them until the next factorization).
+KEPT_NODES = 120
 #: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
 POLAR_ITERATIONS = 3
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
@@ -274,6 +278,7 @@ class FactoredSolve:
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
+        self._used = np.zeros(0, np.int64)  # the columns the last step used
 
     def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
@@ -326,6 +331,19 @@ class FactoredSolve:
                 self._kept += 3
         return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
 
+    def _forget_columns(self) -> None:
+        """Keep only the columns the last step used, where over :data:`KEPT_NODES` nodes' and
+        over twice those are kept (a step that uses more keeps them all)."""
+        if self._kept <= 3 * KEPT_NODES or self._kept <= 2 * len(self._used):
+            return
+        nodes = np.flatnonzero(self._slot >= 0)
+        keep = nodes[np.isin(self._slot[nodes], self._used // 3)]
+        columns = (3 * self._slot[keep][:, None] + np.arange(3)).ravel()
+        self._columns[:, :len(columns)] = self._columns[:, columns]
+        self._slot[:] = -1
+        self._slot[keep] = np.arange(len(keep))
+        self._kept = len(columns)
+
     def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
         stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
@@ -360,6 +378,7 @@ class FactoredSolve:
         metric = h["metric"]
         metric[:n] = 0.0
         metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        self._used = np.concatenate([local[1], slots])
         return rows, nodes, weights, w, dofs, jt, slots, near
 
     def _delassus(self, m: int, tolerance: float) -> dict:
@@ -394,6 +413,7 @@ class FactoredSolve:
         v, y_d = h["v"], h["y"]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
         self._rotations()
+        self._forget_columns()
         local = self._local()
         rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
         m = len(rows)
