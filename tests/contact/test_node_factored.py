@@ -1,7 +1,8 @@
 """The factored contact solve (softvr.contact.node_factored: A_0 factored once, rotated to the
 nodes' rotations, the contacts' Delassus operator solved by PGS, the outer iteration
-Anderson-accelerated), held to SciPy's direct solve of eq. 5.2 on a bent clamped beam whose A
-differs from the factored one, and to the MLCP of eq. 5.5 (A v = b + J^T lambda over the free
+Anderson-accelerated): the nodes' rotations held to a rigid turn and to SciPy's polar factor,
+the kept columns of A_0^-1 to NumPy's dense inverse, the solve to SciPy's direct solve of eq.
+5.2 on a bent clamped beam whose A differs from the factored one, and to the MLCP of eq. 5.5 (A v = b + J^T lambda over the free
 nodes with SciPy's A and b, complementarity, the friction disc) where a clamped beam, too stiff
 for the node sweeps, swings down onto a plane.
 
