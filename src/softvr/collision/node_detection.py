@@ -69,13 +69,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                         inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u,
                                                 top_speed])))
     if model.meshes:
-
-        def refit() -> None:
-            for mesh in model.meshes:
-                mesh.refit()
-
-        steps.append(refit)
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
+        steps.append(_refit_reached(model.meshes, model.mesh_ids, near, later=False))
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
                                        near, model.mesh_ids, *point_box, float(margin), float(dt),
@@ -92,13 +87,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                       [state.point_x32, normals, model.edges, model.edge_faces,
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
-
-        def refit_edges() -> None:
-            for bvh in model.bvhs:
-                bvh.refit()
-
-        steps.append(refit_edges)
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
+        steps.append(_refit_reached(model.bvhs, model.bvh_ids, near, later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
                                        state.point_u, state.body_mean_u, near, model.bvh_ids,
@@ -124,6 +114,30 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
             step()
 
     return detect
+
+
+def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool) -> Callable[[], None]:
+    """A step refitting the BVHs ``structures`` (``wp.Mesh`` or ``wp.Bvh``; body b's has id
+    ``ids[b]``) to the points' positions: on the CPU only those of the bodies b some body a
+    (``later``: a < b, the edge queries' order) may reach this step (``near[a, b]`` >= 0,
+    ``_k.near_bodies``, read in place), since no other is queried before its next refit (a
+    refit recomputes every box from the points); all of them elsewhere (no host read there)."""
+    if not near.device.is_cpu:
+        def refit_all() -> None:
+            for s in structures:
+                s.refit()
+
+        return refit_all
+    owner = ids.numpy()
+    body = [int(np.flatnonzero(owner == s.id)[0]) for s in structures]
+    reach = near.numpy()
+
+    def refit() -> None:
+        for s, b in zip(structures, body):
+            if (reach[:b, b] if later else reach[:, b]).max(initial=-1.0) >= 0:
+                s.refit()
+
+    return refit
 
 
 def record_carry(model, state) -> wp.Launch:
