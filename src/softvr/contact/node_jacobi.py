@@ -72,7 +72,7 @@ def chebyshev_rate(rho: float, rho_weights: float) -> float:
     return float((rho + np.sqrt(rho * rho - rho_weights * rho_weights)) / (1.0 + np.sqrt(1.0 - rho_weights ** 2)))
 
 
-def tail_error(sweeps: list[int], changes: list[float], floor: float, window: int = RATE_SWEEPS) -> float:
+def tail_error(sweeps: list[int], changes: list[float], floor: float, window: int | None = RATE_SWEEPS) -> float:
     """The distance [m/s] of the last checked sweep's iterate from the fixed point, estimated as
     the geometric tail ``r / (1 - r)`` times its largest change ``changes[-1]`` [m/s]: the sum of
     the changes still to come if each is ``r`` times the one before. ``r`` is the larger of
@@ -81,9 +81,10 @@ def tail_error(sweeps: list[int], changes: list[float], floor: float, window: in
     ``(k - 2 window, k - window]``, to the power ``1 / window``; ``sweeps`` ascending, the
     sweep of each change): the promised rate holds for a linear iteration whose spectrum is
     within the bounds, and contacts changing their active set, or weights narrower than the
-    bounds, make the iterates fall slower. inf where they do not fall."""
+    bounds, make the iterates fall slower. inf where they do not fall. ``window`` None: ``floor``
+    alone."""
     k = sweeps[-1]
-    rate = max(floor, observed_rate(sweeps, changes, k, window)) if k >= 2 * window else floor
+    rate = max(floor, observed_rate(sweeps, changes, k, window)) if window is not None and k >= 2 * window else floor
     return changes[-1] * rate / (1.0 - rate) if rate < 1.0 else np.inf
 
 
@@ -214,6 +215,9 @@ class NodeSolve:
         self.weights: wp.array = wp.clone(self._first_weights)
         #: The rate the first weights promise over the whole of the bounds (:func:`chebyshev_rate`).
         self.first_rate = chebyshev_rate(self.rho, rho_first)
+        # The Gauss-Seidel sweeps (the shoulder's) keep the stop on the bounds' rate alone and their
+        # plain windows whole: the observed rate was measured on the Jacobi scenes only.
+        self._observed = colours is None
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
@@ -352,9 +356,9 @@ class NodeSolve:
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is estimated as the geometric tail of the last sweep's
         largest change (:func:`tail_error`: a rigid body's nodes, exact, count none) at the
-        larger of the contraction observed over the last :data:`RATE_SWEEPS` sweeps and the rate
-        the weights in use promise over the bounds (:func:`chebyshev_rate`; for plain sweeps
-        ``rho``), checked every ``check_every`` sweeps; the sweeps stop when it is under
+        larger of the contraction observed over the last :data:`RATE_SWEEPS` sweeps (Jacobi
+        only) and the rate the weights in use promise over the bounds (:func:`chebyshev_rate`;
+        for plain sweeps ``rho``), checked every ``check_every`` sweeps; the sweeps stop when it is under
         ``tolerance`` and every contact meets eq. 5.5 within ``tolerance``
         (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
         understates their error; a rigid body's error is all its contacts').
@@ -363,8 +367,8 @@ class NodeSolve:
         those contract slower than :attr:`rate` (over :data:`SWITCH_SWEEPS`, after
         :data:`SWITCH_AFTER`: the error left is in the modes at the bounds' ends), or any
         Chebyshev sweeps stall (:meth:`_stalled`), a window of plain sweeps follows (counted in
-        ``plain_sweeps``), which lets the contacts' active set settle; it ends early once it
-        contracts slower than :attr:`rate` (what is left is smooth, which Chebyshev takes faster),
+        ``plain_sweeps``), which lets the contacts' active set settle; with Jacobi it ends early
+        once it contracts slower than :attr:`rate` (what is left is smooth, which Chebyshev takes faster),
         and Chebyshev restarts on the bounds' own weights. Returns the sweeps made and the buffer
         holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
         [m/s]."""
@@ -405,10 +409,12 @@ class NodeSolve:
                     break
                 changes.add(k, change)
                 floor = self.rho if plain else self.first_rate if narrow else self.rate
-                if tail_error(changes.sweeps, changes.values, floor) <= tolerance and self._contacts_met(k, tolerance):
+                window = RATE_SWEEPS if self._observed else None
+                if tail_error(changes.sweeps, changes.values, floor, window) <= tolerance and \
+                        self._contacts_met(k, tolerance):
                     return k, self._buffers[k % 3]
                 if plain:
-                    if k - plain_from >= 2 * RATE_SWEEPS and \
+                    if self._observed and k - plain_from >= 2 * RATE_SWEEPS and \
                             changes.rate(k, RATE_SWEEPS) > self.rate:
                         plain_until = k
                     continue
