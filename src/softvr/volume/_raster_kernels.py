@@ -545,11 +545,15 @@ _TET_SNIPPET = (
     // loop, clang kept the DDA state in stack slots, and every row waited on a store-to-load
     // round trip; this loop has no call, and no branch on whether a row is empty.
     const int ROWS = 64;
+    typedef double d4q __attribute__((ext_vector_type(4)));
+    typedef float f4q __attribute__((ext_vector_type(4)));
+    const d4q aj4 = {A[1], A[4], A[7], 0.0}, at4 = {A[9], A[10], A[11], 0.0};
     i64 span_lo[ROWS], span_hi[ROWS];
     int span_j[ROWS];
     for (int i = i_first; i <= i_last; ++i) {
         const double fi = (double)i;
         px = A[0] * fi; py = A[3] * fi; pz = A[6] * fi;
+        const d4q p4 = {px, py, pz, 0.0};
         l4 q4 = qi4, r4 = ri4;
         for (int j0 = B[2]; j0 <= B[3]; j0 += ROWS) {
             const int j1 = B[3] - j0 < ROWS ? B[3] : j0 + ROWS - 1;
@@ -586,14 +590,13 @@ _TET_SNIPPET = (
                     const int j = span_j[r];
                     int lo = (int)klo, hi = (int)khi;
                     const double fj = (double)j;
+                    const f4q b4 = __builtin_convertvector(p4 + aj4 * (d4q)fj + at4, f4q);
+                    const float bx = b4[0], by = b4[1], bz = b4[2];
                     if (clip) {
-                        axis_range((float)(px + A[1] * fj + A[9]), (float)A[12], dims[0], lo, hi);
-                        axis_range((float)(py + A[4] * fj + A[10]), (float)A[13], dims[1], lo, hi);
-                        axis_range((float)(pz + A[7] * fj + A[11]), (float)A[14], dims[2], lo, hi);
+                        axis_range(bx, (float)A[12], dims[0], lo, hi);
+                        axis_range(by, (float)A[13], dims[1], lo, hi);
+                        axis_range(bz, (float)A[14], dims[2], lo, hi);
                     }
-                    const float bx = (float)(px + A[1] * fj + A[9]);
-                    const float by = (float)(py + A[4] * fj + A[10]);
-                    const float bz = (float)(pz + A[7] * fj + A[11]);
                     const i64 row = ((i64)i * out_ny + j) * out_nz;
                     // 8 entries at a time, six 32-byte stores (clang kept most of the plain loop's 40
                     // stores scalar), with no branch on the row's length below 9 voxels. A block may
