@@ -122,7 +122,7 @@ def test_tets_taller_than_a_row_chunk_match_scipy(device):
 
 def test_tets_with_more_voxels_per_row_chunk_than_the_cpu_queue_match_scipy(device):
     """Five tets over a 12 x 90 x 60 volume: a 64-row chunk of one slab holds up to ~3800
-    voxels, more than the CPU spans' 512-voxel queue, so the queue is flushed inside the chunk
+    voxels, more than the CPU spans' 1024-voxel queue, so the queue is flushed inside the chunk
     (the other tests' chunks fit in it and are queued with no flush in between). Truth and
     tolerance as in test_affine_deformation_matches_scipy."""
     lin = Rotation.from_euler("z", 3, degrees=True).as_matrix() @ np.array(
@@ -131,6 +131,24 @@ def test_tets_with_more_voxels_per_row_chunk_than_the_cpu_queue_match_scipy(devi
     nodes, tets = grid_tet_mesh(vol, (1, 1, 1))
     c = np.array([0.3, -1.0, 0.6])
     out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    truth, inner, outside = _affine_truth(vol, out, lin, c)
+    assert inner.mean() > 0.3
+    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
+    assert (out.data[outside] == -1.0).all()
+
+
+def test_tets_wider_than_a_cpu_work_item_match_scipy(device):
+    """Five tets over a 75 x 9 x 10 volume, each ~75 x-slabs wide: the CPU spans split a tet into
+    work items of 32 slabs, so each tet is three items, the later ones starting inside its box
+    (the other tests' tets are one item). Truth and tolerance as in
+    test_affine_deformation_matches_scipy."""
+    lin = Rotation.from_euler("y", 2, degrees=True).as_matrix() @ np.array(
+        [[1.02, 0.0, 0.0], [0.06, 1.0, 0.0], [0.0, -0.05, 1.0]])
+    vol = _volume(np.float32, shape=(75, 9, 10), spacing=(0.6, 1.0, 0.9))
+    nodes, tets = grid_tet_mesh(vol, (1, 1, 1))
+    c = np.array([-0.4, 0.7, 0.2])
+    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    assert out.shape[0] > 64
     truth, inner, outside = _affine_truth(vol, out, lin, c)
     assert inner.mean() > 0.3
     np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
