@@ -179,22 +179,25 @@ def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkey
     assert crowded.kind == "gauss-seidel"  # its fewer sweeps (the spectrum test) now win
 
 
+def _cube_choice_args(monkeypatch):
+    """choose_sweeps' first five arguments for the soft cube on a plane (pattern, A, free nodes,
+    Jacobi's bounds), Gauss-Seidel estimated whatever Jacobi's work (GAUSS_SEIDEL_FROM 0)."""
+    _, stepper = _prepared(_cube(), 1.0 / 60.0, plane=True)
+    m = stepper.model
+    a, free = free_matrix(m, stepper.state)
+    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
+    return m.row_start.numpy(), m.block_col.numpy(), a, free, spectrum(m, stepper.state)
+
+
 def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(monkeypatch):
     # Where Jacobi is over its limit the alternative to Gauss-Seidel is the per-object LU, so
     # Gauss-Seidel within MAX_GAUSS_SEIDEL_WORK_PER_DECADE is taken even at more work than
     # Jacobi's (the shoulder, both at ~39.5, was declined by the strict comparison).
-    body = _cube()
-    _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
-    a, free = free_matrix(stepper.model, stepper.state)
-    m = stepper.model
-    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
-    bounds = spectrum(m, stepper.state)
-    free_choice = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds, 25.0, 0, 2,
-                                             SPECTRUM_MARGIN)
+    args = _cube_choice_args(monkeypatch)
+    free_choice = _node_sweeps.choose_sweeps(*args, 25.0, 0, 2, SPECTRUM_MARGIN)
     jacobi, gauss_seidel = free_choice.work["jacobi"], free_choice.work["gauss-seidel"]
     assert jacobi < gauss_seidel <= _node_sweeps.MAX_GAUSS_SEIDEL_WORK_PER_DECADE
-    limited = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
-                                         0.5 * jacobi, 0, 2, SPECTRUM_MARGIN)
+    limited = _node_sweeps.choose_sweeps(*args, 0.5 * jacobi, 0, 2, SPECTRUM_MARGIN)
     assert limited.kind == "gauss-seidel"
 
 
@@ -368,13 +371,8 @@ def test_with_a_held_tool_the_coarse_correction_must_be_clearly_cheaper_than_gau
     # <= 0.5 with a held tool (the arthroscopy at 0.77, coarse: every step at the 100-sweep
     # cap; Gauss-Seidel 14 / 77 sweeps). A coarse estimate of 0.6 of Gauss-Seidel's work is
     # taken without a held tool and declined with one.
-    body = _cube()
-    _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
-    a, free = free_matrix(stepper.model, stepper.state)
-    m = stepper.model
-    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
-    bounds = spectrum(m, stepper.state)
-    args = (m.row_start.numpy(), m.block_col.numpy(), a, free, bounds)
+    args = _cube_choice_args(monkeypatch)
+    bounds = args[-1]
     plain = _node_sweeps.choose_sweeps(*args, 25.0, 0, 2, SPECTRUM_MARGIN)
     gauss_seidel = plain.work["gauss-seidel"]
     limit = 0.5 * min(plain.work["jacobi"], gauss_seidel)  # Jacobi over it, the coarse estimate too
