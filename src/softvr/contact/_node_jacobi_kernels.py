@@ -333,11 +333,12 @@ def contact_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d,
     the other contacts' impulses held (arguments as :func:`pgs_update`; the PGS passes of
     :func:`contacts` take it for contacts without a rigid side): the sticking
     impulse ``old + w_f^-1 (target - rel_f)`` (target: ``-gap / dt`` along the normal, 0 along
-    the tangents) where it pushes within the Coulomb disc (no adhesion), else
-    :data:`LOCAL_UPDATES` projected updates (:func:`pgs_update`), each seeing the last one's
-    change of the relative velocity. One projected update (the isotropic tangent step) leaves
-    a contact's tangent impulse short of its block's solution by ``1 - w_min / w_max`` of the
-    tangent eigenvalues, and the normal one short by its coupling to the tangents: an error
+    the tangents) where it pushes within the Coulomb disc, else up to :data:`LOCAL_UPDATES`
+    projected updates (:func:`pgs_update`), each seeing the last one's change of the relative
+    velocity; an adhesive contact (``stiffness`` > 0) takes one. One projected update (the
+    isotropic tangent step) leaves a contact's tangent impulse short of its block's solution
+    by ``1 - w_min / w_max`` of the tangent eigenvalues, and the normal one short by its
+    coupling to the tangents: an error
     that the next sweep inherits, so the sweep is no fixed map of ``v`` and its Chebyshev
     acceleration cycles. The draped cloth of cloth-sphere.toml (~100 frictional contacts, a
     vertex's ``w_f`` coupling normal and tangent by up to 0.67, tangent eigenvalues 1.7-5x
@@ -346,8 +347,10 @@ def contact_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d,
     100. Every fixed point of this update is one of :func:`pgs_update`'s: the sticking impulse
     leaves ``rel`` at its target, where the projected update changes nothing."""
     zero = wp.float64(0.0)
+    if stiffness > zero:  # an adhesive bond: its bounds move with the update (one a visit, as before)
+        return pgs_update(old, rel_f, w_f, f, gap, dt, mu, stiffness, slip)
     w_nn = w_f[0, 0]
-    if stiffness <= zero and w_nn > zero and wp.determinant(w_f) > wp.float64(1e-12) * w_nn * w_nn * w_nn:
+    if w_nn > zero and wp.determinant(w_f) > wp.float64(1e-12) * w_nn * w_nn * w_nn:
         stick = old + wp.inverse(w_f) * (wp.vec3d(-gap / dt, zero, zero) - rel_f)
         if stick[0] >= zero and wp.sqrt(stick[1] * stick[1] + stick[2] * stick[2]) <= mu * stick[0]:
             return stick
@@ -355,8 +358,12 @@ def contact_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d,
     rel = rel_f
     for _ in range(LOCAL_UPDATES):
         nxt = pgs_update(lam, rel, w_f, f, gap, dt, mu, stiffness, slip)
-        rel = rel + w_f * (nxt - lam)
+        step = nxt - lam
+        rel = rel + w_f * step
         lam = nxt
+        # Settled: a separating or frictionless contact after its first update.
+        if wp.length(step) <= wp.float64(1e-12) * wp.length(lam):
+            break
     return lam
 
 
