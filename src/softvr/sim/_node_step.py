@@ -160,6 +160,16 @@ class _NodeSnapshot(StepSnapshot):
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
 
+    def pushing_normals(self, body: int) -> np.ndarray:
+        """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
+        :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
+        c = self.contacts
+        first = self._stepper.contact_body(c)
+        side_b = ((c["kind"] == 1) | (c["kind"] == 2) | (c["kind"] == 3)) & (c["other"] == body)
+        rows = np.flatnonzero(((first == body) | side_b) & c["movable"] & (c["impulse"][:, 0] > 0))
+        rows = rows[np.lexsort((c["point"][rows], c["other"][rows], c["kind"][rows], first[rows]))]
+        return np.where(side_b[rows, None], -c["frame"][rows, 0], c["frame"][rows, 0])
+
     def set_bodies(self) -> list[tuple[int, int | None]]:
         c, first = self.contacts, [rows[0] for rows in self.sets()]
         kind, other = c["kind"][first], c["other"][first]
