@@ -122,7 +122,7 @@ def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool)
     (``later``: a < b, the edge queries' order) may reach this step (``near[a, b]`` >= 0,
     ``_k.near_bodies``, read in place), since no other is queried before its next refit (a
     refit recomputes every box from the points); all of them elsewhere (no host read there)."""
-    if not near.device.is_cpu:
+    if not wp.get_device(near.device).is_cpu:
         def refit_all() -> None:
             for s in structures:
                 s.refit()

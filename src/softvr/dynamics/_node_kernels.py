@@ -123,9 +123,9 @@ def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=w
 def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
                        block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                        contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
-                       rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), mass: wp.array(dtype=wp.float64),
-                       node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
-                       d_inv: wp.array(dtype=wp.mat33d), offset: int):
+                       rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d),
+                       mass: wp.array(dtype=wp.float64), node_alpha: wp.array(dtype=wp.float64), dt: wp.float64,
+                       blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """:func:`assemble` for isotropic linear tets, K_e,ab = V (lambda g_a g_b^T + mu g_b g_a^T
     + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C, g_a [1/m] the shape functions' rest
     gradients; ``rotated_gradients[e, a]`` = R g_a, of :func:`element_terms_isotropic`;
@@ -133,9 +133,10 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
 
         R K_e,ab R^T = V (lambda (R g_a)(R g_b)^T + mu (R g_b)(R g_a)^T + mu (R g_a . R g_b) I)
 
-    two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an orthogonal R; with |R^T R - I| = eps_R (the polar
-    iteration stops at round-off, ~1e-15) and float64 rounding u, a contribution differs from
-    :func:`assemble`'s by at most ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
+    two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an
+    orthogonal R; with |R^T R - I| = eps_R (the polar iteration stops at round-off, ~1e-15) and
+    float64 rounding u, a contribution differs from :func:`assemble`'s by at most
+    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
     k = assembled[wp.tid() + offset]
     m = wp.mat33d()
     diagonal = wp.float64(0.0)
