@@ -327,11 +327,7 @@ class Player:
             self.setup_render(self._renderer)
         if self._ahead is None:
             self.update_render(self._renderer)
-            if self._started and self.frame < self.frames and self.overlaps():
-                if self._worker is None:
-                    self._worker = ThreadPoolExecutor(1, thread_name_prefix="softvr-physics")
-                self._read_input()
-                self._ahead = self._worker.submit(self._physics)
+            self.step_ahead()
         image = self._renderer.render()
         if self.metrics:
             now = time.perf_counter()
@@ -340,6 +336,29 @@ class Player:
             record["wall_ms"] = record["step_ms"] + record["render_ms"]
             record["latency_ms"] = (now - self._frame_input_at) * 1e3
         return image
+
+    def step_ahead(self) -> None:
+        """With :attr:`overlap`, frames left and none stepping yet: read the next frame's input
+        (:meth:`drive`, :meth:`haptic_tick`) and start its physics on the worker thread, for
+        :meth:`step` to take. Call it once a renderer holds this frame (:meth:`update_render`):
+        from then on until :meth:`step` (or :meth:`settle`) returns, the scene is being written."""
+        if self._ahead is None and self._started and self.frame < self.frames and self.overlaps():
+            if self._worker is None:
+                self._worker = ThreadPoolExecutor(1, thread_name_prefix="softvr-physics")
+            self._read_input()
+            self._ahead = self._worker.submit(self._physics)
+
+    @property
+    def ahead(self) -> bool:
+        """Whether a frame is stepping ahead (:meth:`step_ahead`) for :meth:`step` to take."""
+        return self._ahead is not None
+
+    def settle(self) -> None:
+        """Wait until the frame stepping ahead (:meth:`step_ahead`) has stepped; :meth:`step`
+        still takes it (and raises its error). The scene then stays still until the next
+        :meth:`step_ahead`: for what reads or changes it between frames (a mouse grab)."""
+        if self._ahead is not None:
+            self._ahead.exception()  # waits
 
     # -- what a run reports --------------------------------------------------------------
     def describe(self) -> dict:
@@ -379,9 +398,8 @@ class Player:
     def close(self) -> None:
         """Release the renderer (and, in subclasses, haptic processes); a frame stepping ahead
         that :meth:`step` did not take is waited for and dropped, its error with it."""
-        if self._ahead is not None:
-            self._ahead.exception()  # waits
-            self._ahead = None
+        self.settle()
+        self._ahead = None
         if self._worker is not None:
             self._worker.shutdown()
             self._worker = None
