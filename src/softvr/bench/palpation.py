@@ -215,8 +215,8 @@ def format_table(result: dict) -> str:
               f"{'overlapped (render || next step)':<34} {m['period_ms']:>8.1f} {m['period_cpu_ms']:>8.1f} "
               f"{m['latency_ms']:>11.1f}",
               f"overlapped: the wall is the frame period; the latency (input read -> image) is the period plus "
-              f"the render, which ends a frame after the step it draws (the step beside it: {m['fem_overlapped_ms']:.1f} "
-              f"ms wall); its images == the sequential pass's: {100 * result['overlap_equals_sequential']:.0f} % of "
+              f"one render (a frame is drawn while the next one steps; that step: {m['fem_overlapped_ms']:.1f} ms "
+              f"wall); its images == the sequential pass's: {100 * result['overlap_equals_sequential']:.0f} % of "
               f"frames"]
     th, t = result["thesis"], result["targets"]
     lines += ["", f"incremental voxels per frame (median): {m['raster_voxels'] / 1e6:.2f} M of {voxels / 1e6:.2f} M; "
