@@ -526,6 +526,60 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 
 
+def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
+    """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
+    cell's bit is clear, so every cell where a trilinear sample's table opacity can be non-zero
+    must have it. A sample's value lies between its cell's 8 corners, and the table is read at
+    entries floor(u) and floor(u) + 1 of its position u: the cell can be visible iff an entry in
+    floor(u(min)) .. ceil(u(max)) is (``visible``: their running count); the kernel adds one entry
+    either side for rounding and no more. Bit layout: (i % BRICK) * BRICK^2 + (j % BRICK) * BRICK
+    + k % BRICK in brick (i, j, k) // BRICK. A table with two visible bands (not an upper set), a
+    grid not a multiple of BRICK (partial far bricks), all-air and all-tissue bricks (the
+    kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
+    interpolation, the table interpolated) never visible in a cleared cell."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    b = int(K.BRICK)
+    shape = np.array([4 * b + 3, 3 * b + 2, 2 * b + 1])
+    ijk = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), -1)
+    vol = (40.0 * (ijk @ np.array([1.0, 0.7, -0.4])) + rng.normal(0.0, 60.0, shape)).astype(np.float32)
+    vol[: b + 1] = -1000.0  # all air
+    vol[-b - 2:, : 2 * b + 1] = 300.0  # all tissue
+    size, lo, hi = 64, -1000.0, 1000.0
+    opaque = np.zeros(size, bool)
+    opaque[40:44] = opaque[52:58] = True
+    visible = np.concatenate([[0], np.cumsum(opaque)]).astype(np.int32)
+    scale = (size - 1) / (hi - lo)
+    nb = np.array([-(-(s - 1) // b) for s in shape])
+    cells = wp.zeros(tuple(nb), dtype=wp.uint64, device="cpu")
+    bmin, bmax = (wp.zeros(tuple(nb), dtype=float, device="cpu") for _ in range(2))
+    wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
+              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape), wp.vec3i(*(s // 4 for s in vol.strides)),
+                      wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1, wp.array(visible, dtype=wp.int32, device="cpu"),
+                      lo, scale, wp.vec3i(0, 0, 0), wp.vec3i(*nb), bmin, bmax, cells, 0])
+    masks = cells.numpy().view(np.uint64)
+    c = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, 3)
+    bit = ((c[:, 0] % b) * b * b + (c[:, 1] % b) * b + c[:, 2] % b).astype(np.uint64)
+    got = (masks[tuple((c // b).T)] >> bit) & np.uint64(1)
+    corners = np.stack([vol[tuple((c + [x, y, z]).T)] for x in (0, 1) for y in (0, 1) for z in (0, 1)], -1).astype(float)
+    position = lambda v: np.clip((v - lo) * scale, 0.0, size - 1)  # noqa: E731
+    u0 = np.floor(position(corners.min(-1))).astype(int)
+    u1 = np.ceil(position(corners.max(-1))).astype(int)
+    may_show = lambda a, z: visible[np.minimum(z + 1, size)] - visible[np.maximum(a, 0)] > 0  # noqa: E731
+    need, allowed = may_show(u0, u1), may_show(u0 - 1, u1 + 1)
+    assert need.any() and (~allowed).any() and (got == 0).any() and (got == 1).any()
+    assert np.all(got[need] == 1), f"{np.sum(got[need] == 0)} cells that can be visible are cleared"
+    assert np.all(got[~allowed] == 0), f"{np.sum(got[~allowed] == 1)} cells far from a visible entry are set"
+    points = rng.uniform(0.0, shape - 1.0, (20000, 3))
+    alpha = np.interp(position(ndimage.map_coordinates(vol.astype(float), points.T, order=1)), np.arange(size),
+                      opaque.astype(float))
+    cell = np.minimum(points.astype(int), shape - 2)
+    cell_bit = ((cell[:, 0] % b) * b * b + (cell[:, 1] % b) * b + cell[:, 2] % b).astype(np.uint64)
+    shown = (masks[tuple((cell // b).T)] >> cell_bit) & np.uint64(1)
+    assert (alpha > 0).sum() > 1000 and np.all(shown[alpha > 0] == 1)
+
+
 @wp.kernel
 def _plain_gradient(vol: wp.array(dtype=wp.float32), n: wp.vec3i, strides: wp.vec3i, points: wp.array(dtype=wp.vec3),
                     out: wp.array(dtype=wp.vec3)):

@@ -276,6 +276,16 @@ def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.ar
     return found
 
 
+#: The voxels of one slab of a brick (brick_minmax).
+Slab = wp.types.matrix(shape=(BRICK + 1, BRICK + 1), dtype=wp.float32)
+
+
+@wp.func
+def cell_bit(i: int, j: int, k: int) -> int:
+    """The bit of cell (i, j, k) (its lower corner voxel) in its brick's cell mask."""
+    return ((i & (BRICK - 1)) << (2 * BRICK_SHIFT)) | ((j & (BRICK - 1)) << BRICK_SHIFT) | (k & (BRICK - 1))
+
+
 @wp.func
 def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
     """Brick ``tid`` of the block of bricks ``first .. first + count`` (last index fastest)."""
@@ -290,17 +300,26 @@ def brick_minmax(
     strides: wp.vec3i,
     changed: wp.array3d(dtype=wp.uint8),
     every: int,
+    visible: wp.array(dtype=wp.int32),
+    lut_lo: float,
+    lut_scale: float,
     first: wp.vec3i,
     count: wp.vec3i,
     lo_out: wp.array3d(dtype=float),
     hi_out: wp.array3d(dtype=float),
+    cells: wp.array3d(dtype=wp.uint64),
     offset: int,
 ):
     """Value range of the voxels a sample inside each brick can read: brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
-    voxels b * BRICK .. (b + 1) * BRICK inclusive. Updates bricks ``first .. first + count``:
-    all if ``every`` != 0, else those holding a voxel of a ``changed`` brick
-    (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
+    voxels b * BRICK .. (b + 1) * BRICK inclusive. And which of the brick's cells (the unit
+    cubes between voxels, at most BRICK^3) can hold a sample of non-zero opacity: bit
+    ``cell_bit`` of ``cells`` is set iff the table has such an entry between the positions
+    of its 8 corner voxels' least and greatest value (``visible``: the running count of
+    them; ``lut_lo``, ``lut_scale``: the table's position of a value), one entry either
+    side for rounding: a trilinear value lies between its corners'. Updates bricks
+    ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
+    ``changed`` brick (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
     b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
     by = b[1]
@@ -325,6 +344,52 @@ def brick_minmax(
                 vmax = wp.max(vmax, v)
     lo_out[bx, by, bz] = vmin
     hi_out[bx, by, bz] = vmax
+    size = visible.shape[0] - 1
+    bits = wp.uint64(0)
+    u0 = wp.max(int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size))) - 1, 0)
+    u1 = wp.min(int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1, size - 1)
+    shown = visible[u1 + 1] - visible[u0]
+    # Most bricks are all empty (air) or all visible (tissue): each of their cells is too.
+    if shown == 0 or shown == u1 - u0 + 1:
+        if shown > 0:
+            bits = ~bits
+        cells[bx, by, bz] = bits
+        return
+    # Cell (x, y, z) of the brick lies between its voxels x .. x + 1 (and y, z). Separable: each
+    # slab of voxels x gives the least and greatest value over the 2 x 2 voxels of each cell face
+    # in it, and a cell takes those of its two slabs (reads past the grid's far faces are
+    # clamped: cells there are never sampled, cell()).
+    last_lo = wp.mat44(0.0)
+    last_hi = wp.mat44(0.0)
+    for x in range(BRICK + 1):
+        i = wp.min(bx * BRICK + x, n[0] - 1)
+        slab_values = Slab()
+        for y in range(BRICK + 1):
+            for z in range(BRICK + 1):
+                slab_values[y, z] = fetch(vol, strides, i, wp.min(by * BRICK + y, n[1] - 1),
+                                          wp.min(bz * BRICK + z, n[2] - 1))
+        face_lo = wp.mat44(0.0)
+        face_hi = wp.mat44(0.0)
+        for y in range(BRICK):
+            for z in range(BRICK):
+                v00 = slab_values[y, z]
+                v01 = slab_values[y, z + 1]
+                v10 = slab_values[y + 1, z]
+                v11 = slab_values[y + 1, z + 1]
+                face_lo[y, z] = wp.min(wp.min(v00, v01), wp.min(v10, v11))
+                face_hi[y, z] = wp.max(wp.max(v00, v01), wp.max(v10, v11))
+        if x > 0:
+            for y in range(BRICK):
+                for z in range(BRICK):
+                    c0 = wp.max(int(wp.floor(lut_position(wp.min(last_lo[y, z], face_lo[y, z]), lut_lo, lut_scale,
+                                                          size))) - 1, 0)
+                    c1 = wp.min(int(wp.ceil(lut_position(wp.max(last_hi[y, z], face_hi[y, z]), lut_lo, lut_scale,
+                                                         size))) + 1, size - 1)
+                    if visible[c1 + 1] - visible[c0] > 0:
+                        bits = bits | (wp.uint64(1) << wp.uint64(cell_bit(x - 1, y, z)))
+        last_lo = face_lo
+        last_hi = face_hi
+    cells[bx, by, bz] = bits
 
 
 @wp.kernel
@@ -464,6 +529,7 @@ def raycast(
     smooth_axis: int,
     slice_normal: wp.vec3,
     distance: wp.array3d(dtype=wp.uint8),
+    cells: wp.array3d(dtype=wp.uint64),
     flips: int,
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
@@ -500,6 +566,10 @@ def raycast(
     stays valid unless a brick that turned occupied since (inside the index box
     ``flip_lo .. flip_hi`` when ``flips`` != 0) lies on the ray before that sample; then the
     ray starts over from its entry point.
+
+    ``distance`` [bricks] holds each brick's Chebyshev distance to the nearest occupied one
+    (capped; the empty-space jumps), ``cells`` each brick's mask of the cells that can hold a
+    visible sample (:func:`brick_minmax`): a sample in any other cell is skipped unread.
 
     Only the pixels listed in ``pixels`` [count] (row-major indices, row 0 at the top) are
     cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
@@ -607,6 +677,13 @@ def raycast(
                                       exit_along(o[1], inv_d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs)),
                                exit_along(o[2], inv_d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs))
                 k = wp.max(k + 1.0, wp.ceil((leave - t0) * inv_step - shift))
+                continue
+            # A sample in a cell whose corners hold no value of non-zero opacity between them is
+            # transparent (brick_minmax): skipped without reading the voxels.
+            q = cell(n, clamped(n, p))
+            if ((cells[q[0] >> BRICK_SHIFT, q[1] >> BRICK_SHIFT, q[2] >> BRICK_SHIFT]
+                 >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) == wp.uint64(0):
+                k = k + 1.0
                 continue
             v = trilinear(vol, n, strides, p)
             c = lut_rgba(lut, lut_position(v, lut_lo, lut_scale, size))
@@ -781,7 +858,11 @@ def stale_pixels(
 #: Voxel dtypes read in place; others are converted to float32 once per upload.
 VOXEL_TYPES = {"int16": wp.int16, "uint8": wp.uint8, "uint16": wp.uint16, "float32": wp.float32}
 
-for _t in VOXEL_TYPES.values():
-    wp.overload(raycast, {"vol": wp.array(dtype=_t)})
-    wp.overload(brick_minmax, {"vol": wp.array(dtype=_t)})
-    wp.overload(brick_changes, {"vol": wp.array(dtype=_t), "known": wp.array(dtype=_t)})
+#: The voxel kernels' overloads by voxel dtype name (keys of VOXEL_TYPES), launched as they are:
+#: a launch of the generic kernel infers its argument types and looks the overload up each
+#: time (~0.2 ms of Python a launch).
+RAYCAST, BRICK_MINMAX, BRICK_CHANGES = {}, {}, {}
+for _name, _t in VOXEL_TYPES.items():
+    RAYCAST[_name] = wp.overload(raycast, {"vol": wp.array(dtype=_t)})
+    BRICK_MINMAX[_name] = wp.overload(brick_minmax, {"vol": wp.array(dtype=_t)})
+    BRICK_CHANGES[_name] = wp.overload(brick_changes, {"vol": wp.array(dtype=_t), "known": wp.array(dtype=_t)})
