@@ -127,55 +127,20 @@ def gradient(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3) -> 
 
 
 @wp.func
-def corner_weight(bit: int, f: float) -> float:
-    return wp.where(bit == 1, f, 1.0 - f)
-
-
-@wp.func
-def slice_smoothed(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3, axis: int):
-    """The gradient at ``p`` (as :func:`gradient`) and the same smoothed along index ``axis``
-    by the weights (1, 2, 1) / 4 at -1, 0, +1 voxel: the trilinear interpolation of the
-    voxels' central differences, and of those smoothed along that axis (rows past the grid's
-    ends clamped to it). Across thick slices the gradient of the trilinear field turns at
-    every slice, which a shaded surface almost parallel to them shows as bands (terraces),
-    one per slice; smoothing spreads each turn over three slices, as a Gaussian prefilter of
-    0.7 slice would. Each of the cell's four columns along ``axis`` reads its central
-    differences at four rows once, for both results."""
-    q = clamped(n, p)
-    corner = cell(n, q)
-    f = q - wp.vec3(float(corner[0]), float(corner[1]), float(corner[2]))
-    u = (axis + 1) % 3
-    v = (axis + 2) % 3
-    g = wp.vec3(0.0)
-    smooth = wp.vec3(0.0)
-    for c in range(4):
-        iu = corner[u] + (c & 1)
-        iv = corner[v] + ((c >> 1) & 1)
-        w = corner_weight(c & 1, f[u]) * corner_weight((c >> 1) & 1, f[v])
-        base = iu * s[u] + iv * s[v]
-        u_up = (wp.min(iu + 1, n[u] - 1) - iu) * s[u]
-        u_down = (iu - wp.max(iu - 1, 0)) * s[u]
-        v_up = (wp.min(iv + 1, n[v] - 1) - iv) * s[v]
-        v_down = (iv - wp.max(iv - 1, 0)) * s[v]
-        du = wp.vec4(0.0)
-        dv = wp.vec4(0.0)
-        da = wp.vec4(0.0)
-        for r in range(4):  # rows corner - 1 .. corner + 2 along the axis
-            row = wp.clamp(corner[axis] - 1 + r, 0, n[axis] - 1)
-            a = base + row * s[axis]
-            du[r] = float(vol[a + u_up]) - float(vol[a - u_down])
-            dv[r] = float(vol[a + v_up]) - float(vol[a - v_down])
-            da[r] = float(vol[base + wp.min(row + 1, n[axis] - 1) * s[axis]]) - float(
-                vol[base + wp.max(row - 1, 0) * s[axis]])
-        w0 = w * (1.0 - f[axis])
-        w1 = w * f[axis]
-        g[u] = g[u] + w0 * du[1] + w1 * du[2]
-        g[v] = g[v] + w0 * dv[1] + w1 * dv[2]
-        g[axis] = g[axis] + w0 * da[1] + w1 * da[2]
-        smooth[u] = smooth[u] + w0 * (du[0] + 2.0 * du[1] + du[2]) + w1 * (du[1] + 2.0 * du[2] + du[3])
-        smooth[v] = smooth[v] + w0 * (dv[0] + 2.0 * dv[1] + dv[2]) + w1 * (dv[1] + 2.0 * dv[2] + dv[3])
-        smooth[axis] = smooth[axis] + w0 * (da[0] + 2.0 * da[1] + da[2]) + w1 * (da[1] + 2.0 * da[2] + da[3])
-    return 0.5 * g, 0.125 * smooth
+def slice_smoothed(vol: wp.array(dtype=Any), n: wp.vec3i, s: wp.vec3i, p: wp.vec3, axis: int, plain: wp.vec3) -> wp.vec3:
+    """The gradient at ``p`` (``plain``, :func:`gradient`) smoothed along index ``axis`` by the
+    weights (1, 2, 1) / 4 at -1, 0, +1 voxel: the trilinear interpolation of the voxels' central
+    differences smoothed along that axis (rows past the grid's ends clamped to it). Across thick
+    slices the gradient of the trilinear field turns at every slice, which a shaded surface
+    almost parallel to them shows as bands (terraces), one per slice; smoothing spreads each
+    turn over three slices, as a Gaussian prefilter of 0.7 slice would. A shift by a whole voxel
+    keeps the trilinear weights, so the smoothed interpolant is (g(p - e) + 2 g(p) + g(p + e)) / 4
+    of the gradient g; at the grid's ends the shifted point, clamped to the grid, reads the end
+    row, as the clamped rows do. (Two more gradients cost less than one pass over the four
+    columns' twelve rows of differences.)"""
+    e = wp.vec3(0.0)
+    e[axis] = 1.0
+    return 0.25 * (gradient(vol, n, s, p - e) + 2.0 * plain + gradient(vol, n, s, p + e))
 
 
 @wp.func
@@ -704,8 +669,8 @@ def raycast(
                             across = wp.abs(wp.dot(gw, slice_normal)) / gl
                             blend = wp.clamp((across - SMOOTH_FROM) / (SMOOTH_FULL - SMOOTH_FROM), 0.0, 1.0)
                             if blend > 0.0:
-                                plain, smooth = slice_smoothed(vol, n, strides, p, smooth_axis)
-                                gw = index_gradient_to_world @ (plain + blend * (smooth - plain))
+                                smooth = slice_smoothed(vol, n, strides, p, smooth_axis, gi)
+                                gw = index_gradient_to_world @ (gi + blend * (smooth - gi))
                                 gl = wp.length(gw)
                         lit = shading[0]
                         if gl > 1.0e-6:
