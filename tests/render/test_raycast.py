@@ -536,7 +536,8 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     + k % BRICK in brick (i, j, k) // BRICK. A table with two visible bands (not an upper set), a
     grid not a multiple of BRICK (partial far bricks), all-air and all-tissue bricks (the
     kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
-    interpolation, the table interpolated) never visible in a cleared cell."""
+    interpolation, the table interpolated) never visible in a cleared cell. The same launch's
+    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry."""
     from scipy import ndimage
 
     rng = np.random.default_rng(5)
@@ -553,11 +554,13 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     scale = (size - 1) / (hi - lo)
     nb = np.array([-(-(s - 1) // b) for s in shape])
     cells = wp.zeros(tuple(nb), dtype=wp.uint64, device="cpu")
-    bmin, bmax = (wp.zeros(tuple(nb), dtype=float, device="cpu") for _ in range(2))
+    seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device="cpu")
+    flipped = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device="cpu")
     wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
-              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape), wp.vec3i(*(s // 4 for s in vol.strides)),
-                      wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1, wp.array(visible, dtype=wp.int32, device="cpu"),
-                      lo, scale, wp.vec3i(0, 0, 0), wp.vec3i(*nb), bmin, bmax, cells, 0])
+              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
+                      wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
+                      wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0), wp.vec3i(*nb),
+                      seed, flipped, cells, 0])
     masks = cells.numpy().view(np.uint64)
     c = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, 3)
     bit = ((c[:, 0] % b) * b * b + (c[:, 1] % b) * b + c[:, 2] % b).astype(np.uint64)
@@ -578,6 +581,15 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     cell_bit = ((cell[:, 0] % b) * b * b + (cell[:, 1] % b) * b + cell[:, 2] % b).astype(np.uint64)
     shown = (masks[tuple((cell // b).T)] >> cell_bit) & np.uint64(1)
     assert (alpha > 0).sum() > 1000 and np.all(shown[alpha > 0] == 1)
+    # The same launch seeds the distance field: 0 for a brick whose voxels b * BRICK .. (b + 1) * BRICK
+    # hold a visible value in their range (no margin), else the reach; every seed changed from 255.
+    occupied = np.zeros(nb, bool)
+    for brick in np.ndindex(*nb):
+        block = vol[tuple(slice(i * b, min((i + 1) * b, s - 1) + 1) for i, s in zip(brick, shape))].astype(float)
+        occupied[brick] = may_show(int(np.floor(position(block.min()))), int(np.ceil(position(block.max()))))
+    assert occupied.any() and (~occupied).any()
+    np.testing.assert_array_equal(seed.numpy(), np.where(occupied, 0, 8))
+    np.testing.assert_array_equal(flipped.numpy(), [0, 0, 0, *(nb - 1)])
 
 
 @wp.kernel

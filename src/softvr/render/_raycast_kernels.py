@@ -268,22 +268,26 @@ def brick_minmax(
     visible: wp.array(dtype=wp.int32),
     lut_lo: float,
     lut_scale: float,
+    reach: int,
     first: wp.vec3i,
     count: wp.vec3i,
-    lo_out: wp.array3d(dtype=float),
-    hi_out: wp.array3d(dtype=float),
+    seed: wp.array3d(dtype=wp.uint8),
+    flipped: wp.array(dtype=wp.int32),
     cells: wp.array3d(dtype=wp.uint64),
     offset: int,
 ):
-    """Value range of the voxels a sample inside each brick can read: brick ``b`` spans
+    """From the value range of the voxels a sample inside each brick can read (brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
-    voxels b * BRICK .. (b + 1) * BRICK inclusive. And which of the brick's cells (the unit
-    cubes between voxels, at most BRICK^3) can hold a sample of non-zero opacity: bit
-    ``cell_bit`` of ``cells`` is set iff the table has such an entry between the positions
-    of its 8 corner voxels' least and greatest value (``visible``: the running count of
-    them; ``lut_lo``, ``lut_scale``: the table's position of a value), one entry either
-    side for rounding: a trilinear value lies between its corners'. Updates bricks
-    ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
+    voxels b * BRICK .. (b + 1) * BRICK inclusive): the seed of the distance field, 0 for a
+    brick with a value of non-zero opacity in its range, else ``reach``; ``flipped`` (6: lower
+    corner, upper corner; start empty) grows to the box of the bricks whose seed changed.
+    ``visible`` holds the running count of table entries with opacity > 0, so a range is empty
+    iff the counts at its ends are equal (``lut_lo``, ``lut_scale``: the table's position of a
+    value). And which of the brick's cells (the unit cubes between voxels, at most BRICK^3 = 64)
+    can hold a sample of non-zero opacity: bit ``cell_bit`` of ``cells`` is set iff the table
+    has such an entry between the positions of its 8 corner voxels' least and greatest value,
+    one entry either side for rounding (a trilinear value lies between its corners'). Updates
+    bricks ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
     ``changed`` brick (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
     b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
@@ -307,9 +311,15 @@ def brick_minmax(
                 v = fetch(vol, strides, i, j, k)
                 vmin = wp.min(vmin, v)
                 vmax = wp.max(vmax, v)
-    lo_out[bx, by, bz] = vmin
-    hi_out[bx, by, bz] = vmax
     size = visible.shape[0] - 1
+    occupied = visible[int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1] - visible[
+        int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size)))] > 0
+    value = wp.uint8(wp.where(occupied, 0, reach))
+    if value != seed[bx, by, bz]:
+        seed[bx, by, bz] = value
+        for a in range(3):
+            wp.atomic_min(flipped, a, b[a])
+            wp.atomic_max(flipped, 3 + a, b[a])
     bits = wp.uint64(0)
     u0 = wp.max(int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size))) - 1, 0)
     u1 = wp.min(int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1, size - 1)
@@ -412,37 +422,6 @@ def brick_changes(
                     known[a] = vol[a]
                     flag = wp.uint8(1)
     changed[b[0], b[1], b[2]] = flag
-
-
-@wp.kernel
-def brick_occupancy(
-    bmin: wp.array3d(dtype=float),
-    bmax: wp.array3d(dtype=float),
-    visible: wp.array(dtype=wp.int32),
-    lo: float,
-    scale: float,
-    reach: int,
-    first: wp.vec3i,
-    count: wp.vec3i,
-    seed: wp.array3d(dtype=wp.uint8),
-    flipped: wp.array(dtype=wp.int32),
-    offset: int,
-):
-    """0 for a brick with any value of non-zero opacity in its range, else ``reach`` (the
-    seed of the distance field); ``flipped`` (6: lower corner, upper corner; start empty)
-    grows to the box of the bricks whose seed changed. ``visible`` holds the running count
-    of table entries with opacity > 0, so a range is empty iff the counts at its ends are
-    equal."""
-    b = brick_of(wp.tid() + offset, first, count)
-    size = visible.shape[0] - 1
-    u0 = int(wp.floor(lut_position(bmin[b[0], b[1], b[2]], lo, scale, size)))
-    u1 = int(wp.ceil(lut_position(bmax[b[0], b[1], b[2]], lo, scale, size)))
-    value = wp.uint8(wp.where(visible[wp.min(u1 + 1, size)] - visible[u0] > 0, 0, reach))
-    if value != seed[b[0], b[1], b[2]]:
-        seed[b[0], b[1], b[2]] = value
-        for a in range(3):
-            wp.atomic_min(flipped, a, b[a])
-            wp.atomic_max(flipped, 3 + a, b[a])
 
 
 @wp.kernel

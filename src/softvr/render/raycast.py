@@ -179,8 +179,7 @@ class RayCaster:
         fresh = retabled or (shape, name) != self._grid_key
         if (shape, name) != self._grid_key:
             # The distance field's seed and passes are kept: an update redoes them near the change only.
-            self._bmin, self._bmax, self._pass1, self._pass2, self._distance = (
-                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float) + (wp.uint8,) * 3)
+            self._pass1, self._pass2, self._distance = (wp.empty(tuple(nb), dtype=wp.uint8, device=dev) for _ in range(3))
             self._seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device=dev)  # no seed value: all written
             self._cells = wp.empty(tuple(nb), dtype=wp.uint64, device=dev)
             self._grid_key = (shape, name)
@@ -212,13 +211,11 @@ class RayCaster:
         if retabled:  # the cells' masks and the occupancy depend on the table
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
+            flipped: wp.array = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
             self._run(K.BRICK_MINMAX[name], first, last,
                       [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
-                       self._visible, float(self._lut_lo), float(self._lut_scale)], [self._bmin, self._bmax, self._cells])
-        if np.all(last >= first):
-            flipped: wp.array = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
-            self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
-                                                        float(self._lut_scale), REACH], [self._seed, flipped])
+                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
+                      [self._seed, flipped, self._cells])
             box = flipped.numpy()
             if np.any(box[3:] < box[:3]):
                 return
