@@ -325,8 +325,10 @@ class RayCaster:
                self._tables_key, self.jitter, self.smooth_slices)
         depth_host = np.ascontiguousarray(depth, np.float32)
         surface_host = np.ascontiguousarray(surface, np.uint8)
-        depth = wp.array(depth_host, dtype=float, device=dev)
-        surface = wp.array(surface_host, dtype=wp.uint8, device=dev)
+        # On the CPU the kernels read the host arrays in place (alive until the cast returns).
+        in_place = dev == "cpu"
+        depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
+        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
         # The same for every frame of one view (the spacing and option are in its key).
         self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
@@ -421,7 +423,7 @@ class RayCaster:
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device)
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         read_host, marked = self._read_distance()
