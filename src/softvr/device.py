@@ -183,7 +183,7 @@ def _chunk_replays(recorded, bounds: list[int], offset_arg: int) -> list[Callabl
     first = replayer(recorded)
     if not hasattr(first, "keep"):
         return None
-    args = first.keep[1]  # type: ignore[attr-defined]  # set by replayer()
+    args = first.keep[1]  # set by replayer()
     offset_name = args._fields_[offset_arg][0]
     forward, bounds_type = recorded.hooks.forward, type(recorded.params[0])
     replays = [first]

@@ -805,7 +805,9 @@ VOXEL_TYPES = {"int16": wp.int16, "uint8": wp.uint8, "uint16": wp.uint16, "float
 #: The voxel kernels' overloads by voxel dtype name (keys of VOXEL_TYPES), launched as they are:
 #: a launch of the generic kernel infers its argument types and looks the overload up each
 #: time (~0.2 ms of Python a launch).
-RAYCAST, BRICK_MINMAX, BRICK_CHANGES = {}, {}, {}
+RAYCAST: dict[str, wp.Kernel] = {}
+BRICK_MINMAX: dict[str, wp.Kernel] = {}
+BRICK_CHANGES: dict[str, wp.Kernel] = {}
 for _name, _t in VOXEL_TYPES.items():
     RAYCAST[_name] = wp.overload(raycast, {"vol": wp.array(dtype=_t)})
     BRICK_MINMAX[_name] = wp.overload(brick_minmax, {"vol": wp.array(dtype=_t)})
