@@ -1,7 +1,8 @@
 """The factored contact solve (softvr.contact.node_factored: A_0 factored once, rotated to the
 nodes' rotations, the contacts' Delassus operator solved by PGS, the outer iteration
-Anderson-accelerated), held to SciPy's direct solve of eq. 5.2 on a bent clamped beam whose A
-differs from the factored one, and to the MLCP of eq. 5.5 (A v = b + J^T lambda over the free
+Anderson-accelerated): the nodes' rotations held to a rigid turn and to SciPy's polar factor,
+the kept columns of A_0^-1 to NumPy's dense inverse, the solve to SciPy's direct solve of eq.
+5.2 on a bent clamped beam whose A differs from the factored one, and to the MLCP of eq. 5.5 (A v = b + J^T lambda over the free
 nodes with SciPy's A and b, complementarity, the friction disc) where a clamped beam, too stiff
 for the node sweeps, swings down onto a plane.
 
@@ -10,9 +11,10 @@ SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_
 """
 
 import numpy as np
+from scipy.linalg import polar
 from scipy.spatial.transform import Rotation
 
-from softvr.contact.node_factored import FactoredSolve
+from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, free_matrix
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.contact.test_node_aggregates import _beam
@@ -65,3 +67,73 @@ def test_a_stiff_clamped_beam_swinging_onto_a_plane_takes_the_factored_solve_and
     assert type(scene._stepper._recorded[5]).__name__ == "FactoredSolve"
     assert scene._stepper._spectrum[DT].kind is None  # what the sweeps made of it
     assert pushing >= 10
+
+
+def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffness_weighted_sums():
+    # Each solved node's rotation (stiffness warping) is the polar factor of the sum of its
+    # tets' co-rotations R_e weighted by the trace of K_e's diagonal blocks. Turned rigidly by Q,
+    # every R_e is Q and so is every node's rotation; bent, the sums are near rotations (the
+    # scaled sum is 1.2e-5 from the polar factor: neighbouring tets differ by ~0.2 rad / 24)
+    # and the kernel's three Newton steps X <- (X + X^-T) / 2 converge quadratically from
+    # there (~1e-10, ~1e-20, ...), so 1e-10 holds with room; with no Newton step it fails.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    model = stepper.model
+    tets, ke = model.tets.numpy(), model.ke.numpy()
+    weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+    solved = np.flatnonzero((model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0))
+    rest = body.q.copy()
+    q_turn = Rotation.from_rotvec([0.3, -0.5, 0.7])
+    body.q[:] = q_turn.apply(rest - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    stepper._recorded[1]()  # the tets' co-rotations
+    solve._rotations()
+    np.testing.assert_allclose(solve._absolute.numpy(), np.broadcast_to(q_turn.as_matrix(), (len(solved), 3, 3)),
+                               atol=1e-12, rtol=0)
+    x = rest[:, 0]
+    turn = Rotation.from_rotvec(np.outer(0.2 * x / x.max(), [0.0, 1.0, 0.0]))
+    body.q[:] = turn.apply(rest - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    stepper._recorded[1]()
+    solve._rotations()
+    rotations = stepper.state.rotations.numpy()
+    expected = []
+    for i in solved:
+        mine = np.flatnonzero((tets == i).any(axis=1))
+        expected.append(polar(np.einsum("e,eij->ij", weight[mine], rotations[mine]))[0])
+    np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
+
+
+def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_columns_of_the_inverse():
+    # The columns of A_0^-1 a step multiplies are kept across steps; over KEPT_NODES nodes'
+    # (a probe moved over the body) a step first drops those the last step did not use. The
+    # ones kept must still be A_0^-1's columns at their nodes (NumPy's dense inverse of the
+    # factored A over the solved rows; the solve is exact to ~1e-13 relative, as SuperLU's
+    # backward error times A's condition, ~1e3 here), and the step still SciPy's direct solve.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    a0, solved = free_matrix(stepper.model, stepper.state)
+    inverse = np.linalg.inv(a0.toarray())
+    nodes = np.flatnonzero(solved)
+    assert len(nodes) > KEPT_NODES
+    solve._slots_of(nodes[::-1])  # every solved node's columns, in an order unlike the nodes'
+    solve._used = solve._slots_of(nodes[:10])  # the last step used these ten
+    rng = np.random.default_rng(7)
+    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    for replay in stepper._recorded[1:4]:
+        replay()
+    _, expected = _solve_step(body, scene, DT)
+    _start(stepper, body.v)
+    _, solved_v = solve.solve(SWEEP_TOLERANCE)
+    np.testing.assert_allclose(solved_v.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+    kept = np.flatnonzero(solve._slot >= 0)
+    # The ten, and any this step's Woodbury set needed (the straight beam: none expected).
+    assert set(nodes[:10]) <= set(kept) and len(kept) < len(nodes) // 2
+    assert solve._kept == 3 * len(kept)
+    rows = np.cumsum(solved) - 1
+    for node in kept:
+        dofs = 3 * rows[node] + np.arange(3)
+        columns = 3 * solve._slot[node] + np.arange(3)
+        np.testing.assert_allclose(solve._columns[:, columns], inverse[:, dofs], rtol=0,
+                                   atol=1e-10 * np.abs(inverse).max())

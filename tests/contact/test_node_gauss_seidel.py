@@ -9,9 +9,11 @@ a geometric tail, so velocities are held to 3x that (as in tests/sim/test_node_a
 
 import numpy as np
 import pytest
+import scipy.optimize as so
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
+from scipy.spatial.transform import Rotation
 
 from softvr import Scene
 from softvr.collision import Plane
@@ -19,12 +21,13 @@ from softvr.contact.node_colouring import colour_nodes
 from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
-from softvr.dynamics import EmbeddedPoints, Material
+from softvr.dynamics import Coupling, EmbeddedPoints, FixedBody, Material, RigidBody, RigidPoints
 from softvr.sim import _node_step, _node_sweeps
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
 
 from tests.sim.test_node_arrays import VELOCITY_TOL, _cube, _scene, _solve_step, check_mlcp_steps
+from tests.sim.test_node_rigid_couplings import G, _block, _box_system
 
 
 def _stiff_block(lift=0.5, cells=4):
@@ -278,3 +281,59 @@ def test_sleeping_contacts_wake_when_the_sweeps_close_their_gap_and_meet_eq_5_5(
     assert check_mlcp_steps(body, scene, 1.0 / 60.0, 3, friction=0.5) == 3
     assert woken[0][0] >= 25 and woken[0][1]  # the 5x5 bottom nodes slept, then woke
     assert body.q[:, 2].min() > -1e-6
+
+
+def test_a_light_held_box_pressed_on_a_plane_by_25_contacts_solves_scipys_mlcp_of_eq_5_5_in_one_check(monkeypatch):
+    """A 2.4 g box on two springs to a fixed anchor (a haptic tool on its handle) moving down
+    onto a frictionless plane, 5x5 contact points on its bottom face (up to 15 pushing: far
+    more rows than its 6 dofs), Gauss-Seidel sweeps forced. Truth: eq. 5.5 with the box's A
+    and b written out (tests/sim/test_node_rigid_couplings.py's _box_system) and one row
+    n . (v + omega x r) >= -gap / dt per point, solved as its primal QP by SciPy's SLSQP
+    (strictly convex: v is unique though the impulses are not). The box's update is exact
+    (undamped: its 6x6 block of D_A is all of its A) and its contacts get TOOL_PASSES more PGS
+    passes a sweep, so every step stops at its first check (2 sweeps) on SciPy's velocity
+    within the sweeps' VELOCITY_TOL (omega: over the largest lever, 0.035 m). Damped by omega
+    (before), the first step stopped at 2 sweeps 0.015 rad/s off (the stop reads only the
+    contacts' residual on an exact body); with no extra passes the second took 4 sweeps."""
+    def gauss_seidel(*args, **kwargs):
+        monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
+        return _node_sweeps.choose_sweeps(*args, **kwargs)
+
+    monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
+    block = _block((0.3, 0.0, 0.0))  # the arrays need an FEM body: a clamped one, apart
+    block.fixed[:] = True
+    half = 0.02
+    box = RigidBody.box((2 * half,) * 3, 300.0, position=(0.0, 0.0, half + 0.0005), name="box",
+                        orientation=Rotation.from_rotvec([0.02, -0.03, 0.01]).as_quat(scalar_first=True),
+                        velocity=(0.01, -0.02, -0.08), angular_velocity=(0.5, -0.3, 0.2))
+    anchor = FixedBody(position=(0.0, 0.0, 0.0), name="anchor")
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.0, pgs_iterations=500)
+    scene.add_body(block)
+    grid = np.linspace(-half, half, 5)
+    points = np.array([[x, y, -half] for x in grid for y in grid])
+    scene.add_plane(Plane(friction=0.0))
+    scene.add_body(box, collision_points=RigidPoints(box, points))
+    scene.add_body(anchor)
+    ties = [Coupling(RigidPoints(box, [[0.03, 0.0, 0.0], [0.0, -0.025, 0.01]]),
+                     RigidPoints(anchor, [[0.05, 0.01, 0.03], [-0.01, -0.04, 0.0]]), 200.0, damping=0.5)]
+    scene.add_coupling(ties[0])
+    dt = 0.01
+    normal = np.array([0.0, 0.0, 1.0])
+    pressed = []
+    for _ in range(3):
+        a, b = _box_system(box, ties, dt)
+        levers = points @ box.rotation.T
+        jac = np.hstack([np.tile(normal, (len(points), 1)), np.cross(levers, normal)])
+        gap = box.position[2] + levers[:, 2]
+        near = gap < 0.002 + 0.1 * dt  # within the margin plus the motion over the step
+        rows, floor = jac[near], -gap[near] / dt
+        truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
+                            constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
+                            method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
+        pressed.append(int((rows @ np.linalg.solve(a, b) < floor).sum()))  # rows the contacts must push
+        solution = scene.step(dt)
+        assert scene._stepper is not None and scene._stepper._recorded[5].colours is not None
+        assert solution.iterations <= 2
+        np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)
+        np.testing.assert_allclose(box.v[3:], truth[3:], atol=VELOCITY_TOL / 0.035, rtol=0)
+    assert pressed[0] >= 10 and pressed[1] > 0

@@ -1,10 +1,11 @@
 """Compiled parts of the factored contact solve (:mod:`softvr.contact.node_factored`): the
-residual of the momentum equation of thesis eq. 5.2 over the node blocks, and projected
+nodes' rotations since the factorization, the residual of the momentum equation of thesis eq.
+5.2 over the node blocks turned back by them and the update turned forward, and projected
 Gauss-Seidel on a small dense Delassus matrix (thesis eq. 5.5's LCP in the contacts' impulses).
 
-Residual of node ``i`` (free nodes; a fixed node's is 0):
+Residual of solved node ``i`` (row ``k``), turned by its rotation ``R_i``:
 
-    r_i = b_i - sum_j A_ij v_j                                       [kg m/s]
+    r_k = R_i^T (b_i - sum_j A_ij v_j)                               [kg m/s]
 
 PGS on ``W`` (3 m x 3 m, contact frames: normal, tangent 1, tangent 2) from the contacts'
 relative velocities ``u`` [m/s] without the impulses:
@@ -23,18 +24,58 @@ from softvr.contact._node_jacobi_kernels import pgs_update
 
 
 @wp.kernel
-def momentum_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                      blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-                      v: wp.array(dtype=wp.vec3d), r: wp.array(dtype=wp.vec3d), offset: int):
-    """``r_i = b_i - sum_j A_ij v_j`` [kg m/s] of node ``i`` (``tid + offset``); 0 on a fixed node."""
-    i = wp.tid() + offset
-    if fixed[i] != 0:
-        r[i] = wp.vec3d()
-        return
+def node_rotations(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=wp.int32),
+                   tet_weight: wp.array(dtype=wp.float64), tet_rotation: wp.array(dtype=wp.mat33d),
+                   solved: wp.array(dtype=wp.int32), rotation0: wp.array(dtype=wp.mat33d), polar_iterations: int,
+                   absolute: wp.array(dtype=wp.mat33d), relative: wp.array(dtype=wp.mat33d)):
+    """Solved node ``i = solved[k]``'s rotation: the polar part of its tets' co-rotations
+    ``R_e`` summed by their stiffness ``tet_weight`` [N/m] (``force[c] = 4 tet + a`` for ``c``
+    in ``force_start[i] : force_start[i + 1]``; Muller and Gross's stiffness warping) into
+    ``absolute[k]``, and turned back by the factorization's ``rotation0[k]``: ``relative[i] =
+    absolute[k] rotation0[k]^T``. Newton's iteration ``X <- (X + X^-T) / 2`` from the sum
+    scaled to unit determinant (the sums are near rotations; P needs R to a few digits)."""
+    k = wp.tid()
+    i = solved[k]
+    x = wp.mat33d()
+    for c in range(force_start[i], force_start[i + 1]):
+        e = force[c] // 4
+        x = x + tet_weight[e] * tet_rotation[e]
+    det = wp.determinant(x)
+    scale = wp.pow(wp.abs(det), wp.float64(1.0) / wp.float64(3.0))
+    if det < wp.float64(0.0):
+        scale = -scale
+    x = x / scale
+    for _ in range(polar_iterations):
+        x = wp.float64(0.5) * (x + wp.transpose(wp.inverse(x)))
+    absolute[k] = x
+    relative[i] = x * wp.transpose(rotation0[k])
+
+
+@wp.kernel
+def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                    blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), solved: wp.array(dtype=wp.int32),
+                    rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), r: wp.array(dtype=wp.vec3d)):
+    """``r_k = R_i^T (b_i - sum_j A_ij v_j)`` [kg m/s] of solved node ``i = solved[k]``: eq.
+    5.2's residual turned back by the node's rotation since the factorization."""
+    k = wp.tid()
+    i = solved[k]
     acc = b[i]
-    for k in range(row_start[i], row_start[i + 1]):
-        acc = acc - blocks[k] * v[block_col[k]]
-    r[i] = acc
+    for c in range(row_start[i], row_start[i + 1]):
+        acc = acc - blocks[c] * v[block_col[c]]
+    r[k] = wp.transpose(rotation[i]) * acc
+
+
+@wp.kernel
+def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
+                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d)):
+    """``u_i = v_i + R_i y_k`` [m/s] of node ``i``, ``k = index[i]`` its row among the solved
+    nodes (``u_i = v_i`` on a node not solved: ``k < 0``)."""
+    i = wp.tid()
+    k = index[i]
+    if k < 0:
+        u[i] = v[i]
+    else:
+        u[i] = v[i] + rotation[i] * y[k]
 
 
 @wp.kernel

@@ -8,8 +8,10 @@ contact's stencil ("contact nodes") set apart:
     1. colours 0 .. C-1, the free nodes i of each that are not contact nodes (no block couples
        two nodes of one colour):  w_i = D_i^-1 (b_i - sum_{j != i} A_ij w_j)
     2. the contact nodes, damped Jacobi on the swept neighbours:
-       v^_i = (1 - omega) v^k_i + omega D_i^-1 (b_i - sum_{j != i} A_ij w_j)
-    3. the contact PGS (shared kernel, metric omega D_A^-1) projects v^ of the contact nodes;
+       v^_i = (1 - omega_i) v^k_i + omega_i D_i^-1 (b_i - sum_{j != i} A_ij w_j)
+       (omega_i = 1 on a rigid body whose D_A block, or island, is all of its A: exact)
+    3. the contact PGS (shared kernel, metric omega_i D_A^-1) projects v^ of the contact nodes,
+       then more passes over the exact rigid bodies' contacts (:func:`tool_contacts`);
        w_i = v^_i there
     4. colours C-1 .. 0 again (backward), v^_i = w_i
 
@@ -28,7 +30,9 @@ Gauss-Seidel: error operator ``I - M^-1 A`` with ``M = (D + L) D^-1 (D + U)`` (L
 triangles in colour order; M^-1 A has its spectrum in (0, 1]). With contacts it is
 ``F^* S F`` (F the forward half, ``F^*`` its A-adjoint the backward half, S the damped Jacobi
 step of the contact nodes): with ``omega <= 1 / lambda_max(D_A^-1 A)``, S has its spectrum in
-[0, 1), so M^-1 A still has none above 1, which the Chebyshev weights need.
+[0, 1), so M^-1 A still has none above 1, which the Chebyshev weights need. An exact rigid
+body's rows have blocks only on its own (or its island's) nodes and driven ones, so its
+undamped update solves them: S is 0 there, and the Chebyshev step leaves those nodes as they are.
 """
 
 from __future__ import annotations
@@ -102,10 +106,11 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
                   fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
                   contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
                   off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
-                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
+                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d),
                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), offset: int):
     """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes (``order[t]``,
-    thread t) from the sweep's start ``v`` and the swept ``w`` [m/s]."""
+    thread t) from the sweep's start ``v`` and the swept ``w`` [m/s], each node damped by its
+    ``omega`` [n]."""
     t = wp.tid() + offset
     i = order[t]
     if contact_node[i] == 0:
@@ -118,7 +123,7 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
         update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
     else:
         update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
-    v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * update
+    v_hat[i] = (wp.float64(1.0) - omega[i]) * v[i] + omega[i] * update
 
 
 @wp.kernel
@@ -184,14 +189,33 @@ def woken(count: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32), imp
 
 
 @wp.kernel
-def scale(d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d), omega: wp.float64,
+def tool_contacts(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+                  tool_node: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                  tool_live: wp.array(dtype=wp.int32), threads: int):
+    """``tool_live[c] = 1`` for the ``live`` contacts [c] with a rigid side on a ``tool_node``
+    [n] (a rigid body whose sweep update is exact: :func:`softvr.dynamics.node_rigid.rigid_islands`),
+    the ones the sweep's extra PGS passes revisit (``threads`` threads, the launch's, striding
+    over this step's contacts)."""
+    for c in range(wp.tid(), count[0], threads):
+        on = int(0)
+        if live[c] != 0:
+            for s in range(rigid_node.shape[1]):
+                node = rigid_node[c, s]
+                if node >= 0:
+                    if tool_node[node] != 0:
+                        on = 1
+        tool_live[c] = on
+
+
+@wp.kernel
+def scale(d_inv: wp.array(dtype=wp.mat33d), cross: wp.array(dtype=wp.mat33d), omega: wp.array(dtype=wp.float64),
           out: wp.array(dtype=wp.mat33d), out_cross: wp.array(dtype=wp.mat33d)):
     """``out = omega D_A^-1`` [1/kg]: the contact PGS's metric for damped contact nodes (its
     diagonal blocks ``d_inv``, and ``cross`` the off-diagonal ones of spring-held rigid bodies'
-    6x6 blocks)."""
+    6x6 blocks), each node's by its ``omega`` [n] (a body's two nodes share theirs)."""
     i = wp.tid()
-    out[i] = omega * d_inv[i]
-    out_cross[i] = omega * cross[i]
+    out[i] = omega[i] * d_inv[i]
+    out_cross[i] = omega[i] * cross[i]
 
 
 @wp.kernel
@@ -315,20 +339,20 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
                    stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
                    frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
                    rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
-                   force: wp.array(dtype=wp.vec3d), omega: wp.float64, v: wp.array(dtype=wp.vec3d),
-                   w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+                   force: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
     """Step 2 on an island in contact (its nodes all contact nodes, :func:`mark_islands`; one
     thread for all islands: contacts may share them): with ``f = J_I^T lambda`` [N s, N m s]
     the generalized impulses of the contacts' last ``impulse`` (world ``frame^T lambda``: a
     stencil node takes its weight times it, a rigid side's angular node its lever's torque),
 
-        v^_I = (1 - omega) v_I + omega A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - omega P f
+        v^_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - P f
 
-    [m/s, rad/s], omega P (``metric``, ``cross_metric``: :func:`island_metric`) the metric with
-    which the contact PGS then applies ``omega P J^T lambda``: the sweep's update is the
+    [m/s, rad/s], P (``metric``, ``cross_metric``: :func:`island_metric`) the metric with
+    which the contact PGS then applies ``P J^T lambda``: the sweep's update is the
     island's exact response to the last impulses, and the PGS's change of them moves each body
     by its own block of the island's inverse; the fixed point is the island's rows of
-    ``A v = b + J^T lambda``."""
+    ``A v = b + J^T lambda``. Undamped, as every exact rigid body's contact-node update
+    (:class:`softvr.contact.node_gauss_seidel.GaussSeidelSweep`)."""
     for t in range(island_start.shape[0] - 1):
         s = island_start[t]
         n = island_start[t + 1] - s
@@ -358,16 +382,15 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
             pushed = metric[i] * force[i]
             if partner[i] >= 0:
                 pushed = pushed + cross_metric[i] * force[partner[i]]
-            v_hat[i] = (wp.float64(1.0) - omega) * v[i] + omega * out - pushed
+            v_hat[i] = out - pushed
 
 
 @wp.kernel
 def island_metric(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
                   island_local: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32),
-                  inverse: wp.array3d(dtype=wp.float64), omega: wp.float64, metric: wp.array(dtype=wp.mat33d),
+                  inverse: wp.array3d(dtype=wp.float64), metric: wp.array(dtype=wp.mat33d),
                   cross_metric: wp.array(dtype=wp.mat33d)):
-    """The contact PGS's metric on island ``t``'s nodes [1/kg, mixed]: ``omega`` times each
-    body's own 6x6 block of ``A_II^-1`` (its response to an impulse on it, the island's other
+    """The contact PGS's metric on island ``t``'s nodes [1/kg, mixed]: each body's own 6x6 block of ``A_II^-1`` (its response to an impulse on it, the island's other
     bodies moving as its springs make them), in place of the inverse of the body's own block."""
     t = wp.tid()
     s = island_start[t]
@@ -379,7 +402,7 @@ def island_metric(island_start: wp.array(dtype=wp.int32), island_node: wp.array(
         other = wp.mat33d()
         for x in range(3):
             for y in range(3):
-                own[x, y] = omega * inverse[t, 3 * li + x, 3 * li + y]
-                other[x, y] = omega * inverse[t, 3 * li + x, 3 * lp + y]
+                own[x, y] = inverse[t, 3 * li + x, 3 * li + y]
+                other[x, y] = inverse[t, 3 * li + x, 3 * lp + y]
         metric[i] = own
         cross_metric[i] = other

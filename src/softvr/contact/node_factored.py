@@ -56,6 +56,10 @@ ANDERSON_MEMORY = 5
 #: has a block over this share of ``A_0``'s diagonal block, at most :data:`LOCAL_NODES` of them.
 LOCAL_THRESHOLD = 0.05
 LOCAL_NODES = 120
+#: Nodes whose columns of ``A_0^-1`` are kept, above which a step starts by dropping those the
+#: last step did not use (an outer iteration multiplies all kept columns; a probe moved over a
+#: body would otherwise gather them until the next factorization).
+KEPT_NODES = 120
 #: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
 POLAR_ITERATIONS = 3
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
@@ -127,24 +131,35 @@ class _Anderson:
 
     def __init__(self, memory: int):
         self.memory = memory
-        self._f: list[np.ndarray] = []  # residuals G(x) - x
-        self._g: list[np.ndarray] = []  # images G(x)
+        self._last: tuple[np.ndarray, np.ndarray] | None = None  # the last residual G(x) - x and image G(x)
+        self._df: list[np.ndarray] = []  # differences of successive residuals
+        self._dg: list[np.ndarray] = []  # and of images
+        # Their Gram matrix, one new row a call (the products of a whole stack every call cost
+        # ~0.1 ms on the head CT's 5 K velocities, more than the rest of the step's Anderson).
+        self._gram = np.zeros((memory, memory))
 
     def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
         """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N]."""
-        self._f.append(g - x)
-        self._g.append(g)
-        if len(self._f) > self.memory + 1:
-            self._f.pop(0)
-            self._g.pop(0)
-        if len(self._f) < 2:
+        f = g - x
+        if self._last is None:
+            self._last = f, g
             return g
-        f = np.asarray(self._f)
-        df, dg = f[1:] - f[:-1], np.asarray(self._g[1:]) - np.asarray(self._g[:-1])
-        gram = df @ df.T
-        gram.flat[::len(gram) + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
-        gamma = np.linalg.lstsq(gram, df @ f[-1], rcond=None)[0]
-        return g - gamma @ dg
+        self._df.append(f - self._last[0])
+        self._dg.append(g - self._last[1])
+        self._last = f, g
+        if len(self._df) > self.memory:
+            self._df.pop(0)
+            self._dg.pop(0)
+            self._gram[:-1, :-1] = self._gram[1:, 1:].copy()
+        k = len(self._df)
+        row = np.array([d @ self._df[-1] for d in self._df])
+        self._gram[k - 1, :k] = self._gram[:k, k - 1] = row
+        gram = self._gram[:k, :k].copy()
+        gram.flat[::k + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
+        gamma = np.linalg.lstsq(gram, np.array([d @ f for d in self._df]), rcond=None)[0]
+        for c, d in zip(gamma, self._dg):
+            g = g - c * d
+        return g
 
 
 class FactoredSolve:
@@ -175,7 +190,8 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.momentum_residual, _k.warp_change, _k.dense_pgs, _jk.residual):
+        for kernel in (_k.node_rotations, _k.turned_residual, _k.turned_update, _k.warp_change, _k.dense_pgs,
+                       _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
@@ -183,12 +199,35 @@ class FactoredSolve:
         self._fixed = model.fixed.numpy() != 0
         self._fixed_velocity = state.fixed_velocity.numpy()
         self._fixed_nodes = np.flatnonzero(self._fixed)
+        # The solved nodes (free, with blocks of A): the factorization's rows, in node order.
+        self._solved = ~self._fixed & (np.diff(model.row_start.numpy()) > 0)
+        self._solved_nodes = np.flatnonzero(self._solved)
+        self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        k = len(self._solved_nodes)
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
-        self._r = wp.zeros(n, dtype=wp.vec3d, device=d)
-        # One thread: the product is ~0.1 ms on the head CT, less than handing half to a second core.
-        self._residual = replayer(wp.launch(_k.momentum_residual, dim=n, device=d, record_cmd=True,
+        self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
+        self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
+        self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
+        self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
+        self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._rotation0 = wp.zeros(k, dtype=wp.mat33d, device=d)
+        solved_d: wp.array = wp.array(self._solved_nodes.astype(np.int32), dtype=wp.int32, device=d)
+        index_d: wp.array = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32, device=d)
+        tets, ke = model.tets.numpy(), model.ke.numpy()
+        # A tet's weight in its nodes' rotations: its stiffness (trace of K_e's diagonal blocks).
+        weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+        self._tet_weight: wp.array = wp.array(weight, dtype=wp.float64, device=d)
+        # One thread each: the launches are ~0.05-0.1 ms on the head CT, less than handing half
+        # to a second core.
+        self._rotations = replayer(wp.launch(
+            _k.node_rotations, dim=k, device=d, record_cmd=True,
+            inputs=[model.force_start, model.force, self._tet_weight, state.rotations, solved_d, self._rotation0,
+                    POLAR_ITERATIONS, self._absolute, self._rotation]))
+        self._residual = replayer(wp.launch(_k.turned_residual, dim=k, device=d, record_cmd=True,
                                             inputs=[model.row_start, model.block_col, state.blocks, state.b,
-                                                    model.fixed, self._v, self._r, 0]))
+                                                    solved_d, self._rotation, self._v, self._r]))
+        self._update = replayer(wp.launch(_k.turned_update, dim=n, device=d, record_cmd=True,
+                                          inputs=[index_d, self._rotation, self._v, self._y, self._u]))
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
         capacity = state.contacts.capacity
         self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
@@ -200,74 +239,46 @@ class FactoredSolve:
         self._host = {name: getattr(c, name).numpy() for name in
                       ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
                        "stiffness", "slip", "impulse")}
-        self._host.update(v=self._v.numpy(), r=self._r.numpy(), stats=self.stats.numpy(), done=self._done.numpy(),
-                          metric=self._metric.numpy(), movable=self._movable.numpy(), blocks=state.blocks.numpy(),
-                          rotations=state.rotations.numpy())
+        self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
+                          stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
+                          movable=self._movable.numpy(), blocks=state.blocks.numpy())
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
                     c.rigid_lever, self.dt, self._v, c.impulse, c.friction, c.stiffness, c.slip, self._metric,
                     self._movable, c.gap_after, self.stats]))
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
-        self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
-        solved = (model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0)
-        self._solved_d: wp.array = wp.array(solved.astype(np.int32), dtype=wp.int32, device=d)
+        solved_mask: wp.array = wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d)
         self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
                                                inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
-                                                       self._rotation, self._solved_d, self._change]))
+                                                       self._rotation, solved_mask, self._change]))
         self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
         self.delassus_passes = 0
-        tets, ke = model.tets.numpy(), model.ke.numpy()
-        weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
-        # Each node's rotation is the polar part of its tets' rotations summed by stiffness.
-        self._gather = sp.csr_matrix((np.repeat(weight, 4), (tets.ravel(), np.repeat(np.arange(len(tets)), 4))),
-                                     shape=(n, len(tets)))
         self._factor()
 
     def _factor(self) -> None:
         """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
-        a, self._solved = free_matrix(self.model, self.state)
+        a, _ = free_matrix(self.model, self.state)
         self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
                              options={"SymmetricMode": True})
         self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
         self.factorizations += 1
-        self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
-        self._solved_nodes = np.flatnonzero(self._solved)
-        self._rotation0 = self._node_rotations()
+        # R_0: the nodes' rotations now; R since is the identity.
+        self._rotations()
+        wp.copy(self._rotation0, self._absolute)
+        self._host["rotation"][self._solved_nodes] = np.eye(3)
         rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
         self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
         self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
+        self._pair_nodes = rows[self._pairs], cols[self._pairs]
         wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
-
-    def _node_rotations(self) -> np.ndarray:
-        """Each solved node's rotation [k, 3, 3]: the polar rotation of the sum of its tets'
-        co-rotation ``R_e`` (this step's) weighted by their stiffness (trace of K_e's diagonal
-        blocks): Muller and Gross's stiffness warping, per node."""
-        rotations = self._host["rotations"].reshape(-1, 9)
-        x = (self._gather @ rotations)[self._solved_nodes].reshape(-1, 3, 3)
-        # Newton's iteration for the polar factor, X <- (X + X^-T) / 2, from X scaled to unit
-        # determinant: the sums are near rotations, and P only needs R to a few digits.
-        x /= np.cbrt(np.einsum("kj,kj->k", x[:, 0], np.cross(x[:, 1], x[:, 2])))[:, None, None]
-        for _ in range(POLAR_ITERATIONS):
-            # X^-T = cofactors / det: rows b x c, c x a, a x b of X's rows a, b, c.
-            cofactors = np.cross(x[:, [1, 2, 0]], x[:, [2, 0, 1]])
-            det = np.einsum("kj,kj->k", x[:, 0], cofactors[:, 0])
-            x = 0.5 * (x + cofactors / det[:, None, None])
-        return x
-
-    def _rotate(self, x: np.ndarray, transpose: bool = False) -> np.ndarray:
-        """``R x`` (or ``R^T x``) for node vectors ``x`` [k, 3, ...] with ``R`` the block
-        diagonal of the nodes' rotations since the factorization."""
-        r = self._relative if not transpose else self._relative.transpose(0, 2, 1)
-        if x.ndim == 2:
-            return np.matmul(r, x[:, :, None])[:, :, 0]
-        return np.matmul(r, x)
+        self._used = np.zeros(0, np.int64)  # the columns the last step used
 
     def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
@@ -278,8 +289,7 @@ class FactoredSolve:
         columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
         the solved velocities [3 s], its columns in the kept ones (:meth:`_slots_of`) [3 s] and
         ``T`` [3 s, 3 s] (s = 0: none)."""
-        r, h = self._relative, self._host
-        h["rotation"][self._solved_nodes] = r
+        h = self._host
         self._warp_change()
         size = h["change"][self._solved_nodes]
         pick = np.flatnonzero(size > LOCAL_THRESHOLD)
@@ -289,7 +299,9 @@ class FactoredSolve:
         inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
         bi, bj = self._bi[inside], self._bj[inside]
         a0 = h["blocks0"][self._pairs[inside]]
-        d = np.matmul(np.matmul(r[bi].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]), r[bj]) - a0
+        r = h["rotation"]
+        d = np.matmul(np.matmul(r[self._pair_nodes[0][inside]].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]),
+                      r[self._pair_nodes[1][inside]]) - a0
         grid = np.zeros((len(pick), len(pick), 3, 3))
         grid[slot[bi], slot[bj]] = d
         blocks = grid.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
@@ -303,17 +315,34 @@ class FactoredSolve:
         each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept."""
         missing = nodes[self._slot[nodes] < 0]
         if len(missing):
-            unit = np.zeros((self._columns.shape[0], 3 * len(missing)), order="F")
-            dofs = (3 * self._index[missing][:, None] + np.arange(3)).ravel()
-            unit[dofs, np.arange(len(dofs))] = 1.0
             self._slot[missing] = self._kept // 3 + np.arange(len(missing))
-            if self._kept + len(dofs) > self._columns.shape[1]:  # room for twice as many
-                grown = np.zeros((self._columns.shape[0], 2 * (self._kept + len(dofs))), order="F")
+            if self._kept + 3 * len(missing) > self._columns.shape[1]:  # room for twice as many
+                grown = np.zeros((self._columns.shape[0], 2 * (self._kept + 3 * len(missing))), order="F")
                 grown[:, :self._kept] = self._columns[:, :self._kept]
                 self._columns = grown
-            self._columns[:, self._kept:self._kept + len(dofs)] = self._lu.solve(unit)
-            self._kept += len(dofs)
+            unit = np.zeros((self._columns.shape[0], 3), order="F")
+            for row in 3 * self._index[missing]:
+                # One node's three columns a solve: from about nine right-hand sides SuperLU's
+                # blocked solve calls multithreaded BLAS, which on a loaded machine spins: 10x
+                # the CPU of these solves (head CT at load 8: 15 ms for nine columns, 0.7 for three).
+                unit[row:row + 3] = np.eye(3)
+                self._columns[:, self._kept:self._kept + 3] = self._lu.solve(unit)
+                unit[row:row + 3] = 0.0
+                self._kept += 3
         return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
+
+    def _forget_columns(self) -> None:
+        """Keep only the columns the last step used, where over :data:`KEPT_NODES` nodes' and
+        over twice those are kept (a step that uses more keeps them all)."""
+        if self._kept <= 3 * KEPT_NODES or self._kept <= 2 * len(self._used):
+            return
+        nodes = np.flatnonzero(self._slot >= 0)
+        keep = nodes[np.isin(self._slot[nodes], self._used // 3)]
+        columns = (3 * self._slot[keep][:, None] + np.arange(3)).ravel()
+        self._columns[:, :len(columns)] = self._columns[:, columns]
+        self._slot[:] = -1
+        self._slot[keep] = np.arange(len(keep))
+        self._kept = len(columns)
 
     def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
@@ -341,7 +370,7 @@ class FactoredSolve:
         dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
         jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
         # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
-        rel = self._relative[self._index[touched]]
+        rel = h["rotation"][touched]
         jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
         near = self._columns[np.ix_(local[0], slots)]  # A_0^-1 between S and the touched nodes
         w = jt.T @ (self._columns[np.ix_(dofs, slots)] - near.T @ local[2] @ near) @ jt
@@ -349,6 +378,7 @@ class FactoredSolve:
         metric = h["metric"]
         metric[:n] = 0.0
         metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        self._used = np.concatenate([local[1], slots])
         return rows, nodes, weights, w, dofs, jt, slots, near
 
     def _delassus(self, m: int, tolerance: float) -> dict:
@@ -380,9 +410,10 @@ class FactoredSolve:
         a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
         st, h = self.state, self._host
         wp.copy(self._v, st.sweep_buffers[0])
-        v, r, solved = h["v"], h["r"], self._solved_nodes
+        v, y_d = h["v"], h["y"]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
-        self._relative = np.matmul(self._node_rotations(), self._rotation0.transpose(0, 2, 1))
+        self._rotations()
+        self._forget_columns()
         local = self._local()
         rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
         m = len(rows)
@@ -400,32 +431,35 @@ class FactoredSolve:
         while k < self.max_iterations:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
                 self._factor()
-                self._relative = np.tile(np.eye(3), (len(solved), 1, 1))
                 local = self._local()
                 rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
-            self._residual()
-            x = v[solved]
-            rotated = self._rotate(r[solved], True).ravel()  # R^T r
-            kept = self._columns[:, :self._kept]
+            self._residual()  # R^T r
+            y = self._lu.solve(h["r"].ravel())  # A_0^-1 R^T r
+            # P^-1 = R (A_0^-1 - C_S T C_S^T) R^T (Woodbury); C_S^T x = (A_0^-1 x)_S, A_0 being
+            # symmetric. Both corrections go through one product with the kept columns.
+            spread = np.zeros(self._kept)
+            at_s = y[local[0]]
             if m:
-                at = kept.T @ rotated  # A_0^-1 R^T r at the kept columns' nodes
-                at = at[slots] - near.T @ (local[2] @ at[local[1]])  # P^-1 r there, turned
+                at = y[dofs] - near.T @ (local[2] @ at_s)  # P^-1 r at the touched nodes, turned
                 rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
                 u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
                 self._pgs()
                 self.delassus_passes += int(h["done"][0])
-                rotated[dofs] += jt @ lam.ravel()  # + R^T J^T lambda
-            y = self._lu.solve(rotated)
+                pushed = jt @ lam.ravel()  # R^T J^T lambda at the touched nodes
+                spread[slots] = pushed
+                at_s = at_s + near @ pushed
             if len(local[0]):
-                spread = np.zeros(self._kept)
-                spread[local[1]] = local[2] @ y[local[0]]
-                y -= kept @ spread
-            u = x + self._rotate(y.reshape(-1, 3))
-            change = float(np.abs(u - x).max(initial=0.0))
-            v[solved] = anderson.next(x.ravel(), u.ravel()).reshape(-1, 3)
+                spread[local[1]] -= local[2] @ at_s
+            if self._kept:
+                y += self._columns[:, :self._kept] @ spread
+            y_d[:] = y.reshape(-1, 3)
+            self._update()  # u = v + R y
+            u = h["u"].ravel().copy()
+            change = float(np.abs(u - v.ravel()).max(initial=0.0))
+            v[:] = anderson.next(v.ravel(), u).reshape(-1, 3)
             h["stats"][0] = change
             changes.append(change)
             if _error(changes) <= tolerance and self._contacts_met(rows, lam, tolerance):

@@ -261,7 +261,15 @@ class NodeSolve:
                                           model.couplings.partner, cross, model.fixed, float(dt), int(passes),
                                           c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
                                           self.live, self._order])
-        return in_order(replayer(warm), replayer(screen), replayer(passes_launch))
+        replays = [replayer(warm), replayer(screen), replayer(passes_launch)]
+        gs = self._gauss_seidel
+        if gs is not None and gs.tool_passes:  # the exact rigid bodies' contacts again
+            replays += [gs.mark_tools(self.live, threads), replayer(wp.launch(
+                _k.contacts, dim=1, device=d, record_cmd=True,
+                inputs=[*stencil, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
+                        cross, model.fixed, float(dt), int(gs.tool_passes), c.impulse, state.v_hat, gs.tool_sweep,
+                        c.stiffness, c.slip, co, metric, gs.tool_live, self._order]))]
+        return in_order(*replays)
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
