@@ -81,3 +81,19 @@ def test_stream_poses_match_scipy():
     same_rotation(pose[3:], A[6], atol=1e-12)
     np.testing.assert_allclose(pose[:3], [1.0, -2.0, 0.5], atol=1e-12)
     assert error == pytest.approx(0.0, abs=1e-12)
+
+
+def test_single_quaternion_paths_give_scipys_bits():
+    """The plain-float paths a kinematic body takes every step: one product, and the rotation
+    vector of a quaternion with no vector part (no turn over the step; zeros of either sign)
+    are bit for bit SciPy's (the batched product's, and ``Rotation.as_rotvec``'s small-angle
+    map ``2 (x, y, z)``, which keeps the zeros' signs), so a kinematic body steps the same."""
+    a, b = wxyz(A), wxyz(B)
+    batched = quat_multiply(a, b)
+    for i in range(len(a)):
+        assert quat_multiply(a[i], b[i]).tobytes() == batched[i].tobytes()
+    for q in ([1.0, 0.0, 0.0, 0.0], [1.0, -0.0, 0.0, -0.0], [1.0 - 2 ** -53, -0.0, -0.0, -0.0],
+              quat_multiply(a[3], quat_conjugate(a[3]))):
+        q = np.asarray(q)
+        assert not q[1:].any()
+        assert quat_to_rotvec(q).tobytes() == Rotation.from_quat(q[[1, 2, 3, 0]]).as_rotvec().tobytes()

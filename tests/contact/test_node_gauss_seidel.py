@@ -22,6 +22,7 @@ from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Coupling, EmbeddedPoints, FixedBody, Material, RigidBody, RigidPoints
+from softvr.dynamics.node_rigid import held_tool
 from softvr.sim import _node_step, _node_sweeps
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
@@ -178,22 +179,25 @@ def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkey
     assert crowded.kind == "gauss-seidel"  # its fewer sweeps (the spectrum test) now win
 
 
+def _cube_choice_args(monkeypatch):
+    """choose_sweeps' first five arguments for the soft cube on a plane (pattern, A, free nodes,
+    Jacobi's bounds), Gauss-Seidel estimated whatever Jacobi's work (GAUSS_SEIDEL_FROM 0)."""
+    _, stepper = _prepared(_cube(), 1.0 / 60.0, plane=True)
+    m = stepper.model
+    a, free = free_matrix(m, stepper.state)
+    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
+    return m.row_start.numpy(), m.block_col.numpy(), a, free, spectrum(m, stepper.state)
+
+
 def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(monkeypatch):
     # Where Jacobi is over its limit the alternative to Gauss-Seidel is the per-object LU, so
     # Gauss-Seidel within MAX_GAUSS_SEIDEL_WORK_PER_DECADE is taken even at more work than
     # Jacobi's (the shoulder, both at ~39.5, was declined by the strict comparison).
-    body = _cube()
-    _, stepper = _prepared(body, 1.0 / 60.0, plane=True)
-    a, free = free_matrix(stepper.model, stepper.state)
-    m = stepper.model
-    monkeypatch.setattr(_node_sweeps, "GAUSS_SEIDEL_FROM", 0.0)
-    bounds = spectrum(m, stepper.state)
-    free_choice = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds, 25.0, 0, 2,
-                                             SPECTRUM_MARGIN)
+    args = _cube_choice_args(monkeypatch)
+    free_choice = _node_sweeps.choose_sweeps(*args, 25.0, 0, 2, SPECTRUM_MARGIN)
     jacobi, gauss_seidel = free_choice.work["jacobi"], free_choice.work["gauss-seidel"]
     assert jacobi < gauss_seidel <= _node_sweeps.MAX_GAUSS_SEIDEL_WORK_PER_DECADE
-    limited = _node_sweeps.choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
-                                         0.5 * jacobi, 0, 2, SPECTRUM_MARGIN)
+    limited = _node_sweeps.choose_sweeps(*args, 0.5 * jacobi, 0, 2, SPECTRUM_MARGIN)
     assert limited.kind == "gauss-seidel"
 
 
@@ -337,3 +341,47 @@ def test_a_light_held_box_pressed_on_a_plane_by_25_contacts_solves_scipys_mlcp_o
         np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)
         np.testing.assert_allclose(box.v[3:], truth[3:], atol=VELOCITY_TOL / 0.035, rtol=0)
     assert pressed[0] >= 10 and pressed[1] > 0
+
+
+def _box_scene(held: bool):
+    """A clamped FEM block (the arrays need one) and a 2.4 g box, free or on a spring to a fixed anchor."""
+    block = _block((0.3, 0.0, 0.0))
+    block.fixed[:] = True
+    box = RigidBody.box((0.04,) * 3, 300.0, position=(0.0, 0.0, 0.05), name="box")
+    anchor = FixedBody(position=(0.0, 0.0, 0.1), name="anchor")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    for body in (block, box, anchor):
+        scene.add_body(body)
+    if held:
+        scene.add_coupling(Coupling(RigidPoints(box, [[0.0, 0.0, 0.02]]), RigidPoints(anchor, [[0.0, 0.0, 0.0]]),
+                                    200.0))
+    return scene
+
+
+@pytest.mark.parametrize("held", [True, False])
+def test_a_held_tool_is_a_rigid_body_on_springs_whose_update_is_exact(held):
+    # held_tool: a rigid body whose nodes have a pair partner (a spring holds it, so its 6x6
+    # block of D_A couples them) in an island the sweeps solve exactly; a free body is not one.
+    stepper = NodeStepper(_box_scene(held))
+    assert held_tool(stepper.model) is held
+
+
+def test_with_a_held_tool_the_coarse_correction_must_be_clearly_cheaper_than_gauss_seidel(monkeypatch):
+    # The rule (choose_sweeps): the coarse correction over Gauss-Seidel at <= 0.75 of its work,
+    # <= 0.5 with a held tool (the arthroscopy at 0.77, coarse: every step at the 100-sweep
+    # cap; Gauss-Seidel 14 / 77 sweeps). A coarse estimate of 0.6 of Gauss-Seidel's work is
+    # taken without a held tool and declined with one.
+    args = _cube_choice_args(monkeypatch)
+    bounds = args[-1]
+    plain = _node_sweeps.choose_sweeps(*args, 25.0, 0, 2, SPECTRUM_MARGIN)
+    gauss_seidel = plain.work["gauss-seidel"]
+    limit = 0.5 * min(plain.work["jacobi"], gauss_seidel)  # Jacobi over it, the coarse estimate too
+
+    def coarse_choice(a, free, coarse, jacobi_cost, margin, work):
+        work["coarse"] = 0.6 * gauss_seidel
+        return _node_sweeps.SweepChoice("jacobi", bounds, None, 1.0, work, coarse=np.array([[0, 1]]))
+
+    monkeypatch.setattr(_node_sweeps, "_coarse_choice", coarse_choice)
+    kinds = [_node_sweeps.choose_sweeps(*args, limit, 0, 2, SPECTRUM_MARGIN, (np.array([[0, 1]]),), held=held)
+             for held in (False, True)]
+    assert [(c.kind, c.coarse is not None) for c in kinds] == [("jacobi", True), ("gauss-seidel", False)]

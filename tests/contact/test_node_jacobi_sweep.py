@@ -7,6 +7,7 @@ per-object path assembles them (SciPy), with the coarse spaces built here.
 import numpy as np
 
 from softvr.contact.node_coarse import coarse_aggregates
+from softvr.contact import node_jacobi
 from softvr.contact.node_jacobi import NodeSolve
 
 from tests.contact.test_node_aggregates import DT, _beam
@@ -35,7 +36,7 @@ def test_one_sweep_is_numpy_two_level_jacobi_with_the_chebyshev_step():
         v^4  = omega_4 (gamma (v^ - v^3) + v^3 - v^2) + v^2        (Chebyshev; fixed nodes: their value)
 
     omega by the recurrence 1, 2 / (2 - rho^2), 4 / (4 - rho^2 omega_{k-1}) (Golub and Van Loan
-    11.2.8); and the largest change max |v^4 - v^3| over the free nodes.
+    11.2.8) for the first weights' rho, the bounds' times CHEBYSHEV_RHO_FACTOR; and the largest change max |v^4 - v^3| over the free nodes.
 
     Tolerance, per node (first-order rounding): the Jacobi update is a sum of at most 27 block
     products, 81 terms a component, so it carries ~81 eps times the sum of the magnitudes of its
@@ -87,7 +88,7 @@ def test_one_sweep_is_numpy_two_level_jacobi_with_the_chebyshev_step():
         v_hat[nodes] += (p @ y).reshape(-1, 3)
         spread = np.abs(p) @ (np.abs(np.linalg.inv(galerkin)) @ (np.abs(p.T) @ np.repeat(r_round[nodes], 3)))
         coarse_round[nodes] += spread.reshape(-1, 3).max(axis=1) + np.linalg.cond(galerkin) * EPS * np.abs(p @ y).max()
-    rho = (hi - lo) / (hi + lo)
+    rho = (hi - lo) / (hi + lo) * node_jacobi.CHEBYSHEV_RHO_FACTOR  # the weights a solve starts on
     gamma = 2.0 / (lo + hi)
     omega = 1.0
     for k in range(2, 5):

@@ -159,6 +159,40 @@ def test_a_coupled_step_without_contact_is_scipy_direct_solve_of_eqs_5_2_and_5_4
             np.testing.assert_allclose(body.v, v, atol=VELOCITY_TOL, rtol=0)
 
 
+
+def test_a_spring_on_tet_nodes_adds_blocks_only_between_nodes_it_weighs():
+    """Eq. 5.4's terms (dt c + dt^2 k) B_i^T B_j vanish where w_i or w_j is 0: a spring tying
+    node 0 of one block to node 0 of another, embedded as (1, 0, 0, 0) in a tet of each, couples
+    the blocks' A in exactly one block pair, (dt c + dt^2 k) (1)(-1) I, and the step is still
+    SciPy's direct solve of eqs. 5.2 and 5.4 (with all four nodes of each stencil, zeros included)."""
+    dt = 0.01
+    left = _block((-0.12, -0.05, 0.0), name="left")
+    right = _block((0.02, -0.05, 0.0), name="right")
+    scene = Scene(gravity=(0.0, 0.0, -G))
+    assert [_add(scene, body) for body in (left, right)] == [0, 1]  # body_node_start's first two
+    tet_l, tet_r = (int(np.flatnonzero((b.tets == 0).any(axis=1))[0]) for b in (left, right))
+    weights = [[0.0, 0.0, 0.0, 0.0]]
+
+    def at_node_0(body, tet):
+        w = np.array(weights)
+        w[0, list(body.tets[tet]).index(0)] = 1.0
+        return EmbeddedPoints(body, body.tets[tet][None, :], w)
+
+    c, k = 2.0, 800.0
+    seam = Coupling(at_node_0(left, tet_l), at_node_0(right, tet_r), k, damping=c, name="seam")
+    scene.add_coupling(seam)
+    expected = _direct_step(scene, [left, right], [seam], {}, dt)
+    scene.step(dt)
+    st = scene._stepper
+    assert type(st).__name__ == "NodeStepper"
+    first = st.model.body_node_start
+    rows, cols = st.model.block_row.numpy(), st.model.block_col.numpy()
+    cross = np.flatnonzero((rows < first[1]) & (cols >= first[1]) & (cols < first[2]))
+    assert [(int(rows[i]), int(cols[i])) for i in cross] == [(first[0], first[1])]
+    np.testing.assert_array_equal(st.state.blocks.numpy()[cross[0]], -(dt * c + dt * dt * k) * np.eye(3))
+    for body, v in zip((left, right), expected):
+        np.testing.assert_allclose(body.v, v, atol=VELOCITY_TOL, rtol=0)
+
 def test_two_blocks_hanging_from_a_fixed_body_settle_to_the_static_solution():
     # Linear FEM (R = I), heavily damped: at rest the forces balance, and with every spring
     # unstretched at the rest shape that is (K + sum k D^T D) u = f_gravity (D over the FEM

@@ -103,6 +103,19 @@ def _affine_truth(vol, out, lin, c):
     return truth, inner, outside
 
 
+def _deform_matches_affine_truth(vol, cells, lin, c, device, min_inner):
+    """``deform`` of ``vol`` by x1 = L x0 + c on a ``grid_tet_mesh`` of ``cells``, checked as in
+    test_affine_deformation_matches_scipy (SciPy's value within 1e-4 on the voxels whose rest
+    position is inside, at least ``min_inner`` of them; the background outside); returns it."""
+    nodes, tets = grid_tet_mesh(vol, cells)
+    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    truth, inner, outside = _affine_truth(vol, out, lin, c)
+    assert inner.mean() > min_inner
+    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
+    assert (out.data[outside] == -1.0).all()
+    return out
+
+
 def test_tets_taller_than_a_row_chunk_match_scipy(device):
     """Tets spanning ~150 rows: the CPU spans walk a slab's rows in chunks of 64, so these cross
     chunk boundaries (the other tests' tets span < 64 rows). Affine deformation, truth and
@@ -110,31 +123,31 @@ def test_tets_taller_than_a_row_chunk_match_scipy(device):
     lin = Rotation.from_euler("x", 4, degrees=True).as_matrix() @ np.array(
         [[1.0, 0.1, 0.0], [0.0, 1.05, 0.0], [0.0, 0.0, 1.0]])
     vol = _volume(np.float32, shape=(14, 150, 12), spacing=(1.0, 0.8, 1.2))
-    nodes, tets = grid_tet_mesh(vol, (2, 1, 2))
-    c = np.array([0.5, 3.0, -1.0])
-    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
+    out = _deform_matches_affine_truth(vol, (2, 1, 2), lin, np.array([0.5, 3.0, -1.0]), device, 0.2)
     assert out.shape[1] > 140
-    truth, inner, outside = _affine_truth(vol, out, lin, c)
-    assert inner.mean() > 0.2
-    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
-    assert (out.data[outside] == -1.0).all()
 
 
 def test_tets_with_more_voxels_per_row_chunk_than_the_cpu_queue_match_scipy(device):
     """Five tets over a 12 x 90 x 60 volume: a 64-row chunk of one slab holds up to ~3800
-    voxels, more than the CPU spans' 512-voxel queue, so the queue is flushed inside the chunk
+    voxels, more than the CPU spans' 1024-voxel queue, so the queue is flushed inside the chunk
     (the other tests' chunks fit in it and are queued with no flush in between). Truth and
     tolerance as in test_affine_deformation_matches_scipy."""
     lin = Rotation.from_euler("z", 3, degrees=True).as_matrix() @ np.array(
         [[1.0, 0.0, 0.0], [0.05, 1.0, 0.0], [0.0, 0.08, 1.02]])
     vol = _volume(np.float32, shape=(12, 90, 60), spacing=(1.0, 0.8, 0.7))
-    nodes, tets = grid_tet_mesh(vol, (1, 1, 1))
-    c = np.array([0.3, -1.0, 0.6])
-    out = deform(vol, nodes, tets, nodes @ lin.T + c, device=device, background=-1.0)
-    truth, inner, outside = _affine_truth(vol, out, lin, c)
-    assert inner.mean() > 0.3
-    np.testing.assert_allclose(out.data[inner], truth[inner], atol=1e-4)
-    assert (out.data[outside] == -1.0).all()
+    _deform_matches_affine_truth(vol, (1, 1, 1), lin, np.array([0.3, -1.0, 0.6]), device, 0.3)
+
+
+def test_tets_wider_than_a_cpu_work_item_match_scipy(device):
+    """Five tets over a 75 x 9 x 10 volume, each ~75 x-slabs wide: the CPU spans split a tet into
+    work items of 32 slabs, so each tet is three items, the later ones starting inside its box
+    (the other tests' tets are one item). Truth and tolerance as in
+    test_affine_deformation_matches_scipy."""
+    lin = Rotation.from_euler("y", 2, degrees=True).as_matrix() @ np.array(
+        [[1.02, 0.0, 0.0], [0.06, 1.0, 0.0], [0.0, -0.05, 1.0]])
+    vol = _volume(np.float32, shape=(75, 9, 10), spacing=(0.6, 1.0, 0.9))
+    out = _deform_matches_affine_truth(vol, (1, 1, 1), lin, np.array([-0.4, 0.7, 0.2]), device, 0.3)
+    assert out.shape[0] > 64
 
 
 def test_all_methods_write_identical_voxels(device):

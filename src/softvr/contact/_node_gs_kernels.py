@@ -142,37 +142,35 @@ def mark_contact_nodes(count: wp.array(dtype=wp.int32), stencil_count: wp.array(
                        rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
                        impulse: wp.array(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64),
                        v: wp.array(dtype=wp.vec3d), dt: wp.float64, share: wp.float64, wake_all: int,
-                       contact_node: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32)):
+                       contact_node: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32), threads: int):
     """``contact_node[i] = 1`` for the nodes contact ``c``'s impulse moves (its stencil and its
     rigid sides' angular nodes, -1: none) unless the contact sleeps: ``asleep[c] = 1`` where it
     has no impulse, no adhesion (``stiffness`` 0), a gap > 0 [m], and its normal velocity in the
     step's start velocities ``v`` [m/s] closes at most ``share`` of that gap in ``dt`` [s]
-    (``wake_all``: none sleeps). One thread per contact slot, the first ``count[0]`` used;
+    (``wake_all``: none sleeps). ``threads`` threads stride over the first ``count[0]``
+    contacts (not one a slot of the capacity: the shoulder's 18 508, ~200 used);
     ``contact_node`` zeroed before (or left as it is, to mark more)."""
-    c = wp.tid()
-    if c >= count[0]:
-        return
-    sleeps = int(0)
-    lam = impulse[c]
-    if wake_all == 0 and gap[c] > wp.float64(0.0) and stiffness[c] == wp.float64(0.0) and \
-            lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
-        rel = wp.vec3d()
-        for k in range(stencil_count[c]):
-            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
-        for s in range(rigid_node.shape[1]):
-            if rigid_node[c, s] >= 0:
-                rel = rel + wp.cross(v[rigid_node[c, s]], rigid_lever[c, s])
-        normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
-        if wp.dot(normal, rel) * dt >= -share * gap[c]:
-            sleeps = 1
-    asleep[c] = sleeps
-    if sleeps != 0:
-        return
-    for k in range(stencil_count[c]):
-        contact_node[stencil_nodes[c, k]] = 1
-    for s in range(rigid_node.shape[1]):
-        if rigid_node[c, s] >= 0:
-            contact_node[rigid_node[c, s]] = 1
+    for c in range(wp.tid(), count[0], threads):
+        sleeps = int(0)
+        lam = impulse[c]
+        if wake_all == 0 and gap[c] > wp.float64(0.0) and stiffness[c] == wp.float64(0.0) and \
+                lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+            rel = wp.vec3d()
+            for k in range(stencil_count[c]):
+                rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+            for s in range(rigid_node.shape[1]):
+                if rigid_node[c, s] >= 0:
+                    rel = rel + wp.cross(v[rigid_node[c, s]], rigid_lever[c, s])
+            normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
+            if wp.dot(normal, rel) * dt >= -share * gap[c]:
+                sleeps = 1
+        asleep[c] = sleeps
+        if sleeps == 0:
+            for k in range(stencil_count[c]):
+                contact_node[stencil_nodes[c, k]] = 1
+            for s in range(rigid_node.shape[1]):
+                if rigid_node[c, s] >= 0:
+                    contact_node[rigid_node[c, s]] = 1
 
 
 @wp.kernel

@@ -82,22 +82,27 @@ def _grouped(groups: list[np.ndarray], pairs: np.ndarray | None = None, whole: i
 
 def _node_kinds(model) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each body's first node [bodies + 1], and per node [n]: whether it has blocks of ``A``,
-    is fixed, is a rigid body's."""
+    is fixed, is left out of the coarse space: a rigid body's (its ``D_A`` block is its whole
+    body) or a cloth's (:func:`coarse_aggregates`)."""
     row_start = model.row_start.numpy()
-    rigid = np.zeros(model.node_count, bool)
+    out = np.zeros(model.node_count, bool)
     if model.rigid is not None:
-        rigid[model.rigid.linear_node.numpy()] = True
-        rigid[model.rigid.angular_node.numpy()] = True
-    return np.asarray(model.body_node_start), row_start[1:] > row_start[:-1], model.fixed.numpy() != 0, rigid
+        out[model.rigid.linear_node.numpy()] = True
+        out[model.rigid.angular_node.numpy()] = True
+    cloth = getattr(model, "cloth", None)
+    if cloth is not None and cloth.spring_count:
+        out[cloth.node.numpy()] = True
+    return np.asarray(model.body_node_start), row_start[1:] > row_start[:-1], model.fixed.numpy() != 0, out
 
 
 def coarse_bodies(model) -> np.ndarray:
     """[B, 2] first and last (exclusive) node of each body the coarse space takes: FEM bodies
     whose nodes all have blocks of ``A`` and none is fixed (a held body's rigid motions are
-    not slow modes of the sweeps), with at least :data:`MIN_NODES` nodes."""
-    start, has_blocks, fixed, rigid = _node_kinds(model)
+    not slow modes of the sweeps), with at least :data:`MIN_NODES` nodes; no rigid body's or
+    cloth's (:func:`_node_kinds`)."""
+    start, has_blocks, fixed, out = _node_kinds(model)
     keep = [(a, b) for a, b in zip(start[:-1], start[1:])
-            if b - a >= MIN_NODES and has_blocks[a:b].all() and not fixed[a:b].any() and not rigid[a:b].any()]
+            if b - a >= MIN_NODES and has_blocks[a:b].all() and not fixed[a:b].any() and not out[a:b].any()]
     return np.asarray(keep, dtype=np.int64).reshape(-1, 2)
 
 
@@ -127,15 +132,20 @@ def coarse_aggregates(model, q: np.ndarray, size: int = AGGREGATE_NODES) -> Aggr
     holds, whole (these first); the free nodes of every other FEM body (held by fixed nodes or
     by a coupling spring's stencil) in spatial groups of at most ``size`` (:func:`_split`);
     ``q`` [n, 3] [m] the node positions. A rigid body's nodes are in none (their ``D_A`` block
-    is their whole body)."""
-    start, has_blocks, fixed, rigid = _node_kinds(model)
+    is their whole body), nor a cloth's: every contact of an aggregate moves its coarse
+    velocities, which couples them, and the sweep's PGS passes leave such coupled contacts
+    unsolved; with a draped cloth's ~100 frictional contacts on one coarse body that error
+    changed from sweep to sweep and its Chebyshev sweeps cycled (cloth-sphere.toml: its
+    steps from the 37th on at 1 000 sweeps with changes of ~1e-2 m/s), while its Gauss-Seidel
+    sweeps, each contact on its own node, converge (docs/physics-core.md, cloth)."""
+    start, has_blocks, fixed, out = _node_kinds(model)
     coupled = np.zeros(model.node_count, bool)
     coupled[model.couplings.node.numpy()] = True
     whole = [np.arange(a, b) for a, b in coarse_bodies(model) if not coupled[a:b].any()]
     taken = {int(g[0]) for g in whole}
     groups = list(whole)
     for a, b in zip(start[:-1], start[1:]):
-        if a not in taken and has_blocks[a:b].any() and not rigid[a:b].any():
+        if a not in taken and has_blocks[a:b].any() and not out[a:b].any():
             free = np.arange(a, b)[has_blocks[a:b] & ~fixed[a:b]]
             groups += [g for g in _split(free, q, size) if _spans_rotations(q[g])]
     return _grouped(groups, model.couplings.pair_node.numpy().astype(np.int64).reshape(-1, 2), len(whole))

@@ -15,6 +15,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 import warp as wp
 
+from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
 from softvr.device import chunked_replayer, in_order, replayer
@@ -97,12 +98,14 @@ class GaussSeidelSweep:
         self._flag = wp.zeros(1, dtype=wp.int32, device=d)
         self._flag_view = self._flag.numpy() if wp.get_device(d).is_cpu else None
 
+        threads = min(c.capacity, CONTACT_THREADS)
+
         def mark(wake_all: int) -> Callable[[], None]:
-            return replayer(wp.launch(_k.mark_contact_nodes, dim=c.capacity, device=d, record_cmd=True,
+            return replayer(wp.launch(_k.mark_contact_nodes, dim=threads, device=d, record_cmd=True,
                                       inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
                                               c.gap, c.rigid_node, c.rigid_lever, c.impulse, c.stiffness,
                                               state.sweep_buffers[0], float(dt or 0.0), SLEEP_GAP_SHARE, wake_all,
-                                              self.contact_node, self.asleep]))
+                                              self.contact_node, self.asleep, threads]))
 
         self._wake_all = mark(1)
         self._woken = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,

@@ -21,12 +21,30 @@ from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
-__all__ = ["NodeSolve", "chebyshev_weights", "movable_contacts"]
+__all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_weights", "movable_contacts", "observed_rate", "tail_error"]
 
 #: Threads striding over a step's contacts in the kernels that take one contact at a time
 #: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
 #: takes ~35 us on the candy pile, less than handing half of it to a second core.
 CONTACT_THREADS_CUDA = 4096
+
+#: The Jacobi sweeps' Chebyshev weights are those of a spectral radius this much under the
+#: bounds' (:class:`NodeSolve`): less momentum, so contacts changing their active set no longer
+#: make the iteration cycle, and the modes inside the narrower interval (most of a warm-started
+#: step's error) fall faster; the few at the ends of the bounds fall slower
+#: (:func:`chebyshev_rate`), which the stop's floor and the switch to plain sweeps answer.
+CHEBYSHEV_RHO_FACTOR = 0.96
+
+#: Sweeps over which the stop measures the contraction it observes (:func:`tail_error`): two
+#: checks, long enough to smooth the Chebyshev iterates' oscillation, short enough to follow a
+#: change of phase (a contact settling).
+RATE_SWEEPS = 4
+
+#: Sweeps over which a solve judges that its first Chebyshev sweeps have slowed below the rate
+#: of the bounds' own weights (:meth:`NodeSolve.solve`), and the fewest sweeps before it does
+#: (the first sweeps of a contact step contract unevenly while the contacts take their load).
+SWITCH_SWEEPS = 6
+SWITCH_AFTER = 12
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -37,6 +55,54 @@ def chebyshev_weights(rho: float, count: int) -> np.ndarray:
     for k in range(1, len(omega)):
         omega[k] = 2.0 / (2.0 - rho * rho) if k == 1 else 4.0 / (4.0 - rho * rho * omega[k - 1])
     return omega
+
+
+def chebyshev_rate(rho: float, rho_weights: float) -> float:
+    """The asymptotic error reduction per sweep of the slowest mode (eigenvalue ``rho`` of the
+    iteration matrix, the bounds' end) under Chebyshev weights built for ``rho_weights`` <= ``rho``
+    (:func:`chebyshev_weights`): the ratio of ``T_k(rho / rho_w)`` to ``T_k(1 / rho_w)`` per step,
+    ``(rho + sqrt(rho^2 - rho_w^2)) / (1 + sqrt(1 - rho_w^2))`` (Golub and Van Loan 11.2.8, the
+    Chebyshev polynomial outside its interval); ``rho / (1 + sqrt(1 - rho^2))``, the optimal rate,
+    when ``rho_weights`` = ``rho``. Every mode of ``|mu|`` <= ``rho`` falls at least this fast."""
+    if not 0.0 <= rho_weights <= rho < 1.0:
+        raise ValueError(f"chebyshev_rate: expected 0 <= rho_weights <= rho < 1, found rho_weights={rho_weights!r}, "
+                         f"rho={rho!r}")
+    if rho == 0.0:
+        return 0.0
+    return float((rho + np.sqrt(rho * rho - rho_weights * rho_weights)) / (1.0 + np.sqrt(1.0 - rho_weights ** 2)))
+
+
+def tail_error(sweeps: list[int], changes: list[float], floor: float, window: int | None = RATE_SWEEPS) -> float:
+    """The distance [m/s] of the last checked sweep's iterate from the fixed point, estimated as
+    the geometric tail ``r / (1 - r)`` times its largest change ``changes[-1]`` [m/s]: the sum of
+    the changes still to come if each is ``r`` times the one before. ``r`` is the larger of
+    ``floor`` (the rate the spectrum's bounds promise) and the contraction observed over the last
+    ``window`` sweeps (the largest change of sweeps ``(k - window, k]`` over that of
+    ``(k - 2 window, k - window]``, to the power ``1 / window``; ``sweeps`` ascending, the
+    sweep of each change): the promised rate holds for a linear iteration whose spectrum is
+    within the bounds, and contacts changing their active set, or weights narrower than the
+    bounds, make the iterates fall slower. inf where they do not fall. ``window`` None: ``floor``
+    alone."""
+    k = sweeps[-1]
+    rate = max(floor, observed_rate(sweeps, changes, k, window)) if window is not None and k >= 2 * window else floor
+    return changes[-1] * rate / (1.0 - rate) if rate < 1.0 else np.inf
+
+
+def observed_rate(sweeps: list[int], changes: list[float], k: int, window: int) -> float:
+    """The contraction per sweep of the largest changes ``changes`` [m/s] (of the sweeps
+    ``sweeps``, ascending) at sweep ``k``: the largest of sweeps ``(k - window, k]`` over the
+    largest of ``(k - 2 window, k - window]``, to the power ``1 / window`` (the largest of each
+    window, as the Chebyshev iterates oscillate); 0 if the recent changes are 0, inf if only the
+    earlier ones are."""
+    recent, before = _largest(sweeps, changes, k - window, k), _largest(sweeps, changes, k - 2 * window, k - window)
+    if recent <= 0.0:
+        return 0.0
+    return float((recent / before) ** (1.0 / window)) if before > 0.0 else np.inf
+
+
+def _largest(sweeps: list[int], changes: list[float], after: int, upto: int) -> float:
+    """The largest of ``changes`` of the sweeps ``j``, ``after < j <= upto`` (0 if none)."""
+    return max(changes[bisect_right(sweeps, after):bisect_right(sweeps, upto)], default=0.0)
 
 
 def movable_contacts(model, state) -> int:
@@ -90,7 +156,11 @@ class _Changes:
 
     def largest(self, after: int, upto: int) -> float:
         """The largest change of the sweeps ``j``, ``after < j <= upto``."""
-        return max(self.values[bisect_right(self.sweeps, after):bisect_right(self.sweeps, upto)])
+        return _largest(self.sweeps, self.values, after, upto)
+
+    def rate(self, k: int, window: int) -> float:
+        """The contraction per sweep observed at sweep ``k`` (:func:`observed_rate`)."""
+        return observed_rate(self.sweeps, self.values, k, window)
 
 
 class NodeSolve:
@@ -133,7 +203,21 @@ class NodeSolve:
         for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.chebyshev,
                        _k.residual, _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
-        self.weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64, device=d)
+        # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
+        # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
+        rho_first = self.rho * (CHEBYSHEV_RHO_FACTOR if colours is None else 1.0)
+        self._first_weights: wp.array = wp.array(chebyshev_weights(rho_first, self.max_sweeps), dtype=wp.float64,
+                                                 device=d)
+        self._bounds_weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64,
+                                                  device=d)
+        self._narrow = rho_first < self.rho
+        #: The omega_k the Chebyshev kernel reads (a copy of the first or the bounds' weights).
+        self.weights: wp.array = wp.clone(self._first_weights)
+        #: The rate the first weights promise over the whole of the bounds (:func:`chebyshev_rate`).
+        self.first_rate = chebyshev_rate(self.rho, rho_first)
+        # The Gauss-Seidel sweeps (the shoulder's) keep the stop on the bounds' rate alone and their
+        # plain windows whole: the observed rate was measured on the Jacobi scenes only.
+        self._observed = colours is None
         #: Sweeps per decade of error of the Chebyshev iteration (inf if it does not contract).
         self.sweeps_per_decade = np.log(10.0) / -np.log(self.rate) if 0 < self.rate < 1 else (
             0.0 if self.rate == 0 else np.inf)
@@ -278,15 +362,24 @@ class NodeSolve:
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
-        ``max_sweeps``. The error left is about ``rate / (1 - rate)`` times the last sweep's
-        largest change (a geometric tail; a rigid body's nodes, exact, count none), so the
-        sweeps stop when the change falls below ``tolerance (1 - rate) / rate`` (checked every
-        ``check_every``) and every contact meets eq. 5.5 within ``tolerance``
+        ``max_sweeps``. The error left is estimated as the geometric tail of the last sweep's
+        largest change (:func:`tail_error`: a rigid body's nodes, exact, count none) at the
+        larger of the contraction observed over the last :data:`RATE_SWEEPS` sweeps (Jacobi
+        only) and the rate the weights in use promise over the bounds (:func:`chebyshev_rate`;
+        for plain sweeps ``rho``), checked every ``check_every`` sweeps; the sweeps stop when it is under
+        ``tolerance`` and every contact meets eq. 5.5 within ``tolerance``
         (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
-        understates their error; a rigid body's error is all its contacts'). If the Chebyshev sweeps stall (:meth:`_stalled`), a window
-        of plain sweeps follows (counted in ``plain_sweeps``), then Chebyshev again. Returns the sweeps made and the buffer holding
-        the solved velocities; ``stats[1]`` then holds the largest normal-velocity error [m/s]."""
-        stop = tolerance * (1.0 - self.rate) / max(self.rate, 1e-300)
+        understates their error; a rigid body's error is all its contacts').
+
+        The Jacobi sweeps start on the narrower weights of :data:`CHEBYSHEV_RHO_FACTOR`. When
+        those contract slower than :attr:`rate` (over :data:`SWITCH_SWEEPS`, after
+        :data:`SWITCH_AFTER`: the error left is in the modes at the bounds' ends), or any
+        Chebyshev sweeps stall (:meth:`_stalled`), a window of plain sweeps follows (counted in
+        ``plain_sweeps``), which lets the contacts' active set settle; with Jacobi it ends early
+        once it contracts slower than :attr:`rate` (what is left is smooth, which Chebyshev takes faster),
+        and Chebyshev restarts on the bounds' own weights. Returns the sweeps made and the buffer
+        holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
+        [m/s]."""
         self.sweep.zero_()
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
@@ -294,16 +387,19 @@ class NodeSolve:
         self._rigid_contacts()
         self.coarse.prepare()
         self._metric()
-        cheb_stop, plain_stop = stop, tolerance * (1.0 - self.rho) / max(self.rho, 1e-300)
+        if self._narrow:
+            wp.copy(self.weights, self._first_weights)
+        narrow = self._narrow
+        changes = _Changes()  # every checked sweep's change, for the observed rate
         history = _Changes()  # change by sweeps since Chebyshev (re)started
-        restart, plain_until = 0, 0
+        restart, plain_from, plain_until = 0, 0, 0
         self.plain_sweeps = 0
         self.plateaued = False
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
                 self.sweep.zero_()
-                restart, history, stop = k, _Changes(), cheb_stop
+                restart, history = k, _Changes()
             plain = k < plain_until
             jacobi, contacts, cheb = self._sweeps[k % 3]
             jacobi()
@@ -319,15 +415,28 @@ class NodeSolve:
                 change = float(self._read_stats()[0])
                 if not np.isfinite(change):  # NaN: the integration reports it
                     break
-                if change <= stop and self._contacts_met(k, tolerance):
+                changes.add(k, change)
+                floor = self.rho if plain else self.first_rate if narrow else self.rate
+                window = RATE_SWEEPS if self._observed else None
+                if tail_error(changes.sweeps, changes.values, floor, window) <= tolerance and \
+                        self._contacts_met(k, tolerance):
                     return k, self._buffers[k % 3]
-                if not plain:
-                    history.add(k - restart, change)
-                    if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
-                        self.plateaued = True
-                        return k, self._buffers[k % 3]
-                    if self._stalled(history, k - restart, tolerance):
-                        plain_until, stop = k + self._window(), plain_stop
+                if plain:
+                    if self._observed and k - plain_from >= 2 * RATE_SWEEPS and \
+                            changes.rate(k, RATE_SWEEPS) > self.rate:
+                        plain_until = k
+                    continue
+                history.add(k - restart, change)
+                if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
+                    self.plateaued = True
+                    return k, self._buffers[k % 3]
+                slowed = narrow and k - restart >= max(SWITCH_AFTER, 2 * SWITCH_SWEEPS) and \
+                    changes.rate(k, SWITCH_SWEEPS) > self.rate
+                if slowed or self._stalled(history, k - restart, tolerance):
+                    plain_from, plain_until = k, k + self._window()
+                    if narrow:  # the Chebyshev sweeps after the window take the bounds' weights
+                        wp.copy(self.weights, self._bounds_weights)
+                        narrow = False
         self._contacts_met(k, tolerance)
         return k, self._buffers[k % 3]
 

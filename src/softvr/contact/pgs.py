@@ -45,7 +45,7 @@ from softvr.contact._pgs_kernels import pgs_sweeps
 from softvr.contact.islands import contact_islands
 from softvr.errors import InputError
 
-__all__ = ["ContactSolution", "contact_force_on", "solve_contacts"]
+__all__ = ["ContactSolution", "contact_force_on", "pushing_normals", "solve_contacts"]
 
 #: Most passes of eq. 5.6's outer loop per island when a body's compliance is a kept
 #: factorization's (:attr:`softvr.dynamics.FemBody.compliance_is_exact`); one pass otherwise.
@@ -97,6 +97,27 @@ class ContactSolution:
         (F the contact frame; + on side a, - on side b): negative along a contact normal where
         adhesion pulls. A force sensor on a tool or a jaw."""
         return contact_force_on(self, body, dt)
+
+    def pushing_normals(self, body: int) -> np.ndarray:
+        """Normals [m, 3] of body ``body``'s pushing contacts (normal impulse > 0), from the
+        other side towards it (a frame's normal, negated where ``body`` is side b), in set
+        order: the directions they block (a haptic tool's stiffness)."""
+        return pushing_normals(self.set_bodies(), self.impulses, self.frames, body)
+
+
+def pushing_normals(set_bodies: list, impulses: list, frames: list, body: int) -> np.ndarray:
+    """:meth:`ContactSolution.pushing_normals` from a solution's ``set_bodies()``, ``impulses``
+    and ``frames`` (per set: [c, 3] [N s], [c, 3, 3])."""
+    normals = [np.zeros((0, 3))]
+    for (a, b), impulse, frame in zip(set_bodies, impulses, frames):
+        if body not in (a, b):
+            continue
+        normal = frame[impulse[:, 0] > 0, 0]
+        if a == body:
+            normals.append(normal)
+        if b == body:
+            normals.append(-normal)
+    return np.concatenate(normals)
 
 
 def contact_force_on(solution, body: int, dt: float) -> np.ndarray:

@@ -560,7 +560,11 @@ class SceneExample(Player):
         """A :class:`~softvr.haptics.HapticTool`: ``body`` on a virtual coupling, at ``tip`` [3]
         [m] in its frame, to a handle that follows the motion keyframes in simulated time."""
         path = self._keyframes(spec, np.asarray(spec.position, float), None)
-        device = ScriptedDevice(lambda t: path(t)[0])
+        # The loop reads the hand once as it is made, before its clock exists: at the scene's
+        # start time, not at the wall seconds since that reading (which moved the handle's
+        # start, and so every step, by ~1e-9 m from run to run).
+        start = float(scene.time)
+        device = ScriptedDevice(lambda t: path(t)[0], clock=lambda: start)
         process = bool(spec.tool["haptics"]) and self._haptics is not False
         loop = HapticLoop(device, max_force=spec.tool["max_force"], process=process)
         device.clock = loop.simulation_clock

@@ -205,7 +205,9 @@ def coupling_springs(scene, node_start, colliders: dict) -> tuple:
             cols = slice(s * SIDE, (s + 1) * SIDE)
             if isinstance(side, EmbeddedPoints):
                 k = side.nodes.shape[1]
-                n[:, cols.start:cols.start + k] = side.nodes + node_start[b]
+                # A node of weight 0 (a point on a tet's face, edge or node) adds nothing to the
+                # spring: left out, it adds no blocks of zeros to A (727 of the shoulder's 7 880).
+                n[:, cols.start:cols.start + k] = np.where(side.weights != 0, side.nodes + node_start[b], -1)
                 w[:, cols.start:cols.start + k] = sign * side.weights
             elif b in rigid_index:
                 n[:, cols.start:cols.start + 2] = node_start[b] + np.arange(2)

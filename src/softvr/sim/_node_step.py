@@ -42,6 +42,7 @@ from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, 
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import RigidBody
+from softvr.dynamics.node_rigid import held_tool
 from softvr.errors import InputError
 from softvr.sim._node_cloth import NODE_BODIES
 from softvr.sim._node_couplings import block_jacobi_factor
@@ -159,6 +160,16 @@ class _NodeSnapshot(StepSnapshot):
             cuts = np.flatnonzero(np.diff(pair)) + 1
             self._sets = [rows for rows in np.split(order, cuts) if len(rows)]
         return self._sets
+
+    def pushing_normals(self, body: int) -> np.ndarray:
+        """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
+        :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
+        c = self.contacts
+        first = self._stepper.contact_body(c)
+        side_b = ((c["kind"] == 1) | (c["kind"] == 2) | (c["kind"] == 3)) & (c["other"] == body)
+        rows = np.flatnonzero(((first == body) | side_b) & c["movable"] & (c["impulse"][:, 0] > 0))
+        rows = rows[np.lexsort((c["point"][rows], c["other"][rows], c["kind"][rows], first[rows]))]
+        return np.where(side_b[rows, None], -c["frame"][rows, 0], c["frame"][rows, 0])
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
         c, first = self.contacts, [rows[0] for rows in self.sets()]
@@ -438,7 +449,7 @@ class NodeStepper:
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
                                                    MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
-                                                   (coarse_aggregates(m, q), q, m.mass.numpy()))
+                                                   (coarse_aggregates(m, q), q, m.mass.numpy()), held_tool(m))
             choice = self._spectrum[dt]
             factored = self._factored(dt, choice)
             if choice.kind is None and factored is None:

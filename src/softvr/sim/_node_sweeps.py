@@ -21,8 +21,10 @@ __all__ = ["SweepChoice", "choose_sweeps", "sweep_costs", "sweeps_per_decade"]
 #: Work per decade, in this scene's Jacobi sweeps, above which the Gauss-Seidel sweeps too are
 #: left to the per-object path. Higher than Jacobi's limit: with Gauss-Seidel the steps of the
 #: head CT need fewer decades than the estimate (the warm start carries the slow modes),
-#: measured 1.0-2.4x faster than its LU at ~37 (docs: node-gs measurements).
-MAX_GAUSS_SEIDEL_WORK_PER_DECADE = 40.0
+#: measured 1.0-2.4x faster than its LU at ~37 (docs: node-gs measurements); the draped cloth
+#: of cloth-sphere.toml (47.6, its Gauss-Seidel sweep estimated 2.5x a Jacobi one, measured
+#: ~1.6x) steps in ~30 ms against ~300 per object.
+MAX_GAUSS_SEIDEL_WORK_PER_DECADE = 50.0
 #: Cost of the parts of a sweep, in the time of one 3x3 block product of the Jacobi kernel
 #: (~8 ns on the CPU, Warp 1.19; measured on the head CT: a Jacobi node update 160 us, a
 #: Gauss-Seidel one 450 us over its 7 colours, 13 launches and the start copy, 2.7x): a
@@ -64,6 +66,11 @@ COARSE_PASSES = 12
 #: took the coarse sweeps at 0.8 and ran all 70 measured steps to the 100-sweep cap (0.22 mm
 #: deepest overlap); Gauss-Seidel: 14 sweeps a step before the probe touches, 77 pressing.
 COARSE_OVER_GAUSS_SEIDEL = 0.75
+#: With a held tool (:func:`softvr.dynamics.node_rigid.held_tool`) the coarse correction is
+#: taken over Gauss-Seidel only at this share of its work: the aggregates leave the tool's spin,
+#: which Gauss-Seidel solves exactly (undamped, its contacts' extra passes), to the Jacobi sweeps,
+#: where it cycles (the arthroscopy, 0.77: every step at the 100-sweep cap on the coarse sweeps).
+COARSE_OVER_GAUSS_SEIDEL_HELD = 0.5
 
 
 @dataclass(frozen=True)
@@ -151,7 +158,7 @@ def _coarse_choice(a, free: np.ndarray, coarse: tuple, jacobi_cost: float, margi
 
 def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndarray,
                   jacobi_bounds: tuple[float, float], jacobi_limit: float, contacts: int, passes: int,
-                  margin: tuple[float, float], coarse: tuple | None = None) -> SweepChoice:
+                  margin: tuple[float, float], coarse: tuple | None = None, held: bool = False) -> SweepChoice:
     """The sweeps of least work per decade, or none (kind None) when all are too slow (Jacobi, with
     or without the coarse correction, over ``jacobi_limit`` sweeps per decade, Gauss-Seidel over
     :data:`MAX_GAUSS_SEIDEL_WORK_PER_DECADE`). ``row_start``, ``block_col``: ``A``'s block
@@ -165,7 +172,8 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
     limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the
     candy), and otherwise over Gauss-Seidel where it needs clearly less work
-    (:data:`COARSE_OVER_GAUSS_SEIDEL`)."""
+    (:data:`COARSE_OVER_GAUSS_SEIDEL`; :data:`COARSE_OVER_GAUSS_SEIDEL_HELD` where ``held``:
+    the scene holds a tool on springs, :func:`softvr.dynamics.node_rigid.held_tool`)."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
@@ -181,7 +189,8 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     lo, hi = gauss_seidel_spectrum(a, order) if len(order) else (1.0, 1.0)
     gs_bounds = (lo * margin[0], hi * margin[1])
     work["gauss-seidel"] = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
-    if "coarse" in work and work["coarse"] <= min(COARSE_OVER_GAUSS_SEIDEL * work["gauss-seidel"],
+    share = COARSE_OVER_GAUSS_SEIDEL_HELD if held else COARSE_OVER_GAUSS_SEIDEL
+    if "coarse" in work and work["coarse"] <= min(share * work["gauss-seidel"],
                                                   MAX_GAUSS_SEIDEL_WORK_PER_DECADE):
         return coarse_choice
     # Gauss-Seidel within its limit is taken over Jacobi's fewer work only where Jacobi may run:

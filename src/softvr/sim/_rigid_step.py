@@ -26,7 +26,7 @@ from softvr.collision.rigid_detection import record_detection
 from softvr.contact import ContactSolution
 from softvr.contact.adhesion import AdhesionState
 from softvr.contact.islands import contact_islands
-from softvr.contact.pgs import contact_force_on
+from softvr.contact.pgs import contact_force_on, pushing_normals
 from softvr.contact.rigid_pgs import record_rigid_solve
 from softvr.device import replayer
 from softvr.dynamics import KinematicBody
@@ -93,6 +93,11 @@ class StepSnapshot:
         """(side a's body, side b's body or None for a static) of each of :meth:`sets`; a path
         that can read them from its arrays answers without building the sets."""
         return self.solution().set_bodies()
+
+    def pushing_normals(self, body: int) -> np.ndarray:
+        """:meth:`ContactSolution.pushing_normals` (a path that can pick one body's contacts
+        from its arrays answers without splitting them into sets)."""
+        return pushing_normals(self.set_bodies(), self.per_set("impulse"), self.per_set("frame"), body)
 
     def contact_counts(self) -> tuple[int, int]:
         """(contacts, active contacts: normal impulse > 0) over the solution's sets."""
@@ -227,6 +232,10 @@ class LazySolution:
     def force_on(self, body: int, dt: float) -> np.ndarray:
         """:meth:`ContactSolution.force_on`, without building the contact sets."""
         return contact_force_on(self, body, dt)
+
+    def pushing_normals(self, body: int) -> np.ndarray:
+        """:meth:`ContactSolution.pushing_normals`, without building the contact sets."""
+        return self._snapshot.pushing_normals(body)
 
     def __getattr__(self, name):
         return getattr(self._snapshot.solution(), name)

@@ -1,0 +1,104 @@
+"""The Chebyshev weights the node sweeps start on and the stop's error estimate
+(softvr.contact.node_jacobi: chebyshev_weights for CHEBYSHEV_RHO_FACTOR times the bounds'
+spectral radius, chebyshev_rate, tail_error), held to an independent truth on a small SPD
+system of known spectrum: numpy.linalg.solve for the fixed point, numpy's Chebyshev
+polynomials for the rate.
+
+The iteration is the sweeps' (docs/physics-core.md, eq. 5.6 with M = I, no contacts):
+v^ = v_k + (b - A v_k), v_k+1 = omega_k (gamma (v^ - v_k) + v_k - v_k-1) + v_k-1, its largest
+change read every second sweep, as NodeSolve.solve reads it.
+"""
+
+import numpy as np
+import pytest
+from numpy.polynomial import chebyshev as C
+
+from softvr.contact.node_jacobi import CHEBYSHEV_RHO_FACTOR, chebyshev_rate, chebyshev_weights, tail_error
+
+# The candy's bounds of the spectrum of M^-1 A (the bench's scene, two-level Jacobi, with margins).
+LO, HI = 0.01686, 2.488
+RHO, GAMMA = (HI - LO) / (HI + LO), 2.0 / (LO + HI)
+TOLERANCE = 1e-5  # [m/s], the sweeps' (SWEEP_TOLERANCE)
+
+
+def _system(n=60, seed=3):
+    """A = Q diag(lambda) Q^T with eigenvalues at both ends of [LO, HI] (the modes the bounds
+    allow at their worst: mu = 1 - gamma lambda = +-rho), one in the middle (mu = 0) and the rest
+    spread between; b; the fixed point by numpy.linalg.solve; Q."""
+    rng = np.random.default_rng(seed)
+    lam = np.concatenate([[LO, HI, (LO + HI) / 2], rng.uniform(LO, HI, n - 3)])
+    q, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    a = q @ np.diag(lam) @ q.T
+    b = rng.standard_normal(n)
+    return a, b, np.linalg.solve(a, b), q
+
+
+def _sweep_until_stop(a, b, x0, floor, window, max_sweeps=3000):
+    """Chebyshev sweeps on the first weights from x0 until tail_error(.., floor, window) is under
+    TOLERANCE; returns (sweeps, iterate, estimate)."""
+    omega = chebyshev_weights(RHO * CHEBYSHEV_RHO_FACTOR, max_sweeps)
+    x, prev = x0.copy(), x0.copy()
+    sweeps, changes = [], []
+    for k in range(1, max_sweeps + 1):
+        v_hat = x + (b - a @ x)
+        x, prev = omega[k - 1] * (GAMMA * (v_hat - x) + x - prev) + prev, x
+        if k % 2 == 0:
+            sweeps.append(k)
+            changes.append(float(np.abs(x - prev).max()))
+            estimate = tail_error(sweeps, changes, floor, window)
+            if estimate <= TOLERANCE:
+                return k, x, estimate
+    raise AssertionError(f"no stop within {max_sweeps} sweeps")
+
+
+def _starts(q, n, seed=4):
+    """Start errors [m/s], 1 cm/s at most: random, the modes at LO and at HI (the slowest on the
+    first weights), the one in the middle (the fastest), and a slowest one hidden under the
+    middle one (1 % and 0.1 % of it)."""
+    rng = np.random.default_rng(seed)
+    starts = {"random": rng.standard_normal(n), "at LO": q[:, 0], "at HI": q[:, 1], "middle": q[:, 2],
+              "LO under middle": 0.01 * q[:, 0] + q[:, 2], "LO under middle 0.1 %": 1e-3 * q[:, 0] + q[:, 2],
+              "HI under middle": 0.01 * q[:, 1] + q[:, 2]}
+    return {name: 1e-2 * e / np.abs(e).max() for name, e in starts.items()}
+
+
+def test_chebyshev_rate_is_the_ratio_of_chebyshev_polynomials_outside_their_interval():
+    """The error of the mode mu after k sweeps on weights built for rho_w is
+    T_k(mu / rho_w) / T_k(1 / rho_w) times its start (Golub and Van Loan 11.2.8); its ratio from
+    k = 399 to 400, by numpy's Chebyshev series, is the rate chebyshev_rate claims, to 1e-4
+    (the ratio's approach to its limit goes as (rate_w / rate)^(2k), under 1e-6 here)."""
+    for rho_w in (RHO, RHO * CHEBYSHEV_RHO_FACTOR, 0.9 * RHO):
+        t = [C.chebval(np.array([RHO / rho_w, 1.0 / rho_w]), [0] * k + [1]) for k in (399, 400)]
+        ratio = (t[1][0] / t[1][1]) / (t[0][0] / t[0][1])
+        assert chebyshev_rate(RHO, rho_w) == pytest.approx(ratio, abs=1e-4)
+    assert chebyshev_rate(RHO, RHO) == pytest.approx(RHO / (1 + np.sqrt(1 - RHO**2)), rel=1e-12)
+    with pytest.raises(ValueError, match="rho_weights"):
+        chebyshev_rate(RHO, 1.01 * RHO)
+
+
+def test_the_stop_on_the_first_weights_fires_only_within_the_error_it_claims():
+    """From every start, the first weights (CHEBYSHEV_RHO_FACTOR) reach numpy.linalg.solve's x*,
+    and when the stop fires (tail_error at the floor chebyshev_rate(rho, rho_w), the contraction
+    observed over 4 sweeps) |x - x*| is within TOLERANCE, the bound it claims; fewer sweeps
+    than the floor promises for the slowest modes (ln(TOLERANCE / |e0|) / ln floor) where the
+    start has none of them."""
+    a, b, x_star, q = _system()
+    floor = chebyshev_rate(RHO, RHO * CHEBYSHEV_RHO_FACTOR)
+    worst = np.log(TOLERANCE / 1e-2) / np.log(floor)
+    for name, e0 in _starts(q, len(b)).items():
+        sweeps, x, estimate = _sweep_until_stop(a, b, x_star + e0, floor, 4)
+        error = np.abs(x - x_star).max()
+        assert error <= TOLERANCE, (name, sweeps, error, estimate)
+        if name == "middle":
+            assert sweeps < worst, (name, sweeps, worst)
+
+
+def test_the_narrow_weights_own_rate_would_stop_before_the_slowest_mode_is_solved():
+    """Why the floor is the rate over the whole of the bounds: with the first weights' own
+    optimal rate (their interval's, rho_w / (1 + sqrt(1 - rho_w^2))) and no observed rate, the
+    stop fires on the slowest mode with |x - x*| several times the TOLERANCE it claims."""
+    a, b, x_star, q = _system()
+    rho_w = RHO * CHEBYSHEV_RHO_FACTOR
+    own = chebyshev_rate(rho_w, rho_w)
+    sweeps, x, _ = _sweep_until_stop(a, b, x_star + _starts(q, len(b))["at LO"], own, 10**9)
+    assert np.abs(x - x_star).max() > 3 * TOLERANCE
