@@ -8,11 +8,10 @@ surfaces moved to the frame before the step starts, the volume the rasterizer wr
 steps run the same arithmetic in the same order. An error raised by a step on the worker thread
 reaches :meth:`~softvr.app.Player.step` on the calling thread with the sequential player's message.
 
-The palpation is played with Warp's CPU launches unsplit (``SOFTVR_NUM_THREADS=1``; the physics and
-the render still run on two threads at once): a kernel split over threads by softvr.device.launch
-races on Warp's CPU atomics, which are plain read-modify-writes (the ray caster's stale-pixel
-rectangle then loses an update now and then and leaves pixels stale, in a sequential player too).
-That race is not the overlap's and would make this exact comparison fail at random.
+Warp's CPU launches are split over threads as in the trainer (softvr.device.launch refuses a
+kernel that accumulates with atomics, which are plain read-modify-writes on the CPU: the ray
+caster's stale-pixel rectangle is a union of per-box rectangles), while physics and render also
+run on two threads at once.
 """
 
 import threading
@@ -28,10 +27,9 @@ from softvr.errors import SimulationError
 from softvr.scene import BUNDLED, SceneExample, read_scene
 
 
-def _played(overlap: bool, monkeypatch) -> tuple[list, list, list]:
+def _played(overlap: bool) -> tuple[list, list, list]:
     """Palpation's quick variant played with and without the overlap: per frame the image, the
     head's q after the frame's step, and the thread its physics stepped on."""
-    monkeypatch.setenv("SOFTVR_NUM_THREADS", "1")
     with SceneExample(read_scene(BUNDLED / "palpation.toml", ("quick",)), device="cpu") as player:
         assert player.overlaps()  # a volume scene overlaps by default
         player.overlap = overlap
@@ -52,9 +50,9 @@ def _played(overlap: bool, monkeypatch) -> tuple[list, list, list]:
 
 
 @pytest.mark.skipif(not HEAD_CT_PATH.exists(), reason="head CT (Debian invesalius-examples) not installed")
-def test_the_overlapped_palpation_draws_and_steps_every_frame_as_the_sequential_player(monkeypatch):
-    seq_images, seq_q, seq_threads = _played(False, monkeypatch)
-    images, qs, threads = _played(True, monkeypatch)
+def test_the_overlapped_palpation_draws_and_steps_every_frame_as_the_sequential_player():
+    seq_images, seq_q, seq_threads = _played(False)
+    images, qs, threads = _played(True)
     assert len(images) == len(seq_images) == 6
     main = threading.main_thread().name
     assert seq_threads == [main] * 6

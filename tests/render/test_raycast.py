@@ -69,6 +69,7 @@ import pytest
 import warp as wp
 
 from softvr.datasets import HEAD_CT_PATH
+from softvr.device import launch
 from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
 from softvr.volume import Volume
@@ -392,7 +393,7 @@ def _perspective(width: int, height: int) -> np.ndarray:
     return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
 
 
-def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
+def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     """``mark_pixels`` against NumPy ray-box intersection (float64): every pixel whose ray
     through its centre, from the near to the far plane, meets a box must be marked (the stale
     test walks only those), and within the rectangle it reports; the marks lie within 3 pixels
@@ -411,6 +412,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
     near, far = (e[:, :3] / e[:, 3:] for e in ends)
     rows = (height - 1 - py).ravel()  # the mask's rows run down
     tested = 0
+    rects = []
     for box_lo, box_hi in boxes:
         with np.errstate(divide="ignore", invalid="ignore"):
             a, b = (box_lo - near) / (far - near), (box_hi - near) / (far - near)
@@ -418,28 +420,39 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
         leave = np.nanmin(np.maximum(a, b), axis=1).clip(None, 1.0)
         truth = (enter <= leave).reshape(height, width)[::-1]
         mask = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
-        rect = wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu")
+        rect = wp.empty(1, dtype=wp.vec4i, device="cpu")
         wp.launch(K.mark_pixels, dim=1, device="cpu",
                   inputs=[wp.array(box_lo[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.array(box_hi[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.mat44(*to_clip.ravel()), width, height, 1, mask, rect, 0])
         marked = mask.numpy().reshape(height, width).astype(bool)
         assert not np.any(truth & ~marked), np.argwhere(truth & ~marked)
-        c0, c1, r0, r1 = rect.numpy()
+        c0, c1, r0, r1 = rect.numpy()[0]
         ys, xs = np.nonzero(marked)
         assert (c0, c1, r0, r1) == ((xs.min(), xs.max(), ys.min(), ys.max()) if len(xs) else (width, -1, height, -1))
+        rects.append((c0, c1, r0, r1))
         if truth.any():
             tested += 1
             ty, tx = np.nonzero(truth)
             assert c0 >= tx.min() - 3 and c1 <= tx.max() + 3 and r0 >= ty.min() - 3 and r1 <= ty.max() + 3
     assert tested > 10
+    # All the boxes in one launch split over two threads (as the renderer launches them): each
+    # box's rectangle as launched alone, none lost to the other thread.
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "2")
+    together = wp.empty(len(boxes), dtype=wp.vec4i, device="cpu")
+    launch(K.mark_pixels, len(boxes),
+           [wp.array(np.array([a for a, _ in boxes], np.float32), dtype=wp.vec3, device="cpu"),
+            wp.array(np.array([b for _, b in boxes], np.float32), dtype=wp.vec3, device="cpu"),
+            wp.mat44(*to_clip.ravel()), width, height, 0, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
+            together], "cpu", min_chunk=4)
+    np.testing.assert_array_equal(together.numpy(), np.array(rects))
     behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
     eye_index = np.linalg.inv(np.diag([0.9, 1.1, 1.5]))  @ np.array([-40.0, -90.0, 70.0])
     wp.launch(K.mark_pixels, dim=1, device="cpu",
               inputs=[wp.array(eye_index[None].astype(np.float32) - 5.0, dtype=wp.vec3, device="cpu"),
                       wp.array(eye_index[None].astype(np.float32) + 5.0, dtype=wp.vec3, device="cpu"),
                       wp.mat44(*to_clip.ravel()), width, height, 1, behind,
-                      wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu"), 0])
+                      wp.empty(1, dtype=wp.vec4i, device="cpu"), 0])
     assert behind.numpy().all()
 
 
@@ -555,12 +568,12 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     nb = np.array([-(-(s - 1) // b) for s in shape])
     cells = wp.zeros(tuple(nb), dtype=wp.uint64, device="cpu")
     seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device="cpu")
-    flipped = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device="cpu")
+    flips = wp.zeros(int(np.prod(nb)), dtype=wp.uint8, device="cpu")
     wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
               inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
                       wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
                       wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0), wp.vec3i(*nb),
-                      seed, flipped, cells, 0])
+                      seed, flips, cells, 0])
     masks = cells.numpy().view(np.uint64)
     c = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, 3)
     bit = ((c[:, 0] % b) * b * b + (c[:, 1] % b) * b + c[:, 2] % b).astype(np.uint64)
@@ -589,7 +602,7 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
         occupied[brick] = may_show(int(np.floor(position(block.min()))), int(np.ceil(position(block.max()))))
     assert occupied.any() and (~occupied).any()
     np.testing.assert_array_equal(seed.numpy(), np.where(occupied, 0, 8))
-    np.testing.assert_array_equal(flipped.numpy(), [0, 0, 0, *(nb - 1)])
+    np.testing.assert_array_equal(flips.numpy(), np.ones(int(np.prod(nb)), np.uint8))
 
 
 @wp.kernel

@@ -272,15 +272,17 @@ def brick_minmax(
     first: wp.vec3i,
     count: wp.vec3i,
     seed: wp.array3d(dtype=wp.uint8),
-    flipped: wp.array(dtype=wp.int32),
+    flips: wp.array(dtype=wp.uint8),
     cells: wp.array3d(dtype=wp.uint64),
     offset: int,
 ):
     """From the value range of the voxels a sample inside each brick can read (brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
     voxels b * BRICK .. (b + 1) * BRICK inclusive): the seed of the distance field, 0 for a
-    brick with a value of non-zero opacity in its range, else ``reach``; ``flipped`` (6: lower
-    corner, upper corner; start empty) grows to the box of the bricks whose seed changed.
+    brick with a value of non-zero opacity in its range, else ``reach``; ``flips[t]`` (one per
+    brick of the block, thread order; start zeroed) set to 1 where brick t's seed changed (a
+    flag per thread, not a shared box grown with atomics: Warp's CPU atomics are plain
+    read-modify-write, and the launch is split over threads).
     ``visible`` holds the running count of table entries with opacity > 0, so a range is empty
     iff the counts at its ends are equal (``lut_lo``, ``lut_scale``: the table's position of a
     value). And which of the brick's cells (the unit cubes between voxels, at most BRICK^3 = 64)
@@ -317,9 +319,7 @@ def brick_minmax(
     value = wp.uint8(wp.where(occupied, 0, reach))
     if value != seed[bx, by, bz]:
         seed[bx, by, bz] = value
-        for a in range(3):
-            wp.atomic_min(flipped, a, b[a])
-            wp.atomic_max(flipped, 3 + a, b[a])
+        flips[wp.tid() + offset] = wp.uint8(1)
     bits = wp.uint64(0)
     u0 = wp.max(int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size))) - 1, 0)
     u1 = wp.min(int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1, size - 1)
@@ -689,7 +689,7 @@ def mark_pixels(
     height: int,
     mark: int,
     mask: wp.array(dtype=wp.uint8),
-    rect: wp.array(dtype=wp.int32),
+    rects: wp.array(dtype=wp.vec4i),
     offset: int,
 ):
     """The pixels whose rays may meet the index-space box ``lo[b] .. hi[b]``: the bounds of
@@ -697,7 +697,10 @@ def mark_pixels(
     (every pixel if a corner lies behind the camera). A ray meets a box only where its pixel
     centre lies in the box's projection, the convex hull of the projected corners. Set 1 in
     ``mask`` [height * width] (row-major, row 0 at the top) over them if ``mark`` != 0, and
-    grow ``rect`` (first column, last column, first row, last row; start empty) to hold them."""
+    write their rectangle to ``rects[b]`` (first column, last column, first row, last row;
+    ``(width, -1, height, -1)`` if none); the caller takes the union, as a shared rectangle
+    grown with atomics would lose updates on the CPU (Warp's CPU atomics are plain
+    read-modify-write, and the launch is split over threads)."""
     b = wp.tid() + offset
     x0 = float(1.0e30)
     x1 = float(-1.0e30)
@@ -728,11 +731,9 @@ def mark_pixels(
         r0 = wp.max(height - 1 - (int(wp.ceil(y1)) + 1), 0)  # rows run down
         r1 = wp.min(height - 1 - (int(wp.floor(y0)) - 1), height - 1)
     if c0 > c1 or r0 > r1:
+        rects[b] = wp.vec4i(width, -1, height, -1)
         return
-    wp.atomic_min(rect, 0, c0)
-    wp.atomic_max(rect, 1, c1)
-    wp.atomic_min(rect, 2, r0)
-    wp.atomic_max(rect, 3, r1)
+    rects[b] = wp.vec4i(c0, c1, r0, r1)
     if mark != 0:
         for row in range(r0, r1 + 1):
             for column in range(c0, c1 + 1):

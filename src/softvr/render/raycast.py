@@ -211,14 +211,17 @@ class RayCaster:
         if retabled:  # the cells' masks and the occupancy depend on the table
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
-            flipped: wp.array = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
+            count = last - first + 1
+            flips: wp.array = wp.zeros(int(np.prod(count)), dtype=wp.uint8, device=dev)
             self._run(K.BRICK_MINMAX[name], first, last,
                       [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
                        self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
-                      [self._seed, flipped, self._cells])
-            box = flipped.numpy()
-            if np.any(box[3:] < box[:3]):
+                      [self._seed, flips, self._cells])
+            flipped = np.flatnonzero(flips.numpy())
+            if not len(flipped):
                 return
+            at = np.column_stack(np.unravel_index(flipped, tuple(count))) + first  # brick_of's order
+            box = np.concatenate([at.min(axis=0), at.max(axis=0)])
             # The rays' empty prefixes must be re-checked against the flipped bricks
             # [index coordinates covered: b * BRICK .. (b + 1) * BRICK].
             self._flips.append((box[:3] * BRICK, (box[3:] + 1) * BRICK))
@@ -436,7 +439,7 @@ class RayCaster:
         # each brick's projected bounds, are the only ones whose samples are walked; the
         # others in the flipped box only check it.
         candidates: wp.array = wp.zeros(width * height, dtype=wp.uint8, device=self.device)
-        bounds: wp.array = wp.array([width, -1, height, -1], dtype=wp.int32, device=self.device)
+        rect = (width, -1, height, -1)
         boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
         if boxed:
             corner = marked.astype(np.float32) * BRICK
@@ -445,11 +448,14 @@ class RayCaster:
             boxes.append((np.array([flipped[1]], np.float32), np.array([flipped[2]], np.float32), 0))
         for corner_lo, corner_hi, mark in boxes:
             if len(corner_lo):
+                rects: wp.array = wp.empty(len(corner_lo), dtype=wp.vec4i, device=self.device)
                 launch(K.mark_pixels, len(corner_lo),
                        [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
                         wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
-                        int(width), int(height), mark, candidates, bounds], self.device, min_chunk=_MARK_CHUNK)
-        rect = tuple(int(x) for x in bounds.numpy())
+                        int(width), int(height), mark, candidates, rects], self.device, min_chunk=_MARK_CHUNK)
+                r = rects.numpy()
+                rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
+                        min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
                 wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
