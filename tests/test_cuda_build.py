@@ -10,7 +10,7 @@ import warp as wp
 
 MODULES = {
     "softvr.volume._raster_kernels": ("raster_slabs", "raster_cells", "point_masks", "cell_masks", "tet_setup"),
-    "softvr.render._raycast_kernels": ("raycast", "brick_minmax", "brick_occupancy", "brick_distance_pass", "brick_changes",
+    "softvr.render._raycast_kernels": ("raycast", "brick_minmax", "brick_distance_pass", "brick_changes",
                                        "stale_pixels", "mark_pixels"),
     "softvr.dynamics._rigid_kernels": ("unconstrained", "integrate"),
     "softvr.collision._primitive_kernels": ("points_plane", "boxes_plane", "spheres_plane", "sphere_pairs",

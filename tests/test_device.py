@@ -34,7 +34,7 @@ def test_a_replayed_launch_runs_the_kernel_with_its_recorded_arguments(device):
 def _count(values: wp.array(dtype=wp.float64), counts: wp.array(dtype=wp.int32), amount: wp.float64, offset: int):
     i = wp.tid() + offset
     values[i] = amount * wp.float64(i)
-    wp.atomic_add(counts, i, 1)
+    counts[i] = counts[i] + 1
 
 
 def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):
@@ -47,6 +47,26 @@ def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):
     launch(_count, dim, [values, counts, 1.5], "cpu", min_chunk=100)
     np.testing.assert_array_equal(counts.numpy(), np.ones(dim, np.int32))
     np.testing.assert_array_equal(values.numpy(), 1.5 * np.arange(dim))
+
+
+@wp.kernel
+def _total(total: wp.array(dtype=wp.int64), offset: int):
+    wp.atomic_add(total, 0, wp.int64(1))
+
+
+def test_a_kernel_that_accumulates_with_atomics_is_not_split(monkeypatch):
+    """Warp's CPU atomics are a plain read-modify-write, so chunks of one launch on two threads
+    can lose updates to one total: such a kernel is refused by a split launch and by a split
+    replay, and with ``split=False`` its 200 000 threads each add exactly one."""
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "2")
+    dim = 200_000
+    total = wp.zeros(1, dtype=wp.int64, device="cpu")
+    with pytest.raises(ValueError, match="_total.*atomic"):
+        launch(_total, dim, [total], "cpu")
+    with pytest.raises(ValueError, match="_total.*atomic"):
+        chunked_replayer(_total, dim, [total], "cpu")
+    launch(_total, dim, [total], "cpu", split=False)
+    assert int(total.numpy()[0]) == dim
 
 
 def test_a_split_replay_runs_each_thread_once_per_call_with_its_own_index(monkeypatch):

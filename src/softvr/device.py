@@ -134,12 +134,25 @@ def _load(module, device: str) -> None:
     wp.load_module(module, device=device)
 
 
-def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024) -> None:
+def _check_splittable(kernel) -> None:
+    """Refuse to split a kernel that calls ``wp.atomic_*`` itself: Warp's CPU atomics are a
+    plain read-modify-write (one CPU launch runs on one thread), so chunks of one launch on two
+    threads lose updates to a shared total (measured: 1 launch in 20 lost a count). Such a
+    kernel writes per-thread results the caller reduces, or is launched with ``split=False``;
+    so is one whose :func:`warp.func` helpers accumulate (its own source cannot show that)."""
+    if "atomic_" in getattr(getattr(kernel, "adj", None), "source", ""):
+        raise ValueError(f"kernel {kernel.key!r} accumulates with wp.atomic_*, which is not atomic across a "
+                         "split CPU launch's threads: write per-thread results, or pass split=False")
+
+
+def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024, split: bool = True) -> None:
     """Launch a 1-D ``kernel`` over ``dim`` threads, split across CPU cores.
 
     The kernel's last parameter must be an ``int`` thread offset: chunk ``c`` is launched
     with ``dim_c`` threads and offset ``start_c``, and the kernel uses
-    ``wp.tid() + offset``. On CUDA this is one launch with offset 0.
+    ``wp.tid() + offset``. On CUDA this is one launch with offset 0. Chunks run at the same
+    time on different threads, so no two threads may write one element, and a kernel that
+    accumulates with atomics is refused unless ``split`` is False (:func:`_check_splittable`).
 
     Parameters
     ----------
@@ -152,33 +165,53 @@ def launch(kernel, dim: int, inputs: list, device: str, *, min_chunk: int = 1024
         Warp device name.
     min_chunk : int
         Below ``2 * min_chunk`` threads the launch is not split.
+    split : bool
+        False: one launch on the calling thread (a kernel whose threads accumulate into
+        shared memory with atomics).
     """
     if dim <= 0:
         return
     load_kernels(kernel, device)
     workers = cpu_workers() if device == "cpu" else 1
-    if workers == 1 or dim < 2 * min_chunk:
+    if split and workers > 1:
+        _check_splittable(kernel)
+    if not split or workers == 1 or dim < 2 * min_chunk:
         wp.launch(kernel, dim=dim, inputs=[*inputs, 0], device=device)
         return
     # More chunks than workers balance uneven per-thread work (rows of different length).
     chunks = min(workers * 4, max(1, dim // min_chunk))
     bounds = [dim * c // chunks for c in range(chunks + 1)]
     # The arguments are packed once (a wp.launch packs each on every call: ~0.2 ms for a
-    # kernel of 30 arguments, under the GIL) and each chunk replays them with its own size
+    # kernel of 30 arguments, under the GIL) and each chunk replays a copy with its own size
     # and offset.
     recorded = wp.launch(kernel, dim=bounds[1], inputs=[*inputs, 0], device=device, record_cmd=True)
-    replays: list[Callable[[], None]] = []
-    for c in range(chunks):
-        if c:
-            recorded.set_dim(bounds[c + 1] - bounds[c])
-            recorded.set_param_at_index(len(inputs), bounds[c])
-        replay = replayer(recorded)
-        if not hasattr(replay, "keep"):  # not a packed replay: the chunks could not share the recorded launch
-            replays = [partial(wp.launch, kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]],
-                                         device=device) for c in range(chunks)]
-            break
-        replays.append(replay)
+    replays = _chunk_replays(recorded, bounds, len(inputs))
+    if replays is None:  # not a packed replay: the chunks could not share the recorded launch
+        replays = [partial(wp.launch, kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]],
+                           device=device) for c in range(chunks)]
     _run_split(replays, workers)
+
+
+def _chunk_replays(recorded, bounds: list[int], offset_arg: int) -> list[Callable[[], None]] | None:
+    """Replays of the chunks ``bounds[c] .. bounds[c + 1]`` of a 1-D launch recorded over the first
+    chunk with its thread offset (argument ``offset_arg``) 0, or None where it does not replay
+    packed (:func:`replayer`). The other chunks copy the packed arguments (one C call) and set
+    their offset and size: re-packing each (``set_dim``, ``set_param_at_index``, a struct filled
+    field by field) cost ~0.1 ms of Python a chunk."""
+    first = replayer(recorded)
+    if not hasattr(first, "keep"):
+        return None
+    args = first.keep[1]  # set by replayer()
+    offset_name = args._fields_[offset_arg][0]
+    forward, bounds_type = recorded.hooks.forward, type(recorded.params[0])
+    replays = [first]
+    for c in range(1, len(bounds) - 1):
+        packed = type(args).from_buffer_copy(args)
+        setattr(packed, offset_name, bounds[c])
+        # byref keeps its object alive; the arrays the copies point into live as long as ``first``,
+        # which the caller holds with the rest.
+        replays.append(partial(forward, ctypes.byref(bounds_type(bounds[c + 1] - bounds[c])), ctypes.byref(packed)))
+    return replays
 
 
 def upload(dst: wp.array, src) -> None:
@@ -315,9 +348,12 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
     ``2 * min_chunk`` threads in two chunks per core (of at least ``min_chunk / 2``), which
     the calling thread and the workers claim as they come free (:class:`_SplitCall`), or all
     on the calling thread where that has been faster (:class:`_SplitReplay`); one replay where
-    one chunk suffices (CUDA, one core, a small ``dim``)."""
+    one chunk suffices (CUDA, one core, a small ``dim``). A kernel that accumulates with
+    atomics is refused, as by :func:`launch`."""
     load_kernels(kernel, device)
     workers = cpu_workers() if device == "cpu" else 1
+    if workers > 1:
+        _check_splittable(kernel)
     chunks = 1 if workers == 1 or dim < 2 * min_chunk else min(2 * workers, max(1, dim // max(1, min_chunk // 2)))
     bounds = [dim * c // chunks for c in range(chunks + 1)]
     replays = [replayer(wp.launch(kernel, dim=bounds[c + 1] - bounds[c], inputs=[*inputs, bounds[c]], device=device,

@@ -69,6 +69,7 @@ import pytest
 import warp as wp
 
 from softvr.datasets import HEAD_CT_PATH
+from softvr.device import launch
 from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
 from softvr.volume import Volume
@@ -392,7 +393,7 @@ def _perspective(width: int, height: int) -> np.ndarray:
     return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
 
 
-def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
+def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     """``mark_pixels`` against NumPy ray-box intersection (float64): every pixel whose ray
     through its centre, from the near to the far plane, meets a box must be marked (the stale
     test walks only those), and within the rectangle it reports; the marks lie within 3 pixels
@@ -411,6 +412,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
     near, far = (e[:, :3] / e[:, 3:] for e in ends)
     rows = (height - 1 - py).ravel()  # the mask's rows run down
     tested = 0
+    rects = []
     for box_lo, box_hi in boxes:
         with np.errstate(divide="ignore", invalid="ignore"):
             a, b = (box_lo - near) / (far - near), (box_hi - near) / (far - near)
@@ -418,28 +420,39 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it():
         leave = np.nanmin(np.maximum(a, b), axis=1).clip(None, 1.0)
         truth = (enter <= leave).reshape(height, width)[::-1]
         mask = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
-        rect = wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu")
+        rect = wp.empty(1, dtype=wp.vec4i, device="cpu")
         wp.launch(K.mark_pixels, dim=1, device="cpu",
                   inputs=[wp.array(box_lo[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.array(box_hi[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.mat44(*to_clip.ravel()), width, height, 1, mask, rect, 0])
         marked = mask.numpy().reshape(height, width).astype(bool)
         assert not np.any(truth & ~marked), np.argwhere(truth & ~marked)
-        c0, c1, r0, r1 = rect.numpy()
+        c0, c1, r0, r1 = rect.numpy()[0]
         ys, xs = np.nonzero(marked)
         assert (c0, c1, r0, r1) == ((xs.min(), xs.max(), ys.min(), ys.max()) if len(xs) else (width, -1, height, -1))
+        rects.append((c0, c1, r0, r1))
         if truth.any():
             tested += 1
             ty, tx = np.nonzero(truth)
             assert c0 >= tx.min() - 3 and c1 <= tx.max() + 3 and r0 >= ty.min() - 3 and r1 <= ty.max() + 3
     assert tested > 10
+    # All the boxes in one launch split over two threads (as the renderer launches them): each
+    # box's rectangle as launched alone, none lost to the other thread.
+    monkeypatch.setenv("SOFTVR_NUM_THREADS", "2")
+    together = wp.empty(len(boxes), dtype=wp.vec4i, device="cpu")
+    launch(K.mark_pixels, len(boxes),
+           [wp.array(np.array([a for a, _ in boxes], np.float32), dtype=wp.vec3, device="cpu"),
+            wp.array(np.array([b for _, b in boxes], np.float32), dtype=wp.vec3, device="cpu"),
+            wp.mat44(*to_clip.ravel()), width, height, 0, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
+            together], "cpu", min_chunk=4)
+    np.testing.assert_array_equal(together.numpy(), np.array(rects))
     behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
     eye_index = np.linalg.inv(np.diag([0.9, 1.1, 1.5]))  @ np.array([-40.0, -90.0, 70.0])
     wp.launch(K.mark_pixels, dim=1, device="cpu",
               inputs=[wp.array(eye_index[None].astype(np.float32) - 5.0, dtype=wp.vec3, device="cpu"),
                       wp.array(eye_index[None].astype(np.float32) + 5.0, dtype=wp.vec3, device="cpu"),
                       wp.mat44(*to_clip.ravel()), width, height, 1, behind,
-                      wp.array([width, -1, height, -1], dtype=wp.int32, device="cpu"), 0])
+                      wp.empty(1, dtype=wp.vec4i, device="cpu"), 0])
     assert behind.numpy().all()
 
 
@@ -464,14 +477,14 @@ def _smoothed_gradient(vol: wp.array(dtype=wp.float32), n: wp.vec3i, strides: wp
                        axis: int, out: wp.array(dtype=wp.vec3), gradient: wp.array(dtype=wp.vec3)):
     i = wp.tid()
     p = points[i]
-    plain, smoothed = K.slice_smoothed(vol, n, strides, p, axis)
-    out[i] = smoothed
+    plain = K.gradient(vol, n, strides, p)
+    out[i] = K.slice_smoothed(vol, n, strides, p, axis, plain)
     gradient[i] = plain
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_slice_smoothed_gradient_is_the_gradient_of_the_volume_smoothed_across_slices(axis):
-    """Both gradients of slice_smoothed against SciPy's route: smooth the voxels along ``axis`` by (1, 2, 1) / 4, take central
+    """slice_smoothed (and the gradient it smooths) against SciPy's route: smooth the voxels along ``axis`` by (1, 2, 1) / 4, take central
     differences (numpy.gradient), interpolate them trilinearly (map_coordinates, order 1) at
     points away from the edges (no clamping there). Float32 sums of values ~1: 1e-4."""
     from scipy import ndimage
@@ -524,6 +537,72 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
                           changed, 0])
         np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
+
+
+def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
+    """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
+    cell's bit is clear, so every cell where a trilinear sample's table opacity can be non-zero
+    must have it. A sample's value lies between its cell's 8 corners, and the table is read at
+    entries floor(u) and floor(u) + 1 of its position u: the cell can be visible iff an entry in
+    floor(u(min)) .. ceil(u(max)) is (``visible``: their running count); the kernel adds one entry
+    either side for rounding and no more. Bit layout: (i % BRICK) * BRICK^2 + (j % BRICK) * BRICK
+    + k % BRICK in brick (i, j, k) // BRICK. A table with two visible bands (not an upper set), a
+    grid not a multiple of BRICK (partial far bricks), all-air and all-tissue bricks (the
+    kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
+    interpolation, the table interpolated) never visible in a cleared cell. The same launch's
+    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(5)
+    b = int(K.BRICK)
+    shape = np.array([4 * b + 3, 3 * b + 2, 2 * b + 1])
+    ijk = np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), -1)
+    vol = (40.0 * (ijk @ np.array([1.0, 0.7, -0.4])) + rng.normal(0.0, 60.0, shape)).astype(np.float32)
+    vol[: b + 1] = -1000.0  # all air
+    vol[-b - 2:, : 2 * b + 1] = 300.0  # all tissue
+    size, lo, hi = 64, -1000.0, 1000.0
+    opaque = np.zeros(size, bool)
+    opaque[40:44] = opaque[52:58] = True
+    visible = np.concatenate([[0], np.cumsum(opaque)]).astype(np.int32)
+    scale = (size - 1) / (hi - lo)
+    nb = np.array([-(-(s - 1) // b) for s in shape])
+    cells = wp.zeros(tuple(nb), dtype=wp.uint64, device="cpu")
+    seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device="cpu")
+    flips = wp.zeros(int(np.prod(nb)), dtype=wp.uint8, device="cpu")
+    wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
+              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
+                      wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
+                      wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0), wp.vec3i(*nb),
+                      seed, flips, cells, 0])
+    masks = cells.numpy().view(np.uint64)
+    c = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, 3)
+    bit = ((c[:, 0] % b) * b * b + (c[:, 1] % b) * b + c[:, 2] % b).astype(np.uint64)
+    got = (masks[tuple((c // b).T)] >> bit) & np.uint64(1)
+    corners = np.stack([vol[tuple((c + [x, y, z]).T)] for x in (0, 1) for y in (0, 1) for z in (0, 1)], -1).astype(float)
+    position = lambda v: np.clip((v - lo) * scale, 0.0, size - 1)  # noqa: E731
+    u0 = np.floor(position(corners.min(-1))).astype(int)
+    u1 = np.ceil(position(corners.max(-1))).astype(int)
+    may_show = lambda a, z: visible[np.minimum(z + 1, size)] - visible[np.maximum(a, 0)] > 0  # noqa: E731
+    need, allowed = may_show(u0, u1), may_show(u0 - 1, u1 + 1)
+    assert need.any() and (~allowed).any() and (got == 0).any() and (got == 1).any()
+    assert np.all(got[need] == 1), f"{np.sum(got[need] == 0)} cells that can be visible are cleared"
+    assert np.all(got[~allowed] == 0), f"{np.sum(got[~allowed] == 1)} cells far from a visible entry are set"
+    points = rng.uniform(0.0, shape - 1.0, (20000, 3))
+    alpha = np.interp(position(ndimage.map_coordinates(vol.astype(float), points.T, order=1)), np.arange(size),
+                      opaque.astype(float))
+    cell = np.minimum(points.astype(int), shape - 2)
+    cell_bit = ((cell[:, 0] % b) * b * b + (cell[:, 1] % b) * b + cell[:, 2] % b).astype(np.uint64)
+    shown = (masks[tuple((cell // b).T)] >> cell_bit) & np.uint64(1)
+    assert (alpha > 0).sum() > 1000 and np.all(shown[alpha > 0] == 1)
+    # The same launch seeds the distance field: 0 for a brick whose voxels b * BRICK .. (b + 1) * BRICK
+    # hold a visible value in their range (no margin), else the reach; every seed changed from 255.
+    occupied = np.zeros(nb, bool)
+    for brick in np.ndindex(*nb):
+        block = vol[tuple(slice(i * b, min((i + 1) * b, s - 1) + 1) for i, s in zip(brick, shape))].astype(float)
+        occupied[brick] = may_show(int(np.floor(position(block.min()))), int(np.ceil(position(block.max()))))
+    assert occupied.any() and (~occupied).any()
+    np.testing.assert_array_equal(seed.numpy(), np.where(occupied, 0, 8))
+    np.testing.assert_array_equal(flips.numpy(), np.ones(int(np.prod(nb)), np.uint8))
 
 
 @wp.kernel

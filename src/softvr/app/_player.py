@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,7 +106,8 @@ class Player:
     metrics : list of dict
         One record per frame: ``frame``, ``sim_time_s``, ``step_ms`` (physics), ``stage_ms``
         (the physics by stage, summed over the frame's steps: :data:`softvr.sim.STAGES`; the
-        rest of ``step_ms`` is the hooks), ``render_ms``, ``wall_ms`` (both),
+        rest of ``step_ms`` is the hooks), ``render_ms``, ``wall_ms`` (both), ``latency_ms``
+        (from the frame's first input read to its image: :attr:`overlap`),
         ``max_penetration_m`` (deepest over the frame's steps), ``contacts`` and
         ``active_contacts`` (normal impulse > 0) of the frame's last step, ``pgs_iterations``
         (most sweeps in one step of the frame), ``pgs_residual_m_per_s``, ``kinetic_energy_j``,
@@ -125,6 +127,16 @@ class Player:
     #: reads its own measures sets it: the energies cost ~0.5 ms a frame on the contact bench's
     #: 729-node cube (8 % of its step), the contact counts ~20 us on a 35 us rigid step.
     frame_measures = True
+    #: Whether :meth:`render` steps the next frame's physics on a worker thread while it draws
+    #: this one (:meth:`step` then only waits for it): None (this default) does so for a player
+    #: with a volume (its ``volume`` attribute not None), whose render leaves a core idle. The
+    #: picture of every frame is the sequential player's: :meth:`render` moves the renderer's
+    #: surfaces and volume to this frame (:meth:`update_render`) before the step starts, and the
+    #: step writes nothing the renderer reads (the rasterizer writes the volume, after the step).
+    #: The frame period becomes about max(step, render) + the frame's hooks; the latency from a
+    #: frame's input (:meth:`drive`, :meth:`haptic_tick`) to its image is that period plus the
+    #: render, which now runs a frame later (``latency_ms`` of the records).
+    overlap: bool | None = None
 
     def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
                  bounds=None, camera=None):
@@ -144,6 +156,10 @@ class Player:
         self._drawing: SurfaceDrawing | None = None
         self._started = False
         self._on_arrays: tuple | None = None  # (stepper, its RigidFrameMetrics)
+        self._worker: ThreadPoolExecutor | None = None
+        self._ahead: Future | None = None  # the next frame's physics, stepping while this one is drawn
+        # [s] perf_counter when the first input was read: of the frame stepping or to step, of the last finished one
+        self._input_at = self._frame_input_at = 0.0
 
     # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
     def start(self) -> None:
@@ -202,18 +218,44 @@ class Player:
         potential = sum(gravity_potential(b, self.scene.gravity) for b in moving)
         return kinetic, kinetic + potential
 
+    def overlaps(self) -> bool:
+        """Whether :meth:`render` steps the next frame meanwhile (:attr:`overlap`)."""
+        if self.overlap is not None:
+            return bool(self.overlap)
+        return getattr(self, "volume", None) is not None
+
     def step(self) -> dict:
         """Advance one frame (:meth:`start` before the first, then ``steps_per_frame`` sub-steps,
-        each in :data:`STEP_ORDER`, then :data:`FRAME_ORDER`); returns the frame's metrics record."""
+        each in :data:`STEP_ORDER`, then :data:`FRAME_ORDER`); returns the frame's metrics record.
+        Where :meth:`render` started the sub-steps already (:attr:`overlap`), it waits for them
+        and raises what they raised."""
         if not self._started:
             self._started = True
             self.start()
+        if self._ahead is not None:
+            ahead, self._ahead = self._ahead, None
+            physics = ahead.result()
+        else:
+            self._read_input()
+            physics = self._physics()
+        return self._finish_frame(*physics)
+
+    def _read_input(self) -> None:
+        """The first sub-step's input (:data:`STEP_ORDER`'s drive and haptics), on the calling thread."""
+        self._input_at = time.perf_counter()
+        self.drive()
+        self.haptic_tick()
+
+    def _physics(self) -> tuple:
+        """The frame's sub-steps, the first one's input already read (:meth:`_read_input`);
+        returns (step_ms, stage_ms, the last solution, deepest, sweeps, residual)."""
         t0 = time.perf_counter()
         deepest, sweeps, residual, solution = 0.0, 0, 0.0, None
         stage_ms = dict.fromkeys(STAGES, 0.0)
-        for _ in range(self.steps_per_frame):
-            self.drive()
-            self.haptic_tick()
+        for k in range(self.steps_per_frame):
+            if k:
+                self.drive()
+                self.haptic_tick()
             solution = self.scene.step(self.dt)
             self.sense(solution)
             for stage in STAGES:
@@ -222,10 +264,15 @@ class Player:
                 deepest = max(deepest, self.penetration())
                 sweeps = max(sweeps, int(solution.iterations))
                 residual = max(residual, float(solution.residual))
-        step_ms = (time.perf_counter() - t0) * 1e3
         assert solution is not None  # steps_per_frame >= 1
+        return (time.perf_counter() - t0) * 1e3, stage_ms, solution, deepest, sweeps, residual
+
+    def _finish_frame(self, step_ms: float, stage_ms: dict, solution, deepest: float, sweeps: int,
+                      residual: float) -> dict:
+        """The frame's measures, :data:`FRAME_ORDER` and its metrics record, after its sub-steps."""
         record = {"frame": self.frame, "sim_time_s": float(self.scene.time), "step_ms": step_ms,
                   "stage_ms": stage_ms, "render_ms": 0.0, "wall_ms": step_ms}
+        self._frame_input_at = self._input_at
         if self.frame_measures:
             kinetic, energy = self.energies()
             counts = getattr(solution, "contact_counts", None)  # a step on arrays counts without splitting sets
@@ -270,19 +317,48 @@ class Player:
         return {}
 
     def render(self) -> np.ndarray:
-        """Draw the current state offscreen; returns RGB uint8 [height, width, 3]."""
+        """Draw the current state offscreen; returns RGB uint8 [height, width, 3]. With
+        :attr:`overlap`, the next frame's physics (its input read here first) steps on a worker
+        thread meanwhile, up to :attr:`frames`; a render while it steps draws this frame again."""
         t0 = time.perf_counter()
         if self._renderer is None:
             self._renderer = SurfaceRenderer(self.width, self.height, self.camera, bounds=self.bounds,
                                              **self.renderer_options())
             self.setup_render(self._renderer)
-        self.update_render(self._renderer)
+        if self._ahead is None:
+            self.update_render(self._renderer)
+            self.step_ahead()
         image = self._renderer.render()
         if self.metrics:
-            ms = (time.perf_counter() - t0) * 1e3
-            self.metrics[-1]["render_ms"] = ms
-            self.metrics[-1]["wall_ms"] = self.metrics[-1]["step_ms"] + ms
+            now = time.perf_counter()
+            record = self.metrics[-1]
+            record["render_ms"] = (now - t0) * 1e3
+            record["wall_ms"] = record["step_ms"] + record["render_ms"]
+            record["latency_ms"] = (now - self._frame_input_at) * 1e3
         return image
+
+    def step_ahead(self) -> None:
+        """With :attr:`overlap`, frames left and none stepping yet: read the next frame's input
+        (:meth:`drive`, :meth:`haptic_tick`) and start its physics on the worker thread, for
+        :meth:`step` to take. Call it once a renderer holds this frame (:meth:`update_render`):
+        from then on until :meth:`step` (or :meth:`settle`) returns, the scene is being written."""
+        if self._ahead is None and self._started and self.frame < self.frames and self.overlaps():
+            if self._worker is None:
+                self._worker = ThreadPoolExecutor(1, thread_name_prefix="softvr-physics")
+            self._read_input()
+            self._ahead = self._worker.submit(self._physics)
+
+    @property
+    def ahead(self) -> bool:
+        """Whether a frame is stepping ahead (:meth:`step_ahead`) for :meth:`step` to take."""
+        return self._ahead is not None
+
+    def settle(self) -> None:
+        """Wait until the frame stepping ahead (:meth:`step_ahead`) has stepped; :meth:`step`
+        still takes it (and raises its error). The scene then stays still until the next
+        :meth:`step_ahead`: for what reads or changes it between frames (a mouse grab)."""
+        if self._ahead is not None:
+            self._ahead.exception()  # waits
 
     # -- what a run reports --------------------------------------------------------------
     def describe(self) -> dict:
@@ -320,7 +396,13 @@ class Player:
         return []
 
     def close(self) -> None:
-        """Release the renderer (and, in subclasses, haptic processes)."""
+        """Release the renderer (and, in subclasses, haptic processes); a frame stepping ahead
+        that :meth:`step` did not take is waited for and dropped, its error with it."""
+        self.settle()
+        self._ahead = None
+        if self._worker is not None:
+            self._worker.shutdown()
+            self._worker = None
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

@@ -103,7 +103,9 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
 
     def mouse(interactor, style) -> None:
         """Right button (or control + left) drags a body; otherwise the trackball camera."""
+        # A grab reads the bodies and a release changes the scene's forces: not while a frame steps.
         def press(obj, event) -> None:
+            player.settle()
             right = event == "RightButtonPressEvent"
             if (right or interactor.GetControlKey()) and tool.press(*interactor.GetEventPosition()):
                 return
@@ -116,6 +118,7 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
                 style.OnMouseMove()
 
         def release(obj, event) -> None:
+            player.settle()
             if tool.grab is not None:
                 tool.release()
             else:
@@ -129,16 +132,23 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
 
     def advance() -> None:
         if player.frame < player.frames:
-            t0 = time.perf_counter()
-            tool.apply()
+            if not player.ahead:  # a sequential player (or the first frame): the drag force of this step
+                tool.apply()
             player.step()
+            t0 = time.perf_counter()
             player.update_render(renderer)
             draw_overlays()
+            if player.overlaps():
+                # The next frame steps on the player's worker thread while this one is drawn: its
+                # drag force is set, and it starts, once the renderer holds this frame.
+                tool.apply()
+                player.step_ahead()
             window.Render()
-            player.metrics[-1]["render_ms"] = (time.perf_counter() - t0) * 1e3 - player.metrics[-1]["step_ms"]
+            player.metrics[-1]["render_ms"] = (time.perf_counter() - t0) * 1e3
 
     def toggle(name: str):
         def flip() -> None:
+            player.settle()  # the overlays read the scene
             shown[name] = not shown[name]
             draw_overlays()
         return flip

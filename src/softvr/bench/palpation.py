@@ -12,8 +12,15 @@ VTK's CPU ray caster renders the same volume with the same transfer function, ca
 sample distance on a few frames of the same run, for the ratio. A full frame is step +
 incremental rasterization + render.
 
+A second pass plays the same frames as :func:`~softvr.app.record` and ``softvr play`` do by
+default for a volume scene: each frame's render overlapped with the next frame's FEM step on a
+worker thread (:attr:`softvr.app.Player.overlap`). It reports the frame period (wall time per
+frame of that loop, what the target reads), the latency (from a frame's input read to its
+image: the period plus one render, which now ends a frame later) and the process CPU time per
+frame, beside the sequential pass's; each of its images must equal the sequential pass's.
+
 Thesis anchor: the torso (4.99 M voxels, 700 tets) rasterized in 14.86 ms on a GTX 680.
-Target on this 2-core CPU: a full frame <= 33 ms on the head CT; on an H100 when lent, <= 5 ms.
+Target on this 2-core CPU: a frame period <= 33 ms on the head CT; on an H100 when lent, <= 5 ms.
 """
 
 from __future__ import annotations
@@ -71,9 +78,12 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     probe_radius = float(probe_spec.size)  # [m] a sphere's
     trace: dict[str, list] = {k: [] for k in ("fem_ms", "raster_incremental_ms", "raster_full_ms", "render_ms",
                                               "render_cpu_ms", "raster_voxels", "indentation_m")}
-    trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms", "rays_cast")})
+    trace.update({k: [] for k in ("render_paired_ms", "render_vtk_ms", "render_vtk_cpu_ms", "rays_cast",
+                                  "frame_wall_ms", "frame_cpu_ms")})
+    images = []
     with SceneExample(scene_file, width=size, height=size, device=device) as player:
         player.frame_measures = False  # the bench reads its own measures
+        player.overlap = False  # this pass: each stage alone
         frames, size = player.frames, player.width
         vol, probe = player.volume, player.bodies["probe"]
         assert vol is not None
@@ -89,13 +99,18 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         vtk = VolumeRenderer(size, size, vol.spec["preset"], player.camera, mapper="cpu", sample_distance=step)
         vtk.render(vol.shown())  # its set-up
         for i in tqdm(range(frames), desc="bench palpation", unit="frame", disable=not progress):
+            start, start_cpu = time.perf_counter(), time.process_time()
             record = player.step()
+            frame_wall, frame_cpu = time.perf_counter() - start, time.process_time() - start_cpu
             s = time.perf_counter()
             vol.drawing.rasterizer.deform(vol.body.q / vol.unit, out=full)
             trace["raster_full_ms"].append(1e3 * (time.perf_counter() - s))
-            cpu = time.process_time()
+            s, cpu = time.perf_counter(), time.process_time()
             image = player.render()
             trace["render_cpu_ms"].append(1e3 * (time.process_time() - cpu))
+            trace["frame_wall_ms"].append(1e3 * (frame_wall + time.perf_counter() - s))
+            trace["frame_cpu_ms"].append(1e3 * (frame_cpu + time.process_time() - cpu))
+            images.append(image)
             trace["rays_cast"].append(caster.cast_pixels if caster is not None else size * size)
             if i % 8 == 4 or (quick and i % 3 == 1):
                 s, cpu = time.perf_counter(), time.process_time()
@@ -120,8 +135,10 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         scene = {**facts, **volume_facts, "volume": volume_facts["source"],
                  "renderer": "warp" if caster is not None else "vtk", "sample_distance": step}
         rasterizer_device = vol.drawing.rasterizer.device
+    trace.update(_overlapped(scene_file, size, device, images, progress))
     med = {k: float(np.median(v)) for k, v in trace.items()}
     frame_ms = med["fem_ms"] + med["raster_incremental_ms"] + med["render_ms"]
+    period_ms = med["period_ms"]
     # Per paired frame: VTK's wall time over softvr's, then the median.
     render_ratio = float(np.median(np.divide(trace["render_vtk_ms"], trace["render_paired_ms"])))
     render_cpu_ratio = med["render_vtk_cpu_ms"] / med["render_cpu_ms"]
@@ -134,18 +151,48 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         "scene": scene,
         "median": med,
         "frame_ms": frame_ms,
+        "period_ms": period_ms,
+        "overlap_equals_sequential": float(np.mean(trace["overlap_same_image"])),
         "incremental_equals_full": agree,
         "render_equals_fresh_cast": same_image,
         "trace": trace,
         "thesis": THESIS,
         "render_vs_vtk": render_ratio,
         "render_vs_vtk_cpu_time": render_cpu_ratio,
-        "targets": {"frame_ms": TARGET_FRAME_MS, "frame_met": frame_ms <= TARGET_FRAME_MS,
+        "targets": {"frame_ms": TARGET_FRAME_MS, "frame_met": period_ms <= TARGET_FRAME_MS,
                     "render_ratio": TARGET_RENDER_RATIO, "render_ratio_met": render_ratio >= TARGET_RENDER_RATIO},
         "loadavg_start": load_start,
         "loadavg_end": _loadavg(),
         "wall_s": time.perf_counter() - t0,
     }
+
+
+def _overlapped(scene_file, size: int, device: str | None, images: list, progress: bool) -> dict:
+    """The same frames played overlapped (each render beside the next frame's FEM step on the
+    player's worker thread), in a player of its own: per frame the period [ms] (wall time from
+    one image to the next), the process CPU time of that period [ms] (all threads), the latency
+    [ms] (first input read to image), the step's wall time [ms] (beside the render) and whether
+    the image equals the sequential pass's (``images``, one per frame)."""
+    from tqdm import tqdm
+
+    trace: dict[str, list] = {k: [] for k in ("period_ms", "period_cpu_ms", "latency_ms", "fem_overlapped_ms",
+                                              "overlap_same_image")}
+    with SceneExample(scene_file, width=size, height=size, device=device) as player:
+        player.frame_measures = False
+        player.overlap = True
+        player.render()  # the renderer's set-up, as in the sequential pass
+        last, last_cpu = time.perf_counter(), time.process_time()
+        for i in tqdm(range(player.frames), desc="bench palpation, overlapped", unit="frame", disable=not progress):
+            record = player.step()
+            image = player.render()
+            now, cpu = time.perf_counter(), time.process_time()
+            trace["period_ms"].append(1e3 * (now - last))
+            trace["period_cpu_ms"].append(1e3 * (cpu - last_cpu))
+            last, last_cpu = now, cpu
+            trace["latency_ms"].append(record["latency_ms"])
+            trace["fem_overlapped_ms"].append(record["step_ms"])
+            trace["overlap_same_image"].append(bool(np.array_equal(image, images[i])))
+    return trace
 
 
 def format_table(result: dict) -> str:
@@ -162,6 +209,15 @@ def format_table(result: dict) -> str:
         ratio = f"{full / m[key]:.1f}x faster" if key == "raster_incremental_ms" else ""
         lines.append(f"{name:<28} {m[key]:>10.1f} {ratio:>15}")
     lines.append(f"{'frame (step+incr.+render)':<28} {result['frame_ms']:>10.1f}")
+    lines += ["", f"{'one frame, median':<34} {'wall ms':>8} {'CPU ms':>8} {'latency ms':>11}", "-" * 64,
+              f"{'sequential (step, raster, render)':<34} {m['frame_wall_ms']:>8.1f} {m['frame_cpu_ms']:>8.1f} "
+              f"{m['frame_wall_ms']:>11.1f}",
+              f"{'overlapped (render || next step)':<34} {m['period_ms']:>8.1f} {m['period_cpu_ms']:>8.1f} "
+              f"{m['latency_ms']:>11.1f}",
+              f"overlapped: the wall is the frame period; the latency (input read -> image) is the period plus "
+              f"one render (a frame is drawn while the next one steps; that step: {m['fem_overlapped_ms']:.1f} ms "
+              f"wall); its images == the sequential pass's: {100 * result['overlap_equals_sequential']:.0f} % of "
+              f"frames"]
     th, t = result["thesis"], result["targets"]
     lines += ["", f"incremental voxels per frame (median): {m['raster_voxels'] / 1e6:.2f} M of {voxels / 1e6:.2f} M; "
                   f"incremental == full at the end: {100 * result['incremental_equals_full']:.3f} % of voxels",
@@ -171,7 +227,8 @@ def format_table(result: dict) -> str:
               f"{100 * result['render_equals_fresh_cast']:.3f} % of pixels",
               f"thesis: torso {th['voxels'] / 1e6:.2f} M voxels, {th['tets']} tets rasterized in {th['raster_ms']} ms "
               f"({th['gpu']})",
-              f"target: full frame <= {t['frame_ms']:g} ms: {result['frame_ms']:.1f} -> "
+              f"target: frame period <= {t['frame_ms']:g} ms (overlapped; latency {m['latency_ms']:.1f} ms): "
+              f"{result['period_ms']:.1f} -> "
               f"{'MET' if t['frame_met'] else 'NOT met'}",
               f"target: render >= {t['render_ratio']:g}x faster than VTK's ray caster (same volume, camera, step; "
               f"median of {len(result['trace']['render_vtk_ms'])} paired frames): {result['render_vs_vtk']:.1f}x -> "
@@ -191,7 +248,8 @@ def write_plot(result: dict, path) -> None:
     f = np.arange(len(tr["fem_ms"]))
     fig, axes = plt.subplots(1, 2, figsize=(12, 4))
     for key, label in (("fem_ms", "FEM step"), ("raster_full_ms", "rasterize full"),
-                       ("raster_incremental_ms", "rasterize incremental"), ("render_ms", "render")):
+                       ("raster_incremental_ms", "rasterize incremental"), ("render_ms", "render"),
+                       ("period_ms", "frame period, overlapped")):
         axes[0].plot(f, tr[key], label=label)
     axes[0].axhline(TARGET_FRAME_MS, color="k", lw=1, label="frame target")
     axes[0].set(xlabel="frame", ylabel="ms", title="time per stage", yscale="log")

@@ -162,6 +162,7 @@ class RayCaster:
             data = data.astype(np.float32)
         shape = data.shape
         dev = self.device
+        self._voxel_type = name
         if not (data.flags.c_contiguous or data.flags.f_contiguous):
             data = np.ascontiguousarray(data)
         # A flat view in memory order and the element strides of the three axes.
@@ -178,9 +179,9 @@ class RayCaster:
         fresh = retabled or (shape, name) != self._grid_key
         if (shape, name) != self._grid_key:
             # The distance field's seed and passes are kept: an update redoes them near the change only.
-            self._bmin, self._bmax, self._pass1, self._pass2, self._distance = (
-                wp.empty(tuple(nb), dtype=t, device=dev) for t in (float, float) + (wp.uint8,) * 3)
+            self._pass1, self._pass2, self._distance = (wp.empty(tuple(nb), dtype=wp.uint8, device=dev) for _ in range(3))
             self._seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device=dev)  # no seed value: all written
+            self._cells = wp.empty(tuple(nb), dtype=wp.uint64, device=dev)
             self._grid_key = (shape, name)
             changed = True
         # Bricks whose own voxels changed since the last upload (all written in the changed box).
@@ -199,7 +200,7 @@ class RayCaster:
                 self._known = wp.clone(self._vol)
                 self._changed_bricks.fill_(1)
             else:
-                self._run(K.brick_changes, *owners, [self._vol, wp.vec3i(*shape), self._strides],
+                self._run(K.BRICK_CHANGES[name], *owners, [self._vol, wp.vec3i(*shape), self._strides],
                           [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
@@ -207,18 +208,20 @@ class RayCaster:
             self._occupied_before = self._seed.numpy() == 0
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
-        if np.all(last >= first):
-            self._run(K.brick_minmax, first, last, [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks,
-                                                     int(changed is True)], [self._bmin, self._bmax])
-        if retabled:
+        if retabled:  # the cells' masks and the occupancy depend on the table
             first, last = np.zeros(3, int), nb - 1
         if np.all(last >= first):
-            flipped: wp.array = wp.array([2**30] * 3 + [-1] * 3, dtype=wp.int32, device=dev)
-            self._run(K.brick_occupancy, first, last, [self._bmin, self._bmax, self._visible, float(self._lut_lo),
-                                                        float(self._lut_scale), REACH], [self._seed, flipped])
-            box = flipped.numpy()
-            if np.any(box[3:] < box[:3]):
+            count = last - first + 1
+            flips: wp.array = wp.zeros(int(np.prod(count)), dtype=wp.uint8, device=dev)
+            self._run(K.BRICK_MINMAX[name], first, last,
+                      [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
+                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
+                      [self._seed, flips, self._cells])
+            flipped = np.flatnonzero(flips.numpy())
+            if not len(flipped):
                 return
+            at = np.column_stack(np.unravel_index(flipped, tuple(count))) + first  # brick_of's order
+            box = np.concatenate([at.min(axis=0), at.max(axis=0)])
             # The rays' empty prefixes must be re-checked against the flipped bricks
             # [index coordinates covered: b * BRICK .. (b + 1) * BRICK].
             self._flips.append((box[:3] * BRICK, (box[3:] + 1) * BRICK))
@@ -325,8 +328,10 @@ class RayCaster:
                self._tables_key, self.jitter, self.smooth_slices)
         depth_host = np.ascontiguousarray(depth, np.float32)
         surface_host = np.ascontiguousarray(surface, np.uint8)
-        depth = wp.array(depth_host, dtype=float, device=dev)
-        surface = wp.array(surface_host, dtype=wp.uint8, device=dev)
+        # On the CPU the kernels read the host arrays in place (alive until the cast returns).
+        in_place = dev == "cpu"
+        depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
+        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
         # The same for every frame of one view (the spacing and option are in its key).
         self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
@@ -357,11 +362,11 @@ class RayCaster:
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
-            self._distance,
+            self._distance, self._cells,
             *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.raycast, self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
@@ -421,7 +426,7 @@ class RayCaster:
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device)
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         read_host, marked = self._read_distance()
@@ -434,7 +439,7 @@ class RayCaster:
         # each brick's projected bounds, are the only ones whose samples are walked; the
         # others in the flipped box only check it.
         candidates: wp.array = wp.zeros(width * height, dtype=wp.uint8, device=self.device)
-        bounds: wp.array = wp.array([width, -1, height, -1], dtype=wp.int32, device=self.device)
+        rect = (width, -1, height, -1)
         boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
         if boxed:
             corner = marked.astype(np.float32) * BRICK
@@ -443,11 +448,14 @@ class RayCaster:
             boxes.append((np.array([flipped[1]], np.float32), np.array([flipped[2]], np.float32), 0))
         for corner_lo, corner_hi, mark in boxes:
             if len(corner_lo):
+                rects: wp.array = wp.empty(len(corner_lo), dtype=wp.vec4i, device=self.device)
                 launch(K.mark_pixels, len(corner_lo),
                        [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
                         wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
-                        int(width), int(height), mark, candidates, bounds], self.device, min_chunk=_MARK_CHUNK)
-        rect = tuple(int(x) for x in bounds.numpy())
+                        int(width), int(height), mark, candidates, rects], self.device, min_chunk=_MARK_CHUNK)
+                r = rects.numpy()
+                rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
+                        min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
                 wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,

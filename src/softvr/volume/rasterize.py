@@ -499,6 +499,7 @@ class Rasterizer:
                 ],
                 dev,
                 min_chunk=64,
+                split=not count_writes,  # counting writes adds into shared counts (atomics)
             )
         elif self.method == "spans" and self._out_code and not count_writes:
             t_cull = time.perf_counter()
@@ -538,6 +539,7 @@ class Rasterizer:
                 ],
                 dev,
                 min_chunk=64,
+                split=not count_writes,  # counting writes adds into shared counts (atomics)
             )
         n_tested = int(tested.numpy().sum(dtype=np.int64))
         n_written = int(written.numpy().sum(dtype=np.int64))
