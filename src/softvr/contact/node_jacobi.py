@@ -21,7 +21,8 @@ from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
-__all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_weights", "movable_contacts", "observed_rate", "tail_error"]
+__all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "movable_contacts", "observed_rate",
+           "tail_error"]
 
 #: Threads striding over a step's contacts in the kernels that take one contact at a time
 #: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
@@ -70,6 +71,25 @@ def chebyshev_rate(rho: float, rho_weights: float) -> float:
     if rho == 0.0:
         return 0.0
     return float((rho + np.sqrt(rho * rho - rho_weights * rho_weights)) / (1.0 + np.sqrt(1.0 - rho_weights ** 2)))
+
+
+def chebyshev_rates(rho: float, rho_weights: float, count: int) -> np.ndarray:
+    """[count] the error reduction of the slowest mode (eigenvalue ``rho``) at each of the first
+    ``count`` sweeps on the weights of ``rho_weights`` <= ``rho`` from their start (index
+    ``k - 1`` for sweep ``k``): ``p_k / p_k-1`` with ``p_k = T_k(rho / rho_w) / T_k(1 / rho_w)``
+    (Golub and Van Loan 11.2.8), ``rho`` at the first sweep, tending to :func:`chebyshev_rate`.
+    The error left over the last change is then ``r_k / (1 - r_k)`` exactly for that mode: in a
+    (re)start's first sweeps the slowest mode has barely begun to fall, and the asymptotic rate
+    would put its tail at a quarter of that (the candy's bounds' own weights at sweep 2).
+    Computed as ``e^(a - b) (1 + e^-2ka)(1 + e^-2(k-1)b) / ((1 + e^-2(k-1)a)(1 + e^-2kb))`` with
+    ``cosh a = rho / rho_w``, ``cosh b = 1 / rho_w`` (no overflow)."""
+    asymptote = chebyshev_rate(rho, rho_weights)
+    if rho_weights == 0.0:  # omega_k = 1: plain sweeps
+        return np.full(count, rho)
+    k = np.arange(1, count + 1, dtype=np.float64)
+    e_b = (1.0 + np.sqrt(1.0 - rho_weights ** 2)) / rho_weights
+    q_a, q_b = (asymptote * e_b) ** -2.0, e_b ** -2.0  # e^-2a, e^-2b (e^a = asymptote e^b)
+    return asymptote * (1.0 + q_a ** k) * (1.0 + q_b ** (k - 1)) / ((1.0 + q_a ** (k - 1)) * (1.0 + q_b ** k))
 
 
 def tail_error(sweeps: list[int], changes: list[float], floor: float, window: int | None = RATE_SWEEPS) -> float:
@@ -213,8 +233,11 @@ class NodeSolve:
         self._narrow = rho_first < self.rho
         #: The omega_k the Chebyshev kernel reads (a copy of the first or the bounds' weights).
         self.weights: wp.array = wp.clone(self._first_weights)
-        #: The rate the first weights promise over the whole of the bounds (:func:`chebyshev_rate`).
-        self.first_rate = chebyshev_rate(self.rho, rho_first)
+        # The Jacobi stop's floors, sweep by sweep from a (re)start (chebyshev_rates); the
+        # Gauss-Seidel sweeps keep the asymptotic rate (main's stop, measured on the shoulder).
+        count = self.max_sweeps
+        self._floors = (chebyshev_rates(self.rho, rho_first, count), chebyshev_rates(self.rho, self.rho, count)) \
+            if colours is None else (np.full(count, self.rate),) * 2
         # The Gauss-Seidel sweeps (the shoulder's) keep the stop on the bounds' rate alone and their
         # plain windows whole: the observed rate was measured on the Jacobi scenes only.
         self._observed = colours is None
@@ -365,8 +388,10 @@ class NodeSolve:
         ``max_sweeps``. The error left is estimated as the geometric tail of the last sweep's
         largest change (:func:`tail_error`: a rigid body's nodes, exact, count none) at the
         larger of the contraction observed over the last :data:`RATE_SWEEPS` sweeps (Jacobi
-        only) and the rate the weights in use promise over the bounds (:func:`chebyshev_rate`;
-        for plain sweeps ``rho``), checked every ``check_every`` sweeps; the sweeps stop when it is under
+        only) and the rate the weights in use promise over the bounds at that sweep since they
+        (re)started (Jacobi: :func:`chebyshev_rates`, the slowest mode's ratio, ``rho`` at the
+        first sweep, as it has barely begun to fall; Gauss-Seidel: :attr:`rate`; plain sweeps:
+        ``rho``), checked every ``check_every`` sweeps; the sweeps stop when it is under
         ``tolerance`` and every contact meets eq. 5.5 within ``tolerance``
         (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
         understates their error; a rigid body's error is all its contacts').
@@ -416,7 +441,7 @@ class NodeSolve:
                 if not np.isfinite(change):  # NaN: the integration reports it
                     break
                 changes.add(k, change)
-                floor = self.rho if plain else self.first_rate if narrow else self.rate
+                floor = self.rho if plain else self._floors[0 if narrow else 1][k - restart - 1]
                 window = RATE_SWEEPS if self._observed else None
                 if tail_error(changes.sweeps, changes.values, floor, window) <= tolerance and \
                         self._contacts_met(k, tolerance):
