@@ -27,6 +27,8 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
     assert plain["contacts_max"] > 0 and sticky["contacts_max"] > 0
     assert result["targets"]["cost_ratio"] > 0
     assert "targets: real time" in out and "adhesion's cost at equal contact count" in out
+    assert result["targets"]["candy_met"] == (plain["ms_per_step"] <= 40.0)  # issue 16: the plain candy's step
+    assert f"plain candy {plain['ms_per_step']:.1f} ms per step vs <= 40" in out
     # The pull-off case separates at the force the model predicts (tests/contact/test_adhesion.py),
     # and MuJoCo's adhesion actuator, given that force as its gain, runs beside it when installed.
     pull = result["pull_off"]
