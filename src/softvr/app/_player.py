@@ -128,15 +128,16 @@ class Player:
     #: 729-node cube (8 % of its step), the contact counts ~20 us on a 35 us rigid step.
     frame_measures = True
     #: Whether :meth:`render` steps the next frame's physics on a worker thread while it draws
-    #: this one (:meth:`step` then only waits for it): None (this default) does so for a player
-    #: with a volume (its ``volume`` attribute not None), whose render leaves a core idle. The
-    #: picture of every frame is the sequential player's: :meth:`render` moves the renderer's
-    #: surfaces and volume to this frame (:meth:`update_render`) before the step starts, and the
-    #: step writes nothing the renderer reads (the rasterizer writes the volume, after the step).
-    #: The frame period becomes about max(step, render) + the frame's hooks; the latency from a
-    #: frame's input (:meth:`drive`, :meth:`haptic_tick`) to its image is that period plus the
-    #: render, which now runs a frame later (``latency_ms`` of the records).
-    overlap: bool | None = None
+    #: this one (:meth:`step` then only waits for it). The picture of every frame is the
+    #: sequential player's: :meth:`render` moves the renderer's surfaces and volume to this
+    #: frame (:meth:`update_render`) before the step starts, and the step writes nothing the
+    #: renderer reads (the rasterizer writes the volume, after the step). The frame period
+    #: becomes about max(step, render) + the frame's hooks; the latency from a frame's input
+    #: (:meth:`drive`, :meth:`haptic_tick`) to its image is that period plus the render, which
+    #: now runs a frame later (``latency_ms`` of the records). Off by default: on the 2-core
+    #: palpation it shortened the period 1.08-1.13x but raised the latency 1.6x (40 -> 64-69 ms,
+    #: docs/benchmarks.md, "Session 10"), and a lag behind the hand is what a trainer must avoid.
+    overlap: bool = False
 
     def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
                  bounds=None, camera=None):
@@ -220,9 +221,7 @@ class Player:
 
     def overlaps(self) -> bool:
         """Whether :meth:`render` steps the next frame meanwhile (:attr:`overlap`)."""
-        if self.overlap is not None:
-            return bool(self.overlap)
-        return getattr(self, "volume", None) is not None
+        return bool(self.overlap)
 
     def step(self) -> dict:
         """Advance one frame (:meth:`start` before the first, then ``steps_per_frame`` sub-steps,

@@ -12,15 +12,15 @@ VTK's CPU ray caster renders the same volume with the same transfer function, ca
 sample distance on a few frames of the same run, for the ratio. A full frame is step +
 incremental rasterization + render.
 
-A second pass plays the same frames as :func:`~softvr.app.record` and ``softvr play`` do by
-default for a volume scene: each frame's render overlapped with the next frame's FEM step on a
-worker thread (:attr:`softvr.app.Player.overlap`). It reports the frame period (wall time per
-frame of that loop, what the target reads), the latency (from a frame's input read to its
+A second pass plays the same frames with :attr:`softvr.app.Player.overlap` on: each frame's
+render overlapped with the next frame's FEM step on a worker thread. It reports the frame
+period (wall time per frame of that loop), the latency (from a frame's input read to its
 image: the period plus one render, which now ends a frame later) and the process CPU time per
 frame, beside the sequential pass's; each of its images must equal the sequential pass's.
 
 Thesis anchor: the torso (4.99 M voxels, 700 tets) rasterized in 14.86 ms on a GTX 680.
-Target on this 2-core CPU: a frame period <= 33 ms on the head CT; on an H100 when lent, <= 5 ms.
+Target on this 2-core CPU: a full frame (step + incremental raster + render, as a player draws
+it by default, one stage after the other) <= 33 ms on the head CT; on an H100 when lent, <= 5 ms.
 """
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         "thesis": THESIS,
         "render_vs_vtk": render_ratio,
         "render_vs_vtk_cpu_time": render_cpu_ratio,
-        "targets": {"frame_ms": TARGET_FRAME_MS, "frame_met": period_ms <= TARGET_FRAME_MS,
+        "targets": {"frame_ms": TARGET_FRAME_MS, "frame_met": frame_ms <= TARGET_FRAME_MS,
                     "render_ratio": TARGET_RENDER_RATIO, "render_ratio_met": render_ratio >= TARGET_RENDER_RATIO},
         "loadavg_start": load_start,
         "loadavg_end": _loadavg(),
@@ -227,9 +227,9 @@ def format_table(result: dict) -> str:
               f"{100 * result['render_equals_fresh_cast']:.3f} % of pixels",
               f"thesis: torso {th['voxels'] / 1e6:.2f} M voxels, {th['tets']} tets rasterized in {th['raster_ms']} ms "
               f"({th['gpu']})",
-              f"target: frame period <= {t['frame_ms']:g} ms (overlapped; latency {m['latency_ms']:.1f} ms): "
-              f"{result['period_ms']:.1f} -> "
-              f"{'MET' if t['frame_met'] else 'NOT met'}",
+              f"target: full frame <= {t['frame_ms']:g} ms: {result['frame_ms']:.1f} -> "
+              f"{'MET' if t['frame_met'] else 'NOT met'} (overlapped: a period of {result['period_ms']:.1f} ms "
+              f"at a latency of {m['latency_ms']:.1f} ms)",
               f"target: render >= {t['render_ratio']:g}x faster than VTK's ray caster (same volume, camera, step; "
               f"median of {len(result['trace']['render_vtk_ms'])} paired frames): {result['render_vs_vtk']:.1f}x -> "
               f"{'MET' if t['render_ratio_met'] else 'NOT met'} (CPU time of all threads: "
