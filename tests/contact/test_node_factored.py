@@ -25,6 +25,19 @@ from tests.sim.test_node_rigid import _check_mlcp, _system
 DT = 0.01
 
 
+def _random_start(stepper, body, scene, seed: int) -> np.ndarray:
+    """Random velocities (0.05 m/s rms) on the free nodes, this step's assembly replayed and the
+    sweeps' start set from them; returns SciPy's direct solve of eq. 5.2 from there [m/s]."""
+    rng = np.random.default_rng(seed)
+    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[body.fixed] = 0.0
+    for replay in stepper._recorded[1:4]:
+        replay()
+    _, expected = _solve_step(body, scene, DT)
+    _start(stepper, body.v)
+    return expected
+
+
 def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
     body = _beam()
     scene, stepper = _prepared(body, DT)
@@ -34,13 +47,7 @@ def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
     x = body.q[:, 0]
     turn = Rotation.from_rotvec(np.outer(0.2 * x / x.max(), [0.0, 1.0, 0.0]))
     body.q[:] = turn.apply(body.q - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
-    rng = np.random.default_rng(5)
-    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
-    body.v[body.fixed] = 0.0
-    for replay in stepper._recorded[1:4]:
-        replay()
-    _, expected = _solve_step(body, scene, DT)
-    _start(stepper, body.v)
+    expected = _random_start(stepper, body, scene, seed=5)
     iterations, solved = solve.solve(SWEEP_TOLERANCE)
     print(f"outer iterations {iterations}")
     np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
@@ -118,13 +125,7 @@ def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_colu
     assert len(nodes) > KEPT_NODES
     solve._slots_of(nodes[::-1])  # every solved node's columns, in an order unlike the nodes'
     solve._used = solve._slots_of(nodes[:10])  # the last step used these ten
-    rng = np.random.default_rng(7)
-    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
-    body.v[body.fixed] = 0.0
-    for replay in stepper._recorded[1:4]:
-        replay()
-    _, expected = _solve_step(body, scene, DT)
-    _start(stepper, body.v)
+    expected = _random_start(stepper, body, scene, seed=7)
     _, solved_v = solve.solve(SWEEP_TOLERANCE)
     np.testing.assert_allclose(solved_v.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
     kept = np.flatnonzero(solve._slot >= 0)
