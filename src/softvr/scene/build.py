@@ -707,6 +707,7 @@ class SceneExample(Player):
                 tool.loop.start()
 
     def close(self) -> None:
+        self.settle()  # a frame stepping ahead (Player.overlap) still ticks the tools' loops
         for tool in self.tools:
             tool.loop.stop()
         super().close()
