@@ -31,7 +31,7 @@ def _played(overlap: bool) -> tuple[list, list, list]:
     """Palpation's quick variant played with and without the overlap: per frame the image, the
     head's q after the frame's step, and the thread its physics stepped on."""
     with SceneExample(read_scene(BUNDLED / "palpation.toml", ("quick",)), device="cpu") as player:
-        assert not player.overlaps()  # off by default: it adds a render to the latency
+        assert not player.overlap  # off by default: it adds a render to the latency
         player.overlap = overlap
         threads: list[str] = []
         step = player.scene.step

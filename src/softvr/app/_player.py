@@ -219,10 +219,6 @@ class Player:
         potential = sum(gravity_potential(b, self.scene.gravity) for b in moving)
         return kinetic, kinetic + potential
 
-    def overlaps(self) -> bool:
-        """Whether :meth:`render` steps the next frame meanwhile (:attr:`overlap`)."""
-        return bool(self.overlap)
-
     def step(self) -> dict:
         """Advance one frame (:meth:`start` before the first, then ``steps_per_frame`` sub-steps,
         each in :data:`STEP_ORDER`, then :data:`FRAME_ORDER`); returns the frame's metrics record.
@@ -341,7 +337,7 @@ class Player:
         (:meth:`drive`, :meth:`haptic_tick`) and start its physics on the worker thread, for
         :meth:`step` to take. Call it once a renderer holds this frame (:meth:`update_render`):
         from then on until :meth:`step` (or :meth:`settle`) returns, the scene is being written."""
-        if self._ahead is None and self._started and self.frame < self.frames and self.overlaps():
+        if self._ahead is None and self._started and self.frame < self.frames and self.overlap:
             if self._worker is None:
                 self._worker = ThreadPoolExecutor(1, thread_name_prefix="softvr-physics")
             self._read_input()

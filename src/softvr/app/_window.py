@@ -138,7 +138,7 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
             t0 = time.perf_counter()
             player.update_render(renderer)
             draw_overlays()
-            if player.overlaps():
+            if player.overlap:
                 # The next frame steps on the player's worker thread while this one is drawn: its
                 # drag force is set, and it starts, once the renderer holds this frame.
                 tool.apply()
