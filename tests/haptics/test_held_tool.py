@@ -18,6 +18,7 @@ from softvr.collision import Plane
 from softvr.dynamics import RigidBody
 from softvr.errors import InputError
 from softvr.haptics import HapticLoop, HapticTool, MouseDevice
+from softvr.scene import load_scene
 
 K = 200.0  # N/m
 R = 0.01  # m, the ball's radius
@@ -77,3 +78,34 @@ def test_bad_angular_stiffness_is_reported():
     scene.add_body(ball, collision_sphere=R)
     with pytest.raises(InputError, match="angular_stiffness"):
         HapticTool(scene, ball, HapticLoop(MouseDevice()), stiffness=K, angular_stiffness=-1.0)
+
+
+def test_a_scene_files_angular_stiffness_holds_its_tool(tmp_path):
+    """The TOML field reaches the tool: the same torque law, on a tool built from a scene file."""
+    k_r, tau = 0.01, 0.005
+    toml = tmp_path / "held.toml"
+    toml.write_text(f'''format = "softvr-scene 1"
+[simulation]
+dt = 0.005
+[material.finger]
+density = 1000.0
+[[body]]
+name = "finger"
+type = "tool"
+sphere = {R}
+material = "finger"
+position = [0.0, 0.0, 0.3]
+stiffness = {K}
+angular_stiffness = {k_r}
+damping = 1.0
+[body.motion]
+times = [0.0]
+positions = [[0.0, 0.0, 0.3]]
+''')
+    with load_scene(toml, haptics=False) as example:
+        ball = example.bodies["finger"]
+        example.scene.external[example.scene.bodies.index(ball)] = np.array([0.0, 0.0, 0.0, 0.0, 0.0, tau])
+        for _ in range(300):
+            example.step()
+        r = ball.rotation
+        assert k_r * np.sin(np.arctan2(r[1, 0], r[0, 0])) == pytest.approx(tau, rel=1e-4)
