@@ -52,6 +52,21 @@ def test_a_torque_turns_a_held_tool_as_its_springs_potential_says_and_the_hand_f
     assert np.linalg.norm(tool.force()) < 1e-6 * K * R  # the turn stretches the tip's spring by nothing
 
 
+def test_pressing_a_held_tool_into_the_ground_renders_hookes_force_and_stiffness():
+    """As tests/haptics/test_haptics.py's free finger: the ball on a frictionless plane with the
+    hand d below it feels k d, and the loop's linear model adds k per metre pushed further."""
+    d = 0.01
+    scene, ball, hand, loop, tool = held_ball((0.0, 0.0, R), 0.01, plane=Plane(friction=0.0))
+    for n in range(60):
+        hand.move_to((0.0, 0.0, R - min(d, d * n / 40)))
+        loop.tick()
+        model = tool.publish(scene.step(0.005))
+    np.testing.assert_allclose(model.force, [0.0, 0.0, K * d], atol=1e-3 * K * d)
+    np.testing.assert_allclose(model.stiffness, -K * np.diag([0.0, 0.0, 1.0]), atol=1e-9 * K)
+    hand.move_to((0.0, 0.0, R - d - 0.001))
+    np.testing.assert_allclose(loop.tick(), [0.0, 0.0, K * (d + 0.001)], atol=1e-3 * K * d)
+
+
 @pytest.mark.parametrize("held", [True, False])
 def test_a_dragged_ball_slides_with_coulombs_friction_when_held_and_rolls_when_free(held):
     mu, d, speed = 0.5, 0.01, 0.05  # [-], [m] the hand below the resting ball, [m/s] the drag
@@ -72,12 +87,14 @@ def test_a_dragged_ball_slides_with_coulombs_friction_when_held_and_rolls_when_f
     assert ball.v[0] == pytest.approx(speed, rel=1e-3)
 
 
-def test_bad_angular_stiffness_is_reported():
+def test_bad_stiffnesses_are_reported():
     scene = Scene()
     ball = RigidBody.sphere(R, 1000.0)
     scene.add_body(ball, collision_sphere=R)
     with pytest.raises(InputError, match="angular_stiffness"):
         HapticTool(scene, ball, HapticLoop(MouseDevice()), stiffness=K, angular_stiffness=-1.0)
+    with pytest.raises(InputError, match="stiffness"):
+        HapticTool(scene, ball, HapticLoop(MouseDevice()), stiffness=float("nan"), angular_stiffness=0.01)
 
 
 def test_a_scene_files_angular_stiffness_holds_its_tool(tmp_path):

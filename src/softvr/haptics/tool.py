@@ -64,6 +64,9 @@ class HapticTool:
     ----------
     handle : KinematicBody
     coupling : Coupling
+        One spring of ``k`` at the tip, or six of ``k / 6`` holding the orientation.
+    stiffness : float [N/m]
+        ``k``: what the hand feels per metre the tip lags (whatever the coupling's split).
     tool_index : int
         The tool's index in ``scene.bodies``.
     """
@@ -80,17 +83,17 @@ class HapticTool:
             raise InputError("tool", "a body already added to the scene", repr(getattr(tool, "name", tool)))
         if not hasattr(tool, "position"):
             raise InputError("tool", "a rigid body (RigidBody)", type(tool).__name__)
-        if not (isinstance(angular_stiffness, (int, float, np.integer, np.floating))
-                and np.isfinite(angular_stiffness) and angular_stiffness >= 0):
-            raise InputError("angular_stiffness", "a finite value >= 0 [N m/rad]", repr(angular_stiffness))
+        for field, value, expected in (("stiffness", stiffness, "a finite value > 0 [N/m]"),
+                                       ("angular_stiffness", angular_stiffness, "a finite value >= 0 [N m/rad]")):
+            number = isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value)
+            if not (number and (value > 0 if field == "stiffness" else value >= 0)):
+                raise InputError(field, expected, repr(value))
         self.scene, self.tool, self.loop, self.tool_index = scene, tool, loop, index[0]
+        self.stiffness = float(stiffness)
         self.handle = KinematicBody(self._handle_pose, t0=scene.time, name="haptic handle")
         scene.add_body(self.handle)
         offsets = np.zeros((1, 3))
         if angular_stiffness > 0:
-            if not (isinstance(stiffness, (int, float, np.integer, np.floating)) and stiffness > 0):
-                raise InputError("stiffness", "a value > 0 [N/m] (the orientation springs' arm needs it)",
-                                 repr(stiffness))
             offsets = np.sqrt(1.5 * angular_stiffness / stiffness) * np.concatenate([np.eye(3), -np.eye(3)])
         share = len(offsets)
         self.coupling = Coupling(RigidPoints(tool, np.asarray(tip, float) + offsets),
@@ -103,8 +106,8 @@ class HapticTool:
 
     def force(self) -> np.ndarray:
         """Force on the hand now [3] [N]: ``k (x_tip - x_handle)``, the sum of the coupling's
-        springs (whose stretches sum to their count times the tip's)."""
-        return self.coupling.stiffness * self.coupling.stretch().sum(axis=0)
+        springs (their stretches' mean is the tip's)."""
+        return self.stiffness * self.coupling.stretch().mean(axis=0)
 
     def blocked_directions(self, solution) -> np.ndarray:
         """Orthonormal rows [m, 3] spanning the normals of the tool's pushing contacts in
@@ -121,6 +124,6 @@ class HapticTool:
         """Give the loop this step's handle model (call after every ``scene.step``)."""
         basis = self.blocked_directions(solution)
         model = HandleModel(position=self.handle.position.copy(), force=self.force(),
-                            stiffness=-self.coupling.stiffness * (basis.T @ basis))
+                            stiffness=-self.stiffness * (basis.T @ basis))
         self.loop.publish(model, time=self.scene.time)
         return model
