@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import threading
 import time
+from typing import cast
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -324,7 +325,7 @@ class Rasterizer:
                 raise InputError("out", f"a Volume with dtype {self.volume.dtype} and C-contiguous data", found)
             if not out.data.flags.writeable:
                 raise InputError("out", "a Volume with writeable data", "read-only data")
-        return self._run(deformed_nodes, out_grid, count_writes=False, into=out)
+        return cast(Volume, self._run(deformed_nodes, out_grid, count_writes=False, into=out))  # not a window
 
     def update(self, out: Volume, deformed_nodes, previous_nodes, *, tolerance: float = 0.0):
         """Bring ``out`` (a volume this rasterizer wrote for ``previous_nodes``) to
@@ -397,14 +398,14 @@ class Rasterizer:
         Volume
             int32 counts on the output grid.
         """
-        return self._run(deformed_nodes, out_grid, count_writes=True)
+        return cast(Volume, self._run(deformed_nodes, out_grid, count_writes=True))  # not a window
 
     # ---------------------------------------------------------------- internals
     def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None,
-             window: tuple | None = None) -> Volume:
+             window: tuple | None = None) -> Volume | None:
         """Rasterize onto ``out_grid`` (or ``into``'s grid), or, with ``window = (data, lo)``, onto
         the box of the C-order array ``data`` [nx, ny, nz] from index ``lo`` [3] whose grid
-        ``out_grid`` is (CPU exact spans only; returns a view of that box)."""
+        ``out_grid`` is (CPU exact spans only; returns None)."""
         t_start = time.perf_counter()
         x1 = np.asarray(deformed_nodes)
         if x1.shape != self.nodes.shape:
@@ -547,7 +548,7 @@ class Rasterizer:
         n_tested = int(tested.numpy().sum(dtype=np.int64))
         n_written = int(written.numpy().sum(dtype=np.int64))
         if window is not None:
-            data = box_view
+            data = None
         elif count_writes:
             data = counts.numpy()
         elif into is not None:
@@ -574,6 +575,8 @@ class Rasterizer:
         )
         if into is not None:
             return into
+        if data is None:
+            return None  # update() reads the window in place
         return Volume(
             data,
             grid.spacing.copy(),
