@@ -12,6 +12,7 @@ SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_
 
 import numpy as np
 from scipy.linalg import polar
+from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
 from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, free_matrix
@@ -138,3 +139,20 @@ def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_colu
         columns = 3 * solve._slot[node] + np.arange(3)
         np.testing.assert_allclose(solve._columns[:, columns], inverse[:, dofs], rtol=0,
                                    atol=1e-10 * np.abs(inverse).max())
+
+
+def test_block_triangular_solves_are_scipys_direct_solve_of_the_factored_matrix():
+    # The outer iteration's A_0^-1 r runs SuperLU's factors as 3 x 3 blocks in one Warp thread
+    # (factor_solve), its permutations over the flat entries. It must be SciPy's direct solve
+    # (spsolve, its own factorization) of the factored A over the solved rows, to the rounding
+    # of either (backward error ~1e-16 times A's condition, ~1e3 on this beam: 1e-12 relative
+    # to the largest entry holds with room), for a random right-hand side.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    a0, _ = free_matrix(stepper.model, stepper.state)
+    r = np.random.default_rng(3).standard_normal(a0.shape[0])
+    solve._r.numpy()[:] = r.reshape(-1, 3)
+    solve._solve_r()
+    expected = spsolve(a0.tocsc(), r)
+    np.testing.assert_allclose(solve._y.numpy().ravel(), expected, rtol=0, atol=1e-12 * np.abs(expected).max())

@@ -43,7 +43,8 @@ __all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
 
 #: Fill-reducing ordering of the factorization: SuperLU's minimum degree on ``A + A^T`` with
 #: symmetric pivoting (``A`` is SPD): half COLAMD's fill on the head CT (204 K against 422 K
-#: entries), a solve in 0.4 ms against 0.7.
+#: entries), a solve in 0.4 ms against 0.7 (SuperLU's; the factors' 3 x 3 blocks in Warp,
+#: :func:`_node_factored_kernels.factor_solve`, 0.14 ms).
 ORDERING = "MMD_AT_PLUS_A"
 #: Outer iterations of a step after which ``P`` is factored again at the step's ``A``.
 REFACTOR_AFTER = 12
@@ -162,6 +163,19 @@ class _Anderson:
         return g
 
 
+def _block_rows(factor: sp.bsr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A triangular factor's 3 x 3 blocks [k, k blocks] as :func:`_node_factored_kernels.factor_solve`
+    reads them: per block row where its blocks off the diagonal start [k + 1], their block
+    columns [b] and values [b, 3, 3], and the diagonal blocks' inverses [k, 3, 3]."""
+    k = factor.shape[0] // 3
+    rows = np.repeat(np.arange(k), np.diff(factor.indptr))
+    diagonal = rows == factor.indices
+    inverse = np.zeros((k, 3, 3))
+    inverse[rows[diagonal]] = np.linalg.inv(factor.data[diagonal])
+    start = np.concatenate([[0], np.cumsum(np.bincount(rows[~diagonal], minlength=k))])
+    return start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), factor.data[~diagonal], inverse
+
+
 class FactoredSolve:
     """The factored contact solve of one step size (module docstring), with the interface of
     :class:`softvr.contact.node_jacobi.NodeSolve`: :meth:`solve` from ``state.sweep_buffers[0]``,
@@ -190,8 +204,8 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.node_rotations, _k.turned_residual, _k.turned_update, _k.warp_change, _k.dense_pgs,
-                       _jk.residual):
+        for kernel in (_k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update, _k.warp_change,
+                       _k.dense_pgs, _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
@@ -208,6 +222,9 @@ class FactoredSolve:
         self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
+        self._work = wp.zeros(k, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
+        self._unit = wp.zeros(k, dtype=wp.vec3d, device=d)  # a unit vector, whose solve is a column of A_0^-1
+        self._column = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation0 = wp.zeros(k, dtype=wp.mat33d, device=d)
@@ -241,7 +258,8 @@ class FactoredSolve:
                        "stiffness", "slip", "impulse")}
         self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
                           stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
-                          movable=self._movable.numpy(), blocks=state.blocks.numpy())
+                          movable=self._movable.numpy(), blocks=state.blocks.numpy(), unit=self._unit.numpy(),
+                          column=self._column.numpy())
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -262,10 +280,21 @@ class FactoredSolve:
     def _factor(self) -> None:
         """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
         a, _ = free_matrix(self.model, self.state)
-        self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
-                             options={"SymmetricMode": True})
-        self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
+        lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        self.fill = int(lu.L.nnz + lu.U.nnz)
         self.factorizations += 1
+        d = self.model.device
+        perm_r_inverse = np.argsort(lu.perm_r).astype(np.int32)
+        self._factors = [wp.array(perm_r_inverse, dtype=wp.int32, device=d),
+                         wp.array(lu.perm_c.astype(np.int32), dtype=wp.int32, device=d)]
+        for factor in (lu.L, lu.U):
+            start, col, off, inverse = _block_rows(factor.tobsr(blocksize=(3, 3)))
+            self._factors += [wp.array(start, dtype=wp.int32, device=d), wp.array(col, dtype=wp.int32, device=d),
+                              wp.array(off, dtype=wp.mat33d, device=d), wp.array(inverse, dtype=wp.mat33d, device=d)]
+        self._solve_r, self._solve_unit = (
+            replayer(wp.launch(_k.factor_solve, dim=1, device=d, record_cmd=True,
+                               inputs=[*self._factors, rhs, self._work, x]))
+            for rhs, x in ((self._r, self._y), (self._unit, self._column)))
         # R_0: the nodes' rotations now; R since is the identity.
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
@@ -312,7 +341,9 @@ class FactoredSolve:
 
     def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
         """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
-        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept."""
+        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept (one
+        column a block solve: no multi-right-hand-side BLAS, whose threads spin on a loaded
+        machine)."""
         missing = nodes[self._slot[nodes] < 0]
         if len(missing):
             self._slot[missing] = self._kept // 3 + np.arange(len(missing))
@@ -320,15 +351,14 @@ class FactoredSolve:
                 grown = np.zeros((self._columns.shape[0], 2 * (self._kept + 3 * len(missing))), order="F")
                 grown[:, :self._kept] = self._columns[:, :self._kept]
                 self._columns = grown
-            unit = np.zeros((self._columns.shape[0], 3), order="F")
-            for row in 3 * self._index[missing]:
-                # One node's three columns a solve: from about nine right-hand sides SuperLU's
-                # blocked solve calls multithreaded BLAS, which on a loaded machine spins: 10x
-                # the CPU of these solves (head CT at load 8: 15 ms for nine columns, 0.7 for three).
-                unit[row:row + 3] = np.eye(3)
-                self._columns[:, self._kept:self._kept + 3] = self._lu.solve(unit)
-                unit[row:row + 3] = 0.0
-                self._kept += 3
+            unit, column = self._host["unit"], self._host["column"]
+            for row in self._index[missing]:
+                for axis in range(3):
+                    unit[row, axis] = 1.0
+                    self._solve_unit()
+                    unit[row, axis] = 0.0
+                    self._columns[:, self._kept] = column.ravel()
+                    self._kept += 1
         return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
 
     def _forget_columns(self) -> None:
@@ -437,7 +467,8 @@ class FactoredSolve:
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
             self._residual()  # R^T r
-            y = self._lu.solve(h["r"].ravel())  # A_0^-1 R^T r
+            self._solve_r()  # A_0^-1 R^T r
+            y = y_d.ravel()
             # P^-1 = R (A_0^-1 - C_S T C_S^T) R^T (Woodbury); C_S^T x = (A_0^-1 x)_S, A_0 being
             # symmetric. Both corrections go through one product with the kept columns.
             spread = np.zeros(self._kept)
@@ -455,7 +486,6 @@ class FactoredSolve:
                 spread[local[1]] -= local[2] @ at_s
             if self._kept:
                 y += self._columns[:, :self._kept] @ spread
-            y_d[:] = y.reshape(-1, 3)
             self._update()  # u = v + R y
             u = h["u"].ravel().copy()
             change = float(np.abs(u - v.ravel()).max(initial=0.0))
