@@ -133,10 +133,11 @@ class _Anderson:
     def __init__(self, memory: int):
         self.memory = memory
         self._last: tuple[np.ndarray, np.ndarray] | None = None  # the last residual G(x) - x and image G(x)
-        self._df: list[np.ndarray] = []  # differences of successive residuals
-        self._dg: list[np.ndarray] = []  # and of images
-        # Their Gram matrix, one new row a call (the products of a whole stack every call cost
-        # ~0.1 ms on the head CT's 5 K velocities, more than the rest of the step's Anderson).
+        # Differences of successive residuals and of images, rows of a ring (the oldest row
+        # is overwritten), so that their products with a vector are one matrix product each;
+        # and the residual differences' Gram matrix, one new row a call.
+        self._df = self._dg = np.zeros((0, 0))
+        self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
     def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -144,23 +145,20 @@ class _Anderson:
         f = g - x
         if self._last is None:
             self._last = f, g
+            self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
             return g
-        self._df.append(f - self._last[0])
-        self._dg.append(g - self._last[1])
+        s = self._slot
+        np.subtract(f, self._last[0], out=self._df[s])
+        np.subtract(g, self._last[1], out=self._dg[s])
         self._last = f, g
-        if len(self._df) > self.memory:
-            self._df.pop(0)
-            self._dg.pop(0)
-            self._gram[:-1, :-1] = self._gram[1:, 1:].copy()
-        k = len(self._df)
-        row = np.array([d @ self._df[-1] for d in self._df])
-        self._gram[k - 1, :k] = self._gram[:k, k - 1] = row
+        self._slot = (s + 1) % self.memory
+        k = self._count = min(self._count + 1, self.memory)
+        df = self._df[:k]
+        self._gram[s, :k] = self._gram[:k, s] = df @ df[s]
         gram = self._gram[:k, :k].copy()
         gram.flat[::k + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
-        gamma = np.linalg.lstsq(gram, np.array([d @ f for d in self._df]), rcond=None)[0]
-        for c, d in zip(gamma, self._dg):
-            g = g - c * d
-        return g
+        gamma = np.linalg.lstsq(gram, df @ f, rcond=None)[0]
+        return g - gamma @ self._dg[:k]
 
 
 def _block_rows(factor: sp.bsr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
