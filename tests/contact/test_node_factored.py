@@ -194,3 +194,9 @@ def test_anderson_acceleration_is_its_least_squares_definition_and_exact_in_n_pl
     for _ in range(5):
         x = anderson.next(x, m_ @ x + c)
     np.testing.assert_allclose(x, exact, rtol=0, atol=1e-7 * np.abs(exact).max())
+    # At a fixed point met exactly (G(x) = x: zero residuals and differences, a zero Gram
+    # matrix) the iterate stays where it is.
+    anderson = _Anderson(5)
+    for _ in range(4):
+        x = anderson.next(x, x.copy())
+    np.testing.assert_allclose(x, exact, rtol=0, atol=1e-7 * np.abs(exact).max())

@@ -156,8 +156,10 @@ class _Anderson:
         df = self._df[:k]
         self._gram[s, :k] = self._gram[:k, s] = df @ df[s]
         gram = self._gram[:k, :k].copy()
-        gram.flat[::k + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
-        gamma = np.linalg.lstsq(gram, df @ f, rcond=None)[0]
+        # A repeated residual leaves it singular; a residual that did not change at all, zero
+        # on the diagonal (its gamma then 0). A least-squares solve would take 3x as long.
+        gram.flat[::k + 1] = gram.diagonal() * (1.0 + 1e-10) + np.finfo(float).tiny
+        gamma = np.linalg.solve(gram, df @ f)
         return g - gamma @ self._dg[:k]
 
 
