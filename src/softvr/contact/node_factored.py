@@ -223,8 +223,10 @@ class FactoredSolve:
         self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._work = wp.zeros(k, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
-        self._unit = wp.zeros(k, dtype=wp.vec3d, device=d)  # a unit vector, whose solve is a column of A_0^-1
-        self._column = wp.zeros(k, dtype=wp.vec3d, device=d)
+        # A node's three unit vectors (columns), whose solves are its columns of A_0^-1.
+        self._unit = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._columns_work = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._column = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation0 = wp.zeros(k, dtype=wp.mat33d, device=d)
@@ -293,8 +295,8 @@ class FactoredSolve:
                               wp.array(off, dtype=wp.mat33d, device=d), wp.array(inverse, dtype=wp.mat33d, device=d)]
         self._solve_r, self._solve_unit = (
             replayer(wp.launch(_k.factor_solve, dim=1, device=d, record_cmd=True,
-                               inputs=[*self._factors, rhs, self._work, x]))
-            for rhs, x in ((self._r, self._y), (self._unit, self._column)))
+                               inputs=[*self._factors, rhs, work, x]))
+            for rhs, work, x in ((self._r, self._work, self._y), (self._unit, self._columns_work, self._column)))
         # R_0: the nodes' rotations now; R since is the identity.
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
@@ -341,9 +343,9 @@ class FactoredSolve:
 
     def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
         """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
-        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept (one
-        column a block solve: no multi-right-hand-side BLAS, whose threads spin on a loaded
-        machine)."""
+        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept (a
+        node's three in one block solve: no multi-right-hand-side BLAS, whose threads spin on
+        a loaded machine)."""
         missing = nodes[self._slot[nodes] < 0]
         if len(missing):
             self._slot[missing] = self._kept // 3 + np.arange(len(missing))
@@ -353,12 +355,11 @@ class FactoredSolve:
                 self._columns = grown
             unit, column = self._host["unit"], self._host["column"]
             for row in self._index[missing]:
-                for axis in range(3):
-                    unit[row, axis] = 1.0
-                    self._solve_unit()
-                    unit[row, axis] = 0.0
-                    self._columns[:, self._kept] = column.ravel()
-                    self._kept += 1
+                unit[row] = np.eye(3)
+                self._solve_unit()
+                unit[row] = 0.0
+                self._columns[:, self._kept:self._kept + 3] = column.reshape(-1, 3)
+                self._kept += 3
         return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
 
     def _forget_columns(self) -> None:
