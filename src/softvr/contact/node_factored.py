@@ -377,11 +377,11 @@ class FactoredSolve:
 
     def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
-        stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
-        weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
-        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m], their columns among
-        the kept ones [3 u] and ``A_0^-1`` between ``S`` of ``local`` (:meth:`_local`) and them
-        [3 s, 3 u]."""
+        stencil): their rows [m], ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the
+        nodes they move among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m],
+        their columns among the kept ones [3 u], ``A_0^-1`` between ``S`` of ``local``
+        (:meth:`_local`) and them [3 s, 3 u], their stencils' nodes (any; unused slots node 0)
+        [m t] and ``J`` over those slots [3 m, 3 m t] (frames)."""
         h = self._host
         n = min(int(h["count"][0]), len(h["impulse"]))
         nodes, weights = h["stencil_nodes"][:n], h["stencil_weights"][:n]
@@ -394,6 +394,11 @@ class FactoredSolve:
         rows = np.flatnonzero(movable)
         nodes, weights, moves = nodes[rows], weights[rows], moves[rows]
         frames = h["frame"][rows]
+        # J over the stencils' slots (block diagonal: contact c's frame times its weights).
+        each = np.arange(len(rows))
+        j = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
+        j[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
+        j = j.reshape(3 * len(rows), 3 * nodes.size)
         touched, inverse = np.unique(nodes[moves], return_inverse=True)
         g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
         np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
@@ -408,9 +413,9 @@ class FactoredSolve:
         w = 0.5 * (w + w.T)
         metric = h["metric"]
         metric[:n] = 0.0
-        metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        metric[rows] = w.reshape(len(rows), 3, len(rows), 3)[each, :, each, :]
         self._used = np.concatenate([local[1], slots])
-        return rows, nodes, weights, w, dofs, jt, slots, near
+        return rows, w, dofs, jt, slots, near, nodes.ravel(), j
 
     def _delassus(self, m: int, tolerance: float) -> dict:
         """Host views of the PGS launch's arrays (:func:`_node_factored_kernels.dense_pgs`) for
@@ -446,9 +451,8 @@ class FactoredSolve:
         self._rotations()
         self._forget_columns()
         local = self._local()
-        rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+        rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
         m = len(rows)
-        frames = h["frame"][rows]
         pgs = self._delassus(m, tolerance)
         pgs["count"][0] = m
         pgs["w"][:3 * m, :3 * m] = w
@@ -463,7 +467,7 @@ class FactoredSolve:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
                 self._factor()
                 local = self._local()
-                rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+                rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
@@ -476,8 +480,7 @@ class FactoredSolve:
             at_s = y[local[0]]
             if m:
                 at = y[dofs] - near.T @ (local[2] @ at_s)  # P^-1 r at the touched nodes, turned
-                rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
-                u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
+                u_f[:] = (j @ v[stencil].ravel() + jt.T @ at).reshape(m, 3)  # J v + J P^-1 r
                 self._pgs()
                 self.delassus_passes += int(h["done"][0])
                 pushed = jt @ lam.ravel()  # R^T J^T lambda at the touched nodes
