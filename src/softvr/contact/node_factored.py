@@ -287,7 +287,7 @@ class FactoredSolve:
         self.factorizations += 1
         d = self.model.device
         perm_r_inverse = np.argsort(lu.perm_r).astype(np.int32)
-        self._factors = [wp.array(perm_r_inverse, dtype=wp.int32, device=d),
+        self._factors: list[wp.array] = [wp.array(perm_r_inverse, dtype=wp.int32, device=d),
                          wp.array(lu.perm_c.astype(np.int32), dtype=wp.int32, device=d)]
         for factor in (lu.L, lu.U):
             start, col, off, inverse = _block_rows(factor.tobsr(blocksize=(3, 3)))
@@ -396,9 +396,9 @@ class FactoredSolve:
         frames = h["frame"][rows]
         # J over the stencils' slots (block diagonal: contact c's frame times its weights).
         each = np.arange(len(rows))
-        j = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
-        j[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
-        j = j.reshape(3 * len(rows), 3 * nodes.size)
+        blocks = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
+        blocks[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
+        j = blocks.reshape(3 * len(rows), 3 * nodes.size)
         touched, inverse = np.unique(nodes[moves], return_inverse=True)
         g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
         np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
