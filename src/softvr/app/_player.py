@@ -141,9 +141,10 @@ class Player:
     #: renderer reads (the rasterizer writes the volume, after the step). The frame period
     #: (``wall_ms`` of the records) becomes about max(step, render) + the frame's hooks; the
     #: latency from a frame's input (:meth:`drive`, :meth:`haptic_tick`) to its image is that
-    #: period plus the render, which now runs a frame later (``latency_ms`` of the records). Off by default: on the 2-core
-    #: palpation it shortened the period 1.08-1.13x but raised the latency 1.6x (40 -> 64-69 ms,
-    #: docs/benchmarks.md, "Session 10"), and a lag behind the hand is what a trainer must avoid.
+    #: period plus the render, which now runs a frame later (``latency_ms`` of the records).
+    #: Off by default: on the 2-core palpation it shortened the period 1.08-1.13x but raised the
+    #: latency 1.6x (40 -> 64-69 ms, docs/benchmarks.md, "Session 10"), and a lag behind the hand
+    #: is what a trainer must avoid.
     overlap: bool = False
 
     def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
