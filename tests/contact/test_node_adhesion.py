@@ -269,7 +269,8 @@ def test_bonds_between_bodies_stay_detected_until_the_debond_gap():
     assert scene.adhesion_state.intensity.keys() == bonded.keys()
 
 
-def test_two_fem_blocks_glued_face_to_face_pull_apart_at_the_patch_area_times_sqrt_w_c():
+@pytest.mark.parametrize("arrays", [True, False], ids=["node arrays", "per object"])
+def test_two_fem_blocks_glued_face_to_face_pull_apart_at_the_patch_area_times_sqrt_w_c(arrays):
     """Two equal FEM blocks (4 cm, 3 cells a side) glued face to face, the lower one's bottom
     clamped, the upper one pulled up by a uniform body force ramped at 12 N/s: the bonded patch
     is their common face, A = L^2, and the upper block lets go at F* = m g + A sqrt(W C) (eqs.
@@ -282,13 +283,15 @@ def test_two_fem_blocks_glued_face_to_face_pull_apart_at_the_patch_area_times_sq
 
     Tolerance 10 %, as for the block on the plane (its 15 % is for the softer, coarser cases):
     the ramp goes on during the debonding runaway (~20 ms at eta = 1e-3 J s/m^2: +0.24 N, 4 %),
-    and the compliance concentrates the traction at the rim, which lets go a few % early."""
-    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5, contact_margin=0.002)
+    and the compliance concentrates the traction at the rim, which lets go a few % early. Both
+    paths: the node arrays' and the per-object path's (``node_arrays`` off), one rule
+    (:func:`softvr.contact._adhesion_kernels.yields_patch`)."""
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=0.5, contact_margin=0.002, node_arrays=arrays)
     _add_block(scene, EDGE, 3, (-EDGE / 2, -EDGE / 2, 0.0), GLUE, clamped=True)
     upper = _add_block(scene, EDGE, 3, (-EDGE / 2, -EDGE / 2, EDGE), GLUE)
     for _ in range(20):  # rest and bond
         scene.step(DT)
     predicted = upper.mass.sum() * G + EDGE**2 * GLUE.traction_limit()
     force = _pull_off(scene, upper, predicted, index=1)
-    assert isinstance(scene._stepper, NodeStepper)
+    assert isinstance(scene._stepper, NodeStepper) == arrays
     assert force == pytest.approx(predicted, rel=0.1)

@@ -135,11 +135,6 @@ class CollisionSurface:
         area = self._facing(first, normals) + np.where(border, 0.0, self._facing(np.maximum(second, 0), normals))
         return area / 3.0
 
-    def facing_triangle_area(self, faces, normals) -> np.ndarray:
-        """Contact area [c] [m^2] of triangles [c]: each one's area projected onto the contact
-        plane of unit normal ``normals`` [c, 3] (pointing into this surface's body)."""
-        return self._facing(np.asarray(faces, np.int64), np.asarray(normals, float).reshape(-1, 3))
-
 
 def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: float, friction: float = 0.5,
                        dt: float = 0.0, ccd: bool = True, velocities_a=None, velocities_b=None) -> Contacts:
@@ -163,9 +158,10 @@ def surface_vs_surface(a: CollisionSurface, b: CollisionSurface, *, margin: floa
     # A vertex has one contact per surface (closest point or first crossing), so the vertex
     # names it; the triangle under it changes as it slides, and must not restart its adhesion.
     ids = contact_keys(ContactKind.VERTEX_TRIANGLE, a.body_index, which, b.body_index, 0)
-    # Local area: the smaller of the two primitives' (thesis 4.3.1), each projected onto the
-    # contact plane; the normal points into a and out of b.
-    area = np.minimum(a.facing_vertex_area(which, normal), b.facing_triangle_area(faces, -normal))
+    # Local area: the vertex's, projected onto the contact plane (the normal points into a).
+    # Not the smaller of it and its triangle's (thesis 4.3.1): on a face-to-face patch each way's
+    # vertex areas tile the patch, and one way bonds (softvr.contact.AdhesionState.stiffnesses).
+    area = a.facing_vertex_area(which, normal)
     return Contacts(side_a, stencil_side(b.body_index, b.points, b.triangles[faces], bary), normal, gap, p[which], at, ids,
                     np.full(len(which), float(friction)), area)
 

@@ -5,7 +5,9 @@ bodies' (:mod:`softvr.contact._rigid_pgs_kernels`) and the node arrays'
 Each function is one piece of :func:`softvr.contact.solve_contacts` with adhesion and of
 :meth:`softvr.contact.AdhesionState.evolve` (the model and its derivation are in
 :mod:`softvr.contact.adhesion` and docs/adhesion.md): the pair's material, the adhesive
-stiffness ``A C beta^2``, the bound of eq. 4.16, and the bonding / debonding of 4.3.3.
+stiffness ``A C beta^2``, which way of a face-to-face patch bonds, the bound of eq. 4.16, and
+the bonding / debonding of 4.3.3. (:func:`yields_patch` is the per-object path's too, called
+from Python.)
 """
 
 from __future__ import annotations
@@ -37,6 +39,23 @@ def bond_stiffness(materials: wp.array2d(dtype=wp.float64), a: int, b: int, area
     if a >= 0 and b >= 0 and beta >= wp.float64(0.0):
         k = area * combined(materials, a, b, C) * beta * beta
     return k
+
+
+@wp.func
+def yields_patch(mine: int, theirs: int, mine_area: wp.float64, theirs_area: wp.float64, body: int,
+                 other: int) -> bool:
+    """Whether body ``body``'s vertex-triangle contacts on body ``other``'s triangles give up
+    their bonds to the other way's (``other``'s vertices on ``body``'s triangles). Where two
+    bodies bond face to face, contacts are made both ways and each way's vertex areas tile the
+    patch: both together would bond it twice. The way with more bonded contacts (``mine`` /
+    ``theirs``) adheres: the finer surface, whose vertex areas follow the patch's rim closer; on
+    a tie the one with less bonded area (``mine_area`` / ``theirs_area`` [m^2]: the other's
+    vertex areas overhang the patch, a larger face's vertices around a smaller one's edges),
+    then the lower body index. Both paths' rule (:func:`softvr.contact._node_adhesion_kernels.share_patches`,
+    :meth:`softvr.contact.AdhesionState.stiffnesses`); docs/adhesion.md."""
+    if theirs == mine:
+        return theirs_area < mine_area or (theirs_area == mine_area and other < body)
+    return theirs > mine
 
 
 @wp.func

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key
+from softvr.contact._adhesion_kernels import bond_stiffness, carry_sorted, evolve_bond, find_key, yields_patch
 from softvr.contact._node_jacobi_kernels import _rigid_velocity
 
 # softvr.collision.ContactKind of the node kinds 0, 1, 2, 4, 5, and the key's bit layout
@@ -246,26 +246,17 @@ def share_patches(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind:
                   point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
                   point_body: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64), threads: int,
                   offset: int):
-    """Where two bodies bond face to face, vertex-triangle contacts are made both ways (a's
-    vertices on b's triangles, b's on a's) and each way's vertex areas tile the patch: both
-    ways together would bond it twice. Only the way with more bonded contacts adheres (the
-    finer surface's vertices, whose areas follow the patch's rim closer), on a tie the one with
-    the smaller bonded area (the other's vertex areas overhang the patch: a larger face's
-    vertices around a smaller one's edges), then body a < b; the other way's stiffness [N/m]
-    is set to 0. Its contacts keep their areas and intensities, so that their bonds follow the
-    same gaps (eqs. 4.11, 4.12) and may take over should the other way's give (``threads``
-    threads striding over ``count[0]``, thread ``tid + offset``)."""
+    """One way of a face-to-face patch's vertex-triangle contacts bonds (:func:`yields_patch`
+    on :func:`count_bonded`'s tallies); the other way's stiffness [N/m] is set to 0. Its
+    contacts keep their areas and intensities, so that their bonds follow the same gaps (eqs.
+    4.11, 4.12) and may take over should the other way's give (``threads`` threads striding
+    over ``count[0]``, thread ``tid + offset``)."""
     for c in range(wp.tid() + offset, count[0], threads):
         if kind[c] == 1:
             a = point_body[point[c]]
             o = other[c]
-            mine = ad.pair_bonded[a, o]
-            theirs = ad.pair_bonded[o, a]
-            if theirs == mine:
-                smaller = ad.pair_bonded_area[o, a] < ad.pair_bonded_area[a, o]
-                if smaller or (ad.pair_bonded_area[o, a] == ad.pair_bonded_area[a, o] and o < a):
-                    stiffness[c] = wp.float64(0.0)
-            elif theirs > mine:
+            if yields_patch(ad.pair_bonded[a, o], ad.pair_bonded[o, a], ad.pair_bonded_area[a, o],
+                            ad.pair_bonded_area[o, a], a, o):
                 stiffness[c] = wp.float64(0.0)
 
 

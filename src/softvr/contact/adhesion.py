@@ -76,7 +76,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import warp as wp
 
+from softvr.collision.contacts import ContactKind, unpack_keys
+from softvr.contact._adhesion_kernels import yields_patch
 from softvr.errors import InputError
 
 __all__ = ["Adhesion", "AdhesionState", "combine"]
@@ -177,6 +180,29 @@ class AdhesionState:
             return np.zeros(len(contacts))
         beta = np.array([self.intensity.get(int(i), 0.0) for i in contacts.ids])
         return contacts.area * adhesion.stiffness * beta**2
+
+    def stiffnesses(self, contact_sets, adhesions) -> list[np.ndarray]:
+        """:meth:`stiffness` of each contact set of a step (``adhesions``: one
+        :class:`Adhesion` or None per set), a face-to-face patch between two bodies bonding one
+        way: where body a's vertices on b's triangles and b's on a's both bond, the way that
+        :func:`~softvr.contact._adhesion_kernels.yields_patch` picks (the node arrays' rule) has
+        stiffness 0 [N/m]; its contacts keep their intensities and may take over."""
+        out = [self.stiffness(c, a) for c, a in zip(contact_sets, adhesions)]
+        tally: dict[tuple[int, int], tuple[int, float]] = {}
+        ways = []  # (set, its ordered body pair) of the vertex-triangle sets
+        for n, c in enumerate(contact_sets):
+            if len(c) and c.b is not None and unpack_keys(c.ids[:1])["kind"][0] == ContactKind.VERTEX_TRIANGLE:
+                pair = (c.a.body, c.b.body)
+                bonded = out[n] > 0
+                count, area = tally.get(pair, (0, 0.0))
+                tally[pair] = (count + int(bonded.sum()), area + float(np.asarray(c.area)[bonded].sum()))
+                ways.append((n, pair))
+        for n, (a, b) in ways:
+            (mine, mine_area), (theirs, theirs_area) = tally[(a, b)], tally.get((b, a), (0, 0.0))
+            # A way the other does not bond keeps its own (and needs no call: ~0.3 ms each).
+            if theirs and yields_patch(mine, theirs, wp.float64(mine_area), wp.float64(theirs_area), a, b):
+                out[n] = np.zeros_like(out[n])
+        return out
 
     def _slips(self, ids: np.ndarray) -> np.ndarray:
         """Stored slips [len(ids), 3] [m] of contacts ``ids``, 0 where none is stored."""

@@ -567,7 +567,7 @@ class Scene:
         t2 = _clock.perf_counter()
         kept = [(c, a) for c, a in zip(contacts, adhesions) if len(c)]
         contacts, adhesions = [c for c, _ in kept], [a for _, a in kept]
-        stiffness = [self.adhesion_state.stiffness(c, a) for c, a in zip(contacts, adhesions)]
+        stiffness = self.adhesion_state.stiffnesses(contacts, adhesions)
         warm, self._warm = self._warm, {}
         solved = solve_contacts(units, v_units, [self._to_units(c, where) for c in contacts], dt,
                                 iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness,
