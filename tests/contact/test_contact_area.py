@@ -8,9 +8,9 @@ edge L meshed with q x q quads per face, each split in two along one diagonal, t
 one face: its side faces stand perpendicular to the contact plane and project to nothing, so
 a vertex of the touching face carries a third of each of that face's triangles at it (each
 h^2 / 2, h = L / q): h^2 inside the face (six triangles), h^2 / 2 on its border (three), h^2 / 3
-or h^2 / 6 at a corner (two or one, as the diagonals fall), L^2 over the face. A contact takes
-the smaller of its two primitives' areas: a finely meshed cube on a coarse one gets the fine
-one's, whichever side the vertex is on.
+or h^2 / 6 at a corner (two or one, as the diagonals fall), L^2 over the face. A vertex on
+another body's triangle takes its own area (each way's vertices tile a face-to-face patch, and
+one way bonds: docs/adhesion.md), two edges the smaller of their areas.
 """
 
 import numpy as np
@@ -78,12 +78,12 @@ def test_plane_contacts_carry_the_facing_vertex_area():
 
 
 @pytest.mark.parametrize("fine_on_top", [True, False])
-def test_surface_contacts_take_the_smaller_primitive_area(fine_on_top):
-    """Each contact's area is its fine side's primitive, projected: a fine vertex's share of its
-    face (at most h^2 = 1.6 cm^2; a coarse triangle has 12.5 cm^2), a fine triangle's h^2 / 2
-    against a coarse vertex (at least (4 h)^2 / 6 = 4.2 cm^2), a fine edge's third of its face
-    triangles (at most h^2 / 3; a coarse edge has at least (4 h)^2 / 6). Vertices just beyond
-    the other cube's rim touch it with a tilted normal and so count less of their face."""
+def test_surface_contacts_take_their_vertex_area_and_the_smaller_edge_area(fine_on_top):
+    """Each vertex-triangle contact's area is its vertex's share of its faces, projected: a fine
+    vertex's (at most h^2 = 1.6 cm^2) and a coarse one's (at least (4 h)^2 / 6 = 4.2 cm^2), not
+    the fine triangle's h^2 / 2 under it; an edge-edge contact's the fine edge's third of its
+    face triangles (at most h^2 / 3; a coarse edge has at least (4 h)^2 / 6). Vertices just
+    beyond the other cube's rim touch it with a tilted normal and so count less of their face."""
     edge, fine, coarse = 0.1, 8, 2
     top_quads, bottom_quads = (fine, coarse) if fine_on_top else (coarse, fine)
     top, top_points, top_tris = rigid_cube(edge, top_quads, (0.01, 0.013, 0.15 + 1e-4), "top")
@@ -93,8 +93,7 @@ def test_surface_contacts_take_the_smaller_primitive_area(fine_on_top):
     scene.add_body(bottom, collision_points=bottom_points, collision_triangles=bottom_tris)
     fine_body = 0 if fine_on_top else 1
     normals, vertex_share, edge_share = box_face_shares(edge, fine)
-    touching = normals[4] if fine_on_top else normals[5]  # the fine cube's face at the other: -z or +z
-    h = edge / fine
+    coarse_vertex_share = box_face_shares(edge, coarse)[1]
     contacts = scene.step(0.005).contacts
     kinds = set()
     for c in contacts:
@@ -107,8 +106,8 @@ def test_surface_contacts_take_the_smaller_primitive_area(fine_on_top):
         vertex_triangle = key["kind"] == ContactKind.VERTEX_TRIANGLE
         vertex = vertex_triangle & fine_a
         expected[vertex] = facing(normals, vertex_share[:, key["feature_a"][vertex]], into_fine[vertex])
-        triangle = vertex_triangle & ~fine_a  # a fine triangle of the touching face under a coarse vertex
-        expected[triangle] = h**2 / 2 * np.maximum(-into_fine[triangle] @ touching, 0.0)
+        on_fine = vertex_triangle & ~fine_a  # a coarse vertex on a fine triangle: the normal points into it
+        expected[on_fine] = facing(normals, coarse_vertex_share[:, key["feature_a"][on_fine]], c.normal[on_fine])
         fine_edge = np.where(fine_a, key["feature_a"], key["feature_b"])[~vertex_triangle]
         expected[~vertex_triangle] = facing(normals, edge_share[:, fine_edge], into_fine[~vertex_triangle])
         np.testing.assert_allclose(c.area, expected, rtol=1e-9)
