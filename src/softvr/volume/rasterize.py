@@ -711,12 +711,12 @@ class _Region:
 
     def __init__(self, marked: np.ndarray):
         b, g, far = _REGION_BRICK, marked.shape[0], 2**30
-        rows, cols = marked.any(axis=2), marked.any(axis=1)  # [gx, gy], [gx, gz]
-        used = rows.any(axis=1)
-        first = lambda m: np.where(used, m.argmax(axis=1), far // b)  # noqa: E731
-        last = lambda m: np.where(used, m.shape[1] - m[:, ::-1].argmax(axis=1), 0)  # noqa: E731
-        # [gx, 4] brick bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
-        rect = np.stack([first(rows), last(rows), first(cols), last(cols)], axis=1) * b
+        rows, cols = np.any(marked, axis=2), np.any(marked, axis=1)  # [gx, gy], [gx, gz]
+        used = np.any(rows, axis=1)
+        # [gx, 4] voxel bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
+        rect = b * np.stack([rows.argmax(axis=1), rows.shape[1] - rows[:, ::-1].argmax(axis=1),
+                             cols.argmax(axis=1), cols.shape[1] - cols[:, ::-1].argmax(axis=1)], axis=1)
+        rect = np.where(used[:, None], rect, [far, 0, far, 0])
         self.slabs = [(slice(a * b, (a + 1) * b), slice(r[0], r[1]), slice(r[2], r[3]))
                       for a, r in zip(np.flatnonzero(used), rect[used])]
         # For every slab range [a0, a1]: the x-range of its used slabs and the rectangle
