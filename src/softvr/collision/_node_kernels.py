@@ -83,32 +83,33 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
 
 @wp.kernel
 def body_motion(body_point_start: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
-                body_mean_u: wp.array(dtype=wp.vec3d), body_top_speed: wp.array(dtype=wp.float64)):
+                body_mean_u: wp.array(dtype=wp.vec3d), body_spread: wp.array(dtype=wp.float64)):
     """Mean predicted velocity [m/s] of body ``b``'s collision points (the vertex queries
     sweep a vertex relative to it, as :func:`softvr.collision.surface_vs_surface` does), and
-    the largest of their speeds [m/s] (:func:`near_bodies`)."""
+    the largest speed [m/s] of a point relative to it (:func:`near_bodies`): bodies at rest
+    all fall by ``dt g`` in the prediction, which the points' own speeds counted on every
+    body (8 mm of reach at the shoulder's 20 ms), their relative speeds not."""
     b = wp.tid()
     u = wp.vec3d()
-    top = wp.float64(0.0)
     first = body_point_start[b]
     last = body_point_start[b + 1]
     for p in range(first, last):
         u = u + point_u[p]
-        top = wp.max(top, wp.length(point_u[p]))
     if last > first:
         u = u / wp.float64(last - first)
+    spread = wp.float64(0.0)
+    for p in range(first, last):
+        spread = wp.max(spread, wp.length(point_u[p] - u))
     body_mean_u[b] = u
-    body_top_speed[b] = top
+    body_spread[b] = spread
 
 
 @wp.kernel
 def body_bounds(body_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3),
-                body_mean_u: wp.array(dtype=wp.vec3d), body_lower: wp.array(dtype=wp.vec3),
-                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64)):
+                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)):
     """Body ``b``'s box [m]: the union of the boxes (``lower``, ``upper``) of its items
     ``body_start[b] : [b + 1]`` (its edges: its edge BVH's root box after the refit; or its
-    collision points, as both: a box holding every triangle of its surface mesh); and the speed
-    [m/s] of its mean motion."""
+    collision points, as both: a box holding every triangle of its surface mesh)."""
     b = wp.tid()
     lo = wp.vec3(1.0e30, 1.0e30, 1.0e30)
     hi = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
@@ -117,7 +118,6 @@ def body_bounds(body_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.v
         hi = wp.max(hi, upper[e])
     body_lower[b] = lo
     body_upper[b] = hi
-    body_speed[b] = wp.length(body_mean_u[b])
 
 
 @wp.func
@@ -131,21 +131,24 @@ def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_uppe
 
 @wp.kernel
 def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(dtype=wp.vec3),
-                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64),
-                body_top_speed: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
-                near: wp.array2d(dtype=wp.float32)):
-    """``near[a, b]`` [m]: a bound of the reach of any item of body a towards body b, margin +
-    dt (a's largest point speed ``body_top_speed`` + b's mean speed ``body_speed``), where a
-    and b make contacts and a's box (``body_lower``, ``body_upper`` [m], :func:`body_bounds`)
-    grown by it meets b's box; else -1. An item of a lies in a's box and moves no faster, so its
-    own box test (:func:`vertex_triangle`, :func:`edge_edge`: the same bound with its own
-    speed) misses b wherever its box grown by ``near[a, b]`` does, and that test needs neither
-    its speed nor b's: an item that no body passes is done on a few reads. 1.01 and 2e-6 m (vs
-    their 1.001 and 1e-6 m) cover the two formulas' different float32 / float64 rounding."""
+                body_upper: wp.array(dtype=wp.vec3), body_mean_u: wp.array(dtype=wp.vec3d),
+                body_spread: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
+                near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64)):
+    """``relative[a, b]`` [m/s]: the speed of b's mean motion relative to a's; ``near[a, b]``
+    [m]: a bound of the reach of any item of body a towards body b, margin + dt (a's largest
+    point speed relative to a's mean ``body_spread`` + ``relative[a, b]``; an item's speed
+    relative to b is at most that), where a and b make contacts and a's box (``body_lower``,
+    ``body_upper`` [m], :func:`body_bounds`) grown by it meets b's box; else -1. An item of a
+    lies in a's box and moves no faster, so its own box test (:func:`vertex_triangle`,
+    :func:`edge_edge`: the same bound with its own speed) misses b wherever its box grown by
+    ``near[a, b]`` does, and that test needs neither its speed nor b's: an item that no body
+    passes is done on a few reads. 1.01 and 2e-6 m (vs their 1.001 and 1e-6 m) cover the two
+    formulas' different float32 / float64 rounding."""
     a, b = wp.tid()
     near[a, b] = -1.0
+    relative[a, b] = wp.length(body_mean_u[b] - body_mean_u[a])
     if pair_enabled[a, b] != 0:
-        bound = float((margin + dt * (body_top_speed[a] + body_speed[b])) * wp.float64(1.01)) + 2.0e-6
+        bound = float((margin + dt * (body_spread[a] + relative[a, b])) * wp.float64(1.01)) + 2.0e-6
         if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
             near[a, b] = bound
 
@@ -166,10 +169,9 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
 @wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                    near: wp.array2d(dtype=wp.float32), mesh_ids: wp.array(dtype=wp.uint64),
-                    body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-                    body_speed: wp.array(dtype=wp.float64),
-                    margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
+                    near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                    mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
                     hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
                     hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64), offset: int):
     """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
@@ -177,8 +179,8 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     that body (towards the vertex), the gap [m] is negative inside it (by the closest
     feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
     box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
-    reach, margin + dt (|u| + b's mean speed ``body_speed``), holds no face within it and is
-    not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
+    reach, margin + dt (|u - a's mean| + ``relative[a, b]``, :func:`near_bodies`), holds no
+    face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
     is one that makes no contacts with the vertex's body or that its body's bound misses
     (``near``, :func:`near_bodies`), tested first."""
     p = wp.tid() + offset
@@ -189,11 +191,11 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
         hit[p, b] = 0
     if near_count(a, 0, xf, xf, near, body_lower, body_upper) == 0:
         return
-    speed = wp.length(point_u[p])
+    speed = wp.length(point_u[p] - body_mean_u[a])
     for b in range(mesh_ids.shape[0]):
         close = False
         if near[a, b] >= 0.0:
-            bound = float((margin + dt * (speed + body_speed[b])) * wp.float64(1.001)) + 1.0e-6
+            bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
             close = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
         if close:
             reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
@@ -304,10 +306,9 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-              near: wp.array2d(dtype=wp.float32), bvh_ids: wp.array(dtype=wp.uint64),
-              body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-              body_speed: wp.array(dtype=wp.float64),
-              normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
+              near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+              bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
@@ -323,8 +324,9 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
 
     A query box off body b's box (``body_lower``, ``body_upper``: the union of its edges'
     boxes, :func:`body_bounds`) finds nothing in b's BVH, so it is not made; and the
-    reach is first bounded by margin + dt (the ends' largest speed + b's mean speed
-    ``body_speed``) (|u - mean| <= |u| + |mean|), so that the far bodies (most pairs on the
+    reach is first bounded by margin + dt (the ends' largest speed relative to a's mean +
+    ``relative[a, b]``, :func:`near_bodies`) (|u - b's mean| <= |u - a's mean| + |a's mean -
+    b's mean|), so that the far bodies (most pairs on the
     candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and
     a query. A body's slots are written only where they may change (its first slot not -1:
     last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
@@ -346,13 +348,14 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
         return
     u0 = point_u[edges[i, 0]]
     u1 = point_u[edges[i, 1]]
-    speed = wp.max(wp.length(u0), wp.length(u1))
+    own = body_mean_u[a]
+    speed = wp.max(wp.length(u0 - own), wp.length(u1 - own))
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
         close = False
         if near[a, b] >= 0.0:
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
-            bound = (margin + dt * float(speed + body_speed[b])) * 1.001 + 1.0e-6
+            bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
             close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
         if close or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
             for k in range(pairs_per_edge):

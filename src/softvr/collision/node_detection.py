@@ -49,31 +49,33 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        c.static_normal, c.static_gap], d, min_chunk=256))
     bodies = len(model.body_node_start) - 1
 
-    top_speed = wp.zeros(bodies, dtype=wp.float64, device=d)
+    spread = wp.zeros(bodies, dtype=wp.float64, device=d)
+    # Speed of each body's mean motion relative to each other's [m/s] (``_k.near_bodies``).
+    relative = wp.empty((bodies, bodies), dtype=wp.float64, device=d)
 
     def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, ...]:
-        """Each body's box of items ``lower``, ``upper`` [m], its mean speed [m/s]
-        (``_k.body_bounds``) and which bodies' boxes it may reach (``_k.near_bodies``), filled
-        by launches appended to the steps."""
-        out = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d),
-               wp.empty(bodies, dtype=wp.float64, device=d))
+        """Which bodies' boxes each body may reach (``_k.near_bodies``) and each body's box of
+        items ``lower``, ``upper`` [m] (``_k.body_bounds``), filled by launches appended to the
+        steps."""
+        box = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d))
         near = wp.empty((bodies, bodies), dtype=wp.float32, device=d)
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
-                                        inputs=[start, lower, upper, state.body_mean_u, *out])))
+                                        inputs=[start, lower, upper, *box])))
         steps.append(replayer(wp.launch(_k.near_bodies, dim=(bodies, bodies), device=d, record_cmd=True,
-                                        inputs=[model.pair_enabled, *out, top_speed, float(margin), float(dt), near])))
-        return (near, *out)
+                                        inputs=[model.pair_enabled, *box, state.body_mean_u, spread, float(margin),
+                                                float(dt), near, relative])))
+        return (near, *box)
 
     if model.meshes or model.bvhs:  # (the vertex and edge queries read both)
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u,
-                                                top_speed])))
+                                                spread])))
     if model.meshes:
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
         steps.append(_refit_reached(model.meshes, model.mesh_ids, near, later=False))
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       near, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       near, relative, model.mesh_ids, *point_box, float(margin), float(dt),
                                        c.hit,
                                        c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
@@ -91,7 +93,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         steps.append(_refit_reached(model.bvhs, model.bvh_ids, near, later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                       state.point_u, state.body_mean_u, near, model.bvh_ids,
+                                       state.point_u, state.body_mean_u, near, relative, model.bvh_ids,
                                        *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
