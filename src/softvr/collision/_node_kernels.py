@@ -171,9 +171,10 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
                     near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
                     mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
-                    hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
-                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64), offset: int):
+                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
+                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32), offset: int):
     """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
     point within the margin plus the vertex's relative motion [m]; the normal points out of
     that body (towards the vertex), the gap [m] is negative inside it (by the closest
@@ -182,11 +183,13 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     reach, margin + dt (|u - a's mean| + ``relative[a, b]``, :func:`near_bodies`), holds no
     face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
     is one that makes no contacts with the vertex's body or that its body's bound misses
-    (``near``, :func:`near_bodies`), tested first."""
+    (``near``, :func:`near_bodies`), tested first. ``point_hit[p]``: 1 if the vertex met some
+    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only)."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    point_hit[p] = 0
     for b in range(mesh_ids.shape[0]):
         hit[p, b] = 0
     if near_count(a, 0, xf, xf, near, body_lower, body_upper) == 0:
@@ -211,6 +214,7 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                 if dist > wp.float64(NORMAL_FROM_OFFSET):
                     n = away / dist * sign
                 hit[p, b] = 1
+                point_hit[p] = 1
                 hit_face[p, b] = query.face
                 u = wp.float64(query.u)
                 w = wp.float64(query.v)
@@ -482,8 +486,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     static_gap: wp.array2d(dtype=wp.float32), mesh_friction: wp.array(dtype=wp.float64),
                     surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
                     hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
-                    hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
-                    pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32),
+                    edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
                     pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
                     edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
                     edge_found: wp.array(dtype=wp.int32), edge_found_before: wp.array(dtype=wp.int32),
@@ -493,7 +497,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
     plane) pair by plane, then point (the per-object path's order), then every (point, static
     sphere) pair the same way (:func:`softvr.collision.points_vs_sphere`: gap and normal along
     the radius through the point), then every (point, static mesh) hit (``static_*``, from
-    :func:`point_static_mesh`), then every (vertex, body) hit by vertex, then body, then every
+    :func:`point_static_mesh`), then every (vertex, body) hit (of the vertices ``point_hit``
+    marks) by vertex, then body, then every
     edge pair by edge a, then slot; a point meets the planes within its ``plane_margin`` [m]
     (-inf: never, a rigid primitive's point), the statics within its ``point_margin`` [m].
     ``other`` is the plane, sphere or mesh, or the body whose
@@ -541,6 +546,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                               carried, point_nodes, point_weights)
                 n_out += 1
     for p in range(hit.shape[0]):
+        if point_hit[p] == 0:  # (most vertices: their row of B bodies is not read)
+            continue
         for b in range(hit.shape[1]):
             if hit[p, b] != 0 and n_out < capacity:
                 t = body_triangle_start[b] + hit_face[p, b]
