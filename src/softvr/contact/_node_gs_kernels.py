@@ -120,12 +120,16 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
                       fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
                       order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
                       off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
-                      colour_start: wp.array(dtype=wp.int32), backward: int, last: int, w: wp.array(dtype=wp.vec3d),
-                      v_hat: wp.array(dtype=wp.vec3d)):
-    """Steps 1 (``backward`` 0: colours 0 .. C-1) or 4 (C-1 .. 0) in one thread, colour ``c``
-    being the nodes ``order[colour_start[c] : colour_start[c + 1]]`` walked in that order, as a
-    one-chunk CPU launch of :func:`gauss_seidel` walks them: the same updates in the same order,
-    so the same bits, in one launch instead of one a colour."""
+                      colour_start: wp.array(dtype=wp.int32), backward: int, last: int, v: wp.array(dtype=wp.vec3d),
+                      w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Steps 1 (``backward`` 0: colours 0 .. C-1, after ``w = v`` [m/s], :func:`start`) or 4
+    (C-1 .. 0) in one thread, colour ``c`` being the nodes ``order[colour_start[c] :
+    colour_start[c + 1]]`` walked in that order, as a one-chunk CPU launch of
+    :func:`gauss_seidel` walks them: the same updates in the same order, so the same bits, in
+    one launch instead of one a colour (and one for the start)."""
+    if backward == 0:
+        for i in range(v.shape[0]):
+            w[i] = v[i]
     colours = colour_start.shape[0] - 1
     for k in range(colours):
         c = k

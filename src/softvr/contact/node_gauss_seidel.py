@@ -200,11 +200,11 @@ class GaussSeidelSweep:
         walk = wp.get_device(d).is_cpu and (cpu_workers() == 1 or np.diff(start).max(initial=0) < 2 * COLOUR_CHUNK)
 
         def colours(last: int) -> list:
-            """The colours' updates of the sweep's first (``last`` 0, colours ascending) or
-            second half (descending)."""
+            """The colours' updates of the sweep's first (``last`` 0, colours ascending, from
+            ``w = v``) or second half (descending)."""
             if walk:
                 return [replayer(wp.launch(_k.gauss_seidel_walk, dim=1, device=d, record_cmd=True,
-                                           inputs=[*rows, *off, self._colour_start, last, last, w, st.v_hat]))]
+                                           inputs=[*rows, *off, self._colour_start, last, last, v, w, st.v_hat]))]
             return [colour(c, last) for c in (range(count) if last == 0 else range(count - 1, -1, -1))
                     if start[c + 1] > start[c]]
 
@@ -227,7 +227,7 @@ class GaussSeidelSweep:
                                                c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
                                                c.rigid_lever, c.impulse, self._island_force, w, st.v_hat]))]
 
-        replays = [chunked_replayer(_k.start, n, [v, w], d)]
+        replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
         replays += colours(0) + islands(0)
         replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d), *touched(),
                     contacts,
