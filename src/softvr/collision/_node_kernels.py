@@ -133,8 +133,9 @@ def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_uppe
 def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(dtype=wp.vec3),
                 body_upper: wp.array(dtype=wp.vec3), body_mean_u: wp.array(dtype=wp.vec3d),
                 body_spread: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
-                near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64)):
-    """``relative[a, b]`` [m/s]: the speed of b's mean motion relative to a's; ``near[a, b]``
+                near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32)):
+    """Row a (thread a): ``relative[a, b]`` [m/s]: the speed of b's mean motion relative to a's; ``near[a, b]``
     [m]: a bound of the reach of any item of body a towards body b, margin + dt (a's largest
     point speed relative to a's mean ``body_spread`` + ``relative[a, b]``; an item's speed
     relative to b is at most that), where a and b make contacts and a's box (``body_lower``,
@@ -143,24 +144,32 @@ def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(d
     :func:`edge_edge`: the same bound with its own speed) misses b wherever its box grown by
     ``near[a, b]`` does, and that test needs neither its speed nor b's: an item that no body
     passes is done on a few reads. 1.01 and 2e-6 m (vs their 1.001 and 1e-6 m) cover the two
-    formulas' different float32 / float64 rounding."""
-    a, b = wp.tid()
-    near[a, b] = -1.0
-    relative[a, b] = wp.length(body_mean_u[b] - body_mean_u[a])
-    if pair_enabled[a, b] != 0:
-        bound = float((margin + dt * (body_spread[a] + relative[a, b])) * wp.float64(1.01)) + 2.0e-6
-        if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
-            near[a, b] = bound
+    formulas' different float32 / float64 rounding. ``near_list[a, :near_len[a]]``: the bodies
+    b of ``near[a, b]`` >= 0, ascending (an item loops over those, 1-2 of the shoulder's 15)."""
+    a = wp.tid()
+    count = int(0)
+    for b in range(near.shape[1]):
+        near[a, b] = -1.0
+        relative[a, b] = wp.length(body_mean_u[b] - body_mean_u[a])
+        if pair_enabled[a, b] != 0:
+            bound = float((margin + dt * (body_spread[a] + relative[a, b])) * wp.float64(1.01)) + 2.0e-6
+            if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
+                near[a, b] = bound
+                near_list[a, count] = b
+                count += 1
+    near_len[a] = count
 
 
 @wp.func
 def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dtype=wp.float32),
+               near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)) -> int:
     """How many bodies b >= ``first`` box [lo, hi] (an item of body a) may reach by
-    :func:`near_bodies`' bound."""
+    :func:`near_bodies`' bound (walking a's list of near bodies)."""
     count = int(0)
-    for b in range(first, near.shape[1]):
-        if near[a, b] >= 0.0:
+    for k in range(near_len[a]):
+        b = near_list[a, k]
+        if b >= first:
             if not _off_box(lo, hi, near[a, b], body_lower[b], body_upper[b]):
                 count += 1
     return count
@@ -170,6 +179,7 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
                     near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                    near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
                     mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
                     body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
                     hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
@@ -184,23 +194,24 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
     is one that makes no contacts with the vertex's body or that its body's bound misses
     (``near``, :func:`near_bodies`), tested first. ``point_hit[p]``: 1 if the vertex met some
-    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only)."""
+    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only); a row is
+    nonzero only where it is 1, so only those rows are cleared the next time (B writes a
+    vertex, most of them 0 already)."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+    if point_hit[p] != 0:
+        for b in range(mesh_ids.shape[0]):
+            hit[p, b] = 0
     point_hit[p] = 0
-    for b in range(mesh_ids.shape[0]):
-        hit[p, b] = 0
-    if near_count(a, 0, xf, xf, near, body_lower, body_upper) == 0:
+    if near_count(a, 0, xf, xf, near, near_list, near_len, body_lower, body_upper) == 0:
         return
     speed = wp.length(point_u[p] - body_mean_u[a])
-    for b in range(mesh_ids.shape[0]):
-        close = False
-        if near[a, b] >= 0.0:
-            bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
-            close = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
-        if close:
+    for k in range(near_len[a]):
+        b = near_list[a, k]
+        bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
+        if not _off_box(xf, xf, bound, body_lower[b], body_upper[b]):
             reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
             query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
             if query.result:
@@ -311,7 +322,7 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
               near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-              bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
               body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
@@ -347,7 +358,7 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     q1 = point_x32[edges[i, 1]]
     box_lo = wp.min(p1, q1)
     box_hi = wp.max(p1, q1)
-    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, body_lower, body_upper) == 0:
+    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, body_lower, body_upper) == 0:
         found[i] = 0  # no slot to clear, no body to query (most edges)
         return
     u0 = point_u[edges[i, 0]]

@@ -54,30 +54,33 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     relative = wp.empty((bodies, bodies), dtype=wp.float64, device=d)
 
     def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, ...]:
-        """Which bodies' boxes each body may reach (``_k.near_bodies``) and each body's box of
-        items ``lower``, ``upper`` [m] (``_k.body_bounds``), filled by launches appended to the
-        steps."""
+        """Which bodies' boxes each body may reach (``_k.near_bodies``: near, relative, the
+        near bodies' lists and lengths) and each body's box of items ``lower``, ``upper`` [m]
+        (``_k.body_bounds``), filled by launches appended to the steps."""
         box = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d))
-        near = wp.empty((bodies, bodies), dtype=wp.float32, device=d)
+        near = (wp.empty((bodies, bodies), dtype=wp.float32, device=d), relative,
+                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d))
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
                                         inputs=[start, lower, upper, *box])))
-        steps.append(replayer(wp.launch(_k.near_bodies, dim=(bodies, bodies), device=d, record_cmd=True,
+        steps.append(replayer(wp.launch(_k.near_bodies, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.pair_enabled, *box, state.body_mean_u, spread, float(margin),
-                                                float(dt), near, relative])))
+                                                float(dt), *near])))
         return (near, *box)
 
     if model.meshes or model.bvhs:  # (the vertex and edge queries read both)
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u,
                                                 spread])))
-    # Per point, whether vertex_triangle found a hit (0 where it does not run).
+    # Per point, whether vertex_triangle found a hit (0 where it does not run); a row of c.hit
+    # is nonzero only where it is 1 (vertex_triangle clears those rows only).
     point_hit = wp.zeros(c.hit.shape[0], dtype=wp.int32, device=d)
+    c.hit.zero_()
     if model.meshes:
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
-        steps.append(_refit_reached(model.meshes, model.mesh_ids, near, later=False))
+        steps.append(_refit_reached(model.meshes, model.mesh_ids, near[0], later=False))
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       near, relative, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       *near, model.mesh_ids, *point_box, float(margin), float(dt),
                                        c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
                                       min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
@@ -92,10 +95,10 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
-        steps.append(_refit_reached(model.bvhs, model.bvh_ids, near, later=True))
+        steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                       state.point_u, state.body_mean_u, near, relative, model.bvh_ids,
+                                       state.point_u, state.body_mean_u, *near, model.bvh_ids,
                                        *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
