@@ -16,6 +16,9 @@ over their colour.
 
 from __future__ import annotations
 
+from concurrent.futures import Future, ThreadPoolExecutor
+from functools import lru_cache, partial
+
 import numpy as np
 import warp as wp
 from scipy import ndimage
@@ -141,6 +144,7 @@ class RayCaster:
         self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
+        self._pending: Future | None = None  # the voxel side of a begun cast (begin)
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
@@ -148,6 +152,7 @@ class RayCaster:
     def reset(self) -> None:
         """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
         next :meth:`cast` starts from scratch, as a new caster's would."""
+        self._settle()
         self._tables_key = self._grid_key = self._view_key = None
         self._flips = []
 
@@ -309,51 +314,104 @@ class RayCaster:
         -------
         numpy.ndarray, shape [height, width, 3], uint8
         """
-        self._upload(volume, changed)
-        height, width = depth.shape
+        return self.begin(volume, ndc_to_world, light, np.shape(depth), changed=changed)(surface, depth)
+
+    def begin(self, volume, ndc_to_world, light, size: tuple[int, int], *, changed=True):
+        """Start a :meth:`cast` before the surfaces are drawn; return the function that ends
+        it, given their ``surface`` colour and ``depth`` [``size`` = (height, width)] (the
+        arguments of :meth:`cast`), with the same image. What depends on the voxels alone (the
+        brick grid's update and which rays may see a changed voxel) runs meanwhile on a helper
+        thread (CPU; on CUDA it is queued at once), so that it overlaps the caller's drawing
+        (VTK waits for its rasterizer threads, leaving a core idle). A begun cast that is never
+        ended is waited for, and forgotten, by the next :meth:`begin` or :meth:`reset`."""
+        self._settle()
+        height, width = (int(v) for v in size)
         spacing = np.asarray(volume.spacing, float)
         direction = np.asarray(volume.direction, float)
         index_to_world = np.eye(4)
         index_to_world[:3, :3] = direction * spacing
         index_to_world[:3, 3] = np.asarray(volume.origin, float)
-        # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
-        gradient_to_world = direction / spacing
-        p = self.preset
-        dev = self.device
         ndc_to_world = np.asarray(ndc_to_world, float)
         light = np.asarray(light, float)
+        # The same for every frame of one view (the spacing and option are in its key).
+        self._smoothed = self._smooth_axis(spacing) if self.preset.shade else -1
+        view = (width, height, ndc_to_world, light, index_to_world)
+        if self.device == "cpu":
+            self._pending = _helper().submit(self._prepare, volume, changed, view)
+        else:
+            self._pending = _done(self._prepare(volume, changed, view))
+        return partial(self._finish, volume, view)
+
+    def _settle(self) -> None:
+        """Wait for a begun cast that was not ended; forget what it kept (it may have failed halfway)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            pending.exception()  # waits
+            self.reset()
+
+    def _prepare(self, volume, changed, view: tuple) -> tuple:
+        """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
+        cast, and whether this frame recasts every pixel (a new view, or everything changed), else
+        the pixels whose rays may read a changed voxel (:meth:`_read_pixels`). Returns (every,
+        flipped, read mask [height * width] or None)."""
+        self._upload(volume, changed)
+        width, height, ndc_to_world, light, index_to_world = view
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
         # one camera, light, grid, table and step.
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter, self.smooth_slices)
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
+        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
+        dev = self.device
+        if key != self._view_key:
+            self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+            self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
+            self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+            self._rays = [wp.empty(width * height, dtype=t, device=dev)
+                          for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
+            self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
+            self._view_key = key
+            return True, flipped, None
+        if changed is True:
+            return True, flipped, None
+        read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
+        return False, flipped, read
+
+    def _finish(self, volume, view: tuple, surface, depth) -> np.ndarray:
+        """The rest of a cast begun by :meth:`begin`, over the surfaces' ``surface`` colour and
+        ``depth`` (:meth:`cast`)."""
+        pending, self._pending = self._pending, None
+        assert pending is not None, "a cast ends once, after its begin()"
+        try:
+            every, flipped, read = pending.result()
+        except BaseException:
+            self.reset()  # the voxel side may have stopped halfway
+            raise
+        width, height, ndc_to_world, light, index_to_world = view
+        if np.shape(depth) != (height, width):
+            raise InputError("depth", f"an array [{height}, {width}] (the size begin() was given)",
+                             f"shape {np.shape(depth)}")
+        spacing = np.asarray(volume.spacing, float)
+        direction = np.asarray(volume.direction, float)
+        # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
+        gradient_to_world = direction / spacing
+        p = self.preset
+        dev = self.device
         depth_host = np.ascontiguousarray(depth, np.float32)
         surface_host = np.ascontiguousarray(surface, np.uint8)
         # On the CPU the kernels read the host arrays in place (alive until the cast returns).
         in_place = dev == "cpu"
         depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
         surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
-        # The same for every frame of one view (the spacing and option are in its key).
-        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
-        flips, self._flips = self._flips, []
-        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
-        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
-        if key != self._view_key or changed is True:
-            if key != self._view_key:
-                self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
-                self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
-                self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
-                self._rays = [wp.empty(width * height, dtype=t, device=dev)
-                              for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
-                self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
-                self._view_key = key
+        if every:
             self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
             store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
         else:
             store_rays = 0
-            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
-                                        np.linalg.inv(ndc_to_world) @ index_to_world)
+            pixels = self._stale_pixels(depth_host, surface_host, read)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -411,22 +469,13 @@ class RayCaster:
         read[box] = np.minimum(to_marked, _READ_REACH)
         return read, np.argwhere(marked) + first
 
-    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
-                      index_to_ndc: np.ndarray) -> wp.array:
-        """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
-        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
-        changed). The others forget their known-empty prefix if it may cross a brick in the
-        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
-        space to the screen."""
-        height, width = depth.shape
-        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
-        # costs more on the CPU than the comparison itself.
-        moved = surface != self._last_surface
-        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
-        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
-        self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
+    def _read_pixels(self, width: int, height: int, changed, flipped: list, index_to_ndc: np.ndarray) -> wp.array:
+        """The pixels [height * width] (uint8 mask, row-major, row 0 at the top) whose ray's
+        samples, as cast last frame (same view), may read a voxel in the ``changed`` box (False or
+        None: no voxel changed); the rays of the others forget their known-empty prefix if it
+        may cross a brick in the ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects
+        the volume's index space to the screen."""
+        read_mask: wp.array = wp.zeros(width * height, dtype=wp.bool, device=self.device)
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         read_host, marked = self._read_distance()
@@ -458,6 +507,33 @@ class RayCaster:
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
-                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, read_mask], self.device,
                min_chunk=_STALE_CHUNK)
-        return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
+        return read_mask
+
+    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, read: wp.array) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ``read`` mask (:meth:`_read_pixels`) is set."""
+        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
+        # costs more on the CPU than the comparison itself.
+        moved = surface != self._last_surface
+        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
+        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        stale = moved.ravel() | read.numpy()
+        return wp.array(np.flatnonzero(stale).astype(np.int32), dtype=wp.int32, device=self.device)
+
+
+def _done(value) -> Future:
+    """A future already holding ``value``."""
+    future: Future = Future()
+    future.set_result(value)
+    return future
+
+
+@lru_cache(maxsize=1)
+def _helper() -> ThreadPoolExecutor:
+    """The thread that runs the voxel side of CPU casts while their callers draw
+    (:meth:`RayCaster.begin`); its launches are split over the cores as any."""
+    return ThreadPoolExecutor(1, thread_name_prefix="softvr-cast")
