@@ -319,11 +319,12 @@ class RayCaster:
     def begin(self, volume, ndc_to_world, light, size: tuple[int, int], *, changed=True):
         """Start a :meth:`cast` before the surfaces are drawn; return the function that ends
         it, given their ``surface`` colour and ``depth`` [``size`` = (height, width)] (the
-        arguments of :meth:`cast`), with the same image. What depends on the voxels alone (the
-        brick grid's update and which rays may see a changed voxel) runs meanwhile on a helper
-        thread (CPU; on CUDA it is queued at once), so that it overlaps the caller's drawing
-        (VTK waits for its rasterizer threads, leaving a core idle). A begun cast that is never
-        ended is waited for, and forgotten, by the next :meth:`begin` or :meth:`reset`."""
+        arguments of :meth:`cast`), with the same image. What the voxels decide runs meanwhile
+        on a helper thread (CPU; on CUDA it is queued at once), so that it overlaps the caller's
+        drawing: the brick grid's update, and the rays that may see a changed voxel, cast over
+        last frame's surfaces; the end casts the pixels whose surface changed (again, if cast
+        already). A begun cast that is never ended is waited for, and forgotten, by the next
+        :meth:`begin` or :meth:`reset`."""
         self._settle()
         height, width = (int(v) for v in size)
         spacing = np.asarray(volume.spacing, float)
@@ -351,9 +352,10 @@ class RayCaster:
 
     def _prepare(self, volume, changed, view: tuple) -> tuple:
         """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
-        cast, and whether this frame recasts every pixel (a new view, or everything changed), else
-        the pixels whose rays may read a changed voxel (:meth:`_read_pixels`). Returns (every,
-        flipped, read mask [height * width] or None)."""
+        cast, whether this frame recasts every pixel (a new view, or everything changed), else the
+        rays that may read a changed voxel (:meth:`_read_pixels`) cast over last frame's surfaces
+        (where those did not change, their pixels are final). Returns (every, flipped, the mask
+        [height * width] bool of the pixels cast, or None)."""
         self._upload(volume, changed)
         width, height, ndc_to_world, light, index_to_world = view
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
@@ -376,7 +378,9 @@ class RayCaster:
             return True, flipped, None
         if changed is True:
             return True, flipped, None
-        read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world)
+        read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world).numpy()
+        pixels = np.flatnonzero(read).astype(np.int32)
+        self._launch_rays(volume, view, flipped, pixels, self._last_depth, self._last_surface, 0)
         return False, flipped, read
 
     def _finish(self, volume, view: tuple, surface, depth) -> np.ndarray:
@@ -389,30 +393,42 @@ class RayCaster:
         except BaseException:
             self.reset()  # the voxel side may have stopped halfway
             raise
-        width, height, ndc_to_world, light, index_to_world = view
+        width, height = view[:2]
         if np.shape(depth) != (height, width):
             raise InputError("depth", f"an array [{height}, {width}] (the size begin() was given)",
                              f"shape {np.shape(depth)}")
+        depth_host = np.ascontiguousarray(depth, np.float32)
+        surface_host = np.ascontiguousarray(surface, np.uint8)
+        if every:
+            self._launch_rays(volume, view, flipped, None, depth_host, surface_host, 1)
+            self.cast_pixels = width * height
+            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
+        else:
+            moved = self._moved_pixels(depth_host, surface_host)
+            self._launch_rays(volume, view, flipped, moved, depth_host, surface_host, 0)
+            self.cast_pixels = int(np.count_nonzero(read)) + int(np.count_nonzero(~read[moved]))
+        # A copy: the caster's image is next frame's starting point.
+        return self._image.numpy().copy()
+
+    def _launch_rays(self, volume, view: tuple, flipped: list, pixels, depth: np.ndarray, surface: np.ndarray,
+                     store_rays: int) -> None:
+        """Launch the ray cast of ``pixels`` [m] int32 (None: all; :meth:`cast`'s arguments in
+        ``view`` and ``flipped``) over the surfaces' ``depth`` [height, width] and colour
+        ``surface`` [height, width, 3] (host arrays); ``store_rays``: work each ray out and keep
+        it (a new view), else read it back."""
+        if pixels is not None and not len(pixels):
+            return
+        width, height, ndc_to_world, light, index_to_world = view
         spacing = np.asarray(volume.spacing, float)
         direction = np.asarray(volume.direction, float)
         # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
         gradient_to_world = direction / spacing
         p = self.preset
         dev = self.device
-        depth_host = np.ascontiguousarray(depth, np.float32)
-        surface_host = np.ascontiguousarray(surface, np.uint8)
-        # On the CPU the kernels read the host arrays in place (alive until the cast returns).
+        # On the CPU the kernels read the host arrays in place (alive until the launch returns).
         in_place = dev == "cpu"
-        depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
-        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
-        if every:
-            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
-            pixels = self._every_pixel
-            store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
-        else:
-            store_rays = 0
-            pixels = self._stale_pixels(depth_host, surface_host, read)
-        self.cast_pixels = int(pixels.shape[0])
+        listed = self._every_pixel if pixels is None else wp.array(pixels, dtype=wp.int32, device=dev,
+                                                                   copy=not in_place)
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
@@ -420,13 +436,12 @@ class RayCaster:
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
-            self._distance, self._cells,
-            *flipped, self._empty_until, depth, surface, pixels,
+            self._distance, self._cells, *flipped, self._empty_until,
+            wp.array(depth, dtype=float, device=dev, copy=not in_place),
+            wp.array(surface, dtype=wp.uint8, device=dev, copy=not in_place), listed,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
-        # A copy: the caster's image is next frame's starting point.
-        return self._image.numpy().copy()
+        launch(K.RAYCAST[self._voxel_type], int(listed.shape[0]), inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
 
     def _smooth_axis(self, spacing: np.ndarray) -> int:
         """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
@@ -511,19 +526,17 @@ class RayCaster:
                min_chunk=_STALE_CHUNK)
         return read_mask
 
-    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, read: wp.array) -> wp.array:
-        """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
-        the ``read`` mask (:meth:`_read_pixels`) is set."""
+    def _moved_pixels(self, depth: np.ndarray, surface: np.ndarray) -> np.ndarray:
+        """The pixels [m] int32 (row-major, row 0 at the top) where the surfaces' ``depth``
+        [height, width] or ``surface`` colour [height, width, 3] differ from the last frame's,
+        which they replace."""
         # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
         # costs more on the CPU than the comparison itself.
         moved = surface != self._last_surface
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
         self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale = moved.ravel() | read.numpy()
-        return wp.array(np.flatnonzero(stale).astype(np.int32), dtype=wp.int32, device=self.device)
-
+        return np.flatnonzero(moved).astype(np.int32)
 
 def _done(value) -> Future:
     """A future already holding ``value``."""
