@@ -10,12 +10,15 @@ surface shows fine noise instead of wood-grain bands. From frame to frame (same 
 the rays that can see a change are cast again: those through the surfaces' changed pixels and
 those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
 at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
-over their colour.
+over their colour. What the voxels alone decide (the brick grid's update, and the rays that may
+see a changed voxel, cast over last frame's surfaces) runs on a helper thread while the caller
+draws the surfaces (:meth:`RayCaster.begin`); only the pixels whose surface changed wait for them.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
 
 from __future__ import annotations
 
+import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from functools import lru_cache, partial
 
@@ -545,8 +548,13 @@ def _done(value) -> Future:
     return future
 
 
-@lru_cache(maxsize=1)
 def _helper() -> ThreadPoolExecutor:
     """The thread that runs the voxel side of CPU casts while their callers draw
-    (:meth:`RayCaster.begin`); its launches are split over the cores as any."""
-    return ThreadPoolExecutor(1, thread_name_prefix="softvr-cast")
+    (:meth:`RayCaster.begin`); its launches are split over the cores as any. One per process:
+    a forked child (the haptic loop's) inherits the executor but not its thread."""
+    return _helper_of(os.getpid())
+
+
+@lru_cache(maxsize=1)
+def _helper_of(pid: int) -> ThreadPoolExecutor:
+    return ThreadPoolExecutor(1, thread_name_prefix=f"softvr-cast-{pid}")
