@@ -49,7 +49,8 @@ LUT_SIZE = 4096
 #: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
 _READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
-_ROWS_PER_CHUNK = 8
+#: Fewest rays per thread-pool chunk of a cast (the pixels' lists are a few thousand long).
+_RAY_CHUNK = 512
 #: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
 _STALE_CHUNK = 4096
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
@@ -148,6 +149,7 @@ class RayCaster:
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
         self._pending: Future | None = None  # the voxel side of a begun cast (begin)
+        self._last: tuple | None = None  # the surfaces' depth and colour last cast over
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
@@ -156,6 +158,7 @@ class RayCaster:
         """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
         next :meth:`cast` starts from scratch, as a new caster's would."""
         self._settle()
+        self._last = None
         self._tables_key = self._grid_key = self._view_key = None
         self._flips = []
 
@@ -340,10 +343,11 @@ class RayCaster:
         # The same for every frame of one view (the spacing and option are in its key).
         self._smoothed = self._smooth_axis(spacing) if self.preset.shade else -1
         view = (width, height, ndc_to_world, light, index_to_world)
+        # The end replaces the last surfaces while the helper may still cast over them.
         if self.device == "cpu":
-            self._pending = _helper().submit(self._prepare, volume, changed, view)
+            self._pending = _helper().submit(self._prepare, volume, changed, view, self._last)
         else:
-            self._pending = _done(self._prepare(volume, changed, view))
+            self._pending = _done(self._prepare(volume, changed, view, self._last))
         return partial(self._finish, volume, view)
 
     def _settle(self) -> None:
@@ -353,11 +357,11 @@ class RayCaster:
             pending.exception()  # waits
             self.reset()
 
-    def _prepare(self, volume, changed, view: tuple) -> tuple:
+    def _prepare(self, volume, changed, view: tuple, last: tuple | None) -> tuple:
         """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
         cast, whether this frame recasts every pixel (a new view, or everything changed), else the
         rays that may read a changed voxel (:meth:`_read_pixels`) cast over last frame's surfaces
-        (where those did not change, their pixels are final). Returns (every, flipped, the mask
+        ``last`` (depth, colour; where those did not change, their pixels are final). Returns (every, flipped, the mask
         [height * width] bool of the pixels cast, or None)."""
         self._upload(volume, changed)
         width, height, ndc_to_world, light, index_to_world = view
@@ -379,11 +383,11 @@ class RayCaster:
             self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
             self._view_key = key
             return True, flipped, None
-        if changed is True:
+        if changed is True or last is None:
             return True, flipped, None
         read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world).numpy()
         pixels = np.flatnonzero(read).astype(np.int32)
-        self._launch_rays(volume, view, flipped, pixels, self._last_depth, self._last_surface, 0)
+        self._launch_rays(volume, view, flipped, pixels, *last, 0)
         return False, flipped, read
 
     def _finish(self, volume, view: tuple, surface, depth) -> np.ndarray:
@@ -391,23 +395,24 @@ class RayCaster:
         ``depth`` (:meth:`cast`)."""
         pending, self._pending = self._pending, None
         assert pending is not None, "a cast ends once, after its begin()"
+        width, height = view[:2]
         try:
+            if np.shape(depth) != (height, width):
+                raise InputError("depth", f"an array [{height}, {width}] (the size begin() was given)",
+                                 f"shape {np.shape(depth)}")
+            depth_host = np.ascontiguousarray(depth, np.float32)
+            surface_host = np.ascontiguousarray(surface, np.uint8)
+            # While the helper works (unused if it finds that every pixel is cast).
+            moved = self._moved_pixels(depth_host, surface_host)
             every, flipped, read = pending.result()
         except BaseException:
+            pending.exception()  # waits
             self.reset()  # the voxel side may have stopped halfway
             raise
-        width, height = view[:2]
-        if np.shape(depth) != (height, width):
-            raise InputError("depth", f"an array [{height}, {width}] (the size begin() was given)",
-                             f"shape {np.shape(depth)}")
-        depth_host = np.ascontiguousarray(depth, np.float32)
-        surface_host = np.ascontiguousarray(surface, np.uint8)
         if every:
             self._launch_rays(volume, view, flipped, None, depth_host, surface_host, 1)
             self.cast_pixels = width * height
-            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
         else:
-            moved = self._moved_pixels(depth_host, surface_host)
             self._launch_rays(volume, view, flipped, moved, depth_host, surface_host, 0)
             self.cast_pixels = int(np.count_nonzero(read)) + int(np.count_nonzero(~read[moved]))
         # A copy: the caster's image is next frame's starting point.
@@ -444,7 +449,7 @@ class RayCaster:
             wp.array(surface, dtype=wp.uint8, device=dev, copy=not in_place), listed,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.RAYCAST[self._voxel_type], int(listed.shape[0]), inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        launch(K.RAYCAST[self._voxel_type], int(listed.shape[0]), inputs, dev, min_chunk=_RAY_CHUNK)
 
     def _smooth_axis(self, spacing: np.ndarray) -> int:
         """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
@@ -529,16 +534,18 @@ class RayCaster:
                min_chunk=_STALE_CHUNK)
         return read_mask
 
-    def _moved_pixels(self, depth: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    def _moved_pixels(self, depth: np.ndarray, surface: np.ndarray) -> np.ndarray | None:
         """The pixels [m] int32 (row-major, row 0 at the top) where the surfaces' ``depth``
-        [height, width] or ``surface`` colour [height, width, 3] differ from the last frame's,
-        which they replace."""
+        [height, width] or ``surface`` colour [height, width, 3] differ from the last cast's,
+        which they replace (None where there is none of their size)."""
+        last, self._last = self._last, (depth.copy(), surface.copy())
+        if last is None or last[0].shape != depth.shape:
+            return None
         # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
         # costs more on the CPU than the comparison itself.
-        moved = surface != self._last_surface
+        moved = surface != last[1]
         moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
-        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
-        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        moved |= (depth != last[0])[::-1]  # depth rows run up
         return np.flatnonzero(moved).astype(np.int32)
 
 def _done(value) -> Future:
