@@ -347,7 +347,7 @@ class RayCaster:
         if self.device == "cpu":
             self._pending = _helper().submit(self._prepare, volume, changed, view, self._last)
         else:
-            self._pending = _done(self._prepare(volume, changed, view, self._last))
+            self._pending = _run_now(self._prepare, volume, changed, view, self._last)
         return partial(self._finish, volume, view)
 
     def _settle(self) -> None:
@@ -361,8 +361,8 @@ class RayCaster:
         """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
         cast, whether this frame recasts every pixel (a new view, or everything changed), else the
         rays that may read a changed voxel (:meth:`_read_pixels`) cast over last frame's surfaces
-        ``last`` (depth, colour; where those did not change, their pixels are final). Returns (every, flipped, the mask
-        [height * width] bool of the pixels cast, or None)."""
+        ``last`` (depth, colour; where those did not change, their pixels are final). Returns
+        (every, flipped, the mask [height * width] bool of the pixels cast, or None)."""
         self._upload(volume, changed)
         width, height, ndc_to_world, light, index_to_world = view
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
@@ -493,7 +493,7 @@ class RayCaster:
         return read, np.argwhere(marked) + first
 
     def _read_pixels(self, width: int, height: int, changed, flipped: list, index_to_ndc: np.ndarray) -> wp.array:
-        """The pixels [height * width] (uint8 mask, row-major, row 0 at the top) whose ray's
+        """The pixels [height * width] (bool mask, row-major, row 0 at the top) whose ray's
         samples, as cast last frame (same view), may read a voxel in the ``changed`` box (False or
         None: no voxel changed); the rays of the others forget their known-empty prefix if it
         may cross a brick in the ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects
@@ -548,10 +548,14 @@ class RayCaster:
         moved |= (depth != last[0])[::-1]  # depth rows run up
         return np.flatnonzero(moved).astype(np.int32)
 
-def _done(value) -> Future:
-    """A future already holding ``value``."""
+
+def _run_now(work, *args) -> Future:
+    """``work(*args)`` run on the calling thread, as a future holding its result or error."""
     future: Future = Future()
-    future.set_result(value)
+    try:
+        future.set_result(work(*args))
+    except BaseException as exc:  # raised by the cast's end, as from the helper thread
+        future.set_exception(exc)
     return future
 
 
