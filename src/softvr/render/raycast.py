@@ -387,7 +387,8 @@ class RayCaster:
             return True, flipped, None
         read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world).numpy()
         pixels = np.flatnonzero(read).astype(np.int32)
-        self._launch_rays(volume, view, flipped, pixels, *last, 0)
+        last_depth, last_surface = last
+        self._launch_rays(volume, view, flipped, pixels, last_depth, last_surface, 0)
         return False, flipped, read
 
     def _finish(self, volume, view: tuple, surface, depth) -> np.ndarray:
