@@ -328,9 +328,9 @@ class RayCaster:
         arguments of :meth:`cast`), with the same image. What the voxels decide runs meanwhile
         on a helper thread (CPU; on CUDA it is queued at once), so that it overlaps the caller's
         drawing: the brick grid's update, and the rays that may see a changed voxel, cast over
-        last frame's surfaces; the end casts the pixels whose surface changed (again, if cast
-        already). A begun cast that is never ended is waited for, and forgotten, by the next
-        :meth:`begin` or :meth:`reset`."""
+        last frame's surfaces; the end casts the pixels whose surface changed beside them, and
+        then those of them the helper cast too, again. A begun cast that is never ended is
+        waited for, and forgotten, by the next :meth:`begin` or :meth:`reset`."""
         self._settle()
         height, width = (int(v) for v in size)
         spacing = np.asarray(volume.spacing, float)
@@ -344,11 +344,12 @@ class RayCaster:
         self._smoothed = self._smooth_axis(spacing) if self.preset.shade else -1
         view = (width, height, ndc_to_world, light, index_to_world)
         # The end replaces the last surfaces while the helper may still cast over them.
+        grid: Future = Future()  # the helper's result once the grid is up to date (_prepare)
         if self.device == "cpu":
-            self._pending = _helper().submit(self._prepare, volume, changed, view, self._last)
+            self._pending = _helper().submit(self._prepare, volume, changed, view, self._last, grid)
         else:
-            self._pending = _run_now(self._prepare, volume, changed, view, self._last)
-        return partial(self._finish, volume, view)
+            self._pending = _run_now(self._prepare, volume, changed, view, self._last, grid)
+        return partial(self._finish, volume, view, grid)
 
     def _settle(self) -> None:
         """Wait for a begun cast that was not ended; forget what it kept (it may have failed halfway)."""
@@ -357,12 +358,26 @@ class RayCaster:
             pending.exception()  # waits
             self.reset()
 
-    def _prepare(self, volume, changed, view: tuple, last: tuple | None) -> tuple:
+    def _prepare(self, volume, changed, view: tuple, last: tuple | None, grid: Future) -> None:
         """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
         cast, whether this frame recasts every pixel (a new view, or everything changed), else the
-        rays that may read a changed voxel (:meth:`_read_pixels`) cast over last frame's surfaces
-        ``last`` (depth, colour; where those did not change, their pixels are final). Returns
-        (every, flipped, the mask [height * width] bool of the pixels cast, or None)."""
+        rays that may read a changed voxel (:meth:`_read_pixels`), into ``grid`` (every, flipped,
+        their mask [height * width] bool or None; or the error) before those rays are cast over
+        last frame's surfaces ``last`` (depth, colour; where those did not change, their pixels
+        are final): the end casts the others meanwhile."""
+        try:
+            every, flipped, read = self._prepare_grid(volume, changed, view, last)
+        except BaseException as exc:
+            grid.set_exception(exc)
+            raise
+        grid.set_result((every, flipped, read))
+        if read is not None and last is not None:
+            last_depth, last_surface = last
+            self._launch_rays(volume, view, flipped, np.flatnonzero(read).astype(np.int32), last_depth,
+                              last_surface, 0)
+
+    def _prepare_grid(self, volume, changed, view: tuple, last: tuple | None) -> tuple:
+        """:meth:`_prepare` up to the rays it casts: (every, flipped, their mask or None)."""
         self._upload(volume, changed)
         width, height, ndc_to_world, light, index_to_world = view
         # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
@@ -386,14 +401,12 @@ class RayCaster:
         if changed is True or last is None:
             return True, flipped, None
         read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world).numpy()
-        pixels = np.flatnonzero(read).astype(np.int32)
-        last_depth, last_surface = last
-        self._launch_rays(volume, view, flipped, pixels, last_depth, last_surface, 0)
         return False, flipped, read
 
-    def _finish(self, volume, view: tuple, surface, depth) -> np.ndarray:
+    def _finish(self, volume, view: tuple, grid: Future, surface, depth) -> np.ndarray:
         """The rest of a cast begun by :meth:`begin`, over the surfaces' ``surface`` colour and
-        ``depth`` (:meth:`cast`)."""
+        ``depth`` (:meth:`cast`); ``grid``: the helper's result once the brick grid is up to
+        date (:meth:`_prepare`)."""
         pending, self._pending = self._pending, None
         assert pending is not None, "a cast ends once, after its begin()"
         width, height = view[:2]
@@ -405,17 +418,25 @@ class RayCaster:
             surface_host = np.ascontiguousarray(surface, np.uint8)
             # While the helper works (unused if it finds that every pixel is cast).
             moved = self._moved_pixels(depth_host, surface_host)
-            every, flipped, read = pending.result()
+            every, flipped, read = grid.result()
+            again = None  # the helper's pixels whose surface changed: cast again after it
+            if not every:
+                assert moved is not None  # the helper casts incrementally only after a cast of this size
+                helped = read[moved]
+                # Beside the helper's rays (other pixels).
+                self._launch_rays(volume, view, flipped, moved[~helped], depth_host, surface_host, 0)
+                again = moved[helped]
+                self.cast_pixels = int(np.count_nonzero(read)) + int(np.count_nonzero(~helped))
+            pending.result()
         except BaseException:
             pending.exception()  # waits
             self.reset()  # the voxel side may have stopped halfway
             raise
-        if every:
+        if again is None:
             self._launch_rays(volume, view, flipped, None, depth_host, surface_host, 1)
             self.cast_pixels = width * height
         else:
-            self._launch_rays(volume, view, flipped, moved, depth_host, surface_host, 0)
-            self.cast_pixels = int(np.count_nonzero(read)) + int(np.count_nonzero(~read[moved]))
+            self._launch_rays(volume, view, flipped, again, depth_host, surface_host, 0)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
