@@ -2,7 +2,9 @@
 (softvr.contact.node_jacobi: chebyshev_weights for CHEBYSHEV_RHO_FACTOR times the bounds'
 spectral radius, chebyshev_rate, chebyshev_rates, tail_error), held to an independent truth on a small SPD
 system of known spectrum: numpy.linalg.solve for the fixed point, numpy's Chebyshev
-polynomials for the rate.
+polynomials for the rate. NodeSolve's choice of the weights a solve starts on (start_narrow,
+fell_faster) is held on a clamped FEM cube to SciPy's direct solve of eq. 5.2 and SciPy's
+eigenvectors of D_A^-1 A.
 
 The iteration is the sweeps' (docs/physics-core.md, eq. 5.6 with M = I, no contacts):
 v^ = v_k + (b - A v_k), v_k+1 = omega_k (gamma (v^ - v_k) + v_k - v_k-1) + v_k-1, its largest
@@ -11,9 +13,14 @@ change read every second sweep, as NodeSolve.solve reads it.
 
 import numpy as np
 import pytest
+import scipy.linalg as sl
 from numpy.polynomial import chebyshev as C
 
-from softvr.contact.node_jacobi import CHEBYSHEV_RHO_FACTOR, chebyshev_rate, chebyshev_rates, chebyshev_weights, tail_error
+from softvr.contact.node_jacobi import (CHEBYSHEV_RHO_FACTOR, NARROW_RETRY, NodeSolve, chebyshev_rate, chebyshev_rates,
+                                        chebyshev_weights, tail_error)
+
+from tests.contact.test_node_gauss_seidel import _prepared, _start
+from tests.sim.test_node_arrays import _cube, _solve_step
 
 # The candy's bounds of the spectrum of M^-1 A (the bench's scene, two-level Jacobi, with margins).
 LO, HI = 0.01686, 2.488
@@ -141,3 +148,64 @@ def test_a_warm_start_at_the_slowest_modes_does_not_stop_the_first_sweeps(weight
             sweeps, x, estimate = _sweep_until_stop(a, b, x0, chebyshev_rates(RHO, rho_w, 3000), 4, rho_w=rho_w)
             error = np.abs(x - x_star).max()
             assert error <= TOLERANCE, (weights, end, amplitude, sweeps, error, estimate)
+
+
+def _clamped_cube():
+    """A Jacobi NodeSolve (no contacts) on a 4-cell, 0.4 m cube clamped at its bottom face, the
+    bench cube's material at its step (dt 1/60 s), with the exact ends of the spectrum of D_A^-1 A
+    as its bounds (scipy.linalg.eigh(A, D_A) over the free velocities, D_A the 3x3 node blocks: its
+    extreme eigenvectors are then the modes mu = +-rho, the slowest the weights allow); A, b of
+    eq. 5.2 as the per-object path assembles them and SciPy's direct solve of A v = b. Returns
+    (solve, stepper, v* [n, 3], free dofs [3 n], eigenvectors [free, free], ascending)."""
+    body = _cube(lift=0.5, fixed=lambda nodes: nodes[:, 2] < nodes[:, 2].min() + 1e-9)
+    dt = 1.0 / 60.0
+    scene, stepper = _prepared(body, dt)
+    system, expected = _solve_step(body, scene, dt)
+    free = ~system.prescribed
+    a = system.matrix.toarray()[np.ix_(free, free)]
+    node = np.arange(len(a)) // 3
+    lam, modes = sl.eigh(a, np.where(node[:, None] == node[None, :], a, 0.0))
+    return NodeSolve(stepper.model, stepper.state, dt, (lam[0], lam[-1])), stepper, expected, free, modes
+
+
+def _solve_from(solve, stepper, expected, free, error):
+    """One solve from v* + ``error`` [m/s] on the free velocities (no momentum: v^k-1 = v^k);
+    (whether it started on the narrower weights, sweeps, max |v - v*| [m/s])."""
+    v0 = expected.copy()
+    v0.reshape(-1)[free] += error
+    _start(stepper, v0)
+    narrow = solve.start_narrow
+    sweeps, solved = solve.solve(TOLERANCE)
+    assert sweeps < solve.max_sweeps
+    return narrow, sweeps, float(np.abs(solved.numpy() - expected).max())
+
+
+def test_a_solve_whose_error_sits_at_the_bounds_ends_sends_the_next_onto_the_bounds_weights():
+    """NodeSolve.solve picks the weights the next solve starts on from what this one observed:
+    from v* + 1 cm/s along the slowest mode (mu = rho, the low end of D_A^-1 A's spectrum) the
+    narrower weights fall at chebyshev_rate(rho, 0.96 rho) only, slower than the bounds' own
+    rate from their first sweep (fell_faster false), so the next solve starts on the bounds'
+    weights, and from the same start takes fewer sweeps. Those solves stop on the floor of the
+    weights in use from their first sweep (chebyshev_rates(rho, rho)): from warm starts of 1.2 to 4
+    times the TOLERANCE along either end's mode (+5 % spread over the rest), where the
+    asymptotic rate would stop in the first sweeps, |v - v*| against SciPy's direct solve of
+    eq. 5.2 stays within the TOLERANCE the stop claims. After NARROW_RETRY[0] starts on the
+    bounds' weights the narrower ones are tried again: from an error inside their interval (the
+    middle mode, 1 % of the slowest under it) they win and are kept, and stop within the
+    TOLERANCE."""
+    solve, stepper, expected, free, modes = _clamped_cube()
+    unit = modes / np.abs(modes).max(axis=0)
+    rest = np.random.default_rng(5).standard_normal(len(modes))
+    rest /= np.abs(rest).max()
+    results = [_solve_from(solve, stepper, expected, free, 1e-2 * unit[:, 0]) for _ in range(2)]
+    assert [narrow for narrow, _, _ in results] == [True, False], results
+    assert results[1][1] < results[0][1], results
+    warm = [amplitude * TOLERANCE * (unit[:, end] + 0.05 * rest) for amplitude in (1.2, 2.0, 4.0) for end in (0, -1)]
+    while not solve.start_narrow:
+        results.append(_solve_from(solve, stepper, expected, free, warm[(len(results) - 2) % len(warm)]))
+        assert len(results) - 1 <= NARROW_RETRY[0], results
+    assert len(results) - 1 == NARROW_RETRY[0] and not any(narrow for narrow, _, _ in results[1:]), results
+    middle = unit[:, len(modes) // 2] + 0.01 * unit[:, 0]
+    results += [_solve_from(solve, stepper, expected, free, 1e-2 * middle / np.abs(middle).max()) for _ in range(2)]
+    assert all(narrow for narrow, _, _ in results[-2:]), results
+    assert all(error <= TOLERANCE for _, _, error in results), results

@@ -28,7 +28,10 @@ from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper,
 from softvr.sim._node_sweeps import sweeps_per_decade
 
 from tests.sim.test_node_arrays import VELOCITY_TOL, _cube, _scene, _solve_step, check_mlcp_steps
+from tests.sim.test_node_rigid import _rigid_box
 from tests.sim.test_node_rigid_couplings import G, _block, _box_system
+from tests.sim.test_node_surfaces import _add_with_surface
+from tests.sim.test_node_surfaces import _block as _surface_block
 
 
 def _stiff_block(lift=0.5, cells=4):
@@ -385,3 +388,133 @@ def test_with_a_held_tool_the_coarse_correction_must_be_clearly_cheaper_than_gau
     kinds = [_node_sweeps.choose_sweeps(*args, limit, 0, 2, SPECTRUM_MARGIN, (np.array([[0, 1]]),), held=held)
              for held in (False, True)]
     assert [(c.kind, c.coarse is not None) for c in kinds] == [("jacobi", True), ("gauss-seidel", False)]
+
+
+def _dense_system(model, state, v):
+    """``(A, b, free)`` of eq. 5.2 written out densely from the node arrays' rows (every node's
+    3x3 blocks, a spring-held rigid body's included), the fixed nodes' columns moved to ``b``
+    at their velocities in ``v`` [n, 3]; ``free`` [3 n] bool the dofs solved for."""
+    n = model.node_count
+    rows, cols, blocks = model.block_row.numpy(), model.block_col.numpy(), state.blocks.numpy()
+    a = np.zeros((3 * n, 3 * n))
+    for r, c, block in zip(rows, cols, blocks):
+        a[3 * r:3 * r + 3, 3 * c:3 * c + 3] += block
+    free = np.repeat(model.fixed.numpy() == 0, 3)
+    b = state.b.numpy().ravel() - a[:, ~free] @ v.ravel()[~free]
+    return a[free][:, free], b[free], free
+
+
+def _contact_rows(contacts, n):
+    """Each contact's rows ``frame J`` [c, 3, 3 n] of its relative velocity (thesis eq. 5.5:
+    stencil weights on its nodes, ``-[lever]x`` on a rigid side's angular node)."""
+    count = int(contacts.count.numpy()[0])
+    out = np.zeros((count, 3, 3 * n))
+    stencil, weights = contacts.stencil_nodes.numpy(), contacts.stencil_weights.numpy()
+    rigid, levers, frames = contacts.rigid_node.numpy(), contacts.rigid_lever.numpy(), contacts.frame.numpy()
+    for c in range(count):
+        j = np.zeros((3, 3 * n))
+        for k in range(contacts.stencil_count.numpy()[c]):
+            j[:, 3 * stencil[c, k]:3 * stencil[c, k] + 3] += weights[c, k] * np.eye(3)
+        for s in range(rigid.shape[1]):
+            if rigid[c, s] >= 0:
+                lever = levers[c, s]
+                j[:, 3 * rigid[c, s]:3 * rigid[c, s] + 3] -= np.array([[0.0, -lever[2], lever[1]],
+                                                                      [lever[2], 0.0, -lever[0]],
+                                                                      [-lever[1], lever[0], 0.0]])
+        out[c] = frames[c] @ j
+    return out
+
+
+MU = 1.0
+
+
+def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_kkt_solve_of_eq_5_5(monkeypatch):
+    """A 9.6 g box on a spring to a fixed anchor (a haptic tool on its handle) pressed into a soft
+    FEM block (1e5 Pa, bottom clamped) with friction 1, Gauss-Seidel sweeps forced: the
+    shoulder's pressing steps in small (a light exact tool whose contacts stick and slide on
+    damped tissue contact nodes). Truth, each
+    pressing step: eq. 5.5 on the active set the solve leaves (a pushing contact sticks, rows
+    ``frame J v = (-gap / dt, 0, 0)``, or, with its friction on the disc's rim, slides: its
+    normal row and ``lambda_t = mu lambda_n d``, d its friction's direction), A and b written
+    out from the step's rows and the contacts' J from their stencils, the KKT system solved by
+    NumPy. The truth must itself meet eq. 5.5 (pushes, friction in the disc, a slide's slip
+    opposite d, the other contacts not closing past their gaps), so it is the LCP's solution
+    on that set, and the sweeps' velocities must be within VELOCITY_TOL of it (the box's spin
+    over its 0.03 m half-diagonal)."""
+    def gauss_seidel(*args, **kwargs):
+        monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
+        return _node_sweeps.choose_sweeps(*args, **kwargs)
+
+    monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
+    solved = {}
+    solve = NodeSolve.solve
+
+    def keep(self, tolerance, check_every=2):
+        k, buffer = solve(self, tolerance, check_every)
+        solved["v"], solved["solve"] = buffer.numpy().copy(), self
+        return k, buffer
+
+    monkeypatch.setattr(NodeSolve, "solve", keep)
+    scene = Scene(gravity=(0.0, 0.0, -G), friction=MU, pgs_iterations=500)
+    block = _surface_block(3, 0.1, (0.0, 0.0, -0.05), Material(1e5, 0.3, 1000.0, alpha=0.0, beta=1e-3),
+                           fixed=lambda x: x[:, 2] < -0.099)
+    _add_with_surface(scene, block)
+    half = np.array([0.02, 0.02, 0.01])
+    box = _rigid_box(scene, half, 300.0, (0.0, 0.0, half[2] + 0.0005), velocity=(0.002, -0.001, -0.1))
+    anchor = FixedBody(position=(0.0, 0.0, 2 * half[2] - 0.0025), name="anchor")  # the spring pushes 0.6 N
+    scene.add_body(anchor)
+    scene.add_coupling(Coupling(RigidPoints(box, [[0.0, 0.0, half[2]]]), RigidPoints(anchor, [[0.0, 0.0, 0.0]]),
+                                200.0, damping=0.5))
+    dt = 0.01
+    checked = 0
+    for _ in range(6):
+        scene.step(dt)
+        stepper = scene._stepper
+        model, state, v = stepper.model, stepper.state, solved["v"]
+        lam = state.contacts.impulse.numpy()[:int(state.contacts.count.numpy()[0])]
+        pushing = lam[:, 0] > 0.0
+        if not pushing.any():
+            continue
+        assert solved["solve"].colours is not None
+        a, b, free = _dense_system(model, state, v)
+        all_rows = _contact_rows(state.contacts, model.node_count)
+        rows, moving = all_rows[:, :, free], all_rows[:, :, ~free] @ v.ravel()[~free]  # the fixed nodes' share
+        gap = state.contacts.gap.numpy()[:len(lam)]
+        # The solve's active set: a pushing contact slides where its friction is on the disc's rim.
+        rim = np.hypot(lam[:, 1], lam[:, 2]) >= (1.0 - 1e-6) * MU * lam[:, 0]
+        slide = np.where(rim[:, None], lam[:, 1:] / np.maximum(np.hypot(lam[:, 1], lam[:, 2]), 1e-300)[:, None], 0.0)
+        active = np.flatnonzero(pushing)
+        size, m = a.shape[0], len(active)
+        kkt = np.zeros((size + 3 * m, size + 3 * m))
+        rhs = np.zeros(size + 3 * m)
+        kkt[:size, :size], rhs[:size] = a, b
+        for k, c in enumerate(active):
+            kkt[:size, size + 3 * k:size + 3 * k + 3] = -rows[c].T
+            r = size + 3 * k
+            kkt[r, :size], rhs[r] = rows[c, 0], -gap[c] / dt - moving[c, 0]
+            for t_ in (1, 2):  # sticking: no slip; sliding: friction mu lambda_n along the slip's opposite
+                if rim[c]:
+                    kkt[r + t_, size + 3 * k + t_], kkt[r + t_, size + 3 * k] = 1.0, -MU * slide[c, t_ - 1]
+                else:
+                    kkt[r + t_, :size], rhs[r + t_] = rows[c, t_], -moving[c, t_]
+        x = np.linalg.solve(kkt, rhs)
+        truth, impulses = x[:size], x[size:].reshape(-1, 3)
+        rel = np.einsum("cij,j->ci", rows, truth) + moving
+        # The truth meets eq. 5.5: pushing contacts at their targets, friction in its disc, a
+        # sliding one's slip opposite its friction, the rest not closing past their gaps.
+        assert (impulses[:, 0] > 0).all()
+        assert (np.hypot(impulses[:, 1], impulses[:, 2]) <= MU * impulses[:, 0] * (1 + 1e-9)).all()
+        slip = rel[active][rim[active], 1:]
+        along = -np.einsum("ci,ci->c", slip, slide[active][rim[active]])
+        assert (along >= -VELOCITY_TOL).all()
+        np.testing.assert_allclose(slip, -along[:, None] * slide[active][rim[active]], atol=VELOCITY_TOL, rtol=0)
+        assert (rel[~pushing, 0] >= -gap[~pushing] / dt - VELOCITY_TOL).all()
+        mine = v.ravel()[free]
+        angular = np.zeros(model.node_count, bool)  # the box's spin node: its contacts' rigid side
+        angular[state.contacts.rigid_node.numpy()[:len(lam)][state.contacts.rigid_node.numpy()[:len(lam)] >= 0]] = True
+        spin = np.repeat(angular, 3)[free]
+        assert spin.sum() == 3
+        np.testing.assert_allclose(mine[~spin], truth[~spin], atol=VELOCITY_TOL, rtol=0)
+        np.testing.assert_allclose(mine[spin], truth[spin], atol=VELOCITY_TOL / 0.03, rtol=0)
+        checked += 1
+    assert checked >= 3

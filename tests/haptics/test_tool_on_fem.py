@@ -17,6 +17,7 @@ import pytest
 from softvr import Scene
 from softvr.dynamics import Material, RigidBody, RigidPoints
 from softvr.haptics import HapticLoop, HapticTool, MouseDevice
+from softvr.model import icosphere
 
 from tests.sim.test_node_rigid import CORNERS, FACES
 from tests.sim.test_node_surfaces import _add_with_surface, _block
@@ -45,3 +46,37 @@ def test_a_tool_pressed_on_a_soft_block_blocks_only_the_blocks_normal():
     # below where the tool rests, less the block's compression and the contact's overlap (some
     # um: allowed 20).
     assert model.force[2] == pytest.approx(K * 0.0045, abs=K * 2e-5)
+
+
+
+def test_a_held_ball_dragged_over_a_soft_block_slides_with_coulombs_friction():
+    """On the node arrays (the shoulder's path; tests/haptics/test_held_tool.py has the truths):
+    a 1 cm ball tool, its icosphere surface on the stiff block's top, held by its coupling
+    (angular_stiffness 0.1 N m/rad: it twists by mu N r / k_r ~ 0.1 rad) and dragged along x at
+    5 cm/s with the hand 9.5 mm below where it rests, slides: the hand feels Hooke's k 9.5 mm
+    down (less the block's give under the ball: allowed 2 %) and Coulomb's mu N back, N = F_z + m g,
+    within 2 % of mu N (the contacts' normals tilt with the block's strain and the icosphere's
+    facets, and the sweeps stop at a relative change)."""
+    h, r, mu, d, speed, dt = 0.1, 0.01, 0.5, 0.0095, 0.05, 0.01
+    scene = Scene(gravity=(0.0, 0.0, -9.81), friction=mu)
+    block = _block(2, h, (0.0, 0.0, h / 2), Material(1e7, 0.3, 1000.0, alpha=0.0, beta=1e-2),
+                   fixed=lambda x: x[:, 2] < 1e-9)
+    _add_with_surface(scene, block)
+    ball = RigidBody.sphere(r, 1000.0, position=(-0.02, 0.0, h + r + 0.0005), name="ball")
+    unit, triangles = icosphere(2)
+    scene.add_body(ball, collision_points=RigidPoints(ball, unit * r), collision_triangles=triangles,
+                   collision_sphere=r)
+    hand = MouseDevice(position=ball.position)
+    loop = HapticLoop(hand)
+    haptic = HapticTool(scene, ball, loop, stiffness=K, damping=1.0, angular_stiffness=0.1)
+    for n in range(60):  # press for 0.2 s, then drag for 0.4 s
+        t = max(0.0, (n - 20) * dt)
+        hand.move_to((-0.02 + speed * t, 0.0, h + r + 0.0005 - min(d + 0.0005, (d + 0.0005) * n / 10)))
+        loop.tick()
+        haptic.publish(scene.step(dt))
+    assert type(scene._stepper).__name__ == "NodeStepper"
+    force = haptic.force()
+    normal = force[2] + ball.mass * 9.81
+    assert force[2] == pytest.approx(K * d, rel=0.02)
+    assert force[0] == pytest.approx(-mu * normal, abs=0.02 * mu * normal)
+    assert ball.v[0] == pytest.approx(speed, rel=0.02)

@@ -130,7 +130,8 @@ def test_a_gltf_object_and_a_toml_body_get_the_same_defaults(tmp_path):
     cloth = {"area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05, "alpha": 0.1}
     for scene in (t, g):
         assert {k: v for k, v in scene.body("sheet").cloth.items() if k != "quads"} == cloth
-        assert scene.body("hand").tool == {"stiffness": 100.0, "damping": 0.0, "haptics": False, "max_force": 10.0}
+        assert scene.body("hand").tool == {"stiffness": 100.0, "angular_stiffness": 0.0, "damping": 0.0, "haptics": False,
+                                           "max_force": 10.0}
     assert t.body("sheet").cloth["quads"] == (16, 16)
 
 

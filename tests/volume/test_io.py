@@ -528,3 +528,23 @@ def test_dicom_folder_skips_other_files_but_not_corrupt_dcm(tmp_path):
     (folder / "broken.dcm").write_bytes(b"\x00" * 50)
     with pytest.raises(InputError, match=r"broken\.dcm.*DICOM"):
         load(folder)
+
+
+def test_volume_direction_must_be_orthonormal_within_1e_4():
+    """``Volume.direction`` is accepted when ``d.T @ d`` is the identity within 1e-4 (as
+    ``np.allclose(..., atol=1e-4)``). Truth: SciPy's rotations (proper and reflected) are
+    orthonormal; a shear whose ``d.T @ d`` is off by 2e-4 is not, and one off by 5e-5 is."""
+    from scipy.spatial.transform import Rotation
+
+    data = np.zeros((2, 3, 4), np.int16)
+    for d in (Rotation.random(random_state=7).as_matrix(), ROT @ np.diag([1.0, 1.0, -1.0])):
+        np.testing.assert_array_equal(Volume(data, direction=d).direction, d)
+    for off, ok in ((2e-4, False), (5e-5, True)):
+        d = np.eye(3)
+        d[0, 1] = off  # d.T @ d = I + off at (0, 1), (1, 0) and off**2 at (1, 1)
+        assert np.allclose(d.T @ d, np.eye(3), atol=1e-4) == ok
+        if ok:
+            Volume(data, direction=d)
+        else:
+            with pytest.raises(InputError, match="Volume.direction.*orthonormal"):
+                Volume(data, direction=d)

@@ -21,8 +21,8 @@ from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
-__all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "movable_contacts", "observed_rate",
-           "tail_error"]
+__all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
+           "observed_rate", "tail_error"]
 
 #: Threads striding over a step's contacts in the kernels that take one contact at a time
 #: independently (the screen, the contact metric) on CUDA. On the CPU they take one: the screen
@@ -46,6 +46,13 @@ RATE_SWEEPS = 4
 #: (the first sweeps of a contact step contract unevenly while the contacts take their load).
 SWITCH_SWEEPS = 6
 SWITCH_AFTER = 12
+
+#: Solves started on the bounds' own weights after which one starts on the narrower weights
+#: again (:attr:`NodeSolve.start_narrow`), and the most: a solve on the bounds' weights cannot
+#: see that the narrower ones would now do better (the error moved inside their interval: a
+#: cloth settling on a wall, 28 against 22 sweeps a step), so they are tried again, after twice
+#: as many each time they lose again.
+NARROW_RETRY = (8, 64)
 
 
 def chebyshev_weights(rho: float, count: int) -> np.ndarray:
@@ -123,6 +130,16 @@ def observed_rate(sweeps: list[int], changes: list[float], k: int, window: int) 
 def _largest(sweeps: list[int], changes: list[float], after: int, upto: int) -> float:
     """The largest of ``changes`` of the sweeps ``j``, ``after < j <= upto`` (0 if none)."""
     return max(changes[bisect_right(sweeps, after):bisect_right(sweeps, upto)], default=0.0)
+
+
+def fell_faster(sweeps: list[int], changes: list[float], rate: float) -> bool:
+    """Whether the largest changes ``changes`` [m/s] (of the checked sweeps ``sweeps``, ascending)
+    fell from the first to the last by more than ``rate`` a sweep on average:
+    ``changes[-1] <= changes[0] rate^(sweeps[-1] - sweeps[0])``. :meth:`NodeSolve.solve` asks it
+    of the narrower weights' sweeps when they slow, with the bounds' own rate: if they did not
+    beat it even while the error inside their interval fell, the bounds' weights would have been
+    the better start (the error sat at the bounds' ends from the first sweep)."""
+    return changes[-1] <= changes[0] * rate ** (sweeps[-1] - sweeps[0])
 
 
 def movable_contacts(model, state) -> int:
@@ -231,6 +248,15 @@ class NodeSolve:
         self._bounds_weights: wp.array = wp.array(chebyshev_weights(self.rho, self.max_sweeps), dtype=wp.float64,
                                                   device=d)
         self._narrow = rho_first < self.rho
+        #: Whether the next solve starts on the narrower weights (else on the bounds' own): what
+        #: the last solves observed (:meth:`solve`). The weights differ by scene and by phase:
+        #: the candy pile's steps carry most of their error inside the narrower interval and
+        #: cycle on the bounds' weights (68 against 97 sweeps a step), a cube resting on a plane
+        #: carries it at the bounds' ends (26 against 32 once it has settled).
+        self.start_narrow = self._narrow
+        # NARROW_RETRY: solves on the bounds' weights before the narrower ones are tried again,
+        # how many of them are left, and whether the next start on the narrower ones is a retry.
+        self._retry, self._until_retry, self._retrying = NARROW_RETRY[0], 0, False
         #: The omega_k the Chebyshev kernel reads (a copy of the first or the bounds' weights).
         self.weights: wp.array = wp.clone(self._first_weights)
         # The Jacobi stop's floors, sweep by sweep from a (re)start (chebyshev_rates); the
@@ -396,13 +422,20 @@ class NodeSolve:
         (:meth:`_contacts_met`: contacts between bodies couple them, and the node change alone
         understates their error; a rigid body's error is all its contacts').
 
-        The Jacobi sweeps start on the narrower weights of :data:`CHEBYSHEV_RHO_FACTOR`. When
-        those contract slower than :attr:`rate` (over :data:`SWITCH_SWEEPS`, after
-        :data:`SWITCH_AFTER`: the error left is in the modes at the bounds' ends), or any
-        Chebyshev sweeps stall (:meth:`_stalled`), a window of plain sweeps follows (counted in
-        ``plain_sweeps``), which lets the contacts' active set settle; with Jacobi it ends early
-        once it contracts slower than :attr:`rate` (what is left is smooth, which Chebyshev takes faster),
-        and Chebyshev restarts on the bounds' own weights. Returns the sweeps made and the buffer
+        The Jacobi sweeps start on the narrower weights of :data:`CHEBYSHEV_RHO_FACTOR` or on
+        the bounds' own, as :attr:`start_narrow` says. When the narrower ones contract slower
+        than :attr:`rate` (over :data:`SWITCH_SWEEPS`, after :data:`SWITCH_AFTER`: the error
+        left is in the modes at the bounds' ends), or any Chebyshev sweeps stall
+        (:meth:`_stalled`), a window of plain sweeps follows (counted in ``plain_sweeps``),
+        which lets the contacts' active set settle; with Jacobi it ends early once it contracts
+        slower than :attr:`rate` (what is left is smooth, which Chebyshev takes faster), and
+        Chebyshev restarts on the bounds' own weights. The next solve starts on the bounds' own
+        weights when the narrower ones slowed without having beaten :attr:`rate` from their
+        first sweep (:func:`fell_faster`), on the narrower ones when Chebyshev sweeps stalled
+        or after :data:`NARROW_RETRY` solves on the bounds' weights; otherwise as this one did
+        (:meth:`_next_start`). The stop's floor is the slowest mode's ratio under the
+        weights in use, whichever they are, so the choice moves the sweeps' count, never what
+        the stop claims. Returns the sweeps made and the buffer
         holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
         [m/s]."""
         self.sweep.zero_()
@@ -412,14 +445,14 @@ class NodeSolve:
         self._rigid_contacts()
         self.coarse.prepare()
         self._metric()
-        if self._narrow:
-            wp.copy(self.weights, self._first_weights)
-        narrow = self._narrow
+        narrow = started_narrow = self.start_narrow
+        retrying, self._retrying = self._retrying, False
+        wp.copy(self.weights, self._first_weights if narrow else self._bounds_weights)
         changes = _Changes()  # every checked sweep's change, for the observed rate
         history = _Changes()  # change by sweeps since Chebyshev (re)started
         restart, plain_from, plain_until = 0, 0, 0
         self.plain_sweeps = 0
-        self.plateaued = False
+        self.plateaued = stopped = False
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
@@ -445,7 +478,8 @@ class NodeSolve:
                 window = RATE_SWEEPS if self._observed else None
                 if tail_error(changes.sweeps, changes.values, floor, window) <= tolerance and \
                         self._contacts_met(k, tolerance):
-                    return k, self._buffers[k % 3]
+                    stopped = True
+                    break
                 if plain:
                     if self._observed and k - plain_from >= 2 * RATE_SWEEPS and \
                             changes.rate(k, RATE_SWEEPS) > self.rate:
@@ -453,17 +487,36 @@ class NodeSolve:
                     continue
                 history.add(k - restart, change)
                 if self._plateau(history, k - restart, tolerance) and self._contacts_met(k, tolerance):
-                    self.plateaued = True
-                    return k, self._buffers[k % 3]
+                    self.plateaued = stopped = True
+                    break
                 slowed = narrow and k - restart >= max(SWITCH_AFTER, 2 * SWITCH_SWEEPS) and \
                     changes.rate(k, SWITCH_SWEEPS) > self.rate
                 if slowed or self._stalled(history, k - restart, tolerance):
+                    if self._narrow:
+                        self._next_start(slowed, changes, retrying)
                     plain_from, plain_until = k, k + self._window()
                     if narrow:  # the Chebyshev sweeps after the window take the bounds' weights
                         wp.copy(self.weights, self._bounds_weights)
                         narrow = False
-        self._contacts_met(k, tolerance)
+        if not stopped:
+            self._contacts_met(k, tolerance)
+        if self._narrow and not started_narrow and not self.start_narrow:
+            self._until_retry -= 1
+            self.start_narrow = self._retrying = self._until_retry <= 0
         return k, self._buffers[k % 3]
+
+    def _next_start(self, slowed: bool, changes: _Changes, retrying: bool) -> None:
+        """:attr:`start_narrow` from a solve's Chebyshev sweeps that ``slowed`` (the narrower
+        weights, from the solve's start) or stalled, ``changes`` its checked sweeps' largest
+        changes [m/s]: the bounds' own weights if the narrower ones slowed without having
+        beaten :attr:`rate` from their first sweep (:func:`fell_faster`), for
+        :data:`NARROW_RETRY` solves (twice as many as last time where this start was a
+        ``retrying`` one); the narrower ones after a stall (the contacts' active set changing:
+        less momentum)."""
+        self.start_narrow = not slowed or fell_faster(changes.sweeps, changes.values, self.rate)
+        if not self.start_narrow:
+            self._retry = min(2 * self._retry, NARROW_RETRY[1]) if retrying else NARROW_RETRY[0]
+            self._until_retry = self._retry
 
     def _contacts_met(self, k: int, tolerance: float) -> bool:
         """Whether, in the velocities and impulses of sweep ``k``, every contact meets eq. 5.5

@@ -65,7 +65,8 @@ def held_tool(model, largest: int = 8) -> bool:
     """Whether a :func:`rigid_islands` island of at most ``largest`` nodes is held by coupling
     springs (a haptic tool on its handle, the shoulder's fingers): a rigid body whose sweep
     update is exact though springs tie it (``model.couplings.partner`` >= 0 on its nodes), whose
-    spin about its handle only its contacts' friction holds (free rigid bodies are not)."""
+    spin about its handle, unless its coupling holds its orientation (a :class:`softvr.haptics.
+    HapticTool`'s ``angular_stiffness``), only its contacts' friction holds (free rigid bodies are not)."""
     partner = model.couplings.partner.numpy()
     return any(len(island) <= largest and bool((partner[island] >= 0).any()) for island in rigid_islands(model))
 

@@ -502,7 +502,8 @@ BODY_KEYS: dict[str, tuple[str, ...]] = {kind: (*SHAPES[kind], *_EVERY_BODY, *ke
     "cloth": (*_DEFORMING, "quads", "area_density", "stretch", "shear", "bend", "damping", "alpha"),
     "fixed": ("scale", "render_mesh"),  # a box or a mesh: no sphere to subdivide
     "kinematic": (*_SOLID, *_MOVING, "motion"),
-    "tool": (*_SOLID, *_MOVING, "material", "stiffness", "damping", "haptics", "max_force", "motion")}.items()}
+    "tool": (*_SOLID, *_MOVING, "material", "stiffness", "angular_stiffness", "damping", "haptics", "max_force",
+             "motion")}.items()}
 #: Keys a rule of :meth:`Body.problems` names on a type that does not take them: the shape (which
 #: ones the type takes), the drive (of held nodes), the motion (of kinematic bodies and tools).
 _RULED = (*SHAPE_KEYS, "drive", "motion")
@@ -513,7 +514,7 @@ MATERIAL_KEYS: dict[str, tuple[str, ...]] = {"rigid": ("density",), "tool": ("de
 #: Defaults of a cloth body's and a tool's own fields (``damping`` and ``alpha`` are both's).
 CLOTH = {"quads": (16, 16), "area_density": 0.2, "stretch": 200.0, "shear": 20.0, "bend": 1.0, "damping": 0.05,
          "alpha": 0.1}
-TOOL = {"damping": 0.0, "haptics": False, "max_force": 10.0}
+TOOL = {"angular_stiffness": 0.0, "damping": 0.0, "haptics": False, "max_force": 10.0}
 #: A FEM box's cubes per axis (a TOML mesh or sphere body states its cube size [m]) and a FEM
 #: glTF object's cube size [m].
 BOX_CELLS = 4
@@ -568,6 +569,8 @@ class Body(_Table):
     damping: Annotated[float | None, number("N s/m", minimum=0.0)] = None  # [N s/m] cloth, or the tool's coupling
     alpha: Annotated[float | None, number("1/s", minimum=0.0)] = None                      # [1/s] cloth
     stiffness: Annotated[float | None, number("N/m", positive=True)] = None  # [N/m] tool: hand - tool coupling
+    # [N m/rad] tool: the coupling's hold on the tool's orientation (0: free to turn)
+    angular_stiffness: Annotated[float | None, number("N m/rad", minimum=0.0)] = None
     haptics: Boolean = None
     max_force: Annotated[float | None, number("N", positive=True)] = None                  # [N]
 

@@ -568,7 +568,8 @@ class SceneExample(Player):
         process = bool(spec.tool["haptics"]) and self._haptics is not False
         loop = HapticLoop(device, max_force=spec.tool["max_force"], process=process)
         device.clock = loop.simulation_clock
-        tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"], tip=tip)
+        tool = HapticTool(scene, body, loop, stiffness=spec.tool["stiffness"], damping=spec.tool["damping"], tip=tip,
+                          angular_stiffness=spec.tool["angular_stiffness"])
         tool.haptics = process
         return tool
 

@@ -25,6 +25,7 @@ node extras                   meaning (as in the TOML scene file, :mod:`softvr.s
                               origin; rigid bodies: their centre of mass)
 ``softvr_area_density``       [kg/m^2], ``softvr_stretch``, ``softvr_shear``, ``softvr_bend`` (cloth)
 ``softvr_stiffness``          [N/m] hand - tool coupling (tool, required)
+``softvr_angular_stiffness``  [N m/rad] the coupling's hold on the tool's orientation (tool; default 0)
 ``softvr_damping``            [N s/m] (tool; default 0), ``softvr_haptics`` (tool: true runs the
                               1 kHz haptic loop; default false), ``softvr_max_force`` [N] (tool)
 ``softvr_render_mesh``        another object's name (scenery: no ``softvr_type``): its mesh is
@@ -142,8 +143,8 @@ _COUPLING_KEYS = ("couple_to", *(f"coupling_{k}" for k in Coupling.model_fields 
 _SENSOR_KEYS = (*(f"sensor_{kind}" for kind in SENSOR_KINDS), "sensor_contact_force_other")
 #: A body node's own custom properties: the ``[[body]]`` fields its mesh and transform do not give.
 _NODE_BODY_KEYS = ("cells", "fixed_below", "fixed_above", "velocity", "angular_velocity", "spin_centre", "area_density",
-                   "stretch", "shear", "bend", "damping", "alpha", "stiffness", "haptics", "max_force",
-                   "collision_triangles")
+                   "stretch", "shear", "bend", "damping", "alpha", "stiffness", "angular_stiffness", "haptics",
+                   "max_force", "collision_triangles")
 #: The custom properties of a node of each type: a body's (and ``adhesion_*``, :class:`~softvr.scene.
 #: _description.Adhesion`'s) are its type's ``[[body]]`` keys (:data:`~softvr.scene._description.BODY_KEYS`)
 #: that a node gives, its material's (:data:`~softvr.scene._description.MATERIAL_KEYS`), a drive's (refused

@@ -94,7 +94,8 @@
     #            optional rotations = [[rx, ry, rz], ...] [deg]: the body's orientation at each time
     #            (about x, then y, then z, as rotation; slerp between), turning it about its position
     # tool: a rigid sphere, box or mesh (material) on a virtual coupling (stiffness [N/m], damping
-    #       [N s/m]) to a haptic handle that follows [body.motion]; haptics = true runs the
+    #       [N s/m]; angular_stiffness [N m/rad]: the hand holds its orientation, default 0: free
+    #       to turn) to a haptic handle that follows [body.motion]; haptics = true runs the
     #       1 kHz haptic loop in its own process, max_force [N] caps what the hand feels
 
     [[filter]]                  # bodies that never collide with each other
