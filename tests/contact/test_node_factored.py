@@ -12,9 +12,10 @@ SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_
 
 import numpy as np
 from scipy.linalg import polar
+from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, free_matrix
+from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, _Anderson, free_matrix
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.contact.test_node_aggregates import _beam
@@ -138,3 +139,64 @@ def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_colu
         columns = 3 * solve._slot[node] + np.arange(3)
         np.testing.assert_allclose(solve._columns[:, columns], inverse[:, dofs], rtol=0,
                                    atol=1e-10 * np.abs(inverse).max())
+
+
+def test_block_triangular_solves_are_scipys_direct_solve_of_the_factored_matrix():
+    # The outer iteration's A_0^-1 r runs SuperLU's factors as 3 x 3 blocks in one Warp thread
+    # (factor_solve), its permutations over the flat entries. It must be SciPy's direct solve
+    # (spsolve, its own factorization) of the factored A over the solved rows, to the rounding
+    # of either (backward error ~1e-16 times A's condition, ~1e3 on this beam: 1e-12 relative
+    # to the largest entry holds with room), for a random right-hand side.
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    a0, _ = free_matrix(stepper.model, stepper.state)
+    r = np.random.default_rng(3).standard_normal(a0.shape[0])
+    solve._r.numpy()[:] = r.reshape(-1, 3)
+    solve._solve_r()
+    expected = spsolve(a0.tocsc(), r)
+    np.testing.assert_allclose(solve._y.numpy().ravel(), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def _contraction(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random linear map x -> M x + c on R^n with M's singular values 0.9 (a slow contraction)."""
+    rng = np.random.default_rng(seed)
+    q1, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    q2, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    return 0.9 * q1 @ q2, rng.standard_normal(n)
+
+
+def test_anderson_acceleration_is_its_least_squares_definition_and_exact_in_n_plus_1_steps_on_a_linear_map():
+    # Type II Anderson (Walker and Ni 2011, eq. 2.2 and their Theorem 2.2): with the last m
+    # differences dF = [f_j+1 - f_j], dG = [g_j+1 - g_j] of residuals f = G(x) - x and images
+    # g = G(x), the next iterate is g - dG gamma with gamma = argmin |f - dF gamma|. Held to
+    # NumPy's least squares of that definition (the ring of kept differences wraps: memory 3,
+    # 12 calls); and on a linear map of R^4 with memory 5 it is GMRES on (I - M) x = c, exact
+    # after 4 + 1 calls, where the plain iteration is still ~0.9^5 of its start away. The
+    # code's guard (the Gram diagonal times 1 + 1e-10) moves gamma by ~1e-10 x the Gram
+    # matrix's condition: <= 18 in the first case (1e-8 relative holds with room), 200 at the
+    # last call of the second (1e-7).
+    m_, c = _contraction(30, seed=1)
+    anderson = _Anderson(3)
+    x, fs, gs = np.zeros(30), [], []
+    for _ in range(12):
+        g = m_ @ x + c
+        fs.append(g - x)
+        gs.append(g)
+        df = np.diff(np.array(fs[-4:]), axis=0).T
+        dg = np.diff(np.array(gs[-4:]), axis=0).T
+        expected = g - dg @ np.linalg.lstsq(df, fs[-1], rcond=None)[0] if len(fs) > 1 else g
+        x = anderson.next(x, g)
+        np.testing.assert_allclose(x, expected, rtol=0, atol=1e-8 * np.abs(expected).max())
+    m_, c = _contraction(4, seed=2)
+    exact = np.linalg.solve(np.eye(4) - m_, c)
+    anderson, x = _Anderson(5), np.zeros(4)
+    for _ in range(5):
+        x = anderson.next(x, m_ @ x + c)
+    np.testing.assert_allclose(x, exact, rtol=0, atol=1e-7 * np.abs(exact).max())
+    # At a fixed point met exactly (G(x) = x: zero residuals and differences, a zero Gram
+    # matrix) the iterate stays where it is.
+    anderson = _Anderson(5)
+    for _ in range(4):
+        x = anderson.next(x, x.copy())
+    np.testing.assert_allclose(x, exact, rtol=0, atol=1e-7 * np.abs(exact).max())

@@ -203,7 +203,7 @@ def format_table(result: dict) -> str:
              f"{s['render_step']}, sample distance {s['sample_distance']} voxel), rasterizer on {c['device']}",
              f"{'stage':<28} {'median ms':>10} {'vs full raster':>15}", "-" * 55]
     full = m["raster_full_ms"]
-    for name, key in (("FEM step (contact, CG)", "fem_ms"), ("rasterize: full (thesis)", "raster_full_ms"),
+    for name, key in (("FEM step (contact, factored)", "fem_ms"), ("rasterize: full (thesis)", "raster_full_ms"),
                       ("rasterize: incremental", "raster_incremental_ms"), ("volume render", "render_ms"),
                       ("VTK ray caster, same view", "render_vtk_ms")):
         ratio = f"{full / m[key]:.1f}x faster" if key == "raster_incremental_ms" else ""

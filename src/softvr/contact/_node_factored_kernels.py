@@ -1,7 +1,8 @@
 """Compiled parts of the factored contact solve (:mod:`softvr.contact.node_factored`): the
 nodes' rotations since the factorization, the residual of the momentum equation of thesis eq.
-5.2 over the node blocks turned back by them and the update turned forward, and projected
-Gauss-Seidel on a small dense Delassus matrix (thesis eq. 5.5's LCP in the contacts' impulses).
+5.2 over the node blocks turned back by them and the update turned forward, the triangular
+solves with the kept factorization's 3 x 3 blocks, and projected Gauss-Seidel on a small
+dense Delassus matrix (thesis eq. 5.5's LCP in the contacts' impulses).
 
 Residual of solved node ``i`` (row ``k``), turned by its rotation ``R_i``:
 
@@ -17,6 +18,8 @@ sweeps' contacts (:func:`softvr.contact._node_jacobi_kernels.pgs_update`).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import warp as wp
 
@@ -76,6 +79,60 @@ def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.m
         u[i] = v[i]
     else:
         u[i] = v[i] + rotation[i] * y[k]
+
+
+@wp.func
+def _entry(x: wp.array(dtype=Any), i: int):
+    """Entry ``i`` of ``x`` read as a flat vector [3 len(x)] (vec3d: a number; mat33d: a row,
+    the entry's value in each of three right-hand sides)."""
+    return x[i // 3][i % 3]
+
+
+@wp.func
+def _stack(a: wp.float64, b: wp.float64, c: wp.float64) -> wp.vec3d:
+    """Three flat entries as one block."""
+    return wp.vec3d(a, b, c)
+
+
+@wp.func
+def _stack(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.mat33d:
+    """Three flat entries of three right-hand sides as one block (rows: the entries)."""
+    return wp.matrix_from_rows(a, b, c)
+
+
+@wp.kernel
+def factor_solve(perm_r_inverse: wp.array(dtype=wp.int32), perm_c: wp.array(dtype=wp.int32),
+                 lower_start: wp.array(dtype=wp.int32), lower_col: wp.array(dtype=wp.int32),
+                 lower: wp.array(dtype=wp.mat33d), lower_inverse: wp.array(dtype=wp.mat33d),
+                 upper_start: wp.array(dtype=wp.int32), upper_col: wp.array(dtype=wp.int32),
+                 upper: wp.array(dtype=wp.mat33d), upper_inverse: wp.array(dtype=wp.mat33d),
+                 rhs: wp.array(dtype=Any), work: wp.array(dtype=Any), x: wp.array(dtype=Any)):
+    """``x = A^-1 rhs`` (one thread; vec3d: one right-hand side, mat33d: three, its columns)
+    with SuperLU's ``Pr A Pc = L U`` held as 3 x 3 blocks of the factors' rows (``work``'s
+    order): ``lower`` / ``upper`` the blocks off the diagonal (block row ``p``: ``start[p] :
+    start[p + 1]``, block columns ``col``), ``*_inverse`` the inverses of the diagonal blocks;
+    ``perm_r_inverse`` the inverse of ``Pr``'s ``perm_r``, ``perm_c`` ``Pc``'s, over the flat
+    entries. Block rows run at SciPy's CSR product speed; SuperLU's own single-vector solve
+    spends ~2/3 of its time in BLAS calls per supernode."""
+    k = work.shape[0]
+    for p in range(k):  # forward: L w = Pr rhs
+        acc = _stack(_entry(rhs, perm_r_inverse[3 * p]), _entry(rhs, perm_r_inverse[3 * p + 1]),
+                     _entry(rhs, perm_r_inverse[3 * p + 2]))
+        for c in range(lower_start[p], lower_start[p + 1]):
+            acc = acc - lower[c] * work[lower_col[c]]
+        work[p] = lower_inverse[p] * acc
+    for t in range(k):  # backward: U w' = w
+        p = k - 1 - t
+        acc = work[p]
+        for c in range(upper_start[p], upper_start[p + 1]):
+            acc = acc - upper[c] * work[upper_col[c]]
+        work[p] = upper_inverse[p] * acc
+    for i in range(k):  # x = Pc w'
+        x[i] = _stack(_entry(work, perm_c[3 * i]), _entry(work, perm_c[3 * i + 1]), _entry(work, perm_c[3 * i + 2]))
+
+
+for _t in (wp.vec3d, wp.mat33d):
+    wp.overload(factor_solve, {"rhs": wp.array(dtype=_t), "work": wp.array(dtype=_t), "x": wp.array(dtype=_t)})
 
 
 @wp.kernel

@@ -43,7 +43,8 @@ __all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
 
 #: Fill-reducing ordering of the factorization: SuperLU's minimum degree on ``A + A^T`` with
 #: symmetric pivoting (``A`` is SPD): half COLAMD's fill on the head CT (204 K against 422 K
-#: entries), a solve in 0.4 ms against 0.7.
+#: entries), a solve in 0.4 ms against 0.7 (SuperLU's; the factors' 3 x 3 blocks in Warp,
+#: :func:`_node_factored_kernels.factor_solve`, 0.14 ms).
 ORDERING = "MMD_AT_PLUS_A"
 #: Outer iterations of a step after which ``P`` is factored again at the step's ``A``.
 REFACTOR_AFTER = 12
@@ -132,10 +133,11 @@ class _Anderson:
     def __init__(self, memory: int):
         self.memory = memory
         self._last: tuple[np.ndarray, np.ndarray] | None = None  # the last residual G(x) - x and image G(x)
-        self._df: list[np.ndarray] = []  # differences of successive residuals
-        self._dg: list[np.ndarray] = []  # and of images
-        # Their Gram matrix, one new row a call (the products of a whole stack every call cost
-        # ~0.1 ms on the head CT's 5 K velocities, more than the rest of the step's Anderson).
+        # Differences of successive residuals and of images, rows of a ring (the oldest row
+        # is overwritten), so that their products with a vector are one matrix product each;
+        # and the residual differences' Gram matrix, one new row a call.
+        self._df = self._dg = np.zeros((0, 0))
+        self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
     def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
@@ -143,23 +145,35 @@ class _Anderson:
         f = g - x
         if self._last is None:
             self._last = f, g
+            self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
             return g
-        self._df.append(f - self._last[0])
-        self._dg.append(g - self._last[1])
+        s = self._slot
+        np.subtract(f, self._last[0], out=self._df[s])
+        np.subtract(g, self._last[1], out=self._dg[s])
         self._last = f, g
-        if len(self._df) > self.memory:
-            self._df.pop(0)
-            self._dg.pop(0)
-            self._gram[:-1, :-1] = self._gram[1:, 1:].copy()
-        k = len(self._df)
-        row = np.array([d @ self._df[-1] for d in self._df])
-        self._gram[k - 1, :k] = self._gram[:k, k - 1] = row
+        self._slot = (s + 1) % self.memory
+        k = self._count = min(self._count + 1, self.memory)
+        df = self._df[:k]
+        self._gram[s, :k] = self._gram[:k, s] = df @ df[s]
         gram = self._gram[:k, :k].copy()
-        gram.flat[::k + 1] *= 1.0 + 1e-10  # a repeated residual leaves it singular
-        gamma = np.linalg.lstsq(gram, np.array([d @ f for d in self._df]), rcond=None)[0]
-        for c, d in zip(gamma, self._dg):
-            g = g - c * d
-        return g
+        # A repeated residual leaves it singular; a residual that did not change at all, zero
+        # on the diagonal (its gamma then 0). A least-squares solve would take 3x as long.
+        gram.flat[::k + 1] = gram.diagonal() * (1.0 + 1e-10) + np.finfo(float).tiny
+        gamma = np.linalg.solve(gram, df @ f)
+        return g - gamma @ self._dg[:k]
+
+
+def _block_rows(factor: sp.bsr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A triangular factor's 3 x 3 blocks [k, k blocks] as :func:`_node_factored_kernels.factor_solve`
+    reads them: per block row where its blocks off the diagonal start [k + 1], their block
+    columns [b] and values [b, 3, 3], and the diagonal blocks' inverses [k, 3, 3]."""
+    k = factor.shape[0] // 3
+    rows = np.repeat(np.arange(k), np.diff(factor.indptr))
+    diagonal = rows == factor.indices
+    inverse = np.zeros((k, 3, 3))
+    inverse[rows[diagonal]] = np.linalg.inv(factor.data[diagonal])
+    start = np.concatenate([[0], np.cumsum(np.bincount(rows[~diagonal], minlength=k))])
+    return start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), factor.data[~diagonal], inverse
 
 
 class FactoredSolve:
@@ -190,8 +204,8 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.node_rotations, _k.turned_residual, _k.turned_update, _k.warp_change, _k.dense_pgs,
-                       _jk.residual):
+        for kernel in (_k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update, _k.warp_change,
+                       _k.dense_pgs, _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
@@ -208,6 +222,11 @@ class FactoredSolve:
         self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
+        self._work = wp.zeros(k, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
+        # A node's three unit vectors (columns), whose solves are its columns of A_0^-1.
+        self._unit = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._columns_work = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._column = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation0 = wp.zeros(k, dtype=wp.mat33d, device=d)
@@ -241,7 +260,8 @@ class FactoredSolve:
                        "stiffness", "slip", "impulse")}
         self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
                           stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
-                          movable=self._movable.numpy(), blocks=state.blocks.numpy())
+                          movable=self._movable.numpy(), blocks=state.blocks.numpy(), unit=self._unit.numpy(),
+                          column=self._column.numpy())
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -262,10 +282,21 @@ class FactoredSolve:
     def _factor(self) -> None:
         """``P`` = this step's ``A`` over the solved nodes, factored; the column cache emptied."""
         a, _ = free_matrix(self.model, self.state)
-        self._lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0,
-                             options={"SymmetricMode": True})
-        self.fill = int(self._lu.L.nnz + self._lu.U.nnz)
+        lu = spla.splu(a.tocsc(), permc_spec=ORDERING, diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+        self.fill = int(lu.L.nnz + lu.U.nnz)
         self.factorizations += 1
+        d = self.model.device
+        perm_r_inverse = np.argsort(lu.perm_r).astype(np.int32)
+        self._factors: list[wp.array] = [wp.array(perm_r_inverse, dtype=wp.int32, device=d),
+                         wp.array(lu.perm_c.astype(np.int32), dtype=wp.int32, device=d)]
+        for factor in (lu.L, lu.U):
+            start, col, off, inverse = _block_rows(factor.tobsr(blocksize=(3, 3)))
+            self._factors += [wp.array(start, dtype=wp.int32, device=d), wp.array(col, dtype=wp.int32, device=d),
+                              wp.array(off, dtype=wp.mat33d, device=d), wp.array(inverse, dtype=wp.mat33d, device=d)]
+        self._solve_r, self._solve_unit = (
+            replayer(wp.launch(_k.factor_solve, dim=1, device=d, record_cmd=True,
+                               inputs=[*self._factors, rhs, work, x]))
+            for rhs, work, x in ((self._r, self._work, self._y), (self._unit, self._columns_work, self._column)))
         # R_0: the nodes' rotations now; R since is the identity.
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
@@ -312,7 +343,9 @@ class FactoredSolve:
 
     def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
         """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
-        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept."""
+        each are among the kept ones [3 len(nodes)], solved for the nodes not yet kept (a
+        node's three in one block solve: no multi-right-hand-side BLAS, whose threads spin on
+        a loaded machine)."""
         missing = nodes[self._slot[nodes] < 0]
         if len(missing):
             self._slot[missing] = self._kept // 3 + np.arange(len(missing))
@@ -320,14 +353,12 @@ class FactoredSolve:
                 grown = np.zeros((self._columns.shape[0], 2 * (self._kept + 3 * len(missing))), order="F")
                 grown[:, :self._kept] = self._columns[:, :self._kept]
                 self._columns = grown
-            unit = np.zeros((self._columns.shape[0], 3), order="F")
-            for row in 3 * self._index[missing]:
-                # One node's three columns a solve: from about nine right-hand sides SuperLU's
-                # blocked solve calls multithreaded BLAS, which on a loaded machine spins: 10x
-                # the CPU of these solves (head CT at load 8: 15 ms for nine columns, 0.7 for three).
-                unit[row:row + 3] = np.eye(3)
-                self._columns[:, self._kept:self._kept + 3] = self._lu.solve(unit)
-                unit[row:row + 3] = 0.0
+            unit, column = self._host["unit"], self._host["column"]
+            for row in self._index[missing]:
+                unit[row] = np.eye(3)
+                self._solve_unit()
+                unit[row] = 0.0
+                self._columns[:, self._kept:self._kept + 3] = column.reshape(-1, 3)
                 self._kept += 3
         return (3 * self._slot[nodes][:, None] + np.arange(3)).ravel()
 
@@ -346,11 +377,11 @@ class FactoredSolve:
 
     def _contacts(self, local: tuple) -> tuple:
         """This step's contacts the impulses can move (a solved node of nonzero weight in the
-        stencil): their rows [m], their stencils' nodes [m, s] and weights [m, s] (unused slots
-        weight 0), ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the nodes they move
-        among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m], their columns among
-        the kept ones [3 u] and ``A_0^-1`` between ``S`` of ``local`` (:meth:`_local`) and them
-        [3 s, 3 u]."""
+        stencil): their rows [m], ``W = J P^-1 J^T`` [3 m, 3 m] in their frames, the rows of the
+        nodes they move among the solved ones' velocities [3 u], ``R^T J^T`` there [3 u, 3 m],
+        their columns among the kept ones [3 u], ``A_0^-1`` between ``S`` of ``local``
+        (:meth:`_local`) and them [3 s, 3 u], their stencils' nodes (any; unused slots node 0)
+        [m t] and ``J`` over those slots [3 m, 3 m t] (frames)."""
         h = self._host
         n = min(int(h["count"][0]), len(h["impulse"]))
         nodes, weights = h["stencil_nodes"][:n], h["stencil_weights"][:n]
@@ -363,6 +394,11 @@ class FactoredSolve:
         rows = np.flatnonzero(movable)
         nodes, weights, moves = nodes[rows], weights[rows], moves[rows]
         frames = h["frame"][rows]
+        # J over the stencils' slots (block diagonal: contact c's frame times its weights).
+        each = np.arange(len(rows))
+        blocks = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
+        blocks[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
+        j = blocks.reshape(3 * len(rows), 3 * nodes.size)
         touched, inverse = np.unique(nodes[moves], return_inverse=True)
         g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
         np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
@@ -377,9 +413,9 @@ class FactoredSolve:
         w = 0.5 * (w + w.T)
         metric = h["metric"]
         metric[:n] = 0.0
-        metric[rows] = np.stack([w[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(len(rows))]) if len(rows) else 0.0
+        metric[rows] = w.reshape(len(rows), 3, len(rows), 3)[each, :, each, :]
         self._used = np.concatenate([local[1], slots])
-        return rows, nodes, weights, w, dofs, jt, slots, near
+        return rows, w, dofs, jt, slots, near, nodes.ravel(), j
 
     def _delassus(self, m: int, tolerance: float) -> dict:
         """Host views of the PGS launch's arrays (:func:`_node_factored_kernels.dense_pgs`) for
@@ -415,9 +451,8 @@ class FactoredSolve:
         self._rotations()
         self._forget_columns()
         local = self._local()
-        rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+        rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
         m = len(rows)
-        frames = h["frame"][rows]
         pgs = self._delassus(m, tolerance)
         pgs["count"][0] = m
         pgs["w"][:3 * m, :3 * m] = w
@@ -432,20 +467,20 @@ class FactoredSolve:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
                 self._factor()
                 local = self._local()
-                rows, nodes, weights, w, dofs, jt, slots, near = self._contacts(local)
+                rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
                 restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
             k += 1
             self._residual()  # R^T r
-            y = self._lu.solve(h["r"].ravel())  # A_0^-1 R^T r
+            self._solve_r()  # A_0^-1 R^T r
+            y = y_d.ravel()
             # P^-1 = R (A_0^-1 - C_S T C_S^T) R^T (Woodbury); C_S^T x = (A_0^-1 x)_S, A_0 being
             # symmetric. Both corrections go through one product with the kept columns.
             spread = np.zeros(self._kept)
             at_s = y[local[0]]
             if m:
                 at = y[dofs] - near.T @ (local[2] @ at_s)  # P^-1 r at the touched nodes, turned
-                rel = np.einsum("cs,csx->cx", weights, v[nodes])  # J v, then + J P^-1 r
-                u_f[:] = np.matmul(frames, rel[:, :, None])[:, :, 0] + (jt.T @ at).reshape(m, 3)
+                u_f[:] = (j @ v[stencil].ravel() + jt.T @ at).reshape(m, 3)  # J v + J P^-1 r
                 self._pgs()
                 self.delassus_passes += int(h["done"][0])
                 pushed = jt @ lam.ravel()  # R^T J^T lambda at the touched nodes
@@ -455,7 +490,6 @@ class FactoredSolve:
                 spread[local[1]] -= local[2] @ at_s
             if self._kept:
                 y += self._columns[:, :self._kept] @ spread
-            y_d[:] = y.reshape(-1, 3)
             self._update()  # u = v + R y
             u = h["u"].ravel().copy()
             change = float(np.abs(u - v.ravel()).max(initial=0.0))
