@@ -53,7 +53,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     # Speed of each body's mean motion relative to each other's [m/s] (``_k.near_bodies``).
     relative = wp.empty((bodies, bodies), dtype=wp.float64, device=d)
 
-    def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, ...]:
+    def body_box(start: wp.array, lower: wp.array,
+                 upper: wp.array) -> tuple[tuple[wp.array, ...], wp.array, wp.array]:
         """Which bodies' boxes each body may reach (``_k.near_bodies``: near, relative, the
         near bodies' lists and lengths) and each body's box of items ``lower``, ``upper`` [m]
         (``_k.body_bounds``), filled by launches appended to the steps."""
