@@ -4,7 +4,8 @@ spectral radius, chebyshev_rate, chebyshev_rates, tail_error), held to an indepe
 system of known spectrum: numpy.linalg.solve for the fixed point, numpy's Chebyshev
 polynomials for the rate. NodeSolve's choice of the weights a solve starts on (start_narrow,
 fell_faster) is held on a clamped FEM cube to SciPy's direct solve of eq. 5.2 and SciPy's
-eigenvectors of D_A^-1 A.
+eigenvectors of D_A^-1 A. The stop on a contact step (a settling FEM cube on a plane) is held to
+the same start swept on to 1e-9 m/s.
 
 The iteration is the sweeps' (docs/physics-core.md, eq. 5.6 with M = I, no contacts):
 v^ = v_k + (b - A v_k), v_k+1 = omega_k (gamma (v^ - v_k) + v_k - v_k-1) + v_k-1, its largest
@@ -16,6 +17,8 @@ import pytest
 import scipy.linalg as sl
 from numpy.polynomial import chebyshev as C
 
+from softvr.bench._cube_scene import CubeScene
+from softvr.bench.contact import softvr_scene
 from softvr.contact.node_jacobi import (CHEBYSHEV_RHO_FACTOR, NARROW_RETRY, NodeSolve, chebyshev_rate, chebyshev_rates,
                                         chebyshev_weights, tail_error)
 
@@ -209,3 +212,40 @@ def test_a_solve_whose_error_sits_at_the_bounds_ends_sends_the_next_onto_the_bou
     results += [_solve_from(solve, stepper, expected, free, 1e-2 * middle / np.abs(middle).max()) for _ in range(2)]
     assert all(narrow for narrow, _, _ in results[-2:]), results
     assert all(error <= TOLERANCE for _, _, error in results), results
+
+
+# The bench contact cube (`softvr bench contact`: 0.8 m, friction 0.5, dt 1/60 s) at 4 cells a side,
+# 0.1 m above the plane and 2.5x softer (E 1e5 Pa): at rest on the plane by step 20, its contacts restart
+# every step, and its solves stop in 10-20 sweeps.
+SETTLING = CubeScene(cells=4, drop=0.1, young=1e5)
+
+
+def _step_and_truth(at, monkeypatch):
+    """The cube's velocities [n, 3] m/s after step ``at``, and those of a twin played in lockstep
+    (same steps, so the same start guess and first weights) whose step ``at`` sweeps on to
+    1e-9 m/s; the sweeps of both."""
+    (sim, body), (twin, twin_body) = softvr_scene(SETTLING), softvr_scene(SETTLING)
+    for _ in range(at):
+        sim.step(SETTLING.dt)
+        twin.step(SETTLING.dt)
+    sim.step(SETTLING.dt)
+    monkeypatch.setattr("softvr.sim._node_step.SWEEP_TOLERANCE", 1e-9)
+    twin.step(SETTLING.dt)
+    return body.v.copy(), twin_body.v.copy(), sim.last_solution.iterations, twin.last_solution.iterations
+
+
+@pytest.mark.parametrize("at", [27, 30])
+def test_a_contact_steps_stop_is_within_the_tolerance_it_claims(at, monkeypatch):
+    """The sweeps of a contact step (eq. 5.6, the contacts' eq. 5.5) stop when tail_error says
+    the velocities are within TOLERANCE of the fixed point; the same start swept on to 1e-9 m/s
+    is that fixed point to 1e-9 (its own stop's claim, four decades under TOLERANCE), so
+    max |v - v*| <= TOLERANCE. On these resting steps the Chebyshev sweeps restart with the
+    contacts' transient in the iterate, and one check's change falls 5-15x in two sweeps while
+    the error does not: a tail from the last change alone stopped at sweep 12 with 1.6e-5 (step
+    27) and 1.1e-5 m/s (step 30); from the larger of the last two checks' changes carried
+    down at the rate, step 30 still 1.1e-5; from the largest of three (TAIL_CHECKS), 3.1e-6 and
+    2.1e-6 at sweep 14."""
+    v, v_star, sweeps, sweeps_star = _step_and_truth(at, monkeypatch)
+    assert sweeps_star > sweeps  # the twin's sweeps went on past the stop under test
+    error = float(np.abs(v - v_star).max())
+    assert error <= TOLERANCE, (at, sweeps, error)

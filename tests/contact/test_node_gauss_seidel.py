@@ -22,7 +22,6 @@ from softvr.contact.node_factored import free_matrix
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Coupling, EmbeddedPoints, FixedBody, Material, RigidBody, RigidPoints
-from softvr.dynamics.node_rigid import held_tool
 from softvr.sim import _node_step, _node_sweeps
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
@@ -346,48 +345,28 @@ def test_a_light_held_box_pressed_on_a_plane_by_25_contacts_solves_scipys_mlcp_o
     assert pressed[0] >= 10 and pressed[1] > 0
 
 
-def _box_scene(held: bool):
-    """A clamped FEM block (the arrays need one) and a 2.4 g box, free or on a spring to a fixed anchor."""
-    block = _block((0.3, 0.0, 0.0))
-    block.fixed[:] = True
-    box = RigidBody.box((0.04,) * 3, 300.0, position=(0.0, 0.0, 0.05), name="box")
-    anchor = FixedBody(position=(0.0, 0.0, 0.1), name="anchor")
-    scene = Scene(gravity=(0.0, 0.0, -G))
-    for body in (block, box, anchor):
-        scene.add_body(body)
-    if held:
-        scene.add_coupling(Coupling(RigidPoints(box, [[0.0, 0.0, 0.02]]), RigidPoints(anchor, [[0.0, 0.0, 0.0]]),
-                                    200.0))
-    return scene
-
-
-@pytest.mark.parametrize("held", [True, False])
-def test_a_held_tool_is_a_rigid_body_on_springs_whose_update_is_exact(held):
-    # held_tool: a rigid body whose nodes have a pair partner (a spring holds it, so its 6x6
-    # block of D_A couples them) in an island the sweeps solve exactly; a free body is not one.
-    stepper = NodeStepper(_box_scene(held))
-    assert held_tool(stepper.model) is held
-
-
-def test_with_a_held_tool_the_coarse_correction_must_be_clearly_cheaper_than_gauss_seidel(monkeypatch):
-    # The rule (choose_sweeps): the coarse correction over Gauss-Seidel at <= 0.75 of its work,
-    # <= 0.5 with a held tool (the arthroscopy at 0.77, coarse: every step at the 100-sweep
-    # cap; Gauss-Seidel 14 / 77 sweeps). A coarse estimate of 0.6 of Gauss-Seidel's work is
-    # taken without a held tool and declined with one.
+@pytest.mark.parametrize("share, kind", [(0.64, "coarse"), (0.77, "gauss-seidel"), (1.0, "gauss-seidel")])
+def test_the_coarse_correction_is_taken_over_gauss_seidel_only_at_the_shares_where_it_was_measured_to_pay(
+        monkeypatch, share, kind):
+    # Truth: the bundled scenes' measured outcomes at their coarse / Gauss-Seidel work shares
+    # (COARSE_OVER_GAUSS_SEIDEL's comment), one rule with or without a held tool: the head CT of
+    # palpation.toml (0.64) steps faster on the coarse sweeps; the arthroscopy (0.77 when it was
+    # measured: every step at the 100-sweep cap on them, Gauss-Seidel 14 / 77 sweeps) and
+    # shoulder.toml (1.0: at the cap, changes ~1e-2 m/s) do not. A coarse estimate stubbed at
+    # each share over the soft cube's Gauss-Seidel estimate, both over Jacobi's limit.
     args = _cube_choice_args(monkeypatch)
     bounds = args[-1]
     plain = _node_sweeps.choose_sweeps(*args, 25.0, 0, 2, SPECTRUM_MARGIN)
     gauss_seidel = plain.work["gauss-seidel"]
-    limit = 0.5 * min(plain.work["jacobi"], gauss_seidel)  # Jacobi over it, the coarse estimate too
+    limit = 0.5 * min(plain.work["jacobi"], share * gauss_seidel)  # Jacobi over it, the coarse estimate too
 
     def coarse_choice(a, free, coarse, jacobi_cost, margin, work):
-        work["coarse"] = 0.6 * gauss_seidel
+        work["coarse"] = share * gauss_seidel
         return _node_sweeps.SweepChoice("jacobi", bounds, None, 1.0, work, coarse=np.array([[0, 1]]))
 
     monkeypatch.setattr(_node_sweeps, "_coarse_choice", coarse_choice)
-    kinds = [_node_sweeps.choose_sweeps(*args, limit, 0, 2, SPECTRUM_MARGIN, (np.array([[0, 1]]),), held=held)
-             for held in (False, True)]
-    assert [(c.kind, c.coarse is not None) for c in kinds] == [("jacobi", True), ("gauss-seidel", False)]
+    choice = _node_sweeps.choose_sweeps(*args, limit, 0, 2, SPECTRUM_MARGIN, (np.array([[0, 1]]),))
+    assert ("coarse" if choice.coarse is not None else choice.kind) == kind
 
 
 def _dense_system(model, state, v):

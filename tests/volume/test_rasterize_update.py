@@ -90,3 +90,61 @@ def test_update_with_skipped_tets_matches_a_full_rasterization(device):
     single = r.write_counts(moved, out_grid=vol).data <= 1
     assert single.mean() > 0.95
     np.testing.assert_allclose(out.data[single], full.data[single], atol=1e-4)
+
+
+def test_update_redraws_only_the_region_the_moved_tets_reach(device):
+    """Two dents at opposite corners: the rewritten box spans both, but only the bricks their
+    moved tets' footprints reach (old and new) are redrawn. Truth: the full rasterization
+    (tolerance 0, every other node exactly still), up to the sub-grid round-off as above; a
+    sentinel voxel inside the box but far from both dents is left as it was."""
+    data = np.random.default_rng(6).random((48, 40, 36)).astype(np.float32)
+    vol = Volume(data)
+    nodes, tets = grid_tet_mesh(vol, cells=(12, 10, 9))
+    r = Rasterizer(vol, nodes, tets, device=device)
+    out = r.deform(nodes, out_grid=vol)
+    moved = _dent(_dent(nodes, np.array([6.0, 6.0, 35.5]), 2.5), np.array([41.0, 33.0, 35.5]), -2.0)
+    still = np.linalg.norm(moved - nodes, axis=1) < 1e-3
+    moved[still] = nodes[still]
+    sentinel = (20, 30, 34)
+    out.data[sentinel] = -7.0
+    lo, hi = r.update(out, moved, nodes)
+    assert np.all(lo <= sentinel) and np.all(np.asarray(sentinel) <= hi)
+    full = r.deform(moved, out_grid=vol)
+    assert out.data[sentinel] == -7.0
+    out.data[sentinel] = full.data[sentinel]
+    np.testing.assert_allclose(out.data, full.data, atol=1e-4)
+
+
+def test_node_motion_under_the_tolerance_moves_the_picture_by_at_most_twice_it():
+    """DeformedVolume with ``tolerance`` tau: each drawn voxel is the sample of a tet whose
+    nodes were drawn within tau of their drawn positions, which are within tau of the nodes
+    now, so within 2 tau of them. With x~ those nodes, the tet's map phi~ and the true map phi
+    (thesis eq. 3.1, barycentric) differ by at most 2 tau at any rest point r~ (weights >= 0
+    summing to 1), so the true rest point of the voxel lies within 2 tau |F^-1| of r~ (F: a
+    deformed tet's edge matrix over its rest one, thesis eq. 3.2). Truth: a linear volume
+    I(x) = g . x, which trilinear interpolation reproduces, so where both the incremental and a
+    full rasterization sample the mesh, |difference| <= |g| 2 tau max|F^-1| (+ float32 round-off)."""
+    from softvr.volume import DeformedVolume
+
+    n, tau = 24, 0.2
+    g = np.array([1.0, 2.0, 3.0])
+    data = (np.indices((n, n, n)).T @ g).T.astype(np.float32)
+    vol = Volume(data)
+    nodes, tets = grid_tet_mesh(vol, cells=6)
+    shown = DeformedVolume(vol, nodes, tets, tolerance=tau, device="cpu")
+    rng = np.random.default_rng(7)
+    moved, worst, lagging = nodes.copy(), 0.0, 0
+    for _ in range(12):
+        # Small steps around a dent; some nodes move less than tau a step and add up.
+        moved = moved + rng.normal(0.0, 0.08, nodes.shape) * np.exp(-np.sum((nodes - 12.0) ** 2, axis=1) / 60.0)[:, None]
+        shown.update(moved)
+        full = shown.rasterizer.deform(moved, out_grid=vol).data
+        inside = (shown.deformed.data != 0) & (full != 0)
+        lagging += int(np.sum(shown.deformed.data[inside] != full[inside]))
+        rest_edges = nodes[tets[:, 1:]] - nodes[tets[:, :1]]
+        edges = moved[tets[:, 1:]] - moved[tets[:, :1]]
+        inv_f = np.linalg.inv(np.linalg.solve(rest_edges, edges).transpose(0, 2, 1))  # F^-1 per tet
+        bound = np.linalg.norm(g) * 2 * tau * np.linalg.norm(inv_f, ord=2, axis=(1, 2)).max() + 1e-4 * data.max()
+        worst = max(worst, float(np.abs(shown.deformed.data[inside] - full[inside]).max()) / bound)
+    assert lagging > 0  # the tolerance was used
+    assert worst <= 1.0

@@ -104,10 +104,17 @@ class Player:
     fps : float
         Frames per second of the video.
     metrics : list of dict
-        One record per frame: ``frame``, ``sim_time_s``, ``step_ms`` (physics), ``stage_ms``
-        (the physics by stage, summed over the frame's steps: :data:`softvr.sim.STAGES`; the
-        rest of ``step_ms`` is the hooks), ``render_ms``, ``wall_ms`` (both), ``latency_ms``
-        (from the frame's first input read to its image: :attr:`overlap`),
+        One record per frame, its times [ms] of wall clock: ``frame``, ``sim_time_s``,
+        ``step_ms`` (the frame's sub-steps with their hooks, on whichever thread they ran: with
+        :attr:`overlap` the worker's, beside the previous frame's render), ``stage_ms`` (the
+        physics by stage, summed over the frame's steps: :data:`softvr.sim.STAGES`; the rest of
+        ``step_ms`` is the hooks), ``render_ms`` (the drawing: :meth:`update_render` and the
+        render, not the next frame's start), ``wall_ms`` (the calling thread's time in the
+        frame's :meth:`step` and :meth:`render` calls: sequential, about step + frame hooks +
+        render; with :attr:`overlap`, the wait for the step ahead + frame hooks + render + the
+        next frame's start, so the frames' ``wall_ms`` add up to a loop's time in the player and
+        a frame's is the loop's period), ``latency_ms`` (from the frame's first input read to
+        its image: :attr:`overlap`),
         ``max_penetration_m`` (deepest over the frame's steps), ``contacts`` and
         ``active_contacts`` (normal impulse > 0) of the frame's last step, ``pgs_iterations``
         (most sweeps in one step of the frame), ``pgs_residual_m_per_s``, ``kinetic_energy_j``,
@@ -132,11 +139,12 @@ class Player:
     #: sequential player's: :meth:`render` moves the renderer's surfaces and volume to this
     #: frame (:meth:`update_render`) before the step starts, and the step writes nothing the
     #: renderer reads (the rasterizer writes the volume, after the step). The frame period
-    #: becomes about max(step, render) + the frame's hooks; the latency from a frame's input
-    #: (:meth:`drive`, :meth:`haptic_tick`) to its image is that period plus the render, which
-    #: now runs a frame later (``latency_ms`` of the records). Off by default: on the 2-core
-    #: palpation it shortened the period 1.08-1.13x but raised the latency 1.6x (40 -> 64-69 ms,
-    #: docs/benchmarks.md, "Session 10"), and a lag behind the hand is what a trainer must avoid.
+    #: (``wall_ms`` of the records) becomes about max(step, render) + the frame's hooks; the
+    #: latency from a frame's input (:meth:`drive`, :meth:`haptic_tick`) to its image is that
+    #: period plus the render, which now runs a frame later (``latency_ms`` of the records).
+    #: Off by default: on the 2-core palpation it shortened the period 1.08-1.13x but raised the
+    #: latency 1.6x (40 -> 64-69 ms, docs/benchmarks.md, "Session 10"), and a lag behind the hand
+    #: is what a trainer must avoid.
     overlap: bool = False
 
     def __init__(self, scene, dt: float, steps_per_frame: int, frames: int, width: int, height: int,
@@ -161,6 +169,7 @@ class Player:
         self._ahead: Future | None = None  # the next frame's physics, stepping while this one is drawn
         # [s] perf_counter when the first input was read: of the frame stepping or to step, of the last finished one
         self._input_at = self._frame_input_at = 0.0
+        self._step_call_ms = 0.0  # [ms] the last step() call's wall time, the start of its frame's wall_ms
 
     # -- the hooks, in STEP_ORDER / FRAME_ORDER ---------------------------------------------
     def start(self) -> None:
@@ -224,6 +233,7 @@ class Player:
         each in :data:`STEP_ORDER`, then :data:`FRAME_ORDER`); returns the frame's metrics record.
         Where :meth:`render` started the sub-steps already (:attr:`overlap`), it waits for them
         and raises what they raised."""
+        called = time.perf_counter()
         if not self._started:
             self._started = True
             self.start()
@@ -233,7 +243,9 @@ class Player:
         else:
             self._read_input()
             physics = self._physics()
-        return self._finish_frame(*physics)
+        record = self._finish_frame(*physics)
+        self._step_call_ms = record["wall_ms"] = (time.perf_counter() - called) * 1e3
+        return record
 
     def _read_input(self) -> None:
         """The first sub-step's input (:data:`STEP_ORDER`'s drive and haptics), on the calling thread."""
@@ -266,7 +278,7 @@ class Player:
                       residual: float) -> dict:
         """The frame's measures, :data:`FRAME_ORDER` and its metrics record, after its sub-steps."""
         record = {"frame": self.frame, "sim_time_s": float(self.scene.time), "step_ms": step_ms,
-                  "stage_ms": stage_ms, "render_ms": 0.0, "wall_ms": step_ms}
+                  "stage_ms": stage_ms, "render_ms": 0.0, "wall_ms": 0.0}
         self._frame_input_at = self._input_at
         if self.frame_measures:
             kinetic, energy = self.energies()
@@ -316,21 +328,30 @@ class Player:
         :attr:`overlap`, the next frame's physics (its input read here first) steps on a worker
         thread meanwhile, up to :attr:`frames`; a render while it steps draws this frame again."""
         t0 = time.perf_counter()
+        ahead_s = 0.0  # [s] of the call spent reading the next frame's input and starting it
         if self._renderer is None:
             self._renderer = SurfaceRenderer(self.width, self.height, self.camera, bounds=self.bounds,
                                              **self.renderer_options())
             self.setup_render(self._renderer)
         if self._ahead is None:
             self.update_render(self._renderer)
+            started = time.perf_counter()
             self.step_ahead()
+            ahead_s = time.perf_counter() - started
         image = self._renderer.render()
+        self._drawn(t0, ahead_s)
+        return image
+
+    def _drawn(self, called: float, ahead_s: float = 0.0) -> None:
+        """Complete the last frame's record once its image is drawn: ``called`` the
+        perf_counter [s] when the drawing call began, ``ahead_s`` [s] of it spent starting the
+        next frame (:meth:`step_ahead`), which is in ``wall_ms`` but not in ``render_ms``."""
         if self.metrics:
             now = time.perf_counter()
             record = self.metrics[-1]
-            record["render_ms"] = (now - t0) * 1e3
-            record["wall_ms"] = record["step_ms"] + record["render_ms"]
+            record["render_ms"] = (now - called - ahead_s) * 1e3
+            record["wall_ms"] = self._step_call_ms + (now - called) * 1e3
             record["latency_ms"] = (now - self._frame_input_at) * 1e3
-        return image
 
     def step_ahead(self) -> None:
         """With :attr:`overlap`, frames left and none stepping yet: read the next frame's input

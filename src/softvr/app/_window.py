@@ -144,7 +144,7 @@ def play_window(player, *, timeout_s: float | None = None, screenshot=None,
                 tool.apply()
                 player.step_ahead()
             window.Render()
-            player.metrics[-1]["render_ms"] = (time.perf_counter() - t0) * 1e3
+            player._drawn(t0)
 
     def toggle(name: str):
         def flip() -> None:

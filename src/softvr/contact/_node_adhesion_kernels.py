@@ -98,7 +98,10 @@ class NodeAdhesionArrays:
     ``plane_material`` [planes], ``sphere_material`` [static spheres], ``mesh_material``
     [static meshes], ``body_two_sided`` [bodies] (1: an open surface),
     ``vertex_start`` [p + 1] / ``vertex_triangles``: each collision point's incident
-    triangles (global; none for a point that is no surface vertex)."""
+    triangles (global; none for a point that is no surface vertex); ``pair_bonded`` [bodies,
+    bodies] (int32) and ``pair_bonded_area`` [bodies, bodies] [m^2]: how many of the step's
+    vertex-triangle contacts of body a's vertices on body b's triangles adhere and their summed
+    area (:func:`count_bonded`)."""
 
     key: wp.array(dtype=wp.uint64)
     material_a: wp.array(dtype=wp.int32)
@@ -117,6 +120,8 @@ class NodeAdhesionArrays:
     body_two_sided: wp.array(dtype=wp.int32)
     vertex_start: wp.array(dtype=wp.int32)
     vertex_triangles: wp.array(dtype=wp.int32)
+    pair_bonded: wp.array2d(dtype=wp.int32)
+    pair_bonded_area: wp.array2d(dtype=wp.float64)
 
 
 @wp.func
@@ -169,7 +174,6 @@ def _prepare_contact(c: int, ad: NodeAdhesionArrays, kind: wp.array(dtype=wp.int
         else:
             key = pack_key(VERTEX_TRIANGLE, a, p - body_point_start[a], o, 0)
             mb = ad.body_material[o]
-            ar = wp.min(ar, facing(face[c], -n, point_x, triangles, ad.body_two_sided[o]))
     ad.key[c] = key
     ad.material_a[c] = ma
     ad.material_b[c] = mb
@@ -200,7 +204,8 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
             slip: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), threads: int, offset: int):
     """Per contact of the step (``threads`` threads striding over ``count[0]``, thread ``tid +
     offset``): its key, materials, area [m^2] (its feature's surface projected on the contact
-    plane, the smaller of its two sides' where both are surfaces; docs/adhesion.md; a
+    plane, the smaller of its two sides' for two edges, a vertex's own on a triangle, of which
+    :func:`share_patches` keeps one way of a face-to-face patch; docs/adhesion.md; a
     primitive contact's (kind 3) the rigid path's ``rigid_key`` and ``rigid_area`` of its row),
     intensity and slip [m] carried by key, stiffness ``A C beta^2`` [N/m]; a bonded contact's
     warm start ``impulse`` [N s] is the last step's unclamped (it may pull). A few threads, not
@@ -210,6 +215,58 @@ def prepare(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.ar
         _prepare_contact(c, ad, kind, column, point, other, face, frame, rigid_key, rigid_area, point_x, point_body,
                          body_point_start, triangles, edge_body, body_edge_start, edge_faces, area, stiffness, slip,
                          impulse)
+
+
+@wp.kernel
+def clear_bonded(ad: NodeAdhesionArrays):
+    """Zero ``ad.pair_bonded`` and ``ad.pair_bonded_area`` [bodies, bodies] (:func:`count_bonded`)."""
+    a, b = wp.tid()
+    ad.pair_bonded[a, b] = 0
+    ad.pair_bonded_area[a, b] = wp.float64(0.0)
+
+
+@wp.kernel
+def count_bonded(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
+                 point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
+                 point_body: wp.array(dtype=wp.int32), area: wp.array(dtype=wp.float64),
+                 stiffness: wp.array(dtype=wp.float64), threads: int):
+    """``ad.pair_bonded[a, b]``, ``ad.pair_bonded_area[a, b]`` [m^2]: the step's adhering
+    vertex-triangle contacts (kind 1: tracked, with an area and adhesive materials, so a bond
+    stiffness > 0 [N/m]) of body a's vertices on body b's triangles and their areas, after
+    :func:`prepare` (``threads`` threads striding over ``count[0]``, adding with atomics: one
+    launch, not split over CPU threads)."""
+    for c in range(wp.tid(), count[0], threads):
+        if kind[c] == 1 and stiffness[c] > wp.float64(0.0):
+            wp.atomic_add(ad.pair_bonded, point_body[point[c]], other[c], 1)
+            wp.atomic_add(ad.pair_bonded_area, point_body[point[c]], other[c], area[c])
+
+
+@wp.kernel
+def share_patches(ad: NodeAdhesionArrays, count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32),
+                  point: wp.array(dtype=wp.int32), other: wp.array(dtype=wp.int32),
+                  point_body: wp.array(dtype=wp.int32), stiffness: wp.array(dtype=wp.float64), threads: int,
+                  offset: int):
+    """Where two bodies bond face to face, vertex-triangle contacts are made both ways (a's
+    vertices on b's triangles, b's on a's) and each way's vertex areas tile the patch: both
+    ways together would bond it twice. Only the way with more bonded contacts adheres (the
+    finer surface's vertices, whose areas follow the patch's rim closer), on a tie the one with
+    the smaller bonded area (the other's vertex areas overhang the patch: a larger face's
+    vertices around a smaller one's edges), then body a < b; the other way's stiffness [N/m]
+    is set to 0. Its contacts keep their areas and intensities, so that their bonds follow the
+    same gaps (eqs. 4.11, 4.12) and may take over should the other way's give (``threads``
+    threads striding over ``count[0]``, thread ``tid + offset``)."""
+    for c in range(wp.tid() + offset, count[0], threads):
+        if kind[c] == 1:
+            a = point_body[point[c]]
+            o = other[c]
+            mine = ad.pair_bonded[a, o]
+            theirs = ad.pair_bonded[o, a]
+            if theirs == mine:
+                smaller = ad.pair_bonded_area[o, a] < ad.pair_bonded_area[a, o]
+                if smaller or (ad.pair_bonded_area[o, a] == ad.pair_bonded_area[a, o] and o < a):
+                    stiffness[c] = wp.float64(0.0)
+            elif theirs > mine:
+                stiffness[c] = wp.float64(0.0)
 
 
 @wp.kernel

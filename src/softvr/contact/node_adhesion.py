@@ -7,8 +7,10 @@ from the per-object path's :class:`~softvr.contact.AdhesionState` by key (kernel
 
 A contact's area is its feature's surface projected on the contact plane, as on the
 per-object path (docs/adhesion.md, "Contact areas"): a third of every incident triangle's for
-a vertex, the smaller of the two sides' where both are surfaces; a collision point that is no
-surface vertex has none and does not adhere. A rigid body's box or sphere primitive's contact
+a vertex, the smaller of the two sides' for two edges; a collision point that is no surface
+vertex has none and does not adhere. Where two bodies meet face to face, with vertex-triangle
+contacts both ways, only one way bonds (:func:`softvr.contact._node_adhesion_kernels.share_patches`),
+so that the patch counts once. A rigid body's box or sphere primitive's contact
 has the rigid path's area (a box corner its share of the face turned to the plane, a sphere
 its cap within the margin), and every side its body's or plane's adhesion.
 """
@@ -133,6 +135,9 @@ class NodeAdhesion:
         ad.vertex_start = wp.array(np.searchsorted(corners[order], np.arange(p + 1)).astype(np.int32),
                                    dtype=wp.int32, device=d)
         ad.vertex_triangles = wp.array((order // 3).astype(np.int32), dtype=wp.int32, device=d)
+        bodies = len(model.body_node_start) - 1
+        ad.pair_bonded = wp.zeros((bodies, bodies), dtype=wp.int32, device=d)
+        ad.pair_bonded_area = wp.zeros((bodies, bodies), dtype=wp.float64, device=d)
         self.arrays = ad
         self._model, self._state = model, state
         self._issued: weakref.ref | None = None  # the last state handed out, while someone holds it
@@ -143,7 +148,7 @@ class NodeAdhesion:
         has set ``gap_after``)."""
         m, st = self._model, self._state
         c, d = st.contacts, m.device
-        for kernel in (_k.prepare, _k.evolve):
+        for kernel in (_k.prepare, _k.clear_bonded, _k.count_bonded, _k.share_patches, _k.evolve):
             load_kernels(kernel, d)
         if m.rigid is not None:
             rigid_key, rigid_area = m.rigid.state.contacts.key, m.rigid.state.contacts.area
@@ -155,6 +160,16 @@ class NodeAdhesion:
                                     rigid_key, rigid_area, st.point_x, m.point_body, m.body_point_start_wp,
                                     m.triangles, m.edge_body, m.body_edge_start, m.edge_faces, c.area, c.stiffness,
                                     c.slip, c.impulse, threads], d, min_chunk=1)
+        if m.meshes:  # vertex-triangle contacts: one way of a face-to-face patch's two adheres
+            ad = self.arrays
+            contacts = [c.count, c.kind, c.point, c.other, m.point_body]
+            prepare = in_order(
+                prepare,
+                replayer(wp.launch(_k.clear_bonded, dim=ad.pair_bonded.shape, device=d, record_cmd=True,
+                                   inputs=[ad])),
+                replayer(wp.launch(_k.count_bonded, dim=threads, device=d, record_cmd=True,
+                                   inputs=[ad, *contacts, c.area, c.stiffness, threads])),
+                chunked_replayer(_k.share_patches, threads, [ad, *contacts, c.stiffness, threads], d, min_chunk=1))
         # The evolve kernel rewrites the carried table: a state handed out before and still
         # held copies its rows out first.
         evolve = [in_order(self._detach_issued,

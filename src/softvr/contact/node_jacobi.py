@@ -41,6 +41,13 @@ CHEBYSHEV_RHO_FACTOR = 0.96
 #: change of phase (a contact settling).
 RATE_SWEEPS = 4
 
+#: Checks whose largest changes the stop's tail starts from (:func:`tail_error`), each carried
+#: down at the rate: one check's change dips on contact steps. Two left a settling 4-cell cube
+#: (tests/contact/test_node_chebyshev_stop.py) 1.1e-5 m/s off against a tolerance of 1e-5; three
+#: hold it within 7e-6 over its steps 8-39, for 0.4 more sweeps a step on the bench cube and 1.3 on
+#: the candy pile.
+TAIL_CHECKS = 3
+
 #: Sweeps over which a solve judges that its first Chebyshev sweeps have slowed below the rate
 #: of the bounds' own weights (:meth:`NodeSolve.solve`), and the fewest sweeps before it does
 #: (the first sweeps of a contact step contract unevenly while the contacts take their load).
@@ -101,8 +108,14 @@ def chebyshev_rates(rho: float, rho_weights: float, count: int) -> np.ndarray:
 
 def tail_error(sweeps: list[int], changes: list[float], floor: float, window: int | None = RATE_SWEEPS) -> float:
     """The distance [m/s] of the last checked sweep's iterate from the fixed point, estimated as
-    the geometric tail ``r / (1 - r)`` times its largest change ``changes[-1]`` [m/s]: the sum of
-    the changes still to come if each is ``r`` times the one before. ``r`` is the larger of
+    the geometric tail ``r / (1 - r)`` times the largest change [m/s] of the last
+    :data:`TAIL_CHECKS` checks, each carried down to the last sweep at ``r`` a sweep
+    (``changes[j] r^(sweeps[-1] - sweeps[j])``): the sum of the changes still to come if each is
+    ``r`` times the one before. One check's change alone can dip: on a contact step a restart
+    leaves the contacts' transient in the iterate, and its change can fall 5-15x in two sweeps
+    while the error does not (the bench cube's steps 20-55: a stop on the last change alone left
+    up to 1.1e-4 m/s against a tolerance of 1e-5; from the last three checks, 0.8-1.3e-6).
+    ``r`` is the larger of
     ``floor`` (the rate the spectrum's bounds promise) and the contraction observed over the last
     ``window`` sweeps (the largest change of sweeps ``(k - window, k]`` over that of
     ``(k - 2 window, k - window]``, to the power ``1 / window``; ``sweeps`` ascending, the
@@ -112,7 +125,10 @@ def tail_error(sweeps: list[int], changes: list[float], floor: float, window: in
     alone."""
     k = sweeps[-1]
     rate = max(floor, observed_rate(sweeps, changes, k, window)) if window is not None and k >= 2 * window else floor
-    return changes[-1] * rate / (1.0 - rate) if rate < 1.0 else np.inf
+    if rate >= 1.0:
+        return np.inf
+    lead = max(c * rate ** (k - s) for s, c in zip(sweeps[-TAIL_CHECKS:], changes[-TAIL_CHECKS:]))
+    return lead * rate / (1.0 - rate)
 
 
 def observed_rate(sweeps: list[int], changes: list[float], k: int, window: int) -> float:
@@ -411,8 +427,9 @@ class NodeSolve:
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
-        ``max_sweeps``. The error left is estimated as the geometric tail of the last sweep's
-        largest change (:func:`tail_error`: a rigid body's nodes, exact, count none) at the
+        ``max_sweeps``. The error left is estimated as the geometric tail of the largest change
+        of the last :data:`TAIL_CHECKS` checks, carried down to the last (:func:`tail_error`:
+        a rigid body's nodes, exact, count none) at the
         larger of the contraction observed over the last :data:`RATE_SWEEPS` sweeps (Jacobi
         only) and the rate the weights in use promise over the bounds at that sweep since they
         (re)started (Jacobi: :func:`chebyshev_rates`, the slowest mode's ratio, ``rho`` at the

@@ -17,7 +17,7 @@ from scipy.sparse.csgraph import connected_components
 from softvr.device import load_kernels, replayer
 from softvr.dynamics import _node_rigid_kernels as _k
 
-__all__ = ["held_tool", "isolated_rigid_nodes", "record_rigid_system", "record_rigid_velocity", "rigid_islands"]
+__all__ = ["isolated_rigid_nodes", "record_rigid_system", "record_rigid_velocity", "rigid_islands"]
 
 
 def rigid_islands(model) -> list[np.ndarray]:
@@ -59,16 +59,6 @@ def isolated_rigid_nodes(model, largest: int = 2) -> np.ndarray:
         if len(island) <= largest:
             out[island] = True
     return out
-
-
-def held_tool(model, largest: int = 8) -> bool:
-    """Whether a :func:`rigid_islands` island of at most ``largest`` nodes is held by coupling
-    springs (a haptic tool on its handle, the shoulder's fingers): a rigid body whose sweep
-    update is exact though springs tie it (``model.couplings.partner`` >= 0 on its nodes), whose
-    spin about its handle, unless its coupling holds its orientation (a :class:`softvr.haptics.
-    HapticTool`'s ``angular_stiffness``), only its contacts' friction holds (free rigid bodies are not)."""
-    partner = model.couplings.partner.numpy()
-    return any(len(island) <= largest and bool((partner[island] >= 0).any()) for island in rigid_islands(model))
 
 
 def record_rigid_system(rigid, state) -> Callable[[], None]:

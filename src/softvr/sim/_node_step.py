@@ -42,7 +42,6 @@ from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, 
 from softvr.dynamics.node_couplings import record_couplings
 from softvr.collision.node_detection import record_carry, record_node_detection
 from softvr.dynamics import RigidBody
-from softvr.dynamics.node_rigid import held_tool
 from softvr.errors import InputError
 from softvr.sim._node_cloth import NODE_BODIES
 from softvr.sim._node_couplings import block_jacobi_factor
@@ -449,7 +448,7 @@ class NodeStepper:
                 self._spectrum[dt] = choose_sweeps(m.row_start.numpy(), m.block_col.numpy(), a, free, bounds,
                                                    MAX_SWEEPS_PER_DECADE, movable_contacts(m, self.state),
                                                    SWEEP_PASSES, SPECTRUM_MARGIN,
-                                                   (coarse_aggregates(m, q), q, m.mass.numpy()), held_tool(m))
+                                                   (coarse_aggregates(m, q), q, m.mass.numpy()))
             choice = self._spectrum[dt]
             factored = self._factored(dt, choice)
             if choice.kind is None and factored is None:

@@ -57,20 +57,20 @@ COARSE_NODE = 3.0
 #: its start is held).
 COARSE_PASSES = 12
 #: The coarse correction is taken over Gauss-Seidel, both over Jacobi's limit, only where it
-#: needs at most this share of Gauss-Seidel's estimated work: on the shoulder the two estimates
-#: were equal (36.8 and 36.9 Jacobi sweeps a decade) but the coarse sweeps ended its steps at
-#: the 100-sweep cap with changes of ~1e-2 m/s against Gauss-Seidel's ~3e-5 (its slowest mode
-#: is a spring-held rigid finger's, which the aggregates do not take); the head CT of
-#: palpation.toml (38.3 against 60.0) steps faster with it than per object. The arthroscopy
-#: (25.6 against 33.3, 0.77: its light probe on a handle, which Gauss-Seidel solves exactly)
-#: took the coarse sweeps at 0.8 and ran all 70 measured steps to the 100-sweep cap (0.22 mm
-#: deepest overlap); Gauss-Seidel: 14 sweeps a step before the probe touches, 77 pressing.
+#: needs at most this share of Gauss-Seidel's estimated work. One margin for every scene, held
+#: tool or not, set between the measured outcomes of the bundled scenes whose two estimates are
+#: both made (coarse / Gauss-Seidel work; main, session 11): the head CT of palpation.toml
+#: (0.64: 38.3 against 60.0) steps faster on the coarse sweeps than per object; the arthroscopy
+#: (0.86: 25.8 against 30.1, 0.77 in session 10: its light probe on a handle, which Gauss-Seidel
+#: solves exactly) took the coarse sweeps at a share of 0.8 and ran all 70 measured steps to the
+#: 100-sweep cap (0.22 mm deepest overlap; Gauss-Seidel: 14 sweeps a step before the probe
+#: touches, 77 pressing); on shoulder.toml (1.01: 35.8 against 35.5) the coarse sweeps ended its
+#: steps at the cap with changes of ~1e-2 m/s against Gauss-Seidel's ~3e-5 (its slowest mode is a
+#: spring-held rigid finger's, which the aggregates do not take). 0.75 is the geometric middle of
+#: 0.64 and 0.86 (0.74): each estimate may move ~15 % (the arthroscopy's moved 11 % since
+#: session 10) before its scene changes sweeps. The held tools need no share of their own: the
+#: scenes where the coarse sweeps cycled are above it.
 COARSE_OVER_GAUSS_SEIDEL = 0.75
-#: With a held tool (:func:`softvr.dynamics.node_rigid.held_tool`) the coarse correction is
-#: taken over Gauss-Seidel only at this share of its work: the aggregates leave the tool's spin,
-#: which Gauss-Seidel solves exactly (undamped, its contacts' extra passes), to the Jacobi sweeps,
-#: where it cycles (the arthroscopy, 0.77: every step at the 100-sweep cap on the coarse sweeps).
-COARSE_OVER_GAUSS_SEIDEL_HELD = 0.5
 
 
 @dataclass(frozen=True)
@@ -158,7 +158,7 @@ def _coarse_choice(a, free: np.ndarray, coarse: tuple, jacobi_cost: float, margi
 
 def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndarray,
                   jacobi_bounds: tuple[float, float], jacobi_limit: float, contacts: int, passes: int,
-                  margin: tuple[float, float], coarse: tuple | None = None, held: bool = False) -> SweepChoice:
+                  margin: tuple[float, float], coarse: tuple | None = None) -> SweepChoice:
     """The sweeps of least work per decade, or none (kind None) when all are too slow (Jacobi, with
     or without the coarse correction, over ``jacobi_limit`` sweeps per decade, Gauss-Seidel over
     :data:`MAX_GAUSS_SEIDEL_WORK_PER_DECADE`). ``row_start``, ``block_col``: ``A``'s block
@@ -172,8 +172,7 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
     limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the
     candy), and otherwise over Gauss-Seidel where it needs clearly less work
-    (:data:`COARSE_OVER_GAUSS_SEIDEL`; :data:`COARSE_OVER_GAUSS_SEIDEL_HELD` where ``held``:
-    the scene holds a tool on springs, :func:`softvr.dynamics.node_rigid.held_tool`)."""
+    (:data:`COARSE_OVER_GAUSS_SEIDEL`)."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
@@ -189,8 +188,7 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     lo, hi = gauss_seidel_spectrum(a, order) if len(order) else (1.0, 1.0)
     gs_bounds = (lo * margin[0], hi * margin[1])
     work["gauss-seidel"] = sweeps_per_decade(gs_bounds) * gs_cost / jacobi_cost
-    share = COARSE_OVER_GAUSS_SEIDEL_HELD if held else COARSE_OVER_GAUSS_SEIDEL
-    if "coarse" in work and work["coarse"] <= min(share * work["gauss-seidel"],
+    if "coarse" in work and work["coarse"] <= min(COARSE_OVER_GAUSS_SEIDEL * work["gauss-seidel"],
                                                   MAX_GAUSS_SEIDEL_WORK_PER_DECADE):
         return coarse_choice
     # Gauss-Seidel within its limit is taken over Jacobi's fewer work only where Jacobi may run:

@@ -334,8 +334,13 @@ class Rasterizer:
         Voxels can change only inside the old and new footprints of the tets with a node that
         moved by more than ``tolerance`` [volume units]; the box around those footprints (one
         voxel of margin) is rasterized anew, with every tet that reaches into it, and copied
-        into ``out`` (the rest of ``out`` is already right). Equal to a full :meth:`deform`
-        onto ``out``'s grid (up to the round-off of the sub-grid's origin).
+        into ``out`` (the rest of ``out`` is already right). Written in place (CPU exact spans),
+        only the 8-voxel bricks of the box that those footprints reach are redrawn (per slab of
+        8 x-planes, the rectangle around them), each tet cut to them. Equal to a full
+        :meth:`deform` onto ``out``'s grid (up to the round-off of the sub-grid's origin) for
+        ``tolerance`` 0; otherwise voxels outside the redrawn part keep tets drawn at node
+        positions within ``2 tolerance`` of the present ones (``tolerance`` since their last
+        draw, ``tolerance`` from ``previous_nodes``).
 
         Parameters
         ----------
@@ -371,7 +376,11 @@ class Rasterizer:
         origin = out.index_to_world(lo)
         if self._writes_in_place(out):
             grid = OutputGrid(tuple(int(n) for n in hi - lo + 1), out.spacing.copy(), origin, out.direction.copy())
-            self._run(x1, grid, count_writes=False, window=(out.data, lo))
+            per_tet = corners.reshape(2, len(tets), 4, 3)
+            tet_lo = np.floor(per_tet.min(axis=(0, 2))).astype(int) - 1 - lo
+            tet_hi = np.ceil(per_tet.max(axis=(0, 2))).astype(int) + 1 - lo
+            region = _moved_region(tet_lo, tet_hi, hi - lo + 1)
+            self._run(x1, grid, count_writes=False, window=(out.data, lo, region))
         else:
             sub = Volume(np.empty(tuple(hi - lo + 1), out.dtype), out.spacing.copy(), origin, out.direction.copy())
             self.deform(x1, out=sub)
@@ -403,9 +412,9 @@ class Rasterizer:
     # ---------------------------------------------------------------- internals
     def _run(self, deformed_nodes, out_grid, count_writes: bool, into: Volume | None = None,
              window: tuple | None = None) -> Volume | None:
-        """Rasterize onto ``out_grid`` (or ``into``'s grid), or, with ``window = (data, lo)``, onto
-        the box of the C-order array ``data`` [nx, ny, nz] from index ``lo`` [3] whose grid
-        ``out_grid`` is (CPU exact spans only; returns None)."""
+        """Rasterize onto ``out_grid`` (or ``into``'s grid), or, with ``window = (data, lo, region)``,
+        onto the box of the C-order array ``data`` [nx, ny, nz] from index ``lo`` [3] whose grid
+        ``out_grid`` is, only its :class:`_Region` ``region`` (CPU exact spans only; returns None)."""
         t_start = time.perf_counter()
         x1 = np.asarray(deformed_nodes)
         if x1.shape != self.nodes.shape:
@@ -458,9 +467,13 @@ class Rasterizer:
         elif len(near):
             check_tets(x1, self.tets, nodes_name="deformed_nodes")
         box = box_w.numpy()
+        if window is not None:
+            # Only the region update() redraws: what tets cover outside it is already drawn.
+            box = window[2].clip(box)
         if folded is not None and folded.any():
-            box = box.copy()
+            box = box.copy() if window is None else box
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
+        if window is not None or (folded is not None and folded.any()):
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
         dev = self.device
@@ -468,9 +481,10 @@ class Rasterizer:
             counts = wp.zeros(shape, dtype=wp.int32, device=dev)
             out = wp.empty((1, 1, 1), dtype=self._vol.dtype, device=dev)
         elif window is not None:
-            target, lo = window
+            target, lo, region = window
             box_view = target[tuple(slice(a, a + n) for a, n in zip(lo, shape))]
-            box_view.fill(self.background)
+            for i, rows, cols in region.slabs:
+                box_view[i, rows, cols] = self.background
         else:
             counts = wp.empty((0, 0, 0), dtype=wp.int32, device=dev)
             out = _background(shape, self.background, self.volume.dtype, dev, None if into is None else into.data)
@@ -674,6 +688,77 @@ def _background(shape, value: float, dtype: np.dtype, device: str, host: np.ndar
     out = wp.empty(tuple(shape), dtype=wp.dtype_from_numpy(dtype), device=device)
     out.fill_(value)
     return out
+
+
+_REGION_BRICK = 8  # [voxels] the side of the bricks that update()'s redrawn region is made of
+
+
+class _Region:
+    """The voxels of :meth:`Rasterizer.update`'s window that it redraws: in each slab of
+    ``_REGION_BRICK`` x-planes, the y-z rectangle around the bricks marked in that slab.
+
+    Parameters
+    ----------
+    marked : ndarray, shape [gx, gy, gz] bool
+        The window's bricks (brick ``(a, b, c)``: voxels ``[8 a, 8 a + 7] x ...``) a moved
+        tet's footprint reaches.
+
+    Attributes
+    ----------
+    slabs : list of 3 slices
+        Each slab's rectangle, in window voxel indices (slices may run past the window).
+    """
+
+    def __init__(self, marked: np.ndarray):
+        b, g, far = _REGION_BRICK, marked.shape[0], 2**30
+        rows, cols = np.any(marked, axis=2), np.any(marked, axis=1)  # [gx, gy], [gx, gz]
+        used = np.any(rows, axis=1)
+        # [gx, 4] voxel bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
+        rect = b * np.stack([rows.argmax(axis=1), rows.shape[1] - rows[:, ::-1].argmax(axis=1),
+                             cols.argmax(axis=1), cols.shape[1] - cols[:, ::-1].argmax(axis=1)], axis=1)
+        rect = np.where(used[:, None], rect, [far, 0, far, 0])
+        self.slabs = [(slice(a * b, (a + 1) * b), slice(r[0], r[1]), slice(r[2], r[3]))
+                      for a, r in zip(np.flatnonzero(used), rect[used])]
+        # For every slab range [a0, a1]: the x-range of its used slabs and the rectangle
+        # around theirs (lower bounds in _low, upper ones past the end in _high, [a0, a1, 3]),
+        # so that a tet's box is clipped in two look-ups.
+        slab = np.arange(g)
+        x = np.stack([np.where(used, slab * b, far), np.where(used, (slab + 1) * b, 0)], axis=1)
+        lows = np.concatenate([x[:, :1], rect[:, 0::2]], axis=1)  # [gx, 3]
+        highs = np.concatenate([x[:, 1:], rect[:, 1::2]], axis=1)
+        later = slab[None, :] >= slab[:, None]  # [a0, a]: slab a is in a range from a0
+        self._low = np.minimum.accumulate(np.where(later[..., None], lows, far), axis=1)  # [a0, a1, 3]
+        self._high = np.maximum.accumulate(np.where(later[..., None], highs, 0), axis=1)
+
+    def clip(self, box: np.ndarray) -> np.ndarray:
+        """int32 [m, 6]: each voxel box ``box`` [m, 6] (inclusive i, j, k ranges, window
+        indices, inside the window or empty) cut to the region's rectangles over its slabs;
+        empty (an upper bound under its lower) where it misses the region."""
+        g = self._low.shape[0]
+        a0 = np.clip(box[:, 0] // _REGION_BRICK, 0, g - 1)
+        a1 = np.clip(box[:, 1] // _REGION_BRICK, a0, g - 1)
+        out = box.copy()
+        out[:, 0::2] = np.maximum(box[:, 0::2], self._low[a0, a1])
+        out[:, 1::2] = np.minimum(box[:, 1::2], self._high[a0, a1] - 1)
+        empty = np.any(out[:, 1::2] < out[:, 0::2], axis=1)
+        out[empty, 1] = out[empty, 0] - 1
+        return out
+
+
+def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
+    """The :class:`_Region` of a window of ``shape`` [3] voxels covering the moved tets' voxel
+    boxes ``tet_lo``, ``tet_hi`` [t, 3] int (inclusive, window indices, may reach outside)."""
+    shape = np.asarray(shape)
+    tet_lo, tet_hi = np.maximum(tet_lo, 0), np.minimum(tet_hi, shape - 1)
+    inside = np.all(tet_lo <= tet_hi, axis=1)
+    a, b = tet_lo[inside] // _REGION_BRICK, tet_hi[inside] // _REGION_BRICK + 1
+    # Each box of bricks added as +-1 at its 8 corners; the prefix sums count the boxes on a brick.
+    dims = -(-shape // _REGION_BRICK) + 1
+    pick = (np.arange(8)[:, None] >> np.arange(3)) & 1  # [8, 3] the corners
+    c = np.where(pick[:, None, :] == 1, b, a).reshape(-1, 3)
+    sign = np.repeat(1 - 2 * (pick.sum(axis=1) & 1), len(a))
+    marks = np.bincount(np.ravel_multi_index(c.T, dims), sign, minlength=int(np.prod(dims))).reshape(dims)
+    return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
