@@ -30,29 +30,27 @@ poisson = 0.3
 density = 500.0
 alpha = 0.0
 beta = 1e-3
-[[body]]
-name = "a"
+"""
+#: One cube of the pair, turned 45 degrees about x (a) or y (b).
+CUBE = """[[body]]
+name = "{name}"
 type = "fem"
 box = [0.1, 0.1, 0.1]
 cells = [1, 1, 1]
 material = "stiff"
-rotation = [45.0, 0.0, 0.0]
-position = [0.0, 0.0, {height}]
-velocity = [0.0, 0.0, -0.5]
-[[body]]
-name = "b"
-type = "fem"
-box = [0.1, 0.1, 0.1]
-cells = [1, 1, 1]
-material = "stiff"
-rotation = [0.0, 45.0, 0.0]
+rotation = {rotation}
+{rest}
 """
 
 
 def _closest_centres(tmp_path, key: str) -> float:
     """The smallest z distance [m] between the crossed cubes' centres over 40 steps of 5 ms."""
     path = tmp_path / "crossed.toml"
-    path.write_text(CROSSED.format(key=key, height=2 * HALF * np.sqrt(2) + 0.004))
+    height = 2 * HALF * np.sqrt(2) + 0.004
+    path.write_text(CROSSED.format(key=key)
+                    + CUBE.format(name="a", rotation=[45.0, 0.0, 0.0],
+                                  rest=f"position = [0.0, 0.0, {height}]\nvelocity = [0.0, 0.0, -0.5]")
+                    + CUBE.format(name="b", rotation=[0.0, 45.0, 0.0], rest=""))
     scene = load_scene(path, frames=1, width=32, height=32).scene
     a, b = scene.bodies
     closest = np.inf
