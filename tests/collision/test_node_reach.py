@@ -16,6 +16,14 @@ pair is within reach iff g < margin + v dt (the reach of b's edge is v dt relati
 motion, all of it a's). The contact's gap is g to float32 rounding of the positions (the edge
 BVHs are float32: |x| <= 0.2 m, 1e-7 relative -> ~1e-7 m; 1e-6 m allowed). A third cube far
 off is never met: its box is the case the broad phase skips.
+
+A body's reach is bounded from its points' speeds relative to its own mean motion (its
+spread) plus the other body's mean motion relative to it. Truth for a deforming body: the
+upper cube's bottom corners fall at s, its top corners are still (both cubes also slide
+sideways at a common U, which moves neither relative to the other): a bottom corner's reach
+towards the lower cube is margin + dt s, though the upper body's mean moves at s / 2 relative
+to the lower. Edges likewise: cube b's top edge rises at s towards a, its other corners still:
+the edge's reach is margin + dt s, b's mean moving s / 4.
 """
 
 import numpy as np
@@ -32,6 +40,7 @@ HALF = 0.02  # [m]
 GAP = 0.004  # [m] between the crossing edges
 MARGIN = 0.001  # [m]
 DT = 0.01  # [s]
+SLIDE = np.array([0.5, 0.0, 0.0])  # [m/s] both cubes' common motion in the deforming cases
 
 
 def _cube(centre, rotvec, name):
@@ -42,14 +51,19 @@ def _cube(centre, rotvec, name):
     return FemBody(nodes, tets, Material(1e6, 0.3, 1000.0), name=name)
 
 
-def _vertex_gaps(speed):
+def _vertex_gaps(speed, squeeze=False):
     """Gaps [m] of the first step's vertex-triangle contacts by body (side a), the upper cube
-    (body 1) falling at ``speed`` onto the lower (body 0)."""
+    (body 1) falling at ``speed`` onto the lower (body 0); ``squeeze``: only its bottom
+    corners fall, and both cubes slide sideways at SLIDE."""
     scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.0, edge_contacts=False, contact_margin=MARGIN)
     lower = _cube((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), "lower")
     upper = _cube((0.0, 0.0, 2 * HALF + GAP), (0.0, 0.0, 0.0), "upper")
     far = _cube((0.15, 0.15, 0.0), (0.0, 0.0, 0.0), "far")
     upper.v[:] = (0.0, 0.0, -speed)
+    if squeeze:
+        upper.v[upper.q[:, 2] > 2 * HALF + GAP] = 0.0
+        lower.v[:] += SLIDE
+        upper.v[:] += SLIDE
     for body in (lower, upper, far):
         scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(8)[:, None], np.ones((8, 1))),
                        collision_triangles=boundary_faces(body.tets))
@@ -76,13 +90,17 @@ def test_a_vertex_beyond_the_reach_meets_nothing():
     assert not any(gaps.values())
 
 
-def _edge_gaps(speed):
-    """Gaps [m] of the first step's edge-edge contacts between cubes a and b, a falling at ``speed``."""
+def _edge_gaps(speed, rise=False):
+    """Gaps [m] of the first step's edge-edge contacts between cubes a and b, a falling at
+    ``speed``; ``rise``: a still, b's top edge rising at ``speed`` instead."""
     scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.0, edge_contacts=True, contact_margin=MARGIN)
     b = _cube((0.0, 0.0, 0.0), (0.0, np.pi / 4, 0.0), "b")
     a = _cube((0.0, 0.0, 2 * HALF * np.sqrt(2) + GAP), (np.pi / 4, 0.0, 0.0), "a")
     far = _cube((0.15, 0.15, 0.0), (0.0, 0.0, 0.0), "far")
-    a.v[:] = (0.0, 0.0, -speed)
+    if rise:
+        b.v[b.q[:, 2] > b.q[:, 2].max() - 1e-9] = (0.0, 0.0, speed)
+    else:
+        a.v[:] = (0.0, 0.0, -speed)
     for body in (b, a, far):
         faces = boundary_faces(body.tets)
         scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(8)[:, None], np.ones((8, 1))),
@@ -105,3 +123,19 @@ def test_an_edge_pair_within_the_motion_grown_reach_is_found(speed):
 def test_an_edge_pair_beyond_the_reach_is_not_found():
     # MARGIN + DT 0.2 = 0.003 m < GAP.
     assert len(_edge_gaps(0.2)) == 0
+
+
+def test_a_deforming_body_reaches_as_far_as_its_fastest_vertex():
+    # Bottom corners: MARGIN + DT 0.5 = 0.006 m > GAP; the upper mean's motion alone,
+    # MARGIN + DT 0.25 = 0.0035 m, is < GAP: so is the lower corners' reach.
+    gaps = _vertex_gaps(0.5, squeeze=True)
+    assert len(gaps[1]) == 4
+    np.testing.assert_allclose(gaps[1], GAP, atol=1e-6)
+    assert not gaps[0] and not gaps[2]
+
+
+def test_a_deforming_body_reaches_as_far_as_its_fastest_edge():
+    # b's top edge: MARGIN + DT 0.5 = 0.006 m > GAP; b's mean motion alone, MARGIN + DT 0.125 < GAP.
+    gaps = _edge_gaps(0.5, rise=True)
+    assert len(gaps) >= 1
+    assert np.min(np.abs(gaps - GAP)) < 1e-6

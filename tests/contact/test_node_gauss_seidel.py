@@ -19,6 +19,7 @@ from softvr import Scene
 from softvr.collision import Plane
 from softvr.contact.node_colouring import colour_nodes
 from softvr.contact.node_factored import free_matrix
+from softvr.contact import node_gauss_seidel
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Coupling, EmbeddedPoints, FixedBody, Material, RigidBody, RigidPoints
@@ -203,7 +204,8 @@ def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(mon
     assert limited.kind == "gauss-seidel"
 
 
-def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order():
+@pytest.mark.parametrize("colour_chunk", [node_gauss_seidel.COLOUR_CHUNK, 4])
+def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeypatch, colour_chunk):
     """One sweep's node update (kernels of softvr.contact._node_gs_kernels, the rows read from
     their colour-ordered copy) against the sweep written out in NumPy on A, b of eq. 5.2 as
     the per-object path assembles them (SciPy): colours forward, x_i = A_ii^-1 (b_i -
@@ -211,7 +213,10 @@ def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order():
     (1 - omega) v_i + omega A_ii^-1 (b_i - sum_{j != i} A_ij x_j), from the swept x; colours
     backward. No contact projects anything. Tolerance: each update is a sum of at most 27
     block products in f64, so it carries a rounding of ~81 eps times the sum of the magnitudes
-    of its terms (Higham, dot products: gamma_n); 4x that, over both halves, per node."""
+    of its terms (Higham, dot products: gamma_n); 4x that, over both halves, per node. Both
+    ways of launching the colours: one launch walking them all (no colour split over the
+    CPU cores) and one a colour, split (``COLOUR_CHUNK`` 4)."""
+    monkeypatch.setattr(node_gauss_seidel, "COLOUR_CHUNK", colour_chunk)
     body = _stiff_block(cells=3)
     rng = np.random.default_rng(2)
     body.v = 0.05 * rng.standard_normal(body.q.shape)

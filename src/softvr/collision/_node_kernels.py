@@ -83,32 +83,33 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
 
 @wp.kernel
 def body_motion(body_point_start: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
-                body_mean_u: wp.array(dtype=wp.vec3d), body_top_speed: wp.array(dtype=wp.float64)):
+                body_mean_u: wp.array(dtype=wp.vec3d), body_spread: wp.array(dtype=wp.float64)):
     """Mean predicted velocity [m/s] of body ``b``'s collision points (the vertex queries
     sweep a vertex relative to it, as :func:`softvr.collision.surface_vs_surface` does), and
-    the largest of their speeds [m/s] (:func:`near_bodies`)."""
+    the largest speed [m/s] of a point relative to it (:func:`near_bodies`): bodies at rest
+    all fall by ``dt g`` in the prediction, which the points' own speeds counted on every
+    body (8 mm of reach at the shoulder's 20 ms), their relative speeds not."""
     b = wp.tid()
     u = wp.vec3d()
-    top = wp.float64(0.0)
     first = body_point_start[b]
     last = body_point_start[b + 1]
     for p in range(first, last):
         u = u + point_u[p]
-        top = wp.max(top, wp.length(point_u[p]))
     if last > first:
         u = u / wp.float64(last - first)
+    spread = wp.float64(0.0)
+    for p in range(first, last):
+        spread = wp.max(spread, wp.length(point_u[p] - u))
     body_mean_u[b] = u
-    body_top_speed[b] = top
+    body_spread[b] = spread
 
 
 @wp.kernel
 def body_bounds(body_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3),
-                body_mean_u: wp.array(dtype=wp.vec3d), body_lower: wp.array(dtype=wp.vec3),
-                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64)):
+                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)):
     """Body ``b``'s box [m]: the union of the boxes (``lower``, ``upper``) of its items
     ``body_start[b] : [b + 1]`` (its edges: its edge BVH's root box after the refit; or its
-    collision points, as both: a box holding every triangle of its surface mesh); and the speed
-    [m/s] of its mean motion."""
+    collision points, as both: a box holding every triangle of its surface mesh)."""
     b = wp.tid()
     lo = wp.vec3(1.0e30, 1.0e30, 1.0e30)
     hi = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
@@ -117,7 +118,6 @@ def body_bounds(body_start: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.v
         hi = wp.max(hi, upper[e])
     body_lower[b] = lo
     body_upper[b] = hi
-    body_speed[b] = wp.length(body_mean_u[b])
 
 
 @wp.func
@@ -131,33 +131,45 @@ def _off_box(lo: wp.vec3, hi: wp.vec3, grow: float, box_lower: wp.vec3, box_uppe
 
 @wp.kernel
 def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(dtype=wp.vec3),
-                body_upper: wp.array(dtype=wp.vec3), body_speed: wp.array(dtype=wp.float64),
-                body_top_speed: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
-                near: wp.array2d(dtype=wp.float32)):
-    """``near[a, b]`` [m]: a bound of the reach of any item of body a towards body b, margin +
-    dt (a's largest point speed ``body_top_speed`` + b's mean speed ``body_speed``), where a
-    and b make contacts and a's box (``body_lower``, ``body_upper`` [m], :func:`body_bounds`)
-    grown by it meets b's box; else -1. An item of a lies in a's box and moves no faster, so its
-    own box test (:func:`vertex_triangle`, :func:`edge_edge`: the same bound with its own
-    speed) misses b wherever its box grown by ``near[a, b]`` does, and that test needs neither
-    its speed nor b's: an item that no body passes is done on a few reads. 1.01 and 2e-6 m (vs
-    their 1.001 and 1e-6 m) cover the two formulas' different float32 / float64 rounding."""
-    a, b = wp.tid()
-    near[a, b] = -1.0
-    if pair_enabled[a, b] != 0:
-        bound = float((margin + dt * (body_top_speed[a] + body_speed[b])) * wp.float64(1.01)) + 2.0e-6
-        if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
-            near[a, b] = bound
+                body_upper: wp.array(dtype=wp.vec3), body_mean_u: wp.array(dtype=wp.vec3d),
+                body_spread: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
+                near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32)):
+    """Row a (thread a): ``relative[a, b]`` [m/s]: the speed of b's mean motion relative to a's; ``near[a, b]``
+    [m]: a bound of the reach of any item of body a towards body b, margin + dt (a's largest
+    point speed relative to a's mean ``body_spread`` + ``relative[a, b]``; an item's speed
+    relative to b is at most that), where a and b make contacts and a's box (``body_lower``,
+    ``body_upper`` [m], :func:`body_bounds`) grown by it meets b's box; else -1. An item of a
+    lies in a's box and moves no faster, so its own box test (:func:`vertex_triangle`,
+    :func:`edge_edge`: the same bound with its own speed) misses b wherever its box grown by
+    ``near[a, b]`` does, and that test needs neither its speed nor b's: an item that no body
+    passes is done on a few reads. 1.01 and 2e-6 m (vs their 1.001 and 1e-6 m) cover the two
+    formulas' different float32 / float64 rounding. ``near_list[a, :near_len[a]]``: the bodies
+    b of ``near[a, b]`` >= 0, ascending (an item loops over those, 1-2 of the shoulder's 15)."""
+    a = wp.tid()
+    count = int(0)
+    for b in range(near.shape[1]):
+        near[a, b] = -1.0
+        relative[a, b] = wp.length(body_mean_u[b] - body_mean_u[a])
+        if pair_enabled[a, b] != 0:
+            bound = float((margin + dt * (body_spread[a] + relative[a, b])) * wp.float64(1.01)) + 2.0e-6
+            if not _off_box(body_lower[a], body_upper[a], bound, body_lower[b], body_upper[b]):
+                near[a, b] = bound
+                near_list[a, count] = b
+                count += 1
+    near_len[a] = count
 
 
 @wp.func
 def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dtype=wp.float32),
+               near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)) -> int:
     """How many bodies b >= ``first`` box [lo, hi] (an item of body a) may reach by
-    :func:`near_bodies`' bound."""
+    :func:`near_bodies`' bound (walking a's list of near bodies)."""
     count = int(0)
-    for b in range(first, near.shape[1]):
-        if near[a, b] >= 0.0:
+    for k in range(near_len[a]):
+        b = near_list[a, k]
+        if b >= first:
             if not _off_box(lo, hi, near[a, b], body_lower[b], body_upper[b]):
                 count += 1
     return count
@@ -166,36 +178,40 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
 @wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                    near: wp.array2d(dtype=wp.float32), mesh_ids: wp.array(dtype=wp.uint64),
-                    body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-                    body_speed: wp.array(dtype=wp.float64),
-                    margin: wp.float64, dt: wp.float64, hit: wp.array2d(dtype=wp.int32),
-                    hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
-                    hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64), offset: int):
+                    near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                    near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                    mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
+                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32), offset: int):
     """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
     point within the margin plus the vertex's relative motion [m]; the normal points out of
     that body (towards the vertex), the gap [m] is negative inside it (by the closest
     feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
     box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
-    reach, margin + dt (|u| + b's mean speed ``body_speed``), holds no face within it and is
-    not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
+    reach, margin + dt (|u - a's mean| + ``relative[a, b]``, :func:`near_bodies`), holds no
+    face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
     is one that makes no contacts with the vertex's body or that its body's bound misses
-    (``near``, :func:`near_bodies`), tested first."""
+    (``near``, :func:`near_bodies`), tested first. ``point_hit[p]``: 1 if the vertex met some
+    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only); a row is
+    nonzero only where it is 1, so only those rows are cleared the next time (B writes a
+    vertex, most of them 0 already)."""
     p = wp.tid() + offset
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    for b in range(mesh_ids.shape[0]):
-        hit[p, b] = 0
-    if near_count(a, 0, xf, xf, near, body_lower, body_upper) == 0:
+    if point_hit[p] != 0:
+        for b in range(mesh_ids.shape[0]):
+            hit[p, b] = 0
+    point_hit[p] = 0
+    if near_count(a, 0, xf, xf, near, near_list, near_len, body_lower, body_upper) == 0:
         return
-    speed = wp.length(point_u[p])
-    for b in range(mesh_ids.shape[0]):
-        close = False
-        if near[a, b] >= 0.0:
-            bound = float((margin + dt * (speed + body_speed[b])) * wp.float64(1.001)) + 1.0e-6
-            close = not _off_box(xf, xf, bound, body_lower[b], body_upper[b])
-        if close:
+    speed = wp.length(point_u[p] - body_mean_u[a])
+    for k in range(near_len[a]):
+        b = near_list[a, k]
+        bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
+        if not _off_box(xf, xf, bound, body_lower[b], body_upper[b]):
             reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
             query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
             if query.result:
@@ -209,6 +225,7 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                 if dist > wp.float64(NORMAL_FROM_OFFSET):
                     n = away / dist * sign
                 hit[p, b] = 1
+                point_hit[p] = 1
                 hit_face[p, b] = query.face
                 u = wp.float64(query.u)
                 w = wp.float64(query.v)
@@ -304,10 +321,9 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
 def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-              near: wp.array2d(dtype=wp.float32), bvh_ids: wp.array(dtype=wp.uint64),
-              body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-              body_speed: wp.array(dtype=wp.float64),
-              normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
+              near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
@@ -323,8 +339,9 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
 
     A query box off body b's box (``body_lower``, ``body_upper``: the union of its edges'
     boxes, :func:`body_bounds`) finds nothing in b's BVH, so it is not made; and the
-    reach is first bounded by margin + dt (the ends' largest speed + b's mean speed
-    ``body_speed``) (|u - mean| <= |u| + |mean|), so that the far bodies (most pairs on the
+    reach is first bounded by margin + dt (the ends' largest speed relative to a's mean +
+    ``relative[a, b]``, :func:`near_bodies`) (|u - b's mean| <= |u - a's mean| + |a's mean -
+    b's mean|), so that the far bodies (most pairs on the
     candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and
     a query. A body's slots are written only where they may change (its first slot not -1:
     last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
@@ -341,18 +358,19 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     q1 = point_x32[edges[i, 1]]
     box_lo = wp.min(p1, q1)
     box_hi = wp.max(p1, q1)
-    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, body_lower, body_upper) == 0:
+    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, body_lower, body_upper) == 0:
         found[i] = 0  # no slot to clear, no body to query (most edges)
         return
     u0 = point_u[edges[i, 0]]
     u1 = point_u[edges[i, 1]]
-    speed = wp.max(wp.length(u0), wp.length(u1))
+    own = body_mean_u[a]
+    speed = wp.max(wp.length(u0 - own), wp.length(u1 - own))
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
         close = False
         if near[a, b] >= 0.0:
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
-            bound = (margin + dt * float(speed + body_speed[b])) * 1.001 + 1.0e-6
+            bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
             close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
         if close or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
             for k in range(pairs_per_edge):
@@ -479,8 +497,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                     static_gap: wp.array2d(dtype=wp.float32), mesh_friction: wp.array(dtype=wp.float64),
                     surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
                     hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
-                    hit_gap: wp.array2d(dtype=wp.float64), edges: wp.array2d(dtype=wp.int32),
-                    pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32),
+                    edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
                     pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
                     edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
                     edge_found: wp.array(dtype=wp.int32), edge_found_before: wp.array(dtype=wp.int32),
@@ -490,7 +508,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
     plane) pair by plane, then point (the per-object path's order), then every (point, static
     sphere) pair the same way (:func:`softvr.collision.points_vs_sphere`: gap and normal along
     the radius through the point), then every (point, static mesh) hit (``static_*``, from
-    :func:`point_static_mesh`), then every (vertex, body) hit by vertex, then body, then every
+    :func:`point_static_mesh`), then every (vertex, body) hit (of the vertices ``point_hit``
+    marks) by vertex, then body, then every
     edge pair by edge a, then slot; a point meets the planes within its ``plane_margin`` [m]
     (-inf: never, a rigid primitive's point), the statics within its ``point_margin`` [m].
     ``other`` is the plane, sphere or mesh, or the body whose
@@ -538,6 +557,8 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
                               carried, point_nodes, point_weights)
                 n_out += 1
     for p in range(hit.shape[0]):
+        if point_hit[p] == 0:  # (most vertices: their row of B bodies is not read)
+            continue
         for b in range(hit.shape[1]):
             if hit[p, b] != 0 and n_out < capacity:
                 t = body_triangle_start[b] + hit_face[p, b]

@@ -49,33 +49,41 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        c.static_normal, c.static_gap], d, min_chunk=256))
     bodies = len(model.body_node_start) - 1
 
-    top_speed = wp.zeros(bodies, dtype=wp.float64, device=d)
+    spread = wp.zeros(bodies, dtype=wp.float64, device=d)
+    # Speed of each body's mean motion relative to each other's [m/s] (``_k.near_bodies``).
+    relative = wp.empty((bodies, bodies), dtype=wp.float64, device=d)
 
-    def body_box(start: wp.array, lower: wp.array, upper: wp.array) -> tuple[wp.array, ...]:
-        """Each body's box of items ``lower``, ``upper`` [m], its mean speed [m/s]
-        (``_k.body_bounds``) and which bodies' boxes it may reach (``_k.near_bodies``), filled
-        by launches appended to the steps."""
-        out = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d),
-               wp.empty(bodies, dtype=wp.float64, device=d))
-        near = wp.empty((bodies, bodies), dtype=wp.float32, device=d)
+    def body_box(start: wp.array, lower: wp.array,
+                 upper: wp.array) -> tuple[tuple[wp.array, ...], wp.array, wp.array]:
+        """Which bodies' boxes each body may reach (``_k.near_bodies``: near, relative, the
+        near bodies' lists and lengths) and each body's box of items ``lower``, ``upper`` [m]
+        (``_k.body_bounds``), filled by launches appended to the steps."""
+        box = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d))
+        near = (wp.empty((bodies, bodies), dtype=wp.float32, device=d), relative,
+                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d))
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
-                                        inputs=[start, lower, upper, state.body_mean_u, *out])))
-        steps.append(replayer(wp.launch(_k.near_bodies, dim=(bodies, bodies), device=d, record_cmd=True,
-                                        inputs=[model.pair_enabled, *out, top_speed, float(margin), float(dt), near])))
-        return (near, *out)
+                                        inputs=[start, lower, upper, *box])))
+        steps.append(replayer(wp.launch(_k.near_bodies, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[model.pair_enabled, *box, state.body_mean_u, spread, float(margin),
+                                                float(dt), *near])))
+        return (near, *box)
 
     if model.meshes or model.bvhs:  # (the vertex and edge queries read both)
         steps.append(replayer(wp.launch(_k.body_motion, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_point_start_wp, state.point_u, state.body_mean_u,
-                                                top_speed])))
+                                                spread])))
+    # Per point, whether vertex_triangle found a hit (0 where it does not run); a row of c.hit
+    # is nonzero only where it is 1 (vertex_triangle clears those rows only).
+    point_hit = wp.zeros(c.hit.shape[0], dtype=wp.int32, device=d)
+    c.hit.zero_()
     if model.meshes:
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
-        steps.append(_refit_reached(model.meshes, model.mesh_ids, near, later=False))
+        steps.append(_refit_reached(model.meshes, model.mesh_ids, near[0], later=False))
         steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
                                       [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       near, model.mesh_ids, *point_box, float(margin), float(dt),
-                                       c.hit,
-                                       c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap], d, min_chunk=256))
+                                       *near, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
+                                      min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
     found = [wp.full(max(model.edges.shape[0], 1), 1, dtype=wp.int32, device=d) for _ in range(2)]
     if model.bvhs:
@@ -88,10 +96,10 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
-        steps.append(_refit_reached(model.bvhs, model.bvh_ids, near, later=True))
+        steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                       state.point_u, state.body_mean_u, near, model.bvh_ids,
+                                       state.point_u, state.body_mean_u, *near, model.bvh_ids,
                                        *edge_box,
                                        state.edge_normal, state.edge_sharp, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
@@ -104,7 +112,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                 model.plane_margin, model.point_body, model.triangles, model.body_triangle_start, model.plane_normal, model.plane_offset,
                 model.plane_friction, model.sphere_center, model.sphere_radius, model.sphere_friction, c.static_hit,
                 c.static_normal, c.static_gap, model.static_mesh_friction, float(friction), c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap,
-                model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
+                point_hit, model.edges, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, c.edge_carried, c.edge_partner,
                 *found, float(dt), c.capacity, c.carried, c.count, out])))
     if model.rigid is not None:
         steps.append(record_rigid_contacts(model, state, dt))
@@ -131,10 +139,14 @@ def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool)
     owner = ids.numpy()
     body = [int(np.flatnonzero(owner == s.id)[0]) for s in structures]
     reach = near.numpy()
+    # The (a, b) entries that count: a < b for the edge queries (one mask, not a slice and a
+    # max a structure: ~2 us each, 28 a shoulder step).
+    counted = np.triu(np.ones(reach.shape, bool), k=1) if later else np.ones(reach.shape, bool)
 
     def refit() -> None:
+        reached = ((reach >= 0) & counted).any(axis=0)
         for s, b in zip(structures, body):
-            if (reach[:b, b] if later else reach[:, b]).max(initial=-1.0) >= 0:
+            if reached[b]:
                 s.refit()
 
     return refit

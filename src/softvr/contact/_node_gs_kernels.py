@@ -71,6 +71,30 @@ def gather_off_blocks(blocks: wp.array(dtype=wp.mat33d), off_source: wp.array(dt
     off_blocks[k] = blocks[off_source[k]]
 
 
+@wp.func
+def _colour_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                 off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                 off_blocks: wp.array(dtype=wp.mat33d), last: int, w: wp.array(dtype=wp.vec3d),
+                 v_hat: wp.array(dtype=wp.vec3d)):
+    """Steps 1 and 4 for node ``order[t]`` (:func:`gauss_seidel`)."""
+    i = order[t]
+    if contact_node[i] != 0:
+        return
+    value = fixed_velocity[i]
+    if fixed[i] == 0:
+        if partner[i] >= 0:
+            value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+        else:
+            value = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
+    w[i] = value
+    if last != 0:
+        v_hat[i] = value
+
+
 @wp.kernel
 def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
@@ -84,19 +108,36 @@ def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=
     are not contact nodes (neighbours not yet updated hold the sweep's start); on their
     ``last`` update of the sweep, ``v_hat`` [m/s] too. A node without a pair partner reads its
     row from the colour-ordered off-diagonal copy (``off_*``, :func:`gather_off_blocks`)."""
-    t = first + wp.tid() + offset
-    i = order[t]
-    if contact_node[i] != 0:
-        return
-    value = fixed_velocity[i]
-    if fixed[i] == 0:
-        if partner[i] >= 0:
-            value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
-        else:
-            value = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
-    w[i] = value
-    if last != 0:
-        v_hat[i] = value
+    _colour_node(first + wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed,
+                 fixed_velocity, contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
+
+
+@wp.kernel
+def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                      blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                      partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+                      b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                      fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
+                      order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
+                      off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
+                      colour_start: wp.array(dtype=wp.int32), backward: int, last: int, v: wp.array(dtype=wp.vec3d),
+                      w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Steps 1 (``backward`` 0: colours 0 .. C-1, after ``w = v`` [m/s], :func:`start`) or 4
+    (C-1 .. 0) in one thread, colour ``c`` being the nodes ``order[colour_start[c] :
+    colour_start[c + 1]]`` walked in that order, as a one-chunk CPU launch of
+    :func:`gauss_seidel` walks them: the same updates in the same order, so the same bits, in
+    one launch instead of one a colour (and one for the start)."""
+    if backward == 0:
+        for i in range(v.shape[0]):
+            w[i] = v[i]
+    colours = colour_start.shape[0] - 1
+    for k in range(colours):
+        c = k
+        if backward != 0:
+            c = colours - 1 - k
+        for t in range(colour_start[c], colour_start[c + 1]):
+            _colour_node(t, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                         contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
 
 
 @wp.kernel

@@ -18,11 +18,11 @@ import warp as wp
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
-from softvr.device import chunked_replayer, in_order, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, replayer
 from softvr.dynamics.node_rigid import isolated_rigid_nodes, rigid_islands
 
-__all__ = ["ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep", "gauss_seidel_spectrum",
-           "off_diagonal_rows"]
+__all__ = ["COLOUR_CHUNK", "ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep",
+           "gauss_seidel_spectrum", "off_diagonal_rows"]
 
 #: A contact without impulse or adhesion sleeps through a step's sweeps (its nodes take the
 #: Gauss-Seidel update, not the contact nodes' damped Jacobi one) while its normal velocity at
@@ -38,6 +38,9 @@ ISLAND_NODES = 8
 #: sweeps. Measured (`diag.py`, 60 / 70 steps, in-contact steps): the same sweeps as 10
 #: passes over every contact; palpation steps 39-59 ~95 -> ~73 sweeps with the exact update.
 TOOL_PASSES = 8
+#: A colour's launch is split over the CPU cores from twice this many nodes
+#: (:func:`softvr.device.chunked_replayer`'s ``min_chunk``).
+COLOUR_CHUNK = 1024
 
 
 class GaussSeidelSweep:
@@ -138,6 +141,7 @@ class GaussSeidelSweep:
                 _k.island_metric, dim=len(islands), device=d, record_cmd=True,
                 inputs=[*self._islands, model.couplings.partner, self._island_inverse, self.metric, self.cross_metric])))
         self._colouring = colouring
+        self._colour_start: wp.array = wp.array(colouring.start, dtype=wp.int32, device=d)
         # The colour passes read the rows in colour order: a copy of the off-diagonal blocks
         # laid out that way (gathered once a step) reads them one after the other.
         off_start, off_col, off_source = off_diagonal_rows(model.row_start.numpy(), model.block_col.numpy(),
@@ -189,7 +193,20 @@ class GaussSeidelSweep:
 
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
-                                    [*rows, *off, int(start[c]), last, w, st.v_hat], d)
+                                    [*rows, *off, int(start[c]), last, w, st.v_hat], d, min_chunk=COLOUR_CHUNK)
+
+        # On the CPU, where no colour is split over the cores, one launch walks all colours
+        # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
+        walk = wp.get_device(d).is_cpu and (cpu_workers() == 1 or np.diff(start).max(initial=0) < 2 * COLOUR_CHUNK)
+
+        def colours(last: int) -> list:
+            """The colours' updates of the sweep's first (``last`` 0, colours ascending, from
+            ``w = v``) or second half (descending)."""
+            if walk:
+                return [replayer(wp.launch(_k.gauss_seidel_walk, dim=1, device=d, record_cmd=True,
+                                           inputs=[*rows, *off, self._colour_start, last, last, v, w, st.v_hat]))]
+            return [colour(c, last) for c in (range(count) if last == 0 else range(count - 1, -1, -1))
+                    if start[c + 1] > start[c]]
 
         def islands(last: int) -> list:
             if self._islands is None:
@@ -210,12 +227,12 @@ class GaussSeidelSweep:
                                                c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
                                                c.rigid_lever, c.impulse, self._island_force, w, st.v_hat]))]
 
-        replays = [chunked_replayer(_k.start, n, [v, w], d)]
-        replays += [colour(c, 0) for c in range(count) if start[c + 1] > start[c]] + islands(0)
+        replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
+        replays += colours(0) + islands(0)
         replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d), *touched(),
                     contacts,
                     chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
-        replays += [colour(c, 1) for c in range(count - 1, -1, -1) if start[c + 1] > start[c]] + islands(1)
+        replays += colours(1) + islands(1)
         return in_order(*replays)
 
 

@@ -310,6 +310,7 @@ class Simulation(_Table):
     gravity: Annotated[tuple | None, vector(3, "m/s^2", plausible=PLAUSIBLE["speed"])] = _SCENE["gravity"]   # [m/s^2]
     friction: Annotated[float | None, number(minimum=0.0)] = _SCENE["friction"]
     pgs_iterations: Annotated[int | None, count("pgs_iterations", 1)] = _SCENE["pgs_iterations"]
+    pgs_tolerance: Annotated[float | None, number("m/s", positive=True)] = _SCENE["pgs_tolerance"]          # [m/s]
     contact_margin: Annotated[float | None, number("m", minimum=0.0)] = _SCENE["contact_margin"]            # [m]
     collision_free_start: Boolean = False
     adhesion: Boolean = True  # false: every adhesion of the file off, the same scene dry (thesis Fig. 4.4)

@@ -11,6 +11,7 @@
     gravity = [0.0, 0.0, -9.81] # [m/s^2]
     friction = 0.5              # Coulomb, where a contact's sides give none
     pgs_iterations = 500
+    pgs_tolerance = 1e-5        # [m/s] velocity error at which the contact solve stops (optional)
     contact_margin = 0.005      # [m]
     collision_free_start = false    # true: soft bodies that start crossing another body are
                                 # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)

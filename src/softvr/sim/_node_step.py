@@ -56,7 +56,8 @@ __all__ = ["IllConditioned", "NodeStepper"]
 #: Safety factors on the Lanczos estimates of the spectrum of D_A^-1 A: an underestimated
 #: radius makes the Chebyshev iteration diverge, an overestimated one only slows it.
 SPECTRUM_MARGIN = (0.8, 1.02)
-#: Velocity error [m/s] at which the sweeps stop (the per-object path's PGS tolerance).
+#: Velocity error [m/s] at which the sweeps stop (the per-object path's PGS tolerance), where
+#: the scene sets no ``pgs_tolerance`` of its own.
 SWEEP_TOLERANCE = 1e-5
 #: Chebyshev sweeps per decade of error above which a scene is left to the per-object path
 #: (a sparse LU per body): ~0.3 ms a sweep on the head CT's 1 870 nodes, and some 5 decades
@@ -513,7 +514,7 @@ class NodeStepper:
         solve = self._solver(dt)  # after the detection: the choice counts the contacts
         start[self._carried]()
         self._carried = True
-        sweeps, solved = solve.solve(SWEEP_TOLERANCE)
+        sweeps, solved = solve.solve(SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance)
         if self.adhesion is not None:
             evolve[sweeps % 3]()
             self.scene.adhesion_state = self.adhesion.state()

@@ -343,12 +343,13 @@ class RigidStepper:
     def _record(self, dt: float) -> None:
         s = self.scene
         if self._recorded is not None and self._recorded[0][0] == dt and self._recorded[0][1] is s.gravity \
-                and self._recorded[0][2] == s.pgs_iterations:
+                and self._recorded[0][2:] == (s.pgs_iterations, s.pgs_tolerance):
             return
-        key = (dt, s.gravity, s.pgs_iterations)
+        key = (dt, s.gravity, s.pgs_iterations, s.pgs_tolerance)
         turns = []
         for state in self._states:  # per contact buffer: its unconstrained (which empties it), detection, solve
-            solve = record_rigid_solve(self.model, state, dt, max_sweeps=s.pgs_iterations)
+            solve = record_rigid_solve(self.model, state, dt, max_sweeps=s.pgs_iterations,
+                                       **({} if s.pgs_tolerance is None else {"tolerance": s.pgs_tolerance}))
             turns.append((replayer(record_unconstrained(self.model, state, dt, s.gravity)),
                           record_detection(self.model, state, dt), solve, replayer(solve.launch), solve.stats.numpy()))
         self._recorded = (key, turns, replayer(record_integrate(self.model, self.state, dt)))

@@ -125,6 +125,10 @@ class Scene:
         Edge-edge contacts between collision surfaces (besides vertex-triangle).
     friction : float
         Coulomb coefficient between two bodies.
+    pgs_tolerance : float or None [m/s]
+        Velocity error at which the contact solve stops (eq. 5.5's iteration: the node
+        sweeps, the per-object PGS, the rigid arrays' sweeps); None: the solvers' own 1e-5
+        (``softvr.sim._node_step.SWEEP_TOLERANCE``). ``pgs_iterations`` caps it either way.
     last_solution : ContactSolution or None
     time : float [s]
     stage_ms : dict[str, float] [ms]
@@ -169,6 +173,7 @@ class Scene:
     edge_contacts: bool = True
     friction: float = 0.5
     pgs_iterations: int = 500
+    pgs_tolerance: float | None = None
     contact_margin: float = 0.005
     last_solution: ContactSolution | LazySolution | None = None
     time: float = 0.0
@@ -571,7 +576,8 @@ class Scene:
         warm, self._warm = self._warm, {}
         solved = solve_contacts(units, v_units, [self._to_units(c, where) for c in contacts], dt,
                                 iterations=self.pgs_iterations, warm_start=warm, adhesion=stiffness,
-                                slip=self.adhesion_state.slip)
+                                slip=self.adhesion_state.slip,
+                                **({} if self.pgs_tolerance is None else {"tolerance": self.pgs_tolerance}))
         members = [[i for i, (w, _) in enumerate(where) if w == u] for u in range(len(units))]
         solution = ContactSolution(
             velocities=[self._body_velocity(solved.velocities, where, i) for i in range(len(self.bodies))],
