@@ -19,7 +19,7 @@ import scipy.linalg
 
 from softvr import Scene
 from softvr.dynamics import EmbeddedPoints, FemBody, Material
-from softvr.dynamics.node_arrays import isotropic_terms
+from softvr.dynamics.node_arrays import fixed_only, isotropic_terms
 from softvr.sim._node_step import NodeStepper
 from softvr.volume import Volume, grid_tet_mesh
 
@@ -150,3 +150,23 @@ def test_an_anisotropic_tet_takes_the_general_kernels_and_they_are_still_exact()
     assert np.abs(a - expected).max() <= TOL * scale
     forces, scale = _forces(body, cs)
     assert np.abs(stepper.state.element_forces.numpy() - forces).max() <= FORCE_TOL * scale
+
+
+def test_a_clamped_layers_tets_and_fixed_blocks_are_skipped_and_the_free_rows_are_still_eq_5_2():
+    """The cube's two lowest node layers clamped: the tets of its lowest cell layer (a third of
+    them: every node fixed) and the blocks joining two fixed nodes are left out of the element
+    terms and the assembly (``fixed_only``: a fixed row is never read), and every free node's
+    row of A (all its columns, fixed ones included) is still the dense reference's, within TOL;
+    the skipped blocks stay zero."""
+    body, cs = _body()
+    body.fixed[:] = body.rest[:, 2] < 0.2  # node layers z = 0.05 and 0.15 of 0.05 .. 0.35
+    a, stepper = _assembled(body)
+    skipped_tets, skipped_blocks = fixed_only(stepper.model)
+    assert skipped_tets.sum() == len(body.tets) // 3
+    expected, scale = _reference(body, cs)
+    free = np.repeat(~body.fixed, 3)
+    assert np.abs(a[free] - expected[free]).max() <= TOL * scale
+    fixed = np.repeat(body.fixed, 3)
+    pairs = np.abs(expected[np.ix_(fixed, fixed)]) > 0  # the fixed-fixed blocks A has
+    assert pairs.any() and not a[np.ix_(fixed, fixed)].any()
+    assert skipped_blocks.any()

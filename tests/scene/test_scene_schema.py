@@ -105,7 +105,7 @@ def test_a_scene_without_settings_takes_the_described_and_the_simulations_defaul
                                 "friction": sim.friction, "pgs_iterations": sim.pgs_iterations,
                                 "pgs_tolerance": sim.pgs_tolerance,
                                 "contact_margin": sim.contact_margin, "collision_free_start": False,
-                                "adhesion": True}
+                                "adhesion": True, "edge_contacts": sim.edge_contacts}
     assert scene.planes == [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": sim.friction,
                              "size": 3.0, "adhesion": None}]
     gltf = read_gltf_scene(_glb(tmp_path / "bare.glb", {"cube": {"softvr_type": "fixed"}}))

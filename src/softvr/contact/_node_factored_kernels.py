@@ -30,14 +30,14 @@ from softvr.contact._node_jacobi_kernels import pgs_update
 def node_rotations(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=wp.int32),
                    tet_weight: wp.array(dtype=wp.float64), tet_rotation: wp.array(dtype=wp.mat33d),
                    solved: wp.array(dtype=wp.int32), rotation0: wp.array(dtype=wp.mat33d), polar_iterations: int,
-                   absolute: wp.array(dtype=wp.mat33d), relative: wp.array(dtype=wp.mat33d)):
+                   absolute: wp.array(dtype=wp.mat33d), relative: wp.array(dtype=wp.mat33d), offset: int):
     """Solved node ``i = solved[k]``'s rotation: the polar part of its tets' co-rotations
     ``R_e`` summed by their stiffness ``tet_weight`` [N/m] (``force[c] = 4 tet + a`` for ``c``
     in ``force_start[i] : force_start[i + 1]``; Muller and Gross's stiffness warping) into
     ``absolute[k]``, and turned back by the factorization's ``rotation0[k]``: ``relative[i] =
     absolute[k] rotation0[k]^T``. Newton's iteration ``X <- (X + X^-T) / 2`` from the sum
     scaled to unit determinant (the sums are near rotations; P needs R to a few digits)."""
-    k = wp.tid()
+    k = wp.tid() + offset
     i = solved[k]
     x = wp.mat33d()
     for c in range(force_start[i], force_start[i + 1]):
@@ -57,10 +57,11 @@ def node_rotations(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=
 @wp.kernel
 def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                     blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), solved: wp.array(dtype=wp.int32),
-                    rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), r: wp.array(dtype=wp.vec3d)):
+                    rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), r: wp.array(dtype=wp.vec3d),
+                    offset: int):
     """``r_k = R_i^T (b_i - sum_j A_ij v_j)`` [kg m/s] of solved node ``i = solved[k]``: eq.
     5.2's residual turned back by the node's rotation since the factorization."""
-    k = wp.tid()
+    k = wp.tid() + offset
     i = solved[k]
     acc = b[i]
     for c in range(row_start[i], row_start[i + 1]):
@@ -70,10 +71,10 @@ def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dty
 
 @wp.kernel
 def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
-                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d)):
+                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d), offset: int):
     """``u_i = v_i + R_i y_k`` [m/s] of node ``i``, ``k = index[i]`` its row among the solved
     nodes (``u_i = v_i`` on a node not solved: ``k < 0``)."""
-    i = wp.tid()
+    i = wp.tid() + offset
     k = index[i]
     if k < 0:
         u[i] = v[i]
@@ -139,12 +140,12 @@ for _t in (wp.vec3d, wp.mat33d):
 def warp_change(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                 blocks: wp.array(dtype=wp.mat33d), blocks0: wp.array(dtype=wp.mat33d),
                 rotation: wp.array(dtype=wp.mat33d), solved: wp.array(dtype=wp.int32),
-                change: wp.array(dtype=wp.float64)):
+                change: wp.array(dtype=wp.float64), offset: int):
     """How far node ``i``'s row of ``A`` [kg] is from the factored ``A_0`` turned to the nodes'
     rotations ``R`` (``rotation`` [n], since the factorization): the largest Frobenius norm of
     ``R_i^T A_ij R_j - A0_ij`` over the solved nodes ``j``, over that of ``A0_ii``; 0 on a node
     not solved."""
-    i = wp.tid()
+    i = wp.tid() + offset
     change[i] = wp.float64(0.0)
     if solved[i] == 0:
         return

@@ -37,7 +37,7 @@ import warp as wp
 
 from softvr.contact import _node_factored_kernels as _k
 from softvr.contact import _node_jacobi_kernels as _jk
-from softvr.device import load_kernels, replayer
+from softvr.device import chunked_replayer, load_kernels, replayer
 
 __all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
 
@@ -236,17 +236,15 @@ class FactoredSolve:
         # A tet's weight in its nodes' rotations: its stiffness (trace of K_e's diagonal blocks).
         weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
         self._tet_weight: wp.array = wp.array(weight, dtype=wp.float64, device=d)
-        # One thread each: the launches are ~0.05-0.1 ms on the head CT, less than handing half
-        # to a second core.
-        self._rotations = replayer(wp.launch(
-            _k.node_rotations, dim=k, device=d, record_cmd=True,
-            inputs=[model.force_start, model.force, self._tet_weight, state.rotations, solved_d, self._rotation0,
-                    POLAR_ITERATIONS, self._absolute, self._rotation]))
-        self._residual = replayer(wp.launch(_k.turned_residual, dim=k, device=d, record_cmd=True,
-                                            inputs=[model.row_start, model.block_col, state.blocks, state.b,
-                                                    solved_d, self._rotation, self._v, self._r]))
-        self._update = replayer(wp.launch(_k.turned_update, dim=n, device=d, record_cmd=True,
-                                          inputs=[index_d, self._rotation, self._v, self._y, self._u]))
+        # Per node, split over the cores where that has been faster of late (chunked_replayer).
+        self._rotations = chunked_replayer(
+            _k.node_rotations, k, [model.force_start, model.force, self._tet_weight, state.rotations, solved_d,
+                                   self._rotation0, POLAR_ITERATIONS, self._absolute, self._rotation], d, min_chunk=512)
+        self._residual = chunked_replayer(_k.turned_residual, k, [model.row_start, model.block_col, state.blocks,
+                                                                  state.b, solved_d, self._rotation, self._v, self._r],
+                                          d, min_chunk=512)
+        self._update = chunked_replayer(_k.turned_update, n, [index_d, self._rotation, self._v, self._y, self._u], d,
+                                        min_chunk=512)
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
         capacity = state.contacts.capacity
         self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
@@ -270,9 +268,9 @@ class FactoredSolve:
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
         solved_mask: wp.array = wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d)
-        self._warp_change = replayer(wp.launch(_k.warp_change, dim=n, device=d, record_cmd=True,
-                                               inputs=[model.row_start, model.block_col, state.blocks, self._blocks0,
-                                                       self._rotation, solved_mask, self._change]))
+        self._warp_change = chunked_replayer(_k.warp_change, n, [model.row_start, model.block_col, state.blocks,
+                                                                 self._blocks0, self._rotation, solved_mask,
+                                                                 self._change], d, min_chunk=512)
         self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0

@@ -24,10 +24,11 @@ TOO_FAST = wp.constant(2)
 @wp.kernel
 def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                   dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
-                  rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.vec3d), offset: int):
-    """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e``
-    (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
-    e = wp.tid() + offset
+                  live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
+                  forces: wp.array2d(dtype=wp.vec3d), offset: int):
+    """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet
+    ``e = live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
+    e = live[wp.tid() + offset]
     r = element_rotation(q, tets, dm_inv, e, corotational)
     rotations[e] = r
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
@@ -40,8 +41,9 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d),
                             tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                             gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), corotational: int,
-                            rotations: wp.array(dtype=wp.mat33d), forces: wp.array2d(dtype=wp.vec3d),
-                            rotated_gradients: wp.array2d(dtype=wp.vec3d), offset: int):
+                            live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
+                            forces: wp.array2d(dtype=wp.vec3d), rotated_gradients: wp.array2d(dtype=wp.vec3d),
+                            offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
     ``lame[e]`` = V (lambda, mu) [N/m], as :func:`assemble_isotropic`): with the rotated
     frame's displacement gradient H = sum_b (R^T x_b - X_b) g_b^T,
@@ -53,7 +55,7 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     applied. Equal to :func:`element_terms`'s sum in exact arithmetic; both round each term
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
     :func:`assemble_isotropic`."""
-    e = wp.tid() + offset
+    e = live[wp.tid() + offset]
     r = element_rotation(q, tets, dm_inv, e, corotational)
     rotations[e] = r
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))

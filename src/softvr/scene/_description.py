@@ -314,6 +314,7 @@ class Simulation(_Table):
     contact_margin: Annotated[float | None, number("m", minimum=0.0)] = _SCENE["contact_margin"]            # [m]
     collision_free_start: Boolean = False
     adhesion: Boolean = True  # false: every adhesion of the file off, the same scene dry (thesis Fig. 4.4)
+    edge_contacts: Boolean = _SCENE["edge_contacts"]  # false: vertex-triangle contacts only (thesis 5.2.1)
 
 
 def _read_views(p: Problems, t: dict):

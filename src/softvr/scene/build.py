@@ -295,7 +295,8 @@ class SceneExample(Player):
         # simulation.adhesion false: the same scene dry (every adhesion name finds none).
         self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()} if sim["adhesion"] else {}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
-                      pgs_tolerance=sim["pgs_tolerance"], contact_margin=sim["contact_margin"])
+                      pgs_tolerance=sim["pgs_tolerance"], contact_margin=sim["contact_margin"],
+                      edge_contacts=sim["edge_contacts"])
         self.scene = scene  # (again in Player.__init__) the collision-free start needs it
         self.planes = []
         for p in scene_file.planes:

@@ -73,7 +73,8 @@ are bodies named as the parts, for couplings and ``softvr_collides_with``.
 
 Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
 ``softvr_friction``, ``softvr_gravity`` [m/s^2], ``softvr_pgs_iterations``, ``softvr_pgs_tolerance`` [m/s],
-``softvr_contact_margin`` [m], ``softvr_collision_free_start`` (soft bodies that start
+``softvr_contact_margin`` [m], ``softvr_edge_contacts`` (false: vertex-triangle contacts only),
+``softvr_collision_free_start`` (soft bodies that start
 crossing another are pushed out of it first; the add-on sets it), ``softvr_ground`` (true: a
 ground plane at z = 0;
 ``softvr_ground_adhesion_*`` as a node's ``softvr_adhesion_*`` make it adhesive),
@@ -162,7 +163,8 @@ _ANY_NODE_KEY = set().union(*_NODE_KEYS.values())
 #: Every custom property of the scene (and ``ground_adhesion_*``).
 _SCENE_KEYS = {*Simulation.model_fields, *Render.model_fields, "start_time", "ground", "display"}
 #: Properties that are booleans, which Blender may write as 0 / 1.
-_BOOLEANS = ("haptics", "coupling_collide", "collision_free_start", "light_kit", "mask", "incremental", "ground")
+_BOOLEANS = ("haptics", "coupling_collide", "collision_free_start", "edge_contacts", "light_kit", "mask", "incremental",
+             "ground")
 
 
 class _Bad(Exception):

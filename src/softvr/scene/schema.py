@@ -16,6 +16,8 @@
     collision_free_start = false    # true: soft bodies that start crossing another body are
                                 # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)
     adhesion = true             # false: every adhesion of the file off (the same scene dry)
+    edge_contacts = true        # false: no edge-edge contacts, vertex-triangle both ways only
+                                # (where no edge can touch without a vertex: a smooth probe on skin)
 
     [render]
     size = [640, 480]           # [pixels]

@@ -138,9 +138,10 @@ def block_jacobi_factor(model, state, solved: np.ndarray) -> sp.csr_matrix:
     blocks = state.blocks.numpy()
     diag = np.tile(np.eye(3), (n, 1, 1))
     diag[rows[rows == cols]] = blocks[rows == cols]
-    l_inv = np.linalg.inv(np.linalg.cholesky(diag))
+    # Only the solved nodes' blocks: a fixed node's may be left unassembled (zero; fixed_only).
+    l_inv = np.linalg.inv(np.linalg.cholesky(diag[solved]))
     index = np.cumsum(solved) - 1
-    block_rows, block_cols, values = [index[solved]], [index[solved]], [l_inv[solved]]
+    block_rows, block_cols, values = [index[solved]], [index[solved]], [l_inv]
     pairs = model.couplings.pair_node.numpy()
     if len(pairs):
         full = np.zeros((len(pairs), 2, 3, 2, 3))
