@@ -46,9 +46,6 @@
   change (a dent of a few voxels seen by < 15 % of the pixels; the hidden change by none but
   the probe's). Air rewritten but transparent in both frames, in front of the ball, casts
   no ray (its bricks stay empty, so no sample there is seen in either frame).
-* A cast begun before the surfaces are drawn (its voxel side on a helper thread) and ended with
-  them equals a fresh caster's full cast, bit for bit; so does the cast after one begun and
-  never ended (its caller's drawing failed), and the voxel side's error reaches the caller.
 * The walk that finds which rays pass a brick whose voxels changed (jumps over a distance
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
@@ -73,8 +70,7 @@ import warp as wp
 
 from softvr.datasets import HEAD_CT_PATH
 from softvr.device import launch
-from softvr.errors import InputError
-from softvr.render import PRESETS, Camera, Preset, RayCaster, SurfaceRenderer, VolumeRenderer
+from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
 from softvr.volume import Volume
 
@@ -349,49 +345,6 @@ def test_a_ray_not_cast_again_still_learns_that_a_brick_on_its_empty_prefix_fill
                 fresh.vtk_renderer.AddActor(shown)
                 assert np.array_equal(image, fresh.render(vol)), x
             assert renderer.ray_caster.cast_pixels < 64 * 64 / 2
-
-
-def test_a_begun_cast_equals_a_fresh_one_and_one_never_ended_is_forgotten():
-    """``RayCaster.begin`` (the voxel side on a helper thread while the caller draws) and its end
-    give a fresh caster's full cast; a cast begun and never ended leaves nothing half-kept, so the
-    next incremental cast still equals a fresh one; an error of the voxel side is raised by the end."""
-    n, size = 40, 48
-    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
-    data = np.where(np.linalg.norm(ijk - 19.5, axis=-1) < 14.0, 40, -1000).astype(np.int16)
-    spacing = np.array([0.9, 1.1, 1.5])
-    vol = Volume(data, spacing=tuple(spacing), origin=(0.0, 0.0, 0.0))
-    ndc_to_world = np.linalg.inv(_perspective(size, size) @ np.diag([*(1.0 / spacing), 1.0]))
-    light = np.array([-0.4, -0.8, 0.45]) / np.linalg.norm([-0.4, -0.8, 0.45])
-    surface = np.zeros((size, size, 3), np.uint8)
-    depth = np.ones((size, size), np.float32)
-    preset = PRESETS["ct-skin"]
-
-    def fresh():
-        return RayCaster(preset, device="cpu").cast(vol, ndc_to_world, light, surface, depth)
-
-    def dent(lo):
-        data[lo[0]:lo[0] + 4, lo[1]:lo[1] + 4, lo[2]:lo[2] + 4] = -1000
-        return tuple(lo), tuple(np.add(lo, 3))
-
-    # Dents in the ball's skin facing the camera (at index (-44, -82, 47)), each seen.
-    caster = RayCaster(preset, device="cpu")
-    before = caster.cast(vol, ndc_to_world, light, surface, depth)
-    end = caster.begin(vol, ndc_to_world, light, (size, size), changed=dent((11, 8, 21)))
-    image = end(surface, depth)
-    assert np.array_equal(image, fresh())
-    assert 0 < caster.cast_pixels < size * size / 4  # an incremental cast
-    assert np.abs(image.astype(int) - before).max() > 40
-    caster.begin(vol, ndc_to_world, light, (size, size), changed=dent((8, 11, 17)))  # never ended
-    seen = fresh()
-    assert np.abs(seen.astype(int) - image).max() > 40
-    image = caster.cast(vol, ndc_to_world, light, surface, depth, changed=dent((15, 6, 23)))
-    assert np.abs(image.astype(int) - seen).max() > 40
-    assert np.array_equal(image, fresh())
-    flat = dataclasses.replace(vol, data=data[:1])
-    end = caster.begin(flat, ndc_to_world, light, (size, size))
-    with pytest.raises(InputError, match="at least 2 voxels"):
-        end(surface, depth)
-    assert np.array_equal(caster.cast(vol, ndc_to_world, light, surface, depth, changed=False), fresh())
 
 
 @wp.kernel

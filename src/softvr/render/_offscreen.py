@@ -100,13 +100,6 @@ class OffscreenView:
             if np.all(props[:, 1] >= props[:, 0]):
                 both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
         self._renderer.ResetCameraClippingRange(*both.ravel())
-        cam = self.vtk_camera
-        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
-        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
-        light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())  # a head light
-        # The casts' voxel side runs while VTK draws (RayCaster.begin).
-        ends = [caster.begin(volume, np.linalg.inv(m), light / np.linalg.norm(light), (self.height, self.width),
-                             changed=changed) for caster, volume, changed in volumes]
         if surfaces:
             self._window.Render()
             image = self.grab()
@@ -118,8 +111,13 @@ class OffscreenView:
             image = np.empty((self.height, self.width, 3), np.uint8)
             image[:] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
             depth = np.ones((self.height, self.width), np.float32)
-        for end in ends:
-            image = end(image, depth)
+        cam = self.vtk_camera
+        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
+        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
+        light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())  # a head light
+        for caster, volume, changed in volumes:
+            image = caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), image, depth,
+                                changed=changed)
         return image
 
     def close(self) -> None:

@@ -759,20 +759,19 @@ def stale_pixels(
     stale: wp.array(dtype=wp.bool),
     offset: int,
 ):
-    """Set True in ``stale`` (row-major pixels, row 0 at the top; False before) for each pixel
-    of ``rect`` (first column, last column, first row, last row; one thread per pixel of it)
-    whose samples may read a changed voxel (same camera, tables and grid as the last frame;
-    the caller adds the pixels where the surfaces changed): its last segment of samples (:func:`raycast`) meets
+    """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
+    colour or depth changed) for each pixel of ``rect`` (first column, last column, first
+    row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
+    tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
     the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
     ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
     changed voxel (``read_distance``: the bricks' distance to one, :meth:`RayCaster._read_distance`).
     Any other pixel reads the same voxels with the same weights as last frame, so its colour
     is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
-    A ray not set here whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
+    A ray not cast again whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
     bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
-    through a voxel it does not read, and a later change there flips no brick. (One cast again
-    for a changed surface then starts at its entry point: the same samples, skipped or taken.)
+    through a voxel it does not read, and a later change there flips no brick.
 
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
     ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
@@ -780,6 +779,8 @@ def stale_pixels(
     t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
     tid = (rect[2] + t / columns) * width + rect[0] + t % columns
+    if stale[tid]:
+        return
     walk = boxed != 0 and candidates[tid] != 0
     if not walk and flips == 0:
         return

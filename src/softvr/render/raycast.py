@@ -10,17 +10,11 @@ surface shows fine noise instead of wood-grain bands. From frame to frame (same 
 the rays that can see a change are cast again: those through the surfaces' changed pixels and
 those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
 at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
-over their colour. What the voxels alone decide (the brick grid's update, and the rays that may
-see a changed voxel, cast over last frame's surfaces) runs on a helper thread while the caller
-draws the surfaces (:meth:`RayCaster.begin`); only the pixels whose surface changed wait for them.
+over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
 
 from __future__ import annotations
-
-import os
-from concurrent.futures import Future, ThreadPoolExecutor
-from functools import lru_cache, partial
 
 import numpy as np
 import warp as wp
@@ -49,8 +43,7 @@ LUT_SIZE = 4096
 #: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
 _READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
-#: Fewest rays per thread-pool chunk of a cast (the pixels' lists are a few thousand long).
-_RAY_CHUNK = 512
+_ROWS_PER_CHUNK = 8
 #: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
 _STALE_CHUNK = 4096
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
@@ -148,8 +141,6 @@ class RayCaster:
         self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
-        self._pending: Future | None = None  # the voxel side of a begun cast (begin)
-        self._last: tuple | None = None  # the surfaces' depth and colour last cast over
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
@@ -157,8 +148,6 @@ class RayCaster:
     def reset(self) -> None:
         """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
         next :meth:`cast` starts from scratch, as a new caster's would."""
-        self._settle()
-        self._last = None
         self._tables_key = self._grid_key = self._view_key = None
         self._flips = []
 
@@ -320,145 +309,52 @@ class RayCaster:
         -------
         numpy.ndarray, shape [height, width, 3], uint8
         """
-        return self.begin(volume, ndc_to_world, light, np.shape(depth), changed=changed)(surface, depth)
-
-    def begin(self, volume, ndc_to_world, light, size: tuple[int, int], *, changed=True):
-        """Start a :meth:`cast` before the surfaces are drawn; return the function that ends
-        it, given their ``surface`` colour and ``depth`` [``size`` = (height, width)] (the
-        arguments of :meth:`cast`), with the same image. What the voxels decide runs meanwhile
-        on a helper thread (CPU; on CUDA it is queued at once), so that it overlaps the caller's
-        drawing: the brick grid's update, and the rays that may see a changed voxel, cast over
-        last frame's surfaces; the end casts the pixels whose surface changed beside them, and
-        then those of them the helper cast too, again. A begun cast that is never ended is
-        waited for, and forgotten, by the next :meth:`begin` or :meth:`reset`."""
-        self._settle()
-        height, width = (int(v) for v in size)
+        self._upload(volume, changed)
+        height, width = depth.shape
         spacing = np.asarray(volume.spacing, float)
         direction = np.asarray(volume.direction, float)
         index_to_world = np.eye(4)
         index_to_world[:3, :3] = direction * spacing
         index_to_world[:3, 3] = np.asarray(volume.origin, float)
-        ndc_to_world = np.asarray(ndc_to_world, float)
-        light = np.asarray(light, float)
-        # The same for every frame of one view (the spacing and option are in its key).
-        self._smoothed = self._smooth_axis(spacing) if self.preset.shade else -1
-        view = (width, height, ndc_to_world, light, index_to_world)
-        # The end replaces the last surfaces while the helper may still cast over them.
-        grid: Future = Future()  # the helper's result once the grid is up to date (_prepare)
-        if self.device == "cpu":
-            self._pending = _helper().submit(self._prepare, volume, changed, view, self._last, grid)
-        else:
-            self._pending = _run_now(self._prepare, volume, changed, view, self._last, grid)
-        return partial(self._finish, volume, view, grid)
-
-    def _settle(self) -> None:
-        """Wait for a begun cast that was not ended; forget what it kept (it may have failed halfway)."""
-        pending, self._pending = self._pending, None
-        if pending is not None:
-            pending.exception()  # waits
-            self.reset()
-
-    def _prepare(self, volume, changed, view: tuple, last: tuple | None, grid: Future) -> None:
-        """The voxel side of a cast (:meth:`begin`): the upload, the flipped bricks since the last
-        cast, whether this frame recasts every pixel (a new view, or everything changed), else the
-        rays that may read a changed voxel (:meth:`_read_pixels`), into ``grid`` (every, flipped,
-        their mask [height * width] bool or None; or the error) before those rays are cast over
-        last frame's surfaces ``last`` (depth, colour; where those did not change, their pixels
-        are final): the end casts the others meanwhile."""
-        try:
-            every, flipped, read = self._prepare_grid(volume, changed, view, last)
-        except BaseException as exc:
-            grid.set_exception(exc)
-            raise
-        grid.set_result((every, flipped, read))
-        if read is not None and last is not None:
-            last_depth, last_surface = last
-            self._launch_rays(volume, view, flipped, np.flatnonzero(read).astype(np.int32), last_depth,
-                              last_surface, 0)
-
-    def _prepare_grid(self, volume, changed, view: tuple, last: tuple | None) -> tuple:
-        """:meth:`_prepare` up to the rays it casts: (every, flipped, their mask or None)."""
-        self._upload(volume, changed)
-        width, height, ndc_to_world, light, index_to_world = view
-        # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
-        # one camera, light, grid, table and step.
-        key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
-               self._tables_key, self.jitter, self.smooth_slices)
-        flips, self._flips = self._flips, []
-        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
-        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
-        dev = self.device
-        if key != self._view_key:
-            self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
-            self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
-            self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
-            self._rays = [wp.empty(width * height, dtype=t, device=dev)
-                          for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
-            self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
-            self._view_key = key
-            return True, flipped, None
-        if changed is True or last is None:
-            return True, flipped, None
-        read = self._read_pixels(width, height, changed, flipped, np.linalg.inv(ndc_to_world) @ index_to_world).numpy()
-        return False, flipped, read
-
-    def _finish(self, volume, view: tuple, grid: Future, surface, depth) -> np.ndarray:
-        """The rest of a cast begun by :meth:`begin`, over the surfaces' ``surface`` colour and
-        ``depth`` (:meth:`cast`); ``grid``: the helper's result once the brick grid is up to
-        date (:meth:`_prepare`)."""
-        pending, self._pending = self._pending, None
-        assert pending is not None, "a cast ends once, after its begin()"
-        width, height = view[:2]
-        try:
-            if np.shape(depth) != (height, width):
-                raise InputError("depth", f"an array [{height}, {width}] (the size begin() was given)",
-                                 f"shape {np.shape(depth)}")
-            depth_host = np.ascontiguousarray(depth, np.float32)
-            surface_host = np.ascontiguousarray(surface, np.uint8)
-            # While the helper works (unused if it finds that every pixel is cast).
-            moved = self._moved_pixels(depth_host, surface_host)
-            every, flipped, read = grid.result()
-            again = None  # the helper's pixels whose surface changed: cast again after it
-            if not every:
-                assert moved is not None  # the helper casts incrementally only after a cast of this size
-                helped = read[moved]
-                # Beside the helper's rays (other pixels).
-                self._launch_rays(volume, view, flipped, moved[~helped], depth_host, surface_host, 0)
-                again = moved[helped]
-                self.cast_pixels = int(np.count_nonzero(read)) + int(np.count_nonzero(~helped))
-            pending.result()
-        except BaseException:
-            pending.exception()  # waits
-            self.reset()  # the voxel side may have stopped halfway
-            raise
-        if again is None:
-            self._launch_rays(volume, view, flipped, None, depth_host, surface_host, 1)
-            self.cast_pixels = width * height
-        else:
-            self._launch_rays(volume, view, flipped, again, depth_host, surface_host, 0)
-        # A copy: the caster's image is next frame's starting point.
-        return self._image.numpy().copy()
-
-    def _launch_rays(self, volume, view: tuple, flipped: list, pixels, depth: np.ndarray, surface: np.ndarray,
-                     store_rays: int) -> None:
-        """Launch the ray cast of ``pixels`` [m] int32 (None: all; :meth:`cast`'s arguments in
-        ``view`` and ``flipped``) over the surfaces' ``depth`` [height, width] and colour
-        ``surface`` [height, width, 3] (host arrays); ``store_rays``: work each ray out and keep
-        it (a new view), else read it back."""
-        if pixels is not None and not len(pixels):
-            return
-        width, height, ndc_to_world, light, index_to_world = view
-        spacing = np.asarray(volume.spacing, float)
-        direction = np.asarray(volume.direction, float)
         # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
         gradient_to_world = direction / spacing
         p = self.preset
         dev = self.device
-        # On the CPU the kernels read the host arrays in place (alive until the launch returns).
+        ndc_to_world = np.asarray(ndc_to_world, float)
+        light = np.asarray(light, float)
+        # The rays' known-empty prefixes, their sample segments and last frame's colours hold for
+        # one camera, light, grid, table and step.
+        key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
+               self._tables_key, self.jitter, self.smooth_slices)
+        depth_host = np.ascontiguousarray(depth, np.float32)
+        surface_host = np.ascontiguousarray(surface, np.uint8)
+        # On the CPU the kernels read the host arrays in place (alive until the cast returns).
         in_place = dev == "cpu"
-        listed = self._every_pixel if pixels is None else wp.array(pixels, dtype=wp.int32, device=dev,
-                                                                   copy=not in_place)
+        depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
+        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
+        # The same for every frame of one view (the spacing and option are in its key).
+        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
+        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
+        if key != self._view_key or changed is True:
+            if key != self._view_key:
+                self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+                self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
+                self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
+                self._rays = [wp.empty(width * height, dtype=t, device=dev)
+                              for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
+                self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
+                self._view_key = key
+            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
+            pixels = self._every_pixel
+            store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
+        else:
+            store_rays = 0
+            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
+                                        np.linalg.inv(ndc_to_world) @ index_to_world)
+        self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
@@ -466,12 +362,13 @@ class RayCaster:
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
-            self._distance, self._cells, *flipped, self._empty_until,
-            wp.array(depth, dtype=float, device=dev, copy=not in_place),
-            wp.array(surface, dtype=wp.uint8, device=dev, copy=not in_place), listed,
+            self._distance, self._cells,
+            *flipped, self._empty_until, depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.RAYCAST[self._voxel_type], int(listed.shape[0]), inputs, dev, min_chunk=_RAY_CHUNK)
+        launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        # A copy: the caster's image is next frame's starting point.
+        return self._image.numpy().copy()
 
     def _smooth_axis(self, spacing: np.ndarray) -> int:
         """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
@@ -514,13 +411,22 @@ class RayCaster:
         read[box] = np.minimum(to_marked, _READ_REACH)
         return read, np.argwhere(marked) + first
 
-    def _read_pixels(self, width: int, height: int, changed, flipped: list, index_to_ndc: np.ndarray) -> wp.array:
-        """The pixels [height * width] (bool mask, row-major, row 0 at the top) whose ray's
-        samples, as cast last frame (same view), may read a voxel in the ``changed`` box (False or
-        None: no voxel changed); the rays of the others forget their known-empty prefix if it
-        may cross a brick in the ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects
-        the volume's index space to the screen."""
-        read_mask: wp.array = wp.zeros(width * height, dtype=wp.bool, device=self.device)
+    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
+                      index_to_ndc: np.ndarray) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
+        changed). The others forget their known-empty prefix if it may cross a brick in the
+        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
+        space to the screen."""
+        height, width = depth.shape
+        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
+        # costs more on the CPU than the comparison itself.
+        moved = surface != self._last_surface
+        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
+        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         read_host, marked = self._read_distance()
@@ -552,42 +458,6 @@ class RayCaster:
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
-                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, read_mask], self.device,
+                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
                min_chunk=_STALE_CHUNK)
-        return read_mask
-
-    def _moved_pixels(self, depth: np.ndarray, surface: np.ndarray) -> np.ndarray | None:
-        """The pixels [m] int32 (row-major, row 0 at the top) where the surfaces' ``depth``
-        [height, width] or ``surface`` colour [height, width, 3] differ from the last cast's,
-        which they replace (None where there is none of their size)."""
-        last, self._last = self._last, (depth.copy(), surface.copy())
-        if last is None or last[0].shape != depth.shape:
-            return None
-        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
-        # costs more on the CPU than the comparison itself.
-        moved = surface != last[1]
-        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
-        moved |= (depth != last[0])[::-1]  # depth rows run up
-        return np.flatnonzero(moved).astype(np.int32)
-
-
-def _run_now(work, *args) -> Future:
-    """``work(*args)`` run on the calling thread, as a future holding its result or error."""
-    future: Future = Future()
-    try:
-        future.set_result(work(*args))
-    except BaseException as exc:  # raised by the cast's end, as from the helper thread
-        future.set_exception(exc)
-    return future
-
-
-def _helper() -> ThreadPoolExecutor:
-    """The thread that runs the voxel side of CPU casts while their callers draw
-    (:meth:`RayCaster.begin`); its launches are split over the cores as any. One per process:
-    a forked child (the haptic loop's) inherits the executor but not its thread."""
-    return _helper_of(os.getpid())
-
-
-@lru_cache(maxsize=1)
-def _helper_of(pid: int) -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(1, thread_name_prefix=f"softvr-cast-{pid}")
+        return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
