@@ -35,6 +35,7 @@ from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
+from softvr.contact.node_factored_rigid import RigidFactoredSolve, rigid_factored_eligible
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -436,7 +437,7 @@ class NodeStepper:
         start = record_start(m, st, dt, s.gravity, self._v_before)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
-    def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
+    def _solver(self, dt: float) -> NodeSolve | FactoredSolve | RigidFactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
         bounds on the first use; or the factored solve where it needs less work
@@ -460,17 +461,20 @@ class NodeStepper:
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
 
-    def _factored(self, dt: float, choice) -> FactoredSolve | None:
-        """The factored solve (:mod:`softvr.contact.node_factored`) where the scene allows it
-        (:func:`factored_eligible`, no adhesion) and its estimated work a contact step is less
+    def _factored(self, dt: float, choice) -> FactoredSolve | RigidFactoredSolve | None:
+        """The factored solve (:mod:`softvr.contact.node_factored`; with rigid bodies or
+        couplings :mod:`softvr.contact.node_factored_rigid`) where the scene allows it
+        (:func:`factored_eligible`, :func:`rigid_factored_eligible`, no adhesion) and its estimated work a contact step is less
         than the sweeps' (:func:`factored_work`, :func:`sweeps_step_work`); it is factored only
         where the sweeps need over :data:`MAX_SWEEPS_PER_DECADE` work a decade. A scene all
         sweeps decline (``choice.kind`` None) takes it rather than stepping per object (a
         sparse LU every step)."""
         sweeps = min(choice.work.values())
-        if self.adhesion is not None or not factored_eligible(self.model) or sweeps <= MAX_SWEEPS_PER_DECADE:
+        kind = FactoredSolve if factored_eligible(self.model) else \
+            RigidFactoredSolve if rigid_factored_eligible(self.model) else None
+        if self.adhesion is not None or kind is None or sweeps <= MAX_SWEEPS_PER_DECADE:
             return None
-        solve = FactoredSolve(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
+        solve = kind(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
         return solve if factored_work(solve.fill, len(self.model.block_col)) < sweeps_step_work(sweeps) else None
 
     def _external_forces(self) -> None:
