@@ -14,7 +14,9 @@ What the held FEM bodies' solve does not have, and what it takes here:
   levers) like any other part of ``A - P``. They are kept out of the local Woodbury correction:
   a correction of one of a body's two nodes without the other (or of its springs' far ends)
   can leave ``P`` indefinite (the shoulder's finger: a diagonal block of ``W`` with eigenvalue
-  -470 1/kg at step 40).
+  -470 1/kg at step 40). The FEM nodes' correction can too: a step whose ``W`` has a diagonal
+  block not positive definite goes without it, and an iteration that ends non-finite starts the
+  step again on a factorization of its own ``A`` (the palpation's step 512 of 600 did).
 * **Coupling springs** are blocks of ``A``: nothing to do.
 * **Rigid contact sides**: a contact's Jacobian adds the block ``-[lever]x`` on a rigid side's
   angular node (``NodeContacts.rigid_node``, ``rigid_lever``: the point moves at
@@ -36,12 +38,12 @@ What the held FEM bodies' solve does not have, and what it takes here:
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 import warp as wp
 
 from softvr.contact import _node_factored_kernels as _k
+from softvr.contact import _node_factored_rigid_kernels as _rk
 from softvr.contact.node_factored import ANDERSON_MEMORY, REFACTOR_AFTER, FactoredSolve, _Anderson, _error
-from softvr.device import replayer
+from softvr.device import load_kernels, replayer
 
 __all__ = ["CLOSING_SHARE", "RigidFactoredSolve", "rigid_factored_eligible"]
 
@@ -97,6 +99,9 @@ class RigidFactoredSolve(FactoredSolve):
             weight[angular] = np.sqrt(np.einsum("bii->b", inertia) * inv_mass / 2.0)[:, None]
         self._weight = weight.ravel()
         self.added = 0
+        self._delassus_in: dict | None = None  # the Delassus kernel's arrays (host views), grown
+        self._delassus_wp: dict = {}
+        load_kernels(_rk.delassus, d)
         super().__init__(model, state, dt, max_iterations=max_iterations)
         k = len(self._solved_nodes)
         self._rhs2 = wp.zeros(k, dtype=wp.vec3d, device=d)
@@ -139,57 +144,73 @@ class RigidFactoredSolve(FactoredSolve):
         self._host["absolute"][self._rigid_rows] = np.eye(3)
         self._host["rotation"][self._rigid] = np.eye(3)
 
-    def _contacts(self, local: tuple, candidate: np.ndarray) -> tuple:
+    def _candidate_contacts(self, local: tuple, candidate: np.ndarray) -> tuple:
         """The ``candidate`` [count] contacts the impulses can move (a solved node of nonzero
         block in the stencil or on a rigid side): their rows [m], ``W = J P^-1 J^T`` [3 m,
         3 m] in their frames, the touched solved nodes' rows among the solved velocities [3 u],
-        their columns among the kept ones [3 u], ``R^T J^T`` there (sparse) [3 u, 3 m],
-        ``A_0^-1`` between the local correction's ``S`` and them [3 s, 3 u], every stencil
-        node of theirs [a] and ``J`` over those (sparse, frames) [3 m, 3 a]."""
+        ``A_0^-1`` between the local correction's ``S`` and them [3 s, 3 u], and per contact
+        and slot (its stencil's nodes, then its rigid sides' angular nodes) [m, t]: the node
+        (any; unused slots node 0), ``J``'s block (frames) [m, t, 3, 3], the touched node it
+        moves (-1: none) and its block of ``J R`` there [m, t, 3, 3]."""
         h = self._host
         n = min(int(h["count"][0]), len(h["impulse"]))
         c = self.state.contacts
         used = np.arange(h["stencil_nodes"].shape[1]) < h["stencil_count"][:n, None]
         rigid_node = c.rigid_node.numpy()[:n]
         nodes = np.concatenate([np.where(used, h["stencil_nodes"][:n], 0), np.maximum(rigid_node, 0)], axis=1)
-        blocks = np.concatenate([np.where(used, h["stencil_weights"][:n], 0.0)[..., None, None] * np.eye(3),
-                                 np.where((rigid_node >= 0)[..., None, None], -_skew(c.rigid_lever.numpy()[:n]),
-                                          0.0)], axis=1)  # [n, slots, 3, 3]
-        acts = np.concatenate([used, rigid_node >= 0], axis=1) & (np.abs(blocks).sum(axis=(2, 3)) > 0.0)
-        moves = acts & self._solved[nodes]
+        moves = np.concatenate([used & (h["stencil_weights"][:n] != 0.0), rigid_node >= 0], axis=1) & self._solved[nodes]
         movable = moves.any(axis=1)
         h["movable"][:n] = movable
         self._movable_all = movable
         rows = np.flatnonzero(movable & candidate)
-        nodes, blocks, acts, moves = nodes[rows], blocks[rows], acts[rows], moves[rows]
-        m = len(rows)
-        jb = np.einsum("cij,csjk->csik", h["frame"][rows], blocks)  # J's blocks, frames
-        contact, slot = np.nonzero(acts)
-        every, at = np.unique(nodes[acts], return_inverse=True)
-        j = self._sparse(jb[contact, slot], contact, at, m, len(every))
-        contact, slot = np.nonzero(moves)
+        nodes, moves, m = nodes[rows], moves[rows], len(rows)
+        stencil = np.where(used[rows], h["stencil_weights"][rows], 0.0)[..., None, None] * np.eye(3)
+        rigid = np.where((rigid_node[rows] >= 0)[..., None, None], -_skew(c.rigid_lever.numpy()[rows]), 0.0)
+        jb = np.matmul(h["frame"][rows][:, None], np.concatenate([stencil, rigid], axis=1))  # J's blocks, frames
         touched, at = np.unique(nodes[moves], return_inverse=True)
-        turned = np.einsum("cji,cjk->cik", h["rotation"][touched[at]], np.swapaxes(jb[contact, slot], 1, 2))
-        jt = self._sparse(np.swapaxes(turned, 1, 2), contact, at, m, len(touched)).T.tocsr()  # R^T J^T
         slots = self._slots_of(touched)
         dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
         near = self._columns[np.ix_(local[0], slots)]
-        inverse = self._columns[np.ix_(dofs, slots)] - near.T @ local[2] @ near  # R^T P^-1 R at the touched
-        w = jt.T @ np.asarray(jt.T @ inverse).T
+        d = self._delassus_inputs(m, len(touched), nodes.shape[1])
+        slot, turned = d["slot"][:m], d["turned"][:m]
+        slot[:] = -1
+        slot[moves] = at
+        turned[:] = np.where(moves[..., None, None], np.matmul(jb, h["rotation"][nodes]), 0.0)  # J R
+        inverse = d["inverse"][:len(dofs), :len(dofs)]  # R^T P^-1 R at the touched nodes
+        inverse[:] = self._columns[np.ix_(dofs, slots)]
+        if len(local[0]):
+            inverse -= near.T @ local[2] @ near
+        if m:
+            self._delassus_launch(m)
+        w = d["w"][:3 * m, :3 * m]
         w = 0.5 * (w + w.T)
         each = np.arange(m)
         h["metric"][:n] = 0.0
         h["metric"][rows] = w.reshape(m, 3, m, 3)[each, :, each, :]
         self._used = np.concatenate([local[1], slots])
-        return rows, w, dofs, jt, near, every, j
+        return rows, w, dofs, near, nodes, jb, slot, turned
 
-    @staticmethod
-    def _sparse(blocks: np.ndarray, contact: np.ndarray, node: np.ndarray, m: int, nodes: int) -> sp.csr_matrix:
-        """The sparse [3 m, 3 nodes] matrix of 3 x 3 ``blocks`` [q, 3, 3] at block rows
-        ``contact`` [q] and block columns ``node`` [q] (repeats summed)."""
-        i = (3 * contact[:, None, None] + np.arange(3)[None, :, None]).repeat(3, axis=2)
-        k = (3 * node[:, None, None] + np.arange(3)[None, None, :]).repeat(3, axis=1)
-        return sp.csr_matrix((blocks.ravel(), (i.ravel(), k.ravel())), shape=(3 * m, 3 * nodes))
+    def _delassus_inputs(self, m: int, touched: int, slots: int) -> dict:
+        """Host views of the Delassus kernel's arrays (:func:`_node_factored_rigid_kernels.delassus`)
+        for ``m`` contacts of ``slots`` slots over ``touched`` nodes, grown (twice the size)
+        where they are short."""
+        have = self._delassus_in
+        if have is None or have["slot"].shape[0] < m or have["slot"].shape[1] != slots or \
+                have["inverse"].shape[0] < 3 * touched:
+            d = self.model.device
+            size, nodes = max(2 * m, 16), max(2 * touched, 16)
+            self._delassus_wp = {"slot": wp.zeros((size, slots), dtype=wp.int32, device=d),
+                                 "turned": wp.zeros((size, slots), dtype=wp.mat33d, device=d),
+                                 "inverse": wp.zeros((3 * nodes, 3 * nodes), dtype=wp.float64, device=d),
+                                 "w": wp.zeros((3 * size, 3 * size), dtype=wp.float64, device=d)}
+            have = self._delassus_in = {name: array.numpy() for name, array in self._delassus_wp.items()}
+        return have
+
+    def _delassus_launch(self, m: int) -> None:
+        """``W`` over the first ``m`` contacts of :meth:`_delassus_inputs` into its ``w``."""
+        a = self._delassus_wp
+        wp.launch(_rk.delassus, dim=(m, m), device=self.model.device,
+                  inputs=[a["slot"], a["turned"], a["inverse"], a["w"]])
 
     def _load(self, rows: np.ndarray, w: np.ndarray, tolerance: float) -> dict:
         """The PGS launch's arrays (:meth:`_delassus`) loaded with contacts ``rows`` and ``W``."""
@@ -222,6 +243,7 @@ class RigidFactoredSolve(FactoredSolve):
         wp.copy(self._v, st.sweep_buffers[0])
         v, y, y2, rhs2 = h["v"], h["y"].ravel(), h["y2"].ravel(), h["rhs2"].ravel()
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
+        start = v.copy()
         self._turn()
         self._forget_columns()
         local = self._local()
@@ -231,7 +253,12 @@ class RigidFactoredSolve(FactoredSolve):
         k = restart = 0
         done = False
         while not done and k < self.max_iterations:
-            rows, w, dofs, jt, near, every, j = self._contacts(local, candidate)
+            rows, w, dofs, near, nodes, jb, slot, turned = self._candidate_contacts(local, candidate)
+            if len(local[0]) and len(rows) and np.linalg.eigvalsh(h["metric"][rows]).min() <= 0.0:
+                # the local correction left P indefinite at the contacts: this step without it
+                local = (local[0][:0], local[1][:0], local[2][:0, :0])
+                rows, w, dofs, near, nodes, jb, slot, turned = self._candidate_contacts(local, candidate)
+            moves = slot >= 0
             m = len(rows)
             pgs = self._load(rows, w, tolerance)
             lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
@@ -248,12 +275,16 @@ class RigidFactoredSolve(FactoredSolve):
                 self._solve_r()  # A_0^-1 R^T r
                 at_s = y[local[0]]
                 if m:
-                    at = y[dofs] - near.T @ (local[2] @ at_s)  # R^T P^-1 r at the touched nodes
-                    u_f[:] = (j @ v[every].ravel() + jt.T @ at).reshape(m, 3)  # J v + J P^-1 r
+                    at = (y[dofs] - near.T @ (local[2] @ at_s)).reshape(-1, 3)  # R^T P^-1 r, touched nodes
+                    # J v + J P^-1 r
+                    u_f[:] = np.einsum("csij,csj->ci", jb, v[nodes]) + np.einsum("csij,csj->ci", turned,
+                                                                                  at[np.maximum(slot, 0)])
                     self._pgs()
                     self.delassus_passes += int(h["done"][0])
+                    pushed = np.zeros_like(at)  # R^T J^T lambda at the touched nodes
+                    np.add.at(pushed, slot[moves], np.einsum("csji,cj->csi", turned, lam)[moves])
                     rhs2[:] = 0.0
-                    rhs2[dofs] = jt @ lam.ravel()  # R^T J^T lambda
+                    rhs2[dofs] = pushed.ravel()
                     self._solve_impulse()
                     y += y2
                     at_s = y[local[0]]
@@ -263,6 +294,12 @@ class RigidFactoredSolve(FactoredSolve):
                 u = h["u"].ravel()
                 change = float(np.max(np.abs(u - v.ravel()) * self._weight, initial=0.0))
                 v[:] = anderson.next(v.ravel(), u.copy()).reshape(-1, 3)
+                if not np.isfinite(change):  # P went indefinite (module docstring): an exact one
+                    v[:] = start
+                    self._factor()
+                    local = self._local()
+                    restart = k
+                    break
                 h["stats"][0] = change
                 changes.append(change)
                 if _error(changes) <= tolerance:
