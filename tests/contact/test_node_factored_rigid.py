@@ -5,8 +5,9 @@ eqs. 5.2 + 5.4 (a turning cube tied to a deformed block and a fixed body, its A 
 factored one) and to SciPy's SLSQP on the MLCP of eq. 5.5 (a light box on springs landing on a
 plane by its corners, levers and all).
 
-The scenes here are small and their sweeps fast; the factored path is forced by setting the
-sweeps' work limit to 0 (the shoulder takes it by the stepper's own choice). Tolerances: the
+The scenes here are small and their sweeps fast; the factored path is forced from the second
+step on by a watch of the sweeps over one step that finds any count too many (the shoulder's
+palpation takes it by the stepper's own watch: SweepWatch). Tolerances: the
 solve stops when the estimated velocity error is under SWEEP_TOLERANCE (1e-5 m/s, a rigid
 body's spin counted at its radius of gyration), so velocities are held to 3x that.
 """
@@ -17,9 +18,9 @@ import scipy.optimize as so
 from scipy.spatial.transform import Rotation
 
 from softvr import Scene
-from softvr.contact.node_factored_rigid import RigidFactoredSolve, rigid_factored_eligible
+from softvr.contact import node_factored_rigid
+from softvr.contact.node_factored_rigid import RigidFactoredSolve, SweepWatch, rigid_factored_eligible
 from softvr.dynamics import Coupling, FixedBody, RigidBody, RigidPoints
-from softvr.sim import _node_step
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.sim.test_node_rigid_couplings import _block, _box_system, _direct_step, _embedded, _held_box
@@ -29,8 +30,10 @@ VELOCITY_TOL = 3 * SWEEP_TOLERANCE  # [m/s]
 
 @pytest.fixture
 def factored(monkeypatch):
-    """The stepper takes the factored solve wherever the scene is eligible."""
-    monkeypatch.setattr(_node_step, "MAX_SWEEPS_PER_DECADE", 0.0)
+    """The stepper takes the factored solve after the first step wherever the scene is eligible
+    (the sweeps watched over one step, any count too many)."""
+    monkeypatch.setattr(node_factored_rigid, "WATCHED_STEPS", 1)
+    monkeypatch.setattr(node_factored_rigid, "FACTORED_ABOVE_SWEEPS", -1.0)
 
 
 def test_a_turning_cube_on_springs_to_a_deformed_block_steps_as_scipys_direct_solve_of_eqs_5_2_and_5_4(factored):
@@ -80,7 +83,7 @@ def test_a_spring_held_box_landing_on_a_plane_by_its_corners_solves_scipys_mlcp_
     scene, box, corners, ties = _held_box(collide=True)
     normal = np.array([0.0, 0.0, 1.0])
     pressed = 0
-    for _ in range(4):
+    for step in range(4):
         a, b = _box_system(box, ties, dt)
         levers = corners @ box.rotation.T
         jac = np.hstack([np.tile(normal, (8, 1)), np.cross(levers, normal)])
@@ -90,7 +93,8 @@ def test_a_spring_held_box_landing_on_a_plane_by_its_corners_solves_scipys_mlcp_
         truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
                             constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
                             method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
-        pressed += int((rows @ np.linalg.solve(a, b) < floor).sum())  # rows the contacts must push
+        if step:  # the factored solve's steps (the first is the sweeps')
+            pressed += int((rows @ np.linalg.solve(a, b) < floor).sum())  # rows the contacts must push
         scene.step(dt)
         np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)
         # omega's error: a corner's lever of 0.035 m turns 3e-5 m/s into 8.6e-4 rad/s.
@@ -109,3 +113,17 @@ def test_a_free_rigid_body_leaves_the_scene_to_the_sweeps():
     scene.add_body(free)
     scene.step(0.01)
     assert not rigid_factored_eligible(scene._stepper.model)
+
+
+def test_the_sweeps_watch_hands_over_once_the_mean_over_its_window_is_over_the_limit():
+    # The rule written out: the mean of the last WATCHED_STEPS counts over FACTORED_ABOVE_SWEEPS.
+    n, limit = node_factored_rigid.WATCHED_STEPS, node_factored_rigid.FACTORED_ABOVE_SWEEPS
+    watch = SweepWatch()
+    assert not any(watch.due(10 * int(limit)) for _ in range(n - 1))  # a window not yet full
+    watch = SweepWatch()
+    assert not any(watch.due(int(limit)) for _ in range(3 * n))  # at the limit, not over it
+    assert watch.due(int(limit) + n)  # one step over by n: the mean over by one
+    watch = SweepWatch()
+    counts = [2 * int(limit)] * (n // 2) + [0] * n + [int(limit) + 1] * (n - 1)
+    assert not any(watch.due(c) for c in counts)  # the old steps' counts have left the window
+    assert watch.due(int(limit) + 1)

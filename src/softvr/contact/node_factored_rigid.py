@@ -37,20 +37,30 @@ What the held FEM bodies' solve does not have, and what it takes here:
 
 from __future__ import annotations
 
+from collections import deque
+
 import numpy as np
 import warp as wp
 
 from softvr.contact import _node_factored_kernels as _k
 from softvr.contact import _node_factored_rigid_kernels as _rk
-from softvr.contact.node_factored import ANDERSON_MEMORY, REFACTOR_AFTER, FactoredSolve, _Anderson, _error
+from softvr.contact.node_factored import ANDERSON_MEMORY, REFACTOR_AFTER, FactoredSolve, _error
 from softvr.device import load_kernels, replayer
 
-__all__ = ["CLOSING_SHARE", "RigidFactoredSolve", "rigid_factored_eligible"]
+__all__ = ["CLOSING_SHARE", "FACTORED_ABOVE_SWEEPS", "WATCHED_STEPS", "RigidFactoredSolve", "SweepWatch",
+           "rigid_factored_eligible"]
 
 #: A contact with no carried impulse joins the step's Delassus matrix where the first guess
 #: (the step's start velocities) leaves it a gap after the step under this share of its gap now
 #: (as the sweeps' sleeping contacts: ``SLEEP_GAP_SHARE``).
 CLOSING_SHARE = 0.5
+#: The sweeps' steps watched (:class:`SweepWatch`), and the mean sweeps a step over them above
+#: which the factored solve takes over. Measured on the shoulder (process CPU, loaded 2-core
+#: machine): a sweep ~0.15 ms; a factored step ~1 ms and ~0.3 ms an outer iteration, 3-7 of
+#: them: even at ~15-20 sweeps a step. The palpation makes ~37 a step (43 touching), the
+#: arthroscopy ~14, which its sweeps keep.
+WATCHED_STEPS = 20
+FACTORED_ABOVE_SWEEPS = 25.0
 
 
 def rigid_factored_eligible(model) -> bool:
@@ -65,6 +75,31 @@ def rigid_factored_eligible(model) -> bool:
     rows = np.diff(model.row_start.numpy()) > 0
     nodes = np.concatenate([model.rigid.linear_node.numpy(), model.rigid.angular_node.numpy()])
     return bool(rows[nodes].all())
+
+
+class SweepWatch:
+    """The node sweeps' counts over the last :data:`WATCHED_STEPS` steps of a scene that
+    :class:`RigidFactoredSolve` can step (:meth:`of`): :meth:`due` once their mean is over
+    :data:`FACTORED_ABOVE_SWEEPS` (a choice from what the sweeps did, not from their estimated
+    work a decade, which both shoulder scenes are over)."""
+
+    def __init__(self) -> None:
+        self._counts: deque[int] = deque(maxlen=WATCHED_STEPS)
+
+    @classmethod
+    def of(cls, model) -> SweepWatch | None:
+        """A watch for ``model``'s sweeps where :func:`rigid_factored_eligible`, else None; the
+        factored solve's kernels compiled (or loaded) now, not in the step that takes it."""
+        if not rigid_factored_eligible(model):
+            return None
+        for kernel in (_k.factor_solve, _rk.delassus):
+            load_kernels(kernel, model.device)
+        return cls()
+
+    def due(self, sweeps: int) -> bool:
+        """Whether the factored solve should take over after a step of ``sweeps`` sweeps."""
+        self._counts.append(int(sweeps))
+        return len(self._counts) == WATCHED_STEPS and sum(self._counts) > FACTORED_ABOVE_SWEEPS * WATCHED_STEPS
 
 
 def _skew(r: np.ndarray) -> np.ndarray:
@@ -101,15 +136,39 @@ class RigidFactoredSolve(FactoredSolve):
         self.added = 0
         self._delassus_in: dict | None = None  # the Delassus kernel's arrays (host views), grown
         self._delassus_wp: dict = {}
-        load_kernels(_rk.delassus, d)
+        self._delassus_launch = lambda: None  # W's replayed kernel on the arrays of _delassus_inputs
+        load_kernels(_rk.delassus, d)  # the module: its iteration kernels too
         super().__init__(model, state, dt, max_iterations=max_iterations)
         k = len(self._solved_nodes)
         self._rhs2 = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y2 = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._work2 = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._host.update(rhs2=self._rhs2.numpy(), y2=self._y2.numpy(), absolute=self._absolute.numpy(),
-                          rotation0=self._rotation0.numpy(), gap_after=state.contacts.gap_after.numpy())
+                          rotation0=self._rotation0.numpy(), gap_after=state.contacts.gap_after.numpy(),
+                          rigid_node=state.contacts.rigid_node.numpy(), rigid_lever=state.contacts.rigid_lever.numpy())
+        self._buffers = [buffer.numpy() for buffer in state.sweep_buffers]  # host views
         self._rigid_rows = self._index[self._rigid]
+        # The outer iteration's kernels' arrays: sizes (3 s, 3 u, contacts), the change and
+        # whether it is finite, Anderson's memory, per-step arrays (:meth:`_iteration_arrays`).
+        n = model.node_count
+        self._sizes = wp.zeros(3, dtype=wp.int32, device=d)
+        self._out = wp.zeros(2, dtype=wp.float64, device=d)
+        self._index_d = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32, device=d)
+        self._weight_d = wp.array(self._weight.reshape(-1, 3), dtype=wp.vec3d, device=d)
+        self._anderson_wp = {"last_f": wp.zeros(n, dtype=wp.vec3d, device=d),
+                             "last_g": wp.zeros(n, dtype=wp.vec3d, device=d),
+                             "df": wp.zeros((ANDERSON_MEMORY, n), dtype=wp.vec3d, device=d),
+                             "dg": wp.zeros((ANDERSON_MEMORY, n), dtype=wp.vec3d, device=d),
+                             "gram": wp.zeros((ANDERSON_MEMORY, ANDERSON_MEMORY), dtype=wp.float64, device=d),
+                             "system": wp.zeros((ANDERSON_MEMORY, ANDERSON_MEMORY + 1), dtype=wp.float64, device=d),
+                             "gamma": wp.zeros(ANDERSON_MEMORY, dtype=wp.float64, device=d),
+                             "ring": wp.zeros(3, dtype=wp.int32, device=d)}
+        self._sizes_host = self._sizes.numpy()
+        self._host.update(out=self._out.numpy(), ring=self._anderson_wp["ring"].numpy())
+        self._iteration_in: dict | None = None
+        self._iteration_wp: dict = {}
+        self._iteration_for: tuple | None = None
+        self._iteration_replays: tuple = ()
         self._unturn_rigid()
         self._solve_impulse = self._record_impulse_solve()
         warp_change = self._warp_change
@@ -154,9 +213,8 @@ class RigidFactoredSolve(FactoredSolve):
         moves (-1: none) and its block of ``J R`` there [m, t, 3, 3]."""
         h = self._host
         n = min(int(h["count"][0]), len(h["impulse"]))
-        c = self.state.contacts
         used = np.arange(h["stencil_nodes"].shape[1]) < h["stencil_count"][:n, None]
-        rigid_node = c.rigid_node.numpy()[:n]
+        rigid_node = h["rigid_node"][:n]
         nodes = np.concatenate([np.where(used, h["stencil_nodes"][:n], 0), np.maximum(rigid_node, 0)], axis=1)
         moves = np.concatenate([used & (h["stencil_weights"][:n] != 0.0), rigid_node >= 0], axis=1) & self._solved[nodes]
         movable = moves.any(axis=1)
@@ -165,7 +223,7 @@ class RigidFactoredSolve(FactoredSolve):
         rows = np.flatnonzero(movable & candidate)
         nodes, moves, m = nodes[rows], moves[rows], len(rows)
         stencil = np.where(used[rows], h["stencil_weights"][rows], 0.0)[..., None, None] * np.eye(3)
-        rigid = np.where((rigid_node[rows] >= 0)[..., None, None], -_skew(c.rigid_lever.numpy()[rows]), 0.0)
+        rigid = np.where((rigid_node[rows] >= 0)[..., None, None], -_skew(h["rigid_lever"][rows]), 0.0)
         jb = np.matmul(h["frame"][rows][:, None], np.concatenate([stencil, rigid], axis=1))  # J's blocks, frames
         touched, at = np.unique(nodes[moves], return_inverse=True)
         slots = self._slots_of(touched)
@@ -173,6 +231,7 @@ class RigidFactoredSolve(FactoredSolve):
         near = self._columns[np.ix_(local[0], slots)]
         d = self._delassus_inputs(m, len(touched), nodes.shape[1])
         slot, turned = d["slot"][:m], d["turned"][:m]
+        d["node"][:m], d["block"][:m] = nodes, jb
         slot[:] = -1
         slot[moves] = at
         turned[:] = np.where(moves[..., None, None], np.matmul(jb, h["rotation"][nodes]), 0.0)  # J R
@@ -180,8 +239,9 @@ class RigidFactoredSolve(FactoredSolve):
         inverse[:] = self._columns[np.ix_(dofs, slots)]
         if len(local[0]):
             inverse -= near.T @ local[2] @ near
+        self._sizes_host[:] = len(local[0]), len(dofs), m
         if m:
-            self._delassus_launch(m)
+            self._delassus_launch()
         w = d["w"][:3 * m, :3 * m]
         w = 0.5 * (w + w.T)
         each = np.arange(m)
@@ -201,16 +261,19 @@ class RigidFactoredSolve(FactoredSolve):
             size, nodes = max(2 * m, 16), max(2 * touched, 16)
             self._delassus_wp = {"slot": wp.zeros((size, slots), dtype=wp.int32, device=d),
                                  "turned": wp.zeros((size, slots), dtype=wp.mat33d, device=d),
+                                 "node": wp.zeros((size, slots), dtype=wp.int32, device=d),
+                                 "block": wp.zeros((size, slots), dtype=wp.mat33d, device=d),
                                  "inverse": wp.zeros((3 * nodes, 3 * nodes), dtype=wp.float64, device=d),
-                                 "w": wp.zeros((3 * size, 3 * size), dtype=wp.float64, device=d)}
+                                 "w": wp.zeros((3 * size, 3 * size), dtype=wp.float64, device=d),
+                                 "half": wp.zeros((size, nodes), dtype=wp.mat33d, device=d)}
             have = self._delassus_in = {name: array.numpy() for name, array in self._delassus_wp.items()}
+            a = self._delassus_wp
+            self._delassus_launch = replayer(wp.launch(
+                _rk.delassus, dim=1, device=d, record_cmd=True,
+                inputs=[self._sizes, a["slot"], a["turned"], a["inverse"], a["half"], a["w"]]))
         return have
 
-    def _delassus_launch(self, m: int) -> None:
-        """``W`` over the first ``m`` contacts of :meth:`_delassus_inputs` into its ``w``."""
-        a = self._delassus_wp
-        wp.launch(_rk.delassus, dim=(m, m), device=self.model.device,
-                  inputs=[a["slot"], a["turned"], a["inverse"], a["w"]])
+
 
     def _load(self, rows: np.ndarray, w: np.ndarray, tolerance: float) -> dict:
         """The PGS launch's arrays (:meth:`_delassus`) loaded with contacts ``rows`` and ``W``."""
@@ -235,13 +298,67 @@ class RigidFactoredSolve(FactoredSolve):
         h["impulse"][:n][~out] = 0.0
         return out
 
+    def _iteration_arrays(self, s_count: int, u_count: int) -> dict:
+        """Host views of the outer iteration kernels' per-step arrays for a local correction of
+        ``s_count`` and ``u_count`` touched velocities, grown (twice the size) where short."""
+        have = self._iteration_in
+        if have is None or have["local_t"].shape[0] < s_count or have["near"].shape[1] < u_count:
+            d, k = self.model.device, len(self._solved_nodes)
+            s_cap = max(2 * s_count, 48, 0 if have is None else have["local_t"].shape[0])
+            u_cap = max(2 * u_count, 192, 0 if have is None else have["near"].shape[1])
+            self._iteration_wp = {"local_dofs": wp.zeros(s_cap, dtype=wp.int32, device=d),
+                                  "local_t": wp.zeros((s_cap, s_cap), dtype=wp.float64, device=d),
+                                  "local_columns": wp.zeros((3 * k, s_cap), dtype=wp.float64, device=d),
+                                  "z": wp.zeros(s_cap, dtype=wp.float64, device=d),
+                                  "dofs": wp.zeros(u_cap, dtype=wp.int32, device=d),
+                                  "near": wp.zeros((s_cap, u_cap), dtype=wp.float64, device=d),
+                                  "at": wp.zeros(u_cap, dtype=wp.float64, device=d)}
+            have = self._iteration_in = {name: array.numpy() for name, array in self._iteration_wp.items()}
+        return have
+
+    def _iteration(self, local: tuple, dofs: np.ndarray, near: np.ndarray) -> tuple:
+        """The outer iteration's three kernels (:mod:`_node_factored_rigid_kernels`:
+        ``contact_velocity``, ``impulse_push``, ``outer_update``) loaded with this step's local
+        correction ``local`` (:meth:`_local`), touched velocities ``dofs`` [3 u] and ``near`` [3 s,
+        3 u] (the contacts' count is set by :meth:`_candidate_contacts`), recorded again where
+        their arrays were replaced."""
+        s_count, u_count = len(local[0]), len(dofs)
+        a = self._iteration_arrays(s_count, u_count)
+        a["local_dofs"][:s_count] = local[0]
+        a["local_t"][:s_count, :s_count] = local[2]
+        a["local_columns"][:, :s_count] = self._columns[:, local[1]]
+        a["dofs"][:u_count] = dofs
+        a["near"][:s_count, :u_count] = near
+        self._host["rhs2"][:] = 0.0
+        arrays = (self._delassus_keep, self._delassus_wp, self._iteration_wp)
+        if self._iteration_for is None or any(x is not y for x, y in zip(arrays, self._iteration_for)):
+            self._iteration_for = arrays
+            self._iteration_replays = self._record_iteration()
+        return self._iteration_replays
+
+    def _record_iteration(self) -> tuple:
+        """Replayers of the outer iteration's kernels on the current arrays."""
+        d, pgs, dl, it = self.model.device, self._delassus_keep, self._delassus_wp, self._iteration_wp
+        sizes, a = self._sizes, self._anderson_wp
+        return tuple(replayer(wp.launch(kernel, dim=1, device=d, record_cmd=True, inputs=inputs)) for kernel, inputs in (
+            (_rk.contact_velocity, [sizes, it["local_dofs"], it["local_t"], it["dofs"], it["near"], self._y,
+                                    dl["slot"], dl["node"], dl["block"], dl["turned"], self._v, it["z"], it["at"],
+                                    pgs["u"]]),
+            (_rk.impulse_push, [sizes, it["dofs"], dl["slot"], dl["turned"], pgs["impulse"], self._rhs2]),
+            (_rk.outer_update, [sizes, it["local_dofs"], it["local_t"], it["local_columns"], self._index_d,
+                                self._rotation, self._weight_d, self._y, self._y2, it["z"], self._v, self._u,
+                                a["last_f"], a["last_g"], a["df"], a["dg"], a["gram"], a["system"], a["gamma"],
+                                a["ring"], self._out])))
+
     def solve(self, tolerance: float) -> tuple[int, wp.array]:
         """:meth:`FactoredSolve.solve` with the contacts of :meth:`_candidates` in ``W`` and any
         the solved velocities close beyond their target added on the way (``added``); the
-        impulses' response by a second triangular solve."""
+        impulses' response by a second triangular solve. An outer iteration is a fixed sequence
+        of replayed launches (residual, block solve, the contacts' velocities, PGS on ``W``,
+        the impulses' solve, update and Anderson's step) and one number read back, its change."""
         st, h = self.state, self._host
-        wp.copy(self._v, st.sweep_buffers[0])
-        v, y, y2, rhs2 = h["v"], h["y"].ravel(), h["y2"].ravel(), h["rhs2"].ravel()
+        v = h["v"]
+        v[:] = self._buffers[0]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
         start = v.copy()
         self._turn()
@@ -252,18 +369,19 @@ class RigidFactoredSolve(FactoredSolve):
         self.delassus_passes = self.added = 0
         k = restart = 0
         done = False
+        out, ring = h["out"], h["ring"]
         while not done and k < self.max_iterations:
             rows, w, dofs, near, nodes, jb, slot, turned = self._candidate_contacts(local, candidate)
             if len(local[0]) and len(rows) and np.linalg.eigvalsh(h["metric"][rows]).min() <= 0.0:
                 # the local correction left P indefinite at the contacts: this step without it
                 local = (local[0][:0], local[1][:0], local[2][:0, :0])
                 rows, w, dofs, near, nodes, jb, slot, turned = self._candidate_contacts(local, candidate)
-            moves = slot >= 0
             m = len(rows)
             pgs = self._load(rows, w, tolerance)
-            lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
-            columns_s = self._columns[:, local[1]]  # A_0^-1 at S (Woodbury), gathered once
-            anderson, changes = _Anderson(ANDERSON_MEMORY), []
+            lam = pgs["impulse"][:m]
+            velocity, push, update = self._iteration(local, dofs, near)
+            ring[:] = 0  # Anderson's memory emptied
+            changes: list[float] = []
             while k < self.max_iterations:
                 if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
                     self._factor()
@@ -273,28 +391,15 @@ class RigidFactoredSolve(FactoredSolve):
                 k += 1
                 self._residual()  # R^T r
                 self._solve_r()  # A_0^-1 R^T r
-                at_s = y[local[0]]
                 if m:
-                    at = (y[dofs] - near.T @ (local[2] @ at_s)).reshape(-1, 3)  # R^T P^-1 r, touched nodes
-                    # J v + J P^-1 r
-                    u_f[:] = np.einsum("csij,csj->ci", jb, v[nodes]) + np.einsum("csij,csj->ci", turned,
-                                                                                  at[np.maximum(slot, 0)])
+                    velocity()  # J v + J P^-1 r
                     self._pgs()
                     self.delassus_passes += int(h["done"][0])
-                    pushed = np.zeros_like(at)  # R^T J^T lambda at the touched nodes
-                    np.add.at(pushed, slot[moves], np.einsum("csji,cj->csi", turned, lam)[moves])
-                    rhs2[:] = 0.0
-                    rhs2[dofs] = pushed.ravel()
+                    push()  # R^T J^T lambda
                     self._solve_impulse()
-                    y += y2
-                    at_s = y[local[0]]
-                if len(local[0]):  # P^-1 = R (A_0^-1 - C_S T C_S^T) R^T
-                    y -= np.einsum("ij,j->i", columns_s, local[2] @ at_s)
-                self._update()  # u = v + R y
-                u = h["u"].ravel()
-                change = float(np.max(np.abs(u - v.ravel()) * self._weight, initial=0.0))
-                v[:] = anderson.next(v.ravel(), u.copy()).reshape(-1, 3)
-                if not np.isfinite(change):  # P went indefinite (module docstring): an exact one
+                update()  # u = v + P^-1 (r + J^T lambda), Anderson's next v
+                change = float(out[0])
+                if out[1]:  # P went indefinite (module docstring): an exact one
                     v[:] = start
                     self._factor()
                     local = self._local()
@@ -313,6 +418,5 @@ class RigidFactoredSolve(FactoredSolve):
                         break
         if not done:
             self._contacts_met(rows, lam, tolerance)
-        out = st.sweep_buffers[k % 3]
-        wp.copy(out, self._v)
-        return k, out
+        self._buffers[k % 3][:] = v
+        return k, st.sweep_buffers[k % 3]

@@ -35,7 +35,7 @@ from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
-from softvr.contact.node_factored_rigid import RigidFactoredSolve, rigid_factored_eligible
+from softvr.contact.node_factored_rigid import RigidFactoredSolve, SweepWatch
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -266,6 +266,7 @@ class NodeStepper:
         self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
         self._recorded = None
         self._spectrum = {}
+        self._watch: SweepWatch | None = None  # the sweeps' counts, where the rigid factored solve may take over
 
     def contact_body(self, contacts: dict) -> np.ndarray:
         """Side a's body of each contact of a snapshot's ``contacts``."""
@@ -441,7 +442,8 @@ class NodeStepper:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
         bounds on the first use; or the factored solve where it needs less work
-        (:meth:`_factored`)."""
+        (:meth:`_factored`); or, once the sweeps have been watched making too many a step
+        (:class:`SweepWatch`), the rigid factored solve."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
@@ -456,25 +458,23 @@ class NodeStepper:
             if choice.kind is None and factored is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
+            self._watch = SweepWatch.of(self.model) if factored is None and self.adhesion is None else None
             self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
         return self._recorded[5]
 
-    def _factored(self, dt: float, choice) -> FactoredSolve | RigidFactoredSolve | None:
-        """The factored solve (:mod:`softvr.contact.node_factored`; with rigid bodies or
-        couplings :mod:`softvr.contact.node_factored_rigid`) where the scene allows it
-        (:func:`factored_eligible`, :func:`rigid_factored_eligible`, no adhesion) and its estimated work a contact step is less
+    def _factored(self, dt: float, choice) -> FactoredSolve | None:
+        """The factored solve (:mod:`softvr.contact.node_factored`) where the scene allows it
+        (:func:`factored_eligible`, no adhesion) and its estimated work a contact step is less
         than the sweeps' (:func:`factored_work`, :func:`sweeps_step_work`); it is factored only
         where the sweeps need over :data:`MAX_SWEEPS_PER_DECADE` work a decade. A scene all
         sweeps decline (``choice.kind`` None) takes it rather than stepping per object (a
         sparse LU every step)."""
         sweeps = min(choice.work.values())
-        kind = FactoredSolve if factored_eligible(self.model) else \
-            RigidFactoredSolve if rigid_factored_eligible(self.model) else None
-        if self.adhesion is not None or kind is None or sweeps <= MAX_SWEEPS_PER_DECADE:
+        if self.adhesion is not None or not factored_eligible(self.model) or sweeps <= MAX_SWEEPS_PER_DECADE:
             return None
-        solve = kind(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
+        solve = FactoredSolve(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
         return solve if factored_work(solve.fill, len(self.model.block_col)) < sweeps_step_work(sweeps) else None
 
     def _external_forces(self) -> None:
@@ -519,6 +519,9 @@ class NodeStepper:
         start[self._carried]()
         self._carried = True
         sweeps, solved = solve.solve(SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance)
+        if self._watch is not None and self._watch.due(sweeps):  # from the next step on
+            self._recorded[5], self._watch = RigidFactoredSolve(self.model, self.state, dt,
+                                                                max_iterations=self.scene.pgs_iterations), None
         if self.adhesion is not None:
             evolve[sweeps % 3]()
             self.scene.adhesion_state = self.adhesion.state()
