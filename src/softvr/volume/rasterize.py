@@ -470,9 +470,11 @@ class Rasterizer:
         if window is not None:
             # Only the region update() redraws: what tets cover outside it is already drawn.
             box = window[2].clip(box)
+        serial = None
         if folded is not None and folded.any():
             box = box.copy() if window is None else box
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
+            serial = _near_folds(tets, folded, box, len(self.nodes))
         if window is not None or (folded is not None and folded.any()):
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
@@ -521,23 +523,37 @@ class Rasterizer:
             )
         elif self.method == "spans" and self._out_code and not count_writes:
             t_cull = time.perf_counter()
-            slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
-            offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
-            items = int(offsets[-1])
-            written = wp.zeros(max(items, 1), dtype=wp.int32, device=dev)
-            tested = written
-            launch(
-                K.raster_tets_cpu,
-                items,
-                [
-                    self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
-                    self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
-                    wp.vec3i(*pitch), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
-                    m, _SLABS_PER_ITEM, self._params, written,
-                ],
-                dev,
-                min_chunk=16,
-            )
+            # Tets near a fold may overlap: drawn after the others, on one thread in tet order, so
+            # that a voxel two of them cover gets the later one's value on any number of threads
+            # (split, the order in which two threads wrote it was a race).
+            passes = [(box, box_w, True)]
+            if serial is not None and serial.any():
+                later = box.copy()
+                later[~serial, 1] = later[~serial, 0] - 1
+                first = box.copy()
+                first[serial, 1] = first[serial, 0] - 1
+                passes = [(b, wp.array(b, dtype=wp.int32, device=dev), split) for b, split in ((first, True), (later, False))]
+            counts_w = []
+            for pass_box, pass_box_w, split in passes:
+                slabs = np.where(pass_box[:, 1] >= pass_box[:, 0], pass_box[:, 1] - pass_box[:, 0] + 1, 0)
+                offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
+                items = int(offsets[-1])
+                counts_w.append(wp.zeros(max(items, 1), dtype=wp.int32, device=dev))
+                launch(
+                    K.raster_tets_cpu,
+                    items,
+                    [
+                        self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
+                        self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
+                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                        m, _SLABS_PER_ITEM, self._params, counts_w[-1],
+                    ],
+                    dev,
+                    min_chunk=16,
+                    split=split,
+                )
+            written = tested = counts_w[0] if len(counts_w) == 1 else wp.array(
+                np.concatenate([c.numpy() for c in counts_w]), dtype=wp.int32, device=dev)
         else:
             t_cull = time.perf_counter()
             slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
@@ -759,6 +775,17 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
     sign = np.repeat(1 - 2 * (pick.sum(axis=1) & 1), len(a))
     marks = np.bincount(np.ravel_multi_index(c.T, dims), sign, minlength=int(np.prod(dims))).reshape(dims)
     return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
+
+
+def _near_folds(tets: np.ndarray, folded: np.ndarray, box: np.ndarray, node_count: int) -> np.ndarray:
+    """bool [len(tets)]: the tets [m, 4] that may overlap another where the mesh folds: those
+    whose voxel box [m, 6] (inclusive ranges) meets the box of a drawn tet that shares a node
+    with a ``folded`` one (a fold's neighbours are what it turns over one another)."""
+    near = np.zeros(node_count, dtype=bool)
+    near[tets[folded].ravel()] = True
+    ring = box[near[tets].any(axis=1) & ~folded]
+    meets = (box[:, None, 0::2] <= ring[None, :, 1::2]) & (ring[None, :, 0::2] <= box[:, None, 1::2])
+    return np.all(meets, axis=2).any(axis=1) & ~folded
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
