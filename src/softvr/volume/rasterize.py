@@ -473,8 +473,8 @@ class Rasterizer:
         serial = None
         if folded is not None and folded.any():
             box = box.copy() if window is None else box
+            serial = _fold_redraw(box, folded)
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
-            serial = _near_folds(tets, folded, box, len(self.nodes))
         if window is not None or (folded is not None and folded.any()):
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
@@ -523,16 +523,12 @@ class Rasterizer:
             )
         elif self.method == "spans" and self._out_code and not count_writes:
             t_cull = time.perf_counter()
-            # Tets near a fold may overlap: drawn after the others, on one thread in tet order, so
-            # that a voxel two of them cover gets the later one's value on any number of threads
-            # (split, the order in which two threads wrote it was a race).
+            # Drawn tets overlap only inside folded ones (below): that box is drawn again after the
+            # split launch, on one thread in tet order, so that its voxels get the last tet that
+            # covers them on any number of threads (split, two threads' writes there were a race).
             passes = [(box, box_w, True)]
-            if serial is not None and serial.any():
-                later = box.copy()
-                later[~serial, 1] = later[~serial, 0] - 1
-                first = box.copy()
-                first[serial, 1] = first[serial, 0] - 1
-                passes = [(b, wp.array(b, dtype=wp.int32, device=dev), split) for b, split in ((first, True), (later, False))]
+            if serial is not None:
+                passes.append((serial, wp.array(serial, dtype=wp.int32, device=dev), False))
             counts_w = []
             for pass_box, pass_box_w, split in passes:
                 slabs = np.where(pass_box[:, 1] >= pass_box[:, 0], pass_box[:, 1] - pass_box[:, 0] + 1, 0)
@@ -777,15 +773,22 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
     return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
 
 
-def _near_folds(tets: np.ndarray, folded: np.ndarray, box: np.ndarray, node_count: int) -> np.ndarray:
-    """bool [len(tets)]: the tets [m, 4] that may overlap another where the mesh folds: those
-    whose voxel box [m, 6] (inclusive ranges) meets the box of a drawn tet that shares a node
-    with a ``folded`` one (a fold's neighbours are what it turns over one another)."""
-    near = np.zeros(node_count, dtype=bool)
-    near[tets[folded].ravel()] = True
-    ring = box[near[tets].any(axis=1) & ~folded]
-    meets = (box[:, None, 0::2] <= ring[None, :, 1::2]) & (ring[None, :, 0::2] <= box[:, None, 1::2])
-    return np.all(meets, axis=2).any(axis=1) & ~folded
+def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
+    """The voxel boxes [m, 6] (inclusive ranges) cut to the box around the ``folded`` tets' boxes,
+    or None when those are empty. Where a mesh whose boundary does not cross itself folds, the
+    drawn (positively oriented) tets cover each point of a folded tet's hull one time more than
+    the folded tet's (negative) turn, and every other point once: two drawn tets overlap only
+    inside folded ones."""
+    fold = box[folded]
+    fold = fold[np.all(fold[:, 1::2] >= fold[:, 0::2], axis=1)]
+    if not len(fold):
+        return None
+    cut = box.copy()
+    cut[:, 0::2] = np.maximum(box[:, 0::2], fold[:, 0::2].min(axis=0))
+    cut[:, 1::2] = np.minimum(box[:, 1::2], fold[:, 1::2].max(axis=0))
+    empty = np.any(cut[:, 1::2] < cut[:, 0::2], axis=1) | folded
+    cut[empty, 1] = cut[empty, 0] - 1
+    return cut
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
