@@ -548,8 +548,7 @@ class Rasterizer:
                     min_chunk=16,
                     split=split,
                 )
-            written = tested = counts_w[0] if len(counts_w) == 1 else wp.array(
-                np.concatenate([c.numpy() for c in counts_w]), dtype=wp.int32, device=dev)
+            written = tested = counts_w[0]  # the redraw rewrites voxels counted here
         else:
             t_cull = time.perf_counter()
             slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
@@ -775,10 +774,10 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
 
 def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
     """The voxel boxes [m, 6] (inclusive ranges) cut to the box around the ``folded`` tets' boxes,
-    or None when those are empty. Where a mesh whose boundary does not cross itself folds, the
-    drawn (positively oriented) tets cover each point of a folded tet's hull one time more than
-    the folded tet's (negative) turn, and every other point once: two drawn tets overlap only
-    inside folded ones."""
+    or None when those are empty. A mesh whose boundary does not cross itself covers each point
+    inside it once, counting each tet with its orientation's sign: a point inside k folded
+    (negative) tets lies in k + 1 drawn ones, every other point in one. So two drawn tets overlap
+    only inside folded ones."""
     fold = box[folded]
     fold = fold[np.all(fold[:, 1::2] >= fold[:, 0::2], axis=1)]
     if not len(fold):
