@@ -181,7 +181,8 @@ class Rasterizer:
         :class:`~softvr.errors.InputError` naming it (default), or write nothing this frame
         (interactive simulations, where an embedding tet in air may fold for a moment;
         ``skipped_tets`` counts them; after :meth:`update`, those among the tets that reach
-        its box).
+        its box). Where a fold makes drawn tets overlap, a voxel they share takes the one
+        with the highest index on any number of threads (CPU exact spans).
 
     Examples
     --------
