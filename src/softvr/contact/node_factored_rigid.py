@@ -153,8 +153,9 @@ class RigidFactoredSolve(FactoredSolve):
         n = model.node_count
         self._sizes = wp.zeros(3, dtype=wp.int32, device=d)
         self._out = wp.zeros(2, dtype=wp.float64, device=d)
-        self._index_d = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32, device=d)
-        self._weight_d = wp.array(self._weight.reshape(-1, 3), dtype=wp.vec3d, device=d)
+        self._index_d: wp.array = wp.array(np.where(self._solved, self._index, -1).astype(np.int32), dtype=wp.int32,
+                                           device=d)
+        self._weight_d: wp.array = wp.array(self._weight.reshape(-1, 3), dtype=wp.vec3d, device=d)
         self._anderson_wp = {"last_f": wp.zeros(n, dtype=wp.vec3d, device=d),
                              "last_g": wp.zeros(n, dtype=wp.vec3d, device=d),
                              "df": wp.zeros((ANDERSON_MEMORY, n), dtype=wp.vec3d, device=d),
