@@ -165,11 +165,15 @@ class _NodeSnapshot(StepSnapshot):
         """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
         :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
         c = self.contacts
-        first = self._stepper.contact_body(c)
-        side_b = ((c["kind"] == 1) | (c["kind"] == 2) | (c["kind"] == 3)) & (c["other"] == body)
-        rows = np.flatnonzero(((first == body) | side_b) & c["movable"] & (c["impulse"][:, 0] > 0))
-        rows = rows[np.lexsort((c["point"][rows], c["other"][rows], c["kind"][rows], first[rows]))]
-        return np.where(side_b[rows, None], -c["frame"][rows, 0], c["frame"][rows, 0])
+        # The pushing rows first (a few of the step's contacts), then their bodies and order.
+        rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
+        kind, other = c["kind"][rows], c["other"][rows]
+        first = self._stepper.contact_body({name: c[name][rows] for name in ("point", "kind", "column")})
+        side_b = ((kind == 1) | (kind == 2) | (kind == 3)) & (other == body)
+        mine = np.flatnonzero((first == body) | side_b)
+        mine = mine[np.lexsort((c["point"][rows[mine]], other[mine], kind[mine], first[mine]))]
+        normals = c["frame"][rows[mine], 0]
+        return np.where(side_b[mine, None], -normals, normals)
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
         c, first = self.contacts, [rows[0] for rows in self.sets()]
@@ -298,7 +302,12 @@ class NodeStepper:
         self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
             if wp.get_device(self.model.device).is_cpu else None
         k = len(self.model.kinematic)
-        self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
+        kinematic = (st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity)
+        # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
+        # (three upload calls cost ~10 us a step), else host arrays uploaded after.
+        self._poses = tuple(a.numpy() for a in kinematic) if self._host_views is not None else \
+            (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))
+        self._pose_uploads = () if self._host_views is not None else kinematic
         self._drive_nodes = record_drive(self.model, st)
         self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
         self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
@@ -339,8 +348,7 @@ class NodeStepper:
             body = self.scene.bodies[i]
             out[i] = v = body.unconstrained_velocity(dt, self.scene.gravity)
             position[j], rotation[j], velocity[j] = body.position, body.rotation, v
-        st = self.state
-        for dst, src in zip((st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity), self._poses):
+        for dst, src in zip(self._pose_uploads, self._poses):
             upload(dst, src)
         self._drive_nodes()
         return out
