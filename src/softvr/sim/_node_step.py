@@ -167,6 +167,8 @@ class _NodeSnapshot(StepSnapshot):
         c = self.contacts
         # The pushing rows first (a few of the step's contacts), then their bodies and order.
         rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
+        if not len(rows):  # no contact pushes: the tool's usual step, without the sorting's ops on nothing
+            return c["frame"][rows, 0]
         kind, other = c["kind"][rows], c["other"][rows]
         first = self._stepper.contact_body({name: c[name][rows] for name in ("point", "kind", "column")})
         side_b = ((kind == 1) | (kind == 2) | (kind == 3)) & (other == body)
@@ -255,6 +257,8 @@ class NodeStepper:
         self.colliders = {c.body: c for c in scene._colliders}
         self.fem = [isinstance(b, NODE_BODIES) for b in scene.bodies]  # free nodes: FEM and cloth
         self.fixed_nodes = self.model.fixed.numpy() != 0
+        self._free_nodes = ~self.fixed_nodes
+        self._stencil_slots = np.arange(self.state.contacts.stencil_nodes.shape[1])
         self.point_body = self.model.point_body.numpy()
         self.triangle_start = self.model.body_triangle_start.numpy()
         self.edges = self.model.edges.numpy()
@@ -561,14 +565,19 @@ class NodeStepper:
         out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
             primitive = out["kind"] == 3
-            rows = np.where(primitive, out["point"], 0)
-            out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
-            # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
-            # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
-            out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
+            if primitive.any():
+                rows = np.where(primitive, out["point"], 0)
+                out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+                # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
+                # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
+                out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
+            else:  # every row reads the rigid path's row 0, as above, and keeps its own area
+                out.update({name: np.repeat(self._host(name)[:1], n, axis=0) for name in _RIGID_CONTACT_FIELDS
+                            if name != "rigid_area"})
         nodes = self._host("stencil_nodes")[:n]
-        used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
-        out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
+        # Unused stencil entries (-1) read the last node's flag, which ``used`` masks out.
+        used = self._stencil_slots < self._host("stencil_count")[:n, None]
+        out["movable"] = (used & self._free_nodes[nodes]).any(axis=1)
         return out
 
     def _check(self) -> None:
