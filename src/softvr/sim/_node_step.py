@@ -164,18 +164,23 @@ class _NodeSnapshot(StepSnapshot):
     def pushing_normals(self, body: int) -> np.ndarray:
         """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
         :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
-        c = self.contacts
-        # The pushing rows first (a few of the step's contacts), then their bodies and order.
+        c, s = self.contacts, self._stepper
+        # The pushing rows (a few of the step's contacts; a haptic tool asks every step) in plain
+        # Python: side a's body as contact_body gives it, the sets' order (body a, kind, other,
+        # point; a stable sort, as np.lexsort, so ties keep the rows' order).
         rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
-        if not len(rows):  # no contact pushes: the tool's usual step, without the sorting's ops on nothing
-            return c["frame"][rows, 0]
-        kind, other = c["kind"][rows], c["other"][rows]
-        first = self._stepper.contact_body({name: c[name][rows] for name in ("point", "kind", "column")})
-        side_b = ((kind == 1) | (kind == 2) | (kind == 3)) & (other == body)
-        mine = np.flatnonzero((first == body) | side_b)
-        mine = mine[np.lexsort((c["point"][rows[mine]], other[mine], kind[mine], first[mine]))]
-        normals = c["frame"][rows[mine], 0]
-        return np.where(side_b[mine, None], -normals, normals)
+        picked = []
+        for row, kind, other, point, column in zip(rows.tolist(), *(c[name][rows].tolist() for name in
+                                                                    ("kind", "other", "point", "column"))):
+            first = column if kind == 3 else int(s.edge_body[point] if kind == 2 else s.point_body[point])
+            side_b = kind in (1, 2, 3) and other == body
+            if first == body or side_b:
+                picked.append((first, kind, other, point, row, side_b))
+        picked.sort(key=lambda x: x[:4])
+        normals = c["frame"][[x[4] for x in picked], 0]
+        flip = np.array([x[5] for x in picked], bool)
+        normals[flip] = -normals[flip]
+        return normals
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
         c, first = self.contacts, [rows[0] for rows in self.sets()]
