@@ -15,6 +15,7 @@ import numpy as np
 from softvr.contact.node_coarse import Aggregates, aggregates_of, coarse_spectrum
 from softvr.contact.node_colouring import NodeColouring, colour_nodes
 from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
+from softvr.contact.node_gs_coarse import gauss_seidel_coarse_spectrum
 
 __all__ = ["SweepChoice", "choose_sweeps", "sweep_costs", "sweeps_per_decade"]
 
@@ -71,6 +72,11 @@ COARSE_PASSES = 12
 #: session 10) before its scene changes sweeps. The held tools need no share of their own: the
 #: scenes where the coarse sweeps cycled are above it.
 COARSE_OVER_GAUSS_SEIDEL = 0.75
+#: Cost of the Gauss-Seidel sweeps' coarse correction (:mod:`softvr.contact.node_gs_coarse`) per
+#: block of its aggregates' rows (the residual ``b - A v^``, read from ``A``'s rows in node order),
+#: in block products, and its two launches. It is taken over the plain Gauss-Seidel sweeps where
+#: its estimated work a decade is less.
+GAUSS_SEIDEL_COARSE_BLOCK = 1.0
 
 
 @dataclass(frozen=True)
@@ -92,7 +98,9 @@ class SweepChoice:
         included); Jacobi's alone where nothing else was worth estimating.
     coarse : Aggregates or ndarray or None
         The aggregates (or [B, 2] node ranges of bodies) whose rigid motions the Jacobi sweeps
-        correct (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
+        correct (:mod:`softvr.contact.node_coarse`), or, with "gauss-seidel", each sweep after its
+        node update (:mod:`softvr.contact.node_gs_coarse`); ``bounds`` are then the two-level
+        iteration's.
     passes : int or None
         PGS passes over the contacts per sweep (:data:`COARSE_PASSES` with ``coarse``); None:
         the caller's.
@@ -196,5 +204,16 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     # both at ~39.5 sweeps of work a decade, went per object on 84 fewer contacts).
     if work["gauss-seidel"] <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE and (
             work["gauss-seidel"] < jacobi_work or jacobi_work > jacobi_limit):
+        # Only over held bodies' aggregates (all the shoulder's), the case measured.
+        if coarse is not None and isinstance(coarse[0], Aggregates) and len(coarse[0]) and not coarse[0].whole:
+            aggregates = coarse[0]
+            lo, hi = gauss_seidel_coarse_spectrum(a, order, aggregates, free, *coarse[1:])
+            bounds = (lo * margin[0], hi * margin[1])
+            rows = aggregates.nodes
+            extra = GAUSS_SEIDEL_COARSE_BLOCK * float((row_start[rows + 1] - row_start[rows]).sum()) \
+                + COARSE_NODE * len(rows) + 2 * LAUNCH
+            work["gauss-seidel-coarse"] = sweeps_per_decade(bounds) * (gs_cost + extra) / jacobi_cost
+            if work["gauss-seidel-coarse"] < work["gauss-seidel"]:
+                return SweepChoice("gauss-seidel", bounds, colours, 1.0 / jacobi_bounds[1], work, aggregates)
         return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
     return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)
