@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from softvr.contact._node_coarse_kernels import store_inverse
 from softvr.contact._node_jacobi_kernels import row_residual
 
 #: Fewest free nodes (not contact nodes) an aggregate needs to take a coarse correction: its
@@ -82,16 +83,11 @@ def prepare_aggregates(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp
                     sll = sll + a
                     sla = sla - a * rj
                     saa = saa - ri * a * rj
-    p_inv = wp.inverse(sll)
-    schur = saa - wp.transpose(sla) * p_inv * sla
+    schur = saa - wp.transpose(sla) * wp.inverse(sll) * sla
     scale = wp.trace(schur) / wp.float64(3.0)
     if not (wp.determinant(schur) > wp.float64(1e-9) * scale * scale * scale):
         return
-    s_inv = wp.inverse(schur)
-    lever = p_inv * sla
-    ll[g] = p_inv + lever * s_inv * wp.transpose(lever)
-    la[g] = -(lever * s_inv)
-    aa[g] = s_inv
+    store_inverse(g, sll, sla, saa, ll, la, aa)
     active[g] = 1
 
 
