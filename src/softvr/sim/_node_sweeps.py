@@ -74,9 +74,15 @@ COARSE_PASSES = 12
 COARSE_OVER_GAUSS_SEIDEL = 0.75
 #: Cost of the Gauss-Seidel sweeps' coarse correction (:mod:`softvr.contact.node_gs_coarse`) per
 #: block of its aggregates' rows (the residual ``b - A v^``, read from ``A``'s rows in node order),
-#: in block products, and its two launches. It is taken over the plain Gauss-Seidel sweeps where
-#: its estimated work a decade is less.
+#: in block products, and its two launches.
 GAUSS_SEIDEL_COARSE_BLOCK = 1.0
+#: The Gauss-Seidel sweeps take the coarse correction where its estimated work a decade is at most
+#: this share of the plain sweeps'. Measured (session 12, process CPU a step, paired with main, load
+#: 8-12): shoulder.toml at 0.75 (26.6 against 35.5) 9.05-9.30 -> 7.07-7.99 ms, 33.9 -> 18.8 sweeps a
+#: step; the arthroscopy at 0.87 (26.1 against 30.1) 14.7 -> 9.7 sweeps but 4.13-4.96 -> 4.74-5.05 ms
+#: (the correction's once-a-step Galerkin inverses, ~0.11 ms, and ~30 us a sweep eat the saving).
+#: 0.8 is about their geometric middle (0.81).
+GAUSS_SEIDEL_COARSE_SHARE = 0.8
 
 
 @dataclass(frozen=True)
@@ -213,7 +219,7 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
             extra = GAUSS_SEIDEL_COARSE_BLOCK * float((row_start[rows + 1] - row_start[rows]).sum()) \
                 + COARSE_NODE * len(rows) + 2 * LAUNCH
             work["gauss-seidel-coarse"] = sweeps_per_decade(bounds) * (gs_cost + extra) / jacobi_cost
-            if work["gauss-seidel-coarse"] < work["gauss-seidel"]:
+            if work["gauss-seidel-coarse"] <= GAUSS_SEIDEL_COARSE_SHARE * work["gauss-seidel"]:
                 return SweepChoice("gauss-seidel", bounds, colours, 1.0 / jacobi_bounds[1], work, aggregates)
         return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
     return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)
