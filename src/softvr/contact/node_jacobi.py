@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
-from softvr.contact.node_coarse import CoarseSpace, aggregates_of
+from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
@@ -245,7 +245,7 @@ class NodeSolve:
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | None = None):
+                 coarse: np.ndarray | Aggregates | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.

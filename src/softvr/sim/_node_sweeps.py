@@ -186,7 +186,10 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
     limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the
     candy), and otherwise over Gauss-Seidel where it needs clearly less work
-    (:data:`COARSE_OVER_GAUSS_SEIDEL`)."""
+    (:data:`COARSE_OVER_GAUSS_SEIDEL`). Where Gauss-Seidel is taken and ``coarse`` holds only
+    held bodies' aggregates, its sweeps take their coarse correction too
+    (:mod:`softvr.contact.node_gs_coarse`) where that needs at most
+    :data:`GAUSS_SEIDEL_COARSE_SHARE` of the plain sweeps' work."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
