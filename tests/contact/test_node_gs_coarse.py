@@ -21,9 +21,9 @@ from softvr.contact.node_jacobi import NodeSolve
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
 
-from tests.contact.test_node_aggregates import DT, _beam
+from tests.contact.test_node_aggregates import DT, _beam, _moving_beam
 from tests.contact.test_node_gauss_seidel import _gauss_seidel, _prepared, _start
-from tests.sim.test_node_arrays import VELOCITY_TOL, _solve_step
+from tests.sim.test_node_arrays import VELOCITY_TOL
 
 
 def _groups(aggregates):
@@ -130,15 +130,8 @@ def test_one_sweep_with_the_coarse_correction_is_numpy_block_gauss_seidel_then_g
 
 
 def test_coarse_gauss_seidel_sweeps_land_on_scipy_direct_solve_of_eq_5_2_in_fewer_sweeps():
-    body = _beam()
-    rng = np.random.default_rng(4)
-    body.v = 0.05 * rng.standard_normal(body.q.shape)
-    body.v[body.fixed] = 0.0
-    scene, stepper = _prepared(body, DT)
-    _, expected = _solve_step(body, scene, DT)
+    body, stepper, expected, a, free, aggregates = _moving_beam()
     m, st = stepper.model, stepper.state
-    a, free = free_matrix(m, st)
-    aggregates = coarse_aggregates(m, st.q.numpy())
     gauss_seidel, colours, _ = _gauss_seidel(stepper, DT, max_sweeps=2000)
     index = np.cumsum(free) - 1
     lo, hi = gauss_seidel_coarse_spectrum(a, index[colours.order[free[colours.order]]], aggregates, free,

@@ -16,7 +16,7 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from softvr.contact import _node_gs_coarse_kernels as _k
-from softvr.contact.node_coarse import Aggregates, _basis
+from softvr.contact.node_coarse import Aggregates, _galerkin_inverses
 from softvr.device import in_order, load_kernels, replayer
 
 __all__ = ["GaussSeidelCoarse", "gauss_seidel_coarse_spectrum"]
@@ -48,11 +48,7 @@ def gauss_seidel_coarse_spectrum(a: sp.spmatrix, order: np.ndarray, aggregates: 
                           shape=ordered.shape)
     forward = spla.splu((d + lower).tocsc(), permc_spec="NATURAL")
     backward = spla.splu((d + lower.T).tocsc(), permc_spec="NATURAL")
-    p = _basis(aggregates, q, mass, solved)
-    galerkin = (p.T @ a @ p).toarray()
-    coarse = np.zeros_like(galerkin)
-    for g in range(0, len(galerkin), 6):
-        coarse[g:g + 6, g:g + 6] = np.linalg.inv(galerkin[g:g + 6, g:g + 6])
+    p, coarse = _galerkin_inverses(a, aggregates, q, mass, solved)
 
     def sweep_error(x: np.ndarray) -> np.ndarray:
         """``E x``, ``x`` in the solved nodes' numbering."""
