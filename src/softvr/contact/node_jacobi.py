@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
-from softvr.contact.node_coarse import CoarseSpace
+from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
@@ -236,17 +236,16 @@ class NodeSolve:
     omega : float
         With ``colours``: the damping of the contact nodes' Jacobi update, at most
         1 / lambda_max(D_A^-1 A).
-    coarse : ndarray, optional
-        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
-        exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the two-level
-        ``M^-1 A``). Not with ``colours``.
+    coarse : ndarray or Aggregates, optional
+        [B, 2] node ranges of the bodies (or aggregates) whose rigid motions the Jacobi sweeps
+        correct exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the
+        two-level ``M^-1 A``); with ``colours``, the aggregates each Gauss-Seidel sweep corrects
+        after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | None = None):
-        if coarse is not None and len(coarse) and colours is not None:
-            raise ValueError("the coarse correction goes with the Jacobi sweeps, not with colours")
+                 coarse: np.ndarray | Aggregates | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -291,10 +290,11 @@ class NodeSolve:
         self.colours = colours
         #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
         self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
-        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse,
-                                  self.residual_nodes)
+        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None or colours is not None
+                                  else coarse, self.residual_nodes)
         co = self.coarse.arrays
-        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega, dt)
+        self._gauss_seidel = None if colours is None else GaussSeidelSweep(
+            model, state, colours, omega, dt, None if coarse is None else aggregates_of(coarse))
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
