@@ -217,6 +217,9 @@ class FactoredSolve:
         self._solved = ~self._fixed & (np.diff(model.row_start.numpy()) > 0)
         self._solved_nodes = np.flatnonzero(self._solved)
         self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        self._row_start, self._block_col = model.row_start.numpy(), model.block_col.numpy()
+        self._row_count = np.diff(self._row_start)
+        self._node_slot = np.full(n, -1)  # node -> its place in a small set being indexed (_local, _contacts), else -1
         k = len(self._solved_nodes)
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
@@ -299,10 +302,6 @@ class FactoredSolve:
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
         self._host["rotation"][self._solved_nodes] = np.eye(3)
-        rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
-        self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
-        self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
-        self._pair_nodes = rows[self._pairs], cols[self._pairs]
         wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
@@ -323,16 +322,21 @@ class FactoredSolve:
         size = h["change"][self._solved_nodes]
         pick = np.flatnonzero(size > LOCAL_THRESHOLD)
         pick = pick[np.argsort(-size[pick], kind="stable")[:LOCAL_NODES]]
-        slot = np.full(len(size), -1)
-        slot[pick] = np.arange(len(pick))
-        inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
-        bi, bj = self._bi[inside], self._bj[inside]
-        a0 = h["blocks0"][self._pairs[inside]]
+        # S's blocks: those of S's rows (CSR ranges) in S's columns, not a pass over all of A's.
+        nodes = self._solved_nodes[pick]
+        slot = self._node_slot
+        slot[nodes] = np.arange(len(pick))
+        first, count = self._row_start[nodes], self._row_count[nodes]
+        at = np.repeat(first - np.cumsum(count) + count, count) + np.arange(count.sum())
+        cols = self._block_col[at]
+        bj = slot[cols]
+        inside = bj >= 0
+        at, cols, bj, bi = at[inside], cols[inside], bj[inside], np.repeat(np.arange(len(pick)), count)[inside]
+        slot[nodes] = -1
         r = h["rotation"]
-        d = np.matmul(np.matmul(r[self._pair_nodes[0][inside]].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]),
-                      r[self._pair_nodes[1][inside]]) - a0
+        d = np.matmul(np.matmul(r[nodes[bi]].transpose(0, 2, 1), h["blocks"][at]), r[cols]) - h["blocks0"][at]
         grid = np.zeros((len(pick), len(pick), 3, 3))
-        grid[slot[bi], slot[bj]] = d
+        grid[bi, bj] = d
         blocks = grid.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
         slots = self._slots_of(self._solved_nodes[pick])
@@ -395,14 +399,23 @@ class FactoredSolve:
         # J over the stencils' slots (block diagonal: contact c's frame times its weights).
         each = np.arange(len(rows))
         blocks = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
-        blocks[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
+        blocks[each, :, each] = weights[:, None, :, None] * frames[:, :, None, :]
         j = blocks.reshape(3 * len(rows), 3 * nodes.size)
-        touched, inverse = np.unique(nodes[moves], return_inverse=True)
-        g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
-        np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
+        # The touched nodes in node order, and each moving slot's place among them (a mark
+        # per node: np.unique's sort costs more than the whole rest for tens of slots).
+        pushed = nodes[moves]
+        mark = np.zeros(len(self._solved), bool)
+        mark[pushed] = True
+        touched = np.flatnonzero(mark)
+        place = self._node_slot
+        place[touched] = np.arange(len(touched))
+        cell = np.nonzero(moves)[0] * len(touched) + place[pushed]
+        place[touched] = -1
+        # J's node weights over the touched nodes [m, u] (a node twice in a stencil: summed).
+        g = np.bincount(cell, weights[moves], minlength=len(rows) * len(touched)).reshape(len(rows), len(touched))
         slots = self._slots_of(touched)
         dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
-        jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
+        jt = g.T[:, None, :, None] * frames.transpose(2, 0, 1)[None]  # J^T [touched, 3, m, 3], frames
         # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
         rel = h["rotation"][touched]
         jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
