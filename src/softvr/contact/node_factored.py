@@ -61,6 +61,13 @@ LOCAL_NODES = 120
 #: last step did not use (an outer iteration multiplies all kept columns; a probe moved over a
 #: body would otherwise gather them until the next factorization).
 KEPT_NODES = 120
+#: Steps between refreshes of each of ``P``'s two turned parts, the nodes' rotations ``R`` and the
+#: local correction (``D``, :meth:`FactoredSolve._local`), which take turns: a step refreshes one
+#: and keeps the other as the last step left it. ``P`` only steers the iteration (its fixed
+#: point, ``A v = b + J^T lambda``, is the same for any ``P``); over palpation.toml's press a
+#: part one step old costs no iterations (140 in the 40 steps against 141 refreshing both), and
+#: each kept part saves its ~0.2 ms (rotations) or ~0.4 ms (warp change, ``T``). 1: both every step.
+REFRESH_PERIOD = 2
 #: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
 POLAR_ITERATIONS = 3
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
@@ -140,9 +147,10 @@ class _Anderson:
         self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
-    def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N]."""
-        f = g - x
+    def next(self, x: np.ndarray, g: np.ndarray, f: np.ndarray | None = None) -> np.ndarray:
+        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N] (and
+        their difference ``f = g - x`` [N], where the caller has it)."""
+        f = g - x if f is None else f
         if self._last is None:
             self._last = f, g
             self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
@@ -262,7 +270,7 @@ class FactoredSolve:
         self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
                           stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
                           movable=self._movable.numpy(), blocks=state.blocks.numpy(), unit=self._unit.numpy(),
-                          column=self._column.numpy())
+                          column=self._column.numpy(), buffers=[b.numpy() for b in state.sweep_buffers])
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -277,6 +285,7 @@ class FactoredSolve:
         self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
+        self._steps = 0  # solves made
         self.delassus_passes = 0
         self._factor()
 
@@ -307,6 +316,7 @@ class FactoredSolve:
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
         self._used = np.zeros(0, np.int64)  # the columns the last step used
+        self._kept_local: tuple | None = None  # the last local correction: S's rows, nodes and T
 
     def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
@@ -316,7 +326,7 @@ class FactoredSolve:
         are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
         columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
         the solved velocities [3 s], its columns in the kept ones (:meth:`_slots_of`) [3 s] and
-        ``T`` [3 s, 3 s] (s = 0: none)."""
+        ``T`` [3 s, 3 s] (s = 0: none); kept for :meth:`_last_local`."""
         h = self._host
         self._warp_change()
         size = h["change"][self._solved_nodes]
@@ -341,7 +351,14 @@ class FactoredSolve:
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
         slots = self._slots_of(self._solved_nodes[pick])
         t = np.linalg.solve(np.eye(len(dofs)) + blocks @ self._columns[np.ix_(dofs, slots)], blocks)
+        self._kept_local = dofs, nodes, t
         return dofs, slots, t
+
+    def _last_local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last step's local correction (:meth:`_local`) as this step uses it: its columns
+        found again among the kept ones (:meth:`_forget_columns` may have moved them)."""
+        dofs, nodes, t = self._kept_local
+        return dofs, self._slots_of(nodes), t
 
     def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
         """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
@@ -456,12 +473,16 @@ class FactoredSolve:
         holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
         a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
         st, h = self.state, self._host
-        wp.copy(self._v, st.sweep_buffers[0])
-        v, y_d = h["v"], h["y"]
+        v, y_d, buffers = h["v"], h["y"], h["buffers"]
+        v[:] = buffers[0]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
-        self._rotations()
+        # P's turned parts refreshed in turns (REFRESH_PERIOD), both after a factorization.
+        self._steps += 1
+        fresh = self._kept_local is None
+        if fresh or self._steps % REFRESH_PERIOD == 0:
+            self._rotations()
         self._forget_columns()
-        local = self._local()
+        local = self._local() if fresh or self._steps % REFRESH_PERIOD == 1 % REFRESH_PERIOD else self._last_local()
         rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
         m = len(rows)
         pgs = self._delassus(m, tolerance)
@@ -503,17 +524,17 @@ class FactoredSolve:
                 y += self._columns[:, :self._kept] @ spread
             self._update()  # u = v + R y
             u = h["u"].ravel().copy()
-            change = float(np.abs(u - v.ravel()).max(initial=0.0))
-            v[:] = anderson.next(v.ravel(), u).reshape(-1, 3)
+            f = u - v.ravel()
+            change = float(np.abs(f).max(initial=0.0))
+            v[:] = anderson.next(v.ravel(), u, f).reshape(-1, 3)
             h["stats"][0] = change
             changes.append(change)
             if _error(changes) <= tolerance and self._contacts_met(rows, lam, tolerance):
                 break
         else:
             self._contacts_met(rows, lam, tolerance)
-        out = st.sweep_buffers[k % 3]
-        wp.copy(out, self._v)
-        return k, out
+        buffers[k % 3][:] = v
+        return k, st.sweep_buffers[k % 3]
 
     def _contacts_met(self, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
         """The contacts' impulses ``lam`` [m, 3] [N s] (frames) into ``state.contacts`` at
