@@ -316,7 +316,8 @@ class FactoredSolve:
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
         self._used = np.zeros(0, np.int64)  # the columns the last step used
-        self._kept_local: tuple | None = None  # the last local correction: S's rows, nodes and T
+        # The last local correction (_local): S's rows among the solved velocities, its nodes and T.
+        self._kept_local: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
@@ -357,6 +358,7 @@ class FactoredSolve:
     def _last_local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The last step's local correction (:meth:`_local`) as this step uses it: its columns
         found again among the kept ones (:meth:`_forget_columns` may have moved them)."""
+        assert self._kept_local is not None  # solve() makes a local correction after each factorization
         dofs, nodes, t = self._kept_local
         return dofs, self._slots_of(nodes), t
 
