@@ -55,11 +55,23 @@ def block_update(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.arra
 @wp.func
 def row_residual(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                  blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d)):
-    """Node ``i``'s residual ``(b - A v)_i`` [kg m/s] over its whole row of ``A``."""
+    """Node ``i``'s residual ``(b - A v)_i`` [kg m/s] over its whole row of ``A``, the row's
+    blocks taken two at a time into two sums (``b_i`` less the even ones, the odd ones apart,
+    subtracted at the end): with one running sum each block's product waited for the last
+    one's subtraction, and the row cost 1.25x as long (the candy pile's 29 589 blocks: 113 against
+    90 us on one core). The same terms, so it differs from one running sum by rounding only
+    (Higham's gamma_n bound holds for any order of the sum)."""
     r = b[i]
-    for k in range(row_start[i], row_start[i + 1]):
+    odd = wp.vec3d()
+    end = row_start[i + 1]
+    k = row_start[i]
+    while k + 1 < end:
         r = r - blocks[k] * v[block_col[k]]
-    return r
+        odd = odd + blocks[k + 1] * v[block_col[k + 1]]
+        k = k + 2
+    if k < end:
+        r = r - blocks[k] * v[block_col[k]]
+    return r - odd
 
 
 @wp.kernel
