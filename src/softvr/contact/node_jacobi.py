@@ -252,8 +252,8 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.chebyshev,
-                       _k.residual, _k.rigid_contact_exact, _k.largest_change):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.contact_step,
+                       _k.list_movers, _k.chebyshev, _k.residual, _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -394,14 +394,27 @@ class NodeSolve:
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep: the last impulses applied to ``v^``, the contacts
         screened (:func:`_node_jacobi_kernels.screen`), then the PGS passes over the live ones
-        (:func:`_node_jacobi_kernels.contacts`)."""
+        (:func:`_node_jacobi_kernels.contacts`); with one thread a launch (the CPU) and Jacobi
+        sweeps, the three in one launch over the step's movable contacts
+        (:func:`_node_jacobi_kernels.contact_step`, listed by :attr:`_list_movers` once a step)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        threads = _contact_threads(d)
+        self._list_movers = _nothing
+        if threads == 1 and self._gauss_seidel is None:
+            movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
+            self._list_movers = replayer(wp.launch(_k.list_movers, dim=1, device=d, record_cmd=True,
+                                                   inputs=[c.count, movable, self.live, movers, mover_count]))
+            return replayer(wp.launch(_k.contact_step, dim=1, device=d, record_cmd=True,
+                                      inputs=[movers, mover_count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                              c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                                              model.couplings.partner, cross, model.fixed, float(dt), int(passes),
+                                              c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
+                                              self.live, self._order]))
         stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
         warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
                          inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
                                  model.fixed, c.impulse, state.v_hat, co, movable])
-        threads = _contact_threads(d)
         screen = wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
                            inputs=[*stencil, c.gap, c.rigid_node, c.rigid_lever, float(dt), c.impulse, c.stiffness,
                                    state.v_hat, co, movable, threads, self.live])
@@ -462,6 +475,7 @@ class NodeSolve:
         self._rigid_contacts()
         self.coarse.prepare()
         self._metric()
+        self._list_movers()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
         wp.copy(self.weights, self._first_weights if narrow else self._bounds_weights)
