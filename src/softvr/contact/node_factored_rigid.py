@@ -44,7 +44,7 @@ import warp as wp
 
 from softvr.contact import _node_factored_kernels as _k
 from softvr.contact import _node_factored_rigid_kernels as _rk
-from softvr.contact.node_factored import ANDERSON_MEMORY, REFACTOR_AFTER, FactoredSolve, _error
+from softvr.contact.node_factored import ANDERSON_MEMORY, REFACTOR_AFTER, REFRESH_PERIOD, FactoredSolve, _error
 from softvr.device import load_kernels, replayer
 
 __all__ = ["CLOSING_SHARE", "FACTORED_ABOVE_SWEEPS", "WATCHED_STEPS", "RigidFactoredSolve", "SweepWatch",
@@ -147,7 +147,6 @@ class RigidFactoredSolve(FactoredSolve):
         self._host.update(rhs2=self._rhs2.numpy(), y2=self._y2.numpy(), absolute=self._absolute.numpy(),
                           rotation0=self._rotation0.numpy(), gap_after=state.contacts.gap_after.numpy(),
                           rigid_node=state.contacts.rigid_node.numpy(), rigid_lever=state.contacts.rigid_lever.numpy())
-        self._buffers = [buffer.numpy() for buffer in state.sweep_buffers]  # host views
         self._rigid_rows = self._index[self._rigid]
         # The outer iteration's kernels' arrays: sizes (3 s, 3 u, contacts), the change and
         # whether it is finite, Anderson's memory, per-step arrays (:meth:`_iteration_arrays`).
@@ -359,13 +358,17 @@ class RigidFactoredSolve(FactoredSolve):
         of replayed launches (residual, block solve, the contacts' velocities, PGS on ``W``,
         the impulses' solve, update and Anderson's step) and one number read back, its change."""
         st, h = self.state, self._host
-        v = h["v"]
-        v[:] = self._buffers[0]
+        v, buffers = h["v"], h["buffers"]
+        v[:] = buffers[0]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
         start = v.copy()
-        self._turn()
+        # P's turned parts refreshed in turns (REFRESH_PERIOD, as FactoredSolve), both after a factorization.
+        self._steps += 1
+        fresh = self._kept_local is None
+        if fresh or self._steps % REFRESH_PERIOD == 0:
+            self._turn()
         self._forget_columns()
-        local = self._local()
+        local = self._local() if fresh or self._steps % REFRESH_PERIOD == 1 % REFRESH_PERIOD else self._last_local()
         candidate = self._candidates()
         n = len(candidate)
         self.delassus_passes = self.added = 0
@@ -420,5 +423,5 @@ class RigidFactoredSolve(FactoredSolve):
                         break
         if not done:
             self._contacts_met(rows, lam, tolerance)
-        self._buffers[k % 3][:] = v
+        buffers[k % 3][:] = v
         return k, st.sweep_buffers[k % 3]
