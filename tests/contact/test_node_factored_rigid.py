@@ -14,7 +14,6 @@ body's spin counted at its radius of gyration), so velocities are held to 3x tha
 
 import numpy as np
 import pytest
-import scipy.optimize as so
 from scipy.spatial.transform import Rotation
 
 from softvr import Scene
@@ -23,7 +22,7 @@ from softvr.contact.node_factored_rigid import RigidFactoredSolve, SweepWatch, r
 from softvr.dynamics import Coupling, FixedBody, RigidBody, RigidPoints
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
-from tests.sim.test_node_rigid_couplings import _block, _box_system, _direct_step, _embedded, _held_box
+from tests.sim.test_node_rigid_couplings import _block, _direct_step, _embedded, _held_box, _landing_truth
 
 VELOCITY_TOL = 3 * SWEEP_TOLERANCE  # [m/s]
 
@@ -75,26 +74,17 @@ def test_a_turning_cube_on_springs_to_a_deformed_block_steps_as_scipys_direct_so
 
 
 def test_a_spring_held_box_landing_on_a_plane_by_its_corners_solves_scipys_mlcp_of_eq_5_5(factored):
-    # Eq. 5.5 with the box's A and b written out (_box_system: blockdiag(m I, I_w) + the springs'
+    # Eq. 5.5 with the box's A and b written out (_landing_truth, _box_system: blockdiag(m I, I_w) + the springs'
     # (dt c + dt^2 k) D^T D) and one row n . (v + omega x r) >= -gap / dt per corner near the
     # plane (frictionless): SciPy's SLSQP minimizes 1/2 v A v - b v under them, the LCP's primal.
     # The corners' rows reach the box's angular node through their levers only.
     dt = 0.01
     scene, box, corners, ties = _held_box(collide=True)
-    normal = np.array([0.0, 0.0, 1.0])
     pressed = 0
     for step in range(4):
-        a, b = _box_system(box, ties, dt)
-        levers = corners @ box.rotation.T
-        jac = np.hstack([np.tile(normal, (8, 1)), np.cross(levers, normal)])
-        gap = box.position[2] + levers[:, 2]
-        near = gap < 0.002 + 0.1 * dt  # within the margin plus the motion over the step
-        rows, floor = jac[near], -gap[near] / dt
-        truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
-                            constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
-                            method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
+        truth, pushed = _landing_truth(box, corners, ties, dt)
         if step:  # the factored solve's steps (the first is the sweeps')
-            pressed += int((rows @ np.linalg.solve(a, b) < floor).sum())  # rows the contacts must push
+            pressed += pushed
         scene.step(dt)
         np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)
         # omega's error: a corner's lever of 0.035 m turns 3e-5 m/s into 8.6e-4 rad/s.

@@ -59,6 +59,17 @@ def _dof(y: wp.array(dtype=wp.vec3d), d: int) -> wp.float64:
     return y[d // 3][d % 3]
 
 
+@wp.func
+def _woodbury(s_count: int, local_t: wp.array2d(dtype=wp.float64), local_dofs: wp.array(dtype=wp.int32),
+              y: wp.array(dtype=wp.vec3d), z: wp.array(dtype=wp.float64)):
+    """Woodbury's weights ``z = T y[local_dofs]`` [3 s] of the local correction's columns."""
+    for i in range(s_count):
+        acc = wp.float64(0.0)
+        for j in range(s_count):
+            acc = acc + local_t[i, j] * _dof(y, local_dofs[j])
+        z[i] = acc
+
+
 @wp.kernel
 def contact_velocity(sizes: wp.array(dtype=wp.int32), local_dofs: wp.array(dtype=wp.int32),
                      local_t: wp.array2d(dtype=wp.float64), dofs: wp.array(dtype=wp.int32),
@@ -75,11 +86,7 @@ def contact_velocity(sizes: wp.array(dtype=wp.int32), local_dofs: wp.array(dtype
     ``at`` at touched node ``slot_node`` (-1: none). ``sizes``: 3 s, 3 u, contacts."""
     s_count = sizes[0]
     u_count = sizes[1]
-    for i in range(s_count):
-        acc = wp.float64(0.0)
-        for j in range(s_count):
-            acc = acc + local_t[i, j] * _dof(y, local_dofs[j])
-        z[i] = acc
+    _woodbury(s_count, local_t, local_dofs, y, z)
     for e in range(u_count):
         acc = _dof(y, dofs[e])
         for i in range(s_count):
@@ -135,11 +142,7 @@ def outer_update(sizes: wp.array(dtype=wp.int32), local_dofs: wp.array(dtype=wp.
             y[r] = y[r] + y2[r]
     s_count = sizes[0]
     if s_count > 0:
-        for i in range(s_count):
-            acc = wp.float64(0.0)
-            for j in range(s_count):
-                acc = acc + local_t[i, j] * _dof(y, local_dofs[j])
-            z[i] = acc
+        _woodbury(s_count, local_t, local_dofs, y, z)
         for r in range(k):
             d = wp.vec3d()
             for c in range(3):

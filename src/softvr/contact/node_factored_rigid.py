@@ -276,17 +276,6 @@ class RigidFactoredSolve(FactoredSolve):
 
 
 
-    def _load(self, rows: np.ndarray, w: np.ndarray, tolerance: float) -> dict:
-        """The PGS launch's arrays (:meth:`_delassus`) loaded with contacts ``rows`` and ``W``."""
-        h = self._host
-        m = len(rows)
-        pgs = self._delassus(m, tolerance)
-        pgs["count"][0] = m
-        pgs["w"][:3 * m, :3 * m] = w
-        for name in ("frame", "gap", "friction", "stiffness", "slip", "impulse"):
-            pgs[name][:m] = h[name][rows]
-        return pgs
-
     def _candidates(self) -> np.ndarray:
         """Contacts that may push this step [count] (bool): a carried impulse, or a gap after
         the step in the start velocities under :data:`CLOSING_SHARE` of the gap now (the
