@@ -55,13 +55,11 @@ __all__ = ["CLOSING_SHARE", "FACTORED_ABOVE_SWEEPS", "WATCHED_STEPS", "RigidFact
 #: (as the sweeps' sleeping contacts: ``SLEEP_GAP_SHARE``).
 CLOSING_SHARE = 0.5
 #: The sweeps' steps watched (:class:`SweepWatch`), and the mean sweeps a step over them above
-#: which the factored solve takes over: where the two cost the same, measured on the shoulder's
-#: palpation (process CPU, loaded 2-core machine): a factored step ~4.7 ms (~2 ms a step, ~0.5
-#: an outer iteration, ~5 of them), a sweep ~0.16 ms. The palpation's sweeps pass it from step
-#: 52 (43-64 a step touching); the arthroscopy's 20-step mean peaks at 24.9 (14.7 a step), so
-#: its sweeps keep it.
+#: which the factored solve takes over: about where the two cost the same, measured on the
+#: shoulder's palpation (process CPU, loaded 2-core machine): a factored step ~3.5-4 ms (~2 ms a
+#: step, ~0.4 an outer iteration, ~5 of them), a sweep (coarse-corrected Gauss-Seidel) ~0.2 ms.
 WATCHED_STEPS = 20
-FACTORED_ABOVE_SWEEPS = 30.0
+FACTORED_ABOVE_SWEEPS = 20.0
 
 
 def rigid_factored_eligible(model) -> bool:
