@@ -190,6 +190,11 @@ class GaussSeidelSweep:
                 st.fixed_velocity, self.contact_node]
 
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
+        # _node_gs_kernels._off_row reads these as plain contiguous memory.
+        for name, array in (("b", st.b), ("work", w), ("off_blocks", self._off_blocks)):
+            if not array.is_contiguous:
+                raise ValueError(f"GaussSeidelSweep.record: expected a contiguous array for {name}, found strides "
+                                 f"{array.strides}")
 
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
