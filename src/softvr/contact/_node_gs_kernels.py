@@ -493,7 +493,12 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
         for li in range(n):
             force[island_node[s + li]] = wp.vec3d()
         for c in range(count[0]):
-            world = wp.transpose(frame[c]) * impulse[c]
+            lam = impulse[c]
+            # A zero impulse adds zeros, which leave every sum as it is (the sums start at +0):
+            # most of a step's contacts push nothing.
+            if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+                continue
+            world = wp.transpose(frame[c]) * lam
             for k in range(stencil_count[c]):
                 node = stencil_nodes[c, k]
                 if island_local[node] >= 0:
