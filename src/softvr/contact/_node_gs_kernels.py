@@ -52,10 +52,14 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
 # The row product of the colour passes as plain C++ (one source for CPU and CUDA): the same
 # operations in the same order as Warp's ``r = r - off_blocks[k] * w[off_col[k]]`` (its 3x3
 # product takes the columns in turn, ``(m_0 x_0 + m_1 x_1) + m_2 x_2``, each product and sum a
-# statement of its own so that no compiler fuses them), so the same bits, at ~3.5 ns a block on
+# statement of its own so that no compiler fuses them), so the same bits, at ~2.9 ns a block on
 # the CPU against ~5.3: Warp's own loop pays its range iterator and, at every array access, the
-# test for a negative index and a product by the stride. It reads the arrays as contiguous
-# (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.record` checks that they are).
+# test for a negative index and a product by the stride. The blocks are stored transposed
+# (:func:`gather_off_blocks`), so that a column is three doubles in a row: on the CPU (clang)
+# the three rows of the product go as the lanes of one 4-wide vector, each lane the scalar
+# code's operations (the fourth lane reads the next block's first double, or the padding block
+# after the last, and is dropped; 3.5 ns a block as scalar code). It reads the arrays as
+# contiguous (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.record` checks that they are).
 _ROW = r"""
 const wp::int32* start = off_start.data;
 const wp::int32* col = off_col.data;
@@ -65,20 +69,37 @@ const double* rhs = (const double*)b.data + 3 * i;
 double r0 = rhs[0];
 double r1 = rhs[1];
 double r2 = rhs[2];
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
+lanes4 r = {r0, r1, r2, 0.0};
+for (int k = start[t], end = start[t + 1]; k < end; ++k) {
+    const double* m = block + 9 * k;
+    const double* y = x + 3 * col[k];
+    lanes4 p = *(const lanes4*)m * y[0];
+    lanes4 q = *(const lanes4*)(m + 3) * y[1];
+    p = p + q;
+    q = *(const lanes4*)(m + 6) * y[2];
+    p = p + q;
+    r = r - p;
+}
+r0 = r[0];
+r1 = r[1];
+r2 = r[2];
+#else
 for (int k = start[t], end = start[t + 1]; k < end; ++k) {
     const double* m = block + 9 * k;
     const double* y = x + 3 * col[k];
     double p0 = m[0] * y[0];
-    double p1 = m[3] * y[0];
-    double p2 = m[6] * y[0];
-    double q0 = m[1] * y[1];
+    double p1 = m[1] * y[0];
+    double p2 = m[2] * y[0];
+    double q0 = m[3] * y[1];
     double q1 = m[4] * y[1];
-    double q2 = m[7] * y[1];
+    double q2 = m[5] * y[1];
     p0 = p0 + q0;
     p1 = p1 + q1;
     p2 = p2 + q2;
-    q0 = m[2] * y[2];
-    q1 = m[5] * y[2];
+    q0 = m[6] * y[2];
+    q1 = m[7] * y[2];
     q2 = m[8] * y[2];
     p0 = p0 + q0;
     p1 = p1 + q1;
@@ -87,6 +108,7 @@ for (int k = start[t], end = start[t + 1]; k < end; ++k) {
     r1 = r1 - p1;
     r2 = r2 - p2;
 }
+#endif
 """
 _OFF_ROW_SNIPPET = _ROW + "return wp::vec_t<3, wp::float64>(r0, r1, r2);\n"
 # _plain_node: the row times d_inv as Warp's 3x3 product takes it (the columns in turn).
@@ -143,20 +165,21 @@ def _off_row(t: int, i: int, off_start: wp.array(dtype=wp.int32), off_col: wp.ar
              off_blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
              w: wp.array(dtype=wp.vec3d)) -> wp.vec3d:
     """``b_i - sum_{j != i} A_ij w_j`` [kg m/s] of node ``i``, the ``t``-th in colour order,
-    from the colour-ordered copy of its off-diagonal blocks: the same terms in the same order
-    as :func:`softvr.contact._node_jacobi_kernels.block_update` takes them from ``A``'s rows,
-    so the same sum to the bit, but read one after the other and with no test per block
-    (:data:`_OFF_ROW_SNIPPET`)."""
+    from the colour-ordered copy of its off-diagonal blocks (transposed,
+    :func:`gather_off_blocks`): the same terms in the same order as
+    :func:`softvr.contact._node_jacobi_kernels.block_update` takes them from ``A``'s rows, so
+    the same sum to the bit, but read one after the other and with no test per block
+    (:data:`_ROW`)."""
     ...
 
 
 @wp.kernel
 def gather_off_blocks(blocks: wp.array(dtype=wp.mat33d), off_source: wp.array(dtype=wp.int32),
                       off_blocks: wp.array(dtype=wp.mat33d)):
-    """``off_blocks[k] = blocks[off_source[k]]`` [kg]: this step's off-diagonal blocks of ``A``
-    in colour order (once a step, before the sweeps)."""
+    """``off_blocks[k] = blocks[off_source[k]]^T`` [kg]: this step's off-diagonal blocks of ``A``
+    in colour order, transposed (:data:`_ROW`; once a step, before the sweeps)."""
     k = wp.tid()
-    off_blocks[k] = blocks[off_source[k]]
+    off_blocks[k] = wp.transpose(blocks[off_source[k]])
 
 
 @wp.func

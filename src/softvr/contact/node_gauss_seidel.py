@@ -145,12 +145,13 @@ class GaussSeidelSweep:
         self._colouring = colouring
         self._colour_start: wp.array = wp.array(colouring.start, dtype=wp.int32, device=d)
         # The colour passes read the rows in colour order: a copy of the off-diagonal blocks
-        # laid out that way (gathered once a step) reads them one after the other.
+        # laid out that way (gathered once a step, transposed) reads them one after the other.
         off_start, off_col, off_source = off_diagonal_rows(model.row_start.numpy(), model.block_col.numpy(),
                                                            model.couplings.partner.numpy(), order)
         self._off_start: wp.array = wp.array(off_start, dtype=wp.int32, device=d)
         self._off_col: wp.array = wp.array(off_col, dtype=wp.int32, device=d)
-        self._off_blocks = wp.zeros(len(off_source), dtype=wp.mat33d, device=d)
+        # (one block more than the rows hold: the CPU's row product reads one double past the last)
+        self._off_blocks = wp.zeros(len(off_source) + 1, dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
             source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
             self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
