@@ -228,9 +228,10 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
                       fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
                       order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
                       off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
-                      colour_start: wp.array(dtype=wp.int32), free_end: wp.array(dtype=wp.int32), backward: int,
-                      last: int, v: wp.array(dtype=wp.vec3d),
-                      w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+                      colour_start: wp.array(dtype=wp.int32), free_end: wp.array(dtype=wp.int32),
+                      listed: wp.array(dtype=wp.int32), listed_count: wp.array(dtype=wp.int32), backward: int,
+                      last: int, v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                      v_hat: wp.array(dtype=wp.vec3d)):
     """Steps 1 (``backward`` 0: colours 0 .. C-1, after ``w = v`` [m/s], :func:`start`) or 4
     (C-1 .. 0) in one thread, colour ``c`` being the nodes ``order[colour_start[c] :
     colour_start[c + 1]]`` walked in that order, as a one-chunk CPU launch of
@@ -239,10 +240,16 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
     ``free_end[c]`` [C], before the colour's fixed nodes: their update would write the fixed
     velocity that ``w = v`` gave them already
     (:func:`softvr.contact.node_gauss_seidel.free_first`); the backward one writes it into
-    ``v_hat``."""
+    ``v_hat``. The backward walk first sets ``w = v_hat`` at the contact nodes, the colour
+    positions ``listed[:listed_count[0]]`` (:func:`list_contact_nodes`), as :func:`projected`
+    would."""
     if backward == 0:
         for i in range(v.shape[0]):
             w[i] = v[i]
+    else:  # step 3's w_i = v^_i at the contact nodes (:func:`projected`), from their list
+        for s in range(listed_count[0]):
+            i = order[listed[s]]
+            w[i] = v_hat[i]
     colours = colour_start.shape[0] - 1
     for k in range(colours):
         c = k
@@ -254,6 +261,30 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
         for t in range(colour_start[c], end):
             _colour_node(t, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
                          contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
+
+
+@wp.func
+def _contact_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                  off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d),
+                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Step 2 for node ``order[t]`` if it is a contact node (:func:`contact_nodes`)."""
+    i = order[t]
+    if contact_node[i] == 0:
+        return
+    if fixed[i] != 0:
+        v_hat[i] = fixed_velocity[i]
+        return
+    update = wp.vec3d()
+    if partner[i] >= 0:
+        update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+    else:
+        update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
+    v_hat[i] = (wp.float64(1.0) - omega[i]) * v[i] + omega[i] * update
 
 
 @wp.kernel
@@ -268,19 +299,41 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
     """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes (``order[t]``,
     thread t) from the sweep's start ``v`` and the swept ``w`` [m/s], each node damped by its
     ``omega`` [n]."""
-    t = wp.tid() + offset
-    i = order[t]
-    if contact_node[i] == 0:
-        return
-    if fixed[i] != 0:
-        v_hat[i] = fixed_velocity[i]
-        return
-    update = wp.vec3d()
-    if partner[i] >= 0:
-        update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
-    else:
-        update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
-    v_hat[i] = (wp.float64(1.0) - omega[i]) * v[i] + omega[i] * update
+    _contact_node(wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                  contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+
+
+@wp.kernel
+def listed_contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                         blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                         partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+                         b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                         fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
+                         order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
+                         off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
+                         omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                         v_hat: wp.array(dtype=wp.vec3d), listed: wp.array(dtype=wp.int32),
+                         listed_count: wp.array(dtype=wp.int32)):
+    """Step 2 as :func:`contact_nodes` in one thread over the ``listed_count[0]`` colour
+    positions ``listed`` of the contact nodes (:func:`list_contact_nodes`) instead of a thread
+    a node: on the CPU, where the walk runs, a step's few dozen contact nodes of the
+    shoulder's 1 247 (each node's update reads only ``w``, so any order gives the same bits)."""
+    for s in range(listed_count[0]):
+        _contact_node(listed[s], row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                      contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+
+
+@wp.kernel
+def list_contact_nodes(order: wp.array(dtype=wp.int32), contact_node: wp.array(dtype=wp.int32),
+                       listed: wp.array(dtype=wp.int32), listed_count: wp.array(dtype=wp.int32)):
+    """``listed[:listed_count[0]]``: the colour positions ``t`` of the contact nodes
+    (``contact_node[order[t]]`` != 0), ascending (one thread; after each marking)."""
+    count = int(0)
+    for t in range(order.shape[0]):
+        if contact_node[order[t]] != 0:
+            listed[count] = t
+            count = count + 1
+    listed_count[0] = count
 
 
 @wp.kernel

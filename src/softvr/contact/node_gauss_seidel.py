@@ -18,7 +18,7 @@ import warp as wp
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_colouring import NodeColouring
-from softvr.device import chunked_replayer, cpu_workers, in_order, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, replayer, upload
 from softvr.dynamics.node_rigid import isolated_rigid_nodes, rigid_islands
 
 __all__ = ["COLOUR_CHUNK", "ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep", "free_first",
@@ -156,6 +156,20 @@ class GaussSeidelSweep:
             source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
             self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
                                                     record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
+        # On the CPU, where no colour is split over the cores, one launch walks all colours
+        # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
+        self._walk = wp.get_device(d).is_cpu and (
+            cpu_workers() == 1 or np.diff(colouring.start).max(initial=0) < 2 * COLOUR_CHUNK)
+        # There the contact nodes' updates go over a list of them, made after each marking
+        # (_node_gs_kernels.list_contact_nodes), not a thread a node.
+        self._listed = wp.zeros(n, dtype=wp.int32, device=d)
+        self._listed_count = wp.zeros(1, dtype=wp.int32, device=d)
+        self._list: Callable[[], None] = lambda: None
+        if self._walk:
+            self._list = replayer(wp.launch(_k.list_contact_nodes, dim=1, device=d, record_cmd=True,
+                                            inputs=[self._order, self.contact_node, self._listed, self._listed_count]))
+            self._prepare.append(self._list)
+            self._wake_all = in_order(self._wake_all, self._list)
 
     def prepare(self) -> None:
         """Mark this step's contact nodes (those of the contacts that do not sleep, from the
@@ -164,6 +178,16 @@ class GaussSeidelSweep:
         self.contact_node.zero_()
         for replay in self._prepare:
             replay()
+
+    def set_contact_nodes(self, nodes: np.ndarray) -> None:
+        """Mark exactly ``nodes`` [n] bool as the contact nodes, in place of :meth:`prepare`'s
+        marking from the contacts (after it: a sweep with chosen contact nodes)."""
+        nodes = np.asarray(nodes)
+        if nodes.shape != (self._model.node_count,):
+            raise ValueError(f"set_contact_nodes: expected a bool array of shape ({self._model.node_count},), found "
+                             f"shape {nodes.shape}")
+        upload(self.contact_node, nodes.astype(np.int32))
+        self._list()
 
     def wake(self) -> bool:
         """Whether a sleeping contact has taken an impulse since :meth:`prepare`; if so, every
@@ -204,17 +228,15 @@ class GaussSeidelSweep:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
                                     [*rows, *off, int(start[c]), last, w, st.v_hat], d, min_chunk=COLOUR_CHUNK)
 
-        # On the CPU, where no colour is split over the cores, one launch walks all colours
-        # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
-        walk = wp.get_device(d).is_cpu and (cpu_workers() == 1 or np.diff(start).max(initial=0) < 2 * COLOUR_CHUNK)
+        walk, listed = self._walk, [self._listed, self._listed_count]
 
         def colours(last: int) -> list:
             """The colours' updates of the sweep's first (``last`` 0, colours ascending, from
             ``w = v``) or second half (descending)."""
             if walk:
                 return [replayer(wp.launch(_k.gauss_seidel_walk, dim=1, device=d, record_cmd=True,
-                                           inputs=[*rows, *off, self._colour_start, self._free_end, last, last, v, w,
-                                                   st.v_hat]))]
+                                           inputs=[*rows, *off, self._colour_start, self._free_end, *listed, last,
+                                                   last, v, w, st.v_hat]))]
             return [colour(c, last) for c in (range(count) if last == 0 else range(count - 1, -1, -1))
                     if start[c + 1] > start[c]]
 
@@ -239,9 +261,13 @@ class GaussSeidelSweep:
 
         replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
         replays += colours(0) + islands(0)
-        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d), *touched(),
-                    contacts,
-                    chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
+        if walk:  # the backward walk sets w = v^ at the contact nodes itself
+            replays += [replayer(wp.launch(_k.listed_contact_nodes, dim=1, device=d, record_cmd=True,
+                                           inputs=[*rows, *off, self.node_omega, v, w, st.v_hat, *listed])),
+                        *touched(), contacts]
+        else:
+            replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d),
+                        *touched(), contacts, chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
         replays += colours(1) + islands(1)
         return in_order(*replays)
 
