@@ -181,7 +181,8 @@ class Rasterizer:
         :class:`~softvr.errors.InputError` naming it (default), or write nothing this frame
         (interactive simulations, where an embedding tet in air may fold for a moment;
         ``skipped_tets`` counts them; after :meth:`update`, those among the tets that reach
-        its box).
+        its box). Where a fold makes drawn tets overlap, a voxel they share takes the one
+        with the highest index on any number of threads (CPU exact spans).
 
     Examples
     --------
@@ -470,8 +471,10 @@ class Rasterizer:
         if window is not None:
             # Only the region update() redraws: what tets cover outside it is already drawn.
             box = window[2].clip(box)
+        serial = None
         if folded is not None and folded.any():
             box = box.copy() if window is None else box
+            serial = _fold_redraw(box, folded)
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
         if window is not None or (folded is not None and folded.any()):
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
@@ -521,23 +524,32 @@ class Rasterizer:
             )
         elif self.method == "spans" and self._out_code and not count_writes:
             t_cull = time.perf_counter()
-            slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
-            offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
-            items = int(offsets[-1])
-            written = wp.zeros(max(items, 1), dtype=wp.int32, device=dev)
-            tested = written
-            launch(
-                K.raster_tets_cpu,
-                items,
-                [
-                    self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
-                    self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
-                    wp.vec3i(*pitch), face_w, affine_w, box_w, wp.array(offsets, dtype=wp.int32, device=dev),
-                    m, _SLABS_PER_ITEM, self._params, written,
-                ],
-                dev,
-                min_chunk=16,
-            )
+            # Drawn tets overlap only inside folded ones (below): that box is drawn again after the
+            # split launch, on one thread in tet order, so that its voxels get the last tet that
+            # covers them on any number of threads (split, two threads' writes there were a race).
+            passes = [(box, box_w, True)]
+            if serial is not None:
+                passes.append((serial, wp.array(serial, dtype=wp.int32, device=dev), False))
+            counts_w = []
+            for pass_box, pass_box_w, split in passes:
+                slabs = np.where(pass_box[:, 1] >= pass_box[:, 0], pass_box[:, 1] - pass_box[:, 0] + 1, 0)
+                offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
+                items = int(offsets[-1])
+                counts_w.append(wp.zeros(max(items, 1), dtype=wp.int32, device=dev))
+                launch(
+                    K.raster_tets_cpu,
+                    items,
+                    [
+                        self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
+                        self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
+                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                        m, _SLABS_PER_ITEM, self._params, counts_w[-1],
+                    ],
+                    dev,
+                    min_chunk=16,
+                    split=split,
+                )
+            written = tested = counts_w[0]  # the redraw rewrites voxels counted here
         else:
             t_cull = time.perf_counter()
             slabs = np.where(box[:, 1] >= box[:, 0], box[:, 1] - box[:, 0] + 1, 0)
@@ -759,6 +771,24 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
     sign = np.repeat(1 - 2 * (pick.sum(axis=1) & 1), len(a))
     marks = np.bincount(np.ravel_multi_index(c.T, dims), sign, minlength=int(np.prod(dims))).reshape(dims)
     return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
+
+
+def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
+    """The voxel boxes [m, 6] (inclusive ranges) cut to the box around the ``folded`` tets' boxes,
+    or None when those are empty. A mesh whose boundary does not cross itself covers each point
+    inside it once, counting each tet with its orientation's sign: a point inside k folded
+    (negative) tets lies in k + 1 drawn ones, every other point in one. So two drawn tets overlap
+    only inside folded ones."""
+    fold = box[folded]
+    fold = fold[np.all(fold[:, 1::2] >= fold[:, 0::2], axis=1)]
+    if not len(fold):
+        return None
+    cut = box.copy()
+    cut[:, 0::2] = np.maximum(box[:, 0::2], fold[:, 0::2].min(axis=0))
+    cut[:, 1::2] = np.minimum(box[:, 1::2], fold[:, 1::2].max(axis=0))
+    empty = np.any(cut[:, 1::2] < cut[:, 0::2], axis=1) | folded
+    cut[empty, 1] = cut[empty, 0] - 1
+    return cut
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
