@@ -71,16 +71,23 @@ def test_aggregates_of_a_clamped_beam_give_the_dense_two_level_spectrum():
     assert sweeps_per_decade((eig[0], eig[-1])) < 0.5 * sweeps_per_decade((jacobi[0], jacobi[-1]))
 
 
-def test_aggregate_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2_in_fewer_sweeps():
+def _moving_beam():
+    """The beam of :func:`_beam` moving at random velocities (seed 4): ``(body, stepper, expected,
+    a, free, aggregates)`` with SciPy's direct solve of eq. 5.2 ``expected``, ``A`` over the free
+    nodes and their aggregates."""
     body = _beam()
     rng = np.random.default_rng(4)
     body.v = 0.05 * rng.standard_normal(body.q.shape)
     body.v[body.fixed] = 0.0
     scene, stepper = _prepared(body, DT)
     _, expected = _solve_step(body, scene, DT)
+    a, free = free_matrix(stepper.model, stepper.state)
+    return body, stepper, expected, a, free, coarse_aggregates(stepper.model, stepper.state.q.numpy())
+
+
+def test_aggregate_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2_in_fewer_sweeps():
+    body, stepper, expected, a, free, aggregates = _moving_beam()
     m, st = stepper.model, stepper.state
-    a, free = free_matrix(m, st)
-    aggregates = coarse_aggregates(m, st.q.numpy())
     lo, hi = coarse_spectrum(a, free, aggregates, st.q.numpy(), m.mass.numpy())
     solve = NodeSolve(m, st, DT, (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]), max_sweeps=2000,
                       coarse=aggregates)

@@ -15,7 +15,8 @@ from scipy.linalg import polar
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-from softvr.contact.node_factored import KEPT_NODES, FactoredSolve, _Anderson, free_matrix
+from softvr.contact import node_factored
+from softvr.contact.node_factored import KEPT_NODES, REFRESH_PERIOD, FactoredSolve, _Anderson, free_matrix
 from softvr.sim._node_step import SWEEP_TOLERANCE
 
 from tests.contact.test_node_aggregates import _beam
@@ -26,11 +27,11 @@ from tests.sim.test_node_rigid import _check_mlcp, _system
 DT = 0.01
 
 
-def _random_start(stepper, body, scene, seed: int) -> np.ndarray:
-    """Random velocities (0.05 m/s rms) on the free nodes, this step's assembly replayed and the
+def _random_start(stepper, body, scene, seed: int, rms: float = 0.05) -> np.ndarray:
+    """Random velocities (``rms`` [m/s]) on the free nodes, this step's assembly replayed and the
     sweeps' start set from them; returns SciPy's direct solve of eq. 5.2 from there [m/s]."""
     rng = np.random.default_rng(seed)
-    body.v[:] = 0.05 * rng.standard_normal(body.q.shape)
+    body.v[:] = rms * rng.standard_normal(body.q.shape)
     body.v[body.fixed] = 0.0
     for replay in stepper._recorded[1:4]:
         replay()
@@ -54,6 +55,40 @@ def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
     np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
     assert solve.factorizations == 1  # the one factorization, reused on the bent beam
     np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+
+
+def test_steps_with_last_steps_rotations_or_local_correction_still_land_on_scipy_direct_solve(monkeypatch):
+    # P's two turned parts take turns (REFRESH_PERIOD 2): a step refreshes the nodes' rotations
+    # R or the local correction D (Woodbury) and keeps the other as the last step left it. P
+    # only steers the outer iteration; its fixed point is A v = b (eq. 5.2) whatever P is, so
+    # every step must still be SciPy's direct solve at its own configuration. Four steps of a
+    # beam bent further each step (0.02 rad more at the free end) with its top corner node
+    # pressed down 4 mm more (its tets squeezed: a local correction S of a few nodes), from
+    # random velocities (5 mm/s rms); refactoring is switched off so that the kept parts are
+    # really used (this beam's A drifts from A_0 by rotations of 0.02-0.08 rad).
+    monkeypatch.setattr(node_factored, "REFACTOR_AFTER", 1000)
+    assert REFRESH_PERIOD == 2
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    rest = body.q.copy()
+    x = rest[:, 0]
+    corner = np.argmax(rest.sum(axis=1))
+    kept = []
+    for step in range(1, 5):
+        turn = Rotation.from_rotvec(np.outer(0.02 * step * x / x.max(), [0.0, 1.0, 0.0]))
+        body.q[:] = turn.apply(rest - [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+        body.q[corner, 2] -= 0.004 * step
+        expected = _random_start(stepper, body, scene, seed=step, rms=0.005)
+        rotations, local = solve._host["rotation"].copy(), solve._kept_local
+        _, solved = solve.solve(SWEEP_TOLERANCE)
+        np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
+        kept.append((np.array_equal(rotations, solve._host["rotation"]), local is solve._kept_local,
+                     len(solve._kept_local[1])))
+    assert solve.factorizations == 1
+    # Step 1 refreshes both; then rotations (local kept), local (rotations kept), rotations.
+    assert [k[:2] for k in kept] == [(False, False), (False, True), (True, False), (False, True)]
+    assert kept[2][2] > 0 and kept[3][2] > 0  # a squeezed set S, computed at step 3 and kept at step 4
 
 
 def test_a_stiff_clamped_beam_swinging_onto_a_plane_takes_the_factored_solve_and_meets_eq_5_5():

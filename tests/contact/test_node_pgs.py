@@ -81,3 +81,23 @@ def _land_and_check(monkeypatch, stiff):
     # than half of them: the skip was taken.
     assert min(contacts) == len(body.q)
     assert max(n / c for n, c in zip(live, contacts)) < 0.5
+
+
+def test_a_block_clamped_on_the_plane_sags_onto_it_and_solves_eq_5_5_past_its_fixed_nodes_contacts(monkeypatch):
+    """The block's left face is clamped on the plane (its bottom nodes there touch it and can move
+    nothing, as the candy's Jell-O bottom: the CPU's contact step lists only the movable contacts,
+    node_jacobi's ``list_movers``), the rest of it sags under gravity onto the plane. Each contact
+    step solves the MLCP of eq. 5.5 against A and b assembled by the per-object code (the checker
+    of tests/sim/test_node_arrays.py, 3x the sweeps' tolerance), with contacts of both kinds."""
+    solves = []
+    original = _node_step.NodeStepper._solver
+    monkeypatch.setattr(_node_step.NodeStepper, "_solver",
+                        lambda self, step: solves.append(original(self, step)) or solves[-1])
+    body = _cube(cells=4, size=0.4, lift=0.0005, fixed=lambda x: x[:, 0] < -0.19)
+    scene = _scene(body)
+    assert check_mlcp_steps(body, scene, DT, 20, friction=0.5) >= 15
+    state = scene._stepper.state
+    count = int(state.contacts.count.numpy()[0])
+    movable = node_jacobi.movable_contacts(scene._stepper.model, state)
+    pushing = int((np.abs(state.contacts.impulse.numpy()[:count, 0]) > 0).sum())
+    assert 0 < movable < count and pushing > 0, (movable, count, pushing)

@@ -137,6 +137,31 @@ def test_bad_input_is_reported():
         body.unconstrained_velocity(-0.01)
 
 
+def test_a_step_asked_again_or_with_another_dt_follows_the_script():
+    """The step's velocity asked for dt, 2 dt, dt again and 2 dt at one time (the step is
+    cached for the integration that follows): each the script's own finite difference
+    (pose(dt) - pose(0)) / dt (linear part: round-off, ~eps |C0| / dt < 1e-12; angular: the
+    constant rate about z up to the rotation vector's round-off), and the integration lands on
+    pose(2 dt) bit for bit."""
+    body = KinematicBody(steady_pose)
+    for dt in (0.01, 0.02, 0.01, 0.02):
+        v = body.unconstrained_velocity(dt)
+        np.testing.assert_allclose(v[:3], (steady_pose(dt)[0] - steady_pose(0.0)[0]) / dt, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(v[3:], RATE * Z, rtol=0, atol=1e-9)
+    body.integrate(v, 0.02)
+    np.testing.assert_array_equal(body.position, steady_pose(0.02)[0])
+    np.testing.assert_array_equal(body.orientation, steady_pose(0.02)[1])
+
+
+def test_a_pose_turning_non_finite_is_reported_with_its_time():
+    body = KinematicBody(lambda t: (np.array([0.0, np.nan if t > 0 else 0.0, 0.0]), Q0), name="hand")
+    with pytest.raises(InputError, match=r"hand: pose\(0.01\) position"):
+        body.unconstrained_velocity(0.01)
+    turning = KinematicBody(lambda t: (C0, np.array([1.0, 0.0, np.inf if t > 0 else 0.0, 0.0])), name="probe")
+    with pytest.raises(InputError, match=r"probe: pose\(0.01\) quaternion"):
+        turning.unconstrained_velocity(0.01)
+
+
 def test_rigid_and_kinematic_bodies_share_the_frame_interface():
     """Same attribute names and point maps for point entities (thesis 5.1.2)."""
     rigid = RigidBody.box((0.1, 0.1, 0.1), 1000.0, position=C0, orientation=Q0)

@@ -72,6 +72,19 @@ class Coarse:
     lever: wp.array2d(dtype=wp.vec3d)
 
 
+@wp.func
+def store_inverse(b: int, ll: wp.mat33d, la: wp.mat33d, aa: wp.mat33d, out_ll: wp.array(dtype=wp.mat33d),
+                  out_la: wp.array(dtype=wp.mat33d), out_aa: wp.array(dtype=wp.mat33d)):
+    """The blocks of the inverse of the symmetric 6x6 ``[[ll, la], [la^T, aa]]`` into
+    ``out_*[b]``, by the Schur complement of the linear block ``ll``."""
+    p_inv = wp.inverse(ll)
+    s_inv = wp.inverse(aa - wp.transpose(la) * p_inv * la)
+    lever = p_inv * la
+    out_ll[b] = p_inv + lever * s_inv * wp.transpose(lever)
+    out_la[b] = -(lever * s_inv)
+    out_aa[b] = s_inv
+
+
 @wp.kernel
 def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
                    mass: wp.array(dtype=wp.float64), row_start: wp.array(dtype=wp.int32),
@@ -102,12 +115,7 @@ def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int
                 ll = ll + a
                 la = la - a * rj
                 aa = aa - ri * a * rj
-    p_inv = wp.inverse(ll)
-    s_inv = wp.inverse(aa - wp.transpose(la) * p_inv * la)
-    lever = p_inv * la
-    co.ll[b] = p_inv + lever * s_inv * wp.transpose(lever)
-    co.la[b] = -(lever * s_inv)
-    co.aa[b] = s_inv
+    store_inverse(b, ll, la, aa, co.ll, co.la, co.aa)
 
 
 @wp.func

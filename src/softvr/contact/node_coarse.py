@@ -173,6 +173,19 @@ def _basis(aggregates: Aggregates, q: np.ndarray, mass: np.ndarray, solved: np.n
                          shape=(size, 6 * len(aggregates)))
 
 
+def _galerkin_inverses(a: sp.csr_matrix, aggregates: Aggregates, q: np.ndarray, mass: np.ndarray,
+                       solved: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
+    """``(P, C)``: the aggregates' rigid motions ``P`` [3 k, 6 G] (:func:`_basis`) and ``C`` [6 G, 6 G]
+    the block-diagonal of their Galerkin matrix ``P^T A P``, each aggregate's 6x6 inverted alone as
+    the sweeps do (one thread per aggregate); ``a`` [3 k, 3 k] ``A`` over the solved nodes."""
+    p = _basis(aggregates, q, mass, solved)
+    galerkin = (p.T @ a @ p).toarray()
+    coarse = np.zeros_like(galerkin)
+    for g in range(0, len(galerkin), 6):
+        coarse[g:g + 6, g:g + 6] = np.linalg.inv(galerkin[g:g + 6, g:g + 6])
+    return p, coarse
+
+
 def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies, q: np.ndarray,
                     mass: np.ndarray) -> tuple[float, float]:
     """Bounds (lo, hi) of the eigenvalues of ``M^-1 A`` with the two-level ``M^-1 = D_A^-1 +
@@ -197,12 +210,7 @@ def coarse_spectrum(a: sp.csr_matrix, solved: np.ndarray, bodies, q: np.ndarray,
         pair_inv = np.linalg.inv(np.stack([a[d][:, d].toarray() for d in dofs]))
         entries = (np.repeat(dofs, 6, axis=1).ravel(), np.tile(dofs, 6).ravel())
         d_inv = d_inv + sp.coo_matrix((pair_inv.ravel(), entries), shape=a.shape).tocsr()
-    p = _basis(aggregates, q, mass, solved)
-    galerkin = (p.T @ a @ p).toarray()
-    # Each aggregate's 6x6 inverted alone, as the sweeps do (one thread per aggregate).
-    coarse = np.zeros_like(galerkin)
-    for g in range(0, len(galerkin), 6):
-        coarse[g:g + 6, g:g + 6] = np.linalg.inv(galerkin[g:g + 6, g:g + 6])
+    p, coarse = _galerkin_inverses(a, aggregates, q, mass, solved)
 
     def apply(x: np.ndarray) -> np.ndarray:
         r = a @ x

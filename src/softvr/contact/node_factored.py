@@ -61,6 +61,13 @@ LOCAL_NODES = 120
 #: last step did not use (an outer iteration multiplies all kept columns; a probe moved over a
 #: body would otherwise gather them until the next factorization).
 KEPT_NODES = 120
+#: Steps between refreshes of each of ``P``'s two turned parts, the nodes' rotations ``R`` and the
+#: local correction (``D``, :meth:`FactoredSolve._local`), which take turns: a step refreshes one
+#: and keeps the other as the last step left it. ``P`` only steers the iteration (its fixed
+#: point, ``A v = b + J^T lambda``, is the same for any ``P``); over palpation.toml's press a
+#: part one step old costs no iterations (140 in the 40 steps against 141 refreshing both), and
+#: each kept part saves its ~0.2 ms (rotations) or ~0.4 ms (warp change, ``T``). 1: both every step.
+REFRESH_PERIOD = 2
 #: Newton iterations of the nodes' polar rotations (quadratic convergence from near a rotation).
 POLAR_ITERATIONS = 3
 #: PGS passes on the Delassus matrix per outer iteration, at most (each is a few microseconds
@@ -140,9 +147,10 @@ class _Anderson:
         self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
-    def next(self, x: np.ndarray, g: np.ndarray) -> np.ndarray:
-        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N]."""
-        f = g - x
+    def next(self, x: np.ndarray, g: np.ndarray, f: np.ndarray | None = None) -> np.ndarray:
+        """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N] (and
+        their difference ``f = g - x`` [N], where the caller has it)."""
+        f = g - x if f is None else f
         if self._last is None:
             self._last = f, g
             self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
@@ -217,6 +225,9 @@ class FactoredSolve:
         self._solved = ~self._fixed & (np.diff(model.row_start.numpy()) > 0)
         self._solved_nodes = np.flatnonzero(self._solved)
         self._index = np.cumsum(self._solved) - 1  # node -> its row among the solved ones
+        self._row_start, self._block_col = model.row_start.numpy(), model.block_col.numpy()
+        self._row_count = np.diff(self._row_start)
+        self._node_slot = np.full(n, -1)  # node -> its place in a small set being indexed (_local, _contacts), else -1
         k = len(self._solved_nodes)
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
@@ -259,7 +270,7 @@ class FactoredSolve:
         self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
                           stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
                           movable=self._movable.numpy(), blocks=state.blocks.numpy(), unit=self._unit.numpy(),
-                          column=self._column.numpy())
+                          column=self._column.numpy(), buffers=[b.numpy() for b in state.sweep_buffers])
         self._residual_check = replayer(wp.launch(
             _jk.residual, dim=1, device=d, record_cmd=True,
             inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
@@ -274,6 +285,7 @@ class FactoredSolve:
         self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
+        self._steps = 0  # solves made
         self.delassus_passes = 0
         self._factor()
 
@@ -299,15 +311,13 @@ class FactoredSolve:
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
         self._host["rotation"][self._solved_nodes] = np.eye(3)
-        rows, cols = self.model.block_row.numpy(), self.model.block_col.numpy()
-        self._pairs = np.flatnonzero(self._solved[rows] & self._solved[cols])  # blocks of A over solved nodes
-        self._bi, self._bj = self._index[rows[self._pairs]], self._index[cols[self._pairs]]
-        self._pair_nodes = rows[self._pairs], cols[self._pairs]
         wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
         self._kept = 0  # columns of _columns in use
         self._used = np.zeros(0, np.int64)  # the columns the last step used
+        # The last local correction (_local): S's rows among the solved velocities, its nodes and T.
+        self._kept_local: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def _local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's local correction of ``P`` (Woodbury): ``R^T A R - A_0`` is large only on
@@ -317,27 +327,40 @@ class FactoredSolve:
         are added to ``A_0``: ``(A_0 + U D U^T)^-1 = A_0^-1 - C_S T C_S^T`` with ``C_S`` the
         columns of ``A_0^-1`` at ``S`` and ``T = (I + D C_SS)^-1 D``. Returns ``S``'s rows among
         the solved velocities [3 s], its columns in the kept ones (:meth:`_slots_of`) [3 s] and
-        ``T`` [3 s, 3 s] (s = 0: none)."""
+        ``T`` [3 s, 3 s] (s = 0: none); kept for :meth:`_last_local`."""
         h = self._host
         self._warp_change()
         size = h["change"][self._solved_nodes]
         pick = np.flatnonzero(size > LOCAL_THRESHOLD)
         pick = pick[np.argsort(-size[pick], kind="stable")[:LOCAL_NODES]]
-        slot = np.full(len(size), -1)
-        slot[pick] = np.arange(len(pick))
-        inside = (slot[self._bi] >= 0) & (slot[self._bj] >= 0)
-        bi, bj = self._bi[inside], self._bj[inside]
-        a0 = h["blocks0"][self._pairs[inside]]
+        # S's blocks: those of S's rows (CSR ranges) in S's columns, not a pass over all of A's.
+        nodes = self._solved_nodes[pick]
+        slot = self._node_slot
+        slot[nodes] = np.arange(len(pick))
+        first, count = self._row_start[nodes], self._row_count[nodes]
+        at = np.repeat(first - np.cumsum(count) + count, count) + np.arange(count.sum())
+        cols = self._block_col[at]
+        bj = slot[cols]
+        inside = bj >= 0
+        at, cols, bj, bi = at[inside], cols[inside], bj[inside], np.repeat(np.arange(len(pick)), count)[inside]
+        slot[nodes] = -1
         r = h["rotation"]
-        d = np.matmul(np.matmul(r[self._pair_nodes[0][inside]].transpose(0, 2, 1), h["blocks"][self._pairs[inside]]),
-                      r[self._pair_nodes[1][inside]]) - a0
+        d = np.matmul(np.matmul(r[nodes[bi]].transpose(0, 2, 1), h["blocks"][at]), r[cols]) - h["blocks0"][at]
         grid = np.zeros((len(pick), len(pick), 3, 3))
-        grid[slot[bi], slot[bj]] = d
+        grid[bi, bj] = d
         blocks = grid.transpose(0, 2, 1, 3).reshape(3 * len(pick), 3 * len(pick))
         dofs = (3 * pick[:, None] + np.arange(3)).ravel()
         slots = self._slots_of(self._solved_nodes[pick])
         t = np.linalg.solve(np.eye(len(dofs)) + blocks @ self._columns[np.ix_(dofs, slots)], blocks)
+        self._kept_local = dofs, nodes, t
         return dofs, slots, t
+
+    def _last_local(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The last step's local correction (:meth:`_local`) as this step uses it: its columns
+        found again among the kept ones (:meth:`_forget_columns` may have moved them)."""
+        assert self._kept_local is not None  # solve() makes a local correction after each factorization
+        dofs, nodes, t = self._kept_local
+        return dofs, self._slots_of(nodes), t
 
     def _slots_of(self, nodes: np.ndarray) -> np.ndarray:
         """Where the columns of ``A_0^-1`` at the solved ``nodes``' three velocity components
@@ -395,14 +418,23 @@ class FactoredSolve:
         # J over the stencils' slots (block diagonal: contact c's frame times its weights).
         each = np.arange(len(rows))
         blocks = np.zeros((len(rows), 3, len(rows), nodes.shape[1], 3))
-        blocks[each, :, each] = np.einsum("ct,cij->citj", weights, frames)
+        blocks[each, :, each] = weights[:, None, :, None] * frames[:, :, None, :]
         j = blocks.reshape(3 * len(rows), 3 * nodes.size)
-        touched, inverse = np.unique(nodes[moves], return_inverse=True)
-        g = np.zeros((len(rows), len(touched)))  # J's node weights over the touched nodes
-        np.add.at(g, (np.nonzero(moves)[0], inverse), weights[moves])
+        # The touched nodes in node order, and each moving slot's place among them (a mark
+        # per node: np.unique's sort costs more than the whole rest for tens of slots).
+        pushed = nodes[moves]
+        mark = np.zeros(len(self._solved), bool)
+        mark[pushed] = True
+        touched = np.flatnonzero(mark)
+        place = self._node_slot
+        place[touched] = np.arange(len(touched))
+        cell = np.nonzero(moves)[0] * len(touched) + place[pushed]
+        place[touched] = -1
+        # J's node weights over the touched nodes [m, u] (a node twice in a stencil: summed).
+        g = np.bincount(cell, weights[moves], minlength=len(rows) * len(touched)).reshape(len(rows), len(touched))
         slots = self._slots_of(touched)
         dofs = (3 * self._index[touched][:, None] + np.arange(3)).ravel()
-        jt = np.einsum("cu,cji->uicj", g, frames)  # J^T [touched, 3, m, 3], frames
+        jt = g.T[:, None, :, None] * frames.transpose(2, 0, 1)[None]  # J^T [touched, 3, m, 3], frames
         # R^T J^T at the touched nodes; W = J R A_0^-1 R^T J^T, Z = R A_0^-1 R^T J^T.
         rel = h["rotation"][touched]
         jt = np.einsum("uji,ujcx->uicx", rel, jt).reshape(3 * len(touched), 3 * len(rows))
@@ -443,12 +475,16 @@ class FactoredSolve:
         holding the solved velocities (``state.sweep_buffers[k % 3]``, which the integration of
         a sweep count ``k`` reads); the contacts' impulses and ``gap_after`` are set."""
         st, h = self.state, self._host
-        wp.copy(self._v, st.sweep_buffers[0])
-        v, y_d = h["v"], h["y"]
+        v, y_d, buffers = h["v"], h["y"], h["buffers"]
+        v[:] = buffers[0]
         v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
-        self._rotations()
+        # P's turned parts refreshed in turns (REFRESH_PERIOD), both after a factorization.
+        self._steps += 1
+        fresh = self._kept_local is None
+        if fresh or self._steps % REFRESH_PERIOD == 0:
+            self._rotations()
         self._forget_columns()
-        local = self._local()
+        local = self._local() if fresh or self._steps % REFRESH_PERIOD == 1 % REFRESH_PERIOD else self._last_local()
         rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
         m = len(rows)
         pgs = self._delassus(m, tolerance)
@@ -490,17 +526,17 @@ class FactoredSolve:
                 y += self._columns[:, :self._kept] @ spread
             self._update()  # u = v + R y
             u = h["u"].ravel().copy()
-            change = float(np.abs(u - v.ravel()).max(initial=0.0))
-            v[:] = anderson.next(v.ravel(), u).reshape(-1, 3)
+            f = u - v.ravel()
+            change = float(np.abs(f).max(initial=0.0))
+            v[:] = anderson.next(v.ravel(), u, f).reshape(-1, 3)
             h["stats"][0] = change
             changes.append(change)
             if _error(changes) <= tolerance and self._contacts_met(rows, lam, tolerance):
                 break
         else:
             self._contacts_met(rows, lam, tolerance)
-        out = st.sweep_buffers[k % 3]
-        wp.copy(out, self._v)
-        return k, out
+        buffers[k % 3][:] = v
+        return k, st.sweep_buffers[k % 3]
 
     def _contacts_met(self, rows: np.ndarray, lam: np.ndarray, tolerance: float) -> bool:
         """The contacts' impulses ``lam`` [m, 3] [N s] (frames) into ``state.contacts`` at

@@ -17,7 +17,9 @@ import warp as wp
 
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_gs_kernels as _k
+from softvr.contact.node_coarse import Aggregates
 from softvr.contact.node_colouring import NodeColouring
+from softvr.contact.node_gs_coarse import GaussSeidelCoarse
 from softvr.device import chunked_replayer, cpu_workers, in_order, replayer, upload
 from softvr.dynamics.node_rigid import isolated_rigid_nodes, rigid_islands
 
@@ -61,9 +63,13 @@ class GaussSeidelSweep:
     dt : float, optional
         The step [s] (a contact sleeps by how much of its gap it closes in it); None: no
         contact sleeps.
+    coarse : Aggregates, optional
+        Aggregates whose rigid motions each sweep corrects after its node update
+        (:mod:`softvr.contact.node_gs_coarse`); None: none.
     """
 
-    def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None):
+    def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None,
+                 coarse: Aggregates | None = None):
         d = model.device
         n = model.node_count
         self.omega = float(omega)
@@ -171,6 +177,12 @@ class GaussSeidelSweep:
             self._prepare.append(self._list)
             self._wake_all = in_order(self._wake_all, self._list)
 
+        #: The coarse correction after each sweep (None: none).
+        self.coarse = GaussSeidelCoarse(model, state, coarse, self.contact_node) if coarse is not None and len(
+            coarse) else None
+        if self.coarse is not None:  # over the step's contact nodes, marked above
+            self._prepare.append(self.coarse.prepare)
+
     def prepare(self) -> None:
         """Mark this step's contact nodes (those of the contacts that do not sleep, from the
         step's start velocities ``state.sweep_buffers[0]``), set the metric and gather the
@@ -200,6 +212,8 @@ class GaussSeidelSweep:
         if flag[0] == 0:
             return False
         self._wake_all()
+        if self.coarse is not None:  # its aggregates hold the newly marked contact nodes
+            self.coarse.prepare()
         return True
 
     def mark_tools(self, live: wp.array, threads: int) -> Callable[[], None]:
@@ -269,6 +283,8 @@ class GaussSeidelSweep:
             replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d),
                         *touched(), contacts, chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
         replays += colours(1) + islands(1)
+        if self.coarse is not None:
+            replays.append(self.coarse.correct)
         return in_order(*replays)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
-from softvr.contact.node_coarse import CoarseSpace
+from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import chunked_replayer, in_order, load_kernels, replayer
@@ -237,25 +237,24 @@ class NodeSolve:
     omega : float
         With ``colours``: the damping of the contact nodes' Jacobi update, at most
         1 / lambda_max(D_A^-1 A).
-    coarse : ndarray, optional
-        [B, 2] node ranges of the bodies whose rigid motions the Jacobi sweeps correct
-        exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the two-level
-        ``M^-1 A``). Not with ``colours``.
+    coarse : ndarray or Aggregates, optional
+        [B, 2] node ranges of the bodies (or aggregates) whose rigid motions the Jacobi sweeps
+        correct exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the
+        two-level ``M^-1 A``); with ``colours``, the aggregates each Gauss-Seidel sweep corrects
+        after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | None = None):
-        if coarse is not None and len(coarse) and colours is not None:
-            raise ValueError("the coarse correction goes with the Jacobi sweeps, not with colours")
+                 coarse: np.ndarray | Aggregates | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.chebyshev,
-                       _k.residual, _k.rigid_contact_exact, _k.largest_change):
+        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.contact_step,
+                       _k.list_movers, _k.chebyshev, _k.residual, _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -294,10 +293,11 @@ class NodeSolve:
         self.colours = colours
         #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
         self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
-        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None else coarse,
-                                  self.residual_nodes)
+        self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None or colours is not None
+                                  else coarse, self.residual_nodes)
         co = self.coarse.arrays
-        self._gauss_seidel = None if colours is None else GaussSeidelSweep(model, state, colours, omega, dt)
+        self._gauss_seidel = None if colours is None else GaussSeidelSweep(
+            model, state, colours, omega, dt, None if coarse is None else aggregates_of(coarse))
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
@@ -397,14 +397,27 @@ class NodeSolve:
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep: the last impulses applied to ``v^``, the contacts
         screened (:func:`_node_jacobi_kernels.screen`), then the PGS passes over the live ones
-        (:func:`_node_jacobi_kernels.contacts`)."""
+        (:func:`_node_jacobi_kernels.contacts`); with one thread a launch (the CPU) and Jacobi
+        sweeps, the three in one launch over the step's movable contacts
+        (:func:`_node_jacobi_kernels.contact_step`, listed by :attr:`_list_movers` once a step)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
+        threads = _contact_threads(d)
+        self._list_movers = _nothing
+        if threads == 1 and self._gauss_seidel is None:
+            movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
+            self._list_movers = replayer(wp.launch(_k.list_movers, dim=1, device=d, record_cmd=True,
+                                                   inputs=[c.count, movable, self.live, movers, mover_count]))
+            return replayer(wp.launch(_k.contact_step, dim=1, device=d, record_cmd=True,
+                                      inputs=[movers, mover_count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                              c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                                              model.couplings.partner, cross, model.fixed, float(dt), int(passes),
+                                              c.impulse, state.v_hat, self.sweep, c.stiffness, c.slip, co, metric,
+                                              self.live, self._order]))
         stencil = [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame]
         warm = wp.launch(_k.warm_impulses, dim=1, device=d, record_cmd=True,
                          inputs=[*stencil, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
                                  model.fixed, c.impulse, state.v_hat, co, movable])
-        threads = _contact_threads(d)
         screen = wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
                            inputs=[*stencil, c.gap, c.rigid_node, c.rigid_lever, float(dt), c.impulse, c.stiffness,
                                    state.v_hat, co, movable, threads, self.live])
@@ -465,6 +478,7 @@ class NodeSolve:
         self._rigid_contacts()
         self.coarse.prepare()
         self._metric()
+        self._list_movers()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
         wp.copy(self.weights, self._first_weights if narrow else self._bounds_weights)

@@ -34,6 +34,18 @@ from softvr.errors import InputError
 
 __all__ = ["FixedBody", "KinematicBody"]
 
+#: How far from 1 a pose's quaternion norm may be and be kept bit for bit (round-off).
+_UNIT_TOLERANCE = 4 * np.finfo(float).eps
+
+
+def _finite_copy(value, n: int) -> np.ndarray | None:
+    """A copy of ``value`` if it is a float64 array of shape [n] with finite entries (what a
+    pose function gives), else None (the caller checks and reports it as ``_vector`` does)."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (n,) and \
+            all(map(math.isfinite, value.tolist())):
+        return value.copy()
+    return None
+
 
 class _InfiniteMass(RigidFrame):
     """Shared behaviour of bodies no force can move."""
@@ -69,8 +81,10 @@ class _InfiniteMass(RigidFrame):
         return 0.0
 
     def _check_finite(self, v) -> np.ndarray:
-        v1 = self._check_velocity(v)
-        if not np.isfinite(v1).all():
+        # The solver's [6] float64 velocity (every step, every such body) on its floats.
+        v1 = v.copy() if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (6,) \
+            else self._check_velocity(v)
+        if not all(map(math.isfinite, v1.tolist())):
             raise self._diverged("velocity NaN/inf")
         return v1
 
@@ -150,6 +164,7 @@ class KinematicBody(_InfiniteMass):
         self.v = np.zeros(6)
         self.step_count = 0
         self._target: tuple | None = None  # (t1, position, orientation, velocity) of the next key
+        self._target_for: tuple = (None, 0.0)  # (time object, dt) _target was made for
 
     @property
     def time(self) -> float:
@@ -158,21 +173,29 @@ class KinematicBody(_InfiniteMass):
 
     def _evaluate(self, t: Fraction) -> tuple[np.ndarray, np.ndarray]:
         tf = float(t)
-        what = f"{self.name}: pose({tf!r})"
         out = self.pose(tf)
         try:
             c, q = out
         except (TypeError, ValueError):
-            raise InputError(what, "a pair (position [3], quaternion (w, x, y, z))", "something else") from None
-        c = _vector(c, 3, f"{what} position", "m")
-        q = _vector(q, 4, f"{what} quaternion", "(w, x, y, z)")
-        norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > 4 * np.finfo(float).eps:
-            q = _unit_quaternion(q, f"{what} quaternion")
+            raise InputError(f"{self.name}: pose({tf!r})", "a pair (position [3], quaternion (w, x, y, z))",
+                             "something else") from None
+        c, q = _finite_copy(c, 3), _finite_copy(q, 4)
+        if c is None or q is None:  # named and reported as the checks do
+            what = f"{self.name}: pose({tf!r})"
+            c = _vector(out[0], 3, f"{what} position", "m")
+            q = _vector(out[1], 4, f"{what} quaternion", "(w, x, y, z)")
+        # np.linalg.norm of a vector is sqrt(q . q): the same bits, without its dispatch (each
+        # kinematic body evaluates its pose every step).
+        if abs(math.sqrt(q.dot(q)) - 1.0) > _UNIT_TOLERANCE:
+            q = _unit_quaternion(q, f"{self.name}: pose({tf!r}) quaternion")
         return c, q
 
     def _step_to(self, dt: float):
-        """Pose at ``time + dt`` and the velocity that reaches it (cached for this step)."""
+        """Pose at ``time + dt`` and the velocity that reaches it (cached for this step: the
+        integration asks again with the same time and ``dt``, answered without the exact
+        time's arithmetic)."""
+        if self._target is not None and self._target_for[0] is self._t and self._target_for[1] == dt:
+            return self._target
         t1 = self._t + Fraction(dt)
         if self._target is None or self._target[0] != t1:
             c1, q1 = self._evaluate(t1)
@@ -180,6 +203,7 @@ class KinematicBody(_InfiniteMass):
             v[:3] = (c1 - self.position) / dt
             v[3:] = quat_to_rotvec(quat_multiply(q1, quat_conjugate(self.orientation))) / dt
             self._target = (t1, c1, q1, v)
+        self._target_for = (self._t, dt)
         return self._target
 
     def unconstrained_velocity(self, dt: float, gravity=(0.0, 0.0, -9.81), external=None) -> np.ndarray:

@@ -152,8 +152,12 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
     [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
-    ``v_before`` [n] [m/s]). Both then copy ``state.v`` into ``v_before``; a rigid body's nodes
-    (``model.rigid``) start at its unconstrained velocity."""
+    ``v_before`` [n] [m/s]). Both then copy ``state.v`` into ``v_before``; on the first step a
+    rigid body's nodes (``model.rigid``) start at its unconstrained velocity, later ones carried on
+    as the others': a tool pressed into tissue by its coupling starts ~0.2 m/s into the tissue
+    at its unconstrained velocity, and the sweeps' first exact update of the shoulder's inner
+    finger then spun it at 18 rad/s, which took ~60 sweeps to settle (steps 71-120 of
+    shoulder.toml: 63 -> 33 sweeps a step carried on)."""
     d = model.device
     load_kernels(_k.start_guess, d)
     buf = state.sweep_buffers
@@ -164,7 +168,7 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
                                                wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
                                                model.fixed, state.fixed_velocity, v_before, buf[0], buf[2]]))]
         r = model.rigid
-        if r is not None:
+        if r is not None and not carried:
             load_kernels(_k.rigid_start_guess, d)
             launches.append(replayer(wp.launch(_k.rigid_start_guess, dim=len(r.bodies), device=d, record_cmd=True,
                                                inputs=[r.linear_node, r.angular_node, r.state.free_velocity, buf[0],

@@ -164,12 +164,23 @@ class _NodeSnapshot(StepSnapshot):
     def pushing_normals(self, body: int) -> np.ndarray:
         """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
         :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
-        c = self.contacts
-        first = self._stepper.contact_body(c)
-        side_b = ((c["kind"] == 1) | (c["kind"] == 2) | (c["kind"] == 3)) & (c["other"] == body)
-        rows = np.flatnonzero(((first == body) | side_b) & c["movable"] & (c["impulse"][:, 0] > 0))
-        rows = rows[np.lexsort((c["point"][rows], c["other"][rows], c["kind"][rows], first[rows]))]
-        return np.where(side_b[rows, None], -c["frame"][rows, 0], c["frame"][rows, 0])
+        c, s = self.contacts, self._stepper
+        # The pushing rows (a few of the step's contacts; a haptic tool asks every step) in plain
+        # Python: side a's body as contact_body gives it, the sets' order (body a, kind, other,
+        # point; a stable sort, as np.lexsort, so ties keep the rows' order).
+        rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
+        picked = []
+        for row, kind, other, point, column in zip(rows.tolist(), *(c[name][rows].tolist() for name in
+                                                                    ("kind", "other", "point", "column"))):
+            first = column if kind == 3 else int(s.edge_body[point] if kind == 2 else s.point_body[point])
+            side_b = kind in (1, 2, 3) and other == body
+            if first == body or side_b:
+                picked.append((first, kind, other, point, row, side_b))
+        picked.sort(key=lambda x: x[:4])
+        normals = c["frame"][[x[4] for x in picked], 0]
+        flip = np.array([x[5] for x in picked], bool)
+        normals[flip] = -normals[flip]
+        return normals
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
         c, first = self.contacts, [rows[0] for rows in self.sets()]
@@ -251,6 +262,8 @@ class NodeStepper:
         self.colliders = {c.body: c for c in scene._colliders}
         self.fem = [isinstance(b, NODE_BODIES) for b in scene.bodies]  # free nodes: FEM and cloth
         self.fixed_nodes = self.model.fixed.numpy() != 0
+        self._free_nodes = ~self.fixed_nodes
+        self._stencil_slots = np.arange(self.state.contacts.stencil_nodes.shape[1])
         self.point_body = self.model.point_body.numpy()
         self.triangle_start = self.model.body_triangle_start.numpy()
         self.edges = self.model.edges.numpy()
@@ -298,7 +311,12 @@ class NodeStepper:
         self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
             if wp.get_device(self.model.device).is_cpu else None
         k = len(self.model.kinematic)
-        self._poses = (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))  # host side of state.kinematic_*
+        kinematic = (st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity)
+        # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
+        # (three upload calls cost ~10 us a step), else host arrays uploaded after.
+        self._poses = tuple(a.numpy() for a in kinematic) if self._host_views is not None else \
+            (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))
+        self._pose_uploads = () if self._host_views is not None else kinematic
         self._drive_nodes = record_drive(self.model, st)
         self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
         self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
@@ -339,8 +357,7 @@ class NodeStepper:
             body = self.scene.bodies[i]
             out[i] = v = body.unconstrained_velocity(dt, self.scene.gravity)
             position[j], rotation[j], velocity[j] = body.position, body.rotation, v
-        st = self.state
-        for dst, src in zip((st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity), self._poses):
+        for dst, src in zip(self._pose_uploads, self._poses):
             upload(dst, src)
         self._drive_nodes()
         return out
@@ -553,14 +570,19 @@ class NodeStepper:
         out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
             primitive = out["kind"] == 3
-            rows = np.where(primitive, out["point"], 0)
-            out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
-            # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
-            # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
-            out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
+            if primitive.any():
+                rows = np.where(primitive, out["point"], 0)
+                out.update({name: self._host(name)[rows] for name in _RIGID_CONTACT_FIELDS})
+                # The rigid path's area (a box corner's share of its face, a sphere's cap; thesis
+                # 4.3.1), which the node arrays' own area holds only in a scene with adhesion.
+                out["area"] = np.where(primitive, out.pop("rigid_area"), out["area"])
+            else:  # every row reads the rigid path's row 0, as above, and keeps its own area
+                out.update({name: np.repeat(self._host(name)[:1], n, axis=0) for name in _RIGID_CONTACT_FIELDS
+                            if name != "rigid_area"})
         nodes = self._host("stencil_nodes")[:n]
-        used = np.arange(nodes.shape[1]) < self._host("stencil_count")[:n, None]
-        out["movable"] = (used & ~self.fixed_nodes[np.maximum(nodes, 0)]).any(axis=1)
+        # Unused stencil entries (-1) read the last node's flag, which ``used`` masks out.
+        used = self._stencil_slots < self._host("stencil_count")[:n, None]
+        out["movable"] = (used & self._free_nodes[nodes]).any(axis=1)
         return out
 
     def _check(self) -> None:

@@ -15,6 +15,7 @@ import numpy as np
 from softvr.contact.node_coarse import Aggregates, aggregates_of, coarse_spectrum
 from softvr.contact.node_colouring import NodeColouring, colour_nodes
 from softvr.contact.node_gauss_seidel import gauss_seidel_spectrum
+from softvr.contact.node_gs_coarse import gauss_seidel_coarse_spectrum
 
 __all__ = ["SweepChoice", "choose_sweeps", "sweep_costs", "sweeps_per_decade"]
 
@@ -71,6 +72,17 @@ COARSE_PASSES = 12
 #: session 10) before its scene changes sweeps. The held tools need no share of their own: the
 #: scenes where the coarse sweeps cycled are above it.
 COARSE_OVER_GAUSS_SEIDEL = 0.75
+#: Cost of the Gauss-Seidel sweeps' coarse correction (:mod:`softvr.contact.node_gs_coarse`) per
+#: block of its aggregates' rows (the residual ``b - A v^``, read from ``A``'s rows in node order),
+#: in block products, and its two launches.
+GAUSS_SEIDEL_COARSE_BLOCK = 1.0
+#: The Gauss-Seidel sweeps take the coarse correction where its estimated work a decade is at most
+#: this share of the plain sweeps'. Measured (session 12, process CPU a step, paired with main, load
+#: 8-12): shoulder.toml at 0.75 (26.6 against 35.5) 9.05-9.30 -> 7.07-7.99 ms, 33.9 -> 18.8 sweeps a
+#: step; the arthroscopy at 0.87 (26.1 against 30.1) 14.7 -> 9.7 sweeps but 4.13-4.96 -> 4.74-5.05 ms
+#: (the correction's once-a-step Galerkin inverses, ~0.11 ms, and ~30 us a sweep eat the saving).
+#: 0.8 is about their geometric middle (0.81).
+GAUSS_SEIDEL_COARSE_SHARE = 0.8
 
 
 @dataclass(frozen=True)
@@ -92,7 +104,9 @@ class SweepChoice:
         included); Jacobi's alone where nothing else was worth estimating.
     coarse : Aggregates or ndarray or None
         The aggregates (or [B, 2] node ranges of bodies) whose rigid motions the Jacobi sweeps
-        correct (:mod:`softvr.contact.node_coarse`); ``bounds`` are then the two-level iteration's.
+        correct (:mod:`softvr.contact.node_coarse`), or, with "gauss-seidel", each sweep after its
+        node update (:mod:`softvr.contact.node_gs_coarse`); ``bounds`` are then the two-level
+        iteration's.
     passes : int or None
         PGS passes over the contacts per sweep (:data:`COARSE_PASSES` with ``coarse``); None:
         the caller's.
@@ -172,7 +186,10 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     (:data:`GAUSS_SEIDEL_FROM`); the coarse correction, where it brings Jacobi within its
     limit, without estimating Gauss-Seidel (its Lanczos costs more than a step: 1.7 s on the
     candy), and otherwise over Gauss-Seidel where it needs clearly less work
-    (:data:`COARSE_OVER_GAUSS_SEIDEL`)."""
+    (:data:`COARSE_OVER_GAUSS_SEIDEL`). Where Gauss-Seidel is taken and ``coarse`` holds only
+    held bodies' aggregates, its sweeps take their coarse correction too
+    (:mod:`softvr.contact.node_gs_coarse`) where that needs at most
+    :data:`GAUSS_SEIDEL_COARSE_SHARE` of the plain sweeps' work."""
     colours = colour_nodes(row_start, block_col)
     jacobi_cost, gs_cost = sweep_costs(row_start, colours, contacts, passes)
     jacobi_work = sweeps_per_decade(jacobi_bounds)
@@ -196,5 +213,16 @@ def choose_sweeps(row_start: np.ndarray, block_col: np.ndarray, a, free: np.ndar
     # both at ~39.5 sweeps of work a decade, went per object on 84 fewer contacts).
     if work["gauss-seidel"] <= MAX_GAUSS_SEIDEL_WORK_PER_DECADE and (
             work["gauss-seidel"] < jacobi_work or jacobi_work > jacobi_limit):
+        # Only over held bodies' aggregates (all the shoulder's), the case measured.
+        if coarse is not None and isinstance(coarse[0], Aggregates) and len(coarse[0]) and not coarse[0].whole:
+            aggregates = coarse[0]
+            lo, hi = gauss_seidel_coarse_spectrum(a, order, aggregates, free, *coarse[1:])
+            bounds = (lo * margin[0], hi * margin[1])
+            rows = aggregates.nodes
+            extra = GAUSS_SEIDEL_COARSE_BLOCK * float((row_start[rows + 1] - row_start[rows]).sum()) \
+                + COARSE_NODE * len(rows) + 2 * LAUNCH
+            work["gauss-seidel-coarse"] = sweeps_per_decade(bounds) * (gs_cost + extra) / jacobi_cost
+            if work["gauss-seidel-coarse"] <= GAUSS_SEIDEL_COARSE_SHARE * work["gauss-seidel"]:
+                return SweepChoice("gauss-seidel", bounds, colours, 1.0 / jacobi_bounds[1], work, aggregates)
         return SweepChoice("gauss-seidel", gs_bounds, colours, 1.0 / jacobi_bounds[1], work)
     return SweepChoice("jacobi" if jacobi_work <= jacobi_limit else None, jacobi_bounds, None, 1.0, work)
