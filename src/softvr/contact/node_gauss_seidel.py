@@ -233,7 +233,8 @@ class GaussSeidelSweep:
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
         # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) reads these as plain contiguous memory.
         for name, array in (("b", st.b), ("v", v), ("work", w), ("v_hat", st.v_hat), ("d_inv", st.d_inv),
-                            ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed), ("off_blocks", self._off_blocks)):
+                            ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed),
+                            ("off_blocks", self._off_blocks)):
             if not array.is_contiguous:
                 raise ValueError(f"GaussSeidelSweep.record: expected a contiguous array for {name}, found strides "
                                  f"{array.strides}")
