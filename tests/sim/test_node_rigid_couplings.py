@@ -215,23 +215,6 @@ def test_a_spring_held_rigid_bodys_two_nodes_are_one_6x6_block_of_d_a():
     np.testing.assert_allclose(got, truth, rtol=1e-10, atol=1e-12 * np.abs(truth).max())
 
 
-def _landing_truth(box, corners: np.ndarray, ties, dt: float) -> tuple[np.ndarray, int]:
-    """SciPy's SLSQP on eq. 5.5's MLCP of the box of _held_box over the plane z = 0 (one row
-    n . (v + omega x r) >= -gap / dt per corner near it, frictionless): the box's velocity after
-    the step [6] and the rows the contacts must push (the free velocity breaks them)."""
-    a, b = _box_system(box, ties, dt)
-    normal = np.array([0.0, 0.0, 1.0])
-    levers = corners @ box.rotation.T
-    jac = np.hstack([np.tile(normal, (8, 1)), np.cross(levers, normal)])
-    gap = box.position[2] + levers[:, 2]
-    near = gap < 0.002 + 0.1 * dt  # within the margin plus the motion over the step
-    rows, floor = jac[near], -gap[near] / dt
-    truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
-                        constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
-                        method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
-    return truth, int((rows @ np.linalg.solve(a, b) < floor).sum())
-
-
 def test_a_spring_held_box_landing_on_a_plane_solves_scipys_mlcp_of_eq_5_5():
     # Eq. 5.5 with the box's A and b written out (_box_system) and one row n . (v + omega x r)
     # >= -gap / dt per corner (speculative contacts, frictionless): SciPy's SLSQP minimizes
@@ -239,10 +222,19 @@ def test_a_spring_held_box_landing_on_a_plane_solves_scipys_mlcp_of_eq_5_5():
     dt = 0.01
     scene, box, corners, ties = _held_box(collide=True)
     assert node_model_supported(scene)
+    normal = np.array([0.0, 0.0, 1.0])
     pressed = 0
     for _ in range(3):
-        truth, pushed = _landing_truth(box, corners, ties, dt)
-        pressed += pushed
+        a, b = _box_system(box, ties, dt)
+        levers = corners @ box.rotation.T
+        jac = np.hstack([np.tile(normal, (8, 1)), np.cross(levers, normal)])
+        gap = box.position[2] + levers[:, 2]
+        near = gap < 0.002 + 0.1 * dt  # within the margin plus the motion over the step
+        rows, floor = jac[near], -gap[near] / dt
+        truth = so.minimize(lambda v: 0.5 * v @ a @ v - b @ v, np.linalg.solve(a, b), jac=lambda v: a @ v - b,
+                            constraints=[{"type": "ineq", "fun": lambda v: rows @ v - floor, "jac": lambda v: rows}],
+                            method="SLSQP", options={"ftol": 1e-15, "maxiter": 1000}).x
+        pressed += int((rows @ np.linalg.solve(a, b) < floor).sum())  # rows the contact must push
         scene.step(dt)
         assert scene._stepper is not None
         np.testing.assert_allclose(box.v[:3], truth[:3], atol=VELOCITY_TOL, rtol=0)

@@ -467,18 +467,6 @@ class FactoredSolve:
             self._delassus_capacity, self._delassus_tolerance = size, tolerance
         return self._delassus_arrays
 
-    def _load(self, rows: np.ndarray, w: np.ndarray, tolerance: float) -> dict:
-        """The PGS launch's arrays (:meth:`_delassus`) loaded with contacts ``rows`` and their
-        ``W`` [3 m, 3 m] [1/kg]."""
-        h = self._host
-        m = len(rows)
-        pgs = self._delassus(m, tolerance)
-        pgs["count"][0] = m
-        pgs["w"][:3 * m, :3 * m] = w
-        for name in ("frame", "gap", "friction", "stiffness", "slip", "impulse"):
-            pgs[name][:m] = h[name][rows]
-        return pgs
-
     def solve(self, tolerance: float) -> tuple[int, wp.array]:
         """Outer iterations (module docstring) from the velocities in ``state.sweep_buffers[0]``
         and the contacts' impulses, until an iteration changes no velocity by more than
@@ -499,7 +487,11 @@ class FactoredSolve:
         local = self._local() if fresh or self._steps % REFRESH_PERIOD == 1 % REFRESH_PERIOD else self._last_local()
         rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
         m = len(rows)
-        pgs = self._load(rows, w, tolerance)
+        pgs = self._delassus(m, tolerance)
+        pgs["count"][0] = m
+        pgs["w"][:3 * m, :3 * m] = w
+        for name in ("frame", "gap", "friction", "stiffness", "slip", "impulse"):
+            pgs[name][:m] = h[name][rows]
         lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
         self.delassus_passes = 0
         k = restart = 0

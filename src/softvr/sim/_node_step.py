@@ -35,7 +35,6 @@ from softvr.contact.node_adhesion import NodeAdhesion
 from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
-from softvr.contact.node_factored_rigid import RigidFactoredSolve, SweepWatch
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
 from softvr.device import in_order, replayer, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
@@ -279,7 +278,6 @@ class NodeStepper:
         self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
         self._recorded = None
         self._spectrum = {}
-        self._watch: SweepWatch | None = None  # the sweeps' counts, where the rigid factored solve may take over
 
     def contact_body(self, contacts: dict) -> np.ndarray:
         """Side a's body of each contact of a snapshot's ``contacts``."""
@@ -455,12 +453,11 @@ class NodeStepper:
         start = record_start(m, st, dt, s.gravity, self._v_before)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
-    def _solver(self, dt: float) -> NodeSolve | FactoredSolve | RigidFactoredSolve:
+    def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
         bounds on the first use; or the factored solve where it needs less work
-        (:meth:`_factored`); or, once the sweeps have been watched making too many a step
-        (:class:`SweepWatch`), the rigid factored solve."""
+        (:meth:`_factored`)."""
         if self._recorded[5] is None:
             if dt not in self._spectrum:
                 bounds = spectrum(self.model, self.state)
@@ -475,7 +472,6 @@ class NodeStepper:
             if choice.kind is None and factored is None:
                 raise IllConditioned("node sweeps too slow: " + ", ".join(
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
-            self._watch = SweepWatch.of(self.model) if factored is None and self.adhesion is None else None
             self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
@@ -536,9 +532,6 @@ class NodeStepper:
         start[self._carried]()
         self._carried = True
         sweeps, solved = solve.solve(SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance)
-        if self._watch is not None and self._watch.due(sweeps):  # from the next step on
-            self._recorded[5], self._watch = RigidFactoredSolve(self.model, self.state, dt,
-                                                                max_iterations=self.scene.pgs_iterations), None
         if self.adhesion is not None:
             evolve[sweeps % 3]()
             self.scene.adhesion_state = self.adhesion.state()
