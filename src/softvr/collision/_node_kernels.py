@@ -302,6 +302,22 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
     sharp[e] = crease
 
 
+@wp.kernel
+def body_creases(body_edge_start: wp.array(dtype=wp.int32), sharp: wp.array(dtype=wp.int32),
+                 body_crease: wp.array(dtype=wp.int32)):
+    """1 where body ``b`` has some crease or border edge this step (``sharp``,
+    :func:`edge_geometry`), else 0: an edge pair needs one of those (:func:`edge_edge`), so a
+    smooth edge need not query the edges of a body without any (the candy's Jell-O top against
+    six of its eight candies)."""
+    b = wp.tid()
+    crease = int(0)
+    for e in range(body_edge_start[b], body_edge_start[b + 1]):
+        if sharp[e] != 0:
+            crease = 1
+            break
+    body_crease[b] = crease
+
+
 @wp.func
 def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp.int32),
                       sharp: wp.array(dtype=wp.int32), hit: wp.array2d(dtype=wp.int32)) -> bool:
@@ -323,7 +339,8 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
               near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
               near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
+              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
+              body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
@@ -368,7 +385,9 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
         close = False
-        if near[a, b] >= 0.0:
+        # Every pair needs a crease edge (the query's own test below): a smooth edge against a
+        # body without any (``body_crease``, :func:`body_creases`) finds none.
+        if near[a, b] >= 0.0 and (sharp[i] != 0 or body_crease[b] != 0):
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
             bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
             close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])

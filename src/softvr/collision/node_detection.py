@@ -32,7 +32,7 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
     for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.near_bodies, _k.vertex_triangle,
-                   _k.face_normals, _k.edge_geometry, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
+                   _k.face_normals, _k.edge_geometry, _k.body_creases, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -95,13 +95,16 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                       [state.point_x32, normals, model.edges, model.edge_faces,
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
+        crease = wp.empty(bodies, dtype=wp.int32, device=d)
+        steps.append(replayer(wp.launch(_k.body_creases, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[model.body_edge_start, state.edge_sharp, crease])))
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
         steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
                                        state.point_u, state.body_mean_u, *near, model.bvh_ids,
                                        *edge_box,
-                                       state.edge_normal, state.edge_sharp, float(margin), float(dt),
+                                       state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d,
                                       min_chunk=512))
