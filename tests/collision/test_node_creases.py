@@ -12,7 +12,12 @@ overhang the plate by 10 mm (> the reach), so no vertex-triangle contact holds t
 plate's edges are the querying side (body 0 < body 1) and the smooth ones: the pairs exist only
 if the query against the cube, whose one crease is on the queried side, is made. The gap is g
 to float32 rounding of the positions (|x| <= 0.05 m, 1e-7 relative: 1e-6 m allowed, as
-tests/collision/test_node_reach.py)."""
+tests/collision/test_node_reach.py).
+
+An edge with no pair last step is first tested against the union of the near bodies' grown
+boxes (``_node_kernels.near_bodies``' reach_lower / reach_upper) before each body's: the second
+test starts the crease 8 mm up (beyond the 6 mm reach: no pair), so that at the second step
+every plate edge takes that path, and checks the same truth from the positions then."""
 
 import numpy as np
 
@@ -51,14 +56,16 @@ def _edges(faces):
     return np.unique(e, axis=0)
 
 
-def test_a_smooth_edge_meets_the_crease_of_the_body_it_queries():
+def _plate_and_cube(gap):
+    """The plate and, its bottom crease ``gap`` [m] above the plate's top, the falling cube, in a
+    scene; and each body's boundary triangles by name."""
     # 4 x 4 x 4 cells over 40 x 20 x 5 mm, top at z = 0 (a voxel's footprint around its centre).
     plate_nodes, plate_tets = grid_tet_mesh(Volume(np.zeros((1, 1, 1), np.uint8), spacing=PLATE,
                                                    origin=(0.0, 0.0, -PLATE[2] / 2)), 4)
     cube_nodes, cube_tets = grid_tet_mesh(Volume(np.zeros((1, 1, 1), np.uint8), spacing=(2 * HALF,) * 3,
                                                  origin=(0.0, 0.0, 0.0)), 1)
     turn = quat_to_matrix(quat_from_rotvec((0.0, np.pi / 4, 0.0)))
-    cube_nodes = (cube_nodes - cube_nodes.mean(axis=0)) @ turn.T + (PLATE[0] / 8, 0.0, HALF * np.sqrt(2) + GAP)
+    cube_nodes = (cube_nodes - cube_nodes.mean(axis=0)) @ turn.T + (PLATE[0] / 8, 0.0, HALF * np.sqrt(2) + gap)
     plate = FemBody(plate_nodes, plate_tets, Material(1e6, 0.3, 1000.0), name="plate")
     cube = FemBody(cube_nodes, cube_tets, Material(1e6, 0.3, 1000.0), name="cube")
     cube.v[:] = (0.0, 0.0, -SPEED)
@@ -70,18 +77,44 @@ def test_a_smooth_edge_meets_the_crease_of_the_body_it_queries():
         scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1))),
                        collision_triangles=faces[body.name])
     assert node_model_supported(scene)
+    return scene, plate, cube, faces
 
-    # Brute-force truth: the crease's distance to the plate's top-face edges it crosses.
+
+def _crease_distances(plate, cube, faces):
+    """Brute-force truth [m]: the cube's bottom crease's distance to each of the plate's top-face
+    edges, from the bodies' positions now."""
     crease = cube.q[np.argsort(cube.q[:, 2])[:2]]
-    assert np.allclose(crease[:, 2], GAP) and np.ptp(crease[:, 0]) < 1e-12  # along y, g above the top
-    top = [e for e in _edges(faces["plate"]) if np.allclose(plate.q[e, 2], 0.0, atol=1e-12)]
-    distances = np.array([_segment_distance(*crease, *plate.q[e]) for e in top])
-    assert np.min(distances) > GAP - 1e-6 and np.sum(distances < GAP + 1e-6) >= 1
+    assert np.ptp(crease[:, 0]) < 1e-9 and np.ptp(crease[:, 2]) < 1e-9  # along y
+    top = [e for e in _edges(faces["plate"]) if np.allclose(plate.q[e, 2], 0.0, atol=1e-9)]
+    return np.array([_segment_distance(*crease, *plate.q[e]) for e in top])
 
-    scene.step(DT)
-    gaps = np.concatenate([c.gap[unpack_keys(c.ids)["kind"] == ContactKind.EDGE_EDGE]
+
+def _edge_gaps(scene):
+    return np.concatenate([c.gap[unpack_keys(c.ids)["kind"] == ContactKind.EDGE_EDGE]
                            for c in scene.last_solution.contacts] or [np.zeros(0)])
+
+
+def test_a_smooth_edge_meets_the_crease_of_the_body_it_queries():
+    scene, plate, cube, faces = _plate_and_cube(GAP)
+    distances = _crease_distances(plate, cube, faces)
+    assert abs(np.min(distances) - GAP) < 1e-9
+    scene.step(DT)
+    gaps = _edge_gaps(scene)
     # One contact for each plate edge the crease crosses at g (9: five along x, four diagonals;
     # only the two on the plate's border are creases).
     assert len(gaps) == np.sum(distances < GAP + 1e-6)
+    np.testing.assert_allclose(gaps, GAP, atol=1e-6)
+
+
+def test_an_edge_without_pairs_last_step_meets_a_crease_come_within_reach():
+    # Step 1: the crease 8 mm above the plate, beyond the reach MARGIN + DT SPEED = 6 mm: no pair,
+    # so at step 2 every edge takes the broad phase's body tests (those with pairs last step skip them).
+    scene, plate, cube, faces = _plate_and_cube(0.008)
+    scene.step(DT)
+    assert len(_edge_gaps(scene)) == 0
+    distances = _crease_distances(plate, cube, faces)
+    assert np.min(distances) < MARGIN + DT * SPEED - 1e-4
+    scene.step(DT)
+    gaps = _edge_gaps(scene)
+    assert len(gaps) == np.sum(distances < np.min(distances) + 1e-6)
     np.testing.assert_allclose(gaps, np.min(distances), atol=1e-6)

@@ -60,7 +60,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         (``_k.body_bounds``), filled by launches appended to the steps."""
         box = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d))
         near = (wp.empty((bodies, bodies), dtype=wp.float32, device=d), relative,
-                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d))
+                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d),
+                wp.empty((bodies, 2), dtype=wp.vec3, device=d), wp.empty((bodies, 2), dtype=wp.vec3, device=d))
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
                                         inputs=[start, lower, upper, *box])))
         steps.append(replayer(wp.launch(_k.near_bodies, dim=bodies, device=d, record_cmd=True,
