@@ -200,8 +200,8 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
     :func:`near_bodies`' bound (walking a's list of near bodies once the box meets their
     union)."""
     count = int(0)
-    k = wp.min(first, 1)
-    if _off_box(lo, hi, 0.0, reach_lower[a, k], reach_upper[a, k]):
+    column = wp.min(first, 1)
+    if _off_box(lo, hi, 0.0, reach_lower[a, column], reach_upper[a, column]):
         return count
     for k in range(near_len[a]):
         b = near_list[a, k]
@@ -415,7 +415,7 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     box_lo = wp.min(p1, q1)
     box_hi = wp.max(p1, q1)
     if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, reach_lower, reach_upper,
-                                            body_lower, body_upper) == 0:
+                                  body_lower, body_upper) == 0:
         found[i] = 0  # no slot to clear, no body to query (most edges)
         return
     u0 = point_u[edges[i, 0]]

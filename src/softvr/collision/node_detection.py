@@ -32,7 +32,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
     for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.near_bodies, _k.vertex_triangle,
-                   _k.face_normals, _k.edge_geometry, _k.body_creases, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
+                   _k.face_normals, _k.edge_geometry, _k.body_creases, _k.edge_edge, _k.point_static_mesh,
+                   _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
