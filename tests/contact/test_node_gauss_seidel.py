@@ -230,7 +230,7 @@ def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeyp
     sweep.prepare()
     contact = rng.random(n) < 0.2
     contact[body.fixed] = False
-    sweep.contact_node.numpy()[:] = contact
+    sweep.set_contact_nodes(contact)
     v = wp.array(body.v, dtype=wp.vec3d, device=m.device)
     sweep.record(v, lambda: None)()
 

@@ -91,7 +91,7 @@ def test_one_sweep_with_the_coarse_correction_is_numpy_block_gauss_seidel_then_g
     contact = rng.random(n) < 0.15
     contact[body.fixed] = False
     sweep.prepare()
-    sweep.contact_node.numpy()[:] = contact
+    sweep.set_contact_nodes(contact)
     sweep.coarse.prepare()  # over the hand-marked contact nodes
     v = wp.array(body.v, dtype=wp.vec3d, device=m.device)
     sweep.record(v, lambda: None)()

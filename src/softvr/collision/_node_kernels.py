@@ -134,7 +134,8 @@ def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(d
                 body_upper: wp.array(dtype=wp.vec3), body_mean_u: wp.array(dtype=wp.vec3d),
                 body_spread: wp.array(dtype=wp.float64), margin: wp.float64, dt: wp.float64,
                 near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-                near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32)):
+                near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3)):
     """Row a (thread a): ``relative[a, b]`` [m/s]: the speed of b's mean motion relative to a's; ``near[a, b]``
     [m]: a bound of the reach of any item of body a towards body b, margin + dt (a's largest
     point speed relative to a's mean ``body_spread`` + ``relative[a, b]``; an item's speed
@@ -145,9 +146,19 @@ def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(d
     ``near[a, b]`` does, and that test needs neither its speed nor b's: an item that no body
     passes is done on a few reads. 1.01 and 2e-6 m (vs their 1.001 and 1e-6 m) cover the two
     formulas' different float32 / float64 rounding. ``near_list[a, :near_len[a]]``: the bodies
-    b of ``near[a, b]`` >= 0, ascending (an item loops over those, 1-2 of the shoulder's 15)."""
+    b of ``near[a, b]`` >= 0, ascending (an item loops over those, 1-2 of the shoulder's 15).
+    ``reach_lower[a, k]``, ``reach_upper[a, k]`` [m]: the union of those bodies' boxes grown by
+    ``near[a, b]`` (k = 0: all of them, for :func:`vertex_triangle`; k = 1: those b > a, for
+    :func:`edge_edge`), grown by 1e-5 m + 1e-6 of its coordinates past the float32 rounding of
+    the two tests: an item whose box misses it misses each body's test (:func:`near_count`),
+    one test instead of one a near body (the candy's Jell-O: 8, most of its edges far)."""
     a = wp.tid()
     count = int(0)
+    big = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+    lo_all = big
+    hi_all = -big
+    lo_later = big
+    hi_later = -big
     for b in range(near.shape[1]):
         near[a, b] = -1.0
         relative[a, b] = wp.length(body_mean_u[b] - body_mean_u[a])
@@ -157,16 +168,41 @@ def near_bodies(pair_enabled: wp.array2d(dtype=wp.int32), body_lower: wp.array(d
                 near[a, b] = bound
                 near_list[a, count] = b
                 count += 1
+                grow = wp.vec3(bound, bound, bound)
+                lo_all = wp.min(lo_all, body_lower[b] - grow)
+                hi_all = wp.max(hi_all, body_upper[b] + grow)
+                if b > a:
+                    lo_later = wp.min(lo_later, body_lower[b] - grow)
+                    hi_later = wp.max(hi_later, body_upper[b] + grow)
     near_len[a] = count
+    reach_lower[a, 0] = _loosened(lo_all, -1.0)
+    reach_upper[a, 0] = _loosened(hi_all, 1.0)
+    reach_lower[a, 1] = _loosened(lo_later, -1.0)
+    reach_upper[a, 1] = _loosened(hi_later, 1.0)
+
+
+@wp.func
+def _loosened(x: wp.vec3, side: float) -> wp.vec3:
+    """Corner ``x`` [m] of a union box moved outwards (``side`` -1: lower, 1: upper) by 1e-5 m +
+    1e-6 of each coordinate (left as is where the union is empty, +-1e30)."""
+    if wp.abs(x[0]) >= 1.0e29:
+        return x
+    return wp.vec3(x[0] + side * (1.0e-5 + 1.0e-6 * wp.abs(x[0])), x[1] + side * (1.0e-5 + 1.0e-6 * wp.abs(x[1])),
+                   x[2] + side * (1.0e-5 + 1.0e-6 * wp.abs(x[2])))
 
 
 @wp.func
 def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dtype=wp.float32),
                near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+               reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)) -> int:
-    """How many bodies b >= ``first`` box [lo, hi] (an item of body a) may reach by
-    :func:`near_bodies`' bound (walking a's list of near bodies)."""
+    """How many bodies b >= ``first`` (0 or a + 1) box [lo, hi] (an item of body a) may reach by
+    :func:`near_bodies`' bound (walking a's list of near bodies once the box meets their
+    union)."""
     count = int(0)
+    column = wp.min(first, 1)
+    if _off_box(lo, hi, 0.0, reach_lower[a, column], reach_upper[a, column]):
+        return count
     for k in range(near_len[a]):
         b = near_list[a, k]
         if b >= first:
@@ -180,6 +216,7 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
                     near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
                     near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                    reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
                     mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
                     body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
                     hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
@@ -205,7 +242,7 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
         for b in range(mesh_ids.shape[0]):
             hit[p, b] = 0
     point_hit[p] = 0
-    if near_count(a, 0, xf, xf, near, near_list, near_len, body_lower, body_upper) == 0:
+    if near_count(a, 0, xf, xf, near, near_list, near_len, reach_lower, reach_upper, body_lower, body_upper) == 0:
         return
     speed = wp.length(point_u[p] - body_mean_u[a])
     for k in range(near_len[a]):
@@ -302,6 +339,22 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
     sharp[e] = crease
 
 
+@wp.kernel
+def body_creases(body_edge_start: wp.array(dtype=wp.int32), sharp: wp.array(dtype=wp.int32),
+                 body_crease: wp.array(dtype=wp.int32)):
+    """1 where body ``b`` has some crease or border edge this step (``sharp``,
+    :func:`edge_geometry`), else 0: an edge pair needs one of those (:func:`edge_edge`), so a
+    smooth edge need not query the edges of a body without any (the candy's Jell-O top against
+    six of its eight candies)."""
+    b = wp.tid()
+    crease = int(0)
+    for e in range(body_edge_start[b], body_edge_start[b + 1]):
+        if sharp[e] != 0:
+            crease = 1
+            break
+    body_crease[b] = crease
+
+
 @wp.func
 def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp.int32),
                       sharp: wp.array(dtype=wp.int32), hit: wp.array2d(dtype=wp.int32)) -> bool:
@@ -322,8 +375,11 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
               body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
               point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
               near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32), bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32), margin: float, dt: float,
+              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+              reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
+              bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
+              body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
               min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
               pair_edge: wp.array2d(dtype=wp.int32),
               pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
@@ -358,7 +414,8 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     q1 = point_x32[edges[i, 1]]
     box_lo = wp.min(p1, q1)
     box_hi = wp.max(p1, q1)
-    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, body_lower, body_upper) == 0:
+    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, reach_lower, reach_upper,
+                                  body_lower, body_upper) == 0:
         found[i] = 0  # no slot to clear, no body to query (most edges)
         return
     u0 = point_u[edges[i, 0]]
@@ -368,7 +425,9 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     any_found = int(0)
     for b in range(a + 1, bvh_ids.shape[0]):
         close = False
-        if near[a, b] >= 0.0:
+        # Every pair needs a crease edge (the query's own test below): a smooth edge against a
+        # body without any (``body_crease``, :func:`body_creases`) finds none.
+        if near[a, b] >= 0.0 and (sharp[i] != 0 or body_crease[b] != 0):
             # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
             bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
             close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])

@@ -32,7 +32,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
     for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.near_bodies, _k.vertex_triangle,
-                   _k.face_normals, _k.edge_geometry, _k.edge_edge, _k.point_static_mesh, _k.gather_contacts):
+                   _k.face_normals, _k.edge_geometry, _k.body_creases, _k.edge_edge, _k.point_static_mesh,
+                   _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
     motion = chunked_replayer(_k.point_motion, model.point_count,
@@ -60,7 +61,8 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         (``_k.body_bounds``), filled by launches appended to the steps."""
         box = (wp.empty(bodies, dtype=wp.vec3, device=d), wp.empty(bodies, dtype=wp.vec3, device=d))
         near = (wp.empty((bodies, bodies), dtype=wp.float32, device=d), relative,
-                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d))
+                wp.empty((bodies, bodies), dtype=wp.int32, device=d), wp.empty(bodies, dtype=wp.int32, device=d),
+                wp.empty((bodies, 2), dtype=wp.vec3, device=d), wp.empty((bodies, 2), dtype=wp.vec3, device=d))
         steps.append(replayer(wp.launch(_k.body_bounds, dim=bodies, device=d, record_cmd=True,
                                         inputs=[start, lower, upper, *box])))
         steps.append(replayer(wp.launch(_k.near_bodies, dim=bodies, device=d, record_cmd=True,
@@ -95,13 +97,16 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                                       [state.point_x32, normals, model.edges, model.edge_faces,
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
                                        state.edge_normal, state.edge_sharp], d, min_chunk=1024))
+        crease = wp.empty(bodies, dtype=wp.int32, device=d)
+        steps.append(replayer(wp.launch(_k.body_creases, dim=bodies, device=d, record_cmd=True,
+                                        inputs=[model.body_edge_start, state.edge_sharp, crease])))
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
         steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
         steps.append(chunked_replayer(_k.edge_edge, edges,
                                       [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
                                        state.point_u, state.body_mean_u, *near, model.bvh_ids,
                                        *edge_box,
-                                       state.edge_normal, state.edge_sharp, float(margin), float(dt),
+                                       state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
                                        float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
                                        c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d,
                                       min_chunk=512))

@@ -49,26 +49,148 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
     w[i] = v[i]
 
 
-@wp.func
+# The row product of the colour passes as plain C++ (one source for CPU and CUDA): the same
+# operations in the same order as Warp's ``r = r - off_blocks[k] * w[off_col[k]]`` (its 3x3
+# product takes the columns in turn, ``(m_0 x_0 + m_1 x_1) + m_2 x_2``, each product and sum a
+# statement of its own so that no compiler fuses them), so the same bits, at ~2.9 ns a block on
+# the CPU against ~5.3: Warp's own loop pays its range iterator and, at every array access, the
+# test for a negative index and a product by the stride. The blocks are stored transposed
+# (:func:`gather_off_blocks`), so that a column is three doubles in a row: on the CPU (clang)
+# the three rows of the product go as the lanes of one 4-wide vector, each lane the scalar
+# code's operations (the fourth lane reads the next block's first double, or the padding block
+# after the last, and is dropped; 3.5 ns a block as scalar code). It reads the arrays as
+# contiguous (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.record` checks that they are).
+_ROW = r"""
+const wp::int32* start = off_start.data;
+const wp::int32* col = off_col.data;
+const double* block = (const double*)off_blocks.data;
+const double* x = (const double*)w.data;
+const double* rhs = (const double*)b.data + 3 * i;
+double r0 = rhs[0];
+double r1 = rhs[1];
+double r2 = rhs[2];
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
+lanes4 r = {r0, r1, r2, 0.0};
+for (int k = start[t], end = start[t + 1]; k < end; ++k) {
+    const double* m = block + 9 * k;
+    const double* y = x + 3 * col[k];
+    lanes4 p = *(const lanes4*)m * y[0];
+    lanes4 q = *(const lanes4*)(m + 3) * y[1];
+    p = p + q;
+    q = *(const lanes4*)(m + 6) * y[2];
+    p = p + q;
+    r = r - p;
+}
+r0 = r[0];
+r1 = r[1];
+r2 = r[2];
+#else
+for (int k = start[t], end = start[t + 1]; k < end; ++k) {
+    const double* m = block + 9 * k;
+    const double* y = x + 3 * col[k];
+    double p0 = m[0] * y[0];
+    double p1 = m[1] * y[0];
+    double p2 = m[2] * y[0];
+    double q0 = m[3] * y[1];
+    double q1 = m[4] * y[1];
+    double q2 = m[5] * y[1];
+    p0 = p0 + q0;
+    p1 = p1 + q1;
+    p2 = p2 + q2;
+    q0 = m[6] * y[2];
+    q1 = m[7] * y[2];
+    q2 = m[8] * y[2];
+    p0 = p0 + q0;
+    p1 = p1 + q1;
+    p2 = p2 + q2;
+    r0 = r0 - p0;
+    r1 = r1 - p1;
+    r2 = r2 - p2;
+}
+#endif
+"""
+_OFF_ROW_SNIPPET = _ROW + "return wp::vec_t<3, wp::float64>(r0, r1, r2);\n"
+# _plain_node: the row times d_inv as Warp's 3x3 product takes it (the columns in turn).
+_PLAIN_NODE_SNIPPET = r"""
+if (contact_node.data[i] != 0) return;
+double* out = (double*)w.data + 3 * i;
+double* out_hat = (double*)v_hat.data + 3 * i;
+if (fixed.data[i] != 0) {
+    const double* f = (const double*)fixed_velocity.data + 3 * i;
+    double f0 = f[0], f1 = f[1], f2 = f[2];
+    out[0] = f0; out[1] = f1; out[2] = f2;
+    if (last != 0) { out_hat[0] = f0; out_hat[1] = f1; out_hat[2] = f2; }
+    return;
+}
+""" + _ROW + r"""
+const double* d = (const double*)d_inv.data + 9 * i;
+double u0 = d[0] * r0;
+double u1 = d[3] * r0;
+double u2 = d[6] * r0;
+double s0 = d[1] * r1;
+double s1 = d[4] * r1;
+double s2 = d[7] * r1;
+u0 = u0 + s0;
+u1 = u1 + s1;
+u2 = u2 + s2;
+s0 = d[2] * r2;
+s1 = d[5] * r2;
+s2 = d[8] * r2;
+u0 = u0 + s0;
+u1 = u1 + s1;
+u2 = u2 + s2;
+out[0] = u0; out[1] = u1; out[2] = u2;
+if (last != 0) { out_hat[0] = u0; out_hat[1] = u1; out_hat[2] = u2; }
+"""
+
+
+@wp.func_native(r"""
+const double* from = (const double*)v.data;
+double* to = (double*)w.data;
+for (int k = 0, end = 3 * v.shape[0]; k < end; ++k) to[k] = from[k];
+""")
+def _copy(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d)):
+    """``w = v`` [m/s] (both [n], contiguous) as one plain loop over the doubles (~0.5 us on
+    the shoulder's 1 247 nodes against ~3 for Warp's loop of 3-vectors)."""
+    ...
+
+
+@wp.func_native(_PLAIN_NODE_SNIPPET)
+def _plain_node(t: int, i: int, contact_node: wp.array(dtype=wp.int32), fixed: wp.array(dtype=wp.int32),
+                fixed_velocity: wp.array(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                off_blocks: wp.array(dtype=wp.mat33d), last: int, w: wp.array(dtype=wp.vec3d),
+                v_hat: wp.array(dtype=wp.vec3d)):
+    """Steps 1 and 4 for node ``i`` (the ``t``-th in colour order) when it has no pair partner
+    (or is fixed, or a contact node): nothing for a contact node; ``w`` [m/s] (and on the
+    sweep's ``last`` update ``v_hat``) = its ``fixed_velocity`` for a fixed node, else
+    ``d_inv_i (b_i - sum_{j != i} A_ij w_j)`` (:data:`_OFF_ROW_SNIPPET`'s row). In C++: with
+    the row product, the node's own loads and tests cost half the colour pass in Warp's code
+    (the shoulder's forward walk 34 -> 26 us)."""
+    ...
+
+
+@wp.func_native(_OFF_ROW_SNIPPET)
 def _off_row(t: int, i: int, off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
-             off_blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d)):
+             off_blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+             w: wp.array(dtype=wp.vec3d)) -> wp.vec3d:
     """``b_i - sum_{j != i} A_ij w_j`` [kg m/s] of node ``i``, the ``t``-th in colour order,
-    from the colour-ordered copy of its off-diagonal blocks: the same terms in the same order
-    as :func:`softvr.contact._node_jacobi_kernels.block_update` takes them from ``A``'s rows,
-    so the same sum to the bit, but read one after the other and with no test per block."""
-    r = b[i]
-    for k in range(off_start[t], off_start[t + 1]):
-        r = r - off_blocks[k] * w[off_col[k]]
-    return r
+    from the colour-ordered copy of its off-diagonal blocks (transposed,
+    :func:`gather_off_blocks`): the same terms in the same order as
+    :func:`softvr.contact._node_jacobi_kernels.block_update` takes them from ``A``'s rows, so
+    the same sum to the bit, but read one after the other and with no test per block
+    (:data:`_ROW`)."""
+    ...
 
 
 @wp.kernel
 def gather_off_blocks(blocks: wp.array(dtype=wp.mat33d), off_source: wp.array(dtype=wp.int32),
                       off_blocks: wp.array(dtype=wp.mat33d)):
-    """``off_blocks[k] = blocks[off_source[k]]`` [kg]: this step's off-diagonal blocks of ``A``
-    in colour order (once a step, before the sweeps)."""
+    """``off_blocks[k] = blocks[off_source[k]]^T`` [kg]: this step's off-diagonal blocks of ``A``
+    in colour order, transposed (:data:`_ROW`; once a step, before the sweeps)."""
     k = wp.tid()
-    off_blocks[k] = blocks[off_source[k]]
+    off_blocks[k] = wp.transpose(blocks[off_source[k]])
 
 
 @wp.func
@@ -82,17 +204,14 @@ def _colour_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.arra
                  v_hat: wp.array(dtype=wp.vec3d)):
     """Steps 1 and 4 for node ``order[t]`` (:func:`gauss_seidel`)."""
     i = order[t]
-    if contact_node[i] != 0:
-        return
-    value = fixed_velocity[i]
-    if fixed[i] == 0:
-        if partner[i] >= 0:
+    if partner[i] >= 0:
+        if fixed[i] == 0 and contact_node[i] == 0:
             value = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
-        else:
-            value = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
-    w[i] = value
-    if last != 0:
-        v_hat[i] = value
+            w[i] = value
+            if last != 0:
+                v_hat[i] = value
+            return
+    _plain_node(t, i, contact_node, fixed, fixed_velocity, d_inv, b, off_start, off_col, off_blocks, last, w, v_hat)
 
 
 @wp.kernel
@@ -120,24 +239,62 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
                       fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
                       order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
                       off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
-                      colour_start: wp.array(dtype=wp.int32), backward: int, last: int, v: wp.array(dtype=wp.vec3d),
-                      w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+                      colour_start: wp.array(dtype=wp.int32), free_end: wp.array(dtype=wp.int32),
+                      listed: wp.array(dtype=wp.int32), listed_count: wp.array(dtype=wp.int32), backward: int,
+                      last: int, v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                      v_hat: wp.array(dtype=wp.vec3d)):
     """Steps 1 (``backward`` 0: colours 0 .. C-1, after ``w = v`` [m/s], :func:`start`) or 4
     (C-1 .. 0) in one thread, colour ``c`` being the nodes ``order[colour_start[c] :
     colour_start[c + 1]]`` walked in that order, as a one-chunk CPU launch of
     :func:`gauss_seidel` walks them: the same updates in the same order, so the same bits, in
-    one launch instead of one a colour (and one for the start)."""
+    one launch instead of one a colour (and one for the start). The forward walk stops at
+    ``free_end[c]`` [C], before the colour's fixed nodes: their update would write the fixed
+    velocity that ``w = v`` gave them already
+    (:func:`softvr.contact.node_gauss_seidel.free_first`); the backward one writes it into
+    ``v_hat``. The backward walk first sets ``w = v_hat`` at the contact nodes, the colour
+    positions ``listed[:listed_count[0]]`` (:func:`list_contact_nodes`), as :func:`projected`
+    would."""
     if backward == 0:
-        for i in range(v.shape[0]):
-            w[i] = v[i]
+        _copy(v, w)
+    else:  # step 3's w_i = v^_i at the contact nodes (:func:`projected`), from their list
+        for s in range(listed_count[0]):
+            i = order[listed[s]]
+            w[i] = v_hat[i]
     colours = colour_start.shape[0] - 1
     for k in range(colours):
         c = k
         if backward != 0:
             c = colours - 1 - k
-        for t in range(colour_start[c], colour_start[c + 1]):
+        end = colour_start[c + 1]
+        if backward == 0:
+            end = free_end[c]
+        for t in range(colour_start[c], end):
             _colour_node(t, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
                          contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
+
+
+@wp.func
+def _contact_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                  off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d),
+                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """Step 2 for node ``order[t]`` if it is a contact node (:func:`contact_nodes`)."""
+    i = order[t]
+    if contact_node[i] == 0:
+        return
+    if fixed[i] != 0:
+        v_hat[i] = fixed_velocity[i]
+        return
+    update = wp.vec3d()
+    if partner[i] >= 0:
+        update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
+    else:
+        update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
+    v_hat[i] = (wp.float64(1.0) - omega[i]) * v[i] + omega[i] * update
 
 
 @wp.kernel
@@ -152,19 +309,41 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
     """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes (``order[t]``,
     thread t) from the sweep's start ``v`` and the swept ``w`` [m/s], each node damped by its
     ``omega`` [n]."""
-    t = wp.tid() + offset
-    i = order[t]
-    if contact_node[i] == 0:
-        return
-    if fixed[i] != 0:
-        v_hat[i] = fixed_velocity[i]
-        return
-    update = wp.vec3d()
-    if partner[i] >= 0:
-        update = block_update(i, row_start, block_col, blocks, d_inv, partner, cross, b, w)
-    else:
-        update = d_inv[i] * _off_row(t, i, off_start, off_col, off_blocks, b, w)
-    v_hat[i] = (wp.float64(1.0) - omega[i]) * v[i] + omega[i] * update
+    _contact_node(wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                  contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+
+
+@wp.kernel
+def listed_contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                         blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                         partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+                         b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                         fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
+                         order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
+                         off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
+                         omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                         v_hat: wp.array(dtype=wp.vec3d), listed: wp.array(dtype=wp.int32),
+                         listed_count: wp.array(dtype=wp.int32)):
+    """Step 2 as :func:`contact_nodes` in one thread over the ``listed_count[0]`` colour
+    positions ``listed`` of the contact nodes (:func:`list_contact_nodes`) instead of a thread
+    a node: on the CPU, where the walk runs, a step's few dozen contact nodes of the
+    shoulder's 1 247 (each node's update reads only ``w``, so any order gives the same bits)."""
+    for s in range(listed_count[0]):
+        _contact_node(listed[s], row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                      contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+
+
+@wp.kernel
+def list_contact_nodes(order: wp.array(dtype=wp.int32), contact_node: wp.array(dtype=wp.int32),
+                       listed: wp.array(dtype=wp.int32), listed_count: wp.array(dtype=wp.int32)):
+    """``listed[:listed_count[0]]``: the colour positions ``t`` of the contact nodes
+    (``contact_node[order[t]]`` != 0), ascending (one thread; after each marking)."""
+    count = int(0)
+    for t in range(order.shape[0]):
+        if contact_node[order[t]] != 0:
+            listed[count] = t
+            count = count + 1
+    listed_count[0] = count
 
 
 @wp.kernel
@@ -400,7 +579,12 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
         for li in range(n):
             force[island_node[s + li]] = wp.vec3d()
         for c in range(count[0]):
-            world = wp.transpose(frame[c]) * impulse[c]
+            lam = impulse[c]
+            # A zero impulse adds zeros, which leave every sum as it is (the sums start at +0):
+            # most of a step's contacts push nothing.
+            if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+                continue
+            world = wp.transpose(frame[c]) * lam
             for k in range(stencil_count[c]):
                 node = stencil_nodes[c, k]
                 if island_local[node] >= 0:

@@ -20,10 +20,10 @@ from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_coarse import Aggregates
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gs_coarse import GaussSeidelCoarse
-from softvr.device import chunked_replayer, cpu_workers, in_order, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, replayer, upload
 from softvr.dynamics.node_rigid import isolated_rigid_nodes, rigid_islands
 
-__all__ = ["COLOUR_CHUNK", "ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep",
+__all__ = ["COLOUR_CHUNK", "ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep", "free_first",
            "gauss_seidel_spectrum", "off_diagonal_rows"]
 
 #: A contact without impulse or adhesion sleeps through a step's sweeps (its nodes take the
@@ -73,7 +73,9 @@ class GaussSeidelSweep:
         d = model.device
         n = model.node_count
         self.omega = float(omega)
-        self._order: wp.array = wp.array(colouring.order, dtype=wp.int32, device=d)
+        order, free_end = free_first(colouring, model.fixed.numpy() != 0)
+        self._order: wp.array = wp.array(order, dtype=wp.int32, device=d)
+        self._free_end: wp.array = wp.array(free_end, dtype=wp.int32, device=d)
         self.contact_node = wp.zeros(n, dtype=wp.int32, device=d)
         #: omega D_A^-1 [n] [1/kg], the metric the contact PGS projects with.
         self.metric = wp.zeros(n, dtype=wp.mat33d, device=d)
@@ -149,16 +151,31 @@ class GaussSeidelSweep:
         self._colouring = colouring
         self._colour_start: wp.array = wp.array(colouring.start, dtype=wp.int32, device=d)
         # The colour passes read the rows in colour order: a copy of the off-diagonal blocks
-        # laid out that way (gathered once a step) reads them one after the other.
+        # laid out that way (gathered once a step, transposed) reads them one after the other.
         off_start, off_col, off_source = off_diagonal_rows(model.row_start.numpy(), model.block_col.numpy(),
-                                                           model.couplings.partner.numpy(), colouring.order)
+                                                           model.couplings.partner.numpy(), order)
         self._off_start: wp.array = wp.array(off_start, dtype=wp.int32, device=d)
         self._off_col: wp.array = wp.array(off_col, dtype=wp.int32, device=d)
-        self._off_blocks = wp.zeros(len(off_source), dtype=wp.mat33d, device=d)
+        # (one block more than the rows hold: the CPU's row product reads one double past the last)
+        self._off_blocks = wp.zeros(len(off_source) + 1, dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
             source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
             self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
                                                     record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
+        # On the CPU, where no colour is split over the cores, one launch walks all colours
+        # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
+        self._walk = wp.get_device(d).is_cpu and (
+            cpu_workers() == 1 or np.diff(colouring.start).max(initial=0) < 2 * COLOUR_CHUNK)
+        # There the contact nodes' updates go over a list of them, made after each marking
+        # (_node_gs_kernels.list_contact_nodes), not a thread a node.
+        self._listed = wp.zeros(n, dtype=wp.int32, device=d)
+        self._listed_count = wp.zeros(1, dtype=wp.int32, device=d)
+        self._list: Callable[[], None] = lambda: None
+        if self._walk:
+            self._list = replayer(wp.launch(_k.list_contact_nodes, dim=1, device=d, record_cmd=True,
+                                            inputs=[self._order, self.contact_node, self._listed, self._listed_count]))
+            self._prepare.append(self._list)
+            self._wake_all = in_order(self._wake_all, self._list)
 
         #: The coarse correction after each sweep (None: none).
         self.coarse = GaussSeidelCoarse(model, state, coarse, self.contact_node) if coarse is not None and len(
@@ -173,6 +190,16 @@ class GaussSeidelSweep:
         self.contact_node.zero_()
         for replay in self._prepare:
             replay()
+
+    def set_contact_nodes(self, nodes: np.ndarray) -> None:
+        """Mark exactly ``nodes`` [n] bool as the contact nodes, in place of :meth:`prepare`'s
+        marking from the contacts (after it: a sweep with chosen contact nodes)."""
+        nodes = np.asarray(nodes)
+        if nodes.shape != (self._model.node_count,):
+            raise ValueError(f"set_contact_nodes: expected a bool array of shape ({self._model.node_count},), found "
+                             f"shape {nodes.shape}")
+        upload(self.contact_node, nodes.astype(np.int32))
+        self._list()
 
     def wake(self) -> bool:
         """Whether a sleeping contact has taken an impulse since :meth:`prepare`; if so, every
@@ -204,21 +231,27 @@ class GaussSeidelSweep:
                 st.fixed_velocity, self.contact_node]
 
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
+        # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) reads these as plain contiguous memory.
+        for name, array in (("b", st.b), ("v", v), ("work", w), ("v_hat", st.v_hat), ("d_inv", st.d_inv),
+                            ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed),
+                            ("off_blocks", self._off_blocks)):
+            if not array.is_contiguous:
+                raise ValueError(f"GaussSeidelSweep.record: expected a contiguous array for {name}, found strides "
+                                 f"{array.strides}")
 
         def colour(c: int, last: int) -> Callable[[], None]:
             return chunked_replayer(_k.gauss_seidel, int(start[c + 1] - start[c]),
                                     [*rows, *off, int(start[c]), last, w, st.v_hat], d, min_chunk=COLOUR_CHUNK)
 
-        # On the CPU, where no colour is split over the cores, one launch walks all colours
-        # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
-        walk = wp.get_device(d).is_cpu and (cpu_workers() == 1 or np.diff(start).max(initial=0) < 2 * COLOUR_CHUNK)
+        walk, listed = self._walk, [self._listed, self._listed_count]
 
         def colours(last: int) -> list:
             """The colours' updates of the sweep's first (``last`` 0, colours ascending, from
             ``w = v``) or second half (descending)."""
             if walk:
                 return [replayer(wp.launch(_k.gauss_seidel_walk, dim=1, device=d, record_cmd=True,
-                                           inputs=[*rows, *off, self._colour_start, last, last, v, w, st.v_hat]))]
+                                           inputs=[*rows, *off, self._colour_start, self._free_end, *listed, last,
+                                                   last, v, w, st.v_hat]))]
             return [colour(c, last) for c in (range(count) if last == 0 else range(count - 1, -1, -1))
                     if start[c + 1] > start[c]]
 
@@ -243,13 +276,37 @@ class GaussSeidelSweep:
 
         replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
         replays += colours(0) + islands(0)
-        replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d), *touched(),
-                    contacts,
-                    chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
+        if walk:  # the backward walk sets w = v^ at the contact nodes itself
+            replays += [replayer(wp.launch(_k.listed_contact_nodes, dim=1, device=d, record_cmd=True,
+                                           inputs=[*rows, *off, self.node_omega, v, w, st.v_hat, *listed])),
+                        *touched(), contacts]
+        else:
+            replays += [chunked_replayer(_k.contact_nodes, n, [*rows, *off, self.node_omega, v, w, st.v_hat], d),
+                        *touched(), contacts, chunked_replayer(_k.projected, n, [self.contact_node, st.v_hat, w], d)]
         replays += colours(1) + islands(1)
         if self.coarse is not None:
             replays.append(self.coarse.correct)
         return in_order(*replays)
+
+
+def free_first(colouring: NodeColouring, fixed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(order, free_end)``: ``colouring.order`` [n] with each colour's free nodes first (in
+    their order) and its ``fixed`` [n] bool nodes after them, and where each colour's free
+    nodes end [C] (colour ``c``'s free nodes are ``order[colouring.start[c] : free_end[c]]``).
+    Within a colour no node reads another's update but a fixed node's (the pattern of ``A``
+    has no row for one, so the colouring puts it in colour 0 whatever its columns), which is
+    its fixed velocity before its update as after it (the sweeps' velocities hold it at fixed
+    nodes), so any order within a colour gives the same bits; with the fixed nodes last, the
+    forward walk (:func:`softvr.contact._node_gs_kernels.gauss_seidel_walk`) stops before them
+    (the shoulder: 481 of its 1 247 nodes)."""
+    order = colouring.order.copy()
+    free_end = np.empty(colouring.count, np.int32)
+    for c in range(colouring.count):
+        s, e = colouring.start[c], colouring.start[c + 1]
+        seg = order[s:e]
+        order[s:e] = seg[np.argsort(fixed[seg], kind="stable")]
+        free_end[c] = s + int((~fixed[seg]).sum())
+    return order, free_end
 
 
 def off_diagonal_rows(row_start: np.ndarray, block_col: np.ndarray, partner: np.ndarray,

@@ -8,6 +8,7 @@ sweeps also solve eq. 5.2, so there is no separate unconstrained solve.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_right
 from typing import Callable
 
@@ -277,8 +278,10 @@ class NodeSolve:
         # The Jacobi stop's floors, sweep by sweep from a (re)start (chebyshev_rates); the
         # Gauss-Seidel sweeps keep the asymptotic rate (main's stop, measured on the shoulder).
         count = self.max_sweeps
-        self._floors = (chebyshev_rates(self.rho, rho_first, count), chebyshev_rates(self.rho, self.rho, count)) \
+        floors = (chebyshev_rates(self.rho, rho_first, count), chebyshev_rates(self.rho, self.rho, count)) \
             if colours is None else (np.full(count, self.rate),) * 2
+        # Python floats, the same values: the stop's arithmetic on NumPy scalars cost ~2 us a check.
+        self._floors = tuple(f.tolist() for f in floors)
         # The Gauss-Seidel sweeps (the shoulder's) keep the stop on the bounds' rate alone and their
         # plain windows whole: the observed rate was measured on the Jacobi scenes only.
         self._observed = colours is None
@@ -502,7 +505,7 @@ class NodeSolve:
                     continue
                 self._largest()
                 change = float(self._read_stats()[0])
-                if not np.isfinite(change):  # NaN: the integration reports it
+                if not math.isfinite(change):  # NaN: the integration reports it (np.isfinite: ~4 us a check)
                     break
                 changes.add(k, change)
                 floor = self.rho if plain else self._floors[0 if narrow else 1][k - restart - 1]
