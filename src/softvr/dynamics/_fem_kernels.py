@@ -53,6 +53,79 @@ def polar_rotation(f: wp.mat33d) -> wp.mat33d:
     return x
 
 
+#: A warm start's Newton correction [rad] small enough to be its last: the rotation's error
+#: after it is ~its square (quadratic convergence), 1e-16, at float64 round-off.
+WARM_LAST_STEP = 1e-8
+
+#: Skew part of R^T F relative to its trace below which R is kept as it is: the correction would
+#: be ~1e-15 rad (|w| ~ |skew| / (sigma_i + sigma_j)), the round-off of forming R^T F itself. A
+#: tet that has not turned (a still, unstrained part) then costs R^T F and no solve.
+WARM_SETTLED = 1e-15
+
+#: Newton corrections of a warm start at most before the cold iteration takes over.
+WARM_ITERATIONS = 4
+
+#: Largest first correction [rad] a warm start keeps: a farther start (a stale rotation after
+#: the positions were set, the zeros before the first step) goes cold (:func:`polar_rotation`),
+#: where the Newton iteration on R could reach another R with R^T F symmetric but indefinite.
+WARM_REACH = 0.1
+
+
+@wp.func
+def orthonormalized(r: wp.mat33d) -> wp.mat33d:
+    """One Newton-Schulz step R (3 I - R^T R) / 2 towards the nearest rotation: |R^T R - I| = e
+    becomes ~3 e^2 / 4, round-off from a product of rotations' ~u."""
+    return r * (wp.float64(1.5) * wp.identity(n=3, dtype=wp.float64) - wp.float64(0.5) * (wp.transpose(r) * r))
+
+
+@wp.func
+def warm_polar_rotation(f: wp.mat33d, r0: wp.mat33d) -> wp.mat33d:
+    """:func:`polar_rotation` of F started from ``r0``, a rotation near it (last step's R_e).
+
+    Newton's method on the rotation: with X = R^T F, the correction R <- R Q(w) that makes
+    Q^T X symmetric to first order solves (tr(X) I - X) w = (X32 - X23, X13 - X31, X21 - X12)
+    (skew(W X + X^T W) = skew(X - X^T), W = [w]x); Q(w) is the Cayley rotation
+    I + 2 / (1 + |h|^2) ([h]x + [h]x^2), h = w / 2, exact to O(|w|^3). A tet that turned by
+    theta since last step needs 1 correction for theta <= 1e-8 rad and 2 for theta <= ~1e-4
+    (the cold iteration takes ~4 from X = F whatever the start, 1 for a tet without strain).
+    No correction at all (R = ``r0`` unchanged) where the skew part of X is at round-off
+    (:data:`WARM_SETTLED`). One Newton-Schulz step (:func:`orthonormalized`) after the
+    corrections keeps |R^T R - I| at round-off over many steps of products. Falls
+    back to :func:`polar_rotation` for an inverted tet, a start off a rotation, a first
+    correction over :data:`WARM_REACH` or no convergence in :data:`WARM_ITERATIONS`.
+    """
+    r = r0
+    settled = int(0)
+    # One exit to the cold iteration: Warp inlines each call (the SVD included).
+    if wp.determinant(f) > wp.float64(0.0) and wp.abs(wp.determinant(r0) - wp.float64(1.0)) <= wp.float64(1e-6):
+        for it in range(WARM_ITERATIONS):
+            x = wp.transpose(r) * f
+            tr = x[0, 0] + x[1, 1] + x[2, 2]
+            skew = wp.vec3d(x[2, 1] - x[1, 2], x[0, 2] - x[2, 0], x[1, 0] - x[0, 1])
+            if wp.dot(skew, skew) <= (wp.float64(WARM_SETTLED) * tr) * (wp.float64(WARM_SETTLED) * tr):
+                if it > 0:
+                    r = orthonormalized(r)
+                settled = 1
+                break
+            g = wp.mat33d(tr - x[0, 0], -x[0, 1], -x[0, 2], -x[1, 0], tr - x[1, 1], -x[1, 2], -x[2, 0], -x[2, 1],
+                          tr - x[2, 2])
+            w = wp.inverse(g) * skew
+            ww = wp.dot(w, w)
+            if it == 0 and not (ww <= wp.float64(WARM_REACH) * wp.float64(WARM_REACH)):
+                break
+            h = wp.float64(0.5) * w
+            k = wp.skew(h)
+            r = r * (wp.identity(n=3, dtype=wp.float64)
+                     + (wp.float64(2.0) / (wp.float64(1.0) + wp.dot(h, h))) * (k + k * k))
+            if ww <= wp.float64(WARM_LAST_STEP) * wp.float64(WARM_LAST_STEP):
+                r = orthonormalized(r)
+                settled = 1
+                break
+    if settled == 0:
+        r = polar_rotation(f)
+    return r
+
+
 @wp.func
 def element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                      e: int, corotational: int) -> wp.mat33d:
@@ -62,6 +135,19 @@ def element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int3
         x0 = q[tets[e, 0]]
         r = polar_rotation(wp.matrix_from_cols(q[tets[e, 1]] - x0, q[tets[e, 2]] - x0, q[tets[e, 3]] - x0)
                            * dm_inv[e])
+    return r
+
+
+@wp.func
+def warm_element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
+                          dm_inv: wp.array(dtype=wp.mat33d), e: int, corotational: int,
+                          rotations: wp.array(dtype=wp.mat33d)) -> wp.mat33d:
+    """:func:`element_rotation` started from ``rotations[e]`` (:func:`warm_polar_rotation`)."""
+    r = wp.identity(n=3, dtype=wp.float64)
+    if corotational != 0:
+        x0 = q[tets[e, 0]]
+        r = warm_polar_rotation(wp.matrix_from_cols(q[tets[e, 1]] - x0, q[tets[e, 2]] - x0, q[tets[e, 3]] - x0)
+                                * dm_inv[e], rotations[e])
     return r
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.dynamics._fem_kernels import element_local, element_rotation
+from softvr.dynamics._fem_kernels import element_local, warm_element_rotation
 
 #: ``NodeState.diverged`` codes.
 NAN_VELOCITY = wp.constant(1)
@@ -29,7 +29,7 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
     """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet
     ``e = live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
     e = live[wp.tid() + offset]
-    r = element_rotation(q, tets, dm_inv, e, corotational)
+    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
     rotations[e] = r
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     for a in range(4):
@@ -56,7 +56,7 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
     :func:`assemble_isotropic`."""
     e = live[wp.tid() + offset]
-    r = element_rotation(q, tets, dm_inv, e, corotational)
+    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
     rotations[e] = r
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     g0 = gradients[e, 0]

@@ -47,7 +47,8 @@ def record_elements(model, state) -> Callable[[], None]:
     """A replay writing the rotation and elastic forces [N] (``state.rotations``,
     ``state.element_forces``) at ``state.q`` of every tet but those of fixed nodes only
     (:func:`fixed_only`), split over the CPU cores (from the Lame form where every tet is
-    isotropic linear, :func:`isotropic_terms`)."""
+    isotropic linear, :func:`isotropic_terms`). Each rotation starts from the one it replaces
+    (last step's: ``_fem_kernels.warm_polar_rotation``; zeros go the cold way)."""
     live = np.flatnonzero(~fixed_only(model)[0])
     live_d: wp.array = wp.array(live, dtype=wp.int32, device=model.device)
     isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
