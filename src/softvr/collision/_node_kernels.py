@@ -31,6 +31,11 @@ from softvr.collision.mesh import NORMAL_FROM_OFFSET, query_point
 STENCIL = 4
 #: Nodes in a contact's stencil: a point's 4 and a triangle's 3 x 4.
 CONTACT_STENCIL = 16
+#: Items (edges, points) one thread of a blocked kernel takes on the CPU (1 on CUDA): Warp's
+#: CPU launch calls the kernel once a thread, and each call copies its ~30 array arguments,
+#: which cost more than the box test that turns most items away (the candy's edge queries:
+#: 1.5 ms a step one edge a thread, 0.65 ms 64 edges a thread, same results).
+ITEMS_A_CPU_THREAD = 64
 #: ``NodeContacts.kind`` codes.
 PLANE = wp.constant(0)
 VERTEX_TRIANGLE = wp.constant(1)
@@ -211,30 +216,18 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
     return count
 
 
-@wp.kernel
-def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
-                    point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                    near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-                    near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
-                    reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
-                    mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
-                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
-                    hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
-                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32), offset: int):
-    """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
-    point within the margin plus the vertex's relative motion [m]; the normal points out of
-    that body (towards the vertex), the gap [m] is negative inside it (by the closest
-    feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
-    box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
-    reach, margin + dt (|u - a's mean| + ``relative[a, b]``, :func:`near_bodies`), holds no
-    face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
-    is one that makes no contacts with the vertex's body or that its body's bound misses
-    (``near``, :func:`near_bodies`), tested first. ``point_hit[p]``: 1 if the vertex met some
-    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only); a row is
-    nonzero only where it is 1, so only those rows are cleared the next time (B writes a
-    vertex, most of them 0 already)."""
-    p = wp.tid() + offset
+@wp.func
+def _vertex_triangle_one(p: int, point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
+                         point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+                         near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                         near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                         reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
+                         mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+                         body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
+                         hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                         hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                         hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32)):
+    """Point ``p`` of :func:`vertex_triangle`."""
     a = point_body[p]
     x = point_x[p]
     xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
@@ -269,6 +262,38 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
                 hit_bary[p, b] = wp.vec3d(u, w, wp.float64(1.0) - u - w)
                 hit_normal[p, b] = n
                 hit_gap[p, b] = dist * sign
+
+
+@wp.kernel
+def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
+                    point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+                    near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                    near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                    reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
+                    mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
+                    body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
+                    hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                    hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                    hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32), block: int,
+                    offset: int):
+    """Surface vertex ``p`` against every other body's closed surface it may meet: the closest
+    point within the margin plus the vertex's relative motion [m]; the normal points out of
+    that body (towards the vertex), the gap [m] is negative inside it (by the closest
+    feature's pseudo normal, as :func:`softvr.collision.query_points`). A body whose points'
+    box (``body_lower``, ``body_upper``, :func:`body_bounds`) is farther than a bound of the
+    reach, margin + dt (|u - a's mean| + ``relative[a, b]``, :func:`near_bodies`), holds no
+    face within it and is not queried (1.001 and 1e-6 m cover the bound's and Warp's float32 distance's rounding); nor
+    is one that makes no contacts with the vertex's body or that its body's bound misses
+    (``near``, :func:`near_bodies`), tested first. ``point_hit[p]``: 1 if the vertex met some
+    body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only); a row is
+    nonzero only where it is 1, so only those rows are cleared the next time (B writes a
+    vertex, most of them 0 already). A thread takes ``block`` points, from (thread +
+    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    first = (wp.tid() + offset) * block
+    for p in range(first, wp.min(first + block, point_body.shape[0])):
+        _vertex_triangle_one(p, point_body, point_x, point_u, body_mean_u, near, relative, near_list, near_len,
+                             reach_lower, reach_upper, mesh_ids, body_lower, body_upper, margin, dt, hit, hit_face,
+                             hit_bary, hit_normal, hit_gap, point_hit)
 
 
 @wp.kernel
@@ -315,10 +340,14 @@ def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype
 def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
                   edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
                   lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
-                  sharp: wp.array(dtype=wp.int32), offset: int):
+                  sharp: wp.array(dtype=wp.int32), crease_lower: wp.array(dtype=wp.vec3),
+                  crease_upper: wp.array(dtype=wp.vec3), offset: int):
     """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles
     (``face_normal``, :func:`face_normals`), and whether it is a crease (faces at more than the
-    sharp angle) or a border, as :meth:`softvr.collision.EdgeSet.edge_normals`."""
+    sharp angle) or a border, as :meth:`softvr.collision.EdgeSet.edge_normals`; its box again in
+    ``crease_lower``, ``crease_upper`` [m] if it is one, else an empty box (lower 1e30, upper
+    -1e30: no query box meets it, and it adds nothing to a node's box in a refit), the boxes of the
+    crease BVHs that the smooth edges query (:func:`edge_edge`)."""
     e = wp.tid() + offset
     p = point_x32[edges[e, 0]]
     q = point_x32[edges[e, 1]]
@@ -337,6 +366,12 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
         n = n / size
     normal[e] = n
     sharp[e] = crease
+    if crease != 0:
+        crease_lower[e] = lower[e]
+        crease_upper[e] = upper[e]
+    else:
+        crease_lower[e] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+        crease_upper[e] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
 
 
 @wp.kernel
@@ -370,43 +405,23 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
     return held_a or held_b
 
 
-@wp.kernel
-def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
-              body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
-              point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-              near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
-              reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
-              bvh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-              body_upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
-              body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
-              min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
-              pair_edge: wp.array2d(dtype=wp.int32),
-              pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
-              pair_gap: wp.array2d(dtype=wp.float64), found: wp.array(dtype=wp.int32),
-              found_before: wp.array(dtype=wp.int32), offset: int):
-    """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
-    (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
-    vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
-    ``pairs_per_edge * b + k`` (-1: none; found pairs fill a body's slots from its first).
-    Pairs deeper than the margin are seen from the wrong side and dropped, and so are pairs the
-    vertex-triangle contacts already hold (``hit``, of :func:`vertex_triangle`, which runs
-    first: :func:`edge_pair_covered`), before they take a slot.
-
-    A query box off body b's box (``body_lower``, ``body_upper``: the union of its edges'
-    boxes, :func:`body_bounds`) finds nothing in b's BVH, so it is not made; and the
-    reach is first bounded by margin + dt (the ends' largest speed relative to a's mean +
-    ``relative[a, b]``, :func:`near_bodies`) (|u - b's mean| <= |u - a's mean| + |a's mean -
-    b's mean|), so that the far bodies (most pairs on the
-    candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and
-    a query. A body's slots are written only where they may change (its first slot not -1:
-    last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
-    slot) tells whether any may be, and last step's goes to ``found_before[i]`` (for
-    :func:`gather_contacts`), so that the slots of an edge without pairs (most) are not read.
-    Bodies b <= a are not visited (their slots are never set), and bodies whose ``near`` bound
-    (:func:`near_bodies`: a's box towards b's) the edge's box misses get no box test of their
-    own: an edge without pairs last step that no body passes is done there."""
-    i = wp.tid() + offset
+@wp.func
+def _edge_edge_one(i: int, edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+                   body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
+                   point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+                   near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+                   near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+                   reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
+                   bvh_ids: wp.array(dtype=wp.uint64), crease_bvh_ids: wp.array(dtype=wp.uint64),
+                   body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
+                   normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
+                   body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
+                   min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
+                   pair_edge: wp.array2d(dtype=wp.int32),
+                   pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+                   pair_gap: wp.array2d(dtype=wp.float64), found: wp.array(dtype=wp.int32),
+                   found_before: wp.array(dtype=wp.int32)):
+    """Edge ``i`` of :func:`edge_edge`."""
     a = edge_body[i]
     before = found[i]
     found_before[i] = before
@@ -440,7 +455,13 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
             reach = margin + dt * float(travel)
             if not _off_box(box_lo, box_hi, reach, body_lower[b], body_upper[b]):
                 grow = wp.vec3(reach, reach, reach)
-                query = wp.bvh_query_aabb(bvh_ids[b], box_lo - grow, box_hi + grow)
+                # A smooth edge pairs only with b's creases: b's crease BVH yields those of the
+                # full BVH's leaves, in its order (the same tree), without walking b's smooth
+                # surface (the candy's Jell-O top against a candy: 594 of 4 834 leaves).
+                tree = bvh_ids[b]
+                if sharp[i] == 0:
+                    tree = crease_bvh_ids[b]
+                query = wp.bvh_query_aabb(tree, box_lo - grow, box_hi + grow)
                 j = int(0)
                 taken = int(0)
                 while wp.bvh_query_next(query, j):
@@ -458,6 +479,54 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
                             taken += 1
                 any_found = any_found + taken
     found[i] = wp.min(any_found, 1)
+
+
+@wp.kernel
+def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
+              body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
+              point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
+              near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
+              near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
+              reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
+              bvh_ids: wp.array(dtype=wp.uint64), crease_bvh_ids: wp.array(dtype=wp.uint64),
+              body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
+              normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
+              body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
+              min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
+              pair_edge: wp.array2d(dtype=wp.int32),
+              pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+              pair_gap: wp.array2d(dtype=wp.float64), found: wp.array(dtype=wp.int32),
+              found_before: wp.array(dtype=wp.int32), block: int, offset: int):
+    """Edge ``i`` of body a against the edges of every body b > a it may meet, in b's edge BVH
+    (:func:`softvr.collision.edges_vs_edges`: the reach is the margin plus the edge's largest
+    vertex motion relative to b [m]); up to ``pairs_per_edge`` pairs per body, in slots
+    ``pairs_per_edge * b + k`` (-1: none; found pairs fill a body's slots from its first).
+    Pairs deeper than the margin are seen from the wrong side and dropped, and so are pairs the
+    vertex-triangle contacts already hold (``hit``, of :func:`vertex_triangle`, which runs
+    first: :func:`edge_pair_covered`), before they take a slot.
+
+    A query box off body b's box (``body_lower``, ``body_upper``: the union of its edges'
+    boxes, :func:`body_bounds`) finds nothing in b's BVH, so it is not made; and the
+    reach is first bounded by margin + dt (the ends' largest speed relative to a's mean +
+    ``relative[a, b]``, :func:`near_bodies`) (|u - b's mean| <= |u - a's mean| + |a's mean -
+    b's mean|), so that the far bodies (most pairs on the
+    candy: 746 of 240 504 reach a body's box) cost a few float compares, not two lengths and
+    a query. A body's slots are written only where they may change (its first slot not -1:
+    last step found a pair), not 2 B slots an edge every step; ``found[i]`` (1: a pair in some
+    slot) tells whether any may be, and last step's goes to ``found_before[i]`` (for
+    :func:`gather_contacts`), so that the slots of an edge without pairs (most) are not read.
+    Bodies b <= a are not visited (their slots are never set), and bodies whose ``near`` bound
+    (:func:`near_bodies`: a's box towards b's) the edge's box misses get no box test of their
+    own: an edge without pairs last step that no body passes is done there. A smooth edge
+    queries b's crease BVH (``crease_bvh_ids``: b's creases and borders only, :func:`edge_geometry`),
+    a crease b's full one. A thread takes ``block`` edges, from (thread +
+    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    first = (wp.tid() + offset) * block
+    for i in range(first, wp.min(first + block, edges.shape[0])):
+        _edge_edge_one(i, edges, edge_body, body_edge_start, point_x32, point_u, body_mean_u, near, relative,
+                       near_list, near_len, reach_lower, reach_upper, bvh_ids, crease_bvh_ids, body_lower,
+                       body_upper, normal, sharp, body_crease, margin, dt, min_sine, min_alignment, pairs_per_edge,
+                       hit, pair_edge, pair_st, pair_normal, pair_gap, found, found_before)
 
 
 @wp.func

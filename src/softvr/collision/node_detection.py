@@ -81,11 +81,11 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     if model.meshes:
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
         steps.append(_refit_reached(model.meshes, model.mesh_ids, near[0], later=False))
-        steps.append(chunked_replayer(_k.vertex_triangle, model.point_count,
-                                      [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                                       *near, model.mesh_ids, *point_box, float(margin), float(dt),
-                                       c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
-                                      min_chunk=256))
+        steps.append(_blocked(_k.vertex_triangle, model.point_count,
+                              [model.point_body, state.point_x, state.point_u, state.body_mean_u,
+                               *near, model.mesh_ids, *point_box, float(margin), float(dt),
+                               c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
+                              min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
     found = [wp.full(max(model.edges.shape[0], 1), 1, dtype=wp.int32, device=d) for _ in range(2)]
     if model.bvhs:
@@ -96,20 +96,22 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         steps.append(chunked_replayer(_k.edge_geometry, edges,
                                       [state.point_x32, normals, model.edges, model.edge_faces,
                                        float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
-                                       state.edge_normal, state.edge_sharp], d, min_chunk=1024))
+                                       state.edge_normal, state.edge_sharp, state.crease_lower, state.crease_upper],
+                                      d, min_chunk=1024))
         crease = wp.empty(bodies, dtype=wp.int32, device=d)
         steps.append(replayer(wp.launch(_k.body_creases, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_edge_start, state.edge_sharp, crease])))
         near, *edge_box = body_box(model.body_edge_start, state.edge_lower, state.edge_upper)
         steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
-        steps.append(chunked_replayer(_k.edge_edge, edges,
-                                      [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                                       state.point_u, state.body_mean_u, *near, model.bvh_ids,
-                                       *edge_box,
-                                       state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
-                                       float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
-                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d,
-                                      min_chunk=512))
+        # (only bodies with a crease: a smooth edge queries no other, ``_k.edge_edge``)
+        steps.append(_refit_reached(model.crease_bvhs, model.crease_bvh_ids, near[0], later=True, only=crease))
+        steps.append(_blocked(_k.edge_edge, edges,
+                              [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
+                               state.point_u, state.body_mean_u, *near, model.bvh_ids, model.crease_bvh_ids,
+                               *edge_box,
+                               state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
+                               float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
+                               c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d, min_chunk=512))
     out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
@@ -129,12 +131,22 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     return detect
 
 
-def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool) -> Callable[[], None]:
+def _blocked(kernel, items: int, inputs: list, device, min_chunk: int) -> Callable[[], None]:
+    """``chunked_replayer`` of a blocked kernel (``_k.edge_edge``, ``_k.vertex_triangle``: a
+    thread takes ``block`` of the ``items``, the argument after ``inputs``):
+    ``_k.ITEMS_A_CPU_THREAD`` on the CPU, 1 on CUDA; chunks of at least ``min_chunk`` items."""
+    block = _k.ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
+    return chunked_replayer(kernel, -(-items // block), [*inputs, block], device, min_chunk=max(1, min_chunk // block))
+
+
+def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool,
+                   only: wp.array | None = None) -> Callable[[], None]:
     """A step refitting the BVHs ``structures`` (``wp.Mesh`` or ``wp.Bvh``; body b's has id
     ``ids[b]``) to the points' positions: on the CPU only those of the bodies b some body a
     (``later``: a < b, the edge queries' order) may reach this step (``near[a, b]`` >= 0,
-    ``_k.near_bodies``, read in place), since no other is queried before its next refit (a
-    refit recomputes every box from the points); all of them elsewhere (no host read there)."""
+    ``_k.near_bodies``, read in place) and, given ``only`` [bodies], where ``only[b]`` != 0
+    (read in place too), since no other is queried before its next refit (a refit recomputes
+    every box from the points); all of them elsewhere (no host read there)."""
     if not wp.get_device(near.device).is_cpu:
         def refit_all() -> None:
             for s in structures:
@@ -144,12 +156,15 @@ def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool)
     owner = ids.numpy()
     body = [int(np.flatnonzero(owner == s.id)[0]) for s in structures]
     reach = near.numpy()
+    wanted = only.numpy() if only is not None else None
     # The (a, b) entries that count: a < b for the edge queries (one mask, not a slice and a
     # max a structure: ~2 us each, 28 a shoulder step).
     counted = np.triu(np.ones(reach.shape, bool), k=1) if later else np.ones(reach.shape, bool)
 
     def refit() -> None:
         reached = ((reach >= 0) & counted).any(axis=0)
+        if wanted is not None:
+            reached &= wanted != 0
         for s, b in zip(structures, body):
             if reached[b]:
                 s.refit()

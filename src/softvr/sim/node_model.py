@@ -136,6 +136,10 @@ class NodeModel:
     bvhs : list of wp.Bvh
         Each surface's BVH over its edges' boxes (``NodeState.edge_lower`` / ``edge_upper``).
     bvh_ids : wp.array(uint64) [bodies]
+    crease_bvhs : list of wp.Bvh; crease_bvh_ids : wp.array(uint64) [bodies]
+        Their twins over the crease and border edges' boxes only (``NodeState.crease_lower`` /
+        ``crease_upper``), built from the same boxes so that a query visits the crease edges in
+        the order the full BVH's does (the smooth edges' queries, which need a crease on the other side).
     couplings : NodeCouplings
         The coupling springs (thesis eq. 5.4): their blocks of ``A``, forces and the kinematic
         and fixed bodies' driven nodes (collision points, then coupling points).
@@ -204,6 +208,8 @@ class NodeModel:
     body_edge_start: wp.array
     bvhs: list
     bvh_ids: wp.array
+    crease_bvhs: list
+    crease_bvh_ids: wp.array
     couplings: NodeCouplings
     rigid: NodeRigid | None
     cloth: NodeCloth
@@ -349,6 +355,8 @@ class NodeState:
         Mean of each body's ``point_u``.
     edge_lower, edge_upper, edge_normal : wp.array(vec3) [e]; edge_sharp : wp.array(int32) [e]
         Each edge's box [m], unit mean normal and crease flag at the step's start.
+    crease_lower, crease_upper : wp.array(vec3) [e] [m]
+        The box of each crease or border edge, an empty one (lower 1e30, upper -1e30) for a smooth one.
     contacts : NodeContacts
     """
 
@@ -376,6 +384,8 @@ class NodeState:
     edge_upper: wp.array
     edge_normal: wp.array
     edge_sharp: wp.array
+    crease_lower: wp.array
+    crease_upper: wp.array
     contacts: NodeContacts
 
 
@@ -572,12 +582,17 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
     x32 = point_x32.numpy()
     edge_lower: wp.array = wp.array(np.minimum(x32[edges[:, 0]], x32[edges[:, 1]]).reshape(-1, 3), dtype=wp.vec3, device=d)
     edge_upper: wp.array = wp.array(np.maximum(x32[edges[:, 0]], x32[edges[:, 1]]).reshape(-1, 3), dtype=wp.vec3, device=d)
-    bvhs, bvh_ids = [], np.zeros(nbody, np.uint64)
+    crease_lower, crease_upper = wp.clone(edge_lower), wp.clone(edge_upper)
+    bvhs, bvh_ids, crease_bvhs, crease_bvh_ids = [], np.zeros(nbody, np.uint64), [], np.zeros(nbody, np.uint64)
     for i in edged:
         rows = slice(int(edge_start[i]), int(edge_start[i + 1]))
         bvh = wp.Bvh(edge_lower[rows], edge_upper[rows])
         bvhs.append(bvh)
         bvh_ids[i] = bvh.id
+        # The same boxes build the same tree; the detection refits it to the creases' boxes.
+        crease = wp.Bvh(crease_lower[rows], crease_upper[rows])
+        crease_bvhs.append(crease)
+        crease_bvh_ids[i] = crease.id
     static_meshes = [wp.Mesh(points=wp.array(m.vertices, dtype=wp.vec3, device=d),
                              indices=wp.array(m.triangles.ravel(), dtype=wp.int32, device=d)) for m in scene.meshes]
     f64_nodes = [b.mass if f else np.ones(k) for b, f, k in zip(bodies, nodal, node_counts)]
@@ -621,7 +636,8 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
                                                                if driven[i] is not None]), d, wp.vec3d),
         edges=_i32(edges.reshape(-1, 2), d), edge_faces=_i32(edge_faces.reshape(-1, 2), d),
         edge_body=_i32(np.repeat(np.arange(nbody), edge_counts), d), body_edge_start=_i32(edge_start, d),
-        bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d),
+        bvhs=bvhs, bvh_ids=wp.array(bvh_ids, dtype=wp.uint64, device=d), crease_bvhs=crease_bvhs,
+        crease_bvh_ids=wp.array(crease_bvh_ids, dtype=wp.uint64, device=d),
         couplings=build_node_couplings(springs, terms, solved_rows, rigid_rows,
                                        block_row.astype(np.int64) * n + block_col, driven, d),
         rigid=build_node_rigid(scene, node_start, point_start, d),
@@ -685,6 +701,6 @@ def build_node_model(scene, device: str = "cpu") -> tuple[NodeModel, NodeState]:
         point_u=wp.zeros(max(p, 1), dtype=wp.vec3d, device=d),
         body_mean_u=wp.zeros(nbody, dtype=wp.vec3d, device=d), edge_lower=edge_lower, edge_upper=edge_upper,
         edge_normal=wp.zeros(max(e, 1), dtype=wp.vec3, device=d),
-        edge_sharp=wp.zeros(max(e, 1), dtype=wp.int32, device=d),
-        contacts=contacts)
+        edge_sharp=wp.zeros(max(e, 1), dtype=wp.int32, device=d), crease_lower=crease_lower,
+        crease_upper=crease_upper, contacts=contacts)
     return model, state
