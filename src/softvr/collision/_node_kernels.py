@@ -31,10 +31,10 @@ from softvr.collision.mesh import NORMAL_FROM_OFFSET, query_point
 STENCIL = 4
 #: Nodes in a contact's stencil: a point's 4 and a triangle's 3 x 4.
 CONTACT_STENCIL = 16
-#: Items (edges, points) one thread of a blocked kernel takes on the CPU (1 on CUDA): Warp's
-#: CPU launch calls the kernel once a thread, and each call copies its ~30 array arguments,
-#: which cost more than the box test that turns most items away (the candy's edge queries:
-#: 1.5 ms a step one edge a thread, 0.65 ms 64 edges a thread, same results).
+#: Items (points, triangles, edges) one thread of a blocked kernel takes on the CPU (1 on CUDA):
+#: Warp's CPU launch calls the kernel once a thread, and each call copies its array arguments
+#: (~30 in the edge queries), which cost more than the box test that turns most items away (the
+#: candy's edge queries: 1.6 ms a step one edge a thread, 0.7 ms 64 edges a thread, same results).
 ITEMS_A_CPU_THREAD = 64
 #: ``NodeContacts.kind`` codes.
 PLANE = wp.constant(0)
@@ -60,16 +60,13 @@ def plane_frame(n: wp.vec3d) -> wp.mat33d:
     return wp.mat33d(n[0], n[1], n[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
 
 
-@wp.kernel
-def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-                 fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
-                 point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
-                 point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
-                 point_u: wp.array(dtype=wp.vec3d), offset: int):
-    """Position [m] (also in single precision, the surfaces' BVH vertices) and predicted
-    velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
-    nodes, the prescribed velocity of its driven ones."""
-    p = wp.tid() + offset
+@wp.func
+def _point_motion_one(p: int, q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                      fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
+                      point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
+                      point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
+                      point_u: wp.array(dtype=wp.vec3d)):
+    """Point ``p`` of :func:`point_motion`."""
     x = wp.vec3d()
     u = wp.vec3d()
     for k in range(STENCIL):
@@ -84,6 +81,22 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
     point_x[p] = x
     point_x32[p] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
     point_u[p] = u
+
+
+@wp.kernel
+def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                 fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
+                 point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
+                 point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
+                 point_u: wp.array(dtype=wp.vec3d), block: int, offset: int):
+    """Position [m] (also in single precision, the surfaces' BVH vertices) and predicted
+    velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
+    nodes, the prescribed velocity of its driven ones. A thread takes ``block`` points, from (thread +
+    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    first = (wp.tid() + offset) * block
+    for p in range(first, wp.min(first + block, point_nodes.shape[0])):
+        _point_motion_one(p, q, v, fixed, fixed_velocity, point_nodes, point_weights, gravity, dt, point_x,
+                          point_x32, point_u)
 
 
 @wp.kernel
@@ -327,28 +340,31 @@ def _face_normal(points: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp
     return n
 
 
-@wp.kernel
-def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
-                 normal: wp.array(dtype=wp.vec3), offset: int):
-    """Triangle ``t``'s unit normal (once a triangle: :func:`edge_geometry` reads it for each of
-    its three edges)."""
-    t = wp.tid() + offset
+@wp.func
+def _face_normals_one(t: int, point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+                      normal: wp.array(dtype=wp.vec3)):
+    """Triangle ``t`` of :func:`face_normals`."""
     normal[t] = _face_normal(point_x32, triangles, t)
 
 
 @wp.kernel
-def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
-                  edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
-                  lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
-                  sharp: wp.array(dtype=wp.int32), crease_lower: wp.array(dtype=wp.vec3),
-                  crease_upper: wp.array(dtype=wp.vec3), offset: int):
-    """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles
-    (``face_normal``, :func:`face_normals`), and whether it is a crease (faces at more than the
-    sharp angle) or a border, as :meth:`softvr.collision.EdgeSet.edge_normals`; its box again in
-    ``crease_lower``, ``crease_upper`` [m] if it is one, else an empty box (lower 1e30, upper
-    -1e30: no query box meets it, and it adds nothing to a node's box in a refit), the boxes of the
-    crease BVHs that the smooth edges query (:func:`edge_edge`)."""
-    e = wp.tid() + offset
+def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
+                 normal: wp.array(dtype=wp.vec3), block: int, offset: int):
+    """Triangle ``t``'s unit normal (once a triangle: :func:`edge_geometry` reads it for each of
+    its three edges). A thread takes ``block`` triangles, from (thread +
+    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    first = (wp.tid() + offset) * block
+    for t in range(first, wp.min(first + block, triangles.shape[0])):
+        _face_normals_one(t, point_x32, triangles, normal)
+
+
+@wp.func
+def _edge_geometry_one(e: int, point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
+                       edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
+                       lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
+                       sharp: wp.array(dtype=wp.int32), crease_lower: wp.array(dtype=wp.vec3),
+                       crease_upper: wp.array(dtype=wp.vec3)):
+    """Edge ``e`` of :func:`edge_geometry`."""
     p = point_x32[edges[e, 0]]
     q = point_x32[edges[e, 1]]
     lower[e] = wp.min(p, q)
@@ -372,6 +388,25 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
     else:
         crease_lower[e] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
         crease_upper[e] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
+
+
+@wp.kernel
+def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
+                  edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
+                  lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
+                  sharp: wp.array(dtype=wp.int32), crease_lower: wp.array(dtype=wp.vec3),
+                  crease_upper: wp.array(dtype=wp.vec3), block: int, offset: int):
+    """Edge ``e``'s box [m] (the BVH's), the unit mean normal of its one or two triangles
+    (``face_normal``, :func:`face_normals`), and whether it is a crease (faces at more than the
+    sharp angle) or a border, as :meth:`softvr.collision.EdgeSet.edge_normals`; its box again in
+    ``crease_lower``, ``crease_upper`` [m] if it is one, else an empty box (lower 1e30, upper
+    -1e30: no query box meets it, and it adds nothing to a node's box in a refit), the boxes of the
+    crease BVHs that the smooth edges query (:func:`edge_edge`). A thread takes ``block`` edges, from (thread +
+    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    first = (wp.tid() + offset) * block
+    for e in range(first, wp.min(first + block, edges.shape[0])):
+        _edge_geometry_one(e, point_x32, face_normal, edges, edge_faces, sharp_cosine, lower, upper, normal, sharp,
+                           crease_lower, crease_upper)
 
 
 @wp.kernel

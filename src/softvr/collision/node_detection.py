@@ -36,10 +36,10 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                    _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
-    motion = chunked_replayer(_k.point_motion, model.point_count,
-                              [state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
-                               model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
-                              d, min_chunk=1024)
+    motion = _blocked(_k.point_motion, model.point_count,
+                      [state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
+                       model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
+                      d, min_chunk=1024)
     steps = [motion]
     if model.rigid is not None and model.rigid.point_index.shape[0]:
         steps.append(record_rigid_points(model, state))
@@ -91,13 +91,13 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     if model.bvhs:
         edges = model.edges.shape[0]
         normals = wp.empty(model.triangles.shape[0], dtype=wp.vec3, device=d)
-        steps.append(chunked_replayer(_k.face_normals, model.triangles.shape[0],
-                                      [state.point_x32, model.triangles, normals], d, min_chunk=1024))
-        steps.append(chunked_replayer(_k.edge_geometry, edges,
-                                      [state.point_x32, normals, model.edges, model.edge_faces,
-                                       float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
-                                       state.edge_normal, state.edge_sharp, state.crease_lower, state.crease_upper],
-                                      d, min_chunk=1024))
+        steps.append(_blocked(_k.face_normals, model.triangles.shape[0],
+                              [state.point_x32, model.triangles, normals], d, min_chunk=1024))
+        steps.append(_blocked(_k.edge_geometry, edges,
+                              [state.point_x32, normals, model.edges, model.edge_faces,
+                               float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
+                               state.edge_normal, state.edge_sharp, state.crease_lower, state.crease_upper],
+                              d, min_chunk=1024))
         crease = wp.empty(bodies, dtype=wp.int32, device=d)
         steps.append(replayer(wp.launch(_k.body_creases, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_edge_start, state.edge_sharp, crease])))
@@ -132,9 +132,9 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
 
 
 def _blocked(kernel, items: int, inputs: list, device, min_chunk: int) -> Callable[[], None]:
-    """``chunked_replayer`` of a blocked kernel (``_k.edge_edge``, ``_k.vertex_triangle``: a
-    thread takes ``block`` of the ``items``, the argument after ``inputs``):
-    ``_k.ITEMS_A_CPU_THREAD`` on the CPU, 1 on CUDA; chunks of at least ``min_chunk`` items."""
+    """``chunked_replayer`` of a blocked kernel (a thread takes ``block`` of the ``items``, the
+    argument after ``inputs``): ``_k.ITEMS_A_CPU_THREAD`` on the CPU, 1 on CUDA; chunks of at
+    least ``min_chunk`` items."""
     block = _k.ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
     return chunked_replayer(kernel, -(-items // block), [*inputs, block], device, min_chunk=max(1, min_chunk // block))
 
