@@ -26,8 +26,8 @@ def _share(steps, mass, fitted, memory=MEMORY, share=(0.0, 0.0, 1.0)):
     out = []
     for v, v_before, change in steps:
         wp.launch(_k.carried_share, dim=1, device="cpu",
-                  inputs=[wp.array(v, dtype=wp.vec3d, device="cpu"), wp.array(v_before, dtype=wp.vec3d, device="cpu"),
-                          wp.array(change, dtype=wp.vec3d, device="cpu"), wp.array(mass, dtype=wp.float64, device="cpu"),
+                  inputs=[*(wp.array(x, dtype=wp.vec3d, device="cpu") for x in (v, v_before, change)),
+                          wp.array(mass, dtype=wp.float64, device="cpu"),
                           wp.array(fitted.astype(np.int32), dtype=wp.int32, device="cpu"), memory, 1, s])
         out.append(float(s.numpy()[2]))
     return out
