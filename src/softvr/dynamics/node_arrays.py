@@ -179,7 +179,7 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
         fitted[r.linear_node.numpy()] = False
         fitted[r.angular_node.numpy()] = False
     fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
-    share = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
+    share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
     change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
     replays = []
     for carried in (0, 1):
