@@ -60,29 +60,6 @@ def plane_frame(n: wp.vec3d) -> wp.mat33d:
     return wp.mat33d(n[0], n[1], n[2], t1[0], t1[1], t1[2], t2[0], t2[1], t2[2])
 
 
-@wp.func
-def _point_motion_one(p: int, q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
-                      fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
-                      point_weights: wp.array2d(dtype=wp.float64), gravity: wp.vec3d, dt: wp.float64,
-                      point_x: wp.array(dtype=wp.vec3d), point_x32: wp.array(dtype=wp.vec3),
-                      point_u: wp.array(dtype=wp.vec3d)):
-    """Point ``p`` of :func:`point_motion`."""
-    x = wp.vec3d()
-    u = wp.vec3d()
-    for k in range(STENCIL):
-        node = point_nodes[p, k]
-        if node >= 0:
-            w = point_weights[p, k]
-            x = x + w * q[node]
-            if fixed[node] != 0:
-                u = u + w * fixed_velocity[node]
-            else:
-                u = u + w * (v[node] + dt * gravity)
-    point_x[p] = x
-    point_x32[p] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    point_u[p] = u
-
-
 @wp.kernel
 def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
                  fixed_velocity: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
@@ -93,10 +70,22 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
     velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
     nodes, the prescribed velocity of its driven ones. A thread takes ``block`` points, from (thread +
     ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
-    first = (wp.tid() + offset) * block
-    for p in range(first, wp.min(first + block, point_nodes.shape[0])):
-        _point_motion_one(p, q, v, fixed, fixed_velocity, point_nodes, point_weights, gravity, dt, point_x,
-                          point_x32, point_u)
+    begin = (wp.tid() + offset) * block
+    for p in range(begin, wp.min(begin + block, point_nodes.shape[0])):
+        x = wp.vec3d()
+        u = wp.vec3d()
+        for k in range(STENCIL):
+            node = point_nodes[p, k]
+            if node >= 0:
+                w = point_weights[p, k]
+                x = x + w * q[node]
+                if fixed[node] != 0:
+                    u = u + w * fixed_velocity[node]
+                else:
+                    u = u + w * (v[node] + dt * gravity)
+        point_x[p] = x
+        point_x32[p] = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+        point_u[p] = u
 
 
 @wp.kernel
@@ -229,54 +218,6 @@ def near_count(a: int, first: int, lo: wp.vec3, hi: wp.vec3, near: wp.array2d(dt
     return count
 
 
-@wp.func
-def _vertex_triangle_one(p: int, point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
-                         point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                         near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-                         near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
-                         reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
-                         mesh_ids: wp.array(dtype=wp.uint64), body_lower: wp.array(dtype=wp.vec3),
-                         body_upper: wp.array(dtype=wp.vec3), margin: wp.float64, dt: wp.float64,
-                         hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
-                         hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
-                         hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32)):
-    """Point ``p`` of :func:`vertex_triangle`."""
-    a = point_body[p]
-    x = point_x[p]
-    xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
-    if point_hit[p] != 0:
-        for b in range(mesh_ids.shape[0]):
-            hit[p, b] = 0
-    point_hit[p] = 0
-    if near_count(a, 0, xf, xf, near, near_list, near_len, reach_lower, reach_upper, body_lower, body_upper) == 0:
-        return
-    speed = wp.length(point_u[p] - body_mean_u[a])
-    for k in range(near_len[a]):
-        b = near_list[a, k]
-        bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
-        if not _off_box(xf, xf, bound, body_lower[b], body_upper[b]):
-            reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
-            query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
-            if query.result:
-                c = wp.mesh_eval_position(mesh_ids[b], query.face, query.u, query.v)
-                cd = wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))
-                away = x - cd
-                dist = wp.length(away)
-                sign = wp.float64(query.sign)
-                fn = wp.mesh_eval_face_normal(mesh_ids[b], query.face)
-                n = wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2]))
-                if dist > wp.float64(NORMAL_FROM_OFFSET):
-                    n = away / dist * sign
-                hit[p, b] = 1
-                point_hit[p] = 1
-                hit_face[p, b] = query.face
-                u = wp.float64(query.u)
-                w = wp.float64(query.v)
-                hit_bary[p, b] = wp.vec3d(u, w, wp.float64(1.0) - u - w)
-                hit_normal[p, b] = n
-                hit_gap[p, b] = dist * sign
-
-
 @wp.kernel
 def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtype=wp.vec3d),
                     point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
@@ -302,11 +243,42 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     nonzero only where it is 1, so only those rows are cleared the next time (B writes a
     vertex, most of them 0 already). A thread takes ``block`` points, from (thread +
     ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
-    first = (wp.tid() + offset) * block
-    for p in range(first, wp.min(first + block, point_body.shape[0])):
-        _vertex_triangle_one(p, point_body, point_x, point_u, body_mean_u, near, relative, near_list, near_len,
-                             reach_lower, reach_upper, mesh_ids, body_lower, body_upper, margin, dt, hit, hit_face,
-                             hit_bary, hit_normal, hit_gap, point_hit)
+    begin = (wp.tid() + offset) * block
+    for p in range(begin, wp.min(begin + block, point_body.shape[0])):
+        a = point_body[p]
+        x = point_x[p]
+        xf = wp.vec3(wp.float32(x[0]), wp.float32(x[1]), wp.float32(x[2]))
+        if point_hit[p] != 0:
+            for b in range(mesh_ids.shape[0]):
+                hit[p, b] = 0
+        point_hit[p] = 0
+        if near_count(a, 0, xf, xf, near, near_list, near_len, reach_lower, reach_upper, body_lower, body_upper) == 0:
+            continue
+        speed = wp.length(point_u[p] - body_mean_u[a])
+        for k in range(near_len[a]):
+            b = near_list[a, k]
+            bound = float((margin + dt * (speed + relative[a, b])) * wp.float64(1.001)) + 1.0e-6
+            if not _off_box(xf, xf, bound, body_lower[b], body_upper[b]):
+                reach = margin + dt * wp.length(point_u[p] - body_mean_u[b])
+                query = wp.mesh_query_point_sign_normal(mesh_ids[b], xf, wp.float32(reach))
+                if query.result:
+                    c = wp.mesh_eval_position(mesh_ids[b], query.face, query.u, query.v)
+                    cd = wp.vec3d(wp.float64(c[0]), wp.float64(c[1]), wp.float64(c[2]))
+                    away = x - cd
+                    dist = wp.length(away)
+                    sign = wp.float64(query.sign)
+                    fn = wp.mesh_eval_face_normal(mesh_ids[b], query.face)
+                    n = wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2]))
+                    if dist > wp.float64(NORMAL_FROM_OFFSET):
+                        n = away / dist * sign
+                    hit[p, b] = 1
+                    point_hit[p] = 1
+                    hit_face[p, b] = query.face
+                    u = wp.float64(query.u)
+                    w = wp.float64(query.v)
+                    hit_bary[p, b] = wp.vec3d(u, w, wp.float64(1.0) - u - w)
+                    hit_normal[p, b] = n
+                    hit_gap[p, b] = dist * sign
 
 
 @wp.kernel
@@ -340,54 +312,15 @@ def _face_normal(points: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp
     return n
 
 
-@wp.func
-def _face_normals_one(t: int, point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
-                      normal: wp.array(dtype=wp.vec3)):
-    """Triangle ``t`` of :func:`face_normals`."""
-    normal[t] = _face_normal(point_x32, triangles, t)
-
-
 @wp.kernel
 def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype=wp.int32),
                  normal: wp.array(dtype=wp.vec3), block: int, offset: int):
     """Triangle ``t``'s unit normal (once a triangle: :func:`edge_geometry` reads it for each of
     its three edges). A thread takes ``block`` triangles, from (thread +
     ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
-    first = (wp.tid() + offset) * block
-    for t in range(first, wp.min(first + block, triangles.shape[0])):
-        _face_normals_one(t, point_x32, triangles, normal)
-
-
-@wp.func
-def _edge_geometry_one(e: int, point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtype=wp.vec3),
-                       edges: wp.array2d(dtype=wp.int32), edge_faces: wp.array2d(dtype=wp.int32), sharp_cosine: float,
-                       lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3), normal: wp.array(dtype=wp.vec3),
-                       sharp: wp.array(dtype=wp.int32), crease_lower: wp.array(dtype=wp.vec3),
-                       crease_upper: wp.array(dtype=wp.vec3)):
-    """Edge ``e`` of :func:`edge_geometry`."""
-    p = point_x32[edges[e, 0]]
-    q = point_x32[edges[e, 1]]
-    lower[e] = wp.min(p, q)
-    upper[e] = wp.max(p, q)
-    first = face_normal[edge_faces[e, 0]]
-    n = first
-    crease = int(1)
-    if edge_faces[e, 1] >= 0:
-        second = face_normal[edge_faces[e, 1]]
-        n = first + second
-        if wp.dot(first, second) >= sharp_cosine:
-            crease = 0
-    size = wp.length(n)
-    if size > 0.0:
-        n = n / size
-    normal[e] = n
-    sharp[e] = crease
-    if crease != 0:
-        crease_lower[e] = lower[e]
-        crease_upper[e] = upper[e]
-    else:
-        crease_lower[e] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
-        crease_upper[e] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
+    begin = (wp.tid() + offset) * block
+    for t in range(begin, wp.min(begin + block, triangles.shape[0])):
+        normal[t] = _face_normal(point_x32, triangles, t)
 
 
 @wp.kernel
@@ -403,10 +336,31 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
     -1e30: no query box meets it, and it adds nothing to a node's box in a refit), the boxes of the
     crease BVHs that the smooth edges query (:func:`edge_edge`). A thread takes ``block`` edges, from (thread +
     ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
-    first = (wp.tid() + offset) * block
-    for e in range(first, wp.min(first + block, edges.shape[0])):
-        _edge_geometry_one(e, point_x32, face_normal, edges, edge_faces, sharp_cosine, lower, upper, normal, sharp,
-                           crease_lower, crease_upper)
+    begin = (wp.tid() + offset) * block
+    for e in range(begin, wp.min(begin + block, edges.shape[0])):
+        p = point_x32[edges[e, 0]]
+        q = point_x32[edges[e, 1]]
+        lower[e] = wp.min(p, q)
+        upper[e] = wp.max(p, q)
+        first = face_normal[edge_faces[e, 0]]
+        n = first
+        crease = int(1)
+        if edge_faces[e, 1] >= 0:
+            second = face_normal[edge_faces[e, 1]]
+            n = first + second
+            if wp.dot(first, second) >= sharp_cosine:
+                crease = 0
+        size = wp.length(n)
+        if size > 0.0:
+            n = n / size
+        normal[e] = n
+        sharp[e] = crease
+        if crease != 0:
+            crease_lower[e] = lower[e]
+            crease_upper[e] = upper[e]
+        else:
+            crease_lower[e] = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+            crease_upper[e] = wp.vec3(-1.0e30, -1.0e30, -1.0e30)
 
 
 @wp.kernel
@@ -438,82 +392,6 @@ def edge_pair_covered(e: int, a: int, j: int, b: int, edges: wp.array2d(dtype=wp
     held_a = hit[edges[e, 0], b] != 0 and hit[edges[e, 1], b] != 0 and sharp[j] == 0
     held_b = hit[edges[j, 0], a] != 0 and hit[edges[j, 1], a] != 0 and sharp[e] == 0
     return held_a or held_b
-
-
-@wp.func
-def _edge_edge_one(i: int, edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.int32),
-                   body_edge_start: wp.array(dtype=wp.int32), point_x32: wp.array(dtype=wp.vec3),
-                   point_u: wp.array(dtype=wp.vec3d), body_mean_u: wp.array(dtype=wp.vec3d),
-                   near: wp.array2d(dtype=wp.float32), relative: wp.array2d(dtype=wp.float64),
-                   near_list: wp.array2d(dtype=wp.int32), near_len: wp.array(dtype=wp.int32),
-                   reach_lower: wp.array2d(dtype=wp.vec3), reach_upper: wp.array2d(dtype=wp.vec3),
-                   bvh_ids: wp.array(dtype=wp.uint64), crease_bvh_ids: wp.array(dtype=wp.uint64),
-                   body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3),
-                   normal: wp.array(dtype=wp.vec3), sharp: wp.array(dtype=wp.int32),
-                   body_crease: wp.array(dtype=wp.int32), margin: float, dt: float,
-                   min_sine: float, min_alignment: float, pairs_per_edge: int, hit: wp.array2d(dtype=wp.int32),
-                   pair_edge: wp.array2d(dtype=wp.int32),
-                   pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
-                   pair_gap: wp.array2d(dtype=wp.float64), found: wp.array(dtype=wp.int32),
-                   found_before: wp.array(dtype=wp.int32)):
-    """Edge ``i`` of :func:`edge_edge`."""
-    a = edge_body[i]
-    before = found[i]
-    found_before[i] = before
-    p1 = point_x32[edges[i, 0]]
-    q1 = point_x32[edges[i, 1]]
-    box_lo = wp.min(p1, q1)
-    box_hi = wp.max(p1, q1)
-    if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, reach_lower, reach_upper,
-                                  body_lower, body_upper) == 0:
-        found[i] = 0  # no slot to clear, no body to query (most edges)
-        return
-    u0 = point_u[edges[i, 0]]
-    u1 = point_u[edges[i, 1]]
-    own = body_mean_u[a]
-    speed = wp.max(wp.length(u0 - own), wp.length(u1 - own))
-    any_found = int(0)
-    for b in range(a + 1, bvh_ids.shape[0]):
-        close = False
-        # Every pair needs a crease edge (the query's own test below): a smooth edge against a
-        # body without any (``body_crease``, :func:`body_creases`) finds none.
-        if near[a, b] >= 0.0 and (sharp[i] != 0 or body_crease[b] != 0):
-            # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
-            bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
-            close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
-        if close or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
-            for k in range(pairs_per_edge):
-                pair_edge[i, pairs_per_edge * b + k] = -1
-        if close:
-            mean = body_mean_u[b]
-            travel = wp.max(wp.length(u0 - mean), wp.length(u1 - mean))
-            reach = margin + dt * float(travel)
-            if not _off_box(box_lo, box_hi, reach, body_lower[b], body_upper[b]):
-                grow = wp.vec3(reach, reach, reach)
-                # A smooth edge pairs only with b's creases: b's crease BVH yields those of the
-                # full BVH's leaves, in its order (the same tree), without walking b's smooth
-                # surface (the candy's Jell-O top against a candy: 594 of 4 834 leaves).
-                tree = bvh_ids[b]
-                if sharp[i] == 0:
-                    tree = crease_bvh_ids[b]
-                query = wp.bvh_query_aabb(tree, box_lo - grow, box_hi + grow)
-                j = int(0)
-                taken = int(0)
-                while wp.bvh_query_next(query, j):
-                    jg = body_edge_start[b] + j
-                    if taken < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0) and not edge_pair_covered(
-                            i, a, jg, b, edges, sharp, hit):
-                        aligned, s, t, n, gap = edge_pair(p1, q1, point_x32[edges[jg, 0]], point_x32[edges[jg, 1]],
-                                                          normal[i], normal[jg], reach, min_sine, min_alignment)
-                        if aligned != 0 and gap >= -margin:
-                            slot = pairs_per_edge * b + taken
-                            pair_edge[i, slot] = jg
-                            pair_st[i, slot] = wp.vec3d(wp.float64(s), wp.float64(t), wp.float64(0.0))
-                            pair_normal[i, slot] = wp.vec3d(wp.float64(n[0]), wp.float64(n[1]), wp.float64(n[2]))
-                            pair_gap[i, slot] = wp.float64(gap)
-                            taken += 1
-                any_found = any_found + taken
-    found[i] = wp.min(any_found, 1)
 
 
 @wp.kernel
@@ -556,12 +434,65 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     queries b's crease BVH (``crease_bvh_ids``: b's creases and borders only, :func:`edge_geometry`),
     a crease b's full one. A thread takes ``block`` edges, from (thread +
     ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
-    first = (wp.tid() + offset) * block
-    for i in range(first, wp.min(first + block, edges.shape[0])):
-        _edge_edge_one(i, edges, edge_body, body_edge_start, point_x32, point_u, body_mean_u, near, relative,
-                       near_list, near_len, reach_lower, reach_upper, bvh_ids, crease_bvh_ids, body_lower,
-                       body_upper, normal, sharp, body_crease, margin, dt, min_sine, min_alignment, pairs_per_edge,
-                       hit, pair_edge, pair_st, pair_normal, pair_gap, found, found_before)
+    begin = (wp.tid() + offset) * block
+    for i in range(begin, wp.min(begin + block, edges.shape[0])):
+        a = edge_body[i]
+        before = found[i]
+        found_before[i] = before
+        p1 = point_x32[edges[i, 0]]
+        q1 = point_x32[edges[i, 1]]
+        box_lo = wp.min(p1, q1)
+        box_hi = wp.max(p1, q1)
+        if before == 0 and near_count(a, a + 1, box_lo, box_hi, near, near_list, near_len, reach_lower, reach_upper,
+                                      body_lower, body_upper) == 0:
+            found[i] = 0  # no slot to clear, no body to query (most edges)
+            continue
+        u0 = point_u[edges[i, 0]]
+        u1 = point_u[edges[i, 1]]
+        own = body_mean_u[a]
+        speed = wp.max(wp.length(u0 - own), wp.length(u1 - own))
+        any_found = int(0)
+        for b in range(a + 1, bvh_ids.shape[0]):
+            close = False
+            # Every pair needs a crease edge (the query's own test below): a smooth edge against a
+            # body without any (``body_crease``, :func:`body_creases`) finds none.
+            if near[a, b] >= 0.0 and (sharp[i] != 0 or body_crease[b] != 0):
+                # 1.001 and 1e-6 m cover the rounding of both bounds (relative ~1e-7 in float32).
+                bound = (margin + dt * float(speed + relative[a, b])) * 1.001 + 1.0e-6
+                close = not _off_box(box_lo, box_hi, bound, body_lower[b], body_upper[b])
+            if close or (before != 0 and pair_edge[i, pairs_per_edge * b] >= 0):
+                for k in range(pairs_per_edge):
+                    pair_edge[i, pairs_per_edge * b + k] = -1
+            if close:
+                mean = body_mean_u[b]
+                travel = wp.max(wp.length(u0 - mean), wp.length(u1 - mean))
+                reach = margin + dt * float(travel)
+                if not _off_box(box_lo, box_hi, reach, body_lower[b], body_upper[b]):
+                    grow = wp.vec3(reach, reach, reach)
+                    # A smooth edge pairs only with b's creases: b's crease BVH yields those of the
+                    # full BVH's leaves, in its order (the same tree), without walking b's smooth
+                    # surface (the candy's Jell-O top against a candy: 594 of 4 834 leaves).
+                    tree = bvh_ids[b]
+                    if sharp[i] == 0:
+                        tree = crease_bvh_ids[b]
+                    query = wp.bvh_query_aabb(tree, box_lo - grow, box_hi + grow)
+                    j = int(0)
+                    taken = int(0)
+                    while wp.bvh_query_next(query, j):
+                        jg = body_edge_start[b] + j
+                        if taken < pairs_per_edge and (sharp[i] != 0 or sharp[jg] != 0) and not edge_pair_covered(
+                                i, a, jg, b, edges, sharp, hit):
+                            aligned, s, t, n, gap = edge_pair(p1, q1, point_x32[edges[jg, 0]], point_x32[edges[jg, 1]],
+                                                              normal[i], normal[jg], reach, min_sine, min_alignment)
+                            if aligned != 0 and gap >= -margin:
+                                slot = pairs_per_edge * b + taken
+                                pair_edge[i, slot] = jg
+                                pair_st[i, slot] = wp.vec3d(wp.float64(s), wp.float64(t), wp.float64(0.0))
+                                pair_normal[i, slot] = wp.vec3d(wp.float64(n[0]), wp.float64(n[1]), wp.float64(n[2]))
+                                pair_gap[i, slot] = wp.float64(gap)
+                                taken += 1
+                    any_found = any_found + taken
+        found[i] = wp.min(any_found, 1)
 
 
 @wp.func
