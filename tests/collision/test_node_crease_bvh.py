@@ -19,9 +19,10 @@ import warp as wp
 
 from softvr import Scene
 from softvr.collision.edges import SHARP_EDGE_ANGLE
-from softvr.dynamics import EmbeddedPoints, FemBody, Material
+from softvr.dynamics import FemBody, Material
 from softvr.sim import node_model_supported
 from softvr.volume import Volume, boundary_faces, grid_tet_mesh
+from tests.sim.test_node_surfaces import _add_with_surface
 
 CELL = 0.005  # [m]
 JITTER = 0.0015  # [m] each node's random move, each axis
@@ -66,14 +67,13 @@ def _scene():
     cube = FemBody(cube_nodes, cube_tets, Material(1e6, 0.3, 1000.0), name="cube")
     cube.v[:] = (0.0, 0.0, -SPEED)
     scene = Scene(gravity=(0.0, 0.0, 0.0), friction=0.0, edge_contacts=True, contact_margin=0.001)
-    faces = {}
     for body in (plate, cube):
-        faces[body.name] = boundary_faces(body.tets)
-        n = len(body.q)
-        scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(n)[:, None], np.ones((n, 1))),
-                       collision_triangles=faces[body.name])
+        _add_with_surface(scene, body)
     assert node_model_supported(scene)
-    return scene, cube, faces["cube"], rng
+    # The cube's collision points are its boundary nodes, ascending (_add_with_surface).
+    faces = boundary_faces(cube.tets)
+    used = np.unique(faces)
+    return scene, cube, used, np.searchsorted(used, faces), rng
 
 
 def _crease_truth(x, faces, edges):
@@ -91,9 +91,9 @@ def _crease_truth(x, faces, edges):
 
 
 def test_a_crease_bvh_yields_the_creases_a_box_meets_in_the_full_bvhs_order():
-    scene, cube, faces, rng = _scene()
+    scene, cube, used, faces, rng = _scene()
     scene.step(DT)  # builds the BVHs at these positions; the cube is beyond the reach, 8 mm up
-    x = cube.q.copy()  # the second step's start
+    x = cube.q[used]  # the second step's start (a copy)
     scene.step(DT)
     model = scene._stepper.model
     start = model.body_edge_start.numpy()
