@@ -337,7 +337,10 @@ _TET_SNIPPET = (
     // (~1.3 ms of a 52 ms frame at one thread).
     const int QUEUE = 1024;
     int kq[QUEUE + 8];
-    i64 oq[QUEUE + 8];
+    // Output offsets counted from the item's first slab, in int32 (the host sizes items so that
+    // they fit: rasterize._span_item_slabs): against int64, one store a queue block fewer and a
+    // smaller queue, ~4 % of a frame.
+    int oq[QUEUE + 8];
     float bxq[QUEUE + 8], byq[QUEUE + 8], bzq[QUEUE + 8];
     int queued = 0, written = 0;
     // Whether every position this run samples lies in [m, n - 1 - m] on each axis, from the image
@@ -370,7 +373,7 @@ _TET_SNIPPET = (
     const float* const bxp = bxq;
     const float* const byp = byq;
     const float* const bzp = bzq;
-    const i64* const oqp = oq;
+    const int* const oqp = oq;
     auto sample_queue = [kqp, bxp, byp, bzp, oqp, v, s16, mx, my, mz, sx, sy, sz, fx1, fy1, fz1,
                          lo_v, hi_v, nearest, rounding, src_code, ax, ay, az, clampf_, pair_i16, pair_u16, interior](
                             const int cnt, auto* __restrict__ o, auto zero) __attribute__((noinline)) {
@@ -380,7 +383,7 @@ _TET_SNIPPET = (
         const float* __restrict__ BX = bxp;
         const float* __restrict__ BY = byp;
         const float* __restrict__ BZ = bzp;
-        const i64* __restrict__ O = oqp;
+        const int* __restrict__ O = oqp;
         int n0 = 0;  // voxels [0, n0) done by the explicit 8-lane code, the rest by the loops below
 #if defined(__AVX2__)
         // 8 voxels at a time with AVX2 gathers: the expressions of _cpp_trilinear lane by lane
@@ -507,12 +510,13 @@ _TET_SNIPPET = (
     )
     + r"""
     };
+    const i64 item_base = (i64)i_first * out_ny * out_nz;
     auto flush_any = [&]() {
         switch (out_code) {
-            case 1: sample_queue(queued, (unsigned char*)out_ptr, (unsigned char)0); break;
-            case 2: sample_queue(queued, (short*)out_ptr, (short)0); break;
-            case 3: sample_queue(queued, (unsigned short*)out_ptr, (unsigned short)0); break;
-            case 4: sample_queue(queued, (float*)out_ptr, 0.0f); break;
+            case 1: sample_queue(queued, (unsigned char*)out_ptr + item_base, (unsigned char)0); break;
+            case 2: sample_queue(queued, (short*)out_ptr + item_base, (short)0); break;
+            case 3: sample_queue(queued, (unsigned short*)out_ptr + item_base, (unsigned short)0); break;
+            case 4: sample_queue(queued, (float*)out_ptr + item_base, 0.0f); break;
             default: break;
         }
         queued = 0;
@@ -538,7 +542,6 @@ _TET_SNIPPET = (
     typedef int i8q __attribute__((ext_vector_type(8)));
     typedef float f8q __attribute__((ext_vector_type(8)));
     const i8q iota8 = {0, 1, 2, 3, 4, 5, 6, 7};
-    const l4 iota_lo = {0, 1, 2, 3}, iota_hi = {4, 5, 6, 7};
     // Rows are walked in two passes of up to ROWS rows: the first steps the DDA and keeps the
     // non-empty spans, the second queues them. With the queue's flush (a call) inside the DDA
     // loop, clang kept the DDA state in stack slots, and every row waited on a store-to-load
@@ -596,8 +599,8 @@ _TET_SNIPPET = (
                         axis_range(by, (float)A[13], dims[1], lo, hi);
                         axis_range(bz, (float)A[14], dims[2], lo, hi);
                     }
-                    const i64 row = ((i64)i * out_ny + j) * out_nz;
-                    // 8 entries at a time, six 32-byte stores (clang kept most of the plain loop's 40
+                    const int row = (int)(((i64)(i - i_first) * out_ny + j) * out_nz);
+                    // 8 entries at a time, five 32-byte stores (clang kept most of the plain loop's 40
                     // stores scalar), with no branch on the row's length below 9 voxels. A block may
                     // run past the row into spare slots, overwritten next; queued <= QUEUE - 8 at each
                     // block keeps its stores inside the queue.
@@ -606,10 +609,9 @@ _TET_SNIPPET = (
                     int e0 = 0;
                     do {
                         const i8q k8 = (i8q)(lo + e0) + iota8;
-                        const l4 o_lo = (l4)(row + lo + e0) + iota_lo, o_hi = (l4)(row + lo + e0) + iota_hi;
+                        const i8q o8 = (i8q)(row + lo + e0) + iota8;
                         __builtin_memcpy(kq + queued, &k8, 32);
-                        __builtin_memcpy(oq + queued, &o_lo, 32);
-                        __builtin_memcpy(oq + queued + 4, &o_hi, 32);
+                        __builtin_memcpy(oq + queued, &o8, 32);
                         __builtin_memcpy(bxq + queued, &bx8, 32);
                         __builtin_memcpy(byq + queued, &by8, 32);
                         __builtin_memcpy(bzq + queued, &bz8, 32);
