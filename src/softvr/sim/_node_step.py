@@ -194,14 +194,12 @@ class _NodeSnapshot(StepSnapshot):
         :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
         s = self._stepper
         # Where the contacts were not built (a haptic tool asks every step; most steps read
-        # nothing else), the few pushing rows are read in the step's arrays, movable tested on them alone.
-        if self._own is None:
+        # nothing else), the pushing rows are read in the step's arrays, and whether they are
+        # movable asked of the body's few alone.
+        c = self._own
+        if c is None:
             c = {name: s._host(name)[:self._count] for name in ("kind", "other", "point", "column", "frame", "impulse")}
-            rows = np.flatnonzero(c["impulse"][:, 0] > 0)
-            rows = rows[s._movable(rows)]
-        else:
-            c = self._own
-            rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
+        rows = np.flatnonzero(c["impulse"][:, 0] > 0)
         # The pushing rows in plain Python: side a's body as contact_body gives it, the sets'
         # order (body a, kind, other, point; a stable sort, as np.lexsort, so ties keep the rows' order).
         picked = []
@@ -211,10 +209,15 @@ class _NodeSnapshot(StepSnapshot):
             side_b = kind in (1, 2, 3) and other == body
             if first == body or side_b:
                 picked.append((first, kind, other, point, row, side_b))
+        if picked:
+            mine = [x[4] for x in picked]
+            movable = c["movable"][mine] if "movable" in c else s._movable(np.array(mine))
+            picked = [x for x, keep in zip(picked, movable.tolist()) if keep]
         picked.sort(key=lambda x: x[:4])
         normals = c["frame"][[x[4] for x in picked], 0]
-        flip = np.array([x[5] for x in picked], bool)
-        normals[flip] = -normals[flip]
+        flip = [k for k, x in enumerate(picked) if x[5]]
+        if flip:
+            normals[flip] = -normals[flip]
         return normals
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
