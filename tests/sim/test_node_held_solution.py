@@ -14,8 +14,10 @@ import numpy as np
 
 from softvr import Scene
 from softvr.collision import Plane
+from softvr.contact.pgs import pushing_normals
 from softvr.dynamics import Material
 
+from tests.sim.test_node_rigid import _rigid_box
 from tests.sim.test_node_surfaces import _add_with_surface, _block
 
 GAP = 0.0  # [m] the cube's bottom over the plane at the start: resting on it
@@ -55,3 +57,34 @@ def test_a_held_solution_keeps_its_steps_contacts_while_later_steps_run():
         np.testing.assert_allclose(gap, start[:, 2], rtol=0, atol=1e-15)
         np.testing.assert_array_equal(normal, np.tile([0.0, 0.0, 1.0], (9, 1)))
         assert np.all(solution.impulses[0][:, 0] > 0)  # the plane holds the cube up at every step
+
+
+def test_pushing_normals_of_a_box_resting_on_a_soft_cube_point_from_what_holds_it_up():
+    """ContactSolution.pushing_normals: normals of the body's pushing contacts (normal impulse
+    > 0), from the other side towards it. A rigid box rests on a soft cube resting on the floor:
+    every normal pushing the box is +z (the cube's top face below it, whichever side the contact
+    has the box on), every one pushing the cube +z from the floor or -z from the box, in the
+    contact sets' order (thesis 5.4: what a haptic tool's stiffness blocks). The box's corners dent
+    the cube's top by ~2e-3 rad (0.35 N on a 5e4 Pa cube): tolerance 1e-2. Read both ways: from the step's arrays
+    before anything else is read, and after the contacts were built."""
+    scene = Scene(gravity=(0.0, 0.0, -9.81), friction=0.5)
+    cube = _block(2, 0.1, (0.0, 0.0, 0.05), Material(5e4, 0.3, 1000.0, alpha=0.0, beta=1e-2))
+    _add_with_surface(scene, cube)
+    scene.add_plane(Plane(friction=0.5))
+    _rigid_box(scene, (0.03, 0.03, 0.01), 500.0, (0.0, 0.0, 0.11))
+    for _ in range(5):
+        solution = scene.step(DT)
+    assert type(scene._stepper).__name__ == "NodeStepper"
+    first = [solution.pushing_normals(body) for body in (0, 1)]  # before the contacts are built
+    # The per-object path's definition over the built sets (softvr.contact.pgs.pushing_normals).
+    sets = solution.set_bodies()
+    expected = [pushing_normals(sets, solution.impulses, solution.frames, body) for body in (0, 1)]
+    for body, normals in enumerate(first):
+        assert len(normals) >= 4, body  # the box's corners or the cube's top face's nodes at least
+        np.testing.assert_array_equal(normals, expected[body])
+        np.testing.assert_array_equal(solution.pushing_normals(body), expected[body])  # from the built contacts
+    box = first[1]
+    np.testing.assert_allclose(box, np.tile([0.0, 0.0, 1.0], (len(box), 1)), atol=1e-2)
+    up, down = first[0][first[0][:, 2] > 0], first[0][first[0][:, 2] < 0]
+    assert len(up) + len(down) == len(first[0]) and len(up) >= 4 and len(down) >= 1
+    np.testing.assert_allclose(np.abs(first[0]), np.tile([0.0, 0.0, 1.0], (len(first[0]), 1)), atol=1e-2)
