@@ -131,6 +131,7 @@ class _NodeSnapshot(StepSnapshot):
     its next step writes those arrays (where the snapshot is still held then: most are not)."""
 
     def __init__(self, stepper, count: int, velocities: list, sweeps: int, residual: float):
+        self._own: dict | None = None
         super().__init__(None, velocities, sweeps, residual)  # type: ignore[arg-type]  # contacts: built on use
         self._stepper, self._count = stepper, count
         self._live = True  # whether the stepper's arrays still hold this step's contacts
@@ -148,7 +149,9 @@ class _NodeSnapshot(StepSnapshot):
 
     @property
     def _x0(self) -> np.ndarray:
-        return self._stepper._host("point_x")[:self._stepper.model.point_count] if self._live else self._x0_own
+        if self._x0_own is not None:
+            return self._x0_own
+        return self._stepper._host("point_x")[:self._stepper.model.point_count]
 
     def detach(self) -> None:
         """Copy the contacts and ``x0`` out of the stepper's arrays (before they are written again)."""
