@@ -198,14 +198,32 @@ class HapticTool:
                                  RigidPoints(self.handle, offsets @ tool.rotation.T), stiffness / share,
                                  damping=damping / share, name="virtual coupling")
         scene.add_coupling(self.coupling)
+        # The sides' mean body-frame points [2][3] [m] (:meth:`force`).
+        self._mean_points = tuple(side.local.mean(axis=0).tolist() for side in (self.coupling.a, self.coupling.b))
 
     def _handle_pose(self, t: float):
         return self.loop.handle_position(), np.array([1.0, 0.0, 0.0, 0.0])
 
     def force(self) -> np.ndarray:
         """Force on the hand now [3] [N]: ``k (x_tip - x_handle)``, the sum of the coupling's
-        springs (their stretches' mean is the tip's)."""
-        return self.stiffness * self.coupling.stretch().mean(axis=0)
+        springs (their stretches' mean is the tip's): ``k`` times the mean of
+        ``c_a + R_a r_a,i - c_b - R_b r_b,i``, that is of ``c_a + R_a m_a - c_b - R_b m_b`` with
+        ``m`` the sides' mean body-frame points, each turned by its body's unit quaternion
+        (w, v): ``R m = m + 2 w (v x m) + 2 v x (v x m)``. In plain floats: NumPy's products of
+        the six springs' points cost ~15 us hot and ~5x that from a cold cache, after every step."""
+        total = [0.0, 0.0, 0.0]
+        for points, mean, sign in ((self.coupling.a, self._mean_points[0], 1.0),
+                                   (self.coupling.b, self._mean_points[1], -1.0)):
+            w, x, y, z = points.body.orientation.tolist()
+            m0, m1, m2 = mean
+            t0, t1, t2 = y * m2 - z * m1, z * m0 - x * m2, x * m1 - y * m0  # v x m
+            u0, u1, u2 = y * t2 - z * t1, z * t0 - x * t2, x * t1 - y * t0  # v x (v x m)
+            c = points.body.position.tolist()
+            total = [total[0] + sign * (c[0] + m0 + 2.0 * (w * t0 + u0)),
+                     total[1] + sign * (c[1] + m1 + 2.0 * (w * t1 + u1)),
+                     total[2] + sign * (c[2] + m2 + 2.0 * (w * t2 + u2))]
+        k = self.stiffness
+        return np.array([k * total[0], k * total[1], k * total[2]])
 
     def blocked_directions(self, solution) -> np.ndarray:
         """Orthonormal rows [m, 3] spanning the normals of the tool's pushing contacts in
