@@ -70,21 +70,25 @@ class HandleModel:
 
 def _render(data: np.ndarray, device: HapticDevice, max_force: float) -> np.ndarray:
     """One loop iteration on the shared block: read the device, render the model's force."""
-    x = np.asarray(device.position(), float)
+    x = np.asarray(device.position(), float).tolist()
     while True:  # seqlock read: retry while the simulation is writing a model
         seq = data[_SEQ]
-        x0, f0, k = data[_X0].copy(), data[_F0].copy(), data[_K].reshape(3, 3).copy()
+        model = data[:_SEQ].tolist()  # x0, F0, K row-major
         if seq == data[_SEQ] and seq % 2 == 0:
             break
-    # Elementwise, not BLAS: the forked loop process must not touch a thread pool.
-    force = f0 + (k * (x - x0)[None, :]).sum(axis=1)
-    magnitude = float(np.sqrt((force * force).sum()))
+    # In floats, not NumPy: a dozen NumPy calls a tick were ~25 us of the loop's 1 kHz (and the
+    # forked loop process must not touch a BLAS thread pool); same sums in the same order.
+    d = [x[i] - model[i] for i in range(3)]
+    force = [model[3 + r] + (model[6 + 3 * r] * d[0] + model[7 + 3 * r] * d[1] + model[8 + 3 * r] * d[2])
+             for r in range(3)]
+    magnitude = (force[0] * force[0] + force[1] * force[1] + force[2] * force[2]) ** 0.5
     if magnitude > max_force:
-        force = force * (max_force / magnitude)
-    device.send_force(force)
+        force = [f * (max_force / magnitude) for f in force]
+    out = np.array(force)
+    device.send_force(out)
     data[_POS], data[_FORCE] = x, force
     data[_TICKS] += 1
-    return force
+    return out
 
 
 class _SpinWindow:
