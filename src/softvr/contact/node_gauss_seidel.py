@@ -231,10 +231,12 @@ class GaussSeidelSweep:
                 st.fixed_velocity, self.contact_node]
 
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
-        # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) reads these as plain contiguous memory.
+        # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) and of the coarse correction
+        # (_node_gs_coarse_kernels._aggregate_velocity) reads these as plain contiguous memory.
         for name, array in (("b", st.b), ("v", v), ("work", w), ("v_hat", st.v_hat), ("d_inv", st.d_inv),
                             ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed),
-                            ("off_blocks", self._off_blocks)):
+                            ("off_blocks", self._off_blocks), ("blocks", st.blocks), ("q", st.q),
+                            ("row_start", m.row_start), ("block_col", m.block_col)):
             if not array.is_contiguous:
                 raise ValueError(f"GaussSeidelSweep.record: expected a contiguous array for {name}, found strides "
                                  f"{array.strides}")
