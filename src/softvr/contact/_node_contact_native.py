@@ -35,24 +35,32 @@ auto at2 = [](const auto& a, int i, int j) -> decltype(*a.data) {
     return *(decltype(a.data))((char*)a.data + (long long)i * a.strides[0] + (long long)j * a.strides[1]);
 };
 const wp::float64 zero = 0.0;
-// Contact c's relative velocity J v^ [m/s] (world): its stencil, its rigid sides' omega x lever,
-// its coarse bodies' s y_lin + y_ang x L (_node_jacobi_kernels._relative).
-auto relative = [&](int c) -> vec3 {
+// Contact c's relative velocity J v [m/s] (world) in the velocities vel from its stencil and its
+// rigid sides' omega x lever (_node_jacobi_kernels._rigid_velocity).
+auto moving = [&](const auto& vel, int c) -> vec3 {
     vec3 rel = vec3();
     const int count = at1(stencil_count, c);
     for (int k = 0; k < count; ++k) {
-        const vec3 part = wp::mul(at2(stencil_weights, c, k), at1(v_hat, at2(stencil_nodes, c, k)));
+        const vec3 part = wp::mul(at2(stencil_weights, c, k), at1(vel, at2(stencil_nodes, c, k)));
         rel = wp::add(rel, part);
     }
     vec3 rigid = vec3();
     for (int s = 0, sides = rigid_node.shape[1]; s < sides; ++s) {
         const int node = at2(rigid_node, c, s);
         if (node >= 0) {
-            const vec3 part = wp::cross(at1(v_hat, node), at2(rigid_lever, c, s));
+            const vec3 part = wp::cross(at1(vel, node), at2(rigid_lever, c, s));
             rigid = wp::add(rigid, part);
         }
     }
-    const vec3 moving = wp::add(rel, rigid);
+    return wp::add(rel, rigid);
+};
+"""
+
+# Contact c's relative velocity J v^ [m/s] (world) in the sweep's v^, its coarse bodies' s y_lin +
+# y_ang x L included (_node_jacobi_kernels._relative, coarse_velocity).
+_RELATIVE = r"""
+auto relative = [&](int c) -> vec3 {
+    const vec3 moved = moving(v_hat, c);
     vec3 coarse = vec3();
     for (int s = 0, sides = co_side.shape[1]; s < sides; ++s) {
         const int b = at2(co_side, c, s);
@@ -62,7 +70,7 @@ auto relative = [&](int c) -> vec3 {
         const vec3 turn = wp::cross(at1(co_y_ang, b), at2(co_lever, c, s));
         coarse = wp::add(sum, turn);
     }
-    return wp::add(moving, coarse);
+    return wp::add(moved, coarse);
 };
 """
 
@@ -137,7 +145,7 @@ auto pgs = [&](const vec3& old, const vec3& rel_f, const mat3& w_f, const mat3& 
 };
 """
 
-_PASSES = _ACCESS + _UPDATE + r"""
+_PASSES = _ACCESS + _RELATIVE + _UPDATE + r"""
 // A one-node contact without rigid side solved on its own block (_node_jacobi_kernels' LOCAL_UPDATES
 // docs: pgs_passes): the sticking impulse, else up to local_updates projected updates.
 auto solved = [&](const vec3& old, const vec3& rel_f, const mat3& w_f, const mat3& f, wp::float64 gap_c,
@@ -223,7 +231,7 @@ for (int pass = 0; pass < passes; ++pass) {
 }
 """
 
-_SCREEN = _ACCESS + r"""
+_SCREEN = _ACCESS + _RELATIVE + r"""
 int live_count = 0;
 for (int m = first; m < end; m += stride) {
     const int c = listed != 0 ? at1(movers, m) : m;
@@ -310,4 +318,47 @@ def screen_contacts(first: int, end: int, stride: int, listed: int, movers: wp.a
     normal velocity in ``v_hat`` [m/s] is below its target ``-gap / dt``
     (:func:`softvr.contact._node_jacobi_kernels.screen`). Where ``listed``, the live ones also go
     into ``order`` in turn, and their number is returned (else 0)."""
+    ...
+
+
+_RESIDUAL = _ACCESS + _UPDATE + r"""
+wp::float64 worst = 0.0;
+wp::float64 natural = 0.0;
+for (int c = 0, count = at1(contact_count, 0); c < count; ++c) {
+    const mat3 f = at1(frame, c);
+    const vec3 rel_f = wp::mul(f, moving(v, c));
+    const wp::float64 vn = rel_f[0];
+    const wp::float64 gap_c = at1(gap, c);
+    at1(gap_after, c) = wp::add(gap_c, wp::mul(dt, vn));
+    wp::float64 error = wp::sub(wp::div(wp::neg(gap_c), dt), vn);
+    const vec3 lam = at1(impulse, c);
+    if (lam[0] > zero) error = wp::abs(error);
+    worst = wp::max(worst, error);
+    if (at1(movable, c) != 0) {
+        const mat3 w_f = at1(metric, c);
+        const vec3 next = pgs(lam, rel_f, w_f, f, gap_c, at1(friction, c), at1(stiffness, c), at1(slip, c));
+        const vec3 step = wp::mul(w_f, wp::sub(next, lam));
+        const wp::float64 largest = wp::max(wp::abs(step[0]), wp::max(wp::abs(step[1]), wp::abs(step[2])));
+        natural = wp::max(natural, largest);
+    }
+}
+at1(stats, 1) = worst;
+at1(stats, 2) = natural;
+"""
+
+
+@wp.func_native(_RESIDUAL)
+def contact_residual(contact_count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                     stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                     frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
+                     rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64,
+                     v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), friction: wp.array(dtype=wp.float64),
+                     stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d),
+                     metric: wp.array(dtype=wp.mat33d), movable: wp.array(dtype=wp.int32),
+                     gap_after: wp.array(dtype=wp.float64), stats: wp.array(dtype=wp.float64)):
+    """:func:`softvr.contact._node_jacobi_kernels.residual`'s loop over the ``contact_count[0]``
+    contacts (one thread): each one's linearized gap after the step into ``gap_after`` [m],
+    ``stats[1]`` the largest normal-velocity error [m/s], ``stats[2]`` the largest natural
+    residual [m/s] of the movable contacts, from the velocities ``v`` [m/s] and the impulses
+    [N s]."""
     ...

@@ -23,7 +23,7 @@ import warp as wp
 
 from softvr.contact._adhesion_kernels import adhesive_bound
 from softvr.contact._node_coarse_kernels import Coarse, coarse_apply, coarse_node, coarse_w
-from softvr.contact._node_contact_native import LOCAL_UPDATES, pgs_passes, screen_contacts
+from softvr.contact._node_contact_native import LOCAL_UPDATES, contact_residual, pgs_passes, screen_contacts
 
 
 @wp.func
@@ -556,26 +556,6 @@ def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
     its complementarity, friction disc (sticking: no slip; sliding: on the rim against the
     slip) and adhesive bounds (eq. 4.16) (Erleben 2013, the natural merit function). Every
     contact's target is then met within ``stats[2]``: the step solves eq. 5.5 with its
-    targets moved by at most that much."""
-    worst = wp.float64(0.0)
-    natural = wp.float64(0.0)
-    for c in range(count[0]):
-        rel = wp.vec3d()
-        for k in range(stencil_count[c]):
-            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
-        rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
-        f = frame[c]
-        rel_f = f * rel
-        vn = rel_f[0]
-        gap_after[c] = gap[c] + dt * vn
-        error = -gap[c] / dt - vn
-        if impulse[c][0] > wp.float64(0.0):
-            error = wp.abs(error)
-        worst = wp.max(worst, error)
-        if movable[c] != 0:
-            w_f = metric[c]
-            lam = impulse[c]
-            step = w_f * (pgs_update(lam, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c]) - lam)
-            natural = wp.max(natural, wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2]))))
-    stats[1] = worst
-    stats[2] = natural
+    targets moved by at most that much. In C++ (:func:`softvr.contact._node_contact_native.contact_residual`)."""
+    contact_residual(count, stencil_count, stencil_nodes, stencil_weights, frame, gap, rigid_node, rigid_lever, dt, v,
+                     impulse, friction, stiffness, slip, metric, movable, gap_after, stats)

@@ -160,8 +160,9 @@ class GaussSeidelSweep:
         self._off_blocks = wp.zeros(len(off_source) + 1, dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
             source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
-            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
-                                                    record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
+            threads = 1 if wp.get_device(d).is_cpu else len(off_source)
+            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=threads, device=d, record_cmd=True,
+                                                    inputs=[state.blocks, source, self._off_blocks, threads])))
         # On the CPU, where no colour is split over the cores, one launch walks all colours
         # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
         self._walk = wp.get_device(d).is_cpu and (
