@@ -352,8 +352,9 @@ def contact_residual(contact_count: wp.array(dtype=wp.int32), stencil_count: wp.
                      stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
                      frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
                      rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64,
-                     v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d), friction: wp.array(dtype=wp.float64),
-                     stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d),
+                     v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                     friction: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+                     slip: wp.array(dtype=wp.vec3d),
                      metric: wp.array(dtype=wp.mat33d), movable: wp.array(dtype=wp.int32),
                      gap_after: wp.array(dtype=wp.float64), stats: wp.array(dtype=wp.float64)):
     """:func:`softvr.contact._node_jacobi_kernels.residual`'s loop over the ``contact_count[0]``
