@@ -93,8 +93,8 @@ def prepare_aggregates(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp
 # _aggregate_velocity: :func:`coarse_velocities`' thread as C++, the same wp:: operations in the same
 # order as Warp's code of it and of :func:`softvr.contact._node_jacobi_kernels.row_residual` (so the
 # same bits), with none of Warp's per-access index arithmetic and range iterators (the shoulder's 33
-# aggregates over ~5 000 blocks of A: ~28 -> ~15 us a sweep). It reads the arrays as contiguous
-# (:class:`softvr.contact.node_gs_coarse.GaussSeidelCoarse` checks that they are).
+# aggregates over ~5 000 blocks of A: ~28 -> ~21 us a sweep). It reads the arrays as contiguous
+# (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.record` checks that they are).
 _AGGREGATE_VELOCITY = r"""
 typedef wp::vec_t<3, wp::float64> vec3;
 typedef wp::mat_t<3, 3, wp::float64> mat3;
