@@ -27,7 +27,7 @@ MODULES = {
     "softvr.contact._node_coarse_kernels": ("prepare_bodies", "contact_sides", "coarse_residual"),
     "softvr.contact._node_gs_kernels": ("gauss_seidel", "gauss_seidel_walk", "contact_nodes", "listed_contact_nodes",
                                         "list_contact_nodes", "projected",
-                                        "mark_contact_nodes"),
+                                        "mark_contact_nodes", "gather_off_blocks"),
     "softvr.contact._node_gs_coarse_kernels": ("prepare_aggregates", "coarse_velocities", "apply_coarse"),
     "softvr.contact._node_adhesion_kernels": ("prepare", "evolve"),
     "softvr.dynamics._node_coupling_kernels": ("coupling_stretch", "coupling_blocks", "coupling_forces",
