@@ -1,17 +1,19 @@
-"""The node sweeps' contact PGS (thesis eq. 5.6's inner loop: :mod:`softvr.contact._node_jacobi_kernels`)
-as plain C++ (``wp.func_native``), one source for CPU and CUDA: the screen of the contacts and
-the PGS passes over the live ones.
+"""The node sweeps' contact PGS (thesis eq. 5.6's inner loop, eq. 5.5's contacts:
+:mod:`softvr.contact._node_jacobi_kernels`) as plain C++ (``wp.func_native``), one source for
+CPU and CUDA: the last impulses applied to ``v^``, the screen of the contacts, the PGS passes over
+the live ones (adhesion's bounds, eq. 4.16) and the stop's residual.
 
 In Warp's code each call of a per-contact function (the relative velocity, the update, the
 impulse's push) copied its ~20 array arguments (~80 bytes each) and the coarse struct (10
 arrays), and each array access paid the index arithmetic of its strides: the shoulder's held
 finger's 8 extra passes over its ~7 contacts cost ~27 us a sweep (~0.5 us a contact update),
 the screen ~45 ns a contact. Here one C++ loop reads the arrays through their strides and calls
-the same ``wp::`` operations in the same order as Warp's generated code of
-:func:`softvr.contact._node_jacobi_kernels.pgs_update`, :func:`softvr.contact._adhesion_kernels.adhesive_bound`,
-:func:`softvr.contact._node_coarse_kernels.coarse_velocity` and
-:func:`softvr.contact._node_coarse_kernels.coarse_apply` (each operation a statement of its own:
-no fused multiply-add), so the impulses and velocities are the same to the bit.
+the same ``wp::`` operations in the same order as Warp's generated code of the functions it
+replaced (session 12's ``_relative``, ``_apply``, ``contact_update``, and the coarse bodies'
+``coarse_velocity`` and ``coarse_apply``) and of :func:`softvr.contact._node_jacobi_kernels.pgs_update`
+and :func:`softvr.contact._adhesion_kernels.adhesive_bound`, which other kernels still take in
+Warp (each operation a statement of its own, as in Warp's code: no multiply-add fused in one and
+not the other), so the impulses and velocities are the same to the bit.
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ auto moving = [&](const auto& vel, int c) -> vec3 {
 """
 
 # Contact c's relative velocity J v^ [m/s] (world) in the sweep's v^, its coarse bodies' s y_lin +
-# y_ang x L included (_node_jacobi_kernels._relative, coarse_velocity).
+# y_ang x L included.
 _RELATIVE = r"""
 auto relative = [&](int c) -> vec3 {
     const vec3 moved = moving(v_hat, c);
@@ -145,7 +147,44 @@ auto pgs = [&](const vec3& old, const vec3& rel_f, const mat3& w_f, const mat3& 
 };
 """
 
-_PASSES = _ACCESS + _RELATIVE + _UPDATE + r"""
+# v^ += M^-1 J_c^T world for contact c's impulse world [N s] (its stencil's free nodes, a rigid side's
+# angular node the torque lever x world, a spring-held body's partner node its cross block), and its
+# coarse bodies' share (Warp's _apply, _push and coarse_apply were these operations).
+_APPLY = r"""
+// v^ += M^-1 e_node g: a spring-held rigid body's partner node moves by its cross block.
+auto push = [&](int node, const vec3& g) {
+    vec3& mine = at1(v_hat, node);
+    mine = wp::add(mine, wp::mul(at1(d_inv, node), g));
+    const int p = at1(partner, node);
+    if (p >= 0) {
+        vec3& theirs = at1(v_hat, p);
+        theirs = wp::add(theirs, wp::mul(at1(cross, p), g));
+    }
+};
+auto apply = [&](int c, const vec3& world) {
+    const int count = at1(stencil_count, c);
+    for (int k = 0; k < count; ++k) {
+        const int node = at2(stencil_nodes, c, k);
+        if (at1(fixed, node) == 0) push(node, wp::mul(at2(stencil_weights, c, k), world));
+    }
+    for (int s = 0, sides = rigid_node.shape[1]; s < sides; ++s) {
+        const int node = at2(rigid_node, c, s);
+        if (node >= 0) push(node, wp::cross(at2(rigid_lever, c, s), world));
+    }
+    for (int s = 0, sides = co_side.shape[1]; s < sides; ++s) {
+        const int b = at2(co_side, c, s);
+        if (b < 0) break;
+        const vec3 g = wp::mul(at2(co_weight, c, s), world);
+        const vec3 t = wp::cross(at2(co_lever, c, s), world);
+        vec3& lin = at1(co_y_lin, b);
+        lin = wp::add(wp::add(lin, wp::mul(at1(co_ll, b), g)), wp::mul(at1(co_la, b), t));
+        vec3& ang = at1(co_y_ang, b);
+        ang = wp::add(wp::add(ang, wp::mul(wp::transpose(at1(co_la, b)), g)), wp::mul(at1(co_aa, b), t));
+    }
+};
+"""
+
+_PASSES = _ACCESS + _RELATIVE + _UPDATE + _APPLY + r"""
 // A one-node contact without rigid side solved on its own block (_node_jacobi_kernels' LOCAL_UPDATES
 // docs: pgs_passes): the sticking impulse, else up to local_updates projected updates.
 auto solved = [&](const vec3& old, const vec3& rel_f, const mat3& w_f, const mat3& f, wp::float64 gap_c,
@@ -173,38 +212,6 @@ auto solved = [&](const vec3& old, const vec3& rel_f, const mat3& w_f, const mat
     }
     return lam;
 };
-// v^ += M^-1 e_node g (_node_jacobi_kernels._push).
-auto push = [&](int node, const vec3& g) {
-    vec3& mine = at1(v_hat, node);
-    mine = wp::add(mine, wp::mul(at1(d_inv, node), g));
-    const int p = at1(partner, node);
-    if (p >= 0) {
-        vec3& theirs = at1(v_hat, p);
-        theirs = wp::add(theirs, wp::mul(at1(cross, p), g));
-    }
-};
-// v^ += M^-1 J_c^T world, and the coarse bodies' share (_node_jacobi_kernels._apply, coarse_apply).
-auto apply = [&](int c, const vec3& world) {
-    const int count = at1(stencil_count, c);
-    for (int k = 0; k < count; ++k) {
-        const int node = at2(stencil_nodes, c, k);
-        if (at1(fixed, node) == 0) push(node, wp::mul(at2(stencil_weights, c, k), world));
-    }
-    for (int s = 0, sides = rigid_node.shape[1]; s < sides; ++s) {
-        const int node = at2(rigid_node, c, s);
-        if (node >= 0) push(node, wp::cross(at2(rigid_lever, c, s), world));
-    }
-    for (int s = 0, sides = co_side.shape[1]; s < sides; ++s) {
-        const int b = at2(co_side, c, s);
-        if (b < 0) break;
-        const vec3 g = wp::mul(at2(co_weight, c, s), world);
-        const vec3 t = wp::cross(at2(co_lever, c, s), world);
-        vec3& lin = at1(co_y_lin, b);
-        lin = wp::add(wp::add(lin, wp::mul(at1(co_ll, b), g)), wp::mul(at1(co_la, b), t));
-        vec3& ang = at1(co_y_ang, b);
-        ang = wp::add(wp::add(ang, wp::mul(wp::transpose(at1(co_la, b)), g)), wp::mul(at1(co_aa, b), t));
-    }
-};
 for (int pass = 0; pass < passes; ++pass) {
     for (int i = 0; i < n; ++i) {
         const int c = at1(order, i);
@@ -228,6 +235,15 @@ for (int pass = 0; pass < passes; ++pass) {
         at1(impulse, c) = lam;
         apply(c, wp::mul(wp::transpose(f), wp::sub(lam, old)));
     }
+}
+"""
+
+_WARM = _ACCESS + _APPLY + r"""
+for (int m = 0; m < end; ++m) {
+    const int c = listed != 0 ? at1(movers, m) : m;
+    if (listed == 0 && at1(movable, c) == 0) continue;  // (a list holds movable contacts only)
+    const vec3 lam = at1(impulse, c);
+    if (lam[0] != zero || lam[1] != zero || lam[2] != zero) apply(c, wp::mul(wp::transpose(at1(frame, c)), lam));
 }
 """
 
@@ -297,6 +313,27 @@ def pgs_passes(n: int, order: wp.array(dtype=wp.int32), stencil_count: wp.array(
     stencil of FEM nodes or held by a rigid body keeps one update a visit (the candy pile's ~30
     pushing contacts of 5-14 nodes: the same sweeps, but the local updates in every one of their
     PGS visits cost ~12 % of its step)."""
+    ...
+
+
+@wp.func_native(_WARM)
+def warm_contacts(end: int, listed: int, movers: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                  stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                  frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                  rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), movable: wp.array(dtype=wp.int32),
+                  co_side: wp.array2d(dtype=wp.int32), co_weight: wp.array2d(dtype=wp.float64),
+                  co_lever: wp.array2d(dtype=wp.vec3d), co_y_lin: wp.array(dtype=wp.vec3d),
+                  co_y_ang: wp.array(dtype=wp.vec3d), co_ll: wp.array(dtype=wp.mat33d),
+                  co_la: wp.array(dtype=wp.mat33d), co_aa: wp.array(dtype=wp.mat33d)):
+    """``v_hat += M^-1 J^T lambda`` [m/s] for the last sweep's impulses ``impulse`` [N s] (world
+    ``frame^T lambda``) of the contacts ``m = 0 .. end - 1`` (``c = movers[m]`` where ``listed``,
+    else ``c = m`` if ``movable``), one thread (contacts share nodes): the stencil's free nodes by
+    their weights through ``d_inv`` (a spring-held rigid body's partner node by ``cross``), a rigid
+    side's angular node by the torque ``lever x f``, the coarse bodies' velocities (``co_*``) by
+    their share; a zero impulse moves nothing and is passed over
+    (:func:`softvr.contact._node_jacobi_kernels.warm_impulses`)."""
     ...
 
 

@@ -22,8 +22,9 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._adhesion_kernels import adhesive_bound
-from softvr.contact._node_coarse_kernels import Coarse, coarse_apply, coarse_node, coarse_w
-from softvr.contact._node_contact_native import LOCAL_UPDATES, contact_residual, pgs_passes, screen_contacts
+from softvr.contact._node_coarse_kernels import Coarse, coarse_node, coarse_w
+from softvr.contact._node_contact_native import (LOCAL_UPDATES, contact_residual, pgs_passes, screen_contacts,
+                                                 warm_contacts)
 
 
 @wp.func
@@ -107,37 +108,6 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
 
 
 @wp.func
-def _push(node: int, g: wp.vec3d, d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-          cross: wp.array(dtype=wp.mat33d), v_hat: wp.array(dtype=wp.vec3d)):
-    """``v^ += D_A^-1 e_node g`` for a generalized impulse ``g`` [N s, or N m s] on ``node``:
-    a spring-held rigid body's partner node moves too, by ``(D^-1)_{partner, node} g``."""
-    v_hat[node] = v_hat[node] + d_inv[node] * g
-    p = partner[node]
-    if p >= 0:
-        v_hat[p] = v_hat[p] + cross[p] * g
-
-
-@wp.func
-def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
-           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
-           rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-           d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
-           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
-    """``v^ += M^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
-    side's angular node takes the torque ``lever x world``; the coarse bodies' velocities
-    their share, :mod:`softvr.contact._node_coarse_kernels`)."""
-    for k in range(stencil_count[c]):
-        node = stencil_nodes[c, k]
-        if fixed[node] == 0:
-            _push(node, stencil_weights[c, k] * world, d_inv, partner, cross, v_hat)
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            _push(node, wp.cross(rigid_lever[c, s], world), d_inv, partner, cross, v_hat)
-    coarse_apply(c, world, co)
-
-
-@wp.func
 def _pair_delassus(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
                    stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
                    rigid_lever: wp.array2d(dtype=wp.vec3d), partner: wp.array(dtype=wp.int32),
@@ -211,21 +181,6 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
         movable[c] = moves
 
 
-@wp.func
-def _warm(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-          stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-          rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-          d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
-          fixed: wp.array(dtype=wp.int32), impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
-          co: Coarse):
-    """``v^ += M^-1 J_c^T lambda_c`` [m/s] for movable contact ``c``'s impulse of the last sweep
-    [N s], nothing for a zero one."""
-    lam = impulse[c]
-    if lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0):
-        _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
-               rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
-
-
 @wp.kernel
 def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
@@ -236,11 +191,11 @@ def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
                   movable: wp.array(dtype=wp.int32)):
     """``v^ += M^-1 J^T lambda`` [m/s] for the impulses ``impulse`` [c] [N s] of the last sweep
     (one thread: contacts share nodes). A zero impulse moves nothing and is passed over: most
-    of a step's contacts are speculative ones that do not push."""
-    for c in range(count[0]):
-        if movable[c] != 0:
-            _warm(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv, partner,
-                  cross, fixed, impulse, v_hat, co)
+    of a step's contacts are speculative ones that do not push. In C++
+    (:func:`softvr.contact._node_contact_native.warm_contacts`)."""
+    warm_contacts(count[0], 0, movable, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever,
+                  d_inv, partner, cross, fixed, impulse, v_hat, movable, co.side, co.weight, co.lever, co.y_lin,
+                  co.y_ang, co.ll, co.la, co.aa)
 
 
 @wp.kernel
@@ -381,9 +336,9 @@ def contact_step(movers: wp.array(dtype=wp.int32), mover_count: wp.array(dtype=w
     pile's ~3 000 contacts have ~600 movable ones (2 401 hold the Jell-O's fixed bottom): each
     launch passed over all of them, and each launch's call cost ~1 us of Python."""
     n = mover_count[0]
-    for m in range(n):
-        _warm(movers[m], stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
-              partner, cross, fixed, impulse, v_hat, co)
+    warm_contacts(n, 1, movers, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
+                  partner, cross, fixed, impulse, v_hat, movers, co.side, co.weight, co.lever, co.y_lin, co.y_ang,
+                  co.ll, co.la, co.aa)
     live_count = screen_contacts(0, n, 1, 1, movers, stencil_count, stencil_nodes, stencil_weights, frame, gap,
                                  rigid_node, rigid_lever, dt, impulse, stiffness, v_hat, movers, co.side, co.weight,
                                  co.lever, co.y_lin, co.y_ang, live, order)
