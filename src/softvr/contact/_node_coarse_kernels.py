@@ -172,19 +172,6 @@ def coarse_residual(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.in
 
 
 @wp.func
-def coarse_velocity(c: int, co: Coarse) -> wp.vec3d:
-    """Contact ``c``'s relative velocity [m/s] from its bodies' coarse velocities:
-    ``s y_lin + y_ang x L`` per side."""
-    rel = wp.vec3d()
-    for s in range(SIDES):
-        b = co.side[c, s]
-        if b < 0:
-            break
-        rel = rel + co.weight[c, s] * co.y_lin[b] + wp.cross(co.y_ang[b], co.lever[c, s])
-    return rel
-
-
-@wp.func
 def coarse_w(c: int, co: Coarse) -> wp.mat33d:
     """Contact ``c``'s share of ``J M^-1 J^T`` [1/kg] through the coarse space:
     ``[s I, -[L]x] (P^T A P)^-1 [s I, -[L]x]^T`` per side."""
@@ -198,20 +185,6 @@ def coarse_w(c: int, co: Coarse) -> wp.mat33d:
         la = co.la[b]
         w = w + (sw * sw) * co.ll[b] + sw * (la * arm + wp.transpose(la * arm)) - arm * co.aa[b] * arm
     return w
-
-
-@wp.func
-def coarse_apply(c: int, world: wp.vec3d, co: Coarse):
-    """Contact ``c``'s impulse ``world`` [N s] on its bodies' coarse velocities:
-    ``y += (P^T A P)^-1 (s f, L x f)``."""
-    for s in range(SIDES):
-        b = co.side[c, s]
-        if b < 0:
-            break
-        f = co.weight[c, s] * world
-        t = wp.cross(co.lever[c, s], world)
-        co.y_lin[b] = co.y_lin[b] + co.ll[b] * f + co.la[b] * t
-        co.y_ang[b] = co.y_ang[b] + wp.transpose(co.la[b]) * f + co.aa[b] * t
 
 
 @wp.func
