@@ -88,11 +88,13 @@ def store_inverse(b: int, ll: wp.mat33d, la: wp.mat33d, aa: wp.mat33d, out_ll: w
 @wp.kernel
 def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
                    mass: wp.array(dtype=wp.float64), row_start: wp.array(dtype=wp.int32),
-                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), co: Coarse):
-    """Coarse body ``b`` (nodes ``nodes[start[b]:start[b + 1]]``): its mass centre and the
-    blocks of ``(P_b^T A P_b)^-1`` from this step's ``blocks`` (only those between its own
-    nodes), by the Schur complement of the linear block."""
-    b = wp.tid()
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), co: Coarse,
+                   offset: int):
+    """Coarse body ``b`` = ``tid + offset`` (nodes ``nodes[start[b]:start[b + 1]]``): its mass
+    centre and the blocks of ``(P_b^T A P_b)^-1`` from this step's ``blocks`` (only those
+    between its own nodes), by the Schur complement of the linear block. A thread writes only
+    its body's, so a launch splits over the cores (:func:`softvr.device.chunked_replayer`)."""
+    b = wp.tid() + offset
     total = wp.float64(0.0)
     c = wp.vec3d()
     for t in range(start[b], start[b + 1]):

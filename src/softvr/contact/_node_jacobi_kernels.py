@@ -316,14 +316,15 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
                    rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
                    partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
                    fixed: wp.array(dtype=wp.int32), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-                   movable: wp.array(dtype=wp.int32), threads: int):
+                   movable: wp.array(dtype=wp.int32), threads: int, offset: int):
     """Contact ``c``'s block of ``J M^-1 J^T`` [1/kg] in its frame (normal, tangents), and
     whether an impulse can move anything (a free node of nonzero weight or a rigid side): both
     fixed over a step's sweeps, so the PGS passes read them instead of summing the stencil's
     blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom).
-    ``threads`` threads (the launch's) stride over this step's contacts: a thread per slot of
-    the buffer cost 4 ms a step on the candy's 188 181."""
-    for c in range(wp.tid(), count[0], threads):
+    ``threads`` threads (``tid + offset``: a launch's chunks may split over the CPU's cores,
+    :func:`softvr.device.chunked_replayer`) stride over this step's contacts: a thread per slot
+    of the buffer cost 4 ms a step on the candy's 188 181."""
+    for c in range(wp.tid() + offset, count[0], threads):
         w = wp.mat33d()
         moves = int(0)
         for k in range(stencil_count[c]):

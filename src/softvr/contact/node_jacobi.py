@@ -253,8 +253,9 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.contact_step,
-                       _k.list_movers, _k.chebyshev, _k.residual, _k.rigid_contact_exact, _k.largest_change):
+        for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
+                       _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
+                       _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -343,12 +344,14 @@ class NodeSolve:
         self.live = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
-        # metric and the coarse inverses are set).
+        # metric and the coarse inverses are set); on the CPU over the cores (~0.2 ms a step on
+        # the candy's ~3 000 contacts).
         threads = _contact_threads(d)
-        self._metric = replayer(wp.launch(_k.contact_metric, dim=threads, device=d, record_cmd=True,
-                                          inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
-                                                  c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
-                                                  cross, model.fixed, co, metric, movable, threads]))
+        metric_threads = 2 * cpu_workers() if threads == 1 else threads
+        self._metric = chunked_replayer(_k.contact_metric, metric_threads,
+                                        [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
+                                         c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
+                                         model.fixed, co, metric, movable, metric_threads], d, min_chunk=1)
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         own_block = _own_blocks(model) if gs is None else None
         # One thread on the CPU, which also takes the largest change (no second pass over the nodes).
