@@ -113,8 +113,9 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
 # product by the stride. The blocks are read transposed (:func:`transpose_blocks`), so that a
 # column is three doubles in a row: on the CPU (clang) the three rows of the product go as the
 # lanes of one 4-wide vector, each lane the scalar code's operations (the fourth lane reads the
-# next block's first double, or the padding block after the last, and is dropped). The candy
-# pile's 29 589 blocks: 117 -> 62 us a sweep on one core. It reads the arrays as contiguous.
+# next block's first double, or the padding block after the last, and is dropped; elsewhere, as
+# CUDA compiles it, Warp's own product of the block transposed back). The candy pile's 29 589
+# blocks: 113-123 -> 61-71 us a sweep on one core. It reads the arrays as contiguous.
 _JACOBI_ROWS = r"""
 typedef wp::vec_t<3, wp::float64> vec3;
 typedef wp::mat_t<3, 3, wp::float64> mat3;
@@ -148,26 +149,9 @@ auto row = [&](int i) -> vec3 {
     return vec3(r[0], r[1], r[2]);
 };
 #else
-auto product = [&](int k) -> vec3 {
-    const double* m = block + 9 * k;
-    const double* y = x + 3 * col[k];
-    double p0 = m[0] * y[0];
-    double p1 = m[1] * y[0];
-    double p2 = m[2] * y[0];
-    double q0 = m[3] * y[1];
-    double q1 = m[4] * y[1];
-    double q2 = m[5] * y[1];
-    p0 = p0 + q0;
-    p1 = p1 + q1;
-    p2 = p2 + q2;
-    q0 = m[6] * y[2];
-    q1 = m[7] * y[2];
-    q2 = m[8] * y[2];
-    p0 = p0 + q0;
-    p1 = p1 + q1;
-    p2 = p2 + q2;
-    return vec3(p0, p1, p2);
-};
+const mat3* transposed = (const mat3*)blocks_t.data;
+const vec3* y = (const vec3*)v.data;
+auto product = [&](int k) -> vec3 { return wp::mul(wp::transpose(transposed[k]), y[col[k]]); };
 auto row = [&](int i) -> vec3 {
     vec3 r = vec3(rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2]);
     vec3 odd = vec3();
