@@ -31,6 +31,11 @@ NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above
 #: 16.81. A fit, not a fixed share: a uniformly accelerated body (free fall) carries all of it.
 SHARE_MEMORY = 0.9
 
+#: Threads of the share's sums over the nodes on CUDA (:func:`_node_kernels.carried_share`; the
+#: CPU's one thread walks them all): ~40 nodes a thread on candy's ~10^4, and the one thread of
+#: :func:`_node_kernels.share_total` adds this many pairs.
+SHARE_THREADS_CUDA = 256
+
 
 def fixed_only(model) -> tuple[np.ndarray, np.ndarray]:
     """The tets [m] with all four nodes fixed and the entries of ``model.assembled`` [na] whose
@@ -172,6 +177,7 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     d = model.device
     load_kernels(_k.start_guess, d)
     load_kernels(_k.carried_share, d)
+    load_kernels(_k.share_total, d)
     buf = state.sweep_buffers
     r = model.rigid
     fitted = model.fixed.numpy() == 0
@@ -181,12 +187,17 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
     share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
     change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+    threads = 1 if wp.get_device(d).is_cpu else SHARE_THREADS_CUDA
+    partial = wp.zeros(threads, dtype=wp.vec2d, device=d)
     replays = []
     for carried in (0, 1):
-        launches = [replayer(wp.launch(_k.carried_share, dim=1, device=d, record_cmd=True,
+        launches = [replayer(wp.launch(_k.carried_share, dim=threads, device=d, record_cmd=True,
                                        inputs=[state.v, v_before, change, model.mass, fitted_nodes, SHARE_MEMORY,
-                                               carried, share])),
-                    replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
+                                               carried, threads, partial, share]))]
+        if threads > 1:
+            launches.append(replayer(wp.launch(_k.share_total, dim=1, device=d, record_cmd=True,
+                                               inputs=[partial, SHARE_MEMORY, carried, share])))
+        launches += [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
                                        inputs=[state.v, state.external, model.mass,
                                                wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
                                                model.fixed, state.fixed_velocity, v_before, share, change, buf[0],

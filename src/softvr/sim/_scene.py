@@ -130,6 +130,8 @@ class Scene:
         sweeps, the per-object PGS, the rigid arrays' sweeps); None: the solvers' own 1e-5
         (``softvr.sim._node_step.SWEEP_TOLERANCE``). ``pgs_iterations`` caps it either way.
     last_solution : ContactSolution or None
+        The last step's (None before the first; a step on arrays lets go of it as it starts, so
+        None after one that failed).
     time : float [s]
     stage_ms : dict[str, float] [ms]
         Wall time of each stage of the last step, in the order they run (:data:`STAGES`):
@@ -416,6 +418,9 @@ class Scene:
         arrays = self._arrays()
         if arrays is not None:
             dt = ContactObject._check_dt(dt)
+            # Let go of the last solution first: a node step's that no one else holds then is
+            # not copied out of the arrays the step writes (NodeStepper.step).
+            self.last_solution = None
             try:
                 self.last_solution, self.stage_ms = arrays.step(dt)
             except IllConditioned:  # before anything moved: this step goes the per-object way
