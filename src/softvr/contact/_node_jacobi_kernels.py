@@ -107,6 +107,127 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
     v_hat[i] = out
 
 
+# The Jacobi rows on the CPU as plain C++ (:func:`jacobi_walk`): the same wp:: operations in the
+# same order as :func:`jacobi` (the row's two sums of :func:`row_residual`, Warp's 3x3 product
+# taking the columns in turn, ``(m_0 x_0 + m_1 x_1) + m_2 x_2``, each product and sum a statement
+# of its own so that no compiler fuses them), so the same bits, at ~2 ns a block against ~4: Warp's
+# loop pays its range iterator and, at every array access, the test for a negative index and a
+# product by the stride. The blocks are read transposed (:func:`transpose_blocks`), so that a
+# column is three doubles in a row: on the CPU (clang) the three rows of the product go as the
+# lanes of one 4-wide vector, each lane the scalar code's operations (the fourth lane reads the
+# next block's first double, or the padding block after the last, and is dropped; elsewhere, as
+# CUDA compiles it, Warp's own product of the block transposed back). The candy pile's 29 589
+# blocks: 113-123 -> 61-71 us a sweep on one core. It reads the arrays as contiguous.
+_JACOBI_ROWS = r"""
+typedef wp::vec_t<3, wp::float64> vec3;
+typedef wp::mat_t<3, 3, wp::float64> mat3;
+const wp::int32* start = row_start.data;
+const wp::int32* col = block_col.data;
+const double* block = (const double*)blocks_t.data;
+const double* x = (const double*)v.data;
+const double* rhs = (const double*)b.data;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
+auto product = [&](int k) -> lanes4 {
+    const double* m = block + 9 * k;
+    const double* y = x + 3 * col[k];
+    lanes4 p = *(const lanes4*)m * y[0];
+    lanes4 q = *(const lanes4*)(m + 3) * y[1];
+    p = p + q;
+    q = *(const lanes4*)(m + 6) * y[2];
+    return p + q;
+};
+auto row = [&](int i) -> vec3 {
+    lanes4 r = {rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2], 0.0};
+    lanes4 odd = {0.0, 0.0, 0.0, 0.0};
+    int k = start[i];
+    const int end_k = start[i + 1];
+    for (; k + 1 < end_k; k += 2) {
+        r = r - product(k);
+        odd = odd + product(k + 1);
+    }
+    if (k < end_k) r = r - product(k);
+    r = r - odd;
+    return vec3(r[0], r[1], r[2]);
+};
+#else
+const mat3* transposed = (const mat3*)blocks_t.data;
+const vec3* y = (const vec3*)v.data;
+auto product = [&](int k) -> vec3 { return wp::mul(wp::transpose(transposed[k]), y[col[k]]); };
+auto row = [&](int i) -> vec3 {
+    vec3 r = vec3(rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2]);
+    vec3 odd = vec3();
+    int k = start[i];
+    const int end_k = start[i + 1];
+    for (; k + 1 < end_k; k += 2) {
+        r = wp::sub(r, product(k));
+        odd = wp::add(odd, product(k + 1));
+    }
+    if (k < end_k) r = wp::sub(r, product(k));
+    return wp::sub(r, odd);
+};
+#endif
+const mat3* block_inv = (const mat3*)d_inv.data;
+const mat3* pair_inv = (const mat3*)cross.data;
+const vec3* now = (const vec3*)v.data;
+const vec3* held = (const vec3*)fixed_velocity.data;
+vec3* out = (vec3*)v_hat.data;
+vec3* res = (vec3*)residual.data;
+for (int i = first; i < last; ++i) {
+    if (fixed.data[i] != 0) {
+        out[i] = held[i];
+        continue;
+    }
+    const vec3 r = row(i);
+    res[i] = r;
+    if (own_block.data[i] == 0) {
+        out[i] = wp::mul(block_inv[i], r);
+        continue;
+    }
+    vec3 o = wp::add(now[i], wp::mul(block_inv[i], r));
+    const int p = partner.data[i];
+    if (p >= 0) o = wp::add(o, wp::mul(pair_inv[i], row(p)));
+    out[i] = o;
+}
+"""
+
+
+@wp.func_native(_JACOBI_ROWS)
+def _jacobi_rows(first: int, last: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                 blocks_t: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                 own_block: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                 residual: wp.array(dtype=wp.vec3d)):
+    """:func:`jacobi`'s update of nodes ``first`` to ``last`` - 1 in turn (:data:`_JACOBI_ROWS`),
+    from ``A``'s blocks transposed (``blocks_t`` [nnz + 1], :func:`transpose_blocks`)."""
+    ...
+
+
+@wp.kernel
+def jacobi_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                blocks_t: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                own_block: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                residual: wp.array(dtype=wp.vec3d), count: int, parts: int, offset: int):
+    """:func:`jacobi` on the CPU, thread ``part`` (``tid + offset``) of ``parts`` walking the
+    nodes ``count part / parts`` to ``count (part + 1) / parts`` - 1 (of ``count``) in C++
+    (:func:`_jacobi_rows`): the same ``v^`` and ``residual`` to the bit, from ``A``'s blocks
+    transposed (``blocks_t`` [nnz + 1] [kg], :func:`transpose_blocks`, once a step)."""
+    part = wp.tid() + offset
+    _jacobi_rows(count * part // parts, count * (part + 1) // parts, row_start, block_col, blocks_t, d_inv, partner,
+                 cross, b, fixed, fixed_velocity, own_block, v, v_hat, residual)
+
+
+@wp.kernel
+def transpose_blocks(blocks: wp.array(dtype=wp.mat33d), blocks_t: wp.array(dtype=wp.mat33d), offset: int):
+    """``blocks_t[k] = blocks[k]^T`` [kg] (:func:`jacobi_walk` reads a block's columns as rows;
+    once a step, before the sweeps)."""
+    k = wp.tid() + offset
+    blocks_t[k] = wp.transpose(blocks[k])
+
+
 @wp.func
 def _pair_delassus(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
                    stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
@@ -150,14 +271,15 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
                    rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
                    partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
                    fixed: wp.array(dtype=wp.int32), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-                   movable: wp.array(dtype=wp.int32), threads: int):
+                   movable: wp.array(dtype=wp.int32), threads: int, offset: int):
     """Contact ``c``'s block of ``J M^-1 J^T`` [1/kg] in its frame (normal, tangents), and
     whether an impulse can move anything (a free node of nonzero weight or a rigid side): both
     fixed over a step's sweeps, so the PGS passes read them instead of summing the stencil's
     blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom).
-    ``threads`` threads (the launch's) stride over this step's contacts: a thread per slot of
-    the buffer cost 4 ms a step on the candy's 188 181."""
-    for c in range(wp.tid(), count[0], threads):
+    ``threads`` threads (``tid + offset``: a launch's chunks may split over the CPU's cores,
+    :func:`softvr.device.chunked_replayer`) stride over this step's contacts: a thread per slot
+    of the buffer cost 4 ms a step on the candy's 188 181."""
+    for c in range(wp.tid() + offset, count[0], threads):
         w = wp.mat33d()
         moves = int(0)
         for k in range(stencil_count[c]):

@@ -121,6 +121,40 @@ def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=w
     store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
+# _isotropic_sum: a block's isotropic contributions as plain C++, the same wp:: operations in the
+# same order as Warp's loop would take them, ``m + l0 (R g_a)(R g_b)^T + l1 (R g_b)(R g_a)^T``
+# and the diagonal's ``l1 (R g_a . R g_b)`` (so the same bits), with none of its per-access index
+# arithmetic: the candy's assembly 1.44 -> 1.13 ms on one core. It reads the arrays as contiguous.
+_ISOTROPIC_SUM = r"""
+typedef wp::vec_t<3, wp::float64> vec3;
+typedef wp::mat_t<3, 3, wp::float64> mat3;
+const int per_tet = rotated_gradients.shape[1];
+const vec3* gradient = (const vec3*)rotated_gradients.data;
+const wp::vec_t<2, wp::float64>* moduli = (const wp::vec_t<2, wp::float64>*)lame.data;
+mat3 m = mat3();
+wp::float64 diagonal = 0.0;
+for (int c = contrib_start.data[k], end = contrib_start.data[k + 1]; c < end; ++c) {
+    const int code = contrib.data[c];
+    const int e = code / 16;
+    const vec3 ra = gradient[e * per_tet + (code / 4) % 4];
+    const vec3 rb = gradient[e * per_tet + code % 4];
+    const wp::vec_t<2, wp::float64> l = moduli[e];
+    m = wp::add(wp::add(m, wp::mul(l[0], wp::outer(ra, rb))), wp::mul(l[1], wp::outer(rb, ra)));
+    diagonal = wp::add(diagonal, wp::mul(l[1], wp::dot(ra, rb)));
+}
+return wp::add(m, mat3(diagonal, 0.0, 0.0, 0.0, diagonal, 0.0, 0.0, 0.0, diagonal));
+"""
+
+
+@wp.func_native(_ISOTROPIC_SUM)
+def _isotropic_sum(k: int, contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
+                   rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d)) -> wp.mat33d:
+    """Block ``k``'s sum of ``R K_e,ab R^T`` [kg] over its contributions (``contrib[c]`` = 16 tet
+    + 4 a + b, ``c`` in ``contrib_start[k]:contrib_start[k + 1]``) with the diagonal term added
+    (:func:`assemble_isotropic`; :data:`_ISOTROPIC_SUM`)."""
+    ...
+
+
 @wp.kernel
 def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
                        block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
@@ -140,18 +174,7 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
     float64 rounding u, a contribution differs from :func:`assemble`'s by at most
     ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
     k = assembled[wp.tid() + offset]
-    m = wp.mat33d()
-    diagonal = wp.float64(0.0)
-    for c in range(contrib_start[k], contrib_start[k + 1]):
-        code = contrib[c]
-        e = code // 16
-        ra = rotated_gradients[e, (code // 4) % 4]
-        rb = rotated_gradients[e, code % 4]
-        l = lame[e]
-        m = m + l[0] * wp.outer(ra, rb) + l[1] * wp.outer(rb, ra)
-        diagonal = diagonal + l[1] * wp.dot(ra, rb)
-    m = m + wp.mat33d(diagonal, wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), diagonal, wp.float64(0.0),
-                      wp.float64(0.0), wp.float64(0.0), diagonal)
+    m = _isotropic_sum(k, contrib_start, contrib, rotated_gradients, lame)
     store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
