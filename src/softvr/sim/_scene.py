@@ -129,6 +129,12 @@ class Scene:
         Velocity error at which the contact solve stops (eq. 5.5's iteration: the node
         sweeps, the per-object PGS, the rigid arrays' sweeps); None: the solvers' own 1e-5
         (``softvr.sim._node_step.SWEEP_TOLERANCE``). ``pgs_iterations`` caps it either way.
+    rotation_lag : float or None [rad]
+        Angle by which a tet's co-rotation R_e (eq. 5.2's R_e K_e R_e^T) may lag the polar
+        rotation of its deformation gradient: within it, a step keeps last step's R_e and the
+        blocks of ``A`` of tets that all kept theirs (a scene stepped on node arrays of FEM
+        bodies and driven nodes only; others ignore it). A lag theta reads as a strain of at
+        most ~theta in the tet's stress. None: R_e follows to round-off (every block every step).
     last_solution : ContactSolution or None
     time : float [s]
     stage_ms : dict[str, float] [ms]
@@ -175,6 +181,7 @@ class Scene:
     pgs_iterations: int = 500
     pgs_tolerance: float | None = None
     contact_margin: float = 0.005
+    rotation_lag: float | None = None
     last_solution: ContactSolution | LazySolution | None = None
     time: float = 0.0
     stage_ms: dict = field(default_factory=dict)
