@@ -35,16 +35,40 @@ def _turn(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), dm_inv:
     return r
 
 
+@wp.func
+def _held(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), e: int, hold: wp.array(dtype=wp.float64),
+          held: wp.array2d(dtype=wp.vec3d)) -> bool:
+    """Whether each of tet ``e``'s nodes is within ``hold[e]`` [m] of where its terms were last
+    computed (``held[e]`` [4] [m]); if not, ``held[e]`` takes the nodes' positions."""
+    reach = hold[e] * hold[e]
+    far = wp.float64(0.0)
+    for a in range(4):
+        d = q[tets[e, a]] - held[e, a]
+        far = wp.max(far, wp.dot(d, d))
+    if far <= reach:
+        return True
+    for a in range(4):
+        held[e, a] = q[tets[e, a]]
+    return False
+
+
 @wp.kernel
 def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                   dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
-                  live: wp.array(dtype=wp.int32), keep: wp.float64, rotations: wp.array(dtype=wp.mat33d),
+                  live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int, hold: wp.array(dtype=wp.float64),
+                  held: wp.array2d(dtype=wp.vec3d), rotations: wp.array(dtype=wp.mat33d),
                   turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d), offset: int):
     """R_e (last step's where within ``keep`` [rad] of the polar rotation:
     :func:`_fem_kernels.lagged_polar_rotation`; ``turned[e]`` 1 where R_e changed, else 0) and
     the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e =
-    live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
+    live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m]). With
+    ``holding``, a tet whose nodes are all within ``hold[e]`` [m] of where its terms were last
+    computed (``held``, :func:`_held`) keeps them as they are."""
     e = live[wp.tid() + offset]
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
     r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     for a in range(4):
@@ -56,9 +80,11 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d),
                             tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                             gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), corotational: int,
-                            live: wp.array(dtype=wp.int32), keep: wp.float64, rotations: wp.array(dtype=wp.mat33d),
-                            turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d),
-                            rotated_gradients: wp.array2d(dtype=wp.vec3d), offset: int):
+                            live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int,
+                            hold: wp.array(dtype=wp.float64), held: wp.array2d(dtype=wp.vec3d),
+                            rotations: wp.array(dtype=wp.mat33d), turned: wp.array(dtype=wp.int32),
+                            forces: wp.array2d(dtype=wp.vec3d), rotated_gradients: wp.array2d(dtype=wp.vec3d),
+                            offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
     ``lame[e]`` = V (lambda, mu) [N/m], as :func:`assemble_isotropic`): with the rotated
     frame's displacement gradient H = sum_b (R^T x_b - X_b) g_b^T,
@@ -69,8 +95,13 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     four outer products and four matrix-vector products a tet, not sixteen 3x3 blocks read and
     applied. Equal to :func:`element_terms`'s sum in exact arithmetic; both round each term
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
-    :func:`assemble_isotropic` where R_e turned."""
+    :func:`assemble_isotropic` where R_e turned. ``keep``, ``holding``, ``hold``, ``held``,
+    ``turned``: :func:`element_terms`'."""
     e = live[wp.tid() + offset]
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
     r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     g0 = gradients[e, 0]

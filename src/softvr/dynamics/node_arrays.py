@@ -18,7 +18,7 @@ from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
 __all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "fixed_only", "isotropic_terms", "record_drive",
-           "record_elements", "record_integrate", "record_start", "record_system"]
+           "record_elements", "record_integrate", "record_start", "record_system", "shape_gradients"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -48,27 +48,37 @@ def record_elements(model, state, *, keep: float = 0.0, turned: wp.array | None 
     ``state.element_forces``) at ``state.q`` of every tet but those of fixed nodes only
     (:func:`fixed_only`), split over the CPU cores (from the Lame form where every tet is
     isotropic linear, :func:`isotropic_terms`). Each rotation starts from the one it replaces
-    (last step's: ``_fem_kernels.warm_polar_rotation``; zeros go the cold way) and stays that
-    one where it is within ``keep`` [rad] of the polar rotation
-    (``_fem_kernels.lagged_polar_rotation``; 0: only at round-off). ``turned`` [m] (int32):
-    1 where a tet's rotation changed, else 0 (for :func:`record_system`)."""
+    (last step's: ``_fem_kernels.warm_polar_rotation``; zeros go the cold way).
+
+    With ``keep`` > 0 [rad] a tet's terms lag its nodes by at most ``keep``: its rotation stays
+    last step's where that is within ``keep`` of the polar rotation
+    (``_fem_kernels.lagged_polar_rotation``), and its rotation and forces stay as they are
+    while each of its nodes is within ``keep / sum_a |g_a|`` [m] of where they were computed
+    (g_a the shape functions' gradients [1/m]: F = sum_a x_a g_a^T then moved by at most
+    ``keep``, so the held R_e is within ~2 ``keep`` of the polar rotation and the held forces
+    are those of a strain within ``keep``). ``turned`` [m] (int32): 1 where a tet's rotation
+    changed, else 0 (for :func:`record_system`)."""
     live = np.flatnonzero(~fixed_only(model)[0])
     live_d: wp.array = wp.array(live, dtype=wp.int32, device=model.device)
+    d = model.device
     if turned is None:
-        turned = wp.zeros(len(model.tets), dtype=wp.int32, device=model.device)
-    isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
+        turned = wp.zeros(len(model.tets), dtype=wp.int32, device=d)
+    dm_inv = model.dm_inv.numpy()
+    reach = keep / np.maximum(np.linalg.norm(shape_gradients(dm_inv), axis=2).sum(axis=1), 1e-300)
+    hold: wp.array = wp.array(reach, dtype=wp.float64, device=d)
+    # Nowhere yet (1e300: its distance squared is inf): the first replay computes every tet.
+    held = wp.full((len(model.tets), 4), wp.vec3d(1e300, 1e300, 1e300), dtype=wp.vec3d, device=d)
+    lag = [float(keep), int(keep > 0.0), hold, held, state.rotations, turned, state.element_forces]
+    isotropic = isotropic_terms(model.ke.numpy(), dm_inv)
     if isotropic is None:
         return chunked_replayer(_k.element_terms, len(live),
                                 [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
-                                 live_d, float(keep), state.rotations, turned, state.element_forces], model.device,
-                                min_chunk=512)
+                                 live_d, *lag], d, min_chunk=512)
     gradients, lame = isotropic
     return chunked_replayer(_k.element_terms_isotropic, len(live),
-                            [state.q, model.rest, model.tets, model.dm_inv,
-                             wp.array(gradients, dtype=wp.vec3d, device=model.device),
-                             wp.array(lame, dtype=wp.vec2d, device=model.device), int(model.corotational),
-                             live_d, float(keep), state.rotations, turned, state.element_forces,
-                             state.rotated_gradients], model.device, min_chunk=512)
+                            [state.q, model.rest, model.tets, model.dm_inv, wp.array(gradients, dtype=wp.vec3d, device=d),
+                             wp.array(lame, dtype=wp.vec2d, device=d), int(model.corotational), live_d, *lag,
+                             state.rotated_gradients], d, min_chunk=512)
 
 
 #: Largest relative misfit |K_e - K_iso|_F / |K_e|_F of an element stiffness to the isotropic
@@ -77,13 +87,18 @@ def record_elements(model, state, *, keep: float = 0.0, turned: wp.array | None 
 ISOTROPIC_MISFIT = 1e-12
 
 
+def shape_gradients(dm_inv: np.ndarray) -> np.ndarray:
+    """The linear tets' shape-function gradients g_a [m, 4, 3] [1/m] from Dm^-1 [m, 3, 3] [1/m]:
+    its rows for nodes 1..3, minus their sum for node 0 (F = Ds Dm^-1 = sum_a x_a g_a^T)."""
+    return np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+
+
 def isotropic_terms(ke: np.ndarray, dm_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The shape functions' rest gradients g_a [m, 4, 3] [1/m] (rows of Dm^-1 for nodes 1..3,
-    minus their sum for node 0) and V (lambda, mu) [m, 2] [N/m] of every tet, such that
+    """The shape functions' rest gradients g_a [m, 4, 3] [1/m] (:func:`shape_gradients`) and V (lambda, mu) [m, 2] [N/m] of every tet, such that
     ``ke[e, 4 a + b]`` [m, 16, 3, 3] [N/m] = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I)
     (the isotropic linear tet, K_e = V B^T C B) within :data:`ISOTROPIC_MISFIT`; None if any
     tet's stiffness is not of that form (least squares over its 144 entries)."""
-    grad = np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+    grad = shape_gradients(dm_inv)
     if not len(ke):  # a scene of cloths only
         return grad, np.zeros((0, 2))
     ga = np.repeat(grad, 4, axis=1)  # [m, 16, 3]: g_a of entry 4 a + b
