@@ -146,17 +146,21 @@ def store_block(k: int, m: wp.mat33d, block_row: wp.array(dtype=wp.int32), block
         blocks[t] = wp.transpose(m)
 
 
-@wp.func
+@wp.func_native(r"""
+if (lagging == 0) return false;
+const int* code = (const int*)contrib.data;
+const int* flag = (const int*)turned.data;
+for (int c = ((const int*)contrib_start.data)[k], end = ((const int*)contrib_start.data)[k + 1]; c < end; ++c)
+    if (flag[code[c] / 16] != 0) return false;
+return true;
+""")
 def _kept(k: int, contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
           turned: wp.array(dtype=wp.int32), lagging: int) -> bool:
     """Whether block ``k`` of ``A`` keeps last step's value: ``lagging`` and none of its tets'
-    R_e changed (the same rotations sum to the same bits, and nothing else writes ``A``)."""
-    if lagging == 0:
-        return False
-    for c in range(contrib_start[k], contrib_start[k + 1]):
-        if turned[contrib[c] // 16] != 0:
-            return False
-    return True
+    R_e changed (the same rotations sum to the same bits, and nothing else writes ``A``). In
+    C++ (contiguous arrays): most blocks are kept, and Warp's loop over their tets' flags cost
+    ~19 ns a block, as much as assembling a sixth of them."""
+    ...
 
 
 @wp.kernel
