@@ -260,22 +260,61 @@ def integrate(v_new: wp.array(dtype=wp.vec3d), speed_limit: wp.array(dtype=wp.fl
 def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
                 gravity: wp.vec3d, dt: wp.float64, carried: int, fixed: wp.array(dtype=wp.int32),
                 fixed_velocity: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
+                share: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.vec3d),
                 guess: wp.array(dtype=wp.vec3d), guess_prev: wp.array(dtype=wp.vec3d)):
     """The sweeps' first velocity [m/s] of node ``i``, in both buffers the first sweep reads:
-    with ``carried`` last step's change carried on, ``2 v - v_before``, else the explicit step
-    ``v + dt (g + f_ext / m)``; a fixed node's fixed velocity. ``v_before`` then takes ``v``.
+    with ``carried`` a share ``share[2]`` of last step's change carried on,
+    ``v + share (v - v_before)`` (:func:`carried_share`), else the explicit step
+    ``v + dt (g + f_ext / m)``; a fixed node's fixed velocity. ``change`` [n] [m/s] then takes
+    last step's change ``v - v_before`` (0 on the explicit step) and ``v_before`` takes ``v``.
     A uniform change (gravity, a push, a resting body's none) is Jacobi's slowest mode, and
     these guesses have it."""
     i = wp.tid()
     vi = v[i]
     g = vi + dt * (gravity + external[i] / mass[i])
+    step = wp.vec3d()
     if carried != 0:
-        g = wp.float64(2.0) * vi - v_before[i]
+        step = vi - v_before[i]
+        g = vi + share[2] * step
     if fixed[i] != 0:
         g = fixed_velocity[i]
     guess[i] = g
     guess_prev[i] = g
+    change[i] = step
     v_before[i] = vi
+
+
+@wp.kernel
+def carried_share(v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
+                  mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32), memory: wp.float64,
+                  carried: int, share: wp.array(dtype=wp.float64)):
+    """The share of last step's change that the next first guess carries on (:func:`start_guess`):
+    the least-squares fit over the ``fitted`` [n] nodes, mass-weighted, of the change the last
+    solve made, ``v - v_before`` [m/s], on the change carried into it, ``change`` [m/s]:
+    ``share[2] = sum m (v - v_before) . change / sum m |change|^2``, clipped to [0, 1], both sums
+    kept in ``share[0]``, ``share[1]`` with the older steps' weighed down by ``memory`` a step;
+    1 (all of it) until a step has been carried into, and after the explicit step (``carried``
+    0: the sums start again). One thread."""
+    if carried == 0:
+        share[0] = wp.float64(0.0)
+        share[1] = wp.float64(0.0)
+        share[2] = wp.float64(1.0)
+        return
+    num = wp.float64(0.0)
+    den = wp.float64(0.0)
+    for i in range(v.shape[0]):
+        if fitted[i] != 0:
+            c = change[i]
+            num = num + mass[i] * wp.dot(v[i] - v_before[i], c)
+            den = den + mass[i] * wp.dot(c, c)
+    num = memory * share[0] + num
+    den = memory * share[1] + den
+    share[0] = num
+    share[1] = den
+    a = wp.float64(1.0)
+    if den > wp.float64(0.0):
+        a = wp.clamp(num / den, wp.float64(0.0), wp.float64(1.0))
+    share[2] = a
 
 
 @wp.kernel
