@@ -139,6 +139,8 @@ class Scene:
         kept R_e are not assembled again. A lag theta: R_e within ~2 theta of the polar
         rotation, forces of a strain within theta. None: every tet every step, R_e to round-off.
     last_solution : ContactSolution or None
+        The last step's (None before the first; a step on arrays lets go of it as it starts, so
+        None after one that failed).
     time : float [s]
     stage_ms : dict[str, float] [ms]
         Wall time of each stage of the last step, in the order they run (:data:`STAGES`):
@@ -426,6 +428,9 @@ class Scene:
         arrays = self._arrays()
         if arrays is not None:
             dt = ContactObject._check_dt(dt)
+            # Let go of the last solution first: a node step's that no one else holds then is
+            # not copied out of the arrays the step writes (NodeStepper.step).
+            self.last_solution = None
             try:
                 self.last_solution, self.stage_ms = arrays.step(dt)
             except IllConditioned:  # before anything moved: this step goes the per-object way
