@@ -21,16 +21,55 @@ NAN_VELOCITY = wp.constant(1)
 TOO_FAST = wp.constant(2)
 
 
+@wp.func
+def _turn(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d), e: int,
+          corotational: int, keep: wp.float64, rotations: wp.array(dtype=wp.mat33d),
+          turned: wp.array(dtype=wp.int32)) -> wp.mat33d:
+    """Tet ``e``'s R_e from the one it replaces (:func:`warm_element_rotation`), stored, and
+    whether it changed at all into ``turned[e]`` (1, else 0: its blocks of ``A`` stay)."""
+    old = rotations[e]
+    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations, keep)
+    d = r - old
+    turned[e] = wp.where(wp.ddot(d, d) > wp.float64(0.0), 1, 0)
+    rotations[e] = r
+    return r
+
+
+@wp.func
+def _held(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), e: int, hold: wp.array(dtype=wp.float64),
+          held: wp.array2d(dtype=wp.vec3d)) -> bool:
+    """Whether each of tet ``e``'s nodes is within ``hold[e]`` [m] of where its terms were last
+    computed (``held[e]`` [4] [m]); if not, ``held[e]`` takes the nodes' positions."""
+    reach = hold[e] * hold[e]
+    far = wp.float64(0.0)
+    for a in range(4):
+        d = q[tets[e, a]] - held[e, a]
+        far = wp.max(far, wp.dot(d, d))
+    if far <= reach:
+        return True
+    for a in range(4):
+        held[e, a] = q[tets[e, a]]
+    return False
+
+
 @wp.kernel
 def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                   dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
-                  live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
-                  forces: wp.array2d(dtype=wp.vec3d), offset: int):
-    """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet
-    ``e = live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
+                  live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int, hold: wp.array(dtype=wp.float64),
+                  held: wp.array2d(dtype=wp.vec3d), rotations: wp.array(dtype=wp.mat33d),
+                  turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d), offset: int):
+    """R_e (last step's where within ``keep`` [rad] of the polar rotation:
+    :func:`_fem_kernels.lagged_polar_rotation`; ``turned[e]`` 1 where R_e changed, else 0) and
+    the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e =
+    live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m]). With
+    ``holding``, a tet whose nodes are all within ``hold[e]`` [m] of where its terms were last
+    computed (``held``, :func:`_held`) keeps them as they are."""
     e = live[wp.tid() + offset]
-    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
-    rotations[e] = r
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
+    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     for a in range(4):
         fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + ke[e, 4 * a + 3] * local3
@@ -41,7 +80,9 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d),
                             tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                             gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), corotational: int,
-                            live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
+                            live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int,
+                            hold: wp.array(dtype=wp.float64), held: wp.array2d(dtype=wp.vec3d),
+                            rotations: wp.array(dtype=wp.mat33d), turned: wp.array(dtype=wp.int32),
                             forces: wp.array2d(dtype=wp.vec3d), rotated_gradients: wp.array2d(dtype=wp.vec3d),
                             offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
@@ -54,10 +95,14 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     four outer products and four matrix-vector products a tet, not sixteen 3x3 blocks read and
     applied. Equal to :func:`element_terms`'s sum in exact arithmetic; both round each term
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
-    :func:`assemble_isotropic`."""
+    :func:`assemble_isotropic` where R_e turned. ``keep``, ``holding``, ``hold``, ``held``,
+    ``turned``: :func:`element_terms`'."""
     e = live[wp.tid() + offset]
-    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
-    rotations[e] = r
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
+    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     g0 = gradients[e, 0]
     g1 = gradients[e, 1]
@@ -73,10 +118,11 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     forces[e, 1] = -(rs * g1)
     forces[e, 2] = -(rs * g2)
     forces[e, 3] = -(rs * g3)
-    rotated_gradients[e, 0] = r * g0
-    rotated_gradients[e, 1] = r * g1
-    rotated_gradients[e, 2] = r * g2
-    rotated_gradients[e, 3] = r * g3
+    if turned[e] != 0:
+        rotated_gradients[e, 0] = r * g0
+        rotated_gradients[e, 1] = r * g1
+        rotated_gradients[e, 2] = r * g2
+        rotated_gradients[e, 3] = r * g3
 
 
 @wp.func
@@ -100,18 +146,38 @@ def store_block(k: int, m: wp.mat33d, block_row: wp.array(dtype=wp.int32), block
         blocks[t] = wp.transpose(m)
 
 
+@wp.func_native(r"""
+if (lagging == 0) return false;
+const int* code = (const int*)contrib.data;
+const int* flag = (const int*)turned.data;
+for (int c = ((const int*)contrib_start.data)[k], end = ((const int*)contrib_start.data)[k + 1]; c < end; ++c)
+    if (flag[code[c] / 16] != 0) return false;
+return true;
+""")
+def _kept(k: int, contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
+          turned: wp.array(dtype=wp.int32), lagging: int) -> bool:
+    """Whether block ``k`` of ``A`` keeps last step's value: ``lagging`` and none of its tets'
+    R_e changed (the same rotations sum to the same bits, and nothing else writes ``A``). In
+    C++ (contiguous arrays): most blocks are kept, and Warp's loop over their tets' flags cost
+    ~19 ns a block, as much as assembling a sixth of them."""
+    ...
+
+
 @wp.kernel
 def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
              block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
              contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
              rotations: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d),
              tet_beta: wp.array(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-             node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
-             d_inv: wp.array(dtype=wp.mat33d), offset: int):
+             node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, turned: wp.array(dtype=wp.int32), lagging: int,
+             blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """Block ``k = assembled[tid]`` of ``A`` [kg] and its transpose (:func:`store_block`), any
     element stiffness ``ke`` [N/m]. ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that
-    tet adds to block ``k``."""
+    tet adds to block ``k``. With ``lagging``, a block none of whose tets turned (``turned``)
+    is left as it is (:func:`_kept`)."""
     k = assembled[wp.tid() + offset]
+    if _kept(k, contrib_start, contrib, turned, lagging):
+        return
     m = wp.mat33d()
     for c in range(contrib_start[k], contrib_start[k + 1]):
         code = contrib[c]
@@ -161,7 +227,8 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
                        contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
                        rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d),
                        mass: wp.array(dtype=wp.float64), node_alpha: wp.array(dtype=wp.float64), dt: wp.float64,
-                       blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
+                       turned: wp.array(dtype=wp.int32), lagging: int, blocks: wp.array(dtype=wp.mat33d),
+                       d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """:func:`assemble` for isotropic linear tets, K_e,ab = V (lambda g_a g_b^T + mu g_b g_a^T
     + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C, g_a [1/m] the shape functions' rest
     gradients; ``rotated_gradients[e, a]`` = R g_a, of :func:`element_terms_isotropic`;
@@ -172,8 +239,11 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
     two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an
     orthogonal R; with |R^T R - I| = eps_R (the polar iteration stops at round-off, ~1e-15) and
     float64 rounding u, a contribution differs from :func:`assemble`'s by at most
-    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
+    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms). ``turned``, ``lagging`` as
+    :func:`assemble`'s."""
     k = assembled[wp.tid() + offset]
+    if _kept(k, contrib_start, contrib, turned, lagging):
+        return
     m = _isotropic_sum(k, contrib_start, contrib, rotated_gradients, lame)
     store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 

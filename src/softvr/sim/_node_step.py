@@ -478,12 +478,15 @@ class NodeStepper:
 
     def _record(self, dt: float) -> None:
         s = self.scene
-        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd)
+        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd, s.rotation_lag)
         if self._recorded is not None and self._recorded[0] == key:
             return
         m, st = self.model, self.state
-        elements = record_elements(m, st)
-        assemble, rhs = record_system(m, st, dt, s.gravity)
+        # A lagging rotation keeps its tets' blocks of A, which only the elements write here.
+        lag = bool(s.rotation_lag) and self.rigid is None and not len(m.couplings.node) and not m.cloth.spring_count
+        turned = wp.zeros(len(m.tets), dtype=wp.int32, device=m.device) if lag else None
+        elements = record_elements(m, st, keep=float(s.rotation_lag) if lag else 0.0, turned=turned)
+        assemble, rhs = record_system(m, st, dt, s.gravity, turned=turned)
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
         couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
