@@ -58,7 +58,7 @@ def test_one_sweep_is_numpy_two_level_jacobi_with_the_chebyshev_step():
     solve = NodeSolve(m, stepper.state, DT, (lo, hi), coarse=aggregates)
     _start(stepper, v2)
     stepper.state.sweep_buffers[0].numpy()[:] = v3
-    solve.coarse.prepare()
+    solve.prepare()
     solve.sweep.numpy()[0] = 3  # the contact step counts this sweep: the fourth
     for replay in solve._sweeps[0]:
         replay()

@@ -77,8 +77,15 @@ def _gradients(x: np.ndarray) -> tuple[np.ndarray, float]:
     return np.vstack([-inv.sum(axis=0), inv]), np.linalg.det(dm) / 6.0
 
 
-def _reference(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
-    """Dense A [3n, 3n] [kg] of eq. 5.2 and the scale max |(dt beta + dt^2) K_e|."""
+def _polar(body: FemBody, t: np.ndarray) -> np.ndarray:
+    """SciPy's polar rotation of tet ``t``'s F = Ds Dm^-1 at ``body.q`` [3, 3]."""
+    dm = (body.rest[t][1:] - body.rest[t][0]).T
+    return scipy.linalg.polar((body.q[t][1:] - body.q[t][0]).T @ np.linalg.inv(dm))[0]
+
+
+def _reference(body: FemBody, cs: list, rotations: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Dense A [3n, 3n] [kg] of eq. 5.2 and the scale max |(dt beta + dt^2) K_e| (R_e: SciPy's
+    polar rotation at ``body.q``, or ``rotations`` [m, 3, 3])."""
     n = len(body.rest)
     a = np.zeros((3 * n, 3 * n))
     s = DT * body.material.beta + DT * DT
@@ -89,9 +96,7 @@ def _reference(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
         b = _voigt_b(grad)
         ke = s * volume * b.T @ cs[e] @ b
         scale = max(scale, np.abs(ke).max())
-        dm = (body.rest[t][1:] - body.rest[t][0]).T
-        ds = (body.q[t][1:] - body.q[t][0]).T
-        r = scipy.linalg.polar(ds @ np.linalg.inv(dm))[0]
+        r = _polar(body, t) if rotations is None else rotations[e]
         big = np.kron(np.eye(4), r)
         dof = (3 * t[:, None] + np.arange(3)).ravel()
         a[np.ix_(dof, dof)] += big @ ke @ big.T
@@ -100,8 +105,9 @@ def _reference(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
     return a, scale
 
 
-def _forces(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
-    """f_e [m, 4, 3] [N] of every tet and the scale max |K_e| max |x| [N]."""
+def _forces(body: FemBody, cs: list, rotations: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """f_e [m, 4, 3] [N] of every tet and the scale max |K_e| max |x| [N] (R_e as
+    :func:`_reference`'s)."""
     out = np.zeros((len(body.tets), 4, 3))
     scale = 0.0
     for e, t in enumerate(body.tets):
@@ -109,21 +115,26 @@ def _forces(body: FemBody, cs: list) -> tuple[np.ndarray, float]:
         b = _voigt_b(grad)
         ke = volume * b.T @ cs[e] @ b
         scale = max(scale, np.abs(ke).max() * np.abs(body.q).max())
-        dm = (body.rest[t][1:] - body.rest[t][0]).T
-        r = scipy.linalg.polar((body.q[t][1:] - body.q[t][0]).T @ np.linalg.inv(dm))[0]
+        r = _polar(body, t) if rotations is None else rotations[e]
         out[e] = -(r @ (ke @ (body.q[t] @ r - body.rest[t]).ravel()).reshape(4, 3).T).T
     return out, scale
 
 
-def _assembled(body: FemBody) -> tuple[np.ndarray, NodeStepper]:
-    """Dense A [3n, 3n] [kg] from the node arrays' blocks after their elements and assembly."""
-    scene = Scene(gravity=(0.0, 0.0, -9.81))
+def _assembled(body: FemBody, lag: float | None = None, moved: np.ndarray | None = None
+               ) -> tuple[np.ndarray, NodeStepper]:
+    """Dense A [3n, 3n] [kg] from the node arrays' blocks after their elements and assembly
+    (with ``Scene.rotation_lag`` ``lag`` [rad]; again after the nodes moved to ``moved`` [n, 3]
+    [m] where given)."""
+    scene = Scene(gravity=(0.0, 0.0, -9.81), rotation_lag=lag)
     scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(body.q))[:, None],
                                                          np.ones((len(body.q), 1))))
     stepper = NodeStepper(scene)
     stepper._record(DT)
-    stepper._recorded[1]()  # rotations and element forces
-    stepper._recorded[2]()  # A
+    for q in [None] if moved is None else [None, moved]:
+        if q is not None:
+            stepper.state.q.assign(q)
+        stepper._recorded[1]()  # rotations and element forces
+        stepper._recorded[2]()  # A
     m = stepper.model
     blocks, rows, cols = stepper.state.blocks.numpy(), m.block_row.numpy(), m.block_col.numpy()
     n = m.node_count
@@ -170,3 +181,55 @@ def test_a_clamped_layers_tets_and_fixed_blocks_are_skipped_and_the_free_rows_ar
     pairs = np.abs(expected[np.ix_(fixed, fixed)]) > 0  # the fixed-fixed blocks A has
     assert pairs.any() and not a[np.ix_(fixed, fixed)].any()
     assert skipped_blocks.any()
+
+
+LAG = 1e-3  # [rad] Scene.rotation_lag of the lagging test
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle [rad] of the rotation a^T b."""
+    return float(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def test_a_lagging_tet_holds_its_terms_or_its_r_e_within_the_lag_and_the_rest_is_eq_5_2():
+    """``Scene.rotation_lag`` = LAG after a first assembly, three kinds of tets (sorted here by
+    NumPy and SciPy's polar rotations before and after the move, each kind 45 of the 135):
+    the nodes all move 1 um at random (the lowest cell layer's tets: every node within its
+    reach LAG / sum_a |g_a| (2.1e-5 .. 2.9e-5 m) of where its terms were computed: they hold
+    R_e and their forces, although each turned by ~1e-5 rad), the layer z = 0.2 m moves 40 um
+    more (the middle cell layer: out of reach, turned by 1.3e-4 .. 5e-4 rad < LAG: last step's
+    R_e kept, forces at the new positions) and the top layer turns by 20 LAG (the top cell
+    layer: turned > 2 LAG, the new polar rotation). A and the element forces are then the
+    dense eq. 5.2 of those R_e (and the held tets' first forces) within the module's TOL /
+    FORCE_TOL, also on the blocks the lagging assembly left as they were."""
+    body, cs = _body()
+    first = np.array([_polar(body, t) for t in body.tets])
+    first_forces, _ = _forces(body, cs)
+    reach = np.array([LAG / np.linalg.norm(_gradients(body.rest[t])[0], axis=1).sum() for t in body.tets])
+    rng = np.random.default_rng(3)
+    moved = body.q + 1e-6 * rng.standard_normal(body.q.shape)
+    moved[np.abs(body.rest[:, 2] - 0.2) < 0.01] += 4e-5 * np.array([0.6, 0.0, 0.8])
+    top = body.rest[:, 2] > 0.25
+    centre = moved[top].mean(axis=0)
+    turn = scipy.linalg.expm(np.cross(np.eye(3), [0.0, 0.0, 20 * LAG]))
+    moved[top] = (moved[top] - centre) @ turn.T + centre
+    start = body.q.copy()
+    a, stepper = _assembled(body, LAG, moved)
+    body.q = moved
+    second = np.array([_polar(body, t) for t in body.tets])
+    angles = np.array([_angle(r0, r1) for r0, r1 in zip(first, second)])
+    reached = np.array([np.linalg.norm(moved[t] - start[t], axis=1).max() for t in body.tets]) / reach
+    held = reached < 0.9
+    kept = (reached > 1.1) & (angles < LAG / 2)
+    turned = (reached > 1.1) & (angles > 2 * LAG)
+    assert held.sum() == kept.sum() == turned.sum() == len(body.tets) // 3  # every tet sorted
+    assert angles[held | kept].min() > 1e-6  # without the lag every one of them would turn
+    rotations = stepper.state.rotations.numpy()
+    assert np.abs(rotations[held | kept] - first[held | kept]).max() <= 1e-12
+    assert np.abs(rotations[turned] - second[turned]).max() <= 1e-12
+    chosen = np.where((held | kept)[:, None, None], first, second)
+    expected, scale = _reference(body, cs, chosen)
+    assert np.abs(a - expected).max() <= TOL * scale
+    forces, scale = _forces(body, cs, chosen)
+    forces[held] = first_forces[held]
+    assert np.abs(stepper.state.element_forces.numpy() - forces).max() <= FORCE_TOL * scale

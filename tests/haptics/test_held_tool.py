@@ -126,3 +126,30 @@ positions = [[0.0, 0.0, 0.3]]
             example.step()
         r = ball.rotation
         assert k_r * np.sin(np.arctan2(r[1, 0], r[0, 0])) == pytest.approx(tau, rel=1e-4)
+
+
+@pytest.mark.parametrize("angular_stiffness", [0.0, 0.01])
+def test_the_hand_feels_k_times_the_tips_lag_behind_the_handle_at_any_pose(angular_stiffness):
+    """HapticTool.force = k (x_tip - x_handle) (thesis 5.4, the virtual coupling's spring; with
+    the orientation springs their stretches' mean is the tip's), x_tip = c + R(q) tip with R
+    from SciPy's Rotation, for a tool turned and moved anywhere and the hand elsewhere. Positions
+    ~1 m and a product of unit quaternions: tolerance 1e-12 k |x|."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    scene = Scene(gravity=(0.0, 0.0, 0.0))
+    tool_body = RigidBody.box([0.02, 0.01, 0.05], 1000.0, position=(0.1, -0.2, 0.3), name="probe")
+    scene.add_body(tool_body)
+    hand = MouseDevice(position=(0.1, -0.2, 0.3))
+    loop = HapticLoop(hand)
+    tip = np.array([0.0, 0.0, 0.025])
+    tool = HapticTool(scene, tool_body, loop, stiffness=K, tip=tip, angular_stiffness=angular_stiffness)
+    for _ in range(20):
+        w, x, y, z = rng.standard_normal(4)
+        turn = np.array([w, x, y, z]) / np.linalg.norm([w, x, y, z])
+        tool_body.orientation[:] = turn
+        tool_body.position[:] = rng.uniform(-1.0, 1.0, 3)
+        tool.handle.position = rng.uniform(-1.0, 1.0, 3)
+        x_tip = tool_body.position + Rotation.from_quat([x, y, z, w]).apply(tip)
+        expected = K * (x_tip - tool.handle.position)
+        np.testing.assert_allclose(tool.force(), expected, rtol=0, atol=1e-12 * K)

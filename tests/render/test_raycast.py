@@ -46,6 +46,9 @@
   change (a dent of a few voxels seen by < 15 % of the pixels; the hidden change by none but
   the probe's). Air rewritten but transparent in both frames, in front of the ball, casts
   no ray (its bricks stay empty, so no sample there is seen in either frame).
+* A ray cast again starts past the cells it skipped last frame unless one of them may now be
+  seen: a layer grown there (in a brick that was already occupied) must be read, its pixels
+  255 (1 - (1 - a) ** L) over the slab and layer's thickness L (emission-absorption, as above).
 * The walk that finds which rays pass a brick whose voxels changed (jumps over a distance
   field) against brute force: a segment's points sampled every 1/2000 of its length, away from
   brick faces by more than the walk's 0.01-voxel step past a face (0.02), must never show a
@@ -347,6 +350,39 @@ def test_a_ray_not_cast_again_still_learns_that_a_brick_on_its_empty_prefix_fill
             assert renderer.ray_caster.cast_pixels < 64 * 64 / 2
 
 
+def test_a_ray_cast_again_reads_a_layer_grown_where_it_skipped_cells_last_frame():
+    """A ray cast again starts at its first sample read last frame, past the cells it skipped
+    (air between voxels, in a brick holding tissue), unless such a cell on the way may now be
+    seen. A slab of tissue (y = 14 .. 17 voxels) seen along -y, of opacity ``a`` per unit length
+    where the value is >= 0 HU (white, unshaded, over black): brick 4 (voxels 16 .. 20) holds
+    its front face and the air cells y = 18 .. 20 before it. Then a layer y = 18 .. 19 is added
+    in that brick (no brick turns occupied): the rays through it must read it. Emission-absorption
+    truth: the value is >= 0 from 40 / 1040 voxel before the first tissue voxel to as far past
+    the last, so a pixel over the layer is 255 (1 - (1 - a) ** L), L = 5 + 2 * 40 / 1040 voxels,
+    within one sample's opacity (+ 0.5 rounding), where starting at last frame's first sample
+    read (y < 18) would give L ~ 4 (18 grey levels darker); and it equals a fresh cast."""
+    a, step = 0.3, 0.1
+    preset = Preset("layer", colors=WHITE, opacities=((-1000.0, 0.0), (-1.0, 0.0), (0.0, a), (1000.0, a)),
+                    shade=False)
+    n = 40
+    data = np.full((n, n, n), -1000, np.int16)
+    data[:, 14:18, :] = 40
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-19.5,) * 3)
+    cam = Camera("front", parallel=True, parallel_scale=20.0, focal_point=(0.0, 0.0, 0.0))  # rays along -y
+    with VolumeRenderer(64, 64, preset, cam, mapper="warp", sample_distance=step) as renderer:
+        renderer.render(vol)
+        data[8:32, 18:20, 8:32] = 40
+        image = renderer.render(vol, changed=((8, 18, 8), (31, 19, 31)))
+        assert renderer.ray_caster.cast_pixels > 0
+        with VolumeRenderer(64, 64, preset, cam, mapper="warp", sample_distance=step) as fresh:
+            assert np.array_equal(image, fresh.render(vol))
+    length = 5.0 + 2.0 * 40.0 / 1040.0
+    expected = 255.0 * (1.0 - (1.0 - a) ** length)
+    tolerance = 255.0 * (1.0 - (1.0 - a) ** step) + 0.5
+    over = image[20:44, 20:44].astype(float)  # the layer spans +-11.5 mm = +-18.4 px about the centre
+    assert np.abs(over - expected).max() <= tolerance, (over.min(), over.max(), expected, tolerance)
+
+
 @wp.kernel
 def _walk(start: wp.array(dtype=wp.vec3), end: wp.array(dtype=wp.vec3), distance: wp.array3d(dtype=wp.uint8),
           found: wp.array(dtype=wp.int32)):
@@ -569,11 +605,18 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     cells = wp.zeros(tuple(nb), dtype=wp.uint64, device="cpu")
     seed = wp.full(tuple(nb), 255, dtype=wp.uint8, device="cpu")
     flips = wp.zeros(int(np.prod(nb)), dtype=wp.uint8, device="cpu")
-    wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
-              inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
-                      wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
-                      wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0), wp.vec3i(*nb),
-                      seed, flips, cells, 0])
+
+    def minmax() -> np.ndarray:
+        """One launch over every brick; the bricks flagged gained."""
+        gained = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
+        wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
+                  inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
+                          wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"),
+                          1, wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0),
+                          wp.vec3i(*nb), seed, flips, cells, gained, 0])
+        return gained.numpy()
+
+    minmax()
     masks = cells.numpy().view(np.uint64)
     c = np.stack(np.meshgrid(*[np.arange(s - 1) for s in shape], indexing="ij"), -1).reshape(-1, 3)
     bit = ((c[:, 0] % b) * b * b + (c[:, 1] % b) * b + c[:, 2] % b).astype(np.uint64)
@@ -602,6 +645,12 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
         occupied[brick] = may_show(int(np.floor(position(block.min()))), int(np.ceil(position(block.max()))))
     assert occupied.any() and (~occupied).any()
     np.testing.assert_array_equal(seed.numpy(), np.where(occupied, 0, 8))
+    # Gained: a brick that turned occupied or whose mask took a bit since the last launch. The
+    # same voxels again: none; one voxel of the all-air block set to a visible value: the only
+    # brick whose voxel range holds it (voxel (1, 5, 5): brick (0, 1, 1), 4 .. 8 along y and z).
+    assert not minmax().any()
+    vol[1, 5, 5] = 300.0
+    np.testing.assert_array_equal(np.argwhere(minmax()), [[0, 1, 1]])
     np.testing.assert_array_equal(flips.numpy(), np.ones(int(np.prod(nb)), np.uint8))
 
 

@@ -103,7 +103,7 @@ def test_a_scene_without_settings_takes_the_described_and_the_simulations_defaul
     sim = Scene()
     assert scene.simulation == {"dt": 0.005, "steps_per_frame": 4, "frames": 100, "gravity": sim.gravity,
                                 "friction": sim.friction, "pgs_iterations": sim.pgs_iterations,
-                                "pgs_tolerance": sim.pgs_tolerance,
+                                "pgs_tolerance": sim.pgs_tolerance, "rotation_lag": sim.rotation_lag,
                                 "contact_margin": sim.contact_margin, "collision_free_start": False,
                                 "adhesion": True, "edge_contacts": sim.edge_contacts}
     assert scene.planes == [{"point": (0.0, 0.0, 0.0), "normal": (0.0, 0.0, 1.0), "friction": sim.friction,

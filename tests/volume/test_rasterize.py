@@ -11,7 +11,7 @@ from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from softvr.errors import InputError
-from softvr.volume import Rasterizer, Volume, deform, grid_tet_mesh
+from softvr.volume import Rasterizer, Volume, deform, grid_tet_mesh, rasterize
 from softvr.volume.tetmesh import tet_signed_volumes
 
 METHODS = ["bbox", "cells", "spans"]
@@ -148,6 +148,20 @@ def test_tets_wider_than_a_cpu_work_item_match_scipy(device):
     vol = _volume(np.float32, shape=(75, 9, 10), spacing=(0.6, 1.0, 0.9))
     out = _deform_matches_affine_truth(vol, (1, 1, 1), lin, np.array([-0.4, 0.7, 0.2]), device, 0.3)
     assert out.shape[0] > 64
+
+
+@pytest.mark.parametrize("ny, nz", [(256, 108), (1024, 1024), (8192, 8192), (8192, 8193), (40000, 40000), (46341, 46341)])
+def test_cpu_span_work_items_keep_every_output_offset_within_int32(ny, nz):
+    """The CPU spans queue an item's output offsets as int32, counted from the item's first
+    slab: an item of ``s`` slabs reaches offset s ny nz - 1, and a queue block may run 7 past a
+    row's end. So s ny nz + 6 must not exceed int32's maximum (numpy's), s stays at most 32
+    (load balance), and is 0 (the generic kernel) only where a single slab does not fit."""
+    s = rasterize._span_item_slabs((1, ny, nz))
+    top = int(np.iinfo(np.int32).max)
+    assert 0 <= s <= 32
+    assert s * ny * nz + 6 <= top
+    assert (s == 0) == (ny * nz + 6 > top)
+    assert s == 32 or (s + 1) * ny * nz + 6 > top - 256
 
 
 def test_all_methods_write_identical_voxels(device):

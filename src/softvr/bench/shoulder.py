@@ -63,6 +63,9 @@ def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
             trace["overlap_m"].append(max(0.0, -min((float(g.min()) for g in solution.gaps_after if len(g)),
                                                     default=0.0)))
             trace["hand_force_n"].append(float(np.linalg.norm(tool.force())))
+            # Not held into the next step, which would copy its contacts out of the arrays it writes
+            # (an application that keeps each step's solution pays that; this one reads it and lets go).
+            del solution
         haptic = tool.loop.period_stats()
     finally:
         player.close()

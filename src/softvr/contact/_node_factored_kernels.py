@@ -54,6 +54,43 @@ def node_rotations(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=
     relative[i] = x * wp.transpose(rotation0[k])
 
 
+@wp.func_native(r"""
+const double* block = (const double*)blocks.data;
+const double* x = (const double*)v.data;
+const double* rhs = (const double*)b.data + 3 * i;
+double r0 = rhs[0];
+double r1 = rhs[1];
+double r2 = rhs[2];
+for (int c = ((const int*)row_start.data)[i], end = ((const int*)row_start.data)[i + 1]; c < end; ++c) {
+    const double* m = block + 9 * c;
+    const double* y = x + 3 * ((const int*)block_col.data)[c];
+    double u = m[0] * y[0];
+    double w = m[1] * y[1];
+    u = u + w;
+    w = m[2] * y[2];
+    r0 = r0 - (u + w);
+    u = m[3] * y[0];
+    w = m[4] * y[1];
+    u = u + w;
+    w = m[5] * y[2];
+    r1 = r1 - (u + w);
+    u = m[6] * y[0];
+    w = m[7] * y[1];
+    u = u + w;
+    w = m[8] * y[2];
+    r2 = r2 - (u + w);
+}
+return wp::vec_t<3, wp::float64>(r0, r1, r2);
+""")
+def _row_residual(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                  blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  v: wp.array(dtype=wp.vec3d)) -> wp.vec3d:
+    """``b_i - sum_j A_ij v_j`` [kg m/s] of node ``i`` in C++ (contiguous arrays; the same
+    products and sums in the same order as Warp's ``acc - A_ij v_j``, so the same bits, at
+    about half the cost of Warp's loop)."""
+    ...
+
+
 @wp.kernel
 def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                     blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), solved: wp.array(dtype=wp.int32),
@@ -63,10 +100,7 @@ def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dty
     5.2's residual turned back by the node's rotation since the factorization."""
     k = wp.tid() + offset
     i = solved[k]
-    acc = b[i]
-    for c in range(row_start[i], row_start[i + 1]):
-        acc = acc - blocks[c] * v[block_col[c]]
-    r[k] = wp.transpose(rotation[i]) * acc
+    r[k] = wp.transpose(rotation[i]) * _row_residual(i, row_start, block_col, blocks, b, v)
 
 
 @wp.kernel
@@ -82,23 +116,88 @@ def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.m
         u[i] = v[i] + rotation[i] * y[k]
 
 
-@wp.func
-def _entry(x: wp.array(dtype=Any), i: int):
-    """Entry ``i`` of ``x`` read as a flat vector [3 len(x)] (vec3d: a number; mat33d: a row,
-    the entry's value in each of three right-hand sides)."""
-    return x[i // 3][i % 3]
+# factor_solve's loops in C++ (contiguous arrays): Warp's generated code spends most of a block
+# on index tests and stride multiplies around its 9 multiplications (0.2 ms for the head CT's
+# 204 K entries). The same operations in the same order as Warp's 3 x 3 products, so the same
+# bits: row(m, y) is row m [3] of a block times column y [3, stride NRHS] of a block of NRHS
+# right-hand sides, the terms in turn; a matrix-vector product (NRHS 1) sums the three
+# products, a matrix-matrix product (NRHS 3) accumulates them with fused multiply-adds.
+_SOLVE = r"""
+auto row = [](const double* m, const double* y) -> double {
+#if NRHS == 1
+    double u = m[0] * y[0];
+    double v = m[1] * y[1];
+    u = u + v;
+    v = m[2] * y[2];
+    return u + v;
+#else
+    return fma(m[2], y[2 * NRHS], fma(m[1], y[NRHS], m[0] * y[0]));
+#endif
+};
+const int* pr = (const int*)perm_r_inverse.data;
+const int* pc = (const int*)perm_c.data;
+const double* in = (const double*)rhs.data;
+double* w = (double*)work.data;
+double* out = (double*)x.data;
+const int k = work.shape[0];
+const int B = 3 * NRHS;  // doubles in a block of work
+double acc[3 * NRHS];
+double t[3 * NRHS];
+for (int half = 0; half < 2; ++half) {
+    const int* start = (const int*)(half == 0 ? lower_start.data : upper_start.data);
+    const int* col = (const int*)(half == 0 ? lower_col.data : upper_col.data);
+    const double* off = (const double*)(half == 0 ? lower.data : upper.data);
+    const double* inv = (const double*)(half == 0 ? lower_inverse.data : upper_inverse.data);
+    for (int s = 0; s < k; ++s) {
+        const int p = half == 0 ? s : k - 1 - s;  // forward: L w = Pr rhs; backward: U w' = w
+        for (int a = 0; a < 3; ++a) {
+            const double* from = half == 0 ? in + (pr[3 * p + a] / 3) * B + (pr[3 * p + a] % 3) * NRHS
+                                           : w + p * B + a * NRHS;
+            for (int j = 0; j < NRHS; ++j) acc[a * NRHS + j] = from[j];
+        }
+        for (int c = start[p], end = start[p + 1]; c < end; ++c) {
+            const double* m = off + 9 * c;
+            const double* y = w + col[c] * B;
+            for (int a = 0; a < 3; ++a) {
+                for (int j = 0; j < NRHS; ++j) {
+                    acc[a * NRHS + j] = acc[a * NRHS + j] - row(m + 3 * a, y + j);
+                }
+            }
+        }
+        const double* m = inv + 9 * p;
+        for (int a = 0; a < 3; ++a) {
+            for (int j = 0; j < NRHS; ++j) t[a * NRHS + j] = row(m + 3 * a, acc + j);
+        }
+        for (int e = 0; e < B; ++e) w[p * B + e] = t[e];
+    }
+}
+for (int i = 0; i < 3 * k; ++i) {  // x = Pc w'
+    const double* from = w + (pc[i] / 3) * B + (pc[i] % 3) * NRHS;
+    for (int j = 0; j < NRHS; ++j) out[(i / 3) * B + (i % 3) * NRHS + j] = from[j];
+}
+"""
 
 
-@wp.func
-def _stack(a: wp.float64, b: wp.float64, c: wp.float64) -> wp.vec3d:
-    """Three flat entries as one block."""
-    return wp.vec3d(a, b, c)
+@wp.func_native("#define NRHS 1\n" + _SOLVE + "#undef NRHS\n")
+def _solved(perm_r_inverse: wp.array(dtype=wp.int32), perm_c: wp.array(dtype=wp.int32),
+            lower_start: wp.array(dtype=wp.int32), lower_col: wp.array(dtype=wp.int32),
+            lower: wp.array(dtype=wp.mat33d), lower_inverse: wp.array(dtype=wp.mat33d),
+            upper_start: wp.array(dtype=wp.int32), upper_col: wp.array(dtype=wp.int32),
+            upper: wp.array(dtype=wp.mat33d), upper_inverse: wp.array(dtype=wp.mat33d),
+            rhs: wp.array(dtype=wp.vec3d), work: wp.array(dtype=wp.vec3d), x: wp.array(dtype=wp.vec3d)):
+    """:func:`factor_solve` with one right-hand side (:data:`_SOLVE`)."""
+    ...
 
 
-@wp.func
-def _stack(a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.mat33d:
-    """Three flat entries of three right-hand sides as one block (rows: the entries)."""
-    return wp.matrix_from_rows(a, b, c)
+@wp.func_native("#define NRHS 3\n" + _SOLVE + "#undef NRHS\n")
+def _solved(perm_r_inverse: wp.array(dtype=wp.int32), perm_c: wp.array(dtype=wp.int32),
+            lower_start: wp.array(dtype=wp.int32), lower_col: wp.array(dtype=wp.int32),
+            lower: wp.array(dtype=wp.mat33d), lower_inverse: wp.array(dtype=wp.mat33d),
+            upper_start: wp.array(dtype=wp.int32), upper_col: wp.array(dtype=wp.int32),
+            upper: wp.array(dtype=wp.mat33d), upper_inverse: wp.array(dtype=wp.mat33d),
+            rhs: wp.array(dtype=wp.mat33d), work: wp.array(dtype=wp.mat33d), x: wp.array(dtype=wp.mat33d)):
+    """:func:`factor_solve` with three right-hand sides, a mat33d's columns (:data:`_SOLVE`)."""
+    ...
 
 
 @wp.kernel
@@ -113,23 +212,11 @@ def factor_solve(perm_r_inverse: wp.array(dtype=wp.int32), perm_c: wp.array(dtyp
     order): ``lower`` / ``upper`` the blocks off the diagonal (block row ``p``: ``start[p] :
     start[p + 1]``, block columns ``col``), ``*_inverse`` the inverses of the diagonal blocks;
     ``perm_r_inverse`` the inverse of ``Pr``'s ``perm_r``, ``perm_c`` ``Pc``'s, over the flat
-    entries. Block rows run at SciPy's CSR product speed; SuperLU's own single-vector solve
+    entries (every array contiguous). Forward ``L w = Pr rhs``, backward ``U w' = w``, ``x =
+    Pc w'``. Block rows run at SciPy's CSR product speed; SuperLU's own single-vector solve
     spends ~2/3 of its time in BLAS calls per supernode."""
-    k = work.shape[0]
-    for p in range(k):  # forward: L w = Pr rhs
-        acc = _stack(_entry(rhs, perm_r_inverse[3 * p]), _entry(rhs, perm_r_inverse[3 * p + 1]),
-                     _entry(rhs, perm_r_inverse[3 * p + 2]))
-        for c in range(lower_start[p], lower_start[p + 1]):
-            acc = acc - lower[c] * work[lower_col[c]]
-        work[p] = lower_inverse[p] * acc
-    for t in range(k):  # backward: U w' = w
-        p = k - 1 - t
-        acc = work[p]
-        for c in range(upper_start[p], upper_start[p + 1]):
-            acc = acc - upper[c] * work[upper_col[c]]
-        work[p] = upper_inverse[p] * acc
-    for i in range(k):  # x = Pc w'
-        x[i] = _stack(_entry(work, perm_c[3 * i]), _entry(work, perm_c[3 * i + 1]), _entry(work, perm_c[3 * i + 2]))
+    _solved(perm_r_inverse, perm_c, lower_start, lower_col, lower, lower_inverse, upper_start, upper_col, upper,
+            upper_inverse, rhs, work, x)
 
 
 for _t in (wp.vec3d, wp.mat33d):

@@ -22,7 +22,9 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._adhesion_kernels import adhesive_bound
-from softvr.contact._node_coarse_kernels import Coarse, coarse_apply, coarse_node, coarse_velocity, coarse_w
+from softvr.contact._node_coarse_kernels import Coarse, coarse_node, coarse_w
+from softvr.contact._node_contact_native import (LOCAL_UPDATES, contact_residual, pgs_passes, screen_contacts,
+                                                 warm_contacts)
 
 
 @wp.func
@@ -105,35 +107,125 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
     v_hat[i] = out
 
 
-@wp.func
-def _push(node: int, g: wp.vec3d, d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-          cross: wp.array(dtype=wp.mat33d), v_hat: wp.array(dtype=wp.vec3d)):
-    """``v^ += D_A^-1 e_node g`` for a generalized impulse ``g`` [N s, or N m s] on ``node``:
-    a spring-held rigid body's partner node moves too, by ``(D^-1)_{partner, node} g``."""
-    v_hat[node] = v_hat[node] + d_inv[node] * g
-    p = partner[node]
-    if p >= 0:
-        v_hat[p] = v_hat[p] + cross[p] * g
+# The Jacobi rows on the CPU as plain C++ (:func:`jacobi_walk`): the same wp:: operations in the
+# same order as :func:`jacobi` (the row's two sums of :func:`row_residual`, Warp's 3x3 product
+# taking the columns in turn, ``(m_0 x_0 + m_1 x_1) + m_2 x_2``, each product and sum a statement
+# of its own so that no compiler fuses them), so the same bits, at ~2 ns a block against ~4: Warp's
+# loop pays its range iterator and, at every array access, the test for a negative index and a
+# product by the stride. The blocks are read transposed (:func:`transpose_blocks`), so that a
+# column is three doubles in a row: on the CPU (clang) the three rows of the product go as the
+# lanes of one 4-wide vector, each lane the scalar code's operations (the fourth lane reads the
+# next block's first double, or the padding block after the last, and is dropped; elsewhere, as
+# CUDA compiles it, Warp's own product of the block transposed back). The candy pile's 29 589
+# blocks: 113-123 -> 61-71 us a sweep on one core. It reads the arrays as contiguous.
+_JACOBI_ROWS = r"""
+typedef wp::vec_t<3, wp::float64> vec3;
+typedef wp::mat_t<3, 3, wp::float64> mat3;
+const wp::int32* start = row_start.data;
+const wp::int32* col = block_col.data;
+const double* block = (const double*)blocks_t.data;
+const double* x = (const double*)v.data;
+const double* rhs = (const double*)b.data;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
+auto product = [&](int k) -> lanes4 {
+    const double* m = block + 9 * k;
+    const double* y = x + 3 * col[k];
+    lanes4 p = *(const lanes4*)m * y[0];
+    lanes4 q = *(const lanes4*)(m + 3) * y[1];
+    p = p + q;
+    q = *(const lanes4*)(m + 6) * y[2];
+    return p + q;
+};
+auto row = [&](int i) -> vec3 {
+    lanes4 r = {rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2], 0.0};
+    lanes4 odd = {0.0, 0.0, 0.0, 0.0};
+    int k = start[i];
+    const int end_k = start[i + 1];
+    for (; k + 1 < end_k; k += 2) {
+        r = r - product(k);
+        odd = odd + product(k + 1);
+    }
+    if (k < end_k) r = r - product(k);
+    r = r - odd;
+    return vec3(r[0], r[1], r[2]);
+};
+#else
+const mat3* transposed = (const mat3*)blocks_t.data;
+const vec3* y = (const vec3*)v.data;
+auto product = [&](int k) -> vec3 { return wp::mul(wp::transpose(transposed[k]), y[col[k]]); };
+auto row = [&](int i) -> vec3 {
+    vec3 r = vec3(rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2]);
+    vec3 odd = vec3();
+    int k = start[i];
+    const int end_k = start[i + 1];
+    for (; k + 1 < end_k; k += 2) {
+        r = wp::sub(r, product(k));
+        odd = wp::add(odd, product(k + 1));
+    }
+    if (k < end_k) r = wp::sub(r, product(k));
+    return wp::sub(r, odd);
+};
+#endif
+const mat3* block_inv = (const mat3*)d_inv.data;
+const mat3* pair_inv = (const mat3*)cross.data;
+const vec3* now = (const vec3*)v.data;
+const vec3* held = (const vec3*)fixed_velocity.data;
+vec3* out = (vec3*)v_hat.data;
+vec3* res = (vec3*)residual.data;
+for (int i = first; i < last; ++i) {
+    if (fixed.data[i] != 0) {
+        out[i] = held[i];
+        continue;
+    }
+    const vec3 r = row(i);
+    res[i] = r;
+    if (own_block.data[i] == 0) {
+        out[i] = wp::mul(block_inv[i], r);
+        continue;
+    }
+    vec3 o = wp::add(now[i], wp::mul(block_inv[i], r));
+    const int p = partner.data[i];
+    if (p >= 0) o = wp::add(o, wp::mul(pair_inv[i], row(p)));
+    out[i] = o;
+}
+"""
 
 
-@wp.func
-def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
-           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
-           rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-           d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
-           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
-    """``v^ += M^-1 J_c^T world`` for contact ``c``'s impulse ``world`` [3] [N s] (a rigid
-    side's angular node takes the torque ``lever x world``; the coarse bodies' velocities
-    their share, :mod:`softvr.contact._node_coarse_kernels`)."""
-    for k in range(stencil_count[c]):
-        node = stencil_nodes[c, k]
-        if fixed[node] == 0:
-            _push(node, stencil_weights[c, k] * world, d_inv, partner, cross, v_hat)
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            _push(node, wp.cross(rigid_lever[c, s], world), d_inv, partner, cross, v_hat)
-    coarse_apply(c, world, co)
+@wp.func_native(_JACOBI_ROWS)
+def _jacobi_rows(first: int, last: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                 blocks_t: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                 own_block: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                 residual: wp.array(dtype=wp.vec3d)):
+    """:func:`jacobi`'s update of nodes ``first`` to ``last`` - 1 in turn (:data:`_JACOBI_ROWS`),
+    from ``A``'s blocks transposed (``blocks_t`` [nnz + 1], :func:`transpose_blocks`)."""
+    ...
+
+
+@wp.kernel
+def jacobi_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                blocks_t: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                own_block: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                residual: wp.array(dtype=wp.vec3d), count: int, parts: int, offset: int):
+    """:func:`jacobi` on the CPU, thread ``part`` (``tid + offset``) of ``parts`` walking the
+    nodes ``count part / parts`` to ``count (part + 1) / parts`` - 1 (of ``count``) in C++
+    (:func:`_jacobi_rows`): the same ``v^`` and ``residual`` to the bit, from ``A``'s blocks
+    transposed (``blocks_t`` [nnz + 1] [kg], :func:`transpose_blocks`, once a step)."""
+    part = wp.tid() + offset
+    _jacobi_rows(count * part // parts, count * (part + 1) // parts, row_start, block_col, blocks_t, d_inv, partner,
+                 cross, b, fixed, fixed_velocity, own_block, v, v_hat, residual)
+
+
+@wp.kernel
+def transpose_blocks(blocks: wp.array(dtype=wp.mat33d), blocks_t: wp.array(dtype=wp.mat33d), offset: int):
+    """``blocks_t[k] = blocks[k]^T`` [kg] (:func:`jacobi_walk` reads a block's columns as rows;
+    once a step, before the sweeps)."""
+    k = wp.tid() + offset
+    blocks_t[k] = wp.transpose(blocks[k])
 
 
 @wp.func
@@ -179,14 +271,15 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
                    rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
                    partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
                    fixed: wp.array(dtype=wp.int32), co: Coarse, metric: wp.array(dtype=wp.mat33d),
-                   movable: wp.array(dtype=wp.int32), threads: int):
+                   movable: wp.array(dtype=wp.int32), threads: int, offset: int):
     """Contact ``c``'s block of ``J M^-1 J^T`` [1/kg] in its frame (normal, tangents), and
     whether an impulse can move anything (a free node of nonzero weight or a rigid side): both
     fixed over a step's sweeps, so the PGS passes read them instead of summing the stencil's
     blocks every pass (2 401 of the candy's ~3 100 contacts are the Jell-O's held bottom).
-    ``threads`` threads (the launch's) stride over this step's contacts: a thread per slot of
-    the buffer cost 4 ms a step on the candy's 188 181."""
-    for c in range(wp.tid(), count[0], threads):
+    ``threads`` threads (``tid + offset``: a launch's chunks may split over the CPU's cores,
+    :func:`softvr.device.chunked_replayer`) stride over this step's contacts: a thread per slot
+    of the buffer cost 4 ms a step on the candy's 188 181."""
+    for c in range(wp.tid() + offset, count[0], threads):
         w = wp.mat33d()
         moves = int(0)
         for k in range(stencil_count[c]):
@@ -210,33 +303,6 @@ def contact_metric(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtyp
         movable[c] = moves
 
 
-@wp.func
-def _relative(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
-              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
-              rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), co: Coarse) -> wp.vec3d:
-    """Contact ``c``'s relative velocity ``J v`` [m/s] (world) in the sweep's ``v^`` (its
-    stencil, its rigid sides and its coarse bodies' velocities)."""
-    rel = wp.vec3d()
-    for k in range(stencil_count[c]):
-        rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
-    return rel + _rigid_velocity(c, v, rigid_node, rigid_lever) + coarse_velocity(c, co)
-
-
-@wp.func
-def _warm(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-          stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-          rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-          d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
-          fixed: wp.array(dtype=wp.int32), impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
-          co: Coarse):
-    """``v^ += M^-1 J_c^T lambda_c`` [m/s] for movable contact ``c``'s impulse of the last sweep
-    [N s], nothing for a zero one."""
-    lam = impulse[c]
-    if lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0):
-        _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
-               rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
-
-
 @wp.kernel
 def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
                   stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
@@ -247,31 +313,11 @@ def warm_impulses(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype
                   movable: wp.array(dtype=wp.int32)):
     """``v^ += M^-1 J^T lambda`` [m/s] for the impulses ``impulse`` [c] [N s] of the last sweep
     (one thread: contacts share nodes). A zero impulse moves nothing and is passed over: most
-    of a step's contacts are speculative ones that do not push."""
-    for c in range(count[0]):
-        if movable[c] != 0:
-            _warm(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv, partner,
-                  cross, fixed, impulse, v_hat, co)
-
-
-@wp.func
-def _screened(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-              stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-              gap: wp.array(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
-              rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64, impulse: wp.array(dtype=wp.vec3d),
-              stiffness: wp.array(dtype=wp.float64), v_hat: wp.array(dtype=wp.vec3d), co: Coarse) -> int:
-    """1 where movable contact ``c`` is live (:func:`screen`): it pushes or holds, may adhere, or
-    its normal velocity in ``v^`` [m/s] is below its target ``-gap / dt``; else 0."""
-    lam = impulse[c]
-    if lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0):
-        return 1
-    if stiffness[c] > wp.float64(0.0):
-        return 1
-    rel = _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
-    normal = wp.vec3d(frame[c][0, 0], frame[c][0, 1], frame[c][0, 2])
-    if wp.dot(normal, rel) < -gap[c] / dt:
-        return 1
-    return 0
+    of a step's contacts are speculative ones that do not push. In C++
+    (:func:`softvr.contact._node_contact_native.warm_contacts`)."""
+    warm_contacts(count[0], 0, movable, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever,
+                  d_inv, partner, cross, fixed, impulse, v_hat, movable, co.side, co.weight, co.lever, co.y_lin,
+                  co.y_ang, co.ll, co.la, co.aa)
 
 
 @wp.kernel
@@ -288,13 +334,10 @@ def screen(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int
     disc has radius 0), so the passes skip it: most of a step's contacts are speculative ones
     that stay apart (candy pile: 24-45 of 700-1 200 push). One that the passes bring below
     its target is taken up by the next sweep's screen. ``threads`` threads (the launch's)
-    stride over the contacts."""
-    for c in range(wp.tid(), count[0], threads):
-        on = int(0)
-        if movable[c] != 0:
-            on = _screened(c, stencil_count, stencil_nodes, stencil_weights, frame, gap, rigid_node, rigid_lever, dt,
-                           impulse, stiffness, v_hat, co)
-        live[c] = on
+    stride over the contacts (:func:`softvr.contact._node_contact_native.screen_contacts`, C++)."""
+    screen_contacts(wp.tid(), count[0], threads, 0, movable, stencil_count, stencil_nodes, stencil_weights, frame,
+                    gap, rigid_node, rigid_lever, dt, impulse, stiffness, v_hat, movable, co.side, co.weight, co.lever,
+                    co.y_lin, co.y_ang, live, live)
 
 
 @wp.func
@@ -350,67 +393,6 @@ def pgs_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap
 
 
 @wp.func
-def _has_rigid_side(c: int, rigid_node: wp.array2d(dtype=wp.int32)) -> bool:
-    """Whether contact ``c`` has a rigid body's side."""
-    for s in range(rigid_node.shape[1]):
-        if rigid_node[c, s] >= 0:
-            return True
-    return False
-
-
-#: Projected updates of a contact's impulse on its own block per visit of the PGS passes
-#: (:func:`contact_update`) where it does not stick: the isotropic tangent step's error on the
-#: block falls by ``1 - w_min / w_max`` an update (a draped cloth vertex: 0.4-0.8).
-LOCAL_UPDATES = wp.constant(8)
-
-
-@wp.func
-def contact_update(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: wp.float64,
-                   dt: wp.float64, mu: wp.float64, stiffness: wp.float64, slip: wp.vec3d) -> wp.vec3d:
-    """A contact's impulse [N s] solved on its own block ``w_f`` of ``J M^-1 J^T`` [1/kg] with
-    the other contacts' impulses held (arguments as :func:`pgs_update`): the sticking
-    impulse ``old + w_f^-1 (target - rel_f)`` (target: ``-gap / dt`` along the normal, 0 along
-    the tangents) where it pushes within the Coulomb disc, else up to :data:`LOCAL_UPDATES`
-    projected updates (:func:`pgs_update`), each seeing the last one's change of the relative
-    velocity; an adhesive contact (``stiffness`` > 0) takes one. One projected update (the
-    isotropic tangent step) leaves a contact's tangent impulse short of its block's solution
-    by ``1 - w_min / w_max`` of the tangent eigenvalues, and the normal one short by its
-    coupling to the tangents: an error
-    that the next sweep inherits, so the sweep is no fixed map of ``v`` and its Chebyshev
-    acceleration cycles. The draped cloth of cloth-sphere.toml (~100 frictional contacts, a
-    vertex's ``w_f`` coupling normal and tangent by up to 0.67, tangent eigenvalues 1.7-5x
-    apart): with one update a visit its Jacobi sweeps ran to 1 000 without converging from its
-    37th step on, its Gauss-Seidel sweeps took 150 a step (60 steps); with this one, 236 and
-    100. Every fixed point of this update is one of :func:`pgs_update`'s: the sticking impulse
-    leaves ``rel`` at its target, where the projected update changes nothing. The PGS passes
-    of :func:`contacts` take it for a contact on one node and no rigid side (a cloth vertex's):
-    its block is then that node's own ``D_A^-1`` block, whose anisotropy (a cloth vertex:
-    stiff in the sheet's plane, soft across it) is all the error; a contact spread over a
-    stencil of FEM nodes or held by a rigid body keeps one update a visit (the candy pile's
-    ~30 pushing contacts of 5-14 nodes: the same sweeps, but this update in every one of
-    their PGS visits cost ~12 % of its step)."""
-    zero = wp.float64(0.0)
-    if stiffness > zero:  # an adhesive bond: its bounds move with the update (one a visit, as before)
-        return pgs_update(old, rel_f, w_f, f, gap, dt, mu, stiffness, slip)
-    w_nn = w_f[0, 0]
-    if w_nn > zero and wp.determinant(w_f) > wp.float64(1e-12) * w_nn * w_nn * w_nn:
-        stick = old + wp.inverse(w_f) * (wp.vec3d(-gap / dt, zero, zero) - rel_f)
-        if stick[0] >= zero and wp.sqrt(stick[1] * stick[1] + stick[2] * stick[2]) <= mu * stick[0]:
-            return stick
-    lam = old
-    rel = rel_f
-    for _ in range(LOCAL_UPDATES):
-        nxt = pgs_update(lam, rel, w_f, f, gap, dt, mu, stiffness, slip)
-        step = nxt - lam
-        rel = rel + w_f * step
-        lam = nxt
-        # Settled: a separating or frictionless contact after its first update.
-        if wp.length(step) <= wp.float64(1e-12) * wp.length(lam):
-            break
-    return lam
-
-
-@wp.func
 def _passes(n: int, order: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
             stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
             frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
@@ -419,22 +401,11 @@ def _passes(n: int, order: wp.array(dtype=wp.int32), stencil_count: wp.array(dty
             fixed: wp.array(dtype=wp.int32), dt: wp.float64, passes: int, impulse: wp.array(dtype=wp.vec3d),
             v_hat: wp.array(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d),
             co: Coarse, metric: wp.array(dtype=wp.mat33d)):
-    """``passes`` PGS passes over the ``n`` contacts listed in ``order`` (:func:`contacts`)."""
-    for _ in range(passes):
-        for i in range(n):
-            c = order[i]
-            f = frame[c]
-            rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
-            w_f = metric[c]
-            old = impulse[c]
-            lam = old
-            if stencil_count[c] == 1 and not _has_rigid_side(c, rigid_node):
-                lam = contact_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
-            else:
-                lam = pgs_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
-            impulse[c] = lam
-            _apply(c, wp.transpose(f) * (lam - old), stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
-                   d_inv, partner, cross, fixed, v_hat, co)
+    """``passes`` PGS passes over the ``n`` contacts listed in ``order`` (:func:`contacts`), in C++
+    (:func:`softvr.contact._node_contact_native.pgs_passes`: :func:`pgs_update`'s operations)."""
+    pgs_passes(n, order, stencil_count, stencil_nodes, stencil_weights, frame, gap, friction, rigid_node, rigid_lever,
+               d_inv, partner, cross, fixed, dt, passes, impulse, v_hat, stiffness, slip, metric, co.side, co.weight,
+               co.lever, co.y_lin, co.y_ang, co.ll, co.la, co.aa, LOCAL_UPDATES)
 
 
 @wp.kernel
@@ -487,18 +458,12 @@ def contact_step(movers: wp.array(dtype=wp.int32), mover_count: wp.array(dtype=w
     pile's ~3 000 contacts have ~600 movable ones (2 401 hold the Jell-O's fixed bottom): each
     launch passed over all of them, and each launch's call cost ~1 us of Python."""
     n = mover_count[0]
-    for m in range(n):
-        _warm(movers[m], stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
-              partner, cross, fixed, impulse, v_hat, co)
-    live_count = int(0)
-    for m in range(n):
-        c = movers[m]
-        on = _screened(c, stencil_count, stencil_nodes, stencil_weights, frame, gap, rigid_node, rigid_lever, dt,
-                       impulse, stiffness, v_hat, co)
-        live[c] = on
-        if on != 0:
-            order[live_count] = c
-            live_count = live_count + 1
+    warm_contacts(n, 1, movers, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
+                  partner, cross, fixed, impulse, v_hat, movers, co.side, co.weight, co.lever, co.y_lin, co.y_ang,
+                  co.ll, co.la, co.aa)
+    live_count = screen_contacts(0, n, 1, 1, movers, stencil_count, stencil_nodes, stencil_weights, frame, gap,
+                                 rigid_node, rigid_lever, dt, impulse, stiffness, v_hat, movers, co.side, co.weight,
+                                 co.lever, co.y_lin, co.y_ang, live, order)
     _passes(live_count, order, stencil_count, stencil_nodes, stencil_weights, frame, gap, friction, rigid_node,
             rigid_lever, d_inv, partner, cross, fixed, dt, passes, impulse, v_hat, stiffness, slip, co, metric)
     sweep[0] = sweep[0] + 1
@@ -668,26 +633,6 @@ def residual(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.i
     its complementarity, friction disc (sticking: no slip; sliding: on the rim against the
     slip) and adhesive bounds (eq. 4.16) (Erleben 2013, the natural merit function). Every
     contact's target is then met within ``stats[2]``: the step solves eq. 5.5 with its
-    targets moved by at most that much."""
-    worst = wp.float64(0.0)
-    natural = wp.float64(0.0)
-    for c in range(count[0]):
-        rel = wp.vec3d()
-        for k in range(stencil_count[c]):
-            rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
-        rel = rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
-        f = frame[c]
-        rel_f = f * rel
-        vn = rel_f[0]
-        gap_after[c] = gap[c] + dt * vn
-        error = -gap[c] / dt - vn
-        if impulse[c][0] > wp.float64(0.0):
-            error = wp.abs(error)
-        worst = wp.max(worst, error)
-        if movable[c] != 0:
-            w_f = metric[c]
-            lam = impulse[c]
-            step = w_f * (pgs_update(lam, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c]) - lam)
-            natural = wp.max(natural, wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2]))))
-    stats[1] = worst
-    stats[2] = natural
+    targets moved by at most that much. In C++ (:func:`softvr.contact._node_contact_native.contact_residual`)."""
+    contact_residual(count, stencil_count, stencil_nodes, stencil_weights, frame, gap, rigid_node, rigid_lever, dt, v,
+                     impulse, friction, stiffness, slip, metric, movable, gap_after, stats)

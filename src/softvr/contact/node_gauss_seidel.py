@@ -160,8 +160,9 @@ class GaussSeidelSweep:
         self._off_blocks = wp.zeros(len(off_source) + 1, dtype=wp.mat33d, device=d)
         if len(off_source):  # none where every node is a spring-held rigid body's
             source: wp.array = wp.array(off_source, dtype=wp.int32, device=d)
-            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=len(off_source), device=d,
-                                                    record_cmd=True, inputs=[state.blocks, source, self._off_blocks])))
+            threads = 1 if wp.get_device(d).is_cpu else len(off_source)
+            self._prepare.append(replayer(wp.launch(_k.gather_off_blocks, dim=threads, device=d, record_cmd=True,
+                                                    inputs=[state.blocks, source, self._off_blocks, threads])))
         # On the CPU, where no colour is split over the cores, one launch walks all colours
         # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
         self._walk = wp.get_device(d).is_cpu and (
@@ -231,10 +232,12 @@ class GaussSeidelSweep:
                 st.fixed_velocity, self.contact_node]
 
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
-        # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) reads these as plain contiguous memory.
+        # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) and of the coarse correction
+        # (_node_gs_coarse_kernels._aggregate_velocity) reads these as plain contiguous memory.
         for name, array in (("b", st.b), ("v", v), ("work", w), ("v_hat", st.v_hat), ("d_inv", st.d_inv),
                             ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed),
-                            ("off_blocks", self._off_blocks)):
+                            ("off_blocks", self._off_blocks), ("blocks", st.blocks), ("q", st.q),
+                            ("row_start", m.row_start), ("block_col", m.block_col)):
             if not array.is_contiguous:
                 raise ValueError(f"GaussSeidelSweep.record: expected a contiguous array for {name}, found strides "
                                  f"{array.strides}")

@@ -19,7 +19,7 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import chunked_replayer, in_order, load_kernels, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
@@ -253,8 +253,9 @@ class NodeSolve:
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
         d = model.device
-        for kernel in (_k.jacobi, _k.contact_metric, _k.warm_impulses, _k.screen, _k.contacts, _k.contact_step,
-                       _k.list_movers, _k.chebyshev, _k.residual, _k.rigid_contact_exact, _k.largest_change):
+        for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
+                       _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
+                       _k.rigid_contact_exact, _k.largest_change):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -343,24 +344,36 @@ class NodeSolve:
         self.live = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         movable = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
-        # metric and the coarse inverses are set).
+        # metric and the coarse inverses are set); on the CPU over the cores (~0.2 ms a step on
+        # the candy's ~3 000 contacts).
         threads = _contact_threads(d)
-        self._metric = replayer(wp.launch(_k.contact_metric, dim=threads, device=d, record_cmd=True,
-                                          inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
-                                                  c.frame, c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner,
-                                                  cross, model.fixed, co, metric, movable, threads]))
+        metric_threads = 2 * cpu_workers() if threads == 1 else threads
+        self._metric = chunked_replayer(_k.contact_metric, metric_threads,
+                                        [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
+                                         c.rigid_node, c.rigid_lever, d_inv, model.couplings.partner, cross,
+                                         model.fixed, co, metric, movable, metric_threads], d, min_chunk=1)
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         own_block = _own_blocks(model) if gs is None else None
         # One thread on the CPU, which also takes the largest change (no second pass over the nodes).
         node_threads = 1 if wp.get_device(d).is_cpu else model.node_count
+        # On the CPU the Jacobi update walks its nodes in C++ (_node_jacobi_kernels.jacobi_walk),
+        # in two parts a core, from A's blocks transposed once a step (and a padding block).
+        walk = gs is None and node_threads == 1
+        self._transpose = _nothing
+        if walk:
+            blocks_t = wp.zeros(model.block_col.shape[0] + 1, dtype=wp.mat33d, device=d)
+            self._transpose = chunked_replayer(_k.transpose_blocks, model.block_col.shape[0],
+                                               [state.blocks, blocks_t], d)
+            parts = 2 * cpu_workers()
         for r in range(3):
             v, v_prev, v_next = buf[r], buf[(r + 2) % 3], buf[(r + 1) % 3]
             if gs is None:
-                jacobi.append(chunked_replayer(_k.jacobi, model.node_count,
-                                               [model.row_start, model.block_col, state.blocks, state.d_inv,
-                                                model.couplings.partner, model.couplings.cross, state.b, model.fixed,
-                                                state.fixed_velocity, own_block, v, state.v_hat, self.residual_nodes],
-                                               d))
+                row_inputs = [model.row_start, model.block_col, blocks_t if walk else state.blocks, state.d_inv,
+                              model.couplings.partner, model.couplings.cross, state.b, model.fixed,
+                              state.fixed_velocity, own_block, v, state.v_hat, self.residual_nodes]
+                jacobi.append(chunked_replayer(_k.jacobi_walk, parts, [*row_inputs, model.node_count, parts], d,
+                                               min_chunk=2) if walk else
+                              chunked_replayer(_k.jacobi, model.node_count, row_inputs, d))
                 if self.coarse.residual is not None:  # the coarse velocities from the sweep's residual
                     jacobi[-1] = in_order(jacobi[-1], self.coarse.residual)
             else:  # the contact PGS runs inside the Gauss-Seidel sweep
@@ -440,6 +453,21 @@ class NodeSolve:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
         return self._stats_view if self._stats_view is not None else self.stats.numpy()
 
+    def prepare(self) -> None:
+        """What the sweeps read that is fixed over a step's sweeps, from this step's ``A``,
+        ``b`` and contacts (:meth:`solve` starts with it): the sweep count reset, the
+        Gauss-Seidel metric, ``A``'s blocks transposed for the CPU's Jacobi walk, the exact
+        nodes, the coarse spaces, the contacts' metric and the movable ones' list."""
+        self.sweep.zero_()
+        if self._gauss_seidel is not None:
+            self._gauss_seidel.prepare()
+        self._transpose()
+        wp.copy(self.exact, self._exact_base)
+        self._rigid_contacts()
+        self.coarse.prepare()
+        self._metric()
+        self._list_movers()
+
     def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
@@ -471,14 +499,7 @@ class NodeSolve:
         the stop claims. Returns the sweeps made and the buffer
         holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
         [m/s]."""
-        self.sweep.zero_()
-        if self._gauss_seidel is not None:
-            self._gauss_seidel.prepare()
-        wp.copy(self.exact, self._exact_base)
-        self._rigid_contacts()
-        self.coarse.prepare()
-        self._metric()
-        self._list_movers()
+        self.prepare()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
         wp.copy(self.weights, self._first_weights if narrow else self._bounds_weights)

@@ -79,8 +79,11 @@ def orthonormalized(r: wp.mat33d) -> wp.mat33d:
 
 
 @wp.func
-def warm_polar_rotation(f: wp.mat33d, r0: wp.mat33d) -> wp.mat33d:
-    """:func:`polar_rotation` of F started from ``r0``, a rotation near it (last step's R_e).
+def lagged_polar_rotation(f: wp.mat33d, r0: wp.mat33d, keep: wp.float64) -> wp.mat33d:
+    """:func:`polar_rotation` of F started from ``r0``, a rotation near it (last step's R_e),
+    or ``r0`` itself where the first Newton correction below is at most ``keep`` [rad]: to
+    first order ``r0`` is then within ``keep`` of the polar rotation (Higham, Functions of
+    Matrices, 8.1: the correction ``w`` solves the linearized polar condition).
 
     Newton's method on the rotation: with X = R^T F, the correction R <- R Q(w) that makes
     Q^T X symmetric to first order solves (tr(X) I - X) w = (X32 - X23, X13 - X31, X21 - X12)
@@ -113,6 +116,9 @@ def warm_polar_rotation(f: wp.mat33d, r0: wp.mat33d) -> wp.mat33d:
             ww = wp.dot(w, w)
             if it == 0 and not (ww <= wp.float64(WARM_REACH) * wp.float64(WARM_REACH)):
                 break
+            if it == 0 and ww <= keep * keep:
+                settled = 1
+                break
             h = wp.float64(0.5) * w
             k = wp.skew(h)
             r = r * (wp.identity(n=3, dtype=wp.float64)
@@ -124,6 +130,13 @@ def warm_polar_rotation(f: wp.mat33d, r0: wp.mat33d) -> wp.mat33d:
     if settled == 0:
         r = polar_rotation(f)
     return r
+
+
+@wp.func
+def warm_polar_rotation(f: wp.mat33d, r0: wp.mat33d) -> wp.mat33d:
+    """:func:`polar_rotation` of F started from ``r0``, a rotation near it (last step's R_e):
+    :func:`lagged_polar_rotation` keeping nothing but round-off."""
+    return lagged_polar_rotation(f, r0, wp.float64(0.0))
 
 
 @wp.func
@@ -141,13 +154,14 @@ def element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int3
 @wp.func
 def warm_element_rotation(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                           dm_inv: wp.array(dtype=wp.mat33d), e: int, corotational: int,
-                          rotations: wp.array(dtype=wp.mat33d)) -> wp.mat33d:
-    """:func:`element_rotation` started from ``rotations[e]`` (:func:`warm_polar_rotation`)."""
+                          rotations: wp.array(dtype=wp.mat33d), keep: wp.float64) -> wp.mat33d:
+    """:func:`element_rotation` started from ``rotations[e]``, kept where it is within ``keep``
+    [rad] of it (:func:`lagged_polar_rotation`)."""
     r = wp.identity(n=3, dtype=wp.float64)
     if corotational != 0:
         x0 = q[tets[e, 0]]
-        r = warm_polar_rotation(wp.matrix_from_cols(q[tets[e, 1]] - x0, q[tets[e, 2]] - x0, q[tets[e, 3]] - x0)
-                                * dm_inv[e], rotations[e])
+        r = lagged_polar_rotation(wp.matrix_from_cols(q[tets[e, 1]] - x0, q[tets[e, 2]] - x0, q[tets[e, 3]] - x0)
+                                  * dm_inv[e], rotations[e], keep)
     return r
 
 

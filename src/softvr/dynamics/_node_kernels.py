@@ -21,16 +21,55 @@ NAN_VELOCITY = wp.constant(1)
 TOO_FAST = wp.constant(2)
 
 
+@wp.func
+def _turn(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d), e: int,
+          corotational: int, keep: wp.float64, rotations: wp.array(dtype=wp.mat33d),
+          turned: wp.array(dtype=wp.int32)) -> wp.mat33d:
+    """Tet ``e``'s R_e from the one it replaces (:func:`warm_element_rotation`), stored, and
+    whether it changed at all into ``turned[e]`` (1, else 0: its blocks of ``A`` stay)."""
+    old = rotations[e]
+    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations, keep)
+    d = r - old
+    turned[e] = wp.where(wp.ddot(d, d) > wp.float64(0.0), 1, 0)
+    rotations[e] = r
+    return r
+
+
+@wp.func
+def _held(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), e: int, hold: wp.array(dtype=wp.float64),
+          held: wp.array2d(dtype=wp.vec3d)) -> bool:
+    """Whether each of tet ``e``'s nodes is within ``hold[e]`` [m] of where its terms were last
+    computed (``held[e]`` [4] [m]); if not, ``held[e]`` takes the nodes' positions."""
+    reach = hold[e] * hold[e]
+    far = wp.float64(0.0)
+    for a in range(4):
+        d = q[tets[e, a]] - held[e, a]
+        far = wp.max(far, wp.dot(d, d))
+    if far <= reach:
+        return True
+    for a in range(4):
+        held[e, a] = q[tets[e, a]]
+    return False
+
+
 @wp.kernel
 def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32),
                   dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
-                  live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
-                  forces: wp.array2d(dtype=wp.vec3d), offset: int):
-    """R_e and the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet
-    ``e = live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m])."""
+                  live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int, hold: wp.array(dtype=wp.float64),
+                  held: wp.array2d(dtype=wp.vec3d), rotations: wp.array(dtype=wp.mat33d),
+                  turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d), offset: int):
+    """R_e (last step's where within ``keep`` [rad] of the polar rotation:
+    :func:`_fem_kernels.lagged_polar_rotation`; ``turned[e]`` 1 where R_e changed, else 0) and
+    the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e =
+    live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m]). With
+    ``holding``, a tet whose nodes are all within ``hold[e]`` [m] of where its terms were last
+    computed (``held``, :func:`_held`) keeps them as they are."""
     e = live[wp.tid() + offset]
-    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
-    rotations[e] = r
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
+    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     for a in range(4):
         fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + ke[e, 4 * a + 3] * local3
@@ -41,7 +80,9 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
 def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d),
                             tets: wp.array2d(dtype=wp.int32), dm_inv: wp.array(dtype=wp.mat33d),
                             gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d), corotational: int,
-                            live: wp.array(dtype=wp.int32), rotations: wp.array(dtype=wp.mat33d),
+                            live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int,
+                            hold: wp.array(dtype=wp.float64), held: wp.array2d(dtype=wp.vec3d),
+                            rotations: wp.array(dtype=wp.mat33d), turned: wp.array(dtype=wp.int32),
                             forces: wp.array2d(dtype=wp.vec3d), rotated_gradients: wp.array2d(dtype=wp.vec3d),
                             offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
@@ -54,10 +95,14 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     four outer products and four matrix-vector products a tet, not sixteen 3x3 blocks read and
     applied. Equal to :func:`element_terms`'s sum in exact arithmetic; both round each term
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
-    :func:`assemble_isotropic`."""
+    :func:`assemble_isotropic` where R_e turned. ``keep``, ``holding``, ``hold``, ``held``,
+    ``turned``: :func:`element_terms`'."""
     e = live[wp.tid() + offset]
-    r = warm_element_rotation(q, tets, dm_inv, e, corotational, rotations)
-    rotations[e] = r
+    if holding != 0:
+        if _held(q, tets, e, hold, held):
+            turned[e] = 0
+            return
+    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
     local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
     g0 = gradients[e, 0]
     g1 = gradients[e, 1]
@@ -73,10 +118,11 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     forces[e, 1] = -(rs * g1)
     forces[e, 2] = -(rs * g2)
     forces[e, 3] = -(rs * g3)
-    rotated_gradients[e, 0] = r * g0
-    rotated_gradients[e, 1] = r * g1
-    rotated_gradients[e, 2] = r * g2
-    rotated_gradients[e, 3] = r * g3
+    if turned[e] != 0:
+        rotated_gradients[e, 0] = r * g0
+        rotated_gradients[e, 1] = r * g1
+        rotated_gradients[e, 2] = r * g2
+        rotated_gradients[e, 3] = r * g3
 
 
 @wp.func
@@ -100,18 +146,38 @@ def store_block(k: int, m: wp.mat33d, block_row: wp.array(dtype=wp.int32), block
         blocks[t] = wp.transpose(m)
 
 
+@wp.func_native(r"""
+if (lagging == 0) return false;
+const int* code = (const int*)contrib.data;
+const int* flag = (const int*)turned.data;
+for (int c = ((const int*)contrib_start.data)[k], end = ((const int*)contrib_start.data)[k + 1]; c < end; ++c)
+    if (flag[code[c] / 16] != 0) return false;
+return true;
+""")
+def _kept(k: int, contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
+          turned: wp.array(dtype=wp.int32), lagging: int) -> bool:
+    """Whether block ``k`` of ``A`` keeps last step's value: ``lagging`` and none of its tets'
+    R_e changed (the same rotations sum to the same bits, and nothing else writes ``A``). In
+    C++ (contiguous arrays): most blocks are kept, and Warp's loop over their tets' flags cost
+    ~19 ns a block, as much as assembling a sixth of them."""
+    ...
+
+
 @wp.kernel
 def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
              block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
              contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
              rotations: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d),
              tet_beta: wp.array(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
-             node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
-             d_inv: wp.array(dtype=wp.mat33d), offset: int):
+             node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, turned: wp.array(dtype=wp.int32), lagging: int,
+             blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """Block ``k = assembled[tid]`` of ``A`` [kg] and its transpose (:func:`store_block`), any
     element stiffness ``ke`` [N/m]. ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that
-    tet adds to block ``k``."""
+    tet adds to block ``k``. With ``lagging``, a block none of whose tets turned (``turned``)
+    is left as it is (:func:`_kept`)."""
     k = assembled[wp.tid() + offset]
+    if _kept(k, contrib_start, contrib, turned, lagging):
+        return
     m = wp.mat33d()
     for c in range(contrib_start[k], contrib_start[k + 1]):
         code = contrib[c]
@@ -121,13 +187,48 @@ def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=w
     store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
+# _isotropic_sum: a block's isotropic contributions as plain C++, the same wp:: operations in the
+# same order as Warp's loop would take them, ``m + l0 (R g_a)(R g_b)^T + l1 (R g_b)(R g_a)^T``
+# and the diagonal's ``l1 (R g_a . R g_b)`` (so the same bits), with none of its per-access index
+# arithmetic: the candy's assembly 1.44 -> 1.13 ms on one core. It reads the arrays as contiguous.
+_ISOTROPIC_SUM = r"""
+typedef wp::vec_t<3, wp::float64> vec3;
+typedef wp::mat_t<3, 3, wp::float64> mat3;
+const int per_tet = rotated_gradients.shape[1];
+const vec3* gradient = (const vec3*)rotated_gradients.data;
+const wp::vec_t<2, wp::float64>* moduli = (const wp::vec_t<2, wp::float64>*)lame.data;
+mat3 m = mat3();
+wp::float64 diagonal = 0.0;
+for (int c = contrib_start.data[k], end = contrib_start.data[k + 1]; c < end; ++c) {
+    const int code = contrib.data[c];
+    const int e = code / 16;
+    const vec3 ra = gradient[e * per_tet + (code / 4) % 4];
+    const vec3 rb = gradient[e * per_tet + code % 4];
+    const wp::vec_t<2, wp::float64> l = moduli[e];
+    m = wp::add(wp::add(m, wp::mul(l[0], wp::outer(ra, rb))), wp::mul(l[1], wp::outer(rb, ra)));
+    diagonal = wp::add(diagonal, wp::mul(l[1], wp::dot(ra, rb)));
+}
+return wp::add(m, mat3(diagonal, 0.0, 0.0, 0.0, diagonal, 0.0, 0.0, 0.0, diagonal));
+"""
+
+
+@wp.func_native(_ISOTROPIC_SUM)
+def _isotropic_sum(k: int, contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
+                   rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d)) -> wp.mat33d:
+    """Block ``k``'s sum of ``R K_e,ab R^T`` [kg] over its contributions (``contrib[c]`` = 16 tet
+    + 4 a + b, ``c`` in ``contrib_start[k]:contrib_start[k + 1]``) with the diagonal term added
+    (:func:`assemble_isotropic`; :data:`_ISOTROPIC_SUM`)."""
+    ...
+
+
 @wp.kernel
 def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=wp.int32),
                        block_row: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                        contrib_start: wp.array(dtype=wp.int32), contrib: wp.array(dtype=wp.int32),
                        rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d),
                        mass: wp.array(dtype=wp.float64), node_alpha: wp.array(dtype=wp.float64), dt: wp.float64,
-                       blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
+                       turned: wp.array(dtype=wp.int32), lagging: int, blocks: wp.array(dtype=wp.mat33d),
+                       d_inv: wp.array(dtype=wp.mat33d), offset: int):
     """:func:`assemble` for isotropic linear tets, K_e,ab = V (lambda g_a g_b^T + mu g_b g_a^T
     + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C, g_a [1/m] the shape functions' rest
     gradients; ``rotated_gradients[e, a]`` = R g_a, of :func:`element_terms_isotropic`;
@@ -138,20 +239,12 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
     two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an
     orthogonal R; with |R^T R - I| = eps_R (the polar iteration stops at round-off, ~1e-15) and
     float64 rounding u, a contribution differs from :func:`assemble`'s by at most
-    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms)."""
+    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms). ``turned``, ``lagging`` as
+    :func:`assemble`'s."""
     k = assembled[wp.tid() + offset]
-    m = wp.mat33d()
-    diagonal = wp.float64(0.0)
-    for c in range(contrib_start[k], contrib_start[k + 1]):
-        code = contrib[c]
-        e = code // 16
-        ra = rotated_gradients[e, (code // 4) % 4]
-        rb = rotated_gradients[e, code % 4]
-        l = lame[e]
-        m = m + l[0] * wp.outer(ra, rb) + l[1] * wp.outer(rb, ra)
-        diagonal = diagonal + l[1] * wp.dot(ra, rb)
-    m = m + wp.mat33d(diagonal, wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), diagonal, wp.float64(0.0),
-                      wp.float64(0.0), wp.float64(0.0), diagonal)
+    if _kept(k, contrib_start, contrib, turned, lagging):
+        return
+    m = _isotropic_sum(k, contrib_start, contrib, rotated_gradients, lame)
     store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
@@ -214,37 +307,71 @@ def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d),
     v_before[i] = vi
 
 
-@wp.kernel
-def carried_share(v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
-                  mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32), memory: wp.float64,
-                  carried: int, share: wp.array(dtype=wp.float64)):
-    """The share of last step's change that the next first guess carries on (:func:`start_guess`):
-    the least-squares fit over the ``fitted`` [n] nodes, mass-weighted, of the change the last
-    solve made, ``v - v_before`` [m/s], on the change carried into it, ``change`` [m/s]:
-    ``share[2] = sum m (v - v_before) . change / sum m |change|^2``, clipped to [0, 1], both sums
-    kept in ``share[0]``, ``share[1]`` with the older steps' weighed down by ``memory`` a step;
-    1 (all of it) until a step has been carried into, and after the explicit step (``carried``
-    0: the sums start again). One thread."""
+@wp.func
+def _share_sums(first: int, stride: int, v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
+                change: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32)):
+    """(sum m (v - v_before) . change, sum m |change|^2) [kg m^2/s^2] over the ``fitted`` nodes
+    ``first``, ``first + stride``, ... in turn (:func:`carried_share`)."""
+    num = wp.float64(0.0)
+    den = wp.float64(0.0)
+    for i in range(first, v.shape[0], stride):
+        if fitted[i] != 0:
+            c = change[i]
+            num = num + mass[i] * wp.dot(v[i] - v_before[i], c)
+            den = den + mass[i] * wp.dot(c, c)
+    return wp.vec2d(num, den)
+
+
+@wp.func
+def _fit_share(sums: wp.vec2d, memory: wp.float64, carried: int, share: wp.array(dtype=wp.float64)):
+    """Takes this step's sums into ``share`` (:func:`carried_share`)."""
     if carried == 0:
         share[0] = wp.float64(0.0)
         share[1] = wp.float64(0.0)
         share[2] = wp.float64(1.0)
         return
-    num = wp.float64(0.0)
-    den = wp.float64(0.0)
-    for i in range(v.shape[0]):
-        if fitted[i] != 0:
-            c = change[i]
-            num = num + mass[i] * wp.dot(v[i] - v_before[i], c)
-            den = den + mass[i] * wp.dot(c, c)
-    num = memory * share[0] + num
-    den = memory * share[1] + den
+    num = memory * share[0] + sums[0]
+    den = memory * share[1] + sums[1]
     share[0] = num
     share[1] = den
     a = wp.float64(1.0)
     if den > wp.float64(0.0):
         a = wp.clamp(num / den, wp.float64(0.0), wp.float64(1.0))
     share[2] = a
+
+
+@wp.kernel
+def carried_share(v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
+                  mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32), memory: wp.float64,
+                  carried: int, threads: int, partial: wp.array(dtype=wp.vec2d), share: wp.array(dtype=wp.float64)):
+    """The share of last step's change that the next first guess carries on (:func:`start_guess`):
+    the least-squares fit over the ``fitted`` [n] nodes, mass-weighted, of the change the last
+    solve made, ``v - v_before`` [m/s], on the change carried into it, ``change`` [m/s]:
+    ``share[2] = sum m (v - v_before) . change / sum m |change|^2``, clipped to [0, 1], both sums
+    kept in ``share[0]``, ``share[1]`` with the older steps' weighed down by ``memory`` a step;
+    1 (all of it) until a step has been carried into, and after the explicit step (``carried``
+    0: the sums start again). ``threads`` threads (the launch's) stride over the nodes: one (the
+    CPU, ~2 us on the shoulder) fits the share itself; with several (CUDA: one thread would walk
+    ~10^4 nodes in turn) thread t leaves its two sums in ``partial[t]`` [threads] and
+    :func:`share_total` adds them, in thread order: the same share in every run."""
+    t = wp.tid()
+    sums = wp.vec2d()
+    if carried != 0:
+        sums = _share_sums(t, threads, v, v_before, change, mass, fitted)
+    if threads == 1:
+        _fit_share(sums, memory, carried, share)
+    else:
+        partial[t] = sums
+
+
+@wp.kernel
+def share_total(partial: wp.array(dtype=wp.vec2d), memory: wp.float64, carried: int,
+                share: wp.array(dtype=wp.float64)):
+    """:func:`carried_share`'s fit from its threads' sums ``partial`` [threads] (one thread)."""
+    sums = partial[0]
+    for t in range(1, partial.shape[0]):
+        sums = sums + partial[t]
+    _fit_share(sums, memory, carried, share)
 
 
 @wp.kernel

@@ -18,7 +18,7 @@ from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
 __all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "fixed_only", "isotropic_terms", "record_drive",
-           "record_elements", "record_integrate", "record_start", "record_system"]
+           "record_elements", "record_integrate", "record_start", "record_system", "shape_gradients"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -30,6 +30,11 @@ NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above
 #: (main) 18.58; the fit over the last step alone (0) 17.68, 0.5 17.24, 0.9 16.79; a fixed half
 #: 16.81. A fit, not a fixed share: a uniformly accelerated body (free fall) carries all of it.
 SHARE_MEMORY = 0.9
+
+#: Threads of the share's sums over the nodes on CUDA (:func:`_node_kernels.carried_share`; the
+#: CPU's one thread walks them all): ~40 nodes a thread on candy's ~10^4, and the one thread of
+#: :func:`_node_kernels.share_total` adds this many pairs.
+SHARE_THREADS_CUDA = 256
 
 
 def fixed_only(model) -> tuple[np.ndarray, np.ndarray]:
@@ -51,26 +56,42 @@ def fixed_only(model) -> tuple[np.ndarray, np.ndarray]:
     return fixed[tets].all(axis=1), fixed[model.block_row.numpy()[k]] & fixed[model.block_col.numpy()[k]]
 
 
-def record_elements(model, state) -> Callable[[], None]:
+def record_elements(model, state, *, keep: float = 0.0, turned: wp.array | None = None) -> Callable[[], None]:
     """A replay writing the rotation and elastic forces [N] (``state.rotations``,
     ``state.element_forces``) at ``state.q`` of every tet but those of fixed nodes only
     (:func:`fixed_only`), split over the CPU cores (from the Lame form where every tet is
     isotropic linear, :func:`isotropic_terms`). Each rotation starts from the one it replaces
-    (last step's: ``_fem_kernels.warm_polar_rotation``; zeros go the cold way)."""
+    (last step's: ``_fem_kernels.warm_polar_rotation``; zeros go the cold way).
+
+    With ``keep`` > 0 [rad] a tet's terms lag its nodes by at most ``keep``: its rotation stays
+    last step's where that is within ``keep`` of the polar rotation
+    (``_fem_kernels.lagged_polar_rotation``), and its rotation and forces stay as they are
+    while each of its nodes is within ``keep / sum_a |g_a|`` [m] of where they were computed
+    (g_a the shape functions' gradients [1/m]: F = sum_a x_a g_a^T then moved by at most
+    ``keep``, so the held R_e is within ~2 ``keep`` of the polar rotation and the held forces
+    are those of a strain within ``keep``). ``turned`` [m] (int32): 1 where a tet's rotation
+    changed, else 0 (for :func:`record_system`)."""
     live = np.flatnonzero(~fixed_only(model)[0])
     live_d: wp.array = wp.array(live, dtype=wp.int32, device=model.device)
-    isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
+    d = model.device
+    if turned is None:
+        turned = wp.zeros(len(model.tets), dtype=wp.int32, device=d)
+    dm_inv = model.dm_inv.numpy()
+    reach = keep / np.maximum(np.linalg.norm(shape_gradients(dm_inv), axis=2).sum(axis=1), 1e-300)
+    hold: wp.array = wp.array(reach, dtype=wp.float64, device=d)
+    # Nowhere yet (1e300: its distance squared is inf): the first replay computes every tet.
+    held = wp.full((len(model.tets), 4), wp.vec3d(1e300, 1e300, 1e300), dtype=wp.vec3d, device=d)
+    lag = [float(keep), int(keep > 0.0), hold, held, state.rotations, turned, state.element_forces]
+    isotropic = isotropic_terms(model.ke.numpy(), dm_inv)
     if isotropic is None:
         return chunked_replayer(_k.element_terms, len(live),
                                 [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
-                                 live_d, state.rotations, state.element_forces], model.device, min_chunk=512)
+                                 live_d, *lag], d, min_chunk=512)
     gradients, lame = isotropic
     return chunked_replayer(_k.element_terms_isotropic, len(live),
-                            [state.q, model.rest, model.tets, model.dm_inv,
-                             wp.array(gradients, dtype=wp.vec3d, device=model.device),
-                             wp.array(lame, dtype=wp.vec2d, device=model.device), int(model.corotational),
-                             live_d, state.rotations, state.element_forces, state.rotated_gradients], model.device,
-                            min_chunk=512)
+                            [state.q, model.rest, model.tets, model.dm_inv, wp.array(gradients, dtype=wp.vec3d, device=d),
+                             wp.array(lame, dtype=wp.vec2d, device=d), int(model.corotational), live_d, *lag,
+                             state.rotated_gradients], d, min_chunk=512)
 
 
 #: Largest relative misfit |K_e - K_iso|_F / |K_e|_F of an element stiffness to the isotropic
@@ -79,13 +100,18 @@ def record_elements(model, state) -> Callable[[], None]:
 ISOTROPIC_MISFIT = 1e-12
 
 
+def shape_gradients(dm_inv: np.ndarray) -> np.ndarray:
+    """The linear tets' shape-function gradients g_a [m, 4, 3] [1/m] from Dm^-1 [m, 3, 3] [1/m]:
+    its rows for nodes 1..3, minus their sum for node 0 (F = Ds Dm^-1 = sum_a x_a g_a^T)."""
+    return np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+
+
 def isotropic_terms(ke: np.ndarray, dm_inv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The shape functions' rest gradients g_a [m, 4, 3] [1/m] (rows of Dm^-1 for nodes 1..3,
-    minus their sum for node 0) and V (lambda, mu) [m, 2] [N/m] of every tet, such that
+    """The shape functions' rest gradients g_a [m, 4, 3] [1/m] (:func:`shape_gradients`) and V (lambda, mu) [m, 2] [N/m] of every tet, such that
     ``ke[e, 4 a + b]`` [m, 16, 3, 3] [N/m] = V (lambda g_a g_b^T + mu g_b g_a^T + mu (g_a . g_b) I)
     (the isotropic linear tet, K_e = V B^T C B) within :data:`ISOTROPIC_MISFIT`; None if any
     tet's stiffness is not of that form (least squares over its 144 entries)."""
-    grad = np.concatenate([-dm_inv.sum(axis=1, keepdims=True), dm_inv], axis=1)
+    grad = shape_gradients(dm_inv)
     if not len(ke):  # a scene of cloths only
         return grad, np.zeros((0, 2))
     ga = np.repeat(grad, 4, axis=1)  # [m, 16, 3]: g_a of entry 4 a + b
@@ -101,28 +127,37 @@ def isotropic_terms(ke: np.ndarray, dm_inv: np.ndarray) -> tuple[np.ndarray, np.
     return grad, lame
 
 
-def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None], Callable[[], None]]:
+def record_system(model, state, dt: float, gravity, *, turned: wp.array | None = None
+                  ) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing ``A`` (``state.blocks``, ``state.d_inv``) and ``b`` (``state.b``) of a
     step of ``dt`` [s] under ``gravity`` [3] [m/s^2] from the element terms and the cloth
     springs (``model.cloth``: :class:`softvr.sim._node_cloth.NodeCloth`) at ``state.q``; the
     second (``b``) reads the springs' forces the first wrote. Blocks of fixed nodes only
-    (:func:`fixed_only`) are not assembled."""
+    (:func:`fixed_only`) are not assembled. With ``turned`` (:func:`record_elements`'), a
+    replay after the first assembles only the blocks of the tets whose rotation changed (the
+    caller sees to it that nothing else writes ``A``: no springs, couplings or rigid bodies)."""
+    if turned is not None and model.cloth.spring_count:
+        raise ValueError("record_system: a lagging assembly (turned) with cloth springs, which also write A")
     assembled = model.assembled.numpy()[~fixed_only(model)[1]]
     blocks = [wp.array(assembled, dtype=wp.int32, device=model.device), model.block_mirror, model.block_row,
               model.block_col, model.contrib_start, model.contrib]
-    tail = [model.mass, model.node_alpha, float(dt), state.blocks, state.d_inv]
+    flags = wp.zeros(1, dtype=wp.int32, device=model.device) if turned is None else turned
     isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
     if isotropic is None:
-        assemble = chunked_replayer(_k.assemble, len(assembled),
-                                    blocks + [state.rotations, model.ke, model.tet_beta] + tail, model.device,
-                                    min_chunk=1024)
+        head = blocks + [state.rotations, model.ke, model.tet_beta]
+        assembly = _k.assemble
     else:  # the rotated gradients of record_elements' replay (the same choice)
         scale = dt * model.tet_beta.numpy() + dt * dt
-        assemble = chunked_replayer(_k.assemble_isotropic, len(assembled),
-                                    blocks + [state.rotated_gradients,
-                                              wp.array(scale[:, None] * isotropic[1], dtype=wp.vec2d,
-                                                       device=model.device)]
-                                    + tail, model.device, min_chunk=1024)
+        head = blocks + [state.rotated_gradients,
+                         wp.array(scale[:, None] * isotropic[1], dtype=wp.vec2d, device=model.device)]
+        assembly = _k.assemble_isotropic
+
+    def replay(lagging: int) -> Callable[[], None]:
+        return chunked_replayer(assembly, len(assembled), head + [model.mass, model.node_alpha, float(dt), flags,
+                                                                lagging, state.blocks, state.d_inv], model.device,
+                                min_chunk=1024)
+
+    assemble = replay(0) if turned is None else _first_then(replay(0), replay(1))
     load_kernels(_k.right_hand_side, model.device)
     rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
@@ -142,6 +177,17 @@ def record_system(model, state, dt: float, gravity) -> tuple[Callable[[], None],
                        inputs=[cloth.node, cloth.node_entry_start, cloth.node_entry, cloth.spring_force, float(dt),
                                state.b])
     return in_order(assemble, replayer(terms), replayer(blocks)), in_order(replayer(rhs), replayer(forces))
+
+
+def _first_then(first: Callable[[], None], then: Callable[[], None]) -> Callable[[], None]:
+    """A replay that runs ``first`` on its first call and ``then`` on every later one."""
+    calls = [first]
+
+    def replay() -> None:
+        calls[0]()
+        calls[0] = then
+
+    return replay
 
 
 def record_drive(model, state) -> Callable[[], None]:
@@ -172,6 +218,7 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     d = model.device
     load_kernels(_k.start_guess, d)
     load_kernels(_k.carried_share, d)
+    load_kernels(_k.share_total, d)
     buf = state.sweep_buffers
     r = model.rigid
     fitted = model.fixed.numpy() == 0
@@ -181,12 +228,17 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
     share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
     change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+    threads = 1 if wp.get_device(d).is_cpu else SHARE_THREADS_CUDA
+    partial = wp.zeros(threads, dtype=wp.vec2d, device=d)
     replays = []
     for carried in (0, 1):
-        launches = [replayer(wp.launch(_k.carried_share, dim=1, device=d, record_cmd=True,
+        launches = [replayer(wp.launch(_k.carried_share, dim=threads, device=d, record_cmd=True,
                                        inputs=[state.v, v_before, change, model.mass, fitted_nodes, SHARE_MEMORY,
-                                               carried, share])),
-                    replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
+                                               carried, threads, partial, share]))]
+        if threads > 1:
+            launches.append(replayer(wp.launch(_k.share_total, dim=1, device=d, record_cmd=True,
+                                               inputs=[partial, SHARE_MEMORY, carried, share])))
+        launches += [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
                                        inputs=[state.v, state.external, model.mass,
                                                wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
                                                model.fixed, state.fixed_velocity, v_before, share, change, buf[0],

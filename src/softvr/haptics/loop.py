@@ -16,12 +16,14 @@ milliseconds) or thread. Both talk through one block of shared memory: the model
 under a sequence counter, so the loop never reads half of one), the last handle position and
 force, the simulation clock, and a ring of the last 65 536 loop periods. Ticks are scheduled
 on absolute times (``t0 + n T``), so a late tick does not shift the ones after it; the loop
-sleeps until just before each tick, then spins. Its period statistics are what ``softvr bench
-shoulder`` reports.
+sleeps until just before each tick, then spins. How long before is learnt from how late its
+sleeps wake (:class:`_SpinWindow`): every microsecond it spins is taken from the simulation on a
+2-core machine. Its period statistics are what ``softvr bench shoulder`` reports.
 """
 
 from __future__ import annotations
 
+import ctypes
 import multiprocessing
 import sys
 import threading
@@ -68,39 +70,92 @@ class HandleModel:
 
 def _render(data: np.ndarray, device: HapticDevice, max_force: float) -> np.ndarray:
     """One loop iteration on the shared block: read the device, render the model's force."""
-    x = np.asarray(device.position(), float)
+    x = np.asarray(device.position(), float).tolist()
     while True:  # seqlock read: retry while the simulation is writing a model
         seq = data[_SEQ]
-        x0, f0, k = data[_X0].copy(), data[_F0].copy(), data[_K].reshape(3, 3).copy()
+        model = data[:_SEQ].tolist()  # x0, F0, K row-major
         if seq == data[_SEQ] and seq % 2 == 0:
             break
-    # Elementwise, not BLAS: the forked loop process must not touch a thread pool.
-    force = f0 + (k * (x - x0)[None, :]).sum(axis=1)
-    magnitude = float(np.sqrt((force * force).sum()))
+    # In floats, not NumPy: a dozen NumPy calls a tick were ~25 us of the loop's 1 kHz (and the
+    # forked loop process must not touch a BLAS thread pool); same sums in the same order.
+    d = [x[i] - model[i] for i in range(3)]
+    force = [model[3 + r] + (model[6 + 3 * r] * d[0] + model[7 + 3 * r] * d[1] + model[8 + 3 * r] * d[2])
+             for r in range(3)]
+    magnitude = (force[0] * force[0] + force[1] * force[1] + force[2] * force[2]) ** 0.5
     if magnitude > max_force:
-        force = force * (max_force / magnitude)
-    device.send_force(force)
+        force = [f * (max_force / magnitude) for f in force]
+    out = np.array(force)
+    device.send_force(out)
     data[_POS], data[_FORCE] = x, force
     data[_TICKS] += 1
-    return force
+    return out
 
 
-def _run(shared, device: HapticDevice, period: float, max_force: float, stop) -> None:
-    """The loop: ticks at ``t0 + n period`` until ``stop`` is set, then a zero force."""
+class _SpinWindow:
+    """How long before a tick the loop stops sleeping and spins [s]: the 99th percentile of
+    its last :data:`SPIN_SAMPLES` sleeps' overshoots (how much later than asked a sleep woke)
+    plus :data:`SPIN_MARGIN`, within [:data:`SPIN_FLOOR`, :data:`SPIN_CAP`], recomputed every
+    :data:`SPIN_UPDATE` sleeps; :data:`SPIN_CAP` until the first recomputation. An idle
+    machine's sleeps overshoot by tens of microseconds, so the loop spins that long instead of
+    a fixed 0.2 ms; a loaded one's 99th percentile is a preemption of milliseconds, which no
+    spin fixes (the spinning process is preempted as well), hence the cap."""
+
+    __slots__ = ("overshoots", "count", "seconds")
+
+    def __init__(self):
+        self.overshoots = np.zeros(SPIN_SAMPLES)
+        self.count = 0
+        self.seconds = SPIN_CAP
+
+    def record(self, overshoot: float) -> None:
+        """One sleep's overshoot [s] (negative where it woke early)."""
+        self.overshoots[self.count % SPIN_SAMPLES] = overshoot
+        self.count += 1
+        if self.count % SPIN_UPDATE == 0:
+            seen = self.overshoots[:min(self.count, SPIN_SAMPLES)]
+            worst = float(np.partition(seen, int(0.99 * (len(seen) - 1)))[int(0.99 * (len(seen) - 1))])
+            self.seconds = min(SPIN_CAP, max(SPIN_FLOOR, worst + SPIN_MARGIN))
+
+
+#: Spin window bounds [s] (:class:`_SpinWindow`). A tick later than the cap is still 14 times within
+#: the period p99 target's 0.5 ms slack (issue 16: p99 <= 1.5 ms); the fixed window was 0.2 ms and
+#: spun ~120 us a tick at load 10, the capped one ~70 (sleeps woken with 1 us slack, ~30 us late).
+SPIN_FLOOR, SPIN_CAP = 5e-5, 1e-4
+#: Added to the overshoots' 99th percentile [s] (:class:`_SpinWindow`).
+SPIN_MARGIN = 2e-5
+#: Overshoots the window is learnt from, and how often it is recomputed (:class:`_SpinWindow`).
+SPIN_SAMPLES, SPIN_UPDATE = 1024, 128
+
+
+def _fine_timer_slack() -> None:
+    """Ask Linux to wake this thread's sleeps within 1 us of their time instead of the default
+    50 us slack (``prctl(PR_SET_TIMERSLACK)``); elsewhere nothing."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None).prctl(29, 1000, 0, 0, 0)
+
+
+def _run(shared, device: HapticDevice, period: float, max_force: float, stop, *,
+         clock=time.perf_counter, sleep=time.sleep) -> None:
+    """The loop: ticks at ``t0 + n period`` until ``stop`` is set, then a zero force. It sleeps
+    until :class:`_SpinWindow` before each tick and spins the rest (``clock`` [s] and ``sleep``
+    are the time's, replaced in tests)."""
+    _fine_timer_slack()
     data = np.frombuffer(shared, dtype=np.float64)
     ring = data[_RING_START:]
-    t0 = time.perf_counter()
+    window = _SpinWindow()
+    t0 = clock()
     last = None
     n = 0
     while not stop.is_set():
         n += 1
         target = t0 + n * period
-        remaining = target - time.perf_counter()
-        if remaining > 3e-4:
-            time.sleep(remaining - 2e-4)
-        while time.perf_counter() < target:
+        remaining = target - clock()
+        if remaining > window.seconds + SPIN_FLOOR:  # a shorter sleep would overshoot its whole length
+            sleep(remaining - window.seconds)
+            window.record(clock() - (target - window.seconds))
+        while clock() < target:
             pass
-        now = time.perf_counter()
+        now = clock()
         if last is not None:
             count = int(data[_COUNT])
             ring[count % _RING] = now - last

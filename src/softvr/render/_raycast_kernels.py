@@ -203,6 +203,36 @@ def segment_in_box(a: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3) -> wp.vec2:
 
 
 @wp.func
+def brick_at(nb: wp.vec3i, p: wp.vec3) -> wp.vec3i:
+    """The brick holding index-space point ``p`` (clamped to the ``nb`` bricks), as the ray loop finds it."""
+    return wp.vec3i(wp.clamp(int(p[0]) >> BRICK_SHIFT, 0, nb[0] - 1), wp.clamp(int(p[1]) >> BRICK_SHIFT, 0, nb[1] - 1),
+                    wp.clamp(int(p[2]) >> BRICK_SHIFT, 0, nb[2] - 1))
+
+
+@wp.func
+def none_gained(a: wp.vec3, b: wp.vec3, gained: wp.array3d(dtype=wp.uint8)) -> bool:
+    """Whether no brick between those holding the index-space points ``a`` and ``b`` (the box
+    of bricks they span, as :func:`brick_at` finds them) is flagged in ``gained``
+    (:func:`brick_minmax`); False also where the box is more than two bricks long along an
+    axis (rare: not looked at). A ray's samples from ``a`` to ``b`` lie in that box: their
+    positions rise or fall monotonically along it, rounding included."""
+    nb = wp.vec3i(gained.shape[0], gained.shape[1], gained.shape[2])
+    ca = brick_at(nb, a)
+    cb = brick_at(nb, b)
+    if ca[0] == cb[0] and ca[1] == cb[1] and ca[2] == cb[2]:  # most often
+        return gained[ca[0], ca[1], ca[2]] == wp.uint8(0)
+    if wp.abs(ca[0] - cb[0]) > 1 or wp.abs(ca[1] - cb[1]) > 1 or wp.abs(ca[2] - cb[2]) > 1:
+        return False
+    # A box at most 2 x 2 x 2: its bricks are the 8 picks of either end's index per axis
+    # (unrolled: a loop over the box's extent costs more than the samples it saves).
+    flagged = wp.uint8(0)
+    for c in range(8):
+        flagged = flagged | gained[wp.where((c & 1) != 0, cb[0], ca[0]), wp.where((c & 2) != 0, cb[1], ca[1]),
+                                   wp.where((c & 4) != 0, cb[2], ca[2])]
+    return flagged == wp.uint8(0)
+
+
+@wp.func
 def exit_along(o: float, inv_d: float, lo: float, hi: float) -> float:
     """Ray parameter where ``o + t / inv_d`` leaves [lo, hi] on one axis (going forwards)."""
     return (wp.where(inv_d > 0.0, hi, lo) - o) * inv_d
@@ -274,6 +304,7 @@ def brick_minmax(
     seed: wp.array3d(dtype=wp.uint8),
     flips: wp.array(dtype=wp.uint8),
     cells: wp.array3d(dtype=wp.uint64),
+    gained: wp.array3d(dtype=wp.uint8),
     offset: int,
 ):
     """From the value range of the voxels a sample inside each brick can read (brick ``b`` spans
@@ -288,7 +319,9 @@ def brick_minmax(
     value). And which of the brick's cells (the unit cubes between voxels, at most BRICK^3 = 64)
     can hold a sample of non-zero opacity: bit ``cell_bit`` of ``cells`` is set iff the table
     has such an entry between the positions of its 8 corner voxels' least and greatest value,
-    one entry either side for rounding (a trilinear value lies between its corners'). Updates
+    one entry either side for rounding (a trilinear value lies between its corners'); 1 in
+    ``gained`` (start zeroed) where the brick turned occupied or a cell's bit was set that was
+    clear (a sample there skipped before may be read now: :func:`raycast`'s ``read_from``). Updates
     bricks ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
     ``changed`` brick (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
     b = brick_of(wp.tid() + offset, first, count)
@@ -317,6 +350,10 @@ def brick_minmax(
     occupied = visible[int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1] - visible[
         int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size)))] > 0
     value = wp.uint8(wp.where(occupied, 0, reach))
+    # A sample of the brick is skipped where it was empty or the sample's cell bit was clear:
+    # it may be read now if the brick turned occupied or the bit was set (gained).
+    turned = occupied and seed[bx, by, bz] != wp.uint8(0)
+    old = cells[bx, by, bz]
     if value != seed[bx, by, bz]:
         seed[bx, by, bz] = value
         flips[wp.tid() + offset] = wp.uint8(1)
@@ -329,6 +366,8 @@ def brick_minmax(
         if shown > 0:
             bits = ~bits
         cells[bx, by, bz] = bits
+        if turned or (bits & ~old) != wp.uint64(0):
+            gained[bx, by, bz] = wp.uint8(1)
         return
     # Cell (x, y, z) of the brick lies between its voxels x .. x + 1 (and y, z). Separable: each
     # slab of voxels x gives the least and greatest value over the 2 x 2 voxels of each cell face
@@ -365,6 +404,8 @@ def brick_minmax(
         last_lo = face_lo
         last_hi = face_hi
     cells[bx, by, bz] = bits
+    if turned or (bits & ~old) != wp.uint64(0):
+        gained[bx, by, bz] = wp.uint8(1)
 
 
 @wp.kernel
@@ -478,6 +519,9 @@ def raycast(
     flip_lo: wp.vec3,
     flip_hi: wp.vec3,
     empty_until: wp.array(dtype=float),
+    read_from: wp.array(dtype=float),
+    gained: wp.array3d(dtype=wp.uint8),
+    skip_ok: int,
     depth: wp.array2d(dtype=float),
     surface: wp.array3d(dtype=wp.uint8),
     pixels: wp.array(dtype=wp.int32),
@@ -510,6 +554,15 @@ def raycast(
     stays valid unless a brick that turned occupied since (inside the index box
     ``flip_lo .. flip_hi`` when ``flips`` != 0) lies on the ray before that sample; then the
     ray starts over from its entry point.
+
+    ``read_from`` [height * width] carries the index of the first sample read (not skipped
+    for its brick or cell; if none, where the ray stopped). If ``skip_ok`` != 0, a ray whose
+    prefix ``empty_until`` holds starts there when no brick holding a sample in between is
+    flagged in ``gained`` [bricks] (:func:`brick_minmax`: it turned occupied or a cell's bit
+    was set since the last cast, :func:`none_gained`): those samples are skipped again. The
+    cells' masks and occupancy hold the table's zero-opacity ranges exactly (with a margin),
+    so a skipped sample is transparent, as it would be read. (``skip_ok`` = 0 where
+    ``gained`` was not written since the last cast.)
 
     ``distance`` [bricks] holds each brick's Chebyshev distance to the nearest occupied one
     (capped; the empty-space jumps), ``cells`` each brick's mask of the cells that can hold a
@@ -596,15 +649,21 @@ def raycast(
                 known = 0.0
         k = known
         first = float(-1.0)  # the first sample found in an occupied brick
+        if known > 0.0 and skip_ok != 0:
+            read = read_from[tid]
+            if read > known:
+                if none_gained(o + (t0 + (known + shift) * step) * d, o + (t0 + (read - 1.0 + shift) * step) * d,
+                               gained):
+                    first = known
+                    k = read
+        first_read = float(-1.0)  # the first sample read
         last = wp.vec3i(-1, -1, -1)  # the occupied brick the ray is in (no need to look again)
         while alpha < OPAQUE_ENOUGH:
             t = t0 + (k + shift) * step
             if t > span[1]:
                 break
             p = o + t * d
-            b = wp.vec3i(wp.clamp(int(p[0]) >> BRICK_SHIFT, 0, nb[0] - 1),
-                         wp.clamp(int(p[1]) >> BRICK_SHIFT, 0, nb[1] - 1),
-                         wp.clamp(int(p[2]) >> BRICK_SHIFT, 0, nb[2] - 1))
+            b = brick_at(nb, p)
             r = int(0)
             if b[0] != last[0] or b[1] != last[1] or b[2] != last[2]:
                 r = int(distance[b[0], b[1], b[2]])
@@ -629,6 +688,8 @@ def raycast(
                  >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) == wp.uint64(0):
                 k = k + 1.0
                 continue
+            if first_read < 0.0:
+                first_read = k
             v = trilinear(vol, n, strides, p)
             c = lut_rgba(lut, lut_position(v, lut_lo, lut_scale, size))
             a = c[3]
@@ -668,6 +729,7 @@ def raycast(
                 alpha = alpha + (1.0 - alpha) * a
             k = k + 1.0
         empty_until[tid] = wp.where(first >= 0.0, first, k)
+        read_from[tid] = wp.where(first_read >= 0.0, first_read, k)
         # The sample at k was not taken: the samples read lie before it (and before the span's end).
         segment_start[tid] = o + t0 * d
         segment_end[tid] = o + wp.min(t0 + (k + shift) * step, span[1]) * d
@@ -675,6 +737,7 @@ def raycast(
         segment_start[tid] = wp.vec3(MISSED)
         segment_end[tid] = wp.vec3(MISSED)
         empty_until[tid] = 0.0  # no segment is kept to check the prefix against later flips
+        read_from[tid] = 0.0
     for ch in range(3):
         value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
         image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))

@@ -186,6 +186,8 @@ class RayCaster:
             changed = True
         # Bricks whose own voxels changed since the last upload (all written in the changed box).
         self._changed_bricks = wp.zeros(tuple(nb), dtype=wp.uint8, device=dev)
+        # Bricks that turned occupied or whose cells' masks gained a bit since the last cast (raycast's read_from).
+        self._gained = wp.zeros(tuple(nb), dtype=wp.uint8, device=dev)
         self._changed_box: tuple | None = None
         if changed is True:
             first, last = np.zeros(3, int), nb - 1
@@ -216,7 +218,7 @@ class RayCaster:
             self._run(K.BRICK_MINMAX[name], first, last,
                       [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
                        self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
-                      [self._seed, flips, self._cells])
+                      [self._seed, flips, self._cells, self._gained])
             flipped = np.flatnonzero(flips.numpy())
             if not len(flipped):
                 return
@@ -341,6 +343,7 @@ class RayCaster:
         if key != self._view_key or changed is True:
             if key != self._view_key:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
+                self._read_from = wp.zeros(width * height, dtype=float, device=dev)
                 self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
                 self._rays = [wp.empty(width * height, dtype=t, device=dev)
@@ -363,7 +366,8 @@ class RayCaster:
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
             wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
             self._distance, self._cells,
-            *flipped, self._empty_until, depth, surface, pixels,
+            *flipped, self._empty_until, self._read_from, self._gained, int(changed is not True),
+            depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
         launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)

@@ -312,6 +312,7 @@ class Simulation(_Table):
     pgs_iterations: Annotated[int | None, count("pgs_iterations", 1)] = _SCENE["pgs_iterations"]
     pgs_tolerance: Annotated[float | None, number("m/s", positive=True)] = _SCENE["pgs_tolerance"]          # [m/s]
     contact_margin: Annotated[float | None, number("m", minimum=0.0)] = _SCENE["contact_margin"]            # [m]
+    rotation_lag: Annotated[float | None, number("rad", positive=True)] = _SCENE["rotation_lag"]            # [rad]
     collision_free_start: Boolean = False
     adhesion: Boolean = True  # false: every adhesion of the file off, the same scene dry (thesis Fig. 4.4)
     edge_contacts: Boolean = _SCENE["edge_contacts"]  # false: vertex-triangle contacts only (thesis 5.2.1)

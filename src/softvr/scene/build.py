@@ -297,6 +297,7 @@ class SceneExample(Player):
         self.adhesions = {k: Adhesion(**v) for k, v in scene_file.adhesions.items()} if sim["adhesion"] else {}
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
                       pgs_tolerance=sim["pgs_tolerance"], contact_margin=sim["contact_margin"],
+                      rotation_lag=sim["rotation_lag"],
                       edge_contacts=sim["edge_contacts"])
         self.scene = scene  # (again in Player.__init__) the collision-free start needs it
         self.planes = []

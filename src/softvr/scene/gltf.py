@@ -73,7 +73,8 @@ are bodies named as the parts, for couplings and ``softvr_collides_with``.
 
 Scene extras: ``softvr_dt`` [s], ``softvr_steps_per_frame``, ``softvr_frames``,
 ``softvr_friction``, ``softvr_gravity`` [m/s^2], ``softvr_pgs_iterations``, ``softvr_pgs_tolerance`` [m/s],
-``softvr_contact_margin`` [m], ``softvr_edge_contacts`` (false: vertex-triangle contacts only),
+``softvr_contact_margin`` [m], ``softvr_rotation_lag`` [rad], ``softvr_edge_contacts`` (false: vertex-triangle
+contacts only),
 ``softvr_collision_free_start`` (soft bodies that start
 crossing another are pushed out of it first; the add-on sets it), ``softvr_ground`` (true: a
 ground plane at z = 0;

@@ -13,6 +13,8 @@
     pgs_iterations = 500
     pgs_tolerance = 1e-5        # [m/s] velocity error at which the contact solve stops (optional)
     contact_margin = 0.005      # [m]
+    rotation_lag = 1e-4         # [rad] how far a tet's co-rotation and forces may lag its nodes
+                                # (optional; softvr.Scene.rotation_lag)
     collision_free_start = false    # true: soft bodies that start crossing another body are
                                 # pushed out of it first (thesis 5.2.3; softvr.model.push_apart)
     adhesion = true             # false: every adhesion of the file off (the same scene dry)

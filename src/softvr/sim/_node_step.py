@@ -20,6 +20,7 @@ nodes here) set from its pose and velocity before every step.
 from __future__ import annotations
 
 import time
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -125,11 +126,41 @@ def _primitive_keys(rigid_keys: np.ndarray, body_a: int, body_b: int) -> np.ndar
 
 class _NodeSnapshot(StepSnapshot):
     """A node step's snapshot (:class:`StepSnapshot`), with the collision points' positions
-    ``x0`` [p, 3] [m] at the step's start."""
+    ``x0`` [p, 3] [m] at the step's start. Its ``count`` contacts and ``x0`` are read in the
+    stepper's host arrays until :meth:`detach` copies them out, which the stepper does before
+    its next step writes those arrays (where the snapshot is still held then: most are not)."""
 
-    def __init__(self, stepper, contacts: dict, x0: np.ndarray, velocities: list, sweeps: int, residual: float):
-        super().__init__(contacts, velocities, sweeps, residual)
-        self._stepper, self._x0 = stepper, x0
+    def __init__(self, stepper, count: int, velocities: list, sweeps: int, residual: float):
+        self._own: dict | None = None
+        super().__init__(None, velocities, sweeps, residual)  # type: ignore[arg-type]  # contacts: built on use
+        self._stepper, self._count = stepper, count
+        self._live = True  # whether the stepper's arrays still hold this step's contacts
+        self._x0_own: np.ndarray | None = None
+
+    @property
+    def contacts(self) -> dict:
+        if self._own is None:
+            self._own = self._stepper._contacts_out(self._count)
+        return self._own
+
+    @contacts.setter
+    def contacts(self, value) -> None:
+        self._own = value
+
+    @property
+    def _x0(self) -> np.ndarray:
+        if self._x0_own is not None:
+            return self._x0_own
+        return self._stepper._host("point_x")[:self._stepper.model.point_count]
+
+    def detach(self) -> None:
+        """Copy the contacts and ``x0`` out of the stepper's arrays (before they are written again)."""
+        if self._live:
+            own = self.contacts
+            for name in _CONTACT_FIELDS:
+                own[name] = own[name].copy()
+            self._x0_own = self._x0.copy()
+            self._live = False
 
     def _rigid_side(self, rows: np.ndarray, body: int, sign: float) -> ContactSide:
         """Side ``body`` (a rigid body) of contacts ``rows``, at the levers the step used: the
@@ -164,11 +195,16 @@ class _NodeSnapshot(StepSnapshot):
     def pushing_normals(self, body: int) -> np.ndarray:
         """:meth:`ContactSolution.pushing_normals`, from ``body``'s rows alone: the rows of
         :meth:`sets` (in their order) that ``body`` is a side of (a body never meets itself)."""
-        c, s = self.contacts, self._stepper
-        # The pushing rows (a few of the step's contacts; a haptic tool asks every step) in plain
-        # Python: side a's body as contact_body gives it, the sets' order (body a, kind, other,
-        # point; a stable sort, as np.lexsort, so ties keep the rows' order).
-        rows = np.flatnonzero(c["movable"] & (c["impulse"][:, 0] > 0))
+        s = self._stepper
+        # Where the contacts were not built (a haptic tool asks every step; most steps read
+        # nothing else), the pushing rows are read in the step's arrays, and whether they are
+        # movable asked of the body's few alone.
+        c = self._own
+        if c is None:
+            c = {name: s._host(name)[:self._count] for name in ("kind", "other", "point", "column", "frame", "impulse")}
+        rows = np.flatnonzero(c["impulse"][:, 0] > 0)
+        # The pushing rows in plain Python: side a's body as contact_body gives it, the sets'
+        # order (body a, kind, other, point; a stable sort, as np.lexsort, so ties keep the rows' order).
         picked = []
         for row, kind, other, point, column in zip(rows.tolist(), *(c[name][rows].tolist() for name in
                                                                     ("kind", "other", "point", "column"))):
@@ -176,10 +212,15 @@ class _NodeSnapshot(StepSnapshot):
             side_b = kind in (1, 2, 3) and other == body
             if first == body or side_b:
                 picked.append((first, kind, other, point, row, side_b))
+        if picked:
+            mine = [x[4] for x in picked]
+            movable = c["movable"][mine] if "movable" in c else s._movable(np.array(mine))
+            picked = [x for x, keep in zip(picked, movable.tolist()) if keep]
         picked.sort(key=lambda x: x[:4])
         normals = c["frame"][[x[4] for x in picked], 0]
-        flip = np.array([x[5] for x in picked], bool)
-        normals[flip] = -normals[flip]
+        flip = [k for k, x in enumerate(picked) if x[5]]
+        if flip:
+            normals[flip] = -normals[flip]
         return normals
 
     def set_bodies(self) -> list[tuple[int, int | None]]:
@@ -278,6 +319,7 @@ class NodeStepper:
         self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
         self._recorded = None
         self._spectrum = {}
+        self._issued = lambda: None  # a weak reference to the last step's snapshot
 
     def contact_body(self, contacts: dict) -> np.ndarray:
         """Side a's body of each contact of a snapshot's ``contacts``."""
@@ -436,12 +478,15 @@ class NodeStepper:
 
     def _record(self, dt: float) -> None:
         s = self.scene
-        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd)
+        key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd, s.rotation_lag)
         if self._recorded is not None and self._recorded[0] == key:
             return
         m, st = self.model, self.state
-        elements = record_elements(m, st)
-        assemble, rhs = record_system(m, st, dt, s.gravity)
+        # A lagging rotation keeps its tets' blocks of A, which only the elements write here.
+        lag = bool(s.rotation_lag) and self.rigid is None and not len(m.couplings.node) and not m.cloth.spring_count
+        turned = wp.zeros(len(m.tets), dtype=wp.int32, device=m.device) if lag else None
+        elements = record_elements(m, st, keep=float(s.rotation_lag) if lag else 0.0, turned=turned)
+        assemble, rhs = record_system(m, st, dt, s.gravity, turned=turned)
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
         couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
@@ -509,6 +554,9 @@ class NodeStepper:
     def step(self, dt: float) -> tuple[LazySolution, dict]:
         """Advance the scene by ``dt`` [s]; the lazily built solution and the stage times [ms]."""
         t0 = time.perf_counter()
+        held = self._issued()
+        if held is not None:  # last step's solution is still held: it keeps its contacts
+            held.detach()
         self._sync_in()
         self._external_forces()
         driven = self._drive(dt)
@@ -547,10 +595,11 @@ class NodeStepper:
                 body.last_cg_iterations = 0
             elif i in driven:
                 body.integrate(driven[i], dt)
-        snapshot = _NodeSnapshot(self, self._contacts_out(), self._host("point_x")[:self.model.point_count].copy(),
+        snapshot = _NodeSnapshot(self, min(int(self._host("count")[0]), self.state.contacts.capacity),
                                  [self._views[i][1].copy() if self.fem[i] else driven[i] if i in driven
                                   else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
                                  float(solve.stats.numpy()[1]))
+        self._issued = weakref.ref(snapshot)
         t4 = time.perf_counter()
         return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
@@ -563,11 +612,11 @@ class NodeStepper:
             return self._host_views[name]
         return self._host_arrays[name].numpy()
 
-    def _contacts_out(self) -> dict:
-        """This step's contacts as host arrays, with ``movable``: whether an impulse can act on
-        any node of the contact's stencil."""
-        n = min(int(self._host("count")[0]), self.state.contacts.capacity)
-        out = {name: self._host(name)[:n].copy() for name in _CONTACT_FIELDS}
+    def _contacts_out(self, n: int) -> dict:
+        """The last step's ``n`` contacts as host arrays (those of :data:`_CONTACT_FIELDS` views of
+        the stepper's), with ``movable``: whether an impulse can act on any node of the contact's
+        stencil."""
+        out = {name: self._host(name)[:n] for name in _CONTACT_FIELDS}
         if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
             primitive = out["kind"] == 3
             if primitive.any():
@@ -579,11 +628,15 @@ class NodeStepper:
             else:  # every row reads the rigid path's row 0, as above, and keeps its own area
                 out.update({name: np.repeat(self._host(name)[:1], n, axis=0) for name in _RIGID_CONTACT_FIELDS
                             if name != "rigid_area"})
-        nodes = self._host("stencil_nodes")[:n]
-        # Unused stencil entries (-1) read the last node's flag, which ``used`` masks out.
-        used = self._stencil_slots < self._host("stencil_count")[:n, None]
-        out["movable"] = (used & self._free_nodes[nodes]).any(axis=1)
+        out["movable"] = self._movable(slice(n))
         return out
+
+    def _movable(self, rows) -> np.ndarray:
+        """Whether an impulse can act on any node of the stencil of the last step's contacts ``rows``."""
+        nodes = self._host("stencil_nodes")[rows]
+        # Unused stencil entries (-1) read the last node's flag, which ``used`` masks out.
+        used = self._stencil_slots < self._host("stencil_count")[rows, None]
+        return (used & self._free_nodes[nodes]).any(axis=1)
 
     def _check(self) -> None:
         """Stop with a report naming the body, node and step (SimulationError) if one diverged."""

@@ -129,7 +129,18 @@ class Scene:
         Velocity error at which the contact solve stops (eq. 5.5's iteration: the node
         sweeps, the per-object PGS, the rigid arrays' sweeps); None: the solvers' own 1e-5
         (``softvr.sim._node_step.SWEEP_TOLERANCE``). ``pgs_iterations`` caps it either way.
+    rotation_lag : float or None [rad]
+        How far a tet's terms may lag its nodes (a scene stepped on node arrays of FEM bodies
+        and driven nodes only; others ignore it): a step keeps last step's co-rotation R_e (eq.
+        5.2's R_e K_e R_e^T) where it is within this angle of the polar rotation of the tet's
+        deformation gradient F, and keeps R_e and the elastic forces as they are while the
+        nodes are near enough for F to have moved by less than it since they were computed
+        (:func:`softvr.dynamics.node_arrays.record_elements`); blocks of ``A`` whose tets all
+        kept R_e are not assembled again. A lag theta: R_e within ~2 theta of the polar
+        rotation, forces of a strain within theta. None: every tet every step, R_e to round-off.
     last_solution : ContactSolution or None
+        The last step's (None before the first; a step on arrays lets go of it as it starts, so
+        None after one that failed).
     time : float [s]
     stage_ms : dict[str, float] [ms]
         Wall time of each stage of the last step, in the order they run (:data:`STAGES`):
@@ -175,6 +186,7 @@ class Scene:
     pgs_iterations: int = 500
     pgs_tolerance: float | None = None
     contact_margin: float = 0.005
+    rotation_lag: float | None = None
     last_solution: ContactSolution | LazySolution | None = None
     time: float = 0.0
     stage_ms: dict = field(default_factory=dict)
@@ -416,6 +428,9 @@ class Scene:
         arrays = self._arrays()
         if arrays is not None:
             dt = ContactObject._check_dt(dt)
+            # Let go of the last solution first: a node step's that no one else holds then is
+            # not copied out of the arrays the step writes (NodeStepper.step).
+            self.last_solution = None
             try:
                 self.last_solution, self.stage_ms = arrays.step(dt)
             except IllConditioned:  # before anything moved: this step goes the per-object way

@@ -394,7 +394,7 @@ class Rasterizer:
         may be the input itself (it would read voxels it has just written)."""
         data = out.data
         return (self.method == "spans" and self._out_code != 0 and data.dtype == self.volume.dtype
-                and data.flags.c_contiguous and data.flags.writeable
+                and _span_item_slabs(data.shape) > 0 and data.flags.c_contiguous and data.flags.writeable
                 and not np.may_share_memory(data, self.volume.data))
 
     def write_counts(self, deformed_nodes, out_grid: Volume | None = None) -> Volume:
@@ -522,8 +522,9 @@ class Rasterizer:
                 min_chunk=64,
                 split=not count_writes,  # counting writes adds into shared counts (atomics)
             )
-        elif self.method == "spans" and self._out_code and not count_writes:
+        elif self.method == "spans" and self._out_code and not count_writes and _span_item_slabs(pitch) > 0:
             t_cull = time.perf_counter()
+            per_item = _span_item_slabs(pitch)
             # Drawn tets overlap only inside folded ones (below): that box is drawn again after the
             # split launch, on one thread in tet order, so that its voxels get the last tet that
             # covers them on any number of threads (split, two threads' writes there were a race).
@@ -533,7 +534,7 @@ class Rasterizer:
             counts_w = []
             for pass_box, pass_box_w, split in passes:
                 slabs = np.where(pass_box[:, 1] >= pass_box[:, 0], pass_box[:, 1] - pass_box[:, 0] + 1, 0)
-                offsets = _exclusive_cumsum(-(-slabs // _SLABS_PER_ITEM))
+                offsets = _exclusive_cumsum(-(-slabs // per_item))
                 items = int(offsets[-1])
                 counts_w.append(wp.zeros(max(items, 1), dtype=wp.int32, device=dev))
                 launch(
@@ -543,7 +544,7 @@ class Rasterizer:
                         self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
                         self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
                         wp.vec3i(*pitch), face_w, affine_w, pass_box_w, wp.array(offsets, dtype=wp.int32, device=dev),
-                        m, _SLABS_PER_ITEM, self._params, counts_w[-1],
+                        m, per_item, self._params, counts_w[-1],
                     ],
                     dev,
                     min_chunk=16,
@@ -789,6 +790,15 @@ def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
     empty = np.any(cut[:, 1::2] < cut[:, 0::2], axis=1) | folded
     cut[empty, 1] = cut[empty, 0] - 1
     return cut
+
+
+def _span_item_slabs(pitch) -> int:
+    """x-slabs per work item of the CPU exact spans on an output of row pitch ``pitch`` (its
+    shape [3], or a window's): at most ``_SLABS_PER_ITEM``, and few enough that every output
+    offset within an item, counted from its first slab (+ 7 for a queue block run past a row),
+    fits the kernel's int32 voxel queue; 0 where not even one slab does (then the generic
+    kernel runs)."""
+    return min(_SLABS_PER_ITEM, (2**31 - 256) // max(int(pitch[1]) * int(pitch[2]), 1))
 
 
 def _exclusive_cumsum(counts: np.ndarray) -> np.ndarray:
