@@ -283,95 +283,22 @@ def integrate(v_new: wp.array(dtype=wp.vec3d), speed_limit: wp.array(dtype=wp.fl
 def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
                 gravity: wp.vec3d, dt: wp.float64, carried: int, fixed: wp.array(dtype=wp.int32),
                 fixed_velocity: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
-                share: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.vec3d),
                 guess: wp.array(dtype=wp.vec3d), guess_prev: wp.array(dtype=wp.vec3d)):
     """The sweeps' first velocity [m/s] of node ``i``, in both buffers the first sweep reads:
-    with ``carried`` a share ``share[2]`` of last step's change carried on,
-    ``v + share (v - v_before)`` (:func:`carried_share`), else the explicit step
-    ``v + dt (g + f_ext / m)``; a fixed node's fixed velocity. ``change`` [n] [m/s] then takes
-    last step's change ``v - v_before`` (0 on the explicit step) and ``v_before`` takes ``v``.
+    with ``carried`` last step's change carried on, ``2 v - v_before``, else the explicit step
+    ``v + dt (g + f_ext / m)``; a fixed node's fixed velocity. ``v_before`` then takes ``v``.
     A uniform change (gravity, a push, a resting body's none) is Jacobi's slowest mode, and
     these guesses have it."""
     i = wp.tid()
     vi = v[i]
     g = vi + dt * (gravity + external[i] / mass[i])
-    step = wp.vec3d()
     if carried != 0:
-        step = vi - v_before[i]
-        g = vi + share[2] * step
+        g = wp.float64(2.0) * vi - v_before[i]
     if fixed[i] != 0:
         g = fixed_velocity[i]
     guess[i] = g
     guess_prev[i] = g
-    change[i] = step
     v_before[i] = vi
-
-
-@wp.func
-def _share_sums(first: int, stride: int, v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
-                change: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32)):
-    """(sum m (v - v_before) . change, sum m |change|^2) [kg m^2/s^2] over the ``fitted`` nodes
-    ``first``, ``first + stride``, ... in turn (:func:`carried_share`)."""
-    num = wp.float64(0.0)
-    den = wp.float64(0.0)
-    for i in range(first, v.shape[0], stride):
-        if fitted[i] != 0:
-            c = change[i]
-            num = num + mass[i] * wp.dot(v[i] - v_before[i], c)
-            den = den + mass[i] * wp.dot(c, c)
-    return wp.vec2d(num, den)
-
-
-@wp.func
-def _fit_share(sums: wp.vec2d, memory: wp.float64, carried: int, share: wp.array(dtype=wp.float64)):
-    """Takes this step's sums into ``share`` (:func:`carried_share`)."""
-    if carried == 0:
-        share[0] = wp.float64(0.0)
-        share[1] = wp.float64(0.0)
-        share[2] = wp.float64(1.0)
-        return
-    num = memory * share[0] + sums[0]
-    den = memory * share[1] + sums[1]
-    share[0] = num
-    share[1] = den
-    a = wp.float64(1.0)
-    if den > wp.float64(0.0):
-        a = wp.clamp(num / den, wp.float64(0.0), wp.float64(1.0))
-    share[2] = a
-
-
-@wp.kernel
-def carried_share(v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
-                  mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32), memory: wp.float64,
-                  carried: int, threads: int, partial: wp.array(dtype=wp.vec2d), share: wp.array(dtype=wp.float64)):
-    """The share of last step's change that the next first guess carries on (:func:`start_guess`):
-    the least-squares fit over the ``fitted`` [n] nodes, mass-weighted, of the change the last
-    solve made, ``v - v_before`` [m/s], on the change carried into it, ``change`` [m/s]:
-    ``share[2] = sum m (v - v_before) . change / sum m |change|^2``, clipped to [0, 1], both sums
-    kept in ``share[0]``, ``share[1]`` with the older steps' weighed down by ``memory`` a step;
-    1 (all of it) until a step has been carried into, and after the explicit step (``carried``
-    0: the sums start again). ``threads`` threads (the launch's) stride over the nodes: one (the
-    CPU, ~2 us on the shoulder) fits the share itself; with several (CUDA: one thread would walk
-    ~10^4 nodes in turn) thread t leaves its two sums in ``partial[t]`` [threads] and
-    :func:`share_total` adds them, in thread order: the same share in every run."""
-    t = wp.tid()
-    sums = wp.vec2d()
-    if carried != 0:
-        sums = _share_sums(t, threads, v, v_before, change, mass, fitted)
-    if threads == 1:
-        _fit_share(sums, memory, carried, share)
-    else:
-        partial[t] = sums
-
-
-@wp.kernel
-def share_total(partial: wp.array(dtype=wp.vec2d), memory: wp.float64, carried: int,
-                share: wp.array(dtype=wp.float64)):
-    """:func:`carried_share`'s fit from its threads' sums ``partial`` [threads] (one thread)."""
-    sums = partial[0]
-    for t in range(1, partial.shape[0]):
-        sums = sums + partial[t]
-    _fit_share(sums, memory, carried, share)
 
 
 @wp.kernel

@@ -24,19 +24,6 @@ __all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "fixed_only", "isotrop
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
 
 
-#: The weight a step's solve keeps, a step later, in the fit of the share of the velocity change
-#: that the first guess carries on (:func:`_node_kernels.carried_share`): ~10 steps of memory.
-#: Measured on shoulder.toml (600 steps, sweeps a step, deterministic): the whole change carried
-#: (main) 18.58; the fit over the last step alone (0) 17.68, 0.5 17.24, 0.9 16.79; a fixed half
-#: 16.81. A fit, not a fixed share: a uniformly accelerated body (free fall) carries all of it.
-SHARE_MEMORY = 0.9
-
-#: Threads of the share's sums over the nodes on CUDA (:func:`_node_kernels.carried_share`; the
-#: CPU's one thread walks them all): ~40 nodes a thread on candy's ~10^4, and the one thread of
-#: :func:`_node_kernels.share_total` adds this many pairs.
-SHARE_THREADS_CUDA = 256
-
-
 def fixed_only(model) -> tuple[np.ndarray, np.ndarray]:
     """The tets [m] with all four nodes fixed and the entries of ``model.assembled`` [na] whose
     block joins two fixed nodes (the bone of a CT: 1 354 of 5 915 tets, 3 007 of 10 330 blocks
@@ -206,10 +193,8 @@ def record_drive(model, state) -> Callable[[], None]:
 def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
-    [m/s^2] and ``state.external``; later steps: a share of last step's velocity change carried
-    on, from ``v_before`` [n] [m/s], the share fitted to the last steps' solves
-    (:func:`_node_kernels.carried_share` over the free nodes that are not a rigid body's)). Both
-    then copy ``state.v`` into ``v_before``; on the first step a
+    [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
+    ``v_before`` [n] [m/s]). Both then copy ``state.v`` into ``v_before``; on the first step a
     rigid body's nodes (``model.rigid``) start at its unconstrained velocity, later ones carried on
     as the others': a tool pressed into tissue by its coupling starts ~0.2 m/s into the tissue
     at its unconstrained velocity, and the sweeps' first exact update of the shoulder's inner
@@ -217,32 +202,14 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     shoulder.toml: 63 -> 33 sweeps a step carried on)."""
     d = model.device
     load_kernels(_k.start_guess, d)
-    load_kernels(_k.carried_share, d)
-    load_kernels(_k.share_total, d)
     buf = state.sweep_buffers
-    r = model.rigid
-    fitted = model.fixed.numpy() == 0
-    if r is not None:
-        fitted[r.linear_node.numpy()] = False
-        fitted[r.angular_node.numpy()] = False
-    fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
-    share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
-    change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
-    threads = 1 if wp.get_device(d).is_cpu else SHARE_THREADS_CUDA
-    partial = wp.zeros(threads, dtype=wp.vec2d, device=d)
     replays = []
     for carried in (0, 1):
-        launches = [replayer(wp.launch(_k.carried_share, dim=threads, device=d, record_cmd=True,
-                                       inputs=[state.v, v_before, change, model.mass, fitted_nodes, SHARE_MEMORY,
-                                               carried, threads, partial, share]))]
-        if threads > 1:
-            launches.append(replayer(wp.launch(_k.share_total, dim=1, device=d, record_cmd=True,
-                                               inputs=[partial, SHARE_MEMORY, carried, share])))
-        launches += [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
+        launches = [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
                                        inputs=[state.v, state.external, model.mass,
                                                wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
-                                               model.fixed, state.fixed_velocity, v_before, share, change, buf[0],
-                                               buf[2]]))]
+                                               model.fixed, state.fixed_velocity, v_before, buf[0], buf[2]]))]
+        r = model.rigid
         if r is not None and not carried:
             load_kernels(_k.rigid_start_guess, d)
             launches.append(replayer(wp.launch(_k.rigid_start_guess, dim=len(r.bodies), device=d, record_cmd=True,
