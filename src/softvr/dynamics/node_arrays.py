@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import warp as wp
 
-from softvr.device import chunked_replayer, in_order, load_kernels, replayer
+from softvr.device import blocked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
@@ -71,11 +71,11 @@ def record_elements(model, state, *, keep: float = 0.0, turned: wp.array | None 
     lag = [float(keep), int(keep > 0.0), hold, held, state.rotations, turned, state.element_forces]
     isotropic = isotropic_terms(model.ke.numpy(), dm_inv)
     if isotropic is None:
-        return chunked_replayer(_k.element_terms, len(live),
+        return blocked_replayer(_k.element_terms, len(live),
                                 [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
                                  live_d, *lag], d, min_chunk=512)
     gradients, lame = isotropic
-    return chunked_replayer(_k.element_terms_isotropic, len(live),
+    return blocked_replayer(_k.element_terms_isotropic, len(live),
                             [state.q, model.rest, model.tets, model.dm_inv, wp.array(gradients, dtype=wp.vec3d, device=d),
                              wp.array(lame, dtype=wp.vec2d, device=d), int(model.corotational), live_d, *lag,
                              state.rotated_gradients], d, min_chunk=512)
@@ -140,7 +140,7 @@ def record_system(model, state, dt: float, gravity, *, turned: wp.array | None =
         assembly = _k.assemble_isotropic
 
     def replay(lagging: int) -> Callable[[], None]:
-        return chunked_replayer(assembly, len(assembled), head + [model.mass, model.node_alpha, float(dt), flags,
+        return blocked_replayer(assembly, len(assembled), head + [model.mass, model.node_alpha, float(dt), flags,
                                                                 lagging, state.blocks, state.d_inv], model.device,
                                 min_chunk=1024)
 
