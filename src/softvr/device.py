@@ -29,7 +29,7 @@ from softvr.errors import InputError
 
 __all__ = [
     "ITEMS_A_CPU_THREAD", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order",
-    "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas", "upload",
+    "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas", "stride_threads", "upload",
 ]
 
 
@@ -382,6 +382,14 @@ def blocked_replayer(kernel, items: int, inputs: list, device: str, *, min_chunk
     block = ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
     return chunked_replayer(kernel, -(-items // block), [*inputs, block], device,
                             min_chunk=max(1, min_chunk // block))
+
+
+def stride_threads(device: str, cuda_threads: int) -> int:
+    """Threads of a launch whose threads stride over items up to a count the kernel reads (a
+    step's contacts): ``cuda_threads`` on CUDA, one on the CPU, where such a launch replays on
+    one core anyway and every thread costs a call of the compiled kernel (the shoulder's contact
+    marking: 1 024 threads over ~200 contacts ~14 us, one thread ~7)."""
+    return 1 if wp.get_device(device).is_cpu else int(cuda_threads)
 
 
 class _SplitReplay:

@@ -19,7 +19,7 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
@@ -169,11 +169,6 @@ def movable_contacts(model, state) -> int:
     free = model.fixed.numpy()[np.maximum(nodes, 0)] == 0
     moves = (used & free & (weights != 0.0)).any(axis=1) | (c.rigid_node.numpy()[:n] >= 0).any(axis=1)
     return int(moves.sum())
-
-
-def _contact_threads(device) -> int:
-    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`)."""
-    return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
 
 
 def _own_blocks(model) -> wp.array:
@@ -346,7 +341,7 @@ class NodeSolve:
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
         # metric and the coarse inverses are set); on the CPU over the cores (~0.2 ms a step on
         # the candy's ~3 000 contacts).
-        threads = _contact_threads(d)
+        threads = stride_threads(d, CONTACT_THREADS_CUDA)
         metric_threads = 2 * cpu_workers() if threads == 1 else threads
         self._metric = chunked_replayer(_k.contact_metric, metric_threads,
                                         [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
@@ -415,7 +410,7 @@ class NodeSolve:
         (:func:`_node_jacobi_kernels.contact_step`, listed by :attr:`_list_movers` once a step)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
-        threads = _contact_threads(d)
+        threads = stride_threads(d, CONTACT_THREADS_CUDA)
         self._list_movers = _nothing
         if threads == 1 and self._gauss_seidel is None:
             movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
