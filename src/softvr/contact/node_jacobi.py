@@ -171,6 +171,12 @@ def movable_contacts(model, state) -> int:
     return int(moves.sum())
 
 
+def _contact_threads(device) -> int:
+    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`,
+    :func:`softvr.device.stride_threads`)."""
+    return stride_threads(device, CONTACT_THREADS_CUDA)
+
+
 def _own_blocks(model) -> wp.array:
     """[n] 1 where node ``i`` has its diagonal block in ``A``'s rows (every FEM node, and a
     spring-held rigid body's: the residual form of :func:`_node_jacobi_kernels.jacobi`), 0 where
@@ -341,7 +347,7 @@ class NodeSolve:
         # Each contact's block of J M^-1 J^T, fixed over the step's sweeps (after the Gauss-Seidel
         # metric and the coarse inverses are set); on the CPU over the cores (~0.2 ms a step on
         # the candy's ~3 000 contacts).
-        threads = stride_threads(d, CONTACT_THREADS_CUDA)
+        threads = _contact_threads(d)
         metric_threads = 2 * cpu_workers() if threads == 1 else threads
         self._metric = chunked_replayer(_k.contact_metric, metric_threads,
                                         [c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame,
@@ -410,7 +416,7 @@ class NodeSolve:
         (:func:`_node_jacobi_kernels.contact_step`, listed by :attr:`_list_movers` once a step)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
-        threads = stride_threads(d, CONTACT_THREADS_CUDA)
+        threads = _contact_threads(d)
         self._list_movers = _nothing
         if threads == 1 and self._gauss_seidel is None:
             movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
