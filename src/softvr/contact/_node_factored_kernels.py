@@ -26,32 +26,79 @@ import warp as wp
 from softvr.contact._node_jacobi_kernels import pgs_update
 
 
+#: Items one CPU thread of this module's per-node kernels takes (``block``; 1 on CUDA): Warp's
+#: CPU launch calls the compiled kernel once a thread, and each call copies the kernel's array
+#: arguments, which costs as much as a node's residual row.
+ITEMS_A_CPU_THREAD = 64
+
+
+@wp.func_native(r"""
+const unsigned long long* now = (const unsigned long long*)rotation.data;
+unsigned long long* was = (unsigned long long*)seen.data;
+const int* corner = (const int*)tets.data;
+int* flag = (int*)moved.data;
+const int end = start + block < rotation.shape[0] ? start + block : rotation.shape[0];
+for (int e = start; e < end; ++e) {
+    const unsigned long long* a = now + 9 * e;
+    unsigned long long* b = was + 9 * e;
+    unsigned long long differ = 0;
+    for (int j = 0; j < 9; ++j) differ |= a[j] ^ b[j];
+    if (differ != 0) {
+        for (int j = 0; j < 9; ++j) b[j] = a[j];
+        for (int j = 0; j < 4; ++j) flag[corner[4 * e + j]] = 1;
+    }
+}
+""")
+def _tets_moved(start: int, block: int, rotation: wp.array(dtype=wp.mat33d), seen: wp.array(dtype=wp.mat33d),
+                tets: wp.array2d(dtype=wp.int32), moved: wp.array(dtype=wp.int32)):
+    """:func:`tets_moved`'s items ``start : start + block`` in C++ (contiguous arrays)."""
+    ...
+
+
+@wp.kernel
+def tets_moved(rotation: wp.array(dtype=wp.mat33d), seen: wp.array(dtype=wp.mat33d), tets: wp.array2d(dtype=wp.int32),
+               moved: wp.array(dtype=wp.int32), block: int, offset: int):
+    """``moved[i]`` = 1 on the four nodes ``tets[e]`` of a tet ``e`` whose co-rotation
+    ``rotation[e]`` differs from ``seen[e]`` in any bit (a NaN in ``seen`` marks it moved), and
+    then ``seen[e] = rotation[e]``; other entries of ``moved`` are left as they are (the caller
+    clears them; threads that mark one node write the same 1). Items ``block`` a thread from
+    ``(tid + offset) block``."""
+    _tets_moved((wp.tid() + offset) * block, block, rotation, seen, tets, moved)
+
+
 @wp.kernel
 def node_rotations(force_start: wp.array(dtype=wp.int32), force: wp.array(dtype=wp.int32),
                    tet_weight: wp.array(dtype=wp.float64), tet_rotation: wp.array(dtype=wp.mat33d),
-                   solved: wp.array(dtype=wp.int32), rotation0: wp.array(dtype=wp.mat33d), polar_iterations: int,
-                   absolute: wp.array(dtype=wp.mat33d), relative: wp.array(dtype=wp.mat33d), offset: int):
+                   moved: wp.array(dtype=wp.int32), solved: wp.array(dtype=wp.int32),
+                   rotation0: wp.array(dtype=wp.mat33d), polar_iterations: int, absolute: wp.array(dtype=wp.mat33d),
+                   relative: wp.array(dtype=wp.mat33d), turned: wp.array(dtype=wp.int32), block: int, offset: int):
     """Solved node ``i = solved[k]``'s rotation: the polar part of its tets' co-rotations
     ``R_e`` summed by their stiffness ``tet_weight`` [N/m] (``force[c] = 4 tet + a`` for ``c``
     in ``force_start[i] : force_start[i + 1]``; Muller and Gross's stiffness warping) into
     ``absolute[k]``, and turned back by the factorization's ``rotation0[k]``: ``relative[i] =
     absolute[k] rotation0[k]^T``. Newton's iteration ``X <- (X + X^-T) / 2`` from the sum
-    scaled to unit determinant (the sums are near rotations; P needs R to a few digits)."""
-    k = wp.tid() + offset
-    i = solved[k]
-    x = wp.mat33d()
-    for c in range(force_start[i], force_start[i + 1]):
-        e = force[c] // 4
-        x = x + tet_weight[e] * tet_rotation[e]
-    det = wp.determinant(x)
-    scale = wp.pow(wp.abs(det), wp.float64(1.0) / wp.float64(3.0))
-    if det < wp.float64(0.0):
-        scale = -scale
-    x = x / scale
-    for _ in range(polar_iterations):
-        x = wp.float64(0.5) * (x + wp.transpose(wp.inverse(x)))
-    absolute[k] = x
-    relative[i] = x * wp.transpose(rotation0[k])
+    scaled to unit determinant (the sums are near rotations; P needs R to a few digits). Only
+    where one of the node's tets has ``moved`` (:func:`tets_moved`; the others' sums are what
+    they were, so are their rotations): ``turned[i] = 1`` there. Items ``block`` a thread."""
+    start = (wp.tid() + offset) * block
+    for k in range(start, wp.min(start + block, solved.shape[0])):
+        i = solved[k]
+        if moved[i] == 0:
+            continue
+        x = wp.mat33d()
+        for c in range(force_start[i], force_start[i + 1]):
+            e = force[c] // 4
+            x = x + tet_weight[e] * tet_rotation[e]
+        det = wp.determinant(x)
+        scale = wp.pow(wp.abs(det), wp.float64(1.0) / wp.float64(3.0))
+        if det < wp.float64(0.0):
+            scale = -scale
+        x = x / scale
+        for _ in range(polar_iterations):
+            x = wp.float64(0.5) * (x + wp.transpose(wp.inverse(x)))
+        absolute[k] = x
+        relative[i] = x * wp.transpose(rotation0[k])
+        turned[i] = 1
 
 
 @wp.func_native(r"""
@@ -95,25 +142,28 @@ def _row_residual(i: int, row_start: wp.array(dtype=wp.int32), block_col: wp.arr
 def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                     blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d), solved: wp.array(dtype=wp.int32),
                     rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d), r: wp.array(dtype=wp.vec3d),
-                    offset: int):
+                    block: int, offset: int):
     """``r_k = R_i^T (b_i - sum_j A_ij v_j)`` [kg m/s] of solved node ``i = solved[k]``: eq.
-    5.2's residual turned back by the node's rotation since the factorization."""
-    k = wp.tid() + offset
-    i = solved[k]
-    r[k] = wp.transpose(rotation[i]) * _row_residual(i, row_start, block_col, blocks, b, v)
+    5.2's residual turned back by the node's rotation since the factorization. Items ``block``
+    a thread."""
+    start = (wp.tid() + offset) * block
+    for k in range(start, wp.min(start + block, solved.shape[0])):
+        i = solved[k]
+        r[k] = wp.transpose(rotation[i]) * _row_residual(i, row_start, block_col, blocks, b, v)
 
 
 @wp.kernel
 def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
-                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d), offset: int):
+                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d), block: int, offset: int):
     """``u_i = v_i + R_i y_k`` [m/s] of node ``i``, ``k = index[i]`` its row among the solved
-    nodes (``u_i = v_i`` on a node not solved: ``k < 0``)."""
-    i = wp.tid() + offset
-    k = index[i]
-    if k < 0:
-        u[i] = v[i]
-    else:
-        u[i] = v[i] + rotation[i] * y[k]
+    nodes (``u_i = v_i`` on a node not solved: ``k < 0``). Items ``block`` a thread."""
+    start = (wp.tid() + offset) * block
+    for i in range(start, wp.min(start + block, index.shape[0])):
+        k = index[i]
+        if k < 0:
+            u[i] = v[i]
+        else:
+            u[i] = v[i] + rotation[i] * y[k]
 
 
 # factor_solve's loops in C++ (contiguous arrays): Warp's generated code spends most of a block
@@ -227,27 +277,38 @@ for _t in (wp.vec3d, wp.mat33d):
 def warp_change(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
                 blocks: wp.array(dtype=wp.mat33d), blocks0: wp.array(dtype=wp.mat33d),
                 rotation: wp.array(dtype=wp.mat33d), solved: wp.array(dtype=wp.int32),
-                change: wp.array(dtype=wp.float64), offset: int):
+                moved: wp.array(dtype=wp.int32), turned: wp.array(dtype=wp.int32), change: wp.array(dtype=wp.float64),
+                block: int, offset: int):
     """How far node ``i``'s row of ``A`` [kg] is from the factored ``A_0`` turned to the nodes'
     rotations ``R`` (``rotation`` [n], since the factorization): the largest Frobenius norm of
     ``R_i^T A_ij R_j - A0_ij`` over the solved nodes ``j``, over that of ``A0_ii``; 0 on a node
-    not solved."""
-    i = wp.tid() + offset
-    change[i] = wp.float64(0.0)
-    if solved[i] == 0:
-        return
-    ri = wp.transpose(rotation[i])
-    worst = wp.float64(0.0)
-    own = wp.float64(0.0)
-    for k in range(row_start[i], row_start[i + 1]):
-        j = block_col[k]
-        if j == i:
-            own = wp.ddot(blocks0[k], blocks0[k])
-        if solved[j] != 0:
-            d = ri * blocks[k] * rotation[j] - blocks0[k]
-            worst = wp.max(worst, wp.ddot(d, d))
-    if own > wp.float64(0.0):
-        change[i] = wp.sqrt(worst / own)
+    not solved. Only where it can have changed since the last call: the row's blocks are sums
+    over the node's tets of terms of their co-rotations (eq. 5.2 with ``R_e K_e R_e^T``), so a
+    node none of whose tets has ``moved`` (:func:`tets_moved`) and none of whose row's nodes
+    ``turned`` (:func:`node_rotations`) keeps ``change[i]``. Items ``block`` a thread."""
+    start = (wp.tid() + offset) * block
+    for i in range(start, wp.min(start + block, solved.shape[0])):
+        if solved[i] == 0:
+            change[i] = wp.float64(0.0)
+            continue
+        dirty = turned[i] + moved[i]
+        for k in range(row_start[i], row_start[i + 1]):
+            dirty = dirty + turned[block_col[k]]
+        if dirty == 0:
+            continue
+        change[i] = wp.float64(0.0)
+        ri = wp.transpose(rotation[i])
+        worst = wp.float64(0.0)
+        own = wp.float64(0.0)
+        for k in range(row_start[i], row_start[i + 1]):
+            j = block_col[k]
+            if j == i:
+                own = wp.ddot(blocks0[k], blocks0[k])
+            if solved[j] != 0:
+                d = ri * blocks[k] * rotation[j] - blocks0[k]
+                worst = wp.max(worst, wp.ddot(d, d))
+        if own > wp.float64(0.0):
+            change[i] = wp.sqrt(worst / own)
 
 
 @wp.func

@@ -30,6 +30,8 @@ node and kept while the factorization is.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -119,6 +121,14 @@ def sweeps_step_work(work_per_decade: float) -> float:
     return STEP_DECADES * work_per_decade
 
 
+def _blocked(kernel, items: int, inputs: list, device, min_chunk: int) -> Callable[[], None]:
+    """``chunked_replayer`` of a kernel whose thread takes ``block`` of the ``items`` (the
+    argument after ``inputs``): :data:`_node_factored_kernels.ITEMS_A_CPU_THREAD` on the CPU, 1
+    on CUDA; chunks of at least ``min_chunk`` items."""
+    block = _k.ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
+    return chunked_replayer(kernel, -(-items // block), [*inputs, block], device, min_chunk=max(1, min_chunk // block))
+
+
 def _error(changes: list[float]) -> float:
     """Estimated velocity error [m/s] after the outer iterations whose largest changes were
     ``changes``: the geometric tail ``change rho / (1 - rho)`` with ``rho`` the larger of the
@@ -147,13 +157,21 @@ class _Anderson:
         self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
+    def reset(self) -> None:
+        """Forget the iterates, keeping the ring's rows for the next iteration of the same
+        size: fresh rows of a step's ~45 K doubles cost their page faults (~0.03 ms a step)."""
+        self._last = None
+        self._count = self._slot = 0
+        self._gram[:] = 0.0
+
     def next(self, x: np.ndarray, g: np.ndarray, f: np.ndarray | None = None) -> np.ndarray:
         """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N] (and
         their difference ``f = g - x`` [N], where the caller has it)."""
         f = g - x if f is None else f
         if self._last is None:
             self._last = f, g
-            self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
+            if self._df.shape != (self.memory, len(x)):
+                self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
             return g
         s = self._slot
         np.subtract(f, self._last[0], out=self._df[s])
@@ -212,8 +230,8 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update, _k.warp_change,
-                       _k.dense_pgs, _jk.residual):
+        for kernel in (_k.tets_moved, _k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update,
+                       _k.warp_change, _k.dense_pgs, _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
@@ -247,15 +265,31 @@ class FactoredSolve:
         # A tet's weight in its nodes' rotations: its stiffness (trace of K_e's diagonal blocks).
         weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
         self._tet_weight: wp.array = wp.array(weight, dtype=wp.float64, device=d)
-        # Per node, split over the cores where that has been faster of late (chunked_replayer).
-        self._rotations = chunked_replayer(
-            _k.node_rotations, k, [model.force_start, model.force, self._tet_weight, state.rotations, solved_d,
-                                   self._rotation0, POLAR_ITERATIONS, self._absolute, self._rotation], d, min_chunk=512)
-        self._residual = chunked_replayer(_k.turned_residual, k, [model.row_start, model.block_col, state.blocks,
-                                                                  state.b, solved_d, self._rotation, self._v, self._r],
-                                          d, min_chunk=512)
-        self._update = chunked_replayer(_k.turned_update, n, [index_d, self._rotation, self._v, self._y, self._u], d,
-                                        min_chunk=512)
+        # The nodes' rotations and the warp change of their rows are recomputed only where a tet's
+        # co-rotation has changed since they last were (tets_moved: each keeps the R_e it saw; a
+        # rotation lag keeps most): a node's rotation is a function of its tets' R_e, its row of
+        # A of theirs and its neighbours' rotations. turned: the nodes whose rotation was
+        # recomputed since the last warp change.
+        tets = len(model.tets)
+        self._moved = [wp.zeros(n, dtype=wp.int32, device=d) for _ in range(2)]
+        self._seen = [wp.zeros(tets, dtype=wp.mat33d, device=d) for _ in range(2)]
+        self._turned = wp.ones(n, dtype=wp.int32, device=d)
+        moved_rotations, moved_rows = (_blocked(_k.tets_moved, tets, [state.rotations, seen, model.tets, moved], d, 1024)
+                                       for seen, moved in zip(self._seen, self._moved))
+        rotations = _blocked(_k.node_rotations, k, [model.force_start, model.force, self._tet_weight, state.rotations,
+                                                    self._moved[0], solved_d, self._rotation0, POLAR_ITERATIONS,
+                                                    self._absolute, self._rotation, self._turned], d, 512)
+        moved = [m.numpy() for m in self._moved]
+
+        def node_rotations() -> None:
+            moved[0][:] = 0
+            moved_rotations()
+            rotations()
+
+        self._rotations = node_rotations
+        self._residual = _blocked(_k.turned_residual, k, [model.row_start, model.block_col, state.blocks, state.b,
+                                                          solved_d, self._rotation, self._v, self._r], d, 512)
+        self._update = _blocked(_k.turned_update, n, [index_d, self._rotation, self._v, self._y, self._u], d, 512)
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
         capacity = state.contacts.capacity
         self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
@@ -279,14 +313,24 @@ class FactoredSolve:
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
         solved_mask: wp.array = wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d)
-        self._warp_change = chunked_replayer(_k.warp_change, n, [model.row_start, model.block_col, state.blocks,
-                                                                 self._blocks0, self._rotation, solved_mask,
-                                                                 self._change], d, min_chunk=512)
-        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
+        rows = _blocked(_k.warp_change, n, [model.row_start, model.block_col, state.blocks, self._blocks0,
+                                            self._rotation, solved_mask, self._moved[1], self._turned, self._change],
+                        d, 512)
+
+        def warp_change() -> None:
+            moved[1][:] = 0
+            moved_rows()
+            rows()
+            self._host["turned"][:] = 0
+
+        self._warp_change = warp_change
+        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy(),
+                          seen=[seen.numpy() for seen in self._seen], turned=self._turned.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
         self._steps = 0  # solves made
         self.delassus_passes = 0
+        self._anderson = _Anderson(ANDERSON_MEMORY)
         self._factor()
 
     def _factor(self) -> None:
@@ -307,10 +351,15 @@ class FactoredSolve:
             replayer(wp.launch(_k.factor_solve, dim=1, device=d, record_cmd=True,
                                inputs=[*self._factors, rhs, work, x]))
             for rhs, work, x in ((self._r, self._work, self._y), (self._unit, self._columns_work, self._column)))
-        # R_0: the nodes' rotations now; R since is the identity.
+        # R_0: the nodes' rotations now; R since is the identity. Every node's rotation and row
+        # computed again at their next calls (R and A_0 are new): a NaN R_e seen is a moved one.
+        for seen in self._host["seen"]:
+            seen[:] = np.nan
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
         self._host["rotation"][self._solved_nodes] = np.eye(3)
+        self._host["seen"][0][:] = np.nan
+        self._host["turned"][:] = 1
         wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
@@ -495,7 +544,8 @@ class FactoredSolve:
         lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
         self.delassus_passes = 0
         k = restart = 0
-        anderson = _Anderson(ANDERSON_MEMORY)
+        anderson = self._anderson
+        anderson.reset()
         changes: list[float] = []
         while k < self.max_iterations:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
@@ -503,7 +553,8 @@ class FactoredSolve:
                 local = self._local()
                 rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
-                restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
+                restart, changes = k, []
+                anderson.reset()
             k += 1
             self._residual()  # R^T r
             self._solve_r()  # A_0^-1 R^T r
