@@ -154,16 +154,29 @@ def turned_residual(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dty
 
 @wp.kernel
 def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.mat33d), v: wp.array(dtype=wp.vec3d),
-                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d), block: int, offset: int):
+                  y: wp.array(dtype=wp.vec3d), u: wp.array(dtype=wp.vec3d), f: wp.array(dtype=wp.vec3d),
+                  largest: wp.array(dtype=wp.float64), block: int, offset: int):
     """``u_i = v_i + R_i y_k`` [m/s] of node ``i``, ``k = index[i]`` its row among the solved
-    nodes (``u_i = v_i`` on a node not solved: ``k < 0``). Items ``block`` a thread."""
-    start = (wp.tid() + offset) * block
+    nodes (``u_i = v_i`` on a node not solved: ``k < 0``), the change ``f_i = u_i - v_i``
+    [m/s], and the largest ``|f|`` component of the thread's items in ``largest[tid + offset]``
+    (NaN if one is). Items ``block`` a thread."""
+    t = wp.tid() + offset
+    start = t * block
+    biggest = wp.float64(0.0)
     for i in range(start, wp.min(start + block, index.shape[0])):
         k = index[i]
-        if k < 0:
-            u[i] = v[i]
-        else:
-            u[i] = v[i] + rotation[i] * y[k]
+        w = v[i]
+        if k >= 0:
+            w = v[i] + rotation[i] * y[k]
+        u[i] = w
+        d = w - v[i]
+        f[i] = d
+        for c in range(3):
+            a = wp.abs(d[c])
+            if biggest == biggest:  # a NaN stays
+                if a > biggest or a != a:
+                    biggest = a
+    largest[t] = biggest
 
 
 # factor_solve's loops in C++ (contiguous arrays): Warp's generated code spends most of a block
