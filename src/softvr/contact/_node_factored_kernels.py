@@ -182,30 +182,24 @@ def turned_update(index: wp.array(dtype=wp.int32), rotation: wp.array(dtype=wp.m
 # factor_solve's loops in C++ (contiguous arrays): Warp's generated code spends most of a block
 # on index tests and stride multiplies around its 9 multiplications (0.2 ms for the head CT's
 # 204 K entries). The same operations in the same order as Warp's 3 x 3 products, so the same
-# bits: row(m, y) is row m [3] of a block times column y [3, stride NRHS] of a block of NRHS
-# right-hand sides, the terms in turn; a matrix-vector product (NRHS 1) sums the three
-# products, a matrix-matrix product (NRHS 3) accumulates them with fused multiply-adds.
+# bits, four lanes at a time (clang's vector extensions; the fourth lane is padding): the
+# blocks are stored transposed (a block's columns contiguous, the arrays one block longer for
+# the padding lane's read). One right-hand side (NRHS 1): a lane is a row of the block, its
+# products summed as Warp's matrix-vector product ((m0 y0 + m1 y1) + m2 y2; 80 -> 55 us a
+# solve on the head CT); three (NRHS 3, a mat33d's columns): a lane is a column of the
+# right-hand sides, the products accumulated with fused multiply-adds as Warp's matrix-matrix
+# product.
 _SOLVE = r"""
-auto row = [](const double* m, const double* y) -> double {
-#if NRHS == 1
-    double u = m[0] * y[0];
-    double v = m[1] * y[1];
-    u = u + v;
-    v = m[2] * y[2];
-    return u + v;
-#else
-    return fma(m[2], y[2 * NRHS], fma(m[1], y[NRHS], m[0] * y[0]));
-#endif
-};
+typedef double v4 __attribute__((vector_size(32)));
+auto load = [](const double* p) -> v4 { v4 r; __builtin_memcpy(&r, p, 32); return r; };
+auto splat = [](double s) -> v4 { v4 r = {s, s, s, s}; return r; };
 const int* pr = (const int*)perm_r_inverse.data;
 const int* pc = (const int*)perm_c.data;
 const double* in = (const double*)rhs.data;
 double* w = (double*)work.data;
 double* out = (double*)x.data;
-const int k = work.shape[0];
+const int k = rhs.shape[0];
 const int B = 3 * NRHS;  // doubles in a block of work
-double acc[3 * NRHS];
-double t[3 * NRHS];
 for (int half = 0; half < 2; ++half) {
     const int* start = (const int*)(half == 0 ? lower_start.data : upper_start.data);
     const int* col = (const int*)(half == 0 ? lower_col.data : upper_col.data);
@@ -213,25 +207,51 @@ for (int half = 0; half < 2; ++half) {
     const double* inv = (const double*)(half == 0 ? lower_inverse.data : upper_inverse.data);
     for (int s = 0; s < k; ++s) {
         const int p = half == 0 ? s : k - 1 - s;  // forward: L w = Pr rhs; backward: U w' = w
+        v4 acc[NRHS == 1 ? 1 : 3];
         for (int a = 0; a < 3; ++a) {
             const double* from = half == 0 ? in + (pr[3 * p + a] / 3) * B + (pr[3 * p + a] % 3) * NRHS
                                            : w + p * B + a * NRHS;
-            for (int j = 0; j < NRHS; ++j) acc[a * NRHS + j] = from[j];
+#if NRHS == 1
+            acc[0][a] = from[0];
+#else
+            acc[a] = (v4){from[0], from[1], from[2], 0.0};
+#endif
         }
+#if NRHS == 1
+        acc[0][3] = 0.0;
+#endif
         for (int c = start[p], end = start[p + 1]; c < end; ++c) {
-            const double* m = off + 9 * c;
+            const double* m = off + 9 * c;  // transposed: m[3 r + a] is row a, column r
             const double* y = w + col[c] * B;
+#if NRHS == 1
+            v4 u = load(m) * splat(y[0]);
+            v4 v = load(m + 3) * splat(y[1]);
+            u = u + v;
+            v = load(m + 6) * splat(y[2]);
+            acc[0] = acc[0] - (u + v);
+#else
+            const v4 y0 = load(y), y1 = load(y + 3), y2 = load(y + 6);
             for (int a = 0; a < 3; ++a) {
-                for (int j = 0; j < NRHS; ++j) {
-                    acc[a * NRHS + j] = acc[a * NRHS + j] - row(m + 3 * a, y + j);
-                }
+                acc[a] = acc[a] - __builtin_elementwise_fma(splat(m[6 + a]), y2,
+                                  __builtin_elementwise_fma(splat(m[3 + a]), y1, splat(m[a]) * y0));
             }
+#endif
         }
         const double* m = inv + 9 * p;
+#if NRHS == 1
+        v4 u = load(m) * splat(acc[0][0]);
+        v4 v = load(m + 3) * splat(acc[0][1]);
+        u = u + v;
+        v = load(m + 6) * splat(acc[0][2]);
+        u = u + v;
+        for (int a = 0; a < 3; ++a) w[p * B + a] = u[a];
+#else
         for (int a = 0; a < 3; ++a) {
-            for (int j = 0; j < NRHS; ++j) t[a * NRHS + j] = row(m + 3 * a, acc + j);
+            const v4 t = __builtin_elementwise_fma(splat(m[6 + a]), acc[2],
+                         __builtin_elementwise_fma(splat(m[3 + a]), acc[1], splat(m[a]) * acc[0]));
+            for (int j = 0; j < 3; ++j) w[p * B + 3 * a + j] = t[j];
         }
-        for (int e = 0; e < B; ++e) w[p * B + e] = t[e];
+#endif
     }
 }
 for (int i = 0; i < 3 * k; ++i) {  // x = Pc w'
@@ -273,9 +293,10 @@ def factor_solve(perm_r_inverse: wp.array(dtype=wp.int32), perm_c: wp.array(dtyp
     """``x = A^-1 rhs`` (one thread; vec3d: one right-hand side, mat33d: three, its columns)
     with SuperLU's ``Pr A Pc = L U`` held as 3 x 3 blocks of the factors' rows (``work``'s
     order): ``lower`` / ``upper`` the blocks off the diagonal (block row ``p``: ``start[p] :
-    start[p + 1]``, block columns ``col``), ``*_inverse`` the inverses of the diagonal blocks;
-    ``perm_r_inverse`` the inverse of ``Pr``'s ``perm_r``, ``perm_c`` ``Pc``'s, over the flat
-    entries (every array contiguous). Forward ``L w = Pr rhs``, backward ``U w' = w``, ``x =
+    start[p + 1]``, block columns ``col``), ``*_inverse`` the inverses of the diagonal blocks,
+    all transposed and followed by one more (any) block; ``perm_r_inverse`` the inverse of
+    ``Pr``'s ``perm_r``, ``perm_c`` ``Pc``'s, over the flat entries (every array contiguous;
+    ``work`` one entry longer than ``rhs``). Forward ``L w = Pr rhs``, backward ``U w' = w``, ``x =
     Pc w'``. Block rows run at SciPy's CSR product speed; SuperLU's own single-vector solve
     spends ~2/3 of its time in BLAS calls per supernode."""
     _solved(perm_r_inverse, perm_c, lower_start, lower_col, lower, lower_inverse, upper_start, upper_col, upper,

@@ -192,14 +192,17 @@ class _Anderson:
 def _block_rows(factor: sp.bsr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A triangular factor's 3 x 3 blocks [k, k blocks] as :func:`_node_factored_kernels.factor_solve`
     reads them: per block row where its blocks off the diagonal start [k + 1], their block
-    columns [b] and values [b, 3, 3], and the diagonal blocks' inverses [k, 3, 3]."""
+    columns [b] and values [b + 1, 3, 3], and the diagonal blocks' inverses [k + 1, 3, 3], the
+    blocks transposed, each array with a last zero block (the kernel's padding lane reads it)."""
     k = factor.shape[0] // 3
     rows = np.repeat(np.arange(k), np.diff(factor.indptr))
     diagonal = rows == factor.indices
-    inverse = np.zeros((k, 3, 3))
+    inverse = np.zeros((k + 1, 3, 3))
     inverse[rows[diagonal]] = np.linalg.inv(factor.data[diagonal])
     start = np.concatenate([[0], np.cumsum(np.bincount(rows[~diagonal], minlength=k))])
-    return start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), factor.data[~diagonal], inverse
+    off = np.concatenate([factor.data[~diagonal], np.zeros((1, 3, 3))])
+    return (start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), off.transpose(0, 2, 1).copy(),
+            inverse.transpose(0, 2, 1).copy())
 
 
 class FactoredSolve:
@@ -250,10 +253,10 @@ class FactoredSolve:
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
-        self._work = wp.zeros(k, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
+        self._work = wp.zeros(k + 1, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
         # A node's three unit vectors (columns), whose solves are its columns of A_0^-1.
         self._unit = wp.zeros(k, dtype=wp.mat33d, device=d)
-        self._columns_work = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._columns_work = wp.zeros(k + 1, dtype=wp.mat33d, device=d)
         self._column = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
