@@ -70,29 +70,31 @@ def coupling_blocks(block: wp.array(dtype=wp.int32), block_rigid: wp.array(dtype
                     lever: wp.array2d(dtype=wp.vec3d), stiffness: wp.array(dtype=wp.float64),
                     damping: wp.array(dtype=wp.float64), block_row: wp.array(dtype=wp.int32),
                     block_col: wp.array(dtype=wp.int32), dt: wp.float64, blocks: wp.array(dtype=wp.mat33d),
-                    d_inv: wp.array(dtype=wp.mat33d)):
+                    d_inv: wp.array(dtype=wp.mat33d), items: int, offset: int):
     """Adds ``sum (dt c + dt^2 k) B_i^T B_j`` [kg] to block ``block[t]`` of ``A``; entry codes
     ``SPRING_STENCIL^2 spring + SPRING_STENCIL i + j``. A diagonal block also rewrites
     ``D_A^-1``; a rigid node's (``block_rigid[t]``) starts from this step's ``D_A`` (``m I``
     or ``I_w``, written into ``d_inv`` by the rigid bodies' system before) as the element
-    assembly writes no block of it."""
-    t = wp.tid()
-    k = block[t]
-    m = blocks[k]
-    if block_rigid[t] != 0:
-        m = wp.mat33d()
+    assembly writes no block of it. A thread takes ``items`` of the ``t``, from (thread +
+    ``offset``) x ``items`` (:func:`softvr.device.blocked_replayer`)."""
+    begin = (wp.tid() + offset) * items
+    for t in range(begin, wp.min(begin + items, block.shape[0])):
+        k = block[t]
+        m = blocks[k]
+        if block_rigid[t] != 0:
+            m = wp.mat33d()
+            if block_row[k] == block_col[k]:
+                m = wp.inverse(d_inv[block_row[k]])
+        for e in range(block_entry_start[t], block_entry_start[t + 1]):
+            code = block_entry[e]
+            s = code // (SPRING_STENCIL * SPRING_STENCIL)
+            i = (code // SPRING_STENCIL) % SPRING_STENCIL
+            j = code % SPRING_STENCIL
+            scale = dt * damping[s] + dt * dt * stiffness[s]
+            m = m + scale * (wp.transpose(_weight(s, i, weights, rigid, lever)) * _weight(s, j, weights, rigid, lever))
+        blocks[k] = m
         if block_row[k] == block_col[k]:
-            m = wp.inverse(d_inv[block_row[k]])
-    for e in range(block_entry_start[t], block_entry_start[t + 1]):
-        code = block_entry[e]
-        s = code // (SPRING_STENCIL * SPRING_STENCIL)
-        i = (code // SPRING_STENCIL) % SPRING_STENCIL
-        j = code % SPRING_STENCIL
-        scale = dt * damping[s] + dt * dt * stiffness[s]
-        m = m + scale * (wp.transpose(_weight(s, i, weights, rigid, lever)) * _weight(s, j, weights, rigid, lever))
-    blocks[k] = m
-    if block_row[k] == block_col[k]:
-        d_inv[block_row[k]] = wp.inverse(m)
+            d_inv[block_row[k]] = wp.inverse(m)
 
 
 @wp.kernel

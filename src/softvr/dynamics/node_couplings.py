@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import warp as wp
 
-from softvr.device import load_kernels, replayer
+from softvr.device import blocked_replayer, load_kernels, replayer
 from softvr.dynamics import _node_coupling_kernels as _k
 
 __all__ = ["SPRING_STENCIL", "record_couplings"]
@@ -37,15 +37,17 @@ def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], ...]:
     stretch = wp.launch(_k.coupling_stretch, dim=c.spring_count, device=d, record_cmd=True,
                         inputs=[c.nodes, c.weights, c.rigid, c.local, state.q, position, orientation, c.lever,
                                 c.stretch])
-    blocks = wp.launch(_k.coupling_blocks, dim=c.block.shape[0], device=d, record_cmd=True,
-                       inputs=[c.block, c.block_rigid, c.block_entry_start, c.block_entry, c.weights, c.rigid,
+    # The blocks (656 on the shoulder, a 16-argument kernel) several a CPU thread: each thread
+    # costs a call of the compiled kernel, more than a block's few products (device.ITEMS_A_CPU_THREAD).
+    blocks = blocked_replayer(_k.coupling_blocks, c.block.shape[0],
+                              [c.block, c.block_rigid, c.block_entry_start, c.block_entry, c.weights, c.rigid,
                                c.lever, c.stiffness, c.damping, model.block_row, model.block_col, float(dt),
-                               state.blocks, state.d_inv])
+                               state.blocks, state.d_inv], d)
     forces = wp.launch(_k.coupling_forces, dim=c.node.shape[0], device=d, record_cmd=True,
                        inputs=[c.node, c.entry_start, c.entry, c.weights, c.rigid, c.lever, c.stiffness, c.stretch,
                                float(dt), state.b])
-    launches = [stretch, blocks, forces]
+    replays = [replayer(stretch), blocks, replayer(forces)]
     if c.pair_node.shape[0]:  # spring-held rigid bodies (Warp records no launch of 0 threads)
-        launches.append(wp.launch(_k.pair_inverse, dim=c.pair_node.shape[0], device=d, record_cmd=True,
-                                  inputs=[c.pair_node, c.pair_block, state.blocks, state.d_inv, c.cross]))
-    return tuple(replayer(launch) for launch in launches)
+        replays.append(replayer(wp.launch(_k.pair_inverse, dim=c.pair_node.shape[0], device=d, record_cmd=True,
+                                          inputs=[c.pair_node, c.pair_block, state.blocks, state.d_inv, c.cross])))
+    return tuple(replays)
