@@ -31,24 +31,27 @@ def coupling_stretch(nodes: wp.array2d(dtype=wp.int32), weights: wp.array2d(dtyp
                      rigid: wp.array2d(dtype=wp.int32), local: wp.array2d(dtype=wp.vec3d),
                      q: wp.array(dtype=wp.vec3d), position: wp.array(dtype=wp.vec3d),
                      orientation: wp.array(dtype=wp.vec4d), lever: wp.array2d(dtype=wp.vec3d),
-                     stretch: wp.array(dtype=wp.vec3d)):
+                     stretch: wp.array(dtype=wp.vec3d), items: int, offset: int):
     """Spring ``s``'s ``p_a - p_b`` [m] at the step's start, and the world offsets [m] of its
     rigid sides (``rigid[s, side]``: the side's rigid body, -1 none; ``local`` its body-frame
-    point [m]; ``position`` [m], ``orientation`` (w, x, y, z): the rigid bodies' poses)."""
-    s = wp.tid()
-    d = wp.vec3d()
-    for side in range(2):
-        r = rigid[s, side]
-        if r >= 0:
-            arm = _rotation(orientation[r]) * local[s, side]
-            lever[s, side] = arm
-            d = d + weights[s, side * SIDE] * (position[r] + arm)
-        else:
-            for k in range(side * SIDE, side * SIDE + SIDE):
-                j = nodes[s, k]
-                if j >= 0:
-                    d = d + weights[s, k] * q[j]
-    stretch[s] = d
+    point [m]; ``position`` [m], ``orientation`` (w, x, y, z): the rigid bodies' poses). A
+    thread takes ``items`` of the ``s``, from (thread + ``offset``) x ``items``
+    (:func:`softvr.device.blocked_replayer`)."""
+    begin = (wp.tid() + offset) * items
+    for s in range(begin, wp.min(begin + items, stretch.shape[0])):
+        d = wp.vec3d()
+        for side in range(2):
+            r = rigid[s, side]
+            if r >= 0:
+                arm = _rotation(orientation[r]) * local[s, side]
+                lever[s, side] = arm
+                d = d + weights[s, side * SIDE] * (position[r] + arm)
+            else:
+                for k in range(side * SIDE, side * SIDE + SIDE):
+                    j = nodes[s, k]
+                    if j >= 0:
+                        d = d + weights[s, k] * q[j]
+        stretch[s] = d
 
 
 @wp.func
@@ -102,18 +105,20 @@ def coupling_forces(node: wp.array(dtype=wp.int32), entry_start: wp.array(dtype=
                     entry: wp.array(dtype=wp.int32), weights: wp.array2d(dtype=wp.float64),
                     rigid: wp.array2d(dtype=wp.int32), lever: wp.array2d(dtype=wp.vec3d),
                     stiffness: wp.array(dtype=wp.float64), stretch: wp.array(dtype=wp.vec3d), dt: wp.float64,
-                    b: wp.array(dtype=wp.vec3d)):
+                    b: wp.array(dtype=wp.vec3d), items: int, offset: int):
     """Adds ``-dt sum k B_i^T (p_a - p_b)`` [kg m/s, or kg m^2/s on an angular node: the
     spring's torque] to ``b`` of node ``node[t]``; ``entry[e]`` = SPRING_STENCIL spring + slot:
-    the node is that slot of the spring's stencil."""
-    t = wp.tid()
-    f = wp.vec3d()
-    for e in range(entry_start[t], entry_start[t + 1]):
-        s = entry[e] // SPRING_STENCIL
-        weight = _weight(s, entry[e] % SPRING_STENCIL, weights, rigid, lever)
-        f = f - stiffness[s] * (wp.transpose(weight) * stretch[s])
-    i = node[t]
-    b[i] = b[i] + dt * f
+    the node is that slot of the spring's stencil. A thread takes ``items`` of the ``t``, from
+    (thread + ``offset``) x ``items`` (:func:`softvr.device.blocked_replayer`)."""
+    begin = (wp.tid() + offset) * items
+    for t in range(begin, wp.min(begin + items, node.shape[0])):
+        f = wp.vec3d()
+        for e in range(entry_start[t], entry_start[t + 1]):
+            s = entry[e] // SPRING_STENCIL
+            weight = _weight(s, entry[e] % SPRING_STENCIL, weights, rigid, lever)
+            f = f - stiffness[s] * (wp.transpose(weight) * stretch[s])
+        i = node[t]
+        b[i] = b[i] + dt * f
 
 
 @wp.kernel

@@ -34,19 +34,19 @@ def record_couplings(model, state, dt: float) -> tuple[Callable[[], None], ...]:
         position, orientation = model.rigid.state.body_position, model.rigid.state.body_orientation
     else:
         position, orientation = wp.zeros(1, dtype=wp.vec3d, device=d), wp.zeros(1, dtype=wp.vec4d, device=d)
-    stretch = wp.launch(_k.coupling_stretch, dim=c.spring_count, device=d, record_cmd=True,
-                        inputs=[c.nodes, c.weights, c.rigid, c.local, state.q, position, orientation, c.lever,
-                                c.stretch])
-    # The blocks (656 on the shoulder, a 16-argument kernel) several a CPU thread: each thread
-    # costs a call of the compiled kernel, more than a block's few products (device.ITEMS_A_CPU_THREAD).
-    blocks = blocked_replayer(_k.coupling_blocks, c.block.shape[0],
-                              [c.block, c.block_rigid, c.block_entry_start, c.block_entry, c.weights, c.rigid,
-                               c.lever, c.stiffness, c.damping, model.block_row, model.block_col, float(dt),
-                               state.blocks, state.d_inv], d)
-    forces = wp.launch(_k.coupling_forces, dim=c.node.shape[0], device=d, record_cmd=True,
-                       inputs=[c.node, c.entry_start, c.entry, c.weights, c.rigid, c.lever, c.stiffness, c.stretch,
-                               float(dt), state.b])
-    replays = [replayer(stretch), blocks, replayer(forces)]
+    # A thread per spring, block or node costs a call of the compiled kernel, more than the
+    # item's few products (656 blocks on the shoulder): several items a CPU thread
+    # (device.ITEMS_A_CPU_THREAD).
+    replays = [blocked_replayer(_k.coupling_stretch, c.spring_count,
+                                [c.nodes, c.weights, c.rigid, c.local, state.q, position, orientation, c.lever,
+                                 c.stretch], d),
+               blocked_replayer(_k.coupling_blocks, c.block.shape[0],
+                                [c.block, c.block_rigid, c.block_entry_start, c.block_entry, c.weights, c.rigid,
+                                 c.lever, c.stiffness, c.damping, model.block_row, model.block_col, float(dt),
+                                 state.blocks, state.d_inv], d),
+               blocked_replayer(_k.coupling_forces, c.node.shape[0],
+                                [c.node, c.entry_start, c.entry, c.weights, c.rigid, c.lever, c.stiffness,
+                                 c.stretch, float(dt), state.b], d)]
     if c.pair_node.shape[0]:  # spring-held rigid bodies (Warp records no launch of 0 threads)
         replays.append(replayer(wp.launch(_k.pair_inverse, dim=c.pair_node.shape[0], device=d, record_cmd=True,
                                           inputs=[c.pair_node, c.pair_block, state.blocks, state.d_inv, c.cross])))
