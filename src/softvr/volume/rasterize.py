@@ -724,36 +724,42 @@ class _Region:
 
     def __init__(self, marked: np.ndarray):
         b, g, far = _REGION_BRICK, marked.shape[0], 2**30
-        rows, cols = np.any(marked, axis=2), np.any(marked, axis=1)  # [gx, gy], [gx, gz]
-        used = np.any(rows, axis=1)
+        rows, cols = marked.any(axis=2), marked.any(axis=1)  # [gx, gy], [gx, gz]
+        used = rows.any(axis=1)
         # [gx, 4] voxel bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
-        rect = b * np.stack([rows.argmax(axis=1), rows.shape[1] - rows[:, ::-1].argmax(axis=1),
-                             cols.argmax(axis=1), cols.shape[1] - cols[:, ::-1].argmax(axis=1)], axis=1)
-        rect = np.where(used[:, None], rect, [far, 0, far, 0])
+        ny, nz = rows.shape[1], cols.shape[1]
+        rect = np.empty((g, 4), dtype=np.int64)
+        rect[:, 0], rect[:, 1] = rows.argmax(axis=1), ny - rows[:, ::-1].argmax(axis=1)
+        rect[:, 2], rect[:, 3] = cols.argmax(axis=1), nz - cols[:, ::-1].argmax(axis=1)
+        rect *= b
+        rect[~used] = (far, 0, far, 0)
+        # Python ints: slices of numpy scalars cost ~10 us a slab when the caller indexes with them.
         self.slabs = [(slice(a * b, (a + 1) * b), slice(r[0], r[1]), slice(r[2], r[3]))
-                      for a, r in zip(np.flatnonzero(used), rect[used])]
+                      for a, r in zip(np.flatnonzero(used).tolist(), rect[used].tolist())]
         # For every slab range [a0, a1]: the x-range of its used slabs and the rectangle
-        # around theirs (lower bounds in _low, upper ones past the end in _high, [a0, a1, 3]),
+        # around theirs (lower bounds in _low, upper ones past the end in _high, [a0 g + a1, 3]),
         # so that a tet's box is clipped in two look-ups.
         slab = np.arange(g)
-        x = np.stack([np.where(used, slab * b, far), np.where(used, (slab + 1) * b, 0)], axis=1)
-        lows = np.concatenate([x[:, :1], rect[:, 0::2]], axis=1)  # [gx, 3]
-        highs = np.concatenate([x[:, 1:], rect[:, 1::2]], axis=1)
-        later = slab[None, :] >= slab[:, None]  # [a0, a]: slab a is in a range from a0
-        self._low = np.minimum.accumulate(np.where(later[..., None], lows, far), axis=1)  # [a0, a1, 3]
-        self._high = np.maximum.accumulate(np.where(later[..., None], highs, 0), axis=1)
+        lows, highs = np.empty((g, 3), dtype=np.int64), np.empty((g, 3), dtype=np.int64)
+        lows[:, 0], highs[:, 0] = np.where(used, slab * b, far), np.where(used, (slab + 1) * b, 0)
+        lows[:, 1:], highs[:, 1:] = rect[:, 0::2], rect[:, 1::2]
+        later = (slab[None, :] >= slab[:, None])[..., None]  # [a0, a, 1]: slab a is in a range from a0
+        self._g = g
+        self._low = np.minimum.accumulate(np.where(later, lows, far), axis=1).reshape(g * g, 3)
+        self._high = np.maximum.accumulate(np.where(later, highs, 0), axis=1).reshape(g * g, 3) - 1
 
     def clip(self, box: np.ndarray) -> np.ndarray:
         """int32 [m, 6]: each voxel box ``box`` [m, 6] (inclusive i, j, k ranges, window
         indices, inside the window or empty) cut to the region's rectangles over its slabs;
         empty (an upper bound under its lower) where it misses the region."""
-        g = self._low.shape[0]
-        a0 = np.clip(box[:, 0] // _REGION_BRICK, 0, g - 1)
-        a1 = np.clip(box[:, 1] // _REGION_BRICK, a0, g - 1)
-        out = box.copy()
-        out[:, 0::2] = np.maximum(box[:, 0::2], self._low[a0, a1])
-        out[:, 1::2] = np.minimum(box[:, 1::2], self._high[a0, a1] - 1)
-        empty = np.any(out[:, 1::2] < out[:, 0::2], axis=1)
+        g = self._g
+        a0 = np.minimum(np.maximum(box[:, 0] // _REGION_BRICK, 0), g - 1)
+        a1 = np.minimum(np.maximum(box[:, 1] // _REGION_BRICK, a0), g - 1)
+        a1 += g * a0
+        out = np.empty_like(box)
+        np.maximum(box[:, 0::2], self._low.take(a1, axis=0), out=out[:, 0::2])
+        np.minimum(box[:, 1::2], self._high.take(a1, axis=0), out=out[:, 1::2])
+        empty = (out[:, 1] < out[:, 0]) | (out[:, 3] < out[:, 2]) | (out[:, 5] < out[:, 4])
         out[empty, 1] = out[empty, 0] - 1
         return out
 
@@ -763,15 +769,20 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
     boxes ``tet_lo``, ``tet_hi`` [t, 3] int (inclusive, window indices, may reach outside)."""
     shape = np.asarray(shape)
     tet_lo, tet_hi = np.maximum(tet_lo, 0), np.minimum(tet_hi, shape - 1)
-    inside = np.all(tet_lo <= tet_hi, axis=1)
+    inside = (tet_lo <= tet_hi).all(axis=1)
     a, b = tet_lo[inside] // _REGION_BRICK, tet_hi[inside] // _REGION_BRICK + 1
     # Each box of bricks added as +-1 at its 8 corners; the prefix sums count the boxes on a brick.
     dims = -(-shape // _REGION_BRICK) + 1
-    pick = (np.arange(8)[:, None] >> np.arange(3)) & 1  # [8, 3] the corners
-    c = np.where(pick[:, None, :] == 1, b, a).reshape(-1, 3)
-    sign = np.repeat(1 - 2 * (pick.sum(axis=1) & 1), len(a))
-    marks = np.bincount(np.ravel_multi_index(c.T, dims), sign, minlength=int(np.prod(dims))).reshape(dims)
+    step = (dims[1] * dims[2], dims[2], 1)
+    ends = [np.stack([a[:, k], b[:, k]]) * step[k] for k in range(3)]  # [2, t] flat offsets a side
+    corner = ends[0][:, None, None, :] + ends[1][None, :, None, :] + ends[2][None, None, :, :]  # [2, 2, 2, t]
+    sign = np.broadcast_to(_CORNER_SIGN, corner.shape)
+    marks = np.bincount(corner.ravel(), sign.ravel(), minlength=int(np.prod(dims))).reshape(dims)
     return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
+
+
+# [2, 2, 2, 1] the sign of a box's corner (lower or upper end on each axis) in _moved_region's sums.
+_CORNER_SIGN = np.array([1.0, -1.0])[:, None, None, None] * np.array([1.0, -1.0])[:, None, None] * np.array([1.0, -1.0])[:, None]
 
 
 def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
