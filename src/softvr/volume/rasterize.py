@@ -265,6 +265,7 @@ class Rasterizer:
         self._rest_w: wp.array = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
         self._tets_w: wp.array = wp.array(self.tets, dtype=wp.int32, device=self.device)
         self.stats: RasterStats | None = None
+        self._scratch: _Scratch | None = None
         # Compile (first use only, then cached on disk) now rather than inside the first frame.
         load_kernels(K.raster_slabs, self.device)
 
@@ -441,7 +442,9 @@ class Rasterizer:
         shape = grid.shape
         u1 = grid.world_to_index(x1)
         tets, tets_w = self.tets, self._tets_w
-        if window is not None and self.inverted == "skip":
+        # The in-place window runs every frame of an interactive update(): its arrays are reused.
+        scratch = None if window is None else self._window_scratch()
+        if scratch is not None and self.inverted == "skip":
             # Only the tets whose voxel box can meet the window's grid: a box is empty unless
             # the snapped corners reach [-0.5, n - 0.5] (a voxel of margin here), i.e. unless all
             # 4 corners lie beyond one side of [-1, n]: one bit a side per node, ANDed over the
@@ -451,13 +454,14 @@ class Rasterizer:
             side = (u1 < -1.0).astype(np.uint8) @ np.array([1, 2, 4], np.uint8) | \
                 (u1 > lim).astype(np.uint8) @ np.array([8, 16, 32], np.uint8)
             c = side[tets]
-            tets = tets[(c[:, 0] & c[:, 1] & c[:, 2] & c[:, 3]) == 0]
-            tets_w = wp.array(tets, dtype=wp.int32, device=self.device)
-        face_w, affine_w, box_w, det_w = self._setup_det(u1, shape, tets_w)
+            meets = (c[:, 0] & c[:, 1] & c[:, 2] & c[:, 3]) == 0
+            tets = np.compress(meets, tets, axis=0, out=scratch.tets[:int(np.count_nonzero(meets))])
+            tets_w = scratch.tets_w
+        face_w, affine_w, box_w, det_w = self._setup_det(u1, shape, tets_w, len(tets), scratch)
         # World volume = det(index edges) * prod(spacing) / det(direction) / 6; a margin of 2
         # over check_tets' degeneracy bound covers the two ways of rounding the determinant, so
         # only the tets within it need their world volume (in "skip" mode, the folded ones).
-        world = det_w.numpy() * (float(np.prod(grid.spacing)) / float(np.linalg.det(grid.direction)) / 6.0)
+        world = (det_w.numpy() if scratch is None else scratch.det[:len(tets)]) * (float(np.prod(grid.spacing)) / float(np.linalg.det(grid.direction)) / 6.0)
         scale = float(np.prod(np.maximum(np.ptp(x1, axis=0), 1e-300)))
         near = np.flatnonzero(world <= 2e-12 * scale)
         folded = None
@@ -467,7 +471,7 @@ class Rasterizer:
             self.skipped_tets = int(folded.sum())
         elif len(near):
             check_tets(x1, self.tets, nodes_name="deformed_nodes")
-        box = box_w.numpy()
+        box = box_w.numpy() if scratch is None else scratch.box[:len(tets)]
         if window is not None:
             # Only the region update() redraws: what tets cover outside it is already drawn.
             box = window[2].clip(box)
@@ -476,7 +480,10 @@ class Rasterizer:
             box = box.copy() if window is None else box
             serial = _fold_redraw(box, folded)
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
-        if window is not None or (folded is not None and folded.any()):
+        if scratch is not None:
+            scratch.clipped[:len(box)] = box
+            box_w = scratch.clipped_w
+        elif folded is not None and folded.any():
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
         dev = self.device
@@ -537,13 +544,18 @@ class Rasterizer:
                 offsets = _exclusive_cumsum(-(-slabs // per_item))
                 items = int(offsets[-1])
                 counts_w.append(wp.zeros(max(items, 1), dtype=wp.int32, device=dev))
+                if split and scratch is not None:
+                    scratch.offsets[:len(offsets)] = offsets
+                    offsets_w = scratch.offsets_w
+                else:
+                    offsets_w = wp.array(offsets, dtype=wp.int32, device=dev)
                 launch(
                     K.raster_tets_cpu,
                     items,
                     [
                         self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
                         self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
-                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, offsets_w,
                         m, per_item, self._params, counts_w[-1],
                     ],
                     dev,
@@ -573,7 +585,7 @@ class Rasterizer:
                 split=not count_writes,  # counting writes adds into shared counts (atomics)
             )
         n_tested = int(tested.numpy().sum(dtype=np.int64))
-        n_written = int(written.numpy().sum(dtype=np.int64))
+        n_written = n_tested if written is tested else int(written.numpy().sum(dtype=np.int64))
         if window is not None:
             data = None
         elif count_writes:
@@ -620,17 +632,24 @@ class Rasterizer:
         """
         return self._setup_det(u1, shape)[:3]
 
-    def _setup_det(self, u1: np.ndarray, shape, tets_w: wp.array | None = None):
+    def _setup_det(self, u1: np.ndarray, shape, tets_w: wp.array | None = None, m: int | None = None,
+                   scratch: "_Scratch | None" = None):
         """:meth:`_setup` plus ``det`` [tet_count] float64, each deformed tet's edge-matrix
-        determinant in output voxel indices; of the tets ``tets_w`` [m, 4] (default all)."""
+        determinant in output voxel indices; of the first ``m`` (default all) tets of ``tets_w``
+        [>= m, 4] (default all). With ``scratch``, written into its arrays (their first rows)."""
         sub = subvoxel_factor(u1, shape)
         tets_w = self._tets_w if tets_w is None else tets_w
-        dev, m = self.device, tets_w.shape[0]
-        face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
-        affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
-        box = wp.empty((m, 6), dtype=wp.int32, device=dev)
-        det = wp.empty(m, dtype=wp.float64, device=dev)
-        moved: wp.array = wp.array(u1, dtype=wp.vec3d, device=dev)
+        dev, m = self.device, tets_w.shape[0] if m is None else m
+        if scratch is None:
+            face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
+            affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
+            box = wp.empty((m, 6), dtype=wp.int32, device=dev)
+            det = wp.empty(m, dtype=wp.float64, device=dev)
+            moved: wp.array = wp.array(u1, dtype=wp.vec3d, device=dev)
+        else:
+            face, affine, box, det = scratch.face_w, scratch.affine_w, scratch.box_w, scratch.det_w
+            scratch.moved[:] = u1
+            moved = scratch.moved_w
         launch(
             K.tet_setup,
             m,
@@ -639,6 +658,12 @@ class Rasterizer:
             min_chunk=512,
         )
         return face, affine, box, det
+
+    def _window_scratch(self) -> "_Scratch":
+        """The arrays of :meth:`update`'s in-place runs (made on first use)."""
+        if self._scratch is None:
+            self._scratch = _Scratch(len(self.tets), len(self.nodes), self.device)
+        return self._scratch
 
     def _cull(self, face_w, box: np.ndarray, box_w):
         """Thesis 3.2: grid-point masks, cell AND-masks, and the list of kept cells."""
@@ -703,6 +728,30 @@ def _background(shape, value: float, dtype: np.dtype, device: str, host: np.ndar
     return out
 
 
+class _Scratch:
+    """Arrays that :meth:`Rasterizer.update`'s in-place runs (CPU only) fill anew every frame,
+    each a numpy array and a Warp array over the same memory, with a row for every tet of the
+    mesh (a run uses the first ``m``): making and wrapping them each frame took ~0.3 ms of a
+    palpation frame. ``tets`` [T, 4] int32 (the tets set up), ``moved`` [N, 3] float64 (deformed
+    nodes, output voxel indices), ``face`` [4 T, 5] int64, ``affine`` [T, 16] float64, ``box`` and
+    ``clipped`` [T, 6] int32 (as set up; as drawn), ``det`` [T] float64, ``offsets`` [T + 1] int32
+    (:func:`_raster_kernels.tet_setup`, :func:`_raster_kernels.raster_tets_cpu`)."""
+
+    def __init__(self, tet_count: int, node_count: int, device: str):
+        def pair(shape, dtype, wp_dtype) -> tuple[np.ndarray, wp.array]:
+            host = np.zeros(shape, dtype)
+            return host, wp.array(host, dtype=wp_dtype, device=device, copy=False)
+
+        self.tets, self.tets_w = pair((tet_count, 4), np.int32, wp.int32)
+        self.moved, self.moved_w = pair((node_count, 3), np.float64, wp.vec3d)
+        self.face, self.face_w = pair((4 * tet_count, 5), np.int64, wp.int64)
+        self.affine, self.affine_w = pair((tet_count, 16), np.float64, wp.float64)
+        self.box, self.box_w = pair((tet_count, 6), np.int32, wp.int32)
+        self.clipped, self.clipped_w = pair((tet_count, 6), np.int32, wp.int32)
+        self.det, self.det_w = pair(tet_count, np.float64, wp.float64)
+        self.offsets, self.offsets_w = pair(tet_count + 1, np.int32, wp.int32)
+
+
 _REGION_BRICK = 8  # [voxels] the side of the bricks that update()'s redrawn region is made of
 
 
@@ -724,8 +773,8 @@ class _Region:
 
     def __init__(self, marked: np.ndarray):
         b, g, far = _REGION_BRICK, marked.shape[0], 2**30
-        rows, cols = marked.any(axis=2), marked.any(axis=1)  # [gx, gy], [gx, gz]
-        used = rows.any(axis=1)
+        rows, cols = np.any(marked, axis=2), np.any(marked, axis=1)  # [gx, gy], [gx, gz]
+        used = np.any(rows, axis=1)
         # [gx, 4] voxel bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
         ny, nz = rows.shape[1], cols.shape[1]
         rect = np.empty((g, 4), dtype=np.int64)
