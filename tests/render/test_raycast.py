@@ -73,7 +73,7 @@ import warp as wp
 
 from softvr.datasets import HEAD_CT_PATH
 from softvr.device import launch
-from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
+from softvr.render import PRESETS, Camera, Preset, RayCaster, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
 from softvr.volume import Volume
 
@@ -381,6 +381,55 @@ def test_a_ray_cast_again_reads_a_layer_grown_where_it_skipped_cells_last_frame(
     tolerance = 255.0 * (1.0 - (1.0 - a) ** step) + 0.5
     over = image[20:44, 20:44].astype(float)  # the layer spans +-11.5 mm = +-18.4 px about the centre
     assert np.abs(over - expected).max() <= tolerance, (over.min(), over.max(), expected, tolerance)
+
+
+def test_moved_pixels_are_where_the_surface_colour_or_depth_changed():
+    """``moved_pixels`` against NumPy: a pixel is stale where any channel of the surfaces' colour
+    differs from last frame's or their depth does (the depth buffer's rows run up, the image's
+    down), and last frame's arrays then hold this frame's."""
+    rng = np.random.default_rng(11)
+    height, width = 37, 53
+    last_surface = rng.integers(0, 256, (height, width, 3)).astype(np.uint8)
+    last_depth = rng.uniform(0.0, 1.0, (height, width)).astype(np.float32)
+    surface, depth = last_surface.copy(), last_depth.copy()
+    for ch in range(3):  # one channel changed at a time, and the depth alone, at separate pixels
+        surface.reshape(-1, 3)[rng.choice(height * width, 40, replace=False), ch] += 1
+    depth.reshape(-1)[rng.choice(height * width, 40, replace=False)] += 1e-6
+    truth = np.any(surface != last_surface, axis=2) | (depth != last_depth)[::-1]
+    assert 100 < truth.sum() < 160
+    arrays = [wp.array(a, device="cpu") for a in (surface, depth, last_surface, last_depth)]
+    stale = wp.empty(height * width, dtype=wp.bool, device="cpu")
+    launch(K.moved_pixels, height, [width, *arrays, stale], "cpu", min_chunk=8)  # split: 2 cores -> 4 chunks
+    assert np.array_equal(stale.numpy().reshape(height, width), truth)
+    assert np.array_equal(arrays[2].numpy(), surface) and np.array_equal(arrays[3].numpy(), depth)
+
+
+def test_an_upload_for_another_camera_does_not_choose_the_rays_cast_again():
+    """``RayCaster.upload`` given a camera finds the pixels whose rays meet the changed bricks
+    ahead of the cast; a cast with another camera must not take them: a bump grown on a ball's
+    face towards camera A, uploaded for camera B (looking from the side), then cast from A,
+    equals a fresh cast from A (the bump's pixels are cast again)."""
+    n = 40
+    ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+    data = np.where(np.linalg.norm(ijk - 19.5, axis=-1) < 12.0, 40, -1000).astype(np.int16)
+    vol = Volume(data, spacing=(1.0, 1.0, 1.0), origin=(-19.5,) * 3)
+    # Orthographic cameras: A looks down -y (NDC x, y = world x, z over 25), B down -x.
+    to_ndc = {"A": np.array([[0.04, 0, 0, 0], [0, 0, 0.04, 0], [0, -0.02, 0, 0], [0, 0, 0, 1.0]]),
+              "B": np.array([[0, 0.04, 0, 0], [0, 0, 0.04, 0], [-0.02, 0, 0, 0], [0, 0, 0, 1.0]])}
+    size = 48
+    surface = np.zeros((size, size, 3), np.uint8)
+    depth = np.ones((size, size), np.float32)
+    light = np.array([0.0, 1.0, 0.0])
+    preset = PRESETS["ct-skin"]
+    caster = RayCaster(preset, device="cpu")
+    caster.cast(vol, np.linalg.inv(to_ndc["A"]), light, surface, depth)
+    box = ((14, 31, 14), (25, 34, 25))  # on the ball's +y face (y = 31.5), seen by A only
+    data[box[0][0]:box[1][0] + 1, box[0][1]:box[1][1] + 1, box[0][2]:box[1][2] + 1] = 40
+    caster.upload(vol, box, ndc_to_world=np.linalg.inv(to_ndc["B"]), size=(size, size))
+    image = caster.cast(vol, np.linalg.inv(to_ndc["A"]), light, surface, depth, changed=box)
+    fresh = RayCaster(preset, device="cpu").cast(vol, np.linalg.inv(to_ndc["A"]), light, surface, depth)
+    assert caster.cast_pixels > 0
+    assert np.array_equal(image, fresh), np.argwhere(np.any(image != fresh, axis=2))[:5]
 
 
 @wp.kernel

@@ -744,6 +744,32 @@ def raycast(
 
 
 @wp.kernel
+def moved_pixels(
+    width: int,
+    surface: wp.array3d(dtype=wp.uint8),
+    depth: wp.array2d(dtype=float),
+    last_surface: wp.array3d(dtype=wp.uint8),
+    last_depth: wp.array2d(dtype=float),
+    stale: wp.array(dtype=wp.bool),
+    offset: int,
+):
+    """Per image row (one thread each): ``stale`` [height * width] (row-major, row 0 at the top)
+    True where the surfaces' colour ``surface`` [height, width, 3] (row 0 at the top) or OpenGL
+    ``depth`` [height, width] (row 0 at the bottom) differs from ``last_surface`` /
+    ``last_depth`` (last frame's), else False; then last frame's take this frame's values."""
+    row = wp.tid() + offset
+    py = depth.shape[0] - 1 - row  # OpenGL rows run up
+    for px in range(width):
+        moved = depth[py, px] != last_depth[py, px]
+        last_depth[py, px] = depth[py, px]
+        for ch in range(3):
+            if surface[row, px, ch] != last_surface[row, px, ch]:
+                moved = True
+                last_surface[row, px, ch] = surface[row, px, ch]
+        stale[row * width + px] = moved
+
+
+@wp.kernel
 def mark_pixels(
     lo: wp.array(dtype=wp.vec3),
     hi: wp.array(dtype=wp.vec3),

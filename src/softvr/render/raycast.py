@@ -46,6 +46,8 @@ _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
 #: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
 _STALE_CHUNK = 4096
+#: Fewest image rows per chunk of the surface comparison.
+_MOVED_CHUNK = 32
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
 _BRICK_CHUNK = 4096
 #: Fewest marked bricks per chunk of the launch that marks the pixels their rays cross.
@@ -59,6 +61,14 @@ def volume_bounds(volume) -> tuple[float, ...]:
     world = np.asarray(volume.origin, float) + (corners * np.asarray(volume.spacing, float)) @ np.asarray(
         volume.direction, float).T
     return tuple(np.ravel(np.column_stack([world.min(axis=0), world.max(axis=0)])))
+
+
+def _index_to_world(volume) -> np.ndarray:
+    """[4, 4] homogeneous map from ``volume``'s index space to the world."""
+    m = np.eye(4)
+    m[:3, :3] = np.asarray(volume.direction, float) * np.asarray(volume.spacing, float)
+    m[:3, 3] = np.asarray(volume.origin, float)
+    return m
 
 
 def transfer_tables(preset: Preset, step_fraction: float) -> dict:
@@ -141,6 +151,9 @@ class RayCaster:
         self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
+        self._uploaded = None  # the volume taken by upload(), for the next cast
+        self._flipped: list = [0, wp.vec3(), wp.vec3()]  # the flips taken by upload() (raycast's flips, lo, hi)
+        self._candidates: tuple | None = None  # (camera, what _find_candidates found for it) by upload()
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
@@ -148,10 +161,32 @@ class RayCaster:
     def reset(self) -> None:
         """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
         next :meth:`cast` starts from scratch, as a new caster's would."""
-        self._tables_key = self._grid_key = self._view_key = None
+        self._tables_key = self._grid_key = self._view_key = self._uploaded = None
         self._flips = []
 
     # --------------------------------------------------------------- data
+    def upload(self, volume, changed=True, *, ndc_to_world=None, size: "tuple[int, int] | None" = None) -> None:
+        """Take ``volume``'s voxels and bring the empty-space grid up to date, the first part of
+        :meth:`cast`, which then takes them no more: a caller may do it beside other work (on
+        another thread while VTK draws the surfaces: it needs nothing they give). ``changed``
+        as :meth:`cast`'s, which must follow with the same volume, ``changed`` and voxels.
+        Given the camera the cast will have (``ndc_to_world`` [4, 4], as :meth:`cast`'s, and
+        ``size`` (width, height) [pixels]), the search for the rays to cast again also does
+        its part that needs no surfaces: the pixels whose rays meet the bricks that changed."""
+        self._upload(volume, changed)
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
+        self._flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
+        self._uploaded = volume
+        self._candidates = None
+        if ndc_to_world is not None and size is not None and changed is not True:
+            ndc_to_world = np.asarray(ndc_to_world, float)
+            index_to_ndc = np.linalg.inv(ndc_to_world) @ _index_to_world(volume)
+            self._candidates = ((ndc_to_world.tobytes(), tuple(size)),
+                                self._find_candidates(changed, self._flipped, index_to_ndc, *size,
+                                                      self._shading_smoothed(volume)))
+
     def _upload(self, volume, changed) -> None:
         """Take ``volume``'s voxels and bring the brick grid up to date: ranges and occupancy
         of the bricks touching the ``changed`` index box, distances within ``REACH`` of them
@@ -311,13 +346,13 @@ class RayCaster:
         -------
         numpy.ndarray, shape [height, width, 3], uint8
         """
-        self._upload(volume, changed)
+        if self._uploaded is not volume:
+            self.upload(volume, changed)
+        self._uploaded = None
         height, width = depth.shape
         spacing = np.asarray(volume.spacing, float)
         direction = np.asarray(volume.direction, float)
-        index_to_world = np.eye(4)
-        index_to_world[:3, :3] = direction * spacing
-        index_to_world[:3, 3] = np.asarray(volume.origin, float)
+        index_to_world = _index_to_world(volume)
         # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
         gradient_to_world = direction / spacing
         p = self.preset
@@ -334,12 +369,8 @@ class RayCaster:
         in_place = dev == "cpu"
         depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
         surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
-        # The same for every frame of one view (the spacing and option are in its key).
-        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
-        flips, self._flips = self._flips, []
-        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
-        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
+        smoothed = self._shading_smoothed(volume)
+        flipped = self._flipped
         if key != self._view_key or changed is True:
             if key != self._view_key:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
@@ -350,13 +381,17 @@ class RayCaster:
                               for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
-            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
+            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
             pixels = self._every_pixel
             store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
         else:
             store_rays = 0
-            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
-                                        np.linalg.inv(ndc_to_world) @ index_to_world)
+            view = (ndc_to_world.tobytes(), (width, height))
+            if self._candidates is None or self._candidates[0] != view:  # not found by upload() for this camera
+                self._candidates = (view, self._find_candidates(changed, flipped,
+                                                                np.linalg.inv(ndc_to_world) @ index_to_world,
+                                                                width, height, smoothed))
+            pixels = self._stale_pixels(depth, surface, changed, flipped, self._candidates[1])
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
@@ -364,7 +399,7 @@ class RayCaster:
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
-            wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
+            wp.vec3(*light), int(bool(p.shade)), smoothed, wp.vec3(*direction[:, max(smoothed, 0)]),
             self._distance, self._cells,
             *flipped, self._empty_until, self._read_from, self._gained, int(changed is not True),
             depth, surface, pixels,
@@ -374,8 +409,11 @@ class RayCaster:
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _smooth_axis(self, spacing: np.ndarray) -> int:
-        """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
+    def _shading_smoothed(self, volume) -> int:
+        """The index axis to smooth the shading gradient of ``volume`` along (``smooth_slices``), or -1."""
+        if not self.preset.shade:
+            return -1
+        spacing = np.asarray(volume.spacing, float)
         thick = int(np.argmax(spacing))
         if self.smooth_slices == "auto":
             return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
@@ -415,30 +453,23 @@ class RayCaster:
         read[box] = np.minimum(to_marked, _READ_REACH)
         return read, np.argwhere(marked) + first
 
-    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
-                      index_to_ndc: np.ndarray) -> wp.array:
-        """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
-        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
-        changed). The others forget their known-empty prefix if it may cross a brick in the
-        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
-        space to the screen."""
-        height, width = depth.shape
-        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
-        # costs more on the CPU than the comparison itself.
-        moved = surface != self._last_surface
-        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
-        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
-        self._last_depth, self._last_surface = depth.copy(), surface.copy()
-        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
-        boxed = not (changed is None or changed is False)
-        lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
+    def _find_candidates(self, changed, flipped: list, index_to_ndc: np.ndarray, width: int, height: int,
+                         smoothed: int) -> tuple:
+        """What the search for the rays to cast again (:meth:`_stale_pixels`) finds from the
+        bricks alone: the bricks' distances to those whose samples may read a changed voxel
+        (:meth:`_read_distance`, uploaded), the pixels [height * width] uint8 whose rays may
+        meet one (1), the rectangle (first column, last column, first row, last row) of the
+        pixels whose rays may meet one or the ``flipped`` box (count, lo, hi), and how far [3]
+        a sample reads (index space, ``smoothed``: the axis of the shading smoothed across
+        slices, or -1). ``changed`` as :meth:`cast`'s (not True); ``index_to_ndc`` [4, 4]
+        projects the volume's index space to the screen of ``width`` x ``height`` pixels."""
         read_host, marked = self._read_distance()
         read: wp.array = wp.array(read_host, dtype=wp.uint8, device=self.device)
         # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
         reach = np.full(3, float(K.READ_REACH))
-        if self._smoothed >= 0:
-            reach[self._smoothed] += 1.0
+        if smoothed >= 0:
+            reach[smoothed] += 1.0
+        boxed = not (changed is None or changed is False)
         # Only a ray through a marked brick can be stale: the pixels whose rays meet one, from
         # each brick's projected bounds, are the only ones whose samples are walked; the
         # others in the flipped box only check it.
@@ -460,6 +491,23 @@ class RayCaster:
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
+        return read, candidates, rect, reach
+
+    def _stale_pixels(self, depth: wp.array, surface: wp.array, changed, flipped: list, found: tuple) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
+        changed). The others forget their known-empty prefix if it may cross a brick in the
+        ``flipped`` box (count, lo, hi). ``found``: what :meth:`_find_candidates` found for
+        this view."""
+        height, width = depth.shape
+        read, candidates, rect, reach = found
+        stale: wp.array = wp.empty(width * height, dtype=wp.bool, device=self.device)
+        # A thread per row: one per pixel costs more on the CPU than its comparison.
+        launch(K.moved_pixels, height, [int(width), surface, depth, self._last_surface, self._last_depth, stale],
+               self.device, min_chunk=_MOVED_CHUNK)
+        boxed = not (changed is None or changed is False)
+        lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
                 wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
