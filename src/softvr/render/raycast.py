@@ -40,8 +40,10 @@ REACH = 8
 THICK_SLICES = 1.25
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
-#: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
-_READ_REACH = 4
+#: Cap [bricks] of the distance to the bricks with a cell that reads a changed voxel (the stale-ray
+#: walk's jumps). Palpation, single thread: 2 costs 0.7 ms a frame less in distance passes than 4
+#: and the walk no more (its region is the box of those bricks).
+_READ_REACH = 2
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
 #: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
