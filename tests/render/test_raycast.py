@@ -448,7 +448,9 @@ def test_sample_walk_finds_every_sample_in_a_marked_cell():
     over a distance field to the bricks with such a cell, then sample by sample) against brute
     force: every sample k = 0 .. k_hi at o + (t0 + (k + shift) step) d, placed in float32 as the
     ray loop places it, looked up in the marked cells (a block of bricks from ``origin`` inside
-    a larger grid). No ray with a sample in a marked cell may be missed, and none without one found."""
+    a larger grid). No ray with a sample in a marked cell may be missed, and none found without a
+    sample within ``FACE_MARGIN`` of one (the walk also looks beside a face: another compiler may
+    place a sample an ulp away)."""
     rng = np.random.default_rng(5)
     b = int(K.BRICK)
     n = np.array([61, 53, 45])  # voxels: 15 x 13 x 11 bricks
@@ -463,7 +465,7 @@ def test_sample_walk_finds_every_sample_in_a_marked_cell():
     grid = np.stack(np.meshgrid(*[np.arange(m) for m in block], indexing="ij"), -1)
     marked = np.argwhere(masks != 0)
     distance = np.minimum(np.abs(grid[..., None, :] - marked).max(axis=-1).min(axis=-1), 4).astype(np.uint8)
-    m = 3000
+    m = 2000
     start = rng.uniform(0.0, 1.0, (m, 3)) * (n - 1)
     end = rng.uniform(0.0, 1.0, (m, 3)) * (n - 1)
     step = np.float32(0.7)
@@ -473,14 +475,19 @@ def test_sample_walk_finds_every_sample_in_a_marked_cell():
     o = (start - t0[:, None] * d).astype(np.float32)
     shift = rng.random(m).astype(np.float32)
     k_hi = np.floor(length / step - 1.0).astype(np.float32)
-    truth = np.zeros(m, bool)
+    truth, near = np.zeros(m, bool), np.zeros(m, bool)
+    margin = float(K.FACE_MARGIN)
+    offsets = np.stack(np.meshgrid(*[(-margin, 0.0, margin)] * 3, indexing="ij"), -1).reshape(-1, 3)
     for i in range(m):
         k = np.arange(k_hi[i] + 1, dtype=np.float32)
         t = t0[i] + (k + shift[i]) * step  # float32, each operation rounded as in the kernel
-        p = o[i] + t[:, None] * d[i]
-        q = np.minimum(np.clip(p, 0, n - 1).astype(int), n - 2) - origin * b
-        inside = np.all((q >= 0) & (q < block * b), axis=1)
-        truth[i] = cells[tuple(q[inside].T)].any()
+        p = np.clip(o[i] + t[:, None] * d[i], 0, n - 1)
+        for offset in offsets:
+            q = np.clip(np.floor(p + offset).astype(int), 0, n - 2) - origin * b
+            inside = np.all((q >= 0) & (q < block * b), axis=1)
+            hit = cells[tuple(q[inside].T)].any()
+            near[i] |= hit
+            truth[i] |= hit and not offset.any()
     found = wp.zeros(m, dtype=wp.int32, device="cpu")
     arrays = [wp.array(a, dtype=t, device="cpu") for a, t in ((o, wp.vec3), (d, wp.vec3), (t0, float), (shift, float),
                                                                (k_hi, float))]
@@ -490,7 +497,8 @@ def test_sample_walk_finds_every_sample_in_a_marked_cell():
     walked = found.numpy().astype(bool)
     assert 0.2 < truth.mean() < 0.8  # both kinds of ray are tested
     assert not np.any(truth & ~walked), np.flatnonzero(truth & ~walked)
-    assert not np.any(walked & ~truth), np.flatnonzero(walked & ~truth)
+    assert not np.any(walked & ~near), np.flatnonzero(walked & ~near)
+    assert (walked != truth).mean() < 0.01  # the margin adds few
 
 
 def test_cells_read_by_samples_are_those_with_a_changed_voxel_in_reach():

@@ -32,6 +32,9 @@ OPAQUE_ENOUGH = wp.constant(0.99)
 #: and at 37 degrees and below 1.3 slices and more apart.
 SMOOTH_FROM = wp.constant(0.5)
 SMOOTH_FULL = wp.constant(0.8)
+#: How near [voxels] a cell's face the stale-ray walk also looks at the cell beside it: a few ulps
+#: of a coordinate of a few hundred voxels (3e-5 each), where two kernels' roundings may differ.
+FACE_MARGIN = wp.constant(1.0e-3)
 #: The sample segment of a ray that missed the volume [index coordinates]: outside any box.
 MISSED = wp.constant(-1.0e9)
 
@@ -259,6 +262,17 @@ def read_distance_at(c: wp.vec3i, origin: wp.vec3i, distance: wp.array3d(dtype=w
 
 
 @wp.func
+def cell_marked(q: wp.vec3i, origin: wp.vec3i, cells: wp.array3d(dtype=wp.uint64)) -> bool:
+    """Whether cell ``q`` (its lower corner voxel) is set in ``cells``, a block of bricks' cell masks
+    from brick ``origin`` (cells outside the block are not)."""
+    c = wp.vec3i((q[0] >> BRICK_SHIFT) - origin[0], (q[1] >> BRICK_SHIFT) - origin[1], (q[2] >> BRICK_SHIFT) - origin[2])
+    for axis in range(3):
+        if c[axis] < 0 or c[axis] >= cells.shape[axis]:
+            return False
+    return ((cells[c[0], c[1], c[2]] >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) != wp.uint64(0)
+
+
+@wp.func
 def reads_marked_cell(o: wp.vec3, d: wp.vec3, t0: float, shift: float, step: float, k_lo: float, k_hi: float,
                       n: wp.vec3i, origin: wp.vec3i, cells: wp.array3d(dtype=wp.uint64),
                       distance: wp.array3d(dtype=wp.uint8), cap: int) -> bool:
@@ -269,7 +283,9 @@ def reads_marked_cell(o: wp.vec3, d: wp.vec3, t0: float, shift: float, step: flo
     ``distance`` [bricks] (:func:`read_distance_at`) away from any brick with a set bit jumps
     back to the last sample before the cube of such bricks around it (a hundredth of a sample
     early for rounding: a sample is never skipped unlooked at); in such a brick each sample's
-    cell is looked up."""
+    cell is looked up, and the cells beside it where it lies within ``FACE_MARGIN`` of their
+    face: the ray loop places it with the same operations, but a compiler may fuse them
+    differently there (CUDA's multiply-adds), moving it by an ulp."""
     bs = float(BRICK)
     inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
                     wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
@@ -283,9 +299,19 @@ def reads_marked_cell(o: wp.vec3, d: wp.vec3, t0: float, shift: float, step: flo
         c = wp.vec3i(q[0] >> BRICK_SHIFT, q[1] >> BRICK_SHIFT, q[2] >> BRICK_SHIFT)
         r = read_distance_at(c, origin, distance, cap)
         if r == 0:
-            if ((cells[c[0] - origin[0], c[1] - origin[1], c[2] - origin[2]] >> wp.uint64(cell_bit(q[0], q[1], q[2])))
-                    & wp.uint64(1)) != wp.uint64(0):
-                found = True
+            f = clamped(n, p) - wp.vec3(float(q[0]), float(q[1]), float(q[2]))
+            low = wp.vec3i(wp.where(f[0] < FACE_MARGIN and q[0] > 0, -1, 0),
+                           wp.where(f[1] < FACE_MARGIN and q[1] > 0, -1, 0),
+                           wp.where(f[2] < FACE_MARGIN and q[2] > 0, -1, 0))
+            high = wp.vec3i(wp.where(f[0] > 1.0 - FACE_MARGIN and q[0] < n[0] - 2, 1, 0),
+                            wp.where(f[1] > 1.0 - FACE_MARGIN and q[1] < n[1] - 2, 1, 0),
+                            wp.where(f[2] > 1.0 - FACE_MARGIN and q[2] < n[2] - 2, 1, 0))
+            for i in range(q[0] + low[0], q[0] + high[0] + 1):
+                for j in range(q[1] + low[1], q[1] + high[1] + 1):
+                    for kk in range(q[2] + low[2], q[2] + high[2] + 1):
+                        if cell_marked(wp.vec3i(i, j, kk), origin, cells):
+                            found = True
+            if found:
                 break
             k = k - 1.0
         else:
