@@ -18,7 +18,7 @@ MODULES = {
     "softvr.contact._rigid_pgs_kernels": ("solve_rigid_contacts",),
     "softvr.dynamics._fem_kernels": ("_corotated_kernel",),
     "softvr.dynamics._node_kernels": ("element_terms", "element_terms_isotropic", "assemble", "assemble_isotropic",
-                                      "right_hand_side", "integrate", "start_guess", "body_changes", "share_total",
+                                      "right_hand_side", "integrate", "start_guess", "share_sums", "share_total",
                                       "rigid_start_guess", "drive"),
     "softvr.collision._node_kernels": ("point_motion", "body_motion", "body_bounds", "near_bodies", "vertex_triangle",
                                        "face_normals", "edge_geometry", "body_creases", "edge_edge",

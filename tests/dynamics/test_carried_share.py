@@ -1,21 +1,22 @@
 """The node sweeps' first guess from the second step on (:func:`softvr.dynamics.node_arrays.record_start`;
-``_node_kernels.body_changes``, ``share_total`` and ``start_guess``).
+``_node_kernels.share_sums``, ``share_total`` and ``start_guess``).
 
-Last step's change ``c = v - v_before`` is split per free body (one no block of ``A`` ties to a
-fixed node) into its mass-weighted mean ``c_b`` and the deviations ``d = c - c_b`` (a held
-body's ``c_b`` is 0); the guess is ``v + c_b + a d``. ``a`` is the mass-weighted least-squares coefficient of the
-deviation each solve made, ``r_s - r_s,b`` (``r_s = v_s+1 - v_s``), on the deviation carried
-into it, ``d_s``, over the recent steps s with weights ``memory^(t - s)``:
-``a = argmin sum_s memory^(t - s) sum_i m_i |r_s,i - r_s,b - a d_s,i|^2``, clipped to [0, 1].
+On the free nodes of a held body (one a chain of ``A``'s blocks ties to a fixed node,
+:func:`~softvr.dynamics.node_arrays.free_bodies`) the guess for step t + 1 is ``v + a c`` with
+``c = v - v_before`` last step's change; ``a`` is the mass-weighted least-squares coefficient of
+the change each solve made, ``r_s = v_s+1 - v_s``, on the change carried into it, ``c_s``, over
+the recent steps s with weights ``memory^(t - s)``:
+``a = argmin sum_s memory^(t - s) sum_i m_i |r_s,i - a c_s,i|^2``, clipped to [0, 1]. A free
+body's nodes carry all of ``c``: ``2 v - v_before``.
 
 Checked against NumPy's least squares (``numpy.linalg.lstsq`` on the rows scaled by the square
-roots of the weights, the deviations formed in NumPy) and against closed forms: a velocity
-sequence ``v_s = v_0 + s g dt + lam^s phi`` (free fall plus a mode of zero momentum decaying by
-``lam`` a step) fits ``a = lam`` and is then guessed exactly; a mode reversing every step fits 0;
-and the guess's momentum, body by body, is the exact impulse of free fall (``P_s + M g dt``,
-Newton's second law over the step) whatever share is fitted. The sums are of a few hundred
-products of O(1) terms: the kernels and NumPy agree to ~1e-15 relative; 1e-12 leaves room and
-no fault through.
+roots of the weights) and against closed forms: a held body whose velocities follow
+``v_s = v_0 + lam^s phi`` (a mode decaying by ``lam`` a step) fits ``a = lam`` and is then
+guessed exactly; a mode reversing every step fits 0; and a free body's guessed momentum is the
+exact impulse of free fall (``P_s + M g dt``, Newton's second law over the step) while the held
+body beside it carries a share strictly inside (0, 1). The sums are of a few hundred products
+of O(1) terms: the kernels and NumPy agree to ~1e-15 relative; 1e-12 leaves room and no fault
+through.
 """
 
 from types import SimpleNamespace
@@ -23,7 +24,6 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from softvr.dynamics import _node_kernels as _k
 from softvr.dynamics.node_arrays import SHARE_MEMORY, free_bodies, record_start
 
 G = np.array([0.0, 0.0, -9.81])  # [m/s^2]
@@ -77,100 +77,100 @@ def _bodies(rng, sizes):
     return rng.uniform(1e-4, 3e-3, sum(sizes)), np.concatenate([[0], np.cumsum(sizes)])
 
 
-def _deviation(x, mass, start, fitted):
-    """``x`` [n, 3] less each free body's mass-weighted mean over its ``fitted`` nodes (a body
-    with an unfitted, i.e. fixed, node is held: none taken); 0 where not fitted."""
-    out = np.where(fitted[:, None], x, 0.0)
-    for b in range(len(start) - 1):
-        nodes = np.arange(start[b], start[b + 1])
-        if fitted[nodes].all():
-            out[nodes] = x[nodes] - np.average(x[nodes], axis=0, weights=mass[nodes])
-    return out
-
-
-def test_the_share_is_numpys_weighted_least_squares_of_the_deviations(device):
+def test_the_share_is_numpys_weighted_least_squares_over_the_held_bodies(device):
     rng = np.random.default_rng(3)
     mass, start = _bodies(rng, [15, 1, 24])
     n, steps = len(mass), 6
     fixed = np.zeros(n, bool)
-    fixed[[20, 31, 33]] = True  # the third body is held: the share on its whole change
+    fixed[[3, 20, 31, 33]] = True  # the first and third bodies are held, the second free
     fitted = ~fixed
+    fitted[start[1]:start[2]] = False
     v = [rng.standard_normal((n, 3))]
     change = rng.standard_normal((n, 3)) * 1e-2
-    for _ in range(steps - 1):  # each change ~0.6 of the last one's deviation, noisy, plus a mean per body
-        mean = np.repeat(rng.standard_normal((len(start) - 1, 3)), np.diff(start), axis=0)
-        mean[start[2]:] = 0.0  # the held body's change follows its last one as a whole
-        change = mean + 0.6 * _deviation(change, mass, start, fitted) + rng.standard_normal((n, 3)) * 3e-3
-        v.append(v[-1] + change)
+    for _ in range(steps - 1):  # each change ~0.6 of the last one, noisy
+        change = 0.6 * change + rng.standard_normal((n, 3)) * 3e-3
+        v.append(np.where(fixed[:, None], 0.0, v[-1] + change))
     guesses = _guesses(np.array(v), mass, start, device, fixed)
     for t in range(2, steps):  # the guess of step t: the fit over the solves of steps 1 .. t - 1
         rows, rhs = [], []
         for s in range(1, t):
-            carried = _deviation(v[s] - v[s - 1], mass, start, fitted)
-            made = _deviation(v[s + 1] - v[s], mass, start, fitted)
             w = np.sqrt(mass[fitted] * SHARE_MEMORY ** (t - 1 - s))[:, None]
-            rows.append((w * carried[fitted]).ravel())
-            rhs.append((w * made[fitted]).ravel())
+            rows.append((w * (v[s] - v[s - 1])[fitted]).ravel())
+            rhs.append((w * (v[s + 1] - v[s])[fitted]).ravel())
         a = np.linalg.lstsq(np.concatenate(rows)[:, None], np.concatenate(rhs), rcond=None)[0][0]
         assert 0.0 < a < 1.0  # the fit, not the clip, decides
-        c = v[t] - v[t - 1]
-        d = _deviation(c, mass, start, fitted)
-        expected = np.where(fixed[:, None], 0.0, v[t] + (c - d) + a * d)
+        expected = np.where(fitted[:, None], v[t] + a * (v[t] - v[t - 1]), 2 * v[t] - v[t - 1])
+        expected[fixed] = 0.0
         np.testing.assert_allclose(guesses[t], expected, rtol=0, atol=1e-12 * np.abs(v[t]).max(), err_msg=str(t))
 
 
-def test_free_fall_with_a_decaying_mode_is_guessed_exactly_from_the_third_step(device):
-    # v_s = v_0 + s g dt + lam^s phi, phi of zero momentum in each body: the change's body mean
-    # is g dt every step and its deviation lam^(s-1) (lam - 1) phi shrinks by lam a step, so
-    # the fit finds a = lam and v_s + g dt + lam d_s is v_s+1 itself.
-    lam = 0.625  # exact in binary, as are the sequence's terms up to the rounding of lam^s
+def test_a_held_mode_decaying_by_lam_a_step_is_guessed_exactly_from_the_third_step(device):
+    # v_s = v_0 + lam^s phi on a held body: its change lam^(s-1) (lam - 1) phi shrinks by lam a
+    # step, so the fit finds a = lam and v_s + lam c_s is v_s+1 itself; the free body beside it
+    # (free fall with the same mode) carries all of its change.
+    lam = 0.625
     rng = np.random.default_rng(5)
     mass, start = _bodies(rng, [10, 14])
-    fitted = np.ones(len(mass), bool)
-    phi = _deviation(rng.standard_normal((len(mass), 3)), mass, start, fitted)
-    v0 = rng.standard_normal((len(mass), 3))
-    v = np.array([v0 + s * DT * G + lam**s * phi for s in range(7)])
-    guesses = _guesses(v[:-1], mass, start, device)
-    np.testing.assert_allclose(guesses[0], v[0] + DT * G, rtol=0, atol=1e-15)  # the explicit step
+    fixed = np.zeros(len(mass), bool)
+    fixed[0] = True
+    phi, v0 = rng.standard_normal((2, len(mass), 3))
+    phi[0] = v0[0] = 0.0
+    fall = np.where(np.arange(len(mass))[:, None] >= start[1], DT * G, 0.0)
+    v = np.array([v0 + s * fall + lam**s * phi for s in range(7)])
+    guesses = _guesses(v[:-1], mass, start, device, fixed)
+    np.testing.assert_allclose(guesses[0][1:], v[0][1:] + DT * G, rtol=0, atol=1e-15)  # the explicit step
     np.testing.assert_allclose(guesses[1], 2 * v[1] - v[0], rtol=0, atol=1e-15)  # no fit yet: all of it
+    held = slice(0, start[1])
     for s in range(2, 6):
-        np.testing.assert_allclose(guesses[s], v[s + 1], rtol=0, atol=1e-14, err_msg=str(s))
+        np.testing.assert_allclose(guesses[s][held], v[s + 1][held], rtol=0, atol=1e-14, err_msg=str(s))
+        np.testing.assert_allclose(guesses[s][start[1]:], (2 * v[s] - v[s - 1])[start[1]:], rtol=0, atol=1e-15)
 
 
-def test_every_bodys_guess_carries_the_exact_impulse_of_free_fall_whatever_the_share(device):
-    # Free fall with deviations: the fitted share lies strictly inside (0, 1) (checked),
-    # yet each body's guessed momentum is P_s + M g dt, the impulse of gravity over the step.
+def test_a_free_bodys_guess_carries_the_exact_impulse_of_free_fall_beside_a_fitted_share(device):
+    # Free fall with changes that turn, beside a held body whose changes shrink ~half a step:
+    # the fitted share lies strictly inside (0, 1) (read from the held body's guess), yet the
+    # free bodies' guessed momentum is P_s + M g dt, the impulse of gravity over the step.
     rng = np.random.default_rng(6)
     mass, start = _bodies(rng, [9, 30, 2])
     n = len(mass)
-    v, d = [rng.standard_normal((n, 3))], np.zeros((n, 3))
-    for s in range(5):  # deviations of zero momentum, each ~half the last one, noisy
-        d = 0.5 * d + 0.05 * _deviation(rng.standard_normal((n, 3)), mass, start, np.ones(n, bool))
-        v.append(v[-1] + DT * G + d)
-    guesses = _guesses(np.array(v), mass, start, device)
+    fixed = np.zeros(n, bool)
+    fixed[0] = True
+    free = np.arange(n) >= start[1]
+    v, turn = [np.where(fixed[:, None], 0.0, rng.standard_normal((n, 3)))], np.zeros((n, 3))
+    for s in range(5):
+        turn = np.where(fixed[:, None], 0.0, 0.5 * turn + 0.05 * rng.standard_normal((n, 3)))
+        v.append(v[-1] + np.where(free[:, None], DT * G, 0.0) + turn)
+    guesses = _guesses(np.array(v), mass, start, device, fixed)
     for s in range(1, len(v)):
-        for b in range(len(start) - 1):
+        for b in (1, 2):
             nodes = slice(start[b], start[b + 1])
             m = mass[nodes]
             impulse = (m[:, None] * guesses[s][nodes]).sum(0) - (m[:, None] * v[s][nodes]).sum(0)
-            np.testing.assert_allclose(impulse, m.sum() * DT * G, rtol=0, atol=1e-15 * m.sum(), err_msg=f"{s} {b}")
-        if s >= 2:  # the share the guess carried: neither all of the deviations nor none
-            d = v[s] - v[s - 1] - DT * G
-            share = np.sum((guesses[s] - v[s] - DT * G) * d) / np.sum(d * d)
+            expected = (m[:, None] * (v[s] - v[s - 1])[nodes]).sum(0)  # the body's own last impulse
+            np.testing.assert_allclose(impulse, expected, rtol=0, atol=1e-15 * m.sum(), err_msg=f"{s} {b}")
+        if s >= 2:  # the share the held body's guess carried: neither all of its change nor none
+            c = (v[s] - v[s - 1])[1:start[1]]
+            share = np.sum((guesses[s] - v[s])[1:start[1]] * c) / np.sum(c * c)
             assert 0.05 < share < 0.95, (s, share)
 
 
-def test_a_mode_reversing_every_step_carries_none_and_the_explicit_step_starts_again(device):
+def test_a_held_mode_reversing_every_step_carries_none_and_the_explicit_step_starts_again(device):
     rng = np.random.default_rng(2)
     mass, start = _bodies(rng, [6])
-    phi = _deviation(rng.standard_normal((6, 3)), mass, start, np.ones(6, bool))
+    fixed = np.zeros(6, bool)
+    fixed[5] = True
+    phi = np.where(fixed[:, None], 0.0, rng.standard_normal((6, 3)))
     v = np.array([(-1.0) ** s * phi for s in range(4)])
-    guesses = _guesses(v, mass, start, device)
+    guesses = _guesses(v, mass, start, device, fixed)
     np.testing.assert_allclose(guesses[2:], v[2:], rtol=0, atol=1e-15)  # a = 0: v itself
-    share = wp.array([5.0, 2.0, 0.3], dtype=wp.float64, device=device)
-    wp.launch(_k.share_total, dim=1, device=device,
-              inputs=[wp.zeros(1, dtype=wp.vec2d, device=device), SHARE_MEMORY, 0, share])
-    assert share.numpy().tolist() == [0.0, 0.0, 1.0]
+    state, first, carried = _guesser(mass, start, device, fixed)
+    for s in range(3):  # the share fitted 0 ...
+        state.v.assign(wp.array(v[s], dtype=wp.vec3d, device=device))
+        (carried if s else first)()
+    first()  # ... a restore: the explicit step, then all of the change until a fit exists
+    state.v.assign(wp.array(v[3], dtype=wp.vec3d, device=device))
+    carried()
+    np.testing.assert_allclose(state.sweep_buffers[0].numpy(), 2 * v[3] - v[2], rtol=0, atol=1e-15)
 
 
 def test_a_body_is_held_where_a_chain_of_blocks_reaches_a_fixed_node(device):

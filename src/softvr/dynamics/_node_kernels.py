@@ -283,98 +283,71 @@ def integrate(v_new: wp.array(dtype=wp.vec3d), speed_limit: wp.array(dtype=wp.fl
 def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
                 gravity: wp.vec3d, dt: wp.float64, carried: int, fixed: wp.array(dtype=wp.int32),
                 fixed_velocity: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d),
-                node_body: wp.array(dtype=wp.int32), fitted: wp.array(dtype=wp.int32),
-                mean: wp.array(dtype=wp.vec3d), share: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.vec3d),
+                fitted: wp.array(dtype=wp.int32), share: wp.array(dtype=wp.float64), change: wp.array(dtype=wp.vec3d),
                 guess: wp.array(dtype=wp.vec3d), guess_prev: wp.array(dtype=wp.vec3d)):
-    """The sweeps' first velocity [m/s] of node ``i``, in both buffers the first sweep reads.
+    """The sweeps' first velocity [m/s] of node ``i``, in both buffers the first sweep reads:
+    with ``carried``, last step's change ``c = v - v_before`` [m/s] carried on, on a ``fitted``
+    [n] node a share of it, ``v + share[2] c`` (:func:`share_total`), on any other all of it,
+    ``2 v - v_before``; else the explicit step ``v + dt (g + f_ext / m)``; a fixed node's fixed
+    velocity. ``change`` [n] [m/s] then takes ``c`` on a fitted node (0 elsewhere and on the
+    explicit step) and ``v_before`` takes ``v``. A uniform change (gravity, a push, a resting
+    body's none) is Jacobi's slowest mode, and these guesses have it.
 
-    With ``carried``, last step's change ``c = v - v_before`` [m/s] carried on: a ``fitted`` [n]
-    node (free, not a rigid body's) carries its body's mean change ``mean[node_body[i]]``
-    (:func:`body_changes`: a free body's mass-weighted mean, a held body's 0) whole and the
-    share ``share[2]`` (:func:`share_total`) of its deviation ``d = c - mean`` from it,
-    ``v + mean + share d``; any other node carries all of ``c``, ``2 v - v_before``. Without,
-    the explicit step ``v + dt (g + f_ext / m)``. A fixed node takes its fixed velocity.
-    ``change`` [n] [m/s] then takes ``d`` (0 where not fitted or not carried) and ``v_before``
-    takes ``v``. A uniform change (gravity, a push, a resting body's none) is Jacobi's slowest
-    mode, and these guesses have it.
-
-    Momentum: a free body's guess carries its linear momentum on exactly as the whole change
-    does, whatever the share. Over its fitted nodes (its only nodes but a rigid body's two,
-    which carry all of ``c``), ``sum m (v + mean + share d) = P + M mean + share sum m d`` and
-    ``sum m d = sum m c - M mean = 0`` by the mean's definition, so the guess's momentum is
-    ``P + sum m c = 2 P - P_before``: in free fall ``P + M g dt``, the step's exact impulse
-    (each step's solve is, and so is its change). It matters because that error stays: where
-    no spring ties a body to a fixed node, ``1^T A = 1^T M`` over its component of ``A``
-    (``K`` and the springs take nothing from a uniform motion), so a momentum error is an
-    error in the uniform motion, the sweeps' slowest mode, and the stop leaves most of it (a
-    fitted share on the whole change left the oranges' vertical momentum 2.4e-6 of M g t off
-    after 32 steps, where main's and this guess's are exact to ~1e-15). A held body's
-    (``mean`` 0: :func:`softvr.dynamics.node_arrays.record_start`) has no momentum to keep."""
+    The fitted nodes are the held bodies' (:func:`softvr.dynamics.node_arrays.record_start`):
+    a free body's nodes carry all of ``c``, so its guessed momentum is ``sum m (2 v - v_before)
+    = P + (P - P_before)``: in free fall ``P + M g dt``, the step's exact impulse (each step's
+    solve has it, so its change does), whatever share is fitted. A share on a free body's
+    change would leave ``(1 - share) M g dt`` out of the guess's momentum, an error in its
+    uniform motion (over a body no spring ties to a fixed node ``1^T A = 1^T M``), the sweeps'
+    slowest mode, most of which the stop leaves: session 13's share on every node left the
+    oranges' vertical momentum 2.4e-6 of M g t off after 32 steps."""
     i = wp.tid()
     vi = v[i]
     g = vi + dt * (gravity + external[i] / mass[i])
-    deviation = wp.vec3d()
+    step = wp.vec3d()
     if carried != 0:
-        step = vi - v_before[i]
-        g = vi + step
+        g = wp.float64(2.0) * vi - v_before[i]
         if fitted[i] != 0:
-            body_mean = mean[node_body[i]]
-            deviation = step - body_mean
-            g = vi + body_mean + share[2] * deviation
+            step = vi - v_before[i]
+            g = vi + share[2] * step
     if fixed[i] != 0:
         g = fixed_velocity[i]
     guess[i] = g
     guess_prev[i] = g
-    change[i] = deviation
+    change[i] = step
     v_before[i] = vi
 
 
 @wp.kernel
-def body_changes(body_node_start: wp.array(dtype=wp.int32), free: wp.array(dtype=wp.int32),
-                 v: wp.array(dtype=wp.vec3d), v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
-                 mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32), mean: wp.array(dtype=wp.vec3d),
-                 sums: wp.array(dtype=wp.vec2d)):
-    """Over body ``b``'s ``fitted`` nodes (``body_node_start[b]:body_node_start[b + 1]``), from
-    the change the last solve made, ``r = v - v_before`` [m/s], and the deviation carried into
-    it, ``change`` [m/s] (:func:`start_guess`): where ``free[b]`` [B] (a body whose momentum
-    only gravity, external forces and contacts change), the mass-weighted mean change
-    ``mean[b]`` = ``sum m r / sum m`` [m/s] (0 where the body has no fitted node, and for a held
-    body: its whole change is fitted), and the share's sums
-    ``sums[b]`` = (``sum m r . change``, ``sum m |change|^2``) [kg m^2/s^2] (:func:`share_total`).
-    One thread a body, its nodes in order: the same sums in every run."""
+def share_sums(body_node_start: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d),
+               v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d), mass: wp.array(dtype=wp.float64),
+               fitted: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.vec2d)):
+    """Body ``b``'s terms of the share's fit (:func:`share_total`) over its ``fitted`` nodes
+    (``body_node_start[b]:body_node_start[b + 1]``): ``sums[b]`` = (``sum m r . change``,
+    ``sum m |change|^2``) [kg m^2/s^2] of the change the last solve made, ``r = v - v_before``
+    [m/s], and the change carried into it, ``change`` [m/s] (:func:`start_guess`). One thread
+    a body, its nodes in order: the same sums in every run, on every device."""
     b = wp.tid()
-    momentum = wp.vec3d()
-    body_mass = wp.float64(0.0)
     num = wp.float64(0.0)
     den = wp.float64(0.0)
     for i in range(body_node_start[b], body_node_start[b + 1]):
         if fitted[i] != 0:
-            r = v[i] - v_before[i]
             c = change[i]
-            momentum = momentum + mass[i] * r
-            body_mass = body_mass + mass[i]
-            num = num + mass[i] * wp.dot(r, c)
+            num = num + mass[i] * wp.dot(v[i] - v_before[i], c)
             den = den + mass[i] * wp.dot(c, c)
-    m = wp.vec3d()
-    if free[b] != 0 and body_mass > wp.float64(0.0):
-        m = momentum / body_mass
-    mean[b] = m
     sums[b] = wp.vec2d(num, den)
 
 
 @wp.kernel
 def share_total(sums: wp.array(dtype=wp.vec2d), memory: wp.float64, carried: int,
                 share: wp.array(dtype=wp.float64)):
-    """The share of the deviations from their bodies' mean change that the next first guess
-    carries on (:func:`start_guess`): the mass-weighted least-squares coefficient of the
-    deviation each solve made on the deviation carried into it, over the fitted nodes of every
-    body, ``share[2] = sum_s mu^(t-s) num_s / sum_s mu^(t-s) den_s`` with this step's
-    ``(num, den)`` the bodies' ``sums`` [B] (:func:`body_changes`) added in body order,
-    the older steps' kept in ``share[0]``, ``share[1]`` weighed down by ``memory`` (mu) a step,
-    clipped to [0, 1]; 1 (all of it) until a step has been carried into, and after the
-    explicit step (``carried`` 0: the sums start again). The solve's deviation is
-    ``r - mean_b``, and ``sum m (r - mean_b) . d = sum m r . d`` as ``sum m d`` = 0 over a free
-    body (a held one's ``mean_b`` is 0): the fit needs no second pass. One thread."""
+    """The share of last step's change that the next first guess carries on at the fitted nodes
+    (:func:`start_guess`): the mass-weighted least-squares coefficient of the change each solve
+    made on the change carried into it, ``share[2] = sum_s mu^(t-s) num_s / sum_s mu^(t-s)
+    den_s``, this step's ``(num, den)`` the bodies' ``sums`` [B] (:func:`share_sums`) added in
+    body order, the older steps' kept in ``share[0]``, ``share[1]`` weighed down by ``memory``
+    (mu) a step, clipped to [0, 1]; 1 (all of it) until a step has been carried into, and after
+    the explicit step (``carried`` 0: the sums start again). One thread."""
     if carried == 0:
         share[0] = wp.float64(0.0)
         share[1] = wp.float64(0.0)

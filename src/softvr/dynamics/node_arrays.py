@@ -26,12 +26,11 @@ __all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "SHARE_MEMORY", "fixed
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
 
 
-#: The weight a step's solve keeps, a step later, in the fit of the share of the deviations from
-#: their bodies' mean velocity change that the first guess carries on
-#: (:func:`_node_kernels.share_total`): ~10 steps of memory. Measured on shoulder.toml (session 13,
-#: the share on the whole change; 600 steps, sweeps a step, deterministic): the whole change
-#: carried 18.58; the fit over the last step alone (0) 17.68, 0.5 17.24, 0.9 16.79; a fixed half
-#: 16.81. A fit, not a fixed share: a body whose nodes change alike carries all of it.
+#: The weight a step's solve keeps, a step later, in the fit of the share of the velocity change
+#: that the first guess carries on (:func:`_node_kernels.share_total`): ~10 steps of memory.
+#: Measured on shoulder.toml (session 13, 600 steps, sweeps a step, deterministic): the whole
+#: change carried 18.58; the fit over the last step alone (0) 17.68, 0.5 17.24, 0.9 16.79; a
+#: fixed half 16.81. A fit, not a fixed share: a uniformly accelerated body carries all of it.
 SHARE_MEMORY = 0.9
 
 
@@ -208,8 +207,7 @@ def free_bodies(model) -> np.ndarray:
     nodes' reactions too: the shoulder's tissues all hang on the bones (candy-adhesive.toml:
     the candies free, the Jell-O, the hand and the pulled candy held)."""
     n = model.node_count
-    row_start = model.row_start.numpy()
-    row = np.repeat(np.arange(n), np.diff(row_start))
+    row = np.repeat(np.arange(n), np.diff(model.row_start.numpy()))
     graph = sp.coo_matrix((np.ones(len(row)), (row, model.block_col.numpy())), shape=(n, n))
     _, label = connected_components(graph, directed=False)
     held = np.isin(label, label[model.fixed.numpy() != 0])
@@ -221,50 +219,44 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
     [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
-    ``v_before`` [n] [m/s]: each free body's (:func:`free_bodies`) mass-weighted mean change
-    whole and a share, fitted to the last steps' solves, of its nodes' deviations from it; a
-    held body's nodes that share of their whole change; a rigid body's nodes all of theirs
-    (:func:`_node_kernels.start_guess`, :func:`_node_kernels.body_changes`,
-    :func:`_node_kernels.share_total`): every free body's guess keeps the linear momentum of
-    the whole change, its exact impulse in free fall). Both then copy ``state.v`` into
-    ``v_before``; on the first step a rigid body's nodes (``model.rigid``) start at its
-    unconstrained velocity, later ones carried on as the others': a tool pressed into tissue
-    by its coupling starts ~0.2 m/s into the tissue at its unconstrained velocity, and the
-    sweeps' first exact update of the shoulder's inner finger then spun it at 18 rad/s, which
-    took ~60 sweeps to settle (steps 71-120 of shoulder.toml: 63 -> 33 sweeps a step carried on)."""
+    ``v_before`` [n] [m/s]: a share of it, fitted to the last steps' solves, on the free nodes
+    of the held bodies (not :func:`free_bodies`) that are not a rigid body's, all of it on the
+    others, so that every free body's guess keeps the momentum of its whole change, exact in
+    free fall (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
+    :func:`_node_kernels.share_total`)). Both then copy ``state.v`` into ``v_before``; on the
+    first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
+    later ones carried on as the others': a tool pressed into tissue by its coupling starts
+    ~0.2 m/s into the tissue at its unconstrained velocity, and the sweeps' first exact update
+    of the shoulder's inner finger then spun it at 18 rad/s, which took ~60 sweeps to settle
+    (steps 71-120 of shoulder.toml: 63 -> 33 sweeps a step carried on)."""
     d = model.device
-    for kernel in (_k.start_guess, _k.body_changes, _k.share_total):
+    for kernel in (_k.start_guess, _k.share_sums, _k.share_total):
         load_kernels(kernel, d)
     buf = state.sweep_buffers
     r = model.rigid
-    fitted = model.fixed.numpy() == 0
+    start = np.asarray(model.body_node_start)
+    fitted = (model.fixed.numpy() == 0) & ~np.repeat(free_bodies(model), np.diff(start))
     if r is not None:
         fitted[r.linear_node.numpy()] = False
         fitted[r.angular_node.numpy()] = False
-    start = np.asarray(model.body_node_start)
-    bodies = len(start) - 1
-    i32 = wp.int32
-    free: wp.array = wp.array(free_bodies(model).astype(np.int32), dtype=i32, device=d)
-    node_body: wp.array = wp.array(np.repeat(np.arange(bodies), np.diff(start)), dtype=i32, device=d)
-    fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=i32, device=d)
+    fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
     share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
     change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
-    mean = wp.zeros(bodies, dtype=wp.vec3d, device=d)
-    sums = wp.zeros(bodies, dtype=wp.vec2d, device=d)
+    sums = wp.zeros(len(start) - 1, dtype=wp.vec2d, device=d)
     replays = []
     for carried in (0, 1):
         launches = []
         if carried:
-            launches.append(replayer(wp.launch(_k.body_changes, dim=bodies, device=d, record_cmd=True,
-                                               inputs=[wp.array(start, dtype=i32, device=d), free, state.v,
-                                                       v_before, change, model.mass, fitted_nodes, mean, sums])))
+            launches.append(replayer(wp.launch(_k.share_sums, dim=len(start) - 1, device=d, record_cmd=True,
+                                               inputs=[wp.array(start, dtype=wp.int32, device=d), state.v, v_before,
+                                                       change, model.mass, fitted_nodes, sums])))
         launches += [replayer(wp.launch(_k.share_total, dim=1, device=d, record_cmd=True,
                                         inputs=[sums, SHARE_MEMORY, carried, share])),
                      replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
                                         inputs=[state.v, state.external, model.mass,
                                                 wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
-                                                model.fixed, state.fixed_velocity, v_before, node_body,
-                                                fitted_nodes, mean, share, change, buf[0], buf[2]]))]
+                                                model.fixed, state.fixed_velocity, v_before, fitted_nodes, share,
+                                                change, buf[0], buf[2]]))]
         if r is not None and not carried:
             load_kernels(_k.rigid_start_guess, d)
             launches.append(replayer(wp.launch(_k.rigid_start_guess, dim=len(r.bodies), device=d, record_cmd=True,
