@@ -2,7 +2,8 @@
 ``_node_kernels.share_sums``, ``share_total`` and ``start_guess``).
 
 On the free nodes of a held body (one a chain of ``A``'s blocks ties to a fixed node,
-:func:`~softvr.dynamics.node_arrays.free_bodies`) the guess for step t + 1 is ``v + a c`` with
+:func:`~softvr.dynamics.node_arrays.free_bodies`) that no free body touches
+(:func:`~softvr.dynamics.node_arrays.shared_bodies`) the guess for step t + 1 is ``v + a c`` with
 ``c = v - v_before`` last step's change; ``a`` is the mass-weighted least-squares coefficient of
 the change each solve made, ``r_s = v_s+1 - v_s``, on the change carried into it, ``c_s``, over
 the recent steps s with weights ``memory^(t - s)``:
@@ -24,23 +25,27 @@ from types import SimpleNamespace
 import numpy as np
 import warp as wp
 
-from softvr.dynamics.node_arrays import SHARE_MEMORY, free_bodies, record_start
+from softvr.dynamics.node_arrays import SHARE_MEMORY, free_bodies, record_start, shared_bodies
 
 G = np.array([0.0, 0.0, -9.81])  # [m/s^2]
 DT = 1.0 / 50.0  # [s]
 
 
-def _model(mass, body_node_start, device, fixed=None, links=()):
+def _model(mass, body_node_start, device, fixed=None, links=(), touching=()):
     """A bare model of ``mass`` [n] [kg] over bodies ``body_node_start`` [B + 1] (nodes
     ``fixed`` [n] bool): the block pattern of ``A`` ties each body's nodes in a chain and the
-    node pairs ``links`` (couplings)."""
+    node pairs ``links`` (couplings); the body pairs ``touching`` may collide."""
     n = len(mass)
     fixed = np.zeros(n, np.int32) if fixed is None else fixed.astype(np.int32)
     pairs = [(i, i) for i in range(n)] + [(i, i + 1) for a, b in zip(body_node_start[:-1], body_node_start[1:])
                                           for i in range(a, b - 1)] + list(links)
     pattern = sorted({p for a, b in pairs for p in ((a, b), (b, a))})
     rows = np.array([p[0] for p in pattern])
+    pair_enabled = np.zeros((len(body_node_start) - 1,) * 2, np.int32)
+    for a, b in touching:
+        pair_enabled[a, b] = 1
     return SimpleNamespace(device=device, node_count=n, rigid=None, body_node_start=np.asarray(body_node_start),
+                           pair_enabled=wp.array(pair_enabled, dtype=wp.int32, device=device),
                            mass=wp.array(mass, dtype=wp.float64, device=device),
                            fixed=wp.array(fixed, dtype=wp.int32, device=device),
                            row_start=wp.array(np.searchsorted(rows, np.arange(n + 1)), dtype=wp.int32, device=device),
@@ -173,11 +178,13 @@ def test_a_held_mode_reversing_every_step_carries_none_and_the_explicit_step_sta
     np.testing.assert_allclose(state.sweep_buffers[0].numpy(), 2 * v[3] - v[2], rtol=0, atol=1e-15)
 
 
-def test_a_body_is_held_where_a_chain_of_blocks_reaches_a_fixed_node(device):
+def test_held_bodies_share_unless_a_free_body_touches_them(device):
     # Bodies of 3 nodes: 0 -- 1 coupled, 1 has a fixed node: both held; 2 -- 3 coupled, free;
-    # 4 alone with a fixed node: held; 5 alone: free.
-    start = np.arange(0, 19, 3)
-    fixed = np.zeros(18, bool)
-    fixed[[4, 12]] = True
-    model = _model(np.full(18, 1e-3), start, device, fixed, links=[(2, 3), (7, 9)])
-    assert free_bodies(model).tolist() == [False, False, True, True, False, True]
+    # 4 alone with a fixed node: held; 5 alone: free; 6 held, touching 0 (held) only; 5's
+    # surface meets 4's: 4 carries all of its change, as the free bodies do.
+    start = np.arange(0, 22, 3)
+    fixed = np.zeros(21, bool)
+    fixed[[4, 12, 18]] = True
+    model = _model(np.full(21, 1e-3), start, device, fixed, links=[(2, 3), (7, 9)], touching=[(5, 4), (0, 6)])
+    assert free_bodies(model).tolist() == [False, False, True, True, False, True, False]
+    assert shared_bodies(model).tolist() == [True, True, False, False, False, False, True]

@@ -293,8 +293,8 @@ def start_guess(v: wp.array(dtype=wp.vec3d), external: wp.array(dtype=wp.vec3d),
     explicit step) and ``v_before`` takes ``v``. A uniform change (gravity, a push, a resting
     body's none) is Jacobi's slowest mode, and these guesses have it.
 
-    The fitted nodes are the held bodies' (:func:`softvr.dynamics.node_arrays.record_start`):
-    a free body's nodes carry all of ``c``, so its guessed momentum is ``sum m (2 v - v_before)
+    The fitted nodes are held bodies' (:func:`softvr.dynamics.node_arrays.shared_bodies`): a
+    free body's nodes carry all of ``c``, so its guessed momentum is ``sum m (2 v - v_before)
     = P + (P - P_before)``: in free fall ``P + M g dt``, the step's exact impulse (each step's
     solve has it, so its change does), whatever share is fitted. A share on a free body's
     change would leave ``(1 - share) M g dt`` out of the guess's momentum, an error in its

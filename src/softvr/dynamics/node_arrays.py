@@ -19,8 +19,9 @@ from softvr.device import chunked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
-__all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "SHARE_MEMORY", "fixed_only", "free_bodies", "isotropic_terms",
-           "record_drive", "record_elements", "record_integrate", "record_start", "record_system", "shape_gradients"]
+__all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "SHARE_MEMORY", "fixed_only", "free_bodies",
+           "isotropic_terms", "record_drive", "record_elements", "record_integrate", "record_start", "record_system",
+           "shape_gradients", "shared_bodies"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
@@ -215,14 +216,31 @@ def free_bodies(model) -> np.ndarray:
     return np.array([not held[a:b].any() for a, b in zip(start[:-1], start[1:])], bool)
 
 
+def shared_bodies(model) -> np.ndarray:
+    """Which bodies [B] bool take a fitted share of last step's change in the first guess
+    (:func:`record_start`): the held ones (not :func:`free_bodies`) whose surfaces no free
+    body's can touch (``model.pair_enabled`` [B, B], either way). A free body carries all of its
+    change, for its momentum; a contact between it and a held body carrying a share starts the
+    contact passes from two guesses erring apart. Measured (sweeps a step, haptics off): the
+    share on every held body took shoulder.toml 18.83 -> 16.30 (300 steps), the arthroscopy
+    14.65 -> 11.41 (no free body in either), but candy-adhesive.toml, whose held Jell-O the free
+    candies land on, 72.8 -> 76.2 (mean of 4 runs each, gravity nudged by 0 to 3e-12 of itself:
+    the landing's sweep counts spread by +-1.6 a step under rounding-size nudges); candy.toml
+    76.0 -> 70.5 (one run) and the adhesion bench's two runs within that spread."""
+    free = free_bodies(model)
+    pairs = model.pair_enabled.numpy() != 0
+    touched = (pairs | pairs.T)[:, free].any(axis=1)
+    return ~free & ~touched
+
+
 def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
     [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
     ``v_before`` [n] [m/s]: a share of it, fitted to the last steps' solves, on the free nodes
-    of the held bodies (not :func:`free_bodies`) that are not a rigid body's, all of it on the
-    others, so that every free body's guess keeps the momentum of its whole change, exact in
-    free fall (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
+    of the :func:`shared_bodies` that are not a rigid body's, all of it on the others, so that
+    every free body's guess keeps the momentum of its whole change, exact in free fall
+    (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
     :func:`_node_kernels.share_total`)). Both then copy ``state.v`` into ``v_before``; on the
     first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
     later ones carried on as the others': a tool pressed into tissue by its coupling starts
@@ -235,7 +253,7 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     buf = state.sweep_buffers
     r = model.rigid
     start = np.asarray(model.body_node_start)
-    fitted = (model.fixed.numpy() == 0) & ~np.repeat(free_bodies(model), np.diff(start))
+    fitted = (model.fixed.numpy() == 0) & np.repeat(shared_bodies(model), np.diff(start))
     if r is not None:
         fitted[r.linear_node.numpy()] = False
         fitted[r.angular_node.numpy()] = False
