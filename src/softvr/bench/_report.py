@@ -2,10 +2,40 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from softvr.files import write_json
 from softvr.render.figure import save_figure
 
-__all__ = ["bench_parser", "print_and_write", "save_figure"]
+__all__ = ["bench_parser", "print_and_write", "save_figure", "step_times"]
+
+
+def step_times(step_s) -> dict:
+    """A played scene's per-step wall times, summarised as the steady state and the first step.
+
+    The first step of a scene loads it into the solver (kernel modules, launch recording, the
+    first factorizations): hundreds of ms that a player pays once, before the user touches
+    anything. It is reported apart as a load time, and "ms a step" is the steady state.
+
+    Parameters
+    ----------
+    step_s : array_like, shape (n,) [s]
+        Wall time of each step, in order; ``n >= 1``.
+
+    Returns
+    -------
+    dict
+        ``ms_per_step`` / ``ms_per_step_median`` / ``ms_per_step_p95`` [ms]: mean, median and 95th
+        percentile of the steps after the first (all steps when there is only one);
+        ``first_step_ms`` [ms]: the first step; ``ms_per_step_with_first`` [ms]: the mean of all.
+    """
+    ms = 1e3 * np.asarray(step_s, dtype=float)
+    if ms.ndim != 1 or not len(ms):
+        raise ValueError(f"step times: expected a 1-D sequence of at least one step, found shape {ms.shape}")
+    steady = ms[1:] if len(ms) > 1 else ms
+    return {"ms_per_step": float(steady.mean()), "ms_per_step_median": float(np.median(steady)),
+            "ms_per_step_p95": float(np.percentile(steady, 95)), "first_step_ms": float(ms[0]),
+            "ms_per_step_with_first": float(ms.mean())}
 
 
 def bench_parser(area: str, description: str, *, quick: str, plot: str):

@@ -4,7 +4,8 @@ Both variants of the shoulder demo, the bundled scene files ``shoulder.toml`` (p
 fingers and the deltoid) and ``shoulder-arthroscopy.toml`` (a probe under the acromion), played
 one step a frame: the tool's handle follows the file's scripted palpation path with the 1 kHz
 :class:`~softvr.haptics.HapticLoop` process rendering the force
-(:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step (mean and p95),
+(:meth:`~softvr.haptics.HapticTool.force`). Reported: ms per simulation step (mean, median and
+p95 of the steps after the first; the first step, which loads the scene into the solver, apart),
 contacts per step (mean / max), PGS sweeps, the deepest contact overlap, and the
 haptic loop's period (p50 / p99 / max) while the simulation runs beside it.
 
@@ -21,7 +22,7 @@ import time
 
 import numpy as np
 
-from softvr.bench._report import bench_parser, print_and_write, save_figure
+from softvr.bench._report import bench_parser, print_and_write, save_figure, step_times
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
 from softvr.dynamics import FemBody
@@ -71,14 +72,13 @@ def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
         player.close()
     soft = [b for b in player.scene.bodies if isinstance(b, FemBody)]
     couplings = player.scene.couplings
-    step_ms = 1e3 * np.asarray(trace["step_s"])
     contacts = np.asarray(trace["contacts"])
     return {"variant": variant, "scene": SCENES[variant], "dt_s": player.dt, "steps": steps,
             "soft_parts": len(soft), "tets": int(sum(len(b.tets) for b in soft)), "couplings": len(couplings),
             "coupling_springs": int(sum(len(c) for c in couplings)),
             "coupling_islands": sum(1 for u in player.scene.solve_units()[0] if hasattr(u, "members")),
             "bodies": len(player.scene.bodies),
-            "ms_per_step": float(step_ms.mean()), "ms_per_step_p95": float(np.percentile(step_ms, 95)),
+            **step_times(trace["step_s"]),
             "contacts_mean": float(contacts.mean()), "contacts_max": int(contacts.max()),
             "pgs_iterations_mean": float(np.mean(trace["pgs_iterations"])),
             "pgs_iterations_max": int(np.max(trace["pgs_iterations"])),
@@ -115,19 +115,20 @@ def format_table(result: dict) -> str:
     lines = [f"Shoulder (thesis Table 5.1 structure, procedural), scripted palpation with the 1 kHz haptic loop, "
              f"{result['config']['seconds']:g} s per variant"]
     head = (f"{'variant':<12} {'soft':>4} {'tets':>5} {'springs':>7} {'islands':>7} {'ms/step':>8} {'p95':>6} "
-            f"{'contacts':>11} {'PGS':>11} {'overlap mm':>10} {'haptic p50/p99/max ms':>22}")
+            f"{'first':>6} {'contacts':>11} {'PGS':>11} {'overlap mm':>10} {'haptic p50/p99/max ms':>22}")
     lines += [head, "-" * len(head)]
     for name, r in runs.items():
         h = r["haptic"]
         hp = "-" if h["p50_ms"] is None else f"{h['p50_ms']:.3f} / {h['p99_ms']:.3f} / {h['max_ms']:.2f}"
         lines.append(f"{name:<12} {r['soft_parts']:>4} {r['tets']:>5} {r['coupling_springs']:>7} "
-                     f"{r['coupling_islands']:>7} {r['ms_per_step']:>8.1f} {r['ms_per_step_p95']:>6.1f} "
+                     f"{r['coupling_islands']:>7} {r['ms_per_step']:>8.2f} {r['ms_per_step_p95']:>6.1f} {r['first_step_ms']:>6.0f} "
                      f"{r['contacts_mean']:>5.0f} / {r['contacts_max']:<4d} {r['pgs_iterations_mean']:>4.0f} / "
                      f"{r['pgs_iterations_max']:<4d} {1e3 * r['overlap_max_m']:>10.3f} {hp:>22}")
     t, th = result["targets"], result["thesis"]
     worst = max(r["ms_per_step"] for r in runs.values())
     lines += ["", f"thesis (2008, two cores): {th['ms_per_step']:g} ms per step, contacts {th['contacts_mean']} mean / "
                   f"{th['contacts_max']} max",
+              "ms/step and p95: the steps after the first; first: the first step [ms], which loads the scene",
               f"targets: <= {t['ms_per_step']:g} ms per step: {worst:.1f} -> {'MET' if t['ms_per_step_met'] else 'NOT met'}; "
               f"haptic p99 <= {t['haptic_p99_ms']:g} ms -> {'MET' if t['haptic_p99_met'] else 'NOT met'}"]
     return "\n".join(lines)
