@@ -28,8 +28,8 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order", "launch", "load_kernels", "replayer",
-    "resolve_device", "single_threaded_blas", "upload",
+    "ITEMS_A_CPU_THREAD", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order",
+    "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas", "stride_threads", "upload",
 ]
 
 
@@ -364,6 +364,32 @@ def chunked_replayer(kernel, dim: int, inputs: list, device: str, *, min_chunk: 
     if len(replays) == 1:
         return replays[0]
     return _SplitReplay(replays, workers)
+
+
+#: Items one thread of a blocked kernel (:func:`blocked_replayer`) takes on the CPU (1 on CUDA).
+#: Warp's CPU launch calls the compiled kernel once a thread, and each call copies the kernel's
+#: arguments into locals and constructs (zeroes) its vector and matrix locals, which costs more
+#: than the work of a cheap item (the candy's edge queries: 1.6 ms a step one edge a thread,
+#: 0.7 ms 64 edges a thread, same results).
+ITEMS_A_CPU_THREAD = 64
+
+
+def blocked_replayer(kernel, items: int, inputs: list, device: str, *, min_chunk: int = 1024) -> Callable[[], None]:
+    """:func:`chunked_replayer` of a blocked kernel over ``items``: a thread takes ``block``
+    items, from (``wp.tid()`` + offset) x ``block`` up to the item count the kernel reads from
+    its arrays, its last two parameters ``block: int, offset: int``; ``block`` is
+    :data:`ITEMS_A_CPU_THREAD` on the CPU and 1 on CUDA. ``min_chunk`` counts items."""
+    block = ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
+    return chunked_replayer(kernel, -(-items // block), [*inputs, block], device,
+                            min_chunk=max(1, min_chunk // block))
+
+
+def stride_threads(device: str, cuda_threads: int) -> int:
+    """Threads of a launch whose threads stride over items up to a count the kernel reads (a
+    step's contacts): ``cuda_threads`` on CUDA, one on the CPU, where such a launch replays on
+    one core anyway and every thread costs a call of the compiled kernel (the shoulder's contact
+    marking: 1 024 threads over ~200 contacts ~14 us, one thread ~7)."""
+    return 1 if wp.get_device(device).is_cpu else int(cuda_threads)
 
 
 class _SplitReplay:

@@ -146,6 +146,58 @@ def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffnes
     np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
 
 
+def test_rotations_and_warp_change_recomputed_only_where_tets_turned_stay_scipys_and_numpys_everywhere():
+    # The nodes' rotations (the polar factor of their tets' stiffness-weighted co-rotations) and
+    # each solved row's warp change (max_j |R_i^T A_ij R_j - A0_ij|_F / |A0_ii|_F) are recomputed
+    # only at the nodes one of whose tets' R_e changed since the last call (and, for the warp
+    # change, at the rows reaching a node whose rotation was recomputed); the others keep what
+    # they had. Here the beam is bent, then only its outer part (x > 0.45 m) bent further: the
+    # tets inside keep their R_e bit for bit, and every node must still be SciPy's polar factor
+    # of its sums (1e-10, as the test above) and every row NumPy's warp change of this A with
+    # those rotations (round-off of 3 x 3 products: 1e-12 relative).
+    body = _beam()
+    scene, stepper = _prepared(body, DT)
+    solve = FactoredSolve(stepper.model, stepper.state, DT)
+    model, state = stepper.model, stepper.state
+    tets, ke = model.tets.numpy(), model.ke.numpy()
+    weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
+    solved = np.flatnonzero((model.fixed.numpy() == 0) & (np.diff(model.row_start.numpy()) > 0))
+    n = model.node_count
+    a0 = state.blocks.numpy().copy()
+    rotation0 = solve._rotation0.numpy().copy()
+    x = body.q[:, 0]
+    body.q[:] = Rotation.from_rotvec(np.outer(0.2 * x / x.max(), [0.0, 1.0, 0.0])).apply(body.q - [0.0, 0.0, 1.0]) \
+        + [0.0, 0.0, 1.0]
+    calls = []
+    for outer in (x >= 0.0, x > 0.45):
+        pivot = body.q[np.argmin(np.abs(x - 0.45))].copy()
+        body.q[outer] = Rotation.from_rotvec([0.0, 0.15, 0.0]).apply(body.q[outer] - pivot) + pivot
+        for replay in stepper._recorded[1:3]:  # the tets' co-rotations, A
+            replay()
+        solve._rotations()
+        calls.append(int(solve._moved[0].numpy()[solved].sum()))  # nodes whose rotation was recomputed
+        solve._warp_change()
+    # The first call after the factorization recomputes every node; the second only those of the
+    # tets the outer turn reached (the inner tets' R_e are the same bits).
+    assert calls[0] == len(solved) and 0 < calls[1] < len(solved) - 20
+    assert not solve._turned.numpy().any()  # the warp change took them all
+    r_e = state.rotations.numpy()
+    expected = [polar(np.einsum("e,eij->ij", weight[mine], r_e[mine]))[0]
+                for mine in (np.flatnonzero((tets == i).any(axis=1)) for i in solved)]
+    np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
+    relative = np.tile(np.eye(3), (n, 1, 1))
+    relative[solved] = np.matmul(expected, rotation0.transpose(0, 2, 1))
+    blocks, rows, cols = state.blocks.numpy(), model.block_row.numpy(), model.block_col.numpy()
+    is_solved = np.isin(np.arange(n), solved)
+    change = np.zeros(n)
+    for i in solved:
+        mine = np.flatnonzero((rows == i) & is_solved[cols])
+        d = relative[i].T @ blocks[mine] @ relative[cols[mine]] - a0[mine]
+        own = a0[np.flatnonzero((rows == i) & (cols == i))[0]]
+        change[i] = np.sqrt(np.max(np.sum(d * d, axis=(1, 2))) / np.sum(own * own))
+    np.testing.assert_allclose(solve._change.numpy(), change, rtol=1e-12, atol=0)
+
+
 def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_columns_of_the_inverse():
     # The columns of A_0^-1 a step multiplies are kept across steps; over KEPT_NODES nodes'
     # (a probe moved over the body) a step first drops those the last step did not use. The

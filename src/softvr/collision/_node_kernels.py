@@ -31,11 +31,6 @@ from softvr.collision.mesh import NORMAL_FROM_OFFSET, query_point
 STENCIL = 4
 #: Nodes in a contact's stencil: a point's 4 and a triangle's 3 x 4.
 CONTACT_STENCIL = 16
-#: Items (points, triangles, edges) one thread of a blocked kernel takes on the CPU (1 on CUDA):
-#: Warp's CPU launch calls the kernel once a thread, and each call copies its array arguments
-#: (~30 in the edge queries), which cost more than the box test that turns most items away (the
-#: candy's edge queries: 1.6 ms a step one edge a thread, 0.7 ms 64 edges a thread, same results).
-ITEMS_A_CPU_THREAD = 64
 #: ``NodeContacts.kind`` codes.
 PLANE = wp.constant(0)
 VERTEX_TRIANGLE = wp.constant(1)
@@ -69,7 +64,7 @@ def point_motion(q: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), fixed
     """Position [m] (also in single precision, the surfaces' BVH vertices) and predicted
     velocity [m/s] of point ``p`` at the step's start: the explicit ``v + dt g`` of its free
     nodes, the prescribed velocity of its driven ones. A thread takes ``block`` points, from (thread +
-    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    ``offset``) x ``block`` (:data:`softvr.device.ITEMS_A_CPU_THREAD`)."""
     begin = (wp.tid() + offset) * block
     for p in range(begin, wp.min(begin + block, point_nodes.shape[0])):
         x = wp.vec3d()
@@ -242,7 +237,7 @@ def vertex_triangle(point_body: wp.array(dtype=wp.int32), point_x: wp.array(dtyp
     body (so that :func:`gather_contacts` reads the row ``hit[p]`` of those only); a row is
     nonzero only where it is 1, so only those rows are cleared the next time (B writes a
     vertex, most of them 0 already). A thread takes ``block`` points, from (thread +
-    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    ``offset``) x ``block`` (:data:`softvr.device.ITEMS_A_CPU_THREAD`)."""
     begin = (wp.tid() + offset) * block
     for p in range(begin, wp.min(begin + block, point_body.shape[0])):
         a = point_body[p]
@@ -317,7 +312,7 @@ def face_normals(point_x32: wp.array(dtype=wp.vec3), triangles: wp.array2d(dtype
                  normal: wp.array(dtype=wp.vec3), block: int, offset: int):
     """Triangle ``t``'s unit normal (once a triangle: :func:`edge_geometry` reads it for each of
     its three edges). A thread takes ``block`` triangles, from (thread +
-    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    ``offset``) x ``block`` (:data:`softvr.device.ITEMS_A_CPU_THREAD`)."""
     begin = (wp.tid() + offset) * block
     for t in range(begin, wp.min(begin + block, triangles.shape[0])):
         normal[t] = _face_normal(point_x32, triangles, t)
@@ -335,7 +330,7 @@ def edge_geometry(point_x32: wp.array(dtype=wp.vec3), face_normal: wp.array(dtyp
     ``crease_lower``, ``crease_upper`` [m] if it is one, else an empty box (lower 1e30, upper
     -1e30: no query box meets it, and it adds nothing to a node's box in a refit), the boxes of the
     crease BVHs that the smooth edges query (:func:`edge_edge`). A thread takes ``block`` edges, from (thread +
-    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    ``offset``) x ``block`` (:data:`softvr.device.ITEMS_A_CPU_THREAD`)."""
     begin = (wp.tid() + offset) * block
     for e in range(begin, wp.min(begin + block, edges.shape[0])):
         p = point_x32[edges[e, 0]]
@@ -433,7 +428,7 @@ def edge_edge(edges: wp.array2d(dtype=wp.int32), edge_body: wp.array(dtype=wp.in
     own: an edge without pairs last step that no body passes is done there. A smooth edge
     queries b's crease BVH (``crease_bvh_ids``: b's creases and borders only, :func:`edge_geometry`),
     a crease b's full one. A thread takes ``block`` edges, from (thread +
-    ``offset``) x ``block`` (:data:`ITEMS_A_CPU_THREAD`)."""
+    ``offset``) x ``block`` (:data:`softvr.device.ITEMS_A_CPU_THREAD`)."""
     begin = (wp.tid() + offset) * block
     for i in range(begin, wp.min(begin + block, edges.shape[0])):
         a = edge_body[i]

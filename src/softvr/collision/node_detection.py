@@ -13,7 +13,7 @@ import warp as wp
 from softvr.collision import _node_kernels as _k
 from softvr.collision.edges import MIN_EDGE_ANGLE, MIN_NORMAL_ALIGNMENT, PAIRS_PER_EDGE, SHARP_EDGE_ANGLE
 from softvr.collision.node_rigid_detection import record_rigid_contacts, record_rigid_points
-from softvr.device import chunked_replayer, load_kernels, replayer
+from softvr.device import blocked_replayer, chunked_replayer, load_kernels, replayer
 
 __all__ = ["CONTACT_STENCIL", "record_carry", "record_node_detection"]
 
@@ -36,10 +36,10 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
                    _k.gather_contacts):
         load_kernels(kernel, d)
     # The per-point and per-edge launches are split over the CPU cores (chunked_replayer).
-    motion = _blocked(_k.point_motion, model.point_count,
-                      [state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
-                       model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
-                      d, min_chunk=1024)
+    motion = blocked_replayer(_k.point_motion, model.point_count,
+                              [state.q, state.v, model.fixed, state.fixed_velocity, model.point_nodes,
+                               model.point_weights, g, float(dt), state.point_x, state.point_x32, state.point_u],
+                              d, min_chunk=1024)
     steps = [motion]
     if model.rigid is not None and model.rigid.point_index.shape[0]:
         steps.append(record_rigid_points(model, state))
@@ -81,23 +81,23 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     if model.meshes:
         near, *point_box = body_box(model.body_point_start_wp, state.point_x32, state.point_x32)
         steps.append(_refit_reached(model.meshes, model.mesh_ids, near[0], later=False))
-        steps.append(_blocked(_k.vertex_triangle, model.point_count,
-                              [model.point_body, state.point_x, state.point_u, state.body_mean_u,
-                               *near, model.mesh_ids, *point_box, float(margin), float(dt),
-                               c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
-                              min_chunk=256))
+        steps.append(blocked_replayer(_k.vertex_triangle, model.point_count,
+                                      [model.point_body, state.point_x, state.point_u, state.body_mean_u,
+                                       *near, model.mesh_ids, *point_box, float(margin), float(dt),
+                                       c.hit, c.hit_face, c.hit_bary, c.hit_normal, c.hit_gap, point_hit], d,
+                                      min_chunk=256))
     # Per edge, whether edge_edge found pairs this step and the last (1 at first: unknown).
     found = [wp.full(max(model.edges.shape[0], 1), 1, dtype=wp.int32, device=d) for _ in range(2)]
     if model.bvhs:
         edges = model.edges.shape[0]
         normals = wp.empty(model.triangles.shape[0], dtype=wp.vec3, device=d)
-        steps.append(_blocked(_k.face_normals, model.triangles.shape[0],
-                              [state.point_x32, model.triangles, normals], d, min_chunk=1024))
-        steps.append(_blocked(_k.edge_geometry, edges,
-                              [state.point_x32, normals, model.edges, model.edge_faces,
-                               float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
-                               state.edge_normal, state.edge_sharp, state.crease_lower, state.crease_upper],
-                              d, min_chunk=1024))
+        steps.append(blocked_replayer(_k.face_normals, model.triangles.shape[0],
+                                      [state.point_x32, model.triangles, normals], d, min_chunk=1024))
+        steps.append(blocked_replayer(_k.edge_geometry, edges,
+                                      [state.point_x32, normals, model.edges, model.edge_faces,
+                                       float(np.cos(SHARP_EDGE_ANGLE)), state.edge_lower, state.edge_upper,
+                                       state.edge_normal, state.edge_sharp, state.crease_lower, state.crease_upper],
+                                      d, min_chunk=1024))
         crease = wp.empty(bodies, dtype=wp.int32, device=d)
         steps.append(replayer(wp.launch(_k.body_creases, dim=bodies, device=d, record_cmd=True,
                                         inputs=[model.body_edge_start, state.edge_sharp, crease])))
@@ -105,13 +105,14 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
         steps.append(_refit_reached(model.bvhs, model.bvh_ids, near[0], later=True))
         # (only bodies with a crease: a smooth edge queries no other, ``_k.edge_edge``)
         steps.append(_refit_reached(model.crease_bvhs, model.crease_bvh_ids, near[0], later=True, only=crease))
-        steps.append(_blocked(_k.edge_edge, edges,
-                              [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
-                               state.point_u, state.body_mean_u, *near, model.bvh_ids, model.crease_bvh_ids,
-                               *edge_box,
-                               state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
-                               float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
-                               c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d, min_chunk=512))
+        steps.append(blocked_replayer(_k.edge_edge, edges,
+                                      [model.edges, model.edge_body, model.body_edge_start, state.point_x32,
+                                       state.point_u, state.body_mean_u, *near, model.bvh_ids, model.crease_bvh_ids,
+                                       *edge_box,
+                                       state.edge_normal, state.edge_sharp, crease, float(margin), float(dt),
+                                       float(np.sin(MIN_EDGE_ANGLE)), float(MIN_NORMAL_ALIGNMENT), PAIRS_PER_EDGE,
+                                       c.hit, c.pair_edge, c.pair_st, c.pair_normal, c.pair_gap, *found], d,
+                                      min_chunk=512))
     out = _k.contact_out(c)
     steps.append(replayer(wp.launch(
         _k.gather_contacts, dim=1, device=d, record_cmd=True,
@@ -129,14 +130,6 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
             step()
 
     return detect
-
-
-def _blocked(kernel, items: int, inputs: list, device, min_chunk: int) -> Callable[[], None]:
-    """``chunked_replayer`` of a blocked kernel (a thread takes ``block`` of the ``items``, the
-    argument after ``inputs``): ``_k.ITEMS_A_CPU_THREAD`` on the CPU, 1 on CUDA; chunks of at
-    least ``min_chunk`` items."""
-    block = _k.ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
-    return chunked_replayer(kernel, -(-items // block), [*inputs, block], device, min_chunk=max(1, min_chunk // block))
 
 
 def _refit_reached(structures: list, ids: wp.array, near: wp.array, later: bool,

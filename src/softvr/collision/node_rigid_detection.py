@@ -15,13 +15,14 @@ import warp as wp
 from softvr.collision import _node_kernels as _nk
 from softvr.collision import _node_rigid_kernels as _k
 from softvr.collision.rigid_detection import record_detection
-from softvr.device import load_kernels, replayer
+from softvr.device import load_kernels, replayer, stride_threads
 
 __all__ = ["CONTACT_THREADS", "record_rigid_contacts", "record_rigid_points"]
 
 #: Threads of a once-a-step launch over the step's contacts (the rigid sides, the coarse
-#: sides), each striding them up to the count: one per row of the contact buffer's capacity
-#: was ~60 times the contacts on the candy (188 181 rows, ~3 000 contacts).
+#: sides) on CUDA, each striding them up to the count: one per row of the contact buffer's
+#: capacity was ~60 times the contacts on the candy (188 181 rows, ~3 000 contacts). One on the
+#: CPU (:func:`softvr.device.stride_threads`).
 CONTACT_THREADS = 1024
 
 
@@ -45,7 +46,7 @@ def record_rigid_contacts(model, state, dt: float) -> Callable[[], None]:
     rigid, c, d = model.rigid, state.contacts, model.device
     for kernel in (_k.rigid_sides, _k.primitive_contacts):
         load_kernels(kernel, d)
-    threads = min(c.capacity, CONTACT_THREADS)
+    threads = stride_threads(d, min(c.capacity, CONTACT_THREADS))
     sides = replayer(wp.launch(_k.rigid_sides, dim=threads, device=d, record_cmd=True,
                                inputs=[c.count, c.kind, c.point, c.face, c.bary, model.triangles, model.edges,
                                        rigid.point_angular, rigid.point_lever, c.rigid_node, c.rigid_lever,

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from softvr.contact._node_jacobi_kernels import block_update
+from softvr.contact._node_jacobi_kernels import LANES4_PRODUCT, block_update
 
 
 @wp.kernel
@@ -58,7 +58,8 @@ def start(v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), offset: int)
 # (:func:`gather_off_blocks`), so that a column is three doubles in a row: on the CPU (clang)
 # the three rows of the product go as the lanes of one 4-wide vector, each lane the scalar
 # code's operations (the fourth lane reads the next block's first double, or the padding block
-# after the last, and is dropped; 3.5 ns a block as scalar code). It reads the arrays as
+# after the last, and is dropped; 3.5 ns a block as scalar code): the Jacobi rows' product,
+# ``_node_jacobi_kernels.LANES4_PRODUCT``. It reads the arrays as
 # contiguous (:meth:`softvr.contact.node_gauss_seidel.GaussSeidelSweep.record` checks that they are).
 _ROW = r"""
 const wp::int32* start = off_start.data;
@@ -70,18 +71,9 @@ double r0 = rhs[0];
 double r1 = rhs[1];
 double r2 = rhs[2];
 #if defined(__clang__) && !defined(__CUDA_ARCH__)
-typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
+""" + LANES4_PRODUCT + r"""
 lanes4 r = {r0, r1, r2, 0.0};
-for (int k = start[t], end = start[t + 1]; k < end; ++k) {
-    const double* m = block + 9 * k;
-    const double* y = x + 3 * col[k];
-    lanes4 p = *(const lanes4*)m * y[0];
-    lanes4 q = *(const lanes4*)(m + 3) * y[1];
-    p = p + q;
-    q = *(const lanes4*)(m + 6) * y[2];
-    p = p + q;
-    r = r - p;
-}
+for (int k = start[t], end = start[t + 1]; k < end; ++k) r = r - product(k);
 r0 = r[0];
 r1 = r[1];
 r2 = r[2];

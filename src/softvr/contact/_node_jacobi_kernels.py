@@ -118,15 +118,13 @@ def jacobi(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int
 # next block's first double, or the padding block after the last, and is dropped; elsewhere, as
 # CUDA compiles it, Warp's own product of the block transposed back). The candy pile's 29 589
 # blocks: 113-123 -> 61-71 us a sweep on one core. It reads the arrays as contiguous.
-_JACOBI_ROWS = r"""
-typedef wp::vec_t<3, wp::float64> vec3;
-typedef wp::mat_t<3, 3, wp::float64> mat3;
-const wp::int32* start = row_start.data;
-const wp::int32* col = block_col.data;
-const double* block = (const double*)blocks_t.data;
-const double* x = (const double*)v.data;
-const double* rhs = (const double*)b.data;
-#if defined(__clang__) && !defined(__CUDA_ARCH__)
+#: ``product(k)``: block ``k`` of ``block`` (transposed 3x3 blocks, 9 doubles each) times the
+#: 3-vector of ``x`` at column ``col[k]``, as one 4-wide vector (clang on the CPU only): each lane
+#: Warp's 3x3 product's operations, ``(m_0 x_0 + m_1 x_1) + m_2 x_2``, each a statement of its own
+#: (no fused multiply-add), the fourth lane the next double, dropped. Shared by the Jacobi rows
+#: (:data:`_JACOBI_ROWS`) and the Gauss-Seidel rows (``_node_gs_kernels._ROW``), so both keep
+#: the same bits as Warp's product.
+LANES4_PRODUCT = r"""
 typedef double lanes4 __attribute__((vector_size(32), aligned(8)));
 auto product = [&](int k) -> lanes4 {
     const double* m = block + 9 * k;
@@ -137,6 +135,17 @@ auto product = [&](int k) -> lanes4 {
     q = *(const lanes4*)(m + 6) * y[2];
     return p + q;
 };
+"""
+_JACOBI_ROWS = r"""
+typedef wp::vec_t<3, wp::float64> vec3;
+typedef wp::mat_t<3, 3, wp::float64> mat3;
+const wp::int32* start = row_start.data;
+const wp::int32* col = block_col.data;
+const double* block = (const double*)blocks_t.data;
+const double* x = (const double*)v.data;
+const double* rhs = (const double*)b.data;
+#if defined(__clang__) && !defined(__CUDA_ARCH__)
+""" + LANES4_PRODUCT + r"""
 auto row = [&](int i) -> vec3 {
     lanes4 r = {rhs[3 * i], rhs[3 * i + 1], rhs[3 * i + 2], 0.0};
     lanes4 odd = {0.0, 0.0, 0.0, 0.0};

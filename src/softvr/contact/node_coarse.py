@@ -21,7 +21,7 @@ import warp as wp
 
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_coarse_kernels as _k
-from softvr.device import chunked_replayer, load_kernels, replayer
+from softvr.device import chunked_replayer, load_kernels, replayer, stride_threads
 
 __all__ = ["AGGREGATE_NODES", "Aggregates", "CoarseSpace", "aggregates_of", "coarse_aggregates", "coarse_bodies",
            "coarse_spectrum"]
@@ -265,13 +265,14 @@ class CoarseSpace:
         start: wp.array = wp.array(aggregates.start.astype(np.int32), dtype=wp.int32, device=d)
         nodes: wp.array = wp.array(aggregates.nodes.astype(np.int32), dtype=wp.int32, device=d)
         c = state.contacts
+        threads = stride_threads(d, min(capacity, CONTACT_THREADS))
         # A body a chunk, over the cores: ~0.5 ms a step on the candy's four (its blocks' 3x3 products).
         self._prepare = [
             chunked_replayer(_k.prepare_bodies, count, [start, nodes, state.q, model.mass, model.row_start,
                                                         model.block_col, state.blocks, co], d, min_chunk=1),
-            replayer(wp.launch(_k.contact_sides, dim=min(capacity, CONTACT_THREADS), device=d, record_cmd=True,
+            replayer(wp.launch(_k.contact_sides, dim=threads, device=d, record_cmd=True,
                                inputs=[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, state.q, co,
-                                       min(capacity, CONTACT_THREADS)]))]
+                                       threads]))]
         self.residual = replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
                                            inputs=[start, nodes, state.q, residual, co]))
 

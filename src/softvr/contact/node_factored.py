@@ -30,6 +30,8 @@ node and kept while the factorization is.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -37,7 +39,7 @@ import warp as wp
 
 from softvr.contact import _node_factored_kernels as _k
 from softvr.contact import _node_jacobi_kernels as _jk
-from softvr.device import chunked_replayer, load_kernels, replayer
+from softvr.device import ITEMS_A_CPU_THREAD, blocked_replayer, load_kernels, replayer
 
 __all__ = ["FactoredSolve", "factored_eligible", "factored_work", "free_matrix"]
 
@@ -147,13 +149,21 @@ class _Anderson:
         self._count = self._slot = 0
         self._gram = np.zeros((memory, memory))
 
+    def reset(self) -> None:
+        """Forget the iterates, keeping the ring's rows for the next iteration of the same
+        size: fresh rows of a step's ~45 K doubles cost their page faults (~0.03 ms a step)."""
+        self._last = None
+        self._count = self._slot = 0
+        self._gram[:] = 0.0
+
     def next(self, x: np.ndarray, g: np.ndarray, f: np.ndarray | None = None) -> np.ndarray:
         """The next iterate from the iterate ``x`` [N] and its image ``g`` = G(x) [N] (and
         their difference ``f = g - x`` [N], where the caller has it)."""
         f = g - x if f is None else f
         if self._last is None:
             self._last = f, g
-            self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
+            if self._df.shape != (self.memory, len(x)):
+                self._df, self._dg = np.zeros((self.memory, len(x))), np.zeros((self.memory, len(x)))
             return g
         s = self._slot
         np.subtract(f, self._last[0], out=self._df[s])
@@ -174,14 +184,17 @@ class _Anderson:
 def _block_rows(factor: sp.bsr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A triangular factor's 3 x 3 blocks [k, k blocks] as :func:`_node_factored_kernels.factor_solve`
     reads them: per block row where its blocks off the diagonal start [k + 1], their block
-    columns [b] and values [b, 3, 3], and the diagonal blocks' inverses [k, 3, 3]."""
+    columns [b] and values [b + 1, 3, 3], and the diagonal blocks' inverses [k + 1, 3, 3], the
+    blocks transposed, each array with a last zero block (the kernel's padding lane reads it)."""
     k = factor.shape[0] // 3
     rows = np.repeat(np.arange(k), np.diff(factor.indptr))
     diagonal = rows == factor.indices
-    inverse = np.zeros((k, 3, 3))
+    inverse = np.zeros((k + 1, 3, 3))
     inverse[rows[diagonal]] = np.linalg.inv(factor.data[diagonal])
     start = np.concatenate([[0], np.cumsum(np.bincount(rows[~diagonal], minlength=k))])
-    return start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), factor.data[~diagonal], inverse
+    off = np.concatenate([factor.data[~diagonal], np.zeros((1, 3, 3))])
+    return (start.astype(np.int32), factor.indices[~diagonal].astype(np.int32), off.transpose(0, 2, 1).copy(),
+            inverse.transpose(0, 2, 1).copy())
 
 
 class FactoredSolve:
@@ -212,15 +225,15 @@ class FactoredSolve:
     """
 
     def __init__(self, model, state, dt: float, *, max_iterations: int = 100):
-        for kernel in (_k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update, _k.warp_change,
-                       _k.dense_pgs, _jk.residual):
+        for kernel in (_k.tets_moved, _k.node_rotations, _k.turned_residual, _k.factor_solve, _k.turned_update,
+                       _k.warp_change, _k.dense_pgs, _jk.residual):
             load_kernels(kernel, model.device)
         self.model, self.state, self.dt = model, state, float(dt)
         self.max_iterations = int(max_iterations)
         n, d = model.node_count, model.device
         self._fixed = model.fixed.numpy() != 0
         self._fixed_velocity = state.fixed_velocity.numpy()
-        self._fixed_nodes = np.flatnonzero(self._fixed)
+        self._fixed_entries = np.repeat(self._fixed[:, None], 3, axis=1)
         # The solved nodes (free, with blocks of A): the factorization's rows, in node order.
         self._solved = ~self._fixed & (np.diff(model.row_start.numpy()) > 0)
         self._solved_nodes = np.flatnonzero(self._solved)
@@ -230,13 +243,12 @@ class FactoredSolve:
         self._node_slot = np.full(n, -1)  # node -> its place in a small set being indexed (_local, _contacts), else -1
         k = len(self._solved_nodes)
         self._v = wp.zeros(n, dtype=wp.vec3d, device=d)
-        self._u = wp.zeros(n, dtype=wp.vec3d, device=d)
         self._r = wp.zeros(k, dtype=wp.vec3d, device=d)
         self._y = wp.zeros(k, dtype=wp.vec3d, device=d)
-        self._work = wp.zeros(k, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
+        self._work = wp.zeros(k + 1, dtype=wp.vec3d, device=d)  # the triangular solves' (factor_solve)
         # A node's three unit vectors (columns), whose solves are its columns of A_0^-1.
         self._unit = wp.zeros(k, dtype=wp.mat33d, device=d)
-        self._columns_work = wp.zeros(k, dtype=wp.mat33d, device=d)
+        self._columns_work = wp.zeros(k + 1, dtype=wp.mat33d, device=d)
         self._column = wp.zeros(k, dtype=wp.mat33d, device=d)
         self._rotation: wp.array = wp.array(np.tile(np.eye(3), (n, 1, 1)), dtype=wp.mat33d, device=d)  # R, per node
         self._absolute = wp.zeros(k, dtype=wp.mat33d, device=d)
@@ -247,15 +259,41 @@ class FactoredSolve:
         # A tet's weight in its nodes' rotations: its stiffness (trace of K_e's diagonal blocks).
         weight = np.einsum("eaii->e", ke.reshape(len(tets), 4, 4, 3, 3)[:, np.arange(4), np.arange(4)])
         self._tet_weight: wp.array = wp.array(weight, dtype=wp.float64, device=d)
-        # Per node, split over the cores where that has been faster of late (chunked_replayer).
-        self._rotations = chunked_replayer(
-            _k.node_rotations, k, [model.force_start, model.force, self._tet_weight, state.rotations, solved_d,
-                                   self._rotation0, POLAR_ITERATIONS, self._absolute, self._rotation], d, min_chunk=512)
-        self._residual = chunked_replayer(_k.turned_residual, k, [model.row_start, model.block_col, state.blocks,
+        # The nodes' rotations and the warp change of their rows are recomputed only where a tet's
+        # co-rotation has changed since they last were (tets_moved: each keeps the R_e it saw; a
+        # rotation lag keeps most): a node's rotation is a function of its tets' R_e, its row of
+        # A of theirs and its neighbours' rotations. turned: the nodes whose rotation was
+        # recomputed since the last warp change.
+        tets = len(model.tets)
+        self._moved = [wp.zeros(n, dtype=wp.int32, device=d) for _ in range(2)]
+        self._seen = [wp.zeros(tets, dtype=wp.mat33d, device=d) for _ in range(2)]
+        self._turned = wp.ones(n, dtype=wp.int32, device=d)
+        moved_rotations, moved_rows = (blocked_replayer(_k.tets_moved, tets, [state.rotations, seen, model.tets, moved],
+                                                        d, min_chunk=1024)
+                                       for seen, moved in zip(self._seen, self._moved))
+        rotations = blocked_replayer(_k.node_rotations, k,
+                                     [model.force_start, model.force, self._tet_weight, state.rotations, self._moved[0],
+                                      solved_d, self._rotation0, POLAR_ITERATIONS, self._absolute, self._rotation,
+                                      self._turned], d, min_chunk=512)
+        moved = [m.numpy() for m in self._moved]
+
+        def node_rotations() -> None:
+            moved[0][:] = 0
+            moved_rotations()
+            rotations()
+
+        self._rotations = node_rotations
+        self._residual = blocked_replayer(_k.turned_residual, k, [model.row_start, model.block_col, state.blocks,
                                                                   state.b, solved_d, self._rotation, self._v, self._r],
                                           d, min_chunk=512)
-        self._update = chunked_replayer(_k.turned_update, n, [index_d, self._rotation, self._v, self._y, self._u], d,
-                                        min_chunk=512)
+        # u, f = u - v and the largest |f| of each thread, in turns into two sets of arrays (Anderson
+        # keeps the last iteration's u and f).
+        threads = -(-n // (ITEMS_A_CPU_THREAD if wp.get_device(d).is_cpu else 1))
+        updated = [(wp.zeros(n, dtype=wp.vec3d, device=d), wp.zeros(n, dtype=wp.vec3d, device=d),
+                    wp.zeros(threads, dtype=wp.float64, device=d)) for _ in range(2)]
+        self._updates = [blocked_replayer(_k.turned_update, n, [index_d, self._rotation, self._v, self._y, *arrays], d,
+                                          min_chunk=512) for arrays in updated]
+        self._updated = [tuple(a.numpy() for a in arrays) for arrays in updated]
         self.stats = wp.zeros(3, dtype=wp.float64, device=d)
         capacity = state.contacts.capacity
         self._metric = wp.zeros(capacity, dtype=wp.mat33d, device=d)
@@ -267,7 +305,7 @@ class FactoredSolve:
         self._host = {name: getattr(c, name).numpy() for name in
                       ("count", "stencil_count", "stencil_nodes", "stencil_weights", "frame", "gap", "friction",
                        "stiffness", "slip", "impulse")}
-        self._host.update(v=self._v.numpy(), u=self._u.numpy(), r=self._r.numpy(), y=self._y.numpy(),
+        self._host.update(v=self._v.numpy(), r=self._r.numpy(), y=self._y.numpy(),
                           stats=self.stats.numpy(), done=self._done.numpy(), metric=self._metric.numpy(),
                           movable=self._movable.numpy(), blocks=state.blocks.numpy(), unit=self._unit.numpy(),
                           column=self._column.numpy(), buffers=[b.numpy() for b in state.sweep_buffers])
@@ -279,14 +317,24 @@ class FactoredSolve:
         self._blocks0 = wp.zeros_like(state.blocks)  # A_0's blocks, all of them
         self._change = wp.zeros(n, dtype=wp.float64, device=d)
         solved_mask: wp.array = wp.array(self._solved.astype(np.int32), dtype=wp.int32, device=d)
-        self._warp_change = chunked_replayer(_k.warp_change, n, [model.row_start, model.block_col, state.blocks,
-                                                                 self._blocks0, self._rotation, solved_mask,
-                                                                 self._change], d, min_chunk=512)
-        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy())
+        rows = blocked_replayer(_k.warp_change, n, [model.row_start, model.block_col, state.blocks, self._blocks0,
+                                                    self._rotation, solved_mask, self._moved[1], self._turned,
+                                                    self._change], d, min_chunk=512)
+
+        def warp_change() -> None:
+            moved[1][:] = 0
+            moved_rows()
+            rows()
+            self._host["turned"][:] = 0
+
+        self._warp_change = warp_change
+        self._host.update(rotation=self._rotation.numpy(), change=self._change.numpy(), blocks0=self._blocks0.numpy(),
+                          seen=[seen.numpy() for seen in self._seen], turned=self._turned.numpy())
         self._delassus_capacity, self._delassus_tolerance = 0, 0.0
         self.factorizations = 0
         self._steps = 0  # solves made
         self.delassus_passes = 0
+        self._anderson = _Anderson(ANDERSON_MEMORY)
         self._factor()
 
     def _factor(self) -> None:
@@ -307,10 +355,15 @@ class FactoredSolve:
             replayer(wp.launch(_k.factor_solve, dim=1, device=d, record_cmd=True,
                                inputs=[*self._factors, rhs, work, x]))
             for rhs, work, x in ((self._r, self._work, self._y), (self._unit, self._columns_work, self._column)))
-        # R_0: the nodes' rotations now; R since is the identity.
+        # R_0: the nodes' rotations now; R since is the identity. Every node's rotation and row
+        # computed again at their next calls (R and A_0 are new): a NaN R_e seen is a moved one.
+        for seen in self._host["seen"]:
+            seen[:] = np.nan
         self._rotations()
         wp.copy(self._rotation0, self._absolute)
         self._host["rotation"][self._solved_nodes] = np.eye(3)
+        self._host["seen"][0][:] = np.nan
+        self._host["turned"][:] = 1
         wp.copy(self._blocks0, self.state.blocks)
         self._slot = np.full(self.model.node_count, -1, np.int64)  # node -> its columns in _columns / 3
         self._columns = np.zeros((3 * int(self._solved.sum()), 0), order="F")
@@ -477,7 +530,7 @@ class FactoredSolve:
         st, h = self.state, self._host
         v, y_d, buffers = h["v"], h["y"], h["buffers"]
         v[:] = buffers[0]
-        v[self._fixed_nodes] = self._fixed_velocity[self._fixed_nodes]
+        np.copyto(v, self._fixed_velocity, where=self._fixed_entries)  # a full mask: 4x faster than node indices
         # P's turned parts refreshed in turns (REFRESH_PERIOD), both after a factorization.
         self._steps += 1
         fresh = self._kept_local is None
@@ -495,7 +548,8 @@ class FactoredSolve:
         lam, u_f = pgs["impulse"][:m], pgs["u"][:m]
         self.delassus_passes = 0
         k = restart = 0
-        anderson = _Anderson(ANDERSON_MEMORY)
+        anderson = self._anderson
+        anderson.reset()
         changes: list[float] = []
         while k < self.max_iterations:
             if k - restart == REFACTOR_AFTER:  # the deformation has taken A too far from R A_0 R^T
@@ -503,7 +557,8 @@ class FactoredSolve:
                 local = self._local()
                 rows, w, dofs, jt, slots, near, stencil, j = self._contacts(local)
                 pgs["w"][:3 * m, :3 * m] = w
-                restart, anderson, changes = k, _Anderson(ANDERSON_MEMORY), []
+                restart, changes = k, []
+                anderson.reset()
             k += 1
             self._residual()  # R^T r
             self._solve_r()  # A_0^-1 R^T r
@@ -524,10 +579,10 @@ class FactoredSolve:
                 spread[local[1]] -= local[2] @ at_s
             if self._kept:
                 y += self._columns[:, :self._kept] @ spread
-            self._update()  # u = v + R y
-            u = h["u"].ravel().copy()
-            f = u - v.ravel()
-            change = float(np.abs(f).max(initial=0.0))
+            self._updates[k % 2]()  # u = v + R y, f = u - v
+            u, f, largest = self._updated[k % 2]
+            u, f = u.ravel(), f.ravel()
+            change = float(largest.max())
             v[:] = anderson.next(v.ravel(), u, f).reshape(-1, 3)
             h["stats"][0] = change
             changes.append(change)

@@ -20,7 +20,7 @@ from softvr.contact import _node_gs_kernels as _k
 from softvr.contact.node_coarse import Aggregates
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gs_coarse import GaussSeidelCoarse
-from softvr.device import chunked_replayer, cpu_workers, in_order, replayer, upload
+from softvr.device import chunked_replayer, cpu_workers, in_order, replayer, stride_threads, upload
 from softvr.dynamics.node_rigid import isolated_rigid_nodes, rigid_islands
 
 __all__ = ["COLOUR_CHUNK", "ISLAND_NODES", "SLEEP_GAP_SHARE", "TOOL_PASSES", "GaussSeidelSweep", "free_first",
@@ -109,7 +109,7 @@ class GaussSeidelSweep:
         self._flag = wp.zeros(1, dtype=wp.int32, device=d)
         self._flag_view = self._flag.numpy() if wp.get_device(d).is_cpu else None
 
-        threads = min(c.capacity, CONTACT_THREADS)
+        threads = stride_threads(d, min(c.capacity, CONTACT_THREADS))
 
         def mark(wake_all: int) -> Callable[[], None]:
             return replayer(wp.launch(_k.mark_contact_nodes, dim=threads, device=d, record_cmd=True,

@@ -19,7 +19,7 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer
+from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
@@ -172,8 +172,9 @@ def movable_contacts(model, state) -> int:
 
 
 def _contact_threads(device) -> int:
-    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`)."""
-    return 1 if wp.get_device(device).is_cpu else CONTACT_THREADS_CUDA
+    """Threads of a launch that strides over a step's contacts (:data:`CONTACT_THREADS_CUDA`,
+    :func:`softvr.device.stride_threads`)."""
+    return stride_threads(device, CONTACT_THREADS_CUDA)
 
 
 def _own_blocks(model) -> wp.array:

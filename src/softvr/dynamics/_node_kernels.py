@@ -36,16 +36,21 @@ def _turn(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), dm_inv:
 
 
 @wp.func
-def _held(q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), e: int, hold: wp.array(dtype=wp.float64),
-          held: wp.array2d(dtype=wp.vec3d)) -> bool:
-    """Whether each of tet ``e``'s nodes is within ``hold[e]`` [m] of where its terms were last
-    computed (``held[e]`` [4] [m]); if not, ``held[e]`` takes the nodes' positions."""
+def _held(holding: int, q: wp.array(dtype=wp.vec3d), tets: wp.array2d(dtype=wp.int32), e: int,
+          hold: wp.array(dtype=wp.float64), held: wp.array2d(dtype=wp.vec3d),
+          turned: wp.array(dtype=wp.int32)) -> bool:
+    """Whether tet ``e``'s terms are held (``holding``, and each of its nodes within ``hold[e]``
+    [m] of where they were last computed, ``held[e]`` [4] [m]; then ``turned[e]`` = 0); if not
+    (and ``holding``), ``held[e]`` takes the nodes' positions."""
+    if holding == 0:
+        return False
     reach = hold[e] * hold[e]
     far = wp.float64(0.0)
     for a in range(4):
         d = q[tets[e, a]] - held[e, a]
         far = wp.max(far, wp.dot(d, d))
     if far <= reach:
+        turned[e] = 0
         return True
     for a in range(4):
         held[e, a] = q[tets[e, a]]
@@ -57,23 +62,26 @@ def element_terms(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp.vec3d), t
                   dm_inv: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d), corotational: int,
                   live: wp.array(dtype=wp.int32), keep: wp.float64, holding: int, hold: wp.array(dtype=wp.float64),
                   held: wp.array2d(dtype=wp.vec3d), rotations: wp.array(dtype=wp.mat33d),
-                  turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d), offset: int):
+                  turned: wp.array(dtype=wp.int32), forces: wp.array2d(dtype=wp.vec3d), block: int, offset: int):
     """R_e (last step's where within ``keep`` [rad] of the polar rotation:
     :func:`_fem_kernels.lagged_polar_rotation`; ``turned[e]`` 1 where R_e changed, else 0) and
-    the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tet ``e =
-    live[tid]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m]). With
-    ``holding``, a tet whose nodes are all within ``hold[e]`` [m] of where its terms were last
-    computed (``held``, :func:`_held`) keeps them as they are."""
-    e = live[wp.tid() + offset]
-    if holding != 0:
-        if _held(q, tets, e, hold, held):
-            turned[e] = 0
-            return
-    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
-    local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
-    for a in range(4):
-        fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + ke[e, 4 * a + 3] * local3
-        forces[e, a] = -(r * fa)
+    the elastic forces f_e,a = -R_e sum_b K_e,ab (R_e^T x_b - X_b) [N] of tets ``e =
+    live[i]`` (``ke[e, 4 a + b]`` the 3x3 blocks of K_e, rest frame [N/m]); a thread takes
+    ``block`` of the ``i``, from (thread + ``offset``) x ``block``
+    (:func:`softvr.device.blocked_replayer`). With ``holding``, a tet whose nodes are all within
+    ``hold[e]`` [m] of where its terms were last computed (``held``, :func:`_held`) keeps them
+    as they are."""
+    begin = (wp.tid() + offset) * block
+    for i in range(begin, wp.min(begin + block, live.shape[0])):
+        e = live[i]
+        if _held(holding, q, tets, e, hold, held, turned):
+            continue
+        r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
+        local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
+        for a in range(4):
+            fa = ke[e, 4 * a] * local0 + ke[e, 4 * a + 1] * local1 + ke[e, 4 * a + 2] * local2 + \
+                ke[e, 4 * a + 3] * local3
+            forces[e, a] = -(r * fa)
 
 
 @wp.kernel
@@ -84,7 +92,7 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
                             hold: wp.array(dtype=wp.float64), held: wp.array2d(dtype=wp.vec3d),
                             rotations: wp.array(dtype=wp.mat33d), turned: wp.array(dtype=wp.int32),
                             forces: wp.array2d(dtype=wp.vec3d), rotated_gradients: wp.array2d(dtype=wp.vec3d),
-                            offset: int):
+                            block: int, offset: int):
     """:func:`element_terms` for isotropic linear tets (``gradients[e, a]`` = g_a [1/m],
     ``lame[e]`` = V (lambda, mu) [N/m], as :func:`assemble_isotropic`): with the rotated
     frame's displacement gradient H = sum_b (R^T x_b - X_b) g_b^T,
@@ -97,32 +105,32 @@ def element_terms_isotropic(q: wp.array(dtype=wp.vec3d), rest: wp.array(dtype=wp
     at ~u |K_e| |R^T x - X| (u = 1.1e-16). Also writes R g_a [1/m] for
     :func:`assemble_isotropic` where R_e turned. ``keep``, ``holding``, ``hold``, ``held``,
     ``turned``: :func:`element_terms`'."""
-    e = live[wp.tid() + offset]
-    if holding != 0:
-        if _held(q, tets, e, hold, held):
-            turned[e] = 0
-            return
-    r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
-    local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
-    g0 = gradients[e, 0]
-    g1 = gradients[e, 1]
-    g2 = gradients[e, 2]
-    g3 = gradients[e, 3]
-    h = wp.outer(local0, g0) + wp.outer(local1, g1) + wp.outer(local2, g2) + wp.outer(local3, g3)
-    l = lame[e]
-    trace = l[0] * (h[0, 0] + h[1, 1] + h[2, 2])
-    stress = l[1] * (h + wp.transpose(h)) + wp.mat33d(trace, wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), trace,
-                                                      wp.float64(0.0), wp.float64(0.0), wp.float64(0.0), trace)
-    rs = r * stress
-    forces[e, 0] = -(rs * g0)
-    forces[e, 1] = -(rs * g1)
-    forces[e, 2] = -(rs * g2)
-    forces[e, 3] = -(rs * g3)
-    if turned[e] != 0:
-        rotated_gradients[e, 0] = r * g0
-        rotated_gradients[e, 1] = r * g1
-        rotated_gradients[e, 2] = r * g2
-        rotated_gradients[e, 3] = r * g3
+    begin = (wp.tid() + offset) * block
+    for i in range(begin, wp.min(begin + block, live.shape[0])):
+        e = live[i]
+        if _held(holding, q, tets, e, hold, held, turned):
+            continue
+        r = _turn(q, tets, dm_inv, e, corotational, keep, rotations, turned)
+        local0, local1, local2, local3 = element_local(q, rest, tets, e, wp.transpose(r))
+        g0 = gradients[e, 0]
+        g1 = gradients[e, 1]
+        g2 = gradients[e, 2]
+        g3 = gradients[e, 3]
+        h = wp.outer(local0, g0) + wp.outer(local1, g1) + wp.outer(local2, g2) + wp.outer(local3, g3)
+        l = lame[e]
+        trace = l[0] * (h[0, 0] + h[1, 1] + h[2, 2])
+        zero = wp.float64(0.0)
+        stress = l[1] * (h + wp.transpose(h)) + wp.mat33d(trace, zero, zero, zero, trace, zero, zero, zero, trace)
+        rs = r * stress
+        forces[e, 0] = -(rs * g0)
+        forces[e, 1] = -(rs * g1)
+        forces[e, 2] = -(rs * g2)
+        forces[e, 3] = -(rs * g3)
+        if turned[e] != 0:
+            rotated_gradients[e, 0] = r * g0
+            rotated_gradients[e, 1] = r * g1
+            rotated_gradients[e, 2] = r * g2
+            rotated_gradients[e, 3] = r * g3
 
 
 @wp.func
@@ -170,21 +178,24 @@ def assemble(assembled: wp.array(dtype=wp.int32), block_mirror: wp.array(dtype=w
              rotations: wp.array(dtype=wp.mat33d), ke: wp.array2d(dtype=wp.mat33d),
              tet_beta: wp.array(dtype=wp.float64), mass: wp.array(dtype=wp.float64),
              node_alpha: wp.array(dtype=wp.float64), dt: wp.float64, turned: wp.array(dtype=wp.int32), lagging: int,
-             blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), offset: int):
-    """Block ``k = assembled[tid]`` of ``A`` [kg] and its transpose (:func:`store_block`), any
-    element stiffness ``ke`` [N/m]. ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that
+             blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d), block: int, offset: int):
+    """Blocks ``k = assembled[i]`` of ``A`` [kg] and their transposes (:func:`store_block`), any
+    element stiffness ``ke`` [N/m]; a thread takes ``block`` of the ``i``, from (thread +
+    ``offset``) x ``block`` (:func:`softvr.device.blocked_replayer`). ``contrib[c]`` = 16 tet + 4 a + b: R_e K_e,ab R_e^T of that
     tet adds to block ``k``. With ``lagging``, a block none of whose tets turned (``turned``)
     is left as it is (:func:`_kept`)."""
-    k = assembled[wp.tid() + offset]
-    if _kept(k, contrib_start, contrib, turned, lagging):
-        return
-    m = wp.mat33d()
-    for c in range(contrib_start[k], contrib_start[k + 1]):
-        code = contrib[c]
-        e = code // 16
-        r = rotations[e]
-        m = m + (dt * tet_beta[e] + dt * dt) * (r * ke[e, code % 16] * wp.transpose(r))
-    store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
+    begin = (wp.tid() + offset) * block
+    for i in range(begin, wp.min(begin + block, assembled.shape[0])):
+        k = assembled[i]
+        if _kept(k, contrib_start, contrib, turned, lagging):
+            continue
+        m = wp.mat33d()
+        for c in range(contrib_start[k], contrib_start[k + 1]):
+            code = contrib[c]
+            e = code // 16
+            r = rotations[e]
+            m = m + (dt * tet_beta[e] + dt * dt) * (r * ke[e, code % 16] * wp.transpose(r))
+        store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
 # _isotropic_sum: a block's isotropic contributions as plain C++, the same wp:: operations in the
@@ -228,7 +239,7 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
                        rotated_gradients: wp.array2d(dtype=wp.vec3d), lame: wp.array(dtype=wp.vec2d),
                        mass: wp.array(dtype=wp.float64), node_alpha: wp.array(dtype=wp.float64), dt: wp.float64,
                        turned: wp.array(dtype=wp.int32), lagging: int, blocks: wp.array(dtype=wp.mat33d),
-                       d_inv: wp.array(dtype=wp.mat33d), offset: int):
+                       d_inv: wp.array(dtype=wp.mat33d), block: int, offset: int):
     """:func:`assemble` for isotropic linear tets, K_e,ab = V (lambda g_a g_b^T + mu g_b g_a^T
     + mu (g_a . g_b) I) (K_e = V B^T C B with isotropic C, g_a [1/m] the shape functions' rest
     gradients; ``rotated_gradients[e, a]`` = R g_a, of :func:`element_terms_isotropic`;
@@ -239,13 +250,15 @@ def assemble_isotropic(assembled: wp.array(dtype=wp.int32), block_mirror: wp.arr
     two outer products a contribution, not two 3x3 products (~5x fewer flops). Exact for an
     orthogonal R; with |R^T R - I| = eps_R (the polar iteration stops at round-off, ~1e-15) and
     float64 rounding u, a contribution differs from :func:`assemble`'s by at most
-    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms). ``turned``, ``lagging`` as
+    ~(eps_R + 20 u) |K_e| (both are R K R^T up to those terms). ``turned``, ``lagging``, ``block`` as
     :func:`assemble`'s."""
-    k = assembled[wp.tid() + offset]
-    if _kept(k, contrib_start, contrib, turned, lagging):
-        return
-    m = _isotropic_sum(k, contrib_start, contrib, rotated_gradients, lame)
-    store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
+    begin = (wp.tid() + offset) * block
+    for i in range(begin, wp.min(begin + block, assembled.shape[0])):
+        k = assembled[i]
+        if _kept(k, contrib_start, contrib, turned, lagging):
+            continue
+        m = _isotropic_sum(k, contrib_start, contrib, rotated_gradients, lame)
+        store_block(k, m, block_row, block_col, block_mirror, mass, node_alpha, dt, blocks, d_inv)
 
 
 @wp.kernel

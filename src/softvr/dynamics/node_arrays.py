@@ -15,7 +15,7 @@ import scipy.sparse as sp
 import warp as wp
 from scipy.sparse.csgraph import connected_components
 
-from softvr.device import chunked_replayer, in_order, load_kernels, replayer
+from softvr.device import blocked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
@@ -82,11 +82,11 @@ def record_elements(model, state, *, keep: float = 0.0, turned: wp.array | None 
     lag = [float(keep), int(keep > 0.0), hold, held, state.rotations, turned, state.element_forces]
     isotropic = isotropic_terms(model.ke.numpy(), dm_inv)
     if isotropic is None:
-        return chunked_replayer(_k.element_terms, len(live),
+        return blocked_replayer(_k.element_terms, len(live),
                                 [state.q, model.rest, model.tets, model.dm_inv, model.ke, int(model.corotational),
                                  live_d, *lag], d, min_chunk=512)
     gradients, lame = isotropic
-    return chunked_replayer(_k.element_terms_isotropic, len(live),
+    return blocked_replayer(_k.element_terms_isotropic, len(live),
                             [state.q, model.rest, model.tets, model.dm_inv, wp.array(gradients, dtype=wp.vec3d, device=d),
                              wp.array(lame, dtype=wp.vec2d, device=d), int(model.corotational), live_d, *lag,
                              state.rotated_gradients], d, min_chunk=512)
@@ -132,13 +132,11 @@ def record_system(model, state, dt: float, gravity, *, turned: wp.array | None =
     springs (``model.cloth``: :class:`softvr.sim._node_cloth.NodeCloth`) at ``state.q``; the
     second (``b``) reads the springs' forces the first wrote. Blocks of fixed nodes only
     (:func:`fixed_only`) are not assembled. With ``turned`` (:func:`record_elements`'), a
-    replay after the first assembles only the blocks of the tets whose rotation changed (the
-    caller sees to it that nothing else writes ``A``: no springs, couplings or rigid bodies)."""
-    if turned is not None and model.cloth.spring_count:
-        raise ValueError("record_system: a lagging assembly (turned) with cloth springs, which also write A")
+    replay after the first assembles only the blocks of the tets whose rotation changed and
+    those the cloth's and the couplings' springs add to after it (:func:`_added_to`: kept, they
+    would take the springs' terms twice)."""
     assembled = model.assembled.numpy()[~fixed_only(model)[1]]
-    blocks = [wp.array(assembled, dtype=wp.int32, device=model.device), model.block_mirror, model.block_row,
-              model.block_col, model.contrib_start, model.contrib]
+    blocks = [model.block_mirror, model.block_row, model.block_col, model.contrib_start, model.contrib]
     flags = wp.zeros(1, dtype=wp.int32, device=model.device) if turned is None else turned
     isotropic = isotropic_terms(model.ke.numpy(), model.dm_inv.numpy())
     if isotropic is None:
@@ -150,12 +148,17 @@ def record_system(model, state, dt: float, gravity, *, turned: wp.array | None =
                          wp.array(scale[:, None] * isotropic[1], dtype=wp.vec2d, device=model.device)]
         assembly = _k.assemble_isotropic
 
-    def replay(lagging: int) -> Callable[[], None]:
-        return chunked_replayer(assembly, len(assembled), head + [model.mass, model.node_alpha, float(dt), flags,
-                                                                lagging, state.blocks, state.d_inv], model.device,
-                                min_chunk=1024)
+    def replay(which: np.ndarray, lagging: int) -> Callable[[], None]:
+        return blocked_replayer(assembly, len(which), [wp.array(which, dtype=wp.int32, device=model.device)] + head
+                                + [model.mass, model.node_alpha, float(dt), flags, lagging, state.blocks, state.d_inv],
+                                model.device, min_chunk=1024)
 
-    assemble = replay(0) if turned is None else _first_then(replay(0), replay(1))
+    if turned is None:
+        assemble = replay(assembled, 0)
+    else:
+        added = np.isin(assembled, _added_to(model))
+        rest = assembled[~added]
+        assemble = in_order(replay(assembled[added], 0), _first_then(replay(rest, 0), replay(rest, 1)))
     load_kernels(_k.right_hand_side, model.device)
     rhs = wp.launch(_k.right_hand_side, dim=model.node_count, device=model.device, record_cmd=True,
                     inputs=[model.force_start, model.force, state.element_forces, model.mass, state.v, state.external,
@@ -175,6 +178,16 @@ def record_system(model, state, dt: float, gravity, *, turned: wp.array | None =
                        inputs=[cloth.node, cloth.node_entry_start, cloth.node_entry, cloth.spring_force, float(dt),
                                state.b])
     return in_order(assemble, replayer(terms), replayer(blocks)), in_order(replayer(rhs), replayer(forces))
+
+
+def _added_to(model) -> np.ndarray:
+    """The blocks of ``A`` [k] that the cloth's and the couplings' springs add to after the
+    assembly (``model.cloth.block``, ``model.couplings.block``), with their transposes: the
+    assembly writes one of each transposed pair and the other with it, and the springs leave
+    out a driven node's row (its block on a solved node's column has no partner there)."""
+    springs = np.concatenate([model.cloth.block.numpy(), model.couplings.block.numpy()])
+    mirror = model.block_mirror.numpy()[springs]
+    return np.union1d(springs, mirror[mirror >= 0])
 
 
 def _first_then(first: Callable[[], None], then: Callable[[], None]) -> Callable[[], None]:

@@ -482,8 +482,7 @@ class NodeStepper:
         if self._recorded is not None and self._recorded[0] == key:
             return
         m, st = self.model, self.state
-        # A lagging rotation keeps its tets' blocks of A, which only the elements write here.
-        lag = bool(s.rotation_lag) and self.rigid is None and not len(m.couplings.node) and not m.cloth.spring_count
+        lag = bool(s.rotation_lag)
         turned = wp.zeros(len(m.tets), dtype=wp.int32, device=m.device) if lag else None
         elements = record_elements(m, st, keep=float(s.rotation_lag) if lag else 0.0, turned=turned)
         assemble, rhs = record_system(m, st, dt, s.gravity, turned=turned)

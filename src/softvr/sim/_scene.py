@@ -130,14 +130,15 @@ class Scene:
         sweeps, the per-object PGS, the rigid arrays' sweeps); None: the solvers' own 1e-5
         (``softvr.sim._node_step.SWEEP_TOLERANCE``). ``pgs_iterations`` caps it either way.
     rotation_lag : float or None [rad]
-        How far a tet's terms may lag its nodes (a scene stepped on node arrays of FEM bodies
-        and driven nodes only; others ignore it): a step keeps last step's co-rotation R_e (eq.
-        5.2's R_e K_e R_e^T) where it is within this angle of the polar rotation of the tet's
-        deformation gradient F, and keeps R_e and the elastic forces as they are while the
-        nodes are near enough for F to have moved by less than it since they were computed
+        How far a tet's terms may lag its nodes (a scene stepped on node arrays; the per-object
+        path ignores it): a step keeps last step's co-rotation R_e (eq. 5.2's R_e K_e R_e^T)
+        where it is within this angle of the polar rotation of the tet's deformation gradient
+        F, and keeps R_e and the elastic forces as they are while the nodes are near enough
+        for F to have moved by less than it since they were computed
         (:func:`softvr.dynamics.node_arrays.record_elements`); blocks of ``A`` whose tets all
-        kept R_e are not assembled again. A lag theta: R_e within ~2 theta of the polar
-        rotation, forces of a strain within theta. None: every tet every step, R_e to round-off.
+        kept R_e and that no coupling or cloth spring adds to are not assembled again. A lag
+        theta: R_e within ~2 theta of the polar rotation, forces of a strain within theta.
+        None: every tet every step, R_e to round-off.
     last_solution : ContactSolution or None
         The last step's (None before the first; a step on arrays lets go of it as it starts, so
         None after one that failed).
