@@ -170,3 +170,30 @@ def test_rigid_and_kinematic_bodies_share_the_frame_interface():
     for body in bodies:
         np.testing.assert_allclose(body.to_world(r), bodies[0].to_world(r), atol=1e-15)
         assert body.G().shape == (7, 6) and body.v.shape == (6,)
+
+
+def test_a_body_that_holds_turns_and_holds_again_gets_scipys_angular_velocity_each_step():
+    """A probe-like script: still for 3 steps, turning 0.02 rad about x over one, still again
+    (the angular velocity of a still step is kept from the last, so a stale one would show here).
+    Each step's angular velocity is SciPy's rotation vector of pose(t + dt) pose(t)^-1 over dt
+    (the thesis' kinematic finite difference, module docstring): 0.02 rad / 0.01 s = 2 rad/s at
+    the turn, 0 when still; 1e-9 rad/s covers the rotation vector's round-off (~eps / dt)."""
+    from scipy.spatial.transform import Rotation
+
+    dt, turn = 0.01, 0.02
+    q_after = quat_multiply(quat_from_rotvec([turn, 0.0, 0.0]), Q0)
+
+    def pose(t):
+        return C0.copy(), (Q0 if t < 3.5 * dt else q_after).copy()
+
+    def scipy_rotation(q):
+        return Rotation.from_quat(np.asarray(q)[[1, 2, 3, 0]])
+
+    body = KinematicBody(pose)
+    for step in range(7):
+        t = step * dt
+        v = body.unconstrained_velocity(dt)
+        truth = (scipy_rotation(pose(t + dt)[1]) * scipy_rotation(pose(t)[1]).inv()).as_rotvec() / dt
+        np.testing.assert_allclose(v[3:], truth, rtol=0, atol=1e-9, err_msg=f"step {step}")
+        body.integrate(v, dt)
+    assert abs(truth).max() < 1e-9 and body.step_count == 7

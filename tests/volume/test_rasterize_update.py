@@ -202,3 +202,34 @@ def test_overlapping_tets_at_a_fold_are_drawn_in_tet_order_on_any_thread_count(t
         out = r.deform(moved, out_grid=vol)
         assert r.skipped_tets == folded.sum()
         np.testing.assert_allclose(out.data[compare], truth[compare], atol=1e-4)
+
+
+def test_moved_nodes_is_numpys_norm_test_bit_for_bit():
+    """The moved-node test that update() and DeformedVolume share (a faster form of the norm).
+    Truth: NumPy's ``np.linalg.norm(x1 - x0, axis=1) > tolerance``, node for node, including
+    a tolerance equal to a node's motion (not moved: the test is strict) and still nodes."""
+    from softvr.volume.rasterize import _moved_nodes
+
+    rng = np.random.default_rng(5)
+    x0 = rng.normal(size=(5000, 3)) * 50.0
+    x1 = x0 + rng.normal(size=(5000, 3)) * rng.choice([1e-3, 1e-2, 1.0], size=(5000, 1))
+    x1[:3] = x0[:3]
+    norms = np.linalg.norm(x1 - x0, axis=1)
+    for tolerance in (0.0, 0.01, float(np.median(norms)), float(norms[17])):
+        np.testing.assert_array_equal(_moved_nodes(x1, x0, tolerance), norms > tolerance)
+    assert not _moved_nodes(x1, x0, float(norms[17]))[17]
+    # Each node against its own norm and the next float below it (the comparison broadcasts):
+    # equal to NumPy's norm to the last bit, or one of the two fails.
+    assert not _moved_nodes(x1, x0, norms).any()
+    below = np.nextafter(norms, -np.inf)
+    np.testing.assert_array_equal(_moved_nodes(x1, x0, below), norms > below)
+
+
+def test_deformed_volume_refuses_nodes_of_another_shape():
+    from softvr.volume import DeformedVolume
+
+    vol = Volume(np.zeros((6, 6, 6), np.float32))
+    nodes, tets = grid_tet_mesh(vol, 2)
+    shown = DeformedVolume(vol, nodes, tets, device="cpu")
+    with pytest.raises(Exception, match="nodes.*shape"):
+        shown.update(nodes[:-1])

@@ -11,17 +11,28 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import scipy.sparse as sp
 import warp as wp
+from scipy.sparse.csgraph import connected_components
 
 from softvr.device import blocked_replayer, in_order, load_kernels, replayer
 from softvr.dynamics import _node_cloth_kernels as _c
 from softvr.dynamics import _node_kernels as _k
 
-__all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "fixed_only", "isotropic_terms", "record_drive",
-           "record_elements", "record_integrate", "record_start", "record_system", "shape_gradients"]
+__all__ = ["ISOTROPIC_MISFIT", "NODE_DIVERGENCE_REASONS", "SHARE_MEMORY", "fixed_only", "free_bodies",
+           "isotropic_terms", "record_drive", "record_elements", "record_integrate", "record_start", "record_system",
+           "shape_gradients", "shared_bodies"]
 
 #: What a nonzero ``NodeState.diverged`` entry means (the divergence report names it).
 NODE_DIVERGENCE_REASONS = {_k.NAN_VELOCITY: "NaN/inf", _k.TOO_FAST: "speed above 1000 body sizes per second"}
+
+
+#: The weight a step's solve keeps, a step later, in the fit of the share of the velocity change
+#: that the first guess carries on (:func:`_node_kernels.share_total`): ~10 steps of memory.
+#: Measured on shoulder.toml (session 13, 600 steps, sweeps a step, deterministic): the whole
+#: change carried 18.58; the fit over the last step alone (0) 17.68, 0.5 17.24, 0.9 16.79; a
+#: fixed half 16.81. A fit, not a fixed share: a uniformly accelerated body carries all of it.
+SHARE_MEMORY = 0.9
 
 
 def fixed_only(model) -> tuple[np.ndarray, np.ndarray]:
@@ -203,26 +214,80 @@ def record_drive(model, state) -> Callable[[], None]:
                                       state.fixed_velocity]))
 
 
+def free_bodies(model) -> np.ndarray:
+    """Which bodies [B] bool no chain of ``A``'s blocks (tets, springs, couplings) ties to a
+    fixed or driven node: only gravity, external forces and contacts change their momentum,
+    as over their component ``1^T A = 1^T M``. A held body's momentum changes by its fixed
+    nodes' reactions too: the shoulder's tissues all hang on the bones (candy-adhesive.toml:
+    the candies free, the Jell-O, the hand and the pulled candy held)."""
+    n = model.node_count
+    row = np.repeat(np.arange(n), np.diff(model.row_start.numpy()))
+    graph = sp.coo_matrix((np.ones(len(row)), (row, model.block_col.numpy())), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    held = np.isin(label, label[model.fixed.numpy() != 0])
+    start = np.asarray(model.body_node_start)
+    return np.array([not held[a:b].any() for a, b in zip(start[:-1], start[1:])], bool)
+
+
+def shared_bodies(model) -> np.ndarray:
+    """Which bodies [B] bool take a fitted share of last step's change in the first guess
+    (:func:`record_start`): the held ones (not :func:`free_bodies`) whose surfaces no free
+    body's can touch (``model.pair_enabled`` [B, B], either way). A free body carries all of its
+    change, for its momentum; a contact between it and a held body carrying a share starts the
+    contact passes from two guesses erring apart. Measured (sweeps a step, haptics off): the
+    share on every held body took shoulder.toml 18.83 -> 16.30 (300 steps), the arthroscopy
+    14.65 -> 11.41 (no free body in either), but candy-adhesive.toml, whose held Jell-O the free
+    candies land on, 72.8 -> 76.2 (mean of 4 runs each, gravity nudged by 0 to 3e-12 of itself:
+    the landing's sweep counts spread by +-1.6 a step under rounding-size nudges); candy.toml
+    76.0 -> 70.5 (one run) and the adhesion bench's two runs within that spread."""
+    free = free_bodies(model)
+    pairs = model.pair_enabled.numpy() != 0
+    touched = (pairs | pairs.T)[:, free].any(axis=1)
+    return ~free & ~touched
+
+
 def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
     [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
-    ``v_before`` [n] [m/s]). Both then copy ``state.v`` into ``v_before``; on the first step a
-    rigid body's nodes (``model.rigid``) start at its unconstrained velocity, later ones carried on
-    as the others': a tool pressed into tissue by its coupling starts ~0.2 m/s into the tissue
-    at its unconstrained velocity, and the sweeps' first exact update of the shoulder's inner
-    finger then spun it at 18 rad/s, which took ~60 sweeps to settle (steps 71-120 of
-    shoulder.toml: 63 -> 33 sweeps a step carried on)."""
+    ``v_before`` [n] [m/s]: a share of it, fitted to the last steps' solves, on the free nodes
+    of the :func:`shared_bodies` that are not a rigid body's, all of it on the others, so that
+    every free body's guess keeps the momentum of its whole change, exact in free fall
+    (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
+    :func:`_node_kernels.share_total`)). Both then copy ``state.v`` into ``v_before``; on the
+    first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
+    later ones carried on as the others': a tool pressed into tissue by its coupling starts
+    ~0.2 m/s into the tissue at its unconstrained velocity, and the sweeps' first exact update
+    of the shoulder's inner finger then spun it at 18 rad/s, which took ~60 sweeps to settle
+    (steps 71-120 of shoulder.toml: 63 -> 33 sweeps a step carried on)."""
     d = model.device
-    load_kernels(_k.start_guess, d)
+    for kernel in (_k.start_guess, _k.share_sums, _k.share_total):
+        load_kernels(kernel, d)
     buf = state.sweep_buffers
+    r = model.rigid
+    start = np.asarray(model.body_node_start)
+    fitted = (model.fixed.numpy() == 0) & np.repeat(shared_bodies(model), np.diff(start))
+    if r is not None:
+        fitted[r.linear_node.numpy()] = False
+        fitted[r.angular_node.numpy()] = False
+    fitted_nodes: wp.array = wp.array(fitted.astype(np.int32), dtype=wp.int32, device=d)
+    share: wp.array = wp.array([0.0, 0.0, 1.0], dtype=wp.float64, device=d)
+    change = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+    sums = wp.zeros(len(start) - 1, dtype=wp.vec2d, device=d)
     replays = []
     for carried in (0, 1):
-        launches = [replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
-                                       inputs=[state.v, state.external, model.mass,
-                                               wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
-                                               model.fixed, state.fixed_velocity, v_before, buf[0], buf[2]]))]
-        r = model.rigid
+        launches = []
+        if carried:
+            launches.append(replayer(wp.launch(_k.share_sums, dim=len(start) - 1, device=d, record_cmd=True,
+                                               inputs=[wp.array(start, dtype=wp.int32, device=d), state.v, v_before,
+                                                       change, model.mass, fitted_nodes, sums])))
+        launches += [replayer(wp.launch(_k.share_total, dim=1, device=d, record_cmd=True,
+                                        inputs=[sums, SHARE_MEMORY, carried, share])),
+                     replayer(wp.launch(_k.start_guess, dim=model.node_count, device=d, record_cmd=True,
+                                        inputs=[state.v, state.external, model.mass,
+                                                wp.vec3d(*np.asarray(gravity, float)), float(dt), carried,
+                                                model.fixed, state.fixed_velocity, v_before, fitted_nodes, share,
+                                                change, buf[0], buf[2]]))]
         if r is not None and not carried:
             load_kernels(_k.rigid_start_guess, d)
             launches.append(replayer(wp.launch(_k.rigid_start_guess, dim=len(r.bodies), device=d, record_cmd=True,

@@ -6,8 +6,9 @@ import time
 
 import numpy as np
 
+from softvr.errors import InputError
 from softvr.volume._volume import Volume
-from softvr.volume.rasterize import Rasterizer
+from softvr.volume.rasterize import Rasterizer, _moved_nodes
 
 __all__ = ["DeformedVolume"]
 
@@ -68,10 +69,13 @@ class DeformedVolume:
         t0 = time.perf_counter()
         nodes = np.asarray(nodes, float)
         if self.incremental:
-            box = self.rasterizer.update(self.deformed, nodes, self.drawn_nodes, tolerance=self.tolerance)
+            if nodes.shape != self.drawn_nodes.shape:
+                raise InputError("nodes", f"an array of the rest nodes' shape {self.drawn_nodes.shape}",
+                                 f"shape {nodes.shape}")
+            moved = _moved_nodes(nodes, self.drawn_nodes, self.tolerance)
+            box = self.rasterizer._update_moved(self.deformed, nodes, self.drawn_nodes, moved)  # noqa: SLF001
             box = None if box is None else (np.asarray(box[0]), np.asarray(box[1]))
             voxels = 0 if box is None else int(np.prod(box[1] - box[0] + 1))
-            moved = np.linalg.norm(nodes - self.drawn_nodes, axis=1) > self.tolerance
             self.drawn_nodes[moved] = nodes[moved]
         else:
             self.rasterizer.deform(nodes, out=self.deformed)

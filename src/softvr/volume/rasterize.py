@@ -264,7 +264,9 @@ class Rasterizer:
         self._no_volf = wp.empty(0, dtype=wp.float32, device=self.device)
         self._rest_w: wp.array = wp.array(self._rest_index, dtype=wp.vec3d, device=self.device)
         self._tets_w: wp.array = wp.array(self.tets, dtype=wp.int32, device=self.device)
+        self._tets_t = np.ascontiguousarray(self.tets.T)  # [4, tet_count] for reductions over a tet's nodes
         self.stats: RasterStats | None = None
+        self._scratch: _Scratch | None = None
         # Compile (first use only, then cached on disk) now rather than inside the first frame.
         load_kernels(K.raster_slabs, self.device)
 
@@ -363,23 +365,32 @@ class Rasterizer:
         if x1.shape != self.nodes.shape or x0.shape != self.nodes.shape:
             raise InputError("deformed_nodes / previous_nodes", f"arrays of the rest nodes' shape {self.nodes.shape}",
                              f"shapes {x1.shape}, {x0.shape}")
-        moved = np.linalg.norm(x1 - x0, axis=1) > tolerance
+        return self._update_moved(out, x1, x0, _moved_nodes(x1, x0, tolerance))
+
+    def _update_moved(self, out: Volume, x1: np.ndarray, x0: np.ndarray, moved: np.ndarray):
+        """:meth:`update` (``x1``, ``x0`` float64 [node_count, 3], checked) where the nodes that
+        moved are ``moved`` [node_count] bool."""
         if not moved.any():
             return None
-        tets = self.tets[moved[self.tets].any(axis=1)]
-        corners = out.world_to_index(np.concatenate([x0[tets].reshape(-1, 3), x1[tets].reshape(-1, 3)]))
+        # Reductions run along contiguous rows here: numpy's reduce over axis 0 of an [n, 3]
+        # (or over the 4 nodes of [tet_count, 4]) array is 10-20x slower (~1 ms a palpation frame).
+        node_moved = moved[self._tets_t]  # [4, tet_count]
+        tets = self.tets[node_moved[0] | node_moved[1] | node_moved[2] | node_moved[3]]
+        corners = out.world_to_index(np.concatenate([x0[tets], x1[tets]], axis=1).reshape(-1, 3))
+        per_tet = np.ascontiguousarray(corners.reshape(len(tets), 8, 3).transpose(2, 1, 0))  # [3, 8, t]
+        tet_min, tet_max = per_tet.min(axis=1), per_tet.max(axis=1)  # [3, t]
+        low, high = tet_min.min(axis=1), tet_max.max(axis=1)  # [3]
         shape = np.asarray(out.shape)
-        lo = np.clip(np.floor(corners.min(axis=0)).astype(int) - 1, 0, shape - 1)
-        hi = np.clip(np.ceil(corners.max(axis=0)).astype(int) + 1, 0, shape - 1)
-        if np.any(corners.max(axis=0) < -1) or np.any(corners.min(axis=0) > shape):
+        lo = np.clip(np.floor(low).astype(int) - 1, 0, shape - 1)
+        hi = np.clip(np.ceil(high).astype(int) + 1, 0, shape - 1)
+        if np.any(high < -1) or np.any(low > shape):
             return None  # moved entirely outside the output grid
         window = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
         origin = out.index_to_world(lo)
         if self._writes_in_place(out):
             grid = OutputGrid(tuple(int(n) for n in hi - lo + 1), out.spacing.copy(), origin, out.direction.copy())
-            per_tet = corners.reshape(2, len(tets), 4, 3)
-            tet_lo = np.floor(per_tet.min(axis=(0, 2))).astype(int) - 1 - lo
-            tet_hi = np.ceil(per_tet.max(axis=(0, 2))).astype(int) + 1 - lo
+            tet_lo = np.floor(tet_min.T).astype(int) - 1 - lo
+            tet_hi = np.ceil(tet_max.T).astype(int) + 1 - lo
             region = _moved_region(tet_lo, tet_hi, hi - lo + 1)
             self._run(x1, grid, count_writes=False, window=(out.data, lo, region))
         else:
@@ -441,7 +452,9 @@ class Rasterizer:
         shape = grid.shape
         u1 = grid.world_to_index(x1)
         tets, tets_w = self.tets, self._tets_w
-        if window is not None and self.inverted == "skip":
+        # The in-place window runs every frame of an interactive update(): its arrays are reused.
+        scratch = None if window is None else self._window_scratch()
+        if scratch is not None and self.inverted == "skip":
             # Only the tets whose voxel box can meet the window's grid: a box is empty unless
             # the snapped corners reach [-0.5, n - 0.5] (a voxel of margin here), i.e. unless all
             # 4 corners lie beyond one side of [-1, n]: one bit a side per node, ANDed over the
@@ -450,15 +463,16 @@ class Rasterizer:
             lim = np.asarray(shape, dtype=np.float64)
             side = (u1 < -1.0).astype(np.uint8) @ np.array([1, 2, 4], np.uint8) | \
                 (u1 > lim).astype(np.uint8) @ np.array([8, 16, 32], np.uint8)
-            c = side[tets]
-            tets = tets[(c[:, 0] & c[:, 1] & c[:, 2] & c[:, 3]) == 0]
-            tets_w = wp.array(tets, dtype=wp.int32, device=self.device)
-        face_w, affine_w, box_w, det_w = self._setup_det(u1, shape, tets_w)
+            c = side[self._tets_t]
+            meets = (c[0] & c[1] & c[2] & c[3]) == 0
+            tets = np.compress(meets, tets, axis=0, out=scratch.tets[:int(np.count_nonzero(meets))])
+            tets_w = scratch.tets_w
+        face_w, affine_w, box_w, det_w = self._setup_det(u1, shape, tets_w, len(tets), scratch)
         # World volume = det(index edges) * prod(spacing) / det(direction) / 6; a margin of 2
         # over check_tets' degeneracy bound covers the two ways of rounding the determinant, so
         # only the tets within it need their world volume (in "skip" mode, the folded ones).
-        world = det_w.numpy() * (float(np.prod(grid.spacing)) / float(np.linalg.det(grid.direction)) / 6.0)
-        scale = float(np.prod(np.maximum(np.ptp(x1, axis=0), 1e-300)))
+        world = (det_w.numpy() if scratch is None else scratch.det[:len(tets)]) * (float(np.prod(grid.spacing)) / float(np.linalg.det(grid.direction)) / 6.0)
+        scale = float(np.prod(np.maximum(np.ptp(np.ascontiguousarray(x1.T), axis=1), 1e-300)))  # (see update())
         near = np.flatnonzero(world <= 2e-12 * scale)
         folded = None
         if self.inverted == "skip":
@@ -467,7 +481,7 @@ class Rasterizer:
             self.skipped_tets = int(folded.sum())
         elif len(near):
             check_tets(x1, self.tets, nodes_name="deformed_nodes")
-        box = box_w.numpy()
+        box = box_w.numpy() if scratch is None else scratch.box[:len(tets)]
         if window is not None:
             # Only the region update() redraws: what tets cover outside it is already drawn.
             box = window[2].clip(box)
@@ -476,7 +490,10 @@ class Rasterizer:
             box = box.copy() if window is None else box
             serial = _fold_redraw(box, folded)
             box[folded, 1] = box[folded, 0] - 1  # an empty range: no voxel is visited
-        if window is not None or (folded is not None and folded.any()):
+        if scratch is not None:
+            scratch.clipped[:len(box)] = box
+            box_w = scratch.clipped_w
+        elif folded is not None and folded.any():
             box_w = wp.array(box, dtype=wp.int32, device=self.device)
 
         dev = self.device
@@ -537,13 +554,18 @@ class Rasterizer:
                 offsets = _exclusive_cumsum(-(-slabs // per_item))
                 items = int(offsets[-1])
                 counts_w.append(wp.zeros(max(items, 1), dtype=wp.int32, device=dev))
+                if split and scratch is not None:
+                    scratch.offsets[:len(offsets)] = offsets
+                    offsets_w = scratch.offsets_w
+                else:
+                    offsets_w = wp.array(offsets, dtype=wp.int32, device=dev)
                 launch(
                     K.raster_tets_cpu,
                     items,
                     [
                         self._volf if self._src_code == 0 else self._no_volf, wp.uint64(self._vol.ptr), self._src_code,
                         self._dims, self._strides, wp.uint64(out_ptr), self._out_code,
-                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, wp.array(offsets, dtype=wp.int32, device=dev),
+                        wp.vec3i(*pitch), face_w, affine_w, pass_box_w, offsets_w,
                         m, per_item, self._params, counts_w[-1],
                     ],
                     dev,
@@ -573,7 +595,7 @@ class Rasterizer:
                 split=not count_writes,  # counting writes adds into shared counts (atomics)
             )
         n_tested = int(tested.numpy().sum(dtype=np.int64))
-        n_written = int(written.numpy().sum(dtype=np.int64))
+        n_written = n_tested if written is tested else int(written.numpy().sum(dtype=np.int64))
         if window is not None:
             data = None
         elif count_writes:
@@ -620,17 +642,24 @@ class Rasterizer:
         """
         return self._setup_det(u1, shape)[:3]
 
-    def _setup_det(self, u1: np.ndarray, shape, tets_w: wp.array | None = None):
+    def _setup_det(self, u1: np.ndarray, shape, tets_w: wp.array | None = None, m: int | None = None,
+                   scratch: "_Scratch | None" = None):
         """:meth:`_setup` plus ``det`` [tet_count] float64, each deformed tet's edge-matrix
-        determinant in output voxel indices; of the tets ``tets_w`` [m, 4] (default all)."""
+        determinant in output voxel indices; of the first ``m`` (default all) tets of ``tets_w``
+        [>= m, 4] (default all). With ``scratch``, written into its arrays (their first rows)."""
         sub = subvoxel_factor(u1, shape)
         tets_w = self._tets_w if tets_w is None else tets_w
-        dev, m = self.device, tets_w.shape[0]
-        face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
-        affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
-        box = wp.empty((m, 6), dtype=wp.int32, device=dev)
-        det = wp.empty(m, dtype=wp.float64, device=dev)
-        moved: wp.array = wp.array(u1, dtype=wp.vec3d, device=dev)
+        dev, m = self.device, tets_w.shape[0] if m is None else m
+        if scratch is None:
+            face = wp.empty((4 * m, 5), dtype=wp.int64, device=dev)
+            affine = wp.empty((m, 16), dtype=wp.float64, device=dev)
+            box = wp.empty((m, 6), dtype=wp.int32, device=dev)
+            det = wp.empty(m, dtype=wp.float64, device=dev)
+            moved: wp.array = wp.array(u1, dtype=wp.vec3d, device=dev)
+        else:
+            face, affine, box, det = scratch.face_w, scratch.affine_w, scratch.box_w, scratch.det_w
+            scratch.moved[:] = u1
+            moved = scratch.moved_w
         launch(
             K.tet_setup,
             m,
@@ -639,6 +668,12 @@ class Rasterizer:
             min_chunk=512,
         )
         return face, affine, box, det
+
+    def _window_scratch(self) -> "_Scratch":
+        """The arrays of :meth:`update`'s in-place runs (made on first use)."""
+        if self._scratch is None:
+            self._scratch = _Scratch(len(self.tets), len(self.nodes), self.device)
+        return self._scratch
 
     def _cull(self, face_w, box: np.ndarray, box_w):
         """Thesis 3.2: grid-point masks, cell AND-masks, and the list of kept cells."""
@@ -665,6 +700,15 @@ class Rasterizer:
         )
         kept = np.flatnonzero(keep.numpy()[:n_cells]).astype(np.int32)
         return cell_dims, cell_offsets, kept
+
+
+def _moved_nodes(x1: np.ndarray, x0: np.ndarray, tolerance: float) -> np.ndarray:
+    """bool [n]: whether each node moved by more than ``tolerance`` from ``x0`` to ``x1``
+    ([n, 3] float64 each, same units): ``np.linalg.norm(x1 - x0, axis=1) > tolerance`` with the
+    same sum of squares in the same order, without numpy's slow reduce over 3 columns."""
+    d = x1 - x0
+    d *= d
+    return np.sqrt(d[:, 0] + d[:, 1] + d[:, 2]) > tolerance
 
 
 def subvoxel_factor(u1: np.ndarray, shape) -> int:
@@ -703,6 +747,30 @@ def _background(shape, value: float, dtype: np.dtype, device: str, host: np.ndar
     return out
 
 
+class _Scratch:
+    """Arrays that :meth:`Rasterizer.update`'s in-place runs (CPU only) fill anew every frame,
+    each a numpy array and a Warp array over the same memory, with a row for every tet of the
+    mesh (a run uses the first ``m``): making and wrapping them each frame took ~0.3 ms of a
+    palpation frame. ``tets`` [T, 4] int32 (the tets set up), ``moved`` [N, 3] float64 (deformed
+    nodes, output voxel indices), ``face`` [4 T, 5] int64, ``affine`` [T, 16] float64, ``box`` and
+    ``clipped`` [T, 6] int32 (as set up; as drawn), ``det`` [T] float64, ``offsets`` [T + 1] int32
+    (:func:`_raster_kernels.tet_setup`, :func:`_raster_kernels.raster_tets_cpu`)."""
+
+    def __init__(self, tet_count: int, node_count: int, device: str):
+        def pair(shape, dtype, wp_dtype) -> tuple[np.ndarray, wp.array]:
+            host = np.zeros(shape, dtype)
+            return host, wp.array(host, dtype=wp_dtype, device=device, copy=False)
+
+        self.tets, self.tets_w = pair((tet_count, 4), np.int32, wp.int32)
+        self.moved, self.moved_w = pair((node_count, 3), np.float64, wp.vec3d)
+        self.face, self.face_w = pair((4 * tet_count, 5), np.int64, wp.int64)
+        self.affine, self.affine_w = pair((tet_count, 16), np.float64, wp.float64)
+        self.box, self.box_w = pair((tet_count, 6), np.int32, wp.int32)
+        self.clipped, self.clipped_w = pair((tet_count, 6), np.int32, wp.int32)
+        self.det, self.det_w = pair(tet_count, np.float64, wp.float64)
+        self.offsets, self.offsets_w = pair(tet_count + 1, np.int32, wp.int32)
+
+
 _REGION_BRICK = 8  # [voxels] the side of the bricks that update()'s redrawn region is made of
 
 
@@ -727,33 +795,39 @@ class _Region:
         rows, cols = np.any(marked, axis=2), np.any(marked, axis=1)  # [gx, gy], [gx, gz]
         used = np.any(rows, axis=1)
         # [gx, 4] voxel bounds of each slab's rectangle (y0, y1, z0, z1; y1, z1 past the end).
-        rect = b * np.stack([rows.argmax(axis=1), rows.shape[1] - rows[:, ::-1].argmax(axis=1),
-                             cols.argmax(axis=1), cols.shape[1] - cols[:, ::-1].argmax(axis=1)], axis=1)
-        rect = np.where(used[:, None], rect, [far, 0, far, 0])
+        ny, nz = rows.shape[1], cols.shape[1]
+        rect = np.empty((g, 4), dtype=np.int64)
+        rect[:, 0], rect[:, 1] = rows.argmax(axis=1), ny - rows[:, ::-1].argmax(axis=1)
+        rect[:, 2], rect[:, 3] = cols.argmax(axis=1), nz - cols[:, ::-1].argmax(axis=1)
+        rect *= b
+        rect[~used] = (far, 0, far, 0)
+        # Python ints: slices of numpy scalars cost ~10 us a slab when the caller indexes with them.
         self.slabs = [(slice(a * b, (a + 1) * b), slice(r[0], r[1]), slice(r[2], r[3]))
-                      for a, r in zip(np.flatnonzero(used), rect[used])]
+                      for a, r in zip(np.flatnonzero(used).tolist(), rect[used].tolist())]
         # For every slab range [a0, a1]: the x-range of its used slabs and the rectangle
-        # around theirs (lower bounds in _low, upper ones past the end in _high, [a0, a1, 3]),
+        # around theirs (lower bounds in _low, upper ones past the end in _high, [a0 g + a1, 3]),
         # so that a tet's box is clipped in two look-ups.
         slab = np.arange(g)
-        x = np.stack([np.where(used, slab * b, far), np.where(used, (slab + 1) * b, 0)], axis=1)
-        lows = np.concatenate([x[:, :1], rect[:, 0::2]], axis=1)  # [gx, 3]
-        highs = np.concatenate([x[:, 1:], rect[:, 1::2]], axis=1)
-        later = slab[None, :] >= slab[:, None]  # [a0, a]: slab a is in a range from a0
-        self._low = np.minimum.accumulate(np.where(later[..., None], lows, far), axis=1)  # [a0, a1, 3]
-        self._high = np.maximum.accumulate(np.where(later[..., None], highs, 0), axis=1)
+        lows, highs = np.empty((g, 3), dtype=np.int64), np.empty((g, 3), dtype=np.int64)
+        lows[:, 0], highs[:, 0] = np.where(used, slab * b, far), np.where(used, (slab + 1) * b, 0)
+        lows[:, 1:], highs[:, 1:] = rect[:, 0::2], rect[:, 1::2]
+        later = (slab[None, :] >= slab[:, None])[..., None]  # [a0, a, 1]: slab a is in a range from a0
+        self._g = g
+        self._low = np.minimum.accumulate(np.where(later, lows, far), axis=1).reshape(g * g, 3)
+        self._high = np.maximum.accumulate(np.where(later, highs, 0), axis=1).reshape(g * g, 3) - 1
 
     def clip(self, box: np.ndarray) -> np.ndarray:
         """int32 [m, 6]: each voxel box ``box`` [m, 6] (inclusive i, j, k ranges, window
         indices, inside the window or empty) cut to the region's rectangles over its slabs;
         empty (an upper bound under its lower) where it misses the region."""
-        g = self._low.shape[0]
-        a0 = np.clip(box[:, 0] // _REGION_BRICK, 0, g - 1)
-        a1 = np.clip(box[:, 1] // _REGION_BRICK, a0, g - 1)
-        out = box.copy()
-        out[:, 0::2] = np.maximum(box[:, 0::2], self._low[a0, a1])
-        out[:, 1::2] = np.minimum(box[:, 1::2], self._high[a0, a1] - 1)
-        empty = np.any(out[:, 1::2] < out[:, 0::2], axis=1)
+        g = self._g
+        a0 = np.minimum(np.maximum(box[:, 0] // _REGION_BRICK, 0), g - 1)
+        a1 = np.minimum(np.maximum(box[:, 1] // _REGION_BRICK, a0), g - 1)
+        a1 += g * a0
+        out = np.empty_like(box)
+        np.maximum(box[:, 0::2], self._low.take(a1, axis=0), out=out[:, 0::2])
+        np.minimum(box[:, 1::2], self._high.take(a1, axis=0), out=out[:, 1::2])
+        empty = (out[:, 1] < out[:, 0]) | (out[:, 3] < out[:, 2]) | (out[:, 5] < out[:, 4])
         out[empty, 1] = out[empty, 0] - 1
         return out
 
@@ -763,15 +837,20 @@ def _moved_region(tet_lo: np.ndarray, tet_hi: np.ndarray, shape) -> _Region:
     boxes ``tet_lo``, ``tet_hi`` [t, 3] int (inclusive, window indices, may reach outside)."""
     shape = np.asarray(shape)
     tet_lo, tet_hi = np.maximum(tet_lo, 0), np.minimum(tet_hi, shape - 1)
-    inside = np.all(tet_lo <= tet_hi, axis=1)
+    inside = (tet_lo <= tet_hi).all(axis=1)
     a, b = tet_lo[inside] // _REGION_BRICK, tet_hi[inside] // _REGION_BRICK + 1
     # Each box of bricks added as +-1 at its 8 corners; the prefix sums count the boxes on a brick.
     dims = -(-shape // _REGION_BRICK) + 1
-    pick = (np.arange(8)[:, None] >> np.arange(3)) & 1  # [8, 3] the corners
-    c = np.where(pick[:, None, :] == 1, b, a).reshape(-1, 3)
-    sign = np.repeat(1 - 2 * (pick.sum(axis=1) & 1), len(a))
-    marks = np.bincount(np.ravel_multi_index(c.T, dims), sign, minlength=int(np.prod(dims))).reshape(dims)
+    step = (dims[1] * dims[2], dims[2], 1)
+    ends = [np.stack([a[:, k], b[:, k]]) * step[k] for k in range(3)]  # [2, t] flat offsets a side
+    corner = ends[0][:, None, None, :] + ends[1][None, :, None, :] + ends[2][None, None, :, :]  # [2, 2, 2, t]
+    sign = np.broadcast_to(_CORNER_SIGN, corner.shape)
+    marks = np.bincount(corner.ravel(), sign.ravel(), minlength=int(np.prod(dims))).reshape(dims)
     return _Region(marks.cumsum(axis=0).cumsum(axis=1).cumsum(axis=2)[:-1, :-1, :-1] > 0.5)
+
+
+# [2, 2, 2, 1] the sign of a box's corner (lower or upper end on each axis) in _moved_region's sums.
+_CORNER_SIGN = np.array([1.0, -1.0])[:, None, None, None] * np.array([1.0, -1.0])[:, None, None] * np.array([1.0, -1.0])[:, None]
 
 
 def _fold_redraw(box: np.ndarray, folded: np.ndarray) -> np.ndarray | None:
