@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -11,13 +9,6 @@ import numpy as np
 from softvr.render.raycast import volume_bounds
 
 __all__ = ["OffscreenView"]
-
-
-@lru_cache(maxsize=1)
-def _uploader() -> ThreadPoolExecutor:
-    """The thread that takes the ray casters' voxels while VTK draws the surfaces (VTK's render
-    releases the GIL and its software OpenGL leaves a core idle for part of it)."""
-    return ThreadPoolExecutor(1, thread_name_prefix="softvr-upload")
 
 
 class OffscreenView:
@@ -110,36 +101,24 @@ class OffscreenView:
                 both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
         self._renderer.ResetCameraClippingRange(*both.ravel())
         if surfaces:
-            # The casters take their voxels meanwhile (RayCaster.upload: no VTK state is read),
-            # for the camera as it is now (the cast checks it is the same after the render).
-            ndc_to_world = self._ndc_to_world()
-            size = (self.width, self.height)
-            uploads = _uploader().submit(lambda: [caster.upload(volume, changed, ndc_to_world=ndc_to_world, size=size)
-                                                  for caster, volume, changed in volumes])
-            try:
-                self._window.Render()
-                image = self.grab()
-                z = vtkFloatArray()
-                self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
-                depth = vtk_to_numpy(z).reshape(self.height, self.width)
-                self._window.ReleaseCurrent()
-            finally:
-                uploads.result()  # re-raises an upload's error
+            self._window.Render()
+            image = self.grab()
+            z = vtkFloatArray()
+            self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
+            depth = vtk_to_numpy(z).reshape(self.height, self.width)
+            self._window.ReleaseCurrent()
         else:
             image = np.empty((self.height, self.width, 3), np.uint8)
             image[:] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
             depth = np.ones((self.height, self.width), np.float32)
         cam = self.vtk_camera
-        ndc_to_world = self._ndc_to_world()
+        world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
+        m = np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)])
         light = np.subtract(cam.GetPosition(), cam.GetFocalPoint())  # a head light
         for caster, volume, changed in volumes:
-            image = caster.cast(volume, ndc_to_world, light / np.linalg.norm(light), image, depth, changed=changed)
+            image = caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), image, depth,
+                                changed=changed)
         return image
-
-    def _ndc_to_world(self) -> np.ndarray:
-        """[4, 4] the inverse of the camera's world-to-NDC matrix (z in [-1, 1]) at this window's aspect."""
-        world_to_ndc = self.vtk_camera.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
-        return np.linalg.inv(np.array([[world_to_ndc.GetElement(r, c) for c in range(4)] for r in range(4)]))
 
     def close(self) -> None:
         """Release the OpenGL context. The renderer cannot be used afterwards."""

@@ -32,11 +32,12 @@ OPAQUE_ENOUGH = wp.constant(0.99)
 #: and at 37 degrees and below 1.3 slices and more apart.
 SMOOTH_FROM = wp.constant(0.5)
 SMOOTH_FULL = wp.constant(0.8)
-#: How near [voxels] a cell's face the stale-ray walk also looks at the cell beside it: a few ulps
-#: of a coordinate of a few hundred voxels (3e-5 each), where two kernels' roundings may differ.
-FACE_MARGIN = wp.constant(1.0e-3)
 #: The sample segment of a ray that missed the volume [index coordinates]: outside any box.
 MISSED = wp.constant(-1.0e9)
+#: How far [voxels] beyond a changed voxel a sample can read it: trilinear weights reach one
+#: voxel, the central differences of the gradient one more; plus a margin for rounding (one
+#: more along the axis of the smoothing across slices, :func:`slice_smoothed`).
+READ_REACH = wp.constant(2.5)
 
 
 @wp.func
@@ -238,147 +239,36 @@ def exit_along(o: float, inv_d: float, lo: float, hi: float) -> float:
 
 
 @wp.func
-def plane_bits(axis: int) -> wp.uint64:
-    """The bits of a brick's cell mask (:func:`cell_bit`) of the cells at position 0 along ``axis``."""
-    if axis == 0:
-        return wp.uint64(0xFFFF)
-    if axis == 1:
-        return wp.uint64(0x000F000F000F000F)
-    return wp.uint64(0x1111111111111111)
-
-
-@wp.func
-def read_distance_at(c: wp.vec3i, origin: wp.vec3i, distance: wp.array3d(dtype=wp.uint8), cap: int) -> int:
-    """The Chebyshev distance [bricks] (at most ``cap``) from brick ``c`` to the nearest brick with
-    a cell to look at, where ``distance`` holds it over a block of bricks from ``origin`` that
-    holds every such brick: outside the block, its distance to the block."""
-    away = int(0)
-    for axis in range(3):
-        local = c[axis] - origin[axis]
-        away = wp.max(away, wp.max(-local, local - (distance.shape[axis] - 1)))
-    if away > 0:
-        return wp.min(away, cap)
-    return int(distance[c[0] - origin[0], c[1] - origin[1], c[2] - origin[2]])
-
-
-@wp.func
-def cell_marked(q: wp.vec3i, origin: wp.vec3i, cells: wp.array3d(dtype=wp.uint64)) -> bool:
-    """Whether cell ``q`` (its lower corner voxel) is set in ``cells``, a block of bricks' cell masks
-    from brick ``origin`` (cells outside the block are not)."""
-    c = wp.vec3i((q[0] >> BRICK_SHIFT) - origin[0], (q[1] >> BRICK_SHIFT) - origin[1], (q[2] >> BRICK_SHIFT) - origin[2])
-    for axis in range(3):
-        if c[axis] < 0 or c[axis] >= cells.shape[axis]:
-            return False
-    return ((cells[c[0], c[1], c[2]] >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) != wp.uint64(0)
-
-
-@wp.func
-def reads_marked_cell(o: wp.vec3, d: wp.vec3, t0: float, shift: float, step: float, k_lo: float, k_hi: float,
-                      n: wp.vec3i, origin: wp.vec3i, cells: wp.array3d(dtype=wp.uint64),
-                      distance: wp.array3d(dtype=wp.uint8), cap: int) -> bool:
-    """Whether one of the ray samples ``k_lo .. k_hi`` (at ``o + (t0 + (k + shift) step) d``
-    [index coordinates], as :func:`raycast` places them) lies in a cell whose bit is set in
-    ``cells`` (a block of bricks from brick ``origin``, :func:`read_cells_pass`). Walked from the
-    last sample back (the changes are mostly where rays stop, the skin): a sample in a brick
-    ``distance`` [bricks] (:func:`read_distance_at`) away from any brick with a set bit jumps
-    back to the last sample before the cube of such bricks around it (a hundredth of a sample
-    early for rounding: a sample is never skipped unlooked at); in such a brick each sample's
-    cell is looked up, and the cells beside it where it lies within ``FACE_MARGIN`` of their
-    face: the ray loop places it with the same operations, but a compiler may fuse them
-    differently there (CUDA's multiply-adds), moving it by an ulp."""
+def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.array3d(dtype=wp.uint8)) -> bool:
+    """Whether the segment ``a + u d``, u in [u0, u1], inside the grid [index coordinates],
+    passes through a marked brick (``BRICK`` voxels a side, as the ray loop's): ``distance``
+    holds each brick's Chebyshev distance [bricks] to the nearest marked one (0: marked),
+    so the walk jumps out of the unmarked cube of bricks around each point it reaches (as
+    the ray loop skips empty space), a hundredth of a voxel past its face."""
+    nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
     bs = float(BRICK)
     inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
                     wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
                     wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
-    inv_step = 1.0 / step
-    k = k_hi
+    past = 0.01 / wp.max(wp.length(d), 1.0e-6)
+    u = u0
     found = bool(False)
-    while k >= k_lo:
-        p = o + (t0 + (k + shift) * step) * d
-        q = cell(n, clamped(n, p))
-        c = wp.vec3i(q[0] >> BRICK_SHIFT, q[1] >> BRICK_SHIFT, q[2] >> BRICK_SHIFT)
-        r = read_distance_at(c, origin, distance, cap)
+    # Each jump crosses at least one brick face: at most the bricks a line can cross.
+    for _ in range(nb[0] + nb[1] + nb[2]):
+        if u > u1:
+            break
+        p = a + u * d
+        c = wp.vec3i(wp.clamp(int(wp.floor(p[0] / bs)), 0, nb[0] - 1),
+                     wp.clamp(int(wp.floor(p[1] / bs)), 0, nb[1] - 1),
+                     wp.clamp(int(wp.floor(p[2] / bs)), 0, nb[2] - 1))
+        r = int(distance[c[0], c[1], c[2]])
         if r == 0:
-            f = clamped(n, p) - wp.vec3(float(q[0]), float(q[1]), float(q[2]))
-            low = wp.vec3i(wp.where(f[0] < FACE_MARGIN and q[0] > 0, -1, 0),
-                           wp.where(f[1] < FACE_MARGIN and q[1] > 0, -1, 0),
-                           wp.where(f[2] < FACE_MARGIN and q[2] > 0, -1, 0))
-            high = wp.vec3i(wp.where(f[0] > 1.0 - FACE_MARGIN and q[0] < n[0] - 2, 1, 0),
-                            wp.where(f[1] > 1.0 - FACE_MARGIN and q[1] < n[1] - 2, 1, 0),
-                            wp.where(f[2] > 1.0 - FACE_MARGIN and q[2] < n[2] - 2, 1, 0))
-            for i in range(q[0] + low[0], q[0] + high[0] + 1):
-                for j in range(q[1] + low[1], q[1] + high[1] + 1):
-                    for kk in range(q[2] + low[2], q[2] + high[2] + 1):
-                        if cell_marked(wp.vec3i(i, j, kk), origin, cells):
-                            found = True
-            if found:
-                break
-            k = k - 1.0
-        else:
-            # Where the ray (forwards) enters the cube of bricks c - r + 1 .. c + r - 1: the samples
-            # after that, up to this one, lie in it.
-            enter = float(-3.0e38)
-            for axis in range(3):
-                lo = float(c[axis] - r + 1) * bs
-                hi = float(c[axis] + r) * bs
-                enter = wp.max(enter, (wp.where(inv_d[axis] > 0.0, lo, hi) - o[axis]) * inv_d[axis])
-            k = wp.min(k - 1.0, wp.floor((enter - t0) * inv_step - shift + 0.01))
+            found = True
+            break
+        u = u + past + wp.min(wp.min(exit_along(p[0], inv_d[0], float(c[0] - r + 1) * bs, float(c[0] + r) * bs),
+                                     exit_along(p[1], inv_d[1], float(c[1] - r + 1) * bs, float(c[1] + r) * bs)),
+                              exit_along(p[2], inv_d[2], float(c[2] - r + 1) * bs, float(c[2] + r) * bs))
     return found
-
-
-@wp.kernel
-def read_cells_pass(
-    src: wp.array3d(dtype=wp.uint64),
-    axis: int,
-    below: int,
-    above: int,
-    last: int,
-    before: wp.array3d(dtype=wp.uint64),
-    now: wp.array3d(dtype=wp.uint64),
-    origin: wp.vec3i,
-    reach: int,
-    dst: wp.array3d(dtype=wp.uint64),
-    seed: wp.array3d(dtype=wp.uint8),
-    offset: int,
-):
-    """One axis of the cells whose samples read a changed voxel, over a block of bricks from brick
-    ``origin`` (``src``, ``dst``, ``seed``: one brick's 64-bit cell mask, :func:`cell_bit`,
-    each; bricks past the block count as 0): cell x along ``axis`` is set in ``dst`` if ``src``
-    has cell x + o set for an o in -``below`` .. ``above``. From the masks of the changed
-    voxels (:func:`brick_changes`, voxel v as cell v) the three axes give the cells i with a
-    changed voxel in i - below .. i + above per axis: a sample in cell i reads voxels i - 1 ..
-    i + 2 (trilinear weights and central differences; i - 2 .. i + 3 along the axis smoothed
-    across slices). ``last`` != 0: keep only the cells where a sample may be seen, set in
-    ``before`` or ``now`` (the cell masks before and after the change, :func:`brick_minmax`,
-    whole grid), and set ``seed`` 0 for a brick with a cell left, else ``reach``."""
-    t = wp.tid() + offset
-    shape = wp.vec3i(dst.shape[0], dst.shape[1], dst.shape[2])
-    c = brick_of(t, wp.vec3i(0), shape)
-    stride = wp.where(axis == 0, 16, wp.where(axis == 1, 4, 1))
-    plane = plane_bits(axis)
-    out = wp.uint64(0)
-    # The bricks before, at and after this one along the axis (0 past the block).
-    e = wp.vec3i(c[0], c[1], c[2])
-    e[axis] = c[axis] - 1
-    before_bits = wp.uint64(0)
-    if e[axis] >= 0:
-        before_bits = src[e[0], e[1], e[2]]
-    e[axis] = c[axis] + 1
-    after_bits = wp.uint64(0)
-    if e[axis] < shape[axis]:
-        after_bits = src[e[0], e[1], e[2]]
-    own = src[c[0], c[1], c[2]]
-    if (before_bits | own | after_bits) != wp.uint64(0):  # most bricks of the block: none changed near
-        for x in range(BRICK):
-            for o in range(-below, above + 1):
-                source = x + o + BRICK  # >= 0: below <= BRICK
-                bits = wp.where(source < BRICK, before_bits, wp.where(source < 2 * BRICK, own, after_bits))
-                out = out | (((bits >> wp.uint64(stride * (source % BRICK))) & plane) << wp.uint64(stride * x))
-    if last != 0:
-        g = c + origin
-        out = out & (before[g[0], g[1], g[2]] | now[g[0], g[1], g[2]])
-        seed[c[0], c[1], c[2]] = wp.uint8(wp.where(out != wp.uint64(0), 0, reach))
-    dst[c[0], c[1], c[2]] = out
 
 
 #: The voxels of one slab of a brick (brick_minmax).
@@ -530,22 +420,17 @@ def brick_changes(
     known_rows: wp.array(dtype=wp.int64),
     packed: int,
     changed: wp.array3d(dtype=wp.uint8),
-    voxels: wp.array3d(dtype=wp.uint64),
-    origin: wp.vec3i,
     offset: int,
 ):
     """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
     the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
-    cast (brought up to date), else 0; and in ``voxels`` (a block of bricks from brick
-    ``origin``, zeroed) the mask of those that differ: bit ``cell_bit(i, j, k)`` for voxel
-    (i, j, k) (a far voxel past the brick's BRICK as its last one's). Owning splits the voxels
-    between bricks: no two threads write one voxel of ``known``. ``packed`` != 0: ``rows``
-    and ``known_rows`` are ``vol`` and ``known`` read as 64-bit words, each an inner brick's
-    row of BRICK voxels along the last axis (2-byte voxels, rows contiguous and aligned),
-    compared a row at once."""
+    cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
+    threads write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
+    ``vol`` and ``known`` read as 64-bit words, each an inner brick's row of BRICK voxels
+    along the last axis (2-byte voxels, rows contiguous and aligned), compared a row at once."""
     b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
-    bits = wp.uint64(0)
+    flag = wp.uint8(0)
     if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
         # An inner brick owns BRICK^3 voxels: fixed loops, unrolled (no bounds per row).
         base = b[0] * BRICK * strides[0] + b[1] * BRICK * strides[1] + b[2] * BRICK * strides[2]
@@ -554,33 +439,30 @@ def brick_changes(
                 for j in range(BRICK):
                     w = (base + i * strides[0] + j * strides[1]) / BRICK
                     if rows[w] != known_rows[w]:
-                        for k in range(BRICK):  # known_rows is known's memory: compared before it is updated
-                            if vol[w * BRICK + k] != known[w * BRICK + k]:
-                                bits = bits | (wp.uint64(1) << wp.uint64(cell_bit(i, j, k)))
                         known_rows[w] = rows[w]
-        else:
-            for i in range(BRICK):
-                for j in range(BRICK):
-                    for k in range(BRICK):
-                        a = base + i * strides[0] + j * strides[1] + k * strides[2]
-                        if vol[a] != known[a]:
-                            known[a] = vol[a]
-                            bits = bits | (wp.uint64(1) << wp.uint64(cell_bit(i, j, k)))
-    else:
-        end = wp.vec3i(0)
-        for axis in range(3):
-            end[axis] = wp.where(b[axis] == nb[axis] - 1, n[axis], (b[axis] + 1) * BRICK)
-        for i in range(b[0] * BRICK, end[0]):
-            for j in range(b[1] * BRICK, end[1]):
-                for k in range(b[2] * BRICK, end[2]):
-                    a = i * strides[0] + j * strides[1] + k * strides[2]
+                        flag = wp.uint8(1)
+            changed[b[0], b[1], b[2]] = flag
+            return
+        for i in range(BRICK):
+            for j in range(BRICK):
+                for k in range(BRICK):
+                    a = base + i * strides[0] + j * strides[1] + k * strides[2]
                     if vol[a] != known[a]:
                         known[a] = vol[a]
-                        bits = bits | (wp.uint64(1) << wp.uint64(cell_bit(
-                            wp.min(i - b[0] * BRICK, BRICK - 1), wp.min(j - b[1] * BRICK, BRICK - 1),
-                            wp.min(k - b[2] * BRICK, BRICK - 1))))
-    changed[b[0], b[1], b[2]] = wp.uint8(wp.where(bits != wp.uint64(0), 1, 0))
-    voxels[b[0] - origin[0], b[1] - origin[1], b[2] - origin[2]] = bits
+                        flag = wp.uint8(1)
+        changed[b[0], b[1], b[2]] = flag
+        return
+    end = wp.vec3i(0)
+    for axis in range(3):
+        end[axis] = wp.where(b[axis] == nb[axis] - 1, n[axis], (b[axis] + 1) * BRICK)
+    for i in range(b[0] * BRICK, end[0]):
+        for j in range(b[1] * BRICK, end[1]):
+            for k in range(b[2] * BRICK, end[2]):
+                a = i * strides[0] + j * strides[1] + k * strides[2]
+                if vol[a] != known[a]:
+                    known[a] = vol[a]
+                    flag = wp.uint8(1)
+    changed[b[0], b[1], b[2]] = flag
 
 
 @wp.kernel
@@ -646,7 +528,6 @@ def raycast(
     image: wp.array3d(dtype=wp.uint8),
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
-    ray_stop: wp.array(dtype=float),
     store_rays: int,
     ray_origin: wp.array(dtype=wp.vec3),
     ray_direction: wp.array(dtype=wp.vec3),
@@ -691,8 +572,6 @@ def raycast(
     cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
     ``segment_end`` [index coordinates] bound where its samples lie, up to where the ray
     stopped (:func:`stale_pixels` reads them next frame); far outside the grid if it missed.
-    ``ray_stop`` holds the index of the first sample not taken (the samples looked at, read or
-    skipped, are those before it); -1 if it missed.
 
     Each pixel's ray, the same for every frame of one view, is worked out if ``store_rays`` != 0
     and kept, else read back [per pixel]: ``ray_origin`` and ``ray_direction`` (its start on the
@@ -854,42 +733,14 @@ def raycast(
         # The sample at k was not taken: the samples read lie before it (and before the span's end).
         segment_start[tid] = o + t0 * d
         segment_end[tid] = o + wp.min(t0 + (k + shift) * step, span[1]) * d
-        ray_stop[tid] = k
     else:
         segment_start[tid] = wp.vec3(MISSED)
         segment_end[tid] = wp.vec3(MISSED)
-        ray_stop[tid] = -1.0
         empty_until[tid] = 0.0  # no segment is kept to check the prefix against later flips
         read_from[tid] = 0.0
     for ch in range(3):
         value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
         image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
-
-
-@wp.kernel
-def moved_pixels(
-    width: int,
-    surface: wp.array3d(dtype=wp.uint8),
-    depth: wp.array2d(dtype=float),
-    last_surface: wp.array3d(dtype=wp.uint8),
-    last_depth: wp.array2d(dtype=float),
-    stale: wp.array(dtype=wp.bool),
-    offset: int,
-):
-    """Per image row (one thread each): ``stale`` [height * width] (row-major, row 0 at the top)
-    True where the surfaces' colour ``surface`` [height, width, 3] (row 0 at the top) or OpenGL
-    ``depth`` [height, width] (row 0 at the bottom) differs from ``last_surface`` /
-    ``last_depth`` (last frame's), else False; then last frame's take this frame's values."""
-    row = wp.tid() + offset
-    py = depth.shape[0] - 1 - row  # OpenGL rows run up
-    for px in range(width):
-        moved = depth[py, px] != last_depth[py, px]
-        last_depth[py, px] = depth[py, px]
-        for ch in range(3):
-            if surface[row, px, ch] != last_surface[row, px, ch]:
-                moved = True
-                last_surface[row, px, ch] = surface[row, px, ch]
-        stale[row * width + px] = moved
 
 
 @wp.kernel
@@ -955,22 +806,13 @@ def mark_pixels(
 @wp.kernel
 def stale_pixels(
     width: int,
-    n: wp.vec3i,
-    step: float,
-    jitter: int,
     boxed: int,
     box_lo: wp.vec3,
     box_hi: wp.vec3,
-    origin: wp.vec3i,
-    read_cells: wp.array3d(dtype=wp.uint64),
+    reach: wp.vec3,
     read_distance: wp.array3d(dtype=wp.uint8),
-    cap: int,
     candidates: wp.array(dtype=wp.uint8),
     rect: wp.vec4i,
-    ray_origin: wp.array(dtype=wp.vec3),
-    ray_direction: wp.array(dtype=wp.vec3),
-    ray_span: wp.array(dtype=wp.vec2),
-    ray_stop: wp.array(dtype=float),
     segment_start: wp.array(dtype=wp.vec3),
     segment_end: wp.array(dtype=wp.vec3),
     flips: int,
@@ -983,52 +825,40 @@ def stale_pixels(
     """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
     row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
-    tables and grid as the last frame): one of the samples it looked at last time (before
-    ``ray_stop``; :func:`raycast`'s ray, its step ``step`` [world units] and jitter) lies in a
-    cell set in ``read_cells`` (a block of bricks from brick ``origin``; its samples read a
-    changed voxel and may be seen in this frame or the last one, :func:`read_cells_pass`),
-    found by :func:`reads_marked_cell` within the index box ``box_lo .. box_hi`` (that of the
-    bricks with such a cell; if ``boxed`` != 0, else there is none). Any other
-    pixel's samples read the same voxels with the same weights as last frame, or are skipped
-    unread in both frames, so its colour is the same bit for bit; a ray that stopped (opaque)
-    before the change keeps stopping there.
+    tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
+    the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
+    ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
+    changed voxel (``read_distance``: the bricks' distance to one, :meth:`RayCaster._read_distance`).
+    Any other pixel reads the same voxels with the same weights as last frame, so its colour
+    is the same bit for bit; a ray that stopped (opaque) before the change keeps stopping there.
 
-    A ray not cast again whose segment (``segment_start .. segment_end``) meets ``flip_lo ..
-    flip_hi`` (:func:`raycast`'s flipped bricks, if ``flips`` != 0) forgets its known-empty
-    prefix: a brick on it may have filled through a voxel it does not read, and a later
-    change there flips no brick.
+    A ray not cast again whose segment meets ``flip_lo .. flip_hi`` (:func:`raycast`'s flipped
+    bricks, if ``flips`` != 0) forgets its known-empty prefix: a brick on it may have filled
+    through a voxel it does not read, and a later change there flips no brick.
 
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
-    ray is seen in its pixel), and only those set in ``candidates`` [height * width] a brick
-    with a set cell (:func:`mark_pixels`): the others are not walked."""
+    ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
+    brick (:func:`mark_pixels`): the others are not walked."""
     t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
-    row = rect[2] + t / columns
-    px = rect[0] + t % columns
-    tid = row * width + px
+    tid = (rect[2] + t / columns) * width + rect[0] + t % columns
     if stale[tid]:
         return
-    walk = boxed != 0 and candidates[tid] != 0 and ray_stop[tid] > 0.0
+    walk = boxed != 0 and candidates[tid] != 0
+    if not walk and flips == 0:
+        return
+    a = segment_start[tid]
+    d = segment_end[tid] - a
     if walk:
-        o = ray_origin[tid]
-        d = ray_direction[tid]
-        t0 = ray_span[tid][0]
-        shift = float(0.5)
-        if jitter != 0:
-            shift = pixel_noise(px, row)
-        # The samples where the ray is in the box, one more either side for rounding.
-        u = slab(o[0], d[0], box_lo[0], box_hi[0], t0, 3.0e38)
-        u = slab(o[1], d[1], box_lo[1], box_hi[1], u[0], u[1])
-        u = slab(o[2], d[2], box_lo[2], box_hi[2], u[0], u[1])
+        u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
+        # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+        # ray to cast again is found in a brick or two.
         if u[0] <= u[1]:
-            k_lo = wp.max(wp.ceil((u[0] - t0) / step - shift) - 1.0, 0.0)
-            k_hi = wp.min(wp.floor((u[1] - t0) / step - shift) + 1.0, ray_stop[tid] - 1.0)
-            if reads_marked_cell(o, d, t0, shift, step, k_lo, k_hi, n, origin, read_cells, read_distance, cap):
+            if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
                 stale[tid] = True
                 return
     if flips != 0:
-        a = segment_start[tid]
-        u = segment_in_box(a, segment_end[tid] - a, flip_lo, flip_hi)
+        u = segment_in_box(a, d, flip_lo, flip_hi)
         if u[0] <= u[1]:
             empty_until[tid] = 0.0
 

@@ -8,8 +8,7 @@ skipping over a min/max grid of bricks (re-derived only where the data changed),
 termination, and ray starts jittered per pixel (a hash of the pixel) so that a flat
 surface shows fine noise instead of wood-grain bands. From frame to frame (same camera) only
 the rays that can see a change are cast again: those through the surfaces' changed pixels and
-those with a sample, up to where the ray stopped, in a cell that reads a voxel that changed and
-may be seen (in this frame or the last; skipped unread otherwise). Rays stop
+those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
 at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
 over their colour.
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
@@ -19,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from scipy import ndimage
 
 from softvr.device import launch, load_kernels, resolve_device
 from softvr.errors import InputError
@@ -40,16 +40,12 @@ REACH = 8
 THICK_SLICES = 1.25
 #: Entries of the colour/opacity table over the preset's value range.
 LUT_SIZE = 4096
-#: Cap [bricks] of the distance to the bricks with a cell that reads a changed voxel (the stale-ray
-#: walk's jumps). Palpation, single thread: 2 costs 0.7 ms a frame less in distance passes than 4
-#: and the walk no more (its region is the box of those bricks).
-_READ_REACH = 2
+#: Cap [bricks] of the distance to the bricks that may read a changed voxel (the stale-ray walk's jumps).
+_READ_REACH = 4
 _GRADIENT_LUT_SIZE = 256
 _ROWS_PER_CHUNK = 8
 #: Fewest pixels per thread-pool chunk of the stale-ray test (smaller chunks cost more to hand out).
 _STALE_CHUNK = 4096
-#: Fewest image rows per chunk of the surface comparison.
-_MOVED_CHUNK = 32
 #: Fewest bricks per chunk of a brick kernel: a small launch runs faster on one thread than split.
 _BRICK_CHUNK = 4096
 #: Fewest marked bricks per chunk of the launch that marks the pixels their rays cross.
@@ -63,14 +59,6 @@ def volume_bounds(volume) -> tuple[float, ...]:
     world = np.asarray(volume.origin, float) + (corners * np.asarray(volume.spacing, float)) @ np.asarray(
         volume.direction, float).T
     return tuple(np.ravel(np.column_stack([world.min(axis=0), world.max(axis=0)])))
-
-
-def _index_to_world(volume) -> np.ndarray:
-    """[4, 4] homogeneous map from ``volume``'s index space to the world."""
-    m = np.eye(4)
-    m[:3, :3] = np.asarray(volume.direction, float) * np.asarray(volume.spacing, float)
-    m[:3, 3] = np.asarray(volume.origin, float)
-    return m
 
 
 def transfer_tables(preset: Preset, step_fraction: float) -> dict:
@@ -153,9 +141,6 @@ class RayCaster:
         self._known: wp.array | None = None  # the voxels as last uploaded (if kept), to find the bricks that changed
         self._flips: list = []  # brick boxes whose occupancy flipped since the last cast
         self._view_key: tuple | None = None  # what the per-pixel state below was cast for
-        self._uploaded = None  # the volume taken by upload(), for the next cast
-        self._flipped: list = [0, wp.vec3(), wp.vec3()]  # the flips taken by upload() (raycast's flips, lo, hi)
-        self._candidates: tuple | None = None  # (camera, what _find_candidates found for it) by upload()
         #: Pixels [count] cast by the last :meth:`cast` (the others kept their colour).
         self.cast_pixels = 0
         load_kernels(K.raycast, self.device)
@@ -163,32 +148,10 @@ class RayCaster:
     def reset(self) -> None:
         """Forget everything kept from frame to frame (brick grid, tables, rays' state): the
         next :meth:`cast` starts from scratch, as a new caster's would."""
-        self._tables_key = self._grid_key = self._view_key = self._uploaded = None
+        self._tables_key = self._grid_key = self._view_key = None
         self._flips = []
 
     # --------------------------------------------------------------- data
-    def upload(self, volume, changed=True, *, ndc_to_world=None, size: "tuple[int, int] | None" = None) -> None:
-        """Take ``volume``'s voxels and bring the empty-space grid up to date, the first part of
-        :meth:`cast`, which then takes them no more: a caller may do it beside other work (on
-        another thread while VTK draws the surfaces: it needs nothing they give). ``changed``
-        as :meth:`cast`'s, which must follow with the same volume, ``changed`` and voxels.
-        Given the camera the cast will have (``ndc_to_world`` [4, 4], as :meth:`cast`'s, and
-        ``size`` (width, height) [pixels]), the search for the rays to cast again also does
-        its part that needs no surfaces: the pixels whose rays meet the bricks that changed."""
-        self._upload(volume, changed)
-        flips, self._flips = self._flips, []
-        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
-        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
-        self._flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
-        self._uploaded = volume
-        self._candidates = None
-        if ndc_to_world is not None and size is not None and changed is not True:
-            ndc_to_world = np.asarray(ndc_to_world, float)
-            index_to_ndc = np.linalg.inv(ndc_to_world) @ _index_to_world(volume)
-            self._candidates = ((ndc_to_world.tobytes(), tuple(size)),
-                                self._find_candidates(self._flipped, index_to_ndc, *size,
-                                                      self._shading_smoothed(volume)))
-
     def _upload(self, volume, changed) -> None:
         """Take ``volume``'s voxels and bring the brick grid up to date: ranges and occupancy
         of the bricks touching the ``changed`` index box, distances within ``REACH`` of them
@@ -205,7 +168,6 @@ class RayCaster:
         # A flat view in memory order and the element strides of the three axes.
         strides = tuple(st // data.itemsize for st in data.strides)
         self._strides = wp.vec3i(*strides)
-        self._grid_n = wp.vec3i(*shape)
         flat = data.ravel(order="K")
         if dev == "cpu":
             self._vol = wp.array(flat, dtype=K.VOXEL_TYPES[name], device=dev, copy=False)
@@ -236,26 +198,16 @@ class RayCaster:
             lo, hi = (np.asarray(c, int) for c in changed)
             # Voxel v is owned by brick min(v // BRICK, nb - 1) (brick_changes).
             owners = np.clip(lo // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
-            # The cells whose samples read a changed voxel lie within a brick of its owner
-            # (_read_cells): the changed voxels' masks are kept over the owners' box grown by one.
-            self._cells_origin = np.maximum(owners[0] - 1, 0)
-            block = tuple(np.minimum(owners[1] + 1, nb - 1) - self._cells_origin + 1)
             if self._known is None:  # the voxels before this change are gone: all in the box count as changed
                 self._known = wp.clone(self._vol)
                 self._changed_bricks.fill_(1)
-                every = np.zeros(block, np.uint64)
-                every[tuple(slice(a, b + 1) for a, b in zip(owners[0] - self._cells_origin,
-                                                             owners[1] - self._cells_origin))] = ~np.uint64(0)
-                self._changed_voxels: wp.array = wp.array(every, dtype=wp.uint64, device=dev)
             else:
-                self._changed_voxels = wp.zeros(block, dtype=wp.uint64, device=dev)
                 self._run(K.BRICK_CHANGES[name], *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks, self._changed_voxels,
-                           wp.vec3i(*self._cells_origin)])
+                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
             self._changed_box = owners
-            # The cells' masks before this change: a sample in a cell clear before and after it is
-            # skipped unread in both frames, whatever its voxels (_read_cells).
-            self._cells_before = wp.clone(self._cells)
+            # Occupancy before this change: a sample in a brick empty before and after it is
+            # transparent in both frames, whatever it reads (:meth:`_read_distance`).
+            self._occupied_before = self._seed.numpy() == 0
             # Brick b reads voxels b*BRICK .. (b+1)*BRICK: voxel v is read by bricks (v-1)//BRICK .. v//BRICK.
             first, last = np.clip((lo - 1) // BRICK, 0, nb - 1), np.clip(hi // BRICK, 0, nb - 1)
         if retabled:  # the cells' masks and the occupancy depend on the table
@@ -359,13 +311,13 @@ class RayCaster:
         -------
         numpy.ndarray, shape [height, width, 3], uint8
         """
-        if self._uploaded is not volume:
-            self.upload(volume, changed)
-        self._uploaded = None
+        self._upload(volume, changed)
         height, width = depth.shape
         spacing = np.asarray(volume.spacing, float)
         direction = np.asarray(volume.direction, float)
-        index_to_world = _index_to_world(volume)
+        index_to_world = np.eye(4)
+        index_to_world[:3, :3] = direction * spacing
+        index_to_world[:3, 3] = np.asarray(volume.origin, float)
         # d value / d world = D diag(1/s) (d value / d index), D orthonormal.
         gradient_to_world = direction / spacing
         p = self.preset
@@ -382,110 +334,119 @@ class RayCaster:
         in_place = dev == "cpu"
         depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
         surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
-        smoothed = self._shading_smoothed(volume)
-        flipped = self._flipped
-        self._step = self.sample_distance * spacing.min()  # [world units]
+        # The same for every frame of one view (the spacing and option are in its key).
+        self._smoothed = self._smooth_axis(spacing) if p.shade else -1
+        flips, self._flips = self._flips, []
+        flip_lo = np.min([b[0] for b in flips], axis=0) if flips else np.zeros(3)
+        flip_hi = np.max([b[1] for b in flips], axis=0) if flips else np.zeros(3)
+        flipped = [len(flips), wp.vec3(*flip_lo), wp.vec3(*flip_hi)]
         if key != self._view_key or changed is True:
             if key != self._view_key:
                 self._empty_until = wp.zeros(width * height, dtype=float, device=dev)
                 self._read_from = wp.zeros(width * height, dtype=float, device=dev)
                 self._image = wp.empty((height, width, 3), dtype=wp.uint8, device=dev)
                 self._segments = [wp.empty(width * height, dtype=wp.vec3, device=dev) for _ in range(2)]
-                self._ray_stop = wp.empty(width * height, dtype=float, device=dev)
                 self._rays = [wp.empty(width * height, dtype=t, device=dev)
                               for t in (wp.vec3, wp.vec3, wp.vec3, wp.vec2, wp.vec4)]
                 self._every_pixel: wp.array = wp.array(np.arange(width * height, dtype=np.int32), device=dev)
                 self._view_key = key
-            self._last_depth, self._last_surface = wp.clone(depth), wp.clone(surface)
+            self._last_depth, self._last_surface = depth_host.copy(), surface_host.copy()
             pixels = self._every_pixel
             store_rays = 1  # every pixel is cast: each ray is worked out and kept for this view
         else:
             store_rays = 0
-            view = (ndc_to_world.tobytes(), (width, height))
-            if self._candidates is None or self._candidates[0] != view:  # not found by upload() for this camera
-                self._candidates = (view, self._find_candidates(flipped,
-                                                                np.linalg.inv(ndc_to_world) @ index_to_world,
-                                                                width, height, smoothed))
-            pixels = self._stale_pixels(depth, surface, flipped, self._candidates[1])
+            pixels = self._stale_pixels(depth_host, surface_host, changed, flipped,
+                                        np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
             self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
-            int(width), int(height), float(self._step), int(self.jitter),
+            int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
             float(self._gradient_scale), wp.vec3(p.ambient, p.diffuse, p.specular),
-            wp.vec3(*light), int(bool(p.shade)), smoothed, wp.vec3(*direction[:, max(smoothed, 0)]),
+            wp.vec3(*light), int(bool(p.shade)), self._smoothed, wp.vec3(*direction[:, max(self._smoothed, 0)]),
             self._distance, self._cells,
             *flipped, self._empty_until, self._read_from, self._gained, int(changed is not True),
             depth, surface, pixels,
-            self._image, *self._segments, self._ray_stop, store_rays, *self._rays,
+            self._image, *self._segments, store_rays, *self._rays,
         ]
         launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
-    def _shading_smoothed(self, volume) -> int:
-        """The index axis to smooth the shading gradient of ``volume`` along (``smooth_slices``), or -1."""
-        if not self.preset.shade:
-            return -1
-        spacing = np.asarray(volume.spacing, float)
+    def _smooth_axis(self, spacing: np.ndarray) -> int:
+        """The index axis to smooth the shading gradient along (``smooth_slices``), or -1."""
         thick = int(np.argmax(spacing))
         if self.smooth_slices == "auto":
             return thick if spacing[thick] >= THICK_SLICES * spacing.min() else -1
         return thick if self.smooth_slices else -1
 
-    def _read_cells(self, smoothed: int) -> "tuple | None":
-        """The cells where a ray sample may read a voxel that changed and be seen (in this frame
-        or the last), or None if no voxel changed: over a block of bricks from brick ``origin``
-        [3], each brick's mask of such cells [m0, m1, m2] uint64 (``cell_bit``), each brick's
-        Chebyshev distance [bricks] to the nearest brick with one, capped at ``_READ_REACH``
-        [m0, m1, m2] uint8, and those bricks' indices [k, 3]. A sample in cell i (its lower
-        corner voxel) reads voxels i - 1 .. i + 2 per axis (trilinear weights, central
-        differences; i - 2 .. i + 3 along the axis ``smoothed`` across slices, if >= 0), and its
-        cell's bit (``brick_minmax``) clear means it is skipped unread: the cells kept are those
-        with a changed voxel in that range, set before or after the change. A cell reads voxels
-        of its own brick and the next ones only: the block is the changed voxels' owners grown
-        by one brick (``_changed_voxels``)."""
+    def _read_distance(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each brick's Chebyshev distance [bricks] to the nearest one where a ray sample may
+        read a voxel that changed and be seen, capped at ``_READ_REACH`` [nb] uint8, and the
+        indices [m, 3] of those marked bricks. A sample at p reads voxels floor(p) - 2 ..
+        floor(p) + 3 (trilinear weights, central differences, smoothing across slices), so in brick c (p in [c, c + 1) * BRICK,
+        BRICK >= 3) it reads voxels of the bricks c - 1 .. c + 1 per axis only. Its own
+        corners lie in brick c's range, so where c is empty (no value of non-zero opacity)
+        before and after the change the sample is transparent in both frames and what it
+        reads does not matter: the marked bricks are the occupied ones (before or after)
+        within 1 of a changed brick. SciPy's transform on the changed bricks' box grown by
+        one: a few thousand bricks, where Warp launches over them cost more to hand out
+        than to run."""
+        nb = np.asarray(self._changed_bricks.shape)
+        read = np.full(tuple(nb), _READ_REACH, np.uint8)
+        none = np.zeros((0, 3), int)
         if self._changed_box is None:
-            return None
-        dev = self.device
-        shape = tuple(self._changed_voxels.shape)
-        origin = wp.vec3i(*self._cells_origin)
-        cells = self._changed_voxels
-        seed = wp.empty(shape, dtype=wp.uint8, device=dev)
-        for axis in range(3):
-            below, above = (2, 3) if axis == smoothed else (1, 2)
-            out = wp.empty(shape, dtype=wp.uint64, device=dev)
-            launch(K.read_cells_pass, int(np.prod(shape)),
-                   [cells, axis, below, above, int(axis == 2), self._cells_before, self._cells, origin, _READ_REACH,
-                    out, seed], dev, min_chunk=_BRICK_CHUNK)
-            cells = out
-        marked = np.argwhere(seed.numpy() == 0)
-        # The distances are redone within READ_REACH of the bricks with a cell only (the passes
-        # grow their range so): elsewhere they are the cap.
-        fields = [seed, *(wp.full(shape, _READ_REACH, dtype=wp.uint8, device=dev) for _ in range(3))]
-        if len(marked):
-            self._distance_passes(marked.min(axis=0), marked.max(axis=0), fields, _READ_REACH)
-        return origin, cells, fields[3], marked + self._cells_origin
+            return read, none
+        # The marked bricks lie within 1 of the changed box, and the stale-ray walk only runs
+        # within 1 of it (the rewritten voxels grown by READ_REACH < BRICK): the distances there
+        # are exact when the transform sees just that box, which holds every marked brick.
+        first = np.maximum(self._changed_box[0] - 1, 0)
+        last = np.minimum(self._changed_box[1] + 1, nb - 1)
+        box = tuple(slice(a, b + 1) for a, b in zip(first, last))
+        changed = self._changed_bricks.numpy()[box] != 0
+        if not changed.any():
+            return read, none
+        near = ndimage.maximum_filter(changed, size=3, mode="constant")
+        marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
+        if not marked.any():
+            return read, none
+        to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
+        read[box] = np.minimum(to_marked, _READ_REACH)
+        return read, np.argwhere(marked) + first
 
-    def _find_candidates(self, flipped: list, index_to_ndc: np.ndarray, width: int, height: int,
-                         smoothed: int) -> tuple:
-        """What the search for the rays to cast again (:meth:`_stale_pixels`) finds from the
-        bricks alone: the cells whose samples may read a changed voxel (:meth:`_read_cells`:
-        block origin, cells, distances, bricks; None if no voxel changed), the pixels
-        [height * width] uint8 whose rays may meet a brick with such a cell (1), the rectangle
-        (first column, last column, first row, last row) of the pixels whose rays may meet one
-        or the ``flipped`` box (count, lo, hi). ``smoothed``: the axis of the shading smoothed
-        across slices, or -1. ``index_to_ndc`` [4, 4] projects the volume's index space to the screen of ``width`` x ``height`` pixels."""
-        read = self._read_cells(smoothed)
-        # Only a ray through a brick with a cell that reads a changed voxel can be stale: the
-        # pixels whose rays meet one, from each brick's projected bounds, are the only ones
-        # whose samples are walked; the others in the flipped box only check it.
+    def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
+                      index_to_ndc: np.ndarray) -> wp.array:
+        """The pixels [count] int32 to cast again after the last frame (same view): where the
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
+        changed). The others forget their known-empty prefix if it may cross a brick in the
+        ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
+        space to the screen."""
+        height, width = depth.shape
+        # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
+        # costs more on the CPU than the comparison itself.
+        moved = surface != self._last_surface
+        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved |= (depth != self._last_depth)[::-1]  # depth rows run up
+        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
+        boxed = not (changed is None or changed is False)
+        lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
+        read_host, marked = self._read_distance()
+        read: wp.array = wp.array(read_host, dtype=wp.uint8, device=self.device)
+        # How far a sample reads: READ_REACH, one voxel more along the axis smoothed across slices.
+        reach = np.full(3, float(K.READ_REACH))
+        if self._smoothed >= 0:
+            reach[self._smoothed] += 1.0
+        # Only a ray through a marked brick can be stale: the pixels whose rays meet one, from
+        # each brick's projected bounds, are the only ones whose samples are walked; the
+        # others in the flipped box only check it.
         candidates: wp.array = wp.zeros(width * height, dtype=wp.uint8, device=self.device)
         rect = (width, -1, height, -1)
         boxes = []  # (lower corners [m, 3], upper corners [m, 3], mark their pixels as candidates?)
-        if read is not None:
-            corner = read[3].astype(np.float32) * BRICK
+        if boxed:
+            corner = marked.astype(np.float32) * BRICK
             boxes.append((corner, corner + BRICK, 1))
         if flipped[0]:
             boxes.append((np.array([flipped[1]], np.float32), np.array([flipped[2]], np.float32), 0))
@@ -499,29 +460,8 @@ class RayCaster:
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
-        return read, candidates, rect
-
-    def _stale_pixels(self, depth: wp.array, surface: wp.array, flipped: list, found: tuple) -> wp.array:
-        """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
-        the ray's samples may read a changed voxel (``found``). The others forget their known-empty prefix if it may cross a brick in the
-        ``flipped`` box (count, lo, hi). ``found``: what :meth:`_find_candidates` found for
-        this view."""
-        height, width = depth.shape
-        read, candidates, rect = found
-        stale: wp.array = wp.empty(width * height, dtype=wp.bool, device=self.device)
-        # A thread per row: one per pixel costs more on the CPU than its comparison.
-        launch(K.moved_pixels, height, [int(width), surface, depth, self._last_surface, self._last_depth, stale],
-               self.device, min_chunk=_MOVED_CHUNK)
-        if read is not None and len(read[3]):  # the samples to look at lie in the box of the bricks with a cell
-            walk, lo, hi = 1, read[3].min(axis=0) * BRICK, (read[3].max(axis=0) + 1) * BRICK  # [index coordinates]
-            cells = list(read[:3])
-        else:  # no sample can read a changed voxel: nothing to walk
-            walk, lo, hi = 0, np.zeros(3), np.zeros(3)
-            cells = [wp.vec3i(0), *(wp.zeros((1, 1, 1), dtype=t, device=self.device) for t in (wp.uint64, wp.uint8))]
         launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), self._grid_n, float(self._step), int(self.jitter), walk,
-                wp.vec3(*lo), wp.vec3(*hi), *cells, _READ_REACH, candidates, wp.vec4i(*rect),
-                self._rays[0], self._rays[1], self._rays[3], self._ray_stop, *self._segments, *flipped,
-                self._empty_until, stale], self.device, min_chunk=_STALE_CHUNK)
+               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
+                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+               min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
