@@ -7,7 +7,13 @@ import numpy as np
 from softvr.files import write_json
 from softvr.render.figure import save_figure
 
-__all__ = ["bench_parser", "print_and_write", "save_figure", "step_times"]
+__all__ = ["bench_parser", "print_and_write", "save_figure", "steady", "step_times"]
+
+
+def steady(per_step):
+    """The steady state of a per-step sequence [n]: the steps after the first (which loads the
+    scene), or the one step when there is only one."""
+    return per_step[1:] if len(per_step) > 1 else per_step
 
 
 def step_times(step_s) -> dict:
@@ -32,9 +38,9 @@ def step_times(step_s) -> dict:
     ms = 1e3 * np.asarray(step_s, dtype=float)
     if ms.ndim != 1 or not len(ms):
         raise ValueError(f"step times: expected a 1-D sequence of at least one step, found shape {ms.shape}")
-    steady = ms[1:] if len(ms) > 1 else ms
-    return {"ms_per_step": float(steady.mean()), "ms_per_step_median": float(np.median(steady)),
-            "ms_per_step_p95": float(np.percentile(steady, 95)), "first_step_ms": float(ms[0]),
+    after = steady(ms)
+    return {"ms_per_step": float(after.mean()), "ms_per_step_median": float(np.median(after)),
+            "ms_per_step_p95": float(np.percentile(after, 95)), "first_step_ms": float(ms[0]),
             "ms_per_step_with_first": float(ms.mean())}
 
 

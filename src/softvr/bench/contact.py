@@ -46,7 +46,7 @@ from softvr import Scene
 from softvr.app import Player
 from softvr.bench import _contact_peers as P
 from softvr.bench._cube_scene import FULL_SCENE, QUICK_SCENE, CubeScene, cube_mesh
-from softvr.bench._report import bench_parser, print_and_write, save_figure, step_times
+from softvr.bench._report import bench_parser, print_and_write, save_figure, steady, step_times
 from softvr.bench.volume import _loadavg, _machine_info
 from softvr.collision import Plane
 from softvr.device import resolve_device
@@ -177,9 +177,8 @@ def run_candy(*, quick: bool = False, progress: bool = True, scene: str = "candy
         trace["pgs_iterations"].append(int(sol.iterations))
         trace["residual"].append(float(sol.residual))
     times = step_times(trace["step_s"])
-    first = 1 if steps > 1 else 0  # the steady state, as in step_times: the first step loads the scene
-    ms = 1e3 * np.asarray(trace["step_s"][first:])
-    busy = np.asarray(trace["contacts"][first:]) > 0
+    ms = 1e3 * np.asarray(steady(trace["step_s"]))
+    busy = np.asarray(steady(trace["contacts"])) > 0
     tets = sum(len(b.tets) for b in player.scene.bodies if isinstance(b, FemBody))
     triangles = sum(len(s.triangles) for s in player.scene.collision_surfaces)
     return {"scene": scene, "variants": list(variants), "tets": tets, "collision_triangles": triangles,
