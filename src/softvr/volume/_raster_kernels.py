@@ -409,10 +409,15 @@ _TET_SNIPPET = (
             // the entry AHEAD on, lane 0 of a later block, each block, and the first AHEAD
             // entries before the loop. A queue's voxels read ~11 lines a block, from a footprint
             // (with the queue itself) beyond L1; the stride prefetchers miss it (8 lanes, 4
-            // lines, rows of a few voxels). In place on the head CT: -5 to -6 % of a frame's CPU
+            // lines, rows of a few voxels). In place on the head CT: -3 to -6 % of a frame's CPU
             // time at one thread (AHEAD 32: -1 %, 64: -4 %, 96-128: -5.5 %, 192: -3.5 %; the
-            // output voxels' line as well: no better; lanes 0 and 4: worse).
+            // output voxels' line as well: no better; lanes 0 and 4: worse). From the 16-bit
+            // inputs only where rows run near the input's z axis (|ax|, |ay| <= 1/4: a block's
+            // lanes then mostly share lane 0's cells): under the benchmark's 45-degree rotation it
+            // cost 1-2.5 % (10 240 tets) and 4-8 % (40 big tets) there. From the float32 copy
+            // (gathers, twice the bytes) it paid rotated too: MRI, 1 080 tets, -4 to -5 %.
             constexpr int AHEAD = 96;
+            const bool prefetch = src == 0 || (__builtin_fabsf(ax) <= 0.25f && __builtin_fabsf(ay) <= 0.25f);
             const __UINTPTR_TYPE__ src_base = src == 0 ? (__UINTPTR_TYPE__)v : (__UINTPTR_TYPE__)s16;
             const __UINTPTR_TYPE__ es = src == 0 ? 4 : 2;
             auto prefetch_cell = [&](int n) __attribute__((always_inline)) {
@@ -426,9 +431,9 @@ _TET_SNIPPET = (
                 __builtin_prefetch((const void*)(at + (__UINTPTR_TYPE__)sx * es), 0, 3);
                 __builtin_prefetch((const void*)(at + (__UINTPTR_TYPE__)(sx + sy) * es), 0, 3);
             };
-            for (int n = n0; n < n0 + AHEAD && n < cnt; n += 8) prefetch_cell(n);
+            for (int n = n0; prefetch && n < n0 + AHEAD && n < cnt; n += 8) prefetch_cell(n);
             for (; n0 < cnt; n0 += 8) {
-                prefetch_cell(n0 + AHEAD);
+                if (prefetch) prefetch_cell(n0 + AHEAD);
                 i8 kk; f8 bx8, by8, bz8;
                 __builtin_memcpy(&kk, K + n0, 32); __builtin_memcpy(&bx8, BX + n0, 32);
                 __builtin_memcpy(&by8, BY + n0, 32); __builtin_memcpy(&bz8, BZ + n0, 32);
