@@ -369,7 +369,9 @@ class RayCaster:
             depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        per = int(K.RAYS_PER_THREAD)  # rays a thread
+        launch(K.RAYCAST[self._voxel_type], -(-self.cast_pixels // per), inputs, dev,
+               min_chunk=max(_ROWS_PER_CHUNK * width // per, 1))
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
