@@ -831,7 +831,8 @@ def stale_pixels(
 ):
     """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
-    row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
+    row, last row; one thread per row of it: a thread a pixel spent most of its time starting
+    threads) whose ray must be cast again (same camera,
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
     the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
     ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
@@ -846,28 +847,28 @@ def stale_pixels(
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
     ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
     brick (:func:`mark_pixels`): the others are not walked."""
-    t = wp.tid() + offset
-    columns = rect[1] - rect[0] + 1
-    tid = (rect[2] + t / columns) * width + rect[0] + t % columns
-    if stale[tid]:
-        return
-    walk = boxed != 0 and candidates[tid] != 0
-    if not walk and flips == 0:
-        return
-    a = segment_start[tid]
-    d = segment_end[tid] - a
-    if walk:
-        u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
-        # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
-        # ray to cast again is found in a brick or two.
-        if u[0] <= u[1]:
-            if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                stale[tid] = True
-                return
-    if flips != 0:
-        u = segment_in_box(a, d, flip_lo, flip_hi)
-        if u[0] <= u[1]:
-            empty_until[tid] = 0.0
+    row = rect[2] + wp.tid() + offset
+    for column in range(rect[0], rect[1] + 1):
+        tid = row * width + column
+        if stale[tid]:
+            continue
+        walk = boxed != 0 and candidates[tid] != 0
+        if not walk and flips == 0:
+            continue
+        a = segment_start[tid]
+        d = segment_end[tid] - a
+        if walk:
+            u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
+            # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+            # ray to cast again is found in a brick or two.
+            if u[0] <= u[1]:
+                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
+                    stale[tid] = True
+                    continue
+        if flips != 0:
+            u = segment_in_box(a, d, flip_lo, flip_hi)
+            if u[0] <= u[1]:
+                empty_until[tid] = 0.0
 
 
 #: Voxel dtypes read in place; others are converted to float32 once per upload.

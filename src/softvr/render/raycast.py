@@ -464,10 +464,11 @@ class RayCaster:
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
-        launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
+        columns = max(rect[1] - rect[0] + 1, 0)
+        launch(K.stale_pixels, max(rect[3] - rect[2] + 1, 0) if columns else 0,
                [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
                 wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
-               min_chunk=_STALE_CHUNK)
+               min_chunk=max(_STALE_CHUNK // max(columns, 1), 1))
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
 
