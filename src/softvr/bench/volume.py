@@ -46,7 +46,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -203,10 +203,10 @@ def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, de
     t = time.perf_counter()
     r = Rasterizer(volume, nodes, tets, culling=culling, device=device)
     construct_s = time.perf_counter() - t
-    stats = []
-    prev = []
+    stats: list[Any] = []
+    prev: list[Volume] = []
 
-    def frame():
+    def frame() -> Volume:
         # An application's frame loop on a fixed grid writes into the previous frame's
         # output (deform(out=...)); the first, untimed warm-up frame allocates it.
         out = r.deform(deformed, out_grid) if not prev else r.deform(deformed, out=prev[0])
@@ -214,9 +214,11 @@ def _softvr_case(section, name, volume, nodes, tets, deformed, mode, culling, de
         stats.append(r.stats)
         return out
 
-    times, out = _timed_runs(frame, repeat, max_case_s, min_case_s=min_case_s)
+    times, result = _timed_runs(frame, repeat, max_case_s, min_case_s=min_case_s)
+    out = cast(Volume, result)
     med = statistics.median(times)
     s = r.stats
+    assert s is not None  # set by deform()
     rec = {
         "section": section,
         "case": name,
