@@ -38,10 +38,6 @@ MISSED = wp.constant(-1.0e9)
 #: voxel, the central differences of the gradient one more; plus a margin for rounding (one
 #: more along the axis of the smoothing across slices, :func:`slice_smoothed`).
 READ_REACH = wp.constant(2.5)
-#: Rays a thread of :func:`raycast` casts: a CPU thread starts by unpacking the kernel's 43
-#: arguments, which a ray of a few samples through the skin noticed (palpation frame: the cast's
-#: CPU time 18.0 -> 16.5 ms, paired; 64 no better).
-RAYS_PER_THREAD = wp.constant(16)
 
 
 @wp.func
@@ -538,10 +534,13 @@ def raycast(
     ray_world: wp.array(dtype=wp.vec3),
     ray_span: wp.array(dtype=wp.vec2),
     ray_depth: wp.array(dtype=wp.vec4),
+    block: int,
     offset: int,
 ):
     """One ray per pixel, composited over the surfaces' colour and stopped at their depth;
-    ``RAYS_PER_THREAD`` rays a thread (those of ``pixels[t * RAYS_PER_THREAD ...]``).
+    ``block`` rays a thread (those of ``pixels[t * block ...]``: on the CPU a thread starts by
+    unpacking the kernel's 43 arguments, which a ray of a few samples through the skin notices,
+    :func:`softvr.device.blocked_launch`).
 
     ``depth`` [height, width] is the OpenGL depth buffer in [0, 1] (row 0 at the bottom);
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
@@ -585,8 +584,8 @@ def raycast(
     plane]) and ``ray_depth`` (a, b, c, e: the surface at OpenGL depth z in [0, 1] lies at
     t = (a + z' b) / (c + z' ndc_to_world[3, 2]) - e, z' = 2 z - 1).
     """
-    first_ray = (wp.tid() + offset) * RAYS_PER_THREAD
-    for idx in range(first_ray, wp.min(first_ray + RAYS_PER_THREAD, pixels.shape[0])):
+    first_ray = (wp.tid() + offset) * block
+    for idx in range(first_ray, wp.min(first_ray + block, pixels.shape[0])):
         tid = pixels[idx]
         px = tid % width
         row = tid / width
@@ -827,12 +826,12 @@ def stale_pixels(
     flip_hi: wp.vec3,
     empty_until: wp.array(dtype=float),
     stale: wp.array(dtype=wp.bool),
+    block: int,
     offset: int,
 ):
     """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
-    row, last row; one thread per row of it: a thread a pixel spent most of its time starting
-    threads) whose ray must be cast again (same camera,
+    row, last row; ``block`` pixels a thread, in row-major order) whose ray must be cast again (same camera,
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
     the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
     ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
@@ -847,9 +846,10 @@ def stale_pixels(
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
     ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
     brick (:func:`mark_pixels`): the others are not walked."""
-    row = rect[2] + wp.tid() + offset
-    for column in range(rect[0], rect[1] + 1):
-        tid = row * width + column
+    columns = rect[1] - rect[0] + 1
+    first = (wp.tid() + offset) * block
+    for t in range(first, wp.min(first + block, columns * (rect[3] - rect[2] + 1))):
+        tid = (rect[2] + t / columns) * width + rect[0] + t % columns
         if stale[tid]:
             continue
         walk = boxed != 0 and candidates[tid] != 0

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from softvr.device import launch, load_kernels, resolve_device
+from softvr.device import blocked_launch, launch, load_kernels, resolve_device
 from softvr.errors import InputError
 from softvr.render import _raycast_kernels as K
 from softvr.render._scene import check_volume
@@ -369,9 +369,7 @@ class RayCaster:
             depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        per = int(K.RAYS_PER_THREAD)  # rays a thread
-        launch(K.RAYCAST[self._voxel_type], -(-self.cast_pixels // per), inputs, dev,
-               min_chunk=max(_ROWS_PER_CHUNK * width // per, 1))
+        blocked_launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
@@ -464,11 +462,10 @@ class RayCaster:
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
-        columns = max(rect[1] - rect[0] + 1, 0)
-        launch(K.stale_pixels, max(rect[3] - rect[2] + 1, 0) if columns else 0,
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
-                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
-               min_chunk=max(_STALE_CHUNK // max(columns, 1), 1))
+        blocked_launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
+                       [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
+                        wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+                       min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
 
 
