@@ -1,7 +1,7 @@
 """Device helpers: the OpenBLAS thread limit applies inside the block and is undone after; a
 replayed launch does what the launch does; a launch split over the CPU cores, and a split
 replay, runs every thread once, with its own index (a split replay even when no worker
-comes to take its chunks); a blocked replay (several items a CPU thread) does every item once,
+comes to take its chunks); a blocked replay or launch (several items a CPU thread) does every item once,
 the last block's short tail included."""
 
 import queue
@@ -12,8 +12,8 @@ import pytest
 import warp as wp
 
 import softvr.device as device_module
-from softvr.device import (ITEMS_A_CPU_THREAD, _openblas_controls, blocked_replayer, chunked_replayer, launch,
-                           replayer, single_threaded_blas)
+from softvr.device import (ITEMS_A_CPU_THREAD, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
+                           launch, replayer, single_threaded_blas)
 
 
 @wp.kernel
@@ -60,17 +60,20 @@ def _blocked_square(values: wp.array(dtype=wp.float64), counts: wp.array(dtype=w
         counts[i] = counts[i] + 1
 
 
+@pytest.mark.parametrize("how", ["replay", "launch"])
 @pytest.mark.parametrize("workers", ["1", "3"])
-def test_a_blocked_replay_does_every_item_once_the_short_last_block_included(device, workers, monkeypatch):
-    """10 007 items (156 blocks of 64 and a last one of 23), replayed 5 times, on one core and
-    split over 3 (chunks counted in blocks): item i holds 0.5 i^2 as NumPy computes it per item
-    (exact: i^2 < 2^53) and was done exactly 5 times; on CUDA a thread takes one item."""
+def test_a_blocked_replay_does_every_item_once_the_short_last_block_included(device, workers, how, monkeypatch):
+    """10 007 items (156 blocks of 64 and a last one of 23), replayed (or launched:
+    ``blocked_launch``) 5 times, on one core and split over 3 (chunks counted in blocks): item i
+    holds 0.5 i^2 as NumPy computes it per item (exact: i^2 < 2^53) and was done exactly 5 times;
+    on CUDA a thread takes one item."""
     monkeypatch.setenv("SOFTVR_NUM_THREADS", workers)
     items = 10_007
     assert items % ITEMS_A_CPU_THREAD != 0
     values = wp.zeros(items, dtype=wp.float64, device=device)
     counts = wp.zeros(items, dtype=wp.int32, device=device)
-    replay = blocked_replayer(_blocked_square, items, [values, counts, 0.5], device, min_chunk=256)
+    replay = blocked_replayer(_blocked_square, items, [values, counts, 0.5], device, min_chunk=256) if how == "replay" \
+        else lambda: blocked_launch(_blocked_square, items, [values, counts, 0.5], device, min_chunk=256)
     for _ in range(5):
         replay()
     np.testing.assert_array_equal(counts.numpy(), np.full(items, 5, np.int32))

@@ -28,7 +28,7 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "ITEMS_A_CPU_THREAD", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order",
+    "ITEMS_A_CPU_THREAD", "blocked_launch", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present", "in_order",
     "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas", "stride_threads", "upload",
 ]
 
@@ -382,6 +382,15 @@ def blocked_replayer(kernel, items: int, inputs: list, device: str, *, min_chunk
     block = ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
     return chunked_replayer(kernel, -(-items // block), [*inputs, block], device,
                             min_chunk=max(1, min_chunk // block))
+
+
+def blocked_launch(kernel, items: int, inputs: list, device: str, *, min_chunk: int = 1024) -> None:
+    """:func:`launch` of a blocked kernel over ``items`` (as :func:`blocked_replayer`, once): a
+    thread takes ``block`` items, from (``wp.tid()`` + offset) x ``block`` up to the item count
+    the kernel reads from its arrays, its last two parameters ``block: int, offset: int``;
+    ``block`` is :data:`ITEMS_A_CPU_THREAD` on the CPU and 1 on CUDA. ``min_chunk`` counts items."""
+    block = ITEMS_A_CPU_THREAD if wp.get_device(device).is_cpu else 1
+    launch(kernel, -(-items // block), [*inputs, block], device, min_chunk=max(1, min_chunk // block))
 
 
 def stride_threads(device: str, cuda_threads: int) -> int:

@@ -142,3 +142,21 @@ def test_quick_bench_writes_json_and_png(tmp_path, capsys):
     assert not list(tmp_path.glob("**/*.tmp"))
     out = capsys.readouterr().out
     assert "Fig 3.5" in out and "Fig 3.6" in out and "Targets" in out
+
+
+def test_timed_runs_take_repeat_runs_and_more_until_the_minimum_time(monkeypatch):
+    """``_timed_runs`` on a clock that advances 0.04 s per call of ``fn``: 3 runs (``repeat``)
+    take 0.12 s; a minimum of 0.5 s needs ceil(0.5 / 0.04) = 13 runs; a maximum of 0.2 s stops
+    after 5 (0.2 s reached), whatever the minimum."""
+    from softvr.bench import volume as V  # noqa: PLC0415
+
+    clock = [0.0]
+
+    def fn():
+        clock[0] += 0.04
+
+    monkeypatch.setattr(V.time, "perf_counter", lambda: clock[0])
+    assert len(V._timed_runs(fn, 3, 4.0)[0]) == 3
+    times, _ = V._timed_runs(fn, 3, 4.0, min_case_s=0.5)
+    assert len(times) == 13 and np.allclose(times, 0.04)
+    assert len(V._timed_runs(fn, 3, 0.2, min_case_s=0.5)[0]) == 5

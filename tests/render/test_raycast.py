@@ -575,6 +575,40 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 
 
+
+def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
+    """The stale-ray walk's field (:meth:`RayCaster._read_distance`) against SciPy: a brick is
+    marked iff it is occupied before or after the change (seed 0) and a brick within 1 of it
+    changed (``ndimage.maximum_filter`` of size 3); the field is ``distance_transform_cdt``
+    (chessboard) to the marked bricks, capped at ``_READ_REACH``, and the cap where none is,
+    over the changed bricks' box grown by one (all the marked bricks lie there, and the walk
+    runs only there). Random changes in boxes at the grid's corners, its middle and a single
+    brick."""
+    from scipy import ndimage  # noqa: PLC0415
+
+    import softvr.render.raycast as R  # noqa: PLC0415
+
+    rng = np.random.default_rng(5)
+    nb = (23, 17, 29)
+    caster = R.RayCaster(PRESETS["ct"], device="cpu")
+    for box in (((3, 2, 4), (12, 9, 20)), ((10, 5, 0), (22, 16, 8)), ((0, 0, 0), (4, 3, 5)), ((6, 6, 6), (6, 6, 6))):
+        lo, hi = np.array(box[0]), np.array(box[1])
+        changed = np.zeros(nb, np.uint8)
+        changed[tuple(slice(a, b + 1) for a, b in zip(lo, hi))] = rng.random(hi - lo + 1) < 0.08
+        seed = np.where(rng.random(nb) < 0.5, 0, R.REACH).astype(np.uint8)
+        caster._occupied_before = rng.random(nb) < 0.3
+        caster._changed_bricks, caster._seed = (wp.array(a, dtype=wp.uint8, device="cpu") for a in (changed, seed))
+        caster._changed_box = (lo, hi)
+        field, marked = caster._read_distance()
+        truth = ndimage.maximum_filter(changed != 0, size=3, mode="constant") & ((seed == 0) | caster._occupied_before)
+        got = np.zeros(nb, bool)
+        got[tuple(np.asarray(marked, int).T)] = True
+        np.testing.assert_array_equal(got, truth, err_msg=str(box))
+        distance = np.minimum(ndimage.distance_transform_cdt(~truth, metric="chessboard"), R._READ_REACH) \
+            if truth.any() else np.full(nb, R._READ_REACH)
+        walked = tuple(slice(max(a - 1, 0), b + 2) for a, b in zip(lo, hi))
+        np.testing.assert_array_equal(field[walked], distance[walked], err_msg=str(box))
+
 def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
     cell's bit is clear, so every cell where a trilinear sample's table opacity can be non-zero

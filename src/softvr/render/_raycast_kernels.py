@@ -534,9 +534,13 @@ def raycast(
     ray_world: wp.array(dtype=wp.vec3),
     ray_span: wp.array(dtype=wp.vec2),
     ray_depth: wp.array(dtype=wp.vec4),
+    block: int,
     offset: int,
 ):
-    """One ray per pixel, composited over the surfaces' colour and stopped at their depth.
+    """One ray per pixel, composited over the surfaces' colour and stopped at their depth;
+    ``block`` rays a thread (those of ``pixels[t * block ...]``: on the CPU a thread starts by
+    unpacking the kernel's 43 arguments, which a ray of a few samples through the skin notices,
+    :func:`softvr.device.blocked_launch`).
 
     ``depth`` [height, width] is the OpenGL depth buffer in [0, 1] (row 0 at the bottom);
     ``surface`` and ``image`` [height, width, 3] are RGB with row 0 at the top. ``shading``
@@ -580,167 +584,169 @@ def raycast(
     plane]) and ``ray_depth`` (a, b, c, e: the surface at OpenGL depth z in [0, 1] lies at
     t = (a + z' b) / (c + z' ndc_to_world[3, 2]) - e, z' = 2 z - 1).
     """
-    tid = pixels[wp.tid() + offset]
-    px = tid % width
-    row = tid / width
-    py = height - 1 - row  # OpenGL rows run up
-    o = wp.vec3(0.0)
-    d = wp.vec3(0.0)
-    dw = wp.vec3(0.0)
-    inside = wp.vec2(0.0)
-    at_depth = wp.vec4(0.0)
-    if store_rays != 0:
-        nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
-        ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
-        near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
-        far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
-        near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
-        far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
-        dw = wp.normalize(far - near)
-        # The surface point at depth z' is ndc_to_world (nx, ny, z', 1) = mid + z' column 2.
-        mid = ndc_to_world @ wp.vec4(nx, ny, 0.0, 1.0)
-        column = ndc_to_world @ wp.vec4(0.0, 0.0, 1.0, 0.0)
-        at_depth = wp.vec4(wp.dot(wp.vec3(mid[0], mid[1], mid[2]), dw),
-                           wp.dot(wp.vec3(column[0], column[1], column[2]), dw), mid[3], wp.dot(near, dw))
-        o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
-        o = wp.vec3(o4[0], o4[1], o4[2])
-        d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
-        d = wp.vec3(d4[0], d4[1], d4[2])
-        inside = wp.vec2(0.0, 3.0e38)
-        inside = slab(o[0], d[0], 0.0, float(n[0] - 1), inside[0], inside[1])
-        inside = slab(o[1], d[1], 0.0, float(n[1] - 1), inside[0], inside[1])
-        inside = slab(o[2], d[2], 0.0, float(n[2] - 1), inside[0], inside[1])
-        ray_origin[tid] = o
-        ray_direction[tid] = d
-        ray_world[tid] = dw
-        ray_span[tid] = inside
-        ray_depth[tid] = at_depth
-    else:
-        o = ray_origin[tid]
-        d = ray_direction[tid]
-        dw = ray_world[tid]
-        inside = ray_span[tid]
-        at_depth = ray_depth[tid]
-    z = 2.0 * depth[py, px] - 1.0
-    t_surface = (at_depth[0] + z * at_depth[1]) / (at_depth[2] + z * ndc_to_world[3, 2]) - at_depth[3]
-    span = wp.vec2(inside[0], wp.min(inside[1], t_surface))
-    rgb = wp.vec3(0.0)
-    alpha = float(0.0)
-    if span[0] < span[1]:
-        t0 = span[0]
-        shift = float(0.5)
-        if jitter != 0:
-            shift = pixel_noise(px, row)
-        view = -dw
-        half = wp.normalize(light + view)
-        size = lut.shape[0]
-        nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
-        # Reciprocals once per ray: the empty-space jumps multiply (a zero component never exits).
-        inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
-                        wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
-                        wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
-        inv_step = 1.0 / step
-        known = empty_until[tid]
-        if known > 0.0 and flips != 0:
-            on_ray = slab(o[0], d[0], flip_lo[0], flip_hi[0], t0, t0 + (known + shift) * step)
-            on_ray = slab(o[1], d[1], flip_lo[1], flip_hi[1], on_ray[0], on_ray[1])
-            on_ray = slab(o[2], d[2], flip_lo[2], flip_hi[2], on_ray[0], on_ray[1])
-            if on_ray[0] <= on_ray[1]:
-                known = 0.0
-        k = known
-        first = float(-1.0)  # the first sample found in an occupied brick
-        if known > 0.0 and skip_ok != 0:
-            read = read_from[tid]
-            if read > known:
-                if none_gained(o + (t0 + (known + shift) * step) * d, o + (t0 + (read - 1.0 + shift) * step) * d,
-                               gained):
-                    first = known
-                    k = read
-        first_read = float(-1.0)  # the first sample read
-        last = wp.vec3i(-1, -1, -1)  # the occupied brick the ray is in (no need to look again)
-        while alpha < OPAQUE_ENOUGH:
-            t = t0 + (k + shift) * step
-            if t > span[1]:
-                break
-            p = o + t * d
-            b = brick_at(nb, p)
-            r = int(0)
-            if b[0] != last[0] or b[1] != last[1] or b[2] != last[2]:
-                r = int(distance[b[0], b[1], b[2]])
-                if r == 0:
-                    last = b
-                    if first < 0.0:
-                        first = k
-            if r > 0:
-                # Empty space: jump to where the ray leaves the empty cube of bricks around
-                # this one, staying on the ray's sample lattice t0 + (k + shift) step so
-                # that skipping changes no sample.
-                bs = float(BRICK)
-                leave = wp.min(wp.min(exit_along(o[0], inv_d[0], float(b[0] - r + 1) * bs, float(b[0] + r) * bs),
-                                      exit_along(o[1], inv_d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs)),
-                               exit_along(o[2], inv_d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs))
-                k = wp.max(k + 1.0, wp.ceil((leave - t0) * inv_step - shift))
-                continue
-            # A sample in a cell whose corners hold no value of non-zero opacity between them is
-            # transparent (brick_minmax): skipped without reading the voxels.
-            q = cell(n, clamped(n, p))
-            if ((cells[q[0] >> BRICK_SHIFT, q[1] >> BRICK_SHIFT, q[2] >> BRICK_SHIFT]
-                 >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) == wp.uint64(0):
+    first_ray = (wp.tid() + offset) * block
+    for idx in range(first_ray, wp.min(first_ray + block, pixels.shape[0])):
+        tid = pixels[idx]
+        px = tid % width
+        row = tid / width
+        py = height - 1 - row  # OpenGL rows run up
+        o = wp.vec3(0.0)
+        d = wp.vec3(0.0)
+        dw = wp.vec3(0.0)
+        inside = wp.vec2(0.0)
+        at_depth = wp.vec4(0.0)
+        if store_rays != 0:
+            nx = 2.0 * (float(px) + 0.5) / float(width) - 1.0
+            ny = 2.0 * (float(py) + 0.5) / float(height) - 1.0
+            near4 = ndc_to_world @ wp.vec4(nx, ny, -1.0, 1.0)
+            far4 = ndc_to_world @ wp.vec4(nx, ny, 1.0, 1.0)
+            near = wp.vec3(near4[0], near4[1], near4[2]) / near4[3]
+            far = wp.vec3(far4[0], far4[1], far4[2]) / far4[3]
+            dw = wp.normalize(far - near)
+            # The surface point at depth z' is ndc_to_world (nx, ny, z', 1) = mid + z' column 2.
+            mid = ndc_to_world @ wp.vec4(nx, ny, 0.0, 1.0)
+            column = ndc_to_world @ wp.vec4(0.0, 0.0, 1.0, 0.0)
+            at_depth = wp.vec4(wp.dot(wp.vec3(mid[0], mid[1], mid[2]), dw),
+                               wp.dot(wp.vec3(column[0], column[1], column[2]), dw), mid[3], wp.dot(near, dw))
+            o4 = world_to_index @ wp.vec4(near[0], near[1], near[2], 1.0)
+            o = wp.vec3(o4[0], o4[1], o4[2])
+            d4 = world_to_index @ wp.vec4(dw[0], dw[1], dw[2], 0.0)
+            d = wp.vec3(d4[0], d4[1], d4[2])
+            inside = wp.vec2(0.0, 3.0e38)
+            inside = slab(o[0], d[0], 0.0, float(n[0] - 1), inside[0], inside[1])
+            inside = slab(o[1], d[1], 0.0, float(n[1] - 1), inside[0], inside[1])
+            inside = slab(o[2], d[2], 0.0, float(n[2] - 1), inside[0], inside[1])
+            ray_origin[tid] = o
+            ray_direction[tid] = d
+            ray_world[tid] = dw
+            ray_span[tid] = inside
+            ray_depth[tid] = at_depth
+        else:
+            o = ray_origin[tid]
+            d = ray_direction[tid]
+            dw = ray_world[tid]
+            inside = ray_span[tid]
+            at_depth = ray_depth[tid]
+        z = 2.0 * depth[py, px] - 1.0
+        t_surface = (at_depth[0] + z * at_depth[1]) / (at_depth[2] + z * ndc_to_world[3, 2]) - at_depth[3]
+        span = wp.vec2(inside[0], wp.min(inside[1], t_surface))
+        rgb = wp.vec3(0.0)
+        alpha = float(0.0)
+        if span[0] < span[1]:
+            t0 = span[0]
+            shift = float(0.5)
+            if jitter != 0:
+                shift = pixel_noise(px, row)
+            view = -dw
+            half = wp.normalize(light + view)
+            size = lut.shape[0]
+            nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
+            # Reciprocals once per ray: the empty-space jumps multiply (a zero component never exits).
+            inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
+                            wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
+                            wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
+            inv_step = 1.0 / step
+            known = empty_until[tid]
+            if known > 0.0 and flips != 0:
+                on_ray = slab(o[0], d[0], flip_lo[0], flip_hi[0], t0, t0 + (known + shift) * step)
+                on_ray = slab(o[1], d[1], flip_lo[1], flip_hi[1], on_ray[0], on_ray[1])
+                on_ray = slab(o[2], d[2], flip_lo[2], flip_hi[2], on_ray[0], on_ray[1])
+                if on_ray[0] <= on_ray[1]:
+                    known = 0.0
+            k = known
+            first = float(-1.0)  # the first sample found in an occupied brick
+            if known > 0.0 and skip_ok != 0:
+                read = read_from[tid]
+                if read > known:
+                    if none_gained(o + (t0 + (known + shift) * step) * d, o + (t0 + (read - 1.0 + shift) * step) * d,
+                                   gained):
+                        first = known
+                        k = read
+            first_read = float(-1.0)  # the first sample read
+            last = wp.vec3i(-1, -1, -1)  # the occupied brick the ray is in (no need to look again)
+            while alpha < OPAQUE_ENOUGH:
+                t = t0 + (k + shift) * step
+                if t > span[1]:
+                    break
+                p = o + t * d
+                b = brick_at(nb, p)
+                r = int(0)
+                if b[0] != last[0] or b[1] != last[1] or b[2] != last[2]:
+                    r = int(distance[b[0], b[1], b[2]])
+                    if r == 0:
+                        last = b
+                        if first < 0.0:
+                            first = k
+                if r > 0:
+                    # Empty space: jump to where the ray leaves the empty cube of bricks around
+                    # this one, staying on the ray's sample lattice t0 + (k + shift) step so
+                    # that skipping changes no sample.
+                    bs = float(BRICK)
+                    leave = wp.min(wp.min(exit_along(o[0], inv_d[0], float(b[0] - r + 1) * bs, float(b[0] + r) * bs),
+                                          exit_along(o[1], inv_d[1], float(b[1] - r + 1) * bs, float(b[1] + r) * bs)),
+                                   exit_along(o[2], inv_d[2], float(b[2] - r + 1) * bs, float(b[2] + r) * bs))
+                    k = wp.max(k + 1.0, wp.ceil((leave - t0) * inv_step - shift))
+                    continue
+                # A sample in a cell whose corners hold no value of non-zero opacity between them is
+                # transparent (brick_minmax): skipped without reading the voxels.
+                q = cell(n, clamped(n, p))
+                if ((cells[q[0] >> BRICK_SHIFT, q[1] >> BRICK_SHIFT, q[2] >> BRICK_SHIFT]
+                     >> wp.uint64(cell_bit(q[0], q[1], q[2]))) & wp.uint64(1)) == wp.uint64(0):
+                    k = k + 1.0
+                    continue
+                if first_read < 0.0:
+                    first_read = k
+                v = trilinear(vol, n, strides, p)
+                c = lut_rgba(lut, lut_position(v, lut_lo, lut_scale, size))
+                a = c[3]
+                if a > 0.0:
+                    color = wp.vec3(c[0], c[1], c[2])
+                    if shade != 0 or gradient_scale >= 0.0:
+                        gi = gradient(vol, n, strides, p)
+                        gw = index_gradient_to_world @ gi
+                        gl = wp.length(gw)
+                        if gradient_scale >= 0.0:
+                            a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,
+                                                                      float(gradient_lut.shape[0] - 1)))
+                        if shade != 0:
+                            if smooth_axis >= 0 and gl > 1.0e-6:
+                                # Only a surface at a shallow angle to the slices shows their terraces:
+                                # smoothed in full from 37 degrees down, not at all from 60 up.
+                                across = wp.abs(wp.dot(gw, slice_normal)) / gl
+                                blend = wp.clamp((across - SMOOTH_FROM) / (SMOOTH_FULL - SMOOTH_FROM), 0.0, 1.0)
+                                if blend > 0.0:
+                                    smooth = slice_smoothed(vol, n, strides, p, smooth_axis, gi)
+                                    gw = index_gradient_to_world @ (gi + blend * (smooth - gi))
+                                    gl = wp.length(gw)
+                            lit = shading[0]
+                            if gl > 1.0e-6:
+                                nrm = gw / gl
+                                if wp.dot(nrm, view) < 0.0:  # two-sided lighting
+                                    nrm = -nrm
+                                lit = lit + shading[1] * wp.max(wp.dot(nrm, light), 0.0)
+                                # cos ** 20 by squaring: 5 products instead of an exp and a log (pow).
+                                h1 = wp.max(wp.dot(nrm, half), 0.0)
+                                h4 = (h1 * h1) * (h1 * h1)
+                                h16 = (h4 * h4) * (h4 * h4)
+                                color = color * lit + wp.vec3(shading[2] * h16 * h4)
+                            else:
+                                color = color * lit
+                    rgb = rgb + (1.0 - alpha) * a * color
+                    alpha = alpha + (1.0 - alpha) * a
                 k = k + 1.0
-                continue
-            if first_read < 0.0:
-                first_read = k
-            v = trilinear(vol, n, strides, p)
-            c = lut_rgba(lut, lut_position(v, lut_lo, lut_scale, size))
-            a = c[3]
-            if a > 0.0:
-                color = wp.vec3(c[0], c[1], c[2])
-                if shade != 0 or gradient_scale >= 0.0:
-                    gi = gradient(vol, n, strides, p)
-                    gw = index_gradient_to_world @ gi
-                    gl = wp.length(gw)
-                    if gradient_scale >= 0.0:
-                        a = a * lut_scalar(gradient_lut, wp.clamp(gl * gradient_scale, 0.0,
-                                                                  float(gradient_lut.shape[0] - 1)))
-                    if shade != 0:
-                        if smooth_axis >= 0 and gl > 1.0e-6:
-                            # Only a surface at a shallow angle to the slices shows their terraces:
-                            # smoothed in full from 37 degrees down, not at all from 60 up.
-                            across = wp.abs(wp.dot(gw, slice_normal)) / gl
-                            blend = wp.clamp((across - SMOOTH_FROM) / (SMOOTH_FULL - SMOOTH_FROM), 0.0, 1.0)
-                            if blend > 0.0:
-                                smooth = slice_smoothed(vol, n, strides, p, smooth_axis, gi)
-                                gw = index_gradient_to_world @ (gi + blend * (smooth - gi))
-                                gl = wp.length(gw)
-                        lit = shading[0]
-                        if gl > 1.0e-6:
-                            nrm = gw / gl
-                            if wp.dot(nrm, view) < 0.0:  # two-sided lighting
-                                nrm = -nrm
-                            lit = lit + shading[1] * wp.max(wp.dot(nrm, light), 0.0)
-                            # cos ** 20 by squaring: 5 products instead of an exp and a log (pow).
-                            h1 = wp.max(wp.dot(nrm, half), 0.0)
-                            h4 = (h1 * h1) * (h1 * h1)
-                            h16 = (h4 * h4) * (h4 * h4)
-                            color = color * lit + wp.vec3(shading[2] * h16 * h4)
-                        else:
-                            color = color * lit
-                rgb = rgb + (1.0 - alpha) * a * color
-                alpha = alpha + (1.0 - alpha) * a
-            k = k + 1.0
-        empty_until[tid] = wp.where(first >= 0.0, first, k)
-        read_from[tid] = wp.where(first_read >= 0.0, first_read, k)
-        # The sample at k was not taken: the samples read lie before it (and before the span's end).
-        segment_start[tid] = o + t0 * d
-        segment_end[tid] = o + wp.min(t0 + (k + shift) * step, span[1]) * d
-    else:
-        segment_start[tid] = wp.vec3(MISSED)
-        segment_end[tid] = wp.vec3(MISSED)
-        empty_until[tid] = 0.0  # no segment is kept to check the prefix against later flips
-        read_from[tid] = 0.0
-    for ch in range(3):
-        value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
-        image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
+            empty_until[tid] = wp.where(first >= 0.0, first, k)
+            read_from[tid] = wp.where(first_read >= 0.0, first_read, k)
+            # The sample at k was not taken: the samples read lie before it (and before the span's end).
+            segment_start[tid] = o + t0 * d
+            segment_end[tid] = o + wp.min(t0 + (k + shift) * step, span[1]) * d
+        else:
+            segment_start[tid] = wp.vec3(MISSED)
+            segment_end[tid] = wp.vec3(MISSED)
+            empty_until[tid] = 0.0  # no segment is kept to check the prefix against later flips
+            read_from[tid] = 0.0
+        for ch in range(3):
+            value = rgb[ch] + (1.0 - alpha) * float(surface[row, px, ch]) / 255.0
+            image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
 
 
 @wp.kernel
@@ -820,11 +826,12 @@ def stale_pixels(
     flip_hi: wp.vec3,
     empty_until: wp.array(dtype=float),
     stale: wp.array(dtype=wp.bool),
+    block: int,
     offset: int,
 ):
     """Set True in ``stale`` (row-major pixels, row 0 at the top; 1 already where the surfaces'
     colour or depth changed) for each pixel of ``rect`` (first column, last column, first
-    row, last row; one thread per pixel of it) whose ray must be cast again (same camera,
+    row, last row; ``block`` pixels a thread, in row-major order) whose ray must be cast again (same camera,
     tables and grid as the last frame): its last segment of samples (:func:`raycast`) meets
     the index box ``box_lo .. box_hi`` of rewritten voxels grown by ``reach`` [3] (if
     ``boxed`` != 0; else no voxel changed) and, in it, a brick whose samples may read a
@@ -839,28 +846,29 @@ def stale_pixels(
     Only the pixels in ``rect`` can have a segment that meets either box (every point of a
     ray is seen in its pixel), and only those set in ``candidates`` [height * width] a marked
     brick (:func:`mark_pixels`): the others are not walked."""
-    t = wp.tid() + offset
     columns = rect[1] - rect[0] + 1
-    tid = (rect[2] + t / columns) * width + rect[0] + t % columns
-    if stale[tid]:
-        return
-    walk = boxed != 0 and candidates[tid] != 0
-    if not walk and flips == 0:
-        return
-    a = segment_start[tid]
-    d = segment_end[tid] - a
-    if walk:
-        u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
-        # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
-        # ray to cast again is found in a brick or two.
-        if u[0] <= u[1]:
-            if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
-                stale[tid] = True
-                return
-    if flips != 0:
-        u = segment_in_box(a, d, flip_lo, flip_hi)
-        if u[0] <= u[1]:
-            empty_until[tid] = 0.0
+    first = (wp.tid() + offset) * block
+    for t in range(first, wp.min(first + block, columns * (rect[3] - rect[2] + 1))):
+        tid = (rect[2] + t / columns) * width + rect[0] + t % columns
+        if stale[tid]:
+            continue
+        walk = boxed != 0 and candidates[tid] != 0
+        if not walk and flips == 0:
+            continue
+        a = segment_start[tid]
+        d = segment_end[tid] - a
+        if walk:
+            u = segment_in_box(a, d, box_lo - reach, box_hi + reach)
+            # Walked from the ray's end: the changes are mostly where rays stop (the skin), so a
+            # ray to cast again is found in a brick or two.
+            if u[0] <= u[1]:
+                if crosses_marked(a + d, -d, 1.0 - u[1], 1.0 - u[0], read_distance):
+                    stale[tid] = True
+                    continue
+        if flips != 0:
+            u = segment_in_box(a, d, flip_lo, flip_hi)
+            if u[0] <= u[1]:
+                empty_until[tid] = 0.0
 
 
 #: Voxel dtypes read in place; others are converted to float32 once per upload.

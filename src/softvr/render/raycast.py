@@ -18,9 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
-from scipy import ndimage
 
-from softvr.device import launch, load_kernels, resolve_device
+from softvr.device import blocked_launch, launch, load_kernels, resolve_device
 from softvr.errors import InputError
 from softvr.render import _raycast_kernels as K
 from softvr.render._scene import check_volume
@@ -370,7 +369,7 @@ class RayCaster:
             depth, surface, pixels,
             self._image, *self._segments, store_rays, *self._rays,
         ]
-        launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
+        blocked_launch(K.RAYCAST[self._voxel_type], self.cast_pixels, inputs, dev, min_chunk=_ROWS_PER_CHUNK * width)
         # A copy: the caster's image is next frame's starting point.
         return self._image.numpy().copy()
 
@@ -390,9 +389,8 @@ class RayCaster:
         corners lie in brick c's range, so where c is empty (no value of non-zero opacity)
         before and after the change the sample is transparent in both frames and what it
         reads does not matter: the marked bricks are the occupied ones (before or after)
-        within 1 of a changed brick. SciPy's transform on the changed bricks' box grown by
-        one: a few thousand bricks, where Warp launches over them cost more to hand out
-        than to run."""
+        within 1 of a changed brick. In numpy on the changed bricks' box grown by one: a few
+        thousand bricks, where a Warp thread per brick costs more on the CPU than the work."""
         nb = np.asarray(self._changed_bricks.shape)
         read = np.full(tuple(nb), _READ_REACH, np.uint8)
         none = np.zeros((0, 3), int)
@@ -407,12 +405,16 @@ class RayCaster:
         changed = self._changed_bricks.numpy()[box] != 0
         if not changed.any():
             return read, none
-        near = ndimage.maximum_filter(changed, size=3, mode="constant")
-        marked = near & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
+        marked = _grown(changed) & (self._occupied_before[box] | (self._seed.numpy()[box] == 0))
         if not marked.any():
             return read, none
-        to_marked = ndimage.distance_transform_cdt(~marked, metric="chessboard")
-        read[box] = np.minimum(to_marked, _READ_REACH)
+        # The Chebyshev distance d to the marked bricks, capped: within r of one for r = d .. cap - 1,
+        # so cap - (the number of r < cap within r of one) is min(d, cap).
+        within, count = marked, marked.astype(np.uint8)
+        for _ in range(_READ_REACH - 1):
+            within = _grown(within)
+            count += within
+        read[box] = _READ_REACH - count
         return read, np.argwhere(marked) + first
 
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
@@ -460,8 +462,23 @@ class RayCaster:
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
-        launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
-               [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
-                wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
-               min_chunk=_STALE_CHUNK)
+        blocked_launch(K.stale_pixels, max(rect[1] - rect[0] + 1, 0) * max(rect[3] - rect[2] + 1, 0),
+                       [int(width), int(boxed), wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*reach), read, candidates,
+                        wp.vec4i(*rect), *self._segments, *flipped, self._empty_until, stale], self.device,
+                       min_chunk=_STALE_CHUNK)
         return wp.array(np.flatnonzero(stale.numpy()).astype(np.int32), dtype=wp.int32, device=self.device)
+
+
+def _grown(mask: np.ndarray) -> np.ndarray:
+    """``mask`` (3-D bool) grown by one cell in the 26 directions (a chessboard dilation, nothing
+    beyond its edges): ``scipy.ndimage.maximum_filter(mask, 3, mode="constant")`` by six slice ORs,
+    ~10x faster on the few thousand bricks of a frame."""
+    out = mask.copy()
+    for axis in range(3):
+        src = out.copy()
+        lead = [slice(None)] * 3
+        tail = [slice(None)] * 3
+        lead[axis], tail[axis] = slice(1, None), slice(None, -1)
+        out[tuple(lead)] |= src[tuple(tail)]
+        out[tuple(tail)] |= src[tuple(lead)]
+    return out
