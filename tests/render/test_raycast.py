@@ -70,11 +70,13 @@ import dataclasses
 import numpy as np
 import pytest
 import warp as wp
+from scipy import ndimage
 
 from softvr.datasets import HEAD_CT_PATH
 from softvr.device import launch
 from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
+from softvr.render import raycast as R
 from softvr.volume import Volume
 
 WHITE = ((-1000.0, 1.0, 1.0, 1.0), (1000.0, 1.0, 1.0, 1.0))
@@ -523,8 +525,6 @@ def test_slice_smoothed_gradient_is_the_gradient_of_the_volume_smoothed_across_s
     """slice_smoothed (and the gradient it smooths) against SciPy's route: smooth the voxels along ``axis`` by (1, 2, 1) / 4, take central
     differences (numpy.gradient), interpolate them trilinearly (map_coordinates, order 1) at
     points away from the edges (no clamping there). Float32 sums of values ~1: 1e-4."""
-    from scipy import ndimage
-
     rng = np.random.default_rng(3)
     n = np.array([9, 10, 11])
     vol = rng.uniform(-1.0, 1.0, n).astype(np.float32)
@@ -575,7 +575,6 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 
 
-
 def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
     """The stale-ray walk's field (:meth:`RayCaster._read_distance`) against SciPy: a brick is
     marked iff it is occupied before or after the change (seed 0) and a brick within 1 of it
@@ -584,10 +583,6 @@ def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
     over the changed bricks' box grown by one (all the marked bricks lie there, and the walk
     runs only there). Random changes in boxes at the grid's corners, its middle and a single
     brick."""
-    from scipy import ndimage  # noqa: PLC0415
-
-    import softvr.render.raycast as R  # noqa: PLC0415
-
     rng = np.random.default_rng(5)
     nb = (23, 17, 29)
     caster = R.RayCaster(PRESETS["ct"], device="cpu")
@@ -608,6 +603,7 @@ def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
             if truth.any() else np.full(nb, R._READ_REACH)
         walked = tuple(slice(max(a - 1, 0), b + 2) for a, b in zip(lo, hi))
         np.testing.assert_array_equal(field[walked], distance[walked], err_msg=str(box))
+
 
 def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
