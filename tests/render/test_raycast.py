@@ -617,8 +617,6 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
     interpolation, the table interpolated) never visible in a cleared cell. The same launch's
     seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry."""
-    from scipy import ndimage
-
     rng = np.random.default_rng(5)
     b = int(K.BRICK)
     shape = np.array([4 * b + 3, 3 * b + 2, 2 * b + 1])
@@ -696,8 +694,6 @@ def test_shading_gradient_is_the_trilinear_interpolation_of_edge_clamped_central
     voxels' central differences (v[i + 1] - v[i - 1]) / 2 with indices clamped to the grid
     (an edge-padded copy), interpolated trilinearly (map_coordinates, order 1), at points
     anywhere in the grid, its faces and corners included. Float32 sums of values ~1: 1e-4."""
-    from scipy import ndimage
-
     rng = np.random.default_rng(5)
     n = np.array([7, 8, 9])
     vol = rng.uniform(-1.0, 1.0, n).astype(np.float32)
