@@ -472,7 +472,7 @@ class RayCaster:
 def _grown(mask: np.ndarray) -> np.ndarray:
     """``mask`` (3-D bool) grown by one cell in the 26 directions (a chessboard dilation, nothing
     beyond its edges): ``scipy.ndimage.maximum_filter(mask, 3, mode="constant")`` by six slice ORs,
-    ~10x faster on the few thousand bricks of a frame."""
+    ~4x faster on the few thousand bricks of a frame (30 against 114 us on 22 x 22 x 30)."""
     out = mask.copy()
     for axis in range(3):
         src = out.copy()
