@@ -18,6 +18,8 @@ from typing import Any
 
 import warp as wp
 
+from softvr.render._raycast_native import raycast_native
+
 wp.set_module_options({"enable_backward": False})
 
 #: Voxels per brick edge of the empty-space-skipping grid (a power of two: the ray loop finds
@@ -494,6 +496,8 @@ def brick_distance_pass(
 @wp.kernel
 def raycast(
     vol: wp.array(dtype=Any),
+    vol_ptr: wp.uint64,
+    vol_code: int,
     n: wp.vec3i,
     strides: wp.vec3i,
     world_to_index: wp.mat44,
@@ -585,6 +589,14 @@ def raycast(
     t = (a + z' b) / (c + z' ndc_to_world[3, 2]) - e, z' = 2 z - 1).
     """
     first_ray = (wp.tid() + offset) * block
+    if vol_code != 0:
+        raycast_native(vol_ptr, vol_code, n, strides, world_to_index, index_gradient_to_world, ndc_to_world, width, height,
+                       step, jitter, lut, lut_lo, lut_scale, gradient_lut, gradient_scale, shading, light, shade,
+                       smooth_axis, slice_normal, distance, cells, flips, flip_lo, flip_hi, empty_until, read_from,
+                       gained, skip_ok, depth, surface, pixels, image, segment_start, segment_end, store_rays,
+                       ray_origin, ray_direction, ray_world, ray_span, ray_depth, first_ray,
+                       wp.min(first_ray + block, pixels.shape[0]))
+        return
     for idx in range(first_ray, wp.min(first_ray + block, pixels.shape[0])):
         tid = pixels[idx]
         px = tid % width

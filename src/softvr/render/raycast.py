@@ -22,6 +22,7 @@ import warp as wp
 from softvr.device import blocked_launch, launch, load_kernels, resolve_device
 from softvr.errors import InputError
 from softvr.render import _raycast_kernels as K
+from softvr.render._raycast_native import native_voxels
 from softvr.render._scene import check_volume
 from softvr.render.presets import Preset
 
@@ -358,7 +359,8 @@ class RayCaster:
                                         np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
-            self._vol, wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
+            self._vol, *native_voxels(self._vol, self._voxel_type, dev), wp.vec3i(*np.shape(volume.data)),
+            self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
