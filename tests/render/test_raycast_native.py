@@ -4,9 +4,12 @@ same order without FMA contraction, so the images and the state carried from fra
 (each pixel's known-empty prefix ``_empty_until``, first sample read ``_read_from`` and
 sample segment) must be equal bit for bit, not merely close.
 
-* Full casts of the head CT with the palpation trainer's view: both CT presets, with shading
-  on and off, gradient opacity on and off, smoothing across its thick slices on and off, the
-  ray starts jittered and not.
+* Full casts of the head CT with the palpation trainer's view: both CT presets and a sawtooth
+  one (``ct-skin``'s opacities, colour and gradient-opacity tables alternating entry by entry, so
+  that a value or gradient one ulp off shows in a byte: a deliberately wrong native lerp order,
+  ``value * scale - lo * scale`` for ``(value - lo) * scale``, fails it in 19 bytes and ``ct-skin``
+  in one), each with shading on and off, gradient opacity on and off, smoothing across the
+  thick slices on and off, the ray starts jittered and not.
 * Incremental frames (the pattern of test_raycast's): a ball dented deeper frame by frame with
   a probe following the dent, a change hidden behind the skin and the probe withdrawn; each
   frame cast once by each path from the same state.

@@ -576,6 +576,10 @@ def raycast(
     (capped; the empty-space jumps), ``cells`` each brick's mask of the cells that can hold a
     visible sample (:func:`brick_minmax`): a sample in any other cell is skipped unread.
 
+    ``vol_code`` != 0 (CPU): the rays go to :func:`raycast_native` (this loop in C++, the same
+    results bit for bit; ``vol_ptr`` the voxels' address, ``vol_code`` their dtype), else to this
+    loop (the reference, and the CUDA path).
+
     Only the pixels listed in ``pixels`` [count] (row-major indices, row 0 at the top) are
     cast; the rest of ``image`` keeps what it holds. Each cast pixel's ``segment_start`` ..
     ``segment_end`` [index coordinates] bound where its samples lie, up to where the ray
