@@ -605,7 +605,9 @@ def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
         np.testing.assert_array_equal(field[walked], distance[walked], err_msg=str(box))
 
 
-def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
+@pytest.mark.parametrize("dtype", ["float32", "int16"])
+@pytest.mark.parametrize("native", [False, True], ids=["warp", "cpp"])
+def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible(native, dtype):
     """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
     cell's bit is clear, so every cell where a trilinear sample's table opacity can be non-zero
     must have it. A sample's value lies between its cell's 8 corners, and the table is read at
@@ -616,7 +618,9 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     grid not a multiple of BRICK (partial far bricks), all-air and all-tissue bricks (the
     kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
     interpolation, the table interpolated) never visible in a cleared cell. The same launch's
-    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry."""
+    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry.
+    Both forms of the kernel on the CPU (Warp's, and the C++ one ``RayCaster`` uses there), for
+    float32 and int16 voxels."""
     rng = np.random.default_rng(5)
     b = int(K.BRICK)
     shape = np.array([4 * b + 3, 3 * b + 2, 2 * b + 1])
@@ -624,6 +628,7 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     vol = (40.0 * (ijk @ np.array([1.0, 0.7, -0.4])) + rng.normal(0.0, 60.0, shape)).astype(np.float32)
     vol[: b + 1] = -1000.0  # all air
     vol[-b - 2:, : 2 * b + 1] = 300.0  # all tissue
+    vol = vol.astype(dtype)
     size, lo, hi = 64, -1000.0, 1000.0
     opaque = np.zeros(size, bool)
     opaque[40:44] = opaque[52:58] = True
@@ -637,11 +642,13 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     def minmax() -> np.ndarray:
         """One launch over every brick; the bricks flagged gained."""
         gained = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
-        wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
-                  inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
-                          wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"),
-                          1, wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0),
-                          wp.vec3i(*nb), seed, flips, cells, gained, 0])
+        voxels = wp.array(vol.ravel(), dtype=K.VOXEL_TYPES[dtype], device="cpu")
+        wp.launch(K.BRICK_MINMAX[dtype], dim=-(-int(np.prod(nb)) // 7), device="cpu",
+                  inputs=[voxels, wp.vec3i(*shape), wp.vec3i(*(s // vol.itemsize for s in vol.strides)),
+                          wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
+                          wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.uint64(voxels.ptr),
+                          K.NATIVE_VOXEL_CODES[dtype] if native else 0, wp.vec3i(0, 0, 0), wp.vec3i(*nb), seed, flips,
+                          cells, gained, 7, 0])  # 7 bricks a thread: a short last block
         return gained.numpy()
 
     minmax()

@@ -288,9 +288,124 @@ def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
                     first[2] + tid % count[2])
 
 
-@wp.kernel
-def brick_minmax(
-    vol: wp.array(dtype=Any),
+# The CPU form of :func:`update_brick`: per brick, each voxel's table positions floor / ceil
+# once (monotone in the value, so a cell's least floor is the floor at its least value: the
+# same integers as the Warp code's per-cell positions), in plain loops the compiler vectorizes.
+_BRICK_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+#pragma clang fp contract(off)
+    const int nb0 = changed.shape[0], nb1 = changed.shape[1], nb2 = changed.shape[2];
+    const unsigned char* ch = (const unsigned char*)changed.data;
+    const int* vis = (const int*)visible.data;
+    unsigned char* sd = (unsigned char*)seed.data;
+    unsigned char* fl = (unsigned char*)flips.data;
+    unsigned long long* cm = (unsigned long long*)cells.data;
+    unsigned char* gn = (unsigned char*)gained.data;
+    const int size = visible.shape[0] - 1;
+    const float top = (float)(size - 1);
+    const int total = count[0] * count[1] * count[2];
+    const int end = start + block < total ? start + block : total;
+    auto position = [&](float v) {  // lut_position
+        float p = (v - lut_lo) * lut_scale;
+        return p < 0.0f ? 0.0f : (p > top ? top : p);
+    };
+    for (int t = start; t < end; ++t) {
+        const int bx = first[0] + t / (count[1] * count[2]);
+        const int by = first[1] + (t / count[2]) % count[1];
+        const int bz = first[2] + t % count[2];
+        if (every == 0) {
+            int touched = 0;
+            for (int c = 0; c < 8; ++c) {
+                const int i = bx + (c & 1) < nb0 - 1 ? bx + (c & 1) : nb0 - 1;
+                const int j = by + ((c >> 1) & 1) < nb1 - 1 ? by + ((c >> 1) & 1) : nb1 - 1;
+                const int k = bz + ((c >> 2) & 1) < nb2 - 1 ? bz + ((c >> 2) & 1) : nb2 - 1;
+                touched += ch[((long long)i * nb1 + j) * nb2 + k];
+            }
+            if (touched == 0) continue;
+        }
+        // The brick's 5 x 5 x 5 voxels, indices clamped to the grid (repeats change no range).
+        long long at[3][5];
+        for (int u = 0; u < 5; ++u) {
+            at[0][u] = (long long)(bx * 4 + u < n[0] - 1 ? bx * 4 + u : n[0] - 1) * strides[0];
+            at[1][u] = (long long)(by * 4 + u < n[1] - 1 ? by * 4 + u : n[1] - 1) * strides[1];
+            at[2][u] = (long long)(bz * 4 + u < n[2] - 1 ? bz * 4 + u : n[2] - 1) * strides[2];
+        }
+        float v[125];
+        for (int x = 0; x < 5; ++x)
+            for (int y = 0; y < 5; ++y)
+                for (int z = 0; z < 5; ++z)
+                    v[(x * 5 + y) * 5 + z] = (float)VOXEL[at[0][x] + at[1][y] + at[2][z]];
+        float vmin = v[0], vmax = v[0];
+        for (int q = 1; q < 125; ++q) {
+            vmin = v[q] < vmin ? v[q] : vmin;
+            vmax = v[q] > vmax ? v[q] : vmax;
+        }
+        const int fmin = (int)__builtin_floorf(position(vmin)), cmax = (int)__builtin_ceilf(position(vmax));
+        const bool occupied = vis[cmax + 1] - vis[fmin] > 0;
+        const long long b = ((long long)bx * nb1 + by) * nb2 + bz;
+        const unsigned char value = occupied ? 0 : (unsigned char)reach;
+        const bool turned = occupied && sd[b] != 0;
+        const unsigned long long old = cm[b];
+        if (value != sd[b]) { sd[b] = value; fl[t] = 1; }
+        const int u0 = fmin - 1 > 0 ? fmin - 1 : 0, u1 = cmax + 1 < size - 1 ? cmax + 1 : size - 1;
+        const int shown = vis[u1 + 1] - vis[u0];
+        unsigned long long bits = 0;
+        if (shown == 0 || shown == u1 - u0 + 1) {
+            bits = shown > 0 ? ~0ull : 0ull;
+        } else {
+            int f[125], c[125];
+            for (int q = 0; q < 125; ++q) {
+                const float p = position(v[q]);
+                f[q] = (int)__builtin_floorf(p);
+                c[q] = (int)__builtin_ceilf(p);
+            }
+            // The least floor / greatest ceil over each 2 x 2 face of a slab, then over a cell's two faces.
+            int flo[5][16], chi[5][16];
+            for (int x = 0; x < 5; ++x)
+                for (int y = 0; y < 4; ++y)
+                    for (int z = 0; z < 4; ++z) {
+                        const int q = (x * 5 + y) * 5 + z;
+                        int a = f[q] < f[q + 1] ? f[q] : f[q + 1];
+                        int e = f[q + 5] < f[q + 6] ? f[q + 5] : f[q + 6];
+                        flo[x][y * 4 + z] = a < e ? a : e;
+                        a = c[q] > c[q + 1] ? c[q] : c[q + 1];
+                        e = c[q + 5] > c[q + 6] ? c[q + 5] : c[q + 6];
+                        chi[x][y * 4 + z] = a > e ? a : e;
+                    }
+            for (int x = 0; x < 4; ++x)
+                for (int yz = 0; yz < 16; ++yz) {
+                    const int lo = flo[x][yz] < flo[x + 1][yz] ? flo[x][yz] : flo[x + 1][yz];
+                    const int hi = chi[x][yz] > chi[x + 1][yz] ? chi[x][yz] : chi[x + 1][yz];
+                    const int c0 = lo - 1 > 0 ? lo - 1 : 0, c1 = hi + 1 < size - 1 ? hi + 1 : size - 1;
+                    if (vis[c1 + 1] - vis[c0] > 0) bits |= 1ull << ((x << 4) | yz);
+                }
+        }
+        cm[b] = bits;
+        if (turned || (bits & ~old) != 0ull) gn[b] = 1;
+    }
+}
+#endif
+"""
+
+#: The voxel types of the native brick update by code (``brick_minmax``'s ``voxel_code``; 0: the Warp code).
+NATIVE_VOXEL_CODES = {"int16": 1, "uint8": 2, "uint16": 3, "float32": 4}
+_VOXEL_SWITCH = r"""
+#if !defined(__CUDA_ARCH__)
+switch (code) {
+"""
+for _name, _code in {"int16": ("1", "short"), "uint8": ("2", "unsigned char"), "uint16": ("3", "unsigned short"),
+                     "float32": ("4", "float")}.items():
+    _VOXEL_SWITCH += f"case {_code[0]}: {{\n#define VOXEL ((const {_code[1]}*)vol_ptr)\n" + _BRICK_SNIPPET + "#undef VOXEL\nbreak; }\n"
+_VOXEL_SWITCH += "}\n#endif\n"
+
+
+@wp.func_native(_VOXEL_SWITCH)
+def update_bricks_native(
+    start: int,
+    block: int,
+    vol_ptr: wp.uint64,
+    code: int,
     n: wp.vec3i,
     strides: wp.vec3i,
     changed: wp.array3d(dtype=wp.uint8),
@@ -305,13 +420,36 @@ def brick_minmax(
     flips: wp.array(dtype=wp.uint8),
     cells: wp.array3d(dtype=wp.uint64),
     gained: wp.array3d(dtype=wp.uint8),
-    offset: int,
+):
+    """:func:`update_brick` on the bricks ``start .. start + block`` of the block (CPU, C++; the
+    voxels at ``vol_ptr``, of the type of ``NATIVE_VOXEL_CODES`` ``code``, element strides
+    ``strides``), the same integers and bits as the Warp code."""
+    ...
+
+
+@wp.func
+def update_brick(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    changed: wp.array3d(dtype=wp.uint8),
+    every: int,
+    visible: wp.array(dtype=wp.int32),
+    lut_lo: float,
+    lut_scale: float,
+    reach: int,
+    b: wp.vec3i,
+    t: int,
+    seed: wp.array3d(dtype=wp.uint8),
+    flips: wp.array(dtype=wp.uint8),
+    cells: wp.array3d(dtype=wp.uint64),
+    gained: wp.array3d(dtype=wp.uint8),
 ):
     """From the value range of the voxels a sample inside each brick can read (brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
     voxels b * BRICK .. (b + 1) * BRICK inclusive): the seed of the distance field, 0 for a
-    brick with a value of non-zero opacity in its range, else ``reach``; ``flips[t]`` (one per
-    brick of the block, thread order; start zeroed) set to 1 where brick t's seed changed (a
+    brick with a value of non-zero opacity in its range, else ``reach``; ``flips[t]`` (brick ``b`` is the
+    block's ``t``-th; start zeroed) set to 1 where brick t's seed changed (a
     flag per thread, not a shared box grown with atomics: Warp's CPU atomics are plain
     read-modify-write, and the launch is split over threads).
     ``visible`` holds the running count of table entries with opacity > 0, so a range is empty
@@ -324,7 +462,6 @@ def brick_minmax(
     clear (a sample there skipped before may be read now: :func:`raycast`'s ``read_from``). Updates
     bricks ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
     ``changed`` brick (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
-    b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
     by = b[1]
     bz = b[2]
@@ -356,7 +493,7 @@ def brick_minmax(
     old = cells[bx, by, bz]
     if value != seed[bx, by, bz]:
         seed[bx, by, bz] = value
-        flips[wp.tid() + offset] = wp.uint8(1)
+        flips[t] = wp.uint8(1)
     bits = wp.uint64(0)
     u0 = wp.max(int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size))) - 1, 0)
     u1 = wp.min(int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1, size - 1)
@@ -406,6 +543,43 @@ def brick_minmax(
     cells[bx, by, bz] = bits
     if turned or (bits & ~old) != wp.uint64(0):
         gained[bx, by, bz] = wp.uint8(1)
+
+
+
+
+@wp.kernel
+def brick_minmax(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    changed: wp.array3d(dtype=wp.uint8),
+    every: int,
+    visible: wp.array(dtype=wp.int32),
+    lut_lo: float,
+    lut_scale: float,
+    reach: int,
+    vol_ptr: wp.uint64,
+    voxel_code: int,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    seed: wp.array3d(dtype=wp.uint8),
+    flips: wp.array(dtype=wp.uint8),
+    cells: wp.array3d(dtype=wp.uint64),
+    gained: wp.array3d(dtype=wp.uint8),
+    block: int,
+    offset: int,
+):
+    """:func:`update_brick` on the bricks ``first .. first + count`` (last index fastest),
+    ``block`` a thread; ``voxel_code`` != 0 (CPU): in C++ (:func:`update_bricks_native`, the
+    voxels at ``vol_ptr``), else in Warp."""
+    start = (wp.tid() + offset) * block
+    if voxel_code != 0:
+        update_bricks_native(start, block, vol_ptr, voxel_code, n, strides, changed, every, visible, lut_lo, lut_scale,
+                             reach, first, count, seed, flips, cells, gained)
+        return
+    for t in range(start, wp.min(start + block, count[0] * count[1] * count[2])):
+        update_brick(vol, n, strides, changed, every, visible, lut_lo, lut_scale, reach, brick_of(t, first, count), t,
+                     seed, flips, cells, gained)
 
 
 @wp.kernel

@@ -214,10 +214,12 @@ class RayCaster:
         if np.all(last >= first):
             count = last - first + 1
             flips: wp.array = wp.zeros(int(np.prod(count)), dtype=wp.uint8, device=dev)
+            # On the CPU in C++ (the Warp code's integers and bits, see brick_minmax), reading the voxels in place.
+            code = K.NATIVE_VOXEL_CODES[name] if dev == "cpu" else 0
             self._run(K.BRICK_MINMAX[name], first, last,
                       [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
-                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
-                      [self._seed, flips, self._cells, self._gained])
+                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH, wp.uint64(self._vol.ptr), code],
+                      [self._seed, flips, self._cells, self._gained], blocked=True)
             flipped = np.flatnonzero(flips.numpy())
             if not len(flipped):
                 return
@@ -254,11 +256,13 @@ class RayCaster:
             first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
             self._run(K.brick_distance_pass, first, last, [fields[axis], axis, reach], [fields[axis + 1]])
 
-    def _run(self, kernel, first, last, inputs, outputs) -> None:
-        """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
+    def _run(self, kernel, first, last, inputs, outputs, *, blocked: bool = False) -> None:
+        """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3] (``blocked``:
+        :func:`~softvr.device.blocked_launch`, the kernel's last parameters ``block, offset``)."""
         count = last - first + 1
-        launch(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
-               min_chunk=_BRICK_CHUNK)
+        run = blocked_launch if blocked else launch
+        run(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
+            min_chunk=_BRICK_CHUNK)
 
     def _tables(self, volume) -> bool:
         """Build the transfer tables if the preset, step or unit changed; True if rebuilt."""
