@@ -101,12 +101,21 @@ class OffscreenView:
                 both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
         self._renderer.ResetCameraClippingRange(*both.ravel())
         if surfaces:
-            self._window.Render()
+            backdrop = self._backdrop()
+            if backdrop is not None:  # a flat clear instead: the gradient quad is most of llvmpipe's pass
+                self._renderer.GradientBackgroundOff()
+            try:
+                self._window.Render()
+            finally:
+                if backdrop is not None:
+                    self._renderer.GradientBackgroundOn()
             image = self.grab()
             z = vtkFloatArray()
             self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
             depth = vtk_to_numpy(z).reshape(self.height, self.width)
             self._window.ReleaseCurrent()
+            if backdrop is not None:
+                image = _over_backdrop(image, backdrop, (depth != 1.0)[::-1])  # depth rows run up
         else:
             image = np.empty((self.height, self.width, 3), np.uint8)
             image[:] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
@@ -119,6 +128,32 @@ class OffscreenView:
             image = caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), image, depth,
                                 changed=changed)
         return image
+
+    def _backdrop(self) -> np.ndarray | None:
+        """The gradient background alone [height, width, 3] uint8 (row 0 at the top), drawn once
+        per size and colours, for :meth:`_cast_over_surfaces` to put where no surface is: the
+        same pixels as drawing it every frame, which costs llvmpipe ~2 of its ~3 ms at 512 x
+        512. None where it cannot stand in: no gradient, or FXAA or depth peeling (translucent
+        surfaces), which blend the background into pixels that surfaces cover."""
+        r = self._renderer
+        if not r.GetGradientBackground() or r.GetUseFXAA() or r.GetUseDepthPeeling():
+            return None
+        key = (self.width, self.height, r.GetBackground(), r.GetBackground2())
+        if key != getattr(self, "_backdrop_key", None):
+            props = r.GetViewProps()
+            shown = [props.GetItemAsObject(i) for i in range(props.GetNumberOfItems())]
+            shown = [p for p in shown if p.GetVisibility()]
+            for p in shown:
+                p.VisibilityOff()
+            try:
+                self._window.Render()
+                self._backdrop_image = self.grab()
+            finally:
+                for p in shown:
+                    p.VisibilityOn()
+                self._window.ReleaseCurrent()
+            self._backdrop_key = key
+        return self._backdrop_image
 
     def close(self) -> None:
         """Release the OpenGL context. The renderer cannot be used afterwards."""
@@ -137,3 +172,16 @@ class OffscreenView:
             self.close()
         except Exception:
             pass
+
+
+def _over_backdrop(image: np.ndarray, backdrop: np.ndarray, drawn: np.ndarray) -> np.ndarray:
+    """``image`` [height, width, 3] where ``drawn`` [height, width] (bool), ``backdrop`` elsewhere:
+    the fewer pixels copied by index (``np.copyto(..., where=)`` over three channels costs ~4 ms
+    at 512 x 512, an index copy of a probe's pixels ~0.3 ms)."""
+    at = np.flatnonzero(drawn)
+    if len(at) > drawn.size // 2:
+        out, source, at = image, backdrop, np.flatnonzero(~drawn)
+    else:
+        out, source = backdrop.copy(), image
+    out.reshape(-1, 3)[at] = source.reshape(-1, 3)[at]
+    return out
