@@ -582,27 +582,24 @@ def brick_minmax(
                      seed, flips, cells, gained)
 
 
-@wp.kernel
-def brick_changes(
+@wp.func
+def brick_changed(
     vol: wp.array(dtype=Any),
     n: wp.vec3i,
     strides: wp.vec3i,
-    first: wp.vec3i,
-    count: wp.vec3i,
+    b: wp.vec3i,
     known: wp.array(dtype=Any),
     rows: wp.array(dtype=wp.int64),
     known_rows: wp.array(dtype=wp.int64),
     packed: int,
     changed: wp.array3d(dtype=wp.uint8),
-    offset: int,
 ):
-    """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
+    """1 in ``changed`` for brick ``b`` if its own voxels (b * BRICK .. b * BRICK + BRICK - 1;
     the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
     cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
-    threads write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
+    bricks write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
     ``vol`` and ``known`` read as 64-bit words, each an inner brick's row of BRICK voxels
     along the last axis (2-byte voxels, rows contiguous and aligned), compared a row at once."""
-    b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
     flag = wp.uint8(0)
     if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
@@ -637,6 +634,112 @@ def brick_changes(
                     known[a] = vol[a]
                     flag = wp.uint8(1)
     changed[b[0], b[1], b[2]] = flag
+
+
+
+# :func:`brick_changed` for 2-byte voxels read as 64-bit words (``packed``), on the CPU: the
+# inner bricks of a column along the last axis compared as 16 contiguous rows of words (a
+# word a brick), the memory streamed once in order; an edge brick voxel by voxel.
+_CHANGES_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+    typedef unsigned long long u64;
+    typedef unsigned short u16;
+    const u64* now = (const u64*)rows.data;
+    u64* was = (u64*)known_rows.data;
+    const u16* now16 = (const u16*)rows.data;
+    u16* was16 = (u16*)known_rows.data;
+    unsigned char* out = (unsigned char*)changed.data;
+    const int nb0 = changed.shape[0], nb1 = changed.shape[1], nb2 = changed.shape[2];
+    const long long s0 = strides[0], s1 = strides[1];  // strides[2] == 1
+    const int total = count[0] * count[1] * count[2];
+    const int end = start + block < total ? start + block : total;
+    int t = start;
+    while (t < end) {
+        const int bx = first[0] + t / (count[1] * count[2]);
+        const int by = first[1] + (t / count[2]) % count[1];
+        const int bz = first[2] + t % count[2];
+        unsigned char* flag = out + ((long long)bx * nb1 + by) * nb2 + bz;
+        if (bx < nb0 - 1 && by < nb1 - 1 && bz < nb2 - 1) {
+            int len = first[2] + count[2] - bz;  // the run of inner bricks left in this column and block
+            len = len < end - t ? len : end - t;
+            len = len < nb2 - 1 - bz ? len : nb2 - 1 - bz;
+            len = len < 64 ? len : 64;
+            unsigned char differ[64];
+            for (int k = 0; k < len; ++k) differ[k] = 0;
+            for (int i = 0; i < 4; ++i)
+                for (int j = 0; j < 4; ++j) {
+                    const long long w = ((bx * 4 + i) * s0 + (by * 4 + j) * s1 + bz * 4) / 4;
+                    const u64* a = now + w;
+                    u64* b = was + w;
+                    for (int k = 0; k < len; ++k) {
+                        const bool d = a[k] != b[k];
+                        differ[k] |= d;
+                        if (d) b[k] = a[k];
+                    }
+                }
+            for (int k = 0; k < len; ++k) flag[k] = differ[k];
+            t += len;
+        } else {
+            const int i1 = bx == nb0 - 1 ? n[0] : bx * 4 + 4;
+            const int j1 = by == nb1 - 1 ? n[1] : by * 4 + 4;
+            const int k1 = bz == nb2 - 1 ? n[2] : bz * 4 + 4;
+            unsigned char f = 0;
+            for (int i = bx * 4; i < i1; ++i)
+                for (int j = by * 4; j < j1; ++j)
+                    for (int k = bz * 4; k < k1; ++k) {
+                        const long long a = i * s0 + j * s1 + k;
+                        if (now16[a] != was16[a]) { was16[a] = now16[a]; f = 1; }
+                    }
+            *flag = f;
+            ++t;
+        }
+    }
+}
+#endif
+"""
+
+
+@wp.func_native(_CHANGES_SNIPPET)
+def brick_changes_native(
+    start: int,
+    block: int,
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    changed: wp.array3d(dtype=wp.uint8),
+):
+    """:func:`brick_changed` on the bricks ``start .. start + block`` of the block, ``packed``
+    (CPU, C++; element strides ``strides``, the last 1, the others multiples of BRICK)."""
+    ...
+
+
+@wp.kernel
+def brick_changes(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    known: wp.array(dtype=Any),
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    packed: int,
+    changed: wp.array3d(dtype=wp.uint8),
+    block: int,
+    offset: int,
+):
+    """:func:`brick_changed` on the bricks ``first .. first + count`` (last index fastest),
+    ``block`` a thread; ``packed`` != 0 (CPU) in C++ (:func:`brick_changes_native`)."""
+    start = (wp.tid() + offset) * block
+    if packed != 0:
+        brick_changes_native(start, block, n, strides, first, count, rows, known_rows, changed)
+        return
+    for t in range(start, wp.min(start + block, count[0] * count[1] * count[2])):
+        brick_changed(vol, n, strides, brick_of(t, first, count), known, rows, known_rows, packed, changed)
 
 
 @wp.kernel

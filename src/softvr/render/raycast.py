@@ -202,7 +202,7 @@ class RayCaster:
                 self._changed_bricks.fill_(1)
             else:
                 self._run(K.BRICK_CHANGES[name], *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
+                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks], blocked=True)
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
             # transparent in both frames, whatever it reads (:meth:`_read_distance`).
