@@ -575,6 +575,45 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
 
 
+@pytest.mark.parametrize("native", [False, True], ids=["warp", "cpp"])
+def test_empty_space_distance_is_scipy_chessboard_distance_after_each_partial_update(native):
+    """The empty-space jumps' field against SciPy: each brick's Chebyshev (chessboard) distance
+    [bricks] to the nearest occupied one (seed 0), capped at the reach (what the seed holds
+    for an empty brick), ``distance_transform_cdt`` on the whole grid. Brought up to date
+    after seeds flip inside a box by passes over that box only (grown as far as a flip moves
+    the distances), from a field that was right before: the three Warp passes, and the C++
+    form ``RayCaster`` runs on the CPU. Boxes at the grid's corner, edge and inside."""
+    rng = np.random.default_rng(8)
+    nb, reach = (13, 11, 17), int(R.REACH)
+    seed = np.where(rng.random(nb) < 0.004, 0, reach).astype(np.uint8)
+    fields = [wp.array(seed, dtype=wp.uint8, device="cpu")] + [wp.empty(nb, dtype=wp.uint8, device="cpu")
+                                                               for _ in range(3)]
+
+    def update(first, last):
+        if native:
+            wp.launch(K.brick_distance_passes, dim=1, device="cpu",
+                      inputs=[*fields, reach, wp.vec3i(*first), wp.vec3i(*last), 0])
+            return
+        first, last = np.array(first), np.array(last)
+        for axis in range(3):
+            first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
+            count = last - first + 1
+            wp.launch(K.brick_distance_pass, dim=int(np.prod(count)), device="cpu",
+                      inputs=[fields[axis], axis, reach, wp.vec3i(*first), wp.vec3i(*count), fields[axis + 1], 0])
+
+    update((0, 0, 0), np.array(nb) - 1)
+    for first, last in (((0, 0, 0), (2, 3, 1)), ((4, 0, 9), (6, 10, 12)), ((12, 10, 16), (12, 10, 16))):
+        box = tuple(slice(a, b + 1) for a, b in zip(first, last))
+        truth = np.minimum(ndimage.distance_transform_cdt(seed != 0, metric="chessboard"), reach)
+        np.testing.assert_array_equal(fields[3].numpy(), truth, err_msg=f"before {first} .. {last}")
+        seed[box] = np.where(rng.random(seed[box].shape) < 0.1, 0, reach)
+        fields[0].assign(seed)
+        update(first, last)
+    truth = np.minimum(ndimage.distance_transform_cdt(seed != 0, metric="chessboard"), reach)
+    assert len(np.unique(truth)) >= 6  # near and far from occupied bricks, the cap among them
+    np.testing.assert_array_equal(fields[3].numpy(), truth)
+
+
 def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
     """The stale-ray walk's field (:meth:`RayCaster._read_distance`) against SciPy: a brick is
     marked iff it is occupied before or after the change (seed 0) and a brick within 1 of it

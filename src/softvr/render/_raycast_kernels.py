@@ -768,6 +768,80 @@ def brick_distance_pass(
     dst[b[0], b[1], b[2]] = wp.uint8(best)
 
 
+# :func:`brick_distance_pass` three times in C++ (the CPU): the boxes of bricks a few thousand,
+# where three Warp launches cost more than the passes. A brick's offsets stop at its best so
+# far (max(o, v) >= o cannot lower a best <= o): the same minimum.
+_DISTANCE_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+    unsigned char* field[4] = {(unsigned char*)seed.data, (unsigned char*)pass1.data, (unsigned char*)pass2.data,
+                               (unsigned char*)distance.data};
+    const int nb[3] = {seed.shape[0], seed.shape[1], seed.shape[2]};
+    const long long step[3] = {(long long)nb[1] * nb[2], nb[2], 1};
+    int lo[3] = {first[0], first[1], first[2]}, hi[3] = {last[0], last[1], last[2]};
+    for (int axis = 0; axis < 3; ++axis) {
+        lo[axis] = lo[axis] - reach + 1 > 0 ? lo[axis] - reach + 1 : 0;
+        hi[axis] = hi[axis] + reach - 1 < nb[axis] - 1 ? hi[axis] + reach - 1 : nb[axis] - 1;
+        const unsigned char* src = field[axis];
+        unsigned char* dst = field[axis + 1];
+        const long long s = step[axis];
+        for (int i = lo[0]; i <= hi[0]; ++i)
+            for (int j = lo[1]; j <= hi[1]; ++j)
+                for (int k = lo[2]; k <= hi[2]; ++k) {
+                    const long long at = i * step[0] + j * step[1] + k;
+                    const int pos = axis == 0 ? i : (axis == 1 ? j : k);
+                    int best = src[at];
+                    for (int o = 1; o < reach && o < best; ++o) {
+                        if (pos + o < nb[axis]) {
+                            const int v = src[at + o * s] > o ? src[at + o * s] : o;
+                            best = v < best ? v : best;
+                        }
+                        if (pos - o >= 0) {
+                            const int v = src[at - o * s] > o ? src[at - o * s] : o;
+                            best = v < best ? v : best;
+                        }
+                    }
+                    dst[at] = (unsigned char)best;
+                }
+    }
+}
+#endif
+"""
+
+
+@wp.func_native(_DISTANCE_SNIPPET)
+def distance_passes_native(
+    seed: wp.array3d(dtype=wp.uint8),
+    pass1: wp.array3d(dtype=wp.uint8),
+    pass2: wp.array3d(dtype=wp.uint8),
+    distance: wp.array3d(dtype=wp.uint8),
+    reach: int,
+    first: wp.vec3i,
+    last: wp.vec3i,
+):
+    """:func:`brick_distance_passes` in C++ (CPU; C-contiguous fields)."""
+    ...
+
+
+@wp.kernel
+def brick_distance_passes(
+    seed: wp.array3d(dtype=wp.uint8),
+    pass1: wp.array3d(dtype=wp.uint8),
+    pass2: wp.array3d(dtype=wp.uint8),
+    distance: wp.array3d(dtype=wp.uint8),
+    reach: int,
+    first: wp.vec3i,
+    last: wp.vec3i,
+    offset: int,
+):
+    """The Chebyshev distance [bricks] to the occupied bricks, capped at ``reach``, brought up to
+    date in ``distance`` after ``seed`` changed in the bricks ``first .. last`` (inclusive): the
+    three :func:`brick_distance_pass` es seed -> ``pass1`` -> ``pass2`` -> ``distance``, each over
+    the box grown by ``reach - 1`` along its axis and the axes before it (as far as a changed
+    seed moves their values), one after the other on one CPU thread (C++; launch 1 thread)."""
+    distance_passes_native(seed, pass1, pass2, distance, reach, first, last)
+
+
 @wp.kernel
 def raycast(
     vol: wp.array(dtype=Any),

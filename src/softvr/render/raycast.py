@@ -248,6 +248,9 @@ class RayCaster:
     def _distance_passes(self, first, last, fields: list, reach: int) -> None:
         """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
         up to date after its seed ``fields[0]`` changed in the bricks ``first .. last`` [3]."""
+        if self.device == "cpu":
+            launch(K.brick_distance_passes, 1, [*fields, reach, wp.vec3i(*first), wp.vec3i(*last)], "cpu")
+            return
         first, last = np.array(first), np.array(last)
         nb = np.asarray(fields[0].shape)
         # A changed seed moves the values of pass ``axis`` up to reach - 1 bricks away along
