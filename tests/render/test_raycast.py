@@ -431,13 +431,15 @@ def _perspective(width: int, height: int) -> np.ndarray:
     return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
 
 
-def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
+@pytest.mark.parametrize("native", [0, 1], ids=["warp", "cpp"])
+def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch, native):
     """``mark_pixels`` against NumPy ray-box intersection (float64): every pixel whose ray
     through its centre, from the near to the far plane, meets a box must be marked (the stale
     test walks only those), and within the rectangle it reports; the marks lie within 3 pixels
     of those rays' pixels: a pixel of margin for rounding, one from rounding the projected
     corners outwards, one where the projection's tip falls between pixel centres.
-    A box with a corner behind the camera marks every pixel."""
+    A box with a corner behind the camera marks every pixel. Rows filled by Warp's loop and by
+    the C++ fill the CPU uses."""
     width, height = 72, 56
     to_clip = _perspective(width, height)
     rng = np.random.default_rng(3)
@@ -462,7 +464,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
         wp.launch(K.mark_pixels, dim=1, device="cpu",
                   inputs=[wp.array(box_lo[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.array(box_hi[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
-                          wp.mat44(*to_clip.ravel()), width, height, 1, mask, rect, 0])
+                          wp.mat44(*to_clip.ravel()), width, height, 1, native, mask, rect, 0])
         marked = mask.numpy().reshape(height, width).astype(bool)
         assert not np.any(truth & ~marked), np.argwhere(truth & ~marked)
         c0, c1, r0, r1 = rect.numpy()[0]
@@ -481,7 +483,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     launch(K.mark_pixels, len(boxes),
            [wp.array(np.array([a for a, _ in boxes], np.float32), dtype=wp.vec3, device="cpu"),
             wp.array(np.array([b for _, b in boxes], np.float32), dtype=wp.vec3, device="cpu"),
-            wp.mat44(*to_clip.ravel()), width, height, 0, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
+            wp.mat44(*to_clip.ravel()), width, height, 0, native, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
             together], "cpu", min_chunk=4)
     np.testing.assert_array_equal(together.numpy(), np.array(rects))
     behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
@@ -489,7 +491,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     wp.launch(K.mark_pixels, dim=1, device="cpu",
               inputs=[wp.array(eye_index[None].astype(np.float32) - 5.0, dtype=wp.vec3, device="cpu"),
                       wp.array(eye_index[None].astype(np.float32) + 5.0, dtype=wp.vec3, device="cpu"),
-                      wp.mat44(*to_clip.ravel()), width, height, 1, behind,
+                      wp.mat44(*to_clip.ravel()), width, height, 1, native, behind,
                       wp.empty(1, dtype=wp.vec4i, device="cpu"), 0])
     assert behind.numpy().all()
 

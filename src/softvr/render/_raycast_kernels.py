@@ -1100,6 +1100,17 @@ def raycast(
             image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
 
 
+@wp.func_native(r"""
+#if !defined(__CUDA_ARCH__)
+for (int row = r0; row <= r1; ++row) __builtin_memset((unsigned char*)mask.data + (long long)row * width + c0, 1, c1 - c0 + 1);
+#endif
+""")
+def fill_rect_native(mask: wp.array(dtype=wp.uint8), width: int, c0: int, c1: int, r0: int, r1: int):
+    """1 in ``mask`` [height * width] over columns ``c0 .. c1`` of rows ``r0 .. r1`` (CPU: a
+    memset a row, where a store a pixel cost most of :func:`mark_pixels`)."""
+    ...
+
+
 @wp.kernel
 def mark_pixels(
     lo: wp.array(dtype=wp.vec3),
@@ -1108,6 +1119,7 @@ def mark_pixels(
     width: int,
     height: int,
     mark: int,
+    native: int,
     mask: wp.array(dtype=wp.uint8),
     rects: wp.array(dtype=wp.vec4i),
     offset: int,
@@ -1120,7 +1132,8 @@ def mark_pixels(
     write their rectangle to ``rects[b]`` (first column, last column, first row, last row;
     ``(width, -1, height, -1)`` if none); the caller takes the union, as a shared rectangle
     grown with atomics would lose updates on the CPU (Warp's CPU atomics are plain
-    read-modify-write, and the launch is split over threads)."""
+    read-modify-write, and the launch is split over threads). ``native`` != 0 (CPU): the
+    rows filled in C++ (:func:`fill_rect_native`)."""
     b = wp.tid() + offset
     x0 = float(1.0e30)
     x1 = float(-1.0e30)
@@ -1154,7 +1167,9 @@ def mark_pixels(
         rects[b] = wp.vec4i(width, -1, height, -1)
         return
     rects[b] = wp.vec4i(c0, c1, r0, r1)
-    if mark != 0:
+    if mark != 0 and native != 0:
+        fill_rect_native(mask, width, c0, c1, r0, r1)
+    elif mark != 0:
         for row in range(r0, r1 + 1):
             for column in range(c0, c1 + 1):
                 mask[row * width + column] = wp.uint8(1)

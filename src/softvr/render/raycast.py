@@ -465,7 +465,8 @@ class RayCaster:
                 launch(K.mark_pixels, len(corner_lo),
                        [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
                         wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
-                        int(width), int(height), mark, candidates, rects], self.device, min_chunk=_MARK_CHUNK)
+                        int(width), int(height), mark, int(self.device == "cpu"), candidates, rects], self.device,
+                       min_chunk=_MARK_CHUNK)
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
