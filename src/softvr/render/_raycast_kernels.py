@@ -247,14 +247,12 @@ def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.ar
     the ray loop skips empty space), a hundredth of a voxel past its face."""
     nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
     bs = float(BRICK)
-    inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
-                    wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
-                    wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
-    past = 0.01 / wp.max(wp.length(d), 1.0e-6)
+    inv_d = wp.vec3(0.0)
+    past = float(0.0)
     u = u0
     found = bool(False)
     # Each jump crosses at least one brick face: at most the bricks a line can cross.
-    for _ in range(nb[0] + nb[1] + nb[2]):
+    for step in range(nb[0] + nb[1] + nb[2]):
         if u > u1:
             break
         p = a + u * d
@@ -265,6 +263,11 @@ def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.ar
         if r == 0:
             found = True
             break
+        if step == 0:  # most walks end at their first brick: the divisions only for those that jump
+            inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
+                            wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
+                            wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
+            past = 0.01 / wp.max(wp.length(d), 1.0e-6)
         u = u + past + wp.min(wp.min(exit_along(p[0], inv_d[0], float(c[0] - r + 1) * bs, float(c[0] + r) * bs),
                                      exit_along(p[1], inv_d[1], float(c[1] - r + 1) * bs, float(c[1] + r) * bs)),
                               exit_along(p[2], inv_d[2], float(c[2] - r + 1) * bs, float(c[2] + r) * bs))
