@@ -73,6 +73,7 @@ import warp as wp
 from scipy import ndimage
 
 from softvr.datasets import HEAD_CT_PATH
+from softvr.errors import InputError
 from softvr.device import launch
 from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
@@ -429,6 +430,32 @@ def _perspective(width: int, height: int) -> np.ndarray:
     projection = np.array([[c * height / width, 0, 0, 0], [0, c, 0, 0],
                            [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
     return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
+
+
+def test_cast_through_air_returns_the_surfaces_colour_rgb_or_rgba():
+    """Over a volume of air nothing is composited (opacity 0 everywhere: C = 0, A = 0 in the
+    module's compositing), so a cast frame is the surfaces' colour c: round(255 (c / 255)) = c.
+    An RGBA frame gives its RGB channels (its alpha is not read); the next frame, with some
+    pixels' colour changed and others' alpha only, gives the new colours (those rays cast
+    again: a change of alpha alone shows nothing). A surface of two channels is refused by name."""
+    width, height = 40, 30
+    world_to_clip = _perspective(width, height) @ np.diag([1 / 0.9, 1 / 1.1, 1 / 1.5, 1.0])
+    air = Volume(np.full((40, 50, 30), -1000, np.int16), spacing=(1.0, 1.0, 1.0))
+    rng = np.random.default_rng(4)
+    surface = rng.integers(0, 256, (height, width, 4), dtype=np.uint8)
+    depth = rng.uniform(0.5, 1.0, (height, width)).astype(np.float32)
+    depth[::3] = 1.0  # nothing drawn: the whole ray
+    caster = R.RayCaster(PRESETS["ct"], device="cpu")
+    cast = lambda rgba, changed: caster.cast(air, np.linalg.inv(world_to_clip), (0.0, 0.0, 1.0), rgba, depth,  # noqa: E731
+                                             changed=changed)
+    np.testing.assert_array_equal(cast(surface[:, :, :3], True), surface[:, :, :3])
+    np.testing.assert_array_equal(cast(surface, True), surface[:, :, :3])
+    again = surface.copy()
+    again[rng.random((height, width)) < 0.1, :3] = 7
+    again[rng.random((height, width)) < 0.1, 3] ^= 1
+    np.testing.assert_array_equal(cast(again, False), again[:, :, :3])
+    with pytest.raises(InputError, match="surface"):
+        cast(surface[:, :, :2], False)
 
 
 @pytest.mark.parametrize("native", [0, 1], ids=["warp", "cpp"])

@@ -14,7 +14,6 @@ import pytest
 
 from softvr.errors import InputError
 from softvr.render import Camera, SurfaceRenderer
-from softvr.render._offscreen import _over_backdrop
 from softvr.volume import Volume
 
 W, H = 200, 160
@@ -238,17 +237,6 @@ def test_gradient_background_under_a_cast_volume_is_the_one_vtk_draws():
     assert len(np.unique(vtk[0][:, 0], axis=0)) > 20 and not_background(vtk[0])[CENTRE]  # a gradient, the square
     for ours, theirs in zip(cast, vtk):
         np.testing.assert_array_equal(ours, theirs)
-
-
-@pytest.mark.parametrize("share", [0.1, 0.9])
-def test_surfaces_over_the_backdrop_equal_numpy_where(share):
-    """``_over_backdrop`` (copies the fewer pixels by index) against ``np.where``, with few and
-    with most pixels drawn."""
-    rng = np.random.default_rng(3)
-    image, backdrop = (rng.integers(0, 256, (40, 30, 3), dtype=np.uint8) for _ in range(2))
-    drawn = rng.random((40, 30)) < share
-    truth = np.where(drawn[:, :, None], image, backdrop)
-    np.testing.assert_array_equal(_over_backdrop(image.copy(), backdrop.copy(), drawn), truth)
 
 
 def test_update_volume_and_volume_handles():

@@ -301,8 +301,9 @@ class RayCaster:
             projection transform, z in [-1, 1]).
         light : array_like, shape [3]
             Unit direction towards the light [world].
-        surface : numpy.ndarray, shape [height, width, 3], uint8
-            The surfaces' (and background's) colour, row 0 at the top.
+        surface : numpy.ndarray, shape [height, width, 3] or [height, width, 4], uint8
+            The surfaces' (and background's) colour, RGB or RGBA (the alpha is not read; an
+            RGBA frame's pixels compare with last frame's as 32-bit words), row 0 at the top.
         depth : numpy.ndarray, shape [height, width], float32
             Their OpenGL depth in [0, 1], row 0 at the bottom (1: nothing drawn).
         changed : True, False or (lo, hi)
@@ -335,11 +336,14 @@ class RayCaster:
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter, self.smooth_slices)
         depth_host = np.ascontiguousarray(depth, np.float32)
-        surface_host = np.ascontiguousarray(surface, np.uint8)
+        surface_host = _rgba(surface)
         # On the CPU the kernels read the host arrays in place (alive until the cast returns).
         in_place = dev == "cpu"
         depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
-        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
+        # The RGB channels as a view of the RGBA pixels (Warp reads it through its strides).
+        rgb = surface_host[:, :, :3]
+        surface = wp.array(rgb if in_place else np.ascontiguousarray(rgb), dtype=wp.uint8, device=dev,
+                           copy=not in_place)
         # The same for every frame of one view (the spacing and option are in its key).
         self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
@@ -427,7 +431,7 @@ class RayCaster:
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 4] (RGBA) changed or
         the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
         changed). The others forget their known-empty prefix if it may cross a brick in the
         ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
@@ -435,10 +439,10 @@ class RayCaster:
         height, width = depth.shape
         # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
         # costs more on the CPU than the comparison itself.
-        moved = surface != self._last_surface
-        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved = surface.view(np.uint32)[..., 0] != self._last_surface.view(np.uint32)[..., 0]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
-        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        np.copyto(self._last_depth, depth)
+        np.copyto(self._last_surface, surface)
         stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
@@ -489,4 +493,19 @@ def _grown(mask: np.ndarray) -> np.ndarray:
         lead[axis], tail[axis] = slice(1, None), slice(None, -1)
         out[tuple(lead)] |= src[tuple(tail)]
         out[tuple(tail)] |= src[tuple(lead)]
+    return out
+
+
+def _rgba(surface) -> np.ndarray:
+    """``surface`` [height, width, 3 or 4] as C-contiguous uint8 RGBA (as it is if it already is;
+    an RGB one gets alpha 255)."""
+    s = np.asarray(surface)
+    if s.ndim != 3 or s.shape[2] not in (3, 4) or s.dtype != np.uint8:
+        raise InputError("surface", "an RGB or RGBA image [height, width, 3 or 4] of uint8",
+                         f"shape {s.shape}, dtype {s.dtype}")
+    if s.shape[2] == 4:
+        return np.ascontiguousarray(s)
+    out = np.empty(s.shape[:2] + (4,), np.uint8)
+    out[:, :, :3] = s
+    out[:, :, 3] = 255
     return out
