@@ -73,6 +73,7 @@ import warp as wp
 from scipy import ndimage
 
 from softvr.datasets import HEAD_CT_PATH
+from softvr.errors import InputError
 from softvr.device import launch
 from softvr.render import PRESETS, Camera, Preset, SurfaceRenderer, VolumeRenderer
 from softvr.render import _raycast_kernels as K
@@ -431,13 +432,41 @@ def _perspective(width: int, height: int) -> np.ndarray:
     return projection @ view @ np.diag([0.9, 1.1, 1.5, 1.0])
 
 
-def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
+def test_cast_through_air_returns_the_surfaces_colour_rgb_or_rgba():
+    """Over a volume of air nothing is composited (opacity 0 everywhere: C = 0, A = 0 in the
+    module's compositing), so a cast frame is the surfaces' colour c: round(255 (c / 255)) = c.
+    An RGBA frame gives its RGB channels (its alpha is not read); the next frame, with some
+    pixels' colour changed and others' alpha only, gives the new colours (those rays cast
+    again: a change of alpha alone shows nothing). A surface of two channels is refused by name."""
+    width, height = 40, 30
+    world_to_clip = _perspective(width, height) @ np.diag([1 / 0.9, 1 / 1.1, 1 / 1.5, 1.0])
+    air = Volume(np.full((40, 50, 30), -1000, np.int16), spacing=(1.0, 1.0, 1.0))
+    rng = np.random.default_rng(4)
+    surface = rng.integers(0, 256, (height, width, 4), dtype=np.uint8)
+    depth = rng.uniform(0.5, 1.0, (height, width)).astype(np.float32)
+    depth[::3] = 1.0  # nothing drawn: the whole ray
+    caster = R.RayCaster(PRESETS["ct"], device="cpu")
+    cast = lambda rgba, changed: caster.cast(air, np.linalg.inv(world_to_clip), (0.0, 0.0, 1.0), rgba, depth,  # noqa: E731
+                                             changed=changed)
+    np.testing.assert_array_equal(cast(surface[:, :, :3], True), surface[:, :, :3])
+    np.testing.assert_array_equal(cast(surface, True), surface[:, :, :3])
+    again = surface.copy()
+    again[rng.random((height, width)) < 0.1, :3] = 7
+    again[rng.random((height, width)) < 0.1, 3] ^= 1
+    np.testing.assert_array_equal(cast(again, False), again[:, :, :3])
+    with pytest.raises(InputError, match="surface"):
+        cast(surface[:, :, :2], False)
+
+
+@pytest.mark.parametrize("native", [0, 1], ids=["warp", "cpp"])
+def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch, native):
     """``mark_pixels`` against NumPy ray-box intersection (float64): every pixel whose ray
     through its centre, from the near to the far plane, meets a box must be marked (the stale
     test walks only those), and within the rectangle it reports; the marks lie within 3 pixels
     of those rays' pixels: a pixel of margin for rounding, one from rounding the projected
     corners outwards, one where the projection's tip falls between pixel centres.
-    A box with a corner behind the camera marks every pixel."""
+    A box with a corner behind the camera marks every pixel. Rows filled by Warp's loop and by
+    the C++ fill the CPU uses."""
     width, height = 72, 56
     to_clip = _perspective(width, height)
     rng = np.random.default_rng(3)
@@ -462,7 +491,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
         wp.launch(K.mark_pixels, dim=1, device="cpu",
                   inputs=[wp.array(box_lo[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
                           wp.array(box_hi[None].astype(np.float32), dtype=wp.vec3, device="cpu"),
-                          wp.mat44(*to_clip.ravel()), width, height, 1, mask, rect, 0])
+                          wp.mat44(*to_clip.ravel()), width, height, 1, native, mask, rect, 0])
         marked = mask.numpy().reshape(height, width).astype(bool)
         assert not np.any(truth & ~marked), np.argwhere(truth & ~marked)
         c0, c1, r0, r1 = rect.numpy()[0]
@@ -481,7 +510,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     launch(K.mark_pixels, len(boxes),
            [wp.array(np.array([a for a, _ in boxes], np.float32), dtype=wp.vec3, device="cpu"),
             wp.array(np.array([b for _, b in boxes], np.float32), dtype=wp.vec3, device="cpu"),
-            wp.mat44(*to_clip.ravel()), width, height, 0, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
+            wp.mat44(*to_clip.ravel()), width, height, 0, native, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
             together], "cpu", min_chunk=4)
     np.testing.assert_array_equal(together.numpy(), np.array(rects))
     behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
@@ -489,7 +518,7 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch):
     wp.launch(K.mark_pixels, dim=1, device="cpu",
               inputs=[wp.array(eye_index[None].astype(np.float32) - 5.0, dtype=wp.vec3, device="cpu"),
                       wp.array(eye_index[None].astype(np.float32) + 5.0, dtype=wp.vec3, device="cpu"),
-                      wp.mat44(*to_clip.ravel()), width, height, 1, behind,
+                      wp.mat44(*to_clip.ravel()), width, height, 1, native, behind,
                       wp.empty(1, dtype=wp.vec4i, device="cpu"), 0])
     assert behind.numpy().all()
 
@@ -568,11 +597,50 @@ def test_changed_bricks_are_those_owning_a_changed_voxel():
         rows = [wp.array(a.view(np.int64) if packed else np.zeros(1, np.int64), dtype=wp.int64, device="cpu",
                          copy=False) for a in host]
         changed = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
-        wp.launch(K.brick_changes, dim=int(np.prod(nb)), device="cpu",
+        wp.launch(K.brick_changes, dim=-(-int(np.prod(nb)) // 5), device="cpu",
                   inputs=[flat[0], wp.vec3i(*shape), strides, wp.vec3i(0, 0, 0), wp.vec3i(*nb), flat[1], *rows, packed,
-                          changed, 0])
+                          changed, 5, 0])  # 5 bricks a thread: a short last block
         np.testing.assert_array_equal(changed.numpy(), truth, err_msg=order)
         np.testing.assert_array_equal(flat[1].numpy(), flat[0].numpy(), err_msg=order)  # the copy is up to date
+
+
+@pytest.mark.parametrize("native", [False, True], ids=["warp", "cpp"])
+def test_empty_space_distance_is_scipy_chessboard_distance_after_each_partial_update(native):
+    """The empty-space jumps' field against SciPy: each brick's Chebyshev (chessboard) distance
+    [bricks] to the nearest occupied one (seed 0), capped at the reach (what the seed holds
+    for an empty brick), ``distance_transform_cdt`` on the whole grid. Brought up to date
+    after seeds flip inside a box by passes over that box only (grown as far as a flip moves
+    the distances), from a field that was right before: the three Warp passes, and the C++
+    form ``RayCaster`` runs on the CPU. Boxes at the grid's corner, edge and inside."""
+    rng = np.random.default_rng(8)
+    nb, reach = (13, 11, 17), int(R.REACH)
+    seed = np.where(rng.random(nb) < 0.004, 0, reach).astype(np.uint8)
+    fields = [wp.array(seed, dtype=wp.uint8, device="cpu")] + [wp.empty(nb, dtype=wp.uint8, device="cpu")
+                                                               for _ in range(3)]
+
+    def update(first, last):
+        if native:
+            wp.launch(K.brick_distance_passes, dim=1, device="cpu",
+                      inputs=[*fields, reach, wp.vec3i(*first), wp.vec3i(*last), 0])
+            return
+        first, last = np.array(first), np.array(last)
+        for axis in range(3):
+            first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
+            count = last - first + 1
+            wp.launch(K.brick_distance_pass, dim=int(np.prod(count)), device="cpu",
+                      inputs=[fields[axis], axis, reach, wp.vec3i(*first), wp.vec3i(*count), fields[axis + 1], 0])
+
+    update((0, 0, 0), np.array(nb) - 1)
+    for first, last in (((0, 0, 0), (2, 3, 1)), ((4, 0, 9), (6, 10, 12)), ((12, 10, 16), (12, 10, 16))):
+        box = tuple(slice(a, b + 1) for a, b in zip(first, last))
+        truth = np.minimum(ndimage.distance_transform_cdt(seed != 0, metric="chessboard"), reach)
+        np.testing.assert_array_equal(fields[3].numpy(), truth, err_msg=f"before {first} .. {last}")
+        seed[box] = np.where(rng.random(seed[box].shape) < 0.1, 0, reach)
+        fields[0].assign(seed)
+        update(first, last)
+    truth = np.minimum(ndimage.distance_transform_cdt(seed != 0, metric="chessboard"), reach)
+    assert len(np.unique(truth)) >= 6  # near and far from occupied bricks, the cap among them
+    np.testing.assert_array_equal(fields[3].numpy(), truth)
 
 
 def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
@@ -605,7 +673,9 @@ def test_stale_walk_distance_is_scipy_chessboard_distance_to_the_read_bricks():
         np.testing.assert_array_equal(field[walked], distance[walked], err_msg=str(box))
 
 
-def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
+@pytest.mark.parametrize("dtype", ["float32", "int16"])
+@pytest.mark.parametrize("native", [False, True], ids=["warp", "cpp"])
+def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible(native, dtype):
     """``brick_minmax``'s cell masks against NumPy (float64): the ray loop skips a sample whose
     cell's bit is clear, so every cell where a trilinear sample's table opacity can be non-zero
     must have it. A sample's value lies between its cell's 8 corners, and the table is read at
@@ -616,7 +686,9 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     grid not a multiple of BRICK (partial far bricks), all-air and all-tissue bricks (the
     kernel's shortcut) among mixed ones; and samples at random points (SciPy's trilinear
     interpolation, the table interpolated) never visible in a cleared cell. The same launch's
-    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry."""
+    seeds of the distance field: a brick is occupied iff its voxels' range holds a visible entry.
+    Both forms of the kernel on the CPU (Warp's, and the C++ one ``RayCaster`` uses there), for
+    float32 and int16 voxels."""
     rng = np.random.default_rng(5)
     b = int(K.BRICK)
     shape = np.array([4 * b + 3, 3 * b + 2, 2 * b + 1])
@@ -624,6 +696,7 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     vol = (40.0 * (ijk @ np.array([1.0, 0.7, -0.4])) + rng.normal(0.0, 60.0, shape)).astype(np.float32)
     vol[: b + 1] = -1000.0  # all air
     vol[-b - 2:, : 2 * b + 1] = 300.0  # all tissue
+    vol = vol.astype(dtype)
     size, lo, hi = 64, -1000.0, 1000.0
     opaque = np.zeros(size, bool)
     opaque[40:44] = opaque[52:58] = True
@@ -637,11 +710,13 @@ def test_cell_masks_hold_every_cell_where_a_sample_can_be_visible():
     def minmax() -> np.ndarray:
         """One launch over every brick; the bricks flagged gained."""
         gained = wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu")
-        wp.launch(K.BRICK_MINMAX["float32"], dim=int(np.prod(nb)), device="cpu",
-                  inputs=[wp.array(vol.ravel(), dtype=wp.float32, device="cpu"), wp.vec3i(*shape),
-                          wp.vec3i(*(s // 4 for s in vol.strides)), wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"),
-                          1, wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.vec3i(0, 0, 0),
-                          wp.vec3i(*nb), seed, flips, cells, gained, 0])
+        voxels = wp.array(vol.ravel(), dtype=K.VOXEL_TYPES[dtype], device="cpu")
+        wp.launch(K.BRICK_MINMAX[dtype], dim=-(-int(np.prod(nb)) // 7), device="cpu",
+                  inputs=[voxels, wp.vec3i(*shape), wp.vec3i(*(s // vol.itemsize for s in vol.strides)),
+                          wp.zeros(tuple(nb), dtype=wp.uint8, device="cpu"), 1,
+                          wp.array(visible, dtype=wp.int32, device="cpu"), lo, scale, 8, wp.uint64(voxels.ptr),
+                          K.NATIVE_VOXEL_CODES[dtype] if native else 0, wp.vec3i(0, 0, 0), wp.vec3i(*nb), seed, flips,
+                          cells, gained, 7, 0])  # 7 bricks a thread: a short last block
         return gained.numpy()
 
     minmax()

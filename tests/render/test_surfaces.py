@@ -217,6 +217,28 @@ def test_volume_and_surfaces_are_composited_by_depth():
     assert np.abs(both[around] - square_only[around]).max() <= 1
 
 
+def test_gradient_background_under_a_cast_volume_is_the_one_vtk_draws():
+    """Truth: VTK's own frames of a square over its gradient background (no volume: drawn as a
+    whole by VTK). With a volume to ray cast, VTK clears flat and the gradient, drawn once, is
+    put where no surface is (depth 1). Over a volume of air every ray composites nothing and
+    the caster returns a surface colour c as round(255 (c / 255)) = c: the frames must be VTK's
+    bit for bit, the first and the next (which reuses the drawn gradient)."""
+    square = SQUARE * 0.010 + (0.0, 0.016, 0.0)
+    gradient = dict(background=(0.1, 0.2, 0.3), background_top=(0.6, 0.5, 0.9), antialias=False)
+
+    def frames(volume: bool) -> list:
+        with SurfaceRenderer(VW, VH, "front", bounds=[-HALF, HALF] * 3, **gradient) as r:
+            r.add_mesh(square, SQUARE_TRIS, color=(0.9, 0.2, 0.1))
+            if volume:
+                r.add_volume(ct_ball(inside=-1000), mapper="warp")
+            return [r.render() for _ in range(2)]
+
+    vtk, cast = frames(False), frames(True)
+    assert len(np.unique(vtk[0][:, 0], axis=0)) > 20 and not_background(vtk[0])[CENTRE]  # a gradient, the square
+    for ours, theirs in zip(cast, vtk):
+        np.testing.assert_array_equal(ours, theirs)
+
+
 def test_update_volume_and_volume_handles():
     with SurfaceRenderer(VW, VH, "front", **FLAT) as r:
         v = r.add_volume(ct_ball(), preset="ct-skin")

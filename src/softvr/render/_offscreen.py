@@ -101,15 +101,25 @@ class OffscreenView:
                 both = np.column_stack([np.minimum(both[:, 0], props[:, 0]), np.maximum(both[:, 1], props[:, 1])])
         self._renderer.ResetCameraClippingRange(*both.ravel())
         if surfaces:
-            self._window.Render()
-            image = self.grab()
+            backdrop = self._backdrop()
+            if backdrop is not None:  # a flat clear instead: the gradient quad is most of llvmpipe's pass
+                self._renderer.GradientBackgroundOff()
+            try:
+                self._window.Render()
+            finally:
+                if backdrop is not None:
+                    self._renderer.GradientBackgroundOn()
+            image = self._grab_rgba()
             z = vtkFloatArray()
             self._window.GetZbufferData(0, 0, self.width - 1, self.height - 1, z)
             depth = vtk_to_numpy(z).reshape(self.height, self.width)
             self._window.ReleaseCurrent()
+            if backdrop is not None:  # where nothing was drawn (cleared depth; its rows run up)
+                np.copyto(image.view(np.uint32)[..., 0], backdrop.view(np.uint32)[..., 0], where=(depth == 1.0)[::-1])
         else:
-            image = np.empty((self.height, self.width, 3), np.uint8)
-            image[:] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
+            image = np.empty((self.height, self.width, 4), np.uint8)
+            image[:, :, :3] = np.round(255 * np.asarray(background, float)).astype(np.uint8)
+            image[:, :, 3] = 255
             depth = np.ones((self.height, self.width), np.float32)
         cam = self.vtk_camera
         world_to_ndc = cam.GetCompositeProjectionTransformMatrix(self.width / self.height, -1.0, 1.0)
@@ -119,6 +129,44 @@ class OffscreenView:
             image = caster.cast(volume, np.linalg.inv(m), light / np.linalg.norm(light), image, depth,
                                 changed=changed)
         return image
+
+    def _grab_rgba(self) -> np.ndarray:
+        """The window's back buffer, shape [height, width, 4] uint8 RGBA, row 0 at the top: one
+        read into a kept array (~0.1 ms at 512 x 512 against ~0.45 ms through :meth:`grab`'s
+        filter), whose pixels compare as 32-bit words."""
+        from vtkmodules.vtkCommonCore import vtkUnsignedCharArray  # noqa: PLC0415
+        from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
+
+        if getattr(self, "_rgba", None) is None:
+            self._rgba = vtkUnsignedCharArray()
+        self._window.GetRGBACharPixelData(0, 0, self.width - 1, self.height - 1, 0, self._rgba)
+        return np.ascontiguousarray(vtk_to_numpy(self._rgba).reshape(self.height, self.width, 4)[::-1])
+
+    def _backdrop(self) -> np.ndarray | None:
+        """The gradient background alone [height, width, 4] uint8 RGBA (row 0 at the top), drawn once
+        per size and colours, for :meth:`_cast_over_surfaces` to put where no surface is: the
+        same pixels as drawing it every frame, which costs llvmpipe ~2 of its ~3 ms at 512 x
+        512. None where it cannot stand in: no gradient, or FXAA or depth peeling (translucent
+        surfaces), which blend the background into pixels that surfaces cover."""
+        r = self._renderer
+        if not r.GetGradientBackground() or r.GetUseFXAA() or r.GetUseDepthPeeling():
+            return None
+        key = (self.width, self.height, r.GetBackground(), r.GetBackground2())
+        if key != getattr(self, "_backdrop_key", None):
+            props = r.GetViewProps()
+            shown = [props.GetItemAsObject(i) for i in range(props.GetNumberOfItems())]
+            shown = [p for p in shown if p.GetVisibility()]
+            for p in shown:
+                p.VisibilityOff()
+            try:
+                self._window.Render()
+                self._backdrop_image = self._grab_rgba()
+            finally:
+                for p in shown:
+                    p.VisibilityOn()
+                self._window.ReleaseCurrent()
+            self._backdrop_key = key
+        return self._backdrop_image
 
     def close(self) -> None:
         """Release the OpenGL context. The renderer cannot be used afterwards."""
@@ -137,3 +185,4 @@ class OffscreenView:
             self.close()
         except Exception:
             pass
+

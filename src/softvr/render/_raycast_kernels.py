@@ -249,14 +249,12 @@ def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.ar
     the ray loop skips empty space), a hundredth of a voxel past its face."""
     nb = wp.vec3i(distance.shape[0], distance.shape[1], distance.shape[2])
     bs = float(BRICK)
-    inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
-                    wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
-                    wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
-    past = 0.01 / wp.max(wp.length(d), 1.0e-6)
+    inv_d = wp.vec3(0.0)
+    past = float(0.0)
     u = u0
     found = bool(False)
     # Each jump crosses at least one brick face: at most the bricks a line can cross.
-    for _ in range(nb[0] + nb[1] + nb[2]):
+    for step in range(nb[0] + nb[1] + nb[2]):
         if u > u1:
             break
         p = a + u * d
@@ -267,6 +265,11 @@ def crosses_marked(a: wp.vec3, d: wp.vec3, u0: float, u1: float, distance: wp.ar
         if r == 0:
             found = True
             break
+        if step == 0:  # most walks end at their first brick: the divisions only for those that jump
+            inv_d = wp.vec3(wp.where(wp.abs(d[0]) > 1.0e-12, 1.0 / d[0], 1.0e30),
+                            wp.where(wp.abs(d[1]) > 1.0e-12, 1.0 / d[1], 1.0e30),
+                            wp.where(wp.abs(d[2]) > 1.0e-12, 1.0 / d[2], 1.0e30))
+            past = 0.01 / wp.max(wp.length(d), 1.0e-6)
         u = u + past + wp.min(wp.min(exit_along(p[0], inv_d[0], float(c[0] - r + 1) * bs, float(c[0] + r) * bs),
                                      exit_along(p[1], inv_d[1], float(c[1] - r + 1) * bs, float(c[1] + r) * bs)),
                               exit_along(p[2], inv_d[2], float(c[2] - r + 1) * bs, float(c[2] + r) * bs))
@@ -290,9 +293,124 @@ def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
                     first[2] + tid % count[2])
 
 
-@wp.kernel
-def brick_minmax(
-    vol: wp.array(dtype=Any),
+# The CPU form of :func:`update_brick`: per brick, each voxel's table positions floor / ceil
+# once (monotone in the value, so a cell's least floor is the floor at its least value: the
+# same integers as the Warp code's per-cell positions), in plain loops the compiler vectorizes.
+_BRICK_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+#pragma clang fp contract(off)
+    const int nb0 = changed.shape[0], nb1 = changed.shape[1], nb2 = changed.shape[2];
+    const unsigned char* ch = (const unsigned char*)changed.data;
+    const int* vis = (const int*)visible.data;
+    unsigned char* sd = (unsigned char*)seed.data;
+    unsigned char* fl = (unsigned char*)flips.data;
+    unsigned long long* cm = (unsigned long long*)cells.data;
+    unsigned char* gn = (unsigned char*)gained.data;
+    const int size = visible.shape[0] - 1;
+    const float top = (float)(size - 1);
+    const int total = count[0] * count[1] * count[2];
+    const int end = start + block < total ? start + block : total;
+    auto position = [&](float v) {  // lut_position
+        float p = (v - lut_lo) * lut_scale;
+        return p < 0.0f ? 0.0f : (p > top ? top : p);
+    };
+    for (int t = start; t < end; ++t) {
+        const int bx = first[0] + t / (count[1] * count[2]);
+        const int by = first[1] + (t / count[2]) % count[1];
+        const int bz = first[2] + t % count[2];
+        if (every == 0) {
+            int touched = 0;
+            for (int c = 0; c < 8; ++c) {
+                const int i = bx + (c & 1) < nb0 - 1 ? bx + (c & 1) : nb0 - 1;
+                const int j = by + ((c >> 1) & 1) < nb1 - 1 ? by + ((c >> 1) & 1) : nb1 - 1;
+                const int k = bz + ((c >> 2) & 1) < nb2 - 1 ? bz + ((c >> 2) & 1) : nb2 - 1;
+                touched += ch[((long long)i * nb1 + j) * nb2 + k];
+            }
+            if (touched == 0) continue;
+        }
+        // The brick's 5 x 5 x 5 voxels, indices clamped to the grid (repeats change no range).
+        long long at[3][5];
+        for (int u = 0; u < 5; ++u) {
+            at[0][u] = (long long)(bx * 4 + u < n[0] - 1 ? bx * 4 + u : n[0] - 1) * strides[0];
+            at[1][u] = (long long)(by * 4 + u < n[1] - 1 ? by * 4 + u : n[1] - 1) * strides[1];
+            at[2][u] = (long long)(bz * 4 + u < n[2] - 1 ? bz * 4 + u : n[2] - 1) * strides[2];
+        }
+        float v[125];
+        for (int x = 0; x < 5; ++x)
+            for (int y = 0; y < 5; ++y)
+                for (int z = 0; z < 5; ++z)
+                    v[(x * 5 + y) * 5 + z] = (float)VOXEL[at[0][x] + at[1][y] + at[2][z]];
+        float vmin = v[0], vmax = v[0];
+        for (int q = 1; q < 125; ++q) {
+            vmin = v[q] < vmin ? v[q] : vmin;
+            vmax = v[q] > vmax ? v[q] : vmax;
+        }
+        const int fmin = (int)__builtin_floorf(position(vmin)), cmax = (int)__builtin_ceilf(position(vmax));
+        const bool occupied = vis[cmax + 1] - vis[fmin] > 0;
+        const long long b = ((long long)bx * nb1 + by) * nb2 + bz;
+        const unsigned char value = occupied ? 0 : (unsigned char)reach;
+        const bool turned = occupied && sd[b] != 0;
+        const unsigned long long old = cm[b];
+        if (value != sd[b]) { sd[b] = value; fl[t] = 1; }
+        const int u0 = fmin - 1 > 0 ? fmin - 1 : 0, u1 = cmax + 1 < size - 1 ? cmax + 1 : size - 1;
+        const int shown = vis[u1 + 1] - vis[u0];
+        unsigned long long bits = 0;
+        if (shown == 0 || shown == u1 - u0 + 1) {
+            bits = shown > 0 ? ~0ull : 0ull;
+        } else {
+            int f[125], c[125];
+            for (int q = 0; q < 125; ++q) {
+                const float p = position(v[q]);
+                f[q] = (int)__builtin_floorf(p);
+                c[q] = (int)__builtin_ceilf(p);
+            }
+            // The least floor / greatest ceil over each 2 x 2 face of a slab, then over a cell's two faces.
+            int flo[5][16], chi[5][16];
+            for (int x = 0; x < 5; ++x)
+                for (int y = 0; y < 4; ++y)
+                    for (int z = 0; z < 4; ++z) {
+                        const int q = (x * 5 + y) * 5 + z;
+                        int a = f[q] < f[q + 1] ? f[q] : f[q + 1];
+                        int e = f[q + 5] < f[q + 6] ? f[q + 5] : f[q + 6];
+                        flo[x][y * 4 + z] = a < e ? a : e;
+                        a = c[q] > c[q + 1] ? c[q] : c[q + 1];
+                        e = c[q + 5] > c[q + 6] ? c[q + 5] : c[q + 6];
+                        chi[x][y * 4 + z] = a > e ? a : e;
+                    }
+            for (int x = 0; x < 4; ++x)
+                for (int yz = 0; yz < 16; ++yz) {
+                    const int lo = flo[x][yz] < flo[x + 1][yz] ? flo[x][yz] : flo[x + 1][yz];
+                    const int hi = chi[x][yz] > chi[x + 1][yz] ? chi[x][yz] : chi[x + 1][yz];
+                    const int c0 = lo - 1 > 0 ? lo - 1 : 0, c1 = hi + 1 < size - 1 ? hi + 1 : size - 1;
+                    if (vis[c1 + 1] - vis[c0] > 0) bits |= 1ull << ((x << 4) | yz);
+                }
+        }
+        cm[b] = bits;
+        if (turned || (bits & ~old) != 0ull) gn[b] = 1;
+    }
+}
+#endif
+"""
+
+#: The voxel types of the native brick update by code (``brick_minmax``'s ``voxel_code``; 0: the Warp code).
+NATIVE_VOXEL_CODES = {"int16": 1, "uint8": 2, "uint16": 3, "float32": 4}
+_VOXEL_SWITCH = r"""
+#if !defined(__CUDA_ARCH__)
+switch (code) {
+"""
+for _name, _code in {"int16": ("1", "short"), "uint8": ("2", "unsigned char"), "uint16": ("3", "unsigned short"),
+                     "float32": ("4", "float")}.items():
+    _VOXEL_SWITCH += f"case {_code[0]}: {{\n#define VOXEL ((const {_code[1]}*)vol_ptr)\n" + _BRICK_SNIPPET + "#undef VOXEL\nbreak; }\n"
+_VOXEL_SWITCH += "}\n#endif\n"
+
+
+@wp.func_native(_VOXEL_SWITCH)
+def update_bricks_native(
+    start: int,
+    block: int,
+    vol_ptr: wp.uint64,
+    code: int,
     n: wp.vec3i,
     strides: wp.vec3i,
     changed: wp.array3d(dtype=wp.uint8),
@@ -307,13 +425,36 @@ def brick_minmax(
     flips: wp.array(dtype=wp.uint8),
     cells: wp.array3d(dtype=wp.uint64),
     gained: wp.array3d(dtype=wp.uint8),
-    offset: int,
+):
+    """:func:`update_brick` on the bricks ``start .. start + block`` of the block (CPU, C++; the
+    voxels at ``vol_ptr``, of the type of ``NATIVE_VOXEL_CODES`` ``code``, element strides
+    ``strides``), the same integers and bits as the Warp code."""
+    ...
+
+
+@wp.func
+def update_brick(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    changed: wp.array3d(dtype=wp.uint8),
+    every: int,
+    visible: wp.array(dtype=wp.int32),
+    lut_lo: float,
+    lut_scale: float,
+    reach: int,
+    b: wp.vec3i,
+    t: int,
+    seed: wp.array3d(dtype=wp.uint8),
+    flips: wp.array(dtype=wp.uint8),
+    cells: wp.array3d(dtype=wp.uint64),
+    gained: wp.array3d(dtype=wp.uint8),
 ):
     """From the value range of the voxels a sample inside each brick can read (brick ``b`` spans
     index coordinates [b * BRICK, (b + 1) * BRICK], so trilinear interpolation there reads
     voxels b * BRICK .. (b + 1) * BRICK inclusive): the seed of the distance field, 0 for a
-    brick with a value of non-zero opacity in its range, else ``reach``; ``flips[t]`` (one per
-    brick of the block, thread order; start zeroed) set to 1 where brick t's seed changed (a
+    brick with a value of non-zero opacity in its range, else ``reach``; ``flips[t]`` (brick ``b`` is the
+    block's ``t``-th; start zeroed) set to 1 where brick t's seed changed (a
     flag per thread, not a shared box grown with atomics: Warp's CPU atomics are plain
     read-modify-write, and the launch is split over threads).
     ``visible`` holds the running count of table entries with opacity > 0, so a range is empty
@@ -326,7 +467,6 @@ def brick_minmax(
     clear (a sample there skipped before may be read now: :func:`raycast`'s ``read_from``). Updates
     bricks ``first .. first + count``: all if ``every`` != 0, else those holding a voxel of a
     ``changed`` brick (:func:`brick_changes`: bricks b .. b + 1 per axis own them)."""
-    b = brick_of(wp.tid() + offset, first, count)
     bx = b[0]
     by = b[1]
     bz = b[2]
@@ -358,7 +498,7 @@ def brick_minmax(
     old = cells[bx, by, bz]
     if value != seed[bx, by, bz]:
         seed[bx, by, bz] = value
-        flips[wp.tid() + offset] = wp.uint8(1)
+        flips[t] = wp.uint8(1)
     bits = wp.uint64(0)
     u0 = wp.max(int(wp.floor(lut_position(vmin, lut_lo, lut_scale, size))) - 1, 0)
     u1 = wp.min(int(wp.ceil(lut_position(vmax, lut_lo, lut_scale, size))) + 1, size - 1)
@@ -410,27 +550,61 @@ def brick_minmax(
         gained[bx, by, bz] = wp.uint8(1)
 
 
+
+
 @wp.kernel
-def brick_changes(
+def brick_minmax(
     vol: wp.array(dtype=Any),
     n: wp.vec3i,
     strides: wp.vec3i,
+    changed: wp.array3d(dtype=wp.uint8),
+    every: int,
+    visible: wp.array(dtype=wp.int32),
+    lut_lo: float,
+    lut_scale: float,
+    reach: int,
+    vol_ptr: wp.uint64,
+    voxel_code: int,
     first: wp.vec3i,
     count: wp.vec3i,
+    seed: wp.array3d(dtype=wp.uint8),
+    flips: wp.array(dtype=wp.uint8),
+    cells: wp.array3d(dtype=wp.uint64),
+    gained: wp.array3d(dtype=wp.uint8),
+    block: int,
+    offset: int,
+):
+    """:func:`update_brick` on the bricks ``first .. first + count`` (last index fastest),
+    ``block`` a thread; ``voxel_code`` != 0 (CPU): in C++ (:func:`update_bricks_native`, the
+    voxels at ``vol_ptr``), else in Warp."""
+    start = (wp.tid() + offset) * block
+    if voxel_code != 0:
+        update_bricks_native(start, block, vol_ptr, voxel_code, n, strides, changed, every, visible, lut_lo, lut_scale,
+                             reach, first, count, seed, flips, cells, gained)
+        return
+    for t in range(start, wp.min(start + block, count[0] * count[1] * count[2])):
+        update_brick(vol, n, strides, changed, every, visible, lut_lo, lut_scale, reach, brick_of(t, first, count), t,
+                     seed, flips, cells, gained)
+
+
+@wp.func
+def brick_changed(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    b: wp.vec3i,
     known: wp.array(dtype=Any),
     rows: wp.array(dtype=wp.int64),
     known_rows: wp.array(dtype=wp.int64),
     packed: int,
     changed: wp.array3d(dtype=wp.uint8),
-    offset: int,
 ):
-    """1 in ``changed`` for each brick whose own voxels (b * BRICK .. b * BRICK + BRICK - 1;
+    """1 in ``changed`` for brick ``b`` if its own voxels (b * BRICK .. b * BRICK + BRICK - 1;
     the last brick also owns the grid's far voxels) differ from ``known``, the voxels as last
     cast (brought up to date), else 0. Owning splits the voxels between bricks: no two
-    threads write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
+    bricks write one voxel of ``known``. ``packed`` != 0: ``rows`` and ``known_rows`` are
     ``vol`` and ``known`` read as 64-bit words, each an inner brick's row of BRICK voxels
     along the last axis (2-byte voxels, rows contiguous and aligned), compared a row at once."""
-    b = brick_of(wp.tid() + offset, first, count)
     nb = wp.vec3i(changed.shape[0], changed.shape[1], changed.shape[2])
     flag = wp.uint8(0)
     if b[0] < nb[0] - 1 and b[1] < nb[1] - 1 and b[2] < nb[2] - 1:
@@ -467,6 +641,112 @@ def brick_changes(
     changed[b[0], b[1], b[2]] = flag
 
 
+
+# :func:`brick_changed` for 2-byte voxels read as 64-bit words (``packed``), on the CPU: the
+# inner bricks of a column along the last axis compared as 16 contiguous rows of words (a
+# word a brick), the memory streamed once in order; an edge brick voxel by voxel.
+_CHANGES_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+    typedef unsigned long long u64;
+    typedef unsigned short u16;
+    const u64* now = (const u64*)rows.data;
+    u64* was = (u64*)known_rows.data;
+    const u16* now16 = (const u16*)rows.data;
+    u16* was16 = (u16*)known_rows.data;
+    unsigned char* out = (unsigned char*)changed.data;
+    const int nb0 = changed.shape[0], nb1 = changed.shape[1], nb2 = changed.shape[2];
+    const long long s0 = strides[0], s1 = strides[1];  // strides[2] == 1
+    const int total = count[0] * count[1] * count[2];
+    const int end = start + block < total ? start + block : total;
+    int t = start;
+    while (t < end) {
+        const int bx = first[0] + t / (count[1] * count[2]);
+        const int by = first[1] + (t / count[2]) % count[1];
+        const int bz = first[2] + t % count[2];
+        unsigned char* flag = out + ((long long)bx * nb1 + by) * nb2 + bz;
+        if (bx < nb0 - 1 && by < nb1 - 1 && bz < nb2 - 1) {
+            int len = first[2] + count[2] - bz;  // the run of inner bricks left in this column and block
+            len = len < end - t ? len : end - t;
+            len = len < nb2 - 1 - bz ? len : nb2 - 1 - bz;
+            len = len < 64 ? len : 64;
+            unsigned char differ[64];
+            for (int k = 0; k < len; ++k) differ[k] = 0;
+            for (int i = 0; i < 4; ++i)
+                for (int j = 0; j < 4; ++j) {
+                    const long long w = ((bx * 4 + i) * s0 + (by * 4 + j) * s1 + bz * 4) / 4;
+                    const u64* a = now + w;
+                    u64* b = was + w;
+                    for (int k = 0; k < len; ++k) {
+                        const bool d = a[k] != b[k];
+                        differ[k] |= d;
+                        if (d) b[k] = a[k];
+                    }
+                }
+            for (int k = 0; k < len; ++k) flag[k] = differ[k];
+            t += len;
+        } else {
+            const int i1 = bx == nb0 - 1 ? n[0] : bx * 4 + 4;
+            const int j1 = by == nb1 - 1 ? n[1] : by * 4 + 4;
+            const int k1 = bz == nb2 - 1 ? n[2] : bz * 4 + 4;
+            unsigned char f = 0;
+            for (int i = bx * 4; i < i1; ++i)
+                for (int j = by * 4; j < j1; ++j)
+                    for (int k = bz * 4; k < k1; ++k) {
+                        const long long a = i * s0 + j * s1 + k;
+                        if (now16[a] != was16[a]) { was16[a] = now16[a]; f = 1; }
+                    }
+            *flag = f;
+            ++t;
+        }
+    }
+}
+#endif
+"""
+
+
+@wp.func_native(_CHANGES_SNIPPET)
+def brick_changes_native(
+    start: int,
+    block: int,
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    changed: wp.array3d(dtype=wp.uint8),
+):
+    """:func:`brick_changed` on the bricks ``start .. start + block`` of the block, ``packed``
+    (CPU, C++; element strides ``strides``, the last 1, the others multiples of BRICK)."""
+    ...
+
+
+@wp.kernel
+def brick_changes(
+    vol: wp.array(dtype=Any),
+    n: wp.vec3i,
+    strides: wp.vec3i,
+    first: wp.vec3i,
+    count: wp.vec3i,
+    known: wp.array(dtype=Any),
+    rows: wp.array(dtype=wp.int64),
+    known_rows: wp.array(dtype=wp.int64),
+    packed: int,
+    changed: wp.array3d(dtype=wp.uint8),
+    block: int,
+    offset: int,
+):
+    """:func:`brick_changed` on the bricks ``first .. first + count`` (last index fastest),
+    ``block`` a thread; ``packed`` != 0 (CPU) in C++ (:func:`brick_changes_native`)."""
+    start = (wp.tid() + offset) * block
+    if packed != 0:
+        brick_changes_native(start, block, n, strides, first, count, rows, known_rows, changed)
+        return
+    for t in range(start, wp.min(start + block, count[0] * count[1] * count[2])):
+        brick_changed(vol, n, strides, brick_of(t, first, count), known, rows, known_rows, packed, changed)
+
+
 @wp.kernel
 def brick_distance_pass(
     src: wp.array3d(dtype=wp.uint8),
@@ -491,6 +771,80 @@ def brick_distance_pass(
             if c[axis] >= 0 and c[axis] < n:
                 best = wp.min(best, wp.max(o, int(src[c[0], c[1], c[2]])))
     dst[b[0], b[1], b[2]] = wp.uint8(best)
+
+
+# :func:`brick_distance_pass` three times in C++ (the CPU): the boxes of bricks a few thousand,
+# where three Warp launches cost more than the passes. A brick's offsets stop at its best so
+# far (max(o, v) >= o cannot lower a best <= o): the same minimum.
+_DISTANCE_SNIPPET = r"""
+#if !defined(__CUDA_ARCH__)
+{
+    unsigned char* field[4] = {(unsigned char*)seed.data, (unsigned char*)pass1.data, (unsigned char*)pass2.data,
+                               (unsigned char*)distance.data};
+    const int nb[3] = {seed.shape[0], seed.shape[1], seed.shape[2]};
+    const long long step[3] = {(long long)nb[1] * nb[2], nb[2], 1};
+    int lo[3] = {first[0], first[1], first[2]}, hi[3] = {last[0], last[1], last[2]};
+    for (int axis = 0; axis < 3; ++axis) {
+        lo[axis] = lo[axis] - reach + 1 > 0 ? lo[axis] - reach + 1 : 0;
+        hi[axis] = hi[axis] + reach - 1 < nb[axis] - 1 ? hi[axis] + reach - 1 : nb[axis] - 1;
+        const unsigned char* src = field[axis];
+        unsigned char* dst = field[axis + 1];
+        const long long s = step[axis];
+        for (int i = lo[0]; i <= hi[0]; ++i)
+            for (int j = lo[1]; j <= hi[1]; ++j)
+                for (int k = lo[2]; k <= hi[2]; ++k) {
+                    const long long at = i * step[0] + j * step[1] + k;
+                    const int pos = axis == 0 ? i : (axis == 1 ? j : k);
+                    int best = src[at];
+                    for (int o = 1; o < reach && o < best; ++o) {
+                        if (pos + o < nb[axis]) {
+                            const int v = src[at + o * s] > o ? src[at + o * s] : o;
+                            best = v < best ? v : best;
+                        }
+                        if (pos - o >= 0) {
+                            const int v = src[at - o * s] > o ? src[at - o * s] : o;
+                            best = v < best ? v : best;
+                        }
+                    }
+                    dst[at] = (unsigned char)best;
+                }
+    }
+}
+#endif
+"""
+
+
+@wp.func_native(_DISTANCE_SNIPPET)
+def distance_passes_native(
+    seed: wp.array3d(dtype=wp.uint8),
+    pass1: wp.array3d(dtype=wp.uint8),
+    pass2: wp.array3d(dtype=wp.uint8),
+    distance: wp.array3d(dtype=wp.uint8),
+    reach: int,
+    first: wp.vec3i,
+    last: wp.vec3i,
+):
+    """:func:`brick_distance_passes` in C++ (CPU; C-contiguous fields)."""
+    ...
+
+
+@wp.kernel
+def brick_distance_passes(
+    seed: wp.array3d(dtype=wp.uint8),
+    pass1: wp.array3d(dtype=wp.uint8),
+    pass2: wp.array3d(dtype=wp.uint8),
+    distance: wp.array3d(dtype=wp.uint8),
+    reach: int,
+    first: wp.vec3i,
+    last: wp.vec3i,
+    offset: int,
+):
+    """The Chebyshev distance [bricks] to the occupied bricks, capped at ``reach``, brought up to
+    date in ``distance`` after ``seed`` changed in the bricks ``first .. last`` (inclusive): the
+    three :func:`brick_distance_pass` es seed -> ``pass1`` -> ``pass2`` -> ``distance``, each over
+    the box grown by ``reach - 1`` along its axis and the axes before it (as far as a changed
+    seed moves their values), one after the other on one CPU thread (C++; launch 1 thread)."""
+    distance_passes_native(seed, pass1, pass2, distance, reach, first, last)
 
 
 @wp.kernel
@@ -765,6 +1119,17 @@ def raycast(
             image[row, px, ch] = wp.uint8(wp.clamp(value * 255.0 + 0.5, 0.0, 255.0))
 
 
+@wp.func_native(r"""
+#if !defined(__CUDA_ARCH__)
+for (int row = r0; row <= r1; ++row) __builtin_memset((unsigned char*)mask.data + (long long)row * width + c0, 1, c1 - c0 + 1);
+#endif
+""")
+def fill_rect_native(mask: wp.array(dtype=wp.uint8), width: int, c0: int, c1: int, r0: int, r1: int):
+    """1 in ``mask`` [height * width] over columns ``c0 .. c1`` of rows ``r0 .. r1`` (CPU: a
+    memset a row, where a store a pixel cost most of :func:`mark_pixels`)."""
+    ...
+
+
 @wp.kernel
 def mark_pixels(
     lo: wp.array(dtype=wp.vec3),
@@ -773,6 +1138,7 @@ def mark_pixels(
     width: int,
     height: int,
     mark: int,
+    native: int,
     mask: wp.array(dtype=wp.uint8),
     rects: wp.array(dtype=wp.vec4i),
     offset: int,
@@ -785,7 +1151,8 @@ def mark_pixels(
     write their rectangle to ``rects[b]`` (first column, last column, first row, last row;
     ``(width, -1, height, -1)`` if none); the caller takes the union, as a shared rectangle
     grown with atomics would lose updates on the CPU (Warp's CPU atomics are plain
-    read-modify-write, and the launch is split over threads)."""
+    read-modify-write, and the launch is split over threads). ``native`` != 0 (CPU): the
+    rows filled in C++ (:func:`fill_rect_native`)."""
     b = wp.tid() + offset
     x0 = float(1.0e30)
     x1 = float(-1.0e30)
@@ -819,7 +1186,9 @@ def mark_pixels(
         rects[b] = wp.vec4i(width, -1, height, -1)
         return
     rects[b] = wp.vec4i(c0, c1, r0, r1)
-    if mark != 0:
+    if mark != 0 and native != 0:
+        fill_rect_native(mask, width, c0, c1, r0, r1)
+    elif mark != 0:
         for row in range(r0, r1 + 1):
             for column in range(c0, c1 + 1):
                 mask[row * width + column] = wp.uint8(1)

@@ -203,7 +203,7 @@ class RayCaster:
                 self._changed_bricks.fill_(1)
             else:
                 self._run(K.BRICK_CHANGES[name], *owners, [self._vol, wp.vec3i(*shape), self._strides],
-                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks])
+                          [self._known, *self._packed_rows(flat, strides), self._changed_bricks], blocked=True)
             self._changed_box = owners
             # Occupancy before this change: a sample in a brick empty before and after it is
             # transparent in both frames, whatever it reads (:meth:`_read_distance`).
@@ -215,10 +215,12 @@ class RayCaster:
         if np.all(last >= first):
             count = last - first + 1
             flips: wp.array = wp.zeros(int(np.prod(count)), dtype=wp.uint8, device=dev)
+            # On the CPU in C++ (the Warp code's integers and bits, see brick_minmax), reading the voxels in place.
+            code = K.NATIVE_VOXEL_CODES[name] if dev == "cpu" else 0
             self._run(K.BRICK_MINMAX[name], first, last,
                       [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
-                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH],
-                      [self._seed, flips, self._cells, self._gained])
+                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH, wp.uint64(self._vol.ptr), code],
+                      [self._seed, flips, self._cells, self._gained], blocked=True)
             flipped = np.flatnonzero(flips.numpy())
             if not len(flipped):
                 return
@@ -247,6 +249,9 @@ class RayCaster:
     def _distance_passes(self, first, last, fields: list, reach: int) -> None:
         """Bring the distance field ``fields[3]`` (through the passes ``fields[1]``, ``[2]``)
         up to date after its seed ``fields[0]`` changed in the bricks ``first .. last`` [3]."""
+        if self.device == "cpu":
+            launch(K.brick_distance_passes, 1, [*fields, reach, wp.vec3i(*first), wp.vec3i(*last)], "cpu")
+            return
         first, last = np.array(first), np.array(last)
         nb = np.asarray(fields[0].shape)
         # A changed seed moves the values of pass ``axis`` up to reach - 1 bricks away along
@@ -255,11 +260,13 @@ class RayCaster:
             first[axis], last[axis] = max(first[axis] - reach + 1, 0), min(last[axis] + reach - 1, nb[axis] - 1)
             self._run(K.brick_distance_pass, first, last, [fields[axis], axis, reach], [fields[axis + 1]])
 
-    def _run(self, kernel, first, last, inputs, outputs) -> None:
-        """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3]."""
+    def _run(self, kernel, first, last, inputs, outputs, *, blocked: bool = False) -> None:
+        """Launch a brick kernel over the bricks ``first .. last`` (inclusive) [3] (``blocked``:
+        :func:`~softvr.device.blocked_launch`, the kernel's last parameters ``block, offset``)."""
         count = last - first + 1
-        launch(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
-               min_chunk=_BRICK_CHUNK)
+        run = blocked_launch if blocked else launch
+        run(kernel, int(np.prod(count)), [*inputs, wp.vec3i(*first), wp.vec3i(*count), *outputs], self.device,
+            min_chunk=_BRICK_CHUNK)
 
     def _tables(self, volume) -> bool:
         """Build the transfer tables if the preset, step or unit changed; True if rebuilt."""
@@ -295,8 +302,9 @@ class RayCaster:
             projection transform, z in [-1, 1]).
         light : array_like, shape [3]
             Unit direction towards the light [world].
-        surface : numpy.ndarray, shape [height, width, 3], uint8
-            The surfaces' (and background's) colour, row 0 at the top.
+        surface : numpy.ndarray, shape [height, width, 3] or [height, width, 4], uint8
+            The surfaces' (and background's) colour, RGB or RGBA (the alpha is not read; an
+            RGBA frame's pixels compare with last frame's as 32-bit words), row 0 at the top.
         depth : numpy.ndarray, shape [height, width], float32
             Their OpenGL depth in [0, 1], row 0 at the bottom (1: nothing drawn).
         changed : True, False or (lo, hi)
@@ -329,11 +337,14 @@ class RayCaster:
         key = (width, height, ndc_to_world.tobytes(), light.tobytes(), index_to_world.tobytes(), self._grid_key,
                self._tables_key, self.jitter, self.smooth_slices)
         depth_host = np.ascontiguousarray(depth, np.float32)
-        surface_host = np.ascontiguousarray(surface, np.uint8)
+        surface_host = _rgba(surface)
         # On the CPU the kernels read the host arrays in place (alive until the cast returns).
         in_place = dev == "cpu"
         depth = wp.array(depth_host, dtype=float, device=dev, copy=not in_place)
-        surface = wp.array(surface_host, dtype=wp.uint8, device=dev, copy=not in_place)
+        # The RGB channels as a view of the RGBA pixels (Warp reads it through its strides).
+        rgb = surface_host[:, :, :3]
+        surface = wp.array(rgb if in_place else np.ascontiguousarray(rgb), dtype=wp.uint8, device=dev,
+                           copy=not in_place)
         # The same for every frame of one view (the spacing and option are in its key).
         self._smoothed = self._smooth_axis(spacing) if p.shade else -1
         flips, self._flips = self._flips, []
@@ -422,7 +433,7 @@ class RayCaster:
     def _stale_pixels(self, depth: np.ndarray, surface: np.ndarray, changed, flipped: list,
                       index_to_ndc: np.ndarray) -> wp.array:
         """The pixels [count] int32 to cast again after the last frame (same view): where the
-        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 3] changed or
+        surfaces' ``depth`` [height, width] or ``surface`` colour [height, width, 4] (RGBA) changed or
         the ray's samples may read a voxel in the ``changed`` box (False or None: no voxel
         changed). The others forget their known-empty prefix if it may cross a brick in the
         ``flipped`` box (count, lo, hi). ``index_to_ndc`` [4, 4] projects the volume's index
@@ -430,10 +441,10 @@ class RayCaster:
         height, width = depth.shape
         # The surface comparison in numpy: a few vector passes, where a Warp thread per pixel
         # costs more on the CPU than the comparison itself.
-        moved = surface != self._last_surface
-        moved = moved[:, :, 0] | moved[:, :, 1] | moved[:, :, 2]
+        moved = surface.view(np.uint32)[..., 0] != self._last_surface.view(np.uint32)[..., 0]
         moved |= (depth != self._last_depth)[::-1]  # depth rows run up
-        self._last_depth, self._last_surface = depth.copy(), surface.copy()
+        np.copyto(self._last_depth, depth)
+        np.copyto(self._last_surface, surface)
         stale: wp.array = wp.array(moved.ravel(), dtype=wp.bool, device=self.device, copy=self.device != "cpu")
         boxed = not (changed is None or changed is False)
         lo, hi = (np.asarray(c, float) for c in changed) if boxed else (np.zeros(3), np.zeros(3))
@@ -460,7 +471,8 @@ class RayCaster:
                 launch(K.mark_pixels, len(corner_lo),
                        [wp.array(corner_lo, dtype=wp.vec3, device=self.device),
                         wp.array(corner_hi, dtype=wp.vec3, device=self.device), wp.mat44(*index_to_ndc.ravel()),
-                        int(width), int(height), mark, candidates, rects], self.device, min_chunk=_MARK_CHUNK)
+                        int(width), int(height), mark, int(self.device == "cpu"), candidates, rects], self.device,
+                       min_chunk=_MARK_CHUNK)
                 r = rects.numpy()
                 rect = (min(rect[0], int(r[:, 0].min())), max(rect[1], int(r[:, 1].max())),
                         min(rect[2], int(r[:, 2].min())), max(rect[3], int(r[:, 3].max())))
@@ -483,4 +495,19 @@ def _grown(mask: np.ndarray) -> np.ndarray:
         lead[axis], tail[axis] = slice(1, None), slice(None, -1)
         out[tuple(lead)] |= src[tuple(tail)]
         out[tuple(tail)] |= src[tuple(lead)]
+    return out
+
+
+def _rgba(surface) -> np.ndarray:
+    """``surface`` [height, width, 3 or 4] as C-contiguous uint8 RGBA (as it is if it already is;
+    an RGB one gets alpha 255)."""
+    s = np.asarray(surface)
+    if s.ndim != 3 or s.shape[2] not in (3, 4) or s.dtype != np.uint8:
+        raise InputError("surface", "an RGB or RGBA image [height, width, 3 or 4] of uint8",
+                         f"shape {s.shape}, dtype {s.dtype}")
+    if s.shape[2] == 4:
+        return np.ascontiguousarray(s)
+    out = np.empty(s.shape[:2] + (4,), np.uint8)
+    out[:, :, :3] = s
+    out[:, :, 3] = 255
     return out
