@@ -20,20 +20,18 @@ import typing
 
 import warp as wp
 
-__all__ = ["NATIVE", "VOXEL_CODES", "native_voxels", "raycast_native"]
+__all__ = ["NATIVE", "native_voxels", "raycast_native"]
 
 #: Whether CPU casts take the C++ path; tests set False to cast with the Warp reference on the CPU.
 NATIVE = True
-#: The C++ path's code of each voxel dtype (keys of ``_raycast_kernels.VOXEL_TYPES``); 0: the Warp path.
-VOXEL_CODES = {"int16": 1, "uint8": 2, "uint16": 3, "float32": 4}
 
 
-def native_voxels(vol: wp.array | None, voxel_type: str, device: str) -> list:
-    """The ``vol_ptr, vol_code`` arguments of ``raycast`` for the voxels ``vol`` of dtype
-    ``voxel_type`` on ``device``: their address and :data:`VOXEL_CODES`'s code on the CPU while
-    :data:`NATIVE`, else (0, 0): the Warp loop."""
+def native_voxels(vol: wp.array | None, code: int, device: str) -> list:
+    """The ``vol_ptr, vol_code`` arguments of ``raycast`` for the voxels ``vol`` on ``device``, whose
+    dtype has ``code`` (``_raycast_kernels.NATIVE_VOXEL_CODES``): their address and that code on
+    the CPU while :data:`NATIVE`, else (0, 0): the Warp loop."""
     if NATIVE and device == "cpu" and vol is not None:
-        return [wp.uint64(vol.ptr), VOXEL_CODES[voxel_type]]
+        return [wp.uint64(vol.ptr), code]
     return [wp.uint64(0), 0]
 
 
@@ -401,7 +399,7 @@ def raycast_native(
     last_ray: int,
 ):
     """The CPU fast path of ``raycast`` for its rays ``pixels[first_ray:last_ray]`` (same
-    arguments; the voxels at address ``vol_ptr``, dtype by :data:`VOXEL_CODES` ``vol_code``):
+    arguments; the voxels at address ``vol_ptr``, dtype by ``NATIVE_VOXEL_CODES`` ``vol_code``):
     the kernel's per-ray loop in C++, every expression evaluated in the kernel's order
     (thesis 3.3 front-to-back compositing, the kernels' module docstring's equation)."""
     ...

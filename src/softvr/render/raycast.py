@@ -370,8 +370,8 @@ class RayCaster:
                                         np.linalg.inv(ndc_to_world) @ index_to_world)
         self.cast_pixels = int(pixels.shape[0])
         inputs = [
-            self._vol, *native_voxels(self._vol, self._voxel_type, dev), wp.vec3i(*np.shape(volume.data)),
-            self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
+            self._vol, *native_voxels(self._vol, K.NATIVE_VOXEL_CODES[self._voxel_type], dev),
+            wp.vec3i(*np.shape(volume.data)), self._strides, wp.mat44(*np.linalg.inv(index_to_world).ravel()),
             wp.mat33(*gradient_to_world.ravel()), wp.mat44(*ndc_to_world.ravel()),
             int(width), int(height), float(self.sample_distance * spacing.min()), int(self.jitter),
             self._lut, float(self._lut_lo), float(self._lut_scale), self._gradient,
