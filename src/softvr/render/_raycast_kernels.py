@@ -296,6 +296,10 @@ def brick_of(tid: int, first: wp.vec3i, count: wp.vec3i) -> wp.vec3i:
 # The CPU form of :func:`update_brick`: per brick, each voxel's table positions floor / ceil
 # once (monotone in the value, so a cell's least floor is the floor at its least value: the
 # same integers as the Warp code's per-cell positions), in plain loops the compiler vectorizes.
+# The C++ of this module is written for BRICK = 4 (a brick's 5 x 5 x 5 voxels, its 64 cells'
+# bits (x << 4) | (y << 2) | z, rows of 4 voxels as 64-bit words).
+if BRICK != 4:
+    raise ImportError("softvr.render._raycast_kernels: the C++ brick kernels are written for BRICK = 4")
 _BRICK_SNIPPET = r"""
 #if !defined(__CUDA_ARCH__)
 {
