@@ -61,6 +61,7 @@ _SNIPPET = r"""
     const float opaque = (float)0.99;
     const float smooth_from = (float)0.5, smooth_full = (float)0.8;
     const float tiny = (float)1.0e-12, huge = (float)1.0e30, small = (float)1.0e-6;
+    // Bricks of BRICK = 4 voxels a side (shifts by 2, masks of 3): the kernels module refuses another.
     const float bs = 4.0f;
 
     auto slab = [](float o, float d, float lo, float hi, float t0, float t1) -> wp::vec2 {
