@@ -25,7 +25,6 @@ import pytest
 
 from softvr.datasets import HEAD_CT_PATH, head_ct
 from softvr.render import PRESETS, Camera, Preset, VolumeRenderer
-from softvr.render import _raycast_native as N
 from softvr.render import raycast as R
 from softvr.volume import Volume
 from tests.render.test_raycast import _sphere_actor
@@ -38,9 +37,9 @@ def _state(renderer: VolumeRenderer) -> dict[str, np.ndarray]:
             "segment_start": caster._segments[0].numpy(), "segment_end": caster._segments[1].numpy()}
 
 
-def _render(renderer: VolumeRenderer, volume, native: bool, monkeypatch, **kwargs):
+def _render(renderer: VolumeRenderer, volume, native: bool, **kwargs):
     """The image and state of one frame cast by the C++ path (``native``) or the Warp kernel."""
-    monkeypatch.setattr(N, "NATIVE", native)
+    renderer.ray_caster.native = native
     image = renderer.render(volume, **kwargs)
     return image, _state(renderer)
 
@@ -66,7 +65,7 @@ def _sawtooth(preset: Preset) -> Preset:
 
 @pytest.mark.skipif(not HEAD_CT_PATH.exists(), reason="head CT (Debian invesalius-examples) not installed")
 @pytest.mark.parametrize("name", ["ct-skin", "ct", "sawtooth"])
-def test_native_cast_of_the_head_ct_equals_the_warp_kernel(name, head, monkeypatch):
+def test_native_cast_of_the_head_ct_equals_the_warp_kernel(name, head):
     cam = Camera("front", azimuth=-40.0, elevation=5.0, zoom=1.3)  # the palpation trainer's view
     base = _sawtooth(PRESETS["ct-skin"]) if name == "sawtooth" else PRESETS[name]
     ramp = base.gradient_opacities or ((0, 0.15), (80, 1.0))
@@ -78,12 +77,12 @@ def test_native_cast_of_the_head_ct_equals_the_warp_kernel(name, head, monkeypat
             with VolumeRenderer(96, 96, preset, cam, mapper="warp") as renderer:
                 renderer.ray_caster.smooth_slices = smooth
                 renderer.ray_caster.jitter = jitter
-                casts.append(_render(renderer, head, native, monkeypatch))
+                casts.append(_render(renderer, head, native))
         _assert_same(*casts, label)
         assert (casts[0][0].max(axis=2) > 20).mean() > 0.2, label  # the head fills the frame
 
 
-def test_native_incremental_frames_equal_the_warp_kernel(monkeypatch):
+def test_native_incremental_frames_equal_the_warp_kernel():
     cam = Camera("front", azimuth=-30.0, elevation=10.0, zoom=1.2)
     n, size = 48, 96
     ijk = np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
@@ -101,22 +100,22 @@ def test_native_incremental_frames_equal_the_warp_kernel(monkeypatch):
     try:
         for renderer, probe in zip(renderers, probes):
             renderer.vtk_renderer.AddActor(probe)
-        _assert_same(*(_render(r, vol, native, monkeypatch) for r, native in zip(renderers, (True, False))), "first")
+        _assert_same(*(_render(r, vol, native) for r, native in zip(renderers, (True, False))), "first")
         cast = []
         for centre, (lo, hi) in frames:
             region = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
             data[region][np.linalg.norm(ijk[region] - centre, axis=-1) < radius] = -1000
             for probe in probes:
                 probe.SetPosition(*(centre - 23.5 - probe.GetCenter() + probe.GetPosition()))
-            _assert_same(*(_render(r, vol, native, monkeypatch, changed=(lo, hi))
+            _assert_same(*(_render(r, vol, native, changed=(lo, hi))
                            for r, native in zip(renderers, (True, False))), centre)
             cast.append(renderers[0].ray_caster.cast_pixels)
         data[20:28, 20:28, 20:28] = 1200  # behind the skin
-        _assert_same(*(_render(r, vol, native, monkeypatch, changed=((20, 20, 20), (27, 27, 27)))
+        _assert_same(*(_render(r, vol, native, changed=((20, 20, 20), (27, 27, 27)))
                        for r, native in zip(renderers, (True, False))), "hidden")
         for probe in probes:
             probe.SetPosition(*(np.array(probe.GetPosition()) + (0.0, 5.0, 0.0)))
-        _assert_same(*(_render(r, vol, native, monkeypatch, changed=False)
+        _assert_same(*(_render(r, vol, native, changed=False)
                        for r, native in zip(renderers, (True, False))), "withdrawn")
         assert all(0 < c < size * size for c in cast), cast  # incremental: a part of the frame cast
     finally:

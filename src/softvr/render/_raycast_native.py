@@ -20,20 +20,7 @@ import typing
 
 import warp as wp
 
-__all__ = ["NATIVE", "native_voxels", "raycast_native"]
-
-#: Whether CPU casts take the C++ path; tests set False to cast with the Warp reference on the CPU.
-NATIVE = True
-
-
-def native_voxels(vol: wp.array | None, code: int, device: str) -> list:
-    """The ``vol_ptr, vol_code`` arguments of ``raycast`` for the voxels ``vol`` on ``device``, whose
-    dtype has ``code`` (``_raycast_kernels.NATIVE_VOXEL_CODES``): their address and that code on
-    the CPU while :data:`NATIVE`, else (0, 0): the Warp loop."""
-    if NATIVE and device == "cpu" and vol is not None:
-        return [wp.uint64(vol.ptr), code]
-    return [wp.uint64(0), 0]
-
+__all__ = ["raycast_native"]
 
 # The C++ (CPU only: on CUDA the function is empty and never called). Warp's own builtins (wp::lerp,
 # wp::clamp, wp::normalize, matrix products, ...) where the kernel calls them, so that their order
