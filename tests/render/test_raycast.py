@@ -446,8 +446,10 @@ def test_cast_through_air_returns_the_surfaces_colour_rgb_or_rgba():
     depth = rng.uniform(0.5, 1.0, (height, width)).astype(np.float32)
     depth[::3] = 1.0  # nothing drawn: the whole ray
     caster = R.RayCaster(PRESETS["ct"], device="cpu")
-    cast = lambda rgba, changed: caster.cast(air, np.linalg.inv(world_to_clip), (0.0, 0.0, 1.0), rgba, depth,  # noqa: E731
-                                             changed=changed)
+
+    def cast(rgba, changed):
+        return caster.cast(air, np.linalg.inv(world_to_clip), (0.0, 0.0, 1.0), rgba, depth, changed=changed)
+
     np.testing.assert_array_equal(cast(surface[:, :, :3], True), surface[:, :, :3])
     np.testing.assert_array_equal(cast(surface, True), surface[:, :, :3])
     again = surface.copy()
@@ -510,8 +512,8 @@ def test_pixels_marked_for_a_box_are_those_whose_rays_may_meet_it(monkeypatch, n
     launch(K.mark_pixels, len(boxes),
            [wp.array(np.array([a for a, _ in boxes], np.float32), dtype=wp.vec3, device="cpu"),
             wp.array(np.array([b for _, b in boxes], np.float32), dtype=wp.vec3, device="cpu"),
-            wp.mat44(*to_clip.ravel()), width, height, 0, native, wp.zeros(width * height, dtype=wp.uint8, device="cpu"),
-            together], "cpu", min_chunk=4)
+            wp.mat44(*to_clip.ravel()), width, height, 0, native,
+            wp.zeros(width * height, dtype=wp.uint8, device="cpu"), together], "cpu", min_chunk=4)
     np.testing.assert_array_equal(together.numpy(), np.array(rects))
     behind = wp.zeros(width * height, dtype=wp.uint8, device="cpu")
     eye_index = np.linalg.inv(np.diag([0.9, 1.1, 1.5]))  @ np.array([-40.0, -90.0, 70.0])

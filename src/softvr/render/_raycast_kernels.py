@@ -18,7 +18,7 @@ from typing import Any
 
 import warp as wp
 
-from softvr.render._raycast_native import raycast_native
+from softvr.render._raycast_native import NATIVE_VOXEL_CODES, raycast_native, voxel_cases
 
 wp.set_module_options({"enable_backward": False})
 
@@ -397,16 +397,10 @@ _BRICK_SNIPPET = r"""
 #endif
 """
 
-#: The voxel types of the native brick update by code (``brick_minmax``'s ``voxel_code``; 0: the Warp code).
-NATIVE_VOXEL_CODES = {"int16": 1, "uint8": 2, "uint16": 3, "float32": 4}
-_VOXEL_SWITCH = r"""
-#if !defined(__CUDA_ARCH__)
-switch (code) {
-"""
-for _name, _code in {"int16": ("1", "short"), "uint8": ("2", "unsigned char"), "uint16": ("3", "unsigned short"),
-                     "float32": ("4", "float")}.items():
-    _VOXEL_SWITCH += f"case {_code[0]}: {{\n#define VOXEL ((const {_code[1]}*)vol_ptr)\n" + _BRICK_SNIPPET + "#undef VOXEL\nbreak; }\n"
-_VOXEL_SWITCH += "}\n#endif\n"
+# The snippet once per voxel type (VOXEL: the voxels as that type).
+_VOXEL_SWITCH = ("#if !defined(__CUDA_ARCH__)\n"
+                 + voxel_cases("code", lambda t: f"#define VOXEL ((const {t}*)vol_ptr)\n{_BRICK_SNIPPET}#undef VOXEL")
+                 + "#endif\n")
 
 
 @wp.func_native(_VOXEL_SWITCH)
@@ -552,8 +546,6 @@ def update_brick(
     cells[bx, by, bz] = bits
     if turned or (bits & ~old) != wp.uint64(0):
         gained[bx, by, bz] = wp.uint8(1)
-
-
 
 
 @wp.kernel
@@ -952,9 +944,9 @@ def raycast(
     """
     first_ray = (wp.tid() + offset) * block
     if vol_code != 0:
-        raycast_native(vol_ptr, vol_code, n, strides, world_to_index, index_gradient_to_world, ndc_to_world, width, height,
-                       step, jitter, lut, lut_lo, lut_scale, gradient_lut, gradient_scale, shading, light, shade,
-                       smooth_axis, slice_normal, distance, cells, flips, flip_lo, flip_hi, empty_until, read_from,
+        raycast_native(vol_ptr, vol_code, n, strides, world_to_index, index_gradient_to_world, ndc_to_world, width,
+                       height, step, jitter, lut, lut_lo, lut_scale, gradient_lut, gradient_scale, shading, light,
+                       shade, smooth_axis, slice_normal, distance, cells, flips, flip_lo, flip_hi, empty_until, read_from,
                        gained, skip_ok, depth, surface, pixels, image, segment_start, segment_end, store_rays,
                        ray_origin, ray_direction, ray_world, ray_span, ray_depth, first_ray,
                        wp.min(first_ray + block, pixels.shape[0]))
@@ -1125,7 +1117,8 @@ def raycast(
 
 @wp.func_native(r"""
 #if !defined(__CUDA_ARCH__)
-for (int row = r0; row <= r1; ++row) __builtin_memset((unsigned char*)mask.data + (long long)row * width + c0, 1, c1 - c0 + 1);
+for (int row = r0; row <= r1; ++row)
+    __builtin_memset((unsigned char*)mask.data + (long long)row * width + c0, 1, c1 - c0 + 1);
 #endif
 """)
 def fill_rect_native(mask: wp.array(dtype=wp.uint8), width: int, c0: int, c1: int, r0: int, r1: int):

@@ -17,10 +17,24 @@ rays would shade at ~30 % lane use (8 lanes; smoothing ~17 %).
 from __future__ import annotations
 
 import typing
+from collections.abc import Callable
 
 import warp as wp
 
-__all__ = ["raycast_native"]
+__all__ = ["NATIVE_VOXEL_CODES", "raycast_native", "voxel_cases"]
+
+#: The voxel dtypes the C++ forms read in place, by the code the kernels take (0: Warp's code).
+NATIVE_VOXEL_CODES = {"int16": 1, "uint8": 2, "uint16": 3, "float32": 4}
+_C_TYPES = {"int16": "short", "uint8": "unsigned char", "uint16": "unsigned short", "float32": "float"}
+
+
+def voxel_cases(code: str, body: Callable[[str], str]) -> str:
+    """A C++ ``switch`` on the variable ``code`` (a :data:`NATIVE_VOXEL_CODES` code) whose case
+    for each dtype runs ``body(c_type)``, ``c_type`` its C++ type (``"short"`` for int16, ...)."""
+    cases = "".join(f"case {NATIVE_VOXEL_CODES[name]}: {{\n{body(c_type)}\nbreak; }}\n"
+                    for name, c_type in _C_TYPES.items())
+    return f"switch ({code}) {{\n{cases}default: break;\n}}\n"
+
 
 # The C++ (CPU only: on CUDA the function is empty and never called). Warp's own builtins (wp::lerp,
 # wp::clamp, wp::normalize, matrix products, ...) where the kernel calls them, so that their order
@@ -325,14 +339,7 @@ _SNIPPET = r"""
             }
         }
     };
-    switch (vol_code) {
-        case 1: run((const short*)vol_ptr); break;
-        case 2: run((const unsigned char*)vol_ptr); break;
-        case 3: run((const unsigned short*)vol_ptr); break;
-        case 4: run((const float*)vol_ptr); break;
-        default: break;
-    }
-}
+""" + voxel_cases("vol_code", lambda c_type: f"run((const {c_type}*)vol_ptr);") + r"""}
 #endif
 """
 

@@ -223,8 +223,9 @@ class RayCaster:
             # On the CPU in C++ (the Warp code's integers and bits, see brick_minmax), reading the voxels in place.
             code = self._voxel_code()
             self._run(K.BRICK_MINMAX[name], first, last,
-                      [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks, int(changed is True or retabled),
-                       self._visible, float(self._lut_lo), float(self._lut_scale), REACH, wp.uint64(self._vol_ptr), code],
+                      [self._vol, wp.vec3i(*shape), self._strides, self._changed_bricks,
+                       int(changed is True or retabled), self._visible, float(self._lut_lo), float(self._lut_scale),
+                       REACH, wp.uint64(self._vol_ptr), code],
                       [self._seed, flips, self._cells, self._gained], blocked=True)
             flipped = np.flatnonzero(flips.numpy())
             if not len(flipped):
