@@ -10,7 +10,8 @@ surface shows fine noise instead of wood-grain bands. From frame to frame (same 
 the rays that can see a change are cast again: those through the surfaces' changed pixels and
 those whose samples, up to where the ray stopped, come near the voxels that changed. Rays stop
 at the depth of the opaque surfaces VTK drew (OpenGL depth buffer) and the volume is blended
-over their colour.
+over their colour. The kernels are one Warp source for CPU and CUDA; on the CPU their hot loops
+run as C++ forms that give the same results bit for bit (``native``; tests compare the two).
 :class:`~softvr.render.VolumeRenderer` uses it with ``mapper="warp"``.
 """
 
