@@ -25,6 +25,9 @@ class OffscreenView:
     width: int  # [pixels]
     height: int
     _closed = True
+    _rgba: Any = None  # the vtkUnsignedCharArray the RGBA read-back fills (made at the first)
+    _backdrop_key: tuple | None = None  # the size and colours _backdrop_image was drawn for
+    _backdrop_image: np.ndarray | None = None
 
     def _init_grabber(self) -> None:
         from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter  # noqa: PLC0415
@@ -137,7 +140,7 @@ class OffscreenView:
         from vtkmodules.vtkCommonCore import vtkUnsignedCharArray  # noqa: PLC0415
         from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: PLC0415
 
-        if getattr(self, "_rgba", None) is None:
+        if self._rgba is None:
             self._rgba = vtkUnsignedCharArray()
         self._window.GetRGBACharPixelData(0, 0, self.width - 1, self.height - 1, 0, self._rgba)
         return np.ascontiguousarray(vtk_to_numpy(self._rgba).reshape(self.height, self.width, 4)[::-1])
@@ -152,7 +155,7 @@ class OffscreenView:
         if not r.GetGradientBackground() or r.GetUseFXAA() or r.GetUseDepthPeeling():
             return None
         key = (self.width, self.height, r.GetBackground(), r.GetBackground2())
-        if key != getattr(self, "_backdrop_key", None):
+        if key != self._backdrop_key or self._backdrop_image is None:
             props = r.GetViewProps()
             shown = [props.GetItemAsObject(i) for i in range(props.GetNumberOfItems())]
             shown = [p for p in shown if p.GetVisibility()]
@@ -185,4 +188,3 @@ class OffscreenView:
             self.close()
         except Exception:
             pass
-
