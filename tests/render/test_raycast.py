@@ -57,7 +57,11 @@
   by the stale-ray test) against NumPy ray-box intersection: every pixel whose ray meets it.
 * The bricks found changed (``brick_changes``) against NumPy: a brick is flagged iff a voxel
   it owns differs from the kept copy, for single-voxel changes anywhere in inner and edge bricks,
-  voxel by voxel and with inner bricks' rows compared as 64-bit words.
+  voxel by voxel and with inner bricks' rows compared as 64-bit words (the CPU's C++ form).
+* The empty-space distance field against SciPy's chessboard distance transform after partial
+  updates, and the cell masks against NumPy's cell ranges: Warp's code and the CPU's C++ forms.
+* A cast through air returns the surfaces' colour exactly (RGB or RGBA input): nothing is
+  composited, and 255 (c / 255) rounds back to c.
 * Depth: a probe sphere in front of the skin shows exactly as VTK draws it alone; one behind
   the (opaque) skin is hidden (the pixel changes by at most the 1 % of light that early
   termination lets through: 0.01 * 255 + 0.5 < 3 grey levels).
