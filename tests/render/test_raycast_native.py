@@ -12,7 +12,9 @@ sample segment) must be equal bit for bit, not merely close.
   thick slices on and off, the ray starts jittered and not.
 * Incremental frames (the pattern of test_raycast's): a ball dented deeper frame by frame with
   a probe following the dent, a change hidden behind the skin and the probe withdrawn; each
-  frame cast once by each path from the same state.
+  frame cast once by each path from the same state, which also picks the rays to cast again
+  (the brick update, the changed bricks, the distance passes and the pixel marks in C++ or in
+  Warp): the same count.
 """
 
 from __future__ import annotations
@@ -31,10 +33,12 @@ from tests.render.test_raycast import _sphere_actor
 
 
 def _state(renderer: VolumeRenderer) -> dict[str, np.ndarray]:
-    """The caster's per-pixel state carried to the next frame."""
+    """The caster's per-pixel state carried to the next frame, and how many rays it cast (a ray
+    cast needlessly gives the same colour and state: the count shows it)."""
     caster = renderer.ray_caster
     return {"empty_until": caster._empty_until.numpy(), "read_from": caster._read_from.numpy(),
-            "segment_start": caster._segments[0].numpy(), "segment_end": caster._segments[1].numpy()}
+            "segment_start": caster._segments[0].numpy(), "segment_end": caster._segments[1].numpy(),
+            "cast_pixels": np.array([caster.cast_pixels])}
 
 
 def _render(renderer: VolumeRenderer, volume, native: bool, **kwargs):
