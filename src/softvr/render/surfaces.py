@@ -201,7 +201,7 @@ class SurfaceRenderer(OffscreenView):
         else:
             self._renderer.AutomaticLightCreationOff()
         self._window.AddRenderer(self._renderer)
-        self._init_grabber()
+        self._opened()
         self._items: list[_Item] = []
         self._camera_pending = True
 

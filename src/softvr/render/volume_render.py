@@ -104,7 +104,7 @@ class VolumeRenderer(OffscreenView):
         else:
             self._scene = VolumeScene(preset, mapper, sample_distance)
             self._renderer.AddVolume(self._scene.prop)
-        self._init_grabber()
+        self._opened()
         self._camera_pending = True
 
     # ------------------------------------------------------------- properties
