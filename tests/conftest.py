@@ -18,6 +18,28 @@ wp.init()
 DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 
 
+def pytest_addoption(parser):
+    parser.addoption("--host-copies", action="store_true",
+                     help="step every scene's node arrays through host copies (what a CUDA step does), on the CPU")
+
+
+@pytest.fixture(autouse=True)
+def _node_host_copies(request, monkeypatch):
+    """With ``--host-copies``: every NodeStepper keeps host copies of its arrays, so the
+    suite's physics checks run a CUDA step's host traffic (push / pull) where no GPU is."""
+    if not request.config.getoption("--host-copies"):
+        return
+    from softvr.sim import _node_step
+
+    original = _node_step.NodeStepper.__init__
+
+    def with_copies(self, scene):
+        scene._host_copies = True
+        original(self, scene)
+
+    monkeypatch.setattr(_node_step.NodeStepper, "__init__", with_copies)
+
+
 @pytest.fixture(params=DEVICES)
 def device(request):
     """Each kernel test runs once per available Warp device (CPU always, CUDA when present)."""

@@ -12,7 +12,7 @@ import pytest
 import warp as wp
 
 import softvr.device as device_module
-from softvr.device import (ITEMS_A_CPU_THREAD, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
+from softvr.device import (ITEMS_A_CPU_THREAD, HostMirror, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
                            launch, replayer, single_threaded_blas)
 
 
@@ -37,6 +37,25 @@ def _count(values: wp.array(dtype=wp.float64), counts: wp.array(dtype=wp.int32),
     i = wp.tid() + offset
     values[i] = amount * wp.float64(i)
     counts[i] = counts[i] + 1
+
+
+@pytest.mark.parametrize("copies", [False, True])
+def test_a_host_mirror_shares_the_cpu_array_or_copies_it_across_push_and_pull(device, copies):
+    start = np.arange(12.0).reshape(4, 3)
+    array = wp.array(start, dtype=wp.vec3d, device=device)
+    mirror = HostMirror(array, copies)
+    row = mirror.host[1]  # a view a body would hold
+    np.testing.assert_array_equal(mirror.host, start)
+    shared = device == "cpu" and not copies
+    assert mirror.copies is not shared and np.shares_memory(mirror.host, array.numpy()) is shared
+    mirror.host[1] = -1.0  # the host writes: the array sees it at once only where shared
+    np.testing.assert_array_equal(array.numpy()[1], -1.0 if shared else start[1])
+    mirror.push()
+    np.testing.assert_array_equal(array.numpy()[1], -1.0)
+    array.fill_(wp.vec3d(7.0, 8.0, 9.0))  # the device writes: the host sees it after a pull
+    np.testing.assert_array_equal(row, [7.0, 8.0, 9.0] if shared else [-1.0, -1.0, -1.0])
+    mirror.pull()
+    np.testing.assert_array_equal(row, [7.0, 8.0, 9.0])
 
 
 def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):

@@ -147,8 +147,9 @@ _BENCH_AREAS = {"volume": "rasterizer vs VTK vtkProbeFilter + SciPy and SimpleIT
                 "palpation": "the palpation frame: FEM step, full and incremental rasterization, rendering",
                 "scene": "every bundled scene: read, build, start check, step and render ms"}
 
-#: Benches whose kernels take a device; the others step physics on the CPU (``softvr.sim``).
-_BENCH_DEVICE = ("volume", "palpation")
+#: Benches whose kernels take a device (the physics benches: the node arrays, ``softvr.Scene.device``);
+#: the others step on the CPU (the rigid arrays, the per-object path).
+_BENCH_DEVICE = ("volume", "palpation", "contact", "shoulder")
 
 
 def _bench(argv: list[str]) -> int:

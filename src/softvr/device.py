@@ -28,7 +28,7 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "ITEMS_A_CPU_THREAD", "blocked_launch", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present",
+    "ITEMS_A_CPU_THREAD", "HostMirror", "blocked_launch", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present",
     "in_order", "launch", "load_kernels", "replayer", "resolve_device", "single_threaded_blas", "stride_threads", "upload",
 ]
 
@@ -223,6 +223,49 @@ def upload(dst: wp.array, src) -> None:
         dst.numpy()[...] = src
     else:
         dst.assign(wp.array(np.asarray(src), dtype=dst.dtype, device=dst.device))
+
+
+class HostMirror:
+    """A Warp array's contents on the host, for the Python side of a step (the bodies' ``q``
+    and ``v`` a user reads and assigns, host-written inputs, flags a check reads).
+
+    On the CPU ``host`` is the array's own memory (a NumPy view) and :meth:`push` /
+    :meth:`pull` do nothing. On another device, or where ``copies`` asks for it on the CPU
+    (tests run a CUDA step's host traffic that way), ``host`` is the NumPy view of a host array
+    kept for it (page-locked for a GPU, so the copies need no staging): :meth:`push` copies it to
+    the device after the host wrote it, :meth:`pull` copies the array back (and waits for it)
+    after the device did. Code written against a mirror runs the same on both: what it forgets
+    to push or pull is stale only where the copies are.
+
+    Parameters
+    ----------
+    array : warp.array
+    copies : bool
+        Keep a copy even on the CPU.
+    """
+
+    def __init__(self, array: wp.array, copies: bool = False):
+        self.array = array
+        self._device = wp.get_device(array.device)
+        self.copies = bool(copies) or not self._device.is_cpu
+        self._host_array = wp.empty_like(array, device="cpu", pinned=self._device.is_cuda) if self.copies else array
+        if self.copies:
+            wp.copy(self._host_array, array)
+            wp.synchronize_device(self._device)
+        self.host: np.ndarray = self._host_array.numpy()
+
+    def push(self) -> None:
+        """Copy ``host`` to the device (after the host wrote it); stream-ordered before the
+        launches that follow."""
+        if self.copies:
+            wp.copy(self.array, self._host_array)
+
+    def pull(self) -> None:
+        """Copy the array into ``host`` (after the device wrote it) and wait for it; views of
+        ``host`` stay valid."""
+        if self.copies:
+            wp.copy(self._host_array, self.array)
+            wp.synchronize_device(self._device)
 
 
 def replayer(recorded) -> Callable[[], None]:

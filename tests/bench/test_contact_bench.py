@@ -107,3 +107,16 @@ def test_vtk_file_for_pybullet_round_trips(tmp_path):
     mesh = meshio.read(path)
     np.testing.assert_allclose(mesh.points, nodes, atol=1e-6)
     np.testing.assert_array_equal(mesh.cells_dict["tetra"], tets)
+
+
+def test_cubes_in_one_scene_land_and_rest_like_the_single_cube():
+    # Four quick-scene cubes (0.2 m, bottom 5 cm up) in one scene, 0.25 s: each falls the 5 cm in
+    # sqrt(2 * 0.05 / g) = 0.10 s and rests on the plane by the end, within the 1 mm target, as
+    # the single cube of the bench does.
+    result = C.run_contact_bench(quick=True, engines=("softvr",), candy=False, cubes=4, progress=False)
+    cubes = result["cubes"]
+    assert (cubes["cubes"], cubes["device"], cubes["stepper"]) == (4, "cpu", "NodeStepper")
+    assert cubes["tets"] == 4 * 135 and cubes["steps"] == 15
+    assert cubes["max_penetration_m"] < 1e-3
+    np.testing.assert_allclose(cubes["bottom_end_m"], 0.0, atol=1e-3)
+    assert "4 cubes in one scene" in C.format_table(result)

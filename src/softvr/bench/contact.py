@@ -65,15 +65,45 @@ SOFTVR_BETA = 1e-3
 ENGINES = ("softvr",) + tuple(P.PEERS)
 
 
-def softvr_scene(scene: CubeScene):
-    """(Scene, FemBody) of the cube above its plane, every node a collision point."""
+def softvr_scene(scene: CubeScene, device: str = "cpu", count: int = 1):
+    """(Scene, FemBody) of the cube above its plane, every node a collision point, stepped on
+    ``device``; with ``count`` > 1 that many cubes in the one scene (one set of node arrays), on
+    a square grid 1.25 edges apart (they meet only the plane), and the first cube returned."""
     nodes, tets = cube_mesh(scene)
-    body = FemBody(nodes, tets, Material(scene.young, scene.poisson, scene.density, alpha=0.0, beta=SOFTVR_BETA),
-                   name="cube")
-    sim = Scene(gravity=(0.0, 0.0, -scene.gravity))
-    sim.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(nodes))[:, None], np.ones((len(nodes), 1))))
+    sim = Scene(gravity=(0.0, 0.0, -scene.gravity), device=device)
+    side, pitch = int(np.ceil(np.sqrt(count))), 1.25 * scene.size
+    for k in range(count):
+        offset = pitch * np.array([k % side - (side - 1) / 2, k // side - (side - 1) / 2, 0.0])
+        body = FemBody(nodes + offset, tets,
+                       Material(scene.young, scene.poisson, scene.density, alpha=0.0, beta=SOFTVR_BETA),
+                       name="cube" if count == 1 else f"cube {k}")
+        sim.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(nodes))[:, None],
+                                                           np.ones((len(nodes), 1))))
     sim.add_plane(Plane(friction=scene.friction))
-    return sim, body
+    return sim, sim.bodies[0]
+
+
+def run_cubes(count: int, scene: CubeScene, device: str = "cpu", progress: bool = True) -> dict:
+    """``count`` copies of ``scene``'s cube in one scene (:func:`softvr_scene`), dropped together
+    and stepped on ``device`` for the scene's duration: ms a step of the whole scene (the
+    steady state, :func:`step_times`) and steps/s, which each cube makes too (the issue's GPU
+    target: 64 cubes at >= 1 000 steps/s each), the deepest penetration of any cube over the run
+    and each cube's lowest node at the end [m]."""
+    from tqdm import tqdm
+
+    sim, _ = softvr_scene(scene, resolve_device(device), count)
+    step_s: list[float] = []
+    penetration = 0.0
+    for _ in tqdm(range(scene.steps), desc=f"{count} cubes", unit="step", disable=not progress, leave=False):
+        t = time.perf_counter()
+        sim.step(scene.dt)
+        step_s.append(time.perf_counter() - t)
+        penetration = max(penetration, -min(float(b.q[:, 2].min()) for b in sim.bodies))
+    times = step_times(step_s)
+    return {"cubes": count, "device": sim.device, "stepper": type(sim._stepper).__name__,
+            "tets": int(sum(len(b.tets) for b in sim.bodies)), "steps": scene.steps, **times,
+            "steps_per_s": 1e3 / times["ms_per_step"], "max_penetration_m": penetration,
+            "bottom_end_m": [float(b.q[:, 2].min()) for b in sim.bodies]}
 
 
 class CubePlayer(Player):
@@ -85,19 +115,21 @@ class CubePlayer(Player):
     scene : CubeScene
     steps : int
         Frames (= steps) to play.
+    device : str
+        Where the physics steps (:attr:`softvr.Scene.device`).
     """
 
     name = "contact-cube"
     frame_measures = False
 
-    def __init__(self, scene: CubeScene, steps: int):
-        sim, self.body = softvr_scene(scene)
+    def __init__(self, scene: CubeScene, steps: int, device: str = "cpu"):
+        sim, self.body = softvr_scene(scene, device)
         super().__init__(sim, scene.dt, 1, steps, 64, 48)
 
 
-def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
+def _softvr_once(scene: CubeScene, steps: int, device: str = "cpu") -> tuple[dict, dict]:
     t = time.perf_counter()
-    player = CubePlayer(scene, steps)
+    player = CubePlayer(scene, steps, device)
     body = player.body
     setup = time.perf_counter() - t
     trace: dict[str, list] = {k: [] for k in ("step_s", "cpu_s", "min_z", "mean_z", "contacts", "active_contacts",
@@ -121,15 +153,16 @@ def _softvr_once(scene: CubeScene, steps: int) -> tuple[dict, dict]:
     return trace, info
 
 
-def run_softvr(scene: CubeScene, repeat: int = 1) -> dict:
-    """softvr on ``scene``: warm-up, then ``repeat`` simulations (record as :func:`_contact_peers.run_peer`)."""
+def run_softvr(scene: CubeScene, repeat: int = 1, device: str = "cpu") -> dict:
+    """softvr on ``scene`` stepped on ``device``: warm-up, then ``repeat`` simulations (record as
+    :func:`_contact_peers.run_peer`)."""
     t = time.perf_counter()
-    _softvr_once(replace(scene, drop=0.0), P.WARMUP_STEPS)  # imports, first sparse LU and PGS call
+    _softvr_once(replace(scene, drop=0.0), P.WARMUP_STEPS, device)  # imports, first sparse LU and PGS call
     warmup_s = time.perf_counter() - t
     rates: list[float] = []
     first: tuple[dict, dict] | None = None
     for _ in range(max(1, repeat)):
-        trace, info = _softvr_once(scene, scene.steps)
+        trace, info = _softvr_once(scene, scene.steps, device)
         rates.append(scene.steps / sum(trace["step_s"]))
         first = first or (trace, info)
     assert first is not None  # one round at least
@@ -145,7 +178,8 @@ CANDY_QUICK_DURATION_S = 0.16
 THESIS_CANDY_S_PER_STEP = 0.25
 
 
-def run_candy(*, quick: bool = False, progress: bool = True, scene: str = "candy.toml", variants=()) -> dict:
+def run_candy(*, quick: bool = False, progress: bool = True, scene: str = "candy.toml", variants=(),
+              device: str = "cpu") -> dict:
     """softvr on the thesis' candy scene, the bundled scene file ``scene`` (``candy.toml``;
     ``candy-adhesive.toml`` with adhesion) with ``variants`` (its ``[variant.NAME]`` tables,
     ``"quick"`` added for the small scale): candies fall on a Jell-O block, 8 ms steps. Full: ~10 K
@@ -155,13 +189,14 @@ def run_candy(*, quick: bool = False, progress: bool = True, scene: str = "candy
     Returns ms per step (the steady state: the steps after the first, overall and over those with
     contacts between bodies; the first step, which loads the scene, apart: ``first_step_ms``),
     contacts (mean / max), PGS sweeps (mean / max), the largest normal-velocity residual,
-    whether adhesion was on and the sizes; peers do not run this scene.
+    whether adhesion was on and the sizes; peers do not run this scene. The physics steps on
+    ``device``.
     """
     from tqdm import tqdm
 
     variants = (*variants, "quick") if quick else tuple(variants)
     # Played headless by the one player, one step a frame: nothing drawn, the measures read here.
-    player = load_scene(BUNDLED / scene, variants, frames=1, width=64, height=48, steps_per_frame=1)
+    player = load_scene(BUNDLED / scene, variants, frames=1, width=64, height=48, steps_per_frame=1, device=device)
     player.frame_measures = False
     adhesion = bool(player.adhesions)
     steps = int(round((CANDY_QUICK_DURATION_S if quick else CANDY_DURATION_S) / player.dt))
@@ -233,8 +268,11 @@ def _summarize(rec: dict, scene: CubeScene) -> dict:
 
 
 def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines=ENGINES, progress: bool = True,
-                      scene: CubeScene | None = None, peer_timeout_s: float = 600.0, candy: bool = True) -> dict:
-    """Run softvr and every installed peer on the cube; returns the JSON-ready result.
+                      scene: CubeScene | None = None, peer_timeout_s: float = 600.0, candy: bool = True,
+                      device: str = "cpu", cubes: int = 0) -> dict:
+    """Run softvr (its physics on ``device``) and every installed peer (CPU) on the cube, and
+    with ``cubes`` > 0 softvr on that many cubes in one scene (:func:`run_cubes`); returns the
+    JSON-ready result.
 
     Keys: ``schema``, ``machine``, ``config`` (the scene and settings), ``engines`` (one record
     per engine, in ``engines`` order: ``status`` "ok" / "skipped" / "failed", ``reason``, the
@@ -243,7 +281,7 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
     """
     from tqdm import tqdm
 
-    resolve_device("cpu")  # initializes Warp quietly (the machine info asks it for the device name)
+    device = resolve_device(device)  # also initializes Warp quietly (the machine info asks it for the device name)
     scene = scene or (QUICK_SCENE if quick else FULL_SCENE)
     rep = repeat or (1 if quick else 3)
     t_start = time.perf_counter()
@@ -268,7 +306,7 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
             bar.set_postfix_str(name)
             if rec["status"] == "ok":
                 if name == "softvr":
-                    out = run_softvr(scene, 1)
+                    out = run_softvr(scene, 1, device)
                 else:
                     out = P.run_peer_process(name, asdict(scene), 1, timeout_s=peer_timeout_s)
                 if "failed" in out:
@@ -294,20 +332,21 @@ def run_contact_bench(*, quick: bool = False, repeat: int | None = None, engines
     for r in engine_records:
         if r["status"] == "ok":
             r["vs_fastest_peer"] = r["steps_per_s"] / fastest["steps_per_s"] if fastest else None
-    machine = _machine_info("cpu")
+    machine = _machine_info(device)
     machine["versions"] |= {name: P.peer_version(name) for name in P.PEERS}
     machine["softvr_commit"] = _git_commit()
     result: dict[str, Any] = {
         "schema": "softvr-bench-contact/1",
         "machine": machine,
-        "config": {"quick": quick, "repeat": rep, "scene": asdict(scene), "steps": scene.steps,
+        "config": {"quick": quick, "repeat": rep, "device": device, "scene": asdict(scene), "steps": scene.steps,
                    "mass_kg": scene.mass, "lame_lambda_mu": list(scene.lame), "softvr_beta_s": SOFTVR_BETA,
                    "engines": list(engines), "fastest_peer": fastest["engine"] if fastest else None,
                    "steps_per_s": "steps / summed wall time of the stepping calls; median over repeat rounds, "
                                   "engines run round robin (one simulation each per round)",
                    "penetration": "max over steps of the deepest node centre below z = 0"},
         "engines": engine_records,
-        "candy": run_candy(quick=quick, progress=progress) if candy else None,
+        "candy": run_candy(quick=quick, progress=progress, device=device) if candy else None,
+        "cubes": run_cubes(cubes, scene, device, progress) if cubes > 0 else None,
         "wall_s": None,
         "loadavg_start": load_start,
         "loadavg_end": _loadavg(),
@@ -337,7 +376,7 @@ def _targets(result: dict) -> dict:
 # ----------------------------------------------------------------------------- output
 def format_table(result: dict) -> str:
     sc = CubeScene(**result["config"]["scene"])
-    lines = [f"Soft cube on a plane: {sc.describe()}",
+    lines = [f"Soft cube on a plane: {sc.describe()}; softvr's physics on {result['config'].get('device', 'cpu')}",
              f"steps/s = steps / wall time of the stepping calls (median of {result['config']['repeat']} round-robin runs); "
              "pen = deepest node below the plane over the run;",
              "bottom / centre = lowest node / node centroid at the end; contacts = last step; "
@@ -368,6 +407,12 @@ def format_table(result: dict) -> str:
                   f"{candy['pgs_iterations_mean']:.0f} / max {candy['pgs_iterations_max']}; residual max "
                   f"{candy['residual_max_m_s']:.2g} m/s; thesis: {candy['thesis_s_per_step'] * 1e3:.0f} ms per step "
                   f"(1.8 GHz Core 2 Duo, 97 contacts mean)"]
+    cubes = result.get("cubes")
+    if cubes is not None:
+        lines += ["", f"{cubes['cubes']} cubes in one scene ({cubes['tets']} tets, {cubes['stepper']} on "
+                      f"{cubes['device']}): {cubes['ms_per_step']:.2f} ms per step = {cubes['steps_per_s']:.0f} "
+                      f"steps/s each (after a first step of {cubes['first_step_ms']:.0f} ms), max penetration "
+                      f"{_mm(cubes['max_penetration_m'], 2)} mm; GPU target: 64 cubes at >= 1000 steps/s each"]
     lines.append("")
     lines.append(_targets_text(result))
     return "\n".join(lines)
@@ -480,7 +525,8 @@ def profile_softvr_step(scene: CubeScene, top: int = 25) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``softvr bench contact [--quick] [--repeat N] [--engines LIST] [--json PATH] [--plot PATH] [--profile]``."""
+    """``softvr bench contact [--quick] [--repeat N] [--engines LIST] [--device D] [--json PATH] [--plot PATH]
+    [--profile]``."""
     p = bench_parser("contact", "Soft cube dropped on a plane: softvr vs MuJoCo, PyBullet and Newton (when "
                      "installed); then the thesis' candy scene at full scale (softvr).",
                      quick="0.2 m cube of 3^3 cells, 0.25 s (seconds; CI)",
@@ -489,7 +535,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--engines", default=",".join(ENGINES), help=f"comma list of {', '.join(ENGINES)}")
     p.add_argument("--profile", action="store_true", help="also print a cProfile of one softvr step in contact")
     p.add_argument("--no-candy", action="store_true", help="skip the candy-scale scene")
+    p.add_argument("--device", default="cpu", help="where softvr's physics steps: cpu (default) or cuda")
+    p.add_argument("--cubes", type=int, default=0, metavar="N",
+                   help="also step N cubes in one scene (softvr only; the GPU target: 64 at >= 1000 steps/s)")
     a = p.parse_args(argv)
+    if a.cubes < 0:
+        p.error("--cubes must be >= 0")
     if a.repeat is not None and a.repeat < 1:
         p.error("--repeat must be >= 1")
     engines = tuple(e.strip() for e in a.engines.split(",") if e.strip())
@@ -498,7 +549,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unknown engines {sorted(bad)}; choose from {', '.join(ENGINES)}")
     try:
         result = run_contact_bench(quick=a.quick, repeat=a.repeat, engines=engines, progress=not a.no_progress,
-                                   candy=not a.no_candy)
+                                   candy=not a.no_candy, device=a.device, cubes=a.cubes)
     except SoftvrError as exc:
         print(f"softvr bench contact: {exc}", file=sys.stderr)
         return 2

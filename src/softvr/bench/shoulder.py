@@ -25,6 +25,7 @@ import numpy as np
 from softvr.bench._report import bench_parser, print_and_write, save_figure, step_times
 from softvr.bench.contact import _git_commit
 from softvr.bench.volume import _loadavg, _machine_info
+from softvr.device import resolve_device
 from softvr.dynamics import FemBody
 from softvr.scene import BUNDLED, load_scene
 
@@ -40,14 +41,14 @@ THESIS = {"ms_per_step": 20.0, "contacts_mean": 65, "contacts_max": 153}
 SCENES = {"palpation": "shoulder.toml", "arthroscopy": "shoulder-arthroscopy.toml"}
 
 
-def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
-    """Simulate ``seconds`` of the scripted palpation of one variant (its scene file's step);
-    returns its numbers."""
+def run_variant(variant: str, *, seconds: float, progress: bool, device: str = "cpu") -> dict:
+    """Simulate ``seconds`` of the scripted palpation of one variant (its scene file's step),
+    the physics on ``device``; returns its numbers."""
     from tqdm import tqdm
 
     # Played headless by the one player, one step a frame, the haptic process on (the file's);
     # the measures are read here off the step's solution and the tool (the force on the hand).
-    player = load_scene(BUNDLED / SCENES[variant], frames=1, width=64, height=48, steps_per_frame=1)
+    player = load_scene(BUNDLED / SCENES[variant], frames=1, width=64, height=48, steps_per_frame=1, device=device)
     player.frame_measures = False
     tool = player.tools[0]
     steps = max(1, int(round(seconds / player.dt)))
@@ -86,20 +87,21 @@ def run_variant(variant: str, *, seconds: float, progress: bool) -> dict:
             "haptic": haptic, "trace": trace}
 
 
-def run_shoulder_bench(*, quick: bool = False, progress: bool = True) -> dict:
-    """Both variants; ``quick`` simulates 0.2 s each instead of 6 s."""
+def run_shoulder_bench(*, quick: bool = False, progress: bool = True, device: str = "cpu") -> dict:
+    """Both variants, the physics on ``device``; ``quick`` simulates 0.2 s each instead of 6 s."""
     t0 = time.perf_counter()
+    device = resolve_device(device)
     load_start = _loadavg()
     seconds = 0.2 if quick else 6.0
-    runs = {v: run_variant(v, seconds=seconds, progress=progress) for v in SCENES}
-    machine = _machine_info("cpu")
+    runs = {v: run_variant(v, seconds=seconds, progress=progress, device=device) for v in SCENES}
+    machine = _machine_info(device)
     machine["softvr_commit"] = _git_commit()
     worst_step = max(r["ms_per_step"] for r in runs.values())
     worst_p99 = max(r["haptic"]["p99_ms"] or np.inf for r in runs.values())
     return {
         "schema": "softvr-bench-shoulder/1",
         "machine": machine,
-        "config": {"quick": quick, "seconds": seconds, "scenes": SCENES},
+        "config": {"quick": quick, "seconds": seconds, "scenes": SCENES, "device": device},
         "runs": runs,
         "thesis": THESIS,
         "targets": {"ms_per_step": TARGET_MS_PER_STEP, "ms_per_step_met": worst_step <= TARGET_MS_PER_STEP,
@@ -113,7 +115,7 @@ def run_shoulder_bench(*, quick: bool = False, progress: bool = True) -> dict:
 def format_table(result: dict) -> str:
     runs = result["runs"]
     lines = [f"Shoulder (thesis Table 5.1 structure, procedural), scripted palpation with the 1 kHz haptic loop, "
-             f"{result['config']['seconds']:g} s per variant"]
+             f"{result['config']['seconds']:g} s per variant, physics on {result['config'].get('device', 'cpu')}"]
     head = (f"{'variant':<12} {'soft':>4} {'tets':>5} {'springs':>7} {'islands':>7} {'ms/step':>8} {'p95':>6} "
             f"{'first':>6} {'contacts':>11} {'PGS':>11} {'overlap mm':>10} {'haptic p50/p99/max ms':>22}")
     lines += [head, "-" * len(head)]
@@ -161,11 +163,12 @@ def write_plot(result: dict, path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``softvr bench shoulder [--quick] [--json PATH] [--plot PATH]``."""
+    """``softvr bench shoulder [--quick] [--device D] [--json PATH] [--plot PATH]``."""
     p = bench_parser("shoulder", "The coupled shoulder palpated through the 1 kHz haptic loop.",
                      quick="0.2 s per variant (seconds; CI)", plot="write a PNG: ms per step, contacts, force on the hand")
+    p.add_argument("--device", default="cpu", help="where the physics steps: cpu (default) or cuda")
     a = p.parse_args(argv)
-    result = run_shoulder_bench(quick=a.quick, progress=not a.no_progress)
+    result = run_shoulder_bench(quick=a.quick, progress=not a.no_progress, device=a.device)
     print_and_write(result, format_table(result), a.json, a.plot, write_plot)
     return 0
 

@@ -40,6 +40,7 @@ docs/img/bench_volume.png``.
 from __future__ import annotations
 
 import datetime as _dt
+import importlib.metadata
 import os
 import platform
 import statistics
@@ -384,10 +385,16 @@ def _skip_record(section, name, route, volume, tets, out_voxels, reason):
 
 
 # ----------------------------------------------------------------------------- the run
+def _version(package: str) -> str | None:
+    """An installed distribution's version, None where it is not installed (a machine that runs
+    only softvr's physics, a GPU box without VTK, still gets its machine record)."""
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
 def _machine_info(device: str) -> dict:
-    import scipy
-    import SimpleITK as sitk
-    import vtk
     import warp as wp
 
     cpu = "unknown"
@@ -422,9 +429,9 @@ def _machine_info(device: str) -> dict:
             "softvr": softvr.__version__,
             "warp": wp.config.version,
             "numpy": np.__version__,
-            "scipy": scipy.__version__,
-            "vtk": vtk.vtkVersion.GetVTKVersion(),
-            "SimpleITK": sitk.Version.VersionString(),
+            "scipy": _version("scipy"),
+            "vtk": _version("vtk"),
+            "SimpleITK": _version("SimpleITK"),
         },
         "date": _dt.datetime.now().astimezone().isoformat(timespec="seconds"),
     }

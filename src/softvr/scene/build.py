@@ -38,6 +38,7 @@ from softvr import Scene
 from softvr.app import Drawable, Player, Sensor, plane_drawable, pose_matrix, sphere_drawable
 from softvr.collision import Plane, Sphere, TriangleMesh
 from softvr.contact import Adhesion
+from softvr.device import resolve_device
 from softvr.dynamics import (ClothBody, ContactObject, Coupling, EmbeddedPoints, FemBody, FixedBody, KinematicBody,
                              Material, RigidBody, RigidPoints, embed_in_tets)
 from softvr.errors import InputError
@@ -279,7 +280,9 @@ class SceneExample(Player):
     steps_per_frame : int, optional
         Override the file's ``simulation.steps_per_frame`` (a bench times every step: 1).
     device : {"cpu", "cuda", None}
-        Warp device of the volume's rasterizer (None: CUDA when present).
+        Warp device of the volume's rasterizer (None: CUDA when present) and, where given, of
+        the physics' node arrays (:attr:`softvr.Scene.device`; None: the CPU, whose step the
+        tests hold to physics on every machine).
     haptics : bool, optional
         False: no tool runs its 1 kHz haptic process, whatever its ``haptics`` says (each
         reads its handle once per step instead); None or True: as the file says.
@@ -298,7 +301,7 @@ class SceneExample(Player):
         scene = Scene(gravity=sim["gravity"], friction=sim["friction"], pgs_iterations=sim["pgs_iterations"],
                       pgs_tolerance=sim["pgs_tolerance"], contact_margin=sim["contact_margin"],
                       rotation_lag=sim["rotation_lag"],
-                      edge_contacts=sim["edge_contacts"])
+                      edge_contacts=sim["edge_contacts"], device="cpu" if device is None else resolve_device(device))
         self.scene = scene  # (again in Player.__init__) the collision-free start needs it
         self.planes = []
         for p in scene_file.planes:

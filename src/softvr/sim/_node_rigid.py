@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from softvr.device import replayer
+from softvr.device import HostMirror, replayer
 from softvr.dynamics import RigidBody
 from softvr.dynamics.node_rigid import record_rigid_system, record_rigid_velocity
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
@@ -139,17 +139,24 @@ class RigidNodes:
     sweeps the rigid path's unconstrained step and the nodes' ``D_A^-1``, ``b``; after them the
     rigid path's integration of the solved node velocities."""
 
-    def __init__(self, scene, rigid: NodeRigid):
+    def __init__(self, scene, rigid: NodeRigid, copies: bool = False):
         self.scene, self.rigid = scene, rigid
         self.bodies = [scene.bodies[b] for b in rigid.bodies]
-        self._views = bind_views(self.bodies, rigid.state)
-        self._external = rigid.state.external.numpy()
-        self._diverged = rigid.state.diverged.numpy()
+        st = rigid.state
+        # The bodies' poses and velocities, the external forces and the divergence flags on the
+        # host: the arrays' memory on the CPU, copies elsewhere (``copies``: also on the CPU).
+        self._poses = [HostMirror(a, copies) for a in (st.body_position, st.body_orientation, st.body_velocity)]
+        self._views = bind_views(self.bodies, *(m.host for m in self._poses))
+        self._external = HostMirror(st.external, copies)
+        self._diverged = HostMirror(st.diverged, copies)
         self._recorded: tuple = ()
 
     def sync_in(self) -> None:
-        """Copy in any pose or velocity the user assigned since the last step."""
+        """Copy in any pose or velocity the user assigned since the last step (or wrote into
+        the bodies' arrays), up to the device."""
         sync_views(self.bodies, self._views)
+        for mirror in self._poses:
+            mirror.push()
 
     def record(self, state, dt: float, gravity) -> None:
         """Record the launches of a step of ``dt`` [s] under ``gravity`` [3] [m/s^2]; ``state``
@@ -163,10 +170,12 @@ class RigidNodes:
         """The unconstrained velocities (eq. 5.2, with ``Scene.external``'s forces and torques)
         and the nodes' ``D_A^-1`` and ``b``; run after the FEM nodes' right-hand side."""
         unconstrained, system, _, _ = self._recorded
-        self._external[:] = 0.0
+        external = self._external.host
+        external[:] = 0.0
         for r, b in enumerate(self.rigid.bodies):
             if b in self.scene.external:
-                self._external[r] = self.bodies[r]._check_external(self.scene.external[b])
+                external[r] = self.bodies[r]._check_external(self.scene.external[b])
+        self._external.push()
         unconstrained()
         self.check()
         system()
@@ -177,11 +186,15 @@ class RigidNodes:
         velocity[buffer]()
         integrate()
         self.check()
+        for mirror in self._poses:
+            mirror.pull()
         for body in self.bodies:
             body.step_count += 1
 
     def check(self) -> None:
         """Stop with a report naming the body and the step (SimulationError) if one diverged."""
-        if self._diverged.any():
-            r = int(np.flatnonzero(self._diverged)[0])
-            raise self.bodies[r]._diverged(DIVERGENCE_REASONS[int(self._diverged[r])])
+        self._diverged.pull()
+        diverged = self._diverged.host
+        if diverged.any():
+            r = int(np.flatnonzero(diverged)[0])
+            raise self.bodies[r]._diverged(DIVERGENCE_REASONS[int(diverged[r])])

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import time
 import weakref
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,7 +39,7 @@ from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
-from softvr.device import in_order, replayer, upload
+from softvr.device import HostMirror, in_order, replayer, resolve_device, upload
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
                                          record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
@@ -296,9 +298,16 @@ class NodeStepper:
     (:func:`~softvr.sim.node_model_supported`) on its arrays; built from the scene's current
     state and warm starts."""
 
-    def __init__(self, scene):
+    def __init__(self, scene, on_cpu: bool = False):
         self.scene = scene
-        self.model, self.state = build_node_model(scene)
+        # ``on_cpu``: the CPU's own arrays whatever the scene's device (one too stiff for the
+        # sweeps takes the factored solve there).
+        self.device = "cpu" if on_cpu else resolve_device(scene.device)
+        # Host copies of what the Python side reads and writes (the bodies' q and v, the
+        # external forces, the contacts a step reads back): on a GPU, or where the scene asks
+        # for them on the CPU (tests run a CUDA step's host traffic there).
+        self.copies = not on_cpu and (bool(scene._host_copies) or self.device != "cpu")
+        self.model, self.state = build_node_model(scene, self.device)
         self._settings = self._scene_settings()
         self.colliders = {c.body: c for c in scene._colliders}
         self.fem = [isinstance(b, NODE_BODIES) for b in scene.bodies]  # free nodes: FEM and cloth
@@ -311,15 +320,16 @@ class NodeStepper:
         self.edge_body = self.model.edge_body.numpy()
         self.edge_start = self.model.body_edge_start.numpy()
         self._bind_bodies()
-        self.rigid = RigidNodes(scene, self.model.rigid) if self.model.rigid is not None else None
+        self.rigid = RigidNodes(scene, self.model.rigid, self.copies) if self.model.rigid is not None else None
         self._carry_in(scene._warm)
         self.adhesion = self._adhesion()
         if self.adhesion is not None:
             self.adhesion.carry_in(scene.adhesion_state, scene._warm)
         self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
-        self._recorded = None
-        self._spectrum = {}
-        self._issued = lambda: None  # a weak reference to the last step's snapshot
+        # [key, elements, assemble, rhs, detect, solver, carry, integrate, couplings, start] (_record)
+        self._recorded: list[Any] = []
+        self._spectrum: dict[float, Any] = {}  # the sweeps' choice per step size (choose_sweeps)
+        self._issued: Callable[[], _NodeSnapshot | None] = lambda: None  # a weak reference to the last step's snapshot
 
     def contact_body(self, contacts: dict) -> np.ndarray:
         """Side a's body of each contact of a snapshot's ``contacts``."""
@@ -333,7 +343,7 @@ class NodeStepper:
     def _scene_settings(self) -> tuple:
         s = self.scene
         return (s._layout, float(s.contact_margin), float(s.friction), bool(s.edge_contacts),
-                tuple(len(b.q) if isinstance(b, NODE_BODIES) else 0 for b in s.bodies))
+                tuple(len(b.q) if isinstance(b, NODE_BODIES) else 0 for b in s.bodies), s.device, bool(s._host_copies))
 
     def still_valid(self) -> bool:
         """Whether the arrays still describe the scene."""
@@ -341,8 +351,12 @@ class NodeStepper:
 
     def _bind_bodies(self) -> None:
         st = self.state
-        self._q, self._v, self._fixed_v = st.q.numpy(), st.v.numpy(), st.fixed_velocity.numpy()
-        self._external = st.external.numpy()
+        # The FEM and cloth bodies' q, v and fixed_velocity are views of these (pushed before a
+        # step: a user may have written them in place; pulled after it).
+        self._state_mirrors = [HostMirror(a, self.copies) for a in (st.q, st.v, st.fixed_velocity)]
+        self._q, self._v, self._fixed_v = (m.host for m in self._state_mirrors)
+        self._external_mirror = HostMirror(st.external, self.copies)
+        self._external = self._external_mirror.host
         c = st.contacts
         self._host_arrays = {name: getattr(c, name) for name in _CONTACT_FIELDS + ("count", "stencil_nodes",
                                                                                    "stencil_count")}
@@ -350,8 +364,7 @@ class NodeStepper:
         if self.model.rigid is not None:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
                                       for name, field in _RIGID_CONTACT_FIELDS.items()})
-        self._host_views = {name: array.numpy() for name, array in self._host_arrays.items()} \
-            if wp.get_device(self.model.device).is_cpu else None
+        self._host_views = None if self.copies else {name: array.numpy() for name, array in self._host_arrays.items()}
         k = len(self.model.kinematic)
         kinematic = (st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity)
         # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
@@ -427,7 +440,8 @@ class NodeStepper:
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table
         (points vs planes, spheres and meshes, vertices vs bodies; edge pairs start cold)."""
-        table = self.state.contacts.carried.numpy()
+        carried = HostMirror(self.state.contacts.carried, self.copies)
+        table = carried.host
         p, columns = self.model.point_count, table.shape[1]
         if not warm or not p:
             return
@@ -436,6 +450,7 @@ class NodeStepper:
         for (i, j), key in np.ndenumerate(keys):
             if int(key) in warm:
                 table[i, j] = warm[int(key)]
+        carried.push()
 
     def _adhesion(self) -> NodeAdhesion | None:
         """The scene's adhesion on the arrays; None in a scene without any."""
@@ -479,7 +494,7 @@ class NodeStepper:
     def _record(self, dt: float) -> None:
         s = self.scene
         key = (dt, tuple(s.gravity), s.pgs_iterations, s.ccd, s.rotation_lag)
-        if self._recorded is not None and self._recorded[0] == key:
+        if self._recorded and self._recorded[0] == key:
             return
         m, st = self.model, self.state
         lag = bool(s.rotation_lag)
@@ -529,7 +544,10 @@ class NodeStepper:
         sweeps decline (``choice.kind`` None) takes it rather than stepping per object (a
         sparse LU every step)."""
         sweeps = min(choice.work.values())
-        if self.adhesion is not None or not factored_eligible(self.model) or sweeps <= MAX_SWEEPS_PER_DECADE:
+        # SciPy's factorization works on the host's arrays: CPU only (and not with the host copies
+        # that stand in for a GPU's).
+        if self.copies or self.adhesion is not None or not factored_eligible(self.model) \
+                or sweeps <= MAX_SWEEPS_PER_DECADE:
             return None
         solve = FactoredSolve(self.model, self.state, dt, max_iterations=self.scene.pgs_iterations)
         return solve if factored_work(solve.fill, len(self.model.block_col)) < sweeps_step_work(sweeps) else None
@@ -548,6 +566,7 @@ class NodeStepper:
                     raise InputError(f"external[{i}]", f"finite node forces of shape ({nodes}, 3) [N]",
                                      f"shape {f.shape}" if f.size != 3 * nodes else "NaN/inf")
                 self._external[start[i]:start[i + 1]] = f.reshape(-1, 3)
+        self._external_mirror.push()
         self._pushed = bool(s.external)
 
     def step(self, dt: float) -> tuple[LazySolution, dict]:
@@ -557,6 +576,8 @@ class NodeStepper:
         if held is not None:  # last step's solution is still held: it keeps its contacts
             held.detach()
         self._sync_in()
+        for mirror in self._state_mirrors:  # before the drive, which writes the driven nodes' rows
+            mirror.push()
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
@@ -586,6 +607,8 @@ class NodeStepper:
         t3 = time.perf_counter()
         integrate[sweeps % 3]()
         self._check()
+        for mirror in self._state_mirrors:
+            mirror.pull()
         if self.rigid is not None:
             self.rigid.integrate(sweeps % 3)
         for i, body in enumerate(self.scene.bodies):

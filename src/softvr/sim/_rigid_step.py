@@ -36,13 +36,13 @@ from softvr.sim.model import build_rigid_model
 __all__ = ["LazySolution", "RigidStepper", "StepSnapshot", "bind_views", "sync_views"]
 
 
-def bind_views(bodies: list, state) -> list[tuple]:
-    """Make each body's ``position``, ``orientation`` and ``v`` a view of its row of ``state``
-    (a :class:`~softvr.sim.RigidState` over ``bodies``, in order); returns the views."""
+def bind_views(bodies: list, position: np.ndarray, orientation: np.ndarray, velocity: np.ndarray) -> list[tuple]:
+    """Make each body's ``position``, ``orientation`` and ``v`` a view of its row of the host
+    arrays of a :class:`~softvr.sim.RigidState` over ``bodies`` (in order): ``body_position``
+    [B, 3] [m], ``body_orientation`` [B, 4] and ``body_velocity`` [B, 6] [m/s, rad/s] (on the
+    CPU their own memory, else a :class:`~softvr.device.HostMirror`'s copies); returns the views."""
     # One view per body and field, made once: a user's assignment rebinds the attribute,
     # which an identity test against these finds (``store[i]`` makes a new view each time).
-    position, orientation = state.body_position.numpy(), state.body_orientation.numpy()
-    velocity = state.body_velocity.numpy()
     views = [(position[i], orientation[i], velocity[i]) for i in range(len(bodies))]
     for body, view in zip(bodies, views):
         body.position, body.orientation, body.v = view
@@ -305,7 +305,7 @@ class RigidStepper:
         self._buffers = [(st.contacts.views(), st.contacts.count.numpy()) for st in self._states]
         self._moves = np.append(self.model.body_inv_mass.numpy() > 0, False)  # [n + 1], body -1 static
         self._pushed = True
-        self._views = bind_views(self.scene.bodies, self.state)
+        self._views = bind_views(self.scene.bodies, self._position, self._orientation, self._velocity)
         # Kinematic bodies are rows of infinite mass (inverse mass 0, as fixed ones) moving at
         # their script's velocity: the contact solve reads it as their side's velocity.
         self._kinematic = {i for i, b in enumerate(self.scene.bodies) if isinstance(b, KinematicBody)}

@@ -31,7 +31,7 @@ from softvr.collision import (
 from softvr.collision.contacts import ContactSide, Contacts, unpack_keys
 from softvr.contact import ContactSolution, solve_contacts
 from softvr.contact.adhesion import Adhesion, AdhesionState, combine
-from softvr.device import cpu_workers, single_threaded_blas
+from softvr.device import cpu_workers, resolve_device, single_threaded_blas
 from softvr.dynamics.body import ContactObject
 from softvr.dynamics.couplings import Coupling
 from softvr.dynamics.islands import CouplingIsland, coupling_islands
@@ -170,6 +170,13 @@ class Scene:
         first step measures it: more than 25 sweeps per decade of error) takes a factorization
         kept from that step where it can (CPU; FEM bodies and driven nodes only) and it is less
         work, else the per-object path, as does a scene with this off.
+    device : str
+        Warp device the node arrays step on (``"cpu"``, ``"cuda"``, ``"cuda:N"``; see
+        :attr:`node_arrays`): one kernel source for both. On a GPU the bodies' ``q``, ``v``
+        and ``fixed_velocity`` are host copies, uploaded before each step (so a value assigned
+        or written in place between steps counts, as on the CPU) and downloaded after it; the
+        factored solve is CPU-only, so a scene too stiff for the sweeps steps on the CPU's arrays.
+        The rigid arrays and the per-object path step on the CPU whatever this says.
     parallel_islands : bool
         Solve the coupling islands' unconstrained steps in parallel threads. Off by default:
         the per-island work is still mostly Python (assembly), so on the shoulder the threads
@@ -204,10 +211,15 @@ class Scene:
     parallel_islands: bool = False
     rigid_arrays: bool = True
     node_arrays: bool = True
+    device: str = "cpu"
+    # Host copies of the node arrays even on the CPU (NodeStepper): a CUDA step's host traffic, run where
+    # no GPU is (tests).
+    _host_copies: bool = False
     _units: tuple[list, list] | None = None
     _pool: ThreadPoolExecutor | None = None
     _stepper: RigidStepper | NodeStepper | None = None
     _node_declined: int | None = None  # the layout the node sweeps found too stiff
+    _node_on_cpu: int | None = None  # the layout too stiff for the sweeps off the CPU's own arrays
     _layout: int = 0
 
     def add_body(self, body: ContactObject, *, collision_points=None, collision_triangles=None,
@@ -427,15 +439,22 @@ class Scene:
         switching the thread count costs ~8 us, a twentieth of a box-stack step.)
         """
         arrays = self._arrays()
-        if arrays is not None:
+        while arrays is not None:
             dt = ContactObject._check_dt(dt)
             # Let go of the last solution first: a node step's that no one else holds then is
             # not copied out of the arrays the step writes (NodeStepper.step).
             self.last_solution = None
             try:
                 self.last_solution, self.stage_ms = arrays.step(dt)
-            except IllConditioned:  # before anything moved: this step goes the per-object way
-                self._node_declined, self._stepper = self._layout, None
+            except IllConditioned:  # before anything moved
+                # Too stiff for the sweeps: off the CPU's own arrays, try those (the factored
+                # solve is CPU-only); else this step goes the per-object way.
+                if isinstance(arrays, NodeStepper) and arrays.copies:
+                    self._node_on_cpu = self._layout
+                else:
+                    self._node_declined = self._layout
+                self._stepper = None
+                arrays = self._arrays()
             else:
                 self.time += dt
                 return self.last_solution
@@ -571,10 +590,11 @@ class Scene:
         if stepper is not None:
             self.adhesion_state, self._warm = stepper.carried_out()
             self._stepper = None
+        resolve_device(self.device)  # a device this machine lacks: named before any path steps
         if self.rigid_arrays and rigid_model_supported(self):
             self._stepper = RigidStepper(self)
         elif self.node_arrays and self._node_declined != self._layout and node_model_supported(self):
-            self._stepper = NodeStepper(self)
+            self._stepper = NodeStepper(self, on_cpu=self._node_on_cpu == self._layout)
         return self._stepper
 
     def _step(self, dt: float) -> ContactSolution:
