@@ -1,22 +1,27 @@
 #!/usr/bin/env bash
 # The GPU checks of issues 16 and 18 in one run on a lent CUDA machine (the workplace's device
 # tool: docs/physics-core.md, "Running it on a GPU"). That machine's image has Python 3.12 with
-# numpy, scipy, tqdm and pytest but not softvr's other needs; this expects, in .whl/ (an ignored
-# folder the calls carry, 64 MiB a call), the wheels for Python 3.12 of
-#   warp-lang (149 MB: carried as parts warp.part-aa, -ab, ... over several calls of one warm
-#   machine, each part copied to /tmp/parts by its call), trimesh, fast-simplification,
-#   pydantic, pydantic-core, annotated-types and typing-inspection
-# (VTK is not needed: the physics and its benches run headless without it). Writes the logs and
-# JSONs to $OUT. Each stage has its own timeout; the whole is sized for one 10-minute call.
+# numpy, scipy, tqdm and pytest but not softvr's other needs: scripts/device_wheels.sh fetches
+# them here into .whl/1, .whl/2, ... (warp-lang in parts; VTK and SimpleITK are not needed: the
+# physics and its benches run headless without them), one folder for each device call to carry
+# on one warm machine. Each call runs this script: it keeps the parts that came (in /tmp/parts)
+# and, once .whl's MANIFEST is all there, installs them and runs the checks, logs and JSONs to
+# $OUT. Each stage has its own timeout; the whole is sized for one 10-minute call.
 set -u
 OUT=${OUT:-device-out}
 mkdir -p "$OUT" /tmp/parts /tmp/site
 export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site:$PWD/src
-cp .whl/* /tmp/parts/ 2>/dev/null
+cp .whl/*/* /tmp/parts/ 2>/dev/null
 if ! python3 -c "import warp" 2>/dev/null; then
-    cat /tmp/parts/warp.part-* > /tmp/warp_lang-1.19.0-py3-none-manylinux_2_28_x86_64.whl || exit 1
-    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site \
-        /tmp/warp_lang-1.19.0-py3-none-manylinux_2_28_x86_64.whl /tmp/parts/*.whl || exit 1
+    if [ ! -f /tmp/parts/MANIFEST ] || ! (cd /tmp/parts && xargs ls < MANIFEST > /dev/null 2>&1); then
+        echo "have: $(ls /tmp/parts | tr '\n' ' ')- waiting for the rest of .whl (MANIFEST comes last)"
+        exit 0
+    fi
+    for first in /tmp/parts/*.whl.part-00; do
+        cat "${first%-00}"-* > "${first%.part-00}"
+    done
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site /tmp/parts/*.whl \
+        || exit 1
 fi
 nvidia-smi > "$OUT/nvidia-smi.txt" 2>&1
 # The node step on CUDA against the CPU's, the host mirror, every kernel module's PTX.

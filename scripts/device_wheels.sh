@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Fetch, here (where pip reaches PyPI), the wheels scripts/device_check.sh installs on a lent GPU
+# machine (Python 3.12, no network): the versions this checkout's .venv holds, into .whl/ (ignored
+# by git), warp-lang's 149 MB split into parts so that each device call carries one folder under
+# the 64 MiB a call may carry: carry .whl/1, then .whl/2, ... on one warm machine, each call
+# running `bash scripts/device_check.sh` (it keeps what came and runs the checks once all is there).
+# With --vtk also VTK (for softvr bench palpation on the GPU: two more folders).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo '/.whl/' >> .git/info/exclude
+py=.venv/bin/python
+packages=(warp-lang trimesh fast-simplification pydantic pydantic-core annotated-types typing-inspection typing-extensions)
+[ "${1:-}" = "--vtk" ] && packages+=(vtk)
+pins=()
+for p in "${packages[@]}"; do pins+=("$p==$($py -c "import importlib.metadata as m; print(m.version('$p'))")"); done
+rm -rf .whl && mkdir -p .whl/dl
+$py -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+    --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_24_x86_64 \
+    --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl/dl "${pins[@]}"
+# Big wheels as 50 MB parts, one folder each; the small wheels with the last part.
+k=0
+for big in .whl/dl/warp_lang-*.whl .whl/dl/vtk-*.whl; do
+    [ -f "$big" ] || continue
+    name=$(basename "$big")
+    split -b 50M -d "$big" ".whl/dl/$name.part-"
+    for part in ".whl/dl/$name.part-"*; do
+        k=$((k + 1)); mkdir -p ".whl/$k"; mv "$part" ".whl/$k/"
+    done
+    rm "$big"
+done
+mv .whl/dl/*.whl ".whl/$k/"
+rmdir .whl/dl
+# What device_check.sh waits for before it installs: every part and wheel, by name.
+(cd .whl && ls */* | sed 's|^[0-9]*/||' | grep -v '^MANIFEST$' > "$k/MANIFEST")
+echo "carry these, one a call, in order (then the last call runs the checks):"
+du -sh .whl/*
