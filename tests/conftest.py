@@ -33,9 +33,9 @@ def _node_host_copies(request, monkeypatch):
 
     original = _node_step.NodeStepper.__init__
 
-    def with_copies(self, scene):
+    def with_copies(self, scene, *args, **kwargs):
         scene._host_copies = True
-        original(self, scene)
+        original(self, scene, *args, **kwargs)
 
     monkeypatch.setattr(_node_step.NodeStepper, "__init__", with_copies)
 
