@@ -232,6 +232,9 @@ def test_a_diverging_node_is_reported_with_its_body_and_step():
 def test_scenes_the_arrays_do_not_hold_step_per_object():
     body = _cube()
     scene = _scene(body)
+    assert scene.path == "per object"  # nothing measured before the first step
+    scene.step(0.01)
+    assert scene.path == "node arrays on cpu"
     assert node_model_supported(scene)
     scene.add_plane(Plane(point=(0.0, 0.0, -1.0)), adhesion=None)
     assert node_model_supported(scene)
@@ -243,4 +246,4 @@ def test_scenes_the_arrays_do_not_hold_step_per_object():
     scene.add_body(FemBody(body.rest + (2.0, 0.0, 0.0), body.tets, body.material, corotational=False, name="linear"))
     assert not node_model_supported(scene)
     scene.step(0.01)
-    assert scene._stepper is None
+    assert scene._stepper is None and scene.path == "per object"

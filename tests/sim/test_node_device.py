@@ -59,9 +59,8 @@ def _scene(body, target, plane=True):
 
 
 def _assert_stepped_on(scene, target):
-    stepper = scene._stepper
-    assert type(stepper).__name__ == "NodeStepper"
-    assert stepper.model.device == target[0] and stepper.copies
+    assert scene.path == f"node arrays on {target[0]}" + (" (host copies)" if target[0] == "cpu" else "")
+    assert scene._stepper.model.device == target[0] and scene._stepper.copies
 
 
 @pytest.mark.parametrize("target", TARGETS)

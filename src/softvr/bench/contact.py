@@ -100,7 +100,7 @@ def run_cubes(count: int, scene: CubeScene, device: str = "cpu", progress: bool 
         step_s.append(time.perf_counter() - t)
         penetration = max(penetration, -min(float(b.q[:, 2].min()) for b in sim.bodies))
     times = step_times(step_s)
-    return {"cubes": count, "device": sim.device, "stepper": type(sim._stepper).__name__,
+    return {"cubes": count, "device": sim.device, "path": sim.path,
             "tets": int(sum(len(b.tets) for b in sim.bodies)), "steps": scene.steps, **times,
             "steps_per_s": 1e3 / times["ms_per_step"], "max_penetration_m": penetration,
             "bottom_end_m": [float(b.q[:, 2].min()) for b in sim.bodies]}
@@ -409,8 +409,8 @@ def format_table(result: dict) -> str:
                   f"(1.8 GHz Core 2 Duo, 97 contacts mean)"]
     cubes = result.get("cubes")
     if cubes is not None:
-        lines += ["", f"{cubes['cubes']} cubes in one scene ({cubes['tets']} tets, {cubes['stepper']} on "
-                      f"{cubes['device']}): {cubes['ms_per_step']:.2f} ms per step = {cubes['steps_per_s']:.0f} "
+        lines += ["", f"{cubes['cubes']} cubes in one scene ({cubes['tets']} tets, {cubes['path']}): "
+                      f"{cubes['ms_per_step']:.2f} ms per step = {cubes['steps_per_s']:.0f} "
                       f"steps/s each (after a first step of {cubes['first_step_ms']:.0f} ms), max penetration "
                       f"{_mm(cubes['max_penetration_m'], 2)} mm; GPU target: 64 cubes at >= 1000 steps/s each"]
     lines.append("")

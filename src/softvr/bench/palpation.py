@@ -135,6 +135,7 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
         scene = {**facts, **volume_facts, "volume": volume_facts["source"],
                  "renderer": "warp" if caster is not None else "vtk", "sample_distance": step}
         rasterizer_device = vol.drawing.rasterizer.device
+        physics_device = player.scene.device
     trace.update(_overlapped(scene_file, size, device, images, progress))
     med = {k: float(np.median(v)) for k, v in trace.items()}
     frame_ms = med["fem_ms"] + med["raster_incremental_ms"] + med["render_ms"]
@@ -147,7 +148,8 @@ def run_palpation_bench(*, quick: bool = False, progress: bool = True, size: int
     return {
         "schema": "softvr-bench-palpation/1",
         "machine": machine,
-        "config": {"quick": quick, "frames": frames, "image": [size, size], "device": rasterizer_device},
+        "config": {"quick": quick, "frames": frames, "image": [size, size], "device": rasterizer_device,
+                   "physics_device": physics_device},
         "scene": scene,
         "median": med,
         "frame_ms": frame_ms,
@@ -200,7 +202,8 @@ def format_table(result: dict) -> str:
     voxels = int(np.prod([int(x) for x in s["volume"].split("shape=(")[1].split(")")[0].split(",")]))
     lines = [f"Palpation of the head CT ({voxels / 1e6:.2f} M voxels, {s['tets']} tets, {s['clamped_nodes']} clamped "
              f"nodes), {c['frames']} frames, {c['image'][0]} x {c['image'][1]} render ({s['renderer']}, render step "
-             f"{s['render_step']}, sample distance {s['sample_distance']} voxel), rasterizer on {c['device']}",
+             f"{s['render_step']}, sample distance {s['sample_distance']} voxel), rasterizer on {c['device']}, "
+             f"physics on {c.get('physics_device', 'cpu')}",
              f"{'stage':<28} {'median ms':>10} {'vs full raster':>15}", "-" * 55]
     full = m["raster_full_ms"]
     for name, key in (("FEM step (contact, factored)", "fem_ms"), ("rasterize: full (thesis)", "raster_full_ms"),
@@ -268,7 +271,9 @@ def main(argv: list[str] | None = None) -> int:
     """``softvr bench palpation [--quick] [--device D] [--json PATH] [--plot PATH]``."""
     p = bench_parser("palpation", __doc__.splitlines()[0], quick="6 frames at 128 x 128 (CI)",
                      plot="write a PNG of the stages over the press")
-    p.add_argument("--device", default=None, help="rasterizer device: cpu or cuda (default cuda when present)")
+    p.add_argument("--device", default=None,
+                   help="rasterizer and renderer device: cpu or cuda (default cuda when present); where given, "
+                        "the physics' too (default: the CPU)")
     p.add_argument("--renderer", choices=tuple(_MAPPERS), default=None,
                    help="volume renderer: softvr's Warp ray caster or VTK's (default: the scene file's)")
     p.add_argument("--render-step", type=int, default=None,

@@ -286,6 +286,18 @@ class Scene:
             self.disable_collision(*(int(e) for e in ends if e is not None))
 
     @property
+    def path(self) -> str:
+        """Which way the scene steps (its last step's, or the next one's where it is still to
+        be measured): ``"node arrays on <device>"`` (with ``" (host copies)"`` where
+        ``_host_copies`` runs a CUDA step's host traffic on the CPU), ``"rigid arrays on cpu"``
+        or ``"per object"`` (also before the first step)."""
+        stepper = self._stepper
+        if isinstance(stepper, NodeStepper):
+            copies = " (host copies)" if stepper.copies and stepper.device == "cpu" else ""
+            return f"node arrays on {stepper.device}{copies}"
+        return "rigid arrays on cpu" if isinstance(stepper, RigidStepper) else "per object"
+
+    @property
     def collision_surfaces(self) -> tuple:
         """The bodies' collision surfaces in the order added
         (:class:`~softvr.collision.CollisionSurface`: ``body_index``, ``points`` whose
