@@ -10,7 +10,7 @@
 set -u
 OUT=${OUT:-device-out}
 mkdir -p "$OUT" /tmp/parts /tmp/site
-export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site:$PWD/src
+export PYTHONUNBUFFERED=1 PYTHONPATH=/tmp/site:$PWD/src SOFTVR_DATA=/tmp/parts
 cp .whl/*/* /tmp/parts/ 2>/dev/null
 if ! python3 -c "import warp" 2>/dev/null; then
     if [ ! -f /tmp/parts/MANIFEST ] || ! (cd /tmp/parts && xargs ls < MANIFEST > /dev/null 2>&1); then
@@ -32,3 +32,8 @@ timeout 200 python3 -m softvr bench contact --device cuda --engines softvr --cub
     --json "$OUT/contact_cuda.json" 2>&1 | tee "$OUT/contact_cuda.txt" | tail -20
 timeout 120 python3 -m softvr bench shoulder --device cuda --no-progress --json "$OUT/shoulder_cuda.json" 2>&1 \
     | tee "$OUT/shoulder_cuda.txt" | tail -12
+# Issue 18's GPU frame (<= 5 ms), where VTK came (device_wheels.sh --vtk) and has an OpenGL context.
+if python3 -c "import vtk" 2>/dev/null; then
+    timeout 150 python3 -m softvr bench palpation --device cuda --no-progress --json "$OUT/palpation_cuda.json" \
+        2>&1 | tee "$OUT/palpation_cuda.txt" | tail -20
+fi

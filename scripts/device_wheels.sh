@@ -4,7 +4,8 @@
 # by git), warp-lang's 149 MB split into parts so that each device call carries one folder under
 # the 64 MiB a call may carry: carry .whl/1, then .whl/2, ... on one warm machine, each call
 # running `bash scripts/device_check.sh` (it keeps what came and runs the checks once all is there).
-# With --vtk also VTK (for softvr bench palpation on the GPU: two more folders).
+# With --vtk also VTK and the head CT (softvr bench palpation on the GPU: four more folders; VTK
+# also needs an OpenGL context there: EGL, see the device tool's README).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 grep -qx '/.whl/' .git/info/exclude 2>/dev/null || echo '/.whl/' >> .git/info/exclude
@@ -17,7 +18,7 @@ rm -rf .whl && mkdir -p .whl/dl
 $py -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64 --platform manylinux_2_24_x86_64 \
     --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64 -d .whl/dl "${pins[@]}"
-# Big wheels as 50 MB parts, one folder each; the small wheels with the last part.
+# Big wheels as 50 MB parts, one folder each.
 k=0
 for big in .whl/dl/warp_lang-*.whl .whl/dl/vtk-*.whl; do
     [ -f "$big" ] || continue
@@ -28,9 +29,18 @@ for big in .whl/dl/warp_lang-*.whl .whl/dl/vtk-*.whl; do
     done
     rm "$big"
 done
+# The small wheels (and with --vtk the head CT) with the last part where they fit under ~52 MB,
+# else in a folder of their own; the MANIFEST goes last.
+if [ "${1:-}" = "--vtk" ]; then
+    k=$((k + 1)); mkdir -p ".whl/$k"
+    cp "$($py -c "from softvr.datasets import HEAD_CT_PATH, data_file; print(data_file(HEAD_CT_PATH, 'invesalius-examples'))")" ".whl/$k/"
+fi
+if [ $(( $(du -sm ".whl/$k" | cut -f1) + $(du -smc .whl/dl/*.whl | tail -1 | cut -f1) )) -gt 52 ]; then
+    k=$((k + 1)); mkdir -p ".whl/$k"
+fi
 mv .whl/dl/*.whl ".whl/$k/"
 rmdir .whl/dl
-# What device_check.sh waits for before it installs: every part and wheel, by name.
+# What device_check.sh waits for before it installs: every part and file, by name.
 (cd .whl && ls */* | sed 's|^[0-9]*/||' | grep -v '^MANIFEST$' > "$k/MANIFEST")
 echo "carry these, one a call, in order (then the last call runs the checks):"
 du -sh .whl/*
