@@ -234,7 +234,7 @@ def test_scenes_the_arrays_do_not_hold_step_per_object():
     scene = _scene(body)
     assert scene.path == "per object"  # nothing measured before the first step
     scene.step(0.01)
-    assert scene.path == "node arrays on cpu"
+    assert scene.path.startswith("node arrays on cpu")  # (" (host copies)" under pytest --host-copies)
     assert node_model_supported(scene)
     scene.add_plane(Plane(point=(0.0, 0.0, -1.0)), adhesion=None)
     assert node_model_supported(scene)

@@ -440,11 +440,11 @@ class NodeStepper:
     def _carry_in(self, warm: dict) -> None:
         """The per-object path's warm starts (world impulses by key) into the carried table
         (points vs planes, spheres and meshes, vertices vs bodies; edge pairs start cold)."""
-        carried = HostMirror(self.state.contacts.carried, self.copies)
-        table = carried.host
-        p, columns = self.model.point_count, table.shape[1]
+        p, columns = self.model.point_count, self.state.contacts.carried.shape[1]
         if not warm or not p:
             return
+        carried = HostMirror(self.state.contacts.carried, self.copies)
+        table = carried.host
         points, cols = np.meshgrid(np.arange(p), np.arange(columns), indexing="ij")
         keys = self._keys(points.ravel(), cols.ravel()).reshape(p, columns)
         for (i, j), key in np.ndenumerate(keys):
