@@ -23,6 +23,15 @@ def pytest_addoption(parser):
                      help="step every scene's node arrays through host copies (what a CUDA step does), on the CPU")
 
 
+def pytest_collection_modifyitems(config, items):
+    if not config.getoption("--host-copies"):
+        return
+    skip = pytest.mark.skip(reason="drives the CPU's own node arrays directly (--host-copies: they are copies)")
+    for item in items:
+        if "cpu_arrays" in item.keywords:
+            item.add_marker(skip)
+
+
 @pytest.fixture(autouse=True)
 def _node_host_copies(request, monkeypatch):
     """With ``--host-copies``: every NodeStepper keeps host copies of its arrays, so the

@@ -115,7 +115,7 @@ def test_cubes_in_one_scene_land_and_rest_like_the_single_cube():
     # the single cube of the bench does.
     result = C.run_contact_bench(quick=True, engines=("softvr",), candy=False, cubes=4, progress=False)
     cubes = result["cubes"]
-    assert (cubes["cubes"], cubes["device"], cubes["path"]) == (4, "cpu", "node arrays on cpu")
+    assert (cubes["cubes"], cubes["device"]) == (4, "cpu") and cubes["path"].startswith("node arrays on cpu")
     assert cubes["tets"] == 4 * 135 and cubes["steps"] == 15
     assert cubes["max_penetration_m"] < 1e-3
     np.testing.assert_allclose(cubes["bottom_end_m"], 0.0, atol=1e-3)

@@ -11,6 +11,7 @@ SWEEP_TOLERANCE (1e-5 m/s); velocities are held to 3x that (tests/sim/test_node_
 """
 
 import numpy as np
+import pytest
 from scipy.linalg import polar
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
@@ -40,6 +41,7 @@ def _random_start(stepper, body, scene, seed: int, rms: float = 0.05) -> np.ndar
     return expected
 
 
+@pytest.mark.cpu_arrays
 def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
     body = _beam()
     scene, stepper = _prepared(body, DT)
@@ -57,6 +59,7 @@ def test_factored_solve_of_a_bent_beam_lands_on_scipy_direct_solve_of_eq_5_2():
     np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
 
 
+@pytest.mark.cpu_arrays
 def test_steps_with_last_steps_rotations_or_local_correction_still_land_on_scipy_direct_solve(monkeypatch):
     # P's two turned parts take turns (REFRESH_PERIOD 2): a step refreshes the nodes' rotations
     # R or the local correction D (Woodbury) and keeps the other as the last step left it. P
@@ -112,6 +115,7 @@ def test_a_stiff_clamped_beam_swinging_onto_a_plane_takes_the_factored_solve_and
     assert pushing >= 10
 
 
+@pytest.mark.cpu_arrays
 def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffness_weighted_sums():
     # Each solved node's rotation (stiffness warping) is the polar factor of the sum of its
     # tets' co-rotations R_e weighted by the trace of K_e's diagonal blocks. Turned rigidly by Q,
@@ -146,6 +150,7 @@ def test_node_rotations_are_a_rigid_turn_and_scipys_polar_factor_of_the_stiffnes
     np.testing.assert_allclose(solve._absolute.numpy(), expected, atol=1e-10, rtol=0)
 
 
+@pytest.mark.cpu_arrays
 def test_rotations_and_warp_change_recomputed_only_where_tets_turned_stay_scipys_and_numpys_everywhere():
     # The nodes' rotations (the polar factor of their tets' stiffness-weighted co-rotations) and
     # each solved row's warp change (max_j |R_i^T A_ij R_j - A0_ij|_F / |A0_ii|_F) are recomputed
@@ -198,6 +203,7 @@ def test_rotations_and_warp_change_recomputed_only_where_tets_turned_stay_scipys
     np.testing.assert_allclose(solve._change.numpy(), change, rtol=1e-12, atol=0)
 
 
+@pytest.mark.cpu_arrays
 def test_kept_columns_over_the_limit_drop_to_the_last_steps_and_stay_scipys_columns_of_the_inverse():
     # The columns of A_0^-1 a step multiplies are kept across steps; over KEPT_NODES nodes'
     # (a probe moved over the body) a step first drops those the last step did not use. The
