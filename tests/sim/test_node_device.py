@@ -181,3 +181,20 @@ def test_a_step_on_the_target_equals_the_cpu_step(target, name):
     tol = 0.0 if target[0] == "cpu" else CUDA_TOL
     for expected, got in zip(*runs):
         np.testing.assert_allclose(got, expected, rtol=0, atol=tol)
+
+
+def test_a_device_that_is_not_there_is_named_before_anything_steps():
+    # Scene.device is read when the scene's arrays are built (its first step): an unknown name, or
+    # CUDA where none is present, stops with the field, what was expected and what was found,
+    # and the bodies stay where they were.
+    from softvr.errors import InputError
+
+    cases = ["gpu"] + ([] if wp.is_cuda_available() else ["cuda"])
+    for device in cases:
+        body = _cube(lift=1.0)
+        scene = _scene(body, (device, False), plane=False)
+        start = body.q.copy()
+        with pytest.raises(InputError) as err:
+            scene.step(0.01)
+        assert "device" in str(err.value) and repr(device) in str(err.value)
+        np.testing.assert_array_equal(body.q, start)
