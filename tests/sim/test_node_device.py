@@ -10,7 +10,8 @@ issue's "a step on CUDA equals the CPU step" on the soft cube and the shoulder).
 copies the same compiled kernels run on the same numbers, so the CPU's step is matched to the
 bit; CUDA's code may fuse a multiply-add that the CPU's rounds twice (~1e-16 relative an
 operation), which a few steps of sweeps keep far below the 1 um allowed here unless a contact's
-active set flips, which the scenes here do not straddle.
+active set flips between the two (not run on a GPU yet: where CUDA misses by more, look there
+first).
 
 Tolerances on the physics come from the sweeps' stopping rule (SWEEP_TOLERANCE = 1e-5 m/s,
 estimated from a geometric tail: 3x allowed), as in test_node_arrays.py.
