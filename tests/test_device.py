@@ -12,7 +12,7 @@ import pytest
 import warp as wp
 
 import softvr.device as device_module
-from softvr.device import (ITEMS_A_CPU_THREAD, HostMirror, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
+from softvr.device import (ITEMS_A_CPU_THREAD, HostMirror, LaunchBatch, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
                            launch, replayer, single_threaded_blas)
 
 
@@ -37,6 +37,24 @@ def _count(values: wp.array(dtype=wp.float64), counts: wp.array(dtype=wp.int32),
     i = wp.tid() + offset
     values[i] = amount * wp.float64(i)
     counts[i] = counts[i] + 1
+
+
+def test_a_launch_batch_runs_its_replays_in_order_at_every_call(device):
+    # Three recorded launches whose order matters: v += s, s += s, v += 10 s. Every call must run
+    # all three in that order, the first (which captures them on CUDA) and the later ones (the
+    # graph) alike: a call adds s + 20 s to v and doubles s.
+    values = wp.zeros(4, dtype=wp.float64, device=device)
+    scale = wp.array(np.ones(4), dtype=wp.float64, device=device)
+    one = replayer(wp.launch(_add, dim=4, inputs=[values, 1.0, scale], device=device, record_cmd=True))
+    double = replayer(wp.launch(_add, dim=4, inputs=[scale, 1.0, scale], device=device, record_cmd=True))
+    ten = replayer(wp.launch(_add, dim=4, inputs=[values, 10.0, scale], device=device, record_cmd=True))
+    batch = LaunchBatch([one, double, ten], device)
+    expected, s = 0.0, 1.0
+    for _ in range(3):
+        batch()
+        expected, s = expected + s + 10.0 * 2.0 * s, 2.0 * s
+        np.testing.assert_array_equal(values.numpy(), expected)
+        np.testing.assert_array_equal(scale.numpy(), s)
 
 
 @pytest.mark.parametrize("copies", [False, True])

@@ -23,6 +23,7 @@ import warp as wp
 
 from softvr import Scene
 from softvr.collision import Plane
+from softvr.device import LaunchBatch
 from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints
 from softvr.scene import bundled, load_scene
 from softvr.sim._node_step import SWEEP_TOLERANCE
@@ -199,3 +200,50 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
             scene.step(0.01)
         assert "device" in str(err.value) and repr(device) in str(err.value)
         np.testing.assert_array_equal(body.q, start)
+
+
+@pytest.mark.parametrize("name", ["soft cube", "shoulder", "candy"])
+def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, monkeypatch):
+    # Off the CPU's own arrays the sweeps run two at a time between checks as one LaunchBatch (on
+    # CUDA one captured graph). A graph records launches only: a host read inside a batch (an
+    # array's numpy(), a copy, a synchronize) would run once, at the capture, and never again.
+    # Through the host copies the batches run on the CPU, with every such read refused inside
+    # them; and they must carry every sweep but none (a check falls after each pair).
+    inside, batches = [False], [0]
+    original = LaunchBatch.__call__
+
+    def batch(self):
+        inside[0] = True
+        batches[0] += 1
+        try:
+            original(self)
+        finally:
+            inside[0] = False
+
+    def refused(call):
+        def guard(*args, **kwargs):
+            assert not inside[0], f"{call.__name__} inside a launch batch"
+            return call(*args, **kwargs)
+        return guard
+
+    monkeypatch.setattr(LaunchBatch, "__call__", batch)
+    monkeypatch.setattr(wp.array, "numpy", refused(wp.array.numpy))
+    for call in ("copy", "synchronize", "synchronize_device", "synchronize_stream"):
+        monkeypatch.setattr(wp, call, refused(getattr(wp, call)))
+    sweeps = 0
+    if name == "soft cube":
+        body = _cube(cells=6, size=0.6, lift=0.02)
+        scene = _scene(body, ("cpu", True))
+        for _ in range(20):
+            sweeps += scene.step(1.0 / 60.0).iterations
+    else:
+        variants = ("quick",) if name == "candy" else ()
+        with load_scene(bundled(f"{name}.toml"), variants, frames=20, width=64, height=48, haptics=False,
+                        steps_per_frame=1) as example:
+            example.scene._host_copies = True
+            for _ in range(20):
+                example.step()
+                sweeps += example.scene.last_solution.iterations
+            scene = example.scene
+    assert scene.path == "node arrays on cpu (host copies)"
+    assert sweeps % 2 == 0 and batches[0] == sweeps // 2

@@ -19,7 +19,7 @@ from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
+from softvr.device import LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
@@ -243,11 +243,15 @@ class NodeSolve:
         correct exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the
         two-level ``M^-1 A``); with ``colours``, the aggregates each Gauss-Seidel sweep corrects
         after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
+    batched : bool
+        Run the sweeps two at a time between checks as one :class:`~softvr.device.LaunchBatch`
+        each (on CUDA one graph launch instead of ~14 launches); the same launches in the same
+        order, so the same results. For the node arrays off the CPU's own memory.
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | Aggregates | None = None):
+                 coarse: np.ndarray | Aggregates | None = None, batched: bool = False):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -391,6 +395,11 @@ class NodeSolve:
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
+        # Two sweeps from buffer r (plain or Chebyshev): what solve() runs between two checks.
+        self._pairs = [[LaunchBatch([*self._sweeps[r][:2], plain[r] if p else self._sweeps[r][2],
+                                     *self._sweeps[(r + 1) % 3][:2],
+                                     plain[(r + 1) % 3] if p else self._sweeps[(r + 1) % 3][2]], d)
+                        for p in (False, True)] for r in range(3)] if batched else None
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
                                                   inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
@@ -509,18 +518,26 @@ class NodeSolve:
         restart, plain_from, plain_until = 0, 0, 0
         self.plain_sweeps = 0
         self.plateaued = stopped = False
+        pairs = self._pairs if check_every == 2 else None
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
                 self.sweep.zero_()
                 restart, history = k, _Changes()
             plain = k < plain_until
-            jacobi, contacts, cheb = self._sweeps[k % 3]
-            jacobi()
-            contacts()
-            (self._plain[k % 3] if plain else cheb)()
-            k += 1
-            self.plain_sweeps += plain
+            # Two sweeps as one batch where the host decides nothing between them: from a check
+            # on, with the same kind of sweep for both (plain_until falls on checks: windows are even).
+            if pairs is not None and k % 2 == 0 and k + 2 <= self.max_sweeps and (k + 1 < plain_until) == plain:
+                pairs[k % 3][plain]()
+                k += 2
+                self.plain_sweeps += 2 * plain
+            else:
+                jacobi, contacts, cheb = self._sweeps[k % 3]
+                jacobi()
+                contacts()
+                (self._plain[k % 3] if plain else cheb)()
+                k += 1
+                self.plain_sweeps += plain
             if k % check_every == 0:
                 if self._gauss_seidel is not None and self._gauss_seidel.wake():
                     plain_until = k  # a new iteration: Chebyshev from omega_1

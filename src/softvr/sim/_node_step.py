@@ -533,7 +533,8 @@ class NodeStepper:
                     f"{kind} {work:.0f} Jacobi sweeps of work per decade" for kind, work in choice.work.items()))
             self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
-                                          colours=choice.colours, omega=choice.omega, coarse=choice.coarse)
+                                          colours=choice.colours, omega=choice.omega, coarse=choice.coarse,
+                                          batched=self.copies)
         return self._recorded[5]
 
     def _factored(self, dt: float, choice) -> FactoredSolve | None:
