@@ -270,8 +270,8 @@ class HostMirror:
 
 class LaunchBatch:
     """Replays run as one: on the CPU one after another; on CUDA captured as a CUDA graph on the
-    first call (and launched), then launched as that graph (a node step's sweeps replay ~7
-    launches a sweep, each a few us of host time on CUDA).
+    first call (and launched), then launched as that graph (a node step's sweeps replay 3 or
+    more launches a sweep, each a few us of host time on CUDA: ~100 a step on the bench cube).
 
     Nothing in ``replays`` may read device memory back, allocate, or decide on the host: a
     capture records launches, not host work. Where the capture fails (a driver or stream that

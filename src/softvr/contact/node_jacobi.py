@@ -245,7 +245,7 @@ class NodeSolve:
         after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
     batched : bool
         Run the sweeps two at a time between checks as one :class:`~softvr.device.LaunchBatch`
-        each (on CUDA one graph launch instead of ~14 launches); the same launches in the same
+        each (on CUDA one graph launch instead of 6 or more); the same launches in the same
         order, so the same results. For the node arrays off the CPU's own memory.
     """
 
