@@ -395,11 +395,6 @@ class NodeSolve:
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
-        # Two sweeps from buffer r (plain or Chebyshev): what solve() runs between two checks.
-        self._pairs = [[LaunchBatch([*self._sweeps[r][:2], plain[r] if p else self._sweeps[r][2],
-                                     *self._sweeps[(r + 1) % 3][:2],
-                                     plain[(r + 1) % 3] if p else self._sweeps[(r + 1) % 3][2]], d)
-                        for p in (False, True)] for r in range(3)] if batched else None
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
                                                   inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
@@ -415,6 +410,13 @@ class NodeSolve:
             wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                       inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+        # Two sweeps from buffer r (plain or Chebyshev): what solve() runs between two checks; with
+        # Jacobi also the check's largest change (Gauss-Seidel first asks wake() on the host).
+        self._pairs = [[LaunchBatch([*self._sweeps[r][:2], plain[r] if p else self._sweeps[r][2],
+                                     *self._sweeps[(r + 1) % 3][:2],
+                                     plain[(r + 1) % 3] if p else self._sweeps[(r + 1) % 3][2],
+                                     *([self._largest] if gs is None else [])], d)
+                        for p in (False, True)] for r in range(3)] if batched else None
 
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
@@ -519,6 +521,7 @@ class NodeSolve:
         self.plain_sweeps = 0
         self.plateaued = stopped = False
         pairs = self._pairs if check_every == 2 else None
+        measured = False  # whether the last sweeps' batch took the largest change already
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
@@ -531,6 +534,7 @@ class NodeSolve:
                 pairs[k % 3][plain]()
                 k += 2
                 self.plain_sweeps += 2 * plain
+                measured = self._gauss_seidel is None
             else:
                 jacobi, contacts, cheb = self._sweeps[k % 3]
                 jacobi()
@@ -538,11 +542,13 @@ class NodeSolve:
                 (self._plain[k % 3] if plain else cheb)()
                 k += 1
                 self.plain_sweeps += plain
+                measured = False
             if k % check_every == 0:
                 if self._gauss_seidel is not None and self._gauss_seidel.wake():
                     plain_until = k  # a new iteration: Chebyshev from omega_1
                     continue
-                self._largest()
+                if not measured:
+                    self._largest()
                 change = float(self._read_stats()[0])
                 if not math.isfinite(change):  # NaN: the integration reports it (np.isfinite: ~4 us a check)
                     break
