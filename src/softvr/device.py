@@ -254,11 +254,14 @@ class HostMirror:
             wp.synchronize_device(self._device)
         self.host: np.ndarray = self._host_array.numpy()
 
-    def push(self) -> None:
+    def push(self, wait: bool = False) -> None:
         """Copy ``host`` to the device (after the host wrote it); stream-ordered before the
-        launches that follow."""
+        launches that follow. ``wait``: also wait for it (a mirror about to be let go: its
+        page-locked memory must outlive the copy)."""
         if self.copies:
             wp.copy(self.array, self._host_array)
+            if wait:
+                wp.synchronize_device(self._device)
 
     def pull(self) -> None:
         """Copy the array into ``host`` (after the device wrote it) and wait for it; views of

@@ -450,7 +450,7 @@ class NodeStepper:
         for (i, j), key in np.ndenumerate(keys):
             if int(key) in warm:
                 table[i, j] = warm[int(key)]
-        carried.push()
+        carried.push(wait=True)  # the mirror goes with this call
 
     def _adhesion(self) -> NodeAdhesion | None:
         """The scene's adhesion on the arrays; None in a scene without any."""
