@@ -39,7 +39,7 @@ from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
-from softvr.device import HostMirror, in_order, replayer, resolve_device, upload
+from softvr.device import HostMirror, in_order, replayer, resolve_device
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
                                          record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
@@ -365,13 +365,10 @@ class NodeStepper:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
                                       for name, field in _RIGID_CONTACT_FIELDS.items()})
         self._host_views = None if self.copies else {name: array.numpy() for name, array in self._host_arrays.items()}
-        k = len(self.model.kinematic)
-        kinematic = (st.kinematic_position, st.kinematic_rotation, st.kinematic_velocity)
         # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
-        # (three upload calls cost ~10 us a step), else host arrays uploaded after.
-        self._poses = tuple(a.numpy() for a in kinematic) if self._host_views is not None else \
-            (np.zeros((k, 3)), np.zeros((k, 3, 3)), np.zeros((k, 6)))
-        self._pose_uploads = () if self._host_views is not None else kinematic
+        # (three upload calls cost ~10 us a step), else copies pushed after.
+        self._pose_mirrors = [HostMirror(a, self.copies) for a in (st.kinematic_position, st.kinematic_rotation,
+                                                                     st.kinematic_velocity)]
         self._drive_nodes = record_drive(self.model, st)
         self._v_before = wp.zeros_like(st.v)  # velocities at the start of the last step [n] [m/s]
         self._carried = False  # whether _v_before belongs to this state (a step ran since it was set)
@@ -407,13 +404,13 @@ class NodeStepper:
         out: dict[int, np.ndarray] = {}
         if not self.model.kinematic:
             return out
-        position, rotation, velocity = self._poses
+        position, rotation, velocity = (m.host for m in self._pose_mirrors)
         for j, i in enumerate(self.model.kinematic):
             body = self.scene.bodies[i]
             out[i] = v = body.unconstrained_velocity(dt, self.scene.gravity)
             position[j], rotation[j], velocity[j] = body.position, body.rotation, v
-        for dst, src in zip(self._pose_uploads, self._poses):
-            upload(dst, src)
+        for mirror in self._pose_mirrors:
+            mirror.push()
         self._drive_nodes()
         return out
 
