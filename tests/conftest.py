@@ -21,6 +21,8 @@ DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 def pytest_addoption(parser):
     parser.addoption("--host-copies", action="store_true",
                      help="step every scene's node arrays through host copies (what a CUDA step does), on the CPU")
+    parser.addoption("--parallel-contacts", action="store_true",
+                     help="solve every scene's node sweeps' contacts with a thread per contact (a GPU's form), on the CPU")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -32,21 +34,33 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
-@pytest.fixture(autouse=True)
-def _node_host_copies(request, monkeypatch):
-    """With ``--host-copies``: every NodeStepper keeps host copies of its arrays, so the
-    suite's physics checks run a CUDA step's host traffic (push / pull) where no GPU is."""
-    if not request.config.getoption("--host-copies"):
-        return
+def _every_stepper_sets(monkeypatch, attribute: str) -> None:
+    """Set ``Scene.<attribute>`` True on every scene a NodeStepper is built for."""
     from softvr.sim import _node_step
 
     original = _node_step.NodeStepper.__init__
 
-    def with_copies(self, scene, *args, **kwargs):
-        scene._host_copies = True
+    def setting(self, scene, *args, **kwargs):
+        setattr(scene, attribute, True)
         original(self, scene, *args, **kwargs)
 
-    monkeypatch.setattr(_node_step.NodeStepper, "__init__", with_copies)
+    monkeypatch.setattr(_node_step.NodeStepper, "__init__", setting)
+
+
+@pytest.fixture(autouse=True)
+def _node_host_copies(request, monkeypatch):
+    """With ``--host-copies``: every NodeStepper keeps host copies of its arrays, so the
+    suite's physics checks run a CUDA step's host traffic (push / pull) where no GPU is."""
+    if request.config.getoption("--host-copies"):
+        _every_stepper_sets(monkeypatch, "_host_copies")
+
+
+@pytest.fixture(autouse=True)
+def _node_parallel_contacts(request, monkeypatch):
+    """With ``--parallel-contacts``: every scene's Jacobi sweeps take the thread-per-contact
+    contact step a GPU takes (:mod:`softvr.contact._node_parallel_kernels`), on the CPU."""
+    if request.config.getoption("--parallel-contacts"):
+        _every_stepper_sets(monkeypatch, "_parallel_contacts")
 
 
 @pytest.fixture(params=DEVICES)

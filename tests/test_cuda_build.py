@@ -25,6 +25,8 @@ MODULES = {
                                        "point_static_mesh", "gather_contacts", "carry_impulses"),
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contact_metric", "contacts", "chebyshev", "residual",
                                             "rigid_contact_exact", "largest_change", "screen", "contact_step"),
+    "softvr.contact._node_parallel_kernels": ("warm_parallel", "count_shares", "jacobi_contacts", "apply_contacts",
+                                              "residual_parallel"),
     "softvr.contact._node_coarse_kernels": ("prepare_bodies", "contact_sides", "coarse_residual"),
     "softvr.contact._node_gs_kernels": ("gauss_seidel", "gauss_seidel_walk", "contact_nodes", "listed_contact_nodes",
                                         "list_contact_nodes", "projected",

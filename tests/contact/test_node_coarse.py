@@ -58,7 +58,10 @@ def test_coarse_spectrum_is_the_dense_two_level_spectrum_and_narrower_than_jacob
     assert sweeps_per_decade((eig[0], eig[-1])) < 0.5 * sweeps_per_decade((jacobi[0], jacobi[-1]))
 
 
-def test_coarse_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2():
+@pytest.mark.parametrize("parallel", [False, True], ids=["thread per body", "thread per node"])
+def test_coarse_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2(parallel):
+    """Either form of the coarse sums (a thread walking a body's nodes, the CPU's; a thread per
+    node with atomic sums, a GPU's: NodeSolve's ``parallel``) lands on SciPy's solve."""
     body = _candy()
     rng = np.random.default_rng(2)
     body.v = np.cross([1.0, -2.0, 3.0], body.q - body.q.mean(0)) + 0.05 * rng.standard_normal(body.q.shape)
@@ -68,7 +71,7 @@ def test_coarse_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2():
     bodies = coarse_bodies(stepper.model)
     lo, hi = coarse_spectrum(a, free, bodies, stepper.state.q.numpy(), stepper.model.mass.numpy())
     solve = NodeSolve(stepper.model, stepper.state, DT, (lo * SPECTRUM_MARGIN[0], hi * SPECTRUM_MARGIN[1]),
-                      coarse=bodies)
+                      coarse=bodies, parallel=parallel)
     _start(stepper, body.v)
     sweeps, solved = solve.solve(SWEEP_TOLERANCE)
     np.testing.assert_allclose(solved.numpy(), expected, atol=VELOCITY_TOL, rtol=0)
@@ -77,11 +80,48 @@ def test_coarse_sweeps_without_contacts_land_on_scipy_direct_solve_of_eq_5_2():
     assert sweeps < 0.5 * plain.solve(SWEEP_TOLERANCE)[0]
 
 
-def test_a_stiff_block_landing_with_the_coarse_correction_solves_the_mlcp_of_eq_5_5(monkeypatch):
+@pytest.mark.parametrize("parallel", [False, True], ids=["thread per body", "thread per node"])
+def test_the_coarse_inverse_and_velocity_are_numpys_dense_ones(parallel):
+    """Both forms of the coarse sums against NumPy: the body's mass centre c, the blocks of
+    (P^T A P)^-1 with P_i = [I, -[q_i - c]x] built densely from this step's A, and the coarse
+    velocity y = (P^T A P)^-1 P^T r of a random residual r. Tolerance: one 6x6 inverse of a
+    matrix with condition ~1e4 and sums over 64 nodes in another order, 1e-9 relative. (The
+    sweeps' tests above cannot see a wrong coarse operator: it is a preconditioner, and a wrong
+    one changes how fast the sweeps go, not where they land.)"""
+    body = _candy()
+    _, stepper = _prepared(body, DT)
+    m, st = stepper.model, stepper.state
+    a, free = free_matrix(m, st)
+    assert free.all()  # one free body: A is all of it
+    solve = NodeSolve(m, st, DT, (0.1, 1.0), coarse=coarse_bodies(m), parallel=parallel)
+    solve.coarse.prepare()
+    co = solve.coarse.arrays
+    q, mass = st.q.numpy(), m.mass.numpy()
+    centre = (mass[:, None] * q).sum(axis=0) / mass.sum()
+    p = np.zeros((3 * len(q), 6))
+    for i, rho in enumerate(q - centre):
+        p[3 * i:3 * i + 3, :3] = np.eye(3)
+        p[3 * i:3 * i + 3, 3:] = -np.cross(np.eye(3), rho)  # -[rho]x (np.cross(I, rho) is [rho]x)
+    inverse = np.linalg.inv(p.T @ a.toarray() @ p)
+    np.testing.assert_allclose(co.centre.numpy()[0], centre, rtol=1e-12, atol=1e-15)
+    scale = np.abs(inverse).max()
+    for name, block in (("ll", inverse[:3, :3]), ("la", inverse[:3, 3:]), ("aa", inverse[3:, 3:])):
+        np.testing.assert_allclose(getattr(co, name).numpy()[0], block, rtol=1e-9, atol=1e-9 * scale, err_msg=name)
+    r = np.random.default_rng(5).standard_normal(q.shape)
+    solve.residual_nodes.assign(r)
+    solve.coarse.residual()
+    y = inverse @ (p.T @ r.ravel())
+    np.testing.assert_allclose(np.concatenate([co.y_lin.numpy()[0], co.y_ang.numpy()[0]]), y, rtol=1e-9,
+                               atol=1e-9 * np.abs(y).max())
+
+
+@pytest.mark.parametrize("parallel", [False, True], ids=["one thread", "thread per contact"])
+def test_a_stiff_block_landing_with_the_coarse_correction_solves_the_mlcp_of_eq_5_5(monkeypatch, parallel):
     """Node-block Jacobi alone is too slow for this block (the scene would step per object);
     the rule takes the coarse correction, and every contact step is held to eq. 5.5 (the contact
     impulses move the block's rigid motions through the same M^-1) by the checker of
-    tests/sim/test_node_arrays.py."""
+    tests/sim/test_node_arrays.py; with the contact step walked by one thread or a thread per
+    contact (its contacts share the coarse body: split masses, softvr.contact._node_parallel_kernels)."""
     chosen = []
 
     def record(*args, **kwargs):
@@ -93,7 +133,9 @@ def test_a_stiff_block_landing_with_the_coarse_correction_solves_the_mlcp_of_eq_
     body = _candy(lift=0.002)
     body.v[:] = [0.3, 0.0, -0.5]
     scene = _scene(body)
+    scene._parallel_contacts = parallel
     assert check_mlcp_steps(body, scene, DT, 30, friction=0.5) >= 10
+    assert scene._stepper._recorded[5].parallel == scene._parallel_contacts
     assert [c.coarse is not None for c in chosen] == [True]
     assert chosen[0].work["jacobi"] > MAX_SWEEPS_PER_DECADE >= chosen[0].work["coarse"]
     assert type(scene._stepper).__name__ == "NodeStepper"

@@ -59,12 +59,16 @@ def _side_velocity(side, velocities):
     return np.einsum("ckij,ckj->ci", side.jac, velocities[side.body][side.blocks])
 
 
+@pytest.mark.parametrize("parallel", [False, True], ids=["one thread", "thread per contact"])
 @pytest.mark.parametrize("edge_contacts", [False, True])
-def test_two_bodies_in_contact_solve_the_mlcp_of_eq_5_5(edge_contacts):
+def test_two_bodies_in_contact_solve_the_mlcp_of_eq_5_5(edge_contacts, parallel):
     """Per body A v = b + J^T lambda (side a's impulse +, side b's -), and per contact
     lambda_n >= 0, n . (J_a v_a - J_b v_b) >= -gap / dt with equality where it pushes, friction
-    in the disc: the sweeps solve the two bodies' MLCP together."""
+    in the disc: the sweeps solve the two bodies' MLCP together, with the contact step walked by
+    one thread (the CPU's) or a thread per contact (a GPU's: Jacobi over the contacts on split
+    masses, softvr.contact._node_parallel_kernels), whose contacts between the blocks share nodes."""
     scene, bodies = _stack(edge_contacts)
+    scene._parallel_contacts = parallel
     dt = 1.0 / 60.0
     kinds = set()
     checked = 0
@@ -72,6 +76,7 @@ def test_two_bodies_in_contact_solve_the_mlcp_of_eq_5_5(edge_contacts):
         systems = [b.step_system(dt, scene.gravity) for b in bodies]
         solution = scene.step(dt)
         assert type(scene._stepper).__name__ == "NodeStepper"
+        assert scene._stepper._recorded[5].parallel == scene._parallel_contacts  # (the option of conftest sets it)
         v = [b.v for b in bodies]
         impulse = [np.zeros((len(b.q), 3)) for b in bodies]
         between = 0

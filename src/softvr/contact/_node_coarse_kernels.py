@@ -85,6 +85,24 @@ def store_inverse(b: int, ll: wp.mat33d, la: wp.mat33d, aa: wp.mat33d, out_ll: w
     out_aa[b] = s_inv
 
 
+@wp.func
+def row_blocks(i: int, b: int, c: wp.vec3d, q: wp.array(dtype=wp.vec3d), row_start: wp.array(dtype=wp.int32),
+               block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), co: Coarse, ll: wp.mat33d,
+               la: wp.mat33d, aa: wp.mat33d):
+    """``ll``, ``la``, ``aa`` plus node ``i``'s row of ``P_b^T A P_b`` (body ``b``, centre ``c``
+    [m]): the blocks between its own body's nodes only."""
+    ri = wp.skew(q[i] - c)
+    for k in range(row_start[i], row_start[i + 1]):
+        j = block_col[k]
+        if co.node_body[j] == b:
+            a = blocks[k]
+            rj = wp.skew(q[j] - c)
+            ll = ll + a
+            la = la - a * rj
+            aa = aa - ri * a * rj
+    return ll, la, aa
+
+
 @wp.kernel
 def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
                    mass: wp.array(dtype=wp.float64), row_start: wp.array(dtype=wp.int32),
@@ -107,16 +125,7 @@ def prepare_bodies(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int
     la = wp.mat33d()
     aa = wp.mat33d()
     for t in range(start[b], start[b + 1]):
-        i = nodes[t]
-        ri = wp.skew(q[i] - c)
-        for k in range(row_start[i], row_start[i + 1]):
-            j = block_col[k]
-            if co.node_body[j] == b:
-                a = blocks[k]
-                rj = wp.skew(q[j] - c)
-                ll = ll + a
-                la = la - a * rj
-                aa = aa - ri * a * rj
+        ll, la, aa = row_blocks(nodes[t], b, c, q, row_start, block_col, blocks, co, ll, la, aa)
     store_inverse(b, ll, la, aa, co.ll, co.la, co.aa)
 
 
@@ -203,18 +212,25 @@ def coarse_residual(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.in
 
 
 @wp.func
+def coarse_side_w(c: int, s: int, co: Coarse) -> wp.mat33d:
+    """Contact ``c``'s share of ``J M^-1 J^T`` [1/kg] through its coarse side ``s`` (body
+    ``co.side[c, s]`` >= 0): ``[s I, -[L]x] (P^T A P)^-1 [s I, -[L]x]^T``."""
+    b = co.side[c, s]
+    sw = co.weight[c, s]
+    arm = wp.skew(co.lever[c, s])
+    la = co.la[b]
+    return (sw * sw) * co.ll[b] + sw * (la * arm + wp.transpose(la * arm)) - arm * co.aa[b] * arm
+
+
+@wp.func
 def coarse_w(c: int, co: Coarse) -> wp.mat33d:
-    """Contact ``c``'s share of ``J M^-1 J^T`` [1/kg] through the coarse space:
-    ``[s I, -[L]x] (P^T A P)^-1 [s I, -[L]x]^T`` per side."""
+    """Contact ``c``'s share of ``J M^-1 J^T`` [1/kg] through the coarse space: the sum over its
+    sides (:func:`coarse_side_w`)."""
     w = wp.mat33d()
     for s in range(SIDES):
-        b = co.side[c, s]
-        if b < 0:
+        if co.side[c, s] < 0:
             break
-        sw = co.weight[c, s]
-        arm = wp.skew(co.lever[c, s])
-        la = co.la[b]
-        w = w + (sw * sw) * co.ll[b] + sw * (la * arm + wp.transpose(la * arm)) - arm * co.aa[b] * arm
+        w = w + coarse_side_w(c, s, co)
     return w
 
 
@@ -225,3 +241,72 @@ def coarse_node(i: int, q: wp.array(dtype=wp.vec3d), co: Coarse) -> wp.vec3d:
     if b < 0:
         return wp.vec3d()
     return co.y_lin[b] + wp.cross(co.y_ang[b], q[i] - co.centre[b])
+
+
+# The same sums with a thread per listed node (a GPU's form: one thread walking a body's nodes waits
+# on every load in turn), taken with atomic adds into per-body totals that a thread per body then
+# solves. The totals' order of summation is free on CUDA: the last bits may differ run to run.
+
+
+@wp.kernel
+def body_mass_parallel(nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+                       mass: wp.array(dtype=wp.float64), co: Coarse, total: wp.array(dtype=wp.float64),
+                       moment: wp.array(dtype=wp.vec3d)):
+    """Per coarse body its mass ``total`` [kg] and first moment ``moment`` [kg m] (zeroed
+    before), a thread per listed node ``nodes[t]``."""
+    i = nodes[wp.tid()]
+    b = co.node_body[i]
+    wp.atomic_add(total, b, mass[i])
+    wp.atomic_add(moment, b, mass[i] * q[i])
+
+
+@wp.kernel
+def body_centre_parallel(total: wp.array(dtype=wp.float64), moment: wp.array(dtype=wp.vec3d), co: Coarse):
+    """Coarse body ``b``'s mass centre [m] from :func:`body_mass_parallel`'s totals."""
+    b = wp.tid()
+    co.centre[b] = moment[b] / total[b]
+
+
+@wp.kernel
+def body_blocks_parallel(nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+                         row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                         blocks: wp.array(dtype=wp.mat33d), co: Coarse, ll: wp.array(dtype=wp.mat33d),
+                         la: wp.array(dtype=wp.mat33d), aa: wp.array(dtype=wp.mat33d)):
+    """:func:`prepare_bodies`' blocks of ``P_b^T A P_b`` (zeroed before) summed over the row of
+    listed node ``nodes[t]`` (a thread each), the blocks between its own body's nodes only."""
+    i = nodes[wp.tid()]
+    b = co.node_body[i]
+    sum_ll, sum_la, sum_aa = row_blocks(i, b, co.centre[b], q, row_start, block_col, blocks, co, wp.mat33d(),
+                                        wp.mat33d(), wp.mat33d())
+    wp.atomic_add(ll, b, sum_ll)
+    wp.atomic_add(la, b, sum_la)
+    wp.atomic_add(aa, b, sum_aa)
+
+
+@wp.kernel
+def body_inverse_parallel(ll: wp.array(dtype=wp.mat33d), la: wp.array(dtype=wp.mat33d),
+                          aa: wp.array(dtype=wp.mat33d), co: Coarse):
+    """Coarse body ``b``'s inverse blocks (:func:`store_inverse`) from :func:`body_blocks_parallel`'s sums."""
+    b = wp.tid()
+    store_inverse(b, ll[b], la[b], aa[b], co.ll, co.la, co.aa)
+
+
+@wp.kernel
+def residual_sums_parallel(nodes: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
+                           residual: wp.array(dtype=wp.vec3d), co: Coarse, force: wp.array(dtype=wp.vec3d),
+                           torque: wp.array(dtype=wp.vec3d)):
+    """:func:`coarse_residual`'s force [N s] and torque [N m s] of the sweep's residual per coarse
+    body (zeroed before), a thread per listed node ``nodes[t]``."""
+    i = nodes[wp.tid()]
+    b = co.node_body[i]
+    r = residual[i]
+    wp.atomic_add(force, b, r)
+    wp.atomic_add(torque, b, wp.cross(q[i] - co.centre[b], r))
+
+
+@wp.kernel
+def coarse_solve_parallel(force: wp.array(dtype=wp.vec3d), torque: wp.array(dtype=wp.vec3d), co: Coarse):
+    """Coarse body ``b``'s velocity ``y = (P^T A P)^-1 (force, torque)`` (:func:`coarse_residual`)."""
+    b = wp.tid()
+    co.y_lin[b] = co.ll[b] * force[b] + co.la[b] * torque[b]
+    co.y_ang[b] = wp.transpose(co.la[b]) * force[b] + co.aa[b] * torque[b]

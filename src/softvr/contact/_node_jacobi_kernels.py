@@ -566,12 +566,21 @@ def _chebyshev_all(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d),
     ...
 
 
+@wp.func
+def nan_as_inf(size: wp.float64) -> wp.float64:
+    """``size`` for an atomic maximum: NaN as +inf (a maximum of floats drops NaN; the sweep
+    loop stops on either, and the integration names the node)."""
+    if wp.isnan(size):
+        return wp.float64(wp.inf)
+    return size
+
+
 @wp.kernel
 def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_prev: wp.array(dtype=wp.vec3d),
               weights: wp.array(dtype=wp.float64), gamma: wp.float64, sweep: wp.array(dtype=wp.int32),
               fixed: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), q: wp.array(dtype=wp.vec3d),
               co: Coarse, v_next: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.float64), count: int,
-              threads: int, stats: wp.array(dtype=wp.float64)):
+              threads: int, atomic: int, stats: wp.array(dtype=wp.float64)):
     """``v^{k+1}`` [m/s] of the ``count`` nodes and their largest component change [m/s];
     ``weights`` [K] the omega_k, indexed by the sweep the contact kernel counted (1 after the
     first sweep). A node marked ``exact`` (a rigid body's: its update needs no acceleration)
@@ -582,7 +591,10 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
     ``q`` [m]). ``threads`` threads (the launch's) stride over the nodes: with several (CUDA)
     each node's change goes to ``change`` [count] for :func:`largest_change`; with one (the
     CPU) the thread walks them in C++ (:func:`_chebyshev_all`) and takes the largest itself into
-    ``stats[0]`` (NaN if any is), which saves that kernel's second pass over the nodes."""
+    ``stats[0]`` (NaN if any is), which saves that kernel's second pass over the nodes. With
+    ``atomic`` 1 (the thread-per-contact sweeps, :mod:`softvr.contact._node_parallel_kernels`,
+    whose ``count_shares`` zeroed ``stats``) every thread takes its nodes' changes into
+    ``stats[0]`` atomically instead (NaN as +inf)."""
     omega = weights[sweep[0] - 1]
     if threads == 1:
         stats[0] = _chebyshev_all(v_hat, v, v_prev, omega, gamma, fixed, exact, q, co.node_body, co.y_lin, co.y_ang,
@@ -590,7 +602,10 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
         return
     for i in range(wp.tid(), count, threads):
         size = _chebyshev_node(i, v_hat, v, v_prev, omega, gamma, fixed, exact, q, co, v_next)
-        change[i] = size
+        if atomic != 0:
+            wp.atomic_max(stats, 0, nan_as_inf(size))
+        else:
+            change[i] = size
 
 
 @wp.kernel

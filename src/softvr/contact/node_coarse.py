@@ -21,7 +21,7 @@ import warp as wp
 
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
 from softvr.contact import _node_coarse_kernels as _k
-from softvr.device import chunked_replayer, load_kernels, replayer, stride_threads
+from softvr.device import chunked_replayer, in_order, load_kernels, replayer, stride_threads
 
 __all__ = ["AGGREGATE_NODES", "Aggregates", "CoarseSpace", "aggregates_of", "coarse_aggregates", "coarse_bodies",
            "coarse_spectrum"]
@@ -237,7 +237,7 @@ class CoarseSpace:
         The struct the sweep kernels take.
     """
 
-    def __init__(self, model, state, bodies, residual: wp.array):
+    def __init__(self, model, state, bodies, residual: wp.array, parallel: bool = False):
         d = model.device
         aggregates = aggregates_of(bodies)
         n, count = model.node_count, len(aggregates)
@@ -275,6 +275,29 @@ class CoarseSpace:
                                        threads]))]
         self.residual = replayer(wp.launch(_k.coarse_residual, dim=count, device=d, record_cmd=True,
                                            inputs=[start, nodes, state.q, residual, co]))
+        if parallel:
+            self._record_parallel(model, state, nodes, count, residual)
+
+    def _record_parallel(self, model, state, nodes: wp.array, count: int, residual: wp.array) -> None:
+        """The body sums with a thread per node (``parallel``, a GPU's form: the kernels'
+        ``*_parallel``), in place of a thread per body walking its nodes."""
+        d, co, listed = model.device, self.arrays, nodes.shape[0]
+        total = wp.zeros(count, dtype=wp.float64, device=d)
+        vectors = [wp.zeros(count, dtype=wp.vec3d, device=d) for _ in range(2)]
+        matrices = [wp.zeros(count, dtype=wp.mat33d, device=d) for _ in range(3)]
+
+        def record(kernel, dim: int, inputs: list) -> Callable[[], None]:
+            return replayer(wp.launch(kernel, dim=dim, device=d, record_cmd=True, inputs=inputs))
+
+        self._prepare = [total.zero_, vectors[0].zero_, *(m.zero_ for m in matrices),
+                         record(_k.body_mass_parallel, listed, [nodes, state.q, model.mass, co, total, vectors[0]]),
+                         record(_k.body_centre_parallel, count, [total, vectors[0], co]),
+                         record(_k.body_blocks_parallel, listed, [nodes, state.q, model.row_start, model.block_col,
+                                                                  state.blocks, co, *matrices]),
+                         record(_k.body_inverse_parallel, count, [*matrices, co]), self._prepare[-1]]
+        self.residual = in_order(vectors[0].zero_, vectors[1].zero_,
+                                 record(_k.residual_sums_parallel, listed, [nodes, state.q, residual, co, *vectors]),
+                                 record(_k.coarse_solve_parallel, count, [*vectors, co]))
 
     def prepare(self) -> None:
         """The bodies' centres and coarse inverses from this step's ``A``, and the contacts'

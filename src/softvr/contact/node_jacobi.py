@@ -16,8 +16,10 @@ import numpy as np
 import warp as wp
 
 from softvr.contact import _node_jacobi_kernels as _k
+from softvr.contact import _node_parallel_kernels as _pk
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
+from softvr.contact._node_contact_native import LOCAL_UPDATES
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
 from softvr.device import LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
@@ -54,6 +56,16 @@ TAIL_CHECKS = 3
 #: (the first sweeps of a contact step contract unevenly while the contacts take their load).
 SWITCH_SWEEPS = 6
 SWITCH_AFTER = 12
+
+#: Jacobi passes over the contacts per Gauss-Seidel pass they stand for, in the thread-per-contact
+#: contact step (:class:`NodeSolve`'s ``parallel``) of a scene whose contacts can share nodes or
+#: coarse bodies (bodies that meet each other, or coarse bodies): on split masses a Jacobi pass
+#: moves a shared node 1 / n_r of the way. Sweeps a step over the candy pile's first 60 steps
+#: (CPU, 2 passes a sweep on the one-thread form: 77.4) with 1 / 2 / 4 / 8 Jacobi passes per pass:
+#: 211 / 130 / 94 / 76; the probe (15.1): 24.9 / 16.7 / 17.2 / 12.1. A pass costs two launches,
+#: a sweep ~8 more: 4 takes the fewest launches a step on the candy. Contacts that share nothing
+#: (a cube's points on a plane) are solved by the first pass.
+PARALLEL_PASS_FACTOR = 4
 
 #: Solves started on the bounds' own weights after which one starts on the narrower weights
 #: again (:attr:`NodeSolve.start_narrow`), and the most: a solve on the bounds' weights cannot
@@ -247,11 +259,17 @@ class NodeSolve:
         Run the sweeps two at a time between checks as one :class:`~softvr.device.LaunchBatch`
         each (on CUDA one graph launch instead of 6 or more); the same launches in the same
         order, so the same results. For the node arrays off the CPU's own memory.
+    parallel : bool, optional
+        The Jacobi sweeps' contact step and the stop's reductions with a thread per contact and
+        per node (:mod:`softvr.contact._node_parallel_kernels`: Jacobi over the contacts on split
+        masses, atomic maxima) instead of one thread walking them; None: on any device but the
+        CPU. The Gauss-Seidel sweeps keep their one-thread contact step.
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | Aggregates | None = None, batched: bool = False):
+                 coarse: np.ndarray | Aggregates | None = None, batched: bool = False,
+                 parallel: bool | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
@@ -260,7 +278,8 @@ class NodeSolve:
         d = model.device
         for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
                        _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
-                       _k.rigid_contact_exact, _k.largest_change):
+                       _k.rigid_contact_exact, _k.largest_change, _pk.warm_parallel, _pk.count_shares,
+                       _pk.jacobi_contacts, _pk.apply_contacts, _pk.residual_parallel):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -299,8 +318,10 @@ class NodeSolve:
         self.colours = colours
         #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
         self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
+        #: Whether the sweeps take the thread-per-contact form (``parallel``; Jacobi sweeps only).
+        self.parallel = (not wp.get_device(d).is_cpu if parallel is None else bool(parallel)) and colours is None
         self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None or colours is not None
-                                  else coarse, self.residual_nodes)
+                                  else coarse, self.residual_nodes, parallel=self.parallel)
         co = self.coarse.arrays
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(
             model, state, colours, omega, dt, None if coarse is None else aggregates_of(coarse))
@@ -360,7 +381,7 @@ class NodeSolve:
         contacts = self._record_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         own_block = _own_blocks(model) if gs is None else None
         # One thread on the CPU, which also takes the largest change (no second pass over the nodes).
-        node_threads = 1 if wp.get_device(d).is_cpu else model.node_count
+        node_threads = 1 if wp.get_device(d).is_cpu and not self.parallel else model.node_count
         # On the CPU the Jacobi update walks its nodes in C++ (_node_jacobi_kernels.jacobi_walk),
         # in two parts a core, from A's blocks transposed once a step (and a padding block).
         walk = gs is None and node_threads == 1
@@ -386,12 +407,12 @@ class NodeSolve:
             cheb.append(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                   inputs=[state.v_hat, v, v_prev, self.weights, float(self.gamma), self.sweep,
                                           model.fixed, self.exact, state.q, co, v_next, self.change,
-                                          model.node_count, node_threads, self.stats]))
+                                          model.node_count, node_threads, int(self.parallel), self.stats]))
             plain.append(replayer(wp.launch(_k.chebyshev, dim=node_threads, device=d, record_cmd=True,
                                             inputs=[state.v_hat, v, v_prev, self._ones, float(self.gamma),
                                                     self._plain_sweep, model.fixed, self.exact, state.q, co,
                                                     v_next, self.change, model.node_count, node_threads,
-                                                    self.stats])))
+                                                    int(self.parallel), self.stats])))
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
@@ -399,14 +420,14 @@ class NodeSolve:
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
                                                   inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
                                                           threads]))
-        self._residual_launches = [replayer(wp.launch(_k.residual, dim=1, device=d, record_cmd=True,
-                                                      inputs=[c.count, c.stencil_count, c.stencil_nodes,
-                                                              c.stencil_weights, c.frame, c.gap, c.rigid_node,
-                                                              c.rigid_lever, float(dt), buf[r], c.impulse,
-                                                              c.friction, c.stiffness, c.slip, metric, movable,
-                                                              c.gap_after, self.stats]))
-                                   for r in range(3)]
-        self._largest = _nothing if node_threads == 1 else replayer(
+        residual_inputs = [[c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.gap, c.rigid_node,
+                            c.rigid_lever, float(dt), buf[r], c.impulse, c.friction, c.stiffness, c.slip, metric,
+                            movable, c.gap_after, self.stats] for r in range(3)]
+        self._residual_launches = [replayer(wp.launch(_pk.residual_parallel, dim=threads, device=d, record_cmd=True,
+                                                      inputs=[*inputs, threads]) if self.parallel else
+                                            wp.launch(_k.residual, dim=1, device=d, record_cmd=True, inputs=inputs))
+                                   for inputs in residual_inputs]
+        self._largest = _nothing if node_threads == 1 or self.parallel else replayer(
             wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                       inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
@@ -429,6 +450,8 @@ class NodeSolve:
         self._order = wp.zeros(c.capacity, dtype=wp.int32, device=d)
         threads = _contact_threads(d)
         self._list_movers = _nothing
+        if self.parallel:
+            return self._record_parallel_contacts(model, state, dt, passes, d_inv, cross, movable)
         if threads == 1 and self._gauss_seidel is None:
             movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
             self._list_movers = replayer(wp.launch(_k.list_movers, dim=1, device=d, record_cmd=True,
@@ -460,6 +483,40 @@ class NodeSolve:
                         cross, model.fixed, float(dt), int(gs.tool_passes), c.impulse, state.v_hat, gs.tool_sweep,
                         c.stiffness, c.slip, co, metric, gs.tool_live, self._order]))]
         return in_order(*replays)
+
+    def _record_parallel_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
+                                  movable: wp.array) -> Callable[[], None]:
+        """The contact step of a Jacobi sweep with a thread per contact
+        (:mod:`softvr.contact._node_parallel_kernels`): the last impulses applied to ``v^``, the
+        contacts screened, each node's and coarse body's live contacts counted, then ``passes``
+        Jacobi passes over the live contacts on split masses, each applied after all are computed."""
+        c, d, co = state.contacts, model.device, self.coarse.arrays
+        threads = _contact_threads(d)
+        node_share = wp.zeros(model.node_count, dtype=wp.int32, device=d)
+        body_share = wp.zeros(max(self.coarse.count, 1), dtype=wp.int32, device=d)
+        self._impulse_change = wp.zeros(c.capacity, dtype=wp.vec3d, device=d)
+        stencil = [c.stencil_count, c.stencil_nodes, c.stencil_weights]
+
+        def record(kernel, inputs: list) -> Callable[[], None]:
+            return replayer(wp.launch(kernel, dim=threads, device=d, record_cmd=True, inputs=[*inputs, threads]))
+
+        warm = record(_pk.warm_parallel, [c.count, movable, *stencil, c.frame, c.rigid_node, c.rigid_lever, d_inv,
+                                          model.couplings.partner, cross, model.fixed, c.impulse, state.v_hat, co])
+        screen = replayer(wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
+                                    inputs=[c.count, *stencil, c.frame, c.gap, c.rigid_node, c.rigid_lever, float(dt),
+                                            c.impulse, c.stiffness, state.v_hat, co, movable, threads, self.live]))
+        count = record(_pk.count_shares, [c.count, self.live, *stencil, c.rigid_node, model.fixed, co, node_share,
+                                          body_share, self.sweep, self.stats])
+        solve = record(_pk.jacobi_contacts, [c.count, self.live, *stencil, c.frame, c.gap, c.friction, c.rigid_node,
+                                             c.rigid_lever, d_inv, model.couplings.partner, cross, model.fixed,
+                                             float(dt), c.impulse, state.v_hat, c.stiffness, c.slip, co, node_share,
+                                             body_share, LOCAL_UPDATES, self._impulse_change])
+        apply = record(_pk.apply_contacts, [c.count, self.live, *stencil, c.rigid_node, c.rigid_lever, d_inv,
+                                            model.couplings.partner, cross, model.fixed, self._impulse_change,
+                                            state.v_hat, co])
+        shared = self.coarse.count > 0 or bool(model.pair_enabled.numpy().any()) or getattr(model, "rigid", None) is not None
+        return in_order(warm, screen, node_share.zero_, body_share.zero_, count,
+                        *[solve, apply] * (int(passes) * (PARALLEL_PASS_FACTOR if shared else 1)))
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""

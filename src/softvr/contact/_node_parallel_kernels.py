@@ -1,0 +1,331 @@
+"""The contact step of a node sweep with a thread per contact (the GPU's form of thesis eq.
+5.6's inner loop), and the stop's reductions with a thread per item.
+
+The one-thread form (:mod:`softvr.contact._node_jacobi_kernels`: ``warm_impulses``,
+``contacts``, ``residual``, ``largest_change``) walks the contacts in turn, which is what a CPU
+core does best and what a GPU cannot do at all: one GPU thread walking a step's contacts waits
+on every load in turn. Here every contact takes a thread:
+
+    warm_parallel     v^ += M^-1 J^T lambda, the last sweep's impulses (atomic adds: contacts
+                      share nodes and coarse bodies)
+    (screen)          the live contacts, as on the CPU (already strided)
+    count_shares      per node and per coarse body, how many live contacts act on it
+    jacobi_contacts   every live contact's PGS update from the same v^ (Jacobi over the
+                      contacts), on its block of J M_s^-1 J^T with the split masses M_s
+    apply_contacts    the updates' changes pushed into v^ and the coarse velocities (atomic)
+
+Jacobi over contacts that share a node would move that node once per contact, each as if it
+were alone: ``n`` contacts pressing one node overshoot it ``n``-fold and the passes diverge.
+Each contact therefore solves on *split masses* (Tonge, English and Glimberg 2012, "Mass
+splitting for jitter-free parallel rigid body simulation"): every node's (and coarse body's)
+inverse mass multiplied by the number ``n_r`` of live contacts acting on it. Its block is then
+``W_s = sum_r n_r J_rc M_r^-1 J_rc^T`` over the resources ``r`` it acts on, and since
+``(sum_c J_rc lambda_c)^T M_r^-1 (sum_c J_rc lambda_c) <= n_r sum_c lambda_c^T J_rc^T M_r^-1 J_rc
+lambda_c`` (Cauchy-Schwarz), ``blockdiag(W_s) >= W``: the Jacobi passes are a convergent
+splitting of the contacts' Delassus operator. The fixed point is unchanged: a live contact's
+update leaves it where it is exactly where its relative velocity meets eq. 5.5's target,
+whichever positive block it divides by. A contact that shares nothing (``n_r`` = 1: a cube's
+points on a plane) takes the Gauss-Seidel update itself.
+
+Atomic adds sum in no fixed order on CUDA: a step's last bits may differ from run to run there.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from softvr.contact._node_coarse_kernels import SIDES, Coarse, coarse_side_w
+from softvr.contact._node_jacobi_kernels import nan_as_inf, pgs_update
+
+_ZERO = wp.constant(wp.float64(0.0))
+
+
+@wp.func
+def _moving(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+            stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+            rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d)) -> wp.vec3d:
+    """Contact ``c``'s relative velocity [m/s] (world) in the node velocities ``v``: its stencil's
+    weighted velocities and its rigid sides' ``omega x lever``."""
+    rel = wp.vec3d()
+    for k in range(stencil_count[c]):
+        rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            rel = rel + wp.cross(v[node], rigid_lever[c, s])
+    return rel
+
+
+@wp.func
+def _relative(c: int, v_hat: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+              stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+              rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+              co: Coarse) -> wp.vec3d:
+    """Contact ``c``'s relative velocity ``J v^`` [m/s] (world) in the sweep's ``v^``
+    (:func:`_moving`) and its coarse bodies' ``s y_lin + y_ang x L``."""
+    rel = _moving(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever)
+    for s in range(SIDES):
+        b = co.side[c, s]
+        if b < 0:
+            break
+        rel = rel + co.weight[c, s] * co.y_lin[b] + wp.cross(co.y_ang[b], co.lever[c, s])
+    return rel
+
+
+@wp.func
+def _push(node: int, g: wp.vec3d, v_hat: wp.array(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+          partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d)):
+    """``v^ += M^-1 e_node g`` [m/s] for the generalized impulse ``g`` on ``node`` (atomic): a
+    spring-held rigid body's partner node moves by its cross block."""
+    wp.atomic_add(v_hat, node, d_inv[node] * g)
+    p = partner[node]
+    if p >= 0:
+        wp.atomic_add(v_hat, p, cross[p] * g)
+
+
+@wp.func
+def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
+           stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+           rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+           d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+           fixed: wp.array(dtype=wp.int32), v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
+    """``v^ += M^-1 J_c^T world`` [m/s] for contact ``c``'s impulse ``world`` [N s] (atomic): its
+    stencil's free nodes by their weights, a rigid side's angular node by the torque ``lever x
+    world``, its coarse bodies' velocities by their share (the one-thread form's ``apply``)."""
+    for k in range(stencil_count[c]):
+        node = stencil_nodes[c, k]
+        if fixed[node] == 0:
+            _push(node, stencil_weights[c, k] * world, v_hat, d_inv, partner, cross)
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            _push(node, wp.cross(rigid_lever[c, s], world), v_hat, d_inv, partner, cross)
+    for s in range(SIDES):
+        b = co.side[c, s]
+        if b < 0:
+            break
+        g = co.weight[c, s] * world
+        t = wp.cross(co.lever[c, s], world)
+        wp.atomic_add(co.y_lin, b, co.ll[b] * g + co.la[b] * t)
+        wp.atomic_add(co.y_ang, b, wp.transpose(co.la[b]) * g + co.aa[b] * t)
+
+
+@wp.kernel
+def warm_parallel(count: wp.array(dtype=wp.int32), movable: wp.array(dtype=wp.int32),
+                  stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                  stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                  rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                  d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                  cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse, threads: int):
+    """``v^ += M^-1 J^T lambda`` [m/s] for the last sweep's impulses ``impulse`` [c] [N s] of the
+    movable contacts (``threads`` threads striding over the ``count[0]`` contacts; a zero
+    impulse moves nothing)."""
+    for c in range(wp.tid(), count[0], threads):
+        lam = impulse[c]
+        if movable[c] != 0 and (lam[0] != _ZERO or lam[1] != _ZERO or lam[2] != _ZERO):
+            _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
+                   rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
+
+
+@wp.kernel
+def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                 stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                 stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+                 fixed: wp.array(dtype=wp.int32), co: Coarse, node_share: wp.array(dtype=wp.int32),
+                 body_share: wp.array(dtype=wp.int32), sweep: wp.array(dtype=wp.int32),
+                 stats: wp.array(dtype=wp.float64), threads: int):
+    """``node_share[i]``, ``body_share[b]``: how many ``live`` contacts act on free node ``i``
+    (a nonzero stencil weight, or a rigid side's angular node) and on coarse body ``b`` (both
+    zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). Thread 0 also
+    counts the sweep in ``sweep[0]`` (the Chebyshev weights' index) and zeroes ``stats`` for the
+    sweep's reductions (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take
+    maxima into it)."""
+    tid = wp.tid()
+    if tid == 0:
+        sweep[0] = sweep[0] + 1
+        for k in range(stats.shape[0]):
+            stats[k] = _ZERO
+    for c in range(tid, count[0], threads):
+        if live[c] != 0:
+            for k in range(stencil_count[c]):
+                node = stencil_nodes[c, k]
+                if fixed[node] == 0 and stencil_weights[c, k] != _ZERO:
+                    wp.atomic_add(node_share, node, 1)
+            for s in range(rigid_node.shape[1]):
+                node = rigid_node[c, s]
+                if node >= 0:
+                    wp.atomic_add(node_share, node, 1)
+            for s in range(SIDES):
+                b = co.side[c, s]
+                if b < 0:
+                    break
+                wp.atomic_add(body_share, b, 1)
+
+
+@wp.func
+def _share(node: int, node_share: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32)) -> wp.float64:
+    """The split factor ``n_r`` of ``node``: the live contacts on it, or on its 6x6 pair's other
+    node where more (a spring-held rigid body's two nodes are one block of ``D_A``), at least 1."""
+    n = node_share[node]
+    p = partner[node]
+    if p >= 0:
+        n = wp.max(n, node_share[p])
+    return wp.float64(wp.max(n, 1))
+
+
+@wp.func
+def _split_metric(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                  stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                  rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                  d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                  cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), co: Coarse,
+                  node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32)) -> wp.mat33d:
+    """Contact ``c``'s block ``W_s`` of ``J M_s^-1 J^T`` [1/kg] in its frame on the split masses:
+    the one-thread form's ``contact_metric`` with each node's, rigid side's and coarse body's
+    term times its share (:func:`_share`, ``body_share``)."""
+    w = wp.mat33d()
+    for k in range(stencil_count[c]):
+        node = stencil_nodes[c, k]
+        wk = stencil_weights[c, k]
+        if fixed[node] == 0:
+            w = w + (wk * wk * _share(node, node_share, partner)) * d_inv[node]
+    for s in range(rigid_node.shape[1]):
+        node = rigid_node[c, s]
+        if node >= 0:
+            arm = wp.skew(rigid_lever[c, s])
+            share = _share(node, node_share, partner)
+            w = w + share * (arm * d_inv[node] * wp.transpose(arm))
+            lin = partner[node]
+            if lin >= 0:  # the spring-held pair's cross terms (the one-thread form's _pair_delassus)
+                w_l = wp.float64(0.0)
+                for k in range(stencil_count[c]):
+                    if stencil_nodes[c, k] == lin:
+                        w_l = w_l + stencil_weights[c, k]
+                x = cross[lin] * wp.skew(rigid_lever[c, s])
+                w = w + (share * w_l) * (x + wp.transpose(x))
+    for s in range(SIDES):
+        b = co.side[c, s]
+        if b < 0:
+            break
+        w = w + wp.float64(wp.max(body_share[b], 1)) * coarse_side_w(c, s, co)
+    f = frame[c]
+    return f * w * wp.transpose(f)
+
+
+@wp.func
+def _solved(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: wp.float64, dt: wp.float64,
+            mu: wp.float64, stiffness: wp.float64, slip: wp.vec3d, local_updates: int) -> wp.vec3d:
+    """A one-node contact without a rigid side solved on its own block ``w_f`` (the one-thread
+    form's ``solved``, :func:`softvr.contact._node_contact_native.pgs_passes`): the sticking
+    impulse where it pushes within the Coulomb disc, else up to ``local_updates`` projected
+    updates (:func:`pgs_update`), each seeing the last one's change of the relative velocity."""
+    if stiffness > _ZERO:
+        return pgs_update(old, rel_f, w_f, f, gap, dt, mu, stiffness, slip)
+    w_nn = w_f[0, 0]
+    if w_nn > _ZERO:
+        if wp.determinant(w_f) > wp.float64(1e-12) * w_nn * w_nn * w_nn:
+            stick = old + wp.inverse(w_f) * (wp.vec3d(-gap / dt, _ZERO, _ZERO) - rel_f)
+            if stick[0] >= _ZERO and wp.sqrt(stick[1] * stick[1] + stick[2] * stick[2]) <= mu * stick[0]:
+                return stick
+    lam = old
+    rel = rel_f
+    for _u in range(local_updates):
+        nxt = pgs_update(lam, rel, w_f, f, gap, dt, mu, stiffness, slip)
+        step = nxt - lam
+        rel = rel + w_f * step
+        lam = nxt
+        if wp.length(step) <= wp.float64(1e-12) * wp.length(lam):
+            break
+    return lam
+
+
+@wp.kernel
+def jacobi_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                    stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                    stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                    gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
+                    rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                    d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                    cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), dt: wp.float64,
+                    impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                    stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
+                    node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32),
+                    local_updates: int, change: wp.array(dtype=wp.vec3d), threads: int):
+    """One Jacobi pass over the ``live`` contacts: each one's impulse ``impulse[c]`` [N s] updated
+    from its relative velocity in ``v_hat`` [m/s] (read only: every contact sees the same) on its
+    split block (:func:`_split_metric`) by :func:`pgs_update` (normal row to ``-gap / dt``,
+    adhesion's bound eq. 4.16 where ``stiffness`` > 0, the tangents onto the Coulomb disc of
+    ``friction`` or the bond's bound aiming at ``slip`` [m]); a one-node contact without a rigid
+    side by :func:`_solved`. The change of its world impulse goes to ``change[c]`` for
+    :func:`apply_contacts`. ``threads`` threads stride over the ``count[0]`` contacts."""
+    for c in range(wp.tid(), count[0], threads):
+        if live[c] == 0:
+            continue
+        f = frame[c]
+        rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
+        w_f = _split_metric(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
+                            partner, cross, fixed, co, node_share, body_share)
+        old = impulse[c]
+        rigid = int(0)
+        for s in range(rigid_node.shape[1]):
+            if rigid_node[c, s] >= 0:
+                rigid = 1
+        lam = wp.vec3d()
+        if stencil_count[c] == 1 and rigid == 0:
+            lam = _solved(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c], local_updates)
+        else:
+            lam = pgs_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
+        impulse[c] = lam
+        change[c] = wp.transpose(f) * (lam - old)
+
+
+@wp.kernel
+def apply_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                   stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                   stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+                   rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                   partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                   change: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse, threads: int):
+    """The pass's impulse changes ``change[c]`` [N s] (world) of the ``live`` contacts pushed
+    into ``v_hat`` [m/s] and the coarse velocities with the true masses (atomic: contacts share
+    nodes), after :func:`jacobi_contacts` read them all."""
+    for c in range(wp.tid(), count[0], threads):
+        if live[c] == 0:
+            continue
+        d = change[c]
+        if d[0] != _ZERO or d[1] != _ZERO or d[2] != _ZERO:
+            _apply(c, d, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, d_inv, partner, cross,
+                   fixed, v_hat, co)
+
+
+@wp.kernel
+def residual_parallel(count: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                      stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                      frame: wp.array(dtype=wp.mat33d), gap: wp.array(dtype=wp.float64),
+                      rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                      dt: wp.float64, v: wp.array(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                      friction: wp.array(dtype=wp.float64), stiffness: wp.array(dtype=wp.float64),
+                      slip: wp.array(dtype=wp.vec3d), metric: wp.array(dtype=wp.mat33d),
+                      movable: wp.array(dtype=wp.int32), gap_after: wp.array(dtype=wp.float64),
+                      stats: wp.array(dtype=wp.float64), threads: int):
+    """The one-thread form's ``residual`` (eq. 5.5's residual in ``v`` [m/s] and ``impulse``
+    [N s]: each contact's linearized gap after the step into ``gap_after`` [m], the largest
+    normal-velocity error into ``stats[1]``, the largest natural residual of the movable
+    contacts into ``stats[2]``, both [m/s]) with ``threads`` threads striding over the
+    ``count[0]`` contacts, the maxima taken atomically into ``stats`` (zeroed since the last
+    check by :func:`count_shares`; NaN counts as +inf)."""
+    for c in range(wp.tid(), count[0], threads):
+        f = frame[c]
+        rel_f = f * _moving(c, v, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever)
+        vn = rel_f[0]
+        gap_after[c] = gap[c] + dt * vn
+        error = -gap[c] / dt - vn
+        lam = impulse[c]
+        if lam[0] > _ZERO:
+            error = wp.abs(error)
+        wp.atomic_max(stats, 1, nan_as_inf(error))
+        if movable[c] != 0:
+            w_f = metric[c]
+            step = w_f * (pgs_update(lam, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c]) - lam)
+            wp.atomic_max(stats, 2, nan_as_inf(wp.max(wp.abs(step[0]), wp.max(wp.abs(step[1]), wp.abs(step[2])))))
