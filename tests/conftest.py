@@ -21,8 +21,9 @@ DEVICES = ["cpu"] + (["cuda:0"] if wp.is_cuda_available() else [])
 def pytest_addoption(parser):
     parser.addoption("--host-copies", action="store_true",
                      help="step every scene's node arrays through host copies (what a CUDA step does), on the CPU")
-    parser.addoption("--parallel-contacts", action="store_true",
-                     help="solve every scene's node sweeps' contacts with a thread per contact (a GPU's form), on the CPU")
+    parser.addoption("--gpu-forms", action="store_true",
+                     help="step every scene's node arrays with the GPU's forms of the kernels (a thread per contact, "
+                          "candidate pair or node), on the CPU")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -56,11 +57,12 @@ def _node_host_copies(request, monkeypatch):
 
 
 @pytest.fixture(autouse=True)
-def _node_parallel_contacts(request, monkeypatch):
-    """With ``--parallel-contacts``: every scene's Jacobi sweeps take the thread-per-contact
-    contact step a GPU takes (:mod:`softvr.contact._node_parallel_kernels`), on the CPU."""
-    if request.config.getoption("--parallel-contacts"):
-        _every_stepper_sets(monkeypatch, "_parallel_contacts")
+def _node_gpu_forms(request, monkeypatch):
+    """With ``--gpu-forms``: every node step takes the kernels' GPU forms (a thread per contact,
+    candidate pair or node instead of one thread walking them: the contact step's Jacobi passes on
+    split masses, the gather, the carry, the coarse and share sums, adhesion's evolve), on the CPU."""
+    if request.config.getoption("--gpu-forms"):
+        _every_stepper_sets(monkeypatch, "_gpu_forms")
 
 
 @pytest.fixture(params=DEVICES)

@@ -133,9 +133,9 @@ def test_a_stiff_block_landing_with_the_coarse_correction_solves_the_mlcp_of_eq_
     body = _candy(lift=0.002)
     body.v[:] = [0.3, 0.0, -0.5]
     scene = _scene(body)
-    scene._parallel_contacts = parallel
+    scene._gpu_forms = parallel
     assert check_mlcp_steps(body, scene, DT, 30, friction=0.5) >= 10
-    assert scene._stepper._recorded[5].parallel == scene._parallel_contacts
+    assert scene._stepper._recorded[5].parallel == scene._gpu_forms
     assert [c.coarse is not None for c in chosen] == [True]
     assert chosen[0].work["jacobi"] > MAX_SWEEPS_PER_DECADE >= chosen[0].work["coarse"]
     assert type(scene._stepper).__name__ == "NodeStepper"

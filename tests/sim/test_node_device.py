@@ -2,7 +2,10 @@
 other than the CPU's own memory: CUDA where present, and everywhere the CPU through host copies
 (``Scene._host_copies``), which is a CUDA step's host traffic: the bodies' ``q``, ``v`` and
 ``fixed_velocity`` and the rigid bodies' poses uploaded before a step and downloaded after it,
-external forces uploaded when written, the contacts and flags a step reads copied back.
+external forces uploaded when written, the contacts and flags a step reads copied back; and the
+CPU through host copies with the kernels' GPU forms (``Scene._gpu_forms``: a thread per contact,
+candidate pair or node, what CUDA takes), whose soft cube (no shared node) and shoulder
+(Gauss-Seidel sweeps, its other kernels' GPU forms bit-equal on one CPU thread) step as the CPU's.
 
 Each target is held to physics (statics, the discrete free fall with values a user writes
 between steps, in place or by assignment) and to the CPU's own step on the same scene (the
@@ -34,9 +37,12 @@ from tests.sim.test_node_rigid import _check_mlcp, _system
 
 G = 9.81
 VELOCITY_TOL = 3 * SWEEP_TOLERANCE  # [m/s]
-#: Where a target runs: (Scene.device, Scene._host_copies).
-TARGETS = [pytest.param(("cpu", True), id="cpu-host-copies")] + (
-    [pytest.param(("cuda:0", False), id="cuda")] if wp.is_cuda_available() else [])
+#: Where a target runs: (Scene.device, Scene._host_copies, Scene._gpu_forms). The GPU forms of the
+#: kernels (a thread per contact, candidate pair or node) are CUDA's own; on the CPU they run through
+#: the host copies as a third target.
+TARGETS = [pytest.param(("cpu", True, False), id="cpu-host-copies"),
+           pytest.param(("cpu", True, True), id="cpu-gpu-forms")] + (
+    [pytest.param(("cuda:0", False, False), id="cuda")] if wp.is_cuda_available() else [])
 #: How far [m] a CUDA step may land from the CPU's (module docstring); the host copies: none.
 CUDA_TOL = 1e-6
 
@@ -50,9 +56,9 @@ def _cube(cells=4, size=0.4, lift=0.002):
 
 
 def _scene(body, target, plane=True):
-    device, copies = target
+    device, copies, gpu_forms = target
     scene = Scene(gravity=(0.0, 0.0, -G), device=device)
-    scene._host_copies = copies
+    scene._host_copies, scene._gpu_forms = copies, gpu_forms
     scene.add_body(body, collision_points=EmbeddedPoints(body, np.arange(len(body.q))[:, None],
                                                          np.ones((len(body.q), 1))))
     if plane:
@@ -63,6 +69,8 @@ def _scene(body, target, plane=True):
 def _assert_stepped_on(scene, target):
     assert scene.path == f"node arrays on {target[0]}" + (" (host copies)" if target[0] == "cpu" else "")
     assert scene._stepper.model.device == target[0] and scene._stepper.copies
+    # The Jacobi sweeps' form: a thread per contact on a GPU or where asked.
+    assert scene._stepper._recorded[5].parallel == (target[2] or target[0] != "cpu")
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -158,7 +166,7 @@ def _shoulder(target):
     # The haptic handle follows its script on the simulation's clock (haptics on, a loop thread
     # reads it on the wall clock, and two runs differ).
     example = load_scene(bundled("shoulder.toml"), frames=4, width=64, height=48, haptics=False)
-    example.scene.device, example.scene._host_copies = target
+    example.scene.device, example.scene._host_copies, example.scene._gpu_forms = target
     return example
 
 
@@ -166,7 +174,7 @@ def _shoulder(target):
 @pytest.mark.parametrize("name", ["soft cube", "shoulder"])
 def test_a_step_on_the_target_equals_the_cpu_step(target, name):
     runs = []
-    for where in (("cpu", False), target):
+    for where in (("cpu", False, False), target):
         if name == "soft cube":
             body = _cube(cells=6, size=0.6, lift=0.05)
             scene = _scene(body, where)
@@ -194,7 +202,7 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
     cases = ["gpu"] + ([] if wp.is_cuda_available() else ["cuda"])
     for device in cases:
         body = _cube(lift=1.0)
-        scene = _scene(body, (device, False), plane=False)
+        scene = _scene(body, (device, False, False), plane=False)
         start = body.q.copy()
         with pytest.raises(InputError) as err:
             scene.step(0.01)
@@ -202,8 +210,9 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
         np.testing.assert_array_equal(body.q, start)
 
 
+@pytest.mark.parametrize("gpu_forms", [False, True], ids=["cpu forms", "gpu forms"])
 @pytest.mark.parametrize("name", ["soft cube", "shoulder", "candy"])
-def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, monkeypatch):
+def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, gpu_forms, monkeypatch):
     # Off the CPU's own arrays the sweeps run two at a time between checks as one LaunchBatch (on
     # CUDA one captured graph). A graph records launches only: a host read inside a batch (an
     # array's numpy(), a copy, a synchronize) would run once, at the capture, and never again.
@@ -233,14 +242,14 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
     sweeps = 0
     if name == "soft cube":
         body = _cube(cells=6, size=0.6, lift=0.02)
-        scene = _scene(body, ("cpu", True))
+        scene = _scene(body, ("cpu", True, gpu_forms))
         for _ in range(20):
             sweeps += scene.step(1.0 / 60.0).iterations
     else:
         variants = ("quick",) if name == "candy" else ()
         with load_scene(bundled(f"{name}.toml"), variants, frames=20, width=64, height=48, haptics=False,
                         steps_per_frame=1) as example:
-            example.scene._host_copies = True
+            example.scene._host_copies, example.scene._gpu_forms = True, gpu_forms
             for _ in range(20):
                 example.step()
                 sweeps += example.scene.last_solution.iterations

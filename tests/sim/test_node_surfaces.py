@@ -68,7 +68,7 @@ def test_two_bodies_in_contact_solve_the_mlcp_of_eq_5_5(edge_contacts, parallel)
     one thread (the CPU's) or a thread per contact (a GPU's: Jacobi over the contacts on split
     masses, softvr.contact._node_parallel_kernels), whose contacts between the blocks share nodes."""
     scene, bodies = _stack(edge_contacts)
-    scene._parallel_contacts = parallel
+    scene._gpu_forms = parallel
     dt = 1.0 / 60.0
     kinds = set()
     checked = 0
@@ -76,7 +76,7 @@ def test_two_bodies_in_contact_solve_the_mlcp_of_eq_5_5(edge_contacts, parallel)
         systems = [b.step_system(dt, scene.gravity) for b in bodies]
         solution = scene.step(dt)
         assert type(scene._stepper).__name__ == "NodeStepper"
-        assert scene._stepper._recorded[5].parallel == scene._parallel_contacts  # (the option of conftest sets it)
+        assert scene._stepper._recorded[5].parallel == scene._gpu_forms  # (the option of conftest sets it)
         v = [b.v for b in bodies]
         impulse = [np.zeros((len(b.q), 3)) for b in bodies]
         between = 0

@@ -574,6 +574,146 @@ def point_contact(out: NodeContactOut, c: int, kind: int, column: int, p: int, o
               out.stencil_weights)
 
 
+@wp.func
+def reaches(g: wp.float64, normal: wp.vec3d, u: wp.vec3d, dt: wp.float64, margin: wp.float64) -> bool:
+    """Whether a point at gap ``g`` [m] along ``normal``, moving at ``u`` [m/s], is within
+    ``margin`` [m] now or after ``dt`` [s] of its approach."""
+    reach = g + dt * wp.min(wp.dot(u, normal), wp.float64(0.0))
+    return wp.min(g, reach) < margin
+
+
+@wp.func
+def try_plane(s: int, p: int, n_out: int, write: int, capacity: int, point_x: wp.array(dtype=wp.vec3d),
+              point_u: wp.array(dtype=wp.vec3d), plane_normal: wp.array(dtype=wp.vec3d),
+              plane_offset: wp.array(dtype=wp.float64), plane_margin: wp.array(dtype=wp.float64),
+              plane_friction: wp.array(dtype=wp.float64), dt: wp.float64, carried: wp.array2d(dtype=wp.vec3d),
+              point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+              out: NodeContactOut) -> int:
+    """1 where point ``p`` meets plane ``s`` (within its ``plane_margin`` [m], now or over its
+    motion in ``dt``), else 0; where ``write`` and ``n_out`` < ``capacity`` the contact is
+    written as contact ``n_out``."""
+    normal = plane_normal[s]
+    g = wp.dot(normal, point_x[p]) - plane_offset[s]
+    if reaches(g, normal, point_u[p], dt, plane_margin[p]):
+        if write != 0 and n_out < capacity:
+            point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
+                          point_weights)
+        return 1
+    return 0
+
+
+@wp.func
+def try_sphere(k: int, p: int, column: int, n_out: int, write: int, capacity: int, point_x: wp.array(dtype=wp.vec3d),
+               point_u: wp.array(dtype=wp.vec3d), point_margin: wp.array(dtype=wp.float64),
+               sphere_center: wp.array(dtype=wp.vec3d), sphere_radius: wp.array(dtype=wp.float64),
+               sphere_friction: wp.array(dtype=wp.float64), dt: wp.float64, carried: wp.array2d(dtype=wp.vec3d),
+               point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+               out: NodeContactOut) -> int:
+    """:func:`try_plane` for point ``p`` and static sphere ``k`` (carried ``column``): gap and
+    normal along the radius through the point (:func:`softvr.collision.points_vs_sphere`)."""
+    d = point_x[p] - sphere_center[k]
+    dist = wp.length(d)
+    normal = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
+    if dist > wp.float64(1e-12):
+        normal = d / dist
+    g = dist - sphere_radius[k]
+    if reaches(g, normal, point_u[p], dt, point_margin[p]):
+        if write != 0 and n_out < capacity:
+            point_contact(out, n_out, SPHERE, column, p, k, normal, g, sphere_friction[k], carried, point_nodes,
+                          point_weights)
+        return 1
+    return 0
+
+
+@wp.func
+def try_mesh(k: int, p: int, column: int, n_out: int, write: int, capacity: int,
+             static_hit: wp.array2d(dtype=wp.int32), static_normal: wp.array2d(dtype=wp.vec3),
+             static_gap: wp.array2d(dtype=wp.float32), mesh_friction: wp.array(dtype=wp.float64),
+             carried: wp.array2d(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
+             point_weights: wp.array2d(dtype=wp.float64), out: NodeContactOut) -> int:
+    """:func:`try_plane` for point ``p`` and static mesh ``k`` (carried ``column``), from
+    :func:`point_static_mesh`'s hit."""
+    if static_hit[p, k] != 0:
+        if write != 0 and n_out < capacity:
+            fn = static_normal[p, k]
+            normal = wp.normalize(wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2])))
+            point_contact(out, n_out, MESH, column, p, k, normal, wp.float64(static_gap[p, k]), mesh_friction[k],
+                          carried, point_nodes, point_weights)
+        return 1
+    return 0
+
+
+@wp.func
+def try_vertex(p: int, b: int, planes: int, n_out: int, write: int, capacity: int, hit: wp.array2d(dtype=wp.int32),
+               hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
+               hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64),
+               triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
+               surface_friction: wp.float64, carried: wp.array2d(dtype=wp.vec3d),
+               point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+               out: NodeContactOut) -> int:
+    """:func:`try_plane` for vertex ``p`` and body ``b``'s surface, from :func:`vertex_triangle`'s
+    hit: the vertex's stencil minus the triangle's at its barycentric weights."""
+    if hit[p, b] != 0:
+        if write != 0 and n_out < capacity:
+            t = body_triangle_start[b] + hit_face[p, b]
+            w = hit_bary[p, b]
+            start_contact(out, n_out, VERTEX_TRIANGLE, planes + b, p, b, t, w, hit_normal[p, b], hit_gap[p, b],
+                          surface_friction, carried[p, planes + b])
+            add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
+                      out.stencil_nodes, out.stencil_weights)
+            for v in range(3):
+                add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, out.stencil_count,
+                          out.stencil_nodes, out.stencil_weights)
+        return 1
+    return 0
+
+
+@wp.func
+def first_slot(e: int, edges: wp.array2d(dtype=wp.int32), point_body: wp.array(dtype=wp.int32),
+               slots: int, bodies: int) -> int:
+    """Edge ``e``'s first slot that can hold a pair: its body a queries bodies b > a only
+    (:func:`edge_edge`: 2 B slots, pairs_per_edge a body), so the slots of bodies <= a are never set."""
+    return slots // bodies * (point_body[edges[e, 0]] + 1)
+
+
+@wp.func
+def try_edge_slot(e: int, k: int, n_out: int, write: int, capacity: int, point_body: wp.array(dtype=wp.int32),
+                  edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32),
+                  pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+                  pair_gap: wp.array2d(dtype=wp.float64), edge_carried: wp.array2d(dtype=wp.vec3d),
+                  edge_partner: wp.array2d(dtype=wp.int32), surface_friction: wp.float64,
+                  point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+                  out: NodeContactOut) -> int:
+    """:func:`try_plane` for slot ``k`` of edge ``e`` (:func:`edge_edge`'s pair there, if any).
+    Where ``write``, the slot's carried impulse is also taken and cleared (with its partner),
+    contact or not: a slot without a partner holds no impulse anyone reads (a new pair there
+    starts cold, carried_out reads partnered slots only), so it is left as it is (24 of the 26
+    bytes a slot, 2 B slots an edge)."""
+    last = wp.vec3d()
+    partner = edge_partner[e, k]
+    if partner >= 0 and write != 0:
+        last = edge_carried[e, k]
+        edge_carried[e, k] = wp.vec3d()
+        edge_partner[e, k] = -1
+    j = pair_edge[e, k]
+    if j >= 0:
+        if write != 0 and n_out < capacity:
+            st = pair_st[e, k]
+            if partner != j:  # the slot held another pair last step: start cold
+                last = wp.vec3d()
+            start_contact(out, n_out, EDGE_EDGE, k, e, point_body[edges[j, 0]], j, st, pair_normal[e, k],
+                          pair_gap[e, k], surface_friction, last)
+            one = wp.float64(1.0)
+            # Side a's ends weighted (1 - s, s), side b's -(1 - t, t).
+            sc, sn, sw = out.stencil_count, out.stencil_nodes, out.stencil_weights
+            add_point(n_out, edges[e, 0], one - st[0], point_nodes, point_weights, sc, sn, sw)
+            add_point(n_out, edges[e, 1], st[0], point_nodes, point_weights, sc, sn, sw)
+            add_point(n_out, edges[j, 0], st[1] - one, point_nodes, point_weights, sc, sn, sw)
+            add_point(n_out, edges[j, 1], -st[1], point_nodes, point_weights, sc, sn, sw)
+        return 1
+    return 0
+
+
 @wp.kernel
 def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
                     point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
@@ -610,90 +750,153 @@ def gather_contacts(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=w
     ``edge_found_before``): ``carried``
     is only read, at the pairs in contact, since it holds last step's pairs only
     (:func:`carry_impulses` clears the step before's), not read and cleared at every (point,
-    column) (12 674 x 9 on the candy)."""
+    column) (12 674 x 9 on the candy). :func:`gather_pairs` gives the same contacts in the same order with a
+    thread per candidate pair (a GPU's form)."""
     planes = plane_normal.shape[0]
     n_out = int(0)
     for s in range(planes):
-        normal = plane_normal[s]
         for p in range(point_nodes.shape[0]):
-            g = wp.dot(normal, point_x[p]) - plane_offset[s]
-            reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            if wp.min(g, reach) < plane_margin[p] and n_out < capacity:
-                point_contact(out, n_out, PLANE, s, p, s, normal, g, plane_friction[s], carried, point_nodes,
-                              point_weights)
-                n_out += 1
+            found = try_plane(s, p, n_out, 1, capacity, point_x, point_u, plane_normal, plane_offset, plane_margin,
+                              plane_friction, dt, carried, point_nodes, point_weights, out)
+            if n_out < capacity:
+                n_out += found
     for k in range(sphere_radius.shape[0]):
         column = planes + hit.shape[1] + k
         for p in range(point_nodes.shape[0]):
-            d = point_x[p] - sphere_center[k]
-            dist = wp.length(d)
-            normal = wp.vec3d(wp.float64(0.0), wp.float64(0.0), wp.float64(1.0))
-            if dist > wp.float64(1e-12):
-                normal = d / dist
-            g = dist - sphere_radius[k]
-            reach = g + dt * wp.min(wp.dot(point_u[p], normal), wp.float64(0.0))
-            if wp.min(g, reach) < point_margin[p] and n_out < capacity:
-                point_contact(out, n_out, SPHERE, column, p, k, normal, g, sphere_friction[k], carried, point_nodes,
-                              point_weights)
-                n_out += 1
+            found = try_sphere(k, p, column, n_out, 1, capacity, point_x, point_u, point_margin, sphere_center,
+                               sphere_radius, sphere_friction, dt, carried, point_nodes, point_weights, out)
+            if n_out < capacity:
+                n_out += found
     for k in range(mesh_friction.shape[0]):
         column = planes + hit.shape[1] + sphere_radius.shape[0] + k
         for p in range(point_nodes.shape[0]):
-            if static_hit[p, k] != 0 and n_out < capacity:
-                fn = static_normal[p, k]
-                normal = wp.normalize(wp.vec3d(wp.float64(fn[0]), wp.float64(fn[1]), wp.float64(fn[2])))
-                point_contact(out, n_out, MESH, column, p, k, normal, wp.float64(static_gap[p, k]), mesh_friction[k],
-                              carried, point_nodes, point_weights)
-                n_out += 1
+            found = try_mesh(k, p, column, n_out, 1, capacity, static_hit, static_normal, static_gap, mesh_friction,
+                             carried, point_nodes, point_weights, out)
+            if n_out < capacity:
+                n_out += found
     for p in range(hit.shape[0]):
         if point_hit[p] == 0:  # (most vertices: their row of B bodies is not read)
             continue
         for b in range(hit.shape[1]):
-            if hit[p, b] != 0 and n_out < capacity:
-                t = body_triangle_start[b] + hit_face[p, b]
-                w = hit_bary[p, b]
-                start_contact(out, n_out, VERTEX_TRIANGLE, planes + b, p, b, t, w, hit_normal[p, b], hit_gap[p, b],
-                              surface_friction, carried[p, planes + b])
-                add_point(n_out, p, wp.float64(1.0), point_nodes, point_weights, out.stencil_count,
-                          out.stencil_nodes, out.stencil_weights)
-                for v in range(3):
-                    add_point(n_out, triangles[t, v], -w[v], point_nodes, point_weights, out.stencil_count,
-                              out.stencil_nodes, out.stencil_weights)
-                n_out += 1
+            found = try_vertex(p, b, planes, n_out, 1, capacity, hit, hit_face, hit_bary, hit_normal, hit_gap,
+                               triangles, body_triangle_start, surface_friction, carried, point_nodes, point_weights,
+                               out)
+            if n_out < capacity:
+                n_out += found
     for e in range(edges.shape[0]):  # (pair_edge keeps one row of -1 where there are no edges)
         # A partner (last step's contact) sits in a slot last step's edge_edge set: an edge whose
         # slots were empty then and now (edge_found, edge_found_before) has nothing to read.
         if edge_found[e] == 0 and edge_found_before[e] == 0:
             continue
-        # Edge e's body a queries bodies b > a only (edge_edge: 2 B slots, pairs_per_edge a
-        # body): the slots of bodies <= a are never set.
-        first = pair_edge.shape[1] // hit.shape[1] * (point_body[edges[e, 0]] + 1)
-        for k in range(first, pair_edge.shape[1]):
-            # A slot without a partner holds no impulse anyone reads (a new pair there starts
-            # cold, carried_out reads partnered slots only): left as it is, not read and
-            # cleared (24 of the 26 bytes a slot, 2 B slots an edge).
-            last = wp.vec3d()
-            partner = edge_partner[e, k]
-            if partner >= 0:
-                last = edge_carried[e, k]
-                edge_carried[e, k] = wp.vec3d()
-                edge_partner[e, k] = -1
-            j = pair_edge[e, k]
-            if j >= 0 and n_out < capacity:
-                st = pair_st[e, k]
-                if partner != j:  # the slot held another pair last step: start cold
-                    last = wp.vec3d()
-                start_contact(out, n_out, EDGE_EDGE, k, e, point_body[edges[j, 0]], j, st, pair_normal[e, k],
-                              pair_gap[e, k], surface_friction, last)
-                one = wp.float64(1.0)
-                # Side a's ends weighted (1 - s, s), side b's -(1 - t, t).
-                sc, sn, sw = out.stencil_count, out.stencil_nodes, out.stencil_weights
-                add_point(n_out, edges[e, 0], one - st[0], point_nodes, point_weights, sc, sn, sw)
-                add_point(n_out, edges[e, 1], st[0], point_nodes, point_weights, sc, sn, sw)
-                add_point(n_out, edges[j, 0], st[1] - one, point_nodes, point_weights, sc, sn, sw)
-                add_point(n_out, edges[j, 1], -st[1], point_nodes, point_weights, sc, sn, sw)
-                n_out += 1
+        for k in range(first_slot(e, edges, point_body, pair_edge.shape[1], hit.shape[1]), pair_edge.shape[1]):
+            found = try_edge_slot(e, k, n_out, 1, capacity, point_body, edges, pair_edge, pair_st, pair_normal,
+                                  pair_gap, edge_carried, edge_partner, surface_friction, point_nodes, point_weights,
+                                  out)
+            if n_out < capacity:
+                n_out += found
     count[0] = n_out
+
+
+@wp.func
+def gather_candidate(i: int, n_out: int, write: int, point_x: wp.array(dtype=wp.vec3d),
+                     point_u: wp.array(dtype=wp.vec3d), point_nodes: wp.array2d(dtype=wp.int32),
+                     point_weights: wp.array2d(dtype=wp.float64), point_margin: wp.array(dtype=wp.float64),
+                     plane_margin: wp.array(dtype=wp.float64), point_body: wp.array(dtype=wp.int32),
+                     triangles: wp.array2d(dtype=wp.int32), body_triangle_start: wp.array(dtype=wp.int32),
+                     plane_normal: wp.array(dtype=wp.vec3d), plane_offset: wp.array(dtype=wp.float64),
+                     plane_friction: wp.array(dtype=wp.float64), sphere_center: wp.array(dtype=wp.vec3d),
+                     sphere_radius: wp.array(dtype=wp.float64), sphere_friction: wp.array(dtype=wp.float64),
+                     static_hit: wp.array2d(dtype=wp.int32), static_normal: wp.array2d(dtype=wp.vec3),
+                     static_gap: wp.array2d(dtype=wp.float32), mesh_friction: wp.array(dtype=wp.float64),
+                     surface_friction: wp.float64, hit: wp.array2d(dtype=wp.int32),
+                     hit_face: wp.array2d(dtype=wp.int32), hit_bary: wp.array2d(dtype=wp.vec3d),
+                     hit_normal: wp.array2d(dtype=wp.vec3d), hit_gap: wp.array2d(dtype=wp.float64),
+                     point_hit: wp.array(dtype=wp.int32), edges: wp.array2d(dtype=wp.int32),
+                     pair_edge: wp.array2d(dtype=wp.int32), pair_st: wp.array2d(dtype=wp.vec3d),
+                     pair_normal: wp.array2d(dtype=wp.vec3d), pair_gap: wp.array2d(dtype=wp.float64),
+                     edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
+                     edge_found: wp.array(dtype=wp.int32), edge_found_before: wp.array(dtype=wp.int32),
+                     dt: wp.float64, capacity: int, carried: wp.array2d(dtype=wp.vec3d), out: NodeContactOut) -> int:
+    """Candidate pair ``i`` of :func:`gather_contacts`' order (points x planes, x static spheres,
+    x static meshes, each static-major; vertices x bodies, vertex-major; edges x slots,
+    edge-major: :func:`gather_candidates`), tried (:func:`try_plane` and the others)."""
+    points = point_nodes.shape[0]
+    planes = plane_normal.shape[0]
+    spheres = sphere_radius.shape[0]
+    bodies = hit.shape[1]
+    first = i
+    if first < planes * points:
+        return try_plane(first // points, first % points, n_out, write, capacity, point_x, point_u, plane_normal,
+                         plane_offset, plane_margin, plane_friction, dt, carried, point_nodes, point_weights, out)
+    first = first - planes * points
+    if first < spheres * points:
+        k = first // points
+        return try_sphere(k, first % points, planes + bodies + k, n_out, write, capacity, point_x, point_u,
+                          point_margin, sphere_center, sphere_radius, sphere_friction, dt, carried, point_nodes,
+                          point_weights, out)
+    first = first - spheres * points
+    if first < mesh_friction.shape[0] * points:
+        k = first // points
+        return try_mesh(k, first % points, planes + bodies + spheres + k, n_out, write, capacity, static_hit,
+                        static_normal, static_gap, mesh_friction, carried, point_nodes, point_weights, out)
+    first = first - mesh_friction.shape[0] * points
+    if first < hit.shape[0] * bodies:
+        p = first // bodies
+        if point_hit[p] == 0:
+            return 0
+        return try_vertex(p, first % bodies, planes, n_out, write, capacity, hit, hit_face, hit_bary, hit_normal,
+                          hit_gap, triangles, body_triangle_start, surface_friction, carried, point_nodes,
+                          point_weights, out)
+    first = first - hit.shape[0] * bodies
+    slots = pair_edge.shape[1]
+    e = first // slots
+    k = first % slots
+    if e >= edges.shape[0] or (edge_found[e] == 0 and edge_found_before[e] == 0):
+        return 0
+    if k < first_slot(e, edges, point_body, slots, bodies):
+        return 0
+    return try_edge_slot(e, k, n_out, write, capacity, point_body, edges, pair_edge, pair_st, pair_normal, pair_gap,
+                         edge_carried, edge_partner, surface_friction, point_nodes, point_weights, out)
+
+
+@wp.kernel
+def gather_pairs(point_x: wp.array(dtype=wp.vec3d), point_u: wp.array(dtype=wp.vec3d),
+                 point_nodes: wp.array2d(dtype=wp.int32), point_weights: wp.array2d(dtype=wp.float64),
+                 point_margin: wp.array(dtype=wp.float64), plane_margin: wp.array(dtype=wp.float64),
+                 point_body: wp.array(dtype=wp.int32), triangles: wp.array2d(dtype=wp.int32),
+                 body_triangle_start: wp.array(dtype=wp.int32), plane_normal: wp.array(dtype=wp.vec3d),
+                 plane_offset: wp.array(dtype=wp.float64), plane_friction: wp.array(dtype=wp.float64),
+                 sphere_center: wp.array(dtype=wp.vec3d), sphere_radius: wp.array(dtype=wp.float64),
+                 sphere_friction: wp.array(dtype=wp.float64), static_hit: wp.array2d(dtype=wp.int32),
+                 static_normal: wp.array2d(dtype=wp.vec3), static_gap: wp.array2d(dtype=wp.float32),
+                 mesh_friction: wp.array(dtype=wp.float64), surface_friction: wp.float64,
+                 hit: wp.array2d(dtype=wp.int32), hit_face: wp.array2d(dtype=wp.int32),
+                 hit_bary: wp.array2d(dtype=wp.vec3d), hit_normal: wp.array2d(dtype=wp.vec3d),
+                 hit_gap: wp.array2d(dtype=wp.float64), point_hit: wp.array(dtype=wp.int32),
+                 edges: wp.array2d(dtype=wp.int32), pair_edge: wp.array2d(dtype=wp.int32),
+                 pair_st: wp.array2d(dtype=wp.vec3d), pair_normal: wp.array2d(dtype=wp.vec3d),
+                 pair_gap: wp.array2d(dtype=wp.float64), edge_carried: wp.array2d(dtype=wp.vec3d),
+                 edge_partner: wp.array2d(dtype=wp.int32), edge_found: wp.array(dtype=wp.int32),
+                 edge_found_before: wp.array(dtype=wp.int32), dt: wp.float64, capacity: int,
+                 carried: wp.array2d(dtype=wp.vec3d), out: NodeContactOut, write: int, flags: wp.array(dtype=wp.int32),
+                 rows: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32)):
+    """:func:`gather_contacts` with a thread per candidate pair ``i`` (:func:`gather_candidate`; a
+    GPU's form), in two launches around an exclusive scan of ``flags`` into ``rows``: ``write`` 0
+    sets ``flags[i]`` to 1 where the pair makes a contact (nothing else written); ``write`` 1
+    writes it as contact ``rows[i]`` where it makes one below ``capacity`` and takes its edge
+    slot's carried impulse either way, and the last thread writes ``count[0]``: the one-thread
+    gather's contacts in its order."""
+    i = wp.tid()
+    found = gather_candidate(i, rows[i], write, point_x, point_u, point_nodes, point_weights, point_margin,
+                             plane_margin, point_body, triangles, body_triangle_start, plane_normal, plane_offset,
+                             plane_friction, sphere_center, sphere_radius, sphere_friction, static_hit, static_normal,
+                             static_gap, mesh_friction, surface_friction, hit, hit_face, hit_bary, hit_normal, hit_gap,
+                             point_hit, edges, pair_edge, pair_st, pair_normal, pair_gap, edge_carried, edge_partner,
+                             edge_found, edge_found_before, dt, capacity, carried, out)
+    if write == 0:
+        flags[i] = found
+    elif i == flags.shape[0] - 1:
+        count[0] = wp.min(rows[i] + flags[i], capacity)
 
 
 @wp.kernel
@@ -725,3 +928,107 @@ def carry_impulses(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int3
             written[n] = point[c] * columns + column[c]
             n += 1
     written_count[0] = n
+
+
+@wp.kernel
+def clear_carried(carried: wp.array2d(dtype=wp.vec3d), written: wp.array(dtype=wp.int32),
+                  written_count: wp.array(dtype=wp.int32), threads: int):
+    """:func:`carry_impulses`' clearing with ``threads`` threads striding: the entries of
+    ``carried`` the last :func:`carry_parallel` wrote (flat ``written[c]`` of its
+    ``written_count[0]`` contacts, -1 for none), or all of it while ``written_count[0]`` < 0
+    (the first call: the table may hold warm starts put in from the per-object path)."""
+    columns = carried.shape[1]
+    if written_count[0] < 0:
+        for e in range(wp.tid(), carried.shape[0] * columns, threads):
+            carried[e // columns, e % columns] = wp.vec3d()
+        return
+    for c in range(wp.tid(), written_count[0], threads):
+        e = written[c]
+        if e >= 0:
+            carried[e // columns, e % columns] = wp.vec3d()
+
+
+@wp.kernel
+def carry_parallel(count: wp.array(dtype=wp.int32), kind: wp.array(dtype=wp.int32), column: wp.array(dtype=wp.int32),
+                   point: wp.array(dtype=wp.int32), face: wp.array(dtype=wp.int32), frame: wp.array(dtype=wp.mat33d),
+                   impulse: wp.array(dtype=wp.vec3d), carried: wp.array2d(dtype=wp.vec3d),
+                   edge_carried: wp.array2d(dtype=wp.vec3d), edge_partner: wp.array2d(dtype=wp.int32),
+                   written: wp.array(dtype=wp.int32), written_count: wp.array(dtype=wp.int32), threads: int):
+    """:func:`carry_impulses`' writing with ``threads`` threads striding over the contacts (after
+    :func:`clear_carried`): each contact's world impulse [N s] into its entry, which goes to
+    ``written[c]`` (-1: an edge pair's or a primitive's, not in ``carried``)."""
+    columns = carried.shape[1]
+    n = count[0]
+    for c in range(wp.tid(), n, threads):
+        world = wp.transpose(frame[c]) * impulse[c]
+        written[c] = -1
+        if kind[c] == EDGE_EDGE:
+            edge_carried[point[c], column[c]] = world
+            edge_partner[point[c], column[c]] = face[c]
+        elif kind[c] != PRIMITIVE:  # primitive contacts start cold
+            carried[point[c], column[c]] = world
+            written[c] = point[c] * columns + column[c]
+    if wp.tid() == 0:
+        written_count[0] = n
+
+
+
+# The per-body reductions of the detection with a thread per item (a GPU's form: one thread
+# walking a body's points waits on every load in turn, ~5 000 of the Jell-O's), into per-body
+# totals taken atomically (zeroed or filled before). A mean summed atomically has no fixed order
+# on CUDA: its last bits may differ from run to run.
+
+
+@wp.kernel
+def point_sums(point_body: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
+               body_sum: wp.array(dtype=wp.vec3d), body_count: wp.array(dtype=wp.int32)):
+    """:func:`body_motion`'s sums: point ``p``'s predicted velocity [m/s] into its body's
+    ``body_sum``, and the body's point count."""
+    p = wp.tid()
+    b = point_body[p]
+    wp.atomic_add(body_sum, b, point_u[p])
+    wp.atomic_add(body_count, b, 1)
+
+
+@wp.kernel
+def body_means(body_sum: wp.array(dtype=wp.vec3d), body_count: wp.array(dtype=wp.int32),
+               body_mean_u: wp.array(dtype=wp.vec3d), body_spread: wp.array(dtype=wp.float64)):
+    """Body ``b``'s mean predicted velocity [m/s] from :func:`point_sums`; its spread zeroed for
+    :func:`point_spread`."""
+    b = wp.tid()
+    u = body_sum[b]
+    if body_count[b] > 0:
+        u = u / wp.float64(body_count[b])
+    body_mean_u[b] = u
+    body_spread[b] = wp.float64(0.0)
+
+
+@wp.kernel
+def point_spread(point_body: wp.array(dtype=wp.int32), point_u: wp.array(dtype=wp.vec3d),
+                 body_mean_u: wp.array(dtype=wp.vec3d), body_spread: wp.array(dtype=wp.float64)):
+    """:func:`body_motion`'s spread: point ``p``'s speed [m/s] relative to its body's mean, the
+    largest per body."""
+    p = wp.tid()
+    b = point_body[p]
+    wp.atomic_max(body_spread, b, wp.length(point_u[p] - body_mean_u[b]))
+
+
+@wp.kernel
+def item_bounds(item_body: wp.array(dtype=wp.int32), lower: wp.array(dtype=wp.vec3), upper: wp.array(dtype=wp.vec3),
+                body_lower: wp.array(dtype=wp.vec3), body_upper: wp.array(dtype=wp.vec3)):
+    """:func:`body_bounds` with a thread per item ``e`` (of body ``item_body[e]``): its box into its
+    body's (filled with +-1e30 before) by component-wise atomic min / max."""
+    e = wp.tid()
+    b = item_body[e]
+    wp.atomic_min(body_lower, b, lower[e])
+    wp.atomic_max(body_upper, b, upper[e])
+
+
+@wp.kernel
+def edge_creases(edge_body: wp.array(dtype=wp.int32), sharp: wp.array(dtype=wp.int32),
+                 body_crease: wp.array(dtype=wp.int32)):
+    """:func:`body_creases` with a thread per edge ``e`` (``body_crease`` zeroed before): 1 into its
+    body's where it is sharp (every such thread writes the same 1)."""
+    e = wp.tid()
+    if sharp[e] != 0:
+        body_crease[edge_body[e]] = 1

@@ -26,7 +26,7 @@ import warp as wp
 
 from softvr.contact import _node_adhesion_kernels as _k
 from softvr.contact.adhesion import AdhesionState
-from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, upload
+from softvr.device import chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads, upload
 
 __all__ = ["NodeAdhesion"]
 
@@ -104,11 +104,14 @@ class NodeAdhesion:
         Row of each body's adhesion in ``materials`` (-1: none).
     plane_material, sphere_material, mesh_material : ndarray of int [planes], [spheres], [meshes]
         Row of each static plane's, sphere's and triangle mesh's adhesion (-1: none).
+    parallel : bool, optional
+        The evolve with a thread per contact (a GPU's form); None: on any device but the CPU.
     """
 
     def __init__(self, model, state, materials: np.ndarray, body_material, plane_material, sphere_material,
-                 mesh_material):
+                 mesh_material, parallel: bool | None = None):
         d = model.device
+        self.parallel = (not wp.get_device(d).is_cpu) if parallel is None else bool(parallel)
         cap = state.contacts.capacity
         p = model.point_count
         triangles = model.triangles.numpy()
@@ -172,7 +175,7 @@ class NodeAdhesion:
                 chunked_replayer(_k.share_patches, threads, [ad, *contacts, c.stiffness, threads], d, min_chunk=1))
         # The evolve kernel rewrites the carried table: a state handed out before and still
         # held copies its rows out first.
-        evolve = [in_order(self._detach_issued,
+        evolve = [in_order(self._detach_issued, self._record_parallel_evolve(dt, buf) if self.parallel else
                            replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
                                               inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after,
                                                       c.stencil_count, c.stencil_nodes, c.stencil_weights,
@@ -180,6 +183,30 @@ class NodeAdhesion:
                                                       c.slip, float(dt)])))
                   for buf in st.sweep_buffers]
         return prepare, evolve
+
+    def _record_parallel_evolve(self, dt: float, v: wp.array) -> Callable[[], None]:
+        """The evolve with a thread per contact (:attr:`parallel`; kernels ``evolve_parallel``,
+        ``carry_parallel``): the bonds evolved and keyed, the whole buffer's keys radix-sorted
+        with their rows (the count stays on the device), the carried table written in key order."""
+        m, c, d = self._model, self._state.contacts, self._model.device
+        for kernel in (_k.evolve_parallel, _k.carry_parallel):
+            load_kernels(kernel, d)
+        cap = c.capacity
+        threads = stride_threads(d, PREPARE_THREADS_CUDA)
+        sort_key, sort_row = wp.zeros(2 * cap, dtype=wp.uint64, device=d), wp.zeros(2 * cap, dtype=wp.int32, device=d)
+        evolve = replayer(wp.launch(_k.evolve_parallel, dim=threads, device=d, record_cmd=True,
+                                    inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after, c.stencil_count,
+                                            c.stencil_nodes, c.stencil_weights, c.rigid_node, c.rigid_lever, m.fixed,
+                                            v, c.area, c.stiffness, c.slip, float(dt), sort_key, sort_row, threads]))
+        carry = replayer(wp.launch(_k.carry_parallel, dim=threads, device=d, record_cmd=True,
+                                   inputs=[self.arrays, c.count, c.frame, c.impulse, c.slip, sort_row, threads]))
+
+        def run() -> None:
+            evolve()
+            wp.utils.radix_sort_pairs(sort_key, sort_row, cap)
+            carry()
+
+        return run
 
     def carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """The per-object path's intensities and slips (and the warm starts of those contacts,

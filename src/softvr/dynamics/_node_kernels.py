@@ -352,6 +352,19 @@ def share_sums(body_node_start: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.v
 
 
 @wp.kernel
+def share_sums_parallel(node_body: wp.array(dtype=wp.int32), v: wp.array(dtype=wp.vec3d),
+                        v_before: wp.array(dtype=wp.vec3d), change: wp.array(dtype=wp.vec3d),
+                        mass: wp.array(dtype=wp.float64), fitted: wp.array(dtype=wp.int32),
+                        sums: wp.array(dtype=wp.vec2d)):
+    """:func:`share_sums` with a thread per node ``i`` (a GPU's form), added into its body
+    ``node_body[i]``'s ``sums`` (zeroed before) atomically: on CUDA in no fixed order."""
+    i = wp.tid()
+    if fitted[i] != 0:
+        c = change[i]
+        wp.atomic_add(sums, node_body[i], wp.vec2d(mass[i] * wp.dot(v[i] - v_before[i], c), mass[i] * wp.dot(c, c)))
+
+
+@wp.kernel
 def share_total(sums: wp.array(dtype=wp.vec2d), memory: wp.float64, carried: int,
                 share: wp.array(dtype=wp.float64)):
     """The share of last step's change that the next first guess carries on at the fitted nodes

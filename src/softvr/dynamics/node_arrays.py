@@ -246,7 +246,8 @@ def shared_bodies(model) -> np.ndarray:
     return ~free & ~touched
 
 
-def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[Callable[[], None], Callable[[], None]]:
+def record_start(model, state, dt: float, gravity, v_before: wp.array,
+                 parallel: bool | None = None) -> tuple[Callable[[], None], Callable[[], None]]:
     """Replays writing the sweeps' first guess [n] [m/s] into ``state.sweep_buffers[0]`` and
     ``[2]`` (the buffer before it): (first step: the explicit step under ``gravity`` [3]
     [m/s^2] and ``state.external``; later steps: last step's velocity change carried on, from
@@ -254,7 +255,8 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     of the :func:`shared_bodies` that are not a rigid body's, all of it on the others, so that
     every free body's guess keeps the momentum of its whole change, exact in free fall
     (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
-    :func:`_node_kernels.share_total`)). Both then copy ``state.v`` into ``v_before``; on the
+    :func:`_node_kernels.share_total`); ``parallel``: the fit's sums with a thread per node,
+    :func:`_node_kernels.share_sums_parallel`; None: on any device but the CPU). Both then copy ``state.v`` into ``v_before``; on the
     first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
     later ones carried on as the others': a tool pressed into tissue by its coupling starts
     ~0.2 m/s into the tissue at its unconstrained velocity, and the sweeps' first exact update
@@ -277,7 +279,14 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array) -> tuple[
     replays = []
     for carried in (0, 1):
         launches = []
-        if carried:
+        if carried and ((not wp.get_device(d).is_cpu) if parallel is None else parallel):
+            node_body = np.repeat(np.arange(len(start) - 1, dtype=np.int32), np.diff(start))
+            load_kernels(_k.share_sums_parallel, d)
+            launches += [sums.zero_, replayer(wp.launch(
+                _k.share_sums_parallel, dim=model.node_count, device=d, record_cmd=True,
+                inputs=[wp.array(node_body, dtype=wp.int32, device=d), state.v, v_before, change, model.mass,
+                        fitted_nodes, sums]))]
+        elif carried:
             launches.append(replayer(wp.launch(_k.share_sums, dim=len(start) - 1, device=d, record_cmd=True,
                                                inputs=[wp.array(start, dtype=wp.int32, device=d), state.v, v_before,
                                                        change, model.mass, fitted_nodes, sums])))

@@ -460,8 +460,10 @@ class NodeStepper:
             adhesion = s._adhesion.get(key)
             return -1 if adhesion is None else rows[id(adhesion)]
 
-        return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))],
-                            *([row(("static", id(x))) for x in statics] for statics in (s.planes, s.spheres, s.meshes)))
+        planes, spheres, meshes = ([row(("static", id(x))) for x in statics] for statics in (s.planes, s.spheres,
+                                                                                             s.meshes))
+        return NodeAdhesion(self.model, self.state, table, [row(("body", i)) for i in range(len(s.bodies))], planes,
+                            spheres, meshes, parallel=s._gpu_forms or None)
 
     def _surface_margin(self) -> float:
         """Detection margin [m] between surfaces: the largest of the surface pairs' (the scene's,
@@ -501,12 +503,13 @@ class NodeStepper:
         # The springs' terms (eq. 5.4) add to what the assembly, the right-hand side and the
         # rigid bodies' system wrote (none: driven to driven only).
         couplings = in_order(*record_couplings(m, st, dt)) if len(m.couplings.node) else in_order()
-        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction, s.ccd)
-        carry = replayer(record_carry(m, st))
+        parallel = s._gpu_forms or None  # (None: the device's own form)
+        detect = record_node_detection(m, st, dt, s.gravity, self._surface_margin(), s.friction, s.ccd, parallel)
+        carry = record_carry(m, st, parallel)
         integrate = [replayer(record_integrate(m, st, dt, buf)) for buf in st.sweep_buffers]
         if self.rigid is not None:
             self.rigid.record(st, dt, s.gravity)
-        start = record_start(m, st, dt, s.gravity, self._v_before)
+        start = record_start(m, st, dt, s.gravity, self._v_before, parallel)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
     def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
@@ -531,7 +534,7 @@ class NodeStepper:
             self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse,
-                                          batched=self.copies, parallel=self.scene._parallel_contacts or None)
+                                          batched=self.copies, parallel=self.scene._gpu_forms or None)
         return self._recorded[5]
 
     def _factored(self, dt: float, choice) -> FactoredSolve | None:

@@ -215,8 +215,9 @@ class Scene:
     # Host copies of the node arrays even on the CPU (NodeStepper): a CUDA step's host traffic, run where
     # no GPU is (tests).
     _host_copies: bool = False
-    # The node sweeps' thread-per-contact form (NodeSolve's ``parallel``, a GPU's) even on the CPU (tests).
-    _parallel_contacts: bool = False
+    # The node step's kernels in their GPU forms (a thread per contact, candidate pair or node: NodeSolve's,
+    # the detection's, the carry's, the adhesion's ``parallel``) even on the CPU (tests).
+    _gpu_forms: bool = False
     _units: tuple[list, list] | None = None
     _pool: ThreadPoolExecutor | None = None
     _stepper: RigidStepper | NodeStepper | None = None
