@@ -39,7 +39,7 @@ from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
-from softvr.device import HostMirror, in_order, replayer, resolve_device
+from softvr.device import HostMirror, LaunchBatch, in_order, replayer, resolve_device
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
                                          record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
@@ -328,6 +328,8 @@ class NodeStepper:
         self._adhesion_replays: tuple = (None, None)  # (dt, NodeAdhesion.record(dt))
         # [key, elements, assemble, rhs, detect, solver, carry, integrate, couplings, start] (_record)
         self._recorded: list[Any] = []
+        # (the recorded list, the adhesion replays, their groups: _stages)
+        self._staged: tuple[Any, Any, Any] | None = None
         self._spectrum: dict[float, Any] = {}  # the sweeps' choice per step size (choose_sweeps)
         self._issued: Callable[[], _NodeSnapshot | None] = lambda: None  # a weak reference to the last step's snapshot
 
@@ -512,6 +514,26 @@ class NodeStepper:
         start = record_start(m, st, dt, s.gravity, self._v_before, parallel)
         self._recorded = [key, elements, assemble, rhs, detect, None, carry, integrate, couplings, start]
 
+    def _stages(self) -> tuple[Callable[[], None], Callable[[], None], list[Callable[[], None]]]:
+        """The recorded launches before and after the sweeps, grouped: the dynamics (element
+        terms, assembly, right-hand side), the collision (the couplings' terms, which add to the
+        rigid bodies' system, detection, adhesion's preparation), and per sweep buffer the
+        settling (the warm starts carried, the integration). Off the CPU's own arrays each group
+        is one :class:`~softvr.device.LaunchBatch` (on CUDA one graph launch; none reads anything
+        back), on the CPU the launches one by one."""
+        recorded = self._recorded
+        if self._staged is not None and self._staged[0] is recorded and self._staged[1] is self._adhesion_replays:
+            return self._staged[2]
+        _, elements, assemble, rhs, detect, _, carry, integrate, couplings, _ = recorded
+        prepare = [self._adhesion_replays[1][0]] if self.adhesion is not None else []
+        groups = ([elements, assemble, rhs], [couplings, detect, *prepare],
+                  *([carry, integrate[r]] for r in range(3)))
+        one: Callable[[list], Callable[[], None]] = (lambda group: LaunchBatch(group, self.device)) if self.copies \
+            else (lambda group: in_order(*group))
+        dynamics, collision, *settle = [one(group) for group in groups]
+        self._staged = (recorded, self._adhesion_replays, (dynamics, collision, settle))
+        return self._staged[2]
+
     def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
@@ -582,31 +604,24 @@ class NodeStepper:
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
-        _, elements, assemble, rhs, detect, _, carry, integrate, couplings, start = self._recorded
-        elements()
-        assemble()
-        rhs()
+        if self.adhesion is not None and self._adhesion_replays[0] != dt:
+            self._adhesion_replays = (dt, self.adhesion.record(dt))
+        dynamics, collision, settle = self._stages()
+        dynamics()
         if self.rigid is not None:
             self.rigid.before_sweeps()
-        couplings()
         t1 = time.perf_counter()
-        detect()
-        if self.adhesion is not None:
-            if self._adhesion_replays[0] != dt:
-                self._adhesion_replays = (dt, self.adhesion.record(dt))
-            prepare, evolve = self._adhesion_replays[1]
-            prepare()
+        collision()
         t2 = time.perf_counter()
         solve = self._solver(dt)  # after the detection: the choice counts the contacts
-        start[self._carried]()
+        self._recorded[9][self._carried]()  # the sweeps' first guess
         self._carried = True
         sweeps, solved = solve.solve(SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance)
         if self.adhesion is not None:
-            evolve[sweeps % 3]()
+            self._adhesion_replays[1][1][sweeps % 3]()  # (its Python side detaches a held state first)
             self.scene.adhesion_state = self.adhesion.state()
-        carry()
         t3 = time.perf_counter()
-        integrate[sweeps % 3]()
+        settle[sweeps % 3]()
         self._check()
         for mirror in self._state_mirrors:
             mirror.pull()
