@@ -24,9 +24,10 @@ if ! python3 -c "import warp" 2>/dev/null; then
         || exit 1
 fi
 nvidia-smi > "$OUT/nvidia-smi.txt" 2>&1
-# The node step on CUDA against the CPU's, the host mirror, every kernel module's PTX.
+# The node step on CUDA against the CPU's, the host mirror, every kernel module's PTX, the
+# thread-per-contact passes against SciPy's LCP on CUDA (their atomics for real).
 timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_device.py tests/sim/test_node_device.py \
-    tests/test_cuda_build.py 2>&1 | tee "$OUT/tests.txt" | tail -30
+    tests/test_cuda_build.py tests/contact/test_node_parallel_contacts.py 2>&1 | tee "$OUT/tests.txt" | tail -30
 # The GPU targets: 64 cubes >= 1000 steps/s each, candy <= 4 ms a step, shoulder <= 1 ms.
 timeout 200 python3 -m softvr bench contact --device cuda --engines softvr --cubes 64 --no-progress \
     --json "$OUT/contact_cuda.json" 2>&1 | tee "$OUT/contact_cuda.txt" | tail -20

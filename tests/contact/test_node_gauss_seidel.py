@@ -140,9 +140,11 @@ def test_gauss_seidel_spectrum_encloses_the_dense_eigenvalues_and_sets_the_measu
     assert gs < 0.6 * jacobi
 
 
-def test_a_gauss_seidel_contact_step_solves_the_mlcp_of_eq_5_5(monkeypatch):
+@pytest.mark.parametrize("gpu_forms", [False, True], ids=["one-thread contacts", "thread per contact"])
+def test_a_gauss_seidel_contact_step_solves_the_mlcp_of_eq_5_5(monkeypatch, gpu_forms):
     """A cube dropped on a plane, stepped with Gauss-Seidel sweeps (forced), held to eq. 5.5 by
-    the checker of tests/sim/test_node_arrays.py."""
+    the checker of tests/sim/test_node_arrays.py; the contact step in the middle of each sweep
+    walked by one thread or a thread per contact (the GPU forms: Jacobi passes on split masses)."""
     chosen = []
 
     def gauss_seidel(*args, **kwargs):
@@ -154,8 +156,10 @@ def test_a_gauss_seidel_contact_step_solves_the_mlcp_of_eq_5_5(monkeypatch):
     monkeypatch.setattr(_node_step, "choose_sweeps", gauss_seidel)
     body = _cube()
     scene = _scene(body)
+    scene._gpu_forms = gpu_forms or scene._gpu_forms  # (pytest --gpu-forms sets it for every scene)
     assert check_mlcp_steps(body, scene, 1.0 / 60.0, 40, friction=0.5) >= 10
     assert chosen == ["gauss-seidel"]
+    assert scene._stepper._recorded[5].parallel == scene._gpu_forms
 
 
 def test_a_soft_cube_keeps_jacobi_sweeps_and_contacts_favour_fewer_sweeps(monkeypatch):
@@ -412,7 +416,9 @@ def _contact_rows(contacts, n):
 MU = 1.0
 
 
-def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_kkt_solve_of_eq_5_5(monkeypatch):
+@pytest.mark.parametrize("gpu_forms", [False, True], ids=["one-thread contacts", "thread per contact"])
+def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_kkt_solve_of_eq_5_5(monkeypatch,
+                                                                                                   gpu_forms):
     """A 9.6 g box on a spring to a fixed anchor (a haptic tool on its handle) pressed into a soft
     FEM block (1e5 Pa, bottom clamped) with friction 1, Gauss-Seidel sweeps forced: the
     shoulder's pressing steps in small (a light exact tool whose contacts stick and slide on
@@ -424,7 +430,8 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
     NumPy. The truth must itself meet eq. 5.5 (pushes, friction in the disc, a slide's slip
     opposite d, the other contacts not closing past their gaps), so it is the LCP's solution
     on that set, and the sweeps' velocities must be within VELOCITY_TOL of it (the box's spin
-    over its 0.03 m half-diagonal)."""
+    over its 0.03 m half-diagonal). With the contact step walked by one thread or a thread per
+    contact (the GPU forms, whose extra passes over the tool's contacts are Jacobi ones too)."""
     def gauss_seidel(*args, **kwargs):
         monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
         return _node_sweeps.choose_sweeps(*args, **kwargs)
@@ -440,6 +447,7 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
 
     monkeypatch.setattr(NodeSolve, "solve", keep)
     scene = Scene(gravity=(0.0, 0.0, -G), friction=MU, pgs_iterations=500)
+    scene._gpu_forms = gpu_forms
     block = _surface_block(3, 0.1, (0.0, 0.0, -0.05), Material(1e5, 0.3, 1000.0, alpha=0.0, beta=1e-3),
                            fixed=lambda x: x[:, 2] < -0.099)
     _add_with_surface(scene, block)
@@ -459,7 +467,7 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
         pushing = lam[:, 0] > 0.0
         if not pushing.any():
             continue
-        assert solved["solve"].colours is not None
+        assert solved["solve"].colours is not None and solved["solve"].parallel == scene._gpu_forms
         a, b, free = _dense_system(model, state, v)
         all_rows = _contact_rows(state.contacts, model.node_count)
         rows, moving = all_rows[:, :, free], all_rows[:, :, ~free] @ v.ravel()[~free]  # the fixed nodes' share

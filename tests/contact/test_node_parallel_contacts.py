@@ -99,7 +99,8 @@ def _solve(device, split=True):
     threads = 2  # striding threads: fewer than the contacts, so a thread takes several
     if split:
         wp.launch(_pk.count_shares, dim=threads, device=device,
-                  inputs=[count, live, *stencil, rigid_node, fixed, co, node_share, body_share, sweep, stats, threads])
+                  inputs=[count, live, *stencil, rigid_node, fixed, co, node_share, body_share, sweep, stats, 1,
+                          threads])
     zeros = wp.zeros(c_count, dtype=wp.float64, device=device)
     for _ in range(PASSES):
         wp.launch(_pk.jacobi_contacts, dim=threads, device=device,

@@ -4,8 +4,9 @@ other than the CPU's own memory: CUDA where present, and everywhere the CPU thro
 ``fixed_velocity`` and the rigid bodies' poses uploaded before a step and downloaded after it,
 external forces uploaded when written, the contacts and flags a step reads copied back; and the
 CPU through host copies with the kernels' GPU forms (``Scene._gpu_forms``: a thread per contact,
-candidate pair or node, what CUDA takes), whose soft cube (no shared node) and shoulder
-(Gauss-Seidel sweeps, its other kernels' GPU forms bit-equal on one CPU thread) step as the CPU's.
+candidate pair or node, what CUDA takes), whose soft cube (no node shared by two contacts: the
+same operations) steps as the CPU's to the bit, and the shoulder (its contact step Jacobi on split
+masses) within the scene's stop tolerance.
 
 Each target is held to physics (statics, the discrete free fall with values a user writes
 between steps, in place or by assignment) and to the CPU's own step on the same scene (the
@@ -190,6 +191,12 @@ def test_a_step_on_the_target_equals_the_cpu_step(target, name):
                 runs.append([np.concatenate([np.ravel(b.q if hasattr(b, "q") else b.position),
                                              np.ravel(b.v)]) for b in example.scene.bodies])
     tol = 0.0 if target[0] == "cpu" else CUDA_TOL
+    if name == "shoulder" and (target[2] or target[0] != "cpu"):
+        # Its Gauss-Seidel sweeps' contact step in the GPU forms is Jacobi over the contacts (split
+        # masses): another path to the same fixed point, each step's velocities within 3x the
+        # scene's stop tolerance of it (pgs_tolerance 3e-4 m/s; SWEEP_TOLERANCE's allowance), so two
+        # runs within 2 x 3 x 3e-4 m/s, and the positions within 4 steps x 20 ms of that.
+        tol = 2 * 3 * 3e-4
     for expected, got in zip(*runs):
         np.testing.assert_allclose(got, expected, rtol=0, atol=tol)
 

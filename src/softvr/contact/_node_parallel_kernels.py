@@ -134,15 +134,15 @@ def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32)
                  stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
                  fixed: wp.array(dtype=wp.int32), co: Coarse, node_share: wp.array(dtype=wp.int32),
                  body_share: wp.array(dtype=wp.int32), sweep: wp.array(dtype=wp.int32),
-                 stats: wp.array(dtype=wp.float64), threads: int):
+                 stats: wp.array(dtype=wp.float64), first: int, threads: int):
     """``node_share[i]``, ``body_share[b]``: how many ``live`` contacts act on free node ``i``
     (a nonzero stencil weight, or a rigid side's angular node) and on coarse body ``b`` (both
-    zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). Thread 0 also
-    counts the sweep in ``sweep[0]`` (the Chebyshev weights' index) and zeroes ``stats`` for the
-    sweep's reductions (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take
+    zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). With ``first``
+    (the sweep's first count) thread 0 also counts the sweep in ``sweep[0]`` (the Chebyshev
+    weights' index) and zeroes ``stats`` for the sweep's reductions (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take
     maxima into it)."""
     tid = wp.tid()
-    if tid == 0:
+    if tid == 0 and first != 0:
         sweep[0] = sweep[0] + 1
         for k in range(stats.shape[0]):
             stats[k] = _ZERO

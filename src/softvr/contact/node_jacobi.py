@@ -263,7 +263,7 @@ class NodeSolve:
         The Jacobi sweeps' contact step and the stop's reductions with a thread per contact and
         per node (:mod:`softvr.contact._node_parallel_kernels`: Jacobi over the contacts on split
         masses, atomic maxima) instead of one thread walking them; None: on any device but the
-        CPU. The Gauss-Seidel sweeps keep their one-thread contact step.
+        CPU. The Gauss-Seidel sweeps take the same contact step in the middle of their node update.
     """
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
@@ -318,8 +318,8 @@ class NodeSolve:
         self.colours = colours
         #: The sweep's node residual ``b - A v`` [n] [kg m/s] (the Jacobi kernel's, for the coarse correction).
         self.residual_nodes = wp.zeros(model.node_count, dtype=wp.vec3d, device=d)
-        #: Whether the sweeps take the thread-per-contact form (``parallel``; Jacobi sweeps only).
-        self.parallel = (not wp.get_device(d).is_cpu if parallel is None else bool(parallel)) and colours is None
+        #: Whether the sweeps' contact step takes the thread-per-contact form (``parallel``).
+        self.parallel = (not wp.get_device(d).is_cpu if parallel is None else bool(parallel))
         self.coarse = CoarseSpace(model, state, np.zeros((0, 2), np.int64) if coarse is None or colours is not None
                                   else coarse, self.residual_nodes, parallel=self.parallel)
         co = self.coarse.arrays
@@ -505,18 +505,26 @@ class NodeSolve:
         screen = replayer(wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
                                     inputs=[c.count, *stencil, c.frame, c.gap, c.rigid_node, c.rigid_lever, float(dt),
                                             c.impulse, c.stiffness, state.v_hat, co, movable, threads, self.live]))
-        count = record(_pk.count_shares, [c.count, self.live, *stencil, c.rigid_node, model.fixed, co, node_share,
-                                          body_share, self.sweep, self.stats])
-        solve = record(_pk.jacobi_contacts, [c.count, self.live, *stencil, c.frame, c.gap, c.friction, c.rigid_node,
-                                             c.rigid_lever, d_inv, model.couplings.partner, cross, model.fixed,
-                                             float(dt), c.impulse, state.v_hat, c.stiffness, c.slip, co, node_share,
-                                             body_share, LOCAL_UPDATES, self._impulse_change])
-        apply = record(_pk.apply_contacts, [c.count, self.live, *stencil, c.rigid_node, c.rigid_lever, d_inv,
-                                            model.couplings.partner, cross, model.fixed, self._impulse_change,
-                                            state.v_hat, co])
+        def jacobi_passes(live: wp.array, first: int, count: int) -> list[Callable[[], None]]:
+            """``count`` Jacobi passes over the ``live`` contacts, after their shares are counted."""
+            shares = record(_pk.count_shares, [c.count, live, *stencil, c.rigid_node, model.fixed, co, node_share,
+                                               body_share, self.sweep, self.stats, first])
+            solve = record(_pk.jacobi_contacts, [c.count, live, *stencil, c.frame, c.gap, c.friction, c.rigid_node,
+                                                 c.rigid_lever, d_inv, model.couplings.partner, cross, model.fixed,
+                                                 float(dt), c.impulse, state.v_hat, c.stiffness, c.slip, co, node_share,
+                                                 body_share, LOCAL_UPDATES, self._impulse_change])
+            apply = record(_pk.apply_contacts, [c.count, live, *stencil, c.rigid_node, c.rigid_lever, d_inv,
+                                                model.couplings.partner, cross, model.fixed, self._impulse_change,
+                                                state.v_hat, co])
+            return [node_share.zero_, body_share.zero_, shares, *[solve, apply] * count]
+
         shared = self.coarse.count > 0 or bool(model.pair_enabled.numpy().any()) or getattr(model, "rigid", None) is not None
-        return in_order(warm, screen, node_share.zero_, body_share.zero_, count,
-                        *[solve, apply] * (int(passes) * (PARALLEL_PASS_FACTOR if shared else 1)))
+        factor = PARALLEL_PASS_FACTOR if shared else 1
+        replays = [warm, screen, *jacobi_passes(self.live, 1, int(passes) * factor)]
+        gs = self._gauss_seidel
+        if gs is not None and gs.tool_passes:  # the exact rigid bodies' contacts again, their shares their own
+            replays += [gs.mark_tools(self.live, threads), *jacobi_passes(gs.tool_live, 0, gs.tool_passes * factor)]
+        return in_order(*replays)
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
