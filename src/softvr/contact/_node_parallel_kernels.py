@@ -139,8 +139,8 @@ def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32)
     (a nonzero stencil weight, or a rigid side's angular node) and on coarse body ``b`` (both
     zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). With ``first``
     (the sweep's first count) thread 0 also counts the sweep in ``sweep[0]`` (the Chebyshev
-    weights' index) and zeroes ``stats`` for the sweep's reductions (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take
-    maxima into it)."""
+    weights' index) and zeroes ``stats`` for the sweep's reductions (the Chebyshev kernel's
+    ``atomic`` form and :func:`residual_parallel` take maxima into it)."""
     tid = wp.tid()
     if tid == 0 and first != 0:
         sweep[0] = sweep[0] + 1

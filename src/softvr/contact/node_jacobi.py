@@ -63,8 +63,10 @@ SWITCH_AFTER = 12
 #: moves a shared node 1 / n_r of the way. Sweeps a step over the candy pile's first 60 steps
 #: (CPU, 2 passes a sweep on the one-thread form: 77.4) with 1 / 2 / 4 / 8 Jacobi passes per pass:
 #: 211 / 130 / 94 / 76; the probe (15.1): 24.9 / 16.7 / 17.2 / 12.1. A pass costs two launches,
-#: a sweep ~8 more: 4 takes the fewest launches a step on the candy. Contacts that share nothing
-#: (a cube's points on a plane) are solved by the first pass.
+#: a sweep ~8 more and a check (every 2 sweeps) a sync: 1 takes the fewest launches a step on the
+#: candy (~6 700 against ~10 000), 4 half the sweeps and syncs; which is faster on a GPU is not
+#: measured (no GPU yet). Contacts that share nothing (a cube's points on a plane) are solved by
+#: the first pass, so such a scene takes 1.
 PARALLEL_PASS_FACTOR = 4
 
 #: Solves started on the bounds' own weights after which one starts on the narrower weights
@@ -486,10 +488,12 @@ class NodeSolve:
 
     def _record_parallel_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                                   movable: wp.array) -> Callable[[], None]:
-        """The contact step of a Jacobi sweep with a thread per contact
-        (:mod:`softvr.contact._node_parallel_kernels`): the last impulses applied to ``v^``, the
-        contacts screened, each node's and coarse body's live contacts counted, then ``passes``
-        Jacobi passes over the live contacts on split masses, each applied after all are computed."""
+        """The contact step of a sweep (a Jacobi one, or in the middle of a Gauss-Seidel one's node
+        update) with a thread per contact (:mod:`softvr.contact._node_parallel_kernels`): the last
+        impulses applied to ``v^``, the contacts screened, each node's and coarse body's live
+        contacts counted, then ``passes`` x :data:`PARALLEL_PASS_FACTOR` Jacobi passes over the
+        live contacts on split masses, each applied after all are computed (and the Gauss-Seidel
+        sweeps' extra passes over the exact rigid bodies' contacts the same way)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         threads = _contact_threads(d)
         node_share = wp.zeros(model.node_count, dtype=wp.int32, device=d)
@@ -505,6 +509,7 @@ class NodeSolve:
         screen = replayer(wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
                                     inputs=[c.count, *stencil, c.frame, c.gap, c.rigid_node, c.rigid_lever, float(dt),
                                             c.impulse, c.stiffness, state.v_hat, co, movable, threads, self.live]))
+
         def jacobi_passes(live: wp.array, first: int, count: int) -> list[Callable[[], None]]:
             """``count`` Jacobi passes over the ``live`` contacts, after their shares are counted."""
             shares = record(_pk.count_shares, [c.count, live, *stencil, c.rigid_node, model.fixed, co, node_share,
@@ -518,7 +523,8 @@ class NodeSolve:
                                                 state.v_hat, co])
             return [node_share.zero_, body_share.zero_, shares, *[solve, apply] * count]
 
-        shared = self.coarse.count > 0 or bool(model.pair_enabled.numpy().any()) or getattr(model, "rigid", None) is not None
+        shared = self.coarse.count > 0 or bool(model.pair_enabled.numpy().any()) or \
+            getattr(model, "rigid", None) is not None
         factor = PARALLEL_PASS_FACTOR if shared else 1
         replays = [warm, screen, *jacobi_passes(self.live, 1, int(passes) * factor)]
         gs = self._gauss_seidel

@@ -256,8 +256,8 @@ def record_start(model, state, dt: float, gravity, v_before: wp.array,
     every free body's guess keeps the momentum of its whole change, exact in free fall
     (:func:`_node_kernels.start_guess`, :func:`_node_kernels.share_sums`,
     :func:`_node_kernels.share_total`); ``parallel``: the fit's sums with a thread per node,
-    :func:`_node_kernels.share_sums_parallel`; None: on any device but the CPU). Both then copy ``state.v`` into ``v_before``; on the
-    first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
+    :func:`_node_kernels.share_sums_parallel`; None: on any device but the CPU). Both then copy
+    ``state.v`` into ``v_before``; on the first step a rigid body's nodes (``model.rigid``) start at its unconstrained velocity,
     later ones carried on as the others': a tool pressed into tissue by its coupling starts
     ~0.2 m/s into the tissue at its unconstrained velocity, and the sweeps' first exact update
     of the shoulder's inner finger then spun it at 18 rad/s, which took ~60 sweeps to settle
