@@ -23,6 +23,7 @@ from softvr.contact import node_gauss_seidel
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep, gauss_seidel_spectrum
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.dynamics import Coupling, EmbeddedPoints, FixedBody, Material, RigidBody, RigidPoints
+from softvr.scene import bundled, load_scene
 from softvr.sim import _node_step, _node_sweeps
 from softvr.sim._node_step import SPECTRUM_MARGIN, SWEEP_TOLERANCE, NodeStepper, spectrum
 from softvr.sim._node_sweeps import sweeps_per_decade
@@ -510,3 +511,37 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
         np.testing.assert_allclose(mine[spin], truth[spin], atol=VELOCITY_TOL / 0.03, rtol=0)
         checked += 1
     assert checked >= 3
+
+
+def test_the_islands_contact_response_in_the_gpu_form_equals_the_one_thread_walks():
+    """The rigid islands' step 2 of a Gauss-Seidel sweep (each island in contact solved whole
+    for the contacts' last impulses, _node_gs_kernels.island_contact) with a thread per island
+    node, contact and island (the GPU form) against the one-thread walk over the islands and
+    contacts (the obviously correct reference), on the shoulder's fingers pressed into tissue
+    with random impulses on all its contacts: the same velocities, bit for bit (on one CPU thread
+    the atomic sums add in contact order, as the walk does)."""
+    with load_scene(bundled("shoulder.toml"), frames=1, width=64, height=48, haptics=False) as example:
+        for _ in range(30):
+            example.step()
+        stepper = example.scene._stepper
+        gs = stepper._recorded[5]._gauss_seidel
+        assert gs is not None and gs._islands is not None
+        c = stepper.state.contacts
+        n = int(c.count.numpy()[0])
+        impulse = c.impulse.numpy()
+        impulse[:n] = np.random.default_rng(4).standard_normal((n, 3))
+        c.impulse.assign(impulse)
+        islands = gs._islands[1].numpy()
+        contact = gs.contact_node.numpy()
+        contact[islands] = 1  # every island in contact
+        gs.contact_node.assign(contact)
+        w = stepper.state.sweep_buffers[0]
+        before = stepper.state.v_hat.numpy().copy()
+        results = []
+        for parallel in (False, True):
+            stepper.state.v_hat.assign(before)
+            for replay in gs.island_contact(w, parallel):
+                replay()
+            results.append(stepper.state.v_hat.numpy().copy())
+        assert not np.array_equal(results[0][islands], before[islands])  # the islands moved
+        np.testing.assert_array_equal(results[1], results[0])

@@ -553,6 +553,32 @@ def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(d
             contact_node[island_node[k]] = 1
 
 
+@wp.func
+def _island_response(t: int, island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                     island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                     block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
+                     b: wp.array(dtype=wp.vec3d), metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                     cross_metric: wp.array(dtype=wp.mat33d), inverse: wp.array3d(dtype=wp.float64),
+                     rhs: wp.array2d(dtype=wp.float64), force: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                     v_hat: wp.array(dtype=wp.vec3d)):
+    """Island ``t``'s ``v^_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - P f`` from its
+    nodes' generalized impulses ``force`` (:func:`island_contact`)."""
+    s = island_start[t]
+    n = island_start[t + 1] - s
+    for li in range(n):
+        i = island_node[s + li]
+        r = _island_residual(i, row_start, block_col, blocks, island_local, b, w) + force[i]
+        for x in range(3):
+            rhs[t, 3 * li + x] = r[x]
+    for li in range(n):
+        i = island_node[s + li]
+        out = _island_row(t, li, 3 * n, inverse, rhs)
+        pushed = metric[i] * force[i]
+        if partner[i] >= 0:
+            pushed = pushed + cross_metric[i] * force[partner[i]]
+        v_hat[i] = out - pushed
+
+
 @wp.kernel
 def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
                    island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
@@ -601,18 +627,8 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
                 if node >= 0:
                     if island_local[node] >= 0:
                         force[node] = force[node] + wp.cross(rigid_lever[c, side], world)
-        for li in range(n):
-            i = island_node[s + li]
-            r = _island_residual(i, row_start, block_col, blocks, island_local, b, w) + force[i]
-            for x in range(3):
-                rhs[t, 3 * li + x] = r[x]
-        for li in range(n):
-            i = island_node[s + li]
-            out = _island_row(t, li, 3 * n, inverse, rhs)
-            pushed = metric[i] * force[i]
-            if partner[i] >= 0:
-                pushed = pushed + cross_metric[i] * force[partner[i]]
-            v_hat[i] = out - pushed
+        _island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
+                         cross_metric, inverse, rhs, force, w, v_hat)
 
 
 @wp.kernel
@@ -636,3 +652,67 @@ def island_metric(island_start: wp.array(dtype=wp.int32), island_node: wp.array(
                 other[x, y] = inverse[t, 3 * li + x, 3 * lp + y]
         metric[i] = own
         cross_metric[i] = other
+
+
+# The Gauss-Seidel sweeps' one-thread walks over a step's contacts in a GPU's form (a thread per
+# contact or island; one GPU thread walking the contacts waits on every load in turn).
+
+
+@wp.kernel
+def woken_parallel(count: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32),
+                   impulse: wp.array(dtype=wp.vec3d), flag: wp.array(dtype=wp.int32), threads: int):
+    """:func:`woken` with ``threads`` threads striding over the contacts, ``flag`` zeroed before
+    (every thread that finds one writes the same 1)."""
+    for c in range(wp.tid(), count[0], threads):
+        lam = impulse[c]
+        if asleep[c] != 0 and (lam[0] != wp.float64(0.0) or lam[1] != wp.float64(0.0) or lam[2] != wp.float64(0.0)):
+            flag[0] = 1
+
+
+@wp.kernel
+def island_force_clear(island_node: wp.array(dtype=wp.int32), force: wp.array(dtype=wp.vec3d)):
+    """:func:`island_contact`'s forces zeroed at every island node (a thread each)."""
+    force[island_node[wp.tid()]] = wp.vec3d()
+
+
+@wp.kernel
+def island_force_add(island_local: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32),
+                     stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                     stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                     rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                     impulse: wp.array(dtype=wp.vec3d), force: wp.array(dtype=wp.vec3d), threads: int):
+    """:func:`island_contact`'s generalized impulses ``f = J_I^T lambda`` [N s, N m s] of the
+    contacts' last impulses at the island nodes, ``threads`` threads striding over the contacts
+    (atomic adds: contacts share nodes; on one CPU thread in contact order, the one-thread
+    form's order)."""
+    for c in range(wp.tid(), count[0], threads):
+        lam = impulse[c]
+        if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+            continue
+        world = wp.transpose(frame[c]) * lam
+        for k in range(stencil_count[c]):
+            node = stencil_nodes[c, k]
+            if island_local[node] >= 0:
+                wp.atomic_add(force, node, stencil_weights[c, k] * world)
+        for side in range(rigid_node.shape[1]):
+            node = rigid_node[c, side]
+            if node >= 0:
+                if island_local[node] >= 0:
+                    wp.atomic_add(force, node, wp.cross(rigid_lever[c, side], world))
+
+
+@wp.kernel
+def island_respond(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                   island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                   block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                   metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                   cross_metric: wp.array(dtype=wp.mat33d), contact_node: wp.array(dtype=wp.int32),
+                   inverse: wp.array3d(dtype=wp.float64), rhs: wp.array2d(dtype=wp.float64),
+                   force: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+    """:func:`island_contact`'s response of island ``t`` (a thread each) in contact, from
+    :func:`island_force_add`'s forces."""
+    t = wp.tid()
+    if contact_node[island_node[island_start[t]]] != 0:
+        _island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
+                         cross_metric, inverse, rhs, force, w, v_hat)
+

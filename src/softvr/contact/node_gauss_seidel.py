@@ -69,8 +69,11 @@ class GaussSeidelSweep:
     """
 
     def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None,
-                 coarse: Aggregates | None = None):
+                 coarse: Aggregates | None = None, parallel: bool = False):
         d = model.device
+        #: Whether the walks over a step's contacts (the woken test, the islands' contact forces)
+        #: take a thread per contact (a GPU's form, ``*_parallel`` kernels) instead of one thread.
+        self.parallel = bool(parallel)
         n = model.node_count
         self.omega = float(omega)
         order, free_end = free_first(colouring, model.fixed.numpy() != 0)
@@ -119,8 +122,13 @@ class GaussSeidelSweep:
                                               self.contact_node, self.asleep, threads]))
 
         self._wake_all = mark(1)
-        self._woken = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
-                                         inputs=[c.count, self.asleep, c.impulse, self._flag]))
+        if self.parallel:
+            self._woken = in_order(self._flag.zero_, replayer(wp.launch(
+                _k.woken_parallel, dim=threads, device=d, record_cmd=True,
+                inputs=[c.count, self.asleep, c.impulse, self._flag, threads])))
+        else:
+            self._woken = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
+                                             inputs=[c.count, self.asleep, c.impulse, self._flag]))
         self._prepare = [mark(int(dt is None)),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
                                             inputs=[state.d_inv, model.couplings.cross, self.node_omega, self.metric,
@@ -217,6 +225,38 @@ class GaussSeidelSweep:
             self.coarse.prepare()
         return True
 
+    def island_contact(self, w: wp.array, parallel: bool) -> list[Callable[[], None]]:
+        """Replays of the islands' step 2 in a sweep from its work velocities ``w`` [n] [m/s]
+        (:func:`softvr.contact._node_gs_kernels.island_contact`; the sweep has islands): one
+        thread over the islands and contacts, or (``parallel``) a thread per island node,
+        contact and island: the forces zeroed, the contacts' impulses added (atomic), each island
+        in contact solved."""
+        m, st, d = self._model, self._state, self._model.device
+        c = st.contacts
+        if self._islands is None:
+            raise ValueError("GaussSeidelSweep.island_contact: expected a sweep with rigid islands, found none")
+        islands = self._islands
+        start, nodes, local = islands
+        if not parallel:
+            return [replayer(wp.launch(_k.island_contact, dim=1, device=d, record_cmd=True,
+                                       inputs=[*islands, m.row_start, m.block_col, st.blocks, st.b, self.metric,
+                                               m.couplings.partner, self.cross_metric, self.contact_node,
+                                               self._island_inverse, self._island_rhs, c.count, c.stencil_count,
+                                               c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
+                                               c.rigid_lever, c.impulse, self._island_force, w, st.v_hat]))]
+        threads = stride_threads(d, min(c.capacity, CONTACT_THREADS))
+        return [replayer(wp.launch(_k.island_force_clear, dim=nodes.shape[0], device=d, record_cmd=True,
+                                   inputs=[nodes, self._island_force])),
+                replayer(wp.launch(_k.island_force_add, dim=threads, device=d, record_cmd=True,
+                                   inputs=[local, c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                           c.frame, c.rigid_node, c.rigid_lever, c.impulse, self._island_force,
+                                           threads])),
+                replayer(wp.launch(_k.island_respond, dim=start.shape[0] - 1, device=d, record_cmd=True,
+                                   inputs=[*islands, m.row_start, m.block_col, st.blocks, st.b, self.metric,
+                                           m.couplings.partner, self.cross_metric, self.contact_node,
+                                           self._island_inverse, self._island_rhs, self._island_force, w,
+                                           st.v_hat]))]
+
     def mark_tools(self, live: wp.array, threads: int) -> Callable[[], None]:
         """A replay setting :attr:`tool_live` from the sweep's ``live`` contacts [c]."""
         c, d = self._state.contacts, self._model.device
@@ -267,15 +307,7 @@ class GaussSeidelSweep:
                                                st.v_hat]))]
 
         def touched() -> list:
-            if self._islands is None:
-                return []
-            c = st.contacts
-            return [replayer(wp.launch(_k.island_contact, dim=1, device=d, record_cmd=True,
-                                       inputs=[*self._islands, m.row_start, m.block_col, st.blocks, st.b, self.metric,
-                                               m.couplings.partner, self.cross_metric, self.contact_node,
-                                               self._island_inverse, self._island_rhs, c.count, c.stencil_count,
-                                               c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
-                                               c.rigid_lever, c.impulse, self._island_force, w, st.v_hat]))]
+            return [] if self._islands is None else self.island_contact(w, self.parallel)
 
         replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
         replays += colours(0) + islands(0)

@@ -326,7 +326,7 @@ class NodeSolve:
                                   else coarse, self.residual_nodes, parallel=self.parallel)
         co = self.coarse.arrays
         self._gauss_seidel = None if colours is None else GaussSeidelSweep(
-            model, state, colours, omega, dt, None if coarse is None else aggregates_of(coarse))
+            model, state, colours, omega, dt, None if coarse is None else aggregates_of(coarse), self.parallel)
         #: Sweeps of the last solve made plain (omega = 1) after the Chebyshev ones stalled.
         self.plain_sweeps = 0
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
