@@ -554,6 +554,31 @@ def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(d
 
 
 @wp.func
+def _add_island_forces(c: int, island_local: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                       stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                       frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                       rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                       force: wp.array(dtype=wp.vec3d)):
+    """Contact ``c``'s last impulse (world ``frame^T lambda``) added into ``force`` at the island
+    nodes of its stencil (its weight times it) and of its rigid sides (the lever's torque),
+    atomically (:func:`island_force_add`'s threads share nodes). A zero impulse adds zeros, which
+    leave every sum as it is (the sums start at +0): most of a step's contacts push nothing."""
+    lam = impulse[c]
+    if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
+        return
+    world = wp.transpose(frame[c]) * lam
+    for k in range(stencil_count[c]):
+        node = stencil_nodes[c, k]
+        if island_local[node] >= 0:
+            wp.atomic_add(force, node, stencil_weights[c, k] * world)
+    for side in range(rigid_node.shape[1]):
+        node = rigid_node[c, side]
+        if node >= 0:
+            if island_local[node] >= 0:
+                wp.atomic_add(force, node, wp.cross(rigid_lever[c, side], world))
+
+
+@wp.func
 def _island_response(t: int, island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
                      island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
                      block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
@@ -612,21 +637,8 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
         for li in range(n):
             force[island_node[s + li]] = wp.vec3d()
         for c in range(count[0]):
-            lam = impulse[c]
-            # A zero impulse adds zeros, which leave every sum as it is (the sums start at +0):
-            # most of a step's contacts push nothing.
-            if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
-                continue
-            world = wp.transpose(frame[c]) * lam
-            for k in range(stencil_count[c]):
-                node = stencil_nodes[c, k]
-                if island_local[node] >= 0:
-                    force[node] = force[node] + stencil_weights[c, k] * world
-            for side in range(rigid_node.shape[1]):
-                node = rigid_node[c, side]
-                if node >= 0:
-                    if island_local[node] >= 0:
-                        force[node] = force[node] + wp.cross(rigid_lever[c, side], world)
+            _add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
+                               rigid_lever, impulse, force)
         _island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
                          cross_metric, inverse, rhs, force, w, v_hat)
 
@@ -686,19 +698,8 @@ def island_force_add(island_local: wp.array(dtype=wp.int32), count: wp.array(dty
     (atomic adds: contacts share nodes; on one CPU thread in contact order, the one-thread
     form's order)."""
     for c in range(wp.tid(), count[0], threads):
-        lam = impulse[c]
-        if lam[0] == wp.float64(0.0) and lam[1] == wp.float64(0.0) and lam[2] == wp.float64(0.0):
-            continue
-        world = wp.transpose(frame[c]) * lam
-        for k in range(stencil_count[c]):
-            node = stencil_nodes[c, k]
-            if island_local[node] >= 0:
-                wp.atomic_add(force, node, stencil_weights[c, k] * world)
-        for side in range(rigid_node.shape[1]):
-            node = rigid_node[c, side]
-            if node >= 0:
-                if island_local[node] >= 0:
-                    wp.atomic_add(force, node, wp.cross(rigid_lever[c, side], world))
+        _add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
+                           rigid_lever, impulse, force)
 
 
 @wp.kernel
