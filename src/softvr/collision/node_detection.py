@@ -29,8 +29,9 @@ def record_node_detection(model, state, dt: float, gravity, margin: float, frict
     vertices vs the other bodies' triangles within ``margin`` [m] (plus their motion over
     ``dt`` [s]) with Coulomb coefficient ``friction``; points vs static meshes within their
     margins, swept over their motion with ``ccd`` (``Scene.ccd``). The surfaces' BVHs are
-    refitted to the points' positions in between. ``parallel``: the contacts gathered with a
-    thread per candidate pair (:func:`_record_gather`); None: on any device but the CPU."""
+    refitted to the points' positions in between. ``parallel``: the GPU's forms, a thread per
+    point or edge for the bodies' motion, boxes and creases and a thread per candidate pair for
+    the gather (:func:`_record_gather`); None: on any device but the CPU."""
     c, d = state.contacts, model.device
     g = wp.vec3d(*np.asarray(gravity, float))
     for kernel in (_k.point_motion, _k.body_motion, _k.body_bounds, _k.near_bodies, _k.vertex_triangle,
