@@ -28,7 +28,7 @@ MODULES = {
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contact_metric", "contacts", "chebyshev", "residual",
                                             "rigid_contact_exact", "largest_change", "screen", "contact_step"),
     "softvr.contact._node_parallel_kernels": ("warm_parallel", "count_shares", "jacobi_contacts", "apply_contacts",
-                                              "residual_parallel"),
+                                              "residual_parallel", "sweep_start"),
     "softvr.contact._node_coarse_kernels": ("prepare_bodies", "contact_sides", "coarse_residual", "body_mass_parallel",
                                             "body_centre_parallel", "body_blocks_parallel", "body_inverse_parallel",
                                             "residual_sums_parallel", "coarse_solve_parallel"),

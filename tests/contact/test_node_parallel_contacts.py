@@ -106,8 +106,8 @@ def _solve(device, split=True):
         wp.launch(_pk.jacobi_contacts, dim=threads, device=device,
                   inputs=[count, live, *stencil, arr(frames, wp.mat33d), arr(gap, wp.float64), zeros, rigid_node,
                           rigid_lever, d_inv, partner, cross, fixed, DT, impulse, v_hat, zeros,
-                          wp.zeros(c_count, dtype=wp.vec3d, device=device), co, node_share, body_share, 8, change,
-                          threads])
+                          wp.zeros(c_count, dtype=wp.vec3d, device=device), co, node_share, body_share,
+                          wp.zeros(c_count, dtype=wp.mat33d, device=device), 1, 8, change, threads])
         wp.launch(_pk.apply_contacts, dim=threads, device=device,
                   inputs=[count, live, *stencil, rigid_node, rigid_lever, d_inv, partner, cross, fixed, change,
                           v_hat, co, threads])

@@ -138,14 +138,10 @@ def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32)
     """``node_share[i]``, ``body_share[b]``: how many ``live`` contacts act on free node ``i``
     (a nonzero stencil weight, or a rigid side's angular node) and on coarse body ``b`` (both
     zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). With ``first``
-    (the sweep's first count) thread 0 also counts the sweep in ``sweep[0]`` (the Chebyshev
-    weights' index) and zeroes ``stats`` for the sweep's reductions (the Chebyshev kernel's
-    ``atomic`` form and :func:`residual_parallel` take maxima into it)."""
+    (the sweep's first count) thread 0 also starts the sweep (:func:`_start_sweep`).""" 
     tid = wp.tid()
     if tid == 0 and first != 0:
-        sweep[0] = sweep[0] + 1
-        for k in range(stats.shape[0]):
-            stats[k] = _ZERO
+        _start_sweep(sweep, stats)
     for c in range(tid, count[0], threads):
         if live[c] != 0:
             for k in range(stencil_count[c]):
@@ -161,6 +157,22 @@ def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32)
                 if b < 0:
                     break
                 wp.atomic_add(body_share, b, 1)
+
+
+@wp.func
+def _start_sweep(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64)):
+    """The sweep counted in ``sweep[0]`` (the Chebyshev weights' index), ``stats`` zeroed for its
+    maxima (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take them)."""
+    sweep[0] = sweep[0] + 1
+    for k in range(stats.shape[0]):
+        stats[k] = _ZERO
+
+
+@wp.kernel
+def sweep_start(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64)):
+    """:func:`_start_sweep` (one thread), where nothing is shared and :func:`count_shares` does
+    not run."""
+    _start_sweep(sweep, stats)
 
 
 @wp.func
@@ -251,21 +263,25 @@ def jacobi_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int
                     impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
                     stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
                     node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32),
-                    local_updates: int, change: wp.array(dtype=wp.vec3d), threads: int):
+                    metric: wp.array(dtype=wp.mat33d), split: int, local_updates: int,
+                    change: wp.array(dtype=wp.vec3d), threads: int):
     """One Jacobi pass over the ``live`` contacts: each one's impulse ``impulse[c]`` [N s] updated
     from its relative velocity in ``v_hat`` [m/s] (read only: every contact sees the same) on its
     split block (:func:`_split_metric`) by :func:`pgs_update` (normal row to ``-gap / dt``,
     adhesion's bound eq. 4.16 where ``stiffness`` > 0, the tangents onto the Coulomb disc of
     ``friction`` or the bond's bound aiming at ``slip`` [m]); a one-node contact without a rigid
-    side by :func:`_solved`. The change of its world impulse goes to ``change[c]`` for
+    side by :func:`_solved`. With ``split`` 0 (a scene whose contacts share nothing: every share
+    is 1) the block is the step's ``metric[c]`` (``contact_metric``'s, the same numbers). The change of its world impulse goes to ``change[c]`` for
     :func:`apply_contacts`. ``threads`` threads stride over the ``count[0]`` contacts."""
     for c in range(wp.tid(), count[0], threads):
         if live[c] == 0:
             continue
         f = frame[c]
         rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
-        w_f = _split_metric(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever, d_inv,
-                            partner, cross, fixed, co, node_share, body_share)
+        w_f = metric[c]
+        if split != 0:
+            w_f = _split_metric(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever,
+                                d_inv, partner, cross, fixed, co, node_share, body_share)
         old = impulse[c]
         rigid = int(0)
         for s in range(rigid_node.shape[1]):

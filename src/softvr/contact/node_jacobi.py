@@ -191,6 +191,20 @@ def _contact_threads(device) -> int:
     return stride_threads(device, CONTACT_THREADS_CUDA)
 
 
+def _contacts_may_share(model, coarse_bodies: int) -> bool:
+    """Whether two of a step's contacts can act on one node or coarse body (so the thread-per-
+    contact passes must split masses): bodies that meet each other (a triangle's nodes), rigid
+    bodies (their nodes take all their corners' contacts), coarse bodies, two collision points
+    on one node (points embedded in one tet), or a point that can meet more than one static."""
+    if coarse_bodies or getattr(model, "rigid", None) is not None or bool(model.pair_enabled.numpy().any()):
+        return True
+    if len(model.plane_normal) + len(model.sphere_radius) + len(model.static_mesh_friction) > 1:
+        return True
+    nodes, weights = model.point_nodes.numpy(), model.point_weights.numpy()
+    used = nodes[(nodes >= 0) & (weights != 0.0)]
+    return len(np.unique(used)) < len(used)
+
+
 def _own_blocks(model) -> wp.array:
     """[n] 1 where node ``i`` has its diagonal block in ``A``'s rows (every FEM node, and a
     spring-held rigid body's: the residual form of :func:`_node_jacobi_kernels.jacobi`), 0 where
@@ -281,7 +295,7 @@ class NodeSolve:
         for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
                        _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
                        _k.rigid_contact_exact, _k.largest_change, _pk.warm_parallel, _pk.count_shares,
-                       _pk.jacobi_contacts, _pk.apply_contacts, _pk.residual_parallel):
+                       _pk.jacobi_contacts, _pk.apply_contacts, _pk.residual_parallel, _pk.sweep_start):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -453,7 +467,7 @@ class NodeSolve:
         threads = _contact_threads(d)
         self._list_movers = _nothing
         if self.parallel:
-            return self._record_parallel_contacts(model, state, dt, passes, d_inv, cross, movable)
+            return self._record_parallel_contacts(model, state, dt, passes, d_inv, cross, metric, movable)
         if threads == 1 and self._gauss_seidel is None:
             movers, mover_count = wp.zeros(c.capacity, dtype=wp.int32, device=d), wp.zeros(1, dtype=wp.int32, device=d)
             self._list_movers = replayer(wp.launch(_k.list_movers, dim=1, device=d, record_cmd=True,
@@ -487,7 +501,7 @@ class NodeSolve:
         return in_order(*replays)
 
     def _record_parallel_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
-                                  movable: wp.array) -> Callable[[], None]:
+                                  metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep (a Jacobi one, or in the middle of a Gauss-Seidel one's node
         update) with a thread per contact (:mod:`softvr.contact._node_parallel_kernels`): the last
         impulses applied to ``v^``, the contacts screened, each node's and coarse body's live
@@ -510,21 +524,27 @@ class NodeSolve:
                                     inputs=[c.count, *stencil, c.frame, c.gap, c.rigid_node, c.rigid_lever, float(dt),
                                             c.impulse, c.stiffness, state.v_hat, co, movable, threads, self.live]))
 
+        shared = _contacts_may_share(model, self.coarse.count)
+
         def jacobi_passes(live: wp.array, first: int, count: int) -> list[Callable[[], None]]:
-            """``count`` Jacobi passes over the ``live`` contacts, after their shares are counted."""
-            shares = record(_pk.count_shares, [c.count, live, *stencil, c.rigid_node, model.fixed, co, node_share,
-                                               body_share, self.sweep, self.stats, first])
+            """``count`` Jacobi passes over the ``live`` contacts, after their shares are counted
+            (where nothing can be shared, every share is 1: the sweep is only counted)."""
             solve = record(_pk.jacobi_contacts, [c.count, live, *stencil, c.frame, c.gap, c.friction, c.rigid_node,
                                                  c.rigid_lever, d_inv, model.couplings.partner, cross, model.fixed,
                                                  float(dt), c.impulse, state.v_hat, c.stiffness, c.slip, co, node_share,
-                                                 body_share, LOCAL_UPDATES, self._impulse_change])
+                                                 body_share, metric, int(shared), LOCAL_UPDATES,
+                                                 self._impulse_change])
             apply = record(_pk.apply_contacts, [c.count, live, *stencil, c.rigid_node, c.rigid_lever, d_inv,
                                                 model.couplings.partner, cross, model.fixed, self._impulse_change,
                                                 state.v_hat, co])
+            if not shared:
+                start = replayer(wp.launch(_pk.sweep_start, dim=1, device=d, record_cmd=True,
+                                           inputs=[self.sweep, self.stats]))
+                return [start, *[solve, apply] * count] if first else [solve, apply] * count
+            shares = record(_pk.count_shares, [c.count, live, *stencil, c.rigid_node, model.fixed, co, node_share,
+                                               body_share, self.sweep, self.stats, first])
             return [node_share.zero_, body_share.zero_, shares, *[solve, apply] * count]
 
-        shared = self.coarse.count > 0 or bool(model.pair_enabled.numpy().any()) or \
-            getattr(model, "rigid", None) is not None
         factor = PARALLEL_PASS_FACTOR if shared else 1
         replays = [warm, screen, *jacobi_passes(self.live, 1, int(passes) * factor)]
         gs = self._gauss_seidel
