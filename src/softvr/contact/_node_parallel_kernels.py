@@ -22,7 +22,9 @@ inverse mass multiplied by the number ``n_r`` of live contacts acting on it. Its
 ``W_s = sum_r n_r J_rc M_r^-1 J_rc^T`` over the resources ``r`` it acts on, and since
 ``(sum_c J_rc lambda_c)^T M_r^-1 (sum_c J_rc lambda_c) <= n_r sum_c lambda_c^T J_rc^T M_r^-1 J_rc
 lambda_c`` (Cauchy-Schwarz), ``blockdiag(W_s) >= W``: the Jacobi passes are a convergent
-splitting of the contacts' Delassus operator. The fixed point is unchanged: a live contact's
+splitting of the contacts' Delassus operator (proved for the frictionless normal rows, a
+projected Jacobi iteration on a symmetric positive system; with friction and adhesion, as for
+PGS itself, measured: docs/physics-core.md). The fixed point is unchanged: a live contact's
 update leaves it where it is exactly where its relative velocity meets eq. 5.5's target,
 whichever positive block it divides by. A contact that shares nothing (``n_r`` = 1: a cube's
 points on a plane) takes the Gauss-Seidel update itself.

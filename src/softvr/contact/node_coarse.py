@@ -229,7 +229,8 @@ class CoarseSpace:
     """The recorded coarse launches of the node sweeps (:mod:`softvr.contact._node_coarse_kernels`)
     over ``bodies`` (:class:`Aggregates`, or [B, 2] node ranges from :func:`coarse_bodies`; none:
     every contact's coarse sides stay empty and the sweeps are plain node-block Jacobi), from
-    the sweep's node residual ``residual`` [n] [kg m/s] (``b - A v``, the Jacobi kernel's).
+    the sweep's node residual ``residual`` [n] [kg m/s] (``b - A v``, the Jacobi kernel's);
+    ``parallel``: the body sums with a thread per node (a GPU's form, :meth:`_record_parallel`).
 
     Attributes
     ----------

@@ -66,6 +66,9 @@ class GaussSeidelSweep:
     coarse : Aggregates, optional
         Aggregates whose rigid motions each sweep corrects after its node update
         (:mod:`softvr.contact.node_gs_coarse`); None: none.
+    parallel : bool
+        The woken test and the rigid islands' contact response with a thread per contact / island
+        node / island (a GPU's form) instead of one thread walking them.
     """
 
     def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None,
