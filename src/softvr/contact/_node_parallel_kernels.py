@@ -37,7 +37,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._node_coarse_kernels import SIDES, Coarse, coarse_side_w
-from softvr.contact._node_jacobi_kernels import nan_as_inf, pgs_update
+from softvr.contact._node_jacobi_kernels import _rigid_velocity, nan_as_inf, pgs_update
 
 _ZERO = wp.constant(wp.float64(0.0))
 
@@ -51,11 +51,7 @@ def _moving(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=w
     rel = wp.vec3d()
     for k in range(stencil_count[c]):
         rel = rel + stencil_weights[c, k] * v[stencil_nodes[c, k]]
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            rel = rel + wp.cross(v[node], rigid_lever[c, s])
-    return rel
+    return rel + _rigid_velocity(c, v, rigid_node, rigid_lever)
 
 
 @wp.func
