@@ -7,6 +7,9 @@
 # on one warm machine. Each call runs this script: it keeps the parts that came (in /tmp/parts)
 # and, once .whl's MANIFEST is all there, installs them and runs the checks, logs and JSONs to
 # $OUT. Each stage has its own timeout; the whole is sized for one 10-minute call.
+# `bash scripts/device_check.sh profile` (a further call on the same warm machine, where device
+# time is left) runs scripts/device_profile.py instead: device time per kernel of the candy, the
+# shoulder and 64 cubes, and the candy's step with PARALLEL_PASS_FACTOR 1, 2, 4.
 set -u
 OUT=${OUT:-device-out}
 mkdir -p "$OUT" /tmp/parts /tmp/site
@@ -24,6 +27,10 @@ if ! python3 -c "import warp" 2>/dev/null; then
         || exit 1
 fi
 nvidia-smi > "$OUT/nvidia-smi.txt" 2>&1
+if [ "${1:-}" = profile ]; then
+    timeout 540 python3 scripts/device_profile.py "$OUT" 2>&1 | tee "$OUT/profile.txt" | tail -80
+    exit 0
+fi
 # The node step on CUDA against the CPU's, the host mirror, every kernel module's PTX, the
 # thread-per-contact passes against SciPy's LCP on CUDA (their atomics for real).
 timeout 240 python3 -m pytest -q -p no:cacheprovider tests/test_device.py tests/sim/test_node_device.py \

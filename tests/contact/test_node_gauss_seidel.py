@@ -209,8 +209,10 @@ def test_gauss_seidel_within_its_limit_is_taken_where_jacobi_is_over_its_own(mon
     assert limited.kind == "gauss-seidel"
 
 
-@pytest.mark.parametrize("colour_chunk", [node_gauss_seidel.COLOUR_CHUNK, 4])
-def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeypatch, colour_chunk):
+@pytest.mark.parametrize("colour_chunk, form", [(node_gauss_seidel.COLOUR_CHUNK, "launches"), (4, "launches"),
+                                                (node_gauss_seidel.COLOUR_CHUNK, "block"),
+                                                (node_gauss_seidel.COLOUR_CHUNK, "block lanes")])
+def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeypatch, colour_chunk, form):
     """One sweep's node update (kernels of softvr.contact._node_gs_kernels, the rows read from
     their colour-ordered copy) against the sweep written out in NumPy on A, b of eq. 5.2 as
     the per-object path assembles them (SciPy): colours forward, x_i = A_ii^-1 (b_i -
@@ -220,8 +222,13 @@ def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeyp
     block products in f64, so it carries a rounding of ~81 eps times the sum of the magnitudes
     of its terms (Higham, dot products: gamma_n); 4x that, over both halves, per node. Both
     ways of launching the colours: one launch walking them all (no colour split over the
-    CPU cores) and one a colour, split (``COLOUR_CHUNK`` 4)."""
+    CPU cores) and one a colour, split (``COLOUR_CHUNK`` 4); and the GPU's form
+    (``parallel``), one block before and one after the contact step, with one lane or with
+    its lanes as cooperative fibers (``wp.config.enable_cpu_blocks``: they interleave at the
+    block's barriers, so a missing one shows)."""
     monkeypatch.setattr(node_gauss_seidel, "COLOUR_CHUNK", colour_chunk)
+    if form == "block lanes":
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     body = _stiff_block(cells=3)
     rng = np.random.default_rng(2)
     body.v = 0.05 * rng.standard_normal(body.q.shape)
@@ -231,7 +238,7 @@ def test_one_sweep_is_numpy_symmetric_block_gauss_seidel_in_colour_order(monkeyp
     m, n = stepper.model, len(body.q)
     colours = colour_nodes(m.row_start.numpy(), m.block_col.numpy())
     assert colours.count >= 4
-    sweep = GaussSeidelSweep(m, stepper.state, colours, omega)
+    sweep = GaussSeidelSweep(m, stepper.state, colours, omega, parallel=form != "launches")
     sweep.prepare()
     contact = rng.random(n) < 0.2
     contact[body.fixed] = False
@@ -417,7 +424,8 @@ def _contact_rows(contacts, n):
 MU = 1.0
 
 
-@pytest.mark.parametrize("gpu_forms", [False, True], ids=["one-thread contacts", "thread per contact"])
+@pytest.mark.parametrize("gpu_forms", [False, True, "lanes"],
+                         ids=["one-thread contacts", "thread per contact", "thread per contact, lanes"])
 def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_kkt_solve_of_eq_5_5(monkeypatch,
                                                                                                    gpu_forms):
     """A 9.6 g box on a spring to a fixed anchor (a haptic tool on its handle) pressed into a soft
@@ -432,7 +440,11 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
     opposite d, the other contacts not closing past their gaps), so it is the LCP's solution
     on that set, and the sweeps' velocities must be within VELOCITY_TOL of it (the box's spin
     over its 0.03 m half-diagonal). With the contact step walked by one thread or a thread per
-    contact (the GPU forms, whose extra passes over the tool's contacts are Jacobi ones too)."""
+    contact (the GPU forms, whose extra passes over the tool's contacts are Jacobi ones too;
+    their sweeps two blocks around the contact step's, "lanes": the blocks' lanes cooperative
+    fibers, interleaving at every barrier)."""
+    if gpu_forms == "lanes":
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     def gauss_seidel(*args, **kwargs):
         monkeypatch.setattr(_node_sweeps, "sweep_costs", lambda *a: (1e9, 1.0))
         return _node_sweeps.choose_sweeps(*args, **kwargs)
@@ -448,7 +460,7 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
 
     monkeypatch.setattr(NodeSolve, "solve", keep)
     scene = Scene(gravity=(0.0, 0.0, -G), friction=MU, pgs_iterations=500)
-    scene._gpu_forms = gpu_forms
+    scene._gpu_forms = bool(gpu_forms)
     block = _surface_block(3, 0.1, (0.0, 0.0, -0.05), Material(1e5, 0.3, 1000.0, alpha=0.0, beta=1e-3),
                            fixed=lambda x: x[:, 2] < -0.099)
     _add_with_surface(scene, block)

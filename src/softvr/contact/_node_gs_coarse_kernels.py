@@ -90,7 +90,7 @@ def prepare_aggregates(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp
     active[g] = 1
 
 
-# _aggregate_velocity: :func:`coarse_velocities`' thread as C++, the same wp:: operations in the same
+# aggregate_velocity: :func:`coarse_velocities`' thread as C++, the same wp:: operations in the same
 # order as Warp's code of it and of :func:`softvr.contact._node_jacobi_kernels.row_residual` (so the
 # same bits), with none of Warp's per-access index arithmetic and range iterators (the shoulder's 33
 # aggregates over ~5 000 blocks of A: ~28 -> ~21 us a sweep). It reads the arrays as contiguous
@@ -146,7 +146,7 @@ const vec3 ang_t = wp::mul(((const mat3*)aa.data)[g], torque);
 
 
 @wp.func_native(_AGGREGATE_VELOCITY)
-def _aggregate_velocity(g: int, start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32),
+def aggregate_velocity(g: int, start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32),
                         q: wp.array(dtype=wp.vec3d), row_start: wp.array(dtype=wp.int32),
                         block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
                         b: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
@@ -170,11 +170,11 @@ def coarse_velocities(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.
     [rad/s]) from the residual ``r = b - A v^`` [kg m/s] of its nodes that are not contact nodes
     (:func:`softvr.contact._node_jacobi_kernels.row_residual`'s sum): their force and torque about
     the centre, solved (0 where not ``active``). In C++ (:data:`_AGGREGATE_VELOCITY`)."""
-    _aggregate_velocity(wp.tid(), start, nodes, q, row_start, block_col, blocks, b, contact_node, centre, ll, la, aa,
+    aggregate_velocity(wp.tid(), start, nodes, q, row_start, block_col, blocks, b, contact_node, centre, ll, la, aa,
                         active, v_hat, y_lin, y_ang)
 
 
-# _aggregate_apply: :func:`apply_coarse`'s thread as C++, the same wp:: operations in the same order
+# aggregate_apply: :func:`apply_coarse`'s thread as C++, the same wp:: operations in the same order
 # (~3.4 -> ~1 us a sweep on the shoulder's 766 aggregated nodes).
 _AGGREGATE_APPLY = r"""
 typedef wp::vec_t<3, wp::float64> vec3;
@@ -198,7 +198,7 @@ for (int t = ((const wp::int32*)start.data)[g], last = ((const wp::int32*)start.
 
 
 @wp.func_native(_AGGREGATE_APPLY)
-def _aggregate_apply(g: int, start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32),
+def aggregate_apply(g: int, start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32),
                      q: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
                      centre: wp.array(dtype=wp.vec3d), active: wp.array(dtype=wp.int32),
                      y_lin: wp.array(dtype=wp.vec3d), y_ang: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
@@ -214,4 +214,4 @@ def apply_coarse(start: wp.array(dtype=wp.int32), nodes: wp.array(dtype=wp.int32
     """``v^_i += y_lin + y_ang x rho_i`` [m/s] over aggregate ``g``'s nodes that are not contact
     nodes (after every aggregate's :func:`coarse_velocities` read the same ``v^``). In C++
     (:data:`_AGGREGATE_APPLY`)."""
-    _aggregate_apply(wp.tid(), start, nodes, q, contact_node, centre, active, y_lin, y_ang, v_hat)
+    aggregate_apply(wp.tid(), start, nodes, q, contact_node, centre, active, y_lin, y_ang, v_hat)

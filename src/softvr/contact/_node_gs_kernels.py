@@ -201,14 +201,14 @@ def gather_off_blocks(blocks: wp.array(dtype=wp.mat33d), off_source: wp.array(dt
 
 
 @wp.func
-def _colour_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                 blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
-                 partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
-                 fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
-                 contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
-                 off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
-                 off_blocks: wp.array(dtype=wp.mat33d), last: int, w: wp.array(dtype=wp.vec3d),
-                 v_hat: wp.array(dtype=wp.vec3d)):
+def colour_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
+                contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
+                off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
+                off_blocks: wp.array(dtype=wp.mat33d), last: int, w: wp.array(dtype=wp.vec3d),
+                v_hat: wp.array(dtype=wp.vec3d)):
     """Steps 1 and 4 for node ``order[t]`` (:func:`gauss_seidel`)."""
     i = order[t]
     if partner[i] >= 0:
@@ -234,8 +234,8 @@ def gauss_seidel(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=
     are not contact nodes (neighbours not yet updated hold the sweep's start); on their
     ``last`` update of the sweep, ``v_hat`` [m/s] too. A node without a pair partner reads its
     row from the colour-ordered off-diagonal copy (``off_*``, :func:`gather_off_blocks`)."""
-    _colour_node(first + wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed,
-                 fixed_velocity, contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
+    colour_node(first + wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed,
+                fixed_velocity, contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
 
 
 @wp.kernel
@@ -276,19 +276,20 @@ def gauss_seidel_walk(row_start: wp.array(dtype=wp.int32), block_col: wp.array(d
         if backward == 0:
             end = free_end[c]
         for t in range(colour_start[c], end):
-            _colour_node(t, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
-                         contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
+            colour_node(t, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                        contact_node, order, off_start, off_col, off_blocks, last, w, v_hat)
 
 
 @wp.func
-def _contact_node(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
-                  blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
-                  partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
-                  fixed: wp.array(dtype=wp.int32), fixed_velocity: wp.array(dtype=wp.vec3d),
-                  contact_node: wp.array(dtype=wp.int32), order: wp.array(dtype=wp.int32),
-                  off_start: wp.array(dtype=wp.int32), off_col: wp.array(dtype=wp.int32),
-                  off_blocks: wp.array(dtype=wp.mat33d), omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d),
-                  w: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d)):
+def contact_node_update(t: int, row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype=wp.int32),
+                        blocks: wp.array(dtype=wp.mat33d), d_inv: wp.array(dtype=wp.mat33d),
+                        partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+                        b: wp.array(dtype=wp.vec3d), fixed: wp.array(dtype=wp.int32),
+                        fixed_velocity: wp.array(dtype=wp.vec3d), contact_node: wp.array(dtype=wp.int32),
+                        order: wp.array(dtype=wp.int32), off_start: wp.array(dtype=wp.int32),
+                        off_col: wp.array(dtype=wp.int32), off_blocks: wp.array(dtype=wp.mat33d),
+                        omega: wp.array(dtype=wp.float64), v: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                        v_hat: wp.array(dtype=wp.vec3d)):
     """Step 2 for node ``order[t]`` if it is a contact node (:func:`contact_nodes`)."""
     i = order[t]
     if contact_node[i] == 0:
@@ -316,8 +317,8 @@ def contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.array(dtype
     """Step 2: the damped Jacobi update ``v_hat`` [m/s] of the contact nodes (``order[t]``,
     thread t) from the sweep's start ``v`` and the swept ``w`` [m/s], each node damped by its
     ``omega`` [n]."""
-    _contact_node(wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
-                  contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+    contact_node_update(wp.tid() + offset, row_start, block_col, blocks, d_inv, partner, cross, b, fixed,
+                        fixed_velocity, contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
 
 
 @wp.kernel
@@ -336,8 +337,8 @@ def listed_contact_nodes(row_start: wp.array(dtype=wp.int32), block_col: wp.arra
     a node: on the CPU, where the walk runs, a step's few dozen contact nodes of the
     shoulder's 1 247 (each node's update reads only ``w``, so any order gives the same bits)."""
     for s in range(listed_count[0]):
-        _contact_node(listed[s], row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
-                      contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
+        contact_node_update(listed[s], row_start, block_col, blocks, d_inv, partner, cross, b, fixed, fixed_velocity,
+                            contact_node, order, off_start, off_col, off_blocks, omega, v, w, v_hat)
 
 
 @wp.kernel
@@ -413,15 +414,12 @@ def woken(count: wp.array(dtype=wp.int32), asleep: wp.array(dtype=wp.int32), imp
     flag[0] = out
 
 
-@wp.kernel
-def tool_contacts(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
-                  tool_node: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
-                  tool_live: wp.array(dtype=wp.int32), threads: int):
-    """``tool_live[c] = 1`` for the ``live`` contacts [c] with a rigid side on a ``tool_node``
-    [n] (a rigid body whose sweep update is exact: :func:`softvr.dynamics.node_rigid.rigid_islands`),
-    the ones the sweep's extra PGS passes revisit (``threads`` threads, the launch's, striding
-    over this step's contacts)."""
-    for c in range(wp.tid(), count[0], threads):
+@wp.func
+def tool_range(first: int, stride: int, count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+               tool_node: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+               tool_live: wp.array(dtype=wp.int32)):
+    """:func:`tool_contacts`' contacts ``first, first + stride, ... < count[0]``."""
+    for c in range(first, count[0], stride):
         on = int(0)
         if live[c] != 0:
             for s in range(rigid_node.shape[1]):
@@ -430,6 +428,17 @@ def tool_contacts(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=
                     if tool_node[node] != 0:
                         on = 1
         tool_live[c] = on
+
+
+@wp.kernel
+def tool_contacts(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+                  tool_node: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                  tool_live: wp.array(dtype=wp.int32), threads: int):
+    """``tool_live[c] = 1`` for the ``live`` contacts [c] with a rigid side on a ``tool_node``
+    [n] (a rigid body whose sweep update is exact: :func:`softvr.dynamics.node_rigid.rigid_islands`),
+    the ones the sweep's extra PGS passes revisit (``threads`` threads, the launch's, striding
+    over this step's contacts)."""
+    tool_range(wp.tid(), threads, count, rigid_node, tool_node, live, tool_live)
 
 
 @wp.kernel
@@ -509,19 +518,14 @@ def _island_row(t: int, li: int, size: int, inverse: wp.array3d(dtype=wp.float64
     return out
 
 
-@wp.kernel
-def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
-                 island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
-                 block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
-                 contact_node: wp.array(dtype=wp.int32), inverse: wp.array3d(dtype=wp.float64),
-                 rhs: wp.array2d(dtype=wp.float64), last: int, w: wp.array(dtype=wp.vec3d),
-                 v_hat: wp.array(dtype=wp.vec3d)):
-    """Island ``t``'s velocities [m/s, rad/s] solved exactly from its rows of ``A v = b``,
-    ``w_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j)`` (the j: driven nodes), into ``w`` and,
-    on the sweep's ``last`` pass, ``v_hat``: a block Gauss-Seidel step whose block is the whole
-    island (after the colour passes, which updated its bodies one at a time). An island with a
-    contact node is left to those (its contacts' metric is each body's own 6x6 block)."""
-    t = wp.tid()
+@wp.func
+def island_solved(t: int, island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                  island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                  block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                  contact_node: wp.array(dtype=wp.int32), inverse: wp.array3d(dtype=wp.float64),
+                  rhs: wp.array2d(dtype=wp.float64), last: int, w: wp.array(dtype=wp.vec3d),
+                  v_hat: wp.array(dtype=wp.vec3d)):
+    """:func:`island_solve` of island ``t``."""
     s = island_start[t]
     count = island_start[t + 1] - s
     for li in range(count):
@@ -540,6 +544,22 @@ def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(d
 
 
 @wp.kernel
+def island_solve(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                 island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                 block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d), b: wp.array(dtype=wp.vec3d),
+                 contact_node: wp.array(dtype=wp.int32), inverse: wp.array3d(dtype=wp.float64),
+                 rhs: wp.array2d(dtype=wp.float64), last: int, w: wp.array(dtype=wp.vec3d),
+                 v_hat: wp.array(dtype=wp.vec3d)):
+    """Island ``t``'s velocities [m/s, rad/s] solved exactly from its rows of ``A v = b``,
+    ``w_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j)`` (the j: driven nodes), into ``w`` and,
+    on the sweep's ``last`` pass, ``v_hat``: a block Gauss-Seidel step whose block is the whole
+    island (after the colour passes, which updated its bodies one at a time). An island with a
+    contact node is left to those (its contacts' metric is each body's own 6x6 block)."""
+    island_solved(wp.tid(), island_start, island_node, island_local, row_start, block_col, blocks, b, contact_node,
+                  inverse, rhs, last, w, v_hat)
+
+
+@wp.kernel
 def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
                  contact_node: wp.array(dtype=wp.int32)):
     """Island ``t``'s nodes all contact nodes if any is (:func:`island_contact` updates them)."""
@@ -554,11 +574,11 @@ def mark_islands(island_start: wp.array(dtype=wp.int32), island_node: wp.array(d
 
 
 @wp.func
-def _add_island_forces(c: int, island_local: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
-                       stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
-                       frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
-                       rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
-                       force: wp.array(dtype=wp.vec3d)):
+def add_island_forces(c: int, island_local: wp.array(dtype=wp.int32), stencil_count: wp.array(dtype=wp.int32),
+                      stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
+                      frame: wp.array(dtype=wp.mat33d), rigid_node: wp.array2d(dtype=wp.int32),
+                      rigid_lever: wp.array2d(dtype=wp.vec3d), impulse: wp.array(dtype=wp.vec3d),
+                      force: wp.array(dtype=wp.vec3d)):
     """Contact ``c``'s last impulse (world ``frame^T lambda``) added into ``force`` at the island
     nodes of its stencil (its weight times it) and of its rigid sides (the lever's torque),
     atomically (:func:`island_force_add`'s threads share nodes). A zero impulse adds zeros, which
@@ -579,13 +599,13 @@ def _add_island_forces(c: int, island_local: wp.array(dtype=wp.int32), stencil_c
 
 
 @wp.func
-def _island_response(t: int, island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
-                     island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
-                     block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
-                     b: wp.array(dtype=wp.vec3d), metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                     cross_metric: wp.array(dtype=wp.mat33d), inverse: wp.array3d(dtype=wp.float64),
-                     rhs: wp.array2d(dtype=wp.float64), force: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
-                     v_hat: wp.array(dtype=wp.vec3d)):
+def island_response(t: int, island_start: wp.array(dtype=wp.int32), island_node: wp.array(dtype=wp.int32),
+                    island_local: wp.array(dtype=wp.int32), row_start: wp.array(dtype=wp.int32),
+                    block_col: wp.array(dtype=wp.int32), blocks: wp.array(dtype=wp.mat33d),
+                    b: wp.array(dtype=wp.vec3d), metric: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                    cross_metric: wp.array(dtype=wp.mat33d), inverse: wp.array3d(dtype=wp.float64),
+                    rhs: wp.array2d(dtype=wp.float64), force: wp.array(dtype=wp.vec3d), w: wp.array(dtype=wp.vec3d),
+                    v_hat: wp.array(dtype=wp.vec3d)):
     """Island ``t``'s ``v^_I = A_II^-1 (b_I - sum_{j not in I} A_Ij w_j + f) - P f`` from its
     nodes' generalized impulses ``force`` (:func:`island_contact`)."""
     s = island_start[t]
@@ -637,10 +657,10 @@ def island_contact(island_start: wp.array(dtype=wp.int32), island_node: wp.array
         for li in range(n):
             force[island_node[s + li]] = wp.vec3d()
         for c in range(count[0]):
-            _add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
-                               rigid_lever, impulse, force)
-        _island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
-                         cross_metric, inverse, rhs, force, w, v_hat)
+            add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
+                              rigid_lever, impulse, force)
+        island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
+                        cross_metric, inverse, rhs, force, w, v_hat)
 
 
 @wp.kernel
@@ -698,8 +718,8 @@ def island_force_add(island_local: wp.array(dtype=wp.int32), count: wp.array(dty
     (atomic adds: contacts share nodes; on one CPU thread in contact order, the one-thread
     form's order)."""
     for c in range(wp.tid(), count[0], threads):
-        _add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
-                           rigid_lever, impulse, force)
+        add_island_forces(c, island_local, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
+                          rigid_lever, impulse, force)
 
 
 @wp.kernel
@@ -714,6 +734,6 @@ def island_respond(island_start: wp.array(dtype=wp.int32), island_node: wp.array
     :func:`island_force_add`'s forces."""
     t = wp.tid()
     if contact_node[island_node[island_start[t]]] != 0:
-        _island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
-                         cross_metric, inverse, rhs, force, w, v_hat)
+        island_response(t, island_start, island_node, island_local, row_start, block_col, blocks, b, metric, partner,
+                        cross_metric, inverse, rhs, force, w, v_hat)
 

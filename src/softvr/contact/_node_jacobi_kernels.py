@@ -593,7 +593,7 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
     CPU) the thread walks them in C++ (:func:`_chebyshev_all`) and takes the largest itself into
     ``stats[0]`` (NaN if any is), which saves that kernel's second pass over the nodes. With
     ``atomic`` 1 (the thread-per-contact sweeps, :mod:`softvr.contact._node_parallel_kernels`,
-    whose ``count_shares`` zeroed ``stats``) every thread takes its nodes' changes into
+    whose ``start_sweep`` zeroed ``stats``) every thread takes its nodes' changes into
     ``stats[0]`` atomically instead (NaN as +inf)."""
     omega = weights[sweep[0] - 1]
     if threads == 1:

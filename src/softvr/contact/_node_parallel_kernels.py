@@ -4,15 +4,22 @@
 The one-thread form (:mod:`softvr.contact._node_jacobi_kernels`: ``warm_impulses``,
 ``contacts``, ``residual``, ``largest_change``) walks the contacts in turn, which is what a CPU
 core does best and what a GPU cannot do at all: one GPU thread walking a step's contacts waits
-on every load in turn. Here every contact takes a thread:
+on every load in turn. Here every contact takes a thread, through these stages, each a function
+over the contacts ``first, first + stride, ...``:
 
-    warm_parallel     v^ += M^-1 J^T lambda, the last sweep's impulses (atomic adds: contacts
+    warm_range        v^ += M^-1 J^T lambda, the last sweep's impulses (atomic adds: contacts
                       share nodes and coarse bodies)
-    (screen)          the live contacts, as on the CPU (already strided)
-    count_shares      per node and per coarse body, how many live contacts act on it
-    jacobi_contacts   every live contact's PGS update from the same v^ (Jacobi over the
+    (screen)          the live contacts, as on the CPU (``screen_contacts``, already strided)
+    start_sweep       the sweep counted, ``stats`` zeroed for its maxima
+    count_range       per node and per coarse body, how many live contacts act on it
+    jacobi_range      every live contact's PGS update from the same v^ (Jacobi over the
                       contacts), on its block of J M_s^-1 J^T with the split masses M_s
-    apply_contacts    the updates' changes pushed into v^ and the coarse velocities (atomic)
+    apply_range       the updates' changes pushed into v^ and the coarse velocities (atomic)
+
+Where contacts can share a node or coarse body, one thread block runs them all in one launch,
+its barrier between the stages (:func:`softvr.contact._node_block_kernels.contact_step_block`);
+where none can, no stage waits for another contact's, and one launch over the whole device
+runs them without a barrier (:func:`contact_step_unshared`).
 
 Jacobi over contacts that share a node would move that node once per contact, each as if it
 were alone: ``n`` contacts pressing one node overshoot it ``n``-fold and the passes diverge.
@@ -37,6 +44,7 @@ from __future__ import annotations
 import warp as wp
 
 from softvr.contact._node_coarse_kernels import SIDES, Coarse, coarse_side_w
+from softvr.contact._node_contact_native import screen_contacts
 from softvr.contact._node_jacobi_kernels import _rigid_velocity, nan_as_inf, pgs_update
 
 _ZERO = wp.constant(wp.float64(0.0))
@@ -108,39 +116,34 @@ def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
         wp.atomic_add(co.y_ang, b, wp.transpose(co.la[b]) * g + co.aa[b] * t)
 
 
-@wp.kernel
-def warm_parallel(count: wp.array(dtype=wp.int32), movable: wp.array(dtype=wp.int32),
-                  stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-                  stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-                  rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-                  d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                  cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
-                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse, threads: int):
+@wp.func
+def warm_range(first: int, stride: int, count: wp.array(dtype=wp.int32), movable: wp.array(dtype=wp.int32),
+               stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+               stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+               rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+               d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d),
+               fixed: wp.array(dtype=wp.int32), impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+               co: Coarse):
     """``v^ += M^-1 J^T lambda`` [m/s] for the last sweep's impulses ``impulse`` [c] [N s] of the
-    movable contacts (``threads`` threads striding over the ``count[0]`` contacts; a zero
-    impulse moves nothing)."""
-    for c in range(wp.tid(), count[0], threads):
+    movable contacts among ``first, first + stride, ... < count[0]`` (atomic: contacts share
+    nodes and coarse bodies; a zero impulse moves nothing)."""
+    for c in range(first, count[0], stride):
         lam = impulse[c]
         if movable[c] != 0 and (lam[0] != _ZERO or lam[1] != _ZERO or lam[2] != _ZERO):
             _apply(c, wp.transpose(frame[c]) * lam, stencil_count, stencil_nodes, stencil_weights, rigid_node,
                    rigid_lever, d_inv, partner, cross, fixed, v_hat, co)
 
 
-@wp.kernel
-def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
-                 stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-                 stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
-                 fixed: wp.array(dtype=wp.int32), co: Coarse, node_share: wp.array(dtype=wp.int32),
-                 body_share: wp.array(dtype=wp.int32), sweep: wp.array(dtype=wp.int32),
-                 stats: wp.array(dtype=wp.float64), first: int, threads: int):
-    """``node_share[i]``, ``body_share[b]``: how many ``live`` contacts act on free node ``i``
-    (a nonzero stencil weight, or a rigid side's angular node) and on coarse body ``b`` (both
-    zeroed before; ``threads`` threads stride over the ``count[0]`` contacts). With ``first``
-    (the sweep's first count) thread 0 also starts the sweep (:func:`_start_sweep`).""" 
-    tid = wp.tid()
-    if tid == 0 and first != 0:
-        _start_sweep(sweep, stats)
-    for c in range(tid, count[0], threads):
+@wp.func
+def count_range(first: int, stride: int, count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+                fixed: wp.array(dtype=wp.int32), co: Coarse, node_share: wp.array(dtype=wp.int32),
+                body_share: wp.array(dtype=wp.int32)):
+    """``node_share[i]``, ``body_share[b]`` += how many ``live`` contacts among ``first, first +
+    stride, ... < count[0]`` act on free node ``i`` (a nonzero stencil weight, or a rigid side's
+    angular node) and on coarse body ``b`` (atomic)."""
+    for c in range(first, count[0], stride):
         if live[c] != 0:
             for k in range(stencil_count[c]):
                 node = stencil_nodes[c, k]
@@ -158,19 +161,12 @@ def count_shares(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32)
 
 
 @wp.func
-def _start_sweep(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64)):
+def start_sweep(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64)):
     """The sweep counted in ``sweep[0]`` (the Chebyshev weights' index), ``stats`` zeroed for its
     maxima (the Chebyshev kernel's ``atomic`` form and :func:`residual_parallel` take them)."""
     sweep[0] = sweep[0] + 1
     for k in range(stats.shape[0]):
         stats[k] = _ZERO
-
-
-@wp.kernel
-def sweep_start(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64)):
-    """:func:`_start_sweep` (one thread), where nothing is shared and :func:`count_shares` does
-    not run."""
-    _start_sweep(sweep, stats)
 
 
 @wp.func
@@ -250,28 +246,28 @@ def _solved(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: w
     return lam
 
 
-@wp.kernel
-def jacobi_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
-                    stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-                    stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-                    gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                    rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-                    d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                    cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), dt: wp.float64,
-                    impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
-                    stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
-                    node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32),
-                    metric: wp.array(dtype=wp.mat33d), split: int, local_updates: int,
-                    change: wp.array(dtype=wp.vec3d), threads: int):
-    """One Jacobi pass over the ``live`` contacts: each one's impulse ``impulse[c]`` [N s] updated
-    from its relative velocity in ``v_hat`` [m/s] (read only: every contact sees the same) on its
-    split block (:func:`_split_metric`) by :func:`pgs_update` (normal row to ``-gap / dt``,
-    adhesion's bound eq. 4.16 where ``stiffness`` > 0, the tangents onto the Coulomb disc of
-    ``friction`` or the bond's bound aiming at ``slip`` [m]); a one-node contact without a rigid
-    side by :func:`_solved`. With ``split`` 0 (a scene whose contacts share nothing: every share
-    is 1) the block is the step's ``metric[c]`` (``contact_metric``'s, the same numbers). The change of its world impulse goes to ``change[c]`` for
-    :func:`apply_contacts`. ``threads`` threads stride over the ``count[0]`` contacts."""
-    for c in range(wp.tid(), count[0], threads):
+@wp.func
+def jacobi_range(first: int, stride: int, count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                 stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                 stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                 gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
+                 rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                 d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                 cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), dt: wp.float64,
+                 impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                 stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
+                 node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32),
+                 metric: wp.array(dtype=wp.mat33d), split: int, local_updates: int, change: wp.array(dtype=wp.vec3d)):
+    """One Jacobi pass over the ``live`` contacts among ``first, first + stride, ... <
+    count[0]``: each one's impulse ``impulse[c]`` [N s] updated from its relative velocity in
+    ``v_hat`` [m/s] (read only: every contact of the pass sees the same) on its split block
+    (:func:`_split_metric`) by :func:`pgs_update` (normal row to ``-gap / dt``, adhesion's bound
+    eq. 4.16 where ``stiffness`` > 0, the tangents onto the Coulomb disc of ``friction`` or the
+    bond's bound aiming at ``slip`` [m]); a one-node contact without a rigid side by
+    :func:`_solved`. With ``split`` 0 (contacts that share nothing: every share is 1) the block
+    is the step's ``metric[c]`` (``contact_metric``'s, the same numbers). The change of its
+    world impulse goes to ``change[c]`` for :func:`apply_range`."""
+    for c in range(first, count[0], stride):
         if live[c] == 0:
             continue
         f = frame[c]
@@ -294,23 +290,64 @@ def jacobi_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int
         change[c] = wp.transpose(f) * (lam - old)
 
 
-@wp.kernel
-def apply_contacts(count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
-                   stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-                   stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
-                   rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
-                   partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
-                   change: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse, threads: int):
-    """The pass's impulse changes ``change[c]`` [N s] (world) of the ``live`` contacts pushed
-    into ``v_hat`` [m/s] and the coarse velocities with the true masses (atomic: contacts share
-    nodes), after :func:`jacobi_contacts` read them all."""
-    for c in range(wp.tid(), count[0], threads):
+
+
+@wp.func
+def apply_range(first: int, stride: int, count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
+                stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+                rigid_lever: wp.array2d(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+                partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32),
+                change: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d), co: Coarse):
+    """The pass's impulse changes ``change[c]`` [N s] (world) of the ``live`` contacts among
+    ``first, first + stride, ... < count[0]`` pushed into ``v_hat`` [m/s] and the coarse
+    velocities with the true masses (atomic: contacts share nodes), after
+    :func:`jacobi_range` read them all."""
+    for c in range(first, count[0], stride):
         if live[c] == 0:
             continue
         d = change[c]
         if d[0] != _ZERO or d[1] != _ZERO or d[2] != _ZERO:
             _apply(c, d, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, d_inv, partner, cross,
                    fixed, v_hat, co)
+
+
+@wp.kernel
+def contact_step_unshared(count: wp.array(dtype=wp.int32), movable: wp.array(dtype=wp.int32),
+                          stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+                          stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
+                          gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
+                          rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
+                          d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
+                          cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), dt: wp.float64,
+                          impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
+                          stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
+                          metric: wp.array(dtype=wp.mat33d), local_updates: int, change: wp.array(dtype=wp.vec3d),
+                          live: wp.array(dtype=wp.int32), sweep: wp.array(dtype=wp.int32),
+                          stats: wp.array(dtype=wp.float64), passes: int, threads: int):
+    """A sweep's whole contact step in one launch where no two contacts act on one node or coarse
+    body (``_contacts_may_share`` false: a cube's points on a plane): each thread takes its
+    contacts ``tid, tid + threads, ... < count[0]`` through the warm start
+    (:func:`warm_range`), the screen into ``live``
+    (:func:`softvr.contact._node_contact_native.screen_contacts`) and ``passes`` Jacobi passes on
+    the step's ``metric`` (:func:`jacobi_range`, :func:`apply_range`), thread 0 starting the
+    sweep (:func:`start_sweep`). No stage waits for another thread's: a contact's stages read
+    and write only its own nodes, which no other contact moves. With one thread (the CPU) the
+    stages run over all the contacts in turn, the one-thread form's order."""
+    tid = wp.tid()
+    warm_range(tid, threads, count, movable, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node,
+               rigid_lever, d_inv, partner, cross, fixed, impulse, v_hat, co)
+    screen_contacts(tid, count[0], threads, 0, movable, stencil_count, stencil_nodes, stencil_weights, frame, gap,
+                    rigid_node, rigid_lever, dt, impulse, stiffness, v_hat, movable, co.side, co.weight, co.lever,
+                    co.y_lin, co.y_ang, live, live)
+    if tid == 0:
+        start_sweep(sweep, stats)
+    for _p in range(passes):
+        jacobi_range(tid, threads, count, live, stencil_count, stencil_nodes, stencil_weights, frame, gap, friction,
+                     rigid_node, rigid_lever, d_inv, partner, cross, fixed, dt, impulse, v_hat, stiffness, slip, co,
+                     live, live, metric, 0, local_updates, change)  # (the shares, unread with split 0)
+        apply_range(tid, threads, count, live, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
+                    d_inv, partner, cross, fixed, change, v_hat, co)
 
 
 @wp.kernel
@@ -328,7 +365,7 @@ def residual_parallel(count: wp.array(dtype=wp.int32), stencil_count: wp.array(d
     normal-velocity error into ``stats[1]``, the largest natural residual of the movable
     contacts into ``stats[2]``, both [m/s]) with ``threads`` threads striding over the
     ``count[0]`` contacts, the maxima taken atomically into ``stats`` (zeroed since the last
-    check by :func:`count_shares`; NaN counts as +inf)."""
+    check by :func:`start_sweep`; NaN counts as +inf)."""
     for c in range(wp.tid(), count[0], threads):
         f = frame[c]
         rel_f = f * _moving(c, v, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever)

@@ -16,7 +16,9 @@ import scipy.sparse.linalg as spla
 import warp as wp
 
 from softvr.collision.node_rigid_detection import CONTACT_THREADS
+from softvr.contact import _node_block_kernels as _bk
 from softvr.contact import _node_gs_kernels as _k
+from softvr.contact._node_block_kernels import CONTACT_BLOCK_THREADS
 from softvr.contact.node_coarse import Aggregates
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact.node_gs_coarse import GaussSeidelCoarse
@@ -44,6 +46,13 @@ TOOL_PASSES = 8
 #: (:func:`softvr.device.chunked_replayer`'s ``min_chunk``).
 COLOUR_CHUNK = 1024
 
+#: Nodes per lane of one block (:data:`CONTACT_BLOCK_THREADS` lanes) up to which a sweep in the
+#: GPU's form (``parallel``) runs as two block launches around its contact step, a barrier
+#: where the launches' form ends a launch (each colour, the islands, the contact nodes): the
+#: shoulder's 1 247 nodes, ~200 a colour, take ~27 launches a sweep that way instead. A larger
+#: body keeps a launch a colour over the whole device (not measured on a GPU yet).
+BLOCK_NODES_PER_LANE = 8
+
 
 class GaussSeidelSweep:
     """The recorded node update of one symmetric sweep (steps 1-4 of
@@ -68,7 +77,8 @@ class GaussSeidelSweep:
         (:mod:`softvr.contact.node_gs_coarse`); None: none.
     parallel : bool
         The woken test and the rigid islands' contact response with a thread per contact / island
-        node / island (a GPU's form) instead of one thread walking them.
+        node / island, and the colours' updates with a thread per node (a GPU's form), instead
+        of one thread walking them.
     """
 
     def __init__(self, model, state, colouring: NodeColouring, omega: float, dt: float | None = None,
@@ -104,7 +114,8 @@ class GaussSeidelSweep:
         self.node_omega: wp.array = wp.array(np.where(tools, 1.0, self.omega), dtype=wp.float64, device=d)
         #: Extra PGS passes a sweep over the live contacts of exact rigid bodies (:attr:`tool_live`).
         self.tool_passes = TOOL_PASSES if tools.any() else 0
-        self._tool_node: wp.array = wp.array(tools.astype(np.int32), dtype=wp.int32, device=d)
+        #: 1 on the nodes of exact rigid bodies [n] (the tools whose contacts take the extra passes).
+        self.tool_node: wp.array = wp.array(tools.astype(np.int32), dtype=wp.int32, device=d)
         #: Which live contacts have a side on an exact rigid body [c] (:meth:`mark_tools`).
         self.tool_live = wp.zeros(state.contacts.capacity, dtype=wp.int32, device=d)
         #: A sweep counter the extra passes' launch counts into (not the sweeps' own).
@@ -176,7 +187,7 @@ class GaussSeidelSweep:
                                                     inputs=[state.blocks, source, self._off_blocks, threads])))
         # On the CPU, where no colour is split over the cores, one launch walks all colours
         # (gauss_seidel_walk): a launch costs ~0.5 us, 12 a sweep on the shoulder's 6 colours.
-        self._walk = wp.get_device(d).is_cpu and (
+        self._walk = wp.get_device(d).is_cpu and not self.parallel and (
             cpu_workers() == 1 or np.diff(colouring.start).max(initial=0) < 2 * COLOUR_CHUNK)
         # There the contact nodes' updates go over a list of them, made after each marking
         # (_node_gs_kernels.list_contact_nodes), not a thread a node.
@@ -264,7 +275,7 @@ class GaussSeidelSweep:
         """A replay setting :attr:`tool_live` from the sweep's ``live`` contacts [c]."""
         c, d = self._state.contacts, self._model.device
         return replayer(wp.launch(_k.tool_contacts, dim=threads, device=d, record_cmd=True,
-                                  inputs=[c.count, c.rigid_node, self._tool_node, live, self.tool_live, threads]))
+                                  inputs=[c.count, c.rigid_node, self.tool_node, live, self.tool_live, threads]))
 
     def record(self, v: wp.array, contacts: Callable[[], None]) -> Callable[[], None]:
         """The node update of a sweep from ``v`` [n] [m/s], ``contacts`` in its middle."""
@@ -276,7 +287,7 @@ class GaussSeidelSweep:
 
         off = [self._order, self._off_start, self._off_col, self._off_blocks]
         # The C++ of _node_gs_kernels (_off_row, _plain_node, _copy) and of the coarse correction
-        # (_node_gs_coarse_kernels._aggregate_velocity) reads these as plain contiguous memory.
+        # (_node_gs_coarse_kernels.aggregate_velocity) reads these as plain contiguous memory.
         for name, array in (("b", st.b), ("v", v), ("work", w), ("v_hat", st.v_hat), ("d_inv", st.d_inv),
                             ("fixed_velocity", st.fixed_velocity), ("fixed", m.fixed),
                             ("off_blocks", self._off_blocks), ("blocks", st.blocks), ("q", st.q),
@@ -312,6 +323,8 @@ class GaussSeidelSweep:
         def touched() -> list:
             return [] if self._islands is None else self.island_contact(w, self.parallel)
 
+        if self.parallel and n <= BLOCK_NODES_PER_LANE * CONTACT_BLOCK_THREADS:
+            return self._record_block(v, contacts)
         replays = [] if walk else [chunked_replayer(_k.start, n, [v, w], d)]  # (the walk starts w itself)
         replays += colours(0) + islands(0)
         if walk:  # the backward walk sets w = v^ at the contact nodes itself
@@ -325,6 +338,42 @@ class GaussSeidelSweep:
         if self.coarse is not None:
             replays.append(self.coarse.correct)
         return in_order(*replays)
+
+    def _record_block(self, v: wp.array, contacts: Callable[[], None]) -> Callable[[], None]:
+        """:meth:`record` in one block before and one after ``contacts``
+        (:func:`softvr.contact._node_block_kernels.gauss_seidel_before_contacts` and
+        ``gauss_seidel_after_contacts``): the same updates in the same order, a barrier where a
+        launch ended (each colour, the islands, the contact nodes, the coarse velocities)."""
+        m, st, d = self._model, self._state, self._model.device
+        c, w = st.contacts, self._work
+        rows = [m.row_start, m.block_col, st.blocks, st.d_inv, m.couplings.partner, m.couplings.cross, st.b, m.fixed,
+                st.fixed_velocity, self.contact_node, self._order, self._off_start, self._off_col, self._off_blocks,
+                self._colour_start]
+        if self._islands is None:
+            none = wp.zeros(1, dtype=wp.int32, device=d)
+            islands = [none, none, none, wp.zeros((1, 1, 1), dtype=wp.float64, device=d),
+                       wp.zeros((1, 1), dtype=wp.float64, device=d), 0]
+        else:
+            islands = [*self._islands, self._island_inverse, self._island_rhs, self._islands[0].shape[0] - 1]
+        force = self._island_force if self._islands is not None else wp.zeros(1, dtype=wp.vec3d, device=d)
+        before = _block_launch(_bk.gauss_seidel_before_contacts, d,
+                               [*rows, self.node_omega, v, w, st.v_hat, *islands, self.metric, self.cross_metric,
+                                c.count, c.stencil_count, c.stencil_nodes, c.stencil_weights, c.frame, c.rigid_node,
+                                c.rigid_lever, c.impulse, force])
+        if self.coarse is None:
+            one, vec, mat = (wp.zeros(1, dtype=t, device=d) for t in (wp.int32, wp.vec3d, wp.mat33d))
+            coarse = [one, one, st.q, vec, mat, mat, mat, one, vec, vec, 0]
+        else:
+            start, nodes, *rest = self.coarse.block_arrays
+            coarse = [start, nodes, st.q, *rest, start.shape[0] - 1]
+        after = _block_launch(_bk.gauss_seidel_after_contacts, d, [*rows, w, st.v_hat, *islands, *coarse])
+        return in_order(before, contacts, after)
+
+
+def _block_launch(kernel, device: str, inputs: list) -> Callable[[], None]:
+    """A replay of ``kernel`` as one block of :data:`CONTACT_BLOCK_THREADS` lanes."""
+    return replayer(wp.launch_tiled(kernel, dim=[1], block_dim=CONTACT_BLOCK_THREADS, device=device,
+                                    record_cmd=True, inputs=inputs))
 
 
 def free_first(colouring: NodeColouring, fixed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

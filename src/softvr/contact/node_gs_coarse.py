@@ -99,6 +99,11 @@ class GaussSeidelCoarse:
             inputs=[start, nodes, state.q, model.mass, model.row_start, model.block_col, state.blocks,
                     wp.array(node_aggregate, dtype=wp.int32, device=d), contact_node, centre, ll, la, aa,
                     self.active]))
+        #: The aggregates' arrays as the block form of the sweep takes them
+        #: (:func:`softvr.contact._node_block_kernels.gauss_seidel_after_contacts`): start [G + 1],
+        #: nodes, centre [G] [m], the inverses ``ll``, ``la``, ``aa`` [G], :attr:`active`, and the
+        #: coarse velocities ``y_lin`` [G] [m/s], ``y_ang`` [G] [rad/s].
+        self.block_arrays = (start, nodes, centre, ll, la, aa, self.active, y_lin, y_ang)
         self.correct = in_order(
             replayer(wp.launch(_k.coarse_velocities, dim=count, device=d, record_cmd=True,
                                inputs=[start, nodes, state.q, model.row_start, model.block_col, state.blocks, state.b,

@@ -15,8 +15,10 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
+from softvr.contact import _node_block_kernels as _bk
 from softvr.contact import _node_jacobi_kernels as _k
 from softvr.contact import _node_parallel_kernels as _pk
+from softvr.contact._node_block_kernels import CONTACT_BLOCK_THREADS
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact._node_contact_native import LOCAL_UPDATES
@@ -62,11 +64,11 @@ SWITCH_AFTER = 12
 #: coarse bodies (bodies that meet each other, or coarse bodies): on split masses a Jacobi pass
 #: moves a shared node 1 / n_r of the way. Sweeps a step over the candy pile's first 60 steps
 #: (CPU, 2 passes a sweep on the one-thread form: 77.4) with 1 / 2 / 4 / 8 Jacobi passes per pass:
-#: 211 / 130 / 94 / 76; the probe (15.1): 24.9 / 16.7 / 17.2 / 12.1. A pass costs two launches,
-#: a sweep ~8 more and a check (every 2 sweeps) a sync: 1 takes the fewest launches a step on the
-#: candy (~6 700 against ~10 000), 4 half the sweeps and syncs; which is faster on a GPU is not
-#: measured (no GPU yet). Contacts that share nothing (a cube's points on a plane) are solved by
-#: the first pass, so such a scene takes 1.
+#: 211 / 130 / 94 / 76; the probe (15.1): 24.9 / 16.7 / 17.2 / 12.1. The passes run inside one
+#: launch (:mod:`softvr.contact._node_block_kernels`), a pass two of its block's barriers, a sweep
+#: ~10 launches and a check (every 2 sweeps) a sync besides: 4 takes half the sweeps of 1, and so
+#: half the launches and syncs. Contacts that share nothing (a cube's points on a plane) are
+#: solved by the first pass, so such a scene takes 1.
 PARALLEL_PASS_FACTOR = 4
 
 #: Solves started on the bounds' own weights after which one starts on the narrower weights
@@ -294,8 +296,8 @@ class NodeSolve:
         d = model.device
         for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
                        _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
-                       _k.rigid_contact_exact, _k.largest_change, _pk.warm_parallel, _pk.count_shares,
-                       _pk.jacobi_contacts, _pk.apply_contacts, _pk.residual_parallel, _pk.sweep_start):
+                       _k.rigid_contact_exact, _k.largest_change, _pk.contact_step_unshared,
+                       _pk.residual_parallel):
             load_kernels(kernel, d)
         # The Jacobi sweeps start on narrower weights (CHEBYSHEV_RHO_FACTOR) and switch to the
         # bounds' own (solve); the Gauss-Seidel sweeps keep the bounds' own.
@@ -503,54 +505,44 @@ class NodeSolve:
     def _record_parallel_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                                   metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep (a Jacobi one, or in the middle of a Gauss-Seidel one's node
-        update) with a thread per contact (:mod:`softvr.contact._node_parallel_kernels`): the last
-        impulses applied to ``v^``, the contacts screened, each node's and coarse body's live
-        contacts counted, then ``passes`` x :data:`PARALLEL_PASS_FACTOR` Jacobi passes over the
-        live contacts on split masses, each applied after all are computed (and the Gauss-Seidel
-        sweeps' extra passes over the exact rigid bodies' contacts the same way)."""
+        update) with a thread per contact: the last impulses applied to ``v^``, the contacts
+        screened, then Jacobi passes over the live ones, in one launch. Where contacts can share
+        a node or coarse body (:func:`_contacts_may_share`), one thread block with its barrier
+        between the stages (:mod:`softvr.contact._node_block_kernels`: ``passes`` x
+        :data:`PARALLEL_PASS_FACTOR` passes on split masses, and the Gauss-Seidel sweeps' extra
+        passes over the exact rigid bodies' contacts in a second launch); where none can, a
+        thread per contact over the whole device, no stage waiting for another contact's
+        (:func:`_node_parallel_kernels.contact_step_unshared`: ``passes`` passes on the true
+        masses, exact for such contacts)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
-        threads = _contact_threads(d)
+        stencil = [c.stencil_count, c.stencil_nodes, c.stencil_weights]
+        self._impulse_change = wp.zeros(c.capacity, dtype=wp.vec3d, device=d)
+        if not _contacts_may_share(model, self.coarse.count):
+            threads = _contact_threads(d)
+            return replayer(wp.launch(
+                _pk.contact_step_unshared, dim=threads, device=d, record_cmd=True,
+                inputs=[c.count, movable, *stencil, c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                        model.couplings.partner, cross, model.fixed, float(dt), c.impulse, state.v_hat, c.stiffness,
+                        c.slip, co, metric, LOCAL_UPDATES, self._impulse_change, self.live, self.sweep, self.stats,
+                        int(passes), threads]))
         node_share = wp.zeros(model.node_count, dtype=wp.int32, device=d)
         body_share = wp.zeros(max(self.coarse.count, 1), dtype=wp.int32, device=d)
-        self._impulse_change = wp.zeros(c.capacity, dtype=wp.vec3d, device=d)
-        stencil = [c.stencil_count, c.stencil_nodes, c.stencil_weights]
-
-        def record(kernel, inputs: list) -> Callable[[], None]:
-            return replayer(wp.launch(kernel, dim=threads, device=d, record_cmd=True, inputs=[*inputs, threads]))
-
-        warm = record(_pk.warm_parallel, [c.count, movable, *stencil, c.frame, c.rigid_node, c.rigid_lever, d_inv,
-                                          model.couplings.partner, cross, model.fixed, c.impulse, state.v_hat, co])
-        screen = replayer(wp.launch(_k.screen, dim=threads, device=d, record_cmd=True,
-                                    inputs=[c.count, *stencil, c.frame, c.gap, c.rigid_node, c.rigid_lever, float(dt),
-                                            c.impulse, c.stiffness, state.v_hat, co, movable, threads, self.live]))
-
-        shared = _contacts_may_share(model, self.coarse.count)
-
-        def jacobi_passes(live: wp.array, first: int, count: int) -> list[Callable[[], None]]:
-            """``count`` Jacobi passes over the ``live`` contacts, after their shares are counted
-            (where nothing can be shared, every share is 1: the sweep is only counted)."""
-            solve = record(_pk.jacobi_contacts, [c.count, live, *stencil, c.frame, c.gap, c.friction, c.rigid_node,
-                                                 c.rigid_lever, d_inv, model.couplings.partner, cross, model.fixed,
-                                                 float(dt), c.impulse, state.v_hat, c.stiffness, c.slip, co, node_share,
-                                                 body_share, metric, int(shared), LOCAL_UPDATES,
-                                                 self._impulse_change])
-            apply = record(_pk.apply_contacts, [c.count, live, *stencil, c.rigid_node, c.rigid_lever, d_inv,
-                                                model.couplings.partner, cross, model.fixed, self._impulse_change,
-                                                state.v_hat, co])
-            if not shared:
-                start = replayer(wp.launch(_pk.sweep_start, dim=1, device=d, record_cmd=True,
-                                           inputs=[self.sweep, self.stats]))
-                return [start, *[solve, apply] * count] if first else [solve, apply] * count
-            shares = record(_pk.count_shares, [c.count, live, *stencil, c.rigid_node, model.fixed, co, node_share,
-                                               body_share, self.sweep, self.stats, first])
-            return [node_share.zero_, body_share.zero_, shares, *[solve, apply] * count]
-
-        factor = PARALLEL_PASS_FACTOR if shared else 1
-        replays = [warm, screen, *jacobi_passes(self.live, 1, int(passes) * factor)]
         gs = self._gauss_seidel
+        tool_node = gs.tool_node if gs is not None else wp.zeros(1, dtype=wp.int32, device=d)
+
+        def block(start: int, visit: wp.array, count: int) -> Callable[[], None]:
+            return replayer(wp.launch_tiled(
+                _bk.contact_step_block, dim=[1], block_dim=CONTACT_BLOCK_THREADS, device=d, record_cmd=True,
+                inputs=[c.count, movable, *stencil, c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever,
+                        d_inv, model.couplings.partner, cross, model.fixed, float(dt), c.impulse, state.v_hat,
+                        c.stiffness, c.slip, co, node_share, body_share, metric, LOCAL_UPDATES,
+                        self._impulse_change, self.live, self.sweep, self.stats, tool_node, visit, start,
+                        int(visit is not self.live), count]))
+
+        steps = [block(1, self.live, int(passes) * PARALLEL_PASS_FACTOR)]
         if gs is not None and gs.tool_passes:  # the exact rigid bodies' contacts again, their shares their own
-            replays += [gs.mark_tools(self.live, threads), *jacobi_passes(gs.tool_live, 0, gs.tool_passes * factor)]
-        return in_order(*replays)
+            steps.append(block(0, gs.tool_live, gs.tool_passes * PARALLEL_PASS_FACTOR))
+        return in_order(*steps)
 
     def _read_stats(self) -> np.ndarray:
         """``stats`` on the host: a view on the CPU, a copy of its three numbers on CUDA."""
