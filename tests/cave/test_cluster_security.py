@@ -58,6 +58,10 @@ def _client(ctx, kind, endpoint, curve=None):
     return s
 
 
+#: The nonce of the attackers' forged joins (a node's own is 62 random bits).
+FORGED_NONCE = 1
+
+
 def test_an_unauthenticated_client_gets_nothing_by_default(cave_keys):
     """With the default configuration a plain client and a CURVE client whose key the master
     does not hold receive no frame, no heartbeat and no snapshot, and their forged joins
@@ -73,7 +77,7 @@ def test_an_unauthenticated_client_gets_nothing_by_default(cave_keys):
                          for kind, endpoint in ((zmq.SUB, master.config.publish), (zmq.DEALER, master.config.control))]
             for dealer in attackers[1::2]:
                 for n in range(-1, 30):
-                    dealer.send(encode("join", 0, {"node": "front", "nonce": 1}))
+                    dealer.send(encode("join", 0, {"node": "front", "nonce": FORGED_NONCE}))
                     dealer.send(encode("ready", master.session, {"node": "front", "n": n, "hash": bytes(16)}))
             master.wait_for_nodes(20)
             master.run(30)
@@ -85,7 +89,11 @@ def test_an_unauthenticated_client_gets_nothing_by_default(cave_keys):
             node.close()
             ctx.destroy(0)
     assert got == []
-    assert len(master.log["joins"]) == 1 and master.log["refused"] == {k: 0 for k in master.log["refused"]}
+    # Every snapshot went to the real node's joins (its first, and a resync's or a retry's where a
+    # loaded machine delayed a frame or a snapshot: CI once saw two), none to the forged nonce.
+    joins = master.log["joins"]
+    assert joins and all(j["node"] == "front" and j["nonce"] != FORGED_NONCE for j in joins)
+    assert master.log["refused"] == {k: 0 for k in master.log["refused"]}
     assert [p[0] for p in node.log.presented] == list(range(30))
     assert node.state.digest() == master.state.digest()
 

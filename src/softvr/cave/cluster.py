@@ -231,10 +231,11 @@ class Master:
     Attributes
     ----------
     log : dict
-        ``joins`` (snapshots sent), ``evictions``, ``mismatches`` (readies with another
-        digest), ``resyncs`` (nodes told to resync), ``refused`` (control messages dropped,
-        by reason: ``malformed``, ``unknown`` node, ``name`` not the key's, ``join_rate``: a
-        join while the node's last snapshot is unacknowledged), ``frames``.
+        ``joins`` (snapshots sent: node, frame, time, the join's nonce), ``evictions``,
+        ``mismatches`` (readies with another digest), ``resyncs`` (nodes told to resync),
+        ``refused`` (control messages dropped, by reason: ``malformed``, ``unknown`` node,
+        ``name`` not the key's, ``join_rate``: a join while the node's last snapshot is
+        unacknowledged), ``frames``.
     unauthorized : list of str
         Nodes of the display whose public key the master does not hold (they cannot join).
     """
@@ -358,7 +359,7 @@ class Master:
         self.router.send_multipart([identity, encode("snapshot", self.session, snapshot)])
         self._snapshot_sent[node] = now
         self.members[node] = now
-        self.log["joins"].append({"node": node, "frame": self.state.n, "time": now})
+        self.log["joins"].append({"node": node, "frame": self.state.n, "time": now, "nonce": nonce})
         if pending is not None and barrier_frame == self.state.n and self.state.n >= 0:
             pending.add(node)
 
