@@ -61,12 +61,13 @@ fi
 case "$job" in
   demo) exec .venv/bin/python -m softvr demo "$@" ;;
   # With no arguments, the physics folders run a second time in what a CUDA step does, on the CPU:
-  # through host copies, with the kernels' GPU forms (docs/physics-core.md, "The device").
+  # through host copies, with the kernels' GPU forms, their thread blocks' lanes as Warp's
+  # cooperative fibers (docs/physics-core.md, "The device", "The contact step in one block").
   test) .venv/bin/python -m pytest -q "$@"
         if [ $# -eq 0 ]; then
-          echo "setup: the physics tests again through host copies with the kernels' GPU forms"
-          .venv/bin/python -m pytest -q --host-copies --gpu-forms tests/dynamics tests/contact tests/haptics \
-            tests/collision tests/sim tests/model tests/scene
+          echo "setup: the physics tests again through host copies with the kernels' GPU forms and blocks"
+          .venv/bin/python -m pytest -q --host-copies --gpu-forms --cpu-blocks tests/dynamics tests/contact \
+            tests/haptics tests/collision tests/sim tests/model tests/scene
         fi ;;
   # -E: a fresh environment every time, so a clean clone and a rebuild see the same warnings.
   docs) .venv/bin/python -m sphinx -W --keep-going -E -q -b html docs docs/_build/html "$@"

@@ -24,6 +24,9 @@ def pytest_addoption(parser):
     parser.addoption("--gpu-forms", action="store_true",
                      help="step every scene's node arrays with the GPU's forms of the kernels (a thread per contact, "
                           "candidate pair or node), on the CPU")
+    parser.addoption("--cpu-blocks", action="store_true",
+                     help="run the lanes of every thread block (the GPU forms' one-block sweeps) as Warp's cooperative "
+                          "CPU fibers, as a GPU's block runs them, instead of one lane")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -63,6 +66,15 @@ def _node_gpu_forms(request, monkeypatch):
     split masses, the gather, the carry, the coarse and share sums, adhesion's evolve), on the CPU."""
     if request.config.getoption("--gpu-forms"):
         _every_stepper_sets(monkeypatch, "_gpu_forms")
+
+
+@pytest.fixture(autouse=True)
+def _cpu_blocks(request, monkeypatch):
+    """With ``--cpu-blocks``: a block launched with many lanes runs them all on the CPU, as
+    cooperative fibers switching at its barriers (``wp.config.enable_cpu_blocks``), so the GPU
+    forms' one-block sweeps take the lanes, and the lane-to-lane semantics, a GPU's block takes."""
+    if request.config.getoption("--cpu-blocks"):
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
 
 
 @pytest.fixture(params=DEVICES)

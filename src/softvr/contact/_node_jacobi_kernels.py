@@ -238,25 +238,40 @@ def transpose_blocks(blocks: wp.array(dtype=wp.mat33d), blocks_t: wp.array(dtype
 
 
 @wp.func
+def pair_cross(c: int, s: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
+               stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
+               rigid_lever: wp.array2d(dtype=wp.vec3d), partner: wp.array(dtype=wp.int32),
+               cross: wp.array(dtype=wp.mat33d)) -> wp.mat33d:
+    """The cross terms of contact ``c``'s ``J D_A^-1 J^T`` [1/kg] on its rigid side ``s`` where
+    that body is spring-held (else 0): ``J_l P_la J_a^T + J_a P_al J_l^T = w_l (X + X^T)``, ``X =
+    P_la [lever]x``, with ``J_l = w_l I`` on the linear node and ``J_a = -[lever]x`` on the
+    angular one."""
+    out = wp.mat33d()
+    node = rigid_node[c, s]
+    if node >= 0:
+        lin = partner[node]
+        if lin >= 0:
+            w_l = wp.float64(0.0)
+            for k in range(stencil_count[c]):
+                if stencil_nodes[c, k] == lin:
+                    w_l = w_l + stencil_weights[c, k]
+            x = cross[lin] * wp.skew(rigid_lever[c, s])
+            out = w_l * (x + wp.transpose(x))
+    return out
+
+
+@wp.func
 def _pair_delassus(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
                    stencil_weights: wp.array2d(dtype=wp.float64), rigid_node: wp.array2d(dtype=wp.int32),
                    rigid_lever: wp.array2d(dtype=wp.vec3d), partner: wp.array(dtype=wp.int32),
                    cross: wp.array(dtype=wp.mat33d)) -> wp.mat33d:
-    """The cross terms of contact ``c``'s ``J D_A^-1 J^T`` [1/kg] on its spring-held rigid
-    sides: ``J_l P_la J_a^T + J_a P_al J_l^T = w_l (X + X^T)``, ``X = P_la [lever]x``, with
-    ``J_l = w_l I`` on the linear node and ``J_a = -[lever]x`` on the angular one."""
+    """The cross terms of contact ``c``'s ``J D_A^-1 J^T`` [1/kg] on its spring-held rigid sides
+    (:func:`pair_cross` summed over them)."""
     out = wp.mat33d()
     for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            lin = partner[node]
-            if lin >= 0:
-                w_l = wp.float64(0.0)
-                for k in range(stencil_count[c]):
-                    if stencil_nodes[c, k] == lin:
-                        w_l = w_l + stencil_weights[c, k]
-                x = cross[lin] * wp.skew(rigid_lever[c, s])
-                out = out + w_l * (x + wp.transpose(x))
+        if rigid_node[c, s] >= 0:
+            out = out + pair_cross(c, s, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
+                                   partner, cross)
     return out
 
 

@@ -13,11 +13,12 @@ over the contacts ``first, first + stride, ...``:
     start_sweep       the sweep counted, ``stats`` zeroed for its maxima
     count_range       per node and per coarse body, how many live contacts act on it
     jacobi_range      every live contact's PGS update from the same v^ (Jacobi over the
-                      contacts), on its block of J M_s^-1 J^T with the split masses M_s
-    apply_range       the updates' changes pushed into v^ and the coarse velocities (atomic)
+                      contacts; where they share nothing, on its block of J M^-1 J^T)
+    apply_range       the updates' changes pushed into v^ (atomic)
 
 Where contacts can share a node or coarse body, one thread block runs them all in one launch,
-its barrier between the stages (:func:`softvr.contact._node_block_kernels.contact_step_block`);
+its barrier between the stages, Gauss-Seidel within each lane's contacts and Jacobi on split
+masses across lanes (:func:`softvr.contact._node_block_kernels.contact_step_block`);
 where none can, no stage waits for another contact's, and one launch over the whole device
 runs them without a barrier (:func:`contact_step_unshared`).
 
@@ -63,7 +64,7 @@ def _moving(c: int, v: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=w
 
 
 @wp.func
-def _relative(c: int, v_hat: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
+def relative(c: int, v_hat: wp.array(dtype=wp.vec3d), stencil_count: wp.array(dtype=wp.int32),
               stencil_nodes: wp.array2d(dtype=wp.int32), stencil_weights: wp.array2d(dtype=wp.float64),
               rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
               co: Coarse) -> wp.vec3d:
@@ -79,7 +80,7 @@ def _relative(c: int, v_hat: wp.array(dtype=wp.vec3d), stencil_count: wp.array(d
 
 
 @wp.func
-def _push(node: int, g: wp.vec3d, v_hat: wp.array(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
+def push(node: int, g: wp.vec3d, v_hat: wp.array(dtype=wp.vec3d), d_inv: wp.array(dtype=wp.mat33d),
           partner: wp.array(dtype=wp.int32), cross: wp.array(dtype=wp.mat33d)):
     """``v^ += M^-1 e_node g`` [m/s] for the generalized impulse ``g`` on ``node`` (atomic): a
     spring-held rigid body's partner node moves by its cross block."""
@@ -101,11 +102,11 @@ def _apply(c: int, world: wp.vec3d, stencil_count: wp.array(dtype=wp.int32),
     for k in range(stencil_count[c]):
         node = stencil_nodes[c, k]
         if fixed[node] == 0:
-            _push(node, stencil_weights[c, k] * world, v_hat, d_inv, partner, cross)
+            push(node, stencil_weights[c, k] * world, v_hat, d_inv, partner, cross)
     for s in range(rigid_node.shape[1]):
         node = rigid_node[c, s]
         if node >= 0:
-            _push(node, wp.cross(rigid_lever[c, s], world), v_hat, d_inv, partner, cross)
+            push(node, wp.cross(rigid_lever[c, s], world), v_hat, d_inv, partner, cross)
     for s in range(SIDES):
         b = co.side[c, s]
         if b < 0:
@@ -170,7 +171,7 @@ def start_sweep(sweep: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float6
 
 
 @wp.func
-def _share(node: int, node_share: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32)) -> wp.float64:
+def share_of(node: int, node_share: wp.array(dtype=wp.int32), partner: wp.array(dtype=wp.int32)) -> wp.float64:
     """The split factor ``n_r`` of ``node``: the live contacts on it, or on its 6x6 pair's other
     node where more (a spring-held rigid body's two nodes are one block of ``D_A``), at least 1."""
     n = node_share[node]
@@ -181,46 +182,7 @@ def _share(node: int, node_share: wp.array(dtype=wp.int32), partner: wp.array(dt
 
 
 @wp.func
-def _split_metric(c: int, stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
-                  stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
-                  rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-                  d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                  cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), co: Coarse,
-                  node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32)) -> wp.mat33d:
-    """Contact ``c``'s block ``W_s`` of ``J M_s^-1 J^T`` [1/kg] in its frame on the split masses:
-    the one-thread form's ``contact_metric`` with each node's, rigid side's and coarse body's
-    term times its share (:func:`_share`, ``body_share``)."""
-    w = wp.mat33d()
-    for k in range(stencil_count[c]):
-        node = stencil_nodes[c, k]
-        wk = stencil_weights[c, k]
-        if fixed[node] == 0:
-            w = w + (wk * wk * _share(node, node_share, partner)) * d_inv[node]
-    for s in range(rigid_node.shape[1]):
-        node = rigid_node[c, s]
-        if node >= 0:
-            arm = wp.skew(rigid_lever[c, s])
-            share = _share(node, node_share, partner)
-            w = w + share * (arm * d_inv[node] * wp.transpose(arm))
-            lin = partner[node]
-            if lin >= 0:  # the spring-held pair's cross terms (the one-thread form's _pair_delassus)
-                w_l = wp.float64(0.0)
-                for k in range(stencil_count[c]):
-                    if stencil_nodes[c, k] == lin:
-                        w_l = w_l + stencil_weights[c, k]
-                x = cross[lin] * wp.skew(rigid_lever[c, s])
-                w = w + (share * w_l) * (x + wp.transpose(x))
-    for s in range(SIDES):
-        b = co.side[c, s]
-        if b < 0:
-            break
-        w = w + wp.float64(wp.max(body_share[b], 1)) * coarse_side_w(c, s, co)
-    f = frame[c]
-    return f * w * wp.transpose(f)
-
-
-@wp.func
-def _solved(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: wp.float64, dt: wp.float64,
+def solved(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: wp.float64, dt: wp.float64,
             mu: wp.float64, stiffness: wp.float64, slip: wp.vec3d, local_updates: int) -> wp.vec3d:
     """A one-node contact without a rigid side solved on its own block ``w_f`` (the one-thread
     form's ``solved``, :func:`softvr.contact._node_contact_native.pgs_passes`): the sticking
@@ -247,49 +209,48 @@ def _solved(old: wp.vec3d, rel_f: wp.vec3d, w_f: wp.mat33d, f: wp.mat33d, gap: w
 
 
 @wp.func
+def updated(c: int, f: wp.mat33d, rel_f: wp.vec3d, w_f: wp.mat33d, impulse: wp.array(dtype=wp.vec3d),
+            stencil_count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
+            gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64), dt: wp.float64,
+            stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), local_updates: int) -> wp.vec3d:
+    """Contact ``c``'s impulse [N s] (its frame ``f``) after one update from its relative velocity
+    ``rel_f`` [m/s] on its block ``w_f`` [1/kg], both in that frame: by :func:`pgs_update` (normal
+    row to ``-gap / dt``, adhesion's bound eq. 4.16 where ``stiffness`` > 0, the tangents onto
+    the Coulomb disc of ``friction`` or the bond's bound aiming at ``slip`` [m]); a one-node
+    contact without a rigid side by :func:`solved`."""
+    rigid = int(0)
+    for s in range(rigid_node.shape[1]):
+        if rigid_node[c, s] >= 0:
+            rigid = 1
+    if stencil_count[c] == 1 and rigid == 0:
+        return solved(impulse[c], rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c], local_updates)
+    return pgs_update(impulse[c], rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
+
+
+@wp.func
 def jacobi_range(first: int, stride: int, count: wp.array(dtype=wp.int32), live: wp.array(dtype=wp.int32),
                  stencil_count: wp.array(dtype=wp.int32), stencil_nodes: wp.array2d(dtype=wp.int32),
                  stencil_weights: wp.array2d(dtype=wp.float64), frame: wp.array(dtype=wp.mat33d),
                  gap: wp.array(dtype=wp.float64), friction: wp.array(dtype=wp.float64),
-                 rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d),
-                 d_inv: wp.array(dtype=wp.mat33d), partner: wp.array(dtype=wp.int32),
-                 cross: wp.array(dtype=wp.mat33d), fixed: wp.array(dtype=wp.int32), dt: wp.float64,
+                 rigid_node: wp.array2d(dtype=wp.int32), rigid_lever: wp.array2d(dtype=wp.vec3d), dt: wp.float64,
                  impulse: wp.array(dtype=wp.vec3d), v_hat: wp.array(dtype=wp.vec3d),
                  stiffness: wp.array(dtype=wp.float64), slip: wp.array(dtype=wp.vec3d), co: Coarse,
-                 node_share: wp.array(dtype=wp.int32), body_share: wp.array(dtype=wp.int32),
-                 metric: wp.array(dtype=wp.mat33d), split: int, local_updates: int, change: wp.array(dtype=wp.vec3d)):
+                 metric: wp.array(dtype=wp.mat33d), local_updates: int, change: wp.array(dtype=wp.vec3d)):
     """One Jacobi pass over the ``live`` contacts among ``first, first + stride, ... <
-    count[0]``: each one's impulse ``impulse[c]`` [N s] updated from its relative velocity in
-    ``v_hat`` [m/s] (read only: every contact of the pass sees the same) on its split block
-    (:func:`_split_metric`) by :func:`pgs_update` (normal row to ``-gap / dt``, adhesion's bound
-    eq. 4.16 where ``stiffness`` > 0, the tangents onto the Coulomb disc of ``friction`` or the
-    bond's bound aiming at ``slip`` [m]); a one-node contact without a rigid side by
-    :func:`_solved`. With ``split`` 0 (contacts that share nothing: every share is 1) the block
-    is the step's ``metric[c]`` (``contact_metric``'s, the same numbers). The change of its
-    world impulse goes to ``change[c]`` for :func:`apply_range`."""
+    count[0]``: each one's impulse ``impulse[c]`` [N s] updated (:func:`updated`) from its
+    relative velocity in ``v_hat`` [m/s] (read only: every contact of the pass sees the same) on
+    the step's block ``metric[c]`` (``contact_metric``'s). The change of its world impulse goes
+    to ``change[c]`` for :func:`apply_range`."""
     for c in range(first, count[0], stride):
         if live[c] == 0:
             continue
         f = frame[c]
-        rel_f = f * _relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
-        w_f = metric[c]
-        if split != 0:
-            w_f = _split_metric(c, stencil_count, stencil_nodes, stencil_weights, frame, rigid_node, rigid_lever,
-                                d_inv, partner, cross, fixed, co, node_share, body_share)
+        rel_f = f * relative(c, v_hat, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever, co)
         old = impulse[c]
-        rigid = int(0)
-        for s in range(rigid_node.shape[1]):
-            if rigid_node[c, s] >= 0:
-                rigid = 1
-        lam = wp.vec3d()
-        if stencil_count[c] == 1 and rigid == 0:
-            lam = _solved(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c], local_updates)
-        else:
-            lam = pgs_update(old, rel_f, w_f, f, gap[c], dt, friction[c], stiffness[c], slip[c])
+        lam = updated(c, f, rel_f, metric[c], impulse, stencil_count, rigid_node, gap, friction, dt, stiffness, slip,
+                      local_updates)
         impulse[c] = lam
         change[c] = wp.transpose(f) * (lam - old)
-
-
 
 
 @wp.func
@@ -344,8 +305,7 @@ def contact_step_unshared(count: wp.array(dtype=wp.int32), movable: wp.array(dty
         start_sweep(sweep, stats)
     for _p in range(passes):
         jacobi_range(tid, threads, count, live, stencil_count, stencil_nodes, stencil_weights, frame, gap, friction,
-                     rigid_node, rigid_lever, d_inv, partner, cross, fixed, dt, impulse, v_hat, stiffness, slip, co,
-                     live, live, metric, 0, local_updates, change)  # (the shares, unread with split 0)
+                     rigid_node, rigid_lever, dt, impulse, v_hat, stiffness, slip, co, metric, local_updates, change)
         apply_range(tid, threads, count, live, stencil_count, stencil_nodes, stencil_weights, rigid_node, rigid_lever,
                     d_inv, partner, cross, fixed, change, v_hat, co)
 

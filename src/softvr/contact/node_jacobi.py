@@ -59,17 +59,16 @@ TAIL_CHECKS = 3
 SWITCH_SWEEPS = 6
 SWITCH_AFTER = 12
 
-#: Jacobi passes over the contacts per Gauss-Seidel pass they stand for, in the thread-per-contact
-#: contact step (:class:`NodeSolve`'s ``parallel``) of a scene whose contacts can share nodes or
-#: coarse bodies (bodies that meet each other, or coarse bodies): on split masses a Jacobi pass
-#: moves a shared node 1 / n_r of the way. Sweeps a step over the candy pile's first 60 steps
-#: (CPU, 2 passes a sweep on the one-thread form: 77.4) with 1 / 2 / 4 / 8 Jacobi passes per pass:
-#: 211 / 130 / 94 / 76; the probe (15.1): 24.9 / 16.7 / 17.2 / 12.1. The passes run inside one
-#: launch (:mod:`softvr.contact._node_block_kernels`), a pass two of its block's barriers, a sweep
-#: ~10 launches and a check (every 2 sweeps) a sync besides: 4 takes half the sweeps of 1, and so
-#: half the launches and syncs. Contacts that share nothing (a cube's points on a plane) are
-#: solved by the first pass, so such a scene takes 1.
-PARALLEL_PASS_FACTOR = 4
+#: Passes of the one-block contact step (:mod:`softvr.contact._node_block_kernels`: Gauss-Seidel
+#: within a lane's contacts, Jacobi on split masses across lanes) per Gauss-Seidel pass of the
+#: CPU's, where some node or coarse body is moved by two lanes (where none is, every lane's passes
+#: are exact Gauss-Seidel over its own contacts: the CPU's count), in the thread-per-contact form
+#: (:class:`NodeSolve`'s ``parallel``) of a scene whose contacts can share. Sweeps a step over the
+#: candy pile's first 30 steps on the CPU with the block's 256 lanes as fibers (what a GPU runs;
+#: the one-thread form: 62.3): 1: 77.5 (steps at 258 and 234), 2: 63.2 (60.1 with 2 in every
+#: pass); session 18's Jacobi passes on split masses took 95.6 with 4 a pass (the landing step at
+#: the 500 cap, 352 with 16). A pass costs two of the block's barriers.
+PARALLEL_PASS_FACTOR = 2
 
 #: Solves started on the bounds' own weights after which one starts on the narrower weights
 #: again (:attr:`NodeSolve.start_narrow`), and the most: a solve on the bounds' weights cannot
@@ -506,42 +505,50 @@ class NodeSolve:
                                   metric: wp.array, movable: wp.array) -> Callable[[], None]:
         """The contact step of a sweep (a Jacobi one, or in the middle of a Gauss-Seidel one's node
         update) with a thread per contact: the last impulses applied to ``v^``, the contacts
-        screened, then Jacobi passes over the live ones, in one launch. Where contacts can share
-        a node or coarse body (:func:`_contacts_may_share`), one thread block with its barrier
-        between the stages (:mod:`softvr.contact._node_block_kernels`: ``passes`` x
-        :data:`PARALLEL_PASS_FACTOR` passes on split masses, and the Gauss-Seidel sweeps' extra
-        passes over the exact rigid bodies' contacts in a second launch); where none can, a
+        screened, then passes over the live ones, in one launch. Where contacts can share a node
+        or coarse body (:func:`_contacts_may_share`), one thread block with its barrier between
+        the stages (:mod:`softvr.contact._node_block_kernels`: ``passes`` passes, x
+        :data:`PARALLEL_PASS_FACTOR` with more than one lane, Gauss-Seidel within a lane, Jacobi
+        on split masses across lanes; the Gauss-Seidel sweeps' extra passes over the exact rigid
+        bodies' contacts in a second launch); where none can, a
         thread per contact over the whole device, no stage waiting for another contact's
         (:func:`_node_parallel_kernels.contact_step_unshared`: ``passes`` passes on the true
         masses, exact for such contacts)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
         stencil = [c.stencil_count, c.stencil_nodes, c.stencil_weights]
-        self._impulse_change = wp.zeros(c.capacity, dtype=wp.vec3d, device=d)
         if not _contacts_may_share(model, self.coarse.count):
             threads = _contact_threads(d)
+            change = wp.zeros(c.capacity, dtype=wp.vec3d, device=d)  # a pass's impulse changes [N s]
             return replayer(wp.launch(
                 _pk.contact_step_unshared, dim=threads, device=d, record_cmd=True,
                 inputs=[c.count, movable, *stencil, c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
                         model.couplings.partner, cross, model.fixed, float(dt), c.impulse, state.v_hat, c.stiffness,
-                        c.slip, co, metric, LOCAL_UPDATES, self._impulse_change, self.live, self.sweep, self.stats,
+                        c.slip, co, metric, LOCAL_UPDATES, change, self.live, self.sweep, self.stats,
                         int(passes), threads]))
-        node_share = wp.zeros(model.node_count, dtype=wp.int32, device=d)
-        body_share = wp.zeros(max(self.coarse.count, 1), dtype=wp.int32, device=d)
+        n, bodies = model.node_count, max(self.coarse.count, 1)
         gs = self._gauss_seidel
         tool_node = gs.tool_node if gs is not None else wp.zeros(1, dtype=wp.int32, device=d)
+        # The block's scratch (its kernel's docstring): shares, lane marks, deferred pushes, lists.
+        scratch = [wp.zeros(n, dtype=wp.int32, device=d), wp.zeros(bodies, dtype=wp.int32, device=d)]
+        int32, vec3d, lanes_max = wp.int32, wp.vec3d, CONTACT_BLOCK_THREADS
+        lanes = [wp.zeros(n, dtype=int32, device=d), wp.zeros(n, dtype=int32, device=d),
+                 wp.zeros(bodies, dtype=int32, device=d), wp.zeros(bodies, dtype=int32, device=d),
+                 wp.zeros(n, dtype=vec3d, device=d), wp.zeros(bodies, dtype=vec3d, device=d),
+                 wp.zeros(bodies, dtype=vec3d, device=d), wp.zeros(lanes_max + 1, dtype=int32, device=d),
+                 wp.zeros(lanes_max, dtype=int32, device=d), wp.zeros(c.capacity, dtype=int32, device=d),
+                 wp.zeros(1, dtype=int32, device=d)]
 
         def block(start: int, visit: wp.array, count: int) -> Callable[[], None]:
             return replayer(wp.launch_tiled(
                 _bk.contact_step_block, dim=[1], block_dim=CONTACT_BLOCK_THREADS, device=d, record_cmd=True,
-                inputs=[c.count, movable, *stencil, c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever,
-                        d_inv, model.couplings.partner, cross, model.fixed, float(dt), c.impulse, state.v_hat,
-                        c.stiffness, c.slip, co, node_share, body_share, metric, LOCAL_UPDATES,
-                        self._impulse_change, self.live, self.sweep, self.stats, tool_node, visit, start,
-                        int(visit is not self.live), count]))
+                inputs=[c.count, movable, *stencil, c.frame, c.gap, c.friction, c.rigid_node, c.rigid_lever, d_inv,
+                        model.couplings.partner, cross, model.fixed, float(dt), c.impulse, state.v_hat, c.stiffness,
+                        c.slip, co, *scratch, LOCAL_UPDATES, self.live, self.sweep, self.stats, tool_node, visit,
+                        start, int(visit is not self.live), count, PARALLEL_PASS_FACTOR, *lanes]))
 
-        steps = [block(1, self.live, int(passes) * PARALLEL_PASS_FACTOR)]
+        steps = [block(1, self.live, int(passes))]
         if gs is not None and gs.tool_passes:  # the exact rigid bodies' contacts again, their shares their own
-            steps.append(block(0, gs.tool_live, gs.tool_passes * PARALLEL_PASS_FACTOR))
+            steps.append(block(0, gs.tool_live, gs.tool_passes))
         return in_order(*steps)
 
     def _read_stats(self) -> np.ndarray:
