@@ -345,15 +345,14 @@ def contact_step_block(count: wp.array(dtype=wp.int32), movable: wp.array(dtype=
     applied to ``v_hat`` [n] [m/s], ``live`` [c] screened
     (:func:`softvr.contact._node_contact_native.screen_contacts`) and the sweep started
     (:func:`softvr.contact._node_parallel_kernels.start_sweep`); then ``passes`` passes over the
-    contacts ``visit`` [c] marks (``factor`` x as many where some node or coarse body is moved
-    by two lanes: Jacobi across lanes needs more passes than Gauss-Seidel within one; where none
-    is, every lane's passes are exact Gauss-Seidel over its own, the CPU's count): ``live`` itself (the same array), or with ``tools`` those live
-    ones with a rigid side on a ``tool_node`` [n], marked into it first. Scratch: ``node_share``
-    [n], ``body_share`` [B], ``own_min``, ``own_max`` [n], ``body_min``, ``body_max`` [B],
-    ``delta`` [n], ``delta_lin``,
-    ``delta_ang`` [B] (zero between calls), ``lane_count`` [lanes + 1], ``lane_fill`` [lanes],
-    ``lane_list`` [capacity], ``crossed`` [1]. The other arrays are
-    :func:`softvr.contact._node_parallel_kernels.jacobi_range`'s."""
+    contacts ``visit`` [c] marks (``factor`` x as many where some node or coarse body is moved by
+    two lanes: Jacobi across lanes needs more passes than Gauss-Seidel within one; where none is,
+    every lane's passes are exact Gauss-Seidel over its own, the CPU's count): ``live`` itself (the
+    same array), or with ``tools`` those live ones with a rigid side on a ``tool_node`` [n], marked
+    into it first. Scratch: ``node_share`` [n], ``body_share`` [B], ``own_min``, ``own_max`` [n],
+    ``body_min``, ``body_max`` [B], ``delta`` [n], ``delta_lin``, ``delta_ang`` [B] (zero between
+    calls), ``lane_count`` [lanes + 1], ``lane_fill`` [lanes], ``lane_list`` [capacity], ``crossed``
+    [1]. The other arrays are :func:`softvr.contact._node_parallel_kernels.jacobi_range`'s."""
     _block, lane = wp.tid()
     lanes = wp.block_dim()
     n = node_share.shape[0]

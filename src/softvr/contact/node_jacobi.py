@@ -508,10 +508,10 @@ class NodeSolve:
         screened, then passes over the live ones, in one launch. Where contacts can share a node
         or coarse body (:func:`_contacts_may_share`), one thread block with its barrier between
         the stages (:mod:`softvr.contact._node_block_kernels`: ``passes`` passes, x
-        :data:`PARALLEL_PASS_FACTOR` with more than one lane, Gauss-Seidel within a lane, Jacobi
-        on split masses across lanes; the Gauss-Seidel sweeps' extra passes over the exact rigid
-        bodies' contacts in a second launch); where none can, a
-        thread per contact over the whole device, no stage waiting for another contact's
+        :data:`PARALLEL_PASS_FACTOR` where two lanes share a node or coarse body, Gauss-Seidel
+        within a lane, Jacobi on split masses across lanes; the Gauss-Seidel sweeps' extra passes
+        over the exact rigid bodies' contacts in a second launch); where none can, a thread per
+        contact over the whole device, no stage waiting for another contact's
         (:func:`_node_parallel_kernels.contact_step_unshared`: ``passes`` passes on the true
         masses, exact for such contacts)."""
         c, d, co = state.contacts, model.device, self.coarse.arrays
