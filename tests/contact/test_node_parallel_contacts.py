@@ -1,8 +1,8 @@
 """The node sweeps' contact step with a thread per contact (softvr.contact._node_parallel_kernels,
-the form a GPU takes): Jacobi passes over the contacts on split masses, in one thread block's
-launch (softvr.contact._node_block_kernels) with one lane or several (on the CPU, Warp's
-cooperative fibers, ``wp.config.enable_cpu_blocks``: lanes that really interleave at the
-barriers).
+the form a GPU takes): one thread block's launch (softvr.contact._node_block_kernels),
+Gauss-Seidel within a lane's contacts and Jacobi on split masses across lanes, with one lane or
+several (on the CPU, Warp's cooperative fibers, ``wp.config.enable_cpu_blocks``: lanes that
+really interleave at the barriers); and the one launch for contacts that share nothing.
 
 Truth: the frictionless contact LCP (thesis eq. 5.5's normal rows) solved by SciPy: with ``W =
 J M^-1 J^T`` and ``q`` the normal velocities before the impulses less their targets ``-gap /
@@ -173,13 +173,13 @@ def lanes(request, device, monkeypatch):
 
 @pytest.mark.parametrize("warm", [None, "guess"])
 def test_jacobi_passes_on_split_masses_reach_the_lcp_solution(device, lanes, warm):
-    """Shared nodes (each by 2-3 contacts), Jacobi passes on split masses in one block, from zero
-    impulses or from a guess that the start stage first applies to ``v^`` (and screens the
+    """Shared nodes (each by 2-3 contacts), the block's passes (with 4 lanes, the shared nodes
+    split across them: Jacobi on split masses), from zero impulses or from a guess that the start stage first applies to ``v^`` (and screens the
     contacts: all of them are pushed or press): the normal impulses reach SciPy's LCP
     solution, the tangents stay 0 (no friction), and the velocities in ``v^`` are ``v0 + M^-1
     J^T lambda`` (the atomic pushes lose nothing, the guess's push counted once). Tolerance: the
-    split Jacobi iteration contracts the error geometrically (its rate is at most 1 -
-    lambda_min(D^-1 W) < 1); 400 passes take this 4-contact set to rounding, 1e-9 relative."""
+    iteration contracts the error geometrically (a convergent splitting of W: the block module's
+    docstring); 400 passes take this 6-contact set to rounding, 1e-9 relative."""
     guess = None if warm is None else np.array([0.5, 0.1, 0.0, 0.3, 0.2, 0.0])  # [N s]
     lam, v, frames, v0, gap = _solve(device, lanes=lanes, warm=guess)
     expected, w, q = _lcp(frames, v0, gap)

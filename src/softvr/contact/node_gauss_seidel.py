@@ -49,8 +49,8 @@ COLOUR_CHUNK = 1024
 #: Nodes per lane of one block (:data:`CONTACT_BLOCK_THREADS` lanes) up to which a sweep in the
 #: GPU's form (``parallel``) runs as two block launches around its contact step, a barrier
 #: where the launches' form ends a launch (each colour, the islands, the contact nodes): the
-#: shoulder's 1 247 nodes, ~200 a colour, take ~27 launches a sweep that way instead. A larger
-#: body keeps a launch a colour over the whole device (not measured on a GPU yet).
+#: shoulder's 1 247 nodes, ~200 a colour, in 2 launches a sweep instead of ~27. A larger body
+#: keeps a launch a colour over the whole device (not measured on a GPU yet).
 BLOCK_NODES_PER_LANE = 8
 
 
