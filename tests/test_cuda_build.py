@@ -30,6 +30,7 @@ MODULES = {
     "softvr.contact._node_parallel_kernels": ("contact_step_unshared", "residual_parallel"),
     "softvr.contact._node_block_kernels": ("contact_step_block", "gauss_seidel_before_contacts",
                                            "gauss_seidel_after_contacts"),
+    "softvr.contact._node_loop_kernels": ("begin", "check_change", "check_stop"),
     "softvr.contact._node_coarse_kernels": ("prepare_bodies", "contact_sides", "coarse_residual", "body_mass_parallel",
                                             "body_centre_parallel", "body_blocks_parallel", "body_inverse_parallel",
                                             "residual_sums_parallel", "coarse_solve_parallel"),

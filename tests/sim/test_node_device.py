@@ -27,6 +27,7 @@ import warp as wp
 
 from softvr import Scene
 from softvr.collision import Plane
+from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import LaunchBatch
 from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints
 from softvr.scene import bundled, load_scene
@@ -221,14 +222,17 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
 @pytest.mark.parametrize("gpu_forms", [False, True], ids=["cpu forms", "gpu forms"])
 @pytest.mark.parametrize("name", ["soft cube", "shoulder", "candy", "candy-adhesive"])
 def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, gpu_forms, monkeypatch):
-    # Off the CPU's own arrays the sweeps run two at a time between checks as one LaunchBatch (on
-    # CUDA one captured graph), and so do the launches before and after them (NodeStepper._stages).
-    # A graph records launches only: a host read inside a batch (an array's numpy(), a copy, a
-    # synchronize) would run once, at the capture, and never again. Through the host copies the
-    # batches run on the CPU, with every such read refused inside them; and they must carry every
-    # sweep but none (a check falls after each pair).
-    inside, batches = [False], [0]
+    # Off the CPU's own arrays a step is four LaunchBatches (on CUDA four captured graphs): the
+    # launches before the sweeps (dynamics, collision: NodeStepper._stages), the solve's whole loop
+    # (NodeSolve._record_loop: its sweeps and their checks, the stop decided on the device, the
+    # conditions of wp.capture_while / capture_if read through their pointers here, graph nodes on
+    # CUDA), and the settling after them. A graph records launches only: a host read inside a
+    # batch (an array's numpy(), a copy, a synchronize) would run once, at the capture, and never
+    # again. Through the host copies the batches run on the CPU, with every such read refused
+    # inside them; and the sweeps must all run inside the loop's batch (counted there).
+    inside, batches, solves = [False], [0], [0]
     original = LaunchBatch.__call__
+    solve = NodeSolve._solve_on_device
 
     def batch(self):
         inside[0] = True
@@ -238,6 +242,10 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
         finally:
             inside[0] = False
 
+    def on_device(self, tolerance):
+        solves[0] += 1
+        return solve(self, tolerance)
+
     def refused(call):
         def guard(*args, **kwargs):
             assert not inside[0], f"{call.__name__} inside a launch batch"
@@ -245,6 +253,7 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
         return guard
 
     monkeypatch.setattr(LaunchBatch, "__call__", batch)
+    monkeypatch.setattr(NodeSolve, "_solve_on_device", on_device)
     monkeypatch.setattr(wp.array, "numpy", refused(wp.array.numpy))
     for call in ("copy", "synchronize", "synchronize_device", "synchronize_stream"):
         monkeypatch.setattr(wp, call, refused(getattr(wp, call)))
@@ -264,5 +273,6 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
                 sweeps += example.scene.last_solution.iterations
             scene = example.scene
     assert scene.path == "node arrays on cpu (host copies)"
-    # The sweeps' pairs, and three a step around them (dynamics, collision, settling: _stages).
-    assert sweeps % 2 == 0 and batches[0] == sweeps // 2 + 3 * 20
+    # Every step's solve on the device (its sweeps run only inside its batch), and three batches a
+    # step around it (dynamics, collision, settling: _stages).
+    assert sweeps > 0 and solves[0] == 20 and batches[0] == 4 * 20

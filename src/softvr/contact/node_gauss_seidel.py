@@ -123,8 +123,9 @@ class GaussSeidelSweep:
         c = state.contacts
         #: Which contacts sleep this step [c] (``_node_gs_kernels.mark_contact_nodes``).
         self.asleep = wp.zeros(c.capacity, dtype=wp.int32, device=d)
-        self._flag = wp.zeros(1, dtype=wp.int32, device=d)
-        self._flag_view = self._flag.numpy() if wp.get_device(d).is_cpu else None
+        #: [1] whether a sleeping contact took an impulse since :meth:`prepare` (``woken_launches``).
+        self.flag = wp.zeros(1, dtype=wp.int32, device=d)
+        self._flag_view = self.flag.numpy() if wp.get_device(d).is_cpu else None
 
         threads = stride_threads(d, min(c.capacity, CONTACT_THREADS))
 
@@ -135,14 +136,15 @@ class GaussSeidelSweep:
                                               state.sweep_buffers[0], float(dt or 0.0), SLEEP_GAP_SHARE, wake_all,
                                               self.contact_node, self.asleep, threads]))
 
-        self._wake_all = mark(1)
+        #: Replays marking every contact's nodes (:meth:`wake`; ``woken_launches`` sets ``flag``).
+        self.wake_launches = mark(1)
         if self.parallel:
-            self._woken = in_order(self._flag.zero_, replayer(wp.launch(
+            self.woken_launches = in_order(self.flag.zero_, replayer(wp.launch(
                 _k.woken_parallel, dim=threads, device=d, record_cmd=True,
-                inputs=[c.count, self.asleep, c.impulse, self._flag, threads])))
+                inputs=[c.count, self.asleep, c.impulse, self.flag, threads])))
         else:
-            self._woken = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
-                                             inputs=[c.count, self.asleep, c.impulse, self._flag]))
+            self.woken_launches = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
+                                             inputs=[c.count, self.asleep, c.impulse, self.flag]))
         self._prepare = [mark(int(dt is None)),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
                                             inputs=[state.d_inv, model.couplings.cross, self.node_omega, self.metric,
@@ -162,7 +164,7 @@ class GaussSeidelSweep:
             self._island_force = wp.zeros(n, dtype=wp.vec3d, device=d)
             self._prepare.insert(1, replayer(wp.launch(_k.mark_islands, dim=len(islands), device=d, record_cmd=True,
                                                        inputs=self._islands[:2] + [self.contact_node])))
-            self._wake_all = in_order(self._wake_all, self._prepare[1])
+            self.wake_launches = in_order(self.wake_launches, self._prepare[1])
             self._prepare.append(replayer(wp.launch(
                 _k.island_inverse, dim=len(islands), device=d, record_cmd=True,
                 inputs=[*self._islands, model.row_start, model.block_col, state.blocks,
@@ -198,7 +200,7 @@ class GaussSeidelSweep:
             self._list = replayer(wp.launch(_k.list_contact_nodes, dim=1, device=d, record_cmd=True,
                                             inputs=[self._order, self.contact_node, self._listed, self._listed_count]))
             self._prepare.append(self._list)
-            self._wake_all = in_order(self._wake_all, self._list)
+            self.wake_launches = in_order(self.wake_launches, self._list)
 
         #: The coarse correction after each sweep (None: none).
         self.coarse = GaussSeidelCoarse(model, state, coarse, self.contact_node) if coarse is not None and len(
@@ -230,11 +232,11 @@ class GaussSeidelSweep:
         restarts its Chebyshev weights). Until then the impulse did not act (the Gauss-Seidel
         update of its nodes overwrote the push), and it stays in the contact's impulse, which
         every later sweep applies in full."""
-        self._woken()
-        flag = self._flag_view if self._flag_view is not None else self._flag.numpy()
+        self.woken_launches()
+        flag = self._flag_view if self._flag_view is not None else self.flag.numpy()
         if flag[0] == 0:
             return False
-        self._wake_all()
+        self.wake_launches()
         if self.coarse is not None:  # its aggregates hold the newly marked contact nodes
             self.coarse.prepare()
         return True

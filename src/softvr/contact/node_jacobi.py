@@ -17,6 +17,7 @@ import warp as wp
 
 from softvr.contact import _node_block_kernels as _bk
 from softvr.contact import _node_jacobi_kernels as _k
+from softvr.contact import _node_loop_kernels as _lk
 from softvr.contact import _node_parallel_kernels as _pk
 from softvr.contact._node_block_kernels import CONTACT_BLOCK_THREADS
 from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
@@ -272,10 +273,13 @@ class NodeSolve:
         correct exactly (:mod:`softvr.contact.node_coarse`; ``spectrum`` is then that of the
         two-level ``M^-1 A``); with ``colours``, the aggregates each Gauss-Seidel sweep corrects
         after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
-    batched : bool
-        Run the sweeps two at a time between checks as one :class:`~softvr.device.LaunchBatch`
-        each (on CUDA one graph launch instead of 6 or more); the same launches in the same
-        order, so the same results. For the node arrays off the CPU's own memory.
+    device_loop : bool
+        Take the loop's decisions on the device (:meth:`_solve_on_device`: the sweeps and their
+        checks as one :class:`~softvr.device.LaunchBatch` a solve, on CUDA one graph launch and
+        one read back instead of a launch or more a kernel and a read a check); False: on the
+        host, sweep by sweep (:meth:`solve`'s own loop, the reference the device's is checked
+        against, and what an odd ``max_sweeps`` takes, or a CUDA without conditional graph
+        nodes). The same launches in the same order and the same decisions: the same results.
     parallel : bool, optional
         The Jacobi sweeps' contact step and the stop's reductions with a thread per contact and
         per node (:mod:`softvr.contact._node_parallel_kernels`: Jacobi over the contacts on split
@@ -285,13 +289,14 @@ class NodeSolve:
 
     def __init__(self, model, state, dt: float, spectrum: tuple[float, float], *, max_sweeps: int = 500,
                  passes: int = 2, colours: NodeColouring | None = None, omega: float = 1.0,
-                 coarse: np.ndarray | Aggregates | None = None, batched: bool = False,
+                 coarse: np.ndarray | Aggregates | None = None, device_loop: bool = True,
                  parallel: bool | None = None):
         lo, hi = spectrum
         self.gamma, self.rho = 2.0 / (lo + hi), (hi - lo) / (hi + lo)
         #: Asymptotic error reduction per Chebyshev sweep.
         self.rate = (1.0 - np.sqrt(1.0 - self.rho * self.rho)) / self.rho if self.rho > 0 else 0.0
         self.max_sweeps = int(max_sweeps)
+        self._weights_count = self.max_sweeps
         d = model.device
         for kernel in (_k.jacobi, _k.jacobi_walk, _k.transpose_blocks, _k.contact_metric, _k.warm_impulses,
                        _k.screen, _k.contacts, _k.contact_step, _k.list_movers, _k.chebyshev, _k.residual,
@@ -346,6 +351,9 @@ class NodeSolve:
         self.plain_sweeps = 0
         #: Whether the last solve stopped on a plateau under the tolerance (:meth:`_plateau`).
         self.plateaued = False
+        #: Checks of the last solve that found a sleeping contact woken (Gauss-Seidel sweeps:
+        #: :meth:`GaussSeidelSweep.wake`), each a restart of the Chebyshev weights.
+        self.wakes = 0
         self.sweep = wp.zeros(1, dtype=wp.int32, device=d)
         #: [0] the last checked sweep's largest change [m/s] (on the CPU the last sweep's: the
         #: Chebyshev kernel takes it every sweep), [1] the largest normal-velocity
@@ -448,13 +456,85 @@ class NodeSolve:
             wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                       inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
-        # Two sweeps from buffer r (plain or Chebyshev): what solve() runs between two checks; with
-        # Jacobi also the check's largest change (Gauss-Seidel first asks wake() on the host).
-        self._pairs = [[LaunchBatch([*self._sweeps[r][:2], plain[r] if p else self._sweeps[r][2],
-                                     *self._sweeps[(r + 1) % 3][:2],
-                                     plain[(r + 1) % 3] if p else self._sweeps[(r + 1) % 3][2],
-                                     *([self._largest] if gs is None else [])], d)
-                        for p in (False, True)] for r in range(3)] if batched else None
+        conditional = wp.get_device(d).is_cpu or wp.is_conditional_graph_supported()
+        self._loop: LaunchBatch | None = self._record_loop(model, plain) if device_loop and conditional else None
+
+    def _record_loop(self, model, plain: list) -> LaunchBatch:
+        """:meth:`solve`'s loop as one batch of launches whose every decision is taken on the
+        device (:mod:`softvr.contact._node_loop_kernels`): ``begin``, then while ``ctl[GO]``
+        (``wp.capture_while``) three times two sweeps (from buffers 0, 2 and 1: the rotation's
+        period), each followed by its check and each after the first only while ``ctl[GO]``
+        (``wp.capture_if``); a check is ``check_change``, the contacts' residual where it is
+        wanted, ``check_stop``; the Gauss-Seidel sweeps first ask whether a sleeping contact woke
+        and, if so, mark every contact's nodes (:meth:`GaussSeidelSweep.wake`'s launches). On the
+        CPU the conditions are read through their pointers, on CUDA they are graph nodes."""
+        d = model.device
+        load_kernels(_lk.check_change, d)
+        gs = self._gauss_seidel
+        #: The loop's integers (slots of :mod:`softvr.contact._node_loop_kernels`).
+        self.ctl = wp.zeros(_lk.CTL_SLOTS, dtype=wp.int32, device=d)
+        start = np.zeros(_lk.CTL_SLOTS, np.int32)
+        start[_lk.START_NARROW], start[_lk.RETRY] = int(self.start_narrow), self._retry
+        self.ctl.assign(start)
+        self._ctl_view = self.ctl.numpy() if wp.get_device(d).is_cpu else None
+        #: [1] the stop's tolerance [m/s] (:meth:`solve`'s, written when it changes).
+        self._tolerance = wp.full(1, np.nan, dtype=wp.float64, device=d)
+        self._tolerance_value = math.nan
+        #: [1] the most sweeps (``max_sweeps``, written when it changes).
+        self._cap = wp.full(1, self.max_sweeps, dtype=wp.int32, device=d)
+        self._cap_value = self.max_sweeps
+        checks = self.max_sweeps // 2 + 1
+        changes = [wp.zeros(checks, dtype=wp.int32, device=d), wp.zeros(checks, dtype=wp.float64, device=d)]
+        history = [wp.zeros(checks, dtype=wp.int32, device=d), wp.zeros(checks, dtype=wp.float64, device=d)]
+        floors: wp.array = wp.array(np.stack([np.asarray(f, np.float64) for f in self._floors]), dtype=wp.float64, device=d)
+        observed = RATE_SWEEPS if self._observed else 0
+        woken = wp.zeros(1, dtype=wp.int32, device=d) if gs is None else gs.flag
+        begin = replayer(wp.launch(_lk.begin, dim=1, device=d, record_cmd=True,
+                                   inputs=[self.ctl, self._cap, self._first_weights, self._bounds_weights,
+                                           self.weights]))
+        check_change = replayer(wp.launch(
+            _lk.check_change, dim=1, device=d, record_cmd=True,
+            inputs=[self.ctl, woken, self.stats, self._tolerance, floors, float(self.rho), observed, TAIL_CHECKS,
+                    self._window_sweeps, self._cap, *changes, *history]))
+        check_stop = replayer(wp.launch(
+            _lk.check_stop, dim=1, device=d, record_cmd=True,
+            inputs=[self.ctl, self.stats, self._tolerance, float(self.rate), observed, SWITCH_SWEEPS, SWITCH_AFTER,
+                    self._window_sweeps, NARROW_RETRY[0], NARROW_RETRY[1], self._cap, int(self._narrow),
+                    *changes, *history, self._bounds_weights, self.weights, self.sweep]))
+
+        def condition(slot: int) -> wp.array:
+            return self.ctl[slot:slot + 1]
+
+        go, is_plain, want = condition(_lk.GO), condition(_lk.PLAIN), condition(_lk.WANT)
+        wake = in_order(gs.wake_launches, *([gs.coarse.prepare] if gs.coarse is not None else [])) if gs else None
+
+        def two_sweeps(r: int, plain_sweeps: bool) -> Callable[[], None]:
+            return in_order(*[step for j in (r, (r + 1) % 3) for step in
+                              (*self._sweeps[j][:2], plain[j] if plain_sweeps else self._sweeps[j][2])])
+
+        def unit(r: int) -> Callable[[], None]:
+            chebyshev, plain_pair = two_sweeps(r, False), two_sweeps(r, True)
+            residual = self._residual_launches[(r + 2) % 3]
+
+            def run() -> None:
+                wp.capture_if(is_plain, on_true=plain_pair, on_false=chebyshev)
+                if gs is not None:
+                    gs.woken_launches()
+                    wp.capture_if(woken, on_true=wake)
+                self._largest()
+                check_change()
+                wp.capture_if(want, on_true=residual)
+                check_stop()
+            return run
+
+        first, second, third = unit(0), unit(2), unit(1)
+
+        def body() -> None:
+            first()
+            wp.capture_if(go, on_true=second)
+            wp.capture_if(go, on_true=third)
+
+        return LaunchBatch([begin, lambda: wp.capture_while(go, body)], d)
 
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
@@ -600,7 +680,13 @@ class NodeSolve:
         weights in use, whichever they are, so the choice moves the sweeps' count, never what
         the stop claims. Returns the sweeps made and the buffer
         holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
-        [m/s]."""
+        [m/s]. With ``device_loop`` the same decisions are taken on the device
+        (:meth:`_solve_on_device`)."""
+        if self.max_sweeps > self._weights_count:
+            raise ValueError(f"NodeSolve.solve: expected max_sweeps <= {self._weights_count} (the sweeps' weights "
+                             f"and floors were built for that many), found {self.max_sweeps}")
+        if self._loop is not None and check_every == 2 and self.max_sweeps % 2 == 0:
+            return self._solve_on_device(tolerance)
         self.prepare()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
@@ -608,37 +694,26 @@ class NodeSolve:
         changes = _Changes()  # every checked sweep's change, for the observed rate
         history = _Changes()  # change by sweeps since Chebyshev (re)started
         restart, plain_from, plain_until = 0, 0, 0
-        self.plain_sweeps = 0
+        self.plain_sweeps = self.wakes = 0
         self.plateaued = stopped = False
-        pairs = self._pairs if check_every == 2 else None
-        measured = False  # whether the last sweeps' batch took the largest change already
         k = 0
         while k < self.max_sweeps:
             if k == plain_until and k > 0 and restart < k:  # back to Chebyshev, from omega_1
                 self.sweep.zero_()
                 restart, history = k, _Changes()
             plain = k < plain_until
-            # Two sweeps as one batch where the host decides nothing between them: from a check
-            # on, with the same kind of sweep for both (plain_until falls on checks: windows are even).
-            if pairs is not None and k % 2 == 0 and k + 2 <= self.max_sweeps and (k + 1 < plain_until) == plain:
-                pairs[k % 3][plain]()
-                k += 2
-                self.plain_sweeps += 2 * plain
-                measured = self._gauss_seidel is None
-            else:
-                jacobi, contacts, cheb = self._sweeps[k % 3]
-                jacobi()
-                contacts()
-                (self._plain[k % 3] if plain else cheb)()
-                k += 1
-                self.plain_sweeps += plain
-                measured = False
+            jacobi, contacts, cheb = self._sweeps[k % 3]
+            jacobi()
+            contacts()
+            (self._plain[k % 3] if plain else cheb)()
+            k += 1
+            self.plain_sweeps += plain
             if k % check_every == 0:
                 if self._gauss_seidel is not None and self._gauss_seidel.wake():
                     plain_until = k  # a new iteration: Chebyshev from omega_1
+                    self.wakes += 1
                     continue
-                if not measured:
-                    self._largest()
+                self._largest()
                 change = float(self._read_stats()[0])
                 if not math.isfinite(change):  # NaN: the integration reports it (np.isfinite: ~4 us a check)
                     break
@@ -672,6 +747,28 @@ class NodeSolve:
         if self._narrow and not started_narrow and not self.start_narrow:
             self._until_retry -= 1
             self.start_narrow = self._retrying = self._until_retry <= 0
+        return k, self._buffers[k % 3]
+
+    def _solve_on_device(self, tolerance: float) -> tuple[int, wp.array]:
+        """:meth:`solve` with its loop as one batch (:meth:`_record_loop`; on CUDA one graph),
+        every check's decision taken on the device by :mod:`softvr.contact._node_loop_kernels`
+        (the host's formulas on the same float64 numbers, so the same sweeps), and the outcome
+        (sweeps, plain sweeps, plateau, wakes, the next solve's start) read back once."""
+        loop = self._loop
+        assert loop is not None
+        self.prepare()
+        if self._tolerance_value != tolerance:
+            self._tolerance.fill_(tolerance)
+            self._tolerance_value = tolerance
+        if self._cap_value != self.max_sweeps:
+            self._cap.fill_(self.max_sweeps)
+            self._cap_value = self.max_sweeps
+        loop()
+        ctl = self._ctl_view if self._ctl_view is not None else self.ctl.numpy()
+        k = int(ctl[_lk.K])
+        self.plain_sweeps, self.plateaued = int(ctl[_lk.PLAIN_SWEEPS]), bool(ctl[_lk.PLATEAUED])
+        self.wakes = int(ctl[_lk.WAKES])
+        self.start_narrow = bool(ctl[_lk.START_NARROW])
         return k, self._buffers[k % 3]
 
     def _next_start(self, slowed: bool, changes: _Changes, retrying: bool) -> None:

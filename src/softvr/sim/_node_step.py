@@ -556,7 +556,7 @@ class NodeStepper:
             self._recorded[5] = factored or NodeSolve(self.model, self.state, dt, choice.bounds,
                                           max_sweeps=self.scene.pgs_iterations, passes=choice.passes or SWEEP_PASSES,
                                           colours=choice.colours, omega=choice.omega, coarse=choice.coarse,
-                                          batched=self.copies, parallel=self.scene._gpu_forms or None)
+                                          parallel=self.scene._gpu_forms or None)
         return self._recorded[5]
 
     def _factored(self, dt: float, choice) -> FactoredSolve | None:
