@@ -9,6 +9,9 @@
 2. The candy's wall time a step, graphs on, with ``PARALLEL_PASS_FACTOR`` (passes of the
    one-block contact step a Gauss-Seidel pass stands for on the GPU) 1, 2 and 4: fewer passes a
    sweep against more sweeps (on the CPU's fibers: 77.5 and 63.2 sweeps a step with 1 and 2).
+3. Each scene's wall time a step, graphs on, with the sweeps' stop decided on the device (one
+   graph and one read a solve: ``NodeSolve(device_loop=True)``, the default) and on the host (a
+   read, i.e. a sync, every two sweeps): what the device's loop saves.
 
 Prints a table per part and writes ``OUT/profile.json`` (default ``device-out``). ``python3
 scripts/device_profile.py OUT cpu`` runs the same code on the CPU, one step each, as a dry run
@@ -18,6 +21,7 @@ scripts/device_profile.py OUT cpu`` runs the same code on the CPU, one step each
 from __future__ import annotations
 
 import collections
+import functools
 import json
 import sys
 import time
@@ -28,6 +32,7 @@ import warp as wp
 
 import softvr.contact.node_jacobi as node_jacobi
 import softvr.device as device_module
+import softvr.sim._node_step as node_step
 from softvr.bench.contact import FULL_SCENE, softvr_scene
 from softvr.scene import bundled, load_scene
 
@@ -121,6 +126,25 @@ def pass_factors(name: str = "candy") -> dict:
     return out
 
 
+def loops() -> dict:
+    """Part 3: wall ms a step (graphs on), the stop on the device and on the host, per scene."""
+    out: dict = {}
+    solve = node_step.NodeSolve
+    try:
+        for name in ("shoulder", "cubes64", "candy"):
+            for on_device in (True, False):
+                node_step.NodeSolve = functools.partial(solve, device_loop=on_device)
+                step, _ = _scene(name)
+                for _ in range(WARMUP):
+                    step()
+                key = f"{name}, stop on the {'device' if on_device else 'host'}"
+                out[key] = _wall_ms(step, STEPS)
+                print(f"{key}: {out[key]:.2f} ms a step (median of {STEPS})")
+    finally:
+        node_step.NodeSolve = solve
+    return out
+
+
 def main(argv: list[str]) -> int:
     global DEVICE, WARMUP, STEPS
     out = Path(argv[0] if argv else "device-out")
@@ -131,11 +155,13 @@ def main(argv: list[str]) -> int:
     elif not wp.is_cuda_available():
         print("device_profile: no CUDA device here (it profiles the CUDA step; `OUT cpu` for a dry run)")
         return 2
-    report = {"device": wp.get_device(DEVICE).name, "kernels": {}, "pass_factor_ms": {}}
+    report = {"device": wp.get_device(DEVICE).name, "kernels": {}, "pass_factor_ms": {}, "loop_ms": {}}
     for name in ("shoulder", "cubes64", "candy"):
         report["kernels"][name] = kernels(name)
         _write(out / "profile.json", report)
     report["pass_factor_ms"] = pass_factors()
+    _write(out / "profile.json", report)
+    report["loop_ms"] = loops()
     _write(out / "profile.json", report)
     return 0
 
