@@ -29,16 +29,23 @@ for big in .whl/dl/warp_lang-*.whl .whl/dl/vtk-*.whl; do
     done
     rm "$big"
 done
-# The small wheels (and with --vtk the head CT) with the last part where they fit under ~52 MB,
-# else in a folder of their own; the MANIFEST goes last.
+# Every kernel module compiled for the GPU (sm_90) here, through the wheel's NVRTC: the device
+# machine loads them from this cache instead of compiling each on its first use (~3.5 minutes of
+# NVRTC here, the collision module alone ~1: scripts/device_kernels.py). ~3 MB packed.
+log=${TMPDIR:-/tmp}/softvr-device-kernels.log
+$py scripts/device_kernels.py .whl/kernels-cache > "$log" 2>&1 || { tail -20 "$log"; exit 1; }
+tar czf .whl/dl/kernels.tgz --exclude='*.cu' -C .whl kernels-cache
+rm -rf .whl/kernels-cache
+# The small wheels and the kernels (and with --vtk the head CT) with the last part where they fit
+# under ~52 MB, else in a folder of their own; the MANIFEST goes last.
 if [ "${1:-}" = "--vtk" ]; then
     k=$((k + 1)); mkdir -p ".whl/$k"
     cp "$($py -c "from softvr.datasets import HEAD_CT_PATH, data_file; print(data_file(HEAD_CT_PATH, 'invesalius-examples'))")" ".whl/$k/"
 fi
-if [ $(( $(du -sm ".whl/$k" | cut -f1) + $(du -smc .whl/dl/*.whl | tail -1 | cut -f1) )) -gt 52 ]; then
+if [ $(( $(du -sm ".whl/$k" | cut -f1) + $(du -smc .whl/dl/* | tail -1 | cut -f1) )) -gt 52 ]; then
     k=$((k + 1)); mkdir -p ".whl/$k"
 fi
-mv .whl/dl/*.whl ".whl/$k/"
+mv .whl/dl/*.whl .whl/dl/kernels.tgz ".whl/$k/"
 rmdir .whl/dl
 # What device_check.sh waits for before it installs: every part and file, by name.
 (cd .whl && ls */* | sed 's|^[0-9]*/||' | grep -v '^MANIFEST$' > "$k/MANIFEST")
