@@ -61,3 +61,23 @@ def test_kernels_compile_to_ptx(name, tmp_path):
     text = ptx[0].read_text()
     for kernel in MODULES[name]:
         assert kernel in text
+
+
+def test_the_device_checks_kernel_cache_takes_every_module_that_declares_a_kernel():
+    # scripts/device_kernels.py compiles what it finds through Warp's module registry after
+    # importing every package; the truth here is the source text: every file under src/softvr
+    # with a kernel decorator (the Blender add-on aside: it needs bpy, and declares none).
+    import pathlib
+    import re
+    import sys
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "scripts"))
+    try:
+        import device_kernels
+    finally:
+        sys.path.pop(0)
+    declared = {".".join(path.relative_to(root / "src").with_suffix("").parts)
+                for path in (root / "src" / "softvr").rglob("*.py")
+                if re.search(r"^@wp\.kernel", path.read_text(), re.MULTILINE)}
+    assert declared and declared <= set(device_kernels.kernel_modules())
