@@ -13,7 +13,7 @@ import warp as wp
 
 import softvr.device as device_module
 from softvr.device import (ITEMS_A_CPU_THREAD, HostMirror, LaunchBatch, _openblas_controls, blocked_launch, blocked_replayer, chunked_replayer,
-                           launch, replayer, single_threaded_blas)
+                           launch, pull_all, replayer, single_threaded_blas)
 
 
 @wp.kernel
@@ -74,6 +74,25 @@ def test_a_host_mirror_shares_the_cpu_array_or_copies_it_across_push_and_pull(de
     np.testing.assert_array_equal(row, [7.0, 8.0, 9.0] if shared else [-1.0, -1.0, -1.0])
     mirror.pull()
     np.testing.assert_array_equal(row, [7.0, 8.0, 9.0])
+
+
+def test_pull_all_brings_back_each_mirrors_first_rows_with_one_wait(device, monkeypatch):
+    # Two copied mirrors (a 2-D int array and a 1-D array of 3x3 matrices), the first pulled for
+    # its first 2 rows, the second whole: NumPy's slices of what the device wrote are the truth;
+    # the rows past 2 keep what the host had; one synchronization for both.
+    ints = wp.array(np.zeros((5, 4), np.int32), dtype=wp.int32, device=device)
+    mats = wp.array(np.zeros((3, 3, 3)), dtype=wp.mat33d, device=device)
+    first, second = HostMirror(ints, copies=True), HostMirror(mats, copies=True)
+    written_ints, written_mats = np.arange(20, dtype=np.int32).reshape(5, 4), np.arange(27.0).reshape(3, 3, 3)
+    ints.assign(written_ints)
+    mats.assign(written_mats)
+    waits = []
+    monkeypatch.setattr(wp, "synchronize_device", lambda d=None: waits.append(d))
+    pull_all([first, second], [2, None])
+    np.testing.assert_array_equal(first.host[:2], written_ints[:2])
+    np.testing.assert_array_equal(first.host[2:], 0)
+    np.testing.assert_array_equal(second.host, written_mats)
+    assert len(waits) == 1
 
 
 def test_a_split_launch_runs_each_thread_once_with_its_own_index(monkeypatch):

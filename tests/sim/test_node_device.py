@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from softvr import Scene
+from softvr import Scene, SimulationError
 from softvr.collision import Plane
 from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import LaunchBatch
@@ -115,6 +115,28 @@ def test_free_fall_takes_velocities_positions_and_forces_written_between_steps(t
     # Velocity first, then position: z = z0 + n dt vz0 + g dt^2 n (n + 1) / 2.
     np.testing.assert_allclose(body.q[:, 2], z0 + n * dt * vz0 + G * dt * dt * n * (n + 1) / 2,
                                atol=n * dt * VELOCITY_TOL)
+
+
+@pytest.mark.parametrize("target", [pytest.param(("cpu", False, False), id="cpu")] + TARGETS)
+def test_a_rigid_body_that_diverges_in_its_unconstrained_step_is_named_and_nothing_moves(target):
+    # A NaN angular velocity written into a rigid box beside an FEM cube: the step stops with the
+    # box's own report (its velocity, as RigidBody.step reports it: tests/dynamics/test_rigid.py),
+    # not a node's, though the NaN reaches the sweeps; and neither body moves. On the CPU's own
+    # arrays the box's flags are read before the sweeps; off them (the host copies, CUDA) after
+    # the whole step, the flags of the unconstrained step first (RigidNodes.check_before).
+    body = _cube(lift=0.5)
+    scene = _scene(body, target)
+    half = np.array([0.05, 0.05, 0.05])
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
+    box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, 0.6 + half[2]], name="box")
+    scene.add_body(box, collision_points=RigidPoints(box, corners))
+    scene.step(0.01)
+    box.v[4] = np.nan
+    q, position = body.q.copy(), box.position.copy()
+    with pytest.raises(SimulationError, match=r"box: diverged at step 2 \(velocity NaN/inf\)"):
+        scene.step(0.01)
+    np.testing.assert_array_equal(body.q, q)
+    np.testing.assert_array_equal(box.position, position)
 
 
 @pytest.mark.parametrize("target", TARGETS)
@@ -224,15 +246,17 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
 def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, gpu_forms, monkeypatch):
     # Off the CPU's own arrays a step is four LaunchBatches (on CUDA four captured graphs): the
     # launches before the sweeps (dynamics, collision: NodeStepper._stages), the solve's whole loop
-    # (NodeSolve._record_loop: its sweeps and their checks, the stop decided on the device, the
-    # conditions of wp.capture_while / capture_if read through their pointers here, graph nodes on
-    # CUDA), and the settling after them. A graph records launches only: a host read inside a
-    # batch (an array's numpy(), a copy, a synchronize) would run once, at the capture, and never
-    # again. Through the host copies the batches run on the CPU, with every such read refused
-    # inside them; and the sweeps must all run inside the loop's batch (counted there).
+    # (NodeSolve._record_loop: its sweeps and their checks, the stop decided on the device), and
+    # what follows it (NodeStepper._after_sweeps: adhesion's evolve, the settling, the rigid
+    # bodies' integration, for the sweep buffer the loop marked), the conditions of
+    # wp.capture_while / capture_if read through their pointers here, graph nodes on CUDA. A graph
+    # records launches only: a host read inside a batch (an array's numpy(), a copy, a
+    # synchronize) would run once, at the capture, and never again. Through the host copies the
+    # batches run on the CPU, with every such read refused inside them; every solve is launched
+    # on the device (its sweeps run only inside its batch).
     inside, batches, solves = [False], [0], [0]
     original = LaunchBatch.__call__
-    solve = NodeSolve._solve_on_device
+    solve = NodeSolve.launch
 
     def batch(self):
         inside[0] = True
@@ -253,7 +277,7 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
         return guard
 
     monkeypatch.setattr(LaunchBatch, "__call__", batch)
-    monkeypatch.setattr(NodeSolve, "_solve_on_device", on_device)
+    monkeypatch.setattr(NodeSolve, "launch", on_device)
     monkeypatch.setattr(wp.array, "numpy", refused(wp.array.numpy))
     for call in ("copy", "synchronize", "synchronize_device", "synchronize_stream"):
         monkeypatch.setattr(wp, call, refused(getattr(wp, call)))
@@ -273,6 +297,5 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
                 sweeps += example.scene.last_solution.iterations
             scene = example.scene
     assert scene.path == "node arrays on cpu (host copies)"
-    # Every step's solve on the device (its sweeps run only inside its batch), and three batches a
-    # step around it (dynamics, collision, settling: _stages).
+    # Every step's solve launched on the device, and three batches a step around it.
     assert sweeps > 0 and solves[0] == 20 and batches[0] == 4 * 20

@@ -45,12 +45,15 @@ ENDED = wp.constant(16)  # the change was NaN: the loop ends without a stop
 STARTED_NARROW = wp.constant(17)
 RETRYING_NOW = wp.constant(18)  # whether this solve's start on the narrower weights is a retry
 WAKES = wp.constant(19)  # Gauss-Seidel checks that found a sleeping contact woken (NodeSolve.wakes)
+# [3] one-hot: the buffer (sweeps modulo 3) holding the solved velocities, set when the loop ends,
+# so that what follows the solve can choose its launches on the device (NodeSolve.buffer_flags).
+BUFFER = wp.constant(24)
 # Carried from solve to solve (NodeSolve.start_narrow and its retry counters).
 START_NARROW = wp.constant(20)
 RETRYING = wp.constant(21)
 RETRY = wp.constant(22)
 UNTIL_RETRY = wp.constant(23)
-CTL_SLOTS = 24
+CTL_SLOTS = 27
 
 _INF = wp.constant(wp.float64(float("inf")))
 
@@ -119,7 +122,7 @@ def begin(ctl: wp.array(dtype=wp.int32), cap: wp.array(dtype=wp.int32), first_we
           bounds_weights: wp.array(dtype=wp.float64), weights: wp.array(dtype=wp.float64)):
     """A solve's start (one thread): the Chebyshev weights it starts on (the narrower ones where
     ``ctl[START_NARROW]``), whether that start is a retry, every counter of the loop zeroed;
-    ``ctl[GO]`` whether it sweeps at all (``cap[0]``: the most sweeps)."""
+    ``ctl[GO]`` whether it sweeps at all (``cap[0]``: the most sweeps), buffer 0's flag set."""
     narrow = ctl[START_NARROW]
     ctl[NARROW] = narrow
     ctl[STARTED_NARROW] = narrow
@@ -133,6 +136,8 @@ def begin(ctl: wp.array(dtype=wp.int32), cap: wp.array(dtype=wp.int32), first_we
         if slot != NARROW and slot != STARTED_NARROW and slot != RETRYING_NOW:
             ctl[slot] = 0
     ctl[GO] = wp.where(cap[0] > 0, 1, 0)
+    for r in range(3):  # no sweeps: the start's buffer
+        ctl[BUFFER + r] = wp.where(r == 0, 1, 0)
 
 
 @wp.kernel(enable_backward=False)
@@ -212,7 +217,8 @@ def check_stop(ctl: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64),
     window of plain sweeps where the narrower weights slowed or the sweeps stalled (and the next
     solve's start, ``can_narrow`` where there are narrower weights), then the next two sweeps:
     a restart of the Chebyshev weights (``sweep[0]`` zeroed) where a plain window ends,
-    ``ctl[PLAIN]`` and ``ctl[GO]``. When the loop ends, the narrower weights' retry count."""
+    ``ctl[PLAIN]`` and ``ctl[GO]``. When the loop ends, the narrower weights' retry count and
+    the solved velocities' buffer (``ctl[BUFFER + k % 3]``, the others 0)."""
     k = ctl[K]
     tol = tolerance[0]
     met = 0
@@ -268,6 +274,8 @@ def check_stop(ctl: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64),
         ctl[STOPPED] = 1
     if stop != 0 or ctl[ENDED] != 0 or k >= cap[0]:
         ctl[GO] = 0
+        for r in range(3):
+            ctl[BUFFER + r] = wp.where(r == k % 3, 1, 0)
         if can_narrow != 0 and ctl[STARTED_NARROW] == 0 and ctl[START_NARROW] == 0:
             ctl[UNTIL_RETRY] = ctl[UNTIL_RETRY] - 1
             again = wp.where(ctl[UNTIL_RETRY] <= 0, 1, 0)

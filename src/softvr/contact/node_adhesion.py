@@ -148,7 +148,7 @@ class NodeAdhesion:
     def record(self, dt: float) -> tuple[Callable[[], None], list]:
         """Replays for a step of ``dt`` [s]: the one before the sweeps (after detection) and,
         per sweep buffer of ``state.sweep_buffers``, the one after them (after the residual
-        has set ``gap_after``)."""
+        has set ``gap_after``; :meth:`detach_issued` first)."""
         m, st = self._model, self._state
         c, d = st.contacts, m.device
         for kernel in (_k.prepare, _k.clear_bonded, _k.count_bonded, _k.share_patches, _k.evolve):
@@ -174,13 +174,14 @@ class NodeAdhesion:
                                    inputs=[ad, *contacts, c.area, c.stiffness, threads])),
                 chunked_replayer(_k.share_patches, threads, [ad, *contacts, c.stiffness, threads], d, min_chunk=1))
         # The evolve kernel rewrites the carried table: a state handed out before and still
-        # held copies its rows out first.
-        evolve = [in_order(self._detach_issued, self._record_parallel_evolve(dt, buf) if self.parallel else
-                           replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
-                                              inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after,
-                                                      c.stencil_count, c.stencil_nodes, c.stencil_weights,
-                                                      c.rigid_node, c.rigid_lever, m.fixed, buf, c.area, c.stiffness,
-                                                      c.slip, float(dt)])))
+        # held must copy its rows out first (detach_issued, which the caller runs on the host
+        # before these launches).
+        evolve = [self._record_parallel_evolve(dt, buf) if self.parallel else
+                  replayer(wp.launch(_k.evolve, dim=1, device=d, record_cmd=True,
+                                     inputs=[self.arrays, c.count, c.frame, c.impulse, c.gap_after,
+                                             c.stencil_count, c.stencil_nodes, c.stencil_weights,
+                                             c.rigid_node, c.rigid_lever, m.fixed, buf, c.area, c.stiffness,
+                                             c.slip, float(dt)]))
                   for buf in st.sweep_buffers]
         return prepare, evolve
 
@@ -211,7 +212,7 @@ class NodeAdhesion:
     def carry_in(self, adhesion: AdhesionState, warm: dict) -> None:
         """The per-object path's intensities and slips (and the warm starts of those contacts,
         which may pull), by key, as the carried table."""
-        self._detach_issued()
+        self.detach_issued()
         ad = self.arrays
         cap = ad.carried_key.shape[0]
         keys = np.array(sorted(adhesion.intensity), np.int64)
@@ -240,12 +241,12 @@ class NodeAdhesion:
     def state(self) -> AdhesionState:
         """The intensities and slips of the last step's contacts, by key, read from the arrays
         when first used (copied out first if a later step is about to write them)."""
-        self._detach_issued()
+        self.detach_issued()
         view = _CarriedAdhesionState(self)
         self._issued = weakref.ref(view)
         return view
 
-    def _detach_issued(self) -> None:
+    def detach_issued(self) -> None:
         """Let the state handed out last, if still held, copy the table before it changes."""
         held = self._issued() if self._issued is not None else None
         if held is not None:

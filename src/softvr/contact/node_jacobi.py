@@ -274,7 +274,7 @@ class NodeSolve:
         two-level ``M^-1 A``); with ``colours``, the aggregates each Gauss-Seidel sweep corrects
         after its node update (:mod:`softvr.contact.node_gs_coarse`; ``spectrum`` that iteration's).
     device_loop : bool
-        Take the loop's decisions on the device (:meth:`_solve_on_device`: the sweeps and their
+        Take the loop's decisions on the device (:meth:`launch`: the sweeps and their
         checks as one :class:`~softvr.device.LaunchBatch` a solve, on CUDA one graph launch and
         one read back instead of a launch or more a kernel and a read a check); False: on the
         host, sweep by sweep (:meth:`solve`'s own loop, the reference the device's is checked
@@ -456,6 +456,7 @@ class NodeSolve:
             wp.launch(_k.largest_change, dim=1, device=d, record_cmd=True,
                       inputs=[self.change, model.node_count, self.stats]))
         self._buffers = buf
+        self.buffer_flags: list[wp.array] = []  # (:meth:`_record_loop`)
         conditional = wp.get_device(d).is_cpu or wp.is_conditional_graph_supported()
         self._loop: LaunchBatch | None = self._record_loop(model, plain) if device_loop and conditional else None
 
@@ -506,6 +507,11 @@ class NodeSolve:
             return self.ctl[slot:slot + 1]
 
         go, is_plain, want = condition(_lk.GO), condition(_lk.PLAIN), condition(_lk.WANT)
+        #: [3] int32 arrays of one element: 1 in the one for the buffer (sweeps modulo 3) that
+        #: holds the last device-decided solve's velocities, set on the device when its loop ends
+        #: (``wp.capture_if`` conditions for the launches after it: :meth:`launch`); empty
+        #: without the device's loop.
+        self.buffer_flags = [condition(_lk.BUFFER + r) for r in range(3)]
         wake = in_order(gs.wake_launches, *([gs.coarse.prepare] if gs.coarse is not None else [])) if gs else None
 
         def two_sweeps(r: int, plain_sweeps: bool) -> Callable[[], None]:
@@ -650,7 +656,8 @@ class NodeSolve:
         self._metric()
         self._list_movers()
 
-    def solve(self, tolerance: float, check_every: int = 2) -> tuple[int, wp.array]:
+    def solve(self, tolerance: float, check_every: int = 2,
+              then: Callable[[], None] | None = None) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is estimated as the geometric tail of the largest change
@@ -681,12 +688,19 @@ class NodeSolve:
         the stop claims. Returns the sweeps made and the buffer
         holding the solved velocities; ``stats[1]`` then holds the largest normal-velocity error
         [m/s]. With ``device_loop`` the same decisions are taken on the device
-        (:meth:`_solve_on_device`)."""
+        (:meth:`decides_on_device`: :meth:`launch`, ``then``, :meth:`outcome`); ``then``, only
+        there, launches what follows the solve before its outcome is read (choosing its sweep
+        buffer by :attr:`buffer_flags`), so that the read waits for all of it at once."""
         if self.max_sweeps > self._weights_count:
             raise ValueError(f"NodeSolve.solve: expected max_sweeps <= {self._weights_count} (the sweeps' weights "
                              f"and floors were built for that many), found {self.max_sweeps}")
-        if self._loop is not None and check_every == 2 and self.max_sweeps % 2 == 0:
-            return self._solve_on_device(tolerance)
+        if self.decides_on_device(check_every):
+            self.launch(tolerance)
+            if then is not None:
+                then()
+            return self.outcome()
+        if then is not None:
+            raise ValueError("NodeSolve.solve: 'then' needs a solve that decides on the device (decides_on_device())")
         self.prepare()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
@@ -749,13 +763,22 @@ class NodeSolve:
             self.start_narrow = self._retrying = self._until_retry <= 0
         return k, self._buffers[k % 3]
 
-    def _solve_on_device(self, tolerance: float) -> tuple[int, wp.array]:
-        """:meth:`solve` with its loop as one batch (:meth:`_record_loop`; on CUDA one graph),
-        every check's decision taken on the device by :mod:`softvr.contact._node_loop_kernels`
-        (the host's formulas on the same float64 numbers, so the same sweeps), and the outcome
-        (sweeps, plain sweeps, plateau, wakes, the next solve's start) read back once."""
+    def decides_on_device(self, check_every: int = 2) -> bool:
+        """Whether :meth:`solve` takes its loop's decisions on the device (``device_loop``, an
+        even ``max_sweeps``, checks every two sweeps): then it takes ``then``, and
+        :attr:`buffer_flags` say on the device where the solution is."""
+        return self._loop is not None and check_every == 2 and self.max_sweeps % 2 == 0
+
+    def launch(self, tolerance: float) -> None:
+        """The first half of :meth:`solve` on the device: the prepare and the loop launched (one
+        batch, on CUDA one graph: :meth:`_record_loop`), every check's decision taken on the
+        device by :mod:`softvr.contact._node_loop_kernels` (the host's formulas on the same
+        float64 numbers, so the same sweeps), nothing read back; :meth:`outcome` reads it.
+        Launches after it choose their sweep buffer on the device (:attr:`buffer_flags`)."""
         loop = self._loop
-        assert loop is not None
+        if loop is None or not self.decides_on_device():
+            raise ValueError("NodeSolve.launch: expected a solve that decides on the device (device_loop, an even "
+                             f"max_sweeps), found device_loop={loop is not None}, max_sweeps={self.max_sweeps}")
         self.prepare()
         if self._tolerance_value != tolerance:
             self._tolerance.fill_(tolerance)
@@ -764,6 +787,10 @@ class NodeSolve:
             self._cap.fill_(self.max_sweeps)
             self._cap_value = self.max_sweeps
         loop()
+
+    def outcome(self) -> tuple[int, wp.array]:
+        """The second half: the launched solve's outcome read back once (sweeps, plain sweeps,
+        plateau, wakes, the next solve's start): the sweeps and the buffer with the velocities."""
         ctl = self._ctl_view if self._ctl_view is not None else self.ctl.numpy()
         k = int(ctl[_lk.K])
         self.plain_sweeps, self.plateaued = int(ctl[_lk.PLAIN_SWEEPS]), bool(ctl[_lk.PLATEAUED])

@@ -16,11 +16,12 @@ each other through the rigid path's detection; the bodies move by the rigid path
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import warp as wp
 
-from softvr.device import HostMirror, replayer
+from softvr.device import HostMirror, pull_all, replayer
 from softvr.dynamics import RigidBody
 from softvr.dynamics.node_rigid import record_rigid_system, record_rigid_velocity
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
@@ -149,6 +150,9 @@ class RigidNodes:
         self._views = bind_views(self.bodies, *(m.host for m in self._poses))
         self._external = HostMirror(st.external, copies)
         self._diverged = HostMirror(st.diverged, copies)
+        # The divergence flags as the unconstrained step left them (before_sweeps(check=False):
+        # read with the rest after the step, so that no read waits in its middle).
+        self._diverged_before = HostMirror(wp.zeros_like(st.diverged), copies)
         self._recorded: tuple = ()
 
     def sync_in(self) -> None:
@@ -166,9 +170,12 @@ class RigidNodes:
                           record_rigid_system(r, state), [record_rigid_velocity(r, buf) for buf in state.sweep_buffers],
                           replayer(record_integrate(r.model, r.state, dt)))
 
-    def before_sweeps(self) -> None:
+    def before_sweeps(self, check: bool = True) -> None:
         """The unconstrained velocities (eq. 5.2, with ``Scene.external``'s forces and torques)
-        and the nodes' ``D_A^-1`` and ``b``; run after the FEM nodes' right-hand side."""
+        and the nodes' ``D_A^-1`` and ``b``; run after the FEM nodes' right-hand side. A body
+        that diverged in it stops the step here (:meth:`check`), or, without ``check``, when
+        :meth:`check_before` reads its flags after the step (the integration keeps a flagged
+        body where it was)."""
         unconstrained, system, _, _ = self._recorded
         external = self._external.host
         external[:] = 0.0
@@ -177,24 +184,52 @@ class RigidNodes:
                 external[r] = self.bodies[r]._check_external(self.scene.external[b])
         self._external.push()
         unconstrained()
-        self.check()
+        if check:
+            self.check()
+        else:
+            wp.copy(self._diverged_before.array, self.rigid.state.diverged)
         system()
 
     def integrate(self, buffer: int) -> None:
         """Move the bodies by the velocities the sweeps solved (``state.sweep_buffers[buffer]``)."""
-        _, _, velocity, integrate = self._recorded
+        _, _, velocity, _ = self._recorded
         velocity[buffer]()
-        integrate()
+        self.after_sweeps()
+
+    def integrate_launches(self, buffer_flags: list) -> Callable[[], None]:
+        """:meth:`integrate`'s launches for the buffer whose flag of ``buffer_flags`` [3] (int32
+        arrays of one element: :attr:`NodeSolve.buffer_flags`) is set on the device, each as a
+        ``wp.capture_if``, then the integration: nothing read back (:meth:`after_sweeps` with
+        ``launched``)."""
+        _, _, velocity, integrate = self._recorded
+
+        def run() -> None:
+            for flag, launch in zip(buffer_flags, velocity):
+                wp.capture_if(flag, on_true=launch)
+            integrate()
+        return run
+
+    def after_sweeps(self, launched: bool = False) -> None:
+        """The integration (unless ``launched`` already), the divergence check, the poses
+        pulled to the host, the step counted."""
+        if not launched:
+            self._recorded[3]()
         self.check()
-        for mirror in self._poses:
-            mirror.pull()
+        pull_all(self._poses)
         for body in self.bodies:
             body.step_count += 1
 
+    def check_before(self) -> None:
+        """:meth:`check` on the flags the unconstrained step left (``before_sweeps(check=False)``)."""
+        self._raise_diverged(self._diverged_before)
+
     def check(self) -> None:
         """Stop with a report naming the body and the step (SimulationError) if one diverged."""
-        self._diverged.pull()
-        diverged = self._diverged.host
+        self._raise_diverged(self._diverged)
+
+    def _raise_diverged(self, flags: HostMirror) -> None:
+        flags.pull()
+        diverged = flags.host
         if diverged.any():
             r = int(np.flatnonzero(diverged)[0])
             raise self.bodies[r]._diverged(DIVERGENCE_REASONS[int(diverged[r])])

@@ -39,7 +39,7 @@ from softvr.contact.node_coarse import coarse_aggregates
 from softvr.contact.node_factored import (FactoredSolve, factored_eligible, factored_work, free_matrix,
                                         sweeps_step_work)
 from softvr.contact.node_jacobi import NodeSolve, movable_contacts
-from softvr.device import HostMirror, LaunchBatch, in_order, replayer, resolve_device
+from softvr.device import HostMirror, LaunchBatch, in_order, pull_all, replayer, resolve_device
 from softvr.dynamics.node_arrays import (NODE_DIVERGENCE_REASONS, record_drive, record_elements, record_integrate,
                                          record_start, record_system)
 from softvr.dynamics.node_couplings import record_couplings
@@ -78,6 +78,8 @@ SWEEP_PASSES = 2
 _CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
                    "gap_after", "rigid_node", "rigid_lever", "area")
 _RIGID_CONTACT_FIELDS = {"key": "key", "point_a": "point_a", "point_b": "point_b", "rigid_area": "area"}
+#: What every step reads back (NodeStepper._host): the contacts' count and the divergence flags.
+_STEP_READS = ("count", "diverged")
 
 
 class IllConditioned(Exception):
@@ -330,6 +332,7 @@ class NodeStepper:
         self._recorded: list[Any] = []
         # (the recorded list, the adhesion replays, their groups: _stages)
         self._staged: tuple[Any, Any, Any] | None = None
+        self._after: tuple[tuple, LaunchBatch] | None = None  # _after_sweeps' batch and its key
         self._spectrum: dict[float, Any] = {}  # the sweeps' choice per step size (choose_sweeps)
         self._issued: Callable[[], _NodeSnapshot | None] = lambda: None  # a weak reference to the last step's snapshot
 
@@ -366,7 +369,11 @@ class NodeStepper:
         if self.model.rigid is not None:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
                                       for name, field in _RIGID_CONTACT_FIELDS.items()})
-        self._host_views = None if self.copies else {name: array.numpy() for name, array in self._host_arrays.items()}
+        # Read back after a step (on the CPU views of the arrays' own memory): a group at a time,
+        # the first time the step asks for one of it, with one wait (pull_all).
+        self._host_mirrors = {name: HostMirror(array, self.copies) for name, array in self._host_arrays.items()}
+        self._contact_reads = tuple(name for name in self._host_mirrors if name not in _STEP_READS)
+        self._pulled: set[tuple[str, ...]] = set()
         # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
         # (three upload calls cost ~10 us a step), else copies pushed after.
         self._pose_mirrors = [HostMirror(a, self.copies) for a in (st.kinematic_position, st.kinematic_rotation,
@@ -534,6 +541,30 @@ class NodeStepper:
         self._staged = (recorded, self._adhesion_replays, (dynamics, collision, settle))
         return self._staged[2]
 
+    def _after_sweeps(self, solve: NodeSolve) -> LaunchBatch:
+        """The launches after a solve decided on the device (``NodeSolve.solve``'s ``then``), as one
+        batch (on CUDA one graph): adhesion's evolve, the settling (warm starts carried, the
+        integration) and the rigid bodies' velocities and integration, each for the sweep buffer
+        ``solve.buffer_flags`` mark (``wp.capture_if``), where the host would pick them by the
+        sweeps' count."""
+        key = (self._recorded, self._adhesion_replays, solve)
+        if self._after is not None and all(a is b for a, b in zip(self._after[0], key)):
+            return self._after[1]
+        _, _, _, _, _, _, carry, integrate, _, _ = self._recorded
+        flags = solve.buffer_flags
+        chosen = [in_order(carry, integrate[r]) for r in range(3)]
+        if self.adhesion is not None:
+            chosen = [in_order(self._adhesion_replays[1][1][r], chosen[r]) for r in range(3)]
+
+        def by_flag() -> None:
+            for flag, launches in zip(flags, chosen):
+                wp.capture_if(flag, on_true=launches)
+
+        batch = LaunchBatch([by_flag, *([self.rigid.integrate_launches(flags)] if self.rigid is not None else [])],
+                            self.device)
+        self._after = (key, batch)
+        return batch
+
     def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
@@ -598,6 +629,7 @@ class NodeStepper:
         held = self._issued()
         if held is not None:  # last step's solution is still held: it keeps its contacts
             held.detach()
+        self._pulled.clear()  # (the step's reads come back after it)
         self._sync_in()
         for mirror in self._state_mirrors:  # before the drive, which writes the driven nodes' rows
             mirror.push()
@@ -608,25 +640,42 @@ class NodeStepper:
             self._adhesion_replays = (dt, self.adhesion.record(dt))
         dynamics, collision, settle = self._stages()
         dynamics()
-        if self.rigid is not None:
-            self.rigid.before_sweeps()
+        if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
+            self.rigid.before_sweeps(check=not self.copies)
         t1 = time.perf_counter()
         collision()
         t2 = time.perf_counter()
         solve = self._solver(dt)  # after the detection: the choice counts the contacts
         self._recorded[9][self._carried]()  # the sweeps' first guess
         self._carried = True
-        sweeps, solved = solve.solve(SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance)
+        tolerance = SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance
+        # Off the CPU's arrays, a solve that decides on the device is launched with everything
+        # after it (the launches for its buffer chosen on the device) before anything is read:
+        # the step's first read waits for the whole step, none in its middle.
+        on_device = None if isinstance(solve, FactoredSolve) or not self.copies else solve
+        launched = on_device is not None and on_device.decides_on_device()
         if self.adhesion is not None:
-            self._adhesion_replays[1][1][sweeps % 3]()  # (its Python side detaches a held state first)
-            self.scene.adhesion_state = self.adhesion.state()
+            self.adhesion.detach_issued()  # a held state copies its rows before evolve rewrites them
+        if on_device is not None and launched:
+            sweeps, solved = on_device.solve(tolerance, then=self._after_sweeps(on_device))
+        else:
+            sweeps, solved = solve.solve(tolerance)
+            if self.adhesion is not None:
+                self._adhesion_replays[1][1][sweeps % 3]()
         t3 = time.perf_counter()
-        settle[sweeps % 3]()
+        if not launched:
+            settle[sweeps % 3]()
+        if self.adhesion is not None:
+            self.scene.adhesion_state = self.adhesion.state()
+        if self.rigid is not None and self.copies:
+            self.rigid.check_before()
         self._check()
-        for mirror in self._state_mirrors:
-            mirror.pull()
+        pull_all(self._state_mirrors)
         if self.rigid is not None:
-            self.rigid.integrate(sweeps % 3)
+            if launched:
+                self.rigid.after_sweeps(launched=True)
+            else:
+                self.rigid.integrate(sweeps % 3)
         for i, body in enumerate(self.scene.bodies):
             if self.fem[i]:
                 body.step_count += 1
@@ -644,11 +693,23 @@ class NodeStepper:
 
     def _host(self, name: str) -> np.ndarray:
         """Array ``name`` of those a step reads back (:meth:`_contacts_out`, ``point_x``,
-        ``diverged``) on the host: on the CPU a view made once (Warp's ``numpy()`` costs a few
-        us a call, and a step makes 20), else a copy."""
-        if self._host_views is not None:
-            return self._host_views[name]
-        return self._host_arrays[name].numpy()
+        ``diverged``) on the host: on the CPU a view of its memory (Warp's ``numpy()`` costs a
+        few us a call, and a step makes 20); elsewhere the view of a host copy, which the step's
+        first read of its group fills, the whole group with one wait (:func:`pull_all`): the
+        step's count and divergence flags, then, where asked (the haptic tool asks every step),
+        the contacts' fields, their first ``count`` rows. The views are the step's until the
+        next step pulls again (:meth:`_NodeSnapshot.detach` copies out what a held one needs)."""
+        group = _STEP_READS if name in _STEP_READS else self._contact_reads
+        if group not in self._pulled:
+            self._pulled.add(group)
+            if group is _STEP_READS:
+                pull_all([self._host_mirrors[n] for n in group])
+            else:
+                count = min(int(self._host("count")[0]), self.state.contacts.capacity)
+                by_contact = set(_CONTACT_FIELDS) | {"stencil_nodes", "stencil_count"}  # (point_x and the
+                # rigid path's rows are whole)
+                pull_all([self._host_mirrors[n] for n in group], [count if n in by_contact else None for n in group])
+        return self._host_mirrors[name].host
 
     def _contacts_out(self, n: int) -> dict:
         """The last step's ``n`` contacts as host arrays (those of :data:`_CONTACT_FIELDS` views of
