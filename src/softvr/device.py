@@ -29,9 +29,9 @@ import warp as wp
 from softvr.errors import InputError
 
 __all__ = [
-    "ITEMS_A_CPU_THREAD", "HostMirror", "LaunchBatch", "blocked_launch", "blocked_replayer", "chunked_replayer", "cpu_workers", "cuda_driver_present",
-    "in_order", "launch", "load_kernels", "pull_all", "replayer", "resolve_device", "single_threaded_blas", "stride_threads",
-    "upload",
+    "ITEMS_A_CPU_THREAD", "HostMirror", "LaunchBatch", "blocked_launch", "blocked_replayer", "chunked_replayer",
+    "cpu_workers", "cuda_driver_present", "in_order", "launch", "load_kernels", "pull_all", "replayer", "resolve_device",
+    "single_threaded_blas", "stride_threads", "upload",
 ]
 
 

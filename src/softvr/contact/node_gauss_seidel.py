@@ -144,7 +144,7 @@ class GaussSeidelSweep:
                 inputs=[c.count, self.asleep, c.impulse, self.flag, threads])))
         else:
             self.woken_launches = replayer(wp.launch(_k.woken, dim=1, device=d, record_cmd=True,
-                                             inputs=[c.count, self.asleep, c.impulse, self.flag]))
+                                                     inputs=[c.count, self.asleep, c.impulse, self.flag]))
         self._prepare = [mark(int(dt is None)),
                          replayer(wp.launch(_k.scale, dim=n, device=d, record_cmd=True,
                                             inputs=[state.d_inv, model.couplings.cross, self.node_omega, self.metric,

@@ -474,10 +474,10 @@ class NodeSolve:
         gs = self._gauss_seidel
         #: The loop's integers (slots of :mod:`softvr.contact._node_loop_kernels`).
         self.ctl = wp.zeros(_lk.CTL_SLOTS, dtype=wp.int32, device=d)
-        start = np.zeros(_lk.CTL_SLOTS, np.int32)
-        start[_lk.START_NARROW], start[_lk.RETRY] = int(self.start_narrow), self._retry
-        self.ctl.assign(start)
         self._ctl_view = self.ctl.numpy() if wp.get_device(d).is_cpu else None
+        # Whether the next start's state (start_narrow and its retry counters) is the host's: the
+        # device's loop takes it over at its launch, the host's loop back from its outcome.
+        self._start_on_host = True
         #: [1] the stop's tolerance [m/s] (:meth:`solve`'s, written when it changes).
         self._tolerance = wp.full(1, np.nan, dtype=wp.float64, device=d)
         self._tolerance_value = math.nan
@@ -487,7 +487,8 @@ class NodeSolve:
         checks = self.max_sweeps // 2 + 1
         changes = [wp.zeros(checks, dtype=wp.int32, device=d), wp.zeros(checks, dtype=wp.float64, device=d)]
         history = [wp.zeros(checks, dtype=wp.int32, device=d), wp.zeros(checks, dtype=wp.float64, device=d)]
-        floors: wp.array = wp.array(np.stack([np.asarray(f, np.float64) for f in self._floors]), dtype=wp.float64, device=d)
+        floors: wp.array = wp.array(np.stack([np.asarray(f, np.float64) for f in self._floors]), dtype=wp.float64,
+                                    device=d)
         observed = RATE_SWEEPS if self._observed else 0
         woken = wp.zeros(1, dtype=wp.int32, device=d) if gs is None else gs.flag
         begin = replayer(wp.launch(_lk.begin, dim=1, device=d, record_cmd=True,
@@ -701,6 +702,7 @@ class NodeSolve:
             return self.outcome()
         if then is not None:
             raise ValueError("NodeSolve.solve: 'then' needs a solve that decides on the device (decides_on_device())")
+        self._start_on_host = True
         self.prepare()
         narrow = started_narrow = self.start_narrow
         retrying, self._retrying = self._retrying, False
@@ -780,6 +782,12 @@ class NodeSolve:
             raise ValueError("NodeSolve.launch: expected a solve that decides on the device (device_loop, an even "
                              f"max_sweeps), found device_loop={loop is not None}, max_sweeps={self.max_sweeps}")
         self.prepare()
+        if self._start_on_host:  # (the other slots: begin's; ctl's copy back is outcome's)
+            carried = np.zeros(_lk.CTL_SLOTS, np.int32)
+            carried[[_lk.START_NARROW, _lk.RETRYING, _lk.RETRY, _lk.UNTIL_RETRY]] = \
+                self.start_narrow, self._retrying, self._retry, self._until_retry
+            self.ctl.assign(carried)
+            self._start_on_host = False
         if self._tolerance_value != tolerance:
             self._tolerance.fill_(tolerance)
             self._tolerance_value = tolerance
@@ -795,7 +803,8 @@ class NodeSolve:
         k = int(ctl[_lk.K])
         self.plain_sweeps, self.plateaued = int(ctl[_lk.PLAIN_SWEEPS]), bool(ctl[_lk.PLATEAUED])
         self.wakes = int(ctl[_lk.WAKES])
-        self.start_narrow = bool(ctl[_lk.START_NARROW])
+        self.start_narrow, self._retrying = bool(ctl[_lk.START_NARROW]), bool(ctl[_lk.RETRYING])
+        self._retry, self._until_retry = int(ctl[_lk.RETRY]), int(ctl[_lk.UNTIL_RETRY])
         return k, self._buffers[k % 3]
 
     def _next_start(self, slowed: bool, changes: _Changes, retrying: bool) -> None:
