@@ -78,8 +78,8 @@ SWEEP_PASSES = 2
 _CONTACT_FIELDS = ("kind", "column", "point", "other", "face", "bary", "frame", "gap", "friction", "impulse",
                    "gap_after", "rigid_node", "rigid_lever", "area")
 _RIGID_CONTACT_FIELDS = {"key": "key", "point_a": "point_a", "point_b": "point_b", "rigid_area": "area"}
-#: What every step reads back (NodeStepper._host): the contacts' count and the divergence flags.
-_STEP_READS = ("count", "diverged")
+#: The arrays a step reads back by contact row (NodeStepper._hosts: their first ``count`` rows).
+_BY_CONTACT = frozenset(_CONTACT_FIELDS) | {"stencil_nodes", "stencil_count"}
 
 
 class IllConditioned(Exception):
@@ -205,7 +205,8 @@ class _NodeSnapshot(StepSnapshot):
         # movable asked of the body's few alone.
         c = self._own
         if c is None:
-            c = {name: s._host(name)[:self._count] for name in ("kind", "other", "point", "column", "frame", "impulse")}
+            names = ("kind", "other", "point", "column", "frame", "impulse")
+            c = {name: array[:self._count] for name, array in zip(names, s._hosts(names))}
         rows = np.flatnonzero(c["impulse"][:, 0] > 0)
         # The pushing rows in plain Python: side a's body as contact_body gives it, the sets'
         # order (body a, kind, other, point; a stable sort, as np.lexsort, so ties keep the rows' order).
@@ -369,11 +370,10 @@ class NodeStepper:
         if self.model.rigid is not None:
             self._host_arrays.update({name: getattr(self.model.rigid.state.contacts, field)
                                       for name, field in _RIGID_CONTACT_FIELDS.items()})
-        # Read back after a step (on the CPU views of the arrays' own memory): a group at a time,
-        # the first time the step asks for one of it, with one wait (pull_all).
+        # Read back after a step (on the CPU views of the arrays' own memory): those asked for
+        # together with one wait (pull_all), once a step.
         self._host_mirrors = {name: HostMirror(array, self.copies) for name, array in self._host_arrays.items()}
-        self._contact_reads = tuple(name for name in self._host_mirrors if name not in _STEP_READS)
-        self._pulled: set[tuple[str, ...]] = set()
+        self._pulled: set[str] = set()  # (those read back since the step: _hosts)
         # The host side of state.kinematic_* that _drive fills: on the CPU the arrays' own memory
         # (three upload calls cost ~10 us a step), else copies pushed after.
         self._pose_mirrors = [HostMirror(a, self.copies) for a in (st.kinematic_position, st.kinematic_rotation,
@@ -692,30 +692,33 @@ class NodeStepper:
                                                (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
 
     def _host(self, name: str) -> np.ndarray:
-        """Array ``name`` of those a step reads back (:meth:`_contacts_out`, ``point_x``,
-        ``diverged``) on the host: on the CPU a view of its memory (Warp's ``numpy()`` costs a
-        few us a call, and a step makes 20); elsewhere the view of a host copy, which the step's
-        first read of its group fills, the whole group with one wait (:func:`pull_all`): the
-        step's count and divergence flags, then, where asked (the haptic tool asks every step),
-        the contacts' fields, their first ``count`` rows. The views are the step's until the
-        next step pulls again (:meth:`_NodeSnapshot.detach` copies out what a held one needs)."""
-        group = _STEP_READS if name in _STEP_READS else self._contact_reads
-        if group not in self._pulled:
-            self._pulled.add(group)
-            if group is _STEP_READS:
-                pull_all([self._host_mirrors[n] for n in group])
-            else:
-                count = min(int(self._host("count")[0]), self.state.contacts.capacity)
-                by_contact = set(_CONTACT_FIELDS) | {"stencil_nodes", "stencil_count"}  # (point_x and the
-                # rigid path's rows are whole)
-                pull_all([self._host_mirrors[n] for n in group], [count if n in by_contact else None for n in group])
-        return self._host_mirrors[name].host
+        """Array ``name`` of those a step reads back on the host (:meth:`_hosts`)."""
+        return self._hosts((name,))[0]
+
+    def _hosts(self, names) -> list[np.ndarray]:
+        """Arrays ``names`` of those a step reads back (:meth:`_contacts_out`, ``point_x``,
+        ``diverged``) on the host: on the CPU views of their memory (Warp's ``numpy()`` costs a
+        few us a call, and a step makes 20); elsewhere views of host copies, those of ``names``
+        not yet read since the step copied back together with one wait (:func:`pull_all`; the
+        contacts' fields their first ``count`` rows), so that a caller asking for the fields it
+        needs at once waits once (the haptic tool's pushing normals, every step: six fields).
+        The views are the step's until the next step reads again (:meth:`_NodeSnapshot.detach`
+        copies out what a held one needs)."""
+        if "count" not in self._pulled and any(n in _BY_CONTACT for n in names):
+            self._hosts(("count",))  # how many rows of the others to copy
+        missing = [n for n in names if n not in self._pulled]
+        if missing:
+            count = min(int(self._host_mirrors["count"].host[0]), self.state.contacts.capacity)
+            pull_all([self._host_mirrors[n] for n in missing], [count if n in _BY_CONTACT else None for n in missing])
+            self._pulled.update(missing)
+        return [self._host_mirrors[n].host for n in names]
 
     def _contacts_out(self, n: int) -> dict:
         """The last step's ``n`` contacts as host arrays (those of :data:`_CONTACT_FIELDS` views of
         the stepper's), with ``movable``: whether an impulse can act on any node of the contact's
         stencil."""
-        out = {name: self._host(name)[:n] for name in _CONTACT_FIELDS}
+        out = {name: array[:n] for name, array in zip(_CONTACT_FIELDS, self._hosts(
+            _CONTACT_FIELDS + ("stencil_nodes", "stencil_count") + tuple(_RIGID_CONTACT_FIELDS if self.rigid else ())))}
         if self.rigid is not None:  # the primitives' keys, points and areas, from the rigid path's rows
             primitive = out["kind"] == 3
             if primitive.any():
@@ -739,7 +742,7 @@ class NodeStepper:
 
     def _check(self) -> None:
         """Stop with a report naming the body, node and step (SimulationError) if one diverged."""
-        diverged = self._host("diverged")
+        diverged = self._hosts(("diverged", "count"))[0]  # (the count with it: one wait)
         if diverged.any():
             i = int(np.flatnonzero(diverged)[0])
             b = int(np.searchsorted(self.model.body_node_start, i, side="right") - 1)
