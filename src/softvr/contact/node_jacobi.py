@@ -441,6 +441,8 @@ class NodeSolve:
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
+        self._reset_exact = replayer(wp.launch(_k.reset_exact, dim=model.node_count, device=d, record_cmd=True,
+                                               inputs=[self._exact_base, self.exact]))
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
                                                   inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
@@ -462,10 +464,10 @@ class NodeSolve:
 
     def _record_loop(self, model, plain: list) -> LaunchBatch:
         """:meth:`solve`'s loop as one batch of launches whose every decision is taken on the
-        device (:mod:`softvr.contact._node_loop_kernels`): ``begin``, then while ``ctl[GO]``
-        (``wp.capture_while``) three times two sweeps (from buffers 0, 2 and 1: the rotation's
-        period), each followed by its check and each after the first only while ``ctl[GO]``
-        (``wp.capture_if``); a check is ``check_change``, the contacts' residual where it is
+        device (:mod:`softvr.contact._node_loop_kernels`): :meth:`prepare`, ``begin``, then
+        while ``ctl[GO]`` (``wp.capture_while``) three times two sweeps (from buffers 0, 2 and
+        1: the rotation's period), each followed by its check and each after the first only
+        while ``ctl[GO]`` (``wp.capture_if``); a check is ``check_change``, the contacts' residual where it is
         wanted, ``check_stop``; the Gauss-Seidel sweeps first ask whether a sleeping contact woke
         and, if so, mark every contact's nodes (:meth:`GaussSeidelSweep.wake`'s launches). On the
         CPU the conditions are read through their pointers, on CUDA they are graph nodes."""
@@ -541,7 +543,7 @@ class NodeSolve:
             wp.capture_if(go, on_true=second)
             wp.capture_if(go, on_true=third)
 
-        return LaunchBatch([begin, lambda: wp.capture_while(go, body)], d)
+        return LaunchBatch([self.prepare, begin, lambda: wp.capture_while(go, body)], d)
 
     def _record_contacts(self, model, state, dt: float, passes: int, d_inv: wp.array, cross: wp.array,
                          metric: wp.array, movable: wp.array) -> Callable[[], None]:
@@ -651,7 +653,7 @@ class NodeSolve:
         if self._gauss_seidel is not None:
             self._gauss_seidel.prepare()
         self._transpose()
-        wp.copy(self.exact, self._exact_base)
+        self._reset_exact()
         self._rigid_contacts()
         self.coarse.prepare()
         self._metric()
@@ -772,8 +774,8 @@ class NodeSolve:
         return self._loop is not None and check_every == 2 and self.max_sweeps % 2 == 0
 
     def launch(self, tolerance: float) -> None:
-        """The first half of :meth:`solve` on the device: the prepare and the loop launched (one
-        batch, on CUDA one graph: :meth:`_record_loop`), every check's decision taken on the
+        """The first half of :meth:`solve` on the device: :meth:`prepare` and the loop launched
+        (one batch, on CUDA one graph: :meth:`_record_loop`), every check's decision taken on the
         device by :mod:`softvr.contact._node_loop_kernels` (the host's formulas on the same
         float64 numbers, so the same sweeps), nothing read back; :meth:`outcome` reads it.
         Launches after it choose their sweep buffer on the device (:attr:`buffer_flags`)."""
@@ -781,7 +783,6 @@ class NodeSolve:
         if loop is None or not self.decides_on_device():
             raise ValueError("NodeSolve.launch: expected a solve that decides on the device (device_loop, an even "
                              f"max_sweeps), found device_loop={loop is not None}, max_sweeps={self.max_sweeps}")
-        self.prepare()
         if self._start_on_host:  # (the other slots: begin's; ctl's copy back is outcome's)
             carried = np.zeros(_lk.CTL_SLOTS, np.int32)
             carried[[_lk.START_NARROW, _lk.RETRYING, _lk.RETRY, _lk.UNTIL_RETRY]] = \
