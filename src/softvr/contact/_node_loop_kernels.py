@@ -33,27 +33,26 @@ PLAIN_UNTIL = wp.constant(4)
 NARROW = wp.constant(5)
 PLAIN = wp.constant(6)
 PLAIN_SWEEPS = wp.constant(7)
-STOPPED = wp.constant(8)
-PLATEAUED = wp.constant(9)
-N_CHANGES = wp.constant(10)
-N_HISTORY = wp.constant(11)
-WANT = wp.constant(12)
-WOKEN = wp.constant(13)
-TAIL_OK = wp.constant(14)
-PLATEAU = wp.constant(15)
-ENDED = wp.constant(16)  # the change was NaN: the loop ends without a stop
-STARTED_NARROW = wp.constant(17)
-RETRYING_NOW = wp.constant(18)  # whether this solve's start on the narrower weights is a retry
-WAKES = wp.constant(19)  # Gauss-Seidel checks that found a sleeping contact woken (NodeSolve.wakes)
+PLATEAUED = wp.constant(8)
+N_CHANGES = wp.constant(9)
+N_HISTORY = wp.constant(10)
+WANT = wp.constant(11)
+WOKEN = wp.constant(12)
+TAIL_OK = wp.constant(13)
+PLATEAU = wp.constant(14)
+ENDED = wp.constant(15)  # the change was NaN: the loop ends without a stop
+STARTED_NARROW = wp.constant(16)
+RETRYING_NOW = wp.constant(17)  # whether this solve's start on the narrower weights is a retry
+WAKES = wp.constant(18)  # Gauss-Seidel checks that found a sleeping contact woken (NodeSolve.wakes)
+# Carried from solve to solve (NodeSolve.start_narrow and its retry counters).
+START_NARROW = wp.constant(19)
+RETRYING = wp.constant(20)
+RETRY = wp.constant(21)
+UNTIL_RETRY = wp.constant(22)
 # [3] one-hot: the buffer (sweeps modulo 3) holding the solved velocities, set when the loop ends,
 # so that what follows the solve can choose its launches on the device (NodeSolve.buffer_flags).
-BUFFER = wp.constant(24)
-# Carried from solve to solve (NodeSolve.start_narrow and its retry counters).
-START_NARROW = wp.constant(20)
-RETRYING = wp.constant(21)
-RETRY = wp.constant(22)
-UNTIL_RETRY = wp.constant(23)
-CTL_SLOTS = 27
+BUFFER = wp.constant(23)
+CTL_SLOTS = 26
 
 _INF = wp.constant(wp.float64(float("inf")))
 
@@ -270,8 +269,6 @@ def check_stop(ctl: wp.array(dtype=wp.int32), stats: wp.array(dtype=wp.float64),
                 if narrow != 0:
                     _copy_weights(bounds_weights, weights)
                     ctl[NARROW] = 0
-    if stop != 0:
-        ctl[STOPPED] = 1
     if stop != 0 or ctl[ENDED] != 0 or k >= cap[0]:
         ctl[GO] = 0
         for r in range(3):
