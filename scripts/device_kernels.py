@@ -28,12 +28,16 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
+import warp as wp
+from warp._src import context
+
+import softvr
+
+wp.config.quiet = True
+
 
 def kernel_modules() -> list[str]:
     """Names of softvr's modules that declare Warp kernels (every package imported)."""
-    import softvr
-    from warp._src import context
-
     for info in pkgutil.walk_packages(softvr.__path__, "softvr."):
         if info.name.endswith("__main__"):
             continue
@@ -48,9 +52,6 @@ def compile_one(name: str, arch: int) -> tuple[str, float, str]:
     """Compile module ``name`` for ``arch`` into the kernel cache (``WARP_CACHE_PATH``): its name,
     the seconds it took and, where it does not compile for CUDA, why (a module of functions
     only; the factored solve's module, which is CPU only and is never loaded on a GPU)."""
-    import warp as wp
-
-    wp.config.quiet = True
     start = time.perf_counter()
     try:
         wp.compile_aot_module(importlib.import_module(name), arch=arch, use_ptx=False)
@@ -62,9 +63,6 @@ def compile_one(name: str, arch: int) -> tuple[str, float, str]:
 def load_one(name: str, device: str) -> tuple[str, str, float, str]:
     """Load module ``name`` on ``device`` (compiling it into the kernel cache where it is not
     there): its name, the device, the seconds it took and, where it failed, why."""
-    import warp as wp
-
-    wp.config.quiet = True
     start = time.perf_counter()
     try:
         wp.load_module(importlib.import_module(name), device=device)
