@@ -121,9 +121,10 @@ def test_free_fall_takes_velocities_positions_and_forces_written_between_steps(t
 def test_a_rigid_body_that_diverges_in_its_unconstrained_step_is_named_and_nothing_moves(target):
     # A NaN angular velocity written into a rigid box beside an FEM cube: the step stops with the
     # box's own report (its velocity, as RigidBody.step reports it: tests/dynamics/test_rigid.py),
-    # not a node's, though the NaN reaches the sweeps; and neither body moves. On the CPU's own
-    # arrays the box's flags are read before the sweeps; off them (the host copies, CUDA) after
-    # the whole step, the flags of the unconstrained step first (RigidNodes.check_before).
+    # not a node's, and neither body moves. On the CPU's own arrays the box's flags are read
+    # before the sweeps; off them (the host copies, CUDA) after the whole step, through which the
+    # NaN has reached the sweeps and the nodes' flags: the unconstrained step's flags first
+    # (RigidNodes.check_before).
     body = _cube(lift=0.5)
     scene = _scene(body, target)
     half = np.array([0.05, 0.05, 0.05])
