@@ -38,9 +38,12 @@ fi
 [ -d /tmp/kernels-cache ] && export WARP_CACHE_PATH=/tmp/kernels-cache
 # Every module loaded on the CPU and the GPU in parallel, a process a core (compiling what the
 # cache lacks: the CPU's objects always), so that no test or bench compiles one after another.
+# ($OUT/kernels.txt keeps Warp's lines: "load on device 'cuda:0' ... (cached)" where a cubin of
+# kernels.tgz was taken, "(compiled)" where not.)
 if [ ! -f /tmp/kernels-loaded ]; then
-    timeout 150 python3 scripts/device_kernels.py --load cpu cuda 2>&1 | grep -v "^Module " \
-        | tee "$OUT/kernels.txt" | tail -12 && touch /tmp/kernels-loaded
+    timeout 150 python3 scripts/device_kernels.py --load cpu cuda > "$OUT/kernels.txt" 2>&1
+    grep -v "^Module " "$OUT/kernels.txt" | tail -12
+    touch /tmp/kernels-loaded
 fi
 if [ "${1:-}" = profile ]; then
     timeout 540 python3 scripts/device_profile.py "$OUT" 2>&1 | tee "$OUT/profile.txt" | tail -80

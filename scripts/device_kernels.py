@@ -22,6 +22,7 @@ the cache lacked, so that the tests and benches after it find every module compi
 from __future__ import annotations
 
 import importlib
+import multiprocessing
 import os
 import pkgutil
 import sys
@@ -46,6 +47,12 @@ def kernel_modules() -> list[str]:
         except ImportError:  # an optional part (the Blender add-on needs bpy)
             continue
     return sorted(name for name in context.user_modules if name.startswith("softvr."))
+
+
+def _pool() -> ProcessPoolExecutor:
+    """A process a core, each started afresh (spawned, not forked: a CUDA context does not
+    survive a fork, so none may be inherited)."""
+    return ProcessPoolExecutor(max_workers=os.cpu_count(), mp_context=multiprocessing.get_context("spawn"))
 
 
 def compile_one(name: str, arch: int) -> tuple[str, float, str]:
@@ -79,7 +86,7 @@ def main(argv: list[str]) -> int:
         names = kernel_modules()
         jobs = [(name, device) for device in argv[1:] for name in names]
         start = time.perf_counter()
-        with ProcessPoolExecutor(max_workers=os.cpu_count()) as pool:
+        with _pool() as pool:
             for name, device, seconds, failed in pool.map(load_one, *zip(*jobs)):
                 if seconds > 1.0 or failed:
                     print(f"{seconds:6.1f} s  {name} on {device}" + (f"  (not loaded: {failed})" if failed else ""),
@@ -90,7 +97,7 @@ def main(argv: list[str]) -> int:
     os.environ["WARP_CACHE_PATH"] = os.path.abspath(argv[0])
     arch = int(argv[1]) if len(argv) > 1 else 90
     names = kernel_modules()
-    with ProcessPoolExecutor(max_workers=os.cpu_count()) as pool:
+    with _pool() as pool:
         done = 0
         for name, seconds, skipped in pool.map(compile_one, names, [arch] * len(names)):
             print(f"{seconds:6.1f} s  {name}" + (f"  (not compiled: {skipped})" if skipped else ""), flush=True)
