@@ -9,9 +9,10 @@
 2. The candy's wall time a step, graphs on, with ``PARALLEL_PASS_FACTOR`` (passes of the
    one-block contact step a Gauss-Seidel pass stands for on the GPU) 1, 2 and 4: fewer passes a
    sweep against more sweeps (on the CPU's fibers: 77.5 and 63.2 sweeps a step with 1 and 2).
-3. Each scene's wall time a step, graphs on, with the sweeps' stop decided on the device (one
-   graph and one read a solve: ``NodeSolve(device_loop=True)``, the default) and on the host (a
-   read, i.e. a sync, every two sweeps): what the device's loop saves.
+3. Each scene's wall time a step, graphs on: the whole step one graph (the default), the sweeps'
+   stop decided on the device in four graphs a step (one read a solve:
+   ``NodeSolve(device_loop=True)``), and the stop decided on the host (a read, i.e. a sync, every
+   two sweeps): what the one graph and the device's loop save.
 
 Prints a table per part and writes ``OUT/profile.json`` (default ``device-out``). ``python3
 scripts/device_profile.py OUT cpu`` runs the same code on the CPU, one step each, as a dry run
@@ -127,21 +128,26 @@ def pass_factors(name: str = "candy") -> dict:
 
 
 def loops() -> dict:
-    """Part 3: wall ms a step (graphs on), the stop on the device and on the host, per scene."""
+    """Part 3: wall ms a step (graphs on), per scene: the whole step one graph (the default), the
+    stop on the device in four graphs a step (``NodeStepper._whole_step`` off), and the stop on
+    the host (a read every two sweeps)."""
     out: dict = {}
-    solve = node_step.NodeSolve
+    solve, whole = node_step.NodeSolve, node_step.NodeStepper._whole_step
+    variants = (("one graph a step", True, True), ("four graphs a step", True, False),
+                ("stop on the host", False, False))
     try:
         for name in ("shoulder", "cubes64", "candy"):
-            for on_device in (True, False):
+            for label, on_device, one_graph in variants:
                 node_step.NodeSolve = functools.partial(solve, device_loop=on_device)
+                node_step.NodeStepper._whole_step = whole if one_graph else (lambda self: None)
                 step, _ = _scene(name)
                 for _ in range(WARMUP):
                     step()
-                key = f"{name}, stop on the {'device' if on_device else 'host'}"
+                key = f"{name}, {label}"
                 out[key] = _wall_ms(step, STEPS)
                 print(f"{key}: {out[key]:.2f} ms a step (median of {STEPS})")
     finally:
-        node_step.NodeSolve = solve
+        node_step.NodeSolve, node_step.NodeStepper._whole_step = solve, whole
     return out
 
 

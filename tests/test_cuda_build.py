@@ -26,8 +26,7 @@ MODULES = {
                                        "point_static_mesh", "gather_contacts", "carry_impulses",
                                        "gather_pairs", "clear_carried", "carry_parallel"),
     "softvr.contact._node_jacobi_kernels": ("jacobi", "contact_metric", "contacts", "chebyshev", "residual",
-                                            "rigid_contact_exact", "largest_change", "screen", "contact_step",
-                                            "reset_exact"),
+                                            "rigid_contact_exact", "largest_change", "screen", "contact_step"),
     "softvr.contact._node_parallel_kernels": ("contact_step_unshared", "residual_parallel"),
     "softvr.contact._node_block_kernels": ("contact_step_block", "gauss_seidel_before_contacts",
                                            "gauss_seidel_after_contacts"),
@@ -46,6 +45,7 @@ MODULES = {
     "softvr.dynamics._node_rigid_kernels": ("rigid_system", "rigid_velocity"),
     "softvr.dynamics._node_cloth_kernels": ("spring_terms", "spring_blocks", "spring_forces"),
     "softvr.collision._node_rigid_kernels": ("rigid_points", "rigid_sides", "primitive_contacts"),
+    "softvr.device": ("_copy_int32",),
 }
 
 

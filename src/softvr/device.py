@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from contextlib import contextmanager
 from functools import lru_cache, partial
+from typing import no_type_check
 
 import numpy as np
 import warp as wp
@@ -30,7 +31,8 @@ from softvr.errors import InputError
 
 __all__ = [
     "ITEMS_A_CPU_THREAD", "HostMirror", "LaunchBatch", "blocked_launch", "blocked_replayer", "chunked_replayer",
-    "cpu_workers", "cuda_driver_present", "in_order", "launch", "load_kernels", "pull_all", "replayer", "resolve_device",
+    "cpu_workers", "cuda_driver_present", "in_order", "launch", "load_kernels", "pull_all", "record_copy", "replayer",
+    "resolve_device",
     "single_threaded_blas", "stride_threads", "upload",
 ]
 
@@ -378,6 +380,23 @@ def _args_struct(fields: tuple) -> type:
     made once per kernel signature: making the class costs ~40 us, more than filling it
     (a split launch makes one per chunk, 16 a frame for the rasterizer)."""
     return type("ArgsStruct", (ctypes.Structure,), {"_fields_": list(fields)})
+
+
+@wp.kernel
+@no_type_check  # Warp's annotations (wp.array(dtype=...)) are not Python types
+def _copy_int32(src: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    dst[i] = src[i]
+
+
+def record_copy(dst: wp.array, src: wp.array) -> Callable[[], None]:
+    """A replay copying ``src`` into ``dst`` (int32 arrays of one length on one device) as a
+    kernel launch, not ``wp.copy``: it sits in a :class:`LaunchBatch` as any launch does, and a
+    check that refuses copies (reads back) inside a batch lets it be."""
+    if src.dtype != wp.int32 or dst.dtype != wp.int32 or src.shape != dst.shape or src.device != dst.device:
+        raise ValueError(f"record_copy: expected int32 arrays of one shape on one device, found {src.dtype} "
+                         f"{src.shape} on {src.device} into {dst.dtype} {dst.shape} on {dst.device}")
+    return replayer(wp.launch(_copy_int32, dim=len(src), inputs=[src, dst], device=src.device, record_cmd=True))
 
 
 def in_order(*replays: Callable[[], None]) -> Callable[[], None]:

@@ -286,8 +286,8 @@ def test_sleeping_contacts_wake_when_the_sweeps_close_their_gap_and_meet_eq_5_5(
         prepare(self)
         asleep.append(int(self.asleep.numpy().sum()))
 
-    def solved(self, tolerance, check_every=2, then=None):
-        out = solve(self, tolerance, check_every, then)
+    def solved(self, tolerance, check_every=2, then=None, batch=None):
+        out = solve(self, tolerance, check_every, then, batch)
         wakes.append(self.wakes)
         return out
 
@@ -457,8 +457,8 @@ def test_a_light_held_box_pressed_into_a_soft_block_with_friction_meets_numpys_k
     solved = {}
     solve = NodeSolve.solve
 
-    def keep(self, tolerance, check_every=2, then=None):
-        k, buffer = solve(self, tolerance, check_every, then)
+    def keep(self, tolerance, check_every=2, then=None, batch=None):
+        k, buffer = solve(self, tolerance, check_every, then, batch)
         solved["v"], solved["solve"] = buffer.numpy().copy(), self
         return k, buffer
 

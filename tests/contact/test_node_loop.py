@@ -31,8 +31,8 @@ def _run(name: str, steps: int, device_loop: bool, monkeypatch) -> tuple[list, l
     outcomes: list = []
     solve = NodeSolve.solve
 
-    def recorded(self, tolerance, check_every=2, then=None):
-        result = solve(self, tolerance, check_every, then)
+    def recorded(self, tolerance, check_every=2, then=None, batch=None):
+        result = solve(self, tolerance, check_every, then, batch)
         assert (self._loop is not None) == device_loop
         outcomes.append((result[0], self.plain_sweeps, self.plateaued, self.wakes, self.start_narrow))
         return result

@@ -25,8 +25,8 @@ def test_sweeps_that_hover_under_the_tolerance_stop_and_solve_the_mlcp_of_eq_5_5
     solves = []
     solve = NodeSolve.solve
 
-    def record(self, tolerance, check_every=2, then=None):
-        result = solve(self, tolerance, check_every, then)
+    def record(self, tolerance, check_every=2, then=None, batch=None):
+        result = solve(self, tolerance, check_every, then, batch)
         solves.append((result[0], self.plateaued, self.max_sweeps))
         return result
 

@@ -225,6 +225,53 @@ def test_a_step_on_the_target_equals_the_cpu_step(target, name):
         np.testing.assert_allclose(got, expected, rtol=0, atol=tol)
 
 
+@pytest.mark.parametrize("name", ["cube and box", "shoulder", "candy-adhesive"])
+def test_a_step_as_one_batch_equals_its_separate_batches(name, monkeypatch):
+    # NodeStepper._whole_step lays a step after a step size's first out as one LaunchBatch (on
+    # CUDA one graph) made of the separate batches' launches, in their order; the reference is
+    # those batches run one after another (_whole_step patched away). Nothing between them is
+    # read or decided on the host, so the same kernels on the same numbers: equal to the bit, over
+    # steps that carry warm starts, adhesion's bonds (the candy, evolve chosen by the loop's buffer
+    # flags) and a rigid box's unconstrained step and divergence flags (inside the batch).
+    from softvr.sim._node_step import NodeStepper
+
+    whole = NodeStepper._whole_step
+    runs = []
+    for one_batch in (False, True):
+        used = [0]
+
+        def counted(self):
+            batch = whole(self)
+            used[0] += batch is not None
+            return batch if one_batch else None
+
+        monkeypatch.setattr(NodeStepper, "_whole_step", counted)
+        if name == "cube and box":
+            body = _cube(lift=0.01)
+            scene = _scene(body, ("cpu", True, True))
+            half = np.array([0.05, 0.05, 0.05])
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
+            box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, 0.41 + half[2]], name="box")
+            scene.add_body(box, collision_points=RigidPoints(box, corners))
+            for _ in range(40):
+                scene.step(1.0 / 60.0)
+            bodies = scene.bodies
+        else:
+            variants = ("quick",) if name.startswith("candy") else ()
+            with load_scene(bundled(f"{name}.toml"), variants, frames=12, width=64, height=48, haptics=False,
+                            steps_per_frame=1) as example:
+                example.scene._host_copies = example.scene._gpu_forms = True
+                for _ in range(12):
+                    example.step()
+                scene, bodies = example.scene, example.scene.bodies
+        runs.append([np.concatenate([np.ravel(b.q if hasattr(b, "q") else b.position), np.ravel(b.v)])
+                     for b in bodies])
+        steps = 40 if name == "cube and box" else 12
+        assert used[0] == steps - 1, "every step but the first can be one batch"
+    for separate, together in zip(*runs):
+        np.testing.assert_array_equal(together, separate)
+
+
 def test_a_device_that_is_not_there_is_named_before_anything_steps():
     # Scene.device is read when the scene's arrays are built (its first step): an unknown name, or
     # CUDA where none is present, stops with the field, what was expected and what was found,
@@ -245,11 +292,13 @@ def test_a_device_that_is_not_there_is_named_before_anything_steps():
 @pytest.mark.parametrize("gpu_forms", [False, True], ids=["cpu forms", "gpu forms"])
 @pytest.mark.parametrize("name", ["soft cube", "shoulder", "candy", "candy-adhesive"])
 def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(name, gpu_forms, monkeypatch):
-    # Off the CPU's own arrays a step is four LaunchBatches (on CUDA four captured graphs): the
-    # launches before the sweeps (dynamics, collision: NodeStepper._stages), the solve's whole loop
-    # (NodeSolve._record_loop: its sweeps and their checks, the stop decided on the device), and
-    # what follows it (NodeStepper._after_sweeps: adhesion's evolve, the settling, the rigid
-    # bodies' integration, for the sweep buffer the loop marked), the conditions of
+    # Off the CPU's own arrays a step size's first step is four LaunchBatches (on CUDA four
+    # captured graphs): the launches before the sweeps (dynamics, collision: NodeStepper._stages),
+    # the solve's whole loop (NodeSolve._record_loop: its sweeps and their checks, the stop
+    # decided on the device), and what follows it (NodeStepper._after_sweeps: adhesion's evolve,
+    # the settling, the rigid bodies' integration, for the sweep buffer the loop marked); the
+    # solver is chosen between them, from the detection's contacts. Every later step is all of
+    # that as one batch (NodeStepper._whole_step: one graph a step), the conditions of
     # wp.capture_while / capture_if read through their pointers here, graph nodes on CUDA. A graph
     # records launches only: a host read inside a batch (an array's numpy(), a copy, a
     # synchronize) would run once, at the capture, and never again. Through the host copies the
@@ -267,9 +316,9 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
         finally:
             inside[0] = False
 
-    def on_device(self, tolerance):
+    def on_device(self, tolerance, batch=None):
         solves[0] += 1
-        return solve(self, tolerance)
+        return solve(self, tolerance, batch)
 
     def refused(call):
         def guard(*args, **kwargs):
@@ -298,5 +347,5 @@ def test_the_sweeps_batched_for_cuda_graphs_read_nothing_back_inside_a_batch(nam
                 sweeps += example.scene.last_solution.iterations
             scene = example.scene
     assert scene.path == "node arrays on cpu (host copies)"
-    # Every step's solve launched on the device, and three batches a step around it.
-    assert sweeps > 0 and solves[0] == 20 and batches[0] == 4 * 20
+    # Every step's solve launched on the device: four batches on the first step, one on each later.
+    assert sweeps > 0 and solves[0] == 20 and batches[0] == 4 + 19

@@ -624,14 +624,6 @@ def chebyshev(v_hat: wp.array(dtype=wp.vec3d), v: wp.array(dtype=wp.vec3d), v_pr
 
 
 @wp.kernel
-def reset_exact(base: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32)):
-    """Thread per node: ``exact`` [n] back to ``base`` [n] (the nodes exact whatever the contacts:
-    a launch, so that a solve's prepare can sit in its CUDA graph)."""
-    i = wp.tid()
-    exact[i] = base[i]
-
-
-@wp.kernel
 def rigid_contact_exact(count: wp.array(dtype=wp.int32), rigid_node: wp.array2d(dtype=wp.int32),
                         partner: wp.array(dtype=wp.int32), exact: wp.array(dtype=wp.int32), threads: int):
     """Marks ``exact`` (1: the Chebyshev step takes the node's update as it is) both nodes of

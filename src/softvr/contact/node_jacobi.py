@@ -24,7 +24,7 @@ from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact._node_contact_native import LOCAL_UPDATES
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, replayer, stride_threads
+from softvr.device import LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, record_copy, replayer, stride_threads
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
@@ -441,8 +441,7 @@ class NodeSolve:
         self._launches = (jacobi, contacts, cheb)
         self._sweeps = [(jacobi[r], contacts if gs is None else _nothing, replayer(cheb[r])) for r in range(3)]
         self._plain = plain
-        self._reset_exact = replayer(wp.launch(_k.reset_exact, dim=model.node_count, device=d, record_cmd=True,
-                                               inputs=[self._exact_base, self.exact]))
+        self._reset_exact = record_copy(self.exact, self._exact_base)
         # A spring-held rigid body's nodes in some contact this step are marked exact too.
         self._rigid_contacts = replayer(wp.launch(_k.rigid_contact_exact, dim=threads, device=d, record_cmd=True,
                                                   inputs=[c.count, c.rigid_node, model.couplings.partner, self.exact,
@@ -659,8 +658,8 @@ class NodeSolve:
         self._metric()
         self._list_movers()
 
-    def solve(self, tolerance: float, check_every: int = 2,
-              then: Callable[[], None] | None = None) -> tuple[int, wp.array]:
+    def solve(self, tolerance: float, check_every: int = 2, then: Callable[[], None] | None = None,
+              batch: Callable[[], None] | None = None) -> tuple[int, wp.array]:
         """Sweeps from the velocity in ``state.sweep_buffers[0]`` (and [2], the one before it)
         until the velocities are within ``tolerance`` [m/s] of the fixed point, or
         ``max_sweeps``. The error left is estimated as the geometric tail of the largest change
@@ -693,17 +692,18 @@ class NodeSolve:
         [m/s]. With ``device_loop`` the same decisions are taken on the device
         (:meth:`decides_on_device`: :meth:`launch`, ``then``, :meth:`outcome`); ``then``, only
         there, launches what follows the solve before its outcome is read (choosing its sweep
-        buffer by :attr:`buffer_flags`), so that the read waits for all of it at once."""
-        if self.max_sweeps > self._weights_count:
-            raise ValueError(f"NodeSolve.solve: expected max_sweeps <= {self._weights_count} (the sweeps' weights "
-                             f"and floors were built for that many), found {self.max_sweeps}")
+        buffer by :attr:`buffer_flags`), so that the read waits for all of it at once; ``batch``,
+        only there too, runs in place of :attr:`loop`: a larger batch holding its replays (a whole
+        step's, with the launches before and after them)."""
+        self._check_cap()
         if self.decides_on_device(check_every):
-            self.launch(tolerance)
+            self.launch(tolerance, batch)
             if then is not None:
                 then()
             return self.outcome()
-        if then is not None:
-            raise ValueError("NodeSolve.solve: 'then' needs a solve that decides on the device (decides_on_device())")
+        if then is not None or batch is not None:
+            raise ValueError("NodeSolve.solve: 'then' and 'batch' need a solve that decides on the device "
+                             "(decides_on_device())")
         self._start_on_host = True
         self.prepare()
         narrow = started_narrow = self.start_narrow
@@ -767,22 +767,30 @@ class NodeSolve:
             self.start_narrow = self._retrying = self._until_retry <= 0
         return k, self._buffers[k % 3]
 
+    def _check_cap(self) -> None:
+        if self.max_sweeps > self._weights_count:
+            raise ValueError(f"NodeSolve.solve: expected max_sweeps <= {self._weights_count} (the sweeps' weights "
+                             f"and floors were built for that many), found {self.max_sweeps}")
+
     def decides_on_device(self, check_every: int = 2) -> bool:
         """Whether :meth:`solve` takes its loop's decisions on the device (``device_loop``, an
         even ``max_sweeps``, checks every two sweeps): then it takes ``then``, and
         :attr:`buffer_flags` say on the device where the solution is."""
         return self._loop is not None and check_every == 2 and self.max_sweeps % 2 == 0
 
-    def launch(self, tolerance: float) -> None:
+    def launch(self, tolerance: float, batch: Callable[[], None] | None = None) -> None:
         """The first half of :meth:`solve` on the device: :meth:`prepare` and the loop launched
-        (one batch, on CUDA one graph: :meth:`_record_loop`), every check's decision taken on the
-        device by :mod:`softvr.contact._node_loop_kernels` (the host's formulas on the same
-        float64 numbers, so the same sweeps), nothing read back; :meth:`outcome` reads it.
-        Launches after it choose their sweep buffer on the device (:attr:`buffer_flags`)."""
-        loop = self._loop
-        if loop is None or not self.decides_on_device():
+        (one batch, on CUDA one graph: :attr:`loop`; or ``batch``, one holding its replays),
+        every check's decision taken on the device by :mod:`softvr.contact._node_loop_kernels`
+        (the host's formulas on the same float64 numbers, so the same sweeps), nothing read
+        back; :meth:`outcome` reads it. Launches after it choose their sweep buffer on the
+        device (:attr:`buffer_flags`). Before the launches, the host writes the start state
+        carried from a solve it decided, ``tolerance`` [m/s] and ``max_sweeps`` where they
+        changed (copies to the device, ordered before them)."""
+        if self._loop is None or not self.decides_on_device():
             raise ValueError("NodeSolve.launch: expected a solve that decides on the device (device_loop, an even "
-                             f"max_sweeps), found device_loop={loop is not None}, max_sweeps={self.max_sweeps}")
+                             f"max_sweeps), found device_loop={self._loop is not None}, max_sweeps={self.max_sweeps}")
+        self._check_cap()
         if self._start_on_host:  # (the other slots: begin's; ctl's copy back is outcome's)
             carried = np.zeros(_lk.CTL_SLOTS, np.int32)
             carried[[_lk.START_NARROW, _lk.RETRYING, _lk.RETRY, _lk.UNTIL_RETRY]] = \
@@ -795,7 +803,16 @@ class NodeSolve:
         if self._cap_value != self.max_sweeps:
             self._cap.fill_(self.max_sweeps)
             self._cap_value = self.max_sweeps
-        loop()
+        (self._loop if batch is None else batch)()
+
+    @property
+    def loop(self) -> LaunchBatch:
+        """The solve's launches on the device (:meth:`_record_loop`), for :meth:`launch`; their
+        ``replays`` can sit inside a larger batch (a whole step's: :meth:`solve`'s ``batch``)."""
+        if self._loop is None:
+            raise ValueError("NodeSolve.loop: expected a solve that decides on the device (device_loop), "
+                             "found device_loop=False or no conditional graphs on this device")
+        return self._loop
 
     def outcome(self) -> tuple[int, wp.array]:
         """The second half: the launched solve's outcome read back once (sweeps, plain sweeps,

@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 import warp as wp
 
-from softvr.device import HostMirror, pull_all, replayer
+from softvr.device import HostMirror, in_order, pull_all, record_copy, replayer
 from softvr.dynamics import RigidBody
 from softvr.dynamics.node_rigid import record_rigid_system, record_rigid_velocity
 from softvr.dynamics.rigid_arrays import DIVERGENCE_REASONS, record_integrate, record_unconstrained
@@ -168,7 +168,18 @@ class RigidNodes:
         r = self.rigid
         self._recorded = (replayer(record_unconstrained(r.model, r.state, dt, gravity)),
                           record_rigid_system(r, state), [record_rigid_velocity(r, buf) for buf in state.sweep_buffers],
-                          replayer(record_integrate(r.model, r.state, dt)))
+                          replayer(record_integrate(r.model, r.state, dt)),
+                          record_copy(self._diverged_before.array, r.state.diverged))
+
+    def push_external(self) -> None:
+        """``Scene.external``'s forces and torques on the rigid bodies up to the device, for the
+        unconstrained step after it (:meth:`before_sweeps`, :meth:`before_launches`)."""
+        external = self._external.host
+        external[:] = 0.0
+        for r, b in enumerate(self.rigid.bodies):
+            if b in self.scene.external:
+                external[r] = self.bodies[r]._check_external(self.scene.external[b])
+        self._external.push()
 
     def before_sweeps(self, check: bool = True) -> None:
         """The unconstrained velocities (eq. 5.2, with ``Scene.external``'s forces and torques)
@@ -176,23 +187,25 @@ class RigidNodes:
         that diverged in it stops the step here (:meth:`check`), or, without ``check``, when
         :meth:`check_before` reads its flags after the step (the integration keeps a flagged
         body where it was)."""
-        unconstrained, system, _, _ = self._recorded
-        external = self._external.host
-        external[:] = 0.0
-        for r, b in enumerate(self.rigid.bodies):
-            if b in self.scene.external:
-                external[r] = self.bodies[r]._check_external(self.scene.external[b])
-        self._external.push()
-        unconstrained()
+        self.push_external()
         if check:
+            unconstrained, system, _, _, _ = self._recorded
+            unconstrained()
             self.check()
+            system()
         else:
-            wp.copy(self._diverged_before.array, self.rigid.state.diverged)
-        system()
+            self.before_launches()()
+
+    def before_launches(self) -> Callable[[], None]:
+        """:meth:`before_sweeps` without ``check`` as one replay, after :meth:`push_external`:
+        the unconstrained step, its divergence flags kept for :meth:`check_before` (a launch),
+        the nodes' system; nothing read back, so that it can sit in a step's batch."""
+        unconstrained, system, _, _, keep = self._recorded
+        return in_order(unconstrained, keep, system)
 
     def integrate(self, buffer: int) -> None:
         """Move the bodies by the velocities the sweeps solved (``state.sweep_buffers[buffer]``)."""
-        _, _, velocity, _ = self._recorded
+        _, _, velocity, _, _ = self._recorded
         velocity[buffer]()
         self.after_sweeps()
 
@@ -201,7 +214,7 @@ class RigidNodes:
         arrays of one element: :attr:`NodeSolve.buffer_flags`) is set on the device, each as a
         ``wp.capture_if``, then the integration: nothing read back (:meth:`after_sweeps` with
         ``launched``)."""
-        _, _, velocity, integrate = self._recorded
+        _, _, velocity, integrate, _ = self._recorded
 
         def run() -> None:
             for flag, launch in zip(buffer_flags, velocity):

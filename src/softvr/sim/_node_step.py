@@ -334,6 +334,7 @@ class NodeStepper:
         # (the recorded list, the adhesion replays, their groups: _stages)
         self._staged: tuple[Any, Any, Any] | None = None
         self._after: tuple[tuple, LaunchBatch] | None = None  # _after_sweeps' batch and its key
+        self._whole: tuple[tuple, LaunchBatch] | None = None  # _whole_step's batch and its key
         self._spectrum: dict[float, Any] = {}  # the sweeps' choice per step size (choose_sweeps)
         self._issued: Callable[[], _NodeSnapshot | None] = lambda: None  # a weak reference to the last step's snapshot
 
@@ -565,6 +566,31 @@ class NodeStepper:
         self._after = (key, batch)
         return batch
 
+    def _whole_step(self) -> LaunchBatch | None:
+        """The step's launches as one batch (on CUDA one graph, replayed every step): the
+        dynamics, the rigid bodies' unconstrained step and system, the collision, the sweeps'
+        first guess, the solve's loop decided on the device (:attr:`NodeSolve.loop`; run by
+        ``NodeSolve.solve(..., batch=...)``) and what follows it (:meth:`_after_sweeps`), in the
+        order the separate batches run them. Where it
+        can be: off the CPU's arrays, the solver chosen (a step size's first step chooses it from
+        the detection's contacts, so it runs as separate batches), one that decides on the device,
+        the first guess carried from the last step (a state the user set starts from its own).
+        None elsewhere."""
+        solve = self._recorded[5]
+        if not self.copies or not self._carried or solve is None or isinstance(solve, FactoredSolve) \
+                or not solve.decides_on_device():
+            return None
+        key = (self._recorded, self._adhesion_replays, solve)
+        if self._whole is not None and all(a is b for a, b in zip(self._whole[0], key)):
+            return self._whole[1]
+        dynamics, collision, _ = self._stages()
+        assert isinstance(dynamics, LaunchBatch) and isinstance(collision, LaunchBatch)  # (self.copies)
+        before = [self.rigid.before_launches()] if self.rigid is not None else []
+        batch = LaunchBatch([*dynamics.replays, *before, *collision.replays, self._recorded[9][True],
+                             *solve.loop.replays, *self._after_sweeps(solve).replays], self.device)
+        self._whole = (key, batch)
+        return batch
+
     def _solver(self, dt: float) -> NodeSolve | FactoredSolve:
         """The recorded sweeps for ``dt``: Jacobi or Gauss-Seidel, whichever needs less work per
         decade with this step's contacts (:func:`choose_sweeps`), chosen with its Chebyshev
@@ -639,29 +665,38 @@ class NodeStepper:
         if self.adhesion is not None and self._adhesion_replays[0] != dt:
             self._adhesion_replays = (dt, self.adhesion.record(dt))
         dynamics, collision, settle = self._stages()
-        dynamics()
-        if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
-            self.rigid.before_sweeps(check=not self.copies)
-        t1 = time.perf_counter()
-        collision()
-        t2 = time.perf_counter()
-        solve = self._solver(dt)  # after the detection: the choice counts the contacts
-        self._recorded[9][self._carried]()  # the sweeps' first guess
-        self._carried = True
-        tolerance = SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance
-        # Off the CPU's arrays, a solve that decides on the device is launched with everything
-        # after it (the launches for its buffer chosen on the device) before anything is read:
-        # the step's first read waits for the whole step, none in its middle.
-        on_device = None if isinstance(solve, FactoredSolve) or not self.copies else solve
-        launched = on_device is not None and on_device.decides_on_device()
         if self.adhesion is not None:
             self.adhesion.detach_issued()  # a held state copies its rows before evolve rewrites them
-        if on_device is not None and launched:
-            sweeps, solved = on_device.solve(tolerance, then=self._after_sweeps(on_device))
+        tolerance = SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance
+        whole = self._whole_step()
+        if whole is not None:  # the step's launches as one batch: the first read waits for all of them
+            solve = self._recorded[5]
+            if self.rigid is not None:
+                self.rigid.push_external()
+            t1 = t2 = time.perf_counter()
+            sweeps, solved = solve.solve(tolerance, batch=whole)
+            launched = True
         else:
-            sweeps, solved = solve.solve(tolerance)
-            if self.adhesion is not None:
-                self._adhesion_replays[1][1][sweeps % 3]()
+            dynamics()
+            if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
+                self.rigid.before_sweeps(check=not self.copies)
+            t1 = time.perf_counter()
+            collision()
+            t2 = time.perf_counter()
+            solve = self._solver(dt)  # after the detection: the choice counts the contacts
+            self._recorded[9][self._carried]()  # the sweeps' first guess
+            self._carried = True
+            # Off the CPU's arrays, a solve that decides on the device is launched with everything
+            # after it (the launches for its buffer chosen on the device) before anything is read:
+            # the step's first read waits for the whole step, none in its middle.
+            on_device = None if isinstance(solve, FactoredSolve) or not self.copies else solve
+            launched = on_device is not None and on_device.decides_on_device()
+            if on_device is not None and launched:
+                sweeps, solved = on_device.solve(tolerance, then=self._after_sweeps(on_device))
+            else:
+                sweeps, solved = solve.solve(tolerance)
+                if self.adhesion is not None:
+                    self._adhesion_replays[1][1][sweeps % 3]()
         t3 = time.perf_counter()
         if not launched:
             settle[sweeps % 3]()

@@ -147,6 +147,9 @@ class Scene:
         Wall time of each stage of the last step, in the order they run (:data:`STAGES`):
         ``dynamics`` (unconstrained velocities, eq. 5.2), ``collision`` (detection),
         ``contact`` (the LCP per contact island and adhesion, eqs. 5.5-5.6), ``integrate``.
+        Host time: off the CPU's arrays a step after a step size's first is one batch of
+        launches (on CUDA one graph), not timed apart: the host's preparation shows under
+        ``dynamics``, the batch and the wait for it under ``contact``, none under ``collision``.
     external : dict[int, ndarray]
         Generalized external force per body index, applied every step until removed (the
         shape of the body's ``v``: [6] force and torque [N, N m] for a rigid body, [node_count,
