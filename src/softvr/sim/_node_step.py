@@ -408,9 +408,10 @@ class NodeStepper:
                     self._carried = False  # a new state: last step's change says nothing
 
     def _drive(self, dt: float) -> dict:
-        """The kinematic and fixed bodies' velocities [6] over the step (their scripts); their
-        collision and coupling points' nodes set to where the points are and how they move
-        (:func:`record_drive`, from the poses and velocities uploaded here)."""
+        """The kinematic and fixed bodies' velocities [6] over the step (their scripts), their
+        poses and velocities uploaded for ``_drive_nodes`` (:func:`record_drive`: their collision
+        and coupling points' nodes set to where the points are and how they move), which the
+        step launches first (alone, or first in its batch)."""
         out: dict[int, np.ndarray] = {}
         if not self.model.kinematic:
             return out
@@ -421,7 +422,6 @@ class NodeStepper:
             position[j], rotation[j], velocity[j] = body.position, body.rotation, v
         for mirror in self._pose_mirrors:
             mirror.push()
-        self._drive_nodes()
         return out
 
     def _keys(self, points: np.ndarray, columns: np.ndarray) -> np.ndarray:
@@ -567,15 +567,14 @@ class NodeStepper:
         return batch
 
     def _whole_step(self) -> LaunchBatch | None:
-        """The step's launches as one batch (on CUDA one graph, replayed every step): the
-        dynamics, the rigid bodies' unconstrained step and system, the collision, the sweeps'
-        first guess, the solve's loop decided on the device (:attr:`NodeSolve.loop`; run by
-        ``NodeSolve.solve(..., batch=...)``) and what follows it (:meth:`_after_sweeps`), in the
-        order the separate batches run them. Where it
-        can be: off the CPU's arrays, the solver chosen (a step size's first step chooses it from
-        the detection's contacts, so it runs as separate batches), one that decides on the device,
-        the first guess carried from the last step (a state the user set starts from its own).
-        None elsewhere."""
+        """The step's launches as one batch (on CUDA one graph, replayed every step): the driven
+        nodes, the dynamics, the rigid bodies' unconstrained step and system, the collision, the
+        sweeps' first guess, the solve's loop decided on the device (:attr:`NodeSolve.loop`; run
+        by ``NodeSolve.solve(..., batch=...)``) and what follows it (:meth:`_after_sweeps`), in
+        the order the separate launches run them. Where it can be: off the CPU's arrays, the
+        solver chosen (a step size's first step chooses it from the detection's contacts, so it
+        runs as separate batches), one that decides on the device, the first guess carried from
+        the last step (a state the user set starts from its own). None elsewhere."""
         solve = self._recorded[5]
         if not self.copies or not self._carried or solve is None or isinstance(solve, FactoredSolve) \
                 or not solve.decides_on_device():
@@ -586,7 +585,8 @@ class NodeStepper:
         dynamics, collision, _ = self._stages()
         assert isinstance(dynamics, LaunchBatch) and isinstance(collision, LaunchBatch)  # (self.copies)
         before = [self.rigid.before_launches()] if self.rigid is not None else []
-        batch = LaunchBatch([*dynamics.replays, *before, *collision.replays, self._recorded[9][True],
+        drive = [self._drive_nodes] if self.model.kinematic else []
+        batch = LaunchBatch([*drive, *dynamics.replays, *before, *collision.replays, self._recorded[9][True],
                              *solve.loop.replays, *self._after_sweeps(solve).replays], self.device)
         self._whole = (key, batch)
         return batch
@@ -677,6 +677,8 @@ class NodeStepper:
             sweeps, solved = solve.solve(tolerance, batch=whole)
             launched = True
         else:
+            if self.model.kinematic:
+                self._drive_nodes()
             dynamics()
             if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
                 self.rigid.before_sweeps(check=not self.copies)
