@@ -24,7 +24,8 @@ from softvr.contact.node_coarse import Aggregates, CoarseSpace, aggregates_of
 from softvr.contact.node_colouring import NodeColouring
 from softvr.contact._node_contact_native import LOCAL_UPDATES
 from softvr.contact.node_gauss_seidel import GaussSeidelSweep
-from softvr.device import LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, record_copy, replayer, stride_threads
+from softvr.device import (LaunchBatch, chunked_replayer, cpu_workers, in_order, load_kernels, record_copy, replayer,
+                           stride_threads)
 from softvr.dynamics.node_rigid import isolated_rigid_nodes
 
 __all__ = ["NodeSolve", "chebyshev_rate", "chebyshev_rates", "chebyshev_weights", "fell_faster", "movable_contacts",
