@@ -31,7 +31,7 @@ from softvr.contact.node_jacobi import NodeSolve
 from softvr.device import LaunchBatch
 from softvr.dynamics import EmbeddedPoints, FemBody, Material, RigidBody, RigidPoints
 from softvr.scene import bundled, load_scene
-from softvr.sim._node_step import SWEEP_TOLERANCE
+from softvr.sim._node_step import SWEEP_TOLERANCE, NodeStepper
 from softvr.volume import Volume, grid_tet_mesh
 
 from tests.contact.test_node_aggregates import _beam
@@ -225,16 +225,15 @@ def test_a_step_on_the_target_equals_the_cpu_step(target, name):
         np.testing.assert_allclose(got, expected, rtol=0, atol=tol)
 
 
+@pytest.mark.parametrize("target", TARGETS)
 @pytest.mark.parametrize("name", ["cube and box", "shoulder", "candy-adhesive"])
-def test_a_step_as_one_batch_equals_its_separate_batches(name, monkeypatch):
+def test_a_step_as_one_batch_equals_its_separate_batches(target, name, monkeypatch):
     # NodeStepper._whole_step lays a step after a step size's first out as one LaunchBatch (on
     # CUDA one graph) made of the separate batches' launches, in their order; the reference is
     # those batches run one after another (_whole_step patched away). Nothing between them is
     # read or decided on the host, so the same kernels on the same numbers: equal to the bit, over
     # steps that carry warm starts, adhesion's bonds (the candy, evolve chosen by the loop's buffer
     # flags) and a rigid box's unconstrained step and divergence flags (inside the batch).
-    from softvr.sim._node_step import NodeStepper
-
     whole = NodeStepper._whole_step
     runs = []
     for one_batch in (False, True):
@@ -248,7 +247,7 @@ def test_a_step_as_one_batch_equals_its_separate_batches(name, monkeypatch):
         monkeypatch.setattr(NodeStepper, "_whole_step", counted)
         if name == "cube and box":
             body = _cube(lift=0.01)
-            scene = _scene(body, ("cpu", True, True))
+            scene = _scene(body, target)
             half = np.array([0.05, 0.05, 0.05])
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
             box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, 0.41 + half[2]], name="box")
@@ -260,7 +259,7 @@ def test_a_step_as_one_batch_equals_its_separate_batches(name, monkeypatch):
             variants = ("quick",) if name.startswith("candy") else ()
             with load_scene(bundled(f"{name}.toml"), variants, frames=12, width=64, height=48, haptics=False,
                             steps_per_frame=1) as example:
-                example.scene._host_copies = example.scene._gpu_forms = True
+                example.scene.device, example.scene._host_copies, example.scene._gpu_forms = target
                 for _ in range(12):
                     example.step()
                 scene, bodies = example.scene, example.scene.bodies
