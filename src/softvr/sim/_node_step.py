@@ -650,8 +650,23 @@ class NodeStepper:
         self._pushed = bool(s.external)
 
     def step(self, dt: float) -> tuple[LazySolution, dict]:
-        """Advance the scene by ``dt`` [s]; the lazily built solution and the stage times [ms]."""
+        """Advance the scene by ``dt`` [s]: the host's writes (:meth:`_begin`), the launches
+        (:meth:`_launch`), the reads and the bodies' bookkeeping (:meth:`_finish`). Returns the
+        lazily built solution and the stage times [ms] (``Scene.stage_ms``)."""
         t0 = time.perf_counter()
+        driven = self._begin(dt)
+        solve, sweeps, launched, t1, t2 = self._launch(dt)
+        t3 = time.perf_counter()
+        solution = self._finish(dt, solve, sweeps, launched, driven)
+        t4 = time.perf_counter()
+        return solution, dict(zip(("dynamics", "collision", "contact", "integrate"),
+                                  (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
+
+    def _begin(self, dt: float) -> dict:
+        """The host's side before a step's launches: last step's held solution and adhesion
+        state let go of the arrays, what the user wrote copied in and pushed, the external
+        forces, the drive (the driven bodies' velocities [6] by body, returned), the launches
+        recorded for ``dt``."""
         held = self._issued()
         if held is not None:  # last step's solution is still held: it keeps its contacts
             held.detach()
@@ -662,11 +677,17 @@ class NodeStepper:
         self._external_forces()
         driven = self._drive(dt)
         self._record(dt)
-        if self.adhesion is not None and self._adhesion_replays[0] != dt:
-            self._adhesion_replays = (dt, self.adhesion.record(dt))
-        dynamics, collision, settle = self._stages()
         if self.adhesion is not None:
+            if self._adhesion_replays[0] != dt:
+                self._adhesion_replays = (dt, self.adhesion.record(dt))
             self.adhesion.detach_issued()  # a held state copies its rows before evolve rewrites them
+        return driven
+
+    def _launch(self, dt: float) -> tuple[NodeSolve | FactoredSolve, int, bool, float, float]:
+        """The step's launches and its solve: one batch where it can be (:meth:`_whole_step`),
+        else the stages one after another (the solver chosen after the detection). Returns the
+        solve, its sweeps, whether what follows it was launched with it (on the device's choice
+        of sweep buffer), and the times [s] after the dynamics and after the collision."""
         tolerance = SWEEP_TOLERANCE if self.scene.pgs_tolerance is None else self.scene.pgs_tolerance
         whole = self._whole_step()
         if whole is not None:  # the step's launches as one batch: the first read waits for all of them
@@ -674,34 +695,36 @@ class NodeStepper:
             if self.rigid is not None:
                 self.rigid.push_external()
             t1 = t2 = time.perf_counter()
-            sweeps, solved = solve.solve(tolerance, batch=whole)
-            launched = True
-        else:
-            if self.model.kinematic:
-                self._drive_nodes()
-            dynamics()
-            if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
-                self.rigid.before_sweeps(check=not self.copies)
-            t1 = time.perf_counter()
-            collision()
-            t2 = time.perf_counter()
-            solve = self._solver(dt)  # after the detection: the choice counts the contacts
-            self._recorded[9][self._carried]()  # the sweeps' first guess
-            self._carried = True
-            # Off the CPU's arrays, a solve that decides on the device is launched with everything
-            # after it (the launches for its buffer chosen on the device) before anything is read:
-            # the step's first read waits for the whole step, none in its middle.
-            on_device = None if isinstance(solve, FactoredSolve) or not self.copies else solve
-            launched = on_device is not None and on_device.decides_on_device()
-            if on_device is not None and launched:
-                sweeps, solved = on_device.solve(tolerance, then=self._after_sweeps(on_device))
-            else:
-                sweeps, solved = solve.solve(tolerance)
-                if self.adhesion is not None:
-                    self._adhesion_replays[1][1][sweeps % 3]()
-        t3 = time.perf_counter()
+            sweeps, _ = solve.solve(tolerance, batch=whole)
+            return solve, sweeps, True, t1, t2
+        dynamics, collision, _ = self._stages()
+        if self.model.kinematic:
+            self._drive_nodes()
+        dynamics()
+        if self.rigid is not None:  # off the CPU's arrays its divergence is read after the step
+            self.rigid.before_sweeps(check=not self.copies)
+        t1 = time.perf_counter()
+        collision()
+        t2 = time.perf_counter()
+        solve = self._solver(dt)  # after the detection: the choice counts the contacts
+        self._recorded[9][self._carried]()  # the sweeps' first guess
+        self._carried = True
+        # Off the CPU's arrays, a solve that decides on the device is launched with everything
+        # after it (the launches for its buffer chosen on the device) before anything is read:
+        # the step's first read waits for the whole step, none in its middle.
+        if self.copies and not isinstance(solve, FactoredSolve) and solve.decides_on_device():
+            sweeps, _ = solve.solve(tolerance, then=self._after_sweeps(solve))
+            return solve, sweeps, True, t1, t2
+        sweeps, _ = solve.solve(tolerance)
+        if self.adhesion is not None:
+            self._adhesion_replays[1][1][sweeps % 3]()
+        return solve, sweeps, False, t1, t2
+
+    def _finish(self, dt: float, solve, sweeps: int, launched: bool, driven: dict) -> LazySolution:
+        """After the solve: the settling (unless ``launched`` with it), the checks, the states
+        pulled, the rigid and driven bodies moved, the steps counted; the step's solution."""
         if not launched:
-            settle[sweeps % 3]()
+            self._stages()[2][sweeps % 3]()
         if self.adhesion is not None:
             self.scene.adhesion_state = self.adhesion.state()
         if self.rigid is not None and self.copies:
@@ -724,9 +747,7 @@ class NodeStepper:
                                   else self.scene.bodies[i].v.copy() for i in range(len(self.fem))], sweeps,
                                  float(solve.stats.numpy()[1]))
         self._issued = weakref.ref(snapshot)
-        t4 = time.perf_counter()
-        return LazySolution(snapshot), dict(zip(("dynamics", "collision", "contact", "integrate"),
-                                               (1e3 * (t1 - t0), 1e3 * (t2 - t1), 1e3 * (t3 - t2), 1e3 * (t4 - t3))))
+        return LazySolution(snapshot)
 
     def _host(self, name: str) -> np.ndarray:
         """Array ``name`` of those a step reads back on the host (:meth:`_hosts`)."""
