@@ -57,6 +57,16 @@ def _cube(cells=4, size=0.4, lift=0.002):
     return FemBody(nodes, tets, Material(2.5e5, 0.25, 1000.0, alpha=0.0, beta=1e-3), name="cube")
 
 
+def _box(scene, bottom):
+    """A 10 cm rigid box (500 kg/m^3, its corners its collision points) added to ``scene`` over
+    the origin, its bottom face at height ``bottom`` [m]."""
+    half = np.array([0.05, 0.05, 0.05])
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
+    box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, bottom + half[2]], name="box")
+    scene.add_body(box, collision_points=RigidPoints(box, corners))
+    return box
+
+
 def _scene(body, target, plane=True):
     device, copies, gpu_forms = target
     scene = Scene(gravity=(0.0, 0.0, -G), device=device)
@@ -127,10 +137,7 @@ def test_a_rigid_body_that_diverges_in_its_unconstrained_step_is_named_and_nothi
     # (RigidNodes.check_before).
     body = _cube(lift=0.5)
     scene = _scene(body, target)
-    half = np.array([0.05, 0.05, 0.05])
-    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
-    box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, 0.6 + half[2]], name="box")
-    scene.add_body(box, collision_points=RigidPoints(box, corners))
+    box = _box(scene, bottom=0.6)
     scene.step(0.01)
     box.v[4] = np.nan
     q, position = body.q.copy(), box.position.copy()
@@ -248,10 +255,7 @@ def test_a_step_as_one_batch_equals_its_separate_batches(target, name, monkeypat
         if name == "cube and box":
             body = _cube(lift=0.01)
             scene = _scene(body, target)
-            half = np.array([0.05, 0.05, 0.05])
-            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
-            box = RigidBody.box(2 * half, 500.0, position=[0.0, 0.0, 0.41 + half[2]], name="box")
-            scene.add_body(box, collision_points=RigidPoints(box, corners))
+            _box(scene, bottom=0.41)  # on the cube's top face
             for _ in range(40):
                 scene.step(1.0 / 60.0)
             bodies = scene.bodies
